@@ -1,0 +1,558 @@
+"""The four inter-process channel types of thesis 3.2.1, all living in the arena by key.
+
+1. :class:`RequestQueue` (Type 1): asynchronous producers → one synchronous consumer, e.g.
+   motion requests from user programs to the TG.  Producers serialise on a spinlock; the
+   consumer never takes it, so the synchronous side never waits on an asynchronous process.
+2. :class:`InterpolatingFifo` (Type 2): TG set-points → SIO, linearly interpolated between
+   the two rates (thesis 2.2.2).
+3. :class:`Flag` / :class:`FlagArray` (Type 3): test-and-set flags holding the setter's pid.
+4. :class:`Record` (Type 4): a plain record with no synchronisation.
+
+Every constructor takes ``(arena, key, ...)`` and goes through ``Arena.record``, which returns
+the existing block when the key exists: creator and attacher run the same code.  The creator
+fixes the geometry; an attacher asking for a different one gets a :class:`ChannelError`
+naming the key, the field, the existing and the requested values.
+
+Head and tail counters are monotonically increasing u64 words (slot = counter % capacity).
+A writer fills a slot and then publishes the new tail with one atomic 64-bit store; the reader
+loads the tail atomically before reading slots and publishes its head the same way after
+copying.  "Safe in a cycle" below means: no array allocation, no I/O, no logging.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Mapping
+from fractions import Fraction
+
+import numpy as np
+
+from . import atomic, layout
+from .arena import Arena
+from .errors import ArenaError, ChannelError, QueueFullError
+from .spinlock import SpinLock
+
+_INITIALISING = 0xFFFFFFFF  # FIFO capacity word while its creator writes the geometry
+_INIT_TIMEOUT_S = 2.0
+_U32_MAX = 0xFFFFFFFE
+
+
+def _block_offset(arena: Arena, key: str) -> int:
+    found = arena.lookup(key)
+    if found is None:  # pragma: no cover - record() just created it
+        raise ArenaError(f"{arena.name}: no block '{key}'")
+    return found[0]
+
+
+def _existing_bytes(arena: Arena, key: str) -> int | None:
+    """Bytes the block ``key`` was requested with, or None if it does not exist."""
+    for block in arena.blocks():
+        if block.used and block.key == key:
+            return block.requested
+    return None
+
+
+def _mismatch(kind: str, key: str, field: str, existing: object, requested: object) -> ChannelError:
+    return ChannelError(
+        f"{kind} '{key}' exists with {field} {existing}, attach asked for {requested}"
+    )
+
+
+def _check_capacity(kind: str, key: str, capacity: int) -> int:
+    if isinstance(capacity, bool) or not isinstance(capacity, int | np.integer):
+        raise ChannelError(f"{kind} '{key}': capacity {capacity!r} is not an integer")
+    if not 1 <= int(capacity) <= _U32_MAX:
+        raise ChannelError(f"{kind} '{key}': capacity {capacity}, allowed 1..{_U32_MAX}")
+    return int(capacity)
+
+
+# --------------------------------------------------------------------------------------------
+# Type 1
+
+
+class RequestQueue:
+    """Bounded multi-producer, single-consumer queue of ``payload`` records (Type 1).
+
+    Block ``key`` holds a ``layout.QUEUE_HEADER``; block ``key + ".slots"`` holds ``capacity``
+    ``layout.queue_entry(payload)`` entries.  Each entry carries a sequence number, starting at
+    1 and strictly increasing in the order entries were accepted.  A full queue refuses the
+    entry (:class:`QueueFullError`) and overwrites nothing.
+    """
+
+    def __init__(self, arena: Arena, key: str, payload: np.dtype, capacity: int) -> None:
+        """Create or attach (outside the cycle: takes the directory and producers' locks)."""
+        self.key = key
+        self.payload = np.dtype(payload)
+        if self.payload.names is None:
+            raise ChannelError(f"queue '{key}': payload must be a structured dtype")
+        cap = _check_capacity("queue", key, capacity)
+        self._h = arena.record(key, layout.QUEUE_HEADER)
+        off = _block_offset(arena, key)
+        qh = layout.QUEUE_HEADER
+        self._lock = SpinLock(arena.address_of_field(off, qh, "lock"), f"queue {key}")
+        self._head_addr = arena.address_of_field(off, qh, "head")
+        self._tail_addr = arena.address_of_field(off, qh, "tail")
+        with self._lock:
+            have = int(self._h["capacity"])
+            if have == 0:
+                self._h["entry_bytes"] = self.payload.itemsize
+                self._h["next_seq"] = 1
+                self._h["capacity"] = cap
+            else:
+                if have != cap:
+                    raise _mismatch("queue", key, "capacity", have, cap)
+                have_bytes = int(self._h["entry_bytes"])
+                if have_bytes != self.payload.itemsize:
+                    raise _mismatch("queue", key, "entry_bytes", have_bytes, self.payload.itemsize)
+        self._capacity = cap
+        self._slots = arena.record(key + ".slots", layout.queue_entry(self.payload), cap)
+        self._seqs = self._slots["seq"]
+        payloads = self._slots["payload"]
+        self._cells = [payloads[i : i + 1].reshape(()) for i in range(cap)]  # 0-d views
+        self._staging = np.zeros((), dtype=self.payload)  # validated copy of a put's values
+
+    # ---------------------------------------------------------------- producers
+
+    def _stage(self, values: Mapping[str, object] | np.void | np.ndarray) -> None:
+        if isinstance(values, np.void | np.ndarray):
+            if values.dtype != self.payload or values.size != 1:
+                raise ChannelError(
+                    f"queue '{self.key}': entry of dtype {values.dtype} shape "
+                    f"{np.shape(values)}, expected one record of {self.payload}"
+                )
+            self._staging[...] = values.reshape(()) if isinstance(values, np.ndarray) else values
+            return
+        if not isinstance(values, Mapping):
+            raise ChannelError(
+                f"queue '{self.key}': entry must be a dict or a {self.payload} record, "
+                f"not {type(values).__name__}"
+            )
+        names = self.payload.names
+        for name in values:
+            if name not in self.payload.fields:
+                raise ChannelError(
+                    f"queue '{self.key}': unknown field {name!r}; fields are {', '.join(names)}"
+                )
+        for name in names:
+            if name not in values:
+                raise ChannelError(f"queue '{self.key}': field {name!r} missing")
+            value = values[name]
+            try:
+                self._staging[name] = value
+            except (ValueError, TypeError) as exc:
+                ftype = self.payload.fields[name][0]
+                want = ftype.base if ftype.shape else ftype
+                raise ChannelError(
+                    f"queue '{self.key}': field {name!r} takes {want} of shape {ftype.shape}, "
+                    f"got {type(value).__name__} of shape {np.shape(value)} ({exc})"
+                ) from exc
+
+    def put(self, values: Mapping[str, object] | np.void | np.ndarray) -> int:
+        """Append one entry and return its sequence number; QueueFullError when full.
+
+        Validates first (unknown or missing fields, wrong shapes → ChannelError, nothing
+        written), then writes under the producers' lock.  Allocation-light, meant for
+        asynchronous producers; may wait on the lock, so not for the synchronous consumer.
+        """
+        self._stage(values)
+        full = None
+        with self._lock:
+            tail = int(self._h["tail"])  # only lock holders write it
+            head = atomic.load64(self._head_addr)
+            if tail - head >= self._capacity:
+                self._h["rejected"] += 1
+                full = (tail - head, int(self._seqs[head % self._capacity]))
+            else:
+                slot = tail % self._capacity
+                seq = int(self._h["next_seq"])
+                np.copyto(self._cells[slot], self._staging)
+                self._seqs[slot] = seq
+                self._h["next_seq"] = seq + 1
+                atomic.store64(self._tail_addr, tail + 1)  # publish after the slot is written
+        if full is not None:
+            raise QueueFullError(
+                f"queue '{self.key}' full: {full[0]} of {self._capacity} entries unread "
+                f"(oldest seq {full[1]}); entry refused, nothing overwritten"
+            )
+        return seq
+
+    # ---------------------------------------------------------------- the consumer
+
+    def get_into(self, out: np.ndarray) -> int | None:
+        """Copy the oldest payload into ``out`` (a preallocated one-record array of ``payload``)
+        and return its seq, or None when empty.  Single consumer; never locks; safe in a cycle.
+        """
+        if out.dtype != self.payload or out.size != 1:
+            raise ChannelError(
+                f"queue '{self.key}': get_into needs one preallocated record of "
+                f"{self.payload}, got dtype {out.dtype} shape {out.shape}"
+            )
+        head = atomic.load64(self._head_addr)
+        if head == atomic.load64(self._tail_addr):
+            return None
+        slot = head % self._capacity
+        np.copyto(out, self._cells[slot])
+        seq = int(self._seqs[slot])
+        atomic.store64(self._head_addr, head + 1)  # the slot may be reused from here on
+        return seq
+
+    def peek_seq(self) -> int | None:
+        """Seq of the oldest unread entry, or None when empty.  Consumer; safe in a cycle."""
+        head = atomic.load64(self._head_addr)
+        if head == atomic.load64(self._tail_addr):
+            return None
+        return int(self._seqs[head % self._capacity])
+
+    def __len__(self) -> int:
+        """Entries unread (a snapshot).  Safe in a cycle."""
+        head = atomic.load64(self._head_addr)
+        return atomic.load64(self._tail_addr) - head
+
+    @property
+    def capacity(self) -> int:
+        """Entries the queue holds."""
+        return self._capacity
+
+    @property
+    def rejected(self) -> int:
+        """Puts refused because the queue was full, since creation.  Safe in a cycle."""
+        return int(self._h["rejected"])
+
+
+# --------------------------------------------------------------------------------------------
+# Type 2
+
+
+def _ratio(key: str, ratio: Fraction | tuple[int, int] | int) -> Fraction:
+    try:
+        r = Fraction(*ratio) if isinstance(ratio, tuple) else Fraction(ratio)
+    except (TypeError, ValueError, ZeroDivisionError) as exc:
+        raise ChannelError(f"fifo '{key}': ratio {ratio!r} is not a fraction ({exc})") from exc
+    if r < 1:
+        raise ChannelError(
+            f"fifo '{key}': ratio {r} (servo rate / TG rate) must be >= 1: the servo runs at "
+            f"least as fast as the TG"
+        )
+    if r.numerator > _U32_MAX or r.denominator > _U32_MAX:
+        raise ChannelError(f"fifo '{key}': ratio {r} has terms above {_U32_MAX}")
+    return r
+
+
+class InterpolatingFifo:
+    """Type 2 FIFO: set-points at the TG rate in, one linearly interpolated demand per servo
+    tick out (thesis 2.2.2).  One producer (TG), one consumer (SIO).
+
+    With r = servo rate / TG rate = ratio_num / ratio_den (>= 1):
+
+    - The first set-point primes the FIFO: the first pop returns it exactly (A := P0) and the
+      segment toward the next set-point starts after it.  ``reset(position)`` instead sets
+      A = B = position with an empty ring; SIO calls it at start.
+    - Segment j runs from A to B (B = the next set-point, taken when the previous segment
+      ended) for n_j servo ticks, from an exact integer accumulator:
+      ``acc += ratio_num; n_j = acc // ratio_den; acc %= ratio_den``.  For r = 5/2 segments
+      last 2, 3, 2, 3, ... ticks (j segments take floor(j r) ticks); for integer r, r ticks.
+    - Tick k = 1 .. n_j - 1 outputs A + k (B - A) / r, i.e. the thesis's increment (B - A)/r
+      per tick, computed as A + ((B - A) * (k * ratio_den)) / ratio_num without drift.  Tick
+      k = n_j outputs exactly B: the "remaining tail-end amount" of thesis 2.2.2.
+    - If the ring is empty when a segment must start, the output holds at B (A := B) and
+      ``underruns`` counts the tick; the next segment starts from B when a set-point arrives,
+      with no catch-up jump.
+
+    Blocks: ``key`` (``layout.FIFO_HEADER``), ``key + ".ring"`` (float64 ``(capacity, width)``)
+    and ``key + ".state"`` (float64 ``(3, width)``: current output, segment start A, target B).
+    All interpolation state is in the arena, so a restarted consumer resumes where it was.
+    """
+
+    def __init__(
+        self,
+        arena: Arena,
+        key: str,
+        width: int,
+        capacity: int,
+        ratio: Fraction | tuple[int, int],
+    ) -> None:
+        """Create or attach (outside the cycle)."""
+        self.key = key
+        cap = _check_capacity("fifo", key, capacity)
+        if isinstance(width, bool) or not isinstance(width, int | np.integer) or width < 1:
+            raise ChannelError(f"fifo '{key}': width {width!r}, must be an integer >= 1")
+        width = int(width)
+        r = _ratio(key, ratio)
+        self._h = arena.record(key, layout.FIFO_HEADER)
+        off = _block_offset(arena, key)
+        fh = layout.FIFO_HEADER
+        self._head_addr = arena.address_of_field(off, fh, "head")
+        self._tail_addr = arena.address_of_field(off, fh, "tail")
+        self._init_geometry(arena.address_of_field(off, fh, "capacity"), cap, width, r)
+        self._capacity = cap
+        self.width = width
+        self.ratio = r
+        self._num = r.numerator
+        self._den = r.denominator
+        self._num_f = float(r.numerator)
+        ring = arena.record(key + ".ring", np.dtype("<f8"), cap * width).reshape(cap, width)
+        self._rows = [ring[i] for i in range(cap)]
+        state = arena.record(key + ".state", np.dtype("<f8"), 3 * width).reshape(3, width)
+        self._cur, self._start, self._target = state[0], state[1], state[2]
+        # Consumer-only header fields as 0-d views, and private scratch (never shared).
+        h = self._h
+        self._acc = h["phase_acc"]
+        self._seg_ticks = h["seg_ticks"]
+        self._seg_done = h["seg_done"]
+        self._primed = h["primed"]
+        self._underruns = h["underruns"]
+        self._overflows = h["overflows"]
+        self._scratch = np.empty(width)
+        self._finite = np.empty(width, dtype=bool)
+
+    def _init_geometry(self, cap_addr: int, cap: int, width: int, r: Fraction) -> None:
+        ok, seen = atomic.CompareExchange32()(cap_addr, 0, _INITIALISING)
+        h = self._h
+        if ok:  # this process creates: write the geometry, publish the capacity last
+            h["width"] = width
+            h["ratio_num"] = r.numerator
+            h["ratio_den"] = r.denominator
+            atomic.store32(cap_addr, cap)
+            return
+        deadline = time.monotonic() + _INIT_TIMEOUT_S
+        while seen == _INITIALISING:
+            if time.monotonic() > deadline:
+                raise ChannelError(
+                    f"fifo '{self.key}': creator did not finish writing the geometry "
+                    f"within {_INIT_TIMEOUT_S:g} s"
+                )
+            time.sleep(1e-4)
+            seen = atomic.load32(cap_addr)
+        if seen != cap:
+            raise _mismatch("fifo", self.key, "capacity", seen, cap)
+        if int(h["width"]) != width:
+            raise _mismatch("fifo", self.key, "width", int(h["width"]), width)
+        have = Fraction(int(h["ratio_num"]), int(h["ratio_den"]))
+        if have != r:
+            raise _mismatch("fifo", self.key, "ratio", have, r)
+
+    def _check_vector(self, what: str, values: np.ndarray) -> np.ndarray:
+        x = values if isinstance(values, np.ndarray) else np.asarray(values, dtype=np.float64)
+        if x.shape != (self.width,):
+            raise ChannelError(
+                f"fifo '{self.key}': {what} of shape {x.shape}, expected ({self.width},)"
+            )
+        try:
+            np.isfinite(x, out=self._finite)
+        except TypeError as exc:
+            raise ChannelError(f"fifo '{self.key}': {what} of dtype {x.dtype} ({exc})") from exc
+        if not self._finite.all():
+            bad = int(np.flatnonzero(~self._finite)[0])
+            raise ChannelError(
+                f"fifo '{self.key}': {what} component {bad} is {x[bad]}, must be finite; "
+                f"nothing written"
+            )
+        return x
+
+    # ---------------------------------------------------------------- the producer (TG)
+
+    def push(self, setpoint: np.ndarray) -> None:
+        """Append one set-point of ``width`` values; ChannelError when full or not finite.
+
+        Single producer.  Safe in a cycle when given a numeric ndarray (a list is converted).
+        """
+        x = self._check_vector("set-point", setpoint)
+        tail = atomic.load64(self._tail_addr)
+        if tail - atomic.load64(self._head_addr) >= self._capacity:
+            self._overflows[...] = int(self._overflows) + 1
+            raise ChannelError(
+                f"fifo '{self.key}' full: {self._capacity} of {self._capacity} set-points "
+                f"unread; set-point refused, nothing overwritten"
+            )
+        np.copyto(self._rows[tail % self._capacity], x)
+        atomic.store64(self._tail_addr, tail + 1)  # publish after the row is written
+
+    # ---------------------------------------------------------------- the consumer (SIO)
+
+    def reset(self, position: np.ndarray) -> None:
+        """Hold at ``position`` (A = B = position), dropping set-points not yet taken.
+
+        Consumer, at start or after a halt; safe in a cycle when given a float ndarray.
+        """
+        x = self._check_vector("position", position)
+        atomic.store64(self._head_addr, atomic.load64(self._tail_addr))
+        np.copyto(self._cur, x)
+        np.copyto(self._start, x)
+        np.copyto(self._target, x)
+        self._acc[...] = 0
+        self._seg_ticks[...] = 0
+        self._seg_done[...] = 0
+        self._primed[...] = 1
+
+    def pop_into(self, out: np.ndarray) -> bool:
+        """Write this servo tick's demand into ``out`` (preallocated float64, ``width``).
+
+        Returns True when the output moved along a segment (or took the first set-point),
+        False when holding.  Before the first set-point or ``reset`` nothing is known: ``out``
+        is left unchanged, the tick counts as an underrun and False is returned.
+        Single consumer; safe in a cycle.
+        """
+        done = int(self._seg_done)
+        ticks = int(self._seg_ticks)
+        if done >= ticks:  # the segment is over: take the next set-point, if any
+            head = atomic.load64(self._head_addr)
+            if head == atomic.load64(self._tail_addr):
+                self._underruns[...] = int(self._underruns) + 1
+                if not self._primed:
+                    return False
+                np.copyto(self._cur, self._target)
+                np.copyto(out, self._cur)
+                return False
+            row = self._rows[head % self._capacity]
+            if not self._primed:
+                np.copyto(self._cur, row)
+                np.copyto(self._start, row)
+                np.copyto(self._target, row)
+                atomic.store64(self._head_addr, head + 1)
+                self._primed[...] = 1
+                np.copyto(out, self._cur)
+                return True
+            np.copyto(self._start, self._target)
+            np.copyto(self._target, row)
+            atomic.store64(self._head_addr, head + 1)
+            acc = int(self._acc) + self._num
+            ticks = acc // self._den
+            self._acc[...] = acc % self._den
+            self._seg_ticks[...] = ticks
+            done = 0
+        done += 1
+        self._seg_done[...] = done
+        if done >= ticks:
+            np.copyto(self._cur, self._target)  # the last tick lands exactly on B
+        else:
+            s = self._scratch
+            np.subtract(self._target, self._start, out=s)
+            np.multiply(s, float(done * self._den), out=s)
+            np.divide(s, self._num_f, out=s)
+            np.add(self._start, s, out=self._cur)
+        np.copyto(out, self._cur)
+        return True
+
+    def pending(self) -> int:
+        """Set-points pushed and not yet taken (a snapshot).  Safe in a cycle."""
+        head = atomic.load64(self._head_addr)
+        return atomic.load64(self._tail_addr) - head
+
+    @property
+    def capacity(self) -> int:
+        """Set-points the ring holds."""
+        return self._capacity
+
+    @property
+    def underruns(self) -> int:
+        """Servo ticks that found no set-point to move to.  Safe in a cycle."""
+        return int(self._underruns)
+
+    @property
+    def overflows(self) -> int:
+        """Pushes refused because the ring was full.  Safe in a cycle."""
+        return int(self._overflows)
+
+
+# --------------------------------------------------------------------------------------------
+# Type 3
+
+
+class FlagArray:
+    """``count`` Type 3 test-and-set flags (``layout.FLAG``), e.g. SV dynamic-loading slots.
+
+    A flag word is 0 when clear, else the pid of the process that set it.  Setting is one
+    atomic compare-exchange 0 → pid, so a failed attempt never overwrites the holder's pid.
+    """
+
+    def __init__(self, arena: Arena, key: str, count: int) -> None:
+        """Create or attach (outside the cycle)."""
+        self.key = key
+        if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 1:
+            raise ChannelError(f"flags '{key}': count {count!r}, must be an integer >= 1")
+        count = int(count)
+        have = _existing_bytes(arena, key)
+        if have is not None and have != count * layout.FLAG.itemsize:
+            raise _mismatch("flags", key, "count", have // layout.FLAG.itemsize, count)
+        self._words = arena.record(key, layout.FLAG, count)
+        off = _block_offset(arena, key)
+        self._addrs = [arena.address_of_field(off, layout.FLAG, "word", i) for i in range(count)]
+        self._cas = atomic.CompareExchange32()
+
+    def _addr(self, index: int) -> int:
+        if not 0 <= index < len(self._addrs):
+            raise ChannelError(f"flags '{self.key}': index {index}, allowed 0..{len(self) - 1}")
+        return self._addrs[index]
+
+    def test_and_set(self, index: int) -> bool:
+        """Set flag ``index`` to this pid if it is clear; True if this call set it.
+        Safe in a cycle."""
+        ok, _ = self._cas(self._addr(index), 0, os.getpid())
+        return ok
+
+    def clear(self, index: int) -> None:
+        """Clear flag ``index``, whoever set it (the inspector may clear).  Safe in a cycle."""
+        atomic.store32(self._addr(index), 0)
+
+    def is_set(self, index: int) -> bool:
+        """True if flag ``index`` is set.  Safe in a cycle."""
+        return atomic.load32(self._addr(index)) != 0
+
+    def holder(self, index: int) -> int:
+        """Pid that set flag ``index``, 0 if clear.  Safe in a cycle."""
+        return atomic.load32(self._addr(index))
+
+    def __len__(self) -> int:
+        return len(self._addrs)
+
+
+class Flag:
+    """One Type 3 test-and-set flag (a :class:`FlagArray` of one)."""
+
+    def __init__(self, arena: Arena, key: str) -> None:
+        """Create or attach (outside the cycle)."""
+        self.key = key
+        self._flags = FlagArray(arena, key, 1)
+
+    def test_and_set(self) -> bool:
+        """Set the flag to this pid if it is clear; True if this call set it.  Safe in a cycle."""
+        return self._flags.test_and_set(0)
+
+    def clear(self) -> None:
+        """Clear the flag, whoever set it.  Safe in a cycle."""
+        self._flags.clear(0)
+
+    def is_set(self) -> bool:
+        """True if the flag is set.  Safe in a cycle."""
+        return self._flags.is_set(0)
+
+    def holder(self) -> int:
+        """Pid that set the flag, 0 if clear.  Safe in a cycle."""
+        return self._flags.holder(0)
+
+
+# --------------------------------------------------------------------------------------------
+# Type 4
+
+
+class Record:
+    """Type 4: ``count`` records of ``dtype`` (one 0-d record when None), no synchronisation.
+
+    One writer, any number of readers; a reader may see a record half-updated (torn between
+    fields), so use it for data like what the viewer shows, never for hand-offs.  ``data`` is
+    the numpy view in the arena: reading and writing it is safe in a cycle.  Only the size is
+    checked on attach: a different dtype of the same size cannot be detected.
+    """
+
+    def __init__(self, arena: Arena, key: str, dtype: np.dtype, count: int | None = None) -> None:
+        """Create or attach (outside the cycle)."""
+        self.key = key
+        self.dtype = np.dtype(dtype)
+        if count is not None and (isinstance(count, bool) or count < 1):
+            raise ChannelError(f"record '{key}': count {count!r}, must be >= 1 or None")
+        nbytes = (1 if count is None else int(count)) * self.dtype.itemsize
+        have = _existing_bytes(arena, key)
+        if have is not None and have != nbytes:
+            raise _mismatch("record", key, "size", f"{have} B", f"{nbytes} B")
+        self.data: np.ndarray = arena.record(key, self.dtype, count)

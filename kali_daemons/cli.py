@@ -1,0 +1,258 @@
+"""``kalictl``: start, stop and inspect a Kali instance (DESIGN section 8).
+
+    kalictl start [-c FILE] [--lockstep]     kalictl status        kalictl mem
+    kalictl clock start|stop|set MS|step N   kalictl rate PROCESS MS
+    kalictl reset                            kalictl stop
+
+``-i NAME`` picks the instance (default: ``$KALI_INSTANCE``, else the config's, else
+``default``), so two instances run side by side.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable
+from functools import wraps
+from pathlib import Path
+
+import click
+
+from . import launcher, layout
+from .config import load_config
+from .errors import KaliError
+from .instance import Instance, decode
+from .layout import RunMode
+from .wallclock import (
+    set_control_rate,
+    set_kali_clock,
+    start_kali_clock,
+    step_kali_clock,
+    stop_kali_clock,
+)
+from .wallclock.clock import time_ms
+
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "default.yaml"
+
+
+def _errors(fn: Callable) -> Callable:
+    """Turn a KaliError into one line on stderr and exit status 1."""
+
+    @wraps(fn)
+    def wrapper(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        try:
+            return fn(*args, **kwargs)
+        except KaliError as exc:
+            click.echo(f"kalictl: {exc}", err=True)
+            sys.exit(1)
+
+    return wrapper
+
+
+def _instance_name(ctx: click.Context) -> str:
+    return ctx.obj["instance"] or "default"
+
+
+def _attach(ctx: click.Context) -> Instance:
+    return Instance.attach(_instance_name(ctx))
+
+
+@click.group()
+@click.option(
+    "-i", "--instance", default=lambda: os.environ.get("KALI_INSTANCE"), help="Instance name."
+)
+@click.pass_context
+def main(ctx: click.Context, instance: str | None) -> None:
+    """Control a Kali multi-arm robot controller instance."""
+    ctx.ensure_object(dict)
+    ctx.obj["instance"] = instance
+
+
+@main.command()
+@click.option(
+    "-c",
+    "--config",
+    "config_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help=f"Config file (default {DEFAULT_CONFIG}).",
+)
+@click.option("--lockstep", is_flag=True, help="Deterministic mode: the clock never sleeps.")
+@click.pass_context
+@_errors
+def start(ctx: click.Context, config_path: Path | None, lockstep: bool) -> None:
+    """Start every Kali process; return when all are ready."""
+    cfg = load_config(config_path or DEFAULT_CONFIG)
+    name = ctx.obj["instance"] or cfg.instance
+    report = launcher.start(cfg, lockstep=lockstep, instance=name)
+    if report.stale_cleaned:
+        click.echo(
+            f"cleaned a stale instance '{name}' left by a crash: "
+            + ", ".join(report.stale_cleaned)
+        )
+    mode = "lockstep (clock stopped at tick 0)" if lockstep else "real time (clock running)"
+    click.echo(
+        f"instance '{name}' started in {report.seconds:.1f} s, {mode}: "
+        + ", ".join(f"{n}[{p}]" for n, p in report.pids.items())
+    )
+    click.echo(f"logs in {report.log_dir}")
+
+
+@main.command()
+@click.pass_context
+@_errors
+def stop(ctx: click.Context) -> None:
+    """Stop every process and remove the instance's shared memory and semaphores."""
+    name = _instance_name(ctx)
+    r = launcher.stop(name)
+    if not (r.stopped or r.killed or r.removed):
+        click.echo(f"instance '{name}': nothing to stop")
+        return
+    msg = f"instance '{name}' stopped: {len(r.stopped)} processes left on request"
+    if r.killed:
+        msg += f", {len(r.killed)} killed ({', '.join(map(str, r.killed))})"
+    click.echo(msg + f", {len(r.removed)} /dev/shm objects removed")
+
+
+@main.command()
+@click.pass_context
+@_errors
+def status(ctx: click.Context) -> None:
+    """Clock, fault and per-process timing statistics."""
+    with _attach(ctx) as inst:
+        c = inst.clock
+        mode = RunMode(int(c["mode"])).name.lower()
+        click.echo(
+            f"instance '{inst.name}'  {'lockstep' if c['lockstep'] else 'real time'}  "
+            f"clock {mode}  tick {int(c['tick'])}  time {time_ms(c):.0f} ms  "
+            f"base tick {int(c['base_tick_ns']) / 1e6:g} ms  overruns {int(c['overruns'])} "
+            f"(skipped {int(c['skipped_ticks'])} ticks)"
+        )
+        fault = inst.fault_text()
+        click.echo(f"fault: {fault}" if fault else "fault: none")
+        head = (
+            f"{'process':<10} {'pid':>7} {'state':<9} {'cpu':>3} {'prio':>4} {'period':>7} "
+            f"{'ser':>3} {'signals':>9} {'acks':>9} {'miss':>6} {'exec':>8} {'exec max':>9} "
+            f"{'late p50':>9} {'late p99':>9} {'late max':>9} {'hb age':>7}"
+        )
+        click.echo(head)
+        for r in launcher.describe(inst):
+            period = f"{r['period_ms']:g}ms" if r["periodic"] else "own"
+            if r["name"] == "wallclock":
+                period = f"{int(c['base_tick_ns']) / 1e6:g}ms"
+            state = r["state"] if r["alive"] else "DEAD"
+            click.echo(
+                f"{r['name']:<10} {r['pid']:>7} {state:<9} {r['cpu']:>3} {r['priority']:>4} "
+                f"{period:>7} {'yes' if r['serious'] else 'no':>3} {r['signals']:>9} "
+                f"{r['acks']:>9} {r['misses']:>6} {r['exec_last_us']:>6.0f}us "
+                f"{r['exec_max_us']:>7.0f}us {r['late_p50_us']:>7.0f}us "
+                f"{r['late_p99_us']:>7.0f}us {r['late_max_us']:>7.0f}us "
+                f"{r['heartbeat_age_ms']:>5.0f}ms"
+            )
+
+
+@main.command()
+@click.pass_context
+@_errors
+def mem(ctx: click.Context) -> None:
+    """The arena map: blocks, free list and fragmentation (like ``halcmd show``)."""
+    with _attach(ctx) as inst:
+        a = inst.arena
+        h = a.header
+        click.echo(
+            f"arena {a.name}  layout v{int(h['layout_version'])}  {a.size} B  "
+            f"header+directory {int(h['header_bytes'])} B  owner pid {int(h['owner_pid'])}"
+        )
+        click.echo(f"{'offset':>10} {'size':>10} {'requested':>10}  key")
+        blocks = a.blocks()
+        for b in blocks:
+            if b.used:
+                click.echo(f"{b.offset:#10x} {b.size:>10} {b.requested:>10}  {b.key}")
+        click.echo("free list:")
+        for b in blocks:
+            if not b.used:
+                click.echo(f"{b.offset:#10x} {b.size:>10}")
+        s = a.stats()
+        click.echo(
+            f"used {s.used_bytes} B in {s.used_blocks} blocks, free {s.free_bytes} B in "
+            f"{s.free_fragments} fragments (largest {s.largest_free} B), "
+            f"fragmentation {100 * s.fragmentation:.1f} %"
+        )
+
+
+@main.group()
+def clock() -> None:
+    """Run, stop, set or single-step the wall clock."""
+
+
+@clock.command("start")
+@click.pass_context
+@_errors
+def clock_start(ctx: click.Context) -> None:
+    """Run the wall clock (refused while a fault is active)."""
+    with _attach(ctx.parent) as inst:
+        start_kali_clock(inst)
+        click.echo(f"clock running from tick {int(inst.clock['tick'])}")
+
+
+@clock.command("stop")
+@click.pass_context
+@_errors
+def clock_stop(ctx: click.Context) -> None:
+    """Stop the wall clock: no periodic process is signalled."""
+    with _attach(ctx.parent) as inst:
+        stop_kali_clock(inst)
+        click.echo(f"clock stopped at tick {int(inst.clock['tick'])}")
+
+
+@clock.command("set")
+@click.argument("ms", type=float)
+@click.pass_context
+@_errors
+def clock_set(ctx: click.Context, ms: float) -> None:
+    """Set the clock's running time to MS milliseconds."""
+    with _attach(ctx.parent) as inst:
+        set_kali_clock(inst, ms)
+        click.echo(f"clock time set to {ms:g} ms at tick {int(inst.clock['tick'])}")
+
+
+@clock.command("step")
+@click.argument("ticks", type=click.IntRange(min=0))
+@click.pass_context
+@_errors
+def clock_step(ctx: click.Context, ticks: int) -> None:
+    """Lockstep: run TICKS more ticks, then stop."""
+    with _attach(ctx.parent) as inst:
+        tick = step_kali_clock(inst, ticks)
+        fault = inst.fault_text()
+        click.echo(f"clock at tick {tick}" + (f"; halted: {fault}" if fault else ""))
+        if fault:
+            sys.exit(1)
+
+
+@main.command()
+@click.argument("process")
+@click.argument("ms", type=int)
+@click.pass_context
+@_errors
+def rate(ctx: click.Context, process: str, ms: int) -> None:
+    """Set PROCESS's period to MS milliseconds (set_control_rate)."""
+    with _attach(ctx) as inst:
+        set_control_rate(inst, process, ms)
+        click.echo(f"{process}: period {ms} ms")
+
+
+@main.command()
+@click.pass_context
+@_errors
+def reset(ctx: click.Context) -> None:
+    """Clear the active fault; restart the clock with ``kalictl clock start``."""
+    with _attach(ctx) as inst:
+        text = inst.fault_text()
+        if inst.clear_fault():
+            click.echo(f"cleared: {text}")
+        else:
+            click.echo("no active fault")
+
+
+__all__ = ["layout", "main", "decode"]

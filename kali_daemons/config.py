@@ -1,0 +1,621 @@
+"""The Kali configuration: one versioned YAML file, parsed once into frozen, typed dataclasses.
+
+Every process reads the same config (its text is stored in the shared-memory arena), so it is
+validated completely up front: nothing starts on a bad config.  Every error names the field as
+a dotted path (``processes.sv.cpus[1]``), the value given and what is allowed, e.g.
+``config: config/default.yaml: clock.base_tick_ms = -1: must be an integer >= 1 and <= 100``.
+
+Validation is a handful of small explicit helpers (``_int``, ``_float``, ``_mapping`` ...)
+rather than a schema library, so each message can say exactly what went wrong.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import os
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, NoReturn
+
+import yaml
+
+from kali_daemons.errors import ConfigError
+
+CONFIG_VERSION = 1
+PROCESS_NAMES = ("wallclock", "plant", "tg", "sio", "sv", "dynamics", "viewer")
+ROBOT_MODELS = ("puma560",)
+
+MAX_SV_WORKERS = 8
+MAX_ROBOTS = 4
+MAX_STAGE = 15
+MAX_PRIORITY = 99
+MAX_PERIOD_MS = 60_000  # one minute; anything longer is a typo, not a control period
+MAX_TIMEOUT_S = 600.0
+VIEWER_PERIOD_MS = 40
+
+_INSTANCE_RE = re.compile(r"[a-z0-9][a-z0-9_-]{0,23}")
+_ROBOT_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,15}")
+
+# Default lockstep stage of each kind when ``stage`` is omitted (lower runs first in a tick).
+_DEFAULT_STAGE = {
+    "wallclock": 0,
+    "plant": 0,
+    "tg": 1,
+    "sio": 2,
+    "sv": 2,
+    "dynamics": 3,
+    "viewer": 4,
+}
+
+# The keys each process entry accepts; tg/sio/sv get their period from the clock section.
+_PROCESS_KEYS = {
+    "wallclock": ("cpu", "priority"),
+    "plant": ("cpu", "priority", "period_ms", "serious", "stage"),
+    "tg": ("cpu", "priority", "serious", "stage"),
+    "sio": ("cpu", "priority", "serious", "stage"),
+    "sv": ("count", "cpus", "priority", "serious", "stage"),
+    "dynamics": ("cpu", "priority", "period_ms", "serious", "stage"),
+    "viewer": ("cpu", "priority", "period_ms", "serious", "stage"),
+}
+_CLOCK_PERIOD_FIELD = {"tg": "clock.tg_period_ms", "sio": "clock.servo_period_ms"}
+_CLOCK_PERIOD_FIELD["sv"] = _CLOCK_PERIOD_FIELD["sio"]
+
+_TOP_KEYS = (
+    "version",
+    "instance",
+    "arena_kib",
+    "startup_timeout_s",
+    "clock",
+    "processes",
+    "robots",
+)
+_CLOCK_KEYS = (
+    "base_tick_ms",
+    "servo_period_ms",
+    "tg_period_ms",
+    "serious_miss_tolerance",
+    "lockstep_ack_timeout_s",
+    "busy_wait_us",
+)
+_ROBOT_KEYS = ("name", "model", "base_xyz", "base_yaw_deg")
+
+# Used when the file has no ``processes`` / ``robots`` section (same as config/default.yaml).
+_DEFAULT_PROCESSES: dict[str, dict[str, Any]] = {
+    "wallclock": {"cpu": 0, "priority": 90},
+    "plant": {"cpu": 1, "priority": 88, "period_ms": 1, "stage": 0},
+    "tg": {"cpu": 1, "priority": 80, "serious": True, "stage": 1},
+    "sio": {"cpu": 0, "priority": 85, "serious": True, "stage": 2},
+    "sv": {"count": 2, "cpus": [0, 1], "priority": 84, "serious": True, "stage": 2},
+    "dynamics": {"cpu": 1, "priority": 40, "period_ms": 10, "serious": False, "stage": 3},
+    "viewer": {"cpu": 1, "priority": 0, "period_ms": 40, "serious": False, "stage": 4},
+}
+_DEFAULT_ROBOTS: list[dict[str, Any]] = [
+    {"name": "left", "model": "puma560", "base_xyz": [-0.6, 0.0, 0.0], "base_yaw_deg": 0},
+    {"name": "right", "model": "puma560", "base_xyz": [0.6, 0.0, 0.0], "base_yaw_deg": 180},
+]
+
+# Top-level fields ``with_overrides`` may change (each is re-validated).
+_OVERRIDABLE = ("instance", "arena_kib", "startup_timeout_s")
+
+_MISSING: Any = object()
+
+
+# --------------------------------------------------------------------------------------------
+# The typed, frozen result
+
+
+@dataclass(frozen=True)
+class ClockConfig:
+    """Wall-clock rates; every period in the system is a multiple of ``base_tick_ms``."""
+
+    base_tick_ms: int = 1
+    servo_period_ms: int = 1
+    tg_period_ms: int = 10
+    serious_miss_tolerance: int = 3
+    lockstep_ack_timeout_s: float = 5.0
+    busy_wait_us: int = 0
+
+
+@dataclass(frozen=True)
+class ProcessConfig:
+    """One periodic process (or the wall clock), with its period already resolved."""
+
+    name: str
+    kind: str
+    cpu: int | None
+    priority: int
+    period_ms: int
+    serious: bool
+    stage: int
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """One arm in the cell: its model and where its base sits in the world frame."""
+
+    name: str
+    model: str
+    base_xyz: tuple[float, float, float]
+    base_yaw_deg: float
+
+
+@dataclass(frozen=True)
+class KaliConfig:
+    """A whole, validated configuration plus the text it came from."""
+
+    version: int
+    instance: str
+    arena_kib: int
+    startup_timeout_s: float
+    clock: ClockConfig
+    processes: tuple[ProcessConfig, ...]
+    robots: tuple[RobotConfig, ...]
+    source: str
+    text: str
+
+    def process(self, name: str) -> ProcessConfig:
+        """The process called ``name`` (e.g. ``"sv.1"``); ConfigError naming the known ones."""
+        for proc in self.processes:
+            if proc.name == name:
+                return proc
+        known = ", ".join(p.name for p in self.processes)
+        raise ConfigError(f"{self.source}: no process {name!r}; known processes: {known}")
+
+    def periodic(self) -> tuple[ProcessConfig, ...]:
+        """Every process the wall clock drives, i.e. all but the wall clock itself."""
+        return tuple(p for p in self.processes if p.kind != "wallclock")
+
+
+# --------------------------------------------------------------------------------------------
+# Public entry points
+
+
+def parse_config(text: str, source: str = "<string>") -> KaliConfig:
+    """Parse and fully validate YAML ``text``; ``source`` names it in every error message."""
+    if not isinstance(text, str):
+        raise ConfigError(f"{source}: config text must be a str, not {type(text).__name__}")
+    try:
+        doc = yaml.load(text, Loader=_Loader)  # _Loader is a SafeLoader
+    except yaml.MarkedYAMLError as exc:
+        raise ConfigError(f"{source}: {_yaml_error_text(exc)}") from None
+    except yaml.reader.ReaderError as exc:  # a control character or bad code point
+        line = text.count("\n", 0, exc.position) + 1
+        code = exc.character if isinstance(exc.character, int) else ord(exc.character)
+        reason = f"character U+{code:04X} is not allowed in YAML"
+        raise ConfigError(f"{source}: line {line}: YAML does not parse: {reason}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: YAML does not parse: {exc}") from None
+    try:
+        return _build(doc, source, text)
+    except _InvalidError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def load_config(path: str | os.PathLike[str]) -> KaliConfig:
+    """Read and parse the config file at ``path``; a missing or unreadable file is a ConfigError."""
+    source = os.fspath(path)
+    try:
+        with open(source, encoding="utf-8") as f:
+            text = f.read()
+    except OSError as exc:
+        reason = exc.strerror or exc.__class__.__name__
+        raise ConfigError(f"{source}: cannot read config file: {reason}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{source}: config file is not UTF-8 text: {exc.reason}") from None
+    return parse_config(text, source)
+
+
+def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
+    """``dataclasses.replace`` for top-level scalar fields (e.g. ``instance`` from the CLI).
+
+    Each new value is validated like the file's own.  ``text`` is left as parsed, so a
+    process that re-parses it sees the file's values, not the overrides.
+    """
+    checked: dict[str, Any] = {}
+    for key, value in changes.items():
+        try:
+            if key == "instance":
+                checked[key] = _identifier(value, "instance", _INSTANCE_RE)
+            elif key == "arena_kib":
+                checked[key] = _int(value, "arena_kib", 64, 1_048_576)
+            elif key == "startup_timeout_s":
+                checked[key] = _float(value, "startup_timeout_s", 0.0, MAX_TIMEOUT_S)
+            else:
+                allowed = ", ".join(_OVERRIDABLE)
+                raise _InvalidError(f"{key}: cannot be overridden; overridable fields: {allowed}")
+        except _InvalidError as exc:
+            raise ConfigError(f"{cfg.source} (override): {exc}") from None
+    return dataclasses.replace(cfg, **checked)
+
+
+# --------------------------------------------------------------------------------------------
+# YAML loading
+
+
+class _Loader(yaml.SafeLoader):
+    """A SafeLoader that rejects duplicate mapping keys (PyYAML silently keeps the last)."""
+
+    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[Any, Any]:
+        seen: set[tuple[str, str]] = set()
+        if isinstance(node, yaml.MappingNode):
+            for key_node, _ in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag.endswith(":merge"):
+                    continue
+                ident = (key_node.tag, key_node.value)
+                if ident in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"duplicate key {key_node.value!r}", key_node.start_mark
+                    )
+                seen.add(ident)
+        return super().construct_mapping(node, deep=deep)
+
+
+def _yaml_error_text(exc: yaml.MarkedYAMLError) -> str:
+    """``line L, column C: YAML does not parse: <problem>`` (1-based, as editors count)."""
+    mark = exc.problem_mark or exc.context_mark
+    problem = exc.problem or exc.context or "syntax error"
+    if mark is None:
+        return f"YAML does not parse: {problem}"
+    return f"line {mark.line + 1}, column {mark.column + 1}: YAML does not parse: {problem}"
+
+
+# --------------------------------------------------------------------------------------------
+# Validation helpers: each takes the parsed YAML node and its dotted path, returns a typed value
+
+
+class _InvalidError(Exception):
+    """A validation failure; ``parse_config`` prefixes the source and raises ConfigError."""
+
+
+def _fail(path: str, value: Any, allowed: str) -> NoReturn:
+    """Raise ``<path> = <value>: <allowed>``."""
+    raise _InvalidError(f"{path} = {_show(value)}: {allowed}")
+
+
+def _show(value: Any, limit: int = 60) -> str:
+    """A short, YAML-flavoured rendering of a value for an error message."""
+    if value is None:
+        text = "null"
+    elif isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, str):
+        text = repr(value)
+    elif isinstance(value, list | tuple):
+        text = "[" + ", ".join(_show(v, limit) for v in value) + "]"
+    elif isinstance(value, dict):
+        text = "{" + ", ".join(f"{_show(k, limit)}: {_show(v, limit)}" for k, v in value.items())
+        text += "}"
+    else:
+        text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _kind_of(value: Any) -> str:
+    """``a bool``, ``a string`` ... for 'must be X, not Y' messages."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "a bool"
+    if isinstance(value, int):
+        return "an integer"
+    if isinstance(value, float):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "a mapping"
+    return f"a {type(value).__name__}"
+
+
+def _join(path: str, key: Any) -> str:
+    """Dotted child path; non-string keys are shown as written."""
+    key_text = key if isinstance(key, str) else _show(key)
+    return f"{path}.{key_text}" if path else key_text
+
+
+def _int_range(lo: int, hi: int | None) -> str:
+    return f"must be an integer >= {lo}" + ("" if hi is None else f" and <= {hi}")
+
+
+def _int(value: Any, path: str, lo: int, hi: int | None = None) -> int:
+    """An integer in ``lo..hi``; a bool is not an integer (YAML ``true`` is not ``1``)."""
+    allowed = _int_range(lo, hi)
+    if isinstance(value, bool) or not isinstance(value, int):
+        _fail(path, value, f"{allowed}, not {_kind_of(value)}")
+    if value < lo or (hi is not None and value > hi):
+        _fail(path, value, allowed)
+    return value
+
+
+def _float(value: Any, path: str, lo: float, hi: float, lo_open: bool = True) -> float:
+    """A finite number in ``(lo, hi]`` (or ``[lo, hi]``); an int is accepted, a bool is not."""
+    allowed = f"must be a number {'>' if lo_open else '>='} {lo:g} and <= {hi:g}"
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        _fail(path, value, f"{allowed}, not {_kind_of(value)}")
+    number = float(value)
+    if not math.isfinite(number) or number > hi or number < lo or (lo_open and number == lo):
+        _fail(path, value, allowed)
+    return number
+
+
+def _finite(value: Any, path: str) -> float:
+    """Any finite number (an int is accepted, a bool is not)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        _fail(path, value, f"must be a finite number, not {_kind_of(value)}")
+    if not math.isfinite(value):
+        _fail(path, value, "must be a finite number")
+    return float(value)
+
+
+def _bool(value: Any, path: str) -> bool:
+    """``true`` or ``false`` (not 0/1)."""
+    if not isinstance(value, bool):
+        _fail(path, value, f"must be true or false, not {_kind_of(value)}")
+    return value
+
+
+def _identifier(value: Any, path: str, pattern: re.Pattern[str]) -> str:
+    """A string matching ``pattern`` in full."""
+    allowed = f"must be a string matching {pattern.pattern}"
+    if not isinstance(value, str):
+        _fail(path, value, f"{allowed}, not {_kind_of(value)}")
+    if pattern.fullmatch(value) is None:
+        _fail(path, value, allowed)
+    return value
+
+
+def _choice(value: Any, path: str, choices: tuple[str, ...]) -> str:
+    """One of a fixed set of strings."""
+    if not isinstance(value, str) or value not in choices:
+        _fail(path, value, "must be one of: " + ", ".join(choices))
+    return value
+
+
+def _mapping(
+    value: Any, path: str, allowed: tuple[str, ...], hints: Mapping[str, str] | None = None
+) -> dict[str, Any]:
+    """A mapping whose keys are all in ``allowed``; ``hints`` explain specific forbidden keys."""
+    where = path or "the top level"
+    if not isinstance(value, dict):
+        _fail(where, value, f"must be a mapping with keys from: {', '.join(allowed)}")
+    for key in value:
+        if isinstance(key, str) and key in allowed:
+            continue
+        if hints and key in hints:
+            _fail(_join(path, key), value[key], hints[key])
+        close = difflib.get_close_matches(key, allowed, n=1) if isinstance(key, str) else []
+        guess = f" (did you mean {close[0]!r}?)" if close else ""
+        raise _InvalidError(
+            f"{_join(path, key)}: unknown key{guess}; allowed keys: {', '.join(allowed)}"
+        )
+    return value
+
+
+def _list(value: Any, path: str, lo: int, hi: int) -> list[Any]:
+    """A list of ``lo..hi`` entries."""
+    if not isinstance(value, list):
+        _fail(path, value, f"must be a list of {lo}..{hi} entries, not {_kind_of(value)}")
+    if not lo <= len(value) <= hi:
+        _fail(path, value, f"must be a list of {lo}..{hi} entries, not {len(value)}")
+    return value
+
+
+def _cpu_count() -> int:
+    """CPUs on this machine (a function so tests can pretend otherwise)."""
+    return os.cpu_count() or 1
+
+
+def _cpu(value: Any, path: str) -> int | None:
+    """A CPU index to bind to, or null for no binding."""
+    if value is None:
+        return None
+    ncpu = _cpu_count()
+    allowed = f"must be null or a CPU index 0..{ncpu - 1} (this machine has {ncpu} CPUs)"
+    if isinstance(value, bool) or not isinstance(value, int):
+        _fail(path, value, f"{allowed}, not {_kind_of(value)}")
+    if not 0 <= value < ncpu:
+        _fail(path, value, allowed)
+    return value
+
+
+def _period(value: Any, path: str, tick: int, lo: int | None = None, lo_name: str = "") -> int:
+    """A period in ms: a multiple of the base tick, at least ``lo`` (default: one tick)."""
+    period = _int(value, path, 1, MAX_PERIOD_MS)
+    if period % tick:
+        _fail(path, value, f"must be a multiple of clock.base_tick_ms ({tick})")
+    floor = tick if lo is None else lo
+    if period < floor:
+        _fail(path, value, f"must be >= {lo_name or 'clock.base_tick_ms'} ({floor})")
+    return period
+
+
+# --------------------------------------------------------------------------------------------
+# Section builders
+
+
+def _build(doc: Any, source: str, text: str) -> KaliConfig:
+    """Turn the parsed YAML document into a KaliConfig, or raise _InvalidError."""
+    if not isinstance(doc, dict):
+        empty = " (the file is empty)" if doc is None else ""
+        _fail("the top level", doc, f"must be a mapping{empty}, not {_kind_of(doc)}")
+    # The version first: a file for another version may legitimately have other keys.
+    version = doc.get("version", _MISSING)
+    if version is _MISSING:
+        raise _InvalidError(f"version: missing; required, this Kali reads version {CONFIG_VERSION}")
+    if type(version) is not int or version != CONFIG_VERSION:
+        _fail("version", version, f"unsupported; this Kali reads version {CONFIG_VERSION}")
+    _mapping(doc, "", _TOP_KEYS)
+    if "instance" not in doc:
+        raise _InvalidError(
+            f"instance: missing; required, a string matching {_INSTANCE_RE.pattern}"
+        )
+    instance = _identifier(doc["instance"], "instance", _INSTANCE_RE)
+    arena_kib = _int(doc.get("arena_kib", 4096), "arena_kib", 64, 1_048_576)
+    startup = _float(doc.get("startup_timeout_s", 60), "startup_timeout_s", 0.0, MAX_TIMEOUT_S)
+    clock = _clock(doc.get("clock", {}))
+    if "processes" in doc:
+        processes = _processes(doc["processes"], clock)
+    else:
+        try:
+            processes = _processes(_DEFAULT_PROCESSES, clock)
+        except _InvalidError as exc:
+            raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
+    robots = _robots(doc.get("robots", _DEFAULT_ROBOTS))
+    return KaliConfig(
+        version=CONFIG_VERSION,
+        instance=instance,
+        arena_kib=arena_kib,
+        startup_timeout_s=startup,
+        clock=clock,
+        processes=processes,
+        robots=robots,
+        source=source,
+        text=text,
+    )
+
+
+def _clock(node: Any) -> ClockConfig:
+    """The ``clock`` section: rates first, then the periods that depend on them."""
+    d = ClockConfig()
+    m = _mapping(node, "clock", _CLOCK_KEYS)
+    tick = _int(m.get("base_tick_ms", d.base_tick_ms), "clock.base_tick_ms", 1, 100)
+    servo = _clock_period(m, "servo_period_ms", d.servo_period_ms, tick, tick, "base_tick_ms")
+    tg = _clock_period(m, "tg_period_ms", d.tg_period_ms, tick, servo, "servo_period_ms")
+    return ClockConfig(
+        base_tick_ms=tick,
+        servo_period_ms=servo,
+        tg_period_ms=tg,
+        serious_miss_tolerance=_int(
+            m.get("serious_miss_tolerance", d.serious_miss_tolerance),
+            "clock.serious_miss_tolerance",
+            0,
+            1000,
+        ),
+        lockstep_ack_timeout_s=_float(
+            m.get("lockstep_ack_timeout_s", d.lockstep_ack_timeout_s),
+            "clock.lockstep_ack_timeout_s",
+            0.0,
+            MAX_TIMEOUT_S,
+        ),
+        busy_wait_us=_int(m.get("busy_wait_us", d.busy_wait_us), "clock.busy_wait_us", 0, 500),
+    )
+
+
+def _clock_period(
+    m: dict[str, Any], key: str, default: int, tick: int, lo: int, lo_key: str
+) -> int:
+    """``clock.<key>``; when the default is what fails (e.g. a 3 ms tick), the message says so."""
+    try:
+        return _period(m.get(key, default), f"clock.{key}", tick, lo=lo, lo_name=f"clock.{lo_key}")
+    except _InvalidError as exc:
+        if key in m:
+            raise
+        raise _InvalidError(f"{exc} (the default; set clock.{key} explicitly)") from None
+
+
+def _default_period(kind: str, clock: ClockConfig) -> int:
+    """The period a kind runs at when its entry has no ``period_ms``."""
+    tick = clock.base_tick_ms
+    if kind in ("tg", "dynamics"):
+        return clock.tg_period_ms
+    if kind in ("sio", "sv"):
+        return clock.servo_period_ms
+    if kind == "viewer":  # 40 ms, rounded up to a whole number of ticks
+        return -(-VIEWER_PERIOD_MS // tick) * tick
+    return tick  # wallclock, plant
+
+
+def _processes(node: Any, clock: ClockConfig) -> tuple[ProcessConfig, ...]:
+    """The ``processes`` section, expanded (``sv`` -> ``sv.0`` ..) in PROCESS_NAMES order."""
+    m = _mapping(node, "processes", PROCESS_NAMES)
+    missing = [k for k in PROCESS_NAMES if k not in m]
+    if missing:
+        raise _InvalidError(
+            f"processes.{missing[0]}: missing; every one of {', '.join(PROCESS_NAMES)} "
+            "must be configured"
+        )
+    out: list[ProcessConfig] = []
+    for kind in PROCESS_NAMES:
+        out.extend(_process(kind, m[kind], clock))
+    return tuple(out)
+
+
+def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
+    """One ``processes.<kind>`` entry (a list because ``sv`` expands to several workers)."""
+    path = f"processes.{kind}"
+    hints: dict[str, str] = {}
+    if kind in _CLOCK_PERIOD_FIELD:
+        hints["period_ms"] = (
+            f"not allowed: the {kind} period comes from {_CLOCK_PERIOD_FIELD[kind]}; set it there"
+        )
+    if kind == "sv":
+        hints["cpu"] = "not allowed: sv has one worker per entry of cpus, e.g. cpus: [0, 1]"
+    if kind == "wallclock":
+        hints["period_ms"] = "not allowed: the wall clock ticks every clock.base_tick_ms"
+    m = _mapping(node, path, _PROCESS_KEYS[kind], hints)
+
+    priority = _int(m.get("priority", 0), f"{path}.priority", 0, MAX_PRIORITY)
+    serious = _bool(m.get("serious", False), f"{path}.serious")
+    stage = _int(m.get("stage", _DEFAULT_STAGE[kind]), f"{path}.stage", 0, MAX_STAGE)
+    if "period_ms" in m:
+        period = _period(m["period_ms"], f"{path}.period_ms", clock.base_tick_ms)
+    else:
+        period = _default_period(kind, clock)
+
+    def make(name: str, cpu: int | None) -> ProcessConfig:
+        return ProcessConfig(name, kind, cpu, priority, period, serious, stage)
+
+    if kind != "sv":
+        return [make(kind, _cpu(m.get("cpu"), f"{path}.cpu"))]
+    count = _int(m.get("count", 2), f"{path}.count", 1, MAX_SV_WORKERS)
+    if "cpus" in m:
+        cpus_node = m["cpus"]
+        if not isinstance(cpus_node, list) or len(cpus_node) != count:
+            got = (
+                f"{len(cpus_node)} entries" if isinstance(cpus_node, list) else _kind_of(cpus_node)
+            )
+            _fail(
+                f"{path}.cpus",
+                cpus_node,
+                f"must be a list of {count} entries (one per worker, sv.count = {count}), "
+                f"each a CPU index or null; got {got}",
+            )
+        cpus = [_cpu(c, f"{path}.cpus[{i}]") for i, c in enumerate(cpus_node)]
+    else:
+        cpus = [None] * count
+    return [make(f"sv.{i}", cpu) for i, cpu in enumerate(cpus)]
+
+
+def _robots(node: Any) -> tuple[RobotConfig, ...]:
+    """The ``robots`` list: 1..MAX_ROBOTS arms with unique names."""
+    entries = _list(node, "robots", 1, MAX_ROBOTS)
+    robots: list[RobotConfig] = []
+    first_index: dict[str, int] = {}
+    for i, entry in enumerate(entries):
+        path = f"robots[{i}]"
+        m = _mapping(entry, path, _ROBOT_KEYS)
+        if "name" not in m:
+            raise _InvalidError(
+                f"{path}.name: missing; required, a string matching {_ROBOT_NAME_RE.pattern}"
+            )
+        name = _identifier(m["name"], f"{path}.name", _ROBOT_NAME_RE)
+        if name in first_index:
+            _fail(
+                f"{path}.name",
+                name,
+                f"duplicate; robot names must be unique (also robots[{first_index[name]}])",
+            )
+        first_index[name] = i
+        model = _choice(m.get("model", ROBOT_MODELS[0]), f"{path}.model", ROBOT_MODELS)
+        xyz_node = m.get("base_xyz", [0.0, 0.0, 0.0])
+        if not isinstance(xyz_node, list) or len(xyz_node) != 3:
+            _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")
+        x, y, z = (_finite(v, f"{path}.base_xyz[{j}]") for j, v in enumerate(xyz_node))
+        yaw = _finite(m.get("base_yaw_deg", 0.0), f"{path}.base_yaw_deg")
+        robots.append(RobotConfig(name, model, (x, y, z), yaw))
+    return tuple(robots)

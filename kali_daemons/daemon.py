@@ -1,0 +1,312 @@
+"""The one daemon base class: lifecycle, real-time settings, the wait/ack loop, statistics.
+
+A Kali process subclasses ``Daemon`` and writes only ``cycle`` (and, outside the cycle,
+``on_configure``/``on_activate``/...), after ros2_control's lifecycle nodes: configure →
+activate → cycle … → deactivate → shutdown, or error.  The loop is always
+
+    wait for the wall clock's signal → cycle(tick) → record timing → acknowledge
+
+(the interrupt-then-acknowledge protocol of thesis 3.6.2).  A daemon that is self-timed in
+real-time mode (the plant, which is the outside world and keeps its own clock, DESIGN 6)
+sleeps to its own absolute deadlines instead; in lockstep mode every daemon is clock-driven.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import traceback
+from collections.abc import Callable
+from typing import ClassVar
+
+import posix_ipc
+
+from . import layout, rt
+from .errors import DaemonError
+from .instance import Instance
+from .layout import FaultCode, ProcState
+
+IDLE_WAIT_S = 0.25  # longest semaphore wait before a heartbeat and a shutdown check
+
+
+class Daemon:
+    """Base of every Kali process; subclasses implement ``cycle``.
+
+    Periodic parameters come from the instance's config for daemons that ``kalictl start``
+    launched, or from the constructor for functions registered with ``control``.
+    """
+
+    kind: ClassVar[str] = ""
+    self_timed_in_realtime: ClassVar[bool] = False
+
+    def __init__(
+        self,
+        instance: str,
+        name: str,
+        *,
+        period_ms: int | None = None,
+        serious: bool | None = None,
+        stage: int | None = None,
+        cpu: int | None = None,
+        priority: int | None = None,
+        lock_memory: bool = True,
+    ) -> None:
+        self.instance_name = instance
+        self.name = name
+        self.log = logging.getLogger(f"kali.{name}")
+        self._overrides = {
+            "period_ms": period_ms,
+            "serious": serious,
+            "stage": stage,
+            "cpu": cpu,
+            "priority": priority,
+        }
+        self._lock_memory = lock_memory
+        self._leave = False
+        self._claimed = False
+        self.inst: Instance
+        self.slot = -1
+        self.period_ticks = 1
+        self.serious = False
+        self.stage = 0
+
+    # ------------------------------------------------------------------ hooks
+
+    def on_configure(self) -> None:
+        """Outside the cycle: allocate arena records, load models, precompute."""
+
+    def on_activate(self) -> None:
+        """Outside the cycle: last preparation before the first tick."""
+
+    def cycle(self, tick: int) -> None:
+        """Inside the cycle (no allocation, no I/O, no logging): one period's work."""
+        raise NotImplementedError
+
+    def on_deactivate(self) -> None:
+        """Outside the cycle: the loop has ended."""
+
+    def on_shutdown(self) -> None:
+        """Outside the cycle: release what on_configure took."""
+
+    def on_error(self, exc: BaseException) -> None:
+        """Outside the cycle: the daemon failed with ``exc`` (the fault is already raised)."""
+
+    # ------------------------------------------------------------------ driver
+
+    def leave(self) -> None:
+        """Ask the loop to end after the current cycle (signal handlers, ``release``)."""
+        self._leave = True
+
+    def main(self) -> int:
+        """Run the whole lifecycle; returns the process exit code."""
+        signal.signal(signal.SIGTERM, lambda *_: self.leave())
+        signal.signal(signal.SIGINT, lambda *_: self.leave())
+        try:
+            self._configure()
+            self.on_activate()
+            self._set_state(ProcState.ACTIVE)
+            self.log.info("active: slot %d, period %d ticks", self.slot, self.period_ticks)
+            self._loop()
+            self.on_deactivate()
+        except Exception as exc:  # the daemon failed: halt the system and say why
+            self._fail(exc)
+            return 1
+        finally:
+            self._finish()
+        return 0
+
+    def _configure(self) -> None:
+        self.inst = Instance.attach(self.instance_name)
+        cfg = self.inst.config
+        pcfg = None
+        if self.name in {p.name for p in cfg.processes}:
+            pcfg = cfg.process(self.name)
+        self.slot = self.inst.find_slot(self.name)
+        if self.slot < 0:
+            import os
+
+            self.slot = self.inst.claim_slot(self.name, os.getpid())
+            self._claimed = True
+        ov = self._overrides
+        base_ms = cfg.clock.base_tick_ms
+        period_ms = ov["period_ms"] if ov["period_ms"] is not None else (
+            pcfg.period_ms if pcfg else base_ms
+        )
+        if period_ms < base_ms or period_ms % base_ms:
+            raise DaemonError(
+                f"{self.name}: period {period_ms} ms must be a multiple of the "
+                f"{base_ms} ms base tick"
+            )
+        self.period_ticks = period_ms // base_ms
+        self.serious = bool(ov["serious"] if ov["serious"] is not None else (
+            pcfg.serious if pcfg else False))
+        self.stage = int(ov["stage"] if ov["stage"] is not None else (pcfg.stage if pcfg else 8))
+        cpu = ov["cpu"] if ov["cpu"] is not None else (pcfg.cpu if pcfg else None)
+        prio = ov["priority"] if ov["priority"] is not None else (pcfg.priority if pcfg else 0)
+        report = rt.apply(cpu, prio, self._lock_memory)
+        for w in report.warnings:
+            self.log.warning("%s: %s", self.name, w)
+        import os
+
+        p = self.inst.procs[self.slot]
+        p["pid"] = os.getpid()
+        p["cpu"] = report.cpu
+        p["priority"] = report.priority
+        p["heartbeat_ns"] = rt.monotonic_ns()
+        self._set_state(ProcState.INACTIVE)
+        self.on_configure()
+        self._register()
+
+    def _register(self) -> None:
+        p = self.inst.procs[self.slot]
+        p["period_ticks"] = self.period_ticks
+        p["serious"] = int(self.serious)
+        p["stage"] = self.stage
+        p["signal_tick"] = -1
+        p["ack_tick"] = -1
+        clocked = self.inst.lockstep or not self.self_timed_in_realtime
+        p["periodic"] = int(clocked and self.kind != "wallclock")
+        self.inst.bump_registry()
+
+    def _set_state(self, state: ProcState) -> None:
+        self.inst.procs[self.slot]["state"] = int(state)
+
+    def _fail(self, exc: BaseException) -> None:
+        text = f"{type(exc).__name__}: {exc}"
+        self.log.error("%s failed: %s\n%s", self.name, text, traceback.format_exc())
+        if self.slot >= 0:
+            self._set_state(ProcState.ERROR)
+            self.inst.raise_fault(FaultCode.DAEMON_ERROR, self.name, text)
+        try:
+            self.on_error(exc)
+        except Exception:
+            self.log.exception("%s: on_error failed", self.name)
+
+    def _finish(self) -> None:
+        if self.slot < 0:
+            return
+        try:
+            self.on_shutdown()
+        finally:
+            p = self.inst.procs[self.slot]
+            p["periodic"] = 0
+            if p["state"] != ProcState.ERROR:
+                p["state"] = int(ProcState.FINALIZED)
+            self.inst.bump_registry()
+            if self._claimed:
+                self.inst.free_slot(self.slot)
+            self.inst.close()
+
+    # ------------------------------------------------------------------ loops
+
+    def _loop(self) -> None:
+        if self.inst.lockstep or not self.self_timed_in_realtime:
+            self._clock_driven_loop()
+        else:
+            self._self_timed_loop()
+
+    def _clock_driven_loop(self) -> None:
+        """Wait on this slot's semaphore; the wall clock posts it at each due tick."""
+        inst, i = self.inst, self.slot
+        procs, header = inst.procs, inst.arena.header
+        sig, rel, heart = procs["signal_tick"], procs["release_ns"], procs["heartbeat_ns"]
+        sem = inst.slot_semaphore(i)
+        ack_sem = inst.ack_semaphore() if inst.lockstep else None
+        stats = _CycleStats(procs, i)
+        now = rt.monotonic_ns
+        while not self._leave:
+            try:
+                sem.acquire(IDLE_WAIT_S)
+            except posix_ipc.BusyError:
+                heart[i] = now()
+                if header["shutdown"]:
+                    break
+                continue
+            except posix_ipc.SignalError:
+                continue
+            woke = now()
+            if header["shutdown"]:
+                break
+            tick = int(sig[i])
+            self.cycle(tick)
+            stats.record(tick, int(rel[i]), woke, now())
+            if ack_sem is not None:
+                ack_sem.release()
+
+    def _self_timed_loop(self) -> None:
+        """Sleep to this daemon's own absolute deadlines (the plant in real-time mode)."""
+        inst = self.inst
+        header = inst.arena.header
+        period_ns = self.period_ticks * int(inst.clock["base_tick_ns"])
+        sleeper = rt.AbsoluteSleeper()
+        stats = _CycleStats(inst.procs, self.slot)
+        now = rt.monotonic_ns
+        t0 = now() + period_ns
+        tick = 0
+        while not self._leave and not header["shutdown"]:
+            due = t0 + tick * period_ns
+            sleeper.until(due)
+            woke = now()
+            if woke - due >= period_ns:  # overrun: skip ahead, no burst of catch-up cycles
+                tick += (woke - due) // period_ns
+                due = t0 + tick * period_ns
+            self.cycle(tick)
+            stats.record(tick, due, woke, now())
+            tick += 1
+
+
+class _CycleStats:
+    """Writes one slot's process-side statistics; inside the cycle, no allocation."""
+
+    __slots__ = ("_i", "_p")
+
+    def __init__(self, procs, slot: int) -> None:  # noqa: ANN001 - numpy record array
+        self._p = procs
+        self._i = slot
+
+    def record(self, tick: int, release_ns: int, woke_ns: int, done_ns: int) -> None:
+        """Account one cycle, then acknowledge ``tick`` (the last store the clock reads)."""
+        p, i = self._p, self._i
+        late = woke_ns - release_ns
+        exe = done_ns - woke_ns
+        p["late_last_ns"][i] = late
+        if late > p["late_max_ns"][i]:
+            p["late_max_ns"][i] = late
+        p["exec_last_ns"][i] = exe
+        if exe > p["exec_max_ns"][i]:
+            p["exec_max_ns"][i] = exe
+        p["hist"][i, layout.lateness_bin(late)] += 1
+        p["heartbeat_ns"][i] = done_ns
+        p["acks"][i] += 1
+        p["ack_tick"][i] = tick
+
+
+class FunctionDaemon(Daemon):
+    """A plain function run periodically on the wall clock: ``control`` of thesis 3.6.2."""
+
+    kind = "function"
+
+    def __init__(self, instance: str, name: str, func: Callable[[int], object], **kw) -> None:  # noqa: ANN003
+        super().__init__(instance, name, **kw)
+        self._func = func
+
+    def cycle(self, tick: int) -> None:
+        """Call the user's function with the tick; it returning False releases it."""
+        if self._func(tick) is False:
+            self.leave()
+
+
+def run_daemon(cls: type[Daemon], argv: list[str] | None = None) -> None:
+    """Entry point of ``python -m kali_daemons.<kind> --instance NAME --name NAME``."""
+    ap = argparse.ArgumentParser(prog=f"kali_daemons.{cls.kind}")
+    ap.add_argument("--instance", required=True)
+    ap.add_argument("--name", default=cls.kind)
+    args = ap.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO,
+        format=f"%(asctime)s {args.name}[%(process)d] %(levelname)s %(message)s",
+        stream=sys.stderr,
+    )
+    sys.exit(cls(args.instance, args.name).main())

@@ -1,0 +1,251 @@
+"""One running Kali instance as a process sees it: arena, well-known records, semaphores.
+
+Every Kali process (daemons, kalictl, user programs) attaches through ``Instance.attach``;
+only ``kalictl start`` creates (``launcher.create_instance``).  Names:
+
+- segment      ``/kali.<instance>``          (``/dev/shm/kali.<instance>``)
+- semaphores   ``/kali.<instance>.s<NN>``    one per process-table slot (thesis 3.6.2)
+               ``/kali.<instance>.cmd``      wakes the wall clock for a command
+               ``/kali.<instance>.ack``      lockstep acknowledgements to the wall clock
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+
+import numpy as np
+import posix_ipc
+
+from . import layout
+from .arena import Arena, segment_name
+from .config import KaliConfig, parse_config
+from .errors import ClockError, InstanceError
+from .layout import FaultCode, ProcState
+from .spinlock import SpinLock
+
+INSTANCE_RE = re.compile(r"^[a-z0-9][a-z0-9_-]{0,23}$")
+
+
+def check_instance_name(name: str) -> str:
+    """Validate an instance name (it becomes part of /dev/shm names)."""
+    if not isinstance(name, str) or not INSTANCE_RE.match(name):
+        raise InstanceError(
+            f"instance name {name!r} is not allowed: 1-24 of a-z 0-9 _ -, starting alphanumeric"
+        )
+    return name
+
+
+def slot_semaphore_name(instance: str, slot: int) -> str:
+    """POSIX name of the wake-up semaphore of process-table slot ``slot``."""
+    return f"{segment_name(instance)}.s{slot:02d}"
+
+
+def command_semaphore_name(instance: str) -> str:
+    """POSIX name of the semaphore that wakes the wall clock for a command."""
+    return f"{segment_name(instance)}.cmd"
+
+
+def ack_semaphore_name(instance: str) -> str:
+    """POSIX name of the lockstep acknowledgement semaphore."""
+    return f"{segment_name(instance)}.ack"
+
+
+def all_semaphore_names(instance: str) -> list[str]:
+    """Every semaphore an instance owns."""
+    names = [slot_semaphore_name(instance, i) for i in range(layout.MAX_PROCESSES)]
+    return [*names, command_semaphore_name(instance), ack_semaphore_name(instance)]
+
+
+def decode(raw: bytes | np.bytes_) -> str:
+    """A fixed-width arena string as text."""
+    return bytes(raw).split(b"\0", 1)[0].decode("utf-8", "replace")
+
+
+class Instance:
+    """An attached instance: views of the clock, process table and fault record."""
+
+    def __init__(self, name: str, arena: Arena) -> None:
+        self.name = name
+        self.arena = arena
+        self.clock = arena.existing(layout.KEY_CLOCK, layout.CLOCK)
+        self.procs = arena.existing(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
+        self.fault = arena.existing(layout.KEY_FAULT, layout.FAULT)
+        self._config: KaliConfig | None = None
+        self._sems: dict[str, posix_ipc.Semaphore] = {}
+        clock_off = arena.lookup(layout.KEY_CLOCK)[0]  # type: ignore[index]
+        fault_off = arena.lookup(layout.KEY_FAULT)[0]  # type: ignore[index]
+        self.table_lock = SpinLock(
+            arena.address_of_field(clock_off, layout.CLOCK, "table_lock"), "process table"
+        )
+        self.cmd_lock = SpinLock(
+            arena.address_of_field(clock_off, layout.CLOCK, "cmd_lock"), "clock command"
+        )
+        self.fault_lock = SpinLock(
+            arena.address_of_field(fault_off, layout.FAULT, "lock"), "fault record"
+        )
+        self.registry_gen_addr = arena.address_of_field(clock_off, layout.CLOCK, "registry_gen")
+
+    @classmethod
+    def attach(cls, name: str) -> Instance:
+        """Attach to the running instance ``name``."""
+        return cls(check_instance_name(name), Arena.attach(name))
+
+    def close(self) -> None:
+        """Close semaphores and unmap; safe to call twice."""
+        for sem in self._sems.values():
+            sem.close()
+        self._sems.clear()
+        self.arena.close()
+
+    def __enter__(self) -> Instance:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------- shared objects
+
+    @property
+    def config(self) -> KaliConfig:
+        """The configuration the instance was started with (stored in the arena)."""
+        if self._config is None:
+            off, size = self.arena.lookup(layout.KEY_CONFIG)  # type: ignore[misc]
+            raw = self.arena.view(off, np.dtype("u1"), size)
+            text = bytes(raw).split(b"\0", 1)[0].decode()
+            self._config = parse_config(text, source=f"{self.arena.name}:config")
+        return self._config
+
+    @property
+    def lockstep(self) -> bool:
+        """True when the instance runs in lockstep mode."""
+        return bool(self.clock["lockstep"])
+
+    @property
+    def shutting_down(self) -> bool:
+        """True once kalictl stop has asked every process to leave."""
+        return bool(self.arena.header["shutdown"])
+
+    def semaphore(self, posix_name: str) -> posix_ipc.Semaphore:
+        """Open (once) one of the instance's semaphores."""
+        sem = self._sems.get(posix_name)
+        if sem is None:
+            try:
+                sem = posix_ipc.Semaphore(posix_name)
+            except posix_ipc.ExistentialError as exc:
+                raise InstanceError(f"instance '{self.name}': no semaphore {posix_name}") from exc
+            self._sems[posix_name] = sem
+        return sem
+
+    def slot_semaphore(self, slot: int) -> posix_ipc.Semaphore:
+        """The wake-up semaphore of process-table slot ``slot``."""
+        return self.semaphore(slot_semaphore_name(self.name, slot))
+
+    def command_semaphore(self) -> posix_ipc.Semaphore:
+        """The semaphore that wakes the wall clock for a command."""
+        return self.semaphore(command_semaphore_name(self.name))
+
+    def ack_semaphore(self) -> posix_ipc.Semaphore:
+        """The lockstep acknowledgement semaphore."""
+        return self.semaphore(ack_semaphore_name(self.name))
+
+    # ---------------------------------------------------------------- process table
+
+    def find_slot(self, name: str) -> int:
+        """Index of the slot holding process ``name``, or -1."""
+        raw = name.encode()
+        for i in range(layout.MAX_PROCESSES):
+            if self.procs[i]["state"] != ProcState.FREE and self.procs[i]["name"] == raw:
+                return i
+        return -1
+
+    def slot_of(self, name: str) -> int:
+        """Index of the slot holding process ``name``; ClockError naming the known ones."""
+        i = self.find_slot(name)
+        if i < 0:
+            known = ", ".join(self.process_names()) or "none"
+            raise ClockError(f"no process '{name}' in instance '{self.name}' (known: {known})")
+        return i
+
+    def process_names(self) -> list[str]:
+        """Names of every occupied slot, in slot order."""
+        return [
+            decode(p["name"]) for p in self.procs if p["state"] != ProcState.FREE
+        ]
+
+    def claim_slot(self, name: str, pid: int) -> int:
+        """Reserve a free slot for a new process ``name`` (unique among occupied slots)."""
+        if not name or len(name.encode()) >= layout.NAME_BYTES:
+            raise ClockError(f"process name {name!r} must be 1..{layout.NAME_BYTES - 1} bytes")
+        with self.table_lock:
+            if self.find_slot(name) >= 0:
+                raise ClockError(f"process '{name}' already exists in instance '{self.name}'")
+            free = np.flatnonzero(self.procs["state"] == ProcState.FREE)
+            if free.size == 0:
+                raise ClockError(
+                    f"process table of instance '{self.name}' is full "
+                    f"({layout.MAX_PROCESSES} slots) for '{name}'"
+                )
+            i = int(free[0])
+            self.procs[i] = 0
+            self.procs[i]["name"] = name.encode()
+            self.procs[i]["pid"] = pid
+            self.procs[i]["cpu"] = -1
+            self.procs[i]["signal_tick"] = -1
+            self.procs[i]["ack_tick"] = -1
+            self.procs[i]["state"] = ProcState.SPAWNED
+            return i
+
+    def free_slot(self, slot: int) -> None:
+        """Return a slot to the table (the process left)."""
+        with self.table_lock:
+            self.procs[slot]["periodic"] = 0
+            self.procs[slot]["state"] = ProcState.FREE
+        self.bump_registry()
+
+    def bump_registry(self) -> None:
+        """Tell the wall clock the set of periodic slots or their rates changed."""
+        from . import atomic
+
+        atomic.fetch_add32(self.registry_gen_addr, 1)
+
+    # ---------------------------------------------------------------- faults (DESIGN 7)
+
+    def raise_fault(self, code: FaultCode, process: str, message: str, tick: int | None = None) -> bool:
+        """Record a fault and so halt the system; the first uncleared fault wins.
+
+        The wall clock stops itself when it sees an active fault.  Returns True if this call
+        recorded the fault, False if one was already active (it is still counted).
+        """
+        with self.fault_lock:
+            f = self.fault
+            f["count"] = int(f["count"]) + 1
+            if f["active"]:
+                return False
+            f["code"] = int(code)
+            f["pid"] = os.getpid()
+            f["tick"] = int(self.clock["tick"]) if tick is None else tick
+            f["time_ns"] = time.time_ns()
+            f["process"] = process.encode()[: layout.NAME_BYTES - 1]
+            f["message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
+            f["active"] = 1
+        self.command_semaphore().release()  # a stopped-but-waiting clock notices at once
+        return True
+
+    def clear_fault(self) -> bool:
+        """Clear the active fault (kalictl reset); False if none was active."""
+        with self.fault_lock:
+            was = bool(self.fault["active"])
+            self.fault["active"] = 0
+        return was
+
+    def fault_text(self) -> str | None:
+        """The active fault as one line, or None."""
+        f = self.fault
+        if not f["active"]:
+            return None
+        code = FaultCode(int(f["code"])).name
+        return (
+            f"{code} in {decode(f['process'])} at tick {int(f['tick'])}: {decode(f['message'])}"
+        )

@@ -1,0 +1,323 @@
+"""``kalictl start`` and ``kalictl stop``: create, launch, supervise start-up, clean up.
+
+Only this module creates and unlinks an instance's segment and semaphores (owner-only,
+0600).  ``start`` returns when every process is ACTIVE, or fails naming the one that is not
+and cleans up.  ``stop`` leaves no process, no ``/dev/shm`` object and no semaphore behind,
+whatever state the instance is in (also after a ``kill -9`` of any Kali process); the next
+``start`` detects and cleans an instance left by a crash.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import posix_ipc
+
+from . import layout
+from .arena import Arena, segment_name, unlink_segment
+from .config import KaliConfig
+from .errors import ArenaError, InstanceError
+from .instance import Instance, all_semaphore_names, check_instance_name, decode
+from .layout import ProcState, RunMode
+from .spinlock import pid_alive
+from .wallclock import start_kali_clock
+
+STOP_GRACE_S = 3.0
+KILL_GRACE_S = 2.0
+
+
+def log_dir(instance: str) -> Path:
+    """Where the daemons' logs go: ``$KALI_LOG_DIR`` or ``/tmp/kali-<instance>``."""
+    return Path(os.environ.get("KALI_LOG_DIR", f"/tmp/kali-{instance}"))
+
+
+def shm_objects(instance: str) -> list[str]:
+    """Every ``/dev/shm`` entry belonging to ``instance`` (segment and semaphores)."""
+    seg = "/dev/shm" + segment_name(instance)
+    return sorted(glob.glob(glob.escape(seg)) + glob.glob(glob.escape(f"/dev/shm/sem.kali.{instance}.") + "*"))
+
+
+def is_kali_process(pid: int, instance: str) -> bool:
+    """True if ``pid`` is alive and is a Kali daemon of ``instance`` (guards against pid reuse)."""
+    if not pid_alive(pid):
+        return False
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return False
+    if not any(a.startswith(b"kali_daemons.") for a in argv):
+        return False
+    try:
+        return argv[argv.index(b"--instance") + 1] == instance.encode()
+    except (ValueError, IndexError):
+        return False
+
+
+def instance_pids(instance: str) -> list[int]:
+    """Pids of the live daemons of ``instance``: from its arena, and from /proc."""
+    pids: set[int] = set()
+    try:
+        arena = Arena.attach(instance)
+    except ArenaError:
+        arena = None
+    if arena is not None:
+        try:
+            procs = arena.existing(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
+            pids.update(int(p) for p in procs["pid"] if p > 0)
+            del procs
+        except ArenaError:
+            pass
+        arena.close()
+    for d in glob.glob("/proc/[0-9]*"):
+        pids.add(int(d[6:]))
+    return sorted(p for p in pids if p != os.getpid() and is_kali_process(p, instance))
+
+
+@dataclass
+class StopReport:
+    """What ``stop`` found and removed."""
+
+    stopped: list[int] = field(default_factory=list)  # pids that left on request
+    killed: list[int] = field(default_factory=list)  # pids that needed SIGKILL
+    removed: list[str] = field(default_factory=list)  # /dev/shm entries unlinked
+
+
+def stop(instance: str) -> StopReport:
+    """Stop every process of ``instance`` and remove its segment and semaphores."""
+    check_instance_name(instance)
+    report = StopReport()
+    pids = instance_pids(instance)
+    try:
+        arena = Arena.attach(instance)
+    except ArenaError:
+        arena = None
+    if arena is not None:
+        arena.header["shutdown"] = 1
+        arena.close()
+    for name in all_semaphore_names(instance):  # wake every waiter so it sees shutdown
+        try:
+            sem = posix_ipc.Semaphore(name)
+        except posix_ipc.ExistentialError:
+            continue
+        sem.release()
+        sem.close()
+    left = _wait_gone(pids, STOP_GRACE_S)
+    report.stopped = [p for p in pids if p not in left]
+    for p in left:
+        _signal(p, signal.SIGTERM)
+    left = _wait_gone(left, KILL_GRACE_S)
+    for p in left:
+        _signal(p, signal.SIGKILL)
+    report.killed = left
+    _wait_gone(left, KILL_GRACE_S)
+    before = set(shm_objects(instance))
+    for name in all_semaphore_names(instance):
+        try:
+            posix_ipc.unlink_semaphore(name)
+        except posix_ipc.ExistentialError:
+            pass
+    unlink_segment(segment_name(instance))
+    for path in shm_objects(instance):  # anything else under our prefix
+        try:
+            os.unlink(path)
+        except FileNotFoundError:
+            pass
+    report.removed = sorted(before)
+    return report
+
+
+def _signal(pid: int, sig: int) -> None:
+    try:
+        os.kill(pid, sig)
+    except ProcessLookupError:
+        pass
+
+
+def _wait_gone(pids: list[int], timeout: float) -> list[int]:
+    deadline = time.monotonic() + timeout
+    left = [p for p in pids if pid_alive(p)]
+    while left and time.monotonic() < deadline:
+        time.sleep(0.01)
+        left = [p for p in left if pid_alive(p)]
+    return left
+
+
+def _create(cfg: KaliConfig, instance: str, lockstep: bool) -> Arena:
+    """Create the segment, its well-known records and every semaphore (owner-only)."""
+    arena = Arena.create(instance, cfg.arena_kib * 1024)
+    try:
+        arena.header["lockstep"] = int(lockstep)
+        clock = arena.record(layout.KEY_CLOCK, layout.CLOCK)
+        clock["base_tick_ns"] = cfg.clock.base_tick_ms * 1_000_000
+        clock["serious_miss_tolerance"] = cfg.clock.serious_miss_tolerance
+        clock["lockstep_timeout_ms"] = int(cfg.clock.lockstep_ack_timeout_s * 1000)
+        clock["busy_wait_ns"] = cfg.clock.busy_wait_us * 1000
+        clock["lockstep"] = int(lockstep)
+        clock["mode"] = RunMode.STOPPED
+        clock["step_target"] = -1
+        del clock
+        arena.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
+        arena.record(layout.KEY_FAULT, layout.FAULT)
+        text = cfg.text.encode()
+        raw = arena.record(layout.KEY_CONFIG, np.dtype("u1"), len(text) + 1)
+        raw[: len(text)] = np.frombuffer(text, np.uint8)
+        del raw
+        for name in all_semaphore_names(instance):
+            posix_ipc.Semaphore(name, posix_ipc.O_CREX, mode=0o600, initial_value=0).close()
+    except BaseException:
+        arena.close()
+        stop(instance)
+        raise
+    return arena
+
+
+@dataclass
+class StartReport:
+    """What ``start`` did."""
+
+    instance: str
+    pids: dict[str, int]
+    stale_cleaned: list[str]
+    seconds: float
+    log_dir: Path
+
+
+def start(cfg: KaliConfig, lockstep: bool = False, instance: str | None = None) -> StartReport:
+    """Start every process of ``cfg``; returns when all are ACTIVE, else cleans up and raises.
+
+    In real-time mode the clock is started once everyone is ready; in lockstep mode it stays
+    stopped at tick 0 until ``clock start`` or ``clock step N``.
+    """
+    name = check_instance_name(instance or cfg.instance)
+    t_start = time.monotonic()
+    stale: list[str] = []
+    if shm_objects(name):
+        running = instance_pids(name)
+        if running:
+            raise InstanceError(
+                f"instance '{name}' is already running (pids {', '.join(map(str, running))}); "
+                f"kalictl -i {name} stop first, or start another with -i NAME"
+            )
+        stale = shm_objects(name)
+        stop(name)
+    logs = log_dir(name)
+    logs.mkdir(parents=True, exist_ok=True)
+    arena = _create(cfg, name, lockstep)
+    arena.close()
+    inst = Instance.attach(name)
+    pids: dict[str, int] = {}
+    children: dict[str, subprocess.Popen] = {}
+    try:
+        for p in cfg.processes:
+            slot = inst.claim_slot(p.name, 0)
+            log = open(logs / f"{p.name}.log", "wb")  # noqa: SIM115 - handed to the child
+            child = subprocess.Popen(
+                [sys.executable, "-m", f"kali_daemons.{p.kind}", "--instance", name, "--name", p.name],
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+                close_fds=True,
+            )
+            log.close()
+            inst.procs[slot]["pid"] = child.pid
+            pids[p.name] = child.pid
+            children[p.name] = child
+        _wait_ready(inst, cfg, children, logs)
+        if not lockstep:
+            start_kali_clock(inst)
+    except BaseException:
+        inst.close()
+        stop(name)
+        raise
+    inst.close()
+    return StartReport(name, pids, stale, time.monotonic() - t_start, logs)
+
+
+def _wait_ready(
+    inst: Instance, cfg: KaliConfig, children: dict[str, subprocess.Popen], logs: Path
+) -> None:
+    """Wait until every process is ACTIVE and the clock is ready; name the first that fails."""
+    deadline = time.monotonic() + cfg.startup_timeout_s
+    while True:
+        waiting = []
+        for name, child in children.items():
+            slot = inst.find_slot(name)
+            state = ProcState(int(inst.procs[slot]["state"]))
+            if child.poll() is not None or state == ProcState.ERROR:
+                raise InstanceError(
+                    f"process '{name}' (pid {child.pid}) failed during start-up "
+                    f"(exit {child.returncode}, state {state.name}):\n"
+                    + _tail(logs / f"{name}.log")
+                )
+            if state != ProcState.ACTIVE:
+                waiting.append(f"{name} ({state.name})")
+        if not waiting and inst.clock["ready"]:
+            return
+        if time.monotonic() > deadline:
+            raise InstanceError(
+                f"not ready within startup_timeout_s = {cfg.startup_timeout_s:g} s: "
+                + ", ".join(waiting or ["wallclock"])
+            )
+        time.sleep(0.02)
+
+
+def _tail(path: Path, lines: int = 15) -> str:
+    try:
+        text = path.read_text(errors="replace").splitlines()[-lines:]
+    except OSError:
+        return f"    (no log at {path})"
+    return "\n".join("    " + t for t in text)
+
+
+def describe(inst: Instance) -> list[dict[str, object]]:
+    """The process table as plain rows, for ``kalictl status`` and tests."""
+    rows = []
+    base_ms = int(inst.clock["base_tick_ns"]) / 1e6
+    now = time.monotonic_ns()
+    for i in range(layout.MAX_PROCESSES):
+        p = inst.procs[i]
+        if p["state"] == ProcState.FREE:
+            continue
+        hist = np.array(p["hist"], dtype=np.int64)
+        rows.append(
+            {
+                "slot": i,
+                "name": decode(p["name"]),
+                "pid": int(p["pid"]),
+                "alive": pid_alive(int(p["pid"])),
+                "state": ProcState(int(p["state"])).name,
+                "cpu": int(p["cpu"]),
+                "priority": int(p["priority"]),
+                "periodic": bool(p["periodic"]),
+                "period_ms": int(p["period_ticks"]) * base_ms,
+                "serious": bool(p["serious"]),
+                "signals": int(p["signals"]),
+                "acks": int(p["acks"]),
+                "misses": int(p["misses"]),
+                "exec_last_us": int(p["exec_last_ns"]) / 1e3,
+                "exec_max_us": int(p["exec_max_ns"]) / 1e3,
+                "late_max_us": int(p["late_max_ns"]) / 1e3,
+                "late_p50_us": percentile(hist, 0.50),
+                "late_p99_us": percentile(hist, 0.99),
+                "heartbeat_age_ms": (now - int(p["heartbeat_ns"])) / 1e6,
+            }
+        )
+    return rows
+
+
+def percentile(hist: np.ndarray, q: float) -> float:
+    """The ``q`` quantile (0..1) of a lateness histogram, in µs at bin upper edges."""
+    total = int(hist.sum())
+    if total == 0:
+        return float("nan")
+    b = int(np.searchsorted(np.cumsum(hist), q * total, side="left"))
+    return layout.bin_upper_us(min(b, len(hist) - 1))

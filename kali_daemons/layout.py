@@ -1,0 +1,281 @@
+"""Every record that lives in the shared-memory arena, declared once (thesis 3.6.1).
+
+Each record is a numpy structured dtype; processes view it in place and never pickle or copy
+it inside a cycle.  Like a LinuxCNC ``.comp`` header, each field says who writes it: a field
+has exactly one writer, so most records need no lock (Type 4, thesis 3.2.1).
+
+References inside the arena are byte offsets from its base, never addresses; ``NULL_INDEX``
+is the named null of the directory's linked list.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+import numpy as np
+
+MAGIC = int.from_bytes(b"KALIAREN", "little")
+LAYOUT_VERSION = 1
+
+ALIGN = 64  # every block starts on a cache line, so every 4/8-byte word in it is aligned
+MAX_BLOCKS = 256  # directory descriptors (blocks plus free fragments)
+MAX_PROCESSES = 32  # process table slots: daemons plus user programs' periodic functions
+KEY_BYTES = 32
+NAME_BYTES = 24
+MESSAGE_BYTES = 240
+NULL_INDEX = -1
+
+# Well-known arena keys.
+KEY_CLOCK = "clock"
+KEY_PROCESSES = "processes"
+KEY_FAULT = "fault"
+KEY_CONFIG = "config"
+
+# --------------------------------------------------------------------------------------------
+# Arena header and directory (writer: kalictl start; the directory under the header's lock)
+
+HEADER = np.dtype(
+    [
+        ("magic", "<u8"),  # MAGIC
+        ("layout_version", "<u4"),  # LAYOUT_VERSION
+        ("header_bytes", "<u4"),  # size of header + directory; the heap starts here
+        ("arena_bytes", "<u8"),  # total size of the segment
+        ("dir_lock", "<u4"),  # spinlock word: holder pid, 0 when free
+        ("head", "<i4"),  # first block descriptor in address order, NULL_INDEX if none
+        ("instance", f"S{NAME_BYTES}"),  # instance name
+        ("owner_pid", "<i4"),  # pid of the kalictl that created the arena
+        ("shutdown", "<u4"),  # 1 once kalictl stop has asked every process to leave
+        ("created_ns", "<i8"),  # CLOCK_REALTIME at creation, for kalictl status
+        ("lockstep", "<u4"),  # 1 when the instance runs in lockstep mode
+        ("_pad", "<u4"),
+    ],
+    align=True,
+)
+
+DESCRIPTOR = np.dtype(
+    [
+        ("key", f"S{KEY_BYTES}"),  # block name; empty for a free fragment
+        ("offset", "<u8"),  # byte offset of the block from the arena base
+        ("size", "<u8"),  # bytes, a multiple of ALIGN
+        ("requested", "<u8"),  # bytes asked for by shmalloc
+        ("live", "u1"),  # 1 when this descriptor describes a block or fragment
+        ("used", "u1"),  # 1 allocated, 0 free
+        ("_pad", "u1", (2,)),
+        ("prev", "<i4"),  # neighbour descriptors in address order, NULL_INDEX at the ends
+        ("next", "<i4"),
+    ],
+    align=True,
+)
+
+
+def header_bytes() -> int:
+    """Bytes taken by the header and directory, rounded up to ALIGN."""
+    raw = HEADER.itemsize + MAX_BLOCKS * DESCRIPTOR.itemsize
+    return -(-raw // ALIGN) * ALIGN
+
+
+# --------------------------------------------------------------------------------------------
+# Wall clock (thesis 3.6.2).  Writer: the wall clock, except the command fields.
+
+
+class RunMode(enum.IntEnum):
+    """What the wall clock is doing; commands ask for a change, the clock applies it."""
+
+    STOPPED = 0
+    RUNNING = 1
+    STEPPING = 2  # lockstep: run until ``step_target`` then stop
+
+
+CLOCK = np.dtype(
+    [
+        ("pid", "<i4"),  # wall clock process
+        ("ready", "<u4"),  # 1 once the clock loop runs
+        ("mode", "<u4"),  # RunMode, written by the clock
+        ("lockstep", "<u4"),  # 1: no sleeping, every tick waits for every due ack
+        ("tick", "<i8"),  # ticks since start_kali_clock at tick 0
+        ("base_tick_ns", "<i8"),  # length of one tick
+        ("t0_ns", "<i8"),  # CLOCK_MONOTONIC of tick 0 of the current run
+        ("time_offset_ms", "<f8"),  # running time = time_offset_ms + tick * base tick
+        ("serious_miss_tolerance", "<u4"),  # consecutive misses a serious process may have
+        ("lockstep_timeout_ms", "<u4"),  # lockstep: longest wait for one acknowledgement
+        ("busy_wait_ns", "<i8"),  # spin this long before each tick instead of sleeping
+        ("step_target", "<i8"),  # lockstep STEPPING: stop when tick reaches this
+        ("registry_gen", "<u4"),  # bumped on register/release/rate change; clock rescans
+        ("table_lock", "<u4"),  # spinlock word guarding process-table slot claims
+        ("overruns", "<u8"),  # times the clock itself woke more than one tick late
+        ("skipped_ticks", "<u8"),  # ticks jumped over after overruns (no catch-up burst)
+        # Commands, written by kalictl or a client, then the command semaphore is posted.
+        ("cmd_seq", "<u8"),  # incremented by the writer of a command
+        ("cmd_done", "<u8"),  # last cmd_seq the clock has applied
+        ("cmd", "<u4"),  # ClockCommand
+        ("_pad", "<u4"),
+        ("cmd_arg", "<f8"),  # argument: ticks for STEP, ms for SET
+        ("cmd_lock", "<u4"),  # spinlock word serialising command writers
+        ("cmd_status", "<i4"),  # 0 applied, -1 refused (reason in cmd_message)
+        ("cmd_message", "S120"),
+    ],
+    align=True,
+)
+
+
+class ClockCommand(enum.IntEnum):
+    """Commands to the wall clock (start/stop/set_kali_clock of thesis 3.6.2, plus step)."""
+
+    NONE = 0
+    START = 1
+    STOP = 2
+    SET_TIME = 3
+    STEP = 4
+
+
+# --------------------------------------------------------------------------------------------
+# Process table.  One slot per Kali process or registered periodic function.
+
+
+class ProcState(enum.IntEnum):
+    """Lifecycle state of a slot (after ros2_control's managed nodes)."""
+
+    FREE = 0
+    SPAWNED = 1  # reserved by kalictl start, process not yet configured
+    INACTIVE = 2  # configured, not yet cycling
+    ACTIVE = 3  # cycling: ready
+    FINALIZED = 4  # shut down cleanly
+    ERROR = 5  # failed; see the fault record
+
+
+# Wake-up lateness histogram: 1 µs bins below 1 ms, then eight bins per octave to ~256 ms.
+HIST_LINEAR_US = 1000
+HIST_LOG_BINS = 64
+HIST_BINS = HIST_LINEAR_US + HIST_LOG_BINS
+
+
+def lateness_bin(ns: int) -> int:
+    """Histogram bin for a lateness of ``ns`` nanoseconds (negative counts as 0)."""
+    us = ns // 1000
+    if us < HIST_LINEAR_US:
+        return us if us > 0 else 0
+    return HIST_LINEAR_US + min(int(math.log2(us / HIST_LINEAR_US) * 8), HIST_LOG_BINS - 1)
+
+
+def bin_upper_us(b: int) -> float:
+    """Upper edge in µs of histogram bin ``b`` (percentiles are reported at upper edges)."""
+    if b < HIST_LINEAR_US:
+        return float(b + 1)
+    return HIST_LINEAR_US * 2.0 ** ((b - HIST_LINEAR_US + 1) / 8)
+
+
+PROCESS = np.dtype(
+    [
+        # Identity, written by the owner on registration (name/pid first by kalictl start).
+        ("name", f"S{NAME_BYTES}"),
+        ("state", "<u4"),  # ProcState, owner
+        ("pid", "<i4"),  # owner
+        ("cpu", "<i4"),  # CPU the owner is bound to, -1 if none
+        ("priority", "<i4"),  # SCHED_FIFO priority, 0 for SCHED_OTHER
+        ("periodic", "<u4"),  # 1 when the wall clock signals this slot
+        ("serious", "<u4"),  # 1: a missed deadline halts the system (thesis 3.6.2)
+        ("stage", "<u4"),  # lockstep order within a tick, lower first
+        ("period_ticks", "<u4"),  # owner or set_control_rate
+        # Clock side, written only by the wall clock.
+        ("signal_tick", "<i8"),  # last tick signalled
+        ("release_ns", "<i8"),  # CLOCK_MONOTONIC at which that tick was due
+        ("next_due", "<i8"),  # next tick at which the slot is due
+        ("signals", "<u8"),
+        ("misses", "<u8"),  # due ticks at which the previous signal was unacknowledged
+        ("consecutive_misses", "<u4"),
+        ("max_consecutive_misses", "<u4"),
+        # Process side, written only by the owner.
+        ("ack_tick", "<i8"),  # last tick whose cycle finished
+        ("acks", "<u8"),
+        ("exec_last_ns", "<i8"),  # wake to acknowledgement
+        ("exec_max_ns", "<i8"),
+        ("late_last_ns", "<i8"),  # due time to wake-up
+        ("late_max_ns", "<i8"),
+        ("heartbeat_ns", "<i8"),  # CLOCK_MONOTONIC, refreshed every cycle and every idle wait
+        ("hist", "<u4", (HIST_BINS,)),  # wake-up lateness histogram, see lateness_bin
+    ],
+    align=True,
+)
+
+
+# --------------------------------------------------------------------------------------------
+# Fault record (DESIGN section 7).  First fault wins; writers take ``lock``.
+
+
+class FaultCode(enum.IntEnum):
+    """Why the system halted."""
+
+    NONE = 0
+    DEADLINE = 1  # a serious process missed its deadline beyond the tolerance
+    LOCKSTEP_TIMEOUT = 2  # a process did not acknowledge a lockstep tick in time
+    DAEMON_ERROR = 3  # a daemon's cycle raised
+    PROCESS_DIED = 4
+    ESTOP = 5
+    RANGE = 6
+    RUNAWAY = 7
+    CURRENT = 8
+    SINGULARITY = 9
+    OPERATOR = 10  # halted on request
+
+
+FAULT = np.dtype(
+    [
+        ("lock", "<u4"),
+        ("active", "<u4"),  # 1 while a fault is uncleared
+        ("code", "<u4"),  # FaultCode
+        ("pid", "<i4"),  # process that raised it
+        ("tick", "<i8"),
+        ("time_ns", "<i8"),  # CLOCK_REALTIME
+        ("count", "<u8"),  # faults raised since start (later ones while active are counted)
+        ("process", f"S{NAME_BYTES}"),
+        ("message", f"S{MESSAGE_BYTES}"),
+    ],
+    align=True,
+)
+
+
+# --------------------------------------------------------------------------------------------
+# Channels (thesis 3.2.1, 2.2.2).  See channels.py for the protocols.
+
+QUEUE_HEADER = np.dtype(
+    [
+        ("lock", "<u4"),  # producers' spinlock (multi-producer)
+        ("capacity", "<u4"),
+        ("entry_bytes", "<u4"),  # payload bytes per entry
+        ("_pad", "<u4"),
+        ("head", "<u8"),  # next entry to read; written by the consumer
+        ("tail", "<u8"),  # next entry to write; written by producers under the lock
+        ("next_seq", "<u8"),  # sequence number of the next entry; producers under the lock
+        ("rejected", "<u8"),  # puts refused because the queue was full
+    ],
+    align=True,
+)
+
+
+def queue_entry(payload: np.dtype) -> np.dtype:
+    """One Type 1 queue entry: a sequence number and the payload record."""
+    return np.dtype([("seq", "<u8"), ("payload", payload)], align=True)
+
+
+FIFO_HEADER = np.dtype(
+    [
+        ("capacity", "<u4"),  # set-points the ring holds
+        ("width", "<u4"),  # values per set-point (joints)
+        ("ratio_num", "<u4"),  # r = ratio_num / ratio_den = servo rate / TG rate
+        ("ratio_den", "<u4"),
+        ("head", "<u8"),  # next set-point to take; consumer
+        ("tail", "<u8"),  # next set-point to write; producer
+        # Interpolation state, consumer only.
+        ("phase_acc", "<u8"),  # integer accumulator deciding ticks per segment
+        ("seg_ticks", "<u4"),  # servo ticks in the current segment
+        ("seg_done", "<u4"),  # ticks of it already output
+        ("primed", "<u4"),  # 1 once the first set-point has been taken
+        ("_pad", "<u4"),
+        ("underruns", "<u8"),  # servo ticks with no set-point to move to (holds B)
+        ("overflows", "<u8"),  # pushes refused because the ring was full
+    ],
+    align=True,
+)
+
+FLAG = np.dtype([("word", "<u4")])  # Type 3 test-and-set flag: 0 clear, else the setter's pid

@@ -1,0 +1,104 @@
+"""Operating-system real-time settings for one Kali process (DESIGN sections 1 and 10).
+
+CPU binding, SCHED_FIFO, timer slack, locked memory and sleeping to absolute deadlines.
+Each setting is applied where the OS permits; a refusal is reported once, never fatal.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import time
+from dataclasses import dataclass
+
+_libc = ctypes.CDLL(None, use_errno=True)
+_PR_SET_TIMERSLACK = 29
+_MCL_CURRENT, _MCL_FUTURE = 1, 2
+_CLOCK_MONOTONIC = 1
+_TIMER_ABSTIME = 1
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+_clock_nanosleep = _libc.clock_nanosleep
+_clock_nanosleep.argtypes = [
+    ctypes.c_int,
+    ctypes.c_int,
+    ctypes.POINTER(_Timespec),
+    ctypes.POINTER(_Timespec),
+]
+_clock_nanosleep.restype = ctypes.c_int
+
+monotonic_ns = time.monotonic_ns  # CLOCK_MONOTONIC: one time base for every Kali process
+
+
+class AbsoluteSleeper:
+    """Sleeps until an absolute CLOCK_MONOTONIC time, as cyclictest does.
+
+    The timespec is allocated once; ``until`` is safe inside a cycle.  The GIL is released
+    for the duration of the sleep (ctypes).
+    """
+
+    __slots__ = ("_ref", "_ts")
+
+    def __init__(self) -> None:
+        self._ts = _Timespec()
+        self._ref = ctypes.byref(self._ts)
+
+    def until(self, deadline_ns: int) -> None:
+        """Return at (or after) ``deadline_ns``; resumes after signals."""
+        self._ts.tv_sec, self._ts.tv_nsec = divmod(deadline_ns, 1_000_000_000)
+        while _clock_nanosleep(_CLOCK_MONOTONIC, _TIMER_ABSTIME, self._ref, None) == 4:  # EINTR
+            pass
+
+
+def spin_until(deadline_ns: int) -> None:
+    """Busy-wait to ``deadline_ns`` (the last tens of µs before a tick, DESIGN 10 item 4)."""
+    while monotonic_ns() < deadline_ns:
+        pass
+
+
+@dataclass
+class RtReport:
+    """What was applied to this process, for the process table and ``kalictl status``."""
+
+    cpu: int  # -1 when not bound
+    priority: int  # 0 when SCHED_OTHER
+    timer_slack_ns: int
+    memory_locked: bool
+    warnings: list[str]
+
+
+def apply(cpu: int | None, priority: int, lock_memory: bool = True) -> RtReport:
+    """Bind to ``cpu``, use SCHED_FIFO at ``priority`` (0: leave SCHED_OTHER), slack 1 ns."""
+    warnings: list[str] = []
+    bound = -1
+    if cpu is not None:
+        try:
+            os.sched_setaffinity(0, {cpu})
+            bound = cpu
+        except OSError as exc:
+            warnings.append(f"cannot bind to CPU {cpu}: {exc.strerror}")
+    applied = 0
+    if priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            applied = priority
+        except OSError as exc:
+            warnings.append(
+                f"SCHED_FIFO priority {priority} refused ({exc.strerror}); running SCHED_OTHER"
+            )
+    slack = 0
+    if _libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(1), 0, 0, 0) == 0:
+        slack = 1
+    else:
+        warnings.append("cannot set timer slack to 1 ns")
+    locked = False
+    if lock_memory:
+        if _libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0:
+            locked = True
+        else:
+            warnings.append(f"mlockall refused ({os.strerror(ctypes.get_errno())})")
+    return RtReport(bound, applied, slack, locked, warnings)

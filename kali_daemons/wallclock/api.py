@@ -1,0 +1,134 @@
+"""The wall clock functions of thesis 3.6.2, callable from any process of an instance.
+
+``control`` makes a function a periodic process; ``set_control_rate`` changes a process's
+period; ``start_kali_clock``/``stop_kali_clock``/``set_kali_clock`` run, halt and set the
+clock; ``step_kali_clock`` advances a lockstep instance by a number of ticks (single-stepping,
+which the thesis names as a use of ``set_control_rate``); ``release`` ends a periodic function.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+from ..daemon import FunctionDaemon
+from ..errors import ClockError
+from ..instance import Instance
+from ..layout import ClockCommand, RunMode
+
+COMMAND_TIMEOUT_S = 5.0
+
+
+def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
+    """Hand one command to the wall clock and wait until it has applied it."""
+    c = inst.clock
+    with inst.cmd_lock:
+        c["cmd"] = int(cmd)
+        c["cmd_arg"] = arg
+        seq = int(c["cmd_seq"]) + 1
+        c["cmd_seq"] = seq
+        inst.command_semaphore().release()
+        deadline = time.monotonic() + COMMAND_TIMEOUT_S
+        while int(c["cmd_done"]) < seq:
+            if time.monotonic() > deadline:
+                raise ClockError(
+                    f"wall clock (pid {int(c['pid'])}) did not take command {cmd.name} "
+                    f"within {COMMAND_TIMEOUT_S:g} s; is it running?"
+                )
+            time.sleep(0.0005)
+        if int(c["cmd_status"]) != 0:
+            raise ClockError(bytes(c["cmd_message"]).decode(errors="replace"))
+
+
+def start_kali_clock(inst: Instance) -> None:
+    """Run the clock: every periodic process is signalled again (thesis 3.6.2)."""
+    _command(inst, ClockCommand.START)
+
+
+def stop_kali_clock(inst: Instance) -> None:
+    """Stop the clock: no periodic process is signalled until it is started."""
+    _command(inst, ClockCommand.STOP)
+
+
+def set_kali_clock(inst: Instance, time_ms: float) -> None:
+    """Set the running time (ms) the clock reports from now on."""
+    _command(inst, ClockCommand.SET_TIME, float(time_ms))
+
+
+def step_kali_clock(inst: Instance, ticks: int, wait: bool = True, timeout: float = 600.0) -> int:
+    """Lockstep: run ``ticks`` more ticks, then stop; returns the tick reached."""
+    if ticks < 0:
+        raise ClockError(f"step of {ticks} ticks: must be >= 0")
+    _command(inst, ClockCommand.STEP, float(ticks))
+    if wait:
+        target = int(inst.clock["step_target"])
+        deadline = time.monotonic() + timeout
+        while int(inst.clock["mode"]) != RunMode.STOPPED:
+            if time.monotonic() > deadline:
+                raise ClockError(f"step to tick {target} not finished within {timeout:g} s")
+            time.sleep(0.0005)
+    return int(inst.clock["tick"])
+
+
+def set_control_rate(inst: Instance, process: str, period_ms: int) -> None:
+    """Change the period of ``process`` to ``period_ms`` (a multiple of the base tick)."""
+    base_ms = int(inst.clock["base_tick_ns"]) // 1_000_000
+    if not isinstance(period_ms, int) or period_ms < base_ms or period_ms % base_ms:
+        raise ClockError(
+            f"rate of '{process}': {period_ms!r} ms must be a whole multiple of the "
+            f"{base_ms} ms base tick"
+        )
+    i = inst.slot_of(process)
+    if not inst.procs[i]["periodic"]:
+        raise ClockError(f"process '{process}' is not driven by the wall clock")
+    inst.procs[i]["period_ticks"] = period_ms // base_ms
+    inst.bump_registry()
+
+
+def control(
+    instance: str,
+    func: Callable[[int], object],
+    *,
+    name: str,
+    serious: bool = False,
+    period_ms: int = 1,
+    stage: int = 8,
+    cpu: int | None = None,
+    priority: int = 0,
+) -> int:
+    """Run ``func(tick)`` as a periodic process of ``instance`` until it is released.
+
+    Blocks the calling process (it becomes the periodic process, as in the thesis); the
+    function returning ``False`` releases it, as does ``kalictl stop``.  Returns the exit
+    status (0, or 1 if the function raised: the system then halts with the reason).
+    """
+    daemon = FunctionDaemon(
+        instance,
+        name,
+        func,
+        period_ms=period_ms,
+        serious=serious,
+        stage=stage,
+        cpu=cpu,
+        priority=priority,
+        lock_memory=False,
+    )
+    return daemon.main()
+
+
+def release(inst: Instance, process: str) -> None:
+    """Stop the wall clock from signalling ``process`` (thesis ``release``)."""
+    i = inst.slot_of(process)
+    inst.procs[i]["periodic"] = 0
+    inst.bump_registry()
+
+
+__all__ = [
+    "control",
+    "release",
+    "set_control_rate",
+    "set_kali_clock",
+    "start_kali_clock",
+    "step_kali_clock",
+    "stop_kali_clock",
+]

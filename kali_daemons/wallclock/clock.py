@@ -1,0 +1,262 @@
+"""The master wall clock (thesis 3.2.1, 3.6.2; DESIGN section 3).
+
+Each base tick the clock, for every periodic slot due at that tick, first checks that the
+slot acknowledged its previous signal, then writes the tick and its due time into the slot
+and posts the slot's own semaphore (interrupt-then-acknowledge).  A missing acknowledgement
+is a missed deadline: counted and that signal skipped; for a ``serious`` process it halts
+the system once ``serious_miss_tolerance`` consecutive misses are used up (DESIGN 10 item 6:
+the host stalls these VMs by milliseconds a few times a minute).
+
+Real-time mode sleeps to absolute deadlines (optionally busy-waiting the last µs) and skips
+ahead after an overrun instead of bursting catch-up ticks.  Lockstep mode never sleeps: each
+tick it signals the due slots stage by stage and waits for all their acknowledgements, so a
+run is deterministic and as fast as the CPUs allow.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import posix_ipc
+
+from .. import layout, rt
+from ..daemon import Daemon, _CycleStats
+from ..instance import decode
+from ..layout import ClockCommand, FaultCode, RunMode
+
+STOPPED_WAIT_S = 0.2
+
+
+class WallClock(Daemon):
+    """The wall clock process: owns the tick and signals every periodic process."""
+
+    kind = "wallclock"
+
+    def on_configure(self) -> None:
+        """Read the clock parameters kalictl start wrote into the clock record."""
+        c = self.inst.clock
+        self.base_ns = int(c["base_tick_ns"])
+        self.busy_ns = int(c["busy_wait_ns"])
+        self.tolerance = int(c["serious_miss_tolerance"])
+        self.lockstep_timeout_s = int(c["lockstep_timeout_ms"]) / 1000.0
+        self.lockstep = bool(c["lockstep"])
+        p = self.inst.procs
+        self._sig, self._rel, self._ack = p["signal_tick"], p["release_ns"], p["ack_tick"]
+        self._due, self._signals = p["next_due"], p["signals"]
+        self._misses, self._consec = p["misses"], p["consecutive_misses"]
+        self._max_consec = p["max_consecutive_misses"]
+        self._sems = [self.inst.slot_semaphore(i) for i in range(layout.MAX_PROCESSES)]
+        self._cmd_sem = self.inst.command_semaphore()
+        self._ack_sem = self.inst.ack_semaphore()
+        self._gen = -1
+        self._slots: list[int] = []  # periodic slots in (stage, slot) order
+        self._serious: list[bool] = []
+        self._period: list[int] = []
+        self._stages: list[int] = []
+
+    def on_activate(self) -> None:
+        """Publish the clock as ready (kalictl start waits for it)."""
+        import os
+
+        self.inst.clock["pid"] = os.getpid()
+        self.inst.clock["ready"] = 1
+
+    def cycle(self, tick: int) -> None:  # pragma: no cover - the clock overrides the loop
+        raise AssertionError("the wall clock drives itself")
+
+    # ------------------------------------------------------------------ registry
+
+    def _rescan(self) -> None:
+        """Rebuild the list of periodic slots when registrations or rates changed."""
+        gen = int(self.inst.clock["registry_gen"])
+        if gen == self._gen:
+            return
+        self._gen = gen
+        p = self.inst.procs
+        live = [
+            i
+            for i in range(layout.MAX_PROCESSES)
+            if p[i]["periodic"] and p[i]["state"] == layout.ProcState.ACTIVE
+        ]
+        live.sort(key=lambda i: (int(p[i]["stage"]), i))
+        self._slots = live
+        self._serious = [bool(p[i]["serious"]) for i in live]
+        self._period = [max(1, int(p[i]["period_ticks"])) for i in live]
+        self._stages = [int(p[i]["stage"]) for i in live]
+
+    # ------------------------------------------------------------------ loop
+
+    def _loop(self) -> None:
+        c = self.inst.clock
+        header, fault = self.inst.arena.header, self.inst.fault
+        stats = _CycleStats(self.inst.procs, self.slot)
+        sleeper = rt.AbsoluteSleeper()
+        now = rt.monotonic_ns
+        base = self.base_ns
+        tick = int(c["tick"])
+        t0 = 0
+        while not self._leave and not header["shutdown"]:
+            if c["cmd_seq"] != c["cmd_done"]:
+                t0 = self._command(now(), t0)
+                tick = int(c["tick"])
+            mode = int(c["mode"])
+            if mode != RunMode.STOPPED and fault["active"]:
+                c["mode"] = mode = RunMode.STOPPED  # halt (DESIGN 7): a fault stops the clock
+            if mode == RunMode.STOPPED:
+                self.inst.procs[self.slot]["heartbeat_ns"] = now()
+                try:
+                    self._cmd_sem.acquire(STOPPED_WAIT_S)
+                except (posix_ipc.BusyError, posix_ipc.SignalError):
+                    pass
+                continue
+            self._rescan()
+            if self.lockstep:
+                t = now()
+                c["tick"] = tick
+                self._lockstep_tick(tick)
+                stats.record(tick, t, t, now())
+                tick += 1
+                c["tick"] = tick
+                if mode == RunMode.STEPPING and tick >= int(c["step_target"]):
+                    c["mode"] = RunMode.STOPPED
+                continue
+            due = t0 + tick * base
+            if self.busy_ns:
+                sleeper.until(due - self.busy_ns)
+                rt.spin_until(due)
+            else:
+                sleeper.until(due)
+            woke = now()
+            if woke - due >= base:  # overrun: skip ahead, no burst of catch-up ticks
+                skip = (woke - due) // base
+                c["overruns"] += 1
+                c["skipped_ticks"] += skip
+                tick += skip
+                due += skip * base
+            c["tick"] = tick
+            self._realtime_tick(tick, due)
+            stats.record(tick, due, woke, now())
+            tick += 1
+
+    def _realtime_tick(self, tick: int, due: int) -> None:
+        """Check acknowledgements and signal every slot due at ``tick``; inside the cycle."""
+        nd, sig, ack = self._due, self._sig, self._ack
+        for k, i in enumerate(self._slots):
+            if tick < nd[i]:
+                continue
+            per = self._period[k]
+            nd[i] = (tick // per + 1) * per
+            if ack[i] < sig[i]:
+                self._missed(k, i, tick)
+                if self.inst.fault["active"]:
+                    return
+                continue
+            if self._consec[i]:
+                self._consec[i] = 0
+            sig[i] = tick
+            self._rel[i] = due
+            self._signals[i] += 1
+            self._sems[i].release()
+
+    def _missed(self, k: int, i: int, tick: int) -> None:
+        """Count a missed deadline of slot ``i``; halt if it is serious and out of tolerance."""
+        self._misses[i] += 1
+        n = int(self._consec[i]) + 1
+        self._consec[i] = n
+        if n > self._max_consec[i]:
+            self._max_consec[i] = n
+        if self._serious[k] and n > self.tolerance:
+            name = decode(self.inst.procs[i]["name"])
+            period_ms = self._period[k] * self.base_ns / 1e6
+            self.inst.raise_fault(
+                FaultCode.DEADLINE,
+                name,
+                f"serious process '{name}' missed {n} consecutive deadlines (tolerance "
+                f"{self.tolerance}) at period {period_ms:g} ms; last acknowledged tick "
+                f"{int(self._ack[i])}, signalled tick {int(self._sig[i])}",
+                tick=tick,
+            )
+            self.inst.clock["mode"] = RunMode.STOPPED
+
+    def _lockstep_tick(self, tick: int) -> None:
+        """Signal due slots stage by stage, waiting for every acknowledgement of a stage."""
+        n = len(self._slots)
+        k = 0
+        while k < n:
+            stage = self._stages[k]
+            posted: list[int] = []
+            while k < n and self._stages[k] == stage:
+                i = self._slots[k]
+                if tick >= self._due[i]:
+                    per = self._period[k]
+                    self._due[i] = (tick // per + 1) * per
+                    self._sig[i] = tick
+                    self._rel[i] = rt.monotonic_ns()
+                    self._signals[i] += 1
+                    self._sems[i].release()
+                    posted.append(i)
+                k += 1
+            for _ in posted:
+                try:
+                    self._ack_sem.acquire(self.lockstep_timeout_s)
+                except posix_ipc.BusyError:
+                    late = [i for i in posted if self._ack[i] < tick]
+                    names = ", ".join(decode(self.inst.procs[i]["name"]) for i in late)
+                    self.inst.raise_fault(
+                        FaultCode.LOCKSTEP_TIMEOUT,
+                        names or "wallclock",
+                        f"lockstep: {names} did not acknowledge tick {tick} within "
+                        f"{self.lockstep_timeout_s:g} s",
+                        tick=tick,
+                    )
+                    self.inst.clock["mode"] = RunMode.STOPPED
+                    return
+
+    # ------------------------------------------------------------------ commands
+
+    def _command(self, now_ns: int, t0: int) -> int:
+        """Apply the pending command (start/stop/set/step); returns the new tick-0 time."""
+        c = self.inst.clock
+        cmd = int(c["cmd"])
+        arg = float(c["cmd_arg"])
+        status, message = 0, ""
+        tick = int(c["tick"])
+        base_ms = self.base_ns / 1e6
+        if cmd in (ClockCommand.START, ClockCommand.STEP) and self.inst.fault["active"]:
+            status = -1
+            message = f"fault active ({self.inst.fault_text()}); kalictl reset first"
+        elif cmd == ClockCommand.START:
+            self._drain_acks()
+            self._consec[:] = 0
+            t0 = now_ns + self.base_ns - tick * self.base_ns
+            c["t0_ns"] = t0
+            c["mode"] = RunMode.RUNNING
+        elif cmd == ClockCommand.STOP:
+            c["mode"] = RunMode.STOPPED
+        elif cmd == ClockCommand.SET_TIME:
+            c["time_offset_ms"] = arg - tick * base_ms
+        elif cmd == ClockCommand.STEP:
+            if not self.lockstep:
+                status, message = -1, "clock step needs lockstep mode (kalictl start --lockstep)"
+            else:
+                self._drain_acks()
+                c["step_target"] = tick + int(arg)
+                c["mode"] = RunMode.STEPPING if int(arg) > 0 else RunMode.STOPPED
+        else:
+            status, message = -1, f"unknown clock command {cmd}"
+        c["cmd_status"] = status
+        c["cmd_message"] = message.encode()[:119]
+        c["cmd_done"] = c["cmd_seq"]
+        return t0
+
+    def _drain_acks(self) -> None:
+        """Forget acknowledgements left over from a timed-out lockstep tick."""
+        try:
+            while True:
+                self._ack_sem.acquire(0)
+        except posix_ipc.BusyError:
+            pass
+
+
+def time_ms(clock: np.ndarray) -> float:
+    """Running time of the wall clock in ms (thesis: total running time in milliseconds)."""
+    return float(clock["time_offset_ms"]) + int(clock["tick"]) * int(clock["base_tick_ns"]) / 1e6

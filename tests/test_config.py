@@ -1,0 +1,609 @@
+"""Tests for kali_daemons.config: the default file, every rejection path, and immutability.
+
+Malformed configs are small edits of config/default.yaml, so each case shows exactly which
+change is wrong and which message (field path, value, what is allowed) it must produce.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import pytest
+
+from kali_daemons import config as config_mod
+from kali_daemons.config import (
+    CONFIG_VERSION,
+    PROCESS_NAMES,
+    ClockConfig,
+    KaliConfig,
+    ProcessConfig,
+    RobotConfig,
+    load_config,
+    parse_config,
+    with_overrides,
+)
+from kali_daemons.errors import ConfigError
+
+DEFAULT_PATH = Path(__file__).resolve().parents[1] / "config" / "default.yaml"
+DEFAULT_TEXT = DEFAULT_PATH.read_text(encoding="utf-8")
+SOURCE = "config/default.yaml"
+FAKE_CPUS = 4
+
+
+@pytest.fixture(autouse=True)
+def _fixed_cpu_count(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Pretend every machine has FAKE_CPUS CPUs so messages and defaults are deterministic."""
+    monkeypatch.setattr(config_mod, "_cpu_count", lambda: FAKE_CPUS)
+
+
+def edit(*pairs: tuple[str, str]) -> str:
+    """The default text with each ``(old, new)`` applied; ``old`` must occur exactly once."""
+    text = DEFAULT_TEXT
+    for old, new in pairs:
+        assert text.count(old) == 1, f"edit target {old!r} must occur exactly once"
+        text = text.replace(old, new)
+    return text
+
+
+def error_of(text: str) -> str:
+    """The ConfigError message parse_config gives for ``text``."""
+    with pytest.raises(ConfigError) as info:
+        parse_config(text, SOURCE)
+    return str(info.value)
+
+
+def line_of(fragment: str) -> int:
+    """1-based line number of ``fragment`` in the default text."""
+    for number, line in enumerate(DEFAULT_TEXT.splitlines(), 1):
+        if fragment in line:
+            return number
+    raise AssertionError(fragment)
+
+
+EXPECTED_PROCESSES = (
+    ProcessConfig("wallclock", "wallclock", 0, 90, 1, False, 0),
+    ProcessConfig("plant", "plant", 1, 88, 1, False, 0),
+    ProcessConfig("tg", "tg", 1, 80, 10, True, 1),
+    ProcessConfig("sio", "sio", 0, 85, 1, True, 2),
+    ProcessConfig("sv.0", "sv", 0, 84, 1, True, 2),
+    ProcessConfig("sv.1", "sv", 1, 84, 1, True, 2),
+    ProcessConfig("dynamics", "dynamics", 1, 40, 10, False, 3),
+    ProcessConfig("viewer", "viewer", 1, 0, 40, False, 4),
+)
+EXPECTED_ROBOTS = (
+    RobotConfig("left", "puma560", (-0.6, 0.0, 0.0), 0.0),
+    RobotConfig("right", "puma560", (0.6, 0.0, 0.0), 180.0),
+)
+
+
+# --------------------------------------------------------------------------------------------
+# The default file
+
+
+def test_default_file_loads_to_expected_objects() -> None:
+    cfg = load_config(DEFAULT_PATH)
+    assert cfg == KaliConfig(
+        version=CONFIG_VERSION,
+        instance="default",
+        arena_kib=4096,
+        startup_timeout_s=60.0,
+        clock=ClockConfig(1, 1, 10, 3, 5.0, 0),
+        processes=EXPECTED_PROCESSES,
+        robots=EXPECTED_ROBOTS,
+        source=str(DEFAULT_PATH),
+        text=DEFAULT_TEXT,
+    )
+    assert isinstance(cfg.startup_timeout_s, float)  # the YAML says 60: int accepted as float
+    assert isinstance(cfg.robots[0].base_yaw_deg, float)
+
+
+def test_default_file_round_trips_through_its_text() -> None:
+    cfg = load_config(DEFAULT_PATH)
+    assert parse_config(cfg.text, cfg.source) == cfg
+
+
+def test_default_file_loads_on_this_machine(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.undo()  # the real CPU count
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("config/default.yaml binds CPU 1; this machine has one CPU")
+    assert load_config(DEFAULT_PATH).processes == EXPECTED_PROCESSES
+
+
+def test_optional_sections_default_to_the_default_file() -> None:
+    minimal = parse_config("version: 1\ninstance: default\n")
+    full = parse_config(DEFAULT_TEXT)
+    assert dataclasses.replace(minimal, text="") == dataclasses.replace(full, text="")
+
+
+def test_process_entries_default_per_kind() -> None:
+    text = "version: 1\ninstance: x\n"
+    text += "clock: {base_tick_ms: 3, servo_period_ms: 6, tg_period_ms: 15}\n"
+    text += "processes: {" + ", ".join(f"{k}: {{}}" for k in PROCESS_NAMES) + "}\n"
+    cfg = parse_config(text)
+    periods = {p.name: p.period_ms for p in cfg.processes}
+    # servo/TG ratio 2.5 is allowed; the viewer's 40 ms is rounded up to whole ticks.
+    assert periods == {
+        "wallclock": 3,
+        "plant": 3,
+        "tg": 15,
+        "sio": 6,
+        "sv.0": 6,
+        "sv.1": 6,
+        "dynamics": 15,
+        "viewer": 42,
+    }
+    assert {p.name: p.stage for p in cfg.processes} == {
+        "wallclock": 0,
+        "plant": 0,
+        "tg": 1,
+        "sio": 2,
+        "sv.0": 2,
+        "sv.1": 2,
+        "dynamics": 3,
+        "viewer": 4,
+    }
+    assert all(p.cpu is None and p.priority == 0 and not p.serious for p in cfg.processes)
+
+
+def test_sv_count_expands_workers_in_order() -> None:
+    cfg = parse_config(edit(("{count: 2, cpus: [0, 1],", "{count: 3, cpus: [null, 3, 2],")), SOURCE)
+    names = [p.name for p in cfg.processes]
+    workers = ["sv.0", "sv.1", "sv.2"]
+    assert names == ["wallclock", "plant", "tg", "sio", *workers, "dynamics", "viewer"]
+    assert [cfg.process(f"sv.{i}").cpu for i in range(3)] == [None, 3, 2]
+
+
+def test_process_lookup_and_periodic() -> None:
+    cfg = parse_config(DEFAULT_TEXT, SOURCE)
+    assert cfg.process("sv.1") == EXPECTED_PROCESSES[5]
+    assert cfg.periodic() == EXPECTED_PROCESSES[1:]
+    with pytest.raises(ConfigError, match=r"no process 'sv'; known processes: wallclock, plant"):
+        cfg.process("sv")
+
+
+# --------------------------------------------------------------------------------------------
+# Malformed configs: each a small edit of the default text and a substring its error must hold
+
+CPU_MSG = f"must be null or a CPU index 0..{FAKE_CPUS - 1} (this machine has {FAKE_CPUS} CPUs)"
+
+BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
+    # (id, edits, expected substring of the message)
+    (
+        "tick-negative",
+        [("base_tick_ms: 1 ", "base_tick_ms: -1 ")],
+        "config: config/default.yaml: clock.base_tick_ms = -1: must be an integer >= 1",
+    ),
+    (
+        "tick-too-big",
+        [("base_tick_ms: 1 ", "base_tick_ms: 101 ")],
+        "clock.base_tick_ms = 101: must be an integer >= 1 and <= 100",
+    ),
+    (
+        "tick-float",
+        [("base_tick_ms: 1 ", "base_tick_ms: 1.5 ")],
+        "clock.base_tick_ms = 1.5: must be an integer >= 1 and <= 100, not a number",
+    ),
+    (
+        "servo-not-multiple-of-tick",
+        [("base_tick_ms: 1 ", "base_tick_ms: 2 "), ("servo_period_ms: 1 ", "servo_period_ms: 3 ")],
+        "clock.servo_period_ms = 3: must be a multiple of clock.base_tick_ms (2)",
+    ),
+    (
+        "servo-default-not-multiple-of-tick",
+        [("base_tick_ms: 1 ", "base_tick_ms: 3 "), ("  servo_period_ms: 1 ", "  # (deleted) ")],
+        "clock.servo_period_ms = 1: must be a multiple of clock.base_tick_ms (3) (the default; "
+        "set clock.servo_period_ms explicitly)",
+    ),
+    (
+        "servo-zero",
+        [("servo_period_ms: 1 ", "servo_period_ms: 0 ")],
+        "clock.servo_period_ms = 0: must be an integer >= 1",
+    ),
+    (
+        "tg-faster-than-servo",
+        [("servo_period_ms: 1 ", "servo_period_ms: 20 ")],
+        "clock.tg_period_ms = 10: must be >= clock.servo_period_ms (20)",
+    ),
+    (
+        "miss-tolerance-too-big",
+        [("serious_miss_tolerance: 3", "serious_miss_tolerance: 1001")],
+        "clock.serious_miss_tolerance = 1001: must be an integer >= 0 and <= 1000",
+    ),
+    (
+        "ack-timeout-zero",
+        [("lockstep_ack_timeout_s: 5.0", "lockstep_ack_timeout_s: 0")],
+        "clock.lockstep_ack_timeout_s = 0: must be a number > 0 and <= 600",
+    ),
+    (
+        "ack-timeout-nan",
+        [("lockstep_ack_timeout_s: 5.0", "lockstep_ack_timeout_s: .nan")],
+        "clock.lockstep_ack_timeout_s = nan: must be a number > 0 and <= 600",
+    ),
+    (
+        "busy-wait-too-long",
+        [("busy_wait_us: 0 ", "busy_wait_us: 501 ")],
+        "clock.busy_wait_us = 501: must be an integer >= 0 and <= 500",
+    ),
+    (
+        "version-2",
+        [("version: 1", "version: 2")],
+        "version = 2: unsupported; this Kali reads version 1",
+    ),
+    (
+        "version-float",
+        [("version: 1", "version: 1.0")],
+        "version = 1.0: unsupported; this Kali reads version 1",
+    ),
+    ("version-missing", [("version: 1\n", "")], "version: missing; required"),
+    (
+        "instance-upper-case",
+        [("instance: default", "instance: Default")],
+        "instance = 'Default': must be a string matching [a-z0-9][a-z0-9_-]{0,23}",
+    ),
+    (
+        "instance-dot",
+        [("instance: default", "instance: a.b")],
+        "instance = 'a.b': must be a string matching",
+    ),
+    (
+        "instance-slash",
+        [("instance: default", "instance: a/b")],
+        "instance = 'a/b': must be a string matching",
+    ),
+    (
+        "instance-too-long",
+        [("instance: default", "instance: " + "a" * 25)],
+        "instance = '" + "a" * 25 + "': must be a string matching",
+    ),
+    (
+        "instance-number",
+        [("instance: default", "instance: 7")],
+        "instance = 7: must be a string matching [a-z0-9][a-z0-9_-]{0,23}, not an integer",
+    ),
+    ("instance-missing", [("instance: default\n", "")], "instance: missing; required"),
+    (
+        "arena-too-small",
+        [("arena_kib: 4096", "arena_kib: 63")],
+        "arena_kib = 63: must be an integer >= 64 and <= 1048576",
+    ),
+    (
+        "arena-string",
+        [("arena_kib: 4096", "arena_kib: '4096'")],
+        "arena_kib = '4096': must be an integer >= 64 and <= 1048576, not a string",
+    ),
+    (
+        "startup-timeout-too-long",
+        [("startup_timeout_s: 60", "startup_timeout_s: 601")],
+        "startup_timeout_s = 601: must be a number > 0 and <= 600",
+    ),
+    (
+        "unknown-top-key",
+        [("arena_kib: 4096", "arena_kb: 4096")],
+        "arena_kb: unknown key (did you mean 'arena_kib'?); allowed keys: version, instance, "
+        "arena_kib, startup_timeout_s, clock, processes, robots",
+    ),
+    (
+        "unknown-clock-key",
+        [("busy_wait_us: 0 ", "busy_wait: 0 ")],
+        "clock.busy_wait: unknown key (did you mean 'busy_wait_us'?); allowed keys: "
+        "base_tick_ms, servo_period_ms, tg_period_ms",
+    ),
+    (
+        "process-missing",
+        [("  viewer:    {cpu: 1, priority: 0, period_ms: 40, serious: false, stage: 4}\n", "")],
+        "processes.viewer: missing; every one of wallclock, plant, tg, sio, sv, dynamics, "
+        "viewer must be configured",
+    ),
+    (
+        "process-unknown",
+        [("  viewer:  ", "  vewer:  ")],
+        "processes.vewer: unknown key (did you mean 'viewer'?); allowed keys: wallclock, plant",
+    ),
+    (
+        "process-not-mapping",
+        [("  sio:       {cpu: 0, priority: 85, serious: true, stage: 2}", "  sio: 3")],
+        "processes.sio = 3: must be a mapping with keys from: cpu, priority, serious, stage",
+    ),
+    (
+        "cpu-too-big",
+        [("sio:       {cpu: 0,", f"sio:       {{cpu: {FAKE_CPUS},")],
+        f"processes.sio.cpu = {FAKE_CPUS}: {CPU_MSG}",
+    ),
+    (
+        "cpu-negative",
+        [("plant:     {cpu: 1,", "plant:     {cpu: -1,")],
+        f"processes.plant.cpu = -1: {CPU_MSG}",
+    ),
+    (
+        "sv-cpus-entry",
+        [("cpus: [0, 1]", "cpus: [0, -1]")],
+        f"processes.sv.cpus[1] = -1: {CPU_MSG}",
+    ),
+    (
+        "sv-cpus-wrong-length",
+        [("cpus: [0, 1]", "cpus: [0, null, 1]")],
+        "processes.sv.cpus = [0, null, 1]: must be a list of 2 entries (one per worker, "
+        "sv.count = 2), each a CPU index or null; got 3 entries",
+    ),
+    (
+        "sv-count-too-big",
+        [("{count: 2, cpus: [0, 1],", "{count: 9,")],
+        "processes.sv.count = 9: must be an integer >= 1 and <= 8",
+    ),
+    (
+        "sv-count-zero",
+        [("{count: 2, cpus: [0, 1],", "{count: 0,")],
+        "processes.sv.count = 0: must be an integer >= 1 and <= 8",
+    ),
+    (
+        "sv-cpu-key",
+        [("cpus: [0, 1]", "cpu: 0")],
+        "processes.sv.cpu = 0: not allowed: sv has one worker per entry of cpus",
+    ),
+    (
+        "tg-period",
+        [("tg:        {cpu: 1,", "tg:        {period_ms: 5, cpu: 1,")],
+        "processes.tg.period_ms = 5: not allowed: the tg period comes from clock.tg_period_ms",
+    ),
+    (
+        "sio-period",
+        [("sio:       {cpu: 0,", "sio:       {period_ms: 1, cpu: 0,")],
+        "processes.sio.period_ms = 1: not allowed: the sio period comes from clock.servo_period_ms",
+    ),
+    (
+        "sv-period",
+        [("{count: 2,", "{period_ms: 1, count: 2,")],
+        "processes.sv.period_ms = 1: not allowed: the sv period comes from clock.servo_period_ms",
+    ),
+    (
+        "wallclock-stage",
+        [("{cpu: 0, priority: 90}", "{cpu: 0, priority: 90, stage: 0}")],
+        "processes.wallclock.stage: unknown key; allowed keys: cpu, priority",
+    ),
+    (
+        "priority-too-big",
+        [("priority: 80,", "priority: 100,")],
+        "processes.tg.priority = 100: must be an integer >= 0 and <= 99",
+    ),
+    (
+        "stage-too-big",
+        [("stage: 4}", "stage: 16}")],
+        "processes.viewer.stage = 16: must be an integer >= 0 and <= 15",
+    ),
+    (
+        "serious-int",
+        [("priority: 80, serious: true", "priority: 80, serious: 1")],
+        "processes.tg.serious = 1: must be true or false, not an integer",
+    ),
+    (
+        "period-not-multiple-of-tick",
+        [
+            ("base_tick_ms: 1 ", "base_tick_ms: 2 "),
+            ("servo_period_ms: 1 ", "servo_period_ms: 2 "),
+            ("period_ms: 1, stage: 0", "period_ms: 2, stage: 0"),
+            ("period_ms: 40,", "period_ms: 45,"),
+        ],
+        "processes.viewer.period_ms = 45: must be a multiple of clock.base_tick_ms (2)",
+    ),
+    (
+        "period-zero",
+        [("period_ms: 10, serious: false", "period_ms: 0, serious: false")],
+        "processes.dynamics.period_ms = 0: must be an integer >= 1",
+    ),
+    (
+        "robots-too-many",
+        [("base_yaw_deg: 180}", "base_yaw_deg: 180}\n  - {name: a}\n  - {name: b}\n  - {name: c}")],
+        "robots = [{'name': 'left', 'model': 'puma560', 'base_xyz': [-0.6, ...: must be a list "
+        "of 1..4 entries, not 5",
+    ),
+    (
+        "robot-name-duplicate",
+        [("{name: right,", "{name: left,")],
+        "robots[1].name = 'left': duplicate; robot names must be unique (also robots[0])",
+    ),
+    (
+        "robot-name-pattern",
+        [("{name: left,", "{name: Left,")],
+        "robots[0].name = 'Left': must be a string matching [a-z][a-z0-9_]{0,15}",
+    ),
+    (
+        "robot-name-missing",
+        [("{name: left,  model", "{model")],
+        "robots[0].name: missing; required",
+    ),
+    (
+        "robot-model",
+        [("{name: left,  model: puma560", "{name: left,  model: ur5")],
+        "robots[0].model = 'ur5': must be one of: puma560",
+    ),
+    (
+        "robot-xyz-length",
+        [("[-0.6, 0.0, 0.0]", "[-0.6, 0.0]")],
+        "robots[0].base_xyz = [-0.6, 0.0]: must be a list of 3 numbers [x, y, z] in metres",
+    ),
+    (
+        "robot-xyz-inf",
+        [("[0.6, 0.0, 0.0]", "[0.6, .inf, 0.0]")],
+        "robots[1].base_xyz[1] = inf: must be a finite number",
+    ),
+    (
+        "robot-yaw-string",
+        [("base_yaw_deg: 180", "base_yaw_deg: east")],
+        "robots[1].base_yaw_deg = 'east': must be a finite number, not a string",
+    ),
+    (
+        "robot-unknown-key",
+        [("base_yaw_deg: 180", "base_yaw: 180")],
+        "robots[1].base_yaw: unknown key (did you mean 'base_yaw_deg'?); allowed keys: name, "
+        "model, base_xyz, base_yaw_deg",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("edits", "expected"),
+    [pytest.param(edits, expected, id=case_id) for case_id, edits, expected in BAD_CONFIGS],
+)
+def test_malformed_config_is_rejected(edits: list[tuple[str, str]], expected: str) -> None:
+    message = error_of(edit(*edits))
+    assert message.startswith(f"config: {SOURCE}: ")
+    assert expected in message
+
+
+def replace_section(name: str, replacement: str) -> str:
+    """The default text with the top-level section ``name:`` (up to the next one) replaced."""
+    start = DEFAULT_TEXT.index(f"\n{name}:") + 1
+    end = len(DEFAULT_TEXT)
+    for later in ("\n# ", "\nprocesses:", "\nrobots:"):
+        found = DEFAULT_TEXT.find(later, start)
+        if found != -1:
+            end = min(end, found + 1)
+    return DEFAULT_TEXT[:start] + replacement + DEFAULT_TEXT[end:]
+
+
+@pytest.mark.parametrize(
+    ("section", "replacement", "expected"),
+    [
+        ("clock", "clock: 5\n", "clock = 5: must be a mapping with keys from: base_tick_ms"),
+        ("processes", "processes: [tg]\n", "processes = ['tg']: must be a mapping with keys"),
+        ("robots", "robots: []\n", "robots = []: must be a list of 1..4 entries, not 0"),
+        ("robots", "robots: left\n", "robots = 'left': must be a list of 1..4 entries, not a"),
+        ("robots", "robots:\n  - left\n", "robots[0] = 'left': must be a mapping with keys"),
+    ],
+)
+def test_section_of_wrong_type(section: str, replacement: str, expected: str) -> None:
+    text = replace_section(section, replacement)
+    assert text.count(f"\n{section}:") == 1
+    assert expected in error_of(text)
+
+
+def test_cpu_beyond_real_machine_names_cpu_count(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.undo()
+    ncpu = os.cpu_count() or 1
+    text = "version: 1\ninstance: x\n"
+    text += "processes: {" + ", ".join(f"{k}: {{}}" for k in PROCESS_NAMES if k != "sio")
+    text += f", sio: {{cpu: {ncpu}}}}}\n"
+    message = error_of(text)
+    assert f"processes.sio.cpu = {ncpu}:" in message
+    assert f"(this machine has {ncpu} CPUs)" in message
+
+
+# --------------------------------------------------------------------------------------------
+# YAML-level errors and types
+
+
+def test_yaml_syntax_error_names_the_line() -> None:
+    line = line_of("tg:        {cpu: 1,")
+    message = error_of(edit(("tg:        {cpu: 1,", "tg:        {cpu: 1,,")))
+    assert f"config: {SOURCE}: line {line}, column " in message
+    assert "YAML does not parse" in message
+
+
+def test_duplicate_key_is_an_error_with_its_line() -> None:
+    text = edit(("arena_kib: 4096\n", "arena_kib: 4096\narena_kib: 8192\n"))
+    assert f"line {line_of('arena_kib: 4096') + 1}, column 1" in error_of(text)
+    assert "duplicate key 'arena_kib'" in error_of(text)
+
+
+def test_control_character_names_the_line() -> None:
+    message = error_of(edit(("instance: default", "instance: de\x07fault")))
+    assert f"line {line_of('instance: default')}: YAML does not parse: character U+0007" in message
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("", "the top level = null: must be a mapping (the file is empty), not null"),
+        ("- version: 1\n", "the top level = [{'version': 1}]: must be a mapping, not a list"),
+        ("just a string\n", "the top level = 'just a string': must be a mapping, not a string"),
+    ],
+)
+def test_top_level_must_be_a_mapping(text: str, expected: str) -> None:
+    assert expected in error_of(text)
+
+
+@pytest.mark.parametrize(
+    ("edits", "expected"),
+    [
+        (("arena_kib: 4096", "arena_kib: true"), "arena_kib = true: must be an integer >= 64"),
+        (("priority: 80,", "priority: yes,"), "processes.tg.priority = true: must be an integer"),
+        (("cpus: [0, 1]", "cpus: [0, false]"), "processes.sv.cpus[1] = false: must be null or"),
+        (("startup_timeout_s: 60", "startup_timeout_s: true"), "startup_timeout_s = true: must"),
+        (("version: 1", "version: true"), "version = true: unsupported"),
+    ],
+)
+def test_bool_is_not_an_int(edits: tuple[str, str], expected: str) -> None:
+    message = error_of(edit(edits))
+    assert expected in message
+    if "version" not in expected:
+        assert message.endswith("not a bool")
+
+
+def test_unknown_key_lists_allowed_keys() -> None:
+    message = error_of(edit(("stage: 3}", "stage: 3, colour: red}")))
+    assert message == (
+        f"config: {SOURCE}: processes.dynamics.colour: unknown key; allowed keys: "
+        "cpu, priority, period_ms, serious, stage"
+    )
+
+
+def test_int_accepted_where_float_expected() -> None:
+    cfg = parse_config(edit(("lockstep_ack_timeout_s: 5.0", "lockstep_ack_timeout_s: 2")))
+    assert cfg.clock.lockstep_ack_timeout_s == 2.0
+    assert isinstance(cfg.clock.lockstep_ack_timeout_s, float)
+
+
+def test_non_integer_servo_tg_ratio_is_allowed() -> None:
+    cfg = parse_config(edit(("servo_period_ms: 1 ", "servo_period_ms: 3 ")))
+    assert (cfg.process("sio").period_ms, cfg.process("tg").period_ms) == (3, 10)
+
+
+# --------------------------------------------------------------------------------------------
+# Files, overrides, immutability
+
+
+def test_missing_file_names_the_path(tmp_path: Path) -> None:
+    path = tmp_path / "nope.yaml"
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value) == f"config: {path}: cannot read config file: No such file or directory"
+
+
+def test_directory_is_unreadable(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read config file"):
+        load_config(tmp_path)
+
+
+def test_load_error_names_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "bad.yaml"
+    path.write_text(edit(("arena_kib: 4096", "arena_kib: 1")), encoding="utf-8")
+    with pytest.raises(ConfigError, match=rf"^config: {path}: arena_kib = 1: must be an integer"):
+        load_config(path)
+
+
+def test_with_overrides_replaces_and_validates() -> None:
+    cfg = parse_config(DEFAULT_TEXT, SOURCE)
+    other = with_overrides(cfg, instance="test-1", arena_kib=128)
+    assert (other.instance, other.arena_kib) == ("test-1", 128)
+    assert other.processes == cfg.processes and cfg.instance == "default"
+    with pytest.raises(ConfigError, match=r"\(override\): instance = 'Bad/Name': must be"):
+        with_overrides(cfg, instance="Bad/Name")
+    with pytest.raises(ConfigError, match="clock: cannot be overridden; overridable fields"):
+        with_overrides(cfg, clock=ClockConfig())
+
+
+def test_config_is_immutable() -> None:
+    cfg = parse_config(DEFAULT_TEXT)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.instance = "other"  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.clock.base_tick_ms = 2  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.processes[0].cpu = 3  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.robots[0].name = "x"  # type: ignore[misc]
+    assert isinstance(cfg.processes, tuple) and isinstance(cfg.robots, tuple)
+    assert isinstance(cfg.robots[0].base_xyz, tuple)
+    assert hash(cfg) == hash(parse_config(DEFAULT_TEXT))
