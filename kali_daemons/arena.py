@@ -70,9 +70,7 @@ def _round_up(n: int) -> int:
 def _key_bytes(key: str) -> bytes:
     raw = key.encode("ascii", "replace") if isinstance(key, str) else b""
     if not raw or len(raw) >= layout.KEY_BYTES or b"\0" in raw or b"?" in raw:
-        raise ArenaError(
-            f"key {key!r} is not allowed: 1..{layout.KEY_BYTES - 1} ASCII characters"
-        )
+        raise ArenaError(f"key {key!r} is not allowed: 1..{layout.KEY_BYTES - 1} ASCII characters")
     return raw
 
 
@@ -264,9 +262,7 @@ class Arena:
             if i != layout.NULL_INDEX:
                 have = int(d[i]["requested"])
                 if size > have:
-                    raise ArenaError(
-                        f"block '{key}' exists with {have} B, {size} B requested"
-                    )
+                    raise ArenaError(f"block '{key}' exists with {have} B, {size} B requested")
                 return int(d[i]["offset"])
             i = int(self.header["head"])
             while i != layout.NULL_INDEX and (d[i]["used"] or int(d[i]["size"]) < need):

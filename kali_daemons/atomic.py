@@ -38,7 +38,7 @@ def _load_libatomic() -> ctypes.CDLL:
 _lib = _load_libatomic()
 
 
-def _fn(name: str, restype: type, *argtypes: type):  # noqa: ANN202 - ctypes function pointer
+def _fn(name: str, restype: type, *argtypes: type):
     fn = getattr(_lib, name)
     fn.restype = restype
     fn.argtypes = list(argtypes)

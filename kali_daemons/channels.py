@@ -154,6 +154,7 @@ class RequestQueue:
         Validates first (unknown or missing fields, wrong shapes → ChannelError, nothing
         written), then writes under the producers' lock.  Allocation-light, meant for
         asynchronous producers; may wait on the lock, so not for the synchronous consumer.
+        One object per thread: the validated entry is staged in a per-object buffer.
         """
         self._stage(values)
         full = None

@@ -39,7 +39,7 @@ def _errors(fn: Callable) -> Callable:
     """Turn a KaliError into one line on stderr and exit status 1."""
 
     @wraps(fn)
-    def wrapper(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+    def wrapper(*args, **kwargs):
         try:
             return fn(*args, **kwargs)
         except KaliError as exc:
@@ -87,8 +87,7 @@ def start(ctx: click.Context, config_path: Path | None, lockstep: bool) -> None:
     report = launcher.start(cfg, lockstep=lockstep, instance=name)
     if report.stale_cleaned:
         click.echo(
-            f"cleaned a stale instance '{name}' left by a crash: "
-            + ", ".join(report.stale_cleaned)
+            f"cleaned a stale instance '{name}' left by a crash: " + ", ".join(report.stale_cleaned)
         )
     mode = "lockstep (clock stopped at tick 0)" if lockstep else "real time (clock running)"
     click.echo(
@@ -255,4 +254,4 @@ def reset(ctx: click.Context) -> None:
             click.echo("no active fault")
 
 
-__all__ = ["layout", "main", "decode"]
+__all__ = ["decode", "layout", "main"]

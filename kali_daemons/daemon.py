@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
 import traceback
@@ -125,14 +126,14 @@ class Daemon:
             pcfg = cfg.process(self.name)
         self.slot = self.inst.find_slot(self.name)
         if self.slot < 0:
-            import os
-
             self.slot = self.inst.claim_slot(self.name, os.getpid())
             self._claimed = True
         ov = self._overrides
         base_ms = cfg.clock.base_tick_ms
-        period_ms = ov["period_ms"] if ov["period_ms"] is not None else (
-            pcfg.period_ms if pcfg else base_ms
+        period_ms = (
+            ov["period_ms"]
+            if ov["period_ms"] is not None
+            else (pcfg.period_ms if pcfg else base_ms)
         )
         if period_ms < base_ms or period_ms % base_ms:
             raise DaemonError(
@@ -140,23 +141,23 @@ class Daemon:
                 f"{base_ms} ms base tick"
             )
         self.period_ticks = period_ms // base_ms
-        self.serious = bool(ov["serious"] if ov["serious"] is not None else (
-            pcfg.serious if pcfg else False))
+        self.serious = bool(
+            ov["serious"] if ov["serious"] is not None else (pcfg.serious if pcfg else False)
+        )
         self.stage = int(ov["stage"] if ov["stage"] is not None else (pcfg.stage if pcfg else 8))
         cpu = ov["cpu"] if ov["cpu"] is not None else (pcfg.cpu if pcfg else None)
         prio = ov["priority"] if ov["priority"] is not None else (pcfg.priority if pcfg else 0)
-        report = rt.apply(cpu, prio, self._lock_memory)
-        for w in report.warnings:
-            self.log.warning("%s: %s", self.name, w)
-        import os
-
+        report = rt.prepare(cpu, self._lock_memory)
         p = self.inst.procs[self.slot]
         p["pid"] = os.getpid()
         p["cpu"] = report.cpu
-        p["priority"] = report.priority
         p["heartbeat_ns"] = rt.monotonic_ns()
         self._set_state(ProcState.INACTIVE)
-        self.on_configure()
+        self.on_configure()  # heavy set-up runs before this process becomes real-time
+        rt.go_realtime(report, prio)
+        p["priority"] = report.priority
+        for w in report.warnings:  # one warning per refusal, at start-up only
+            self.log.warning("%s: %s", self.name, w)
         self._register()
 
     def _register(self) -> None:
@@ -185,6 +186,7 @@ class Daemon:
             self.log.exception("%s: on_error failed", self.name)
 
     def _finish(self) -> None:
+        rt.leave_realtime()
         if self.slot < 0:
             return
         try:
@@ -262,7 +264,7 @@ class _CycleStats:
 
     __slots__ = ("_i", "_p")
 
-    def __init__(self, procs, slot: int) -> None:  # noqa: ANN001 - numpy record array
+    def __init__(self, procs, slot: int) -> None:
         self._p = procs
         self._i = slot
 
@@ -288,7 +290,7 @@ class FunctionDaemon(Daemon):
 
     kind = "function"
 
-    def __init__(self, instance: str, name: str, func: Callable[[int], object], **kw) -> None:  # noqa: ANN003
+    def __init__(self, instance: str, name: str, func: Callable[[int], object], **kw) -> None:
         super().__init__(instance, name, **kw)
         self._func = func
 

@@ -170,9 +170,7 @@ class Instance:
 
     def process_names(self) -> list[str]:
         """Names of every occupied slot, in slot order."""
-        return [
-            decode(p["name"]) for p in self.procs if p["state"] != ProcState.FREE
-        ]
+        return [decode(p["name"]) for p in self.procs if p["state"] != ProcState.FREE]
 
     def claim_slot(self, name: str, pid: int) -> int:
         """Reserve a free slot for a new process ``name`` (unique among occupied slots)."""
@@ -212,7 +210,9 @@ class Instance:
 
     # ---------------------------------------------------------------- faults (DESIGN 7)
 
-    def raise_fault(self, code: FaultCode, process: str, message: str, tick: int | None = None) -> bool:
+    def raise_fault(
+        self, code: FaultCode, process: str, message: str, tick: int | None = None
+    ) -> bool:
         """Record a fault and so halt the system; the first uncleared fault wins.
 
         The wall clock stops itself when it sees an active fault.  Returns True if this call
@@ -231,6 +231,8 @@ class Instance:
             f["message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
             f["active"] = 1
         self.command_semaphore().release()  # a stopped-but-waiting clock notices at once
+        if self.lockstep:
+            self.ack_semaphore().release()  # a clock waiting for lockstep acks notices too
         return True
 
     def clear_fault(self) -> bool:
@@ -246,6 +248,4 @@ class Instance:
         if not f["active"]:
             return None
         code = FaultCode(int(f["code"])).name
-        return (
-            f"{code} in {decode(f['process'])} at tick {int(f['tick'])}: {decode(f['message'])}"
-        )
+        return f"{code} in {decode(f['process'])} at tick {int(f['tick'])}: {decode(f['message'])}"

@@ -42,7 +42,9 @@ def log_dir(instance: str) -> Path:
 def shm_objects(instance: str) -> list[str]:
     """Every ``/dev/shm`` entry belonging to ``instance`` (segment and semaphores)."""
     seg = "/dev/shm" + segment_name(instance)
-    return sorted(glob.glob(glob.escape(seg)) + glob.glob(glob.escape(f"/dev/shm/sem.kali.{instance}.") + "*"))
+    return sorted(
+        glob.glob(glob.escape(seg)) + glob.glob(glob.escape(f"/dev/shm/sem.kali.{instance}.") + "*")
+    )
 
 
 def is_kali_process(pid: int, instance: str) -> bool:
@@ -220,7 +222,15 @@ def start(cfg: KaliConfig, lockstep: bool = False, instance: str | None = None) 
             slot = inst.claim_slot(p.name, 0)
             log = open(logs / f"{p.name}.log", "wb")  # noqa: SIM115 - handed to the child
             child = subprocess.Popen(
-                [sys.executable, "-m", f"kali_daemons.{p.kind}", "--instance", name, "--name", p.name],
+                [
+                    sys.executable,
+                    "-m",
+                    f"kali_daemons.{p.kind}",
+                    "--instance",
+                    name,
+                    "--name",
+                    p.name,
+                ],
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=subprocess.STDOUT,
@@ -308,7 +318,7 @@ def describe(inst: Instance) -> list[dict[str, object]]:
                 "late_max_us": int(p["late_max_ns"]) / 1e3,
                 "late_p50_us": percentile(hist, 0.50),
                 "late_p99_us": percentile(hist, 0.99),
-                "heartbeat_age_ms": (now - int(p["heartbeat_ns"])) / 1e6,
+                "heartbeat_age_ms": max(0, now - int(p["heartbeat_ns"])) / 1e6,
             }
         )
     return rows

@@ -113,7 +113,7 @@ CLOCK = np.dtype(
         ("cmd_arg", "<f8"),  # argument: ticks for STEP, ms for SET
         ("cmd_lock", "<u4"),  # spinlock word serialising command writers
         ("cmd_status", "<i4"),  # 0 applied, -1 refused (reason in cmd_message)
-        ("cmd_message", "S120"),
+        ("cmd_message", f"S{MESSAGE_BYTES}"),
     ],
     align=True,
 )

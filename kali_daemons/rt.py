@@ -71,8 +71,12 @@ class RtReport:
     warnings: list[str]
 
 
-def apply(cpu: int | None, priority: int, lock_memory: bool = True) -> RtReport:
-    """Bind to ``cpu``, use SCHED_FIFO at ``priority`` (0: leave SCHED_OTHER), slack 1 ns."""
+def prepare(cpu: int | None, lock_memory: bool = True) -> RtReport:
+    """Bind to ``cpu``, set timer slack to 1 ns and lock memory, still as SCHED_OTHER.
+
+    Locking faults in the whole address space; doing it before ``go_realtime`` keeps that
+    work from starving real-time processes of another instance on the same CPU.
+    """
     warnings: list[str] = []
     bound = -1
     if cpu is not None:
@@ -81,15 +85,6 @@ def apply(cpu: int | None, priority: int, lock_memory: bool = True) -> RtReport:
             bound = cpu
         except OSError as exc:
             warnings.append(f"cannot bind to CPU {cpu}: {exc.strerror}")
-    applied = 0
-    if priority > 0:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            applied = priority
-        except OSError as exc:
-            warnings.append(
-                f"SCHED_FIFO priority {priority} refused ({exc.strerror}); running SCHED_OTHER"
-            )
     slack = 0
     if _libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(1), 0, 0, 0) == 0:
         slack = 1
@@ -101,4 +96,25 @@ def apply(cpu: int | None, priority: int, lock_memory: bool = True) -> RtReport:
             locked = True
         else:
             warnings.append(f"mlockall refused ({os.strerror(ctypes.get_errno())})")
-    return RtReport(bound, applied, slack, locked, warnings)
+    return RtReport(bound, 0, slack, locked, warnings)
+
+
+def go_realtime(report: RtReport, priority: int) -> None:
+    """Switch to SCHED_FIFO at ``priority`` (0: stay SCHED_OTHER); record it in ``report``."""
+    if priority <= 0:
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        report.priority = priority
+    except OSError as exc:
+        report.warnings.append(
+            f"SCHED_FIFO priority {priority} refused ({exc.strerror}); running SCHED_OTHER"
+        )
+
+
+def leave_realtime() -> None:
+    """Back to SCHED_OTHER before tearing down, so exiting never stalls real-time processes."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        pass

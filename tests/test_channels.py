@@ -263,7 +263,7 @@ def test_fifo_fractional_ratio_five_halves(arena: Arena) -> None:
     assert fifo.underruns == 2
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(
     den=st.integers(1, 20),
     extra=st.integers(0, 19),

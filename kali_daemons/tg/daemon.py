@@ -1,4 +1,6 @@
-"""Trajectory generator (thesis 3.3.1): one process computes set-points for every motion system each TG tick."""
+"""Trajectory generator (thesis 3.3.1): one process computes set-points for every motion system
+each TG tick.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +8,11 @@ from ..daemon import Daemon
 
 
 class TrajectoryGenerator(Daemon):
-    """Issue: trajectory generator fills this in; for now the TG registers with the wall clock at the TG period and acknowledges every tick."""
+    """Issue: trajectory generator fills this in; for now the TG registers with the wall clock at
+    the TG period and acknowledges every tick.
+    """
 
     kind = "tg"
+
     def cycle(self, tick: int) -> None:
         """Inside the cycle: nothing yet beyond the base class's acknowledgement."""

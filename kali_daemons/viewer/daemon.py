@@ -1,4 +1,6 @@
-"""Viewer (thesis 3.3.7): reads the arena without locking and logs the live dashboard to rerun at 25 Hz."""
+"""Viewer (thesis 3.3.7): reads the arena without locking and logs the live dashboard to rerun at
+25 Hz.
+"""
 
 from __future__ import annotations
 
@@ -9,5 +11,6 @@ class Viewer(Daemon):
     """Issue: dashboard fills this in; for now it registers (non-serious) and acknowledges."""
 
     kind = "viewer"
+
     def cycle(self, tick: int) -> None:
         """Inside the cycle: nothing yet beyond the base class's acknowledgement."""

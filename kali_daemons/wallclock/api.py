@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 from ..daemon import FunctionDaemon
 from ..errors import ClockError
-from ..instance import Instance
+from ..instance import Instance, decode
 from ..layout import ClockCommand, RunMode
 
 COMMAND_TIMEOUT_S = 5.0
@@ -37,7 +37,7 @@ def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
                 )
             time.sleep(0.0005)
         if int(c["cmd_status"]) != 0:
-            raise ClockError(bytes(c["cmd_message"]).decode(errors="replace"))
+            raise ClockError(decode(c["cmd_message"]))
 
 
 def start_kali_clock(inst: Instance) -> None:

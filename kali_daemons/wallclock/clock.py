@@ -112,7 +112,8 @@ class WallClock(Daemon):
             if self.lockstep:
                 t = now()
                 c["tick"] = tick
-                self._lockstep_tick(tick)
+                if not self._lockstep_tick(tick):
+                    continue  # halted inside the tick: it stays unfinished, not counted
                 stats.record(tick, t, t, now())
                 tick += 1
                 c["tick"] = tick
@@ -177,8 +178,11 @@ class WallClock(Daemon):
             )
             self.inst.clock["mode"] = RunMode.STOPPED
 
-    def _lockstep_tick(self, tick: int) -> None:
-        """Signal due slots stage by stage, waiting for every acknowledgement of a stage."""
+    def _lockstep_tick(self, tick: int) -> bool:
+        """Signal due slots stage by stage, waiting for every acknowledgement of a stage.
+
+        Returns False if the system halted during the tick.
+        """
         n = len(self._slots)
         k = 0
         while k < n:
@@ -198,6 +202,8 @@ class WallClock(Daemon):
             for _ in posted:
                 try:
                     self._ack_sem.acquire(self.lockstep_timeout_s)
+                    if self.inst.fault["active"]:
+                        return False  # a process halted the system; the loop stops the clock
                 except posix_ipc.BusyError:
                     late = [i for i in posted if self._ack[i] < tick]
                     names = ", ".join(decode(self.inst.procs[i]["name"]) for i in late)
@@ -209,7 +215,8 @@ class WallClock(Daemon):
                         tick=tick,
                     )
                     self.inst.clock["mode"] = RunMode.STOPPED
-                    return
+                    return False
+        return True
 
     # ------------------------------------------------------------------ commands
 
@@ -223,7 +230,7 @@ class WallClock(Daemon):
         base_ms = self.base_ns / 1e6
         if cmd in (ClockCommand.START, ClockCommand.STEP) and self.inst.fault["active"]:
             status = -1
-            message = f"fault active ({self.inst.fault_text()}); kalictl reset first"
+            message = f"fault active, kalictl reset first: {self.inst.fault_text()}"
         elif cmd == ClockCommand.START:
             self._drain_acks()
             self._consec[:] = 0
@@ -244,7 +251,7 @@ class WallClock(Daemon):
         else:
             status, message = -1, f"unknown clock command {cmd}"
         c["cmd_status"] = status
-        c["cmd_message"] = message.encode()[:119]
+        c["cmd_message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
         c["cmd_done"] = c["cmd_seq"]
         return t0
 

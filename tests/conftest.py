@@ -1,0 +1,68 @@
+"""Shared fixtures: unique instance names, arenas and whole instances that clean up."""
+
+from __future__ import annotations
+
+import os
+import re
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from kali_daemons import launcher
+from kali_daemons.arena import Arena
+from kali_daemons.config import KaliConfig, parse_config
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_TEXT = (ROOT / "config" / "default.yaml").read_text()
+
+
+def unique_name(prefix: str = "t") -> str:
+    """An instance name no other test (or test run) uses."""
+    return f"{prefix}{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfig:
+    """The default config for ``instance``, with regex substitutions ``pattern -> repl``."""
+    text = re.sub(r"(?m)^instance: .*$", f"instance: {instance}", DEFAULT_TEXT)
+    for pattern, repl in (edits or {}).items():
+        text, n = re.subn(pattern, repl, text, flags=re.M)
+        assert n, f"config edit {pattern!r} matched nothing"
+    return parse_config(text, source=f"<test {instance}>")
+
+
+def leftovers(instance: str) -> tuple[list[str], list[int]]:
+    """/dev/shm objects and live daemon pids of ``instance``."""
+    return launcher.shm_objects(instance), launcher.instance_pids(instance)
+
+
+@pytest.fixture
+def arena() -> Iterator[Arena]:
+    """A fresh 1 MiB arena, unlinked afterwards."""
+    name = unique_name("a")
+    a = Arena.create(name, 1 << 20)
+    yield a
+    a.close()
+    launcher.stop(name)
+
+
+@pytest.fixture
+def kali(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., str]]:
+    """Start whole instances: ``kali(lockstep=True, edits={...})`` returns the instance name.
+
+    Every instance started is stopped afterwards and must leave nothing behind.
+    """
+    monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path / "logs"))
+    started: list[str] = []
+
+    def start(lockstep: bool = True, edits: dict[str, str] | None = None) -> str:
+        name = unique_name()
+        started.append(name)
+        launcher.start(make_config(name, edits), lockstep=lockstep)
+        return name
+
+    yield start
+    for name in started:
+        launcher.stop(name)
+        assert leftovers(name) == ([], []), f"instance {name} left something behind"

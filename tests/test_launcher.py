@@ -1,0 +1,198 @@
+"""kalictl start/stop with real processes: nothing is left behind, whatever happened."""
+
+from __future__ import annotations
+
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from kali_daemons import launcher
+from kali_daemons.errors import InstanceError
+from kali_daemons.instance import Instance
+from kali_daemons.layout import RunMode
+
+from .conftest import ROOT, leftovers, make_config, unique_name
+
+PROCESSES = ["wallclock", "plant", "tg", "sio", "sv.0", "sv.1", "dynamics", "viewer"]
+
+
+def kalictl(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """Run the real command line, as a user would."""
+    return subprocess.run(
+        [sys.executable, "-m", "kali_daemons", *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, **(env or {})},
+        timeout=120,
+    )
+
+
+def test_start_status_mem_stop_from_the_command_line(tmp_path: Path) -> None:
+    name = unique_name()
+    cfg = tmp_path / "k.yaml"
+    cfg.write_text(make_config(name).text.replace("instance: default", f"instance: {name}"))
+    env = {"KALI_LOG_DIR": str(tmp_path / "logs")}
+    try:
+        r = kalictl("start", "-c", str(cfg), env=env)
+        assert r.returncode == 0, r.stderr
+        assert f"instance '{name}' started" in r.stdout and "real time (clock running)" in r.stdout
+        time.sleep(0.3)
+        r = kalictl("-i", name, "status")
+        assert r.returncode == 0, r.stderr
+        assert "clock running" in r.stdout and "fault: none" in r.stdout
+        for p in PROCESSES:
+            assert f"\n{p} " in r.stdout
+        r = kalictl("-i", name, "mem")
+        assert r.returncode == 0, r.stderr
+        for key in ("clock", "processes", "fault", "config", "free list:", "fragmentation"):
+            assert key in r.stdout
+        r = kalictl("-i", name, "rate", "tg", "20")
+        assert r.returncode == 0 and "tg: period 20 ms" in r.stdout
+        r = kalictl("-i", name, "clock", "step", "3")
+        assert r.returncode == 1 and "clock step needs lockstep mode" in r.stderr
+    finally:
+        r = kalictl("-i", name, "stop", env=env)
+    assert r.returncode == 0 and "stopped: 8 processes left on request" in r.stdout
+    assert leftovers(name) == ([], [])
+    r = kalictl("-i", name, "status")
+    assert r.returncode == 1 and f"no instance '{name}'" in r.stderr
+
+
+def test_segment_and_semaphores_are_owner_only(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    objs = launcher.shm_objects(name)
+    assert len(objs) == 1 + 32 + 2  # segment, a semaphore per slot, cmd and ack
+    for path in objs:
+        assert stat.S_IMODE(os.stat(path).st_mode) == 0o600, path
+
+
+@pytest.mark.parametrize("victim", PROCESSES)
+def test_stop_after_kill_9_leaves_nothing(kali: Callable[..., str], victim: str) -> None:
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        pid = int(inst.procs[inst.slot_of(victim)]["pid"])
+    os.kill(pid, signal.SIGKILL)
+    report = launcher.stop(name)
+    assert pid not in report.stopped
+    assert leftovers(name) == ([], [])
+
+
+def test_crashed_instance_is_detected_and_cleaned_by_next_start(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path))
+    name = unique_name()
+    cfg = make_config(name)
+    launcher.start(cfg, lockstep=True)
+    try:
+        for pid in launcher.instance_pids(name):  # the whole set crashes
+            os.kill(pid, signal.SIGKILL)
+        time.sleep(0.2)
+        shm, pids = leftovers(name)
+        assert shm and not pids
+        report = launcher.start(cfg, lockstep=True)
+        assert report.stale_cleaned, "the stale instance was not reported"
+        with Instance.attach(name) as inst:
+            assert sorted(inst.process_names()) == sorted(PROCESSES)
+    finally:
+        launcher.stop(name)
+    assert leftovers(name) == ([], [])
+
+
+def test_start_refuses_a_running_instance(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with pytest.raises(InstanceError, match=rf"instance '{name}' is already running \(pids"):
+        launcher.start(make_config(name), lockstep=True)
+    with Instance.attach(name) as inst:  # the running instance was not disturbed
+        assert sorted(inst.process_names()) == sorted(PROCESSES)
+
+
+def test_two_instances_run_side_by_side(kali: Callable[..., str]) -> None:
+    a, b = kali(lockstep=False), kali(lockstep=False)
+    with Instance.attach(a) as ia, Instance.attach(b) as ib:
+        ta, tb = int(ia.clock["tick"]), int(ib.clock["tick"])
+        time.sleep(0.3)
+        assert int(ia.clock["tick"]) > ta + 100 and int(ib.clock["tick"]) > tb + 100
+        assert ia.fault_text() is None and ib.fault_text() is None
+    launcher.stop(a)
+    assert leftovers(a) == ([], [])
+    with Instance.attach(b) as ib:  # stopping one leaves the other running
+        tb = int(ib.clock["tick"])
+        time.sleep(0.1)
+        assert int(ib.clock["tick"]) > tb and int(ib.clock["mode"]) == RunMode.RUNNING
+
+
+def test_failed_start_names_the_process_and_cleans_up(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path))
+    name = unique_name()
+    cfg = make_config(name, {r"^startup_timeout_s: .*$": "startup_timeout_s: 0.05"})
+    with pytest.raises(
+        InstanceError, match=r"not ready within startup_timeout_s = 0.05 s: .*plant"
+    ):
+        launcher.start(cfg, lockstep=True)
+    assert leftovers(name) == ([], [])
+
+
+def test_daemon_dying_at_start_up_is_named_with_its_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A daemon that cannot run (here: a CPU the kernel refuses) fails start by name."""
+    monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path))
+    name = unique_name()
+    cfg = make_config(name)
+    real_popen = subprocess.Popen
+
+    def popen(argv: list[str], **kw: object) -> subprocess.Popen:
+        if "sv.1" in argv:  # this one crashes straight away, as a broken daemon would
+            argv = [sys.executable, "-c", "import sys; print('sv.1 broke'); sys.exit(3)", *argv]
+        return real_popen(argv, **kw)
+
+    monkeypatch.setattr(launcher.subprocess, "Popen", popen)
+    with pytest.raises(
+        InstanceError,
+        match=r"process 'sv.1' \(pid \d+\) failed during start-up "
+        r"\(exit 3, state SPAWNED\):\n    sv.1 broke",
+    ):
+        launcher.start(cfg, lockstep=True)
+    assert leftovers(name) == ([], [])
+
+
+def test_bad_config_starts_nothing(tmp_path: Path) -> None:
+    name = unique_name()
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(make_config(name).text.replace("base_tick_ms: 1 ", "base_tick_ms: -1 "))
+    r = kalictl("start", "-c", str(cfg))
+    assert r.returncode == 1
+    assert "clock.base_tick_ms = -1" in r.stderr
+    assert leftovers(name) == ([], [])
+
+
+def test_stop_of_an_unknown_instance_is_harmless() -> None:
+    r = kalictl("-i", unique_name(), "stop")
+    assert r.returncode == 0 and "nothing to stop" in r.stdout
+
+
+def test_reset_clears_a_fault(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "reset")
+    assert r.returncode == 0 and "no active fault" in r.stdout
+    with Instance.attach(name) as inst:
+        from kali_daemons.layout import FaultCode
+
+        inst.raise_fault(FaultCode.OPERATOR, "kalictl", "operator halt for the test")
+    r = kalictl("-i", name, "clock", "step", "5")
+    assert r.returncode == 1 and "fault active, kalictl reset first" in r.stderr
+    r = kalictl("-i", name, "reset")
+    assert "cleared: OPERATOR in kalictl at tick 0: operator halt for the test" in r.stdout
+    r = kalictl("-i", name, "clock", "step", "5")
+    assert r.returncode == 0 and "clock at tick 5" in r.stdout

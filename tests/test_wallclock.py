@@ -1,0 +1,247 @@
+"""The wall clock with real processes: lockstep counts and determinism, deadlines, commands."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+
+import numpy as np
+import pytest
+
+from kali_daemons import layout
+from kali_daemons.errors import ClockError
+from kali_daemons.instance import Instance
+from kali_daemons.layout import FaultCode, ProcState, RunMode
+from kali_daemons.wallclock import (
+    release,
+    set_control_rate,
+    set_kali_clock,
+    start_kali_clock,
+    step_kali_clock,
+    stop_kali_clock,
+)
+from kali_daemons.wallclock.clock import time_ms
+
+from .conftest import ROOT
+from .periodic_programs import trace_view
+
+Program = Callable[..., subprocess.Popen]
+
+
+@pytest.fixture
+def program() -> Iterator[Program]:
+    """Run ``tests.periodic_programs`` processes; wait until registered; kill at the end."""
+    procs: list[subprocess.Popen] = []
+
+    def run(kind: str, instance: str, name: str, *args: str) -> subprocess.Popen:
+        p = subprocess.Popen(
+            [sys.executable, "-m", "tests.periodic_programs", kind, instance, name, *args],
+            cwd=ROOT,
+        )
+        procs.append(p)
+        with Instance.attach(instance) as inst:
+            deadline = time.monotonic() + 30
+            while True:
+                i = inst.find_slot(name)
+                if i >= 0 and inst.procs[i]["state"] == ProcState.ACTIVE:
+                    break
+                assert p.poll() is None, f"{name} exited with {p.returncode}"
+                assert time.monotonic() < deadline, f"{name} did not register"
+                time.sleep(0.01)
+        return p
+
+    yield run
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+        p.wait()
+
+
+def wait_for(cond: Callable[[], bool], timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.01)
+
+
+def counts(inst: Instance) -> dict[str, tuple[int, int, int]]:
+    return {
+        n: (int(inst.procs[i]["signals"]), int(inst.procs[i]["acks"]), int(inst.procs[i]["misses"]))
+        for n in inst.process_names()
+        for i in [inst.slot_of(n)]
+    }
+
+
+def test_lockstep_signals_each_process_at_its_period(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        assert int(inst.clock["mode"]) == RunMode.STOPPED and int(inst.clock["tick"]) == 0
+        assert step_kali_clock(inst, 100) == 100
+        c = counts(inst)
+        # tg 10 ms, sio/sv 1 ms, plant 1 ms, dynamics 10 ms, viewer 40 ms (ticks 0, 40, 80)
+        assert c["tg"] == (10, 10, 0)
+        assert c["sio"] == c["sv.0"] == c["sv.1"] == c["plant"] == (100, 100, 0)
+        assert c["dynamics"] == (10, 10, 0)
+        assert c["viewer"] == (3, 3, 0)
+        assert step_kali_clock(inst, 50) == 150
+        assert counts(inst)["sio"] == (150, 150, 0)
+        assert inst.fault_text() is None
+
+
+DETERMINISTIC_FIELDS = [
+    "name", "state", "periodic", "serious", "stage", "period_ticks", "signal_tick",
+    "next_due", "signals", "misses", "consecutive_misses", "ack_tick", "acks",
+]  # fmt: skip
+
+
+def _lockstep_run(
+    kali: Callable[..., str], program: Program
+) -> tuple[np.ndarray, dict[str, bytes]]:
+    name = kali(lockstep=True)
+    program("trace", name, "late", "--id", "3", "--period", "3", "--stage", "9")
+    program("trace", name, "early", "--id", "1", "--period", "2", "--stage", "1")
+    program("trace", name, "middle", "--id", "2", "--period", "5", "--stage", "5")
+    with Instance.attach(name) as inst:
+        step_kali_clock(inst, 60)
+        _, trace = trace_view(inst.arena)
+        rows = np.array(trace["rows"][: int(trace["n"])])
+        procs = {f: np.array(inst.procs[f]).tobytes() for f in DETERMINISTIC_FIELDS}
+        del trace
+    return rows, procs
+
+
+def test_lockstep_runs_are_bit_for_bit_repeatable(
+    kali: Callable[..., str], program: Program
+) -> None:
+    rows1, procs1 = _lockstep_run(kali, program)
+    rows2, procs2 = _lockstep_run(kali, program)
+    expected = [
+        (t, pid)
+        for t in range(60)
+        for pid, period in ((1, 2), (2, 5), (3, 3))  # stage order: early, middle, late
+        if t % period == 0
+    ]
+    assert [tuple(r) for r in rows1.tolist()] == expected
+    assert rows1.tobytes() == rows2.tobytes()
+    assert procs1 == procs2
+
+
+def test_slow_serious_process_halts_the_clock(kali: Callable[..., str], program: Program) -> None:
+    name = kali(lockstep=False)
+    program("slow", name, "slowpoke", "--serious", "--after", "50", "--sleep-ms", "40")
+    with Instance.attach(name) as inst:
+        wait_for(lambda: bool(inst.fault["active"]))
+        assert FaultCode(int(inst.fault["code"])) == FaultCode.DEADLINE
+        text = inst.fault_text()
+        assert "slowpoke" in text
+        assert "missed 4 consecutive deadlines (tolerance 3) at period 1 ms" in text
+        wait_for(lambda: int(inst.clock["mode"]) == RunMode.STOPPED)
+        tick = int(inst.clock["tick"])
+        time.sleep(0.1)
+        assert int(inst.clock["tick"]) == tick  # the clock is stopped
+        with pytest.raises(
+            ClockError, match="fault active, kalictl reset first: DEADLINE in slowpoke"
+        ):
+            start_kali_clock(inst)
+        # the operator removes the culprit, clears the fault and restarts the clock
+        release(inst, "slowpoke")
+        assert inst.clear_fault()
+        start_kali_clock(inst)
+        wait_for(lambda: int(inst.clock["tick"]) > tick + 200)
+        assert inst.fault_text() is None
+
+
+def test_slow_non_serious_process_is_counted_and_skipped(
+    kali: Callable[..., str], program: Program
+) -> None:
+    name = kali(lockstep=False)
+    program("slow", name, "dawdler", "--sleep-ms", "4")
+    with Instance.attach(name) as inst:
+        i = inst.slot_of("dawdler")
+        t0 = int(inst.clock["tick"])
+        wait_for(lambda: int(inst.clock["tick"]) > t0 + 500)
+        p = inst.procs[i]
+        assert int(p["misses"]) > 100
+        assert int(p["signals"]) > 50
+        assert int(p["acks"]) >= int(p["signals"]) - 1  # every signal it got, it acknowledged
+        assert inst.fault_text() is None
+        assert int(inst.clock["mode"]) == RunMode.RUNNING
+
+
+def test_killed_serious_daemon_halts_naming_it(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=False)
+    with Instance.attach(name) as inst:
+        os.kill(int(inst.procs[inst.slot_of("sio")]["pid"]), signal.SIGKILL)
+        wait_for(lambda: bool(inst.fault["active"]))
+        assert FaultCode(int(inst.fault["code"])) == FaultCode.DEADLINE
+        assert "serious process 'sio' missed" in inst.fault_text()
+
+
+def test_lockstep_timeout_names_the_process(kali: Callable[..., str], program: Program) -> None:
+    name = kali(
+        lockstep=True, edits={r"lockstep_ack_timeout_s: .*$": "lockstep_ack_timeout_s: 0.5"}
+    )
+    program("hang", name, "sleeper", "--after", "5")
+    with Instance.attach(name) as inst:
+        step_kali_clock(inst, 20)
+        assert FaultCode(int(inst.fault["code"])) == FaultCode.LOCKSTEP_TIMEOUT
+        assert int(inst.fault["tick"]) == 5
+        assert "sleeper did not acknowledge tick 5 within 0.5 s" in inst.fault_text()
+        assert int(inst.clock["tick"]) == 5
+
+
+def test_daemon_error_halts_with_the_exception(kali: Callable[..., str], program: Program) -> None:
+    name = kali(lockstep=True)
+    p = program("boom", name, "bomb", "--after", "3")
+    with Instance.attach(name) as inst:
+        t = time.monotonic()
+        step_kali_clock(inst, 10)
+        assert time.monotonic() - t < 3.0  # the halt wakes the clock, no timeout wait
+        assert FaultCode(int(inst.fault["code"])) == FaultCode.DAEMON_ERROR
+        assert "bomb" in inst.fault_text() and "RuntimeError: boom at tick 3" in inst.fault_text()
+        assert p.wait(10) == 1
+        assert inst.find_slot("bomb") < 0  # a program's slot is freed when it leaves
+
+
+def test_rates_time_and_step_commands(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        set_control_rate(inst, "tg", 20)
+        with pytest.raises(ClockError, match=r"rate of 'tg': 0 ms must be a whole multiple"):
+            set_control_rate(inst, "tg", 0)
+        with pytest.raises(ClockError, match=r"no process 'nope' .*known: wallclock, plant, tg"):
+            set_control_rate(inst, "nope", 5)
+        set_kali_clock(inst, 5000.0)
+        step_kali_clock(inst, 100)
+        assert counts(inst)["tg"] == (5, 5, 0)  # ticks 0, 20, 40, 60, 80
+        assert time_ms(inst.clock) == pytest.approx(5100.0)
+        stop_kali_clock(inst)
+        assert step_kali_clock(inst, 0) == 100
+
+
+def test_step_needs_lockstep(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=False)
+    with Instance.attach(name) as inst:
+        with pytest.raises(ClockError, match="clock step needs lockstep mode"):
+            step_kali_clock(inst, 5)
+        stop_kali_clock(inst)
+        tick = int(inst.clock["tick"])
+        time.sleep(0.05)
+        assert int(inst.clock["tick"]) == tick
+        assert int(inst.clock["mode"]) == RunMode.STOPPED
+        start_kali_clock(inst)
+        wait_for(lambda: int(inst.clock["tick"]) > tick + 20)
+
+
+def test_histogram_bins() -> None:
+    assert layout.lateness_bin(-5) == 0
+    assert layout.lateness_bin(999) == 0
+    assert layout.lateness_bin(27_500) == 27
+    assert layout.bin_upper_us(27) == 28
+    b = layout.lateness_bin(3_000_000)
+    assert layout.bin_upper_us(b - 1) <= 3000 < layout.bin_upper_us(b)
+    assert layout.lateness_bin(10**12) == layout.HIST_BINS - 1
