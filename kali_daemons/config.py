@@ -76,7 +76,7 @@ _CLOCK_KEYS = (
     "base_tick_ms",
     "servo_period_ms",
     "tg_period_ms",
-    "serious_miss_tolerance",
+    "serious_miss_tolerance_ms",
     "lockstep_ack_timeout_s",
     "busy_wait_us",
 )
@@ -114,7 +114,7 @@ class ClockConfig:
     base_tick_ms: int = 1
     servo_period_ms: int = 1
     tg_period_ms: int = 10
-    serious_miss_tolerance: int = 3
+    serious_miss_tolerance_ms: int = 20
     lockstep_ack_timeout_s: float = 5.0
     busy_wait_us: int = 0
 
@@ -490,9 +490,9 @@ def _clock(node: Any) -> ClockConfig:
         base_tick_ms=tick,
         servo_period_ms=servo,
         tg_period_ms=tg,
-        serious_miss_tolerance=_int(
-            m.get("serious_miss_tolerance", d.serious_miss_tolerance),
-            "clock.serious_miss_tolerance",
+        serious_miss_tolerance_ms=_int(
+            m.get("serious_miss_tolerance_ms", d.serious_miss_tolerance_ms),
+            "clock.serious_miss_tolerance_ms",
             0,
             1000,
         ),

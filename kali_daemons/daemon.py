@@ -251,11 +251,11 @@ class Daemon:
             due = t0 + tick * period_ns
             sleeper.until(due)
             woke = now()
+            planned = due  # lateness is measured against the deadline that was missed
             if woke - due >= period_ns:  # overrun: skip ahead, no burst of catch-up cycles
                 tick += (woke - due) // period_ns
-                due = t0 + tick * period_ns
             self.cycle(tick)
-            stats.record(tick, due, woke, now())
+            stats.record(tick, planned, woke, now())
             tick += 1
 
 

@@ -159,7 +159,7 @@ def _create(cfg: KaliConfig, instance: str, lockstep: bool) -> Arena:
         arena.header["lockstep"] = int(lockstep)
         clock = arena.record(layout.KEY_CLOCK, layout.CLOCK)
         clock["base_tick_ns"] = cfg.clock.base_tick_ms * 1_000_000
-        clock["serious_miss_tolerance"] = cfg.clock.serious_miss_tolerance
+        clock["serious_miss_tolerance_ms"] = cfg.clock.serious_miss_tolerance_ms
         clock["lockstep_timeout_ms"] = int(cfg.clock.lockstep_ack_timeout_s * 1000)
         clock["busy_wait_ns"] = cfg.clock.busy_wait_us * 1000
         clock["lockstep"] = int(lockstep)

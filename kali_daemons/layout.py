@@ -97,7 +97,7 @@ CLOCK = np.dtype(
         ("base_tick_ns", "<i8"),  # length of one tick
         ("t0_ns", "<i8"),  # CLOCK_MONOTONIC of tick 0 of the current run
         ("time_offset_ms", "<f8"),  # running time = time_offset_ms + tick * base tick
-        ("serious_miss_tolerance", "<u4"),  # consecutive misses a serious process may have
+        ("serious_miss_tolerance_ms", "<u4"),  # how long a serious process may stay unacknowledged
         ("lockstep_timeout_ms", "<u4"),  # lockstep: longest wait for one acknowledgement
         ("busy_wait_ns", "<i8"),  # spin this long before each tick instead of sleeping
         ("step_target", "<i8"),  # lockstep STEPPING: stop when tick reaches this

@@ -89,7 +89,7 @@ def test_default_file_loads_to_expected_objects() -> None:
         instance="default",
         arena_kib=4096,
         startup_timeout_s=60.0,
-        clock=ClockConfig(1, 1, 10, 3, 5.0, 0),
+        clock=ClockConfig(1, 1, 10, 20, 5.0, 0),
         processes=EXPECTED_PROCESSES,
         robots=EXPECTED_ROBOTS,
         source=str(DEFAULT_PATH),
@@ -208,8 +208,8 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     ),
     (
         "miss-tolerance-too-big",
-        [("serious_miss_tolerance: 3", "serious_miss_tolerance: 1001")],
-        "clock.serious_miss_tolerance = 1001: must be an integer >= 0 and <= 1000",
+        [("serious_miss_tolerance_ms: 20", "serious_miss_tolerance_ms: 1001")],
+        "clock.serious_miss_tolerance_ms = 1001: must be an integer >= 0 and <= 1000",
     ),
     (
         "ack-timeout-zero",

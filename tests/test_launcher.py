@@ -17,6 +17,7 @@ from kali_daemons import launcher
 from kali_daemons.errors import InstanceError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import RunMode
+from kali_daemons.spinlock import pid_alive
 
 from .conftest import ROOT, leftovers, make_config, unique_name
 
@@ -80,6 +81,10 @@ def test_stop_after_kill_9_leaves_nothing(kali: Callable[..., str], victim: str)
     with Instance.attach(name) as inst:
         pid = int(inst.procs[inst.slot_of(victim)]["pid"])
     os.kill(pid, signal.SIGKILL)
+    deadline = time.monotonic() + 10
+    while pid_alive(pid):  # SIGKILL is delivered asynchronously
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
     report = launcher.stop(name)
     assert pid not in report.stopped
     assert leftovers(name) == ([], [])
