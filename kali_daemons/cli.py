@@ -148,6 +148,16 @@ def status(ctx: click.Context) -> None:
                 f"{r['late_p99_us']:>7.0f}us {r['late_max_us']:>7.0f}us "
                 f"{r['heartbeat_age_ms']:>5.0f}ms"
             )
+        misses = launcher.recent_misses(inst, 5)
+        if misses:
+            total = int(inst.misses["count"])
+            click.echo(f"last {len(misses)} of {total} missed deadlines:")
+            for m in misses:
+                click.echo(
+                    f"  tick {m['tick']:>9}  {m['process']:<10} signal of tick due "
+                    f"{(m['due_ns'] - m['signal_ns']) / 1e6:.0f} ms earlier still "
+                    f"unacknowledged ({m['consecutive']} in a row)"
+                )
 
 
 @main.command()

@@ -72,6 +72,7 @@ class Instance:
         self.clock = arena.existing(layout.KEY_CLOCK, layout.CLOCK)
         self.procs = arena.existing(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
         self.fault = arena.existing(layout.KEY_FAULT, layout.FAULT)
+        self.misses = arena.existing(layout.KEY_MISSES, layout.MISS_LOG)
         self._config: KaliConfig | None = None
         self._sems: dict[str, posix_ipc.Semaphore] = {}
         clock_off = arena.lookup(layout.KEY_CLOCK)[0]  # type: ignore[index]

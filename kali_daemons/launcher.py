@@ -168,6 +168,7 @@ def _create(cfg: KaliConfig, instance: str, lockstep: bool) -> Arena:
         del clock
         arena.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
         arena.record(layout.KEY_FAULT, layout.FAULT)
+        arena.record(layout.KEY_MISSES, layout.MISS_LOG)
         text = cfg.text.encode()
         raw = arena.record(layout.KEY_CONFIG, np.dtype("u1"), len(text) + 1)
         raw[: len(text)] = np.frombuffer(text, np.uint8)
@@ -319,6 +320,27 @@ def describe(inst: Instance) -> list[dict[str, object]]:
                 "late_p50_us": percentile(hist, 0.50),
                 "late_p99_us": percentile(hist, 0.99),
                 "heartbeat_age_ms": max(0, now - int(p["heartbeat_ns"])) / 1e6,
+            }
+        )
+    return rows
+
+
+def recent_misses(inst: Instance, n: int = layout.MISS_LOG_LEN) -> list[dict[str, object]]:
+    """The last ``n`` missed deadlines from the clock's log, oldest first."""
+    log = inst.misses
+    count = int(log["count"])
+    rows = []
+    for k in range(max(0, count - min(n, layout.MISS_LOG_LEN)), count):
+        e = log["entries"][k % layout.MISS_LOG_LEN]
+        slot = int(e["slot"])
+        rows.append(
+            {
+                "tick": int(e["tick"]),
+                "process": decode(inst.procs[slot]["name"]),
+                "slot": slot,
+                "signal_ns": int(e["signal_ns"]),
+                "due_ns": int(e["due_ns"]),
+                "consecutive": int(e["consecutive"]),
             }
         )
     return rows

@@ -31,6 +31,7 @@ KEY_CLOCK = "clock"
 KEY_PROCESSES = "processes"
 KEY_FAULT = "fault"
 KEY_CONFIG = "config"
+KEY_MISSES = "clock.misses"
 
 # --------------------------------------------------------------------------------------------
 # Arena header and directory (writer: kalictl start; the directory under the header's lock)
@@ -195,6 +196,27 @@ PROCESS = np.dtype(
         ("heartbeat_ns", "<i8"),  # CLOCK_MONOTONIC, refreshed every cycle and every idle wait
         ("hist", "<u4", (HIST_BINS,)),  # wake-up lateness histogram, see lateness_bin
     ],
+    align=True,
+)
+
+
+# Missed-deadline log: the last MISS_LOG_LEN misses, written only by the wall clock, so a miss
+# can be matched in time against the machine's own stalls (scripts/bench_wallclock.py).
+MISS_LOG_LEN = 512
+
+MISS = np.dtype(
+    [
+        ("tick", "<i8"),  # tick at which the clock found the previous signal unacknowledged
+        ("signal_ns", "<i8"),  # CLOCK_MONOTONIC due time of that unacknowledged signal
+        ("due_ns", "<i8"),  # CLOCK_MONOTONIC due time of the tick that found it
+        ("slot", "<i4"),  # process-table slot
+        ("consecutive", "<u4"),  # consecutive misses of the slot so far
+    ],
+    align=True,
+)
+
+MISS_LOG = np.dtype(
+    [("count", "<u8"), ("entries", MISS, (MISS_LOG_LEN,))],  # entry = count % MISS_LOG_LEN
     align=True,
 )
 

@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from kali_daemons import layout
+from kali_daemons import launcher, layout
 from kali_daemons.errors import ClockError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import FaultCode, ProcState, RunMode
@@ -173,6 +173,9 @@ def test_slow_non_serious_process_is_counted_and_skipped(
         assert int(p["acks"]) >= int(p["signals"]) - 1  # every signal it got, it acknowledged
         assert inst.fault_text() is None
         assert int(inst.clock["mode"]) == RunMode.RUNNING
+        logged = [m for m in launcher.recent_misses(inst) if m["process"] == "dawdler"]
+        assert logged, "misses are logged with their times"
+        assert all(m["signal_ns"] < m["due_ns"] and m["consecutive"] >= 1 for m in logged)
 
 
 def test_killed_serious_daemon_halts_naming_it(kali: Callable[..., str]) -> None:

@@ -46,6 +46,9 @@ class WallClock(Daemon):
         self._due, self._signals = p["next_due"], p["signals"]
         self._misses, self._consec = p["misses"], p["consecutive_misses"]
         self._max_consec = p["max_consecutive_misses"]
+        log = self.inst.misses
+        self._log_entries = log["entries"]
+        self._log_count = log["count"].reshape(1)  # a writable one-element view
         self._sems = [self.inst.slot_semaphore(i) for i in range(layout.MAX_PROCESSES)]
         self._cmd_sem = self.inst.command_semaphore()
         self._ack_sem = self.inst.ack_semaphore()
@@ -150,7 +153,7 @@ class WallClock(Daemon):
             per = self._period[k]
             nd[i] = (tick // per + 1) * per
             if ack[i] < sig[i]:
-                self._missed(k, i, tick)
+                self._missed(k, i, tick, due)
                 if self.inst.fault["active"]:
                     return
                 continue
@@ -161,13 +164,21 @@ class WallClock(Daemon):
             self._signals[i] += 1
             self._sems[i].release()
 
-    def _missed(self, k: int, i: int, tick: int) -> None:
-        """Count a missed deadline of slot ``i``; halt if it is serious and out of tolerance."""
+    def _missed(self, k: int, i: int, tick: int, due: int) -> None:
+        """Count and log a missed deadline of slot ``i``; halt if serious and out of tolerance."""
         self._misses[i] += 1
         n = int(self._consec[i]) + 1
         self._consec[i] = n
         if n > self._max_consec[i]:
             self._max_consec[i] = n
+        count = int(self._log_count[0])
+        e = self._log_entries[count % layout.MISS_LOG_LEN]
+        e["tick"] = tick
+        e["signal_ns"] = self._rel[i]
+        e["due_ns"] = due
+        e["slot"] = i
+        e["consecutive"] = n
+        self._log_count[0] = count + 1
         overdue_ns = n * self._period[k] * self.base_ns
         if self._serious[k] and overdue_ns > self.tolerance_ns:
             name = decode(self.inst.procs[i]["name"])
