@@ -22,8 +22,9 @@ The targets (from the issue): p99.9 of the four processes together within 3x cyc
 no missed deadline that cyclictest does not also see.  For the second, cyclictest logs every
 wake-up later than SPIKE_US with its CLOCK_MONOTONIC time (``--spike``) and the wall clock logs
 every miss with the due times of the unacknowledged signal and of the tick that found it (the
-arena's miss log); a Kali miss counts as "also seen" when a cyclictest stall overlaps it.  The verdicts are printed; the exit
-status is 0 whatever they are (1 on errors, 2 if cyclictest is not installed).
+arena's miss log); a Kali miss counts as "also seen" when a cyclictest stall overlaps it.
+The verdicts are printed; the exit status is 0 whatever they are (1 on errors, 2 if cyclictest
+is not installed).
 
 Floor.  By default cyclictest runs two threads, one pinned per CPU (``-t 2 -a``), because the
 four Kali processes are spread over both CPUs and a host stall of either vCPU then shows up on
