@@ -108,6 +108,7 @@ class Daemon:
             self._configure()
             self.on_activate()
             self._set_state(ProcState.ACTIVE)
+            self.inst.bump_registry()  # after ACTIVE: the clock only signals active slots
             self.log.info("active: slot %d, period %d ticks", self.slot, self.period_ticks)
             self._loop()
             self.on_deactivate()
@@ -169,7 +170,6 @@ class Daemon:
         p["ack_tick"] = -1
         clocked = self.inst.lockstep or not self.self_timed_in_realtime
         p["periodic"] = int(clocked and self.kind != "wallclock")
-        self.inst.bump_registry()
 
     def _set_state(self, state: ProcState) -> None:
         self.inst.procs[self.slot]["state"] = int(state)

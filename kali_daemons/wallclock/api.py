@@ -122,13 +122,3 @@ def release(inst: Instance, process: str) -> None:
     inst.procs[i]["periodic"] = 0
     inst.bump_registry()
 
-
-__all__ = [
-    "control",
-    "release",
-    "set_control_rate",
-    "set_kali_clock",
-    "start_kali_clock",
-    "step_kali_clock",
-    "stop_kali_clock",
-]
