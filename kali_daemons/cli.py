@@ -59,7 +59,10 @@ def _attach(ctx: click.Context) -> Instance:
 
 @click.group()
 @click.option(
-    "-i", "--instance", default=lambda: os.environ.get("KALI_INSTANCE"), help="Instance name."
+    "-i",
+    "--instance",
+    default=lambda: os.environ.get("KALI_INSTANCE"),
+    help="Instance name (default: $KALI_INSTANCE, else the config's, else 'default').",
 )
 @click.pass_context
 def main(ctx: click.Context, instance: str | None) -> None:
@@ -101,7 +104,10 @@ def start(ctx: click.Context, config_path: Path | None, lockstep: bool) -> None:
 @click.pass_context
 @_errors
 def stop(ctx: click.Context) -> None:
-    """Stop every process and remove the instance's shared memory and semaphores."""
+    """Stop everything; leave no process, shared memory or semaphore.
+
+    Works whatever state the instance is in, also after a kill -9 of any of its processes.
+    """
     name = _instance_name(ctx)
     r = launcher.stop(name)
     if not (r.stopped or r.killed or r.removed):
@@ -164,7 +170,10 @@ def status(ctx: click.Context) -> None:
 @click.pass_context
 @_errors
 def mem(ctx: click.Context) -> None:
-    """The arena map: blocks, free list and fragmentation (like ``halcmd show``)."""
+    """Show the arena: blocks, free list, fragmentation.
+
+    Like LinuxCNC's ``halcmd show``: every block in shared memory by name.
+    """
     with _attach(ctx) as inst:
         a = inst.arena
         h = a.header
@@ -255,7 +264,7 @@ def rate(ctx: click.Context, process: str, ms: int) -> None:
 @click.pass_context
 @_errors
 def reset(ctx: click.Context) -> None:
-    """Clear the active fault; restart the clock with ``kalictl clock start``."""
+    """Clear the active fault (then: kalictl clock start)."""
     with _attach(ctx) as inst:
         text = inst.fault_text()
         if inst.clear_fault():
