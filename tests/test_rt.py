@@ -1,0 +1,79 @@
+"""Real-time settings of one process: binding, timer slack, FIFO with one warning if refused."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from collections.abc import Callable
+
+import pytest
+
+from kali_daemons import rt
+
+PR_GET_TIMERSLACK = 30
+
+
+def _in_child(fn: Callable[[], int]) -> int:
+    """Run ``fn`` in a forked child (so its settings do not leak) and return its exit code."""
+    pid = os.fork()
+    if pid == 0:
+        code = 1
+        try:
+            code = fn()
+        finally:
+            os._exit(code)
+    return os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+
+
+def test_prepare_binds_sets_slack_and_locks_memory() -> None:
+    def child() -> int:
+        report = rt.prepare(0, lock_memory=True)
+        libc = ctypes.CDLL(None)
+        ok = (
+            os.sched_getaffinity(0) == {0}
+            and report.cpu == 0
+            and libc.prctl(PR_GET_TIMERSLACK, 0, 0, 0, 0) == 1
+            and report.timer_slack_ns == 1
+            and report.memory_locked == (os.geteuid() == 0)
+        )
+        return 0 if ok else 3
+
+    assert _in_child(child) == 0
+
+
+def test_fifo_refused_gives_one_warning_and_stays_normal(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse(*_: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(rt.os, "sched_setscheduler", refuse)
+    report = rt.prepare(None, lock_memory=False)
+    rt.go_realtime(report, 85)
+    assert report.priority == 0
+    assert report.warnings == [
+        "SCHED_FIFO priority 85 refused (Operation not permitted); running SCHED_OTHER"
+    ]
+
+
+def test_fifo_granted_as_root() -> None:
+    if os.geteuid() != 0:
+        pytest.skip("needs root")
+
+    def child() -> int:
+        report = rt.prepare(None, lock_memory=False)
+        rt.go_realtime(report, 10)
+        fifo = os.sched_getscheduler(0) == os.SCHED_FIFO and report.priority == 10
+        rt.leave_realtime()
+        return 0 if fifo and os.sched_getscheduler(0) == os.SCHED_OTHER else 3
+
+    assert _in_child(child) == 0
+
+
+def test_absolute_sleeper_never_returns_early() -> None:
+    sleeper = rt.AbsoluteSleeper()
+    for _ in range(20):
+        deadline = rt.monotonic_ns() + 300_000
+        sleeper.until(deadline)
+        assert rt.monotonic_ns() >= deadline
+    t = rt.monotonic_ns()
+    sleeper.until(t - 1_000_000)  # a deadline in the past returns at once
+    assert rt.monotonic_ns() - t < 50_000_000
