@@ -21,8 +21,8 @@ import click
 from . import launcher, layout
 from .config import load_config
 from .errors import KaliError
-from .instance import Instance, decode
-from .layout import RunMode
+from .instance import Instance
+from .layout import FaultCode, RunMode
 from .wallclock import (
     set_control_rate,
     set_kali_clock,
@@ -261,6 +261,35 @@ def rate(ctx: click.Context, process: str, ms: int) -> None:
 
 
 @main.command()
+@click.argument("robot", required=False)
+@click.option("--release", is_flag=True, help="Release the button; power stays off until enabled.")
+@click.pass_context
+@_errors
+def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
+    """Press the emergency-stop button of ROBOT (default: every robot).
+
+    The board cuts the amplifiers at once, the brakes follow, and the system halts.
+    """
+    with _attach(ctx) as inst:
+        names = [r.name for r in inst.config.robots]
+        if robot is not None and robot not in names:
+            raise KaliError(
+                f"no robot '{robot}' in instance '{inst.name}' (robots: {', '.join(names)})"
+            )
+        targets = [robot] if robot else names
+        for name in targets:
+            regs = inst.arena.existing(layout.KEY_BOARD.format(robot=name), layout.IO_BOARD)
+            regs["estop"] = 0 if release else 1
+        if release:
+            click.echo(f"e-stop released: {', '.join(targets)}")
+            return
+        inst.raise_fault(
+            FaultCode.ESTOP, "kalictl", f"emergency stop pressed: {', '.join(targets)}"
+        )
+        click.echo(f"e-stop pressed: {', '.join(targets)}; amplifiers off, system halted")
+
+
+@main.command()
 @click.pass_context
 @_errors
 def reset(ctx: click.Context) -> None:
@@ -273,4 +302,4 @@ def reset(ctx: click.Context) -> None:
             click.echo("no active fault")
 
 
-__all__ = ["decode", "layout", "main"]
+__all__ = ["main"]

@@ -71,7 +71,9 @@ _TOP_KEYS = (
     "clock",
     "processes",
     "robots",
+    "plant",
 )
+_PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms", "seed")
 _CLOCK_KEYS = (
     "base_tick_ms",
     "servo_period_ms",
@@ -133,6 +135,17 @@ class ProcessConfig:
 
 
 @dataclass(frozen=True)
+class PlantConfig:
+    """The simulated world's timing (thesis 3.7, appendix C): fixed by the hardware it models."""
+
+    substep_ms: float = 0.5  # MuJoCo step; the 500 Hz current loop needs at least 1 kHz
+    watchdog_ms: float = 20.0  # I/O board safety timeout (appendix C.4)
+    enable_hold_ms: float = 15.0  # enable bit must stay high this long (power switch relay)
+    brake_delay_ms: float = 50.0  # brake solenoids engage/release this long after the amps
+    seed: int = 0  # seeds the index-pulse phases of the simulated encoders
+
+
+@dataclass(frozen=True)
 class RobotConfig:
     """One arm in the cell: its model and where its base sits in the world frame."""
 
@@ -155,6 +168,7 @@ class KaliConfig:
     robots: tuple[RobotConfig, ...]
     source: str
     text: str
+    plant: PlantConfig = PlantConfig()
 
     def process(self, name: str) -> ProcessConfig:
         """The process called ``name`` (e.g. ``"sv.1"``); ConfigError naming the known ones."""
@@ -466,6 +480,7 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
         except _InvalidError as exc:
             raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
     robots = _robots(doc.get("robots", _DEFAULT_ROBOTS))
+    plant = _plant(doc.get("plant", {}), clock)
     return KaliConfig(
         version=CONFIG_VERSION,
         instance=instance,
@@ -476,6 +491,28 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
         robots=robots,
         source=source,
         text=text,
+        plant=plant,
+    )
+
+
+def _plant(node: Any, clock: ClockConfig) -> PlantConfig:
+    """The ``plant`` section; the substep must divide the base tick."""
+    d = PlantConfig()
+    m = _mapping(node, "plant", _PLANT_KEYS)
+    sub = _float(m.get("substep_ms", d.substep_ms), "plant.substep_ms", 0.0, 1.0)
+    n = clock.base_tick_ms / sub
+    if abs(n - round(n)) > 1e-9:
+        _fail("plant.substep_ms", sub, f"must divide clock.base_tick_ms = {clock.base_tick_ms}")
+    return PlantConfig(
+        substep_ms=sub,
+        watchdog_ms=_float(m.get("watchdog_ms", d.watchdog_ms), "plant.watchdog_ms", 0.0, 1000.0),
+        enable_hold_ms=_float(
+            m.get("enable_hold_ms", d.enable_hold_ms), "plant.enable_hold_ms", 0.0, 1000.0
+        ),
+        brake_delay_ms=_float(
+            m.get("brake_delay_ms", d.brake_delay_ms), "plant.brake_delay_ms", 0.0, 1000.0
+        ),
+        seed=_int(m.get("seed", d.seed), "plant.seed", 0, 2**31 - 1),
     )
 
 

@@ -65,3 +65,9 @@ class InstanceError(KaliError):
     """Starting, stopping or finding a Kali instance."""
 
     subsystem = "instance"
+
+
+class ModelError(KaliError):
+    """The robot model: URDF loading, building the simulated cell."""
+
+    subsystem = "model"

@@ -301,3 +301,96 @@ FIFO_HEADER = np.dtype(
 )
 
 FLAG = np.dtype([("word", "<u4")])  # Type 3 test-and-set flag: 0 clear, else the setter's pid
+
+
+# --------------------------------------------------------------------------------------------
+# Hardware registers: the only interface between Kali and the plant (DESIGN 6, thesis 3.7,
+# appendix C.5).  A real board could replace the plant by implementing these records.
+
+KEY_BOARD = "board.{robot}"  # McGill I/O board of one robot
+KEY_DAC = "dac.{robot}"  # DAC board of one robot
+KEY_TRUTH = "truth.{robot}"  # plant-only truth of one robot (never read by the controller)
+KEY_WORLD_TRUTH = "truth.world"
+
+# Command/status register bits (appendix C.5.1).  Note the inverted senses of the thesis.
+CSR_RED_LED_OFF = 1 << 0  # 0 = red LED on, 1 = off
+CSR_GREEN_LED_ON = 1 << 1  # 1 = green LED on
+CSR_INTERRUPT = 1 << 2  # read only, reserved
+CSR_ENABLE = 1 << 3  # hold high ~15 ms, then low: enables the robot (power switch relay)
+CSR_INDEX_OFF = 1 << 4  # 0 = index pulse capture enabled, 1 = disabled (and cleared)
+CSR_RETRIGGER = 1 << 5  # high then low retriggers the watchdog
+CSR_TIMEOUT_ON = 1 << 6  # 1 = safety timeout (watchdog) on
+CSR_NO_DISABLE = 1 << 7  # 0 = robot disabled, overriding enables; 1 = allows enables
+
+# Power status: the Robot Power Switch circuit's state as the board reports it (an addition:
+# the original CSR did not expose it; a real board would latch it in a spare register).
+POWER_AMPS_ON = 1 << 0  # amplifiers enabled
+POWER_BRAKES_RELEASED = 1 << 1  # brake solenoids released (0: brakes holding)
+POWER_WATCHDOG_TRIPPED = 1 << 2  # the watchdog timed out; cleared by a retrigger
+POWER_ESTOP = 1 << 3  # the emergency-stop input is pressed
+POWER_BUZZER = 1 << 4  # the timeout buzzer sounds
+
+# TLC532A analog register: bit 8 = conversion complete, low 8 bits = value (±1/2 LSB).
+ADC_START = 1 << 7  # control register: start a conversion of channel (bits 0-3)
+ADC_CHANNEL_MASK = 0x0F
+ADC_DONE = 1 << 8
+ADC_VALUE_MASK = 0xFF
+
+BOARD_CHANNELS = 8  # encoder/pot channels per board
+DAC_CHANNELS = 8
+DAC_BITS = 12
+DAC_ZERO = 1 << (DAC_BITS - 1)  # offset binary: 0 = -10 V, 2048 = 0 V, 4095 = +9.995 V
+ARM_JOINTS = 6
+
+IO_BOARD = np.dtype(
+    [
+        ("encoder", "<u2", (BOARD_CHANNELS,)),  # plant: HCTL-2000 counters, low 12 bits
+        ("index", "u1"),  # plant: index capture register, bit j = channel j captured
+        ("csr", "u1"),  # Kali: command/status register, CSR_* bits
+        ("power", "u1"),  # plant: POWER_* bits
+        ("estop", "u1"),  # operator: emergency-stop button (kalictl estop), 1 = pressed
+        ("adc_control", "<u2"),  # Kali: TLC532A control register
+        ("adc_digital", "<u2"),  # plant: TLC532A digital register, bit j = channel j > 2.5 V
+        ("adc_analog", "<u2"),  # plant: TLC532A analog register, ADC_DONE | value
+        ("gripper", "u1"),  # Kali: 1 = close the gripper (weld to the object if in reach)
+        ("_pad", "u1", (3,)),
+        ("clamped", "<u4"),  # plant: out-of-range register values clamped, as hardware does
+    ],
+    align=True,
+)
+
+DAC_BOARD = np.dtype(
+    [
+        ("code", "<u2", (DAC_CHANNELS,)),  # Kali: 12-bit offset-binary codes; more is clamped
+        ("clamped", "<u4"),  # plant: codes above 4095 clamped
+    ],
+    align=True,
+)
+
+ARM_TRUTH = np.dtype(
+    [
+        ("q", "<f8", (ARM_JOINTS,)),  # joint angles, rad
+        ("qd", "<f8", (ARM_JOINTS,)),  # joint velocities, rad/s
+        ("current", "<f8", (ARM_JOINTS,)),  # motor currents, A
+        ("torque", "<f8", (ARM_JOINTS,)),  # motor torque at the joint (G·Kt·i), N·m
+        ("motor_angle", "<f8", (ARM_JOINTS,)),  # rad, G·q (what the encoder sees)
+        ("grasp_wrench", "<f8", (6,)),  # weld force (N) and torque (N·m) on the object, world
+        ("amps_on", "u1"),
+        ("brakes_engaged", "u1"),
+        ("grasped", "u1"),
+        ("watchdog_tripped", "u1"),
+        ("estop", "u1"),
+        ("_pad", "u1", (3,)),
+    ],
+    align=True,
+)
+
+WORLD_TRUTH = np.dtype(
+    [
+        ("sim_time_ns", "<i8"),  # simulated time since the plant started
+        ("ticks", "<u8"),  # plant cycles
+        ("object_pose", "<f8", (7,)),  # position (m) and quaternion (w, x, y, z)
+        ("internal_force", "<f8"),  # N, squeeze along the line between the grasps (+ = tension)
+    ],
+    align=True,
+)

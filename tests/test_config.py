@@ -169,6 +169,21 @@ def test_process_lookup_and_periodic() -> None:
 CPU_MSG = f"must be null or a CPU index 0..{FAKE_CPUS - 1} (this machine has {FAKE_CPUS} CPUs)"
 
 BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
+    (
+        "plant-substep-not-dividing-the-tick",
+        [("substep_ms: 0.5 ", "substep_ms: 0.3 ")],
+        "plant.substep_ms = 0.3: must divide clock.base_tick_ms = 1",
+    ),
+    (
+        "plant-unknown-key",
+        [("  seed: 0 ", "  sead: 0 ")],
+        "plant.sead: unknown key (did you mean 'seed'?); allowed keys: substep_ms, watchdog_ms",
+    ),
+    (
+        "plant-negative-watchdog",
+        [("watchdog_ms: 20 ", "watchdog_ms: -5 ")],
+        "plant.watchdog_ms = -5",
+    ),
     # (id, edits, expected substring of the message)
     (
         "tick-negative",

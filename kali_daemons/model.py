@@ -1,0 +1,330 @@
+"""The PUMA 560 model, loaded from the one URDF by both sides (DESIGN.md section 6).
+
+``load_pinocchio`` gives the controller its arm model; ``build_world`` gives the plant a MuJoCo
+cell of one or more arms from the same ``config/puma560.urdf``, plus a stand and a bar the
+arms can carry together.  Neither loader reads rotor inertia from URDF, so both set
+``puma560.ARMATURE`` here; that and the world's layout are the only things added on top of
+the file.  Everything runs outside the cycle (it allocates and reads files).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from kali_daemons.config import RobotConfig
+from kali_daemons.errors import ModelError
+from kali_daemons.puma560 import ARMATURE, GRAVITY, NJOINTS, URDF_PATH
+
+IntArray = npt.NDArray[np.int64]
+
+FLANGE_FRAME: Final = "flange"  # the URDF link at DH frame 6 (Pinocchio frame, MuJoCo body)
+
+# The cell (metres, kilograms).  A table-like stand at the origin, between the arms, and a
+# square bar lying on it along x; each arm grasps the end nearer to it from above.
+STAND_SIZE: Final = (0.24, 0.30, 0.565)  # x, y, height; centred on the world origin
+BAR_SIZE: Final = (0.36, 0.04, 0.04)  # length (along x), width, height
+BAR_MASS: Final = 1.5
+# A grasp site sits above a bar end: the flange (the wrist centre, as d6 = 0) stays this far
+# above the bar's axis so that the flange disc (0.035-0.045 m out) just touches the bar top.
+GRASP_HEIGHT: Final = 0.065
+GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
+# The weld's time constant in timesteps.  MuJoCo's default 0.02 s lets the held bar sag 3.8 mm
+# at the grasp pose; 8 steps (4 ms at 0.5 ms) gives 0.17 mm and stays 4x above the 2-step
+# floor below which MuJoCo's 'refsafe' would clamp it.
+WELD_TIMECONST_STEPS: Final = 8
+
+
+@dataclass(frozen=True)
+class World:
+    """A compiled MuJoCo cell and the indices the plant needs, per robot in config order.
+
+    Every per-robot field is a tuple indexed like ``robots`` (``index(name)`` maps a name).
+
+    The arms carry no joint damping or friction loss and no actuators: the plant's motor model
+    applies motor torque, viscous and asymmetric Coulomb friction and the brakes through
+    ``data.qfrc_applied[dof_adr[k]]``.  Arm geoms never collide (contype = conaffinity =
+    0); only the bar touches the stand and the floor.
+
+    Grasping.  ``weld[k]`` is a MuJoCo weld equality between the robot's ``flange`` body
+    (body1) and the bar (body2), inactive at start.  A weld's ``eq_data`` row (MuJoCo 4) is
+    ``[anchor(3), relpos(3), relquat(4), torquescale, from_qpos0]``: with anchor 0 the weld
+    holds the bar's origin at ``relpos`` and its orientation at ``relquat`` in the flange
+    frame; ``from_qpos0 = 1`` would let ``mj_setConst`` overwrite relpose, so it stays 0.  To
+    grasp without a jump the plant writes the *current* relative pose and then activates:
+    after ``mj_kinematics`` (or a step), ``relpos = R1ᵀ(x2 - x1)``, ``relquat = q1⁻¹·q2``
+    from ``data.xpos``/``data.xquat``, ``model.eq_data[weld, 3:10] = relpos, relquat``, then
+    ``data.eq_active[weld] = 1``; the method ``activate_weld`` does exactly this.  Releasing is
+    ``data.eq_active[weld] = 0``.  At build time relpose is the ideal grasp (flange frame on
+    the grasp site), so ``eq_active = 1`` alone would snap the bar into the hand.
+    """
+
+    model: mujoco.MjModel
+    robots: tuple[str, ...]  # names, in config order
+    qpos_adr: tuple[IntArray, ...]  # per robot: 6 qpos indices of joints j1..j6
+    dof_adr: tuple[IntArray, ...]  # per robot: 6 dof indices (qvel, qacc, qfrc_*) of j1..j6
+    flange_site: tuple[int, ...]  # per robot: site at the flange frame (DH frame 6)
+    grasp_site: tuple[int, ...]  # per robot: site on the bar where its flange frame should go
+    weld: tuple[int, ...]  # per robot: equality id, bar <-> its flange, inactive at start
+    object_body: int  # the bar
+    object_qpos_adr: int  # first of the bar's 7 free-joint qpos (position, quaternion)
+    object_dof_adr: int  # first of its 6 dofs
+
+    def index(self, robot: int | str) -> int:
+        """The position of ``robot`` (a name, or already an index) in ``robots``."""
+        if isinstance(robot, str):
+            if robot not in self.robots:
+                raise ModelError(f"world: no robot {robot!r}; robots: {', '.join(self.robots)}")
+            return self.robots.index(robot)
+        if not 0 <= robot < len(self.robots):
+            raise ModelError(f"world: robot index {robot} out of range 0..{len(self.robots) - 1}")
+        return robot
+
+    def activate_weld(self, data: mujoco.MjData, robot: int | str) -> None:
+        """Grasp: hold the bar where it is now relative to ``robot``'s flange, then activate.
+
+        Uses ``data.xpos``/``data.xquat``, so call it after ``mj_kinematics`` (or any step).
+        Writes ``model.eq_data`` of that weld: anchor 0, relpose = the bar's pose in the flange
+        frame, torquescale 1, from_qpos0 0.  Outside the cycle: it allocates.
+        """
+        model = self.model
+        eq = self.weld[self.index(robot)]
+        b1, b2 = model.eq_obj1id[eq], model.eq_obj2id[eq]
+        q1inv = np.empty(4)
+        mujoco.mju_negQuat(q1inv, data.xquat[b1])
+        relpos = np.empty(3)
+        mujoco.mju_rotVecQuat(relpos, data.xpos[b2] - data.xpos[b1], q1inv)
+        relquat = np.empty(4)
+        mujoco.mju_mulQuat(relquat, q1inv, data.xquat[b2])
+        model.eq_data[eq, 0:3] = 0.0
+        model.eq_data[eq, 3:6] = relpos
+        model.eq_data[eq, 6:10] = relquat
+        model.eq_data[eq, 10] = 1.0
+        model.eq_data[eq, 11] = 0.0
+        data.eq_active[eq] = 1
+
+
+def load_pinocchio(urdf: Path = URDF_PATH) -> pin.Model:
+    """The arm as a Pinocchio model, base at the origin, with armature and g = 9.81 m/s².
+
+    ``rnea`` / ``crba`` / ``aba`` on it include the rotor inertia ``ARMATURE``.  The flange is
+    the frame named ``FLANGE_FRAME``.
+    """
+    if not Path(urdf).is_file():
+        raise ModelError(f"{urdf}: no such file")
+    try:
+        model = pin.buildModelFromUrdf(str(urdf))
+    except (RuntimeError, ValueError) as exc:
+        raise ModelError(f"{urdf}: Pinocchio cannot load it: {exc}") from None
+    if model.nv != NJOINTS or not model.existFrame(FLANGE_FRAME):
+        raise ModelError(
+            f"{urdf}: expected {NJOINTS} joints and a {FLANGE_FRAME!r} frame, "
+            f"found {model.nv} joints"
+        )
+    model.armature = np.array(ARMATURE, dtype=float)
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -GRAVITY]), np.zeros(3))
+    return model
+
+
+def build_world(
+    robots: Sequence[RobotConfig], urdf: Path = URDF_PATH, timestep: float = 0.0005
+) -> World:
+    """The plant's MuJoCo cell: the URDF attached once per robot, a stand and a bar.
+
+    Each arm is ``urdf`` loaded with ``MjSpec.from_file`` and attached under the name prefix
+    ``"<robot>/"`` at its ``base_xyz``, turned ``base_yaw_deg`` about z; every arm dof gets
+    ``ARMATURE``.  Integrator: ``implicitfast``.  The plant's friction torques are explicit
+    (``qfrc_applied``), which is stable here with a wide margin: the stiffest ratio of viscous
+    friction to joint inertia is joint 1's 5.8 N·m·s / 0.78 kg·m², so dt·b/I ≈ 0.004 at
+    0.5 ms against the explicit bound of 2.  ``implicitfast`` costs no more than Euler with
+    no damping in the model, and keeps any damping or actuator added later implicit.
+    """
+    if not robots:
+        raise ModelError("build_world: no robots; the cell needs at least one arm")
+    if not (0.0 < timestep <= 0.01):
+        raise ModelError(f"build_world: timestep = {timestep} s: must be > 0 and <= 0.01")
+    names = tuple(r.name for r in robots)
+    if len(set(names)) != len(names):
+        raise ModelError(f"build_world: robot names must be unique, got {list(names)}")
+    for r in robots:
+        if r.model != "puma560":
+            raise ModelError(f"build_world: robot {r.name!r}: model {r.model!r} not supported")
+
+    spec = mujoco.MjSpec()
+    spec.modelname = "kali_cell"
+    spec.option.timestep = timestep
+    spec.option.gravity = [0.0, 0.0, -GRAVITY]
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    _add_scenery(spec)
+    bar = _add_bar(spec, robots)
+    for r in robots:
+        _attach_arm(spec, r, urdf)
+        _add_weld(spec, r.name, bar, WELD_TIMECONST_STEPS * timestep)
+
+    try:
+        model = spec.compile()
+    except ValueError as exc:
+        raise ModelError(f"{urdf}: MuJoCo cannot build the cell: {exc}") from None
+
+    def jid(robot: str, j: int) -> int:
+        return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{robot}/j{j + 1}")
+
+    def oid(kind: mujoco.mjtObj, name: str) -> int:
+        return mujoco.mj_name2id(model, kind, name)
+
+    def adr(table: np.ndarray, robot: str) -> IntArray:
+        out = np.array([table[jid(robot, j)] for j in range(NJOINTS)], dtype=np.int64)
+        out.setflags(write=False)
+        return out
+
+    bar_body = oid(mujoco.mjtObj.mjOBJ_BODY, "object")
+    bar_joint = model.body_jntadr[bar_body]
+    return World(
+        model=model,
+        robots=names,
+        qpos_adr=tuple(adr(model.jnt_qposadr, n) for n in names),
+        dof_adr=tuple(adr(model.jnt_dofadr, n) for n in names),
+        flange_site=tuple(oid(mujoco.mjtObj.mjOBJ_SITE, f"{n}/flange") for n in names),
+        grasp_site=tuple(oid(mujoco.mjtObj.mjOBJ_SITE, f"object/grasp_{n}") for n in names),
+        weld=tuple(oid(mujoco.mjtObj.mjOBJ_EQUALITY, f"{n}/grasp") for n in names),
+        object_body=bar_body,
+        object_qpos_adr=int(model.jnt_qposadr[bar_joint]),
+        object_dof_adr=int(model.jnt_dofadr[bar_joint]),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# World pieces
+
+
+def _yaw_quat(yaw_deg: float) -> list[float]:
+    half = math.radians(yaw_deg) / 2.0
+    return [math.cos(half), 0.0, 0.0, math.sin(half)]
+
+
+def _add_scenery(spec: mujoco.MjSpec) -> None:
+    """Floor, light and the stand (static, colliding)."""
+    world = spec.worldbody
+    world.add_light(name="sun", pos=[0.0, -1.0, 3.0], dir=[0.0, 0.3, -1.0])
+    world.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[3.0, 3.0, 0.05],
+        rgba=[0.55, 0.57, 0.6, 1.0],
+    )
+    sx, sy, sz = STAND_SIZE
+    world.add_geom(
+        name="stand",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[sx / 2, sy / 2, sz / 2],
+        pos=[0.0, 0.0, sz / 2],
+        rgba=[0.45, 0.33, 0.22, 1.0],
+    )
+
+
+def _grasp_pose(robot: RobotConfig) -> tuple[list[float], list[float]]:
+    """A robot's grasp site in the bar frame: above the bar end nearer its base, z down.
+
+    The site's x axis points along the bar towards the robot's base, so a robot at yaw 0 on
+    the -x side and one at yaw 180 on the +x side reach their ends with the same joint
+    angles (``θ6`` near +20° rather than -160°).
+    """
+    half = BAR_SIZE[0] / 2 - GRASP_INSET
+    if robot.base_xyz[0] <= 0.0:  # the -x end; x = -X, z = -Z: a half turn about Y
+        return [-half, 0.0, GRASP_HEIGHT], [0.0, 0.0, 1.0, 0.0]
+    return [half, 0.0, GRASP_HEIGHT], [0.0, 1.0, 0.0, 0.0]  # x = +X, z = -Z: about X
+
+
+def _add_bar(spec: mujoco.MjSpec, robots: Sequence[RobotConfig]) -> mujoco.MjsBody:
+    """The carried object: a free square bar lying on the stand, with one grasp site per arm."""
+    lx, ly, lz = BAR_SIZE
+    body = spec.worldbody.add_body(name="object", pos=[0.0, 0.0, STAND_SIZE[2] + lz / 2])
+    body.add_freejoint(name="object")
+    body.add_geom(
+        name="object",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[lx / 2, ly / 2, lz / 2],
+        mass=BAR_MASS,
+        rgba=[0.85, 0.35, 0.1, 1.0],
+    )
+    for r in robots:
+        pos, quat = _grasp_pose(r)
+        body.add_site(
+            name=f"object/grasp_{r.name}",
+            pos=pos,
+            quat=quat,
+            size=[0.01, 0.01, 0.01],
+            rgba=[0.1, 0.8, 0.2, 0.6],
+        )
+    return body
+
+
+def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, urdf: Path) -> None:
+    """Attach the URDF arm at the robot's base; set armature; switch its contacts off."""
+    if not Path(urdf).is_file():
+        raise ModelError(f"{urdf}: no such file")
+    try:
+        arm = mujoco.MjSpec.from_file(str(urdf))
+    except ValueError as exc:
+        raise ModelError(f"{urdf}: MuJoCo cannot load it: {exc}") from None
+    frame = spec.worldbody.add_frame(pos=list(robot.base_xyz), quat=_yaw_quat(robot.base_yaw_deg))
+    prefix = f"{robot.name}/"
+    spec.attach(arm, prefix=prefix, frame=frame)
+    for j in range(NJOINTS):
+        joint = spec.joint(f"{prefix}j{j + 1}")
+        if joint is None:
+            raise ModelError(f"{urdf}: no joint 'j{j + 1}'")
+        joint.armature = float(ARMATURE[j])
+        joint.damping = np.zeros(3)  # MuJoCo 4: damping polynomial coefficients
+        joint.frictionloss = 0.0
+    for geom in spec.geoms:
+        if geom.name.startswith(prefix):
+            geom.contype = 0
+            geom.conaffinity = 0
+            if geom.group == 0:  # the URDF <collision> copies: hide under the coloured visuals
+                geom.group = 3
+    flange = spec.body(f"{prefix}{FLANGE_FRAME}")
+    if flange is None:
+        raise ModelError(f"{urdf}: no {FLANGE_FRAME!r} link")
+    flange.add_site(name=f"{prefix}flange", size=[0.008, 0.008, 0.008], rgba=[0.9, 0.1, 0.1, 1])
+
+
+def _add_weld(spec: mujoco.MjSpec, robot: str, bar: mujoco.MjsBody, timeconst: float) -> None:
+    """An inactive weld flange <-> bar; relpose starts as the ideal grasp (see World)."""
+    pos = None
+    quat = None
+    for site in bar.sites:
+        if site.name == f"object/grasp_{robot}":
+            pos, quat = np.array(site.pos), np.array(site.quat)
+    assert pos is not None and quat is not None, f"no grasp site for {robot}"
+    # bar in the site frame = inverse of the site's pose in the bar frame
+    qinv = np.empty(4)
+    mujoco.mju_negQuat(qinv, quat)
+    relpos = np.empty(3)
+    mujoco.mju_rotVecQuat(relpos, -pos, qinv)
+    spec.add_equality(
+        name=f"{robot}/grasp",
+        type=mujoco.mjtEq.mjEQ_WELD,
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        name1=f"{robot}/{FLANGE_FRAME}",
+        name2="object",
+        active=False,
+        data=[0.0, 0.0, 0.0, *relpos, *qinv, 1.0, 0.0],
+        solref=[timeconst, 1.0],
+    )
+
+
+__all__ = [
+    "FLANGE_FRAME",
+    "World",
+    "build_world",
+    "load_pinocchio",
+]

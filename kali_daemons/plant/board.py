@@ -1,0 +1,200 @@
+"""The McGill robot I/O board of one arm, simulated behind its registers (thesis appendix C).
+
+What Kali sees is only the ``layout.IO_BOARD`` record; this class plays the hardware:
+
+- **Power switch** (C.3, C.5.1).  Bit 7 low disables the robot at once, overriding enables;
+  with bit 7 high, holding the enable bit 3 high for ``enable_hold_ms`` (the relay) turns
+  the amplifiers on.  The brake solenoids follow the amplifiers ``brake_delay_ms`` later, in
+  both directions (on enable the brakes hold briefly while the amplifiers are on).
+- **Watchdog** (C.4).  With the timeout mode bit 6 set, a high-then-low pulse on bit 5
+  retriggers it; ``watchdog_ms`` without one trips it: amplifiers off, buzzer, and the robot
+  stays disabled until a retrigger and a new enable.
+- **Emergency stop**: the operator's button disables like bit 7 while pressed.
+- **Encoders** (HCTL-2000, C.3): 12-bit counters of quadrature counts of the motor angle,
+  wrapping at 4096.  With index capture enabled (bit 4 low), an index pulse, once per motor
+  revolution at a fixed motor angle, resets the channel's counter to 0 and sets its bit in
+  the index register; disabling capture clears the register.
+- **Potentiometers** through the TLC532A: a conversion starts on a rising START bit in the
+  control register and completes with ``ADC_DONE | value`` in the analog register; the
+  digital register reads the channels above 2.5 V.
+
+All times are the plant's simulated time, so lockstep runs are deterministic.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import layout, puma560
+from ..config import PlantConfig
+from ..layout import (
+    ADC_CHANNEL_MASK,
+    ADC_DONE,
+    ADC_START,
+    CSR_ENABLE,
+    CSR_INDEX_OFF,
+    CSR_NO_DISABLE,
+    CSR_RETRIGGER,
+    CSR_TIMEOUT_ON,
+    POWER_AMPS_ON,
+    POWER_BRAKES_RELEASED,
+    POWER_BUZZER,
+    POWER_ESTOP,
+    POWER_WATCHDOG_TRIPPED,
+)
+
+TWO_PI = 2.0 * math.pi
+COUNTER_MODULO = 4096
+POT_V_MIN, POT_V_MAX = 0.25, 4.75  # pot voltage at the joint limits (0-5 V ADC range)
+ADC_CHANNELS = 11  # TLC532A inputs; channel 10 is its self-test reference (V/2)
+ADC_SELF_TEST = 10
+
+
+def pot_volts(q: float, lo: float, hi: float) -> float:
+    """The potentiometer voltage of a joint at angle ``q`` (linear over the joint range)."""
+    v = POT_V_MIN + (POT_V_MAX - POT_V_MIN) * (q - lo) / (hi - lo)
+    return min(max(v, 0.0), 5.0)
+
+
+def adc_code(volts: float) -> int:
+    """8-bit TLC532A conversion of 0-5 V (±1/2 LSB)."""
+    return min(max(round(volts / 5.0 * 255.0), 0), 255)
+
+
+class IoBoardSim:
+    """One arm's I/O board; ``update`` once per plant cycle, ``sample`` after every substep."""
+
+    def __init__(
+        self, regs: np.ndarray, cfg: PlantConfig, index_phase: np.ndarray, motor_angle: np.ndarray
+    ) -> None:
+        self.regs = regs
+        self.hold_ns = int(cfg.enable_hold_ms * 1e6)
+        self.watchdog_ns = int(cfg.watchdog_ms * 1e6)
+        self.brake_ns = int(cfg.brake_delay_ms * 1e6)
+        self.cpr = np.asarray(puma560.COUNTS_PER_MOTOR_REV, dtype=np.float64)
+        self.phase = np.asarray(index_phase, dtype=np.float64)  # motor angle of the index, rad
+        self.lo, self.hi = puma560.Q_MIN, puma560.Q_MAX
+        self.amps_on = False
+        self.brakes_released = False
+        self.tripped = False
+        self._switch_ns = 0  # when the amplifiers last changed state
+        self._enable_since: int | None = None
+        self._retrigger_ns = 0
+        self._prev_csr = int(regs["csr"])
+        self._prev_adc = 0
+        # encoders: the counters read 0 at power-on
+        self._counts_per_rad = self.cpr / TWO_PI
+        self._raw = np.zeros(6, dtype=np.int64)
+        self._count = np.zeros(6, dtype=np.int64)
+        self._ref = np.floor(motor_angle * self._counts_per_rad).astype(np.int64)
+        self._rev = np.floor((motor_angle - self.phase) / TWO_PI)
+        self._f = np.zeros(6)
+        self._g = np.zeros(6)
+        self._crossed = np.zeros(6, dtype=bool)
+        self.regs["encoder"][:] = 0
+        self.regs["index"] = 0
+
+    # ------------------------------------------------------------------ power and watchdog
+
+    def update(self, now_ns: int) -> None:
+        """Apply the command/status register and e-stop at plant time ``now_ns``."""
+        r = self.regs
+        csr = int(r["csr"])
+        prev, self._prev_csr = self._prev_csr, csr
+        estop = bool(r["estop"])
+        if csr & CSR_TIMEOUT_ON:
+            if not prev & CSR_TIMEOUT_ON:
+                self._retrigger_ns = now_ns  # the timer starts when the mode is switched on
+            if prev & CSR_RETRIGGER and not csr & CSR_RETRIGGER:
+                self._retrigger_ns = now_ns
+                self.tripped = False
+            elif now_ns - self._retrigger_ns > self.watchdog_ns:
+                self.tripped = True
+        elif self.tripped and prev & CSR_RETRIGGER and not csr & CSR_RETRIGGER:
+            self.tripped = False
+        disabled = not csr & CSR_NO_DISABLE or estop or self.tripped
+        if csr & CSR_ENABLE:
+            if self._enable_since is None or not prev & CSR_ENABLE:
+                self._enable_since = now_ns
+        else:
+            self._enable_since = None
+        if disabled:
+            self._enable_since = None
+            self._set_amps(False, now_ns)
+        elif self._enable_since is not None and now_ns - self._enable_since >= self.hold_ns:
+            self._set_amps(True, now_ns)
+        if self.brakes_released != self.amps_on and now_ns - self._switch_ns >= self.brake_ns:
+            self.brakes_released = self.amps_on
+        if csr & CSR_INDEX_OFF and r["index"]:
+            r["index"] = 0  # disabling index capture clears the register
+        power = (
+            (POWER_AMPS_ON if self.amps_on else 0)
+            | (POWER_BRAKES_RELEASED if self.brakes_released else 0)
+            | (POWER_WATCHDOG_TRIPPED | POWER_BUZZER if self.tripped else 0)
+            | (POWER_ESTOP if estop else 0)
+        )
+        r["power"] = power
+
+    def _set_amps(self, on: bool, now_ns: int) -> None:
+        if on != self.amps_on:
+            self.amps_on = on
+            self._switch_ns = now_ns
+
+    # ------------------------------------------------------------------ encoders
+
+    def sample(self, motor_angle: np.ndarray) -> None:
+        """Count the motor angles into the HCTL-2000 registers; capture index pulses.
+
+        Runs after every substep; preallocated buffers only.
+        """
+        r = self.regs
+        f, rev = self._f, self._g
+        np.multiply(motor_angle, self._counts_per_rad, out=f)
+        np.floor(f, out=f)
+        np.copyto(self._raw, f, casting="unsafe")
+        np.subtract(motor_angle, self.phase, out=rev)
+        np.divide(rev, TWO_PI, out=rev)
+        np.floor(rev, out=rev)
+        if not int(r["csr"]) & CSR_INDEX_OFF:
+            np.not_equal(rev, self._rev, out=self._crossed)
+            if self._crossed.any():
+                for j in np.flatnonzero(self._crossed):
+                    k = max(rev[j], self._rev[j])  # the revolution whose index pulse was passed
+                    self._ref[j] = math.floor(
+                        (self.phase[j] + TWO_PI * k) * self._counts_per_rad[j]
+                    )
+                    r["index"] = int(r["index"]) | (1 << int(j))
+        np.copyto(self._rev, rev)
+        np.subtract(self._raw, self._ref, out=self._count)
+        np.mod(self._count, COUNTER_MODULO, out=self._count)
+        r["encoder"][:6] = self._count
+
+    # ------------------------------------------------------------------ potentiometers
+
+    def convert(self, q: np.ndarray) -> None:
+        """Serve the TLC532A: a rising START converts the selected channel."""
+        r = self.regs
+        ctrl = int(r["adc_control"])
+        start = bool(ctrl & ADC_START)
+        if start and not self._prev_adc:
+            ch = ctrl & ADC_CHANNEL_MASK
+            if ch >= ADC_CHANNELS:
+                r["clamped"] += 1
+                ch = ADC_CHANNELS - 1
+            if ch < 6:
+                code = adc_code(pot_volts(float(q[ch]), float(self.lo[ch]), float(self.hi[ch])))
+            elif ch == ADC_SELF_TEST:
+                code = adc_code(2.5)
+            else:
+                code = 0  # unconnected inputs
+            r["adc_analog"] = ADC_DONE | code
+        elif not start and self._prev_adc:
+            r["adc_analog"] = int(r["adc_analog"]) & layout.ADC_VALUE_MASK
+        self._prev_adc = int(start)
+        digital = 0
+        for j in range(6):
+            if pot_volts(float(q[j]), float(self.lo[j]), float(self.hi[j])) > 2.5:
+                digital |= 1 << j
+        r["adc_digital"] = digital

@@ -1,0 +1,110 @@
+"""Motors and PWM amplifiers of every joint (thesis table 3.1 and 3.7.2; puma560.md).
+
+Per joint, vectorised over all arms:
+
+    DAC volts → commanded current (2.5 A/V, clipped at the motor's peak current)
+      → current loop, first order at 500 Hz, whose output the bus voltage limits:
+        R·i + Kt·ω_m must stay within ±40 V (so back-EMF limits the current at speed)
+      → motor torque Kt·i → joint torque G·Kt·i (signed gear ratio).
+
+A disabled amplifier cuts its current at once (< 1 µs, appendix C.4).
+
+Friction is the motor's (puma560.md): viscous G²·B and asymmetric Coulomb |G|·Tc±.  The
+symmetric part of the Coulomb friction, |G|·min(Tc+, |Tc−|), and the viscous part go to
+MuJoCo as ``dof_frictionloss`` and ``dof_damping``, which it treats as constraints and
+implicitly, so stiction holds exactly and stays stable at the plant's step; this model adds
+the asymmetric remainder as a torque, regularised by tanh(ω_m / ω₀).  The brakes raise the
+frictionloss to their holding torque.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .. import puma560
+
+OMEGA0 = 2.0  # rad/s at the motor: regularisation of the asymmetric Coulomb remainder
+
+# Holding torque of the brakes at the joint, N·m.  Not in puma560.md: chosen well above the
+# largest gravity torque of each joint (37.5 N·m on joint 2) so an engaged brake holds the arm.
+BRAKE_TORQUE = np.array([150.0, 150.0, 80.0, 20.0, 20.0, 20.0])
+
+
+class MotorBank:
+    """The amplifiers and motors of ``n_arms`` PUMA 560 arms; state is the motor currents.
+
+    ``step`` runs inside the plant's cycle: every array is preallocated, no allocation.
+    """
+
+    def __init__(self, n_arms: int, dt: float) -> None:
+        def tile(a: np.ndarray) -> np.ndarray:
+            return np.tile(np.asarray(a, dtype=np.float64), n_arms)
+
+        self.n = 6 * n_arms
+        self.gear = tile(puma560.G)
+        self.kt = tile(puma560.KT)
+        self.r = tile(puma560.R_ARMATURE)
+        self.i_max = tile(puma560.MAX_CURRENT)
+        tc_pos, tc_neg = tile(puma560.TC_POS), np.abs(tile(puma560.TC_NEG))
+        sym = np.minimum(tc_pos, tc_neg)
+        self.extra_pos = tc_pos - sym  # motor-side Coulomb beyond the symmetric part
+        self.extra_neg = tc_neg - sym
+        self.frictionloss = np.abs(self.gear) * sym  # joint side, for MuJoCo
+        self.damping = tile(puma560.VISCOUS)  # joint side, for MuJoCo
+        self.brake = tile(BRAKE_TORQUE)
+        self.gain = puma560.AMP_GAIN_A_PER_V
+        self.v_bus = puma560.BUS_VOLTAGE
+        self.alpha = 1.0 - math.exp(-2.0 * math.pi * puma560.AMP_BANDWIDTH_HZ * dt)
+        self.current = np.zeros(self.n)
+        self.enabled = np.zeros(self.n)  # 1.0 where the joint's amplifier is on
+        self._w = np.zeros(self.n)
+        self._a = np.zeros(self.n)
+        self._b = np.zeros(self.n)
+        self._c = np.zeros(self.n)
+
+    def step(self, volts: np.ndarray, qd: np.ndarray, torque_out: np.ndarray) -> None:
+        """Advance the currents one step for DAC ``volts`` at joint speeds ``qd``.
+
+        Writes the joint torque (motor torque plus the asymmetric friction remainder) into
+        ``torque_out``.  Inside the cycle.
+        """
+        w, a, b, i = self._w, self._a, self._b, self.current
+        np.multiply(self.gear, qd, out=w)  # motor speed ω_m
+        np.multiply(volts, self.gain, out=a)  # commanded current
+        np.clip(a, -self.i_max, self.i_max, out=a)
+        np.multiply(self.kt, w, out=b)  # back-EMF
+        # voltage limit: (−Vbus − Kt ω)/R ≤ i ≤ (Vbus − Kt ω)/R
+        c = self._c
+        np.add(b, self.v_bus, out=c)
+        np.divide(c, self.r, out=c)
+        np.negative(c, out=c)
+        np.maximum(a, c, out=a)
+        np.subtract(self.v_bus, b, out=c)
+        np.divide(c, self.r, out=c)
+        np.minimum(a, c, out=a)
+        np.subtract(a, i, out=a)
+        np.multiply(a, self.alpha, out=a)
+        np.add(i, a, out=i)
+        np.multiply(i, self.enabled, out=i)  # a disabled amplifier cuts its current at once
+        np.multiply(self.kt, i, out=torque_out)
+        np.multiply(torque_out, self.gear, out=torque_out)
+        # asymmetric Coulomb remainder, opposing the motor's motion
+        np.divide(w, OMEGA0, out=a)
+        np.tanh(a, out=a)
+        np.maximum(a, 0.0, out=b)
+        np.minimum(a, 0.0, out=a)
+        np.multiply(b, self.extra_pos, out=b)
+        np.multiply(a, self.extra_neg, out=a)
+        np.subtract(a, b, out=a)  # friction torque at the motor
+        np.multiply(a, self.gear, out=a)
+        np.add(torque_out, a, out=torque_out)
+
+    def joint_frictionloss(self, braked: np.ndarray, out: np.ndarray) -> None:
+        """MuJoCo frictionloss per joint: the brake's holding torque where ``braked`` (bool).
+
+        Called when a brake changes state, not every step.
+        """
+        np.copyto(out, self.frictionloss)
+        np.copyto(out, self.brake, where=braked)

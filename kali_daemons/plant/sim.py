@@ -1,0 +1,220 @@
+"""The simulated cell behind the board registers: MuJoCo world, motors, I/O and DAC boards.
+
+``PlantSim`` is the whole plant without a process around it, so tests drive it tick by tick
+in-process and the plant daemon calls ``cycle`` from its loop.  One cycle:
+
+1. every board applies its command/status register and e-stop (power switch, watchdog,
+   brakes) at the plant's simulated time;
+2. the DAC codes become amplifier input volts (codes above 4095 are clamped and counted);
+3. the gripper registers close or open the welds to the object;
+4. ``substeps`` MuJoCo steps, each with the motor model's joint torques applied and the
+   encoders sampled after it;
+5. the pot ADCs serve conversions, and the plant-only truth records are written.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from .. import layout, puma560
+from ..arena import Arena
+from ..config import KaliConfig
+from ..model import World, build_world
+from .board import IoBoardSim
+from .motor import MotorBank
+
+GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
+INITIAL_POSE = np.asarray(puma560.QN, dtype=np.float64)  # where the arms are at power-on
+
+
+def index_phases(seed: int, robot: int) -> np.ndarray:
+    """Motor angle (rad) of each joint's index pulse: fixed per arm, seeded from the config."""
+    rng = np.random.default_rng([seed, robot])
+    return rng.uniform(0.0, 2.0 * math.pi, size=6)
+
+
+class PlantSim:
+    """The plant of one instance: owns the MuJoCo model and data and the register records."""
+
+    def __init__(self, cfg: KaliConfig, arena: Arena, period_ms: float | None = None) -> None:
+        pc = cfg.plant
+        self.dt = pc.substep_ms / 1000.0
+        self.dt_ns = round(pc.substep_ms * 1e6)
+        period = cfg.clock.base_tick_ms if period_ms is None else period_ms
+        self.substeps = max(1, round(period / pc.substep_ms))
+        self.world: World = build_world(cfg.robots, timestep=self.dt)
+        self.names = [r.name for r in cfg.robots]
+        m = self.model = self.world.model
+        d = self.data = mujoco.MjData(m)
+        n_arms = len(self.names)
+        self.dofs = np.concatenate([self.world.dof_adr[k] for k in range(n_arms)])
+        self.qpos_idx = np.concatenate([self.world.qpos_adr[k] for k in range(n_arms)])
+        self.motors = MotorBank(n_arms, self.dt)
+        m.dof_damping[self.dofs] = self.motors.damping
+        # Stiff friction constraints: MuJoCo's defaults let an engaged brake creep ~8 mrad/s
+        # under gravity; a 4-step time constant and impedance 0.9999 hold to < 1 µrad/s.
+        m.dof_solref[self.dofs] = [4 * self.dt, 1.0]
+        m.dof_solimp[self.dofs, :2] = 0.9999
+        self.braked = np.ones(self.motors.n, dtype=bool)  # brakes hold at power-on
+        self._frictionloss = np.zeros(self.motors.n)
+        self._apply_brakes()
+        d.qpos[self.qpos_idx] = np.tile(INITIAL_POSE, n_arms)
+        mujoco.mj_forward(m, d)
+        self.gear = self.motors.gear
+        self.q = np.zeros(self.motors.n)
+        self.qd = np.zeros(self.motors.n)
+        self.motor_angle = np.zeros(self.motors.n)
+        self.volts = np.zeros(self.motors.n)
+        self.torque = np.zeros(self.motors.n)
+        self._read_joints()
+        self.boards: list[IoBoardSim] = []
+        self.dac: list[np.ndarray] = []
+        self.truth: list[np.ndarray] = []
+        self._gripper_prev = [0] * n_arms
+        for k, name in enumerate(self.names):
+            regs = arena.record(layout.KEY_BOARD.format(robot=name), layout.IO_BOARD)
+            sl = slice(6 * k, 6 * k + 6)
+            self.boards.append(IoBoardSim(regs, pc, index_phases(pc.seed, k), self.motor_angle[sl]))
+            self.dac.append(arena.record(layout.KEY_DAC.format(robot=name), layout.DAC_BOARD))
+            self.dac[k]["code"][:] = layout.DAC_ZERO
+            self.truth.append(arena.record(layout.KEY_TRUTH.format(robot=name), layout.ARM_TRUTH))
+        self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        self.sim_ns = 0
+        self.ticks = 0
+        self._write_truth()
+
+    # ------------------------------------------------------------------ one cycle
+
+    def cycle(self) -> None:
+        """Advance the plant one period; inside the cycle (no allocation beyond numpy views)."""
+        motors = self.motors
+        changed = False
+        for k, board in enumerate(self.boards):
+            board.update(self.sim_ns)
+            sl = slice(6 * k, 6 * k + 6)
+            motors.enabled[sl] = 1.0 if board.amps_on else 0.0
+            braked = not board.brakes_released
+            if self.braked[6 * k] != braked:
+                self.braked[sl] = braked
+                changed = True
+            self._read_dac(k)
+            self._gripper(k)
+        if changed:
+            self._apply_brakes()
+        m, d = self.model, self.data
+        for _ in range(self.substeps):
+            motors.step(self.volts, self.qd, self.torque)
+            d.qfrc_applied[self.dofs] = self.torque
+            mujoco.mj_step(m, d)
+            self._read_joints()
+            for k, board in enumerate(self.boards):
+                board.sample(self.motor_angle[6 * k : 6 * k + 6])
+            self.sim_ns += self.dt_ns
+        for k, board in enumerate(self.boards):
+            board.convert(self.q[6 * k : 6 * k + 6])
+        self.ticks += 1
+        self._write_truth()
+
+    def _read_joints(self) -> None:
+        np.take(self.data.qpos, self.qpos_idx, out=self.q)
+        np.take(self.data.qvel, self.dofs, out=self.qd)
+        np.multiply(self.gear, self.q, out=self.motor_angle)
+
+    def _read_dac(self, k: int) -> None:
+        """DAC codes → amplifier input volts; codes above 12 bits are clamped and counted."""
+        dac = self.dac[k]
+        codes = dac["code"]
+        for j in range(6):
+            c = int(codes[j])
+            if c > 4095:
+                c = 4095
+                dac["clamped"] += 1
+            self.volts[6 * k + j] = (c - layout.DAC_ZERO) * (10.0 / layout.DAC_ZERO)
+
+    def _apply_brakes(self) -> None:
+        self.motors.joint_frictionloss(self.braked, self._frictionloss)
+        self.model.dof_frictionloss[self.dofs] = self._frictionloss
+
+    # ------------------------------------------------------------------ grasping
+
+    def _gripper(self, k: int) -> None:
+        """A rising gripper bit welds the flange to the object within reach; falling lets go."""
+        regs = self.boards[k].regs
+        g = int(regs["gripper"])
+        if g > 1:
+            regs["clamped"] += 1
+            g = 1
+        if g == self._gripper_prev[k]:
+            return
+        self._gripper_prev[k] = g
+        eq = self.world.weld[k]
+        if g and self.flange_to_grasp(k) <= GRASP_REACH_M:
+            self.world.activate_weld(self.data, k)
+        elif not g:
+            self.data.eq_active[eq] = 0
+
+    def flange_to_grasp(self, k: int) -> float:
+        """Distance (m) from arm ``k``'s flange to its grasp site on the object."""
+        d = self.data
+        diff = d.site_xpos[self.world.flange_site[k]] - d.site_xpos[self.world.grasp_site[k]]
+        return float(np.linalg.norm(diff))
+
+    def _weld_force(self, k: int) -> np.ndarray | None:
+        """The weld's constraint force and torque (world frame), or None when not grasping."""
+        d = self.data
+        eq = self.world.weld[k]
+        if not d.eq_active[eq]:
+            return None
+        rows = np.flatnonzero(
+            (d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+            & (d.efc_id[: d.nefc] == eq)
+        )
+        out = np.zeros(6)
+        out[: rows.size] = d.efc_force[rows][:6]
+        return out
+
+    # ------------------------------------------------------------------ truth
+
+    def _write_truth(self) -> None:
+        """The plant-only records (outside the controller's view): true state of every arm."""
+        forces = []
+        for k, board in enumerate(self.boards):
+            t = self.truth[k]
+            sl = slice(6 * k, 6 * k + 6)
+            t["q"] = self.q[sl]
+            t["qd"] = self.qd[sl]
+            t["current"] = self.motors.current[sl]
+            t["torque"] = self.torque[sl]
+            t["motor_angle"] = self.motor_angle[sl]
+            f = self._weld_force(k)
+            forces.append(f)
+            t["grasp_wrench"] = 0.0 if f is None else f
+            t["amps_on"] = board.amps_on
+            t["brakes_engaged"] = not board.brakes_released
+            t["grasped"] = f is not None
+            t["watchdog_tripped"] = board.tripped
+            t["estop"] = bool(board.regs["estop"])
+        w = self.world_truth
+        w["sim_time_ns"] = self.sim_ns
+        w["ticks"] = self.ticks
+        adr = self.world.object_qpos_adr
+        w["object_pose"] = self.data.qpos[adr : adr + 7]
+        w["internal_force"] = self._internal_force(forces)
+
+    def _internal_force(self, forces: list[np.ndarray | None]) -> float:
+        """Squeeze (−) or tension (+) along the line between two grasps, N; 0 unless both hold."""
+        held = [k for k, f in enumerate(forces) if f is not None]
+        if len(held) < 2:
+            return 0.0
+        a, b = held[0], held[1]
+        d = self.data
+        u = d.site_xpos[self.world.grasp_site[b]] - d.site_xpos[self.world.grasp_site[a]]
+        norm = float(np.linalg.norm(u))
+        if norm == 0.0:
+            return 0.0
+        u /= norm
+        fa, fb = forces[a], forces[b]
+        return float(0.5 * (fb[:3] @ u - fa[:3] @ u))  # type: ignore[index]

@@ -1,0 +1,172 @@
+"""The PUMA 560's facts as typed constants: kinematics, dynamics, motors, amplifiers, encoders.
+
+Transcribed from ``shared/puma560.md``, which gathers them from:
+
+- kinematics and link/motor dynamics: robotics-toolbox-python
+  ``roboticstoolbox/models/DH/Puma560.py`` (after Corke & Armstrong-Hélouvry, "A search for
+  consensus among model parameters reported for the PUMA 560 robot", ICRA 1994), with the
+  pedestal (d1 = 0.6718 m; the MATLAB toolbox has d1 = 0);
+- joint limits: Wang & Chen, IEEE Trans. RA 7(4) 1991;
+- motors, amplifiers and DAC: the thesis, table 3.1 and section 3.7.2;
+- encoders: the thesis, appendix C.
+
+Conventions.  Standard DH, link transform ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)``; DH frame
+``i`` is fixed to link ``i``.  Arrays are indexed by joint, 0..5 for joints 1..6.  ``G`` is the
+signed gear ratio (motor angle = G · joint angle); ``JM``, ``B_MOTOR``, ``TC_POS``/``TC_NEG`` are
+on the motor side, the ``ARMATURE``, ``VISCOUS`` and ``COULOMB_*`` arrays are their joint-side
+equivalents.  This module only states facts; ``scripts/gen_puma560_urdf.py`` turns them into
+``config/puma560.urdf`` and ``kali_daemons.model`` loads that file.
+
+Two inertias in the table are not physical rigid bodies and MuJoCo refuses them, so
+``MASS``/``INERTIA`` (used by Pinocchio, MuJoCo and the tests' toolbox oracle alike) differ
+from ``MASS_RAW``/``INERTIA_RAW`` in exactly two places:
+
+- Link 1: mass 0 and inertia diag(0, 0.35, 0) are singular.  Joint 1's axis is DH y1, so
+  Iyy = 0.35 is the only entry any joint torque sees: with a fixed base link 1 only turns
+  about that principal axis through its centre of mass, so Ixx, Izz and the mass (on the axis)
+  enter neither the mass matrix nor the bias forces.  Fix: mass 1 g, Ixx = Izz = 0.175, the
+  smallest equal pair that satisfies the triangle inequality Ixx + Izz >= Iyy = 0.35.
+- Link 3: Iyy = 0.086 > Ixx + Izz = 0.0785.  Fix: Ixx 0.066 -> 0.0735 = Iyy - Izz, just enough
+  (equality, exact in binary floating point too).  This one does change the dynamics a little.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+NJOINTS: Final = 6
+GRAVITY: Final = 9.81  # m/s², as in robotics-toolbox-python, so the gravity torques compare
+
+URDF_PATH: Final = Path(__file__).resolve().parent.parent / "config" / "puma560.urdf"
+
+
+def _ro(values: object, dtype: type = np.float64) -> npt.NDArray:
+    """A read-only numpy array: these are facts, nobody should change them in place."""
+    arr = np.array(values, dtype=dtype)
+    arr.setflags(write=False)
+    return arr
+
+
+# --------------------------------------------------------------------------------------------
+# Kinematics: standard DH (puma560.md "Kinematics")
+
+D: Final[FloatArray] = _ro([0.6718, 0.0, 0.15005, 0.4318, 0.0, 0.0])  # m; d1 with pedestal
+A: Final[FloatArray] = _ro([0.0, 0.4318, 0.0203, 0.0, 0.0, 0.0])  # m
+ALPHA: Final[FloatArray] = _ro(np.radians([90.0, 0.0, -90.0, 90.0, -90.0, 0.0]))  # rad
+
+Q_MIN: Final[FloatArray] = _ro(np.radians([-160.0, -45.0, -225.0, -110.0, -100.0, -266.0]))
+Q_MAX: Final[FloatArray] = _ro(np.radians([160.0, 225.0, 45.0, 170.0, 100.0, 266.0]))
+
+# Named poses (rad).  QZ, QR and QS are wrist-singular (θ5 = 0); QN is not.
+QZ: Final[FloatArray] = _ro([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # zero: the 'L' shape
+QR: Final[FloatArray] = _ro(np.radians([0.0, 90.0, -90.0, 0.0, 0.0, 0.0]))  # ready: arm vertical
+QS: Final[FloatArray] = _ro(np.radians([0.0, 0.0, -90.0, 0.0, 0.0, 0.0]))  # stretched along x
+QN: Final[FloatArray] = _ro(np.radians([0.0, 45.0, -180.0, 0.0, 45.0, 0.0]))  # nominal
+
+# Flange position at QN as puma560.md prints it (m, base frame).  The DH table gives
+# (0.59630, -0.15005, 0.65745): the printed z looks like the toolbox's 4-digit 0.6575
+# (with its d1 = 0.67183) rounded a second time; it is good to 1 mm, not 0.5 mm.
+FLANGE_QN: Final[FloatArray] = _ro([0.596, -0.150, 0.658])
+
+# --------------------------------------------------------------------------------------------
+# Link dynamics (puma560.md "Dynamics"): centre of mass r and inertia about it, in DH frame i
+
+# The table as published.  Two rows are not physical rigid bodies (see below).
+MASS_RAW: Final[FloatArray] = _ro([0.0, 17.4, 4.8, 0.82, 0.34, 0.09])  # kg
+COM: Final[FloatArray] = _ro(  # m, in DH frame i
+    [
+        [0.0, 0.0, 0.0],
+        [-0.3638, 0.006, 0.2275],
+        [-0.0203, -0.0141, 0.070],
+        [0.0, 0.019, 0.0],
+        [0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.032],
+    ]
+)
+INERTIA_RAW: Final[FloatArray] = _ro(  # kg·m², principal moments Ixx, Iyy, Izz about the COM
+    [
+        [0.0, 0.35, 0.0],
+        [0.13, 0.524, 0.539],
+        [0.066, 0.086, 0.0125],
+        [1.8e-3, 1.3e-3, 1.8e-3],
+        [0.3e-3, 0.4e-3, 0.3e-3],
+        [0.15e-3, 0.15e-3, 0.04e-3],
+    ]
+)
+
+# The two minimal fixes, explained in the module docstring.
+LINK1_MASS: Final = 1e-3  # kg
+LINK1_IXX_IZZ: Final = 0.175  # kg·m², = 0.35 / 2
+LINK3_IXX: Final = 0.0735  # kg·m², = 0.086 - 0.0125
+
+MASS: Final[FloatArray] = _ro([LINK1_MASS, *MASS_RAW[1:]])  # kg, used everywhere
+INERTIA: Final[FloatArray] = _ro(  # kg·m², used everywhere
+    [
+        [LINK1_IXX_IZZ, INERTIA_RAW[0, 1], LINK1_IXX_IZZ],
+        INERTIA_RAW[1],
+        [LINK3_IXX, INERTIA_RAW[2, 1], INERTIA_RAW[2, 2]],
+        *INERTIA_RAW[3:],
+    ]
+)
+
+# --------------------------------------------------------------------------------------------
+# Drive train (puma560.md "Dynamics"); motor side unless named otherwise
+
+JM: Final[FloatArray] = _ro([200e-6, 200e-6, 200e-6, 33e-6, 33e-6, 33e-6])  # kg·m², rotor
+G: Final[FloatArray] = _ro([-62.6111, 107.815, -53.7063, 76.0364, 71.923, 76.686])  # signed
+B_MOTOR: Final[FloatArray] = _ro([1.48e-3, 0.817e-3, 1.38e-3, 71.2e-6, 82.6e-6, 36.7e-6])  # N·m·s
+TC_POS: Final[FloatArray] = _ro([0.395, 0.126, 0.132, 11.2e-3, 9.26e-3, 3.96e-3])  # N·m, qd > 0
+TC_NEG: Final[FloatArray] = _ro([-0.435, -0.071, -0.105, -16.9e-3, -14.5e-3, -10.5e-3])  # qd < 0
+
+# Joint side: reflected rotor inertia, viscous and Coulomb friction.
+ARMATURE: Final[FloatArray] = _ro(JM * G**2)  # kg·m²; MuJoCo dof_armature, Pinocchio armature
+VISCOUS: Final[FloatArray] = _ro(G**2 * B_MOTOR)  # N·m·s/rad
+COULOMB_POS: Final[FloatArray] = _ro(np.abs(G) * TC_POS)  # N·m, friction level for qd > 0
+COULOMB_NEG: Final[FloatArray] = _ro(np.abs(G) * TC_NEG)  # N·m (negative), for qd < 0
+
+# --------------------------------------------------------------------------------------------
+# Motors (thesis table 3.1): large motors on joints 1-3, small on 4-6 (as the rotor
+# inertias say: 200e-6 vs 33e-6 kg·m²)
+
+_LARGE, _SMALL = 3, 3
+PEAK_TORQUE: Final[FloatArray] = _ro([2.12] * _LARGE + [0.339] * _SMALL)  # N·m (300/48 oz-in)
+CONT_TORQUE: Final[FloatArray] = _ro([1.06] * _LARGE + [0.170] * _SMALL)  # N·m (150/24 oz-in)
+MAX_CURRENT: Final[FloatArray] = _ro([8.0] * _LARGE + [3.72] * _SMALL)  # A, at peak torque
+KT: Final[FloatArray] = _ro([0.261] * _LARGE + [0.091] * _SMALL)  # N·m/A = V/(rad/s) back-EMF
+R_ARMATURE: Final[FloatArray] = _ro([1.6] * _LARGE + [3.9] * _SMALL)  # Ω, ±12.5 %
+L_ARMATURE: Final[FloatArray] = _ro([2.6e-3] * _LARGE + [2.3e-3] * _SMALL)  # H, ±30 %
+
+# Amplifiers (Contraves CSR NC600 PWM, thesis 3.7.2).
+AMP_GAIN_A_PER_V: Final = 2.5  # A per volt of DAC output
+AMP_BANDWIDTH_HZ: Final = 500.0  # current loop
+AMP_PEAK_CURRENT: Final = 25.0  # A (±); ±12.5 A RMS continuous
+AMP_INPUT_V: Final = 10.0  # V (±)
+AMP_SWITCHING_HZ: Final = 5000.0
+BUS_VOLTAGE: Final = 40.0  # V
+
+# DAC board: 8 channels, 12 bits over ±10 V.
+DAC_BITS: Final = 12
+DAC_VOLTS: Final = 10.0  # full scale is ±DAC_VOLTS
+DAC_CHANNELS: Final = 8
+
+# Encoders (appendix C): on the motor shafts, one index pulse per motor revolution.
+COUNTS_PER_MOTOR_REV: Final[IntArray] = _ro([1000, 800, 1000, 1000, 1000, 500], np.int64)
+
+# Joint-side limits derived from the motors, used for the URDF's effort and velocity limits:
+# peak motor torque through the gearbox, and the speed at which back-EMF eats the whole bus.
+PEAK_JOINT_TORQUE: Final[FloatArray] = _ro(PEAK_TORQUE * np.abs(G))  # N·m
+MAX_JOINT_SPEED: Final[FloatArray] = _ro(BUS_VOLTAGE / KT / np.abs(G))  # rad/s
+
+# --------------------------------------------------------------------------------------------
+# Reference values for tests (puma560.md, with d1 = 0.6718 and g = 9.81 m/s²): the joint
+# torque that holds the arm still at QZ and QN, printed to the precision given here.
+
+GRAVITY_QZ: Final[FloatArray] = _ro([0.0, 37.48, 0.249, 0.0, 0.0, 0.0])  # N·m
+GRAVITY_QN: Final[FloatArray] = _ro([0.0, 31.64, 6.04, 0.0, 0.028, 0.0])  # N·m

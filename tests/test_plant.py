@@ -1,0 +1,323 @@
+"""The plant behind its registers: power switch, watchdog, e-stop, brakes, motors, encoders."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Callable, Iterator
+
+import numpy as np
+import pytest
+
+from kali_daemons import layout, puma560
+from kali_daemons.arena import Arena
+from kali_daemons.instance import Instance
+from kali_daemons.layout import (
+    ADC_DONE,
+    ADC_START,
+    CSR_ENABLE,
+    CSR_INDEX_OFF,
+    CSR_NO_DISABLE,
+    CSR_RETRIGGER,
+    CSR_TIMEOUT_ON,
+    POWER_AMPS_ON,
+    POWER_BRAKES_RELEASED,
+    POWER_ESTOP,
+    POWER_WATCHDOG_TRIPPED,
+)
+from kali_daemons.plant.board import IoBoardSim, adc_code, pot_volts
+from kali_daemons.plant.motor import MotorBank
+from kali_daemons.plant.sim import PlantSim
+from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
+
+from .conftest import make_config
+from .test_launcher import kalictl
+
+CFG = make_config("plant")
+MS = 1_000_000
+
+
+@pytest.fixture
+def plant(arena: Arena) -> Iterator[PlantSim]:
+    """A two-arm plant on a fresh arena, stepped in-process (1 ms per cycle)."""
+    yield PlantSim(CFG, arena)
+
+
+def run_ms(sim: PlantSim, ms: int, each: Callable[[int], None] | None = None) -> None:
+    for t in range(ms):
+        if each is not None:
+            each(t)
+        sim.cycle()
+
+
+def enable(sim: PlantSim, k: int = 0, csr_extra: int = 0) -> None:
+    """The thesis's enable sequence: disable bit high, enable bit high 15 ms, then low."""
+    regs = sim.boards[k].regs
+    regs["csr"] = CSR_NO_DISABLE | CSR_ENABLE | csr_extra
+    run_ms(sim, 16)
+    regs["csr"] = CSR_NO_DISABLE | csr_extra
+
+
+def power(sim: PlantSim, k: int = 0) -> int:
+    return int(sim.boards[k].regs["power"])
+
+
+# ---------------------------------------------------------------------- power switch
+
+
+def test_power_on_needs_the_enable_bit_held_15_ms(plant: PlantSim) -> None:
+    regs = plant.boards[0].regs
+    assert power(plant) & POWER_AMPS_ON == 0
+    regs["csr"] = CSR_ENABLE  # disable bit low: enables are overridden
+    run_ms(plant, 30)
+    assert power(plant) & POWER_AMPS_ON == 0
+    regs["csr"] = CSR_NO_DISABLE | CSR_ENABLE
+    run_ms(plant, 10)
+    regs["csr"] = CSR_NO_DISABLE  # released after 10 ms: the relay did not switch
+    run_ms(plant, 5)
+    assert power(plant) & POWER_AMPS_ON == 0
+    enable(plant)
+    assert power(plant) & POWER_AMPS_ON
+    assert power(plant) & POWER_BRAKES_RELEASED == 0  # brakes still hold for ~50 ms
+    run_ms(plant, 50)
+    assert power(plant) & POWER_BRAKES_RELEASED
+    assert power(plant, 1) & POWER_AMPS_ON == 0  # the other arm's board is independent
+    regs["csr"] = 0  # disable bit low: off at once
+    run_ms(plant, 1)
+    assert power(plant) & POWER_AMPS_ON == 0
+
+
+def test_watchdog_trips_after_20_ms_then_brakes(plant: PlantSim) -> None:
+    regs = plant.boards[0].regs
+    on = CSR_TIMEOUT_ON
+
+    def retrigger(t: int) -> None:
+        regs["csr"] = CSR_NO_DISABLE | on | (CSR_RETRIGGER if t % 2 == 0 else 0)
+
+    enable(plant, csr_extra=on)
+    run_ms(plant, 200, retrigger)  # retriggered every 2 ms: stays on
+    assert power(plant) & POWER_AMPS_ON and power(plant) & POWER_BRAKES_RELEASED
+    regs["csr"] = CSR_NO_DISABLE | on  # the controller dies: no more retriggers
+    t_off = None
+    for t in range(120):
+        plant.cycle()
+        if t_off is None and not power(plant) & POWER_AMPS_ON:
+            t_off = t
+            assert power(plant) & POWER_WATCHDOG_TRIPPED
+            assert power(plant) & POWER_BRAKES_RELEASED  # brakes still open: ~50 ms solenoid
+            assert np.all(plant.motors.current[:6] == 0.0)
+        if t_off is not None and not power(plant) & POWER_BRAKES_RELEASED:
+            assert 48 <= t - t_off <= 52
+            break
+    else:
+        pytest.fail("brakes never engaged")
+    assert 19 <= t_off <= 22
+    regs["csr"] = CSR_NO_DISABLE | on | CSR_ENABLE  # enabling again is refused while tripped
+    run_ms(plant, 20)
+    assert power(plant) & POWER_AMPS_ON == 0
+    run_ms(plant, 2, retrigger)  # a retrigger clears the trip; then enable works
+    enable(plant, csr_extra=on)
+    assert power(plant) & POWER_AMPS_ON
+
+
+def test_estop_cuts_power_and_blocks_enables(plant: PlantSim) -> None:
+    regs = plant.boards[1].regs
+    enable(plant, 1)
+    run_ms(plant, 60)
+    regs["estop"] = 1
+    plant.cycle()
+    assert power(plant, 1) & POWER_ESTOP and not power(plant, 1) & POWER_AMPS_ON
+    run_ms(plant, 51)
+    assert not power(plant, 1) & POWER_BRAKES_RELEASED
+    enable(plant, 1)
+    assert not power(plant, 1) & POWER_AMPS_ON
+    regs["estop"] = 0
+    enable(plant, 1)
+    assert power(plant, 1) & POWER_AMPS_ON
+
+
+# ---------------------------------------------------------------------- the arm itself
+
+
+def test_zero_dac_brakes_released_the_arm_falls_brakes_hold(plant: PlantSim) -> None:
+    q0 = plant.q[:6].copy()
+    run_ms(plant, 1000)  # power off: brakes hold
+    assert np.max(np.abs(plant.q[:6] - q0)) < 2e-3
+    enable(plant)
+    run_ms(plant, 49)  # brakes still engaged after the enable
+    assert np.max(np.abs(plant.q[:6] - q0)) < 2e-3
+    run_ms(plant, 400)  # zero current, brakes released: gravity wins over friction
+    assert abs(plant.q[1] - q0[1]) > 0.1
+    plant.boards[0].regs["csr"] = 0  # power off: the brakes catch it ~50 ms later
+    run_ms(plant, 40)
+    assert np.any(np.abs(plant.qd[:6]) > 0.05)  # still falling while the solenoids move
+    run_ms(plant, 200)
+    assert np.all(np.abs(plant.qd[:6]) < 1e-3)  # stopped by the brakes
+    q1 = plant.q[:6].copy()
+    run_ms(plant, 1000)
+    assert np.max(np.abs(plant.q[:6] - q1)) < 2e-3
+
+
+def test_dac_drives_the_joint_with_the_right_sign(plant: PlantSim) -> None:
+    enable(plant)
+    run_ms(plant, 60)
+    j = 0  # waist: no gravity, so the sign of the motion is the sign of the torque
+    q0 = plant.q[j]
+    plant.dac[0]["code"][j] = layout.DAC_ZERO + 400  # +1.95 V → +4.9 A
+    run_ms(plant, 100)
+    expected = math.copysign(1.0, puma560.G[j])  # joint torque = G·Kt·i
+    assert (plant.q[j] - q0) * expected > 0.01
+    assert plant.motors.current[j] == pytest.approx(2.5 * 400 * 10 / 2048, rel=0.02)
+
+
+def test_dac_codes_beyond_12_bits_are_clamped_and_counted(plant: PlantSim) -> None:
+    plant.dac[0]["code"][3] = 5000
+    plant.cycle()
+    assert int(plant.dac[0]["clamped"]) == 1
+    assert plant.volts[3] == pytest.approx(4095 / 2048 * 10 - 10)
+
+
+def test_current_saturates_at_peak_and_back_emf_limits_it() -> None:
+    bank = MotorBank(1, 0.0005)
+    bank.enabled[:] = 1.0
+    volts = np.full(6, 10.0)  # 25 A asked for
+    qd = np.zeros(6)
+    tau = np.zeros(6)
+    for _ in range(200):
+        bank.step(volts, qd, tau)
+    assert np.allclose(bank.current, puma560.MAX_CURRENT)
+    # at speed the bus voltage minus back-EMF is what is left to drive current through R
+    omega_m = np.array([140.0, 140.0, 140.0, 400.0, 400.0, 400.0])
+    qd = omega_m / np.asarray(puma560.G)
+    for _ in range(200):
+        bank.step(volts, qd, tau)
+    limit = (puma560.BUS_VOLTAGE - np.asarray(puma560.KT) * omega_m) / np.asarray(
+        puma560.R_ARMATURE
+    )
+    assert np.all(limit < np.asarray(puma560.MAX_CURRENT))
+    assert np.allclose(bank.current, limit)
+    bank.enabled[:] = 0.0
+    bank.step(volts, qd, tau)
+    assert np.all(bank.current == 0.0)  # a disabled amplifier cuts its current at once
+
+
+def test_current_loop_has_a_500_hz_bandwidth() -> None:
+    dt = 0.0005
+    bank = MotorBank(1, dt)
+    bank.enabled[:] = 1.0
+    volts = np.full(6, 0.4)  # 1 A, below every limit
+    tau = np.zeros(6)
+    tau_c = 1.0 / (2 * math.pi * 500)
+    bank.step(volts, np.zeros(6), tau)
+    assert bank.current[0] == pytest.approx(1.0 - math.exp(-dt / tau_c), rel=1e-9)
+
+
+# ---------------------------------------------------------------------- encoders and pots
+
+
+def _board(arena: Arena, phase: float = 0.3) -> tuple[IoBoardSim, np.ndarray]:
+    regs = arena.record("board.test", layout.IO_BOARD)
+    board = IoBoardSim(regs, CFG.plant, np.full(6, phase), np.zeros(6))
+    return board, regs
+
+
+def test_encoder_counts_follow_motor_angle_wrap_and_index_reset(arena: Arena) -> None:
+    board, regs = _board(arena)
+    cpr = np.asarray(puma560.COUNTS_PER_MOTOR_REV, dtype=float)
+    regs["csr"] = CSR_INDEX_OFF  # capture off: a free-running 12-bit counter
+    angles = np.linspace(0, 12 * math.pi, 3000)  # six motor revolutions, forward
+    for a in angles:
+        board.sample(np.full(6, a))
+        expected = np.floor(a / (2 * math.pi) * cpr).astype(int) % 4096
+        assert list(regs["encoder"][:6]) == list(expected)
+    assert int(regs["index"]) == 0
+    for a in angles[::-1]:  # and back: counts go down, wrapping below 0 to 4095
+        board.sample(np.full(6, a - 12 * math.pi))
+    assert list(regs["encoder"][:6]) == list(np.floor(-12 * math.pi / (2 * math.pi) * cpr) % 4096)
+    # capture on: passing the index pulse (motor angle 0.3 rad + 2πk) resets the counter
+    board.sample(np.full(6, 0.0))
+    regs["csr"] = 0
+    board.sample(np.full(6, 0.29))
+    assert int(regs["index"]) == 0
+    board.sample(np.full(6, 0.31))
+    assert int(regs["index"]) == 0b111111
+    at_index = np.floor(0.3 / (2 * math.pi) * cpr)
+    expected = (np.floor(0.31 / (2 * math.pi) * cpr) - at_index) % 4096
+    assert list(regs["encoder"][:6]) == list(expected.astype(int))
+    regs["csr"] = CSR_INDEX_OFF  # disabling capture clears the register
+    board.update(0)
+    assert int(regs["index"]) == 0
+
+
+def _convert(board: IoBoardSim, regs: np.ndarray, q: np.ndarray, ch: int) -> int:
+    regs["adc_control"] = ADC_START | ch
+    board.convert(q)
+    value = int(regs["adc_analog"])
+    assert value & ADC_DONE
+    regs["adc_control"] = 0
+    board.convert(q)
+    assert not int(regs["adc_analog"]) & ADC_DONE
+    return value & 0xFF
+
+
+def test_potentiometers_are_monotonic_8_bit_and_tell_index_pulses_apart(arena: Arena) -> None:
+    board, regs = _board(arena)
+    lo, hi = puma560.Q_MIN, puma560.Q_MAX
+    for j in range(6):
+        qs = np.linspace(lo[j], hi[j], 400)
+        codes = []
+        for qj in qs:
+            q = np.zeros(6)
+            q[j] = qj
+            codes.append(_convert(board, regs, q, j))
+        assert all(b >= a for a, b in itertools.pairwise(codes))
+        assert min(codes) >= 0 and max(codes) <= 255 and max(codes) - min(codes) > 200
+        spacing = 2 * math.pi / abs(puma560.G[j])  # joint angle between index pulses
+        span = (hi[j] - lo[j]) / spacing
+        assert (max(codes) - min(codes)) / span >= 2.0, f"joint {j + 1}: pot too coarse"
+    assert _convert(board, regs, np.zeros(6), 10) == adc_code(2.5)  # self-test reference
+    regs["adc_control"] = ADC_START | 15  # beyond the 11 inputs: clamped and counted
+    board.convert(np.zeros(6))
+    assert int(regs["clamped"]) == 1
+    assert pot_volts(lo[0], lo[0], hi[0]) == pytest.approx(0.25)
+
+
+# ---------------------------------------------------------------------- as a process
+
+
+def test_plant_steps_with_the_clock_in_lockstep(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        truth = inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        t0 = int(truth["sim_time_ns"])
+        step_kali_clock(inst, 100)
+        assert int(truth["sim_time_ns"]) - t0 == 100 * MS
+
+
+def test_plant_keeps_running_when_kali_halts(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=False)
+    with Instance.attach(name) as inst:
+        stop_kali_clock(inst)
+        truth = inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        t0 = int(truth["ticks"])
+        time.sleep(0.3)
+        assert int(truth["ticks"]) > t0 + 200  # its own clock, about 1 kHz
+
+
+def test_kalictl_estop_presses_the_button_and_halts(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "estop", "left")
+    assert r.returncode == 0 and "e-stop pressed: left" in r.stdout
+    with Instance.attach(name) as inst:
+        board = inst.arena.existing(layout.KEY_BOARD.format(robot="left"), layout.IO_BOARD)
+        assert int(board["estop"]) == 1
+        assert "ESTOP in kalictl" in inst.fault_text()
+        inst.clear_fault()
+        step_kali_clock(inst, 2)
+        assert int(board["power"]) & POWER_ESTOP
+    r = kalictl("-i", name, "estop", "--release")
+    assert r.returncode == 0 and "released: left, right" in r.stdout
+    r = kalictl("-i", name, "estop", "nosuch")
+    assert r.returncode == 1 and "no robot 'nosuch'" in r.stderr
+
