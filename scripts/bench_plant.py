@@ -3,10 +3,10 @@
 Two measurements per arm count:
 
 1. **In-process cost**: ``PlantSim.cycle`` (one 1 ms plant period: board logic, motor model,
-   MuJoCo substeps, encoders, truth records) timed over ``--cycles`` cycles with the
-   process's CPU time, amplifiers on and every DAC driving, after a warm-up.  From it the
-   real-time factor the plant could sustain on one core (1 ms / cost) and the share of one
-   core it needs at real time.
+   MuJoCo substeps, encoders, truth records) timed with the thread's CPU time, amplifiers on
+   and every DAC driving, after a warm-up; the best of five runs of ``--cycles``/5 cycles.
+   From it the real-time factor the plant could sustain on one core (1 ms / cost) and the
+   share of one core it needs at real time.
 2. **As a process at real time**: the plant daemon of a real instance (``kalictl start``,
    real-time mode), CPU time read from ``/proc/<pid>/stat`` over ``--seconds``: everything the
    process really costs, including its own clock and the Python loop around ``cycle``.
@@ -19,6 +19,7 @@ Goal (the issue): two arms in under 15 % of one core at real time.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import sys
@@ -34,6 +35,7 @@ from kali_daemons.plant.sim import PlantSim
 
 REPO = Path(__file__).resolve().parent.parent
 GOAL_SHARE = 0.15
+REPEATS = 5
 PLACEMENTS = [  # base x, y, yaw: facing the centre of the cell
     (-0.6, 0.0, 0.0),
     (0.6, 0.0, 180.0),
@@ -74,15 +76,19 @@ def in_process(arms: int, cycles: int) -> tuple[float, float]:
         power_up(sim)
         for _ in range(200):
             sim.cycle()
-        c0, w0 = time.thread_time_ns(), time.perf_counter_ns()
-        for _ in range(cycles):
-            sim.cycle()
-        c1, w1 = time.thread_time_ns(), time.perf_counter_ns()
+        best = (math.inf, math.inf)
+        for _ in range(REPEATS):  # the best of several: this VM's host adds noise, never saves
+            c0, w0 = time.thread_time_ns(), time.perf_counter_ns()
+            for _ in range(cycles // REPEATS):
+                sim.cycle()
+            c1, w1 = time.thread_time_ns(), time.perf_counter_ns()
+            best = min(best, (c1 - c0, w1 - w0))
         del sim
     finally:
         arena.close()
         launcher.stop(name)
-    return (c1 - c0) / cycles / 1e3, (w1 - w0) / cycles / 1e3
+    n = cycles // REPEATS
+    return best[0] / n / 1e3, best[1] / n / 1e3
 
 
 def _cpu_ticks(pid: int) -> int:

@@ -184,21 +184,22 @@ def test_current_saturates_at_peak_and_back_emf_limits_it() -> None:
     volts = np.full(6, 10.0)  # 25 A asked for
     qd = np.zeros(6)
     tau = np.zeros(6)
+    bank.command(volts)
     for _ in range(200):
-        bank.step(volts, qd, tau)
+        bank.step(qd, tau)
     assert np.allclose(bank.current, puma560.MAX_CURRENT)
     # at speed the bus voltage minus back-EMF is what is left to drive current through R
     omega_m = np.array([140.0, 140.0, 140.0, 400.0, 400.0, 400.0])
     qd = omega_m / np.asarray(puma560.G)
     for _ in range(200):
-        bank.step(volts, qd, tau)
+        bank.step(qd, tau)
     limit = (puma560.BUS_VOLTAGE - np.asarray(puma560.KT) * omega_m) / np.asarray(
         puma560.R_ARMATURE
     )
     assert np.all(limit < np.asarray(puma560.MAX_CURRENT))
     assert np.allclose(bank.current, limit)
     bank.enabled[:] = 0.0
-    bank.step(volts, qd, tau)
+    bank.step(qd, tau)
     assert np.all(bank.current == 0.0)  # a disabled amplifier cuts its current at once
 
 
@@ -209,7 +210,8 @@ def test_current_loop_has_a_500_hz_bandwidth() -> None:
     volts = np.full(6, 0.4)  # 1 A, below every limit
     tau = np.zeros(6)
     tau_c = 1.0 / (2 * math.pi * 500)
-    bank.step(volts, np.zeros(6), tau)
+    bank.command(volts)
+    bank.step(np.zeros(6), tau)
     assert bank.current[0] == pytest.approx(1.0 - math.exp(-dt / tau_c), rel=1e-9)
 
 
@@ -321,3 +323,37 @@ def test_kalictl_estop_presses_the_button_and_halts(kali: Callable[..., str]) ->
     r = kalictl("-i", name, "estop", "nosuch")
     assert r.returncode == 1 and "no robot 'nosuch'" in r.stderr
 
+
+
+# ---------------------------------------------------------------------- cooperative grasp
+
+# Joint angles (each arm in its own base frame) that put the flange on its grasp site of the
+# bar, found by the model tests (tests/test_model.py).
+GRASP_Q = np.radians([19.939, 58.398, -210.022, 0.0, -28.376, 19.939])
+
+
+def test_two_arms_grasp_the_bar_and_carry_real_internal_forces(plant: PlantSim) -> None:
+    for k in range(2):
+        plant.place_arm(k, GRASP_Q)
+        assert plant.flange_to_grasp(k) < 0.005
+    z0 = float(plant.world_truth["object_pose"][2])
+    plant.boards[0].regs["gripper"] = 1
+    plant.boards[1].regs["gripper"] = 1
+    run_ms(plant, 5)
+    assert all(int(t["grasped"]) for t in plant.truth)
+    # the left arm's amplifiers come on and its brakes open: the arm now hangs on the bar,
+    # which the braked right arm holds; its joint-2 motor pushes one way, then the other
+    enable(plant, 0)
+    run_ms(plant, 60)
+    pushes = {}
+    for sign in (+1, -1):
+        plant.dac[0]["code"][1] = layout.DAC_ZERO + sign * 300
+        run_ms(plant, 100)
+        pushes[sign] = float(plant.world_truth["internal_force"])
+        for t in plant.truth:
+            assert np.linalg.norm(t["grasp_wrench"][:3]) > 1.0  # both welds carry load
+    assert abs(pushes[+1] - pushes[-1]) > 10.0, pushes  # the squeeze follows the motor
+    assert abs(float(plant.world_truth["object_pose"][2]) - z0) < 0.02  # the bar is held
+    plant.boards[0].regs["gripper"] = 0  # letting go releases the weld
+    run_ms(plant, 2)
+    assert not int(plant.truth[0]["grasped"]) and int(plant.truth[1]["grasped"])

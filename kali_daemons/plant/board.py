@@ -76,6 +76,9 @@ class IoBoardSim:
         self.cpr = np.asarray(puma560.COUNTS_PER_MOTOR_REV, dtype=np.float64)
         self.phase = np.asarray(index_phase, dtype=np.float64)  # motor angle of the index, rad
         self.lo, self.hi = puma560.Q_MIN, puma560.Q_MAX
+        self._mid = self.lo + (self.hi - self.lo) * (2.5 - POT_V_MIN) / (POT_V_MAX - POT_V_MIN)
+        self._above = np.zeros(6, dtype=bool)
+        self._bits = 1 << np.arange(6)
         self.amps_on = False
         self.brakes_released = False
         self.tripped = False
@@ -193,8 +196,6 @@ class IoBoardSim:
         elif not start and self._prev_adc:
             r["adc_analog"] = int(r["adc_analog"]) & layout.ADC_VALUE_MASK
         self._prev_adc = int(start)
-        digital = 0
-        for j in range(6):
-            if pot_volts(float(q[j]), float(self.lo[j]), float(self.hi[j])) > 2.5:
-                digital |= 1 << j
-        r["adc_digital"] = digital
+        # digital register: the channels above 2.5 V, i.e. past the middle of their range
+        np.greater(q, self._mid, out=self._above)
+        r["adc_digital"] = int(self._above @ self._bits)

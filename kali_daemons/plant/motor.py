@@ -59,46 +59,51 @@ class MotorBank:
         self.alpha = 1.0 - math.exp(-2.0 * math.pi * puma560.AMP_BANDWIDTH_HZ * dt)
         self.current = np.zeros(self.n)
         self.enabled = np.zeros(self.n)  # 1.0 where the joint's amplifier is on
-        self._w = np.zeros(self.n)
+        self.commanded = np.zeros(self.n)  # A, from the DAC volts, within the motor's peak
+        # precomputed per-joint constants, so a step is a handful of array operations
+        self._vbus_r = self.v_bus / self.r  # A
+        self._kt_r = self.kt / self.r  # A per rad/s of motor speed (back-EMF)
+        self._gkt = self.gear * self.kt  # joint torque per A
+        self._w_scale = self.gear / OMEGA0
+        self._g_extra_pos = self.gear * self.extra_pos
+        self._g_extra_neg = self.gear * self.extra_neg
         self._a = np.zeros(self.n)
         self._b = np.zeros(self.n)
         self._c = np.zeros(self.n)
 
-    def step(self, volts: np.ndarray, qd: np.ndarray, torque_out: np.ndarray) -> None:
-        """Advance the currents one step for DAC ``volts`` at joint speeds ``qd``.
+    def command(self, volts: np.ndarray) -> None:
+        """Latch the DAC ``volts`` (once per cycle): commanded current, clipped at the peak."""
+        np.multiply(volts, self.gain, out=self.commanded)
+        np.clip(self.commanded, -self.i_max, self.i_max, out=self.commanded)
+
+    def step(self, qd: np.ndarray, torque_out: np.ndarray) -> None:
+        """Advance the currents one step at joint speeds ``qd``.
 
         Writes the joint torque (motor torque plus the asymmetric friction remainder) into
         ``torque_out``.  Inside the cycle.
         """
-        w, a, b, i = self._w, self._a, self._b, self.current
-        np.multiply(self.gear, qd, out=w)  # motor speed ω_m
-        np.multiply(volts, self.gain, out=a)  # commanded current
-        np.clip(a, -self.i_max, self.i_max, out=a)
-        np.multiply(self.kt, w, out=b)  # back-EMF
-        # voltage limit: (−Vbus − Kt ω)/R ≤ i ≤ (Vbus − Kt ω)/R
-        c = self._c
-        np.add(b, self.v_bus, out=c)
-        np.divide(c, self.r, out=c)
-        np.negative(c, out=c)
-        np.maximum(a, c, out=a)
-        np.subtract(self.v_bus, b, out=c)
-        np.divide(c, self.r, out=c)
-        np.minimum(a, c, out=a)
-        np.subtract(a, i, out=a)
+        a, b, c, i = self._a, self._b, self._c, self.current
+        np.multiply(qd, self.gear, out=c)  # motor speed ω_m
+        np.multiply(c, self._kt_r, out=b)  # back-EMF / R
+        # the bus voltage limits the current: (−Vbus − Kt ω)/R ≤ i ≤ (Vbus − Kt ω)/R
+        np.subtract(self._vbus_r, b, out=a)
+        np.minimum(self.commanded, a, out=a)
+        np.add(self._vbus_r, b, out=b)
+        np.negative(b, out=b)
+        np.maximum(a, b, out=a)
+        np.subtract(a, i, out=a)  # first-order current loop, exact over the step
         np.multiply(a, self.alpha, out=a)
         np.add(i, a, out=i)
         np.multiply(i, self.enabled, out=i)  # a disabled amplifier cuts its current at once
-        np.multiply(self.kt, i, out=torque_out)
-        np.multiply(torque_out, self.gear, out=torque_out)
+        np.multiply(self._gkt, i, out=torque_out)
         # asymmetric Coulomb remainder, opposing the motor's motion
-        np.divide(w, OMEGA0, out=a)
+        np.multiply(qd, self._w_scale, out=a)
         np.tanh(a, out=a)
         np.maximum(a, 0.0, out=b)
         np.minimum(a, 0.0, out=a)
-        np.multiply(b, self.extra_pos, out=b)
-        np.multiply(a, self.extra_neg, out=a)
-        np.subtract(a, b, out=a)  # friction torque at the motor
-        np.multiply(a, self.gear, out=a)
+        np.multiply(b, self._g_extra_pos, out=b)
+        np.multiply(a, self._g_extra_neg, out=a)
+        np.subtract(a, b, out=a)
         np.add(torque_out, a, out=torque_out)
 
     def joint_frictionloss(self, braked: np.ndarray, out: np.ndarray) -> None:

@@ -7,9 +7,10 @@ in-process and the plant daemon calls ``cycle`` from its loop.  One cycle:
    brakes) at the plant's simulated time;
 2. the DAC codes become amplifier input volts (codes above 4095 are clamped and counted);
 3. the gripper registers close or open the welds to the object;
-4. ``substeps`` MuJoCo steps, each with the motor model's joint torques applied and the
-   encoders sampled after it;
-5. the pot ADCs serve conversions, and the plant-only truth records are written.
+4. ``substeps`` MuJoCo steps, each with the motor model's joint torques applied;
+5. the encoders count the new motor angles (once per cycle is enough: at the motors' top
+   speed, 40 V / Kt, a motor turns under 0.03 revolutions per millisecond, so no index
+   pulse is passed unseen), the pot ADCs serve conversions, and the truth records are written.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from ..model import World, build_world
 from .board import IoBoardSim
 from .motor import MotorBank
 
+DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
 INITIAL_POSE = np.asarray(puma560.QN, dtype=np.float64)  # where the arms are at power-on
 
@@ -40,7 +42,7 @@ class PlantSim:
     """The plant of one instance: owns the MuJoCo model and data and the register records."""
 
     def __init__(self, cfg: KaliConfig, arena: Arena, period_ms: float | None = None) -> None:
-        pc = cfg.plant
+        pc = self._plant_cfg = cfg.plant
         self.dt = pc.substep_ms / 1000.0
         self.dt_ns = round(pc.substep_ms * 1e6)
         period = cfg.clock.base_tick_ms if period_ms is None else period_ms
@@ -86,6 +88,20 @@ class PlantSim:
         self.ticks = 0
         self._write_truth()
 
+    def place_arm(self, k: int, q: np.ndarray) -> None:
+        """Put arm ``k`` at joint angles ``q`` at rest, as if moved there before power-on.
+
+        Outside the cycle (tests and set-up).  Its encoder counters restart from 0.
+        """
+        self.data.qpos[self.world.qpos_adr[k]] = q
+        self.data.qvel[self.world.dof_adr[k]] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+        self._read_joints()
+        board = self.boards[k]
+        sl = slice(6 * k, 6 * k + 6)
+        self.boards[k] = IoBoardSim(board.regs, self._plant_cfg, board.phase, self.motor_angle[sl])
+        self._write_truth()
+
     # ------------------------------------------------------------------ one cycle
 
     def cycle(self) -> None:
@@ -104,35 +120,36 @@ class PlantSim:
             self._gripper(k)
         if changed:
             self._apply_brakes()
+        motors.command(self.volts)
         m, d = self.model, self.data
         for _ in range(self.substeps):
-            motors.step(self.volts, self.qd, self.torque)
+            motors.step(self.qd, self.torque)
             d.qfrc_applied[self.dofs] = self.torque
             mujoco.mj_step(m, d)
             self._read_joints()
-            for k, board in enumerate(self.boards):
-                board.sample(self.motor_angle[6 * k : 6 * k + 6])
             self.sim_ns += self.dt_ns
         for k, board in enumerate(self.boards):
+            board.sample(self.motor_angle[6 * k : 6 * k + 6])
             board.convert(self.q[6 * k : 6 * k + 6])
         self.ticks += 1
         self._write_truth()
 
     def _read_joints(self) -> None:
-        np.take(self.data.qpos, self.qpos_idx, out=self.q)
-        np.take(self.data.qvel, self.dofs, out=self.qd)
+        self.data.qpos.take(self.qpos_idx, out=self.q)
+        self.data.qvel.take(self.dofs, out=self.qd)
         np.multiply(self.gear, self.q, out=self.motor_angle)
 
     def _read_dac(self, k: int) -> None:
         """DAC codes → amplifier input volts; codes above 12 bits are clamped and counted."""
         dac = self.dac[k]
-        codes = dac["code"]
-        for j in range(6):
-            c = int(codes[j])
-            if c > 4095:
-                c = 4095
-                dac["clamped"] += 1
-            self.volts[6 * k + j] = (c - layout.DAC_ZERO) * (10.0 / layout.DAC_ZERO)
+        codes = dac["code"][:6]
+        out = self.volts[6 * k : 6 * k + 6]
+        np.copyto(out, codes)
+        if out.max() > DAC_MAX:
+            dac["clamped"] += int(np.count_nonzero(out > DAC_MAX))
+            np.minimum(out, DAC_MAX, out=out)
+        np.subtract(out, layout.DAC_ZERO, out=out)
+        np.multiply(out, 10.0 / layout.DAC_ZERO, out=out)
 
     def _apply_brakes(self) -> None:
         self.motors.joint_frictionloss(self.braked, self._frictionloss)
