@@ -22,7 +22,16 @@ import pinocchio as pin
 
 from kali_daemons.config import RobotConfig
 from kali_daemons.errors import ModelError
-from kali_daemons.puma560 import ARMATURE, GRAVITY, NJOINTS, URDF_PATH
+from kali_daemons.puma560 import (
+    AMP_BANDWIDTH_HZ,
+    ARMATURE,
+    GRAVITY,
+    KT,
+    MAX_CURRENT,
+    NJOINTS,
+    URDF_PATH,
+    G,
+)
 
 IntArray = npt.NDArray[np.int64]
 
@@ -77,6 +86,8 @@ class World:
     object_body: int  # the bar
     object_qpos_adr: int  # first of the bar's 7 free-joint qpos (position, quaternion)
     object_dof_adr: int  # first of its 6 dofs
+    motor: tuple[IntArray, ...] = ()  # per robot: the 6 motor actuator ids
+    motor_act_adr: tuple[IntArray, ...] = ()  # per robot: their activations (currents) in data.act
 
     def index(self, robot: int | str) -> int:
         """The position of ``robot`` (a name, or already an index) in ``robots``."""
@@ -167,6 +178,7 @@ def build_world(
     bar = _add_bar(spec, robots)
     for r in robots:
         _attach_arm(spec, r, urdf)
+        _add_motors(spec, r.name)
         _add_weld(spec, r.name, bar, WELD_TIMECONST_STEPS * timestep)
 
     try:
@@ -185,6 +197,12 @@ def build_world(
         out.setflags(write=False)
         return out
 
+    def motors(robot: str, table: np.ndarray | None = None) -> IntArray:
+        ids = [oid(mujoco.mjtObj.mjOBJ_ACTUATOR, f"{robot}/motor{j + 1}") for j in range(NJOINTS)]
+        out = np.array(ids if table is None else [table[i] for i in ids], dtype=np.int64)
+        out.setflags(write=False)
+        return out
+
     bar_body = oid(mujoco.mjtObj.mjOBJ_BODY, "object")
     bar_joint = model.body_jntadr[bar_body]
     return World(
@@ -198,6 +216,8 @@ def build_world(
         object_body=bar_body,
         object_qpos_adr=int(model.jnt_qposadr[bar_joint]),
         object_dof_adr=int(model.jnt_dofadr[bar_joint]),
+        motor=tuple(motors(n) for n in names),
+        motor_act_adr=tuple(motors(n, model.actuator_actadr) for n in names),
     )
 
 
@@ -295,6 +315,30 @@ def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, urdf: Path) -> None:
     if flange is None:
         raise ModelError(f"{urdf}: no {FLANGE_FRAME!r} link")
     flange.add_site(name=f"{prefix}flange", size=[0.008, 0.008, 0.008], rgba=[0.9, 0.1, 0.1, 1])
+
+
+def _add_motors(spec: mujoco.MjSpec, robot: str) -> None:
+    """One motor per joint: its amplifier's current loop as a first-order actuator.
+
+    The activation is the motor current (A), filtered exactly at the 500 Hz bandwidth
+    (``filterexact``); the gear G·Kt turns it into joint torque.  ``actrange`` is compiled as
+    the motor's peak current; the plant narrows it every cycle to the bus-voltage limits, or
+    to [0, 0] while the amplifier is off.
+    """
+    for j in range(NJOINTS):
+        act = spec.add_actuator()
+        act.name = f"{robot}/motor{j + 1}"
+        act.target = f"{robot}/j{j + 1}"
+        act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+        act.dynprm[0] = 1.0 / (2.0 * math.pi * AMP_BANDWIDTH_HZ)
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.gainprm[0] = 1.0
+        act.biastype = mujoco.mjtBias.mjBIAS_NONE
+        act.gear[0] = float(G[j] * KT[j])
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        act.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.actrange = [-float(MAX_CURRENT[j]), float(MAX_CURRENT[j])]
 
 
 def _add_weld(spec: mujoco.MjSpec, robot: str, bar: mujoco.MjsBody, timeconst: float) -> None:

@@ -106,7 +106,7 @@ def test_watchdog_trips_after_20_ms_then_brakes(plant: PlantSim) -> None:
             t_off = t
             assert power(plant) & POWER_WATCHDOG_TRIPPED
             assert power(plant) & POWER_BRAKES_RELEASED  # brakes still open: ~50 ms solenoid
-            assert np.all(plant.motors.current[:6] == 0.0)
+            assert np.all(plant.current[:6] == 0.0)
         if t_off is not None and not power(plant) & POWER_BRAKES_RELEASED:
             assert 48 <= t - t_off <= 52
             break
@@ -168,7 +168,7 @@ def test_dac_drives_the_joint_with_the_right_sign(plant: PlantSim) -> None:
     run_ms(plant, 100)
     expected = math.copysign(1.0, puma560.G[j])  # joint torque = G·Kt·i
     assert (plant.q[j] - q0) * expected > 0.01
-    assert plant.motors.current[j] == pytest.approx(2.5 * 400 * 10 / 2048, rel=0.02)
+    assert plant.current[j] == pytest.approx(2.5 * 400 * 10 / 2048, rel=0.02)
 
 
 def test_dac_codes_beyond_12_bits_are_clamped_and_counted(plant: PlantSim) -> None:
@@ -178,41 +178,58 @@ def test_dac_codes_beyond_12_bits_are_clamped_and_counted(plant: PlantSim) -> No
     assert plant.volts[3] == pytest.approx(4095 / 2048 * 10 - 10)
 
 
-def test_current_saturates_at_peak_and_back_emf_limits_it() -> None:
+def test_current_loop_is_first_order_at_500_hz(plant: PlantSim) -> None:
+    enable(plant)  # brakes still hold for ~50 ms: the joints stay put while we watch
+    plant.dac[0]["code"][:6] = layout.DAC_ZERO + 82  # 0.4 V → 1 A, below every limit
+    plant.cycle()
+    tau = 1.0 / (2 * math.pi * 500)
+    expected = 2.5 * 82 * 10 / 2048 * (1.0 - math.exp(-0.001 / tau))  # one 1 ms cycle
+    assert plant.current[:6] == pytest.approx(np.full(6, expected), rel=1e-6)
+    assert plant.torque[:6] == pytest.approx(
+        np.asarray(puma560.G) * np.asarray(puma560.KT) * plant.current[:6]
+    )
+
+
+def test_current_saturates_at_the_motor_peak(plant: PlantSim) -> None:
+    enable(plant)
+    plant.dac[0]["code"][:6] = 4095  # +10 V: 25 A asked for
+    run_ms(plant, 10)  # the brakes still hold: no speed, no back-EMF
+    assert np.allclose(plant.current[:6], puma560.MAX_CURRENT)
+    plant.boards[0].regs["csr"] = 0  # power off
+    plant.cycle()
+    assert np.all(plant.current[:6] == 0.0)  # a disabled amplifier cuts its current at once
+
+
+def test_back_emf_limits_the_current_at_speed() -> None:
     bank = MotorBank(1, 0.0005)
     bank.enabled[:] = 1.0
-    volts = np.full(6, 10.0)  # 25 A asked for
-    qd = np.zeros(6)
-    tau = np.zeros(6)
-    bank.command(volts)
-    for _ in range(200):
-        bank.step(qd, tau)
-    assert np.allclose(bank.current, puma560.MAX_CURRENT)
-    # at speed the bus voltage minus back-EMF is what is left to drive current through R
-    omega_m = np.array([140.0, 140.0, 140.0, 400.0, 400.0, 400.0])
+    omega_m = np.array([140.0, 140.0, 140.0, 400.0, 400.0, 400.0])  # motor speeds, rad/s
     qd = omega_m / np.asarray(puma560.G)
-    for _ in range(200):
-        bank.step(qd, tau)
-    limit = (puma560.BUS_VOLTAGE - np.asarray(puma560.KT) * omega_m) / np.asarray(
-        puma560.R_ARMATURE
-    )
-    assert np.all(limit < np.asarray(puma560.MAX_CURRENT))
-    assert np.allclose(bank.current, limit)
+    bank.cycle(np.full(6, 10.0), qd)
+    kt, r = np.asarray(puma560.KT), np.asarray(puma560.R_ARMATURE)
+    limit = (puma560.BUS_VOLTAGE - kt * omega_m) / r
+    assert np.all(limit < np.asarray(puma560.MAX_CURRENT))  # the voltage, not the peak, binds
+    assert bank.range[:, 1] == pytest.approx(limit)
+    assert bank.ctrl == pytest.approx(limit)
+    bank.cycle(np.full(6, -10.0), qd)  # braking against the motion gets the full peak
+    assert bank.ctrl == pytest.approx(-np.asarray(puma560.MAX_CURRENT))
     bank.enabled[:] = 0.0
-    bank.step(qd, tau)
-    assert np.all(bank.current == 0.0)  # a disabled amplifier cuts its current at once
+    bank.cycle(np.full(6, 10.0), qd)
+    assert np.all(bank.range == 0.0) and np.all(bank.ctrl == 0.0)
 
 
-def test_current_loop_has_a_500_hz_bandwidth() -> None:
-    dt = 0.0005
-    bank = MotorBank(1, dt)
-    bank.enabled[:] = 1.0
-    volts = np.full(6, 0.4)  # 1 A, below every limit
-    tau = np.zeros(6)
-    tau_c = 1.0 / (2 * math.pi * 500)
-    bank.command(volts)
-    bank.step(np.zeros(6), tau)
-    assert bank.current[0] == pytest.approx(1.0 - math.exp(-dt / tau_c), rel=1e-9)
+def test_back_emf_limits_the_current_in_the_plant(plant: PlantSim) -> None:
+    enable(plant)
+    run_ms(plant, 60)  # brakes released
+    j, omega_m = 0, 140.0
+    plant.data.qvel[plant.world.dof_adr[0][j]] = omega_m / puma560.G[j]  # spinning fast
+    plant._read_joints()
+    plant.dac[0]["code"][j] = 4095
+    run_ms(plant, 2)
+    w = puma560.G[j] * plant.qd[j]
+    limit = (puma560.BUS_VOLTAGE - puma560.KT[j] * w) / puma560.R_ARMATURE[j]
+    assert limit < puma560.MAX_CURRENT[j]
+    assert plant.current[j] == pytest.approx(limit, rel=0.05)
 
 
 # ---------------------------------------------------------------------- encoders and pots

@@ -7,7 +7,12 @@ Per joint, vectorised over all arms:
         R·i + Kt·ω_m must stay within ±40 V (so back-EMF limits the current at speed)
       → motor torque Kt·i → joint torque G·Kt·i (signed gear ratio).
 
-A disabled amplifier cuts its current at once (< 1 µs, appendix C.4).
+The current loop itself runs inside MuJoCo, at every substep: each joint has a
+``filterexact`` actuator whose activation is the motor current and whose gear is G·Kt
+(``model.build_world``).  Once per plant cycle this model computes what the amplifier does
+with its inputs: the commanded current, and the range the current may take, i.e. the bus
+voltage limits at the present motor speed, or [0, 0] when the amplifier is off (it cuts its
+current at once, < 1 µs, appendix C.4).
 
 Friction is the motor's (puma560.md): viscous G²·B and asymmetric Coulomb |G|·Tc±.  The
 symmetric part of the Coulomb friction, |G|·min(Tc+, |Tc−|), and the viscous part go to
@@ -56,46 +61,41 @@ class MotorBank:
         self.brake = tile(BRAKE_TORQUE)
         self.gain = puma560.AMP_GAIN_A_PER_V
         self.v_bus = puma560.BUS_VOLTAGE
-        self.alpha = 1.0 - math.exp(-2.0 * math.pi * puma560.AMP_BANDWIDTH_HZ * dt)
-        self.current = np.zeros(self.n)
+        self.tau_current = 1.0 / (2.0 * math.pi * puma560.AMP_BANDWIDTH_HZ)  # s
         self.enabled = np.zeros(self.n)  # 1.0 where the joint's amplifier is on
-        self.commanded = np.zeros(self.n)  # A, from the DAC volts, within the motor's peak
-        # precomputed per-joint constants, so a step is a handful of array operations
+        self.ctrl = np.zeros(self.n)  # A: the current the loop drives toward
+        self.range = np.zeros((self.n, 2))  # A: [low, high] the current may take
+        self.friction = np.zeros(self.n)  # N·m at the joint: the asymmetric Coulomb remainder
+        # precomputed per-joint constants, so a cycle is a handful of array operations
         self._vbus_r = self.v_bus / self.r  # A
         self._kt_r = self.kt / self.r  # A per rad/s of motor speed (back-EMF)
-        self._gkt = self.gear * self.kt  # joint torque per A
+        self.gkt = self.gear * self.kt  # joint torque per A
         self._w_scale = self.gear / OMEGA0
         self._g_extra_pos = self.gear * self.extra_pos
         self._g_extra_neg = self.gear * self.extra_neg
         self._a = np.zeros(self.n)
         self._b = np.zeros(self.n)
-        self._c = np.zeros(self.n)
 
-    def command(self, volts: np.ndarray) -> None:
-        """Latch the DAC ``volts`` (once per cycle): commanded current, clipped at the peak."""
-        np.multiply(volts, self.gain, out=self.commanded)
-        np.clip(self.commanded, -self.i_max, self.i_max, out=self.commanded)
-
-    def step(self, qd: np.ndarray, torque_out: np.ndarray) -> None:
-        """Advance the currents one step at joint speeds ``qd``.
-
-        Writes the joint torque (motor torque plus the asymmetric friction remainder) into
-        ``torque_out``.  Inside the cycle.
+    def cycle(self, volts: np.ndarray, qd: np.ndarray) -> None:
+        """Once per plant cycle, for DAC ``volts`` at joint speeds ``qd``: fill ``ctrl``,
+        ``range`` and ``friction``.  Inside the cycle: preallocated arrays only.
         """
-        a, b, c, i = self._a, self._b, self._c, self.current
-        np.multiply(qd, self.gear, out=c)  # motor speed ω_m
-        np.multiply(c, self._kt_r, out=b)  # back-EMF / R
-        # the bus voltage limits the current: (−Vbus − Kt ω)/R ≤ i ≤ (Vbus − Kt ω)/R
-        np.subtract(self._vbus_r, b, out=a)
-        np.minimum(self.commanded, a, out=a)
-        np.add(self._vbus_r, b, out=b)
-        np.negative(b, out=b)
-        np.maximum(a, b, out=a)
-        np.subtract(a, i, out=a)  # first-order current loop, exact over the step
-        np.multiply(a, self.alpha, out=a)
-        np.add(i, a, out=i)
-        np.multiply(i, self.enabled, out=i)  # a disabled amplifier cuts its current at once
-        np.multiply(self._gkt, i, out=torque_out)
+        a, b = self._a, self._b
+        lo, hi = self.range[:, 0], self.range[:, 1]
+        np.multiply(qd, self.gear, out=a)  # motor speed ω_m
+        np.multiply(a, self._kt_r, out=b)  # back-EMF / R
+        # the bus voltage limits the current: (−Vbus − Kt ω)/R ≤ i ≤ (Vbus − Kt ω)/R,
+        # and the motor's peak current bounds it too
+        np.subtract(self._vbus_r, b, out=hi)
+        np.minimum(hi, self.i_max, out=hi)
+        np.add(self._vbus_r, b, out=lo)
+        np.negative(lo, out=lo)
+        np.maximum(lo, -self.i_max, out=lo)
+        np.maximum(hi, lo, out=hi)
+        np.multiply(lo, self.enabled, out=lo)  # an amplifier that is off: [0, 0]
+        np.multiply(hi, self.enabled, out=hi)
+        np.multiply(volts, self.gain, out=self.ctrl)
+        np.clip(self.ctrl, lo, hi, out=self.ctrl)
         # asymmetric Coulomb remainder, opposing the motor's motion
         np.multiply(qd, self._w_scale, out=a)
         np.tanh(a, out=a)
@@ -103,8 +103,7 @@ class MotorBank:
         np.minimum(a, 0.0, out=a)
         np.multiply(b, self._g_extra_pos, out=b)
         np.multiply(a, self._g_extra_neg, out=a)
-        np.subtract(a, b, out=a)
-        np.add(torque_out, a, out=torque_out)
+        np.subtract(a, b, out=self.friction)
 
     def joint_frictionloss(self, braked: np.ndarray, out: np.ndarray) -> None:
         """MuJoCo frictionloss per joint: the brake's holding torque where ``braked`` (bool).

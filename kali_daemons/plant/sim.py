@@ -7,7 +7,8 @@ in-process and the plant daemon calls ``cycle`` from its loop.  One cycle:
    brakes) at the plant's simulated time;
 2. the DAC codes become amplifier input volts (codes above 4095 are clamped and counted);
 3. the gripper registers close or open the welds to the object;
-4. ``substeps`` MuJoCo steps, each with the motor model's joint torques applied;
+4. the motor model sets each motor's current command and range (``motor.py``), and MuJoCo
+   runs ``substeps`` steps, integrating the 500 Hz current loops with the arm dynamics;
 5. the encoders count the new motor angles (once per cycle is enough: at the motors' top
    speed, 40 V / Kt, a motor turns under 0.03 revolutions per millisecond, so no index
    pulse is passed unseen), the pot ADCs serve conversions, and the truth records are written.
@@ -55,6 +56,10 @@ class PlantSim:
         self.dofs = np.concatenate([self.world.dof_adr[k] for k in range(n_arms)])
         self.qpos_idx = np.concatenate([self.world.qpos_adr[k] for k in range(n_arms)])
         self.motors = MotorBank(n_arms, self.dt)
+        self.acts = np.concatenate([self.world.motor[k] for k in range(n_arms)])
+        self.act_adr = np.concatenate([self.world.motor_act_adr[k] for k in range(n_arms)])
+        self.current = np.zeros(self.motors.n)
+        self._act = np.zeros(self.motors.n)
         m.dof_damping[self.dofs] = self.motors.damping
         # Stiff friction constraints: MuJoCo's defaults let an engaged brake creep ~8 mrad/s
         # under gravity; a 4-step time constant and impedance 0.9999 hold to < 1 µrad/s.
@@ -84,6 +89,8 @@ class PlantSim:
             self.dac[k]["code"][:] = layout.DAC_ZERO
             self.truth.append(arena.record(layout.KEY_TRUTH.format(robot=name), layout.ARM_TRUTH))
         self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        self._forces: list[np.ndarray | None] = [None] * n_arms
+        self._truth_views()
         self.sim_ns = 0
         self.ticks = 0
         self._write_truth()
@@ -120,14 +127,16 @@ class PlantSim:
             self._gripper(k)
         if changed:
             self._apply_brakes()
-        motors.command(self.volts)
         m, d = self.model, self.data
-        for _ in range(self.substeps):
-            motors.step(self.qd, self.torque)
-            d.qfrc_applied[self.dofs] = self.torque
-            mujoco.mj_step(m, d)
-            self._read_joints()
-            self.sim_ns += self.dt_ns
+        motors.cycle(self.volts, self.qd)
+        m.actuator_actrange[self.acts] = motors.range
+        d.ctrl[self.acts] = motors.ctrl
+        np.clip(self.current, motors.range[:, 0], motors.range[:, 1], out=self._act)
+        d.act[self.act_adr] = self._act  # a disabled amplifier cuts its current at once
+        d.qfrc_applied[self.dofs] = motors.friction
+        mujoco.mj_step(m, d, self.substeps)
+        self.sim_ns += self.substeps * self.dt_ns
+        self._read_joints()
         for k, board in enumerate(self.boards):
             board.sample(self.motor_angle[6 * k : 6 * k + 6])
             board.convert(self.q[6 * k : 6 * k + 6])
@@ -137,7 +146,9 @@ class PlantSim:
     def _read_joints(self) -> None:
         self.data.qpos.take(self.qpos_idx, out=self.q)
         self.data.qvel.take(self.dofs, out=self.qd)
+        self.data.act.take(self.act_adr, out=self.current)
         np.multiply(self.gear, self.q, out=self.motor_angle)
+        np.multiply(self.motors.gkt, self.current, out=self.torque)
 
     def _read_dac(self, k: int) -> None:
         """DAC codes → amplifier input volts; codes above 12 bits are clamped and counted."""
@@ -195,31 +206,53 @@ class PlantSim:
 
     # ------------------------------------------------------------------ truth
 
+    def _truth_views(self) -> None:
+        """View every truth field once (a field lookup by name builds a new view each time)."""
+        n = len(self.boards)
+        arm = [slice(6 * k, 6 * k + 6) for k in range(n)]
+        sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)
+        fields = ("q", "qd", "current", "torque", "motor_angle")
+        self._truth_copies = [
+            (self.truth[k][f], src[arm[k]])
+            for k in range(n)
+            for f, src in zip(fields, sources, strict=True)
+        ]
+        self._truth_flags = [
+            tuple(
+                self.truth[k][f]
+                for f in ("amps_on", "brakes_engaged", "grasped", "watchdog_tripped", "estop")
+            )
+            for k in range(n)
+        ]
+        self._truth_wrench = [self.truth[k]["grasp_wrench"] for k in range(n)]
+        w = self.world_truth
+        adr = self.world.object_qpos_adr
+        self._world_views = (w["sim_time_ns"], w["ticks"], w["internal_force"])
+        self._object_pose = (w["object_pose"], self.data.qpos[adr : adr + 7])
+
     def _write_truth(self) -> None:
         """The plant-only records (outside the controller's view): true state of every arm."""
-        forces = []
+        for dst, src in self._truth_copies:
+            np.copyto(dst, src)
+        forces = self._forces
         for k, board in enumerate(self.boards):
-            t = self.truth[k]
-            sl = slice(6 * k, 6 * k + 6)
-            t["q"] = self.q[sl]
-            t["qd"] = self.qd[sl]
-            t["current"] = self.motors.current[sl]
-            t["torque"] = self.torque[sl]
-            t["motor_angle"] = self.motor_angle[sl]
-            f = self._weld_force(k)
-            forces.append(f)
-            t["grasp_wrench"] = 0.0 if f is None else f
-            t["amps_on"] = board.amps_on
-            t["brakes_engaged"] = not board.brakes_released
-            t["grasped"] = f is not None
-            t["watchdog_tripped"] = board.tripped
-            t["estop"] = bool(board.regs["estop"])
-        w = self.world_truth
-        w["sim_time_ns"] = self.sim_ns
-        w["ticks"] = self.ticks
-        adr = self.world.object_qpos_adr
-        w["object_pose"] = self.data.qpos[adr : adr + 7]
-        w["internal_force"] = self._internal_force(forces)
+            f = forces[k] = self._weld_force(k)
+            wrench = self._truth_wrench[k]
+            if f is None:
+                wrench[:] = 0.0
+            else:
+                np.copyto(wrench, f)
+            amps, brakes, grasped, tripped, estop = self._truth_flags[k]
+            amps[...] = board.amps_on
+            brakes[...] = not board.brakes_released
+            grasped[...] = f is not None
+            tripped[...] = board.tripped
+            estop[...] = board.regs["estop"]
+        t_ns, ticks, internal = self._world_views
+        t_ns[...] = self.sim_ns
+        ticks[...] = self.ticks
+        internal[...] = self._internal_force(forces)
+        np.copyto(*self._object_pose)
 
     def _internal_force(self, forces: list[np.ndarray | None]) -> float:
         """Squeeze (−) or tension (+) along the line between two grasps, N; 0 unless both hold."""
