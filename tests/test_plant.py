@@ -201,7 +201,7 @@ def test_current_saturates_at_the_motor_peak(plant: PlantSim) -> None:
 
 
 def test_back_emf_limits_the_current_at_speed() -> None:
-    bank = MotorBank(1, 0.0005)
+    bank = MotorBank(1)
     bank.enabled[:] = 1.0
     omega_m = np.array([140.0, 140.0, 140.0, 400.0, 400.0, 400.0])  # motor speeds, rad/s
     qd = omega_m / np.asarray(puma560.G)

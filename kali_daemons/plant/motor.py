@@ -24,8 +24,6 @@ frictionloss to their holding torque.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .. import puma560
@@ -38,12 +36,13 @@ BRAKE_TORQUE = np.array([150.0, 150.0, 80.0, 20.0, 20.0, 20.0])
 
 
 class MotorBank:
-    """The amplifiers and motors of ``n_arms`` PUMA 560 arms; state is the motor currents.
+    """The amplifiers and motors of ``n_arms`` PUMA 560 arms, as the plant's MuJoCo
+    actuators see them (their activations are the motor currents).
 
-    ``step`` runs inside the plant's cycle: every array is preallocated, no allocation.
+    ``cycle`` runs inside the plant's cycle: every array is preallocated, no allocation.
     """
 
-    def __init__(self, n_arms: int, dt: float) -> None:
+    def __init__(self, n_arms: int) -> None:
         def tile(a: np.ndarray) -> np.ndarray:
             return np.tile(np.asarray(a, dtype=np.float64), n_arms)
 
@@ -61,7 +60,6 @@ class MotorBank:
         self.brake = tile(BRAKE_TORQUE)
         self.gain = puma560.AMP_GAIN_A_PER_V
         self.v_bus = puma560.BUS_VOLTAGE
-        self.tau_current = 1.0 / (2.0 * math.pi * puma560.AMP_BANDWIDTH_HZ)  # s
         self.enabled = np.zeros(self.n)  # 1.0 where the joint's amplifier is on
         self.ctrl = np.zeros(self.n)  # A: the current the loop drives toward
         self.range = np.zeros((self.n, 2))  # A: [low, high] the current may take

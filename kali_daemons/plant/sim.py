@@ -55,7 +55,7 @@ class PlantSim:
         n_arms = len(self.names)
         self.dofs = np.concatenate([self.world.dof_adr[k] for k in range(n_arms)])
         self.qpos_idx = np.concatenate([self.world.qpos_adr[k] for k in range(n_arms)])
-        self.motors = MotorBank(n_arms, self.dt)
+        self.motors = MotorBank(n_arms)
         self.acts = np.concatenate([self.world.motor[k] for k in range(n_arms)])
         self.act_adr = np.concatenate([self.world.motor_act_adr[k] for k in range(n_arms)])
         self.current = np.zeros(self.motors.n)
