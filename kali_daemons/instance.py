@@ -18,7 +18,7 @@ import time
 import numpy as np
 import posix_ipc
 
-from . import layout
+from . import atomic, layout
 from .arena import Arena, segment_name
 from .config import KaliConfig, parse_config
 from .errors import ClockError, InstanceError
@@ -205,8 +205,6 @@ class Instance:
 
     def bump_registry(self) -> None:
         """Tell the wall clock the set of periodic slots or their rates changed."""
-        from . import atomic
-
         atomic.fetch_add32(self.registry_gen_addr, 1)
 
     # ---------------------------------------------------------------- faults (DESIGN 7)

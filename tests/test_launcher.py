@@ -16,7 +16,7 @@ import pytest
 from kali_daemons import launcher
 from kali_daemons.errors import InstanceError
 from kali_daemons.instance import Instance
-from kali_daemons.layout import RunMode
+from kali_daemons.layout import FaultCode, RunMode
 from kali_daemons.spinlock import pid_alive
 
 from .conftest import ROOT, leftovers, make_config, unique_name
@@ -192,8 +192,6 @@ def test_reset_clears_a_fault(kali: Callable[..., str]) -> None:
     r = kalictl("-i", name, "reset")
     assert r.returncode == 0 and "no active fault" in r.stdout
     with Instance.attach(name) as inst:
-        from kali_daemons.layout import FaultCode
-
         inst.raise_fault(FaultCode.OPERATOR, "kalictl", "operator halt for the test")
     r = kalictl("-i", name, "clock", "step", "5")
     assert r.returncode == 1 and "fault active, kalictl reset first" in r.stderr

@@ -17,6 +17,8 @@ run is deterministic and as fast as the CPUs allow.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import posix_ipc
 
@@ -60,8 +62,6 @@ class WallClock(Daemon):
 
     def on_activate(self) -> None:
         """Publish the clock as ready (kalictl start waits for it)."""
-        import os
-
         self.inst.clock["pid"] = os.getpid()
         self.inst.clock["ready"] = 1
 
