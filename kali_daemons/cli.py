@@ -18,7 +18,7 @@ from pathlib import Path
 
 import click
 
-from . import launcher, layout
+from . import launcher
 from .config import load_config
 from .errors import KaliError
 from .instance import Instance
@@ -272,14 +272,11 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
     """
     with _attach(ctx) as inst:
         names = [r.name for r in inst.config.robots]
-        if robot is not None and robot not in names:
-            raise KaliError(
-                f"no robot '{robot}' in instance '{inst.name}' (robots: {', '.join(names)})"
-            )
         targets = [robot] if robot else names
+        boards = inst.boards()
         for name in targets:
-            regs = inst.arena.existing(layout.KEY_BOARD.format(robot=name), layout.IO_BOARD)
-            regs["estop"] = 0 if release else 1
+            boards[inst.robot_index(name)]["estop"] = 0 if release else 1
+        del boards
         if release:
             click.echo(f"e-stop released: {', '.join(targets)}")
             return

@@ -128,6 +128,23 @@ class Instance:
         """True once kalictl stop has asked every process to leave."""
         return bool(self.arena.header["shutdown"])
 
+    def robot_index(self, robot: str) -> int:
+        """Index of ``robot`` in the config (and in every per-robot array); InstanceError."""
+        names = [r.name for r in self.config.robots]
+        if robot not in names:
+            raise InstanceError(
+                f"no robot '{robot}' in instance '{self.name}' (robots: {', '.join(names)})"
+            )
+        return names.index(robot)
+
+    def boards(self) -> np.ndarray:
+        """The I/O board registers, one record per robot (created by the plant)."""
+        return self.arena.existing(layout.KEY_BOARDS, layout.IO_BOARD, len(self.config.robots))
+
+    def dacs(self) -> np.ndarray:
+        """The DAC board registers, one record per robot (created by the plant)."""
+        return self.arena.existing(layout.KEY_DACS, layout.DAC_BOARD, len(self.config.robots))
+
     def semaphore(self, posix_name: str) -> posix_ipc.Semaphore:
         """Open (once) one of the instance's semaphores."""
         sem = self._sems.get(posix_name)

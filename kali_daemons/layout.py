@@ -307,9 +307,11 @@ FLAG = np.dtype([("word", "<u4")])  # Type 3 test-and-set flag: 0 clear, else th
 # Hardware registers: the only interface between Kali and the plant (DESIGN 6, thesis 3.7,
 # appendix C.5).  A real board could replace the plant by implementing these records.
 
-KEY_BOARD = "board.{robot}"  # McGill I/O board of one robot
-KEY_DAC = "dac.{robot}"  # DAC board of one robot
-KEY_TRUTH = "truth.{robot}"  # plant-only truth of one robot (never read by the controller)
+# Each is an array with one record per robot, in the config's order: the rack of boards, so
+# the plant and SIO touch every arm's registers with one array operation.
+KEY_BOARDS = "boards"  # McGill I/O boards, IO_BOARD per robot
+KEY_DACS = "dacs"  # DAC boards, DAC_BOARD per robot
+KEY_TRUTHS = "truths"  # plant-only truth, ARM_TRUTH per robot (never read by the controller)
 KEY_WORLD_TRUTH = "truth.world"
 
 # Command/status register bits (appendix C.5.1).  Note the inverted senses of the thesis.

@@ -8,8 +8,12 @@ Two measurements per arm count:
    From it the real-time factor the plant could sustain on one core (1 ms / cost) and the
    share of one core it needs at real time.
 2. **As a process at real time**: the plant daemon of a real instance (``kalictl start``,
-   real-time mode), CPU time read from ``/proc/<pid>/stat`` over ``--seconds``: everything the
-   process really costs, including its own clock and the Python loop around ``cycle``.
+   real-time mode), its scheduler run time (``/proc/<pid>/task/*/schedstat``, ns) in 1 s
+   windows over ``--seconds``: everything the process really costs, including its own clock,
+   the wake-ups and the Python loop around ``cycle``.  This VM's host takes CPU time from
+   running programs in bursts (no steal accounting here, so it shows up as run time): a
+   window's share varies by 1.5x from one second to the next.  The table gives the median
+   window with the lowest and highest, and the goal is judged on the median.
 
 Goal (the issue): two arms in under 15 % of one core at real time.
 
@@ -22,6 +26,7 @@ import argparse
 import math
 import os
 import re
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -62,9 +67,9 @@ def power_up(sim: PlantSim) -> None:
         board.regs["csr"] = CSR_NO_DISABLE | CSR_ENABLE
     for _ in range(70):
         sim.cycle()
-    for k, board in enumerate(sim.boards):
+    for board in sim.boards:
         board.regs["csr"] = CSR_NO_DISABLE
-        sim.dac[k]["code"][:6] = layout.DAC_ZERO + 100
+    sim.dac["code"][:, :6] = layout.DAC_ZERO + 100
 
 
 def in_process(arms: int, cycles: int) -> tuple[float, float]:
@@ -91,29 +96,36 @@ def in_process(arms: int, cycles: int) -> tuple[float, float]:
     return best[0] / n / 1e3, best[1] / n / 1e3
 
 
-def _cpu_ticks(pid: int) -> int:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return int(fields[11]) + int(fields[12])  # utime + stime
+def _run_ns(pid: int) -> int:
+    """Scheduler run time of every thread of ``pid``, ns (exact, unlike utime's ticks)."""
+    return sum(
+        int((task / "schedstat").read_text().split()[0])
+        for task in Path(f"/proc/{pid}/task").iterdir()
+    )
 
 
-def as_process(arms: int, seconds: float) -> tuple[float, int]:
-    """(share of one core, plant cycles) of the plant daemon of a real-time instance."""
+def as_process(arms: int, seconds: float) -> tuple[list[float], int]:
+    """(share of one core in each 1 s window, plant cycles) of a real-time plant daemon."""
     name = f"benchplant{os.getpid()}p"
     cfg = config_for(arms, name)
     launcher.start(cfg, lockstep=False, instance=name)
+    shares = []
     try:
         with Instance.attach(name) as inst:
             pid = int(inst.procs[inst.slot_of("plant")]["pid"])
             truth = inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
             time.sleep(1.0)
-            t0, n0, w0 = _cpu_ticks(pid), int(truth["ticks"]), time.monotonic()
-            time.sleep(seconds)
-            t1, n1, w1 = _cpu_ticks(pid), int(truth["ticks"]), time.monotonic()
+            n0 = int(truth["ticks"])
+            for _ in range(max(1, round(seconds))):
+                r0, w0 = _run_ns(pid), time.monotonic_ns()
+                time.sleep(1.0)
+                r1, w1 = _run_ns(pid), time.monotonic_ns()
+                shares.append((r1 - r0) / (w1 - w0))
+            n1 = int(truth["ticks"])
             del truth
     finally:
         launcher.stop(name)
-    hz = os.sysconf("SC_CLK_TCK")
-    return (t1 - t0) / hz / (w1 - w0), n1 - n0
+    return shares, n1 - n0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -129,20 +141,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     head = (
         f"{'arms':>4} {'cpu µs/sim ms':>14} {'wall µs/sim ms':>15} {'RT factor':>10} "
-        f"{'core share':>11} {'process share':>14} {'cycles/s':>9}  goal"
+        f"{'core share':>11} {'process median (min-max)':>25} {'cycles/s':>9}  goal"
     )
     print(head)
     print("-" * len(head))
     for arms in args.arms:
         cpu_us, wall_us = in_process(arms, args.cycles)
-        share, cycles = as_process(arms, args.seconds)
+        shares, cycles = as_process(arms, args.seconds)
+        share = statistics.median(shares)
         goal = ""
         if arms == 2:
             goal = "PASS" if share < GOAL_SHARE else "FAIL"
-            goal += f" (< {GOAL_SHARE:.0%} of a core)"
+            goal += f" (median < {GOAL_SHARE:.0%} of a core)"
+        spread = f"{share:.1%} ({min(shares):.1%}-{max(shares):.1%})"
         print(
             f"{arms:>4} {cpu_us:>14.0f} {wall_us:>15.0f} {1000 / cpu_us:>9.1f}x "
-            f"{cpu_us / 1000:>10.1%} {share:>13.1%} {cycles / args.seconds:>9.0f}  {goal}"
+            f"{cpu_us / 1000:>10.1%} {spread:>25} {cycles / len(shares):>9.0f}  {goal}"
         )
     return 0
 

@@ -683,8 +683,7 @@ def format_report(r: Result, cfg: KaliConfig) -> str:
     )
     for m in r.misses_kali_only[:10]:
         lines.append(
-            f"  kali-only miss: {m['process']} at tick {m['tick']} "
-            f"({m['consecutive']} in a row)"
+            f"  kali-only miss: {m['process']} at tick {m['tick']} ({m['consecutive']} in a row)"
         )
     ct, kall = r.rows[0], r.rows[-1]
     lines.append(

@@ -26,7 +26,7 @@ from kali_daemons.layout import (
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
-from kali_daemons.plant.board import IoBoardSim, adc_code, pot_volts
+from kali_daemons.plant.board import EncoderBank, IoBoardSim, adc_code, pot_volts
 from kali_daemons.plant.motor import MotorBank
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
@@ -235,31 +235,32 @@ def test_back_emf_limits_the_current_in_the_plant(plant: PlantSim) -> None:
 # ---------------------------------------------------------------------- encoders and pots
 
 
-def _board(arena: Arena, phase: float = 0.3) -> tuple[IoBoardSim, np.ndarray]:
-    regs = arena.record("board.test", layout.IO_BOARD)
-    board = IoBoardSim(regs, CFG.plant, np.full(6, phase), np.zeros(6))
-    return board, regs
+def _board(arena: Arena, phase: float = 0.3) -> tuple[IoBoardSim, EncoderBank, np.ndarray]:
+    rack = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, 1)
+    regs = rack[0:1].reshape(())
+    board = IoBoardSim(regs, CFG.plant)
+    return board, EncoderBank(rack, np.full(6, phase), np.zeros(6)), regs
 
 
 def test_encoder_counts_follow_motor_angle_wrap_and_index_reset(arena: Arena) -> None:
-    board, regs = _board(arena)
+    board, encoders, regs = _board(arena)
     cpr = np.asarray(puma560.COUNTS_PER_MOTOR_REV, dtype=float)
     regs["csr"] = CSR_INDEX_OFF  # capture off: a free-running 12-bit counter
     angles = np.linspace(0, 12 * math.pi, 3000)  # six motor revolutions, forward
     for a in angles:
-        board.sample(np.full(6, a))
+        encoders.sample(np.full(6, a))
         expected = np.floor(a / (2 * math.pi) * cpr).astype(int) % 4096
         assert list(regs["encoder"][:6]) == list(expected)
     assert int(regs["index"]) == 0
     for a in angles[::-1]:  # and back: counts go down, wrapping below 0 to 4095
-        board.sample(np.full(6, a - 12 * math.pi))
+        encoders.sample(np.full(6, a - 12 * math.pi))
     assert list(regs["encoder"][:6]) == list(np.floor(-12 * math.pi / (2 * math.pi) * cpr) % 4096)
     # capture on: passing the index pulse (motor angle 0.3 rad + 2πk) resets the counter
-    board.sample(np.full(6, 0.0))
+    encoders.sample(np.full(6, 0.0))
     regs["csr"] = 0
-    board.sample(np.full(6, 0.29))
+    encoders.sample(np.full(6, 0.29))
     assert int(regs["index"]) == 0
-    board.sample(np.full(6, 0.31))
+    encoders.sample(np.full(6, 0.31))
     assert int(regs["index"]) == 0b111111
     at_index = np.floor(0.3 / (2 * math.pi) * cpr)
     expected = (np.floor(0.31 / (2 * math.pi) * cpr) - at_index) % 4096
@@ -281,7 +282,7 @@ def _convert(board: IoBoardSim, regs: np.ndarray, q: np.ndarray, ch: int) -> int
 
 
 def test_potentiometers_are_monotonic_8_bit_and_tell_index_pulses_apart(arena: Arena) -> None:
-    board, regs = _board(arena)
+    board, _, regs = _board(arena)
     lo, hi = puma560.Q_MIN, puma560.Q_MAX
     for j in range(6):
         qs = np.linspace(lo[j], hi[j], 400)
@@ -329,7 +330,7 @@ def test_kalictl_estop_presses_the_button_and_halts(kali: Callable[..., str]) ->
     r = kalictl("-i", name, "estop", "left")
     assert r.returncode == 0 and "e-stop pressed: left" in r.stdout
     with Instance.attach(name) as inst:
-        board = inst.arena.existing(layout.KEY_BOARD.format(robot="left"), layout.IO_BOARD)
+        board = inst.boards()[inst.robot_index("left")]
         assert int(board["estop"]) == 1
         assert "ESTOP in kalictl" in inst.fault_text()
         inst.clear_fault()
@@ -339,7 +340,6 @@ def test_kalictl_estop_presses_the_button_and_halts(kali: Callable[..., str]) ->
     assert r.returncode == 0 and "released: left, right" in r.stdout
     r = kalictl("-i", name, "estop", "nosuch")
     assert r.returncode == 1 and "no robot 'nosuch'" in r.stderr
-
 
 
 # ---------------------------------------------------------------------- cooperative grasp

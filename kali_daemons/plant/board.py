@@ -64,17 +64,14 @@ def adc_code(volts: float) -> int:
 
 
 class IoBoardSim:
-    """One arm's I/O board; ``update`` once per plant cycle, ``sample`` after every substep."""
+    """One arm's I/O board: power, watchdog and pot ADC; ``update`` and ``convert`` once per
+    plant cycle.  The encoders of every board are counted together by ``EncoderBank``."""
 
-    def __init__(
-        self, regs: np.ndarray, cfg: PlantConfig, index_phase: np.ndarray, motor_angle: np.ndarray
-    ) -> None:
+    def __init__(self, regs: np.ndarray, cfg: PlantConfig) -> None:
         self.regs = regs
         self.hold_ns = int(cfg.enable_hold_ms * 1e6)
         self.watchdog_ns = int(cfg.watchdog_ms * 1e6)
         self.brake_ns = int(cfg.brake_delay_ms * 1e6)
-        self.cpr = np.asarray(puma560.COUNTS_PER_MOTOR_REV, dtype=np.float64)
-        self.phase = np.asarray(index_phase, dtype=np.float64)  # motor angle of the index, rad
         self.lo, self.hi = puma560.Q_MIN, puma560.Q_MAX
         self._mid = self.lo + (self.hi - self.lo) * (2.5 - POT_V_MIN) / (POT_V_MAX - POT_V_MIN)
         self._above = np.zeros(6, dtype=bool)
@@ -87,17 +84,6 @@ class IoBoardSim:
         self._retrigger_ns = 0
         self._prev_csr = int(regs["csr"])
         self._prev_adc = 0
-        # encoders: the counters read 0 at power-on
-        self._counts_per_rad = self.cpr / TWO_PI
-        self._raw = np.zeros(6, dtype=np.int64)
-        self._count = np.zeros(6, dtype=np.int64)
-        self._ref = np.floor(motor_angle * self._counts_per_rad).astype(np.int64)
-        self._rev = np.floor((motor_angle - self.phase) / TWO_PI)
-        self._f = np.zeros(6)
-        self._g = np.zeros(6)
-        self._crossed = np.zeros(6, dtype=bool)
-        self.regs["encoder"][:] = 0
-        self.regs["index"] = 0
 
     # ------------------------------------------------------------------ power and watchdog
 
@@ -145,35 +131,6 @@ class IoBoardSim:
             self.amps_on = on
             self._switch_ns = now_ns
 
-    # ------------------------------------------------------------------ encoders
-
-    def sample(self, motor_angle: np.ndarray) -> None:
-        """Count the motor angles into the HCTL-2000 registers; capture index pulses.
-
-        Runs after every substep; preallocated buffers only.
-        """
-        r = self.regs
-        f, rev = self._f, self._g
-        np.multiply(motor_angle, self._counts_per_rad, out=f)
-        np.floor(f, out=f)
-        np.copyto(self._raw, f, casting="unsafe")
-        np.subtract(motor_angle, self.phase, out=rev)
-        np.divide(rev, TWO_PI, out=rev)
-        np.floor(rev, out=rev)
-        if not int(r["csr"]) & CSR_INDEX_OFF:
-            np.not_equal(rev, self._rev, out=self._crossed)
-            if self._crossed.any():
-                for j in np.flatnonzero(self._crossed):
-                    k = max(rev[j], self._rev[j])  # the revolution whose index pulse was passed
-                    self._ref[j] = math.floor(
-                        (self.phase[j] + TWO_PI * k) * self._counts_per_rad[j]
-                    )
-                    r["index"] = int(r["index"]) | (1 << int(j))
-        np.copyto(self._rev, rev)
-        np.subtract(self._raw, self._ref, out=self._count)
-        np.mod(self._count, COUNTER_MODULO, out=self._count)
-        r["encoder"][:6] = self._count
-
     # ------------------------------------------------------------------ potentiometers
 
     def convert(self, q: np.ndarray) -> None:
@@ -199,3 +156,66 @@ class IoBoardSim:
         # digital register: the channels above 2.5 V, i.e. past the middle of their range
         np.greater(q, self._mid, out=self._above)
         r["adc_digital"] = int(self._above @ self._bits)
+
+
+class EncoderBank:
+    """The HCTL-2000 counters of every board (C.3), counted in one pass over all arms.
+
+    Each channel counts quadrature counts of its motor angle modulo 4096.  With index capture
+    enabled on its board (CSR bit 4 low), passing the index pulse (once per motor revolution,
+    at the motor angle ``phase``) resets the counter to 0 and sets the channel's bit in the
+    index register.  ``sample`` runs once per plant cycle on preallocated buffers.
+    """
+
+    def __init__(self, regs: np.ndarray, phase: np.ndarray, motor_angle: np.ndarray) -> None:
+        self.regs = regs  # IO_BOARD records, one per arm
+        self.n_arms = len(regs)
+        n = 6 * self.n_arms
+        cpr = np.tile(np.asarray(puma560.COUNTS_PER_MOTOR_REV, dtype=np.float64), self.n_arms)
+        self.phase = np.asarray(phase, dtype=np.float64).reshape(n)  # index motor angle, rad
+        self._counts_per_rad = cpr / TWO_PI
+        self._encoder = regs["encoder"][:, :6]
+        self._index = regs["index"]
+        self._csr = regs["csr"]
+        self._raw = np.zeros(n, dtype=np.int64)
+        self._count = np.zeros(n, dtype=np.int64)
+        self._count_arms = self._count.reshape(self.n_arms, 6)
+        self._ref = np.zeros(n, dtype=np.int64)
+        self._rev = np.zeros(n)
+        self._f = np.zeros(n)
+        self._g = np.zeros(n)
+        self._crossed = np.zeros(n, dtype=bool)
+        for k in range(self.n_arms):
+            self.power_on(k, motor_angle[6 * k : 6 * k + 6])
+
+    def power_on(self, k: int, motor_angle: np.ndarray) -> None:
+        """Arm ``k``'s counters read 0 at motor angles ``motor_angle`` (power-on, set-up)."""
+        sl = slice(6 * k, 6 * k + 6)
+        self._ref[sl] = np.floor(motor_angle * self._counts_per_rad[sl]).astype(np.int64)
+        self._rev[sl] = np.floor((motor_angle - self.phase[sl]) / TWO_PI)
+        self._encoder[k] = 0
+        self._index[k] = 0
+
+    def sample(self, motor_angle: np.ndarray) -> None:
+        """Count the motor angles of every arm into the counter registers; capture indexes."""
+        f, rev = self._f, self._g
+        np.multiply(motor_angle, self._counts_per_rad, out=f)
+        np.floor(f, out=f)
+        np.copyto(self._raw, f, casting="unsafe")
+        np.subtract(motor_angle, self.phase, out=rev)
+        np.divide(rev, TWO_PI, out=rev)
+        np.floor(rev, out=rev)
+        np.not_equal(rev, self._rev, out=self._crossed)
+        if self._crossed.any():  # rare: a few times per motor revolution
+            for j in np.flatnonzero(self._crossed):
+                k, ch = divmod(int(j), 6)
+                if int(self._csr[k]) & CSR_INDEX_OFF:
+                    continue  # capture disabled: the counter just keeps counting
+                passed = max(rev[j], self._rev[j])  # the revolution whose index was passed
+                at = (self.phase[j] + TWO_PI * passed) * self._counts_per_rad[j]
+                self._ref[j] = math.floor(at)
+                self._index[k] |= 1 << ch
+        np.copyto(self._rev, rev)
+        np.subtract(self._raw, self._ref, out=self._count)
+        np.mod(self._count, COUNTER_MODULO, out=self._count)
+        np.copyto(self._encoder, self._count_arms, casting="unsafe")

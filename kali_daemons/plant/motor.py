@@ -93,7 +93,8 @@ class MotorBank:
         np.multiply(lo, self.enabled, out=lo)  # an amplifier that is off: [0, 0]
         np.multiply(hi, self.enabled, out=hi)
         np.multiply(volts, self.gain, out=self.ctrl)
-        np.clip(self.ctrl, lo, hi, out=self.ctrl)
+        np.maximum(self.ctrl, lo, out=self.ctrl)  # np.clip's wrapper costs 2 µs more
+        np.minimum(self.ctrl, hi, out=self.ctrl)
         # asymmetric Coulomb remainder, opposing the motor's motion
         np.multiply(qd, self._w_scale, out=a)
         np.tanh(a, out=a)

@@ -25,7 +25,7 @@ from .. import layout, puma560
 from ..arena import Arena
 from ..config import KaliConfig
 from ..model import World, build_world
-from .board import IoBoardSim
+from .board import EncoderBank, IoBoardSim
 from .motor import MotorBank
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
@@ -77,17 +77,16 @@ class PlantSim:
         self.volts = np.zeros(self.motors.n)
         self.torque = np.zeros(self.motors.n)
         self._read_joints()
-        self.boards: list[IoBoardSim] = []
-        self.dac: list[np.ndarray] = []
-        self.truth: list[np.ndarray] = []
+        self.regs = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, n_arms)
+        self.dac = arena.record(layout.KEY_DACS, layout.DAC_BOARD, n_arms)
+        self.dac["code"] = layout.DAC_ZERO
+        self.truth = arena.record(layout.KEY_TRUTHS, layout.ARM_TRUTH, n_arms)
+        self.boards = [IoBoardSim(self.regs[k : k + 1].reshape(()), pc) for k in range(n_arms)]
+        phases = np.concatenate([index_phases(pc.seed, k) for k in range(n_arms)])
+        self.encoders = EncoderBank(self.regs, phases, self.motor_angle)
+        self._codes = self.dac["code"][:, :6]
+        self._volts_arms = self.volts.reshape(n_arms, 6)
         self._gripper_prev = [0] * n_arms
-        for k, name in enumerate(self.names):
-            regs = arena.record(layout.KEY_BOARD.format(robot=name), layout.IO_BOARD)
-            sl = slice(6 * k, 6 * k + 6)
-            self.boards.append(IoBoardSim(regs, pc, index_phases(pc.seed, k), self.motor_angle[sl]))
-            self.dac.append(arena.record(layout.KEY_DAC.format(robot=name), layout.DAC_BOARD))
-            self.dac[k]["code"][:] = layout.DAC_ZERO
-            self.truth.append(arena.record(layout.KEY_TRUTH.format(robot=name), layout.ARM_TRUTH))
         self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
         self._forces: list[np.ndarray | None] = [None] * n_arms
         self._truth_views()
@@ -104,9 +103,7 @@ class PlantSim:
         self.data.qvel[self.world.dof_adr[k]] = 0.0
         mujoco.mj_forward(self.model, self.data)
         self._read_joints()
-        board = self.boards[k]
-        sl = slice(6 * k, 6 * k + 6)
-        self.boards[k] = IoBoardSim(board.regs, self._plant_cfg, board.phase, self.motor_angle[sl])
+        self.encoders.power_on(k, self.motor_angle[6 * k : 6 * k + 6])
         self._write_truth()
 
     # ------------------------------------------------------------------ one cycle
@@ -123,22 +120,23 @@ class PlantSim:
             if self.braked[6 * k] != braked:
                 self.braked[sl] = braked
                 changed = True
-            self._read_dac(k)
             self._gripper(k)
+        self._read_dac()
         if changed:
             self._apply_brakes()
         m, d = self.model, self.data
         motors.cycle(self.volts, self.qd)
         m.actuator_actrange[self.acts] = motors.range
         d.ctrl[self.acts] = motors.ctrl
-        np.clip(self.current, motors.range[:, 0], motors.range[:, 1], out=self._act)
+        np.maximum(self.current, motors.range[:, 0], out=self._act)
+        np.minimum(self._act, motors.range[:, 1], out=self._act)
         d.act[self.act_adr] = self._act  # a disabled amplifier cuts its current at once
         d.qfrc_applied[self.dofs] = motors.friction
         mujoco.mj_step(m, d, self.substeps)
         self.sim_ns += self.substeps * self.dt_ns
         self._read_joints()
+        self.encoders.sample(self.motor_angle)
         for k, board in enumerate(self.boards):
-            board.sample(self.motor_angle[6 * k : 6 * k + 6])
             board.convert(self.q[6 * k : 6 * k + 6])
         self.ticks += 1
         self._write_truth()
@@ -150,14 +148,14 @@ class PlantSim:
         np.multiply(self.gear, self.q, out=self.motor_angle)
         np.multiply(self.motors.gkt, self.current, out=self.torque)
 
-    def _read_dac(self, k: int) -> None:
+    def _read_dac(self) -> None:
         """DAC codes → amplifier input volts; codes above 12 bits are clamped and counted."""
-        dac = self.dac[k]
-        codes = dac["code"][:6]
-        out = self.volts[6 * k : 6 * k + 6]
-        np.copyto(out, codes)
-        if out.max() > DAC_MAX:
-            dac["clamped"] += int(np.count_nonzero(out > DAC_MAX))
+        out = self._volts_arms
+        np.copyto(out, self._codes)
+        if out.max() > DAC_MAX:  # rare: a bad register value
+            over = out > DAC_MAX
+            for k in np.flatnonzero(over.any(axis=1)):
+                self.dac["clamped"][k] += np.count_nonzero(over[k])
             np.minimum(out, DAC_MAX, out=out)
         np.subtract(out, layout.DAC_ZERO, out=out)
         np.multiply(out, 10.0 / layout.DAC_ZERO, out=out)
@@ -209,22 +207,19 @@ class PlantSim:
     def _truth_views(self) -> None:
         """View every truth field once (a field lookup by name builds a new view each time)."""
         n = len(self.boards)
-        arm = [slice(6 * k, 6 * k + 6) for k in range(n)]
         sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)
         fields = ("q", "qd", "current", "torque", "motor_angle")
         self._truth_copies = [
-            (self.truth[k][f], src[arm[k]])
-            for k in range(n)
-            for f, src in zip(fields, sources, strict=True)
+            (self.truth[f], src.reshape(n, 6)) for f, src in zip(fields, sources, strict=True)
         ]
         self._truth_flags = [
             tuple(
-                self.truth[k][f]
+                self.truth[k : k + 1][f].reshape(())
                 for f in ("amps_on", "brakes_engaged", "grasped", "watchdog_tripped", "estop")
             )
             for k in range(n)
         ]
-        self._truth_wrench = [self.truth[k]["grasp_wrench"] for k in range(n)]
+        self._truth_wrench = [self.truth["grasp_wrench"][k] for k in range(n)]
         w = self.world_truth
         adr = self.world.object_qpos_adr
         self._world_views = (w["sim_time_ns"], w["ticks"], w["internal_force"])

@@ -121,4 +121,3 @@ def release(inst: Instance, process: str) -> None:
     i = inst.slot_of(process)
     inst.procs[i]["periodic"] = 0
     inst.bump_registry()
-
