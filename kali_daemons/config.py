@@ -72,6 +72,7 @@ _TOP_KEYS = (
     "processes",
     "robots",
     "plant",
+    "plugins",
 )
 _PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms", "seed")
 _CLOCK_KEYS = (
@@ -82,7 +83,20 @@ _CLOCK_KEYS = (
     "lockstep_ack_timeout_s",
     "busy_wait_us",
 )
-_ROBOT_KEYS = ("name", "model", "base_xyz", "base_yaw_deg")
+_ROBOT_KEYS = (
+    "name",
+    "model",
+    "base_xyz",
+    "base_yaw_deg",
+    "servo",
+    "safe_rad",
+    "current_fault_ms",
+)
+DEFAULT_SAFE_RAD = 0.15  # tracking-error tolerance before a runaway halt
+DEFAULT_CURRENT_FAULT_MS = 100.0  # demand beyond the current limit this long halts
+_SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
+_PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
+MAX_PLUGINS = 16
 
 # Used when the file has no ``processes`` / ``robots`` section (same as config/default.yaml).
 _DEFAULT_PROCESSES: dict[str, dict[str, Any]] = {
@@ -153,6 +167,9 @@ class RobotConfig:
     model: str
     base_xyz: tuple[float, float, float]
     base_yaw_deg: float
+    servo: str = "pid"  # the servo algorithm every joint starts with (builtin or plugin)
+    safe_rad: tuple[float, ...] = (DEFAULT_SAFE_RAD,) * 6  # tracking tolerance per joint
+    current_fault_ms: float = DEFAULT_CURRENT_FAULT_MS  # demand beyond the limit this long halts
 
 
 @dataclass(frozen=True)
@@ -169,6 +186,16 @@ class KaliConfig:
     source: str
     text: str
     plant: PlantConfig = PlantConfig()
+    plugins: tuple[str, ...] = ()  # servo plugin files (relative to base_dir) or module names
+    base_dir: str = "."  # directory relative plugin paths are taken from
+
+    def robot(self, name: str) -> RobotConfig:
+        """The robot called ``name``; ConfigError naming the robots."""
+        for robot in self.robots:
+            if robot.name == name:
+                return robot
+        known = ", ".join(r.name for r in self.robots)
+        raise ConfigError(f"{self.source}: no robot {name!r}; robots: {known}")
 
     def process(self, name: str) -> ProcessConfig:
         """The process called ``name`` (e.g. ``"sv.1"``); ConfigError naming the known ones."""
@@ -187,8 +214,11 @@ class KaliConfig:
 # Public entry points
 
 
-def parse_config(text: str, source: str = "<string>") -> KaliConfig:
-    """Parse and fully validate YAML ``text``; ``source`` names it in every error message."""
+def parse_config(text: str, source: str = "<string>", base_dir: str | None = None) -> KaliConfig:
+    """Parse and fully validate YAML ``text``; ``source`` names it in every error message.
+
+    ``base_dir`` is where relative plugin paths are found (default: the current directory).
+    """
     if not isinstance(text, str):
         raise ConfigError(f"{source}: config text must be a str, not {type(text).__name__}")
     try:
@@ -203,9 +233,10 @@ def parse_config(text: str, source: str = "<string>") -> KaliConfig:
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: YAML does not parse: {exc}") from None
     try:
-        return _build(doc, source, text)
+        cfg = _build(doc, source, text)
     except _InvalidError as exc:
         raise ConfigError(f"{source}: {exc}") from None
+    return dataclasses.replace(cfg, base_dir=os.path.abspath(base_dir or "."))
 
 
 def load_config(path: str | os.PathLike[str]) -> KaliConfig:
@@ -219,7 +250,7 @@ def load_config(path: str | os.PathLike[str]) -> KaliConfig:
         raise ConfigError(f"{source}: cannot read config file: {reason}") from None
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{source}: config file is not UTF-8 text: {exc.reason}") from None
-    return parse_config(text, source)
+    return parse_config(text, source, os.path.dirname(os.path.abspath(source)))
 
 
 def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
@@ -481,6 +512,10 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
             raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
     robots = _robots(doc.get("robots", _DEFAULT_ROBOTS))
     plant = _plant(doc.get("plant", {}), clock)
+    plugins = tuple(
+        _identifier(p, f"plugins[{i}]", _PLUGIN_RE)
+        for i, p in enumerate(_list(doc.get("plugins", []), "plugins", 0, MAX_PLUGINS))
+    )
     return KaliConfig(
         version=CONFIG_VERSION,
         instance=instance,
@@ -492,6 +527,7 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
         source=source,
         text=text,
         plant=plant,
+        plugins=plugins,
     )
 
 
@@ -654,5 +690,21 @@ def _robots(node: Any) -> tuple[RobotConfig, ...]:
             _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")
         x, y, z = (_finite(v, f"{path}.base_xyz[{j}]") for j, v in enumerate(xyz_node))
         yaw = _finite(m.get("base_yaw_deg", 0.0), f"{path}.base_yaw_deg")
-        robots.append(RobotConfig(name, model, (x, y, z), yaw))
+        servo = _identifier(m.get("servo", "pid"), f"{path}.servo", _SERVO_NAME_RE)
+        safe_node = m.get("safe_rad", DEFAULT_SAFE_RAD)
+        if isinstance(safe_node, list):
+            if len(safe_node) != 6:
+                _fail(f"{path}.safe_rad", safe_node, "must be a number or a list of 6 numbers")
+            safe = tuple(
+                _float(v, f"{path}.safe_rad[{j}]", 0.0, math.pi) for j, v in enumerate(safe_node)
+            )
+        else:
+            safe = (_float(safe_node, f"{path}.safe_rad", 0.0, math.pi),) * 6
+        fault_ms = _float(
+            m.get("current_fault_ms", DEFAULT_CURRENT_FAULT_MS),
+            f"{path}.current_fault_ms",
+            0.0,
+            10_000.0,
+        )
+        robots.append(RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms))
     return tuple(robots)

@@ -52,10 +52,26 @@ def ack_semaphore_name(instance: str) -> str:
     return f"{segment_name(instance)}.ack"
 
 
+def feed_semaphore_name(instance: str, sv: int) -> str:
+    """POSIX name of the semaphore SIO posts when the servo slots are fed, one per SV."""
+    return f"{segment_name(instance)}.feed{sv}"
+
+
+def done_semaphore_name(instance: str) -> str:
+    """POSIX name of the semaphore the SV finishing a tick's last servo posts to SIO."""
+    return f"{segment_name(instance)}.done"
+
+
 def all_semaphore_names(instance: str) -> list[str]:
     """Every semaphore an instance owns."""
     names = [slot_semaphore_name(instance, i) for i in range(layout.MAX_PROCESSES)]
-    return [*names, command_semaphore_name(instance), ack_semaphore_name(instance)]
+    names += [feed_semaphore_name(instance, k) for k in range(layout.MAX_SV)]
+    return [
+        *names,
+        command_semaphore_name(instance),
+        ack_semaphore_name(instance),
+        done_semaphore_name(instance),
+    ]
 
 
 def decode(raw: bytes | np.bytes_) -> str:
@@ -112,11 +128,18 @@ class Instance:
     def config(self) -> KaliConfig:
         """The configuration the instance was started with (stored in the arena)."""
         if self._config is None:
-            off, size = self.arena.lookup(layout.KEY_CONFIG)  # type: ignore[misc]
-            raw = self.arena.view(off, np.dtype("u1"), size)
-            text = bytes(raw).split(b"\0", 1)[0].decode()
-            self._config = parse_config(text, source=f"{self.arena.name}:config")
+            text = self._text(layout.KEY_CONFIG)
+            base = self._text(layout.KEY_CONFIG_DIR)
+            self._config = parse_config(text, f"{self.arena.name}:config", base or None)
         return self._config
+
+    def _text(self, key: str) -> str:
+        found = self.arena.lookup(key)
+        if found is None:
+            return ""
+        off, size = found
+        raw = self.arena.view(off, np.dtype("u1"), size)
+        return bytes(raw).split(b"\0", 1)[0].decode()
 
     @property
     def lockstep(self) -> bool:
@@ -163,6 +186,14 @@ class Instance:
     def command_semaphore(self) -> posix_ipc.Semaphore:
         """The semaphore that wakes the wall clock for a command."""
         return self.semaphore(command_semaphore_name(self.name))
+
+    def feed_semaphore(self, sv: int) -> posix_ipc.Semaphore:
+        """The semaphore that tells SV ``sv`` the servo slots are fed."""
+        return self.semaphore(feed_semaphore_name(self.name, sv))
+
+    def done_semaphore(self) -> posix_ipc.Semaphore:
+        """The semaphore that tells SIO every fed servo has run."""
+        return self.semaphore(done_semaphore_name(self.name))
 
     def ack_semaphore(self) -> posix_ipc.Semaphore:
         """The lockstep acknowledgement semaphore."""
@@ -231,9 +262,12 @@ class Instance:
     ) -> bool:
         """Record a fault and so halt the system; the first uncleared fault wins.
 
-        The wall clock stops itself when it sees an active fault.  Returns True if this call
-        recorded the fault, False if one was already active (it is still counted).
+        A halt disables every robot's amplifiers through its board first (DESIGN 7: bit 7 of
+        the command/status register low cuts them at once; the brakes follow in the plant),
+        whoever raises it.  The wall clock stops itself when it sees an active fault.  Returns
+        True if this call recorded the fault, False if one was already active (still counted).
         """
+        self.power_off_all()
         with self.fault_lock:
             f = self.fault
             f["count"] = int(f["count"]) + 1
@@ -250,6 +284,13 @@ class Instance:
         if self.lockstep:
             self.ack_semaphore().release()  # a clock waiting for lockstep acks notices too
         return True
+
+    def power_off_all(self) -> None:
+        """Disable every robot's amplifiers through the board (safe from any process)."""
+        if self.arena.lookup(layout.KEY_BOARDS) is None:
+            return  # no plant or boards yet: nothing is powered
+        csr = self.boards()["csr"]
+        csr &= ~np.uint8(layout.CSR_NO_DISABLE)
 
     def clear_fault(self) -> bool:
         """Clear the active fault (kalictl reset); False if none was active."""

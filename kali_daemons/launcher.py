@@ -172,6 +172,9 @@ def _create(cfg: KaliConfig, instance: str, lockstep: bool) -> Arena:
         text = cfg.text.encode()
         raw = arena.record(layout.KEY_CONFIG, np.dtype("u1"), len(text) + 1)
         raw[: len(text)] = np.frombuffer(text, np.uint8)
+        base = cfg.base_dir.encode()
+        raw = arena.record(layout.KEY_CONFIG_DIR, np.dtype("u1"), len(base) + 1)
+        raw[: len(base)] = np.frombuffer(base, np.uint8)
         del raw
         for name in all_semaphore_names(instance):
             posix_ipc.Semaphore(name, posix_ipc.O_CREX, mode=0o600, initial_value=0).close()

@@ -31,6 +31,7 @@ KEY_CLOCK = "clock"
 KEY_PROCESSES = "processes"
 KEY_FAULT = "fault"
 KEY_CONFIG = "config"
+KEY_CONFIG_DIR = "config.dir"  # where relative plugin paths are found
 KEY_MISSES = "clock.misses"
 
 # --------------------------------------------------------------------------------------------
@@ -239,6 +240,8 @@ class FaultCode(enum.IntEnum):
     CURRENT = 8
     SINGULARITY = 9
     OPERATOR = 10  # halted on request
+    SERVO = 11  # a servo algorithm raised, returned a bad status or a non-finite torque
+    POWER = 12  # a robot's amplifiers went off while it was servoing
 
 
 FAULT = np.dtype(
@@ -393,6 +396,132 @@ WORLD_TRUTH = np.dtype(
         ("ticks", "<u8"),  # plant cycles
         ("object_pose", "<f8", (7,)),  # position (m) and quaternion (w, x, y, z)
         ("internal_force", "<f8"),  # N, squeeze along the line between the grasps (+ = tension)
+    ],
+    align=True,
+)
+
+
+# --------------------------------------------------------------------------------------------
+# Servo level (DESIGN 4, thesis 3.3.3 - 3.5, figure 3.3): SIO's robot records, the servo
+# slots SIO feeds and the SVs claim, and the tick's bookkeeping between them.
+
+MAX_SV = 8  # servo workers (thesis 3.3.4: one to eight)
+SERVO_STAGING_BYTES = 1024  # largest private servo data a put/get mailbox carries
+KEY_ROBOTS = "robots"  # ROBOT_STATE per robot, config order
+KEY_SLOTS = "servo.slots"  # SERVO_SLOT per joint: robot k joint j is slot 6 k + j
+KEY_STAGING = "servo.staging"  # SERVO_STAGING_BYTES per slot: the put/get mailbox data
+KEY_SERVO_CTRL = "servo.ctrl"
+KEY_SERVO_DATA = "servo.{slot}.{algo}"  # private data of one algorithm on one joint
+KEY_FIFO = "fifo.{robot}"  # TG → SIO set-points (Type 2), 6 joint angles each
+
+
+class PowerState(enum.IntEnum):
+    """Amplifier power of one robot, as SIO drives the board's power switch (C.5.1)."""
+
+    OFF = 0
+    ENABLING = 1  # enable bit held high for the relay, then brakes releasing
+    ON = 2
+
+
+class PowerCmd(enum.IntEnum):
+    """Requests to SIO in ``ROBOT_STATE.power_cmd`` (kalictl enable/disable); SIO clears."""
+
+    NONE = 0
+    ENABLE = 1
+    DISABLE = 2
+
+
+class CalibState(enum.IntEnum):
+    """Progress of a robot's calibration (thesis 3.5.1)."""
+
+    IDLE = 0
+    POTS = 1  # reading the potentiometers
+    SEARCH = 2  # servoing every joint toward its nearest index pulse
+    DONE = 3
+    FAILED = 4
+
+
+class SlotOp(enum.IntEnum):
+    """Mailbox operations on a servo slot, carried out by the SV at the slot's next run."""
+
+    NONE = 0
+    PUT = 1  # copy the staging bytes into the private data of algorithm ``op_algo``
+    GET = 2  # copy the private data of ``op_algo`` into the staging bytes
+    SELECT = 3  # make ``op_algo`` the joint's servo, handing over its state (bumpless)
+
+
+SLOT_NOT_FED = 0xFFFFFFFF  # ``busy`` of a slot SIO did not feed this tick
+
+ROBOT_STATE = np.dtype(
+    [
+        ("q", "<f8", (ARM_JOINTS,)),  # SIO: measured joint angles, rad
+        ("qd", "<f8", (ARM_JOINTS,)),  # SIO: joint velocities from the encoders, rad/s
+        ("demand", "<f8", (ARM_JOINTS,)),  # SIO: this tick's interpolated set-points, rad
+        ("servo_torque", "<f8", (ARM_JOINTS,)),  # SIO: what the servos asked for, N·m
+        ("ff_torque", "<f8", (ARM_JOINTS,)),  # SIO: feed-forward added this tick, N·m
+        ("torque", "<f8", (ARM_JOINTS,)),  # SIO: torque sent (after the current clamp), N·m
+        ("current", "<f8", (ARM_JOINTS,)),  # SIO: motor current commanded, A
+        ("offset", "<f8", (ARM_JOINTS,)),  # SIO: calibration offsets of the driver, rad
+        ("safe", "<f8", (ARM_JOINTS,)),  # clients: tracking-error tolerance, rad
+        ("acc", "<i4", (ARM_JOINTS,)),  # SIO: 32-bit accumulated encoder counts
+        ("prev", "<i4", (ARM_JOINTS,)),  # SIO: last 12-bit counter readings
+        ("over_ticks", "<i4", (ARM_JOINTS,)),  # SIO: consecutive ticks beyond the current limit
+        ("range_check", "u1", (ARM_JOINTS,)),  # clients: 1 = joint range checked
+        ("power", "u1"),  # SIO: PowerState
+        ("power_cmd", "u1"),  # clients: PowerCmd; SIO clears it when taken
+        ("calibrated", "u1"),  # SIO: 1 once calibrated against the index pulses
+        ("pots_read", "u1"),  # SIO: 1 once the offsets are set roughly from the pots
+        ("calib_cmd", "u1"),  # clients: 1 = calibrate; SIO clears it when taken
+        ("calib_state", "u1"),  # SIO: CalibState
+        ("calib_found", "u1"),  # SIO: bit j = joint j's index pulse found
+        ("_pad", "u1", (3,)),
+        ("enable_ticks", "<i4"),  # SIO: ticks into the enable sequence
+        ("tick", "<i8"),  # SIO: last servo tick
+        ("message", f"S{MESSAGE_BYTES}"),  # SIO: last calibration or power message
+    ],
+    align=True,
+)
+
+SERVO_SLOT = np.dtype(
+    [
+        ("busy", "<u4"),  # SIO clears to 0 when fed; an SV claims by test-and-set (3.3.5)
+        ("op", "<u4"),  # clients: SlotOp, written last; the SV clears it when done
+        ("op_algo", "<u4"),  # clients: algorithm the op is about
+        ("op_lock", "<u4"),  # clients: spinlock serialising mailbox users
+        ("ops_done", "<u4"),  # SV: mailbox operations carried out
+        ("algo", "<u4"),  # SV: the joint's active algorithm (registry index)
+        ("enabled", "<u4"),  # clients: 1 = servo runs; 0 = it outputs no torque
+        ("status", "<i4"),  # SV: status the step returned
+        ("demand", "<f8"),  # SIO: position demand, rad
+        ("position", "<f8"),  # SIO: measured position, rad
+        ("velocity", "<f8"),  # SIO: measured velocity, rad/s (for hand-over)
+        ("torque", "<f8"),  # SV: torque demand, N·m (held while the servo is not run)
+        ("error", "<f8"),  # SV: the servo's tracking error, rad
+        ("reset", "<u4"),  # SIO: 1 = hand the joint over at rest (power on); the SV clears it
+        ("_pad0", "<u4"),
+        ("ran_tick", "<i8"),  # SV: last tick the servo ran
+        ("exec_ns", "<i8"),  # SV: duration of the last step
+        ("sv", "<i4"),  # SV: which worker ran it last
+        ("_pad", "<u4"),
+    ],
+    align=True,
+)
+
+SERVO_CTRL = np.dtype(
+    [
+        ("tick", "<i8"),  # SIO: the tick being served
+        ("fed", "<u4"),  # SIO: slots fed this tick
+        ("done", "<u4"),  # SVs: slots finished this tick (atomic add)
+        ("waiting", "<u4"),  # SIO: 1 while it sleeps on the done semaphore
+        ("sv_count", "<u4"),  # SIO: servo workers to wake
+        ("ready", "<u4"),  # SIO: 1 once every slot's private data exists and is initialised
+        ("_pad", "<u4"),
+        ("latency_last_ns", "<i8"),  # SIO: encoder read to DAC write, last tick
+        ("latency_max_ns", "<i8"),
+        ("latency_hist", "<u4", (HIST_BINS,)),  # SIO: sensor-to-DAC latency histogram
+        ("sv_exec_last_ns", "<i8", (MAX_SV,)),  # SV k: time from feed to its last servo done
+        ("sv_exec_max_ns", "<i8", (MAX_SV,)),
+        ("sv_servos", "<u8", (MAX_SV,)),  # SV k: servos it has run
     ],
     align=True,
 )

@@ -32,6 +32,7 @@ from ``MASS_RAW``/``INERTIA_RAW`` in exactly two places:
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Final
 
@@ -170,3 +171,15 @@ MAX_JOINT_SPEED: Final[FloatArray] = _ro(BUS_VOLTAGE / KT / np.abs(G))  # rad/s
 
 GRAVITY_QZ: Final[FloatArray] = _ro([0.0, 37.48, 0.249, 0.0, 0.0, 0.0])  # N·m
 GRAVITY_QN: Final[FloatArray] = _ro([0.0, 31.64, 6.04, 0.0, 0.028, 0.0])  # N·m
+
+
+def index_phases(seed: int, robot: int) -> FloatArray:
+    """Motor angle (rad, 0 .. 2π) of each joint's encoder index pulse: the arm's calibration
+    sheet (thesis 3.5.1, C.3), measured once with an external reference.
+
+    The simulated cell builds arm ``robot`` to this sheet (``plant.seed`` in the config names
+    the cell) and the driver calibrates against it, as RCCL did with its tables.  Index
+    pulses sit at joint angles ``(phase + 2π k) / G``.
+    """
+    rng = np.random.default_rng([seed, robot])
+    return rng.uniform(0.0, 2.0 * math.pi, size=NJOINTS)

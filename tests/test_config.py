@@ -94,6 +94,8 @@ def test_default_file_loads_to_expected_objects() -> None:
         robots=EXPECTED_ROBOTS,
         source=str(DEFAULT_PATH),
         text=DEFAULT_TEXT,
+        plugins=("../scripts/servo_plugin_example.py",),
+        base_dir=str(DEFAULT_PATH.parent),
     )
     assert isinstance(cfg.startup_timeout_s, float)  # the YAML says 60: int accepted as float
     assert isinstance(cfg.robots[0].base_yaw_deg, float)
@@ -101,7 +103,7 @@ def test_default_file_loads_to_expected_objects() -> None:
 
 def test_default_file_round_trips_through_its_text() -> None:
     cfg = load_config(DEFAULT_PATH)
-    assert parse_config(cfg.text, cfg.source) == cfg
+    assert parse_config(cfg.text, cfg.source, cfg.base_dir) == cfg
 
 
 def test_default_file_loads_on_this_machine(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -114,7 +116,9 @@ def test_default_file_loads_on_this_machine(monkeypatch: pytest.MonkeyPatch) -> 
 def test_optional_sections_default_to_the_default_file() -> None:
     minimal = parse_config("version: 1\ninstance: default\n")
     full = parse_config(DEFAULT_TEXT)
-    assert dataclasses.replace(minimal, text="") == dataclasses.replace(full, text="")
+    # the default file names the example servo plugin; without the section there are none
+    assert full.plugins == ("../scripts/servo_plugin_example.py",) and minimal.plugins == ()
+    assert dataclasses.replace(minimal, text="") == dataclasses.replace(full, text="", plugins=())
 
 
 def test_process_entries_default_per_kind() -> None:

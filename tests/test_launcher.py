@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons import launcher
+from kali_daemons import launcher, layout
 from kali_daemons.errors import InstanceError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import FaultCode, RunMode
@@ -70,7 +70,8 @@ def test_start_status_mem_stop_from_the_command_line(tmp_path: Path) -> None:
 def test_segment_and_semaphores_are_owner_only(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True)
     objs = launcher.shm_objects(name)
-    assert len(objs) == 1 + 32 + 2  # segment, a semaphore per slot, cmd and ack
+    # segment, a semaphore per slot, cmd, ack and done, a feed semaphore per possible SV
+    assert len(objs) == 1 + 32 + 3 + layout.MAX_SV
     for path in objs:
         assert stat.S_IMODE(os.stat(path).st_mode) == 0o600, path
 

@@ -16,8 +16,6 @@ in-process and the plant daemon calls ``cycle`` from its loop.  One cycle:
 
 from __future__ import annotations
 
-import math
-
 import mujoco
 import numpy as np
 
@@ -31,12 +29,6 @@ from .motor import MotorBank
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
 INITIAL_POSE = np.asarray(puma560.QN, dtype=np.float64)  # where the arms are at power-on
-
-
-def index_phases(seed: int, robot: int) -> np.ndarray:
-    """Motor angle (rad) of each joint's index pulse: fixed per arm, seeded from the config."""
-    rng = np.random.default_rng([seed, robot])
-    return rng.uniform(0.0, 2.0 * math.pi, size=6)
 
 
 class PlantSim:
@@ -82,7 +74,7 @@ class PlantSim:
         self.dac["code"] = layout.DAC_ZERO
         self.truth = arena.record(layout.KEY_TRUTHS, layout.ARM_TRUTH, n_arms)
         self.boards = [IoBoardSim(self.regs[k : k + 1].reshape(()), pc) for k in range(n_arms)]
-        phases = np.concatenate([index_phases(pc.seed, k) for k in range(n_arms)])
+        phases = np.concatenate([puma560.index_phases(pc.seed, k) for k in range(n_arms)])
         self.encoders = EncoderBank(self.regs, phases, self.motor_angle)
         self._codes = self.dac["code"][:, :6]
         self._volts_arms = self.volts.reshape(n_arms, 6)

@@ -1,0 +1,397 @@
+"""The servo programming interface (thesis 3.4, DESIGN 4): what a servo algorithm declares,
+how its private data is viewed in shared memory, and the registry of algorithms by name.
+
+An algorithm is a ``ServoAlgorithm``: a name, the structured dtype of its private data (one
+record per joint lives in the arena, so any SV can run any joint, 3.3.4), and plain functions
+over that record.  Those functions never see numpy: ``struct_view`` maps the record onto a
+ctypes ``Structure`` in place, and ``data.kp`` / ``data.integral += ...`` on it costs about a
+tenth of a numpy field access, which matters at 1-2 kHz.
+
+Which function runs where:
+
+- ``step(data, demand, position) -> (torque, error, status)``: inside the servo cycle, once
+  per tick per joint.  Python floats and the struct only: no allocation beyond the float
+  results, no numpy, no I/O, no logging.
+- ``handover(data, Handover)``: inside the cycle, when the SV switches a joint to this
+  algorithm, just before the first ``step`` of the same tick.
+- ``init``, ``set_params``, ``get_params``: outside the cycle (configure, ``kalictl servo
+  set/get``, clients); they validate and may raise ``ConfigError``.
+
+The registry holds the built-ins first (``pid`` = 0, ``pd`` = 1, ``builtins.py``), then the
+plugins named in the config, in order.  A plugin is a Python file or module defining
+``register(registry)``, which calls ``registry.register(ServoAlgorithm(...))``;
+``scripts/servo_plugin_example.py`` is one to copy.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import importlib
+import importlib.util
+import math
+import re
+import sys
+import zlib
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from .. import layout
+from ..errors import ConfigError
+
+STATUS_OK = 0  # what ``step`` returns when all is well
+MAX_DATA_BYTES = layout.SERVO_STAGING_BYTES  # private data must fit the put/get mailbox
+NUMERIC_KINDS = "biuf"  # bool, signed and unsigned integers, floats: what ctypes maps
+_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,31}")
+_CALLABLES = ("init", "step", "handover", "set_params", "get_params")
+
+
+class Handover(NamedTuple):
+    """The state of a joint when a servo takes it over (bumpless transfer).
+
+    The SV fills it from the joint's slot at the tick of the switch: this tick's measurement
+    and demand, and what the previous servo did last.
+    """
+
+    position: float  # rad, measured this tick
+    velocity: float  # rad/s, measured this tick
+    demand: float  # rad, this tick's position demand
+    error: float  # rad, the previous servo's last error
+    torque: float  # N·m, the previous servo's last output
+
+
+@dataclass(frozen=True)
+class ServoAlgorithm:
+    """One servo algorithm as the SV runs it (thesis 3.4: the servo function, its private
+    data structure, its init function, and the get/put helpers for on-line changes).
+
+    ``data`` below is the ``struct_view`` of one joint's record of ``dtype``.
+    """
+
+    name: str  # registry name, e.g. "pid"; lower case, digits, '_', at most 32 characters
+    dtype: np.dtype  # private data: an aligned structured dtype of numeric scalars
+    params: tuple[str, ...]  # parameter names accepted by init/set_params, returned by get_params
+    # init(data, init_data, sample_interval_s): parameters from init_data (missing keys: the
+    # algorithm's defaults), precomputed terms, and state reset.  Outside the cycle.
+    init: Callable[[Any, Mapping[str, float], float], None]
+    # step(data, demand, position) -> (torque N·m, error rad, status, 0 = ok).  In the cycle.
+    step: Callable[[Any, float, float], tuple[float, float, int]]
+    # handover(data, h): set the state so the next step continues from h.torque.  In the cycle.
+    handover: Callable[[Any, Handover], None]
+    # set_params(data, values): change some parameters, keep the state.  Outside the cycle.
+    set_params: Callable[[Any, Mapping[str, float]], None]
+    # get_params(data) -> every parameter's current value.  Outside the cycle.
+    get_params: Callable[[Any], dict[str, float]]
+    doc: str = ""
+
+
+# ------------------------------------------------------------------------------ parameters
+
+
+class Param(NamedTuple):
+    """A parameter declared once: name, default, unit, one line of doc, and its lower bound.
+
+    ``minimum`` is inclusive unless ``positive`` (then the value must be strictly above it).
+    Used by the built-ins and available to plugins through ``resolve_params``.
+    """
+
+    name: str
+    default: float
+    unit: str
+    doc: str
+    minimum: float = 0.0
+    positive: bool = False
+
+
+def resolve_params(
+    algo: str, specs: Sequence[Param], values: Mapping[str, float], base: Mapping[str, float]
+) -> dict[str, float]:
+    """``base`` (every parameter) updated with ``values``, checked against ``specs``.
+
+    Outside the cycle.  ConfigError names the algorithm, the parameter, the value and the
+    bound, or the unknown key with the known ones.
+    """
+    known = {p.name: p for p in specs}
+    out = dict(base)
+    for key, raw in values.items():
+        spec = known.get(key)
+        if spec is None:
+            raise ConfigError(
+                f"servo {algo}: unknown parameter {key!r}; parameters: {', '.join(known)}"
+            )
+        try:
+            value = float(raw)
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"servo {algo}: parameter {key} = {raw!r} is not a number ({spec.unit})"
+            ) from None
+        if not math.isfinite(value):
+            raise ConfigError(f"servo {algo}: parameter {key} = {value} must be finite")
+        if value < spec.minimum or (spec.positive and value == spec.minimum):
+            bound = f"> {spec.minimum:g}" if spec.positive else f">= {spec.minimum:g}"
+            raise ConfigError(
+                f"servo {algo}: parameter {key} = {value:g} {spec.unit} must be {bound}"
+            )
+        out[key] = value
+    return out
+
+
+def defaults(specs: Sequence[Param]) -> dict[str, float]:
+    """Every parameter at its declared default."""
+    return {p.name: p.default for p in specs}
+
+
+# ------------------------------------------------------------------------------ private data
+
+
+@functools.cache
+def struct_type(dtype: np.dtype) -> type[ctypes.Structure]:
+    """The ctypes ``Structure`` class laid out exactly like ``dtype`` (cached per dtype)."""
+    struct = np.ctypeslib.as_ctypes_type(dtype)
+    assert ctypes.sizeof(struct) == dtype.itemsize, (dtype, ctypes.sizeof(struct))
+    return struct
+
+
+def struct_view(record: np.ndarray) -> Any:
+    """A ctypes ``Structure`` over ``record`` (a writable 0-d or 1-element array of a
+    structured dtype, e.g. an arena block), without copying: writes through either one are
+    seen by the other.  The structure keeps the record's buffer alive.  Outside the cycle.
+    """
+    if record.dtype.fields is None:
+        raise TypeError(f"struct_view needs a structured record, got dtype {record.dtype}")
+    if record.size != 1:
+        raise ValueError(f"struct_view needs one record, got an array of shape {record.shape}")
+    if not record.flags.writeable or not record.flags.c_contiguous:
+        raise ValueError("struct_view needs a writable, contiguous record")
+    return struct_type(record.dtype).from_buffer(record)
+
+
+def check_dtype(dtype: Any) -> str | None:
+    """What is wrong with ``dtype`` as a servo's private data, or None if it is fine."""
+    if not isinstance(dtype, np.dtype):
+        return f"dtype {dtype!r} is a {type(dtype).__name__}, not a numpy dtype (use np.dtype)"
+    dt = dtype
+    if dt.fields is None:
+        return f"dtype {dt} is not a structured dtype (give named fields)"
+    if not dt.isalignedstruct:
+        return f"dtype {dt} is not aligned (build it with np.dtype([...], align=True))"
+    for field, (ft, _offset, *_title) in dt.fields.items():
+        if ft.subdtype is not None or ft.kind not in NUMERIC_KINDS or not ft.isnative:
+            return (
+                f"dtype field {field!r} has type {ft.str}; only native-endian numeric scalars "
+                f"(bool, int, uint, float) are allowed"
+            )
+        if ft.itemsize > 8:
+            return f"dtype field {field!r} has type {ft.str}; at most 8 bytes per field"
+    if dt.itemsize > MAX_DATA_BYTES:
+        return (
+            f"private data is {dt.itemsize} B, at most {MAX_DATA_BYTES} B "
+            f"(the put/get mailbox, layout.SERVO_STAGING_BYTES)"
+        )
+    try:
+        struct_type(dt)
+    except (NotImplementedError, TypeError, ValueError) as exc:
+        return f"dtype {dt} has no ctypes equivalent ({exc})"
+    return None
+
+
+# ------------------------------------------------------------------------------ registry
+
+
+class Registry:
+    """Servo algorithms by index and name: built-ins first (``pid`` 0, ``pd`` 1), then
+    plugins in the order loaded.  The index is what the arena's servo slots store.
+
+    Built outside the cycle (``registry_for``); afterwards read-only.
+    """
+
+    def __init__(self, builtins: bool = True) -> None:
+        self._algos: list[ServoAlgorithm] = []
+        self._by_name: dict[str, int] = {}
+        self._origin: dict[str, str] = {}
+        self._source = "builtins"
+        if builtins:
+            from . import builtins as _builtins  # here, not at the top: builtins imports us
+
+            _builtins.register(self)
+
+    # ---------------------------------------------------------------- lookup
+
+    def __len__(self) -> int:
+        return len(self._algos)
+
+    def __iter__(self) -> Iterator[ServoAlgorithm]:
+        return iter(self._algos)
+
+    def __getitem__(self, index: int) -> ServoAlgorithm:
+        """The algorithm at ``index`` (as stored in a servo slot); IndexError if none."""
+        if not 0 <= index < len(self._algos):
+            raise IndexError(f"servo algorithm index {index} outside 0..{len(self._algos) - 1}")
+        return self._algos[index]
+
+    def names(self) -> list[str]:
+        """Every algorithm's name, in index order."""
+        return [a.name for a in self._algos]
+
+    def index(self, name: str) -> int:
+        """The index of the algorithm called ``name``; ConfigError listing the known names."""
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise ConfigError(
+                f"servo: no algorithm {name!r}; known: {', '.join(self.names())}"
+            ) from None
+
+    def by_name(self, name: str) -> ServoAlgorithm:
+        """The algorithm called ``name``; ConfigError listing the known names."""
+        return self._algos[self.index(name)]
+
+    def origin(self, name: str) -> str:
+        """Where the algorithm called ``name`` came from: "builtins" or the plugin spec."""
+        self.index(name)
+        return self._origin[name]
+
+    def max_itemsize(self) -> int:
+        """The largest private data record of any algorithm, bytes (sizes the arena)."""
+        return max((a.dtype.itemsize for a in self._algos), default=0)
+
+    # ---------------------------------------------------------------- registration
+
+    def register(self, algo: ServoAlgorithm) -> int:
+        """Add ``algo`` at the next index and return that index.
+
+        Called by a plugin's ``register(registry)``.  ConfigError, naming the plugin (or
+        builtins), the algorithm and the fault, if it is not a well-formed ServoAlgorithm.
+        """
+        where = f"plugin {self._source!r}" if self._source != "builtins" else "builtins"
+        if not isinstance(algo, ServoAlgorithm):
+            raise ConfigError(
+                f"{where}: register() was given a {type(algo).__name__}, not a ServoAlgorithm"
+            )
+        name = algo.name
+        if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+            raise ConfigError(
+                f"{where}: algorithm name {name!r} must be lower case letters, digits and '_', "
+                f"starting with a letter, at most 32 characters"
+            )
+        if name in self._by_name:
+            raise ConfigError(
+                f"{where}: algorithm name {name!r} is already registered by "
+                f"{self._origin[name]}; known: {', '.join(self.names())}"
+            )
+        fault = check_dtype(algo.dtype)
+        if fault is not None:
+            raise ConfigError(f"{where}: algorithm {name!r}: {fault}")
+        for attr in _CALLABLES:
+            value = getattr(algo, attr)
+            if not callable(value):
+                raise ConfigError(
+                    f"{where}: algorithm {name!r}: {attr} is {value!r}, not a callable"
+                )
+        params = algo.params
+        if not isinstance(params, tuple) or not all(isinstance(p, str) for p in params):
+            raise ConfigError(
+                f"{where}: algorithm {name!r}: params must be a tuple of names, got {params!r}"
+            )
+        if len(set(params)) != len(params):
+            raise ConfigError(f"{where}: algorithm {name!r}: params {params!r} repeat a name")
+        self._by_name[name] = len(self._algos)
+        self._origin[name] = where
+        self._algos.append(algo)
+        return self._by_name[name]
+
+    def load_plugin(self, spec: str, base_dir: Path | None = None) -> list[str]:
+        """Load the plugin ``spec`` and return the names it registered.
+
+        ``spec`` is a file path (``.py``, or containing '/'; relative to ``base_dir``, default
+        the current directory) or a dotted module name.  The module must define
+        ``register(registry)``.  Every fault is a ConfigError naming the plugin.
+        """
+        module = _import_plugin(spec, base_dir)
+        register = getattr(module, "register", None)
+        if register is None:
+            raise ConfigError(
+                f"plugin {spec!r}: defines no register(registry) function "
+                f"(module {module.__name__}, {getattr(module, '__file__', None)})"
+            )
+        if not callable(register):
+            raise ConfigError(f"plugin {spec!r}: register is {register!r}, not a function")
+        before = len(self._algos)
+        self._source = spec
+        try:
+            register(self)
+        except ConfigError:
+            del self._algos[before:]
+            self._rebuild_names()
+            raise
+        except Exception as exc:
+            del self._algos[before:]
+            self._rebuild_names()
+            raise ConfigError(
+                f"plugin {spec!r}: register() raised {type(exc).__name__}: {exc}"
+            ) from exc
+        finally:
+            self._source = "builtins"
+        added = [a.name for a in self._algos[before:]]
+        if not added:
+            raise ConfigError(f"plugin {spec!r}: register() registered no algorithm")
+        return added
+
+    def _rebuild_names(self) -> None:
+        """After dropping a failed plugin's algorithms: names and origins of the rest."""
+        self._by_name = {a.name: i for i, a in enumerate(self._algos)}
+        self._origin = {n: o for n, o in self._origin.items() if n in self._by_name}
+
+
+def _is_path(spec: str) -> bool:
+    return spec.endswith(".py") or "/" in spec
+
+
+def _import_plugin(spec: str, base_dir: Path | None) -> Any:
+    """Import a plugin file or module; ConfigError for a missing file or a failed import."""
+    if not _is_path(spec):
+        if not all(part.isidentifier() for part in spec.split(".")):
+            raise ConfigError(
+                f"plugin {spec!r}: neither a file path (ending in .py) nor a dotted module name"
+            )
+        try:
+            return importlib.import_module(spec)
+        except Exception as exc:
+            raise ConfigError(
+                f"plugin {spec!r}: import failed: {type(exc).__name__}: {exc}"
+            ) from exc
+    path = Path(spec)
+    if not path.is_absolute():
+        path = (base_dir or Path.cwd()) / path
+    path = path.resolve()
+    if not path.is_file():
+        raise ConfigError(f"plugin {spec!r}: file {path} does not exist")
+    # One module per file, named after its path, so two plugins may share a file name.
+    stem = re.sub(r"\W", "_", path.stem)
+    mod_name = f"kali_servo_plugin_{stem}_{zlib.crc32(str(path).encode()):08x}"
+    module_spec = importlib.util.spec_from_file_location(mod_name, path)
+    if module_spec is None or module_spec.loader is None:
+        raise ConfigError(f"plugin {spec!r}: {path} cannot be imported as a Python file")
+    module = importlib.util.module_from_spec(module_spec)
+    sys.modules[mod_name] = module  # dataclasses and pickling look modules up here
+    try:
+        module_spec.loader.exec_module(module)
+    except Exception as exc:
+        del sys.modules[mod_name]
+        raise ConfigError(
+            f"plugin {spec!r}: import of {path} failed: {type(exc).__name__}: {exc}"
+        ) from exc
+    return module
+
+
+def registry_for(plugins: Sequence[str], base_dir: Path | str | None = None) -> Registry:
+    """The built-ins plus ``plugins`` (the config's ``plugins`` list), in order."""
+    registry = Registry()
+    base = None if base_dir is None else Path(base_dir)
+    for spec in plugins:
+        registry.load_plugin(spec, base)
+    return registry
