@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from collections.abc import Callable
 from functools import wraps
 from pathlib import Path
@@ -21,8 +22,9 @@ import click
 from . import launcher
 from .config import load_config
 from .errors import KaliError
-from .instance import Instance
-from .layout import FaultCode, RunMode
+from .instance import Instance, decode
+from .layout import FaultCode, PowerState, RunMode
+from .servolevel import ServoClient, ServoError
 from .wallclock import (
     set_control_rate,
     set_kali_clock,
@@ -290,13 +292,164 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
 @click.pass_context
 @_errors
 def reset(ctx: click.Context) -> None:
-    """Clear the active fault (then: kalictl clock start)."""
+    """Clear the active fault and restart the clock; power stays off until `kalictl enable`."""
     with _attach(ctx) as inst:
         text = inst.fault_text()
         if inst.clear_fault():
             click.echo(f"cleared: {text}")
         else:
             click.echo("no active fault")
+        if not inst.lockstep and int(inst.clock["mode"]) == RunMode.STOPPED:
+            start_kali_clock(inst)
+            click.echo(f"clock running from tick {int(inst.clock['tick'])}")
+        click.echo("power stays off until: kalictl enable")
+
+
+def _robots(client: ServoClient, robot: str | None) -> list[str]:
+    return [client.names[client.robot_index(robot)]] if robot else list(client.names)
+
+
+def _power(ctx: click.Context, robot: str | None, on: bool, timeout_s: float) -> None:
+    with _attach(ctx) as inst:
+        client = ServoClient(inst)
+        try:
+            names = _robots(client, robot)
+            for name in names:
+                client.power(name, on)
+            if inst.lockstep:
+                click.echo(
+                    f"{'enable' if on else 'disable'} requested: {', '.join(names)} "
+                    "(lockstep: step the clock)"
+                )
+                return
+            want = PowerState.ON if on else PowerState.OFF
+            deadline = time.monotonic() + timeout_s
+            while any(client.power_state(n) != want for n in names):
+                if time.monotonic() > deadline or inst.fault["active"]:
+                    states = ", ".join(
+                        f"{n}: {client.power_state(n).name} "
+                        f"({decode(client.level.robots[client.robot_index(n)]['message'])})"
+                        for n in names
+                    )
+                    why = inst.fault_text() or f"not {want.name} within {timeout_s:g} s"
+                    raise ServoError(f"power: {why}; {states}")
+                time.sleep(0.01)
+            click.echo(f"power {want.name.lower()}: {', '.join(names)}")
+        finally:
+            client.close()
+
+
+@main.command()
+@click.argument("robot", required=False)
+@click.pass_context
+@_errors
+def enable(ctx: click.Context, robot: str | None) -> None:
+    """Power ROBOT's amplifiers (default: every robot); the arm holds where it is."""
+    _power(ctx, robot, True, 2.0)
+
+
+@main.command()
+@click.argument("robot", required=False)
+@click.pass_context
+@_errors
+def disable(ctx: click.Context, robot: str | None) -> None:
+    """Cut ROBOT's amplifiers (default: every robot); the brakes follow."""
+    _power(ctx, robot, False, 2.0)
+
+
+@main.group()
+def servo() -> None:
+    """Servo algorithms per joint: list, select, set, get (thesis 3.4)."""
+
+
+@servo.command("list")
+@click.pass_context
+@_errors
+def servo_list(ctx: click.Context) -> None:
+    """The registered algorithms and every joint's active one."""
+    with _attach(ctx) as inst:
+        client = ServoClient(inst)
+        try:
+            for alg in client.level.registry:
+                click.echo(f"{alg.name:<12} {', '.join(alg.params)}")
+            click.echo("")
+            for k, name in enumerate(client.names):
+                r = client.level.robots[k]
+                joints = []
+                for j in range(1, 7):
+                    s = client.level.slot_structs[6 * k + j - 1]
+                    mark = "" if s.enabled else " (off)"
+                    joints.append(f"{j}:{client.active(name, j)}{mark}")
+                state = PowerState(int(r["power"])).name.lower()
+                click.echo(f"{name:<8} power {state:<9} " + "  ".join(joints))
+        finally:
+            client.close()
+
+
+@servo.command("select")
+@click.argument("robot")
+@click.argument("joint", type=int)
+@click.argument("algorithm")
+@click.pass_context
+@_errors
+def servo_select(ctx: click.Context, robot: str, joint: int, algorithm: str) -> None:
+    """Switch ROBOT's JOINT (1..6) to ALGORITHM, bumplessly, while it moves."""
+    with _attach(ctx) as inst:
+        client = ServoClient(inst)
+        try:
+            client.select(robot, joint, algorithm, wait=not inst.lockstep)
+            click.echo(f"{robot} joint {joint}: {algorithm}")
+        finally:
+            client.close()
+
+
+@servo.command("set")
+@click.argument("robot")
+@click.argument("joint", type=int)
+@click.argument("params", nargs=-1, required=True)
+@click.option("--servo", "algorithm", default=None, help="Algorithm (default: the active one).")
+@click.pass_context
+@_errors
+def servo_set(
+    ctx: click.Context, robot: str, joint: int, params: tuple[str, ...], algorithm: str | None
+) -> None:
+    """Set parameters on line: kalictl servo set left 2 kp=9000 ki=20000."""
+    values: dict[str, float] = {}
+    for item in params:
+        key, sep, value = item.partition("=")
+        try:
+            values[key] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ServoError(f"servo set: {item!r}, expected NAME=NUMBER (e.g. kp=9000)")
+    with _attach(ctx) as inst:
+        client = ServoClient(inst)
+        try:
+            client.set_params(robot, joint, values, algorithm, wait=not inst.lockstep)
+            shown = " ".join(f"{k}={v:g}" for k, v in values.items())
+            click.echo(f"{robot} joint {joint} {algorithm or client.active(robot, joint)}: {shown}")
+        finally:
+            client.close()
+
+
+@servo.command("get")
+@click.argument("robot")
+@click.argument("joint", type=int)
+@click.option("--servo", "algorithm", default=None, help="Algorithm (default: the active one).")
+@click.pass_context
+@_errors
+def servo_get(ctx: click.Context, robot: str, joint: int, algorithm: str | None) -> None:
+    """Print the parameters of ROBOT's JOINT servo."""
+    with _attach(ctx) as inst:
+        client = ServoClient(inst)
+        try:
+            name = algorithm or client.active(robot, joint)
+            params = client.get_params(robot, joint, name)
+            shown = " ".join(f"{k}={v:g}" for k, v in params.items())
+            click.echo(f"{robot} joint {joint} {name}: {shown}")
+        finally:
+            client.close()
 
 
 __all__ = ["main"]

@@ -36,35 +36,28 @@ CODES_PER_VOLT = layout.DAC_ZERO / puma560.DAC_VOLTS  # 204.8
 class Puma560Driver:
     """Conversions for ``n_arms`` PUMA 560s.
 
-    ``acc`` (int32 accumulated counts), ``prev`` (last raw reading) and ``offset`` (rad) are
-    given as views into the arena (SIO's robot records), so a restarted SIO resumes with the
-    same counts and calibration.
+    Its state, ``acc`` (int32 accumulated counts), ``prev`` (last raw readings) and ``offset``
+    (rad), is flat and private; ``load``/``store`` move it from/to the arena's per-robot
+    records so a restarted SIO resumes with the same counts and calibration.
     """
 
-    def __init__(
-        self,
-        n_arms: int,
-        acc: np.ndarray,
-        prev: np.ndarray,
-        offset: np.ndarray,
-        current_limit: np.ndarray | None = None,
-    ) -> None:
+    def __init__(self, n_arms: int, current_limit: np.ndarray | None = None) -> None:
         self.n_arms = n_arms
         n = self.n = 6 * n_arms
 
         def tile(values: np.ndarray) -> np.ndarray:
             return np.tile(np.asarray(values, dtype=np.float64), n_arms)
 
-        self.acc = acc.reshape(n)
-        self.prev = prev.reshape(n)
-        self.offset = offset.reshape(n)
+        self.acc = np.zeros(n, dtype=np.int32)
+        self.prev = np.zeros(n, dtype=np.int32)
+        self.offset = np.zeros(n)
         # counts per joint radian, signed: counts grow with the motor angle G·q
         self.counts_per_rad = tile(puma560.COUNTS_PER_MOTOR_REV * puma560.G / (2.0 * math.pi))
         self.rad_per_count = 1.0 / self.counts_per_rad
         self.q_min = tile(puma560.Q_MIN)
         self.q_max = tile(puma560.Q_MAX)
         self.gkt = tile(puma560.G * puma560.KT)  # joint N·m per motor A
-        limit = puma560.MAX_CURRENT if current_limit is None else current_limit
+        limit = tile(puma560.MAX_CURRENT) if current_limit is None else current_limit
         self.current_limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), (n,)).copy()
         self.torque_limit = self.current_limit * np.abs(self.gkt)  # N·m at the joint
         self.index_spacing = tile(2.0 * math.pi / np.abs(puma560.G))  # rad between index pulses
@@ -72,11 +65,25 @@ class Puma560Driver:
         self._delta = np.zeros(n, dtype=np.int32)
         self._f = np.zeros(n)
 
+    # ------------------------------------------------------------------ state
+
+    def load(self, acc: np.ndarray, prev: np.ndarray, offset: np.ndarray) -> None:
+        """Take the state from ``(n_arms, 6)`` views (outside the cycle)."""
+        np.copyto(self.acc.reshape(self.n_arms, 6), acc)
+        np.copyto(self.prev.reshape(self.n_arms, 6), prev)
+        np.copyto(self.offset.reshape(self.n_arms, 6), offset)
+
+    def store(self, acc: np.ndarray, prev: np.ndarray, offset: np.ndarray) -> None:
+        """Publish the state into ``(n_arms, 6)`` views; safe inside the cycle."""
+        np.copyto(acc, self.acc.reshape(self.n_arms, 6))
+        np.copyto(prev, self.prev.reshape(self.n_arms, 6))
+        np.copyto(offset, self.offset.reshape(self.n_arms, 6))
+
     # ------------------------------------------------------------------ encoders → radians
 
     def start(self, raw: np.ndarray) -> None:
-        """Take ``raw`` (``(n_arms, 6)`` counter readings) as the reference: no motion yet."""
-        np.copyto(self.prev, raw.reshape(self.n), casting="unsafe")
+        """Take ``raw`` (``(n_arms, ≥6)`` counter readings) as the reference: no motion yet."""
+        np.copyto(self.prev.reshape(self.n_arms, 6), raw[:, :6], casting="unsafe")
 
     def read(self, raw: np.ndarray, q: np.ndarray) -> None:
         """Accumulate the counter readings ``raw`` (``(n_arms, ≥6)`` uint16 view, low 12 bits)
@@ -128,7 +135,8 @@ class Puma560Driver:
         np.multiply(current, CODES_PER_VOLT / puma560.AMP_GAIN_A_PER_V, out=out)
         np.add(out, layout.DAC_ZERO, out=out)
         np.rint(out, out=out)
-        np.clip(out, 0, DAC_MAX, out=out)
+        np.maximum(out, 0, out=out)
+        np.minimum(out, DAC_MAX, out=out)
 
     def zero(self, codes: np.ndarray) -> None:
         """Every DAC channel to 0 V (codes view ``(n_arms, ≥6)``)."""

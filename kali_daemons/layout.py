@@ -448,6 +448,7 @@ class SlotOp(enum.IntEnum):
     PUT = 1  # copy the staging bytes into the private data of algorithm ``op_algo``
     GET = 2  # copy the private data of ``op_algo`` into the staging bytes
     SELECT = 3  # make ``op_algo`` the joint's servo, handing over its state (bumpless)
+    PARAMS = 4  # set parameters of ``op_algo`` from float64 staging values (NaN = unchanged)
 
 
 SLOT_NOT_FED = 0xFFFFFFFF  # ``busy`` of a slot SIO did not feed this tick

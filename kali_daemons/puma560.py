@@ -183,3 +183,17 @@ def index_phases(seed: int, robot: int) -> FloatArray:
     """
     rng = np.random.default_rng([seed, robot])
     return rng.uniform(0.0, 2.0 * math.pi, size=NJOINTS)
+
+
+# --------------------------------------------------------------------------------------------
+# Default gains of the built-in servos (kali_daemons.servo, thesis 3.4 and figure 3.4): the
+# init data the SV gives each joint's PID and PD.  Joint side: torque in N·m at the joint,
+# angles in rad at the joint.  TUNING IN PROGRESS.
+
+PID_DEFAULTS: Final[tuple[dict[str, float], ...]] = tuple(
+    {"kp": 1000.0, "ki": 5000.0, "kv": 30.0, "integration_band": 0.05, "integration_reset": 60.0}
+    for _ in range(NJOINTS)
+)
+PD_DEFAULTS: Final[tuple[dict[str, float], ...]] = tuple(
+    {"kp": 1000.0, "kv": 30.0} for _ in range(NJOINTS)
+)

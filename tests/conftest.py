@@ -29,7 +29,7 @@ def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfi
     for pattern, repl in (edits or {}).items():
         text, n = re.subn(pattern, repl, text, flags=re.M)
         assert n, f"config edit {pattern!r} matched nothing"
-    return parse_config(text, source=f"<test {instance}>")
+    return parse_config(text, f"<test {instance}>", str(ROOT / "config"))
 
 
 def leftovers(instance: str) -> tuple[list[str], list[int]]:

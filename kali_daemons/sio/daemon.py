@@ -1,18 +1,402 @@
-"""Servo I/O (thesis 3.3.3): encoders to angles, checks, set-point interpolation, feeds the servos,
-torques to the DAC.
+"""Servo I/O (thesis 3.3.3, 3.3.5, figure 3.2): the servo level's bottleneck, once per servo
+tick.
+
+(a) Read every encoder through the robot driver (counts → radians) and estimate velocities.
+(b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
+    the arm is while it is not powered — check joint range and tracking error, and feed the
+    servo slots: demand, position and velocity in, then ``busy`` cleared so the SVs can
+    claim them, then one post per SV on its feed semaphore.
+(c) Sleep until the SV finishing the last slot posts the done semaphore, add feed-forward,
+    convert torques to motor currents and DAC codes (the current check), drive the power
+    switch and retrigger the watchdog on each board.
+
+Range, runaway (tracking error beyond ``safe``), a current demand beyond the motor's limit for
+``current_fault_ms``, amplifiers dropping out, and servo slots not done within the serious
+tolerance each halt the system: ``raise_fault`` cuts every amplifier through its board, the
+wall clock stops, and the fault names the robot, joint, value and limit (DESIGN 7).
+
+At start SIO reads each joint's potentiometer through the board's ADC (C.5) so angles are
+right to a fraction of a degree before calibration (3.5.1) refines them.
 """
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+import posix_ipc
+
+from .. import layout, rt
 from ..daemon import Daemon
+from ..driver import Puma560Driver
+from ..errors import DaemonError
+from ..layout import (
+    ADC_DONE,
+    ADC_START,
+    CSR_ENABLE,
+    CSR_INDEX_OFF,
+    CSR_NO_DISABLE,
+    CSR_RETRIGGER,
+    CSR_TIMEOUT_ON,
+    POWER_AMPS_ON,
+    POWER_BRAKES_RELEASED,
+    FaultCode,
+    PowerCmd,
+    PowerState,
+)
+from ..servolevel import ServoLevel
+
+BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
+ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms, C.5.1)
+POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
+RETRIGGER_HALF_MS = 2.0  # watchdog pulse: high this long, then low (well inside 20 ms)
+BASE_CSR = CSR_NO_DISABLE | CSR_TIMEOUT_ON | CSR_INDEX_OFF
 
 
 class ServoIO(Daemon):
-    """Issue: servo level fills this in; for now SIO registers at the servo period and acknowledges
-    every tick.
-    """
+    """SIO: encoders in, servos fed, torques out, every safety check of the servo level."""
 
     kind = "sio"
 
+    # ------------------------------------------------------------------ set-up
+
+    def on_configure(self) -> None:
+        """Lay out the servo level, attach to the boards and build the driver."""
+        inst = self.inst
+        cfg = inst.config
+        deadline = rt.monotonic_ns() + int(BOARD_WAIT_S * 1e9)
+        while inst.arena.lookup(layout.KEY_DACS) is None:
+            if rt.monotonic_ns() > deadline:
+                raise DaemonError(f"{self.name}: no board registers (is the plant running?)")
+            rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
+        self.boards = inst.boards()
+        self.dacs = inst.dacs()
+        lv = self.level = ServoLevel(inst, create=True)
+        ctrl = lv.ctrl
+        first = not int(ctrl["ready"])
+        if first:
+            lv.initialise()
+        nr, n = lv.n_robots, lv.n
+        rs = lv.robots
+        self.driver = Puma560Driver(nr)
+        self._driver_state = (rs["acc"], rs["prev"], rs["offset"])
+        if not first:
+            self.driver.load(*self._driver_state)
+        self.fifos = [lv.fifo(k) for k in range(nr)]
+        self.period_ticks_servo = self.period_ticks
+        period_s = lv.servo_period_s
+        self.rate = 1.0 / period_s
+        ms = cfg.clock.servo_period_ms
+        self.hold_ticks = max(1, math.ceil(ENABLE_HOLD_MS / ms))
+        self.power_timeout_ticks = math.ceil(POWER_ON_TIMEOUT_MS / ms)
+        self.retrigger_ticks = max(1, math.ceil(RETRIGGER_HALF_MS / ms))
+        self.current_ticks = np.array(
+            [max(1, math.ceil(r.current_fault_ms / ms)) for r in cfg.robots for _ in range(6)]
+        )
+        sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
+        ctrl["sv_count"] = len(sv_names)
+        self.feeds = [inst.feed_semaphore(k) for k in range(len(sv_names))]
+        self.done_sem = inst.done_semaphore()
+        self.wait_s = (
+            cfg.clock.lockstep_ack_timeout_s
+            if inst.lockstep
+            else cfg.clock.serious_miss_tolerance_ms / 1000.0
+        )
+        # private, preallocated arrays: flat over all joints (robot k joint j at 6 k + j)
+        self.q = np.zeros(n)
+        self.q_prev = np.zeros(n)
+        self.qd = np.zeros(n)
+        self.demand = np.zeros(n)
+        self.torque = np.zeros(n)
+        self.servo_torque = np.zeros(n)
+        self.current = np.zeros(n)
+        self.clamped = np.zeros(n, dtype=bool)
+        self.fed_mask = np.zeros(n, dtype=bool)
+        self.fed_f = np.zeros(n)
+        self.busy_src = np.full(n, layout.SLOT_NOT_FED, dtype=np.uint32)
+        self.over = np.zeros(n, dtype=np.int64)
+        self.err = np.zeros(n)
+        self.bad = np.zeros(n, dtype=bool)
+        self.ff = np.zeros(n)
+        self._encoders = self.boards["encoder"]
+        self._codes = self.dacs["code"]
+        self._slot_demand = lv.slots["demand"]
+        self._slot_position = lv.slots["position"]
+        self._slot_velocity = lv.slots["velocity"]
+        self._slot_torque = lv.slots["torque"]
+        self._slot_busy = lv.slots["busy"]
+        self._slot_reset = lv.slots["reset"]
+        self._q_min = self.driver.q_min
+        self._q_max = self.driver.q_max
+        self._fault_active = inst.fault["active"]
+        self._pub = [
+            (rs[f], src.reshape(nr, 6))
+            for f, src in (
+                ("q", self.q),
+                ("qd", self.qd),
+                ("demand", self.demand),
+                ("servo_torque", self.servo_torque),
+                ("ff_torque", self.ff),
+                ("torque", self.torque),
+                ("current", self.current),
+            )
+        ]
+        self._hist = ctrl["latency_hist"]
+        self._pot_channel = [0] * nr
+        self._pot_codes = [[0] * 6 for _ in range(nr)]
+        self._waiting_done = [False] * nr
+        if first:
+            self.driver.start(self._encoders)
+            for k in range(nr):
+                self.boards[k]["csr"] = BASE_CSR
+                self.boards[k]["adc_control"] = 0
+        self.driver.angles(self.q)
+        self.q_prev[:] = self.q
+        for k in range(nr):
+            self.fifos[k].reset(self.q[6 * k : 6 * k + 6])
+        ctrl["ready"] = 1
+
+    # ------------------------------------------------------------------ the tick
+
     def cycle(self, tick: int) -> None:
-        """Inside the cycle: nothing yet beyond the base class's acknowledgement."""
+        """Inside the cycle: (a) sensors, (b) checks and feed, (c) torques out."""
+        lv = self.level
+        ctrl = lv.ctrl
+        t_read = rt.monotonic_ns()
+        faulted = bool(self._fault_active)
+        # (a) encoders → radians, velocity by backward difference
+        self.driver.read(self._encoders, self.q)
+        np.subtract(self.q, self.q_prev, out=self.qd)
+        np.multiply(self.qd, self.rate, out=self.qd)
+        np.copyto(self.q_prev, self.q)
+        # (b) per robot: power switch, demand, pots; then the checks
+        self.fed_mask[:] = False
+        for k in range(lv.n_robots):
+            self._robot(k, tick, faulted)
+        if not faulted and self._checks(tick):
+            faulted = True
+            self.fed_mask[:] = False
+        # feed the slots that servo this tick
+        np.copyto(self._slot_demand, self.demand)
+        np.copyto(self._slot_position, self.q)
+        np.copyto(self._slot_velocity, self.qd)
+        fed = int(np.count_nonzero(self.fed_mask))
+        ctrl["tick"] = tick
+        ctrl["fed"] = fed
+        ctrl["done"] = 0
+        self.busy_src.fill(layout.SLOT_NOT_FED)
+        np.copyto(self.busy_src, 0, where=self.fed_mask)
+        np.copyto(self._slot_busy, self.busy_src)  # published last: the SVs may claim now
+        for sem in self.feeds:
+            sem.release()
+        # (c) wait for the servos, then torques out
+        if fed and not self._wait_done(tick, fed):
+            self.fed_mask[:] = False
+        np.copyto(self.servo_torque, self._slot_torque)
+        np.copyto(self.fed_f, self.fed_mask)
+        np.multiply(self.servo_torque, self.fed_f, out=self.servo_torque)
+        np.multiply(self.ff, self.fed_f, out=self.ff)
+        np.add(self.servo_torque, self.ff, out=self.torque)
+        self.driver.output(self.torque, self.current, self._codes, self.clamped)
+        np.multiply(self.torque, self.fed_f, out=self.torque)
+        self._current_check(tick)
+        t_out = rt.monotonic_ns()
+        for k in range(lv.n_robots):
+            self._write_csr(k, tick)
+        for dst, src in self._pub:
+            np.copyto(dst, src)
+        self.driver.store(*self._driver_state)
+        lv.robots["tick"] = tick
+        late = t_out - t_read
+        ctrl["latency_last_ns"] = late
+        if late > ctrl["latency_max_ns"]:
+            ctrl["latency_max_ns"] = late
+        self._hist[layout.lateness_bin(late)] += 1
+
+    def _robot(self, k: int, tick: int, faulted: bool) -> None:
+        """Power switch, pots and this tick's demand of robot ``k``."""
+        r = self.level.robots[k]
+        sl = slice(6 * k, 6 * k + 6)
+        q, demand = self.q[sl], self.demand[sl]
+        if not int(r["pots_read"]):
+            self._read_pots(k)
+            np.copyto(demand, q)
+            return
+        state = int(r["power"])
+        cmd = int(r["power_cmd"])
+        if cmd:
+            r["power_cmd"] = PowerCmd.NONE
+        if faulted or cmd == PowerCmd.DISABLE:
+            if state != PowerState.OFF:
+                r["power"] = state = PowerState.OFF
+                r["message"] = b"power off" + (b" (halted)" if faulted else b"")
+        elif cmd == PowerCmd.ENABLE and state == PowerState.OFF:
+            r["power"] = state = PowerState.ENABLING
+            r["enable_ticks"] = 0
+            r["message"] = b"enabling"
+            self.fifos[k].reset(q)
+            self._slot_reset[sl] = 1  # every servo takes over at rest at its first run
+        power_bits = int(self.boards[k]["power"])
+        if state == PowerState.ENABLING:
+            n = int(r["enable_ticks"]) + 1
+            r["enable_ticks"] = n
+            if power_bits & POWER_AMPS_ON and power_bits & POWER_BRAKES_RELEASED:
+                r["power"] = state = PowerState.ON
+                r["message"] = b"on"
+            elif n > self.power_timeout_ticks:
+                r["power"] = state = PowerState.OFF
+                r["message"] = (
+                    f"power did not come on within {POWER_ON_TIMEOUT_MS:g} ms "
+                    f"(board power register 0x{power_bits:02x}: e-stop or watchdog?)"
+                ).encode()
+        elif state == PowerState.ON and not power_bits & POWER_AMPS_ON:
+            r["power"] = PowerState.OFF
+            self.inst.raise_fault(
+                FaultCode.POWER,
+                self.name,
+                f"robot '{self.level.names[k]}': amplifiers went off while servoing "
+                f"(board power register 0x{power_bits:02x})",
+            )
+            return
+        if state == PowerState.OFF:
+            self.fifos[k].reset(q)  # hold where the arm is: no jump when power comes on
+            np.copyto(demand, q)
+            return
+        self.fifos[k].pop_into(demand)
+        if power_bits & POWER_AMPS_ON:
+            self.fed_mask[sl] = True
+
+    def _read_pots(self, k: int) -> None:
+        """One step of reading robot ``k``'s six pots through the TLC532A (C.5)."""
+        regs = self.boards[k]
+        c = self._pot_channel[k]
+        if not self._waiting_done[k]:
+            regs["adc_control"] = ADC_START | c
+            self._waiting_done[k] = True
+            return
+        value = int(regs["adc_analog"])
+        if not value & ADC_DONE:
+            return  # not converted yet
+        self._pot_codes[k][c] = value & layout.ADC_VALUE_MASK
+        regs["adc_control"] = 0
+        self._waiting_done[k] = False
+        c += 1
+        self._pot_channel[k] = c
+        if c < 6:
+            return
+        for j in range(6):
+            i = 6 * k + j
+            self.driver.set_angle(i, self.driver.pot_angle(i, self._pot_codes[k][j]))
+        self.driver.angles(self.q)
+        self.q_prev[6 * k : 6 * k + 6] = self.q[6 * k : 6 * k + 6]
+        self.fifos[k].reset(self.q[6 * k : 6 * k + 6])
+        r = self.level.robots[k]
+        r["pots_read"] = 1
+        r["message"] = b"joint angles from the potentiometers (not calibrated)"
+
+    def _checks(self, tick: int) -> bool:
+        """Joint range and runaway on powered joints; True when it halted."""
+        lv = self.level
+        for k in range(lv.n_robots):
+            sl = slice(6 * k, 6 * k + 6)
+            if not self.fed_mask[6 * k]:
+                continue
+            r = lv.robots[k]
+            checks = r["range_check"]
+            q = self.q[sl]
+            for j in range(6):
+                if checks[j] and not self._q_min[j] <= q[j] <= self._q_max[j]:
+                    limit = self._q_max[j] if q[j] > self._q_max[j] else self._q_min[j]
+                    return self._halt(
+                        FaultCode.RANGE,
+                        tick,
+                        f"robot '{lv.names[k]}' joint {j + 1} at {math.degrees(q[j]):.2f}° is "
+                        f"beyond its limit {math.degrees(limit):.2f}°",
+                    )
+            np.subtract(self.demand[sl], q, out=self.err[sl])
+            np.abs(self.err[sl], out=self.err[sl])
+            np.greater(self.err[sl], r["safe"], out=self.bad[sl])
+            if self.bad[sl].any():
+                j = int(np.argmax(self.bad[sl]))
+                return self._halt(
+                    FaultCode.RUNAWAY,
+                    tick,
+                    f"robot '{lv.names[k]}' joint {j + 1}: tracking error "
+                    f"{float(self.demand[6 * k + j] - q[j]):+.4f} rad beyond safe "
+                    f"{float(r['safe'][j]):.4f} rad (runaway)",
+                )
+        return False
+
+    def _current_check(self, tick: int) -> None:
+        """A demand beyond the motor current limit for ``current_fault_ms`` halts."""
+        np.multiply(self.over, self.clamped, out=self.over)
+        np.add(self.over, self.clamped, out=self.over)
+        np.multiply(self.over, self.fed_mask, out=self.over)
+        if (self.over >= self.current_ticks).any():
+            i = int(np.argmax(self.over >= self.current_ticks))
+            lv = self.level
+            demand = float(self.servo_torque[i] + self.ff[i]) / float(self.driver.gkt[i])
+            self._halt(
+                FaultCode.CURRENT,
+                tick,
+                f"robot '{lv.names[i // 6]}' joint {i % 6 + 1}: motor current demand "
+                f"{demand:+.2f} A beyond its limit {float(self.driver.current_limit[i]):.2f} A "
+                f"for {int(self.over[i]) * lv.cfg.clock.servo_period_ms} ms",
+            )
+            self.over[:] = 0
+
+    def _halt(self, code: FaultCode, tick: int, message: str) -> bool:
+        """Raise a fault (power off through the boards, clock stops); DAC to zero."""
+        self.inst.raise_fault(code, self.name, message, tick=tick)
+        self.driver.zero(self._codes)
+        return True
+
+    def _wait_done(self, tick: int, fed: int) -> bool:
+        """Sleep until every fed slot ran; a serious fault names the ones that did not."""
+        ctrl = self.level.ctrl
+        while int(ctrl["done"]) < fed:
+            try:
+                self.done_sem.acquire(self.wait_s)
+            except posix_ipc.BusyError:
+                break
+        # drain a post that raced with the last check
+        while True:
+            try:
+                self.done_sem.acquire(0)
+            except posix_ipc.BusyError:
+                break
+        if int(ctrl["done"]) >= fed:
+            return True
+        lv = self.level
+        late = [
+            f"{lv.names[i // 6]} joint {i % 6 + 1}"
+            + (
+                " (unclaimed)"
+                if self._slot_busy[i] == 0
+                else f" (claimed by sv.{int(self._slot_busy[i]) - 1})"
+            )
+            for i in range(lv.n)
+            if self.fed_mask[i] and int(lv.slots["ran_tick"][i]) != tick
+        ]
+        self._halt(
+            FaultCode.DEADLINE,
+            tick,
+            f"servos not done {self.wait_s * 1000:g} ms after tick {tick}: {', '.join(late)}",
+        )
+        return False
+
+    def _write_csr(self, k: int, tick: int) -> None:
+        """Drive robot ``k``'s power switch and retrigger its watchdog (C.4, C.5.1)."""
+        r = self.level.robots[k]
+        csr = BASE_CSR
+        if int(self._fault_active):
+            csr &= ~CSR_NO_DISABLE
+        elif int(r["power"]) == PowerState.ENABLING and int(r["enable_ticks"]) <= self.hold_ticks:
+            csr |= CSR_ENABLE
+        if (tick // self.retrigger_ticks) % 2 == 0:
+            csr |= CSR_RETRIGGER
+        if int(r["power"]) == PowerState.OFF:
+            self._codes[k, :6] = layout.DAC_ZERO
+            if int(self.boards[k]["power"]) & POWER_AMPS_ON:
+                csr &= ~CSR_NO_DISABLE  # bit 7 low cuts the amplifiers (disable, C.5.1)
+        self.boards[k]["csr"] = csr

@@ -1,18 +1,152 @@
-"""Servo executor with dynamic loading (thesis 3.3.4, 3.3.5); N of them claim servo slots by test-
-and-set.
+"""Servo executor with dynamic loading (thesis 3.3.4, 3.3.5).
+
+Every SV is woken by the wall clock with SIO (the SVs are gang-scheduled), then sleeps on its
+feed semaphore until SIO has fed the slots.  It then walks the slots and claims each fed one
+by test-and-set of its ``busy`` word; whichever SV is free takes the next joint, so a costly
+servo simply takes more of the workers.  For a claimed slot it carries out a pending mailbox
+operation (put/get/select/params, 3.4), runs the joint's algorithm and stores torque, error
+and status.  The SV that finishes the tick's last slot posts SIO's done semaphore.
+
+A servo that raises, returns a bad status or a non-finite torque halts the system with a
+SERVO fault naming robot, joint and algorithm.  Waiting always sleeps (two cores: never spin
+a CPU without bound, DESIGN 10).
 """
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
+import posix_ipc
+
+from .. import atomic, layout, rt
 from ..daemon import Daemon
+from ..errors import DaemonError
+from ..layout import FaultCode, SlotOp
+from ..servo import Handover
+from ..servolevel import ServoLevel, apply_op
+
+READY_TIMEOUT_S = 30.0  # how long an SV waits at start for SIO to lay out the slots
 
 
 class ServoWorker(Daemon):
-    """Issue: servo level fills this in; for now each SV registers at the servo period and
-    acknowledges every tick.
-    """
+    """One SV: claims fed servo slots by test-and-set and runs them."""
 
     kind = "sv"
 
+    def on_configure(self) -> None:
+        """Attach to the slots SIO lays out; find this worker's number and feed semaphore."""
+        inst = self.inst
+        try:
+            self.index = int(self.name.split(".", 1)[1])
+        except (IndexError, ValueError):
+            raise DaemonError(f"{self.name}: an SV is named sv.<n>") from None
+        deadline = rt.monotonic_ns() + int(READY_TIMEOUT_S * 1e9)
+        while inst.arena.lookup(layout.KEY_SERVO_CTRL) is None or not int(
+            inst.arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)["ready"]
+        ):
+            if rt.monotonic_ns() > deadline:
+                raise DaemonError(f"{self.name}: SIO did not lay out the servo slots in time")
+            if inst.shutting_down:
+                return
+            rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
+        self.level = ServoLevel(inst)
+        self.me = self.index + 1  # the value this worker writes into a claimed busy word
+        self.feed = inst.feed_semaphore(self.index)
+        self.done_sem = inst.done_semaphore()
+        n = self.level.n
+        # claim order: worker k starts k/N of the way round, so workers rarely collide
+        count = max(1, int(self.level.ctrl["sv_count"]) or 1)
+        start = (self.index * n) // count
+        self.order = [(start + m) % n for m in range(n)]
+        self.busy = self.level.slots["busy"]
+        self.cas = atomic.CompareExchange32()
+        c = self.level.ctrl
+        self._fed = c["fed"]
+        self._tick = c["tick"]
+        self._exec_last = c["sv_exec_last_ns"][self.index : self.index + 1]
+        self._exec_max = c["sv_exec_max_ns"][self.index : self.index + 1]
+        self._servos = c["sv_servos"][self.index : self.index + 1]
+        lockstep = inst.lockstep
+        self.feed_timeout_s = (
+            inst.config.clock.lockstep_ack_timeout_s
+            if lockstep
+            else inst.config.clock.serious_miss_tolerance_ms / 1000.0
+        )
+
     def cycle(self, tick: int) -> None:
-        """Inside the cycle: nothing yet beyond the base class's acknowledgement."""
+        """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
+        try:
+            self.feed.acquire(self.feed_timeout_s)
+        except posix_ipc.BusyError:
+            return  # SIO did not feed this tick (halted, or itself late): nothing to run
+        lv = self.level
+        t0 = rt.monotonic_ns()
+        fed = int(self._fed)
+        if fed == 0:
+            return
+        cas = self.cas
+        busy, addr, structs, me = self.busy, lv.busy_addr, lv.slot_structs, self.me
+        tick_now = int(self._tick)
+        ran = 0
+        for i in self.order:
+            if busy[i] != 0:
+                continue  # not fed, or another worker has it
+            ok, _ = cas(addr[i], 0, me)
+            if not ok:
+                continue
+            self._run(i, structs[i], tick_now)
+            ran += 1
+            if atomic.fetch_add32(lv.done_addr, 1) + 1 == fed:
+                self.done_sem.release()  # the tick's last servo: wake SIO
+        if ran:
+            exe = rt.monotonic_ns() - t0
+            self._exec_last[0] = exe
+            if exe > self._exec_max[0]:
+                self._exec_max[0] = exe
+            self._servos[0] += ran
+
+    def _run(self, i: int, s: Any, tick: int) -> None:
+        """Run slot ``i``'s servo once (mailbox first, then a reset, then the step)."""
+        lv = self.level
+        op = s.op
+        if op != SlotOp.NONE:
+            apply_op(lv, i, op)
+            atomic.store32(lv.op_addr[i], SlotOp.NONE)
+        if s.reset:
+            a = int(s.algo)
+            pos = s.position
+            lv.registry[a].handover(lv.structs[i][a], Handover(pos, 0.0, pos, 0.0, 0.0))
+            s.torque = 0.0
+            s.reset = 0
+        if not s.enabled:
+            s.torque = 0.0
+            s.ran_tick = tick
+            return
+        a = s.algo
+        alg = lv.registry[a]
+        t0 = rt.monotonic_ns()
+        try:
+            torque, error, status = alg.step(lv.structs[i][a], s.demand, s.position)
+        except Exception as exc:  # the user's servo: halt and say which
+            self._servo_fault(i, alg.name, f"raised {type(exc).__name__}: {exc}")
+            return
+        s.exec_ns = rt.monotonic_ns() - t0
+        if status != 0 or not math.isfinite(torque):
+            self._servo_fault(i, alg.name, f"returned torque {torque!r} N·m, status {status!r}")
+            return
+        s.torque = torque
+        s.error = error
+        s.status = status
+        s.ran_tick = tick
+        s.sv = self.index
+
+    def _servo_fault(self, i: int, algo: str, what: str) -> None:
+        s = self.level.slot_structs[i]
+        s.torque = 0.0
+        robot = self.level.names[i // 6]
+        self.inst.raise_fault(
+            FaultCode.SERVO,
+            self.name,
+            f"servo '{algo}' on robot '{robot}' joint {i % 6 + 1} {what}",
+        )
