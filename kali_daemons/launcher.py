@@ -24,9 +24,10 @@ import posix_ipc
 from . import layout
 from .arena import Arena, segment_name, unlink_segment
 from .config import KaliConfig
-from .errors import ArenaError, InstanceError
+from .errors import ArenaError, ConfigError, InstanceError
 from .instance import Instance, all_semaphore_names, check_instance_name, decode
 from .layout import ProcState, RunMode
+from .servo import registry_for
 from .spinlock import pid_alive
 from .wallclock import start_kali_clock
 
@@ -196,6 +197,17 @@ class StartReport:
     log_dir: Path
 
 
+def _check_servos(cfg: KaliConfig) -> None:
+    """Load the servo plugins and look up every robot's servo before anything starts, so a
+    bad plugin or algorithm name is a ConfigError here, not a daemon failing at start-up."""
+    registry = registry_for(cfg.plugins, cfg.base_dir)
+    for robot in cfg.robots:
+        try:
+            registry.index(robot.servo)
+        except ConfigError as exc:
+            raise ConfigError(f"{cfg.source}: robot '{robot.name}' servo: {exc}") from None
+
+
 def start(cfg: KaliConfig, lockstep: bool = False, instance: str | None = None) -> StartReport:
     """Start every process of ``cfg``; returns when all are ACTIVE, else cleans up and raises.
 
@@ -204,6 +216,7 @@ def start(cfg: KaliConfig, lockstep: bool = False, instance: str | None = None) 
     """
     name = check_instance_name(instance or cfg.instance)
     t_start = time.monotonic()
+    _check_servos(cfg)
     stale: list[str] = []
     if shm_objects(name):
         running = instance_pids(name)

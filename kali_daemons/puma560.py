@@ -187,13 +187,49 @@ def index_phases(seed: int, robot: int) -> FloatArray:
 
 # --------------------------------------------------------------------------------------------
 # Default gains of the built-in servos (kali_daemons.servo, thesis 3.4 and figure 3.4): the
-# init data the SV gives each joint's PID and PD.  Joint side: torque in N·m at the joint,
-# angles in rad at the joint.  TUNING IN PROGRESS.
+# init data the SV gives each joint's PID and PD.  Joint side: torque N·m at the joint, angle
+# rad at the joint.  Tuned through the simulated plant at 1 kHz (tests/test_servo_algorithms):
+#
+# - kp = J·ωn² and kv = 2ζ·J·ωn − (the joint's viscous friction), with J the joint-side
+#   inertia at QN including the armature G²·Jm (3.66, 4.41, 0.94, 0.19, 0.17, 0.19 kg·m²),
+#   ωn = 50, 55, 60, 60, 60, 60 rad/s and ζ = 0.7: well inside the 50 Hz error filter and the
+#   25 Hz velocity filter, stable from QZ to QR;
+# - ki = 20 s⁻¹ · kp: the integral must push through Coulomb friction (|G|·Tc, 25 N·m on
+#   joint 1) and hold gravity (32 N·m on joint 2 at QN) from errors of a few encoder counts;
+# - integration_band 0.01 rad: the integral winds up only near the set-point, yet the band is
+#   2.5-3 times (gravity + friction) / kp of joints 1-3 (3-4 mrad): a joint stuck on friction
+#   or sagging outside the band would never integrate.  Halving kp needs a wider band;
+# - integration_reset: the largest gravity plus friction torque the joint must hold, N·m.
+#
+# Measured at QN: every joint holds its demand within ±1 encoder count 2 s after power-on
+# (joint 2 from 0.55 s, joint 3 from 0.82 s); a 0.02 rad step settles within 5 % in at most
+# 0.16 s with at most 10 % overshoot (0.4 s and 10 % at QZ, QR, QS); joints 1-2 saturate the
+# motor current for under 10 ms at the step.  Stable with every gain doubled.
 
-PID_DEFAULTS: Final[tuple[dict[str, float], ...]] = tuple(
-    {"kp": 1000.0, "ki": 5000.0, "kv": 30.0, "integration_band": 0.05, "integration_reset": 60.0}
-    for _ in range(NJOINTS)
+_PID_TABLE: Final = (  # per joint: kp, ki, kv, integration_band, integration_reset
+    (9000.0, 180000.0, 250.0, 0.010, 50.0),
+    (13000.0, 260000.0, 330.0, 0.010, 60.0),
+    (3400.0, 68000.0, 75.0, 0.010, 30.0),
+    (700.0, 14000.0, 16.0, 0.010, 5.0),
+    (600.0, 12000.0, 14.0, 0.010, 5.0),
+    (700.0, 14000.0, 16.0, 0.010, 5.0),
 )
+PID_DEFAULTS: Final[tuple[dict[str, float], ...]] = tuple(
+    {
+        "kp": kp,  # N·m/rad
+        "ki": ki,  # N·m/(rad·s)
+        "kv": kv,  # N·m·s/rad
+        "fe": 50.0,  # Hz, error filter (figure 3.4)
+        "fv": 25.0,  # Hz, velocity filter (figure 3.4)
+        "integration_band": band,  # rad
+        "integration_reset": reset,  # N·m
+        "bias_tau": 0.5,  # s, hand-over bias
+    }
+    for kp, ki, kv, band, reset in _PID_TABLE
+)
+
+# The PD: the PID's kp and kv without the integral, so it cannot hold a load without an
+# error (joint 2 at QN sags 2-3.5 mrad); the hand-over bias fades with bias_tau.
 PD_DEFAULTS: Final[tuple[dict[str, float], ...]] = tuple(
-    {"kp": 1000.0, "kv": 30.0} for _ in range(NJOINTS)
+    {"kp": g["kp"], "kv": g["kv"], "fv": g["fv"], "bias_tau": 0.5} for g in PID_DEFAULTS
 )

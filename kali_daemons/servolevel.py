@@ -170,7 +170,9 @@ class ServoClient:
         return int(self.inst.clock["mode"]) != layout.RunMode.STOPPED
 
     def _op(self, i: int, op: SlotOp, algo: int, payload: bytes | None, wait: bool) -> None:
-        """Post a mailbox operation on slot ``i``; with the clock stopped, carry it out here."""
+        """Post a mailbox operation on slot ``i`` for the SV.  With the clock stopped no SV
+        runs, so put/get/params are carried out here; a select waits for the next tick (the
+        hand-over needs that tick's measurement to be bumpless)."""
         lv = self.level
         lock = SpinLock(lv.lock_addr[i], f"servo slot {self._where(i)}")
         lock.acquire(OP_TIMEOUT_S)
@@ -180,12 +182,12 @@ class ServoClient:
                 lv.staging[i, : len(payload)] = np.frombuffer(payload, np.uint8)
             s = lv.slot_structs[i]
             s.op_algo = algo
-            if not self._clock_running():
-                apply_op(lv, i, int(op))
+            if not self._clock_running() and op != SlotOp.SELECT:
+                apply_op(lv, i, int(op))  # no SV runs while the clock is stopped
                 return
             done = int(s.ops_done)
             atomic.store32(lv.op_addr[i], int(op))  # published last: the SV acts on it
-            if wait:
+            if wait and self._clock_running():
                 self._wait_done(i, done)
         finally:
             lock.release()

@@ -26,6 +26,9 @@ def unique_name(prefix: str = "t") -> str:
 def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfig:
     """The default config for ``instance``, with regex substitutions ``pattern -> repl``."""
     text = re.sub(r"(?m)^instance: .*$", f"instance: {instance}", DEFAULT_TEXT)
+    # an absolute plugin path, so the text also works when a test writes it elsewhere
+    plugin = ROOT / "scripts" / "servo_plugin_example.py"
+    text = re.sub(r"(?m)^plugins: .*$", f"plugins: [{plugin}]", text)
     for pattern, repl in (edits or {}).items():
         text, n = re.subn(pattern, repl, text, flags=re.M)
         assert n, f"config edit {pattern!r} matched nothing"

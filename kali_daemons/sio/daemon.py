@@ -1,7 +1,8 @@
 """Servo I/O (thesis 3.3.3, 3.3.5, figure 3.2): the servo level's bottleneck, once per servo
 tick.
 
-(a) Read every encoder through the robot driver (counts → radians) and estimate velocities.
+(a) Read every encoder through the robot driver (counts → radians) and estimate velocities
+    (backward difference through a 25 Hz first-order low-pass, as the PID of figure 3.4).
 (b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
     the arm is while it is not powered — check joint range and tracking error, and feed the
     servo slots: demand, position and velocity in, then ``busy`` cleared so the SVs can
@@ -50,6 +51,7 @@ BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) r
 ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms, C.5.1)
 POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
 RETRIGGER_HALF_MS = 2.0  # watchdog pulse: high this long, then low (well inside 20 ms)
+VELOCITY_FILTER_HZ = 25.0  # low-pass on encoder velocities, as the PID's (figure 3.4)
 BASE_CSR = CSR_NO_DISABLE | CSR_TIMEOUT_ON | CSR_INDEX_OFF
 
 
@@ -106,6 +108,9 @@ class ServoIO(Daemon):
         self.q = np.zeros(n)
         self.q_prev = np.zeros(n)
         self.qd = np.zeros(n)
+        self.qd_raw = np.zeros(n)
+        a = period_s * 2.0 * math.pi * VELOCITY_FILTER_HZ
+        self.vel_a, self.vel_b = a, 1.0 / (1.0 + a)
         self.demand = np.zeros(n)
         self.torque = np.zeros(n)
         self.servo_torque = np.zeros(n)
@@ -129,6 +134,8 @@ class ServoIO(Daemon):
         self._q_min = self.driver.q_min
         self._q_max = self.driver.q_max
         self._fault_active = inst.fault["active"]
+        self._fault_count = inst.fault["count"]
+        self._faults_seen = int(self._fault_count)
         self._pub = [
             (rs[f], src.reshape(nr, 6))
             for f, src in (
@@ -164,10 +171,16 @@ class ServoIO(Daemon):
         ctrl = lv.ctrl
         t_read = rt.monotonic_ns()
         faulted = bool(self._fault_active)
+        count = int(self._fault_count)
+        if count != self._faults_seen:  # a halt since the last tick, maybe already cleared:
+            self._faults_seen = count  # power stays off until the operator enables it
+            faulted = True
         # (a) encoders → radians, velocity by backward difference
         self.driver.read(self._encoders, self.q)
-        np.subtract(self.q, self.q_prev, out=self.qd)
-        np.multiply(self.qd, self.rate, out=self.qd)
+        np.subtract(self.q, self.q_prev, out=self.qd_raw)
+        np.multiply(self.qd_raw, self.rate * self.vel_a, out=self.qd_raw)
+        np.add(self.qd, self.qd_raw, out=self.qd)  # qd = (a·raw + qd_prev) / (1 + a)
+        np.multiply(self.qd, self.vel_b, out=self.qd)
         np.copyto(self.q_prev, self.q)
         # (b) per robot: power switch, demand, pots; then the checks
         self.fed_mask[:] = False
@@ -226,11 +239,10 @@ class ServoIO(Daemon):
         cmd = int(r["power_cmd"])
         if cmd:
             r["power_cmd"] = PowerCmd.NONE
-        if faulted or cmd == PowerCmd.DISABLE:
-            if state != PowerState.OFF:
-                r["power"] = state = PowerState.OFF
-                r["message"] = b"power off" + (b" (halted)" if faulted else b"")
-        elif cmd == PowerCmd.ENABLE and state == PowerState.OFF:
+        if (faulted or cmd == PowerCmd.DISABLE) and state != PowerState.OFF:
+            r["power"] = state = PowerState.OFF
+            r["message"] = b"power off" + (b" (halted)" if faulted else b"")
+        if cmd == PowerCmd.ENABLE and state == PowerState.OFF and not int(self._fault_active):
             r["power"] = state = PowerState.ENABLING
             r["enable_ticks"] = 0
             r["message"] = b"enabling"

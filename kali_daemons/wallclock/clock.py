@@ -26,8 +26,10 @@ from .. import layout, rt
 from ..daemon import Daemon, _CycleStats
 from ..instance import decode
 from ..layout import ClockCommand, FaultCode, RunMode
+from ..spinlock import pid_alive
 
 STOPPED_WAIT_S = 0.2
+LOCKSTEP_SLICE_S = 0.05  # lockstep ack waits check for dead processes this often
 
 
 class WallClock(Daemon):
@@ -180,6 +182,8 @@ class WallClock(Daemon):
         e["consecutive"] = n
         self._log_count[0] = count + 1
         overdue_ns = n * self._period[k] * self.base_ns
+        if self._serious[k] and self._died(i, tick):
+            return
         if self._serious[k] and overdue_ns > self.tolerance_ns:
             name = decode(self.inst.procs[i]["name"])
             period_ms = self._period[k] * self.base_ns / 1e6
@@ -217,7 +221,7 @@ class WallClock(Daemon):
                 k += 1
             for _ in posted:
                 try:
-                    self._ack_sem.acquire(self.lockstep_timeout_s)
+                    self._await_ack(posted, tick)
                     if self.inst.fault["active"]:
                         return False  # a process halted the system; the loop stops the clock
                 except posix_ipc.BusyError:
@@ -232,6 +236,36 @@ class WallClock(Daemon):
                     )
                     self.inst.clock["mode"] = RunMode.STOPPED
                     return False
+        return True
+
+    def _await_ack(self, posted: list[int], tick: int) -> None:
+        """One lockstep acknowledgement; BusyError after the timeout.  Waits in slices so a
+        process that died meanwhile halts the system at once (PROCESS_DIED)."""
+        deadline = rt.monotonic_ns() + int(self.lockstep_timeout_s * 1e9)
+        while True:
+            try:
+                self._ack_sem.acquire(LOCKSTEP_SLICE_S)
+                return
+            except posix_ipc.BusyError:
+                for i in posted:
+                    if self._ack[i] < tick and self._died(i, tick):
+                        return
+                if rt.monotonic_ns() > deadline:
+                    raise
+
+    def _died(self, i: int, tick: int) -> bool:
+        """Halt with PROCESS_DIED if slot ``i``'s process is gone; True if it did."""
+        pid = int(self.inst.procs[i]["pid"])
+        if pid <= 0 or pid_alive(pid):
+            return False
+        name = decode(self.inst.procs[i]["name"])
+        self.inst.raise_fault(
+            FaultCode.PROCESS_DIED,
+            name,
+            f"process '{name}' (pid {pid}) died; last acknowledged tick {int(self._ack[i])}",
+            tick=tick,
+        )
+        self.inst.clock["mode"] = RunMode.STOPPED
         return True
 
     # ------------------------------------------------------------------ commands

@@ -1,0 +1,237 @@
+"""The servo level end to end (issue 4): SIO, the SVs and the plant, in lockstep mode.
+
+Each test starts a real instance (every process), powers the arms through the boards and
+steps the wall clock tick by tick, so results do not depend on this machine's load.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+from kali_daemons import layout, puma560
+from kali_daemons.instance import Instance, decode
+from kali_daemons.layout import (
+    CSR_NO_DISABLE,
+    POWER_AMPS_ON,
+    POWER_WATCHDOG_TRIPPED,
+    FaultCode,
+    PowerState,
+)
+from kali_daemons.servolevel import ServoClient
+from kali_daemons.wallclock import step_kali_clock
+
+COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # rad per count
+SETTLE_TICKS = 3500  # gravity sag of joint 2 is taken up by the integral within ~3 s
+
+
+@contextmanager
+def servoing(name: str) -> Iterator[tuple[Instance, ServoClient]]:
+    """Attach, power both arms and let them settle at rest."""
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            step_kali_clock(inst, 30)  # SIO reads the pots
+            for robot in client.names:
+                client.power(robot, True)
+            step_kali_clock(inst, 100)
+            assert [client.power_state(r) for r in client.names] == [PowerState.ON] * 2
+            step_kali_clock(inst, SETTLE_TICKS)
+            yield inst, client
+        finally:
+            client.close()
+
+
+def error_counts(client: ServoClient) -> np.ndarray:
+    """Tracking error of every joint in encoder counts, (robots, 6)."""
+    r = client.level.robots
+    return (r["demand"] - r["q"]) / COUNT
+
+
+def fault(inst: Instance) -> tuple[FaultCode, str, str]:
+    f = inst.fault
+    text = inst.fault_text() or ""
+    return FaultCode(int(f["code"])), decode(f["process"]), text
+
+
+def test_both_arms_hold_within_one_encoder_count(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, client):
+        worst = np.zeros((2, 6))
+        for _ in range(10):  # at rest, over 200 ms
+            step_kali_clock(inst, 20)
+            worst = np.maximum(worst, np.abs(error_counts(client)))
+        assert (worst <= 1.0).all(), f"hold error (counts) {worst}"
+        # the measured angles are the plant's true ones to within the pot-based offsets
+        truth = inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
+        r = client.level.robots
+        assert np.abs(r["q"] - truth["q"]).max() < math.radians(2.0)
+        assert inst.fault_text() is None
+        ctrl = client.level.ctrl
+        assert int(ctrl["sv_servos"][0]) + int(ctrl["sv_servos"][1]) >= 12 * SETTLE_TICKS
+        del truth, r, ctrl
+
+
+def _ramp(client: ServoClient, robot: int, joint: int, delta: float, points: int) -> None:
+    """Push TG-rate set-points moving one joint by ``delta`` rad in ``points`` steps."""
+    fifo = client.level.fifo(robot)
+    start = client.level.robots["demand"][robot].copy()
+    for m in range(1, points + 1):
+        target = start.copy()
+        target[joint] += delta * m / points
+        fifo.push(target)
+
+
+def test_a_step_and_a_ramp_settle_with_bounded_overshoot(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, client):
+        r = client.level.robots
+        for j in range(6):
+            delta = 0.02
+            q0 = float(r["q"][0, j])
+            _ramp(client, 0, j, delta, 1)  # a step: one set-point 0.02 rad away
+            peak = 0.0
+            for _ in range(60):  # 600 ms
+                step_kali_clock(inst, 10)
+                peak = max(peak, (float(r["q"][0, j]) - q0) / delta)
+            final = (float(r["q"][0, j]) - q0) / delta
+            assert peak < 1.35, f"joint {j + 1}: overshoot {peak - 1:.0%}"
+            assert abs(final - 1) < 0.05, f"joint {j + 1}: at {final:.2f} of the step after 0.6 s"
+        # a ramp: 0.1 rad over 1 s on joint 1, tracked within a few hundredths of a radian
+        _ramp(client, 0, 0, 0.1, 100)
+        worst = 0.0
+        for _ in range(100):
+            step_kali_clock(inst, 10)
+            worst = max(worst, abs(float(r["demand"][0, 0] - r["q"][0, 0])))
+        assert worst < 0.02, f"ramp tracking error {worst:.4f} rad"
+        assert inst.fault_text() is None
+        del r
+
+
+def test_gains_and_algorithm_change_while_moving_without_a_torque_jump(
+    kali: Callable[..., str],
+) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, client):
+        r = client.level.robots
+        slots = client.level.slots
+        _ramp(client, 0, 1, 0.15, 150)  # joint 2 moving for 1.5 s
+        step_kali_clock(inst, 300)
+        jumps, normal = [], []
+        for algorithm in ("pd", "pid", "pd", "pid"):
+            steps = []  # the servo's own tick-to-tick torque changes before the switch
+            for _ in range(50):
+                before = float(r["servo_torque"][0, 1])
+                step_kali_clock(inst, 1)
+                steps.append(abs(float(r["servo_torque"][0, 1]) - before))
+            normal.append(max(steps))
+            before = float(r["servo_torque"][0, 1])
+            client.select("left", 2, algorithm, wait=False)
+            step_kali_clock(inst, 1)
+            assert client.active("left", 2) == algorithm
+            jumps.append(abs(float(r["servo_torque"][0, 1]) - before))
+            step_kali_clock(inst, 50)
+        params = client.get_params("left", 2)
+        client.set_params("left", 2, {"kp": params["kp"] * 1.2}, wait=False)
+        step_kali_clock(inst, 1)
+        assert client.get_params("left", 2)["kp"] == params["kp"] * 1.2
+        tick = int(inst.clock["tick"]) - 1
+        assert (slots["ran_tick"][:6] == tick).all()  # no servo skipped
+        # bumpless: a switch moves the torque no more than the servo's own tick-to-tick
+        # variation on this moving, gravity-loaded joint (velocity quantisation), + 1 N·m
+        for jump, usual in zip(jumps, normal, strict=True):
+            assert jump <= usual + 1.0, f"torque jumps {jumps} N·m, usual changes {normal}"
+        assert inst.fault_text() is None
+        del r, slots
+
+
+def test_runaway_halts_naming_robot_joint_value_and_limit(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, client):
+        _ramp(client, 1, 2, 0.05, 1)
+        client.set_safe("right", 3, 0.01)
+        step_kali_clock(inst, 20)
+        code, process, text = fault(inst)
+        assert code == FaultCode.RUNAWAY and process == "sio"
+        assert "robot 'right' joint 3: tracking error" in text and "beyond safe 0.0100 rad" in text
+        assert not int(inst.boards()["csr"][1]) & CSR_NO_DISABLE  # amplifiers commanded off
+        # reset + enable: the arm holds again
+        inst.clear_fault()
+        client.set_safe("right", 3, 0.15)
+        for robot in client.names:
+            client.power(robot, True)
+        step_kali_clock(inst, 100 + SETTLE_TICKS)
+        assert client.power_state("right") == PowerState.ON, (
+            inst.fault_text(),
+            client.level.robots["message"],
+        )
+        assert (np.abs(error_counts(client)) <= 1.0).all()
+
+
+def test_range_halts(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, client):
+        q5 = float(client.level.robots["q"][0, 4])
+        limit = float(puma560.Q_MAX[4])
+        _ramp(client, 0, 4, limit + 0.05 - q5, 60)  # past +100° over 0.6 s
+        step_kali_clock(inst, 800)
+        code, _, text = fault(inst)
+        assert code == FaultCode.RANGE, text
+        assert "robot 'left' joint 5 at 100." in text and "beyond its limit 100.00°" in text
+
+
+def test_current_beyond_the_limit_halts(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, client):
+        client.set_safe("left", 1, 1.0)  # let the current check, not runaway, catch it
+        client.set_params("left", 1, {"kp": 400000.0}, wait=False)  # wildly high gain
+        _ramp(client, 0, 0, 0.3, 1)
+        step_kali_clock(inst, 400)
+        code, _, text = fault(inst)
+        assert code == FaultCode.CURRENT, text
+        assert "robot 'left' joint 1: motor current demand" in text
+        assert "beyond its limit 8.00 A for 100 ms" in text
+
+
+def test_a_dead_sv_halts_naming_it(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, _):
+        pid = int(inst.procs[inst.slot_of("sv.1")]["pid"])
+        os.kill(pid, signal.SIGKILL)
+        time.sleep(0.2)
+        step_kali_clock(inst, 5)
+        code, process, text = fault(inst)
+        assert code == FaultCode.PROCESS_DIED and process == "sv.1", text
+        assert not (inst.boards()["csr"] & CSR_NO_DISABLE).any()  # amplifiers commanded off
+
+
+def test_a_dead_sio_halts_and_the_watchdog_trips(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=False)  # the plant's own clock must run for the watchdog
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            time.sleep(0.1)
+            for robot in client.names:
+                client.power(robot, True)
+            deadline = time.monotonic() + 2.0
+            while client.power_state("left") != PowerState.ON and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert client.power_state("left") == PowerState.ON
+            os.kill(int(inst.procs[inst.slot_of("sio")]["pid"]), signal.SIGKILL)
+            time.sleep(0.3)
+            code, process, text = fault(inst)
+            assert code == FaultCode.PROCESS_DIED and process == "sio", text
+            power = inst.boards()["power"]
+            assert not (power & POWER_AMPS_ON).any()
+            assert (power & POWER_WATCHDOG_TRIPPED).all()  # nobody retriggers it any more
+            truth = inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
+            assert truth["brakes_engaged"].all()
+            del truth, power
+        finally:
+            client.close()
