@@ -8,6 +8,13 @@ $kalictl start -c config/default.yaml
 trap '$kalictl stop' EXIT
 sleep 2
 echo; echo "== kalictl status (2 s after start)"; $kalictl status
+echo; echo "== kalictl enable: amplifiers on, brakes off; every joint holds where it is"
+$kalictl enable
+$kalictl servo list
+echo; echo "== kalictl servo: read the PID of left joint 2, raise kp, switch joint 6 to the PD"
+$kalictl servo get left 2
+$kalictl servo set left 2 kp=14000
+$kalictl servo select left 6 pd
 echo; echo "== kalictl rate tg 20: the trajectory generator now runs every 20 ms"; $kalictl rate tg 20
 sleep 2
 echo; echo "== kalictl status (2 s later)"; $kalictl status
@@ -18,7 +25,7 @@ $kalictl status | sed -n 1,2p
 echo; echo "== release the button, clear the fault, run the clock again"
 $kalictl estop --release
 $kalictl reset
-$kalictl clock start
+$kalictl enable
 sleep 1
 $kalictl status | sed -n 1,2p
 echo
