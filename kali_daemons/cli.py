@@ -13,7 +13,8 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from functools import wraps
 from pathlib import Path
 
@@ -305,38 +306,45 @@ def reset(ctx: click.Context) -> None:
         click.echo("power stays off until: kalictl enable")
 
 
+@contextmanager
+def _servo_client(ctx: click.Context) -> Iterator[tuple[Instance, ServoClient]]:
+    """Attach and open the servo level for one command."""
+    with _attach(ctx) as inst:
+        client = ServoClient(inst)
+        try:
+            yield inst, client
+        finally:
+            client.close()
+
+
 def _robots(client: ServoClient, robot: str | None) -> list[str]:
     return [client.names[client.robot_index(robot)]] if robot else list(client.names)
 
 
 def _power(ctx: click.Context, robot: str | None, on: bool, timeout_s: float) -> None:
-    with _attach(ctx) as inst:
-        client = ServoClient(inst)
-        try:
-            names = _robots(client, robot)
-            for name in names:
-                client.power(name, on)
-            if inst.lockstep:
-                click.echo(
-                    f"{'enable' if on else 'disable'} requested: {', '.join(names)} "
-                    "(lockstep: step the clock)"
+    with _servo_client(ctx) as (inst, client):
+        names = _robots(client, robot)
+        for name in names:
+            client.power(name, on)
+        if inst.lockstep:
+            click.echo(
+                f"{'enable' if on else 'disable'} requested: {', '.join(names)} "
+                "(lockstep: step the clock)"
+            )
+            return
+        want = PowerState.ON if on else PowerState.OFF
+        deadline = time.monotonic() + timeout_s
+        while any(client.power_state(n) != want for n in names):
+            if time.monotonic() > deadline or inst.fault["active"]:
+                states = ", ".join(
+                    f"{n}: {client.power_state(n).name} "
+                    f"({decode(client.level.robots[client.robot_index(n)]['message'])})"
+                    for n in names
                 )
-                return
-            want = PowerState.ON if on else PowerState.OFF
-            deadline = time.monotonic() + timeout_s
-            while any(client.power_state(n) != want for n in names):
-                if time.monotonic() > deadline or inst.fault["active"]:
-                    states = ", ".join(
-                        f"{n}: {client.power_state(n).name} "
-                        f"({decode(client.level.robots[client.robot_index(n)]['message'])})"
-                        for n in names
-                    )
-                    why = inst.fault_text() or f"not {want.name} within {timeout_s:g} s"
-                    raise ServoError(f"power: {why}; {states}")
-                time.sleep(0.01)
-            click.echo(f"power {want.name.lower()}: {', '.join(names)}")
-        finally:
-            client.close()
+                why = inst.fault_text() or f"not {want.name} within {timeout_s:g} s"
+                raise ServoError(f"power: {why}; {states}")
+            time.sleep(0.01)
+        click.echo(f"power {want.name.lower()}: {', '.join(names)}")
 
 
 @main.command()
@@ -367,23 +375,19 @@ def servo() -> None:
 @_errors
 def servo_list(ctx: click.Context) -> None:
     """The registered algorithms and every joint's active one."""
-    with _attach(ctx) as inst:
-        client = ServoClient(inst)
-        try:
-            for alg in client.level.registry:
-                click.echo(f"{alg.name:<12} {', '.join(alg.params)}")
-            click.echo("")
-            for k, name in enumerate(client.names):
-                r = client.level.robots[k]
-                joints = []
-                for j in range(1, 7):
-                    s = client.level.slot_structs[6 * k + j - 1]
-                    mark = "" if s.enabled else " (off)"
-                    joints.append(f"{j}:{client.active(name, j)}{mark}")
-                state = PowerState(int(r["power"])).name.lower()
-                click.echo(f"{name:<8} power {state:<9} " + "  ".join(joints))
-        finally:
-            client.close()
+    with _servo_client(ctx) as (_inst, client):
+        for alg in client.level.registry:
+            click.echo(f"{alg.name:<12} {', '.join(alg.params)}")
+        click.echo("")
+        for k, name in enumerate(client.names):
+            r = client.level.robots[k]
+            joints = []
+            for j in range(1, 7):
+                s = client.level.slot_structs[6 * k + j - 1]
+                mark = "" if s.enabled else " (off)"
+                joints.append(f"{j}:{client.active(name, j)}{mark}")
+            state = PowerState(int(r["power"])).name.lower()
+            click.echo(f"{name:<8} power {state:<9} " + "  ".join(joints))
 
 
 @servo.command("select")
@@ -394,13 +398,9 @@ def servo_list(ctx: click.Context) -> None:
 @_errors
 def servo_select(ctx: click.Context, robot: str, joint: int, algorithm: str) -> None:
     """Switch ROBOT's JOINT (1..6) to ALGORITHM, bumplessly, while it moves."""
-    with _attach(ctx) as inst:
-        client = ServoClient(inst)
-        try:
-            client.select(robot, joint, algorithm, wait=not inst.lockstep)
-            click.echo(f"{robot} joint {joint}: {algorithm}")
-        finally:
-            client.close()
+    with _servo_client(ctx) as (inst, client):
+        client.select(robot, joint, algorithm, wait=not inst.lockstep)
+        click.echo(f"{robot} joint {joint}: {algorithm}")
 
 
 @servo.command("set")
@@ -423,14 +423,10 @@ def servo_set(
             sep = ""
         if not sep:
             raise ServoError(f"servo set: {item!r}, expected NAME=NUMBER (e.g. kp=9000)")
-    with _attach(ctx) as inst:
-        client = ServoClient(inst)
-        try:
-            client.set_params(robot, joint, values, algorithm, wait=not inst.lockstep)
-            shown = " ".join(f"{k}={v:g}" for k, v in values.items())
-            click.echo(f"{robot} joint {joint} {algorithm or client.active(robot, joint)}: {shown}")
-        finally:
-            client.close()
+    with _servo_client(ctx) as (inst, client):
+        client.set_params(robot, joint, values, algorithm, wait=not inst.lockstep)
+        shown = " ".join(f"{k}={v:g}" for k, v in values.items())
+        click.echo(f"{robot} joint {joint} {algorithm or client.active(robot, joint)}: {shown}")
 
 
 @servo.command("get")
@@ -441,15 +437,11 @@ def servo_set(
 @_errors
 def servo_get(ctx: click.Context, robot: str, joint: int, algorithm: str | None) -> None:
     """Print the parameters of ROBOT's JOINT servo."""
-    with _attach(ctx) as inst:
-        client = ServoClient(inst)
-        try:
-            name = algorithm or client.active(robot, joint)
-            params = client.get_params(robot, joint, name)
-            shown = " ".join(f"{k}={v:g}" for k, v in params.items())
-            click.echo(f"{robot} joint {joint} {name}: {shown}")
-        finally:
-            client.close()
+    with _servo_client(ctx) as (_inst, client):
+        name = algorithm or client.active(robot, joint)
+        params = client.get_params(robot, joint, name)
+        shown = " ".join(f"{k}={v:g}" for k, v in params.items())
+        click.echo(f"{robot} joint {joint} {name}: {shown}")
 
 
 __all__ = ["main"]

@@ -27,6 +27,8 @@ from kali_daemons.layout import (
 from kali_daemons.servolevel import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
+from .test_launcher import kalictl
+
 COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # rad per count
 SETTLE_TICKS = 3500  # gravity sag of joint 2 is taken up by the integral within ~3 s
 
@@ -235,3 +237,20 @@ def test_a_dead_sio_halts_and_the_watchdog_trips(kali: Callable[..., str]) -> No
             del truth, power
         finally:
             client.close()
+
+
+def test_kalictl_enable_and_servo_commands(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "enable", "left")
+    assert r.returncode == 0 and "enable requested: left" in r.stdout, r.stderr
+    r = kalictl("-i", name, "servo", "list")
+    assert r.returncode == 0 and "pid " in r.stdout and "1:pid" in r.stdout, r.stderr
+    r = kalictl("-i", name, "servo", "get", "left", "2")
+    assert r.returncode == 0 and "left joint 2 pid: kp=13000" in r.stdout, r.stderr
+    r = kalictl("-i", name, "servo", "set", "left", "2", "kp=14000")
+    assert r.returncode == 0 and "left joint 2 pid: kp=14000" in r.stdout, r.stderr
+    assert "kp=14000" in kalictl("-i", name, "servo", "get", "left", "2").stdout
+    r = kalictl("-i", name, "servo", "set", "left", "2", "kq=1")
+    assert r.returncode == 1 and "'pid' has no parameter kq" in r.stderr
+    r = kalictl("-i", name, "servo", "select", "left", "7", "pd")
+    assert r.returncode == 1 and "joint 7 of robot 'left', must be 1..6" in r.stderr

@@ -130,7 +130,6 @@ class ServoIO(Daemon):
         self._slot_velocity = lv.slots["velocity"]
         self._slot_torque = lv.slots["torque"]
         self._slot_busy = lv.slots["busy"]
-        self._slot_reset = lv.slots["reset"]
         self._q_min = self.driver.q_min
         self._q_max = self.driver.q_max
         self._fault_active = inst.fault["active"]
@@ -149,6 +148,10 @@ class ServoIO(Daemon):
             )
         ]
         self._hist = ctrl["latency_hist"]
+        self._ctrl_tick, self._ctrl_fed, self._ctrl_done = ctrl["tick"], ctrl["fed"], ctrl["done"]
+        self._lat_last, self._lat_max = ctrl["latency_last_ns"], ctrl["latency_max_ns"]
+        self._robots_tick = rs["tick"]
+        self._r = [_RobotViews(self, k) for k in range(nr)]
         self._pot_channel = [0] * nr
         self._pot_codes = [[0] * 6 for _ in range(nr)]
         self._waiting_done = [False] * nr
@@ -168,7 +171,6 @@ class ServoIO(Daemon):
     def cycle(self, tick: int) -> None:
         """Inside the cycle: (a) sensors, (b) checks and feed, (c) torques out."""
         lv = self.level
-        ctrl = lv.ctrl
         t_read = rt.monotonic_ns()
         faulted = bool(self._fault_active)
         count = int(self._fault_count)
@@ -194,9 +196,9 @@ class ServoIO(Daemon):
         np.copyto(self._slot_position, self.q)
         np.copyto(self._slot_velocity, self.qd)
         fed = int(np.count_nonzero(self.fed_mask))
-        ctrl["tick"] = tick
-        ctrl["fed"] = fed
-        ctrl["done"] = 0
+        self._ctrl_tick[...] = tick
+        self._ctrl_fed[...] = fed
+        self._ctrl_done[...] = 0
         self.busy_src.fill(layout.SLOT_NOT_FED)
         np.copyto(self.busy_src, 0, where=self.fed_mask)
         np.copyto(self._slot_busy, self.busy_src)  # published last: the SVs may claim now
@@ -219,50 +221,49 @@ class ServoIO(Daemon):
         for dst, src in self._pub:
             np.copyto(dst, src)
         self.driver.store(*self._driver_state)
-        lv.robots["tick"] = tick
+        self._robots_tick[...] = tick
         late = t_out - t_read
-        ctrl["latency_last_ns"] = late
-        if late > ctrl["latency_max_ns"]:
-            ctrl["latency_max_ns"] = late
+        self._lat_last[...] = late
+        if late > self._lat_max:
+            self._lat_max[...] = late
         self._hist[layout.lateness_bin(late)] += 1
 
     def _robot(self, k: int, tick: int, faulted: bool) -> None:
         """Power switch, pots and this tick's demand of robot ``k``."""
-        r = self.level.robots[k]
-        sl = slice(6 * k, 6 * k + 6)
-        q, demand = self.q[sl], self.demand[sl]
-        if not int(r["pots_read"]):
+        r = self._r[k]
+        q, demand = r.q, r.demand
+        if not int(r.pots_read):
             self._read_pots(k)
             np.copyto(demand, q)
             return
-        state = int(r["power"])
-        cmd = int(r["power_cmd"])
+        state = int(r.power)
+        cmd = int(r.power_cmd)
         if cmd:
-            r["power_cmd"] = PowerCmd.NONE
+            r.power_cmd[...] = PowerCmd.NONE
         if (faulted or cmd == PowerCmd.DISABLE) and state != PowerState.OFF:
-            r["power"] = state = PowerState.OFF
-            r["message"] = b"power off" + (b" (halted)" if faulted else b"")
+            r.power[...] = state = PowerState.OFF
+            r.message[...] = b"power off" + (b" (halted)" if faulted else b"")
         if cmd == PowerCmd.ENABLE and state == PowerState.OFF and not int(self._fault_active):
-            r["power"] = state = PowerState.ENABLING
-            r["enable_ticks"] = 0
-            r["message"] = b"enabling"
+            r.power[...] = state = PowerState.ENABLING
+            r.enable_ticks[...] = 0
+            r.message[...] = b"enabling"
             self.fifos[k].reset(q)
-            self._slot_reset[sl] = 1  # every servo takes over at rest at its first run
-        power_bits = int(self.boards[k]["power"])
+            r.slot_reset[:] = 1  # every servo takes over at rest at its first run
+        power_bits = int(r.board_power)
         if state == PowerState.ENABLING:
-            n = int(r["enable_ticks"]) + 1
-            r["enable_ticks"] = n
+            n = int(r.enable_ticks) + 1
+            r.enable_ticks[...] = n
             if power_bits & POWER_AMPS_ON and power_bits & POWER_BRAKES_RELEASED:
-                r["power"] = state = PowerState.ON
-                r["message"] = b"on"
+                r.power[...] = state = PowerState.ON
+                r.message[...] = b"on"
             elif n > self.power_timeout_ticks:
-                r["power"] = state = PowerState.OFF
-                r["message"] = (
+                r.power[...] = state = PowerState.OFF
+                r.message[...] = (
                     f"power did not come on within {POWER_ON_TIMEOUT_MS:g} ms "
                     f"(board power register 0x{power_bits:02x}: e-stop or watchdog?)"
                 ).encode()
         elif state == PowerState.ON and not power_bits & POWER_AMPS_ON:
-            r["power"] = PowerState.OFF
+            r.power[...] = PowerState.OFF
             self.inst.raise_fault(
                 FaultCode.POWER,
                 self.name,
@@ -276,21 +277,21 @@ class ServoIO(Daemon):
             return
         self.fifos[k].pop_into(demand)
         if power_bits & POWER_AMPS_ON:
-            self.fed_mask[sl] = True
+            r.fed[:] = True
 
     def _read_pots(self, k: int) -> None:
         """One step of reading robot ``k``'s six pots through the TLC532A (C.5)."""
-        regs = self.boards[k]
+        r = self._r[k]
         c = self._pot_channel[k]
         if not self._waiting_done[k]:
-            regs["adc_control"] = ADC_START | c
+            r.adc_control[...] = ADC_START | c
             self._waiting_done[k] = True
             return
-        value = int(regs["adc_analog"])
+        value = int(r.adc_analog)
         if not value & ADC_DONE:
             return  # not converted yet
         self._pot_codes[k][c] = value & layout.ADC_VALUE_MASK
-        regs["adc_control"] = 0
+        r.adc_control[...] = 0
         self._waiting_done[k] = False
         c += 1
         self._pot_channel[k] = c
@@ -300,24 +301,21 @@ class ServoIO(Daemon):
             i = 6 * k + j
             self.driver.set_angle(i, self.driver.pot_angle(i, self._pot_codes[k][j]))
         self.driver.angles(self.q)
-        self.q_prev[6 * k : 6 * k + 6] = self.q[6 * k : 6 * k + 6]
-        self.fifos[k].reset(self.q[6 * k : 6 * k + 6])
-        r = self.level.robots[k]
-        r["pots_read"] = 1
-        r["message"] = b"joint angles from the potentiometers (not calibrated)"
+        self.q_prev[6 * k : 6 * k + 6] = r.q
+        self.fifos[k].reset(r.q)
+        r.pots_read[...] = 1
+        r.message[...] = b"joint angles from the potentiometers (not calibrated)"
 
     def _checks(self, tick: int) -> bool:
         """Joint range and runaway on powered joints; True when it halted."""
         lv = self.level
         for k in range(lv.n_robots):
-            sl = slice(6 * k, 6 * k + 6)
-            if not self.fed_mask[6 * k]:
+            r = self._r[k]
+            if not r.fed[0]:
                 continue
-            r = lv.robots[k]
-            checks = r["range_check"]
-            q = self.q[sl]
+            q = r.q
             for j in range(6):
-                if checks[j] and not self._q_min[j] <= q[j] <= self._q_max[j]:
+                if r.range_check[j] and not self._q_min[j] <= q[j] <= self._q_max[j]:
                     limit = self._q_max[j] if q[j] > self._q_max[j] else self._q_min[j]
                     return self._halt(
                         FaultCode.RANGE,
@@ -325,17 +323,17 @@ class ServoIO(Daemon):
                         f"robot '{lv.names[k]}' joint {j + 1} at {math.degrees(q[j]):.2f}° is "
                         f"beyond its limit {math.degrees(limit):.2f}°",
                     )
-            np.subtract(self.demand[sl], q, out=self.err[sl])
-            np.abs(self.err[sl], out=self.err[sl])
-            np.greater(self.err[sl], r["safe"], out=self.bad[sl])
-            if self.bad[sl].any():
-                j = int(np.argmax(self.bad[sl]))
+            np.subtract(r.demand, q, out=r.err)
+            np.abs(r.err, out=r.err)
+            np.greater(r.err, r.safe, out=r.bad)
+            if r.bad.any():
+                j = int(np.argmax(r.bad))
                 return self._halt(
                     FaultCode.RUNAWAY,
                     tick,
                     f"robot '{lv.names[k]}' joint {j + 1}: tracking error "
                     f"{float(self.demand[6 * k + j] - q[j]):+.4f} rad beyond safe "
-                    f"{float(r['safe'][j]):.4f} rad (runaway)",
+                    f"{float(r.safe[j]):.4f} rad (runaway)",
                 )
         return False
 
@@ -365,8 +363,8 @@ class ServoIO(Daemon):
 
     def _wait_done(self, tick: int, fed: int) -> bool:
         """Sleep until every fed slot ran; a serious fault names the ones that did not."""
-        ctrl = self.level.ctrl
-        while int(ctrl["done"]) < fed:
+        done = self._ctrl_done
+        while int(done) < fed:
             try:
                 self.done_sem.acquire(self.wait_s)
             except posix_ipc.BusyError:
@@ -377,7 +375,7 @@ class ServoIO(Daemon):
                 self.done_sem.acquire(0)
             except posix_ipc.BusyError:
                 break
-        if int(ctrl["done"]) >= fed:
+        if int(done) >= fed:
             return True
         lv = self.level
         late = [
@@ -399,16 +397,63 @@ class ServoIO(Daemon):
 
     def _write_csr(self, k: int, tick: int) -> None:
         """Drive robot ``k``'s power switch and retrigger its watchdog (C.4, C.5.1)."""
-        r = self.level.robots[k]
+        r = self._r[k]
         csr = BASE_CSR
+        power = int(r.power)
         if int(self._fault_active):
             csr &= ~CSR_NO_DISABLE
-        elif int(r["power"]) == PowerState.ENABLING and int(r["enable_ticks"]) <= self.hold_ticks:
+        elif power == PowerState.ENABLING and int(r.enable_ticks) <= self.hold_ticks:
             csr |= CSR_ENABLE
         if (tick // self.retrigger_ticks) % 2 == 0:
             csr |= CSR_RETRIGGER
-        if int(r["power"]) == PowerState.OFF:
-            self._codes[k, :6] = layout.DAC_ZERO
-            if int(self.boards[k]["power"]) & POWER_AMPS_ON:
+        if power == PowerState.OFF:
+            r.codes[:] = layout.DAC_ZERO
+            if int(r.board_power) & POWER_AMPS_ON:
                 csr &= ~CSR_NO_DISABLE  # bit 7 low cuts the amplifiers (disable, C.5.1)
-        self.boards[k]["csr"] = csr
+        r.csr[...] = csr
+
+
+class _RobotViews:
+    """Robot ``k``'s fields, viewed once at configure: indexing a record by field name builds
+    a new view every time, which has no place in the cycle."""
+
+    __slots__ = (
+        "adc_analog",
+        "adc_control",
+        "bad",
+        "board_power",
+        "codes",
+        "csr",
+        "demand",
+        "enable_ticks",
+        "err",
+        "fed",
+        "message",
+        "pots_read",
+        "power",
+        "power_cmd",
+        "q",
+        "range_check",
+        "safe",
+        "slot_reset",
+    )
+
+    def __init__(self, sio: ServoIO, k: int) -> None:
+        robots, boards = sio.level.robots, sio.boards
+
+        def one(records: np.ndarray, field: str) -> np.ndarray:
+            return records[k : k + 1][field].reshape(())
+
+        for field in ("power", "power_cmd", "pots_read", "enable_ticks", "message"):
+            setattr(self, field, one(robots, field))
+        self.safe = robots["safe"][k]
+        self.range_check = robots["range_check"][k]
+        self.board_power = one(boards, "power")
+        self.csr = one(boards, "csr")
+        self.adc_control = one(boards, "adc_control")
+        self.adc_analog = one(boards, "adc_analog")
+        self.codes = sio.dacs["code"][k, :6]
+        sl = slice(6 * k, 6 * k + 6)
+        self.q, self.demand = sio.q[sl], sio.demand[sl]
+        self.err, self.bad, self.fed = sio.err[sl], sio.bad[sl], sio.fed_mask[sl]
+        self.slot_reset = sio.level.slots["reset"][sl]
