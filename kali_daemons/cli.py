@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -19,13 +20,15 @@ from functools import wraps
 from pathlib import Path
 
 import click
+import numpy as np
 
-from . import launcher
+from . import launcher, puma560
 from .config import load_config
 from .errors import KaliError
 from .instance import Instance, decode
-from .layout import FaultCode, PowerState, RunMode
+from .layout import CalibState, FaultCode, PowerState, RunMode
 from .servolevel import ServoClient, ServoError
+from .tg.profiles import joint_move
 from .wallclock import (
     set_control_rate,
     set_kali_clock,
@@ -253,14 +256,14 @@ def clock_step(ctx: click.Context, ticks: int) -> None:
 
 @main.command()
 @click.argument("process")
-@click.argument("ms", type=int)
+@click.argument("ms", type=click.FLOAT)
 @click.pass_context
 @_errors
-def rate(ctx: click.Context, process: str, ms: int) -> None:
-    """Set PROCESS's period to MS milliseconds (set_control_rate)."""
+def rate(ctx: click.Context, process: str, ms: float) -> None:
+    """Set PROCESS's period to MS milliseconds, a whole number of base ticks (e.g. 1.5)."""
     with _attach(ctx) as inst:
         set_control_rate(inst, process, ms)
-        click.echo(f"{process}: period {ms} ms")
+        click.echo(f"{process}: period {ms:g} ms")
 
 
 @main.command()
@@ -332,19 +335,26 @@ def _power(ctx: click.Context, robot: str | None, on: bool, timeout_s: float) ->
                 "(lockstep: step the clock)"
             )
             return
-        want = PowerState.ON if on else PowerState.OFF
-        deadline = time.monotonic() + timeout_s
-        while any(client.power_state(n) != want for n in names):
-            if time.monotonic() > deadline or inst.fault["active"]:
-                states = ", ".join(
-                    f"{n}: {client.power_state(n).name} "
-                    f"({decode(client.level.robots[client.robot_index(n)]['message'])})"
-                    for n in names
-                )
-                why = inst.fault_text() or f"not {want.name} within {timeout_s:g} s"
-                raise ServoError(f"power: {why}; {states}")
-            time.sleep(0.01)
-        click.echo(f"power {want.name.lower()}: {', '.join(names)}")
+        _wait_power(inst, client, names, on, timeout_s)
+
+
+def _wait_power(
+    inst: Instance, client: ServoClient, names: list[str], on: bool, timeout_s: float
+) -> None:
+    """Wait until SIO reports every robot in ``names`` powered on (off); ServoError if not."""
+    want = PowerState.ON if on else PowerState.OFF
+    deadline = time.monotonic() + timeout_s
+    while any(client.power_state(n) != want for n in names):
+        if time.monotonic() > deadline or inst.fault["active"]:
+            states = ", ".join(
+                f"{n}: {client.power_state(n).name} "
+                f"({decode(client.level.robots[client.robot_index(n)]['message'])})"
+                for n in names
+            )
+            why = inst.fault_text() or f"not {want.name} within {timeout_s:g} s"
+            raise ServoError(f"power: {why}; {states}")
+        time.sleep(0.01)
+    click.echo(f"power {want.name.lower()}: {', '.join(names)}")
 
 
 @main.command()
@@ -363,6 +373,162 @@ def enable(ctx: click.Context, robot: str | None) -> None:
 def disable(ctx: click.Context, robot: str | None) -> None:
     """Cut ROBOT's amplifiers (default: every robot); the brakes follow."""
     _power(ctx, robot, False, 2.0)
+
+
+@main.command()
+@click.argument("robot", required=False)
+@click.option("--timeout", default=30.0, show_default=True, help="seconds to wait")
+@click.pass_context
+@_errors
+def calibrate(ctx: click.Context, robot: str | None, timeout: float) -> None:
+    """Calibrate ROBOT (default: every robot) against its encoder index pulses (thesis 3.5.1).
+
+    Powers the robot first if it is off.  Every joint moves by at most about 7° to its
+    nearest index pulse and holds there; progress is shown until all are calibrated.
+    """
+    with _servo_client(ctx) as (inst, client):
+        names = _robots(client, robot)
+        off = [n for n in names if client.power_state(n) != PowerState.ON]
+        if inst.lockstep:
+            if off:
+                raise ServoError(
+                    f"calibrate: {', '.join(off)} not powered; in lockstep mode run "
+                    f"kalictl enable and step the clock first"
+                )
+            for n in names:
+                client.calibrate(n)
+            click.echo(f"calibrate requested: {', '.join(names)} (lockstep: step the clock)")
+            return
+        if off:
+            for n in off:
+                client.power(n, True)
+            _wait_power(inst, client, off, True, 2.0)
+        for n in names:
+            client.calibrate(n)
+        _follow_calibration(inst, client, names, timeout)
+
+
+def _follow_calibration(
+    inst: Instance, client: ServoClient, names: list[str], timeout_s: float
+) -> None:
+    """Print each robot's calibration progress as it changes; ServoError unless all succeed."""
+    deadline = time.monotonic() + timeout_s
+    shown: dict[str, str] = {}
+    robots = client.level.robots
+    while True:
+        finished = []
+        for n in names:
+            k = client.robot_index(n)
+            state, found, message = client.calibration(n)
+            taken = not int(robots["calib_cmd"][k])
+            line = f"{n}: {message}"
+            if state == CalibState.SEARCH:
+                joints = " ".join(str(j + 1) for j in range(6) if found >> j & 1) or "none"
+                line += f" (found: joints {joints})"
+            if taken and shown.get(n) != line:
+                click.echo(line)
+                shown[n] = line
+            finished.append(taken and state in (CalibState.DONE, CalibState.FAILED))
+        if all(finished):
+            break
+        if inst.fault["active"]:
+            raise ServoError(f"calibrate: halted: {inst.fault_text()}")
+        if time.monotonic() > deadline:
+            raise ServoError(f"calibrate: not finished within {timeout_s:g} s")
+        time.sleep(0.05)
+    failed = [n for n in names if client.calibration(n)[0] == CalibState.FAILED]
+    for n in names:
+        if n not in failed:
+            shift = robots["calib_shift"][client.robot_index(n)]
+            moved = "  ".join(
+                f"{j + 1}:{math.degrees(float(v)):+.2f}°" for j, v in enumerate(shift)
+            )
+            click.echo(f"{n}: calibrated; angles corrected by {moved}")
+    if failed:
+        raise ServoError(f"calibrate: failed on {', '.join(failed)}")
+
+
+@main.command()
+@click.argument("robot")
+@click.option(
+    "--joints", required=True, help="the six joint angles to go to, degrees: 0,-90,90,0,0,0"
+)
+@click.option("--speed", default=30.0, show_default=True, help="largest joint speed, °/s")
+@click.pass_context
+@_errors
+def move(ctx: click.Context, robot: str, joints: str, speed: float) -> None:
+    """Move ROBOT's joints smoothly to --joints, every joint arriving together.
+
+    A quintic (minimum-jerk) move from the present demand, pushed set-point by set-point
+    through the TG → SIO FIFO at the TG period; waits until the arm is there.
+    """
+    try:
+        target_deg = [float(v) for v in joints.replace(" ", "").split(",")]
+    except ValueError:
+        raise ServoError(
+            f"move: --joints {joints!r}: six numbers in degrees, e.g. 0,-90,90,0,0,0"
+        ) from None
+    if len(target_deg) != 6:
+        raise ServoError(f"move: --joints {joints!r}: {len(target_deg)} values, expected 6")
+    with _servo_client(ctx) as (inst, client):
+        k = client.robot_index(robot)
+        name = client.names[k]
+        if client.power_state(name) != PowerState.ON:
+            raise ServoError(f"move: robot '{name}' is not powered; kalictl enable {name}")
+        if client.calibration(name)[0] in (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS):
+            raise ServoError(f"move: robot '{name}' is calibrating; wait until it is done")
+        fifo = client.level.fifo(k)
+        if fifo.pending():
+            raise ServoError(
+                f"move: robot '{name}' is still being fed {fifo.pending()} set-points; "
+                f"wait until that motion ends"
+            )
+        robots = client.level.robots
+        period_s = inst.config.clock.tg_period_ms / 1000.0
+        points = joint_move(
+            robots["demand"][k].copy(),
+            np.radians(target_deg),
+            period_s,
+            math.radians(speed),
+            puma560.Q_MIN,
+            puma560.Q_MAX,
+            name,
+        )
+        if inst.lockstep:
+            if len(points) > fifo.capacity:
+                raise ServoError(
+                    f"move: {len(points) * period_s:.2f} s of set-points do not fit the FIFO "
+                    f"({fifo.capacity} set-points) and nothing steps the clock while kalictl "
+                    f"waits in lockstep mode; move less far or faster"
+                )
+            for p in points:
+                fifo.push(p)
+            click.echo(
+                f"move requested: {name}, {len(points)} set-points (lockstep: step the clock)"
+            )
+            return
+        t0 = time.monotonic()
+        worst = 0.0
+        sent = 0
+        while (
+            sent < len(points)
+            or fifo.pending()
+            or not np.array_equal(robots["demand"][k], points[-1])
+        ):
+            while sent < len(points) and fifo.pending() < fifo.capacity:
+                fifo.push(points[sent])
+                sent += 1
+            if inst.fault["active"]:
+                raise ServoError(f"move: halted: {inst.fault_text()}")
+            if client.power_state(name) != PowerState.ON:
+                raise ServoError(f"move: robot '{name}' lost power while moving")
+            worst = max(worst, float(np.max(np.abs(robots["demand"][k] - robots["q"][k]))))
+            time.sleep(period_s / 2)
+        at = ", ".join(f"{math.degrees(float(v)):.2f}" for v in robots["q"][k])
+        click.echo(
+            f"{name}: at [{at}]° after {time.monotonic() - t0:.2f} s "
+            f"(largest tracking error seen {math.degrees(worst):.3f}°)"
+        )
 
 
 @main.group()

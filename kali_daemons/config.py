@@ -3,7 +3,13 @@
 Every process reads the same config (its text is stored in the shared-memory arena), so it is
 validated completely up front: nothing starts on a bad config.  Every error names the field as
 a dotted path (``processes.sv.cpus[1]``), the value given and what is allowed, e.g.
-``config: config/default.yaml: clock.base_tick_ms = -1: must be an integer >= 1 and <= 100``.
+``config: config/default.yaml: clock.servo_period_ms = 3: must be a multiple of
+clock.base_tick_ms (2)``.
+
+Periods are in ms and may be fractional: the base tick is a whole number of microseconds
+(0.5 ms gives a 2 kHz servo) and every period a whole number of base ticks, compared in
+integer nanoseconds by ``period_ticks``.  A whole-ms value is kept as an ``int``, so an
+integer config reads exactly as it always did.
 
 Validation is a handful of small explicit helpers (``_int``, ``_float``, ``_mapping`` ...)
 rather than a schema library, so each message can say exactly what went wrong.
@@ -33,6 +39,9 @@ MAX_ROBOTS = 4
 MAX_STAGE = 15
 MAX_PRIORITY = 99
 MAX_PERIOD_MS = 60_000  # one minute; anything longer is a typo, not a control period
+MIN_BASE_TICK_MS = 0.1  # 10 kHz; the wall clock cannot keep a shorter tick
+MAX_BASE_TICK_MS = 100
+NS_PER_MS = 1_000_000
 MAX_TIMEOUT_S = 600.0
 VIEWER_PERIOD_MS = 40
 
@@ -125,11 +134,14 @@ _MISSING: Any = object()
 
 @dataclass(frozen=True)
 class ClockConfig:
-    """Wall-clock rates; every period in the system is a multiple of ``base_tick_ms``."""
+    """Wall-clock rates; every period in the system is a multiple of ``base_tick_ms``.
 
-    base_tick_ms: int = 1
-    servo_period_ms: int = 1
-    tg_period_ms: int = 10
+    The periods are ms, ints when whole (``base_tick_ms: 0.5`` gives a 2 kHz servo).
+    """
+
+    base_tick_ms: float = 1
+    servo_period_ms: float = 1
+    tg_period_ms: float = 10
     serious_miss_tolerance_ms: int = 20
     lockstep_ack_timeout_s: float = 5.0
     busy_wait_us: int = 0
@@ -143,7 +155,7 @@ class ProcessConfig:
     kind: str
     cpu: int | None
     priority: int
-    period_ms: int
+    period_ms: float  # a whole number of base ticks; an int when whole ms
     serious: bool
     stage: int
 
@@ -274,6 +286,37 @@ def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
         except _InvalidError as exc:
             raise ConfigError(f"{cfg.source} (override): {exc}") from None
     return dataclasses.replace(cfg, **checked)
+
+
+def ms_to_ns(ms: float) -> int:
+    """``ms`` in whole nanoseconds (rounded), the unit periods are compared in."""
+    return round(ms * NS_PER_MS)
+
+
+def ns_to_ms(ns: int) -> float:
+    """``ns`` in ms: an int when whole, else the nearest float (``500_000`` -> ``0.5``)."""
+    return ns // NS_PER_MS if ns % NS_PER_MS == 0 else ns / NS_PER_MS
+
+
+def period_ticks(period_ms: float, base_tick_ms: float, *, round_up: bool = False) -> int:
+    """The whole number of base ticks in ``period_ms``, compared in integer nanoseconds.
+
+    The one place a period is divided by the tick.  ValueError unless the period is a whole
+    multiple of the tick, at least one; ``round_up`` takes the next multiple instead.
+    """
+    if not (math.isfinite(period_ms) and math.isfinite(base_tick_ms)):
+        raise ValueError(f"period {period_ms!r} ms, base tick {base_tick_ms!r} ms: not finite")
+    tick_ns = ms_to_ns(base_tick_ms)
+    if tick_ns <= 0:
+        raise ValueError(f"base tick {base_tick_ms!r} ms: must be at least 1 ns")
+    ticks, rest = divmod(ms_to_ns(period_ms), tick_ns)
+    if rest and round_up:
+        ticks, rest = ticks + 1, 0
+    if rest or ticks < 1:
+        raise ValueError(
+            f"period {period_ms!r} ms is not a whole multiple of the {base_tick_ms!r} ms base tick"
+        )
+    return ticks
 
 
 # --------------------------------------------------------------------------------------------
@@ -468,11 +511,32 @@ def _cpu(value: Any, path: str) -> int | None:
     return value
 
 
-def _period(value: Any, path: str, tick: int, lo: int | None = None, lo_name: str = "") -> int:
-    """A period in ms: a multiple of the base tick, at least ``lo`` (default: one tick)."""
-    period = _int(value, path, 1, MAX_PERIOD_MS)
-    if period % tick:
+def _base_tick(value: Any, path: str) -> float:
+    """The base tick in ms: a whole number of microseconds in MIN..MAX_BASE_TICK_MS."""
+    allowed = (
+        f"must be a number >= {MIN_BASE_TICK_MS:g} and <= {MAX_BASE_TICK_MS:g} that is a whole "
+        "number of microseconds (e.g. 0.5 or 0.25)"
+    )
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        _fail(path, value, f"{allowed}, not {_kind_of(value)}")
+    if not (math.isfinite(value) and MIN_BASE_TICK_MS <= value <= MAX_BASE_TICK_MS):
+        _fail(path, value, allowed)
+    us = value * 1000
+    if abs(us - round(us)) > 1e-6:
+        _fail(path, value, allowed)
+    return ns_to_ms(round(us) * 1000)
+
+
+def _period(
+    value: Any, path: str, tick: float, lo: float | None = None, lo_name: str = ""
+) -> float:
+    """A period in ms: a whole multiple of the base tick, at least ``lo`` (default: one tick)."""
+    period = _float(value, path, 0.0, MAX_PERIOD_MS)
+    try:
+        ticks = period_ticks(period, tick)
+    except ValueError:
         _fail(path, value, f"must be a multiple of clock.base_tick_ms ({tick})")
+    period = ns_to_ms(ticks * ms_to_ns(tick))
     floor = tick if lo is None else lo
     if period < floor:
         _fail(path, value, f"must be >= {lo_name or 'clock.base_tick_ms'} ({floor})")
@@ -511,7 +575,8 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
         except _InvalidError as exc:
             raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
     robots = _robots(doc.get("robots", _DEFAULT_ROBOTS))
-    plant = _plant(doc.get("plant", {}), clock)
+    plant_period = next(p.period_ms for p in processes if p.kind == "plant")
+    plant = _plant(doc.get("plant", {}), plant_period)
     plugins = tuple(
         _identifier(p, f"plugins[{i}]", _PLUGIN_RE)
         for i, p in enumerate(_list(doc.get("plugins", []), "plugins", 0, MAX_PLUGINS))
@@ -531,14 +596,22 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
     )
 
 
-def _plant(node: Any, clock: ClockConfig) -> PlantConfig:
-    """The ``plant`` section; the substep must divide the base tick."""
+def _plant(node: Any, period_ms: float) -> PlantConfig:
+    """The ``plant`` section; the substep must divide the plant's period (``period_ms``).
+
+    The plant advances one whole period per cycle, in ``period_ms / substep_ms`` MuJoCo steps.
+    """
     d = PlantConfig()
     m = _mapping(node, "plant", _PLANT_KEYS)
     sub = _float(m.get("substep_ms", d.substep_ms), "plant.substep_ms", 0.0, 1.0)
-    n = clock.base_tick_ms / sub
-    if abs(n - round(n)) > 1e-9:
-        _fail("plant.substep_ms", sub, f"must divide clock.base_tick_ms = {clock.base_tick_ms}")
+    n = period_ms / sub
+    if round(n) < 1 or abs(n - round(n)) > 1e-9 * n:
+        _fail(
+            "plant.substep_ms",
+            sub,
+            f"must divide processes.plant.period_ms = {period_ms} "
+            "(the plant advances one period per cycle, in whole substeps)",
+        )
     return PlantConfig(
         substep_ms=sub,
         watchdog_ms=_float(m.get("watchdog_ms", d.watchdog_ms), "plant.watchdog_ms", 0.0, 1000.0),
@@ -556,7 +629,7 @@ def _clock(node: Any) -> ClockConfig:
     """The ``clock`` section: rates first, then the periods that depend on them."""
     d = ClockConfig()
     m = _mapping(node, "clock", _CLOCK_KEYS)
-    tick = _int(m.get("base_tick_ms", d.base_tick_ms), "clock.base_tick_ms", 1, 100)
+    tick = _base_tick(m.get("base_tick_ms", d.base_tick_ms), "clock.base_tick_ms")
     servo = _clock_period(m, "servo_period_ms", d.servo_period_ms, tick, tick, "base_tick_ms")
     tg = _clock_period(m, "tg_period_ms", d.tg_period_ms, tick, servo, "servo_period_ms")
     return ClockConfig(
@@ -580,8 +653,8 @@ def _clock(node: Any) -> ClockConfig:
 
 
 def _clock_period(
-    m: dict[str, Any], key: str, default: int, tick: int, lo: int, lo_key: str
-) -> int:
+    m: dict[str, Any], key: str, default: float, tick: float, lo: float, lo_key: str
+) -> float:
     """``clock.<key>``; when the default is what fails (e.g. a 3 ms tick), the message says so."""
     try:
         return _period(m.get(key, default), f"clock.{key}", tick, lo=lo, lo_name=f"clock.{lo_key}")
@@ -591,7 +664,7 @@ def _clock_period(
         raise _InvalidError(f"{exc} (the default; set clock.{key} explicitly)") from None
 
 
-def _default_period(kind: str, clock: ClockConfig) -> int:
+def _default_period(kind: str, clock: ClockConfig) -> float:
     """The period a kind runs at when its entry has no ``period_ms``."""
     tick = clock.base_tick_ms
     if kind in ("tg", "dynamics"):
@@ -599,7 +672,8 @@ def _default_period(kind: str, clock: ClockConfig) -> int:
     if kind in ("sio", "sv"):
         return clock.servo_period_ms
     if kind == "viewer":  # 40 ms, rounded up to a whole number of ticks
-        return -(-VIEWER_PERIOD_MS // tick) * tick
+        ticks = period_ticks(VIEWER_PERIOD_MS, tick, round_up=True)
+        return ns_to_ms(ticks * ms_to_ns(tick))
     return tick  # wallclock, plant
 
 

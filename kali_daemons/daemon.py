@@ -26,6 +26,7 @@ import numpy as np
 import posix_ipc
 
 from . import layout, rt
+from .config import period_ticks
 from .errors import DaemonError
 from .instance import Instance
 from .layout import FaultCode, ProcState
@@ -48,7 +49,7 @@ class Daemon:
         instance: str,
         name: str,
         *,
-        period_ms: int | None = None,
+        period_ms: float | None = None,
         serious: bool | None = None,
         stage: int | None = None,
         cpu: int | None = None,
@@ -137,12 +138,13 @@ class Daemon:
             if ov["period_ms"] is not None
             else (pcfg.period_ms if pcfg else base_ms)
         )
-        if period_ms < base_ms or period_ms % base_ms:
+        try:
+            self.period_ticks = period_ticks(period_ms, base_ms)
+        except ValueError:
             raise DaemonError(
                 f"{self.name}: period {period_ms} ms must be a multiple of the "
                 f"{base_ms} ms base tick"
-            )
-        self.period_ticks = period_ms // base_ms
+            ) from None
         self.serious = bool(
             ov["serious"] if ov["serious"] is not None else (pcfg.serious if pcfg else False)
         )

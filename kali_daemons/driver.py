@@ -41,7 +41,14 @@ class Puma560Driver:
     records so a restarted SIO resumes with the same counts and calibration.
     """
 
-    def __init__(self, n_arms: int, current_limit: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        n_arms: int,
+        current_limit: np.ndarray | None = None,
+        index_phase: np.ndarray | None = None,
+    ) -> None:
+        """``index_phase``: each joint's index-pulse motor angle (rad, flat ``(6 n_arms,)``),
+        the arms' calibration sheets (``puma560.index_phases``); needed only to calibrate."""
         self.n_arms = n_arms
         n = self.n = 6 * n_arms
 
@@ -60,7 +67,11 @@ class Puma560Driver:
         limit = tile(puma560.MAX_CURRENT) if current_limit is None else current_limit
         self.current_limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), (n,)).copy()
         self.torque_limit = self.current_limit * np.abs(self.gkt)  # N·m at the joint
+        self.gear = tile(puma560.G)  # signed: motor angle = G · joint angle
         self.index_spacing = tile(2.0 * math.pi / np.abs(puma560.G))  # rad between index pulses
+        self.index_phase = (
+            np.zeros(n) if index_phase is None else np.asarray(index_phase, dtype=np.float64)
+        ).reshape(n)
         self._raw = np.zeros(n, dtype=np.int32)
         self._delta = np.zeros(n, dtype=np.int32)
         self._f = np.zeros(n)
@@ -111,6 +122,25 @@ class Puma560Driver:
     def set_angle(self, i: int, angle: float) -> None:
         """Make joint ``i`` read ``angle`` now by moving its offset (calibration)."""
         self.offset[i] = angle - float(self.acc[i]) * float(self.rad_per_count[i])
+
+    # ------------------------------------------------------------------ index pulses (3.5.1)
+
+    def at_index(self, i: int, raw: int, index_angle: float) -> None:
+        """Joint ``i``'s counter was reset to 0 by its index pulse since the last reading
+        (capture on, C.3): count from the pulse from now on, and let the pulse read as
+        ``index_angle``.  ``raw`` is this tick's counter reading, i.e. the counts travelled
+        past the pulse (signed, it may have gone back through 0)."""
+        r = int(raw) & (COUNTER_MODULO - 1)
+        self.acc[i] = r - COUNTER_MODULO if r >= COUNTER_HALF else r
+        self.prev[i] = r
+        self.offset[i] = index_angle
+
+    def nearest_index(self, i: int, angle: float) -> float:
+        """The joint angle (rad) of joint ``i``'s index pulse nearest ``angle``: pulses sit at
+        motor angles ``phase + 2π m``, i.e. joint angles ``(phase + 2π m) / G``."""
+        g, phase = float(self.gear[i]), float(self.index_phase[i])
+        m = round((g * angle - phase) / (2.0 * math.pi))
+        return (phase + 2.0 * math.pi * m) / g
 
     # ------------------------------------------------------------------ torque → DAC
 

@@ -23,7 +23,7 @@ import posix_ipc
 
 from . import layout
 from .arena import Arena, segment_name, unlink_segment
-from .config import KaliConfig
+from .config import KaliConfig, ms_to_ns, ns_to_ms
 from .errors import ArenaError, ConfigError, InstanceError
 from .instance import Instance, all_semaphore_names, check_instance_name, decode
 from .layout import ProcState, RunMode
@@ -159,7 +159,7 @@ def _create(cfg: KaliConfig, instance: str, lockstep: bool) -> Arena:
     try:
         arena.header["lockstep"] = int(lockstep)
         clock = arena.record(layout.KEY_CLOCK, layout.CLOCK)
-        clock["base_tick_ns"] = cfg.clock.base_tick_ms * 1_000_000
+        clock["base_tick_ns"] = ms_to_ns(cfg.clock.base_tick_ms)
         clock["serious_miss_tolerance_ms"] = cfg.clock.serious_miss_tolerance_ms
         clock["lockstep_timeout_ms"] = int(cfg.clock.lockstep_ack_timeout_s * 1000)
         clock["busy_wait_ns"] = cfg.clock.busy_wait_us * 1000
@@ -308,7 +308,7 @@ def _tail(path: Path, lines: int = 15) -> str:
 def describe(inst: Instance) -> list[dict[str, object]]:
     """The process table as plain rows, for ``kalictl status`` and tests."""
     rows = []
-    base_ms = int(inst.clock["base_tick_ns"]) / 1e6
+    base_ns = int(inst.clock["base_tick_ns"])
     now = time.monotonic_ns()
     for i in range(layout.MAX_PROCESSES):
         p = inst.procs[i]
@@ -325,7 +325,7 @@ def describe(inst: Instance) -> list[dict[str, object]]:
                 "cpu": int(p["cpu"]),
                 "priority": int(p["priority"]),
                 "periodic": bool(p["periodic"]),
-                "period_ms": int(p["period_ticks"]) * base_ms,
+                "period_ms": ns_to_ms(int(p["period_ticks"]) * base_ns),
                 "serious": bool(p["serious"]),
                 "signals": int(p["signals"]),
                 "acks": int(p["acks"]),

@@ -432,13 +432,14 @@ class PowerCmd(enum.IntEnum):
 
 
 class CalibState(enum.IntEnum):
-    """Progress of a robot's calibration (thesis 3.5.1)."""
+    """Progress of a robot's calibration (thesis 3.5.1), in the order SIO goes through it."""
 
     IDLE = 0
-    POTS = 1  # reading the potentiometers
-    SEARCH = 2  # servoing every joint toward its nearest index pulse
-    DONE = 3
-    FAILED = 4
+    SEARCH = 1  # index capture on, every joint servoed slowly toward its nearest index pulse
+    SETTLE = 2  # every index found, capture off: the joints come to rest on their pulses
+    POTS = 3  # reading the potentiometers at the index pulses
+    DONE = 4
+    FAILED = 5
 
 
 class SlotOp(enum.IntEnum):
@@ -449,6 +450,14 @@ class SlotOp(enum.IntEnum):
     GET = 2  # copy the private data of ``op_algo`` into the staging bytes
     SELECT = 3  # make ``op_algo`` the joint's servo, handing over its state (bumpless)
     PARAMS = 4  # set parameters of ``op_algo`` from float64 staging values (NaN = unchanged)
+
+
+class SlotReset(enum.IntEnum):
+    """What SIO asks the SV to do to a slot's servo state before its next step."""
+
+    NONE = 0
+    REST = 1  # take the joint over at rest with no torque (power on)
+    SHIFT = 2  # positions moved by a constant (calibration): hand over from the running state
 
 
 SLOT_NOT_FED = 0xFFFFFFFF  # ``busy`` of a slot SIO did not feed this tick
@@ -476,6 +485,7 @@ ROBOT_STATE = np.dtype(
         ("calib_state", "u1"),  # SIO: CalibState
         ("calib_found", "u1"),  # SIO: bit j = joint j's index pulse found
         ("_pad", "u1", (3,)),
+        ("calib_shift", "<f8", (ARM_JOINTS,)),  # SIO: how far calibration moved each angle, rad
         ("enable_ticks", "<i4"),  # SIO: ticks into the enable sequence
         ("tick", "<i8"),  # SIO: last servo tick
         ("message", f"S{MESSAGE_BYTES}"),  # SIO: last calibration or power message
@@ -498,7 +508,7 @@ SERVO_SLOT = np.dtype(
         ("velocity", "<f8"),  # SIO: measured velocity, rad/s (for hand-over)
         ("torque", "<f8"),  # SV: torque demand, N·m (held while the servo is not run)
         ("error", "<f8"),  # SV: the servo's tracking error, rad
-        ("reset", "<u4"),  # SIO: 1 = hand the joint over at rest (power on); the SV clears it
+        ("reset", "<u4"),  # SIO: SlotReset; the SV clears it
         ("_pad0", "<u4"),
         ("ran_tick", "<i8"),  # SV: last tick the servo ran
         ("exec_ns", "<i8"),  # SV: duration of the last step

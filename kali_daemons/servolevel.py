@@ -27,8 +27,9 @@ import numpy as np
 
 from . import atomic, layout, puma560
 from .channels import InterpolatingFifo
+from .config import ms_to_ns
 from .errors import KaliError
-from .instance import Instance
+from .instance import Instance, decode
 from .layout import CalibState, PowerCmd, PowerState, SlotOp
 from .servo import Handover, Registry, ServoAlgorithm, registry_for, struct_view
 from .spinlock import SpinLock
@@ -87,7 +88,9 @@ class ServoLevel:
         coff = a.lookup(layout.KEY_SERVO_CTRL)[0]  # type: ignore[index]
         self.done_addr = a.address_of_field(coff, layout.SERVO_CTRL, "done")
         self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
-        self.fifo_ratio = Fraction(cfg.clock.tg_period_ms, cfg.clock.servo_period_ms)
+        self.fifo_ratio = Fraction(
+            ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms)
+        )  # exact: periods are whole ns
 
     def fifo(self, robot: int) -> InterpolatingFifo:
         """The TG → SIO set-point FIFO of robot index ``robot`` (Type 2, 2.2.2)."""
@@ -332,6 +335,37 @@ class ServoClient:
     def power_state(self, robot: str | int) -> PowerState:
         """The robot's amplifier power as SIO drives it."""
         return PowerState(int(self.level.robots["power"][self.robot_index(robot)]))
+
+    # ------------------------------------------------------------------ calibration (3.5.1)
+
+    def calibrate(self, robot: str | int) -> None:
+        """Ask SIO to calibrate a powered robot against its index pulses; see ``calibration``."""
+        k = self.robot_index(robot)
+        if self.inst.fault["active"]:
+            raise ServoError(
+                f"calibrate: robot '{self.names[k]}' cannot calibrate while a fault is active "
+                f"({self.inst.fault_text()}); kalictl reset first"
+            )
+        self.level.robots["calib_cmd"][k] = 1
+
+    def calibration(self, robot: str | int) -> tuple[CalibState, int, str]:
+        """The robot's calibration: state, bit mask of index pulses found, SIO's message."""
+        r = self.level.robots[self.robot_index(robot)]
+        return CalibState(int(r["calib_state"])), int(r["calib_found"]), decode(r["message"])
+
+    def calibrated(self, robot: str | int) -> bool:
+        """True once the robot's angles are exact (calibrated against the index pulses)."""
+        return bool(self.level.robots["calibrated"][self.robot_index(robot)])
+
+    def require_calibrated(self, robot: str | int, what: str) -> None:
+        """ServoError unless the robot is calibrated: Cartesian motion needs exact angles."""
+        if not self.calibrated(robot):
+            name = self.names[self.robot_index(robot)]
+            raise ServoError(
+                f"{what}: robot '{name}' is not calibrated; its angles come from the "
+                f"potentiometers (about 1° off), too coarse for Cartesian motion. "
+                f"Run: kalictl calibrate {name}"
+            )
 
 
 def apply_op(level: ServoLevel, i: int, op: int) -> None:

@@ -489,7 +489,9 @@ def with_miss_tolerance(cfg: KaliConfig, tolerance: int) -> KaliConfig:
 def under_test(cfg: KaliConfig) -> list[str]:
     """The clock-driven processes running every PERIOD_US, in config order."""
     names = [
-        p.name for p in cfg.processes if p.kind in DRIVEN_KINDS and p.period_ms * 1000 == PERIOD_US
+        p.name
+        for p in cfg.processes
+        if p.kind in DRIVEN_KINDS and round(p.period_ms * 1000) == PERIOD_US
     ]
     if not names:
         raise BenchError(f"{cfg.source}: no tg/sio/sv process runs at {PERIOD_US // 1000} ms")

@@ -174,9 +174,19 @@ CPU_MSG = f"must be null or a CPU index 0..{FAKE_CPUS - 1} (this machine has {FA
 
 BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     (
-        "plant-substep-not-dividing-the-tick",
+        "plant-substep-not-dividing-the-plant-period",
         [("substep_ms: 0.5 ", "substep_ms: 0.3 ")],
-        "plant.substep_ms = 0.3: must divide clock.base_tick_ms = 1",
+        "plant.substep_ms = 0.3: must divide processes.plant.period_ms = 1 (the plant advances "
+        "one period per cycle, in whole substeps)",
+    ),
+    (
+        "plant-substep-longer-than-the-plant-period",
+        [
+            ("base_tick_ms: 1 ", "base_tick_ms: 0.5 "),
+            ("period_ms: 1, stage: 0", "period_ms: 0.5, stage: 0"),
+            ("substep_ms: 0.5 ", "substep_ms: 1 "),
+        ],
+        "plant.substep_ms = 1.0: must divide processes.plant.period_ms = 0.5",
     ),
     (
         "plant-unknown-key",
@@ -192,22 +202,57 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     (
         "tick-negative",
         [("base_tick_ms: 1 ", "base_tick_ms: -1 ")],
-        "config: config/default.yaml: clock.base_tick_ms = -1: must be an integer >= 1",
+        "config: config/default.yaml: clock.base_tick_ms = -1: must be a number >= 0.1 and "
+        "<= 100 that is a whole number of microseconds (e.g. 0.5 or 0.25)",
     ),
     (
         "tick-too-big",
         [("base_tick_ms: 1 ", "base_tick_ms: 101 ")],
-        "clock.base_tick_ms = 101: must be an integer >= 1 and <= 100",
+        "clock.base_tick_ms = 101: must be a number >= 0.1 and <= 100 that is a whole number",
     ),
     (
-        "tick-float",
-        [("base_tick_ms: 1 ", "base_tick_ms: 1.5 ")],
-        "clock.base_tick_ms = 1.5: must be an integer >= 1 and <= 100, not a number",
+        "tick-not-whole-microseconds",
+        [("base_tick_ms: 1 ", "base_tick_ms: 0.1234 ")],
+        "clock.base_tick_ms = 0.1234: must be a number >= 0.1 and <= 100 that is a whole number "
+        "of microseconds (e.g. 0.5 or 0.25)",
+    ),
+    (
+        "tick-below-a-tenth-of-a-ms",
+        [("base_tick_ms: 1 ", "base_tick_ms: 0.0005 ")],
+        "clock.base_tick_ms = 0.0005: must be a number >= 0.1 and <= 100 that is a whole number "
+        "of microseconds",
+    ),
+    (
+        "tick-string",
+        [("base_tick_ms: 1 ", "base_tick_ms: '1' ")],
+        "clock.base_tick_ms = '1': must be a number >= 0.1 and <= 100 that is a whole number of "
+        "microseconds (e.g. 0.5 or 0.25), not a string",
+    ),
+    (
+        "tick-bool",
+        [("base_tick_ms: 1 ", "base_tick_ms: true ")],
+        "clock.base_tick_ms = true: must be a number >= 0.1",
     ),
     (
         "servo-not-multiple-of-tick",
         [("base_tick_ms: 1 ", "base_tick_ms: 2 "), ("servo_period_ms: 1 ", "servo_period_ms: 3 ")],
         "clock.servo_period_ms = 3: must be a multiple of clock.base_tick_ms (2)",
+    ),
+    (
+        "servo-not-multiple-of-fractional-tick",
+        [
+            ("base_tick_ms: 1 ", "base_tick_ms: 0.2 "),
+            ("servo_period_ms: 1 ", "servo_period_ms: 0.3 "),
+        ],
+        "clock.servo_period_ms = 0.3: must be a multiple of clock.base_tick_ms (0.2)",
+    ),
+    (
+        "servo-shorter-than-fractional-tick",
+        [
+            ("base_tick_ms: 1 ", "base_tick_ms: 0.5 "),
+            ("servo_period_ms: 1 ", "servo_period_ms: 0.25 "),
+        ],
+        "clock.servo_period_ms = 0.25: must be a multiple of clock.base_tick_ms (0.5)",
     ),
     (
         "servo-default-not-multiple-of-tick",
@@ -218,7 +263,7 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     (
         "servo-zero",
         [("servo_period_ms: 1 ", "servo_period_ms: 0 ")],
-        "clock.servo_period_ms = 0: must be an integer >= 1",
+        "clock.servo_period_ms = 0: must be a number > 0 and <= 60000",
     ),
     (
         "tg-faster-than-servo",
@@ -407,9 +452,19 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "processes.viewer.period_ms = 45: must be a multiple of clock.base_tick_ms (2)",
     ),
     (
+        "period-not-multiple-of-fractional-tick",
+        [("base_tick_ms: 1 ", "base_tick_ms: 0.5 "), ("period_ms: 40,", "period_ms: 40.25,")],
+        "processes.viewer.period_ms = 40.25: must be a multiple of clock.base_tick_ms (0.5)",
+    ),
+    (
+        "period-bool",
+        [("period_ms: 40,", "period_ms: true,")],
+        "processes.viewer.period_ms = true: must be a number > 0 and <= 60000, not a bool",
+    ),
+    (
         "period-zero",
         [("period_ms: 10, serious: false", "period_ms: 0, serious: false")],
-        "processes.dynamics.period_ms = 0: must be an integer >= 1",
+        "processes.dynamics.period_ms = 0: must be a number > 0 and <= 60000",
     ),
     (
         "robots-too-many",
@@ -577,6 +632,80 @@ def test_int_accepted_where_float_expected() -> None:
 def test_non_integer_servo_tg_ratio_is_allowed() -> None:
     cfg = parse_config(edit(("servo_period_ms: 1 ", "servo_period_ms: 3 ")))
     assert (cfg.process("sio").period_ms, cfg.process("tg").period_ms) == (3, 10)
+
+
+def test_fractional_base_tick_is_accepted() -> None:
+    cfg = parse_config(
+        edit(
+            ("base_tick_ms: 1 ", "base_tick_ms: 0.5 "),
+            ("servo_period_ms: 1 ", "servo_period_ms: 0.5 "),
+            ("period_ms: 40,", "period_ms: 1.5,"),
+        )
+    )
+    assert cfg.clock == ClockConfig(base_tick_ms=0.5, servo_period_ms=0.5, tg_period_ms=10)
+    periods = {p.name: p.period_ms for p in cfg.processes}
+    assert periods == {
+        "wallclock": 0.5,
+        "plant": 1,  # two ticks, each cycle two 0.5 ms substeps
+        "tg": 10,
+        "sio": 0.5,
+        "sv.0": 0.5,
+        "sv.1": 0.5,
+        "dynamics": 10,
+        "viewer": 1.5,
+    }
+    assert cfg.plant.substep_ms == 0.5
+    # a tick of a tenth of a ms: 3 and 7 ticks, stored as the decimals written
+    tenth = parse_config(
+        edit(
+            ("base_tick_ms: 1 ", "base_tick_ms: 0.1 "),
+            ("servo_period_ms: 1 ", "servo_period_ms: 0.3 "),
+            ("tg_period_ms: 10 ", "tg_period_ms: 0.7 "),
+        )
+    )
+    assert (tenth.clock.servo_period_ms, tenth.clock.tg_period_ms) == (0.3, 0.7)
+
+
+def test_integer_periods_stay_integers() -> None:
+    cfg = parse_config(DEFAULT_TEXT)
+    clock = cfg.clock
+    values = [clock.base_tick_ms, clock.servo_period_ms, clock.tg_period_ms]
+    values += [p.period_ms for p in cfg.processes]
+    assert all(type(v) is int for v in values)
+    # a whole number written as a float reads as the same int
+    whole = parse_config(edit(("base_tick_ms: 1 ", "base_tick_ms: 1.0 ")))
+    assert type(whole.clock.base_tick_ms) is int and whole.clock == clock
+
+
+def test_viewer_default_rounds_up_to_whole_fractional_ticks() -> None:
+    text = "version: 1\ninstance: x\n"
+    text += "clock: {base_tick_ms: 0.3, servo_period_ms: 0.3, tg_period_ms: 3}\n"
+    text += "processes: {" + ", ".join(f"{k}: {{}}" for k in PROCESS_NAMES) + "}\n"
+    text += "plant: {substep_ms: 0.1}\n"
+    cfg = parse_config(text)
+    assert cfg.process("viewer").period_ms == 40.2  # 134 ticks of 0.3 ms
+    assert cfg.process("plant").period_ms == 0.3
+
+
+@pytest.mark.parametrize(
+    ("period_ms", "tick_ms", "ticks"),
+    [(1, 1, 1), (10, 1, 10), (0.5, 0.5, 1), (1.5, 0.5, 3), (0.3, 0.1, 3), (40, 0.3, None)],
+)
+def test_period_ticks_counts_whole_ticks_in_nanoseconds(
+    period_ms: float, tick_ms: float, ticks: int | None
+) -> None:
+    if ticks is None:
+        with pytest.raises(ValueError, match=r"period 40 ms is not a whole multiple of the 0\.3"):
+            config_mod.period_ticks(period_ms, tick_ms)
+        assert config_mod.period_ticks(period_ms, tick_ms, round_up=True) == 134
+    else:
+        assert config_mod.period_ticks(period_ms, tick_ms) == ticks
+
+
+def test_period_ticks_rejects_less_than_one_tick() -> None:
+    for period in (0, 0.25, -1):
+        with pytest.raises(ValueError, match="not a whole multiple"):
+            config_mod.period_ticks(period, 0.5)
 
 
 # --------------------------------------------------------------------------------------------

@@ -57,6 +57,8 @@ def test_start_status_mem_stop_from_the_command_line(tmp_path: Path) -> None:
             assert key in r.stdout
         r = kalictl("-i", name, "rate", "tg", "20")
         assert r.returncode == 0 and "tg: period 20 ms" in r.stdout
+        r = kalictl("-i", name, "rate", "tg", "2.5")
+        assert r.returncode == 1 and "2.5 ms must be a whole multiple of the 1 ms" in r.stderr
         r = kalictl("-i", name, "clock", "step", "3")
         assert r.returncode == 1 and "clock step needs lockstep mode" in r.stderr
     finally:

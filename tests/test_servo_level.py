@@ -12,8 +12,10 @@ import signal
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from fractions import Fraction
 
 import numpy as np
+import pytest
 
 from kali_daemons import layout, puma560
 from kali_daemons.instance import Instance, decode
@@ -21,10 +23,11 @@ from kali_daemons.layout import (
     CSR_NO_DISABLE,
     POWER_AMPS_ON,
     POWER_WATCHDOG_TRIPPED,
+    CalibState,
     FaultCode,
     PowerState,
 )
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.servolevel import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_launcher import kalictl
@@ -254,3 +257,170 @@ def test_kalictl_enable_and_servo_commands(kali: Callable[..., str]) -> None:
     assert r.returncode == 1 and "'pid' has no parameter kq" in r.stderr
     r = kalictl("-i", name, "servo", "select", "left", "7", "pd")
     assert r.returncode == 1 and "joint 7 of robot 'left', must be 1..6" in r.stderr
+
+
+def _calibrate(inst: Instance, client: ServoClient, ticks: int = 3000) -> list[str]:
+    """Calibrate both arms, stepping the clock until both are done; their final messages."""
+    for robot in client.names:
+        client.calibrate(robot)
+    for _ in range(ticks // 50):
+        step_kali_clock(inst, 50)
+        states = [client.calibration(r)[0] for r in client.names]
+        if all(s in (CalibState.DONE, CalibState.FAILED) for s in states):
+            break
+    return [client.calibration(r)[2] for r in client.names]
+
+
+def test_calibration_finds_the_index_pulses_and_then_holds_within_one_count(
+    kali: Callable[..., str],
+) -> None:
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, client):
+        truth = inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
+        r = client.level.robots
+        before = (r["q"] - truth["q"]) / COUNT  # pot-based angles: off by many counts
+        assert np.abs(before).max() > 20
+        assert not any(client.calibrated(n) for n in client.names)
+        messages = _calibrate(inst, client)
+        assert [client.calibration(n)[0] for n in client.names] == [CalibState.DONE] * 2, messages
+        assert all(client.calibrated(n) for n in client.names)
+        assert [client.calibration(n)[1] for n in client.names] == [0x3F, 0x3F]
+        # the correction is the pot-based error, and the angles are now the true ones
+        assert np.abs(r["calib_shift"] / COUNT + before).max() < 3
+        step_kali_clock(inst, 1000)
+        after = (r["q"] - truth["q"]) / COUNT
+        assert np.abs(after).max() <= 1.0, f"calibrated angle error (counts) {after}"
+        # every joint rests on its index pulse and holds there within ±1 count
+        spacing = 2 * math.pi / np.abs(puma560.G)
+        for k in range(2):
+            phase = puma560.index_phases(0, k)
+            m = np.round((puma560.G * r["demand"][k] - phase) / (2 * math.pi))
+            pulse = (phase + 2 * math.pi * m) / puma560.G
+            assert np.abs(r["demand"][k] - pulse).max() < 1e-9
+            assert np.abs(r["q"][k] - r["demand"][k]).max() < 0.5 * spacing.min()
+        worst = np.zeros((2, 6))
+        for _ in range(10):
+            step_kali_clock(inst, 20)
+            worst = np.maximum(worst, np.abs(error_counts(client)))
+        assert (worst <= 1.0 + 1e-6).all(), f"hold error after calibration (counts) {worst}"
+        assert inst.fault_text() is None
+        del truth, r
+
+
+def test_calibration_needs_power_and_says_so(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            step_kali_clock(inst, 30)
+            client.calibrate("left")
+            step_kali_clock(inst, 2)
+            state, found, message = client.calibration("left")
+            assert state == CalibState.FAILED and found == 0
+            assert "not powered" in message and "kalictl enable" in message
+            with pytest.raises(ServoError, match=r"not calibrated.*kalictl calibrate left"):
+                client.require_calibrated("left", "move_line")
+        finally:
+            client.close()
+
+
+def test_kalictl_calibrate_and_move(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "move", "left", "--joints", "0,-90,90,0,0,0")
+    assert r.returncode == 1 and "robot 'left' is not powered; kalictl enable left" in r.stderr
+    r = kalictl("-i", name, "calibrate", "left")
+    assert r.returncode == 1 and "left not powered" in r.stderr
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            step_kali_clock(inst, 30)
+            assert kalictl("-i", name, "enable", "left").returncode == 0
+            step_kali_clock(inst, 1000)
+            r = kalictl("-i", name, "calibrate", "left")
+            assert r.returncode == 0 and "calibrate requested: left" in r.stdout, r.stderr
+            for _ in range(60):
+                step_kali_clock(inst, 50)
+                if client.calibrated("left"):
+                    break
+            assert client.calibrated("left"), client.calibration("left")
+            rs = client.level.robots
+            start = np.degrees(rs["demand"][0])
+            target = start + np.array([10, -5, 8, 20, -15, 30])
+            joints = ",".join(f"{v:.4f}" for v in target)
+            for bad, why in (
+                ("1,2,3", "3 values, expected 6"),
+                ("a,b,c,d,e,f", "six numbers in degrees"),
+                ("0,0,0,0,0,300", "joint 6: target 300.00° is outside its range"),
+            ):
+                r = kalictl("-i", name, "move", "left", "--joints", bad)
+                assert r.returncode == 1 and why in r.stderr, r.stderr
+            r = kalictl("-i", name, "move", "left", "--joints", joints, "--speed", "60")
+            assert r.returncode == 0 and "move requested: left" in r.stdout, r.stderr
+            r = kalictl("-i", name, "move", "left", "--joints", joints)
+            assert r.returncode == 1 and "still being fed" in r.stderr
+            worst = 0.0
+            for _ in range(150):  # 1.5 s: the move takes 30° · 15/8 / 60°/s ≈ 0.94 s
+                step_kali_clock(inst, 10)
+                worst = max(worst, float(np.abs(rs["demand"][0] - rs["q"][0]).max()))
+            step_kali_clock(inst, 1000)
+            assert np.allclose(np.degrees(rs["demand"][0]), target, atol=1e-6)
+            assert np.abs(np.degrees(rs["q"][0]) - target).max() < 0.01
+            assert math.degrees(worst) < 2.0, (
+                f"tracking error {math.degrees(worst):.3f}°"
+            )  # no ff yet
+            assert inst.fault_text() is None
+            del rs
+        finally:
+            client.close()
+
+
+def test_sio_interpolates_the_fifo_by_the_thesis_formula_at_a_non_integer_ratio(
+    kali: Callable[..., str],
+) -> None:
+    """Servo 2 ms, TG 5 ms: r = 5/2.  Each TG segment A → B lasts 2 or 3 servo ticks
+    (accumulator of 5 halves), tick k of it demands A + k (B − A) / r and the last lands
+    exactly on B (thesis 2.2.2); SIO's published demand must be exactly that sequence."""
+    name = kali(
+        lockstep=True,
+        edits={
+            r"^  servo_period_ms: 1 ": "  servo_period_ms: 2 ",
+            r"^  tg_period_ms: 10 ": "  tg_period_ms: 5 ",
+        },
+    )
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            step_kali_clock(inst, 60)
+            client.power("left", True)
+            step_kali_clock(inst, 2000)
+            assert client.power_state("left") == PowerState.ON, client.calibration("left")[2]
+            rs = client.level.robots
+            a = rs["demand"][0].copy()
+            points = [
+                a + np.array([0.004, -0.002, 0.003, 0.01, -0.01, 0.02]) * m for m in (1, 2, 3, 4)
+            ]
+            fifo = client.level.fifo(0)
+            assert fifo.ratio == Fraction(5, 2)
+            for p in points:
+                fifo.push(p)
+            seen = []
+            tick = int(rs["tick"][0])
+            while len(seen) < 12:
+                step_kali_clock(inst, 1)
+                if int(rs["tick"][0]) != tick:
+                    tick = int(rs["tick"][0])
+                    seen.append(rs["demand"][0].copy())
+            expected = []
+            start, acc = a, 0
+            for b in points:
+                acc += 5
+                n, acc = acc // 2, acc % 2
+                expected += [start + (b - start) * (k * 2) / 5 for k in range(1, n)] + [b]
+                start = b
+            expected += [points[-1]] * (12 - len(expected))
+            assert [len(expected)] == [12]
+            np.testing.assert_array_equal(np.array(seen), np.array(expected))
+            assert inst.fault_text() is None
+            del rs
+        finally:
+            client.close()

@@ -92,6 +92,39 @@ def test_lockstep_signals_each_process_at_its_period(kali: Callable[..., str]) -
         assert inst.fault_text() is None
 
 
+HALF_MS_TICK = {
+    r"^  base_tick_ms: 1 ": "  base_tick_ms: 0.5 ",
+    r"^  servo_period_ms: 1 ": "  servo_period_ms: 0.5 ",
+    r"period_ms: 1, stage: 0": "period_ms: 0.5, stage: 0",  # the plant: one 0.5 ms substep
+}
+
+
+def test_lockstep_half_millisecond_tick(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True, edits=HALF_MS_TICK)
+    with Instance.attach(name) as inst:
+        assert int(inst.clock["base_tick_ns"]) == 500_000
+        assert step_kali_clock(inst, 200) == 200
+        assert time_ms(inst.clock) == pytest.approx(100.0)
+        c = counts(inst)
+        # 100 ms: sio/sv/plant (0.5 ms) every tick, tg/dynamics (10 ms) every 20th tick,
+        # the viewer (40 ms) every 80th (ticks 0, 80, 160)
+        assert c["sio"] == c["sv.0"] == c["sv.1"] == c["plant"] == (200, 200, 0)
+        assert c["tg"] == c["dynamics"] == (10, 10, 0)
+        assert c["viewer"] == (3, 3, 0)
+        periods = {r["name"]: r["period_ms"] for r in launcher.describe(inst)}
+        assert (periods["sio"], periods["plant"], periods["tg"]) == (0.5, 0.5, 10)
+        assert inst.fault_text() is None
+
+        set_control_rate(inst, "tg", 1.5)  # three ticks
+        with pytest.raises(ClockError, match=r"'tg': 1.25 ms must be a whole multiple of the 0.5"):
+            set_control_rate(inst, "tg", 1.25)
+        assert step_kali_clock(inst, 30) == 230
+        # due at 200 (set under the old rate), then every third tick: 201, 204 .. 228
+        assert counts(inst)["tg"] == (21, 21, 0)
+        assert int(inst.procs[inst.slot_of("tg")]["period_ticks"]) == 3
+        assert inst.fault_text() is None
+
+
 DETERMINISTIC_FIELDS = [
     "name", "state", "periodic", "serious", "stage", "period_ticks", "signal_tick",
     "next_due", "signals", "misses", "consecutive_misses", "ack_tick", "acks",

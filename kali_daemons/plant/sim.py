@@ -38,7 +38,7 @@ class PlantSim:
         pc = self._plant_cfg = cfg.plant
         self.dt = pc.substep_ms / 1000.0
         self.dt_ns = round(pc.substep_ms * 1e6)
-        period = cfg.clock.base_tick_ms if period_ms is None else period_ms
+        period = cfg.process("plant").period_ms if period_ms is None else period_ms
         self.substeps = max(1, round(period / pc.substep_ms))
         self.world: World = build_world(cfg.robots, timestep=self.dt)
         self.names = [r.name for r in cfg.robots]

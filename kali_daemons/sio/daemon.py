@@ -17,7 +17,8 @@ tolerance each halt the system: ``raise_fault`` cuts every amplifier through its
 wall clock stops, and the fault names the robot, joint, value and limit (DESIGN 7).
 
 At start SIO reads each joint's potentiometer through the board's ADC (C.5) so angles are
-right to a fraction of a degree before calibration (3.5.1) refines them.
+right to a degree or so; ``kalictl calibrate`` then makes them exact against the encoder index
+pulses (3.5.1, ``calibration.py``), stepped here while the robot is powered.
 """
 
 from __future__ import annotations
@@ -27,13 +28,12 @@ import math
 import numpy as np
 import posix_ipc
 
-from .. import layout, rt
+from .. import layout, puma560, rt
+from ..config import ms_to_ns
 from ..daemon import Daemon
 from ..driver import Puma560Driver
 from ..errors import DaemonError
 from ..layout import (
-    ADC_DONE,
-    ADC_START,
     CSR_ENABLE,
     CSR_INDEX_OFF,
     CSR_NO_DISABLE,
@@ -44,8 +44,10 @@ from ..layout import (
     FaultCode,
     PowerCmd,
     PowerState,
+    SlotReset,
 )
 from ..servolevel import ServoLevel
+from .calibration import ACTIVE, Calibration, PotReader
 
 BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
 ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms, C.5.1)
@@ -80,7 +82,8 @@ class ServoIO(Daemon):
             lv.initialise()
         nr, n = lv.n_robots, lv.n
         rs = lv.robots
-        self.driver = Puma560Driver(nr)
+        phases = np.concatenate([puma560.index_phases(cfg.plant.seed, k) for k in range(nr)])
+        self.driver = Puma560Driver(nr, index_phase=phases)
         self._driver_state = (rs["acc"], rs["prev"], rs["offset"])
         if not first:
             self.driver.load(*self._driver_state)
@@ -88,12 +91,17 @@ class ServoIO(Daemon):
         self.period_ticks_servo = self.period_ticks
         period_s = lv.servo_period_s
         self.rate = 1.0 / period_s
-        ms = cfg.clock.servo_period_ms
-        self.hold_ticks = max(1, math.ceil(ENABLE_HOLD_MS / ms))
-        self.power_timeout_ticks = math.ceil(POWER_ON_TIMEOUT_MS / ms)
-        self.retrigger_ticks = max(1, math.ceil(RETRIGGER_HALF_MS / ms))
+        period_ns = ms_to_ns(cfg.clock.servo_period_ms)
+
+        def servo_ticks(ms: float) -> int:  # at least ``ms`` of servo ticks, at least one
+            return max(1, -(-ms_to_ns(ms) // period_ns))
+
+        self.hold_ticks = servo_ticks(ENABLE_HOLD_MS)
+        self.power_timeout_ticks = servo_ticks(POWER_ON_TIMEOUT_MS)
+        self.retrigger_ticks = servo_ticks(RETRIGGER_HALF_MS)
+        self.servo_ticks = 0  # cycles run: the watchdog pulse counts these
         self.current_ticks = np.array(
-            [max(1, math.ceil(r.current_fault_ms / ms)) for r in cfg.robots for _ in range(6)]
+            [servo_ticks(r.current_fault_ms) for r in cfg.robots for _ in range(6)]
         )
         sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
         ctrl["sv_count"] = len(sv_names)
@@ -152,14 +160,16 @@ class ServoIO(Daemon):
         self._lat_last, self._lat_max = ctrl["latency_last_ns"], ctrl["latency_max_ns"]
         self._robots_tick = rs["tick"]
         self._r = [_RobotViews(self, k) for k in range(nr)]
-        self._pot_channel = [0] * nr
-        self._pot_codes = [[0] * 6 for _ in range(nr)]
-        self._waiting_done = [False] * nr
+        self._pots = [PotReader(r.adc_control, r.adc_analog) for r in self._r]
+        self._calib = [Calibration(self, k) for k in range(nr)]
         if first:
             self.driver.start(self._encoders)
             for k in range(nr):
                 self.boards[k]["csr"] = BASE_CSR
                 self.boards[k]["adc_control"] = 0
+        for k in range(nr):
+            if int(rs[k]["calib_state"]) in ACTIVE:  # a restarted SIO does not resume one
+                self._calib[k].fail("SIO restarted during calibration")
         self.driver.angles(self.q)
         self.q_prev[:] = self.q
         for k in range(nr):
@@ -179,6 +189,9 @@ class ServoIO(Daemon):
             faulted = True
         # (a) encoders → radians, velocity by backward difference
         self.driver.read(self._encoders, self.q)
+        for calib in self._calib:
+            if calib.capture:  # calibrating: a counter reset by its index pulse
+                calib.catch_index()
         np.subtract(self.q, self.q_prev, out=self.qd_raw)
         np.multiply(self.qd_raw, self.rate * self.vel_a, out=self.qd_raw)
         np.add(self.qd, self.qd_raw, out=self.qd)  # qd = (a·raw + qd_prev) / (1 + a)
@@ -216,8 +229,9 @@ class ServoIO(Daemon):
         np.multiply(self.torque, self.fed_f, out=self.torque)
         self._current_check(tick)
         t_out = rt.monotonic_ns()
+        self.servo_ticks += 1
         for k in range(lv.n_robots):
-            self._write_csr(k, tick)
+            self._write_csr(k)
         for dst, src in self._pub:
             np.copyto(dst, src)
         self.driver.store(*self._driver_state)
@@ -240,6 +254,13 @@ class ServoIO(Daemon):
         cmd = int(r.power_cmd)
         if cmd:
             r.power_cmd[...] = PowerCmd.NONE
+        calib = self._calib[k]
+        if int(r.calib_cmd):
+            r.calib_cmd[...] = 0
+            if state == PowerState.ON and not faulted and int(r.calib_state) not in ACTIVE:
+                calib.begin()
+            elif int(r.calib_state) not in ACTIVE:
+                calib.fail("the robot is not powered (kalictl enable first)")
         if (faulted or cmd == PowerCmd.DISABLE) and state != PowerState.OFF:
             r.power[...] = state = PowerState.OFF
             r.message[...] = b"power off" + (b" (halted)" if faulted else b"")
@@ -248,7 +269,7 @@ class ServoIO(Daemon):
             r.enable_ticks[...] = 0
             r.message[...] = b"enabling"
             self.fifos[k].reset(q)
-            r.slot_reset[:] = 1  # every servo takes over at rest at its first run
+            r.slot_reset[:] = SlotReset.REST  # every servo takes over at rest at its first run
         power_bits = int(r.board_power)
         if state == PowerState.ENABLING:
             n = int(r.enable_ticks) + 1
@@ -272,34 +293,28 @@ class ServoIO(Daemon):
             )
             return
         if state == PowerState.OFF:
+            if int(r.calib_state) in ACTIVE:
+                calib.fail("power went off")
             self.fifos[k].reset(q)  # hold where the arm is: no jump when power comes on
             np.copyto(demand, q)
             return
-        self.fifos[k].pop_into(demand)
+        if state == PowerState.ON and int(r.calib_state) in ACTIVE:
+            calib.step()  # calibration drives the demand; motion requests wait
+            self.fifos[k].reset(demand)
+        else:
+            self.fifos[k].pop_into(demand)
         if power_bits & POWER_AMPS_ON:
             r.fed[:] = True
 
     def _read_pots(self, k: int) -> None:
-        """One step of reading robot ``k``'s six pots through the TLC532A (C.5)."""
+        """One step of reading robot ``k``'s six pots at start; then the angles from them."""
+        reader = self._pots[k]
+        if not reader.poll():
+            return
         r = self._r[k]
-        c = self._pot_channel[k]
-        if not self._waiting_done[k]:
-            r.adc_control[...] = ADC_START | c
-            self._waiting_done[k] = True
-            return
-        value = int(r.adc_analog)
-        if not value & ADC_DONE:
-            return  # not converted yet
-        self._pot_codes[k][c] = value & layout.ADC_VALUE_MASK
-        r.adc_control[...] = 0
-        self._waiting_done[k] = False
-        c += 1
-        self._pot_channel[k] = c
-        if c < 6:
-            return
         for j in range(6):
             i = 6 * k + j
-            self.driver.set_angle(i, self.driver.pot_angle(i, self._pot_codes[k][j]))
+            self.driver.set_angle(i, self.driver.pot_angle(i, reader.codes[j]))
         self.driver.angles(self.q)
         self.q_prev[6 * k : 6 * k + 6] = r.q
         self.fifos[k].reset(r.q)
@@ -351,7 +366,7 @@ class ServoIO(Daemon):
                 tick,
                 f"robot '{lv.names[i // 6]}' joint {i % 6 + 1}: motor current demand "
                 f"{demand:+.2f} A beyond its limit {float(self.driver.current_limit[i]):.2f} A "
-                f"for {int(self.over[i]) * lv.cfg.clock.servo_period_ms} ms",
+                f"for {int(self.over[i]) * lv.cfg.clock.servo_period_ms:g} ms",
             )
             self.over[:] = 0
 
@@ -395,7 +410,7 @@ class ServoIO(Daemon):
         )
         return False
 
-    def _write_csr(self, k: int, tick: int) -> None:
+    def _write_csr(self, k: int) -> None:
         """Drive robot ``k``'s power switch and retrigger its watchdog (C.4, C.5.1)."""
         r = self._r[k]
         csr = BASE_CSR
@@ -404,8 +419,10 @@ class ServoIO(Daemon):
             csr &= ~CSR_NO_DISABLE
         elif power == PowerState.ENABLING and int(r.enable_ticks) <= self.hold_ticks:
             csr |= CSR_ENABLE
-        if (tick // self.retrigger_ticks) % 2 == 0:
+        if (self.servo_ticks // self.retrigger_ticks) % 2 == 0:  # in servo ticks, not base
             csr |= CSR_RETRIGGER
+        if self._calib[k].capture:
+            csr &= ~CSR_INDEX_OFF  # index capture on: the pulse resets the counter (C.3)
         if power == PowerState.OFF:
             r.codes[:] = layout.DAC_ZERO
             if int(r.board_power) & POWER_AMPS_ON:
@@ -422,12 +439,19 @@ class _RobotViews:
         "adc_control",
         "bad",
         "board_power",
+        "calib_cmd",
+        "calib_found",
+        "calib_shift",
+        "calib_state",
+        "calibrated",
         "codes",
         "csr",
         "demand",
         "enable_ticks",
+        "encoder",
         "err",
         "fed",
+        "index",
         "message",
         "pots_read",
         "power",
@@ -444,9 +468,22 @@ class _RobotViews:
         def one(records: np.ndarray, field: str) -> np.ndarray:
             return records[k : k + 1][field].reshape(())
 
-        for field in ("power", "power_cmd", "pots_read", "enable_ticks", "message"):
+        for field in (
+            "power",
+            "power_cmd",
+            "pots_read",
+            "enable_ticks",
+            "message",
+            "calib_cmd",
+            "calib_state",
+            "calib_found",
+            "calibrated",
+        ):
             setattr(self, field, one(robots, field))
         self.safe = robots["safe"][k]
+        self.calib_shift = robots["calib_shift"][k]
+        self.encoder = boards["encoder"][k]
+        self.index = one(boards, "index")
         self.range_check = robots["range_check"][k]
         self.board_power = one(boards, "power")
         self.csr = one(boards, "csr")

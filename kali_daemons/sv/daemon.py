@@ -22,9 +22,9 @@ import posix_ipc
 from .. import atomic, layout, rt
 from ..daemon import Daemon
 from ..errors import DaemonError
-from ..layout import FaultCode, SlotOp
+from ..layout import FaultCode, SlotOp, SlotReset
 from ..servo import Handover
-from ..servolevel import ServoLevel, apply_op
+from ..servolevel import ServoLevel, apply_op, handover
 
 READY_TIMEOUT_S = 30.0  # how long an SV waits at start for SIO to lay out the slots
 
@@ -115,10 +115,13 @@ class ServoWorker(Daemon):
             atomic.store32(lv.op_addr[i], SlotOp.NONE)
         if s.reset:
             a = int(s.algo)
-            pos = s.position
-            lv.registry[a].handover(lv.structs[i][a], Handover(pos, 0.0, pos, 0.0, 0.0))
-            s.torque = 0.0
-            s.reset = 0
+            if s.reset == SlotReset.SHIFT:  # new coordinates, same motion: bumpless
+                handover(lv, i, a)
+            else:  # power on: at rest, no torque yet
+                pos = s.position
+                lv.registry[a].handover(lv.structs[i][a], Handover(pos, 0.0, pos, 0.0, 0.0))
+                s.torque = 0.0
+            s.reset = SlotReset.NONE
         if not s.enabled:
             s.torque = 0.0
             s.ran_tick = tick

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+from ..config import ns_to_ms, period_ticks
 from ..daemon import FunctionDaemon
 from ..errors import ClockError
 from ..instance import Instance, decode
@@ -70,18 +71,23 @@ def step_kali_clock(inst: Instance, ticks: int, wait: bool = True, timeout: floa
     return int(inst.clock["tick"])
 
 
-def set_control_rate(inst: Instance, process: str, period_ms: int) -> None:
-    """Change the period of ``process`` to ``period_ms`` (a multiple of the base tick)."""
-    base_ms = int(inst.clock["base_tick_ns"]) // 1_000_000
-    if not isinstance(period_ms, int) or period_ms < base_ms or period_ms % base_ms:
+def set_control_rate(inst: Instance, process: str, period_ms: float) -> None:
+    """Change the period of ``process`` to ``period_ms`` (a whole multiple of the base tick,
+    which may be a fraction of a ms: 1.5 with a 0.5 ms tick is 3 ticks)."""
+    base_ms = ns_to_ms(int(inst.clock["base_tick_ns"]))
+    try:
+        if isinstance(period_ms, bool) or not isinstance(period_ms, int | float):
+            raise ValueError(period_ms)
+        ticks = period_ticks(period_ms, base_ms)
+    except ValueError:
         raise ClockError(
             f"rate of '{process}': {period_ms!r} ms must be a whole multiple of the "
             f"{base_ms} ms base tick"
-        )
+        ) from None
     i = inst.slot_of(process)
     if not inst.procs[i]["periodic"]:
         raise ClockError(f"process '{process}' is not driven by the wall clock")
-    inst.procs[i]["period_ticks"] = period_ms // base_ms
+    inst.procs[i]["period_ticks"] = ticks
     inst.bump_registry()
 
 
@@ -91,7 +97,7 @@ def control(
     *,
     name: str,
     serious: bool = False,
-    period_ms: int = 1,
+    period_ms: float = 1,
     stage: int = 8,
     cpu: int | None = None,
     priority: int = 0,

@@ -1,0 +1,230 @@
+"""Reading the potentiometers and calibrating against the encoder index pulses (thesis 3.5.1,
+appendix C.3, C.5), as SIO does it inside its servo tick.
+
+Encoders are relative: at power-on Kali knows each joint only from its potentiometer, an
+8-bit reading good to a degree or so.  Calibration makes the angles exact:
+
+1. **Search.**  Index capture on (CSR bit 4 low); every joint is servoed slowly (one index
+   spacing per ``SEARCH_S``, about one count per millisecond) toward the index pulse its
+   present angle predicts, away from a joint limit, for at most ``SEARCH_SPAN`` spacings.
+   When a joint's bit appears in the index register its counter has just been reset by the
+   pulse: the driver counts from the pulse from then on (``Puma560Driver.at_index``) and the
+   joint is servoed onto it.  All joints search at once.
+2. **Settle.**  Every pulse found, capture off; the joints come to rest on their pulses.
+3. **Pots.**  Read the six potentiometers through the TLC532A.  Each reading, less the counts
+   since the pulse, says which pulse it is: the nearest one in the driver's table of pulse
+   angles (the linear interpolation method of figure 3.6).  A reading further than
+   ``AMBIGUOUS`` of a spacing from every pulse is refused rather than guessed.
+4. **Done.**  Each offset is set so its pulse reads its exact angle.  Positions and demands
+   move by the same constant, the servos are handed over bumplessly in the new coordinates
+   (``SlotReset.SHIFT``), and the arm holds on the pulses.
+
+Everything here is preallocated; messages are encoded only when the state changes.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .. import layout
+from ..layout import ADC_DONE, ADC_START, CalibState, SlotReset
+
+if TYPE_CHECKING:
+    from .daemon import ServoIO
+
+SEARCH_S = 1.0  # seconds to sweep one index spacing: about one encoder count per ms
+SEARCH_SPAN = 1.2  # index spacings swept before a joint gives up (one always holds a pulse)
+SEARCH_GRACE_S = 0.3  # after the sweep ends, time the servo has to catch up with it
+LIMIT_MARGIN = 0.02  # rad kept from a joint limit when choosing the direction to sweep
+SETTLE_S = 0.3  # rest on the pulses before reading the pots
+AMBIGUOUS = 0.4  # pot further than this fraction of a spacing from every pulse: refuse
+ACTIVE = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
+
+
+class PotReader:
+    """Reads one arm's six potentiometers through its board's TLC532A (C.5): START with the
+    channel in the control register, wait for DONE in the analog register, next channel."""
+
+    def __init__(self, control: np.ndarray, analog: np.ndarray) -> None:
+        self.control = control  # 0-d views of the board's ADC registers
+        self.analog = analog
+        self.codes = [0] * 6
+        self._channel = 0
+        self._waiting = False
+
+    def restart(self) -> None:
+        """Begin again at channel 0."""
+        self._channel = 0
+        self._waiting = False
+        self.control[...] = 0
+
+    def poll(self) -> bool:
+        """One step, once per tick; True once all six codes are in ``codes``."""
+        c = self._channel
+        if c >= 6:
+            return True
+        if not self._waiting:
+            self.control[...] = ADC_START | c
+            self._waiting = True
+            return False
+        value = int(self.analog)
+        if not value & ADC_DONE:
+            return False  # not converted yet
+        self.codes[c] = value & layout.ADC_VALUE_MASK
+        self.control[...] = 0
+        self._waiting = False
+        self._channel = c + 1
+        return self._channel >= 6
+
+
+class Calibration:
+    """Robot ``k``'s calibration state machine, stepped by SIO while the robot is powered."""
+
+    def __init__(self, sio: ServoIO, k: int) -> None:
+        self.sio = sio
+        self.k = k
+        self.r = sio._r[k]  # the robot's views (q, demand, board registers, ...)
+        self.base = 6 * k
+        self.driver = sio.driver
+        self.capture = False  # SIO writes CSR bit 4 low while True
+        self.pots = PotReader(self.r.adc_control, self.r.adc_analog)
+        rate = sio.rate
+        spacing = sio.driver.index_spacing[self.base : self.base + 6]
+        self.speed_per_tick = spacing / (SEARCH_S * rate)  # rad per servo tick
+        self.travel = SEARCH_SPAN * spacing
+        self.search_ticks = math.ceil((SEARCH_SPAN * SEARCH_S + SEARCH_GRACE_S) * rate)
+        self.settle_ticks = math.ceil(SETTLE_S * rate)
+        self.start = np.zeros(6)
+        self.direction = np.ones(6)
+        self.shift = np.zeros(6)
+        self.ticks = 0
+
+    @property
+    def state(self) -> CalibState:
+        """Where the robot's calibration is."""
+        return CalibState(int(self.r.calib_state))
+
+    def _say(self, state: CalibState, message: str) -> None:
+        self.r.calib_state[...] = state
+        self.r.message[...] = message.encode()[: layout.MESSAGE_BYTES]
+
+    # ------------------------------------------------------------------ transitions
+
+    def begin(self) -> None:
+        """Start: choose each joint's sweep, capture on (the register starts clear)."""
+        d, b = self.driver, self.base
+        q = self.r.q
+        for j in range(6):
+            i = b + j
+            ahead = d.nearest_index(i, float(q[j])) - float(q[j])
+            sign = 1.0 if ahead >= 0.0 else -1.0
+            end = float(q[j]) + sign * float(self.travel[j])
+            if not d.q_min[i] + LIMIT_MARGIN <= end <= d.q_max[i] - LIMIT_MARGIN:
+                sign = -sign  # sweep away from the limit: a pulse lies within one spacing
+            self.direction[j] = sign
+        np.copyto(self.start, q)
+        np.copyto(self.r.demand, q)
+        self.r.calib_found[...] = 0
+        self.r.calibrated[...] = 0
+        self.ticks = 0
+        self.capture = True
+        self._say(CalibState.SEARCH, "calibrating: searching for the index pulses")
+
+    def fail(self, why: str) -> None:
+        """Give up: capture off, hold where the arm is."""
+        self.capture = False
+        np.copyto(self.r.demand, self.r.q)
+        self._say(CalibState.FAILED, f"calibration failed: {why}")
+
+    def step(self) -> None:
+        """One servo tick of an active calibration: writes the robot's demand."""
+        self.ticks += 1
+        state = int(self.r.calib_state)
+        if state == CalibState.SEARCH:
+            self._search()
+        elif state == CalibState.SETTLE:
+            if self.ticks >= self.settle_ticks:
+                self.pots.restart()
+                self.ticks = 0
+                self._say(CalibState.POTS, "calibrating: reading the potentiometers")
+        elif state == CalibState.POTS and self.pots.poll():
+            self._finish()
+
+    def catch_index(self) -> None:
+        """While capture is on, right after the encoders are read and before velocities:
+        a joint whose bit appeared in the index register had its counter reset by the pulse
+        since the last reading.  Count from the pulse from now on and servo onto it."""
+        r, d, b = self.r, self.driver, self.base
+        found = int(r.calib_found)
+        new = int(r.index) & 0x3F & ~found
+        if not new:
+            return
+        q, q_prev = self.sio.q, self.sio.q_prev
+        for j in range(6):
+            if new >> j & 1:
+                # the pulse lies between the last reading and this one, about a count apart:
+                # take it at the last reading's angle
+                i = b + j
+                index_angle = float(q_prev[i])
+                d.at_index(i, int(r.encoder[j]), index_angle)
+                q[i] = index_angle + float(d.acc[i]) * float(d.rad_per_count[i])
+                r.demand[j] = index_angle
+        r.calib_found[...] = found | new
+
+    def _search(self) -> None:
+        r = self.r
+        found = int(r.calib_found)
+        for j in range(6):
+            if not found >> j & 1:
+                step = min(self.ticks * float(self.speed_per_tick[j]), float(self.travel[j]))
+                r.demand[j] = self.start[j] + self.direction[j] * step
+        if found == 0x3F:
+            self.capture = False
+            self.ticks = 0
+            self._say(CalibState.SETTLE, "calibrating: every index pulse found, settling")
+        elif self.ticks > self.search_ticks:
+            missing = [str(j + 1) for j in range(6) if not found >> j & 1]
+            self.fail(
+                f"no index pulse on joint {', '.join(missing)} within "
+                f"{SEARCH_SPAN:g} index spacings of travel (is the encoder's index connected?)"
+            )
+
+    def _finish(self) -> None:
+        d, b, r = self.driver, self.base, self.r
+        worst, worst_j = 0.0, 0
+        for j in range(6):
+            i = b + j
+            pot = d.pot_angle(i, self.pots.codes[j])
+            rpc = float(d.rad_per_count[i])
+            index_by_pot = pot - float(d.acc[i]) * rpc  # the pulse's angle as the pot says
+            exact = d.nearest_index(i, index_by_pot)
+            residual = abs(index_by_pot - exact) / float(d.index_spacing[i])
+            if residual > worst:
+                worst, worst_j = residual, j
+            self.shift[j] = exact - float(d.offset[i])
+        if worst > AMBIGUOUS:
+            self.fail(
+                f"joint {worst_j + 1}'s potentiometer reads {worst:.0%} of an index spacing "
+                f"from the nearest pulse (limit {AMBIGUOUS:.0%}): which pulse it is, is "
+                f"ambiguous; check the pot table"
+            )
+            return
+        for j in range(6):
+            i = b + j
+            s = float(self.shift[j])
+            d.offset[i] += s
+            self.sio.q[i] += s
+            self.sio.q_prev[i] += s
+            r.demand[j] += s  # the same error in the new coordinates: hold on the pulse
+        np.copyto(r.calib_shift, self.shift)
+        r.slot_reset[:] = SlotReset.SHIFT
+        r.calibrated[...] = 1
+        moved = float(np.max(np.abs(self.shift)))
+        self._say(
+            CalibState.DONE,
+            f"calibrated: angles moved by up to {math.degrees(moved):.2f}° (pots were "
+            f"{worst:.0%} of a spacing from the pulses at most)",
+        )
