@@ -453,7 +453,13 @@ def _follow_calibration(
 @click.option(
     "--joints", required=True, help="the six joint angles to go to, degrees: 0,-90,90,0,0,0"
 )
-@click.option("--speed", default=30.0, show_default=True, help="largest joint speed, °/s")
+@click.option(
+    "--speed",
+    default=30.0,
+    show_default=True,
+    type=click.FloatRange(0.0, 360.0, min_open=True),
+    help="largest joint speed, °/s",
+)
 @click.pass_context
 @_errors
 def move(ctx: click.Context, robot: str, joints: str, speed: float) -> None:

@@ -533,6 +533,7 @@ SERVO_CTRL = np.dtype(
         ("sv_exec_last_ns", "<i8", (MAX_SV,)),  # SV k: time from feed to its last servo done
         ("sv_exec_max_ns", "<i8", (MAX_SV,)),
         ("sv_servos", "<u8", (MAX_SV,)),  # SV k: servos it has run
+        ("sv_exec_hist", "<u4", (MAX_SV, HIST_BINS)),  # SV k: feed-to-done time histogram
     ],
     align=True,
 )

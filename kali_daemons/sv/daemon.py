@@ -67,6 +67,7 @@ class ServoWorker(Daemon):
         self._exec_last = c["sv_exec_last_ns"][self.index : self.index + 1]
         self._exec_max = c["sv_exec_max_ns"][self.index : self.index + 1]
         self._servos = c["sv_servos"][self.index : self.index + 1]
+        self._exec_hist = c["sv_exec_hist"][self.index]
         lockstep = inst.lockstep
         self.feed_timeout_s = (
             inst.config.clock.lockstep_ack_timeout_s
@@ -105,6 +106,7 @@ class ServoWorker(Daemon):
             if exe > self._exec_max[0]:
                 self._exec_max[0] = exe
             self._servos[0] += ran
+            self._exec_hist[layout.lateness_bin(exe)] += 1
 
     def _run(self, i: int, s: Any, tick: int) -> None:
         """Run slot ``i``'s servo once (mailbox first, then a reset, then the step)."""
