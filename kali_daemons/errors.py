@@ -71,3 +71,16 @@ class ModelError(KaliError):
     """The robot model: URDF loading, building the simulated cell."""
 
     subsystem = "model"
+
+
+class ServoError(KaliError):
+    """A servo-level request that cannot be carried out (bad robot, joint, algorithm, power,
+    calibration, a joint move)."""
+
+    subsystem = "servo"
+
+
+class KinematicsError(KaliError):
+    """Inverse kinematics: a pose out of reach, a joint out of its limits, a bad transform."""
+
+    subsystem = "kinematics"

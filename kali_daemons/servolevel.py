@@ -28,7 +28,7 @@ import numpy as np
 from . import atomic, layout, puma560
 from .channels import InterpolatingFifo
 from .config import ms_to_ns
-from .errors import KaliError
+from .errors import KaliError, ServoError
 from .instance import Instance, decode
 from .layout import CalibState, PowerCmd, PowerState, SlotOp
 from .servo import Handover, Registry, ServoAlgorithm, registry_for, struct_view
@@ -37,10 +37,6 @@ from .spinlock import SpinLock
 FIFO_CAPACITY = 256  # TG set-points the TG → SIO FIFO holds (2.56 s at 10 ms)
 OP_TIMEOUT_S = 2.0  # how long a client waits for the SV to carry out a mailbox operation
 SlotStruct = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)
-
-
-class ServoError(KaliError):
-    """A servo-level request that cannot be carried out (bad robot, joint, algorithm...)."""
 
 
 def init_data_for(model: str, algo: ServoAlgorithm, joint: int) -> dict[str, float]:
@@ -143,7 +139,7 @@ class ServoClient:
                 return robot
         elif isinstance(robot, str) and robot in self.names:
             return self.names.index(robot)
-        raise ServoError(f"servo: no robot {robot!r}; robots: {', '.join(self.names)}")
+        raise ServoError(f"no robot {robot!r}; robots: {', '.join(self.names)}")
 
     def slot(self, robot: str | int, joint: int) -> int:
         """Slot index of ``joint`` (1..6, as the thesis and the PUMA number them)."""
@@ -153,16 +149,16 @@ class ServoClient:
             or not isinstance(joint, int | np.integer)
             or not 1 <= joint <= 6
         ):
-            raise ServoError(f"servo: joint {joint!r} of robot '{self.names[k]}', must be 1..6")
+            raise ServoError(f"joint {joint!r} of robot '{self.names[k]}', must be 1..6")
         return 6 * k + int(joint) - 1
 
     def algorithm(self, name: str) -> tuple[int, ServoAlgorithm]:
         """(index, algorithm) of a registered servo algorithm; ServoError naming them."""
-        try:
-            idx = self.level.registry.index(name)
-        except KaliError as exc:
-            raise ServoError(f"servo: {exc}") from None
-        return idx, self.level.registry[idx]
+        registry = self.level.registry
+        if name not in registry.names():
+            raise ServoError(f"no algorithm {name!r}; known: {', '.join(registry.names())}")
+        idx = registry.index(name)
+        return idx, registry[idx]
 
     def _where(self, i: int) -> str:
         return f"robot '{self.names[i // 6]}' joint {i % 6 + 1}"
@@ -204,7 +200,7 @@ class ServoClient:
                 return
             if time.monotonic() > deadline:
                 raise ServoError(
-                    f"servo: {self._where(i)}: the previous update was not taken within "
+                    f"{self._where(i)}: the previous update was not taken within "
                     f"{OP_TIMEOUT_S:g} s (are the SVs running?)"
                 )
             time.sleep(0.0005)
@@ -215,7 +211,7 @@ class ServoClient:
         while int(s.ops_done) == before:
             if time.monotonic() > deadline:
                 raise ServoError(
-                    f"servo: {self._where(i)}: the SV did not carry out the update within "
+                    f"{self._where(i)}: the SV did not carry out the update within "
                     f"{OP_TIMEOUT_S:g} s (is the clock running and the robot enabled?)"
                 )
             if not self._clock_running():
@@ -235,7 +231,7 @@ class ServoClient:
         rec = np.asarray(data)
         if rec.dtype != alg.dtype or rec.size != 1:
             raise ServoError(
-                f"servo: put_servo {self._where(i)} '{servo}': data of dtype {rec.dtype} and "
+                f"put_servo {self._where(i)} '{servo}': data of dtype {rec.dtype} and "
                 f"size {rec.size}, expected one record of {alg.dtype}"
             )
         self._op(i, SlotOp.PUT, idx, rec.tobytes(), wait)
@@ -272,14 +268,14 @@ class ServoClient:
         unknown = sorted(set(params) - set(alg.params))
         if unknown:
             raise ServoError(
-                f"servo: '{name}' has no parameter {', '.join(unknown)}; "
+                f"'{name}' has no parameter {', '.join(unknown)}; "
                 f"parameters: {', '.join(alg.params)}"
             )
         trial = self.level.data[i][idx].copy()
         try:
             alg.set_params(struct_view(trial), dict(params))
         except KaliError as exc:
-            raise ServoError(f"servo: {self._where(i)} '{name}': {exc}") from None
+            raise ServoError(f"{self._where(i)} '{name}': {exc}") from None
         values = np.full(len(alg.params), math.nan)
         for key, value in params.items():
             values[alg.params.index(key)] = float(value)
@@ -315,9 +311,7 @@ class ServoClient:
         i = self.slot(robot, joint)
         value = float(safe_rad)
         if not 0.0 < value <= math.pi:
-            raise ServoError(
-                f"servo: safe {safe_rad!r} rad for {self._where(i)}, must be in (0, π]"
-            )
+            raise ServoError(f"safe {safe_rad!r} rad for {self._where(i)}, must be in (0, π]")
         self.level.robots["safe"][i // 6, i % 6] = value
 
     # ------------------------------------------------------------------ power
@@ -327,7 +321,7 @@ class ServoClient:
         k = self.robot_index(robot)
         if on and self.inst.fault["active"]:
             raise ServoError(
-                f"servo: cannot enable '{self.names[k]}' while a fault is active "
+                f"cannot enable '{self.names[k]}' while a fault is active "
                 f"({self.inst.fault_text()}); kalictl reset first"
             )
         self.level.robots["power_cmd"][k] = PowerCmd.ENABLE if on else PowerCmd.DISABLE
