@@ -22,13 +22,13 @@ from pathlib import Path
 import click
 import numpy as np
 
-from . import launcher, puma560
+from . import launcher
+from .client.motion import Kali
 from .config import load_config
 from .errors import KaliError
 from .instance import Instance, decode
 from .layout import CalibState, FaultCode, PowerState, RunMode
 from .servolevel import ServoClient, ServoError
-from .tg.profiles import joint_move
 from .wallclock import (
     set_control_rate,
     set_kali_clock,
@@ -451,90 +451,43 @@ def _follow_calibration(
 @main.command()
 @click.argument("robot")
 @click.option(
-    "--joints", required=True, help="the six joint angles to go to, degrees: 0,-90,90,0,0,0"
+    "--joints", required=True, help="the six joint angles to go to, degrees: 0,45,-180,0,45,0"
 )
 @click.option(
     "--speed",
-    default=30.0,
+    default=0.5,
     show_default=True,
-    type=click.FloatRange(0.0, 360.0, min_open=True),
-    help="largest joint speed, °/s",
+    type=click.FloatRange(0.0, 1.0, min_open=True),
+    help="fraction of the joint speed and acceleration limits",
 )
+@click.option("--timeout", default=60.0, show_default=True, help="seconds to wait")
 @click.pass_context
 @_errors
-def move(ctx: click.Context, robot: str, joints: str, speed: float) -> None:
-    """Move ROBOT's joints smoothly to --joints, every joint arriving together.
-
-    A quintic (minimum-jerk) move from the present demand, pushed set-point by set-point
-    through the TG → SIO FIFO at the TG period; waits until the arm is there.
-    """
+def move(ctx: click.Context, robot: str, joints: str, speed: float, timeout: float) -> None:
+    """Move ROBOT's joints smoothly to --joints through the trajectory generator, every joint
+    arriving together; waits until the arm is there."""
     try:
         target_deg = [float(v) for v in joints.replace(" ", "").split(",")]
     except ValueError:
         raise ServoError(
-            f"move: --joints {joints!r}: six numbers in degrees, e.g. 0,-90,90,0,0,0"
+            f"move: --joints {joints!r}: six numbers in degrees, e.g. 0,45,-180,0,45,0"
         ) from None
     if len(target_deg) != 6:
         raise ServoError(f"move: --joints {joints!r}: {len(target_deg)} values, expected 6")
-    with _servo_client(ctx) as (inst, client):
-        k = client.robot_index(robot)
-        name = client.names[k]
-        if client.power_state(name) != PowerState.ON:
-            raise ServoError(f"move: robot '{name}' is not powered; kalictl enable {name}")
-        if client.calibration(name)[0] in (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS):
-            raise ServoError(f"move: robot '{name}' is calibrating; wait until it is done")
-        fifo = client.level.fifo(k)
-        if fifo.pending():
-            raise ServoError(
-                f"move: robot '{name}' is still being fed {fifo.pending()} set-points; "
-                f"wait until that motion ends"
-            )
-        robots = client.level.robots
-        period_s = inst.config.clock.tg_period_ms / 1000.0
-        points = joint_move(
-            robots["demand"][k].copy(),
-            np.radians(target_deg),
-            period_s,
-            math.radians(speed),
-            puma560.Q_MIN,
-            puma560.Q_MAX,
-            name,
-        )
-        if inst.lockstep:
-            if len(points) > fifo.capacity:
-                raise ServoError(
-                    f"move: {len(points) * period_s:.2f} s of set-points do not fit the FIFO "
-                    f"({fifo.capacity} set-points) and nothing steps the clock while kalictl "
-                    f"waits in lockstep mode; move less far or faster"
-                )
-            for p in points:
-                fifo.push(p)
+    with Kali(_instance_name(ctx)) as kali:
+        arm = kali.robot(robot)
+        if kali.servo.power_state(arm.name) != PowerState.ON:
+            raise ServoError(f"move: robot '{arm.name}' is not powered; kalictl enable {arm.name}")
+        t0 = time.monotonic()
+        handle = arm.move_joints(np.radians(target_deg), speed=speed, wait=False)
+        if kali.inst.lockstep:
             click.echo(
-                f"move requested: {name}, {len(points)} set-points (lockstep: step the clock)"
+                f"move requested: {arm.name}, request {handle.seq} (lockstep: step the clock)"
             )
             return
-        t0 = time.monotonic()
-        worst = 0.0
-        sent = 0
-        while (
-            sent < len(points)
-            or fifo.pending()
-            or not np.array_equal(robots["demand"][k], points[-1])
-        ):
-            while sent < len(points) and fifo.pending() < fifo.capacity:
-                fifo.push(points[sent])
-                sent += 1
-            if inst.fault["active"]:
-                raise ServoError(f"move: halted: {inst.fault_text()}")
-            if client.power_state(name) != PowerState.ON:
-                raise ServoError(f"move: robot '{name}' lost power while moving")
-            worst = max(worst, float(np.max(np.abs(robots["demand"][k] - robots["q"][k]))))
-            time.sleep(period_s / 2)
-        at = ", ".join(f"{math.degrees(float(v)):.2f}" for v in robots["q"][k])
-        click.echo(
-            f"{name}: at [{at}]° after {time.monotonic() - t0:.2f} s "
-            f"(largest tracking error seen {math.degrees(worst):.3f}°)"
-        )
+        handle.wait(timeout)
+        at = ", ".join(f"{math.degrees(float(v)):.2f}" for v in arm.read_joints())
+        click.echo(f"{arm.name}: at [{at}]° after {time.monotonic() - t0:.2f} s")
 
 
 @main.group()

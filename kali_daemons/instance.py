@@ -299,10 +299,11 @@ class Instance:
             self.fault["active"] = 0
         return was
 
-    def fault_text(self) -> str | None:
-        """The active fault as one line, or None."""
+    def fault_text(self, last: bool = False) -> str | None:
+        """The active fault as one line, or None; ``last``: the latest fault even if cleared
+        (None if there never was one)."""
         f = self.fault
-        if not f["active"]:
+        if not (f["active"] or (last and int(f["count"]))):
             return None
         code = FaultCode(int(f["code"])).name
         return f"{code} in {decode(f['process'])} at tick {int(f['tick'])}: {decode(f['message'])}"

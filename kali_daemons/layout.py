@@ -537,3 +537,89 @@ SERVO_CTRL = np.dtype(
     ],
     align=True,
 )
+
+
+# --------------------------------------------------------------------------------------------
+# Trajectory generator (DESIGN 5, thesis 3.3.1, 3.3.2): the Type 1 queue of motion requests
+# from user programs, the status of each request, and the TG's view of each robot.
+
+MAX_ROBOTS = 4  # arms in one cell (config.MAX_ROBOTS)
+MAX_SEGMENTS = 16  # straight-line segments in one Cartesian path request
+MOTION_QUEUE_CAPACITY = 64  # requests waiting for the TG
+STATUS_RING = 256  # request statuses kept; request seq s lives at s % STATUS_RING
+KEY_MOTION_QUEUE = "tg.requests"
+KEY_MOTION_STATUS = "tg.status"
+KEY_TG_ROBOTS = "tg.robots"
+
+
+class MotionKind(enum.IntEnum):
+    """What a motion request asks of the TG."""
+
+    JOINTS = 1  # a smooth joint move of every robot in ``robots`` to ``joints``
+    PATH = 2  # straight lines of the control frame through ``poses``, blended
+    STOP = 3  # decelerate the motions of ``robots`` to rest on their paths
+    ABORT = 4  # drop the motions of ``robots`` at once (the arms hold where the set-point is)
+
+
+class RequestState(enum.IntEnum):
+    """A request's life, written by the TG into its status record."""
+
+    FREE = 0
+    QUEUED = 1  # accepted by the TG, waiting for its robots to finish earlier motions
+    RUNNING = 2
+    DONE = 3  # arrived
+    REFUSED = 4  # nothing moved: the message says why
+    STOPPED = 5  # stopped on request, at rest on the path
+    ABORTED = 6
+    HALTED = 7  # the system halted: the message is the fault
+
+
+TERMINAL_STATES = (
+    RequestState.DONE,
+    RequestState.REFUSED,
+    RequestState.STOPPED,
+    RequestState.ABORTED,
+    RequestState.HALTED,
+)
+
+MOTION_REQUEST = np.dtype(
+    [
+        ("kind", "u1"),  # MotionKind
+        ("n_robots", "u1"),  # robots in the motion system
+        ("n_segments", "u1"),  # PATH: poses used
+        ("_pad", "u1"),
+        ("robots", "u1", (MAX_ROBOTS,)),  # robot indices (config order)
+        ("config", "u1", (MAX_ROBOTS,)),  # PATH: arm/elbow/wrist flags per robot (bits 0-2)
+        ("client_pid", "<i4"),
+        ("joints", "<f8", (MAX_ROBOTS, 6)),  # JOINTS: targets, rad
+        ("speed_scale", "<f8"),  # JOINTS: fraction (0, 1] of the joint speed/accel limits
+        ("poses", "<f8", (MAX_SEGMENTS, 4, 4)),  # PATH: control-frame targets, world frame
+        ("grasps", "<f8", (MAX_ROBOTS, 4, 4)),  # PATH: control frame → each arm's tool frame
+        ("speed", "<f8"),  # PATH: m/s
+        ("angular_speed", "<f8"),  # PATH: rad/s
+        ("transition_s", "<f8"),  # PATH: blend time at each via point
+    ],
+    align=True,
+)
+
+REQUEST_STATUS = np.dtype(
+    [
+        ("seq", "<u8"),  # the request this record is about (0: none yet)
+        ("state", "u1"),  # RequestState
+        ("_pad", "u1", (7,)),
+        ("duration_s", "<f8"),  # planned duration once running
+        ("progress", "<f8"),  # path time / duration, 0..1
+        ("message", f"S{MESSAGE_BYTES}"),  # why refused, stopped or halted
+    ],
+    align=True,
+)
+
+TG_ROBOT = np.dtype(
+    [
+        ("busy_seq", "<u8"),  # TG: the request moving this robot (0: idle)
+        ("setpoint", "<f8", (6,)),  # TG: the last joint set-point pushed, rad
+        ("t6", "<f8", (4, 4)),  # TG: T6 of that set-point, base frame
+        ("tick", "<i8"),  # TG: last TG tick
+    ],
+    align=True,
+)

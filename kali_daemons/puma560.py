@@ -66,6 +66,12 @@ Q_MIN: Final[FloatArray] = _ro(np.radians([-160.0, -45.0, -225.0, -110.0, -100.0
 Q_MAX: Final[FloatArray] = _ro(np.radians([160.0, 225.0, 45.0, 170.0, 100.0, 266.0]))
 
 # Named poses (rad).  QZ, QR and QS are wrist-singular (θ5 = 0); QN is not.
+# Joint speed and acceleration limits the trajectory generator plans with (not in puma560.md:
+# chosen well inside what the motors can do at the 40 V bus, so the PID alone tracks them to
+# a degree or so without feed-forward).
+QD_MAX: Final[FloatArray] = _ro(np.radians([60.0, 60.0, 60.0, 120.0, 120.0, 120.0]))  # rad/s
+QDD_MAX: Final[FloatArray] = _ro(np.radians([120.0, 120.0, 120.0, 240.0, 240.0, 240.0]))  # rad/s²
+
 QZ: Final[FloatArray] = _ro([0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # zero: the 'L' shape
 QR: Final[FloatArray] = _ro(np.radians([0.0, 90.0, -90.0, 0.0, 0.0, 0.0]))  # ready: arm vertical
 QS: Final[FloatArray] = _ro(np.radians([0.0, 0.0, -90.0, 0.0, 0.0, 0.0]))  # stretched along x

@@ -350,24 +350,20 @@ def test_kalictl_calibrate_and_move(kali: Callable[..., str]) -> None:
             for bad, why in (
                 ("1,2,3", "3 values, expected 6"),
                 ("a,b,c,d,e,f", "six numbers in degrees"),
-                ("0,0,0,0,0,300", "joint 6: target 300.00° is outside its range"),
+                ("0,0,0,0,0,300", "joint 6: target 300.00° outside its range"),
             ):
                 r = kalictl("-i", name, "move", "left", "--joints", bad)
                 assert r.returncode == 1 and why in r.stderr, r.stderr
-            r = kalictl("-i", name, "move", "left", "--joints", joints, "--speed", "60")
+            r = kalictl("-i", name, "move", "left", "--joints", joints, "--speed", "0.5")
             assert r.returncode == 0 and "move requested: left" in r.stdout, r.stderr
-            r = kalictl("-i", name, "move", "left", "--joints", joints)
-            assert r.returncode == 1 and "still being fed" in r.stderr
             worst = 0.0
-            for _ in range(150):  # 1.5 s: the move takes 30° · 15/8 / 60°/s ≈ 0.94 s
+            for _ in range(150):  # 1.5 s: joint 6's 30° at 60°/s and 120°/s² takes ~0.75 s
                 step_kali_clock(inst, 10)
                 worst = max(worst, float(np.abs(rs["demand"][0] - rs["q"][0]).max()))
             step_kali_clock(inst, 1000)
             assert np.allclose(np.degrees(rs["demand"][0]), target, atol=1e-6)
             assert np.abs(np.degrees(rs["q"][0]) - target).max() < 0.01
-            assert math.degrees(worst) < 2.0, (
-                f"tracking error {math.degrees(worst):.3f}°"
-            )  # no ff yet
+            assert math.degrees(worst) < 2.0, f"tracking error {math.degrees(worst):.3f}°"  # no ff
             assert inst.fault_text() is None
             del rs
         finally:

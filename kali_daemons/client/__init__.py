@@ -4,7 +4,8 @@
     with client.attach("default") as kali:
         print(kali.clock["tick"])
 
-``control`` runs one of the program's functions periodically on the wall clock.
+``control`` runs one of the program's functions periodically on the wall clock.  ``Kali``
+moves the arms through the trajectory generator (``motion.py``).
 """
 
 from ..instance import Instance
@@ -17,6 +18,7 @@ from ..wallclock import (
     step_kali_clock,
     stop_kali_clock,
 )
+from .motion import Kali, MotionFailedError, MotionHandle, Robot
 
 
 def attach(instance: str = "default") -> Instance:
@@ -26,6 +28,10 @@ def attach(instance: str = "default") -> Instance:
 
 __all__ = [
     "Instance",
+    "Kali",
+    "MotionFailedError",
+    "MotionHandle",
+    "Robot",
     "attach",
     "control",
     "release",

@@ -1,18 +1,281 @@
-"""Trajectory generator (thesis 3.3.1): one process computes set-points for every motion system
-each TG tick.
+"""Trajectory generator (thesis 3.3.1, 2.2.1; DESIGN 5): one process computes the set-points
+of every motion system each TG tick, time-sharing them.
+
+Requests come from user programs through the Type 1 queue ``tg.requests`` (3.3.2); each one's
+fate is written to its status record in ``tg.status`` (seq % STATUS_RING) so a waiting program
+sees it.  Every request is validated again here, whatever the client checked: the arena is
+never trusted.  A motion runs on its path time τ; each tick τ advances by the TG period, or by
+σ · period while a stop ramps σ smoothly to 0 (``profiles.StopRamp``), and the set-point for τ
+goes into each robot's TG → SIO FIFO (Type 2), which SIO interpolates at the servo rate.
+
+The FIFO is kept one set-point ahead of SIO, so a late TG tick does not starve the servos.
+On a halt every motion is dropped and every request waiting or running is told the fault.
+
+Allocation happens only when a request is accepted (planning builds its motion object);
+ticks that only advance running motions allocate nothing.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field
+from fractions import Fraction
+
+import numpy as np
+
+from .. import layout, puma560
+from ..channels import InterpolatingFifo, RequestQueue
+from ..config import ms_to_ns
 from ..daemon import Daemon
+from ..layout import CalibState, MotionKind, PowerState, RequestState
+from ..servolevel import FIFO_CAPACITY
+from .profiles import JointMotion, MotionError, StopRamp
+
+MAX_REQUESTS_PER_TICK = 8  # requests taken from the queue per tick (the rest wait a tick)
+STOP_TIME_S = 0.3  # a stop ramps the path speed to zero over this long
+LEAD = 2  # set-points kept in each FIFO ahead of SIO
+CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
+
+
+@dataclass
+class Motion:
+    """One accepted request: the robots it moves and its profile."""
+
+    seq: int
+    robots: list[int]
+    profile: JointMotion
+    tau: float = 0.0
+    stop: StopRamp | None = None
+    stop_t: float = 0.0
+    out: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
 
 class TrajectoryGenerator(Daemon):
-    """Issue: trajectory generator fills this in; for now the TG registers with the wall clock at
-    the TG period and acknowledges every tick.
-    """
+    """The TG: takes requests, plans and checks them, and feeds the FIFOs every tick."""
 
     kind = "tg"
 
+    def on_configure(self) -> None:
+        inst = self.inst
+        cfg = inst.config
+        arena = inst.arena
+        self.names = [r.name for r in cfg.robots]
+        self.n_robots = len(self.names)
+        self.queue = RequestQueue(
+            arena, layout.KEY_MOTION_QUEUE, layout.MOTION_REQUEST, layout.MOTION_QUEUE_CAPACITY
+        )
+        self.status = arena.record(
+            layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
+        )
+        self.tg_robots = arena.record(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, self.n_robots)
+        ratio = Fraction(ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms))
+        self.fifos = [
+            InterpolatingFifo(arena, layout.KEY_FIFO.format(robot=name), 6, FIFO_CAPACITY, ratio)
+            for name in self.names
+        ]
+        self.robots = None  # SIO's records, once SIO has created them
+        self.dt = cfg.clock.tg_period_ms / 1000.0
+        self.request = np.zeros(1, dtype=layout.MOTION_REQUEST)
+        self.v_max = np.array(puma560.QD_MAX)
+        self.a_max = np.array(puma560.QDD_MAX)
+        self.motions: list[Motion] = []
+        self.waiting: list[tuple[int, np.void]] = []  # accepted, robots still busy
+        self._faults_seen = int(inst.fault["count"])
+
+    # ------------------------------------------------------------------ status records
+
+    def _say(self, seq: int, state: RequestState, message: str = "") -> None:
+        rec = self.status[seq % layout.STATUS_RING]
+        rec["seq"] = seq
+        rec["message"] = message.encode()[: layout.MESSAGE_BYTES]
+        rec["state"] = state  # written last: a waiting client reads the message after it
+
+    # ------------------------------------------------------------------ the tick
+
     def cycle(self, tick: int) -> None:
-        """Inside the cycle: nothing yet beyond the base class's acknowledgement."""
+        """Halts first, then new requests, then every running motion's next set-point."""
+        if self.robots is None:
+            self.robots = self._attach_robots()
+            if self.robots is None:
+                return  # SIO has not laid the servo level out yet
+        count = int(self.inst.fault["count"])
+        if int(self.inst.fault["active"]) or count != self._faults_seen:
+            self._faults_seen = count
+            self._halt_all()
+        for _ in range(MAX_REQUESTS_PER_TICK):
+            seq = self.queue.get_into(self.request)
+            if seq is None:
+                break
+            self._take(seq, self.request[0].copy())
+        self._start_waiting()
+        for m in list(self.motions):
+            why = self._unpowered(m.robots)
+            if why:  # SIO holds an unpowered arm where it is: the motion cannot go on
+                self._finish(m, RequestState.ABORTED, why)
+            else:
+                self._advance(m)
+        self.tg_robots["tick"] = tick
+
+    def _attach_robots(self) -> np.ndarray | None:
+        if self.inst.arena.lookup(layout.KEY_ROBOTS) is None:
+            return None
+        return self.inst.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
+
+    def _halt_all(self) -> None:
+        text = f"halted: {self.inst.fault_text(last=True) or 'the system halted'}"
+        for m in self.motions:
+            self._say(m.seq, RequestState.HALTED, text)
+            for k in m.robots:
+                self.tg_robots["busy_seq"][k] = 0
+        self.motions.clear()
+        for seq, _ in self.waiting:
+            self._say(seq, RequestState.HALTED, text)
+        self.waiting.clear()
+        while (seq := self.queue.get_into(self.request)) is not None:
+            self._say(seq, RequestState.HALTED, text)
+
+    # ------------------------------------------------------------------ requests
+
+    def _robots_of(self, req: np.void) -> list[int]:
+        n = int(req["n_robots"])
+        if not 1 <= n <= self.n_robots:
+            raise MotionError(f"{n} robots in the request; this cell has {self.n_robots}")
+        robots = [int(k) for k in req["robots"][:n]]
+        for k in robots:
+            if not 0 <= k < self.n_robots:
+                raise MotionError(f"robot index {k}; robots are 0..{self.n_robots - 1}")
+        if len(set(robots)) != n:
+            raise MotionError(f"robot listed twice: {robots}")
+        return robots
+
+    def _take(self, seq: int, req: np.void) -> None:
+        """Validate a new request; queue, refuse, or act on it (stop, abort)."""
+        try:
+            kind = int(req["kind"])
+            robots = self._robots_of(req)
+            if kind in (MotionKind.STOP, MotionKind.ABORT):
+                self._stop(robots, abort=kind == MotionKind.ABORT)
+                self._say(seq, RequestState.DONE, MotionKind(kind).name.lower())
+                return
+            if kind != MotionKind.JOINTS:
+                raise MotionError(f"motion kind {kind} is not one this TG carries out")
+            self._validate_joints(req, robots)
+        except MotionError as exc:
+            self._say(seq, RequestState.REFUSED, str(exc))
+            return
+        self._say(seq, RequestState.QUEUED)
+        self.waiting.append((seq, req))
+
+    def _validate_joints(self, req: np.void, robots: list[int]) -> None:
+        scale = float(req["speed_scale"])
+        if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
+            raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
+        for i, k in enumerate(robots):
+            q = req["joints"][i]
+            for j in range(6):
+                v = float(q[j])
+                if not math.isfinite(v):
+                    raise MotionError(f"robot '{self.names[k]}' joint {j + 1}: target {v}")
+                lo, hi = float(puma560.Q_MIN[j]), float(puma560.Q_MAX[j])
+                if not lo <= v <= hi:
+                    raise MotionError(
+                        f"robot '{self.names[k]}' joint {j + 1}: target {math.degrees(v):.2f}° "
+                        f"outside its range {math.degrees(lo):.1f}° .. {math.degrees(hi):.1f}°"
+                    )
+
+    def _start_waiting(self) -> None:
+        """Start each waiting request whose robots are idle, in order of arrival."""
+        busy = {k for m in self.motions for k in m.robots}
+        still = []
+        for seq, req in self.waiting:
+            robots = self._robots_of(req)
+            if busy & set(robots):
+                still.append((seq, req))
+                busy |= set(robots)  # keep the order: later requests wait behind this one
+                continue
+            why = self._unpowered(robots)
+            if why:
+                self._say(seq, RequestState.REFUSED, why)
+                continue
+            self._start(seq, req, robots)
+            busy |= set(robots)
+        self.waiting = still
+
+    def _unpowered(self, robots: list[int]) -> str:
+        for k in robots:
+            if int(self.robots["power"][k]) != PowerState.ON:
+                return f"robot '{self.names[k]}' is not powered (kalictl enable {self.names[k]})"
+            if int(self.robots["calib_state"][k]) in CALIBRATING:
+                return f"robot '{self.names[k]}' is calibrating"
+        return ""
+
+    def _start(self, seq: int, req: np.void, robots: list[int]) -> None:
+        scale = float(req["speed_scale"])
+        start = np.concatenate([self._start_point(k) for k in robots])
+        target = np.concatenate([req["joints"][i] for i in range(len(robots))])
+        n = len(robots)
+        try:
+            profile = JointMotion(
+                start, target, np.tile(self.v_max, n) * scale, np.tile(self.a_max, n) * scale
+            )
+        except MotionError as exc:
+            self._say(seq, RequestState.REFUSED, str(exc))
+            return
+        m = Motion(seq, robots, profile, out=np.zeros(6 * n))
+        for k in robots:
+            self.tg_robots["busy_seq"][k] = seq
+        rec = self.status[seq % layout.STATUS_RING]
+        rec["duration_s"] = profile.duration
+        rec["progress"] = 0.0
+        self._say(seq, RequestState.RUNNING)
+        self.motions.append(m)
+        for _ in range(LEAD - 1):  # run ahead of SIO by LEAD set-points
+            self._advance(m)
+
+    def _start_point(self, k: int) -> np.ndarray:
+        """Where robot ``k``'s next motion starts: its last set-point while the FIFO still
+        holds some, else SIO's present demand (where the FIFO holds)."""
+        if self.fifos[k].pending():
+            return self.tg_robots["setpoint"][k].copy()
+        return self.robots["demand"][k].copy()
+
+    def _stop(self, robots: list[int], abort: bool) -> None:
+        for m in list(self.motions):
+            if not set(m.robots) & set(robots):
+                continue
+            if abort:
+                self._finish(m, RequestState.ABORTED, "aborted")
+            elif m.stop is None:
+                m.stop = StopRamp(m.tau, STOP_TIME_S)
+                m.stop_t = 0.0
+        for seq, req in list(self.waiting):
+            if set(self._robots_of(req)) & set(robots):
+                self.waiting.remove((seq, req))
+                self._say(seq, RequestState.ABORTED if abort else RequestState.STOPPED, "cancelled")
+
+    # ------------------------------------------------------------------ running motions
+
+    def _advance(self, m: Motion) -> None:
+        """One TG tick of motion ``m``: the next set-point of each of its robots."""
+        p = m.profile
+        if m.stop is not None:
+            m.stop_t += self.dt
+            m.tau = min(m.stop.tau(m.stop_t), p.duration)
+        else:
+            m.tau = min(m.tau + self.dt, p.duration)
+        p.sample(m.tau, m.out)
+        for i, k in enumerate(m.robots):
+            q = m.out[6 * i : 6 * i + 6]
+            self.fifos[k].push(q)
+            self.tg_robots["setpoint"][k] = q
+        self.status["progress"][m.seq % layout.STATUS_RING] = m.tau / p.duration
+        if m.stop is not None and (m.stop.sigma(m.stop_t) == 0.0 or m.tau >= p.duration):
+            self._finish(m, RequestState.STOPPED, "stopped on the path")
+        elif m.stop is None and m.tau >= p.duration:
+            self._finish(m, RequestState.DONE)
+
+    def _finish(self, m: Motion, state: RequestState, message: str = "") -> None:
+        self.motions.remove(m)
+        for k in m.robots:
+            self.tg_robots["busy_seq"][k] = 0
+        self._say(m.seq, state, message)
