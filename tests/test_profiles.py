@@ -658,13 +658,14 @@ def _bench() -> None:
     poses = demo_poses()
     path = CartesianPath(poses[0], poses[1:], 0.5, 1.0, 0.2)
     t, v = np.empty((4, 4)), np.empty(6)
+    ramp = StopRamp(0.0, 0.5)
     cases = {
         "JointMotion.sample(q)": lambda: m.sample(0.3, q),
         "JointMotion.sample(q, qd)": lambda: m.sample(0.3, q, qd),
         "CartesianPath.sample(T) cruise": lambda: path.sample(0.4, t),
         "CartesianPath.sample(T, v) cruise": lambda: path.sample(0.4, t, v),
         "CartesianPath.sample(T, v) blend": lambda: path.sample(float(path.via_times[2]), t, v),
-        "StopRamp.tau": lambda: StopRamp(0.0, 0.5).tau(0.2),
+        "StopRamp.tau": lambda: ramp.tau(0.2),
     }
     for name, call in cases.items():
         best = min(timeit.repeat(call, number=20000, repeat=5)) / 20000
