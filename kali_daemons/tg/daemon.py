@@ -111,7 +111,7 @@ class TrajectoryGenerator(Daemon):
         for m in list(self.motions):
             why = self._unpowered(m.robots)
             if why:  # SIO holds an unpowered arm where it is: the motion cannot go on
-                self._finish(m, RequestState.ABORTED, why)
+                self._end_motion(m, RequestState.ABORTED, why)
             else:
                 self._advance(m)
         self.tg_robots["tick"] = tick
@@ -244,7 +244,7 @@ class TrajectoryGenerator(Daemon):
             if not set(m.robots) & set(robots):
                 continue
             if abort:
-                self._finish(m, RequestState.ABORTED, "aborted")
+                self._end_motion(m, RequestState.ABORTED, "aborted")
             elif m.stop is None:
                 m.stop = StopRamp(m.tau, STOP_TIME_S)
                 m.stop_t = 0.0
@@ -270,11 +270,11 @@ class TrajectoryGenerator(Daemon):
             self.tg_robots["setpoint"][k] = q
         self.status["progress"][m.seq % layout.STATUS_RING] = m.tau / p.duration
         if m.stop is not None and (m.stop.sigma(m.stop_t) == 0.0 or m.tau >= p.duration):
-            self._finish(m, RequestState.STOPPED, "stopped on the path")
+            self._end_motion(m, RequestState.STOPPED, "stopped on the path")
         elif m.stop is None and m.tau >= p.duration:
-            self._finish(m, RequestState.DONE)
+            self._end_motion(m, RequestState.DONE)
 
-    def _finish(self, m: Motion, state: RequestState, message: str = "") -> None:
+    def _end_motion(self, m: Motion, state: RequestState, message: str = "") -> None:
         self.motions.remove(m)
         for k in m.robots:
             self.tg_robots["busy_seq"][k] = 0
