@@ -84,3 +84,9 @@ class KinematicsError(KaliError):
     """Inverse kinematics: a pose out of reach, a joint out of its limits, a bad transform."""
 
     subsystem = "kinematics"
+
+
+class MotionError(KaliError):
+    """A motion request that cannot be carried out (bad target, speed, path or limits)."""
+
+    subsystem = "motion"

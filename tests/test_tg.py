@@ -105,7 +105,7 @@ def test_bad_requests_are_refused_and_nothing_moves(kali: Callable[..., str]) ->
         before = rs["demand"].copy()
         for bad, why in (
             ([0, 0, 0], r"shape \(3,\), expected \(6,\)"),
-            ([0, 0, math.nan, 0, 0, 0], "joint 3: nan"),
+            ([0, 0, math.nan, 0, 0, 0], "joint 3: target nan"),
             ([0, 0, 0, 0, 0, 5.0], "joint 6: target 286.48° outside its range"),
             ("abc", "is not 6 numbers"),
         ):

@@ -22,13 +22,13 @@ from types import TracebackType
 
 import numpy as np
 
-from .. import layout, puma560
+from .. import layout
 from ..channels import RequestQueue
 from ..errors import KaliError
 from ..instance import Instance, decode
 from ..layout import TERMINAL_STATES, MotionKind, RequestState
 from ..servolevel import ServoClient
-from ..tg.profiles import MotionError
+from ..tg.profiles import MotionError, check_joint_target
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
 
@@ -136,17 +136,7 @@ def _joints(robot: str, q: np.ndarray) -> np.ndarray:
         raise MotionError(f"move_joints: robot '{robot}': {q!r} is not 6 numbers ({exc})") from None
     if target.shape != (6,):
         raise MotionError(f"move_joints: robot '{robot}': shape {target.shape}, expected (6,)")
-    for j in range(6):
-        v = float(target[j])
-        if not math.isfinite(v):
-            raise MotionError(f"move_joints: robot '{robot}' joint {j + 1}: {v}")
-        lo, hi = float(puma560.Q_MIN[j]), float(puma560.Q_MAX[j])
-        if not lo <= v <= hi:
-            raise MotionError(
-                f"move_joints: robot '{robot}' joint {j + 1}: target {math.degrees(v):.2f}° "
-                f"outside its range {math.degrees(lo):.1f}° .. {math.degrees(hi):.1f}°; "
-                f"nothing moved"
-            )
+    check_joint_target(robot, target)
     return target
 
 

@@ -29,7 +29,7 @@ from ..config import ms_to_ns
 from ..daemon import Daemon
 from ..layout import CalibState, MotionKind, PowerState, RequestState
 from ..servolevel import FIFO_CAPACITY
-from .profiles import JointMotion, MotionError, StopRamp
+from .profiles import JointMotion, MotionError, StopRamp, check_joint_target
 
 MAX_REQUESTS_PER_TICK = 8  # requests taken from the queue per tick (the rest wait a tick)
 STOP_TIME_S = 0.3  # a stop ramps the path speed to zero over this long
@@ -171,17 +171,7 @@ class TrajectoryGenerator(Daemon):
         if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
             raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
         for i, k in enumerate(robots):
-            q = req["joints"][i]
-            for j in range(6):
-                v = float(q[j])
-                if not math.isfinite(v):
-                    raise MotionError(f"robot '{self.names[k]}' joint {j + 1}: target {v}")
-                lo, hi = float(puma560.Q_MIN[j]), float(puma560.Q_MAX[j])
-                if not lo <= v <= hi:
-                    raise MotionError(
-                        f"robot '{self.names[k]}' joint {j + 1}: target {math.degrees(v):.2f}° "
-                        f"outside its range {math.degrees(lo):.1f}° .. {math.degrees(hi):.1f}°"
-                    )
+            check_joint_target(self.names[k], req["joints"][i])
 
     def _start_waiting(self) -> None:
         """Start each waiting request whose robots are idle, in order of arrival."""

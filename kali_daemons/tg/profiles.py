@@ -28,14 +28,11 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import KaliError
+from .. import puma560
+from ..errors import MotionError
 
 PEAK_SPEED_FACTOR = 15.0 / 8.0  # peak of the quintic's velocity, in units of distance/time
 MIN_DURATION_S = 0.1
-
-
-class MotionError(KaliError):
-    """A motion request that cannot be carried out (bad target, speed or limits)."""
 
 
 def quintic(s: np.ndarray) -> np.ndarray:
@@ -629,3 +626,18 @@ class StopRamp:
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if self.tau(mid) < duration else (lo, mid)
         return hi
+
+
+def check_joint_target(robot: str, q: np.ndarray) -> None:
+    """MotionError unless ``q`` (float64, 6) is finite and within the PUMA 560's joint range;
+    the one check the client makes before queueing and the TG makes again on taking it."""
+    for j in range(6):
+        v = float(q[j])
+        if not math.isfinite(v):
+            raise MotionError(f"robot '{robot}' joint {j + 1}: target {v}")
+        lo, hi = float(puma560.Q_MIN[j]), float(puma560.Q_MAX[j])
+        if not lo <= v <= hi:
+            raise MotionError(
+                f"robot '{robot}' joint {j + 1}: target {math.degrees(v):.2f}° outside its "
+                f"range {math.degrees(lo):.1f}° .. {math.degrees(hi):.1f}°; nothing moved"
+            )
