@@ -31,6 +31,8 @@ import sys
 import time
 from pathlib import Path
 
+from benchlib import run_ns
+
 from kali_daemons import launcher, layout
 from kali_daemons.arena import Arena
 from kali_daemons.config import KaliConfig, parse_config
@@ -96,14 +98,6 @@ def in_process(arms: int, cycles: int) -> tuple[float, float]:
     return best[0] / n / 1e3, best[1] / n / 1e3
 
 
-def _run_ns(pid: int) -> int:
-    """Scheduler run time of every thread of ``pid``, ns (exact, unlike utime's ticks)."""
-    return sum(
-        int((task / "schedstat").read_text().split()[0])
-        for task in Path(f"/proc/{pid}/task").iterdir()
-    )
-
-
 def as_process(arms: int, seconds: float) -> tuple[list[float], int]:
     """(share of one core in each 1 s window, plant cycles) of a real-time plant daemon."""
     name = f"benchplant{os.getpid()}p"
@@ -117,9 +111,9 @@ def as_process(arms: int, seconds: float) -> tuple[list[float], int]:
             time.sleep(1.0)
             n0 = int(truth["ticks"])
             for _ in range(max(1, round(seconds))):
-                r0, w0 = _run_ns(pid), time.monotonic_ns()
+                r0, w0 = run_ns(pid), time.monotonic_ns()
                 time.sleep(1.0)
-                r1, w1 = _run_ns(pid), time.monotonic_ns()
+                r1, w1 = run_ns(pid), time.monotonic_ns()
                 shares.append((r1 - r0) / (w1 - w0))
             n1 = int(truth["ticks"])
             del truth

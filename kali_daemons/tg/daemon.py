@@ -68,6 +68,10 @@ class TrajectoryGenerator(Daemon):
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
         self.tg_robots = arena.record(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, self.n_robots)
+        # field views taken once: indexing a record by name builds a new view every time
+        self._setpoints = self.tg_robots["setpoint"]
+        self._progress = self.status["progress"]
+        self._tick = self.tg_robots["tick"]
         ratio = Fraction(ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms))
         self.fifos = [
             InterpolatingFifo(arena, layout.KEY_FIFO.format(robot=name), 6, FIFO_CAPACITY, ratio)
@@ -114,7 +118,7 @@ class TrajectoryGenerator(Daemon):
                 self._end_motion(m, RequestState.ABORTED, why)
             else:
                 self._advance(m)
-        self.tg_robots["tick"] = tick
+        self._tick[...] = tick
 
     def _attach_robots(self) -> np.ndarray | None:
         if self.inst.arena.lookup(layout.KEY_ROBOTS) is None:
@@ -257,8 +261,8 @@ class TrajectoryGenerator(Daemon):
         for i, k in enumerate(m.robots):
             q = m.out[6 * i : 6 * i + 6]
             self.fifos[k].push(q)
-            self.tg_robots["setpoint"][k] = q
-        self.status["progress"][m.seq % layout.STATUS_RING] = m.tau / p.duration
+            self._setpoints[k] = q
+        self._progress[m.seq % layout.STATUS_RING] = m.tau / p.duration
         if m.stop is not None and (m.stop.sigma(m.stop_t) == 0.0 or m.tau >= p.duration):
             self._end_motion(m, RequestState.STOPPED, "stopped on the path")
         elif m.stop is None and m.tau >= p.duration:
