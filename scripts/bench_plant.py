@@ -60,7 +60,7 @@ def config_for(arms: int, instance: str) -> KaliConfig:
         for k, (x, y, yaw) in enumerate(PLACEMENTS[:arms])
     )
     text = re.sub(r"(?ms)^robots:\n(  - .*?\n)+", f"robots:\n{robots}\n", text)
-    return parse_config(text, f"<bench {arms} arms>")
+    return parse_config(text, f"<bench {arms} arms>", str(REPO / "config"))
 
 
 def power_up(sim: PlantSim) -> None:
