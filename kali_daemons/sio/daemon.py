@@ -52,7 +52,6 @@ from .calibration import ACTIVE, Calibration, PotReader
 BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
 ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms, C.5.1)
 POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
-RETRIGGER_HALF_MS = 2.0  # watchdog pulse: high this long, then low (well inside 20 ms)
 VELOCITY_FILTER_HZ = 25.0  # low-pass on encoder velocities, as the PID's (figure 3.4)
 BASE_CSR = CSR_NO_DISABLE | CSR_TIMEOUT_ON | CSR_INDEX_OFF
 
@@ -98,7 +97,6 @@ class ServoIO(Daemon):
 
         self.hold_ticks = servo_ticks(ENABLE_HOLD_MS)
         self.power_timeout_ticks = servo_ticks(POWER_ON_TIMEOUT_MS)
-        self.retrigger_ticks = servo_ticks(RETRIGGER_HALF_MS)
         self.servo_ticks = 0  # cycles run: the watchdog pulse counts these
         self.current_ticks = np.array(
             [servo_ticks(r.current_fault_ms) for r in cfg.robots for _ in range(6)]
@@ -419,8 +417,8 @@ class ServoIO(Daemon):
             csr &= ~CSR_NO_DISABLE
         elif power == PowerState.ENABLING and int(r.enable_ticks) <= self.hold_ticks:
             csr |= CSR_ENABLE
-        if (self.servo_ticks // self.retrigger_ticks) % 2 == 0:  # in servo ticks, not base
-            csr |= CSR_RETRIGGER
+        if self.servo_ticks % 2 == 0:  # high one servo tick, low the next: a falling edge
+            csr |= CSR_RETRIGGER  # every two servo periods, far inside the 20 ms timeout
         if self._calib[k].capture:
             csr &= ~CSR_INDEX_OFF  # index capture on: the pulse resets the counter (C.3)
         if power == PowerState.OFF:
