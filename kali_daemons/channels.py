@@ -240,6 +240,11 @@ def _ratio(key: str, ratio: Fraction | tuple[int, int] | int) -> Fraction:
     return r
 
 
+def _pack(r: Fraction) -> int:
+    """``r`` as one u64 ratio word: numerator in the low 32 bits, denominator in the high."""
+    return r.numerator | r.denominator << 32
+
+
 class InterpolatingFifo:
     """Type 2 FIFO: set-points at the TG rate in, one linearly interpolated demand per servo
     tick out (thesis 2.2.2).  One producer (TG), one consumer (SIO).
@@ -260,8 +265,18 @@ class InterpolatingFifo:
       ``underruns`` counts the tick; the next segment starts from B when a set-point arrives,
       with no catch-up jump.
 
-    Blocks: ``key`` (``layout.FIFO_HEADER``), ``key + ".ring"`` (float64 ``(capacity, width)``)
-    and ``key + ".state"`` (float64 ``(3, width)``: current output, segment start A, target B).
+    The ratio changes on line (``set_ratio``, when the TG's period changes).  Rule: every
+    set-point is stamped, when pushed, with the ratio in force, and the segment ending at it
+    lasts that ratio's ticks.  So a change applies exactly from the next set-point pushed and
+    never to those already in the ring; two changes between the same two pushes replace each
+    other (the last counts); changes with pushes between them each keep their own set-points.
+    When the consumer takes a set-point stamped with another ratio it switches (its cache and
+    the header's ``ratio_num``/``ratio_den``) and restarts the accumulator at 0: the change
+    drops the fraction of a servo tick (< 1) a fractional ratio had accumulated.
+
+    Blocks: ``key`` (``layout.FIFO_HEADER``), ``key + ".ring"`` (float64 ``(capacity, width)``),
+    ``key + ".ratios"`` (u64 ``capacity``: each set-point's ratio word, see ``_pack``) and
+    ``key + ".state"`` (float64 ``(3, width)``: current output, segment start A, target B).
     All interpolation state is in the arena, so a restarted consumer resumes where it was.
     """
 
@@ -273,7 +288,12 @@ class InterpolatingFifo:
         capacity: int,
         ratio: Fraction | tuple[int, int],
     ) -> None:
-        """Create or attach (outside the cycle)."""
+        """Create or attach (outside the cycle).
+
+        The creator fixes ``ratio``; an attacher (a restarted SIO or TG, a user program)
+        checks capacity and width but adopts the FIFO's ratios, which may have changed on
+        line since: ``ratio`` need only be valid.
+        """
         self.key = key
         cap = _check_capacity("fifo", key, capacity)
         if isinstance(width, bool) or not isinstance(width, int | np.integer) or width < 1:
@@ -285,15 +305,16 @@ class InterpolatingFifo:
         fh = layout.FIFO_HEADER
         self._head_addr = arena.address_of_field(off, fh, "head")
         self._tail_addr = arena.address_of_field(off, fh, "tail")
+        self._push_addr = arena.address_of_field(off, fh, "push_ratio")
         self._init_geometry(arena.address_of_field(off, fh, "capacity"), cap, width, r)
         self._capacity = cap
         self.width = width
-        self.ratio = r
-        self._num = r.numerator
-        self._den = r.denominator
-        self._num_f = float(r.numerator)
+        # The consumer's ratio, of the segment in progress: the header's, however it came.
+        num, den = int(self._h["ratio_num"]), int(self._h["ratio_den"])
+        self._num, self._den, self._num_f, self._stamp = num, den, float(num), num | den << 32
         ring = arena.record(key + ".ring", np.dtype("<f8"), cap * width).reshape(cap, width)
         self._rows = [ring[i] for i in range(cap)]
+        self._stamps = arena.record(key + ".ratios", np.dtype("<u8"), cap)
         state = arena.record(key + ".state", np.dtype("<f8"), 3 * width).reshape(3, width)
         self._cur, self._start, self._target = state[0], state[1], state[2]
         # Consumer-only header fields as 0-d views, and private scratch (never shared).
@@ -314,6 +335,7 @@ class InterpolatingFifo:
             h["width"] = width
             h["ratio_num"] = r.numerator
             h["ratio_den"] = r.denominator
+            atomic.store64(self._push_addr, _pack(r))
             atomic.store32(cap_addr, cap)
             return
         deadline = time.monotonic() + _INIT_TIMEOUT_S
@@ -329,9 +351,6 @@ class InterpolatingFifo:
             raise _mismatch("fifo", self.key, "capacity", seen, cap)
         if int(h["width"]) != width:
             raise _mismatch("fifo", self.key, "width", int(h["width"]), width)
-        have = Fraction(int(h["ratio_num"]), int(h["ratio_den"]))
-        if have != r:
-            raise _mismatch("fifo", self.key, "ratio", have, r)
 
     def _check_vector(self, what: str, values: np.ndarray) -> np.ndarray:
         x = values if isinstance(values, np.ndarray) else np.asarray(values, dtype=np.float64)
@@ -354,7 +373,8 @@ class InterpolatingFifo:
     # ---------------------------------------------------------------- the producer (TG)
 
     def push(self, setpoint: np.ndarray) -> None:
-        """Append one set-point of ``width`` values; ChannelError when full or not finite.
+        """Append one set-point of ``width`` values, stamped with the ratio in force;
+        ChannelError when full or not finite.
 
         Single producer.  Safe in a cycle when given a numeric ndarray (a list is converted).
         """
@@ -366,8 +386,18 @@ class InterpolatingFifo:
                 f"fifo '{self.key}' full: {self._capacity} of {self._capacity} set-points "
                 f"unread; set-point refused, nothing overwritten"
             )
-        np.copyto(self._rows[tail % self._capacity], x)
-        atomic.store64(self._tail_addr, tail + 1)  # publish after the row is written
+        slot = tail % self._capacity
+        np.copyto(self._rows[slot], x)
+        self._stamps[slot] = atomic.load64(self._push_addr)
+        atomic.store64(self._tail_addr, tail + 1)  # publish after the row and stamp
+
+    def set_ratio(self, ratio: Fraction | tuple[int, int] | int) -> None:
+        """Interpolate the set-points pushed from now on with ``ratio`` (servo rate / TG
+        rate, >= 1); those already in the ring keep theirs.  ChannelError if invalid.
+
+        Producer, when the TG's period changes; safe in a cycle (no array allocation).
+        """
+        atomic.store64(self._push_addr, _pack(_ratio(self.key, ratio)))
 
     # ---------------------------------------------------------------- the consumer (SIO)
 
@@ -405,7 +435,11 @@ class InterpolatingFifo:
                 np.copyto(self._cur, self._target)
                 np.copyto(out, self._cur)
                 return False
-            row = self._rows[head % self._capacity]
+            slot = head % self._capacity
+            row = self._rows[slot]
+            stamp = int(self._stamps[slot])
+            if stamp != self._stamp:  # the set-point was pushed under another ratio
+                self._switch(stamp)
             if not self._primed:
                 np.copyto(self._cur, row)
                 np.copyto(self._start, row)
@@ -435,6 +469,14 @@ class InterpolatingFifo:
         np.copyto(out, self._cur)
         return True
 
+    def _switch(self, stamp: int) -> None:
+        """Interpolate from now on with the ratio word ``stamp`` (consumer; in the cycle)."""
+        num, den = stamp & 0xFFFFFFFF, stamp >> 32
+        self._num, self._den, self._num_f, self._stamp = num, den, float(num), stamp
+        self._h["ratio_num"] = num
+        self._h["ratio_den"] = den
+        self._acc[...] = 0
+
     def pending(self) -> int:
         """Set-points pushed and not yet taken (a snapshot).  Safe in a cycle."""
         head = atomic.load64(self._head_addr)
@@ -444,6 +486,17 @@ class InterpolatingFifo:
     def capacity(self) -> int:
         """Set-points the ring holds."""
         return self._capacity
+
+    @property
+    def ratio(self) -> Fraction:
+        """The ratio the next set-point pushed is stamped with (outside the cycle)."""
+        word = atomic.load64(self._push_addr)
+        return Fraction(word & 0xFFFFFFFF, word >> 32)
+
+    @property
+    def segment_ratio(self) -> Fraction:
+        """The ratio of the segment the consumer is in (outside the cycle)."""
+        return Fraction(int(self._h["ratio_num"]), int(self._h["ratio_den"]))
 
     @property
     def underruns(self) -> int:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import os
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -23,7 +24,7 @@ import click
 import numpy as np
 
 from . import launcher
-from .client.motion import Kali
+from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
 from .errors import KaliError
 from .instance import Instance, decode
@@ -446,6 +447,33 @@ def _follow_calibration(
             click.echo(f"{n}: calibrated; angles corrected by {moved}")
     if failed:
         raise ServoError(f"calibrate: failed on {', '.join(failed)}")
+
+
+@main.command(context_settings={"ignore_unknown_options": True})
+@click.argument("program", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+@click.pass_context
+@_errors
+def run(ctx: click.Context, program: Path, args: tuple[str, ...]) -> None:
+    """Run the robot program PROGRAM (a Python file, with ARGS) attached to this instance.
+
+    ``Kali()`` in the program connects to it ($KALI_INSTANCE).  Ctrl-C ends the program and
+    brings every arm to rest on its path; the exit status is the program's.
+    """
+    name = _instance_name(ctx)
+    with _attach(ctx):
+        pass  # the instance must be up: say so before the program starts
+    env = {**os.environ, INSTANCE_ENV: name}
+    proc = subprocess.Popen([sys.executable, str(program), *args], env=env)
+    try:
+        status = proc.wait()
+    except KeyboardInterrupt:  # the program got the SIGINT too (same process group)
+        status = proc.wait()
+        with Kali(name) as kali:
+            for robot in kali.names:
+                kali.robot(robot).stop()
+        click.echo(f"run: {program} interrupted; every arm stopped on its path", err=True)
+    sys.exit(status)
 
 
 @main.command()

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 MAGIC = int.from_bytes(b"KALIAREN", "little")
-LAYOUT_VERSION = 1
+LAYOUT_VERSION = 2
 
 ALIGN = 64  # every block starts on a cache line, so every 4/8-byte word in it is aligned
 MAX_BLOCKS = 256  # directory descriptors (blocks plus free fragments)
@@ -287,7 +287,9 @@ FIFO_HEADER = np.dtype(
     [
         ("capacity", "<u4"),  # set-points the ring holds
         ("width", "<u4"),  # values per set-point (joints)
-        ("ratio_num", "<u4"),  # r = ratio_num / ratio_den = servo rate / TG rate
+        # r = ratio_num / ratio_den = servo rate / TG rate of the segment in progress;
+        # creator, then the consumer when it takes a set-point stamped with another ratio.
+        ("ratio_num", "<u4"),
         ("ratio_den", "<u4"),
         ("head", "<u8"),  # next set-point to take; consumer
         ("tail", "<u8"),  # next set-point to write; producer
@@ -299,6 +301,10 @@ FIFO_HEADER = np.dtype(
         ("_pad", "<u4"),
         ("underruns", "<u8"),  # servo ticks with no set-point to move to (holds B)
         ("overflows", "<u8"),  # pushes refused because the ring was full
+        # The ratio the next set-point pushed is stamped with (num | den << 32, one atomic
+        # word); producer (set_ratio), creator.  Each set-point carries its own stamp in the
+        # ``.ratios`` block, so a change never touches set-points already in the ring.
+        ("push_ratio", "<u8"),
     ],
     align=True,
 )
@@ -582,6 +588,13 @@ TERMINAL_STATES = (
     RequestState.HALTED,
 )
 
+# A PATH request's configuration per robot (kinematics.Config): CONFIG_GIVEN set means bits
+# 0-2 name the configuration the arm must be in; 0 means "the one it is in".
+CONFIG_RIGHT = 1 << 0
+CONFIG_UP = 1 << 1
+CONFIG_FLIP = 1 << 2
+CONFIG_GIVEN = 1 << 3
+
 MOTION_REQUEST = np.dtype(
     [
         ("kind", "u1"),  # MotionKind
@@ -589,12 +602,12 @@ MOTION_REQUEST = np.dtype(
         ("n_segments", "u1"),  # PATH: poses used
         ("_pad", "u1"),
         ("robots", "u1", (MAX_ROBOTS,)),  # robot indices (config order)
-        ("config", "u1", (MAX_ROBOTS,)),  # PATH: arm/elbow/wrist flags per robot (bits 0-2)
+        ("config", "u1", (MAX_ROBOTS,)),  # PATH: CONFIG_* bits per robot; 0 = the arm's own
         ("client_pid", "<i4"),
         ("joints", "<f8", (MAX_ROBOTS, 6)),  # JOINTS: targets, rad
         ("speed_scale", "<f8"),  # JOINTS: fraction (0, 1] of the joint speed/accel limits
         ("poses", "<f8", (MAX_SEGMENTS, 4, 4)),  # PATH: control-frame targets, world frame
-        ("grasps", "<f8", (MAX_ROBOTS, 4, 4)),  # PATH: control frame → each arm's tool frame
+        ("grasps", "<f8", (MAX_ROBOTS, 4, 4)),  # PATH: each arm's flange in the control frame
         ("speed", "<f8"),  # PATH: m/s
         ("angular_speed", "<f8"),  # PATH: rad/s
         ("transition_s", "<f8"),  # PATH: blend time at each via point

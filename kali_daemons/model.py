@@ -263,6 +263,30 @@ def _grasp_pose(robot: RobotConfig) -> tuple[list[float], list[float]]:
     return [half, 0.0, GRASP_HEIGHT], [0.0, 1.0, 0.0, 0.0]  # x = +X, z = -Z: about X
 
 
+def bar_rest_pose() -> np.ndarray:
+    """The bar's pose (4×4, world) lying on the stand, as the cell is built."""
+    t = np.eye(4)
+    t[2, 3] = STAND_SIZE[2] + BAR_SIZE[2] / 2
+    return t
+
+
+def grasp_in_bar(robot: RobotConfig) -> np.ndarray:
+    """Where ``robot``'s flange holds the bar, in the bar's frame (4×4): its grasp site.
+
+    A robot program carrying the bar uses these as its motion system's grasps, so the
+    object's pose is the bar's own.
+    """
+    pos, (w, x, y, z) = _grasp_pose(robot)
+    t = np.eye(4)
+    t[:3, :3] = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    t[:3, 3] = pos
+    return t
+
+
 def _add_bar(spec: mujoco.MjSpec, robots: Sequence[RobotConfig]) -> mujoco.MjsBody:
     """The carried object: a free square bar lying on the stand, with one grasp site per arm."""
     lx, ly, lz = BAR_SIZE

@@ -32,7 +32,8 @@ def test_header_is_versioned_and_attach_reads_it(arena: Arena) -> None:
 
 def test_attach_refuses_wrong_version_naming_both(arena: Arena) -> None:
     arena.header["layout_version"] = 99
-    with pytest.raises(ArenaError, match=r"layout version 99, this Kali reads version 1"):
+    want = rf"layout version 99, this Kali reads version {layout.LAYOUT_VERSION}"
+    with pytest.raises(ArenaError, match=want):
         Arena.attach(arena.name.removeprefix("/kali."))
 
 

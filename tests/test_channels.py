@@ -370,13 +370,162 @@ def test_fifo_attacher_shares_state_and_geometry_is_checked(arena: Arena) -> Non
     assert sio.pending() == 1
     out = np.empty(2)
     assert sio.pop_into(out) and out.tolist() == [1.0, 1.0]
-    mismatch = r"fifo 'tg.fifo' exists with ratio 5/2, attach asked for 3"
-    with pytest.raises(ChannelError, match=mismatch):
-        InterpolatingFifo(arena, "tg.fifo", 2, 8, 3)
+    other = InterpolatingFifo(arena, "tg.fifo", 2, 8, 3)  # the ratio is the FIFO's, not ours
+    assert other.ratio == other.segment_ratio == Fraction(5, 2)
     with pytest.raises(ChannelError, match="exists with width 2, attach asked for 3"):
         InterpolatingFifo(arena, "tg.fifo", 3, 8, Fraction(5, 2))
     with pytest.raises(ChannelError, match="exists with capacity 8, attach asked for 4"):
         InterpolatingFifo(arena, "tg.fifo", 2, 4, Fraction(5, 2))
+    with pytest.raises(ChannelError, match=r"ratio 1/2 .* must be >= 1"):
+        InterpolatingFifo(arena, "tg.fifo", 2, 8, (1, 2))  # still checked when attaching
+
+
+# The ratio changes on line (the TG's period, kalictl rate tg MS).
+
+
+def segments(fifo: InterpolatingFifo, n: int) -> list[list[float]]:
+    """The outputs of the next ``n`` segments of a width-1 FIFO, one list each."""
+    out = np.empty(1)
+    segs: list[list[float]] = []
+    for _ in range(n):
+        seg = []
+        while True:
+            assert fifo.pop_into(out)
+            seg.append(float(out[0]))
+            if int(fifo._seg_done) == int(fifo._seg_ticks):
+                break
+            assert len(seg) < 100
+        segs.append(seg)
+    return segs
+
+
+def primed(fifo: InterpolatingFifo) -> InterpolatingFifo:
+    """``fifo`` after its first pop, which takes the first set-point exactly."""
+    out = np.empty(1)
+    assert fifo.pop_into(out)
+    return fifo
+
+
+def test_fifo_ratio_change_applies_from_the_next_set_point(arena: Arena) -> None:
+    fifo = InterpolatingFifo(arena, "tg.fifo", 1, 16, 10)
+    for x in (0.0, 10.0, 20.0):  # queued before the change: they keep 10 ticks each
+        fifo.push([x])
+    fifo.set_ratio(20)
+    assert fifo.ratio == 20 and fifo.segment_ratio == 10
+    for x in (40.0, 60.0):
+        fifo.push([x])
+    fifo.set_ratio(Fraction(5, 2))
+    for x in (65.0, 70.0, 75.0):
+        fifo.push([x])
+    segs = segments(primed(fifo), 7)
+    assert [len(s) for s in segs] == [10, 10, 20, 20, 2, 3, 2]
+    assert segs[0] == [float(k) for k in range(1, 11)]  # 1 per tick, landing on 10
+    assert segs[2] == [20.0 + k for k in range(1, 21)]  # 1 per tick over 20 ticks
+    assert segs[4:] == [[62.0, 65.0], [67.0, 69.0, 70.0], [72.0, 75.0]]  # (B - A)/2.5
+    assert fifo.segment_ratio == Fraction(5, 2)
+    assert (int(fifo._h["ratio_num"]), int(fifo._h["ratio_den"])) == (5, 2)
+    assert fifo.underruns == 0 and fifo.pending() == 0
+
+
+def test_fifo_ratio_change_rules(arena: Arena) -> None:
+    fifo = InterpolatingFifo(arena, "tg.fifo", 1, 16, 4)
+    fifo.push([0.0])
+    fifo.set_ratio(3)
+    fifo.set_ratio(2)  # no push between: replaces the first
+    fifo.push([2.0])
+    fifo.set_ratio(Fraction(3, 2))  # with a push between: each keeps its own set-points
+    fifo.push([5.0])
+    fifo.push([8.0])
+    # 2 ticks (the 3 was replaced), then 3/2: 1 tick, then 2
+    assert segments(primed(fifo), 3) == [[1.0, 2.0], [5.0], [7.0, 8.0]]
+    fifo.push([9.0])
+    assert segments(fifo, 1) == [[9.0]]  # 1, 2, 1, 2, ...: floor(j 3/2) ticks in all
+    # the same ratio again is no change: the accumulator carries on, no tick lost
+    fifo.set_ratio((6, 4))
+    for x in (11.0, 14.0, 17.0, 20.0):
+        fifo.push([x])
+    assert [len(s) for s in segments(fifo, 4)] == [2, 1, 2, 1]
+
+
+RATIOS = [Fraction(1), Fraction(10), Fraction(20), Fraction(5, 2), Fraction(7, 3), Fraction(4, 3)]
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    first=st.sampled_from(RATIOS),
+    plan=st.lists(st.tuples(st.sampled_from(RATIOS), st.floats(-1e3, 1e3)), max_size=25),
+)
+def test_fifo_property_ratio_changes_stay_exact(
+    first: Fraction, plan: list[tuple[Fraction, float]]
+) -> None:
+    """Any sequence of changes: each segment lasts its set-point's ratio, counted from the
+    last change (floor(j r) ticks after it), and lands exactly on its set-point."""
+    name = unique_instance()
+    arena = Arena.create(name, ARENA_BYTES)
+    try:
+        fifo = InterpolatingFifo(arena, "f", 1, 32, first)
+        fifo.push([0.0])
+        for r, x in plan:
+            if r != fifo.ratio:
+                fifo.set_ratio(r)
+            fifo.push([x])
+        segs = segments(primed(fifo), len(plan))
+        ratio, j = first, 0
+        starts = [0.0, *(x for _, x in plan)][: len(plan)]
+        for (r, x), a, seg in zip(plan, starts, segs, strict=True):
+            if r != ratio:
+                ratio, j = r, 0
+            j += 1
+            assert len(seg) == math.floor(j * ratio) - math.floor((j - 1) * ratio)
+            assert seg[-1] == x
+            lo, hi = min(a, x), max(a, x)
+            assert all(lo <= v <= hi for v in seg)
+        assert fifo.underruns == 0
+    finally:
+        arena.close()
+        arena.unlink()
+
+
+def test_fifo_attachers_adopt_a_changed_ratio(arena: Arena) -> None:
+    tg = InterpolatingFifo(arena, "tg.fifo", 1, 8, 10)
+    sio = InterpolatingFifo(arena, "tg.fifo", 1, 8, 10)
+    tg.push([0.0])
+    tg.push([10.0])
+    tg.set_ratio(20)
+    tg.push([30.0])
+    out = np.empty(1)
+    for _ in range(1 + 10 + 5):  # into the new segment
+        assert sio.pop_into(out)
+    assert out[0] == 15.0 and sio.segment_ratio == 20
+    # a restarted SIO and a user program pass the config's ratio: they adopt the FIFO's
+    sio2 = InterpolatingFifo(arena, "tg.fifo", 1, 8, 10)
+    user = InterpolatingFifo(arena, "tg.fifo", 1, 8, (10, 1))
+    assert sio2.ratio == user.ratio == sio2.segment_ratio == 20
+    values, _ = pops(sio2, 15)
+    assert [v[0] for v in values] == [16.0 + k for k in range(15)]  # resumes mid-segment
+    user.push([50.0])  # stamped 20 too
+    assert [v[0] for v in pops(sio2, 20)[0]] == [31.0 + k for k in range(20)]
+    # a consumer attaching while a change is pending takes it at its set-point
+    tg.set_ratio(5)
+    tg.push([55.0])
+    sio3 = InterpolatingFifo(arena, "tg.fifo", 1, 8, 10)
+    assert sio3.segment_ratio == 20 and sio3.ratio == 5
+    assert [v[0] for v in pops(sio3, 6)[0]] == [51.0, 52.0, 53.0, 54.0, 55.0, 55.0]
+    assert sio3.segment_ratio == 5 and sio3.underruns == 1
+
+
+def test_fifo_set_ratio_refuses_invalid_ratios(arena: Arena) -> None:
+    fifo = InterpolatingFifo(arena, "tg.fifo", 1, 8, 10)
+    for bad, why in (
+        ((1, 2), r"ratio 1/2 \(servo rate / TG rate\) must be >= 1"),
+        (0, r"ratio 0 .* must be >= 1"),
+        ((3, 0), r"ratio \(3, 0\) is not a fraction"),
+        ("fast", r"ratio 'fast' is not a fraction"),
+        (Fraction(2**33, 3), r"ratio 8589934592/3 has terms above 4294967294"),
+    ):
+        with pytest.raises(ChannelError, match=f"fifo 'tg.fifo': {why}"):
+            fifo.set_ratio(bad)
+    assert fifo.ratio == 10  # nothing changed
 
 
 # --------------------------------------------------------------------------------------------

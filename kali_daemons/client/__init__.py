@@ -18,7 +18,7 @@ from ..wallclock import (
     step_kali_clock,
     stop_kali_clock,
 )
-from .motion import Kali, MotionFailedError, MotionHandle, Robot
+from .motion import Kali, MotionFailedError, MotionHandle, MotionSystem, Robot, pose
 
 
 def attach(instance: str = "default") -> Instance:
@@ -31,9 +31,11 @@ __all__ = [
     "Kali",
     "MotionFailedError",
     "MotionHandle",
+    "MotionSystem",
     "Robot",
     "attach",
     "control",
+    "pose",
     "release",
     "set_control_rate",
     "set_kali_clock",

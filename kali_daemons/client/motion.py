@@ -6,11 +6,21 @@
         left.move_joints(np.radians([0, 45, -180, 0, 45, 0]))       # blocks until there
         m = left.move_joints(target, speed=0.3, wait=False)        # a handle
         m.wait(timeout=5.0)
+        here = left.read_pose()                                    # tool in the world, 4×4
+        left.move_line(pose(here[:3, 3] + [0, 0.1, 0], here), speed=0.05)
+        both = kali.motion_system(["left", "right"])               # grasps: as they hold now
+        both.move_path([p1, p2, p3], speed=0.05, transition_s=0.3)
+
+Poses are 4×4 homogeneous transforms in the world frame, metres; ``pose(xyz, rot)`` builds
+one.  A robot's T6 (``read_t6``) is its flange in its own base frame (thesis 3.3.1); its
+*pose* (``read_pose``) is its tool in the world, B · T6 · Tool, with B from the config
+(``base_xyz``, ``base_yaw_deg``) and Tool set by ``set_tool`` (identity by default).
 
 Requests go through the TG's Type 1 queue; each request's fate comes back in its status
 record.  Everything is validated here before it is queued (the TG validates again): a bad
-request raises ``MotionError`` and nothing moves.  A halt wakes every waiting program with
-the fault (``MotionFailedError``).
+request raises ``MotionError`` and nothing moves.  A Cartesian path whose arms are idle is
+checked whole here, with the TG's own check (``tg.cartesian``), so the reason comes back at
+once.  A halt wakes every waiting program with the fault (``MotionFailedError``).
 """
 
 from __future__ import annotations
@@ -18,19 +28,27 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable, Sequence
 from types import TracebackType
 
 import numpy as np
 
 from .. import layout
 from ..channels import RequestQueue
-from ..errors import KaliError
+from ..errors import KaliError, ServoError
 from ..instance import Instance, decode
-from ..layout import TERMINAL_STATES, MotionKind, RequestState
+from ..kinematics import Config, KinematicsError
+from ..layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
 from ..servolevel import ServoClient
+from ..tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
 from ..tg.profiles import MotionError, check_joint_target
+from ..wallclock import control as _control
+from ..wallclock import step_kali_clock
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
+LOCKSTEP_STEP = 10  # ticks a waiting program steps a lockstep instance's clock at a time
+DEFAULT_INSTANCE = "default"
+INSTANCE_ENV = "KALI_INSTANCE"  # set by `kalictl -i NAME run PROGRAM`
 
 
 class MotionFailedError(MotionError):
@@ -80,7 +98,7 @@ class MotionHandle:
                     f"motion: request {self.seq} not done within {timeout:g} s "
                     f"({self.state.name.lower()})"
                 )
-            time.sleep(POLL_S)
+            self.kali.pause()
         state = self.state
         if state != RequestState.DONE:
             raise MotionFailedError(f"request {self.seq} {state.name.lower()}: {self.message}")
@@ -90,6 +108,44 @@ class MotionHandle:
         self.kali._request(MotionKind.STOP, self.robots)
 
 
+def pose(xyz: Sequence[float], rotation: np.ndarray | None = None) -> np.ndarray:
+    """A 4×4 pose at ``xyz`` (m) with ``rotation`` (3×3, or a 4×4 whose rotation is taken;
+    default: the identity)."""
+    t = np.eye(4)
+    t[:3, 3] = np.asarray(xyz, dtype=np.float64).reshape(3)
+    if rotation is not None:
+        r = np.asarray(rotation, dtype=np.float64)
+        t[:3, :3] = r[:3, :3]
+    return t
+
+
+def _pose_arg(what: str, value: object) -> np.ndarray:
+    try:
+        t = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise MotionError(f"{what}: {value!r} is not a 4×4 pose ({exc})") from None
+    if t.shape != (4, 4):
+        raise MotionError(f"{what}: shape {t.shape}, expected a 4×4 pose")
+    if not np.isfinite(t).all():
+        raise MotionError(f"{what}: not finite")
+    return t
+
+
+def _config_arg(what: str, value: Config | str | None) -> Config | None:
+    if value is None or isinstance(value, Config):
+        return value
+    try:
+        return Config.from_string(value)
+    except KinematicsError as exc:
+        raise MotionError(f"{what}: {exc}") from None
+
+
+def _speed_arg(what: str, name: str, value: object) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise MotionError(f"{what}: {name} {value!r} is not a finite number")
+    return float(value)
+
+
 class Robot:
     """One arm of the cell, as a user program moves it."""
 
@@ -97,10 +153,62 @@ class Robot:
         self.kali = kali
         self.index = index
         self.name = kali.names[index]
+        cfg = kali.inst.config.robots[index]
+        self.base = base_transform(cfg.base_xyz, cfg.base_yaw_deg)  # base in the world
+        self.tool = np.eye(4)  # tool in the flange frame
 
     def read_joints(self) -> np.ndarray:
         """The measured joint angles (rad), a copy."""
         return self.kali.servo.level.robots["q"][self.index].copy()
+
+    def read_t6(self) -> np.ndarray:
+        """T6 from the measured joints: the flange in the robot's base frame (4×4, thesis
+        3.3.1), by Pinocchio's forward kinematics of the arm model."""
+        return self.kali.flange_pose(self.read_joints())
+
+    def read_pose(self) -> np.ndarray:
+        """The tool's pose in the world from the measured joints: B · T6 · Tool."""
+        return self.base @ self.read_t6() @ self.tool
+
+    def grip(self, close: bool = True) -> None:
+        """Close (or open) the gripper: its output bit on the robot's I/O board.  The plant
+        welds a closing gripper to the object if the flange is within reach of its grasp."""
+        self.kali.inst.boards()["gripper"][self.index] = 1 if close else 0
+
+    def set_tool(self, tool: np.ndarray) -> None:
+        """The tool frame in the flange frame (4×4) for this program's Cartesian moves."""
+        self.tool = _pose_arg(f"set_tool: robot '{self.name}'", tool)
+
+    def move_line(
+        self,
+        target: np.ndarray,
+        speed: float = 0.1,
+        angular_speed: float = 0.5,
+        config: Config | str | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+    ) -> MotionHandle:
+        """A straight line of the tool to ``target`` (world), at ``speed`` m/s and
+        ``angular_speed`` rad/s at most, keeping the arm's configuration (``config``, e.g.
+        'ruf', must be the one it is in if given).  Blocks unless ``wait`` is False."""
+        return self.move_path([target], speed, angular_speed, 0.0, config, wait, timeout)
+
+    def move_path(
+        self,
+        targets: Sequence[np.ndarray],
+        speed: float = 0.1,
+        angular_speed: float = 0.5,
+        transition_s: float = 0.2,
+        config: Config | str | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+    ) -> MotionHandle:
+        """Straight lines of the tool through ``targets`` (world poses), blended over
+        ``transition_s`` at each via point (Paul's method; the path starts and ends at
+        rest).  See ``move_line``."""
+        system = MotionSystem(self.kali, [self], [inverse(self.tool)])
+        configs = [config]
+        return system.move_path(targets, speed, angular_speed, transition_s, configs, wait, timeout)
 
     def move_joints(
         self, q: np.ndarray, speed: float = 0.5, wait: bool = True, timeout: float | None = None
@@ -129,6 +237,106 @@ class Robot:
         self.kali._request(MotionKind.ABORT, [self.index])
 
 
+class MotionSystem:
+    """Arms holding one object (or one arm): they move its control frame together (DESIGN 5).
+
+    ``grasps[k]`` is arm k's flange in the object's frame, so arm k's T6 = B_k⁻¹ · O · G_k
+    for an object pose O.  ``Kali.motion_system`` makes one.
+    """
+
+    def __init__(self, kali: Kali, robots: list[Robot], grasps: list[np.ndarray]) -> None:
+        self.kali = kali
+        self.robots = robots
+        self.grasps = grasps
+        self.names = [r.name for r in robots]
+        self.indices = [r.index for r in robots]
+
+    def read_pose(self) -> np.ndarray:
+        """The object's pose in the world, from the first arm's measured joints."""
+        r = self.robots[0]
+        return r.base @ r.read_t6() @ inverse(self.grasps[0])
+
+    def move_line(
+        self,
+        target: np.ndarray,
+        speed: float = 0.1,
+        angular_speed: float = 0.5,
+        configs: Sequence[Config | str | None] | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+    ) -> MotionHandle:
+        """The object in a straight line to ``target`` (world); see ``Robot.move_line``."""
+        return self.move_path([target], speed, angular_speed, 0.0, configs, wait, timeout)
+
+    def move_path(
+        self,
+        targets: Sequence[np.ndarray],
+        speed: float = 0.1,
+        angular_speed: float = 0.5,
+        transition_s: float = 0.2,
+        configs: Sequence[Config | str | None] | None = None,
+        wait: bool = True,
+        timeout: float | None = None,
+    ) -> MotionHandle:
+        """The object along straight lines through ``targets``, blended over
+        ``transition_s``; ``configs`` one per arm (None: each keeps its own).  Checked
+        whole before it is queued when the arms are idle (MotionError says where and why)."""
+        what = f"move_path: {', '.join(repr(n) for n in self.names)}"
+        if isinstance(targets, np.ndarray) and targets.shape == (4, 4):
+            raise MotionError(f"{what}: targets is one pose; pass a list ([pose])")
+        targets = [_pose_arg(f"{what}: targets[{i}]", t) for i, t in enumerate(targets)]
+        if not 1 <= len(targets) <= layout.MAX_SEGMENTS:
+            raise MotionError(
+                f"{what}: {len(targets)} targets; 1 to {layout.MAX_SEGMENTS} per request"
+            )
+        speed = _speed_arg(what, "speed", speed)
+        angular_speed = _speed_arg(what, "angular_speed", angular_speed)
+        transition_s = _speed_arg(what, "transition_s", transition_s)
+        configs = list(configs) if configs is not None else [None] * len(self.robots)
+        if len(configs) != len(self.robots):
+            raise MotionError(f"{what}: {len(configs)} configs for {len(self.robots)} arms")
+        flags = [_config_arg(f"{what}: config", c) for c in configs]
+        for r in self.robots:
+            self.kali.servo.require_calibrated(r.index, what)
+        if self.kali.idle(self.indices):  # the start is known: plan and check it all now
+            CartesianMotion(
+                self.names,
+                [r.base for r in self.robots],
+                self.grasps,
+                np.array([self.kali.start_point(k) for k in self.indices]),
+                flags,
+                targets,
+                speed,
+                angular_speed,
+                transition_s,
+                self.kali.tg_dt,
+            ).check_all()
+        poses = np.zeros((layout.MAX_SEGMENTS, 4, 4))
+        poses[: len(targets)] = targets
+        handle = self.kali._request(
+            MotionKind.PATH,
+            self.indices,
+            n_segments=len(targets),
+            poses=poses,
+            grasps=np.array(self.grasps),
+            config=[encode_config(c) for c in flags],
+            speed=speed,
+            angular_speed=angular_speed,
+            transition_s=transition_s,
+        )
+        if wait:
+            handle.wait(timeout)
+        return handle
+
+    def stop(self) -> None:
+        """Decelerate the motion system to rest on its path."""
+        self.kali._request(MotionKind.STOP, self.indices)
+
+    def abort(self) -> None:
+        """Drop the motion system's motion at once."""
+        self.kali._request(MotionKind.ABORT, self.indices)
+
+
 def _joints(robot: str, q: np.ndarray) -> np.ndarray:
     try:
         target = np.asarray(q, dtype=np.float64)
@@ -143,8 +351,10 @@ def _joints(robot: str, q: np.ndarray) -> np.ndarray:
 class Kali:
     """A user program's connection to a running instance (attach by name)."""
 
-    def __init__(self, instance: str = "default") -> None:
-        self.inst = Instance.attach(instance)
+    def __init__(self, instance: str | None = None) -> None:
+        """Attach to ``instance`` (default: $KALI_INSTANCE, set by ``kalictl run``, else
+        'default')."""
+        self.inst = Instance.attach(instance or os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE))
         try:
             self.servo = ServoClient(self.inst)
             arena = self.inst.arena
@@ -154,14 +364,120 @@ class Kali:
             self.status = arena.record(
                 layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
             )
+            self.tg_robots = arena.record(
+                layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.servo.names)
+            )
+            self.fifos = [self.servo.level.fifo(k) for k in range(len(self.servo.names))]
         except KaliError:
             self.inst.close()
             raise
         self.names = self.servo.names
+        self.tg_dt = self.inst.config.clock.tg_period_ms / 1000.0
+        self._pin: tuple[object, object, int] | None = None  # Pinocchio model, data, frame
 
     def robot(self, name: str) -> Robot:
         """The arm called ``name``; ServoError naming the robots otherwise."""
         return Robot(self, self.servo.robot_index(name))
+
+    def pause(self) -> None:
+        """Let time pass while waiting: a short sleep, or in a lockstep instance a few ticks
+        of its clock (nothing else steps it), so programs run there unchanged."""
+        if self.inst.lockstep:
+            step_kali_clock(self.inst, LOCKSTEP_STEP)
+        else:
+            time.sleep(POLL_S)
+
+    def ready(self, names: Sequence[str] | None = None, timeout: float = 30.0) -> None:
+        """Power the robots ``names`` (default: all) and calibrate those not calibrated yet,
+        waiting until they are; ServoError with the reason otherwise (thesis 3.5.1)."""
+        names = list(self.names if names is None else names)
+        deadline = time.monotonic() + timeout
+
+        def wait_until(done: Callable[[], bool], what: str) -> None:
+            while not done():
+                if self.inst.fault["active"]:
+                    raise ServoError(f"{what}: the system halted: {self.inst.fault_text()}")
+                if time.monotonic() > deadline:
+                    raise ServoError(f"{what}: not done within {timeout:g} s")
+                self.pause()
+
+        for n in names:
+            if self.servo.power_state(n) != PowerState.ON:
+                self.servo.power(n, True)
+        wait_until(
+            lambda: all(self.servo.power_state(n) == PowerState.ON for n in names),
+            f"power {', '.join(names)}",
+        )
+        todo = [n for n in names if not self.servo.calibrated(n)]
+        for n in todo:
+            self.servo.calibrate(n)
+
+        def calibrated() -> bool:
+            states = [self.servo.calibration(n) for n in todo]
+            failed = [
+                f"{n}: {m}"
+                for n, (s, _, m) in zip(todo, states, strict=True)
+                if s == CalibState.FAILED
+            ]
+            if failed:
+                raise ServoError(f"calibration failed: {'; '.join(failed)}")
+            return all(s == CalibState.DONE for s, _, _ in states)
+
+        wait_until(calibrated, f"calibrate {', '.join(todo)}")
+
+    def motion_system(
+        self, names: Sequence[str], grasps: Sequence[np.ndarray] | None = None
+    ) -> MotionSystem:
+        """Arms ``names`` holding one object.  ``grasps[k]`` is arm k's flange in the
+        object's frame; None takes them from where the arms are now, with the object's
+        frame at the first arm's tool."""
+        robots = [self.robot(n) for n in names]
+        if not robots or len({r.index for r in robots}) != len(robots):
+            raise MotionError(f"motion_system: {list(names)}: name each arm once, at least one")
+        if grasps is None:
+            obj = robots[0].read_pose()
+            grasps = [inverse(obj) @ r.base @ r.read_t6() for r in robots]
+        else:
+            grasps = [_pose_arg(f"motion_system: grasps[{i}]", g) for i, g in enumerate(grasps)]
+            if len(grasps) != len(robots):
+                raise MotionError(f"motion_system: {len(grasps)} grasps for {len(robots)} arms")
+        return MotionSystem(self, robots, list(grasps))
+
+    def control(
+        self, func: Callable[[int], object], serious: bool = False, period_ms: float = 10.0
+    ) -> int:
+        """Run ``func(tick)`` every ``period_ms`` on the wall clock in this process until it
+        returns False (thesis 3.6.2 ``control``); a serious one that raises halts the system.
+        Blocks; returns 0, or 1 if ``func`` raised."""
+        return _control(
+            self.inst.name, func, name=f"prog.{os.getpid()}", serious=serious, period_ms=period_ms
+        )
+
+    def flange_pose(self, q: np.ndarray) -> np.ndarray:
+        """T6 (flange in the base frame) of joints ``q``, by Pinocchio (loaded on first use)."""
+        import pinocchio as pin  # here: a program that never asks pays nothing for it
+
+        from ..model import FLANGE_FRAME, load_pinocchio
+
+        if self._pin is None:
+            model = load_pinocchio()
+            self._pin = (model, model.createData(), model.getFrameId(FLANGE_FRAME))
+        model, data, frame = self._pin
+        pin.framesForwardKinematics(model, data, np.asarray(q, dtype=np.float64))
+        return np.array(data.oMf[frame].homogeneous)
+
+    def idle(self, robots: Sequence[int]) -> bool:
+        """True when no motion is running or waiting for any of ``robots`` (and the queue
+        is empty), so a new request's start is where they are now."""
+        busy = self.tg_robots["busy_seq"]
+        return all(int(busy[k]) == 0 for k in robots) and len(self.queue) == 0
+
+    def start_point(self, k: int) -> np.ndarray:
+        """Where robot ``k``'s next motion starts when it is idle: the TG's last set-point
+        while SIO is still interpolating towards it, else SIO's demand (as the TG does)."""
+        if self.fifos[k].pending():
+            return self.tg_robots["setpoint"][k].copy()
+        return self.servo.level.robots["demand"][k].copy()
 
     def _request(self, kind: MotionKind, robots: list[int], **fields: object) -> MotionHandle:
         req = np.zeros((), dtype=layout.MOTION_REQUEST)
@@ -170,8 +486,8 @@ class Kali:
         req["robots"][: len(robots)] = robots
         req["client_pid"] = os.getpid()
         for name, value in fields.items():
-            if name == "joints":
-                req["joints"][: len(robots)] = value
+            if name in ("joints", "grasps", "config"):  # one per robot of the request
+                req[name][: len(robots)] = value
             else:
                 req[name] = value
         seq = self.queue.put(req)
@@ -180,6 +496,8 @@ class Kali:
     def close(self) -> None:
         """Detach (the motions already requested go on)."""
         self.servo.close()
+        self.tg_robots = None  # type: ignore[assignment]
+        self.fifos = []
         self.status = None  # type: ignore[assignment]
         self.queue = None  # type: ignore[assignment]
         self.inst.close()

@@ -11,6 +11,12 @@ goes into each robot's TG → SIO FIFO (Type 2), which SIO interpolates at the s
 The FIFO is kept one set-point ahead of SIO, so a late TG tick does not starve the servos.
 On a halt every motion is dropped and every request waiting or running is told the fault.
 
+A Cartesian request (PATH) is checked before anything moves (``cartesian.CartesianMotion``):
+once its arms are free, its whole path is walked at the TG's own sample times, a slice of
+each tick (``CHECK_SHARE`` of the period), while the arms hold; it starts when the walk is
+through, or is refused with the reason.  An inverse kinematics failure at run time stops the
+motion system and halts the system (FaultCode.SINGULARITY, thesis 2.2.1).
+
 Allocation happens only when a request is accepted (planning builds its motion object);
 ticks that only advance running motions allocate nothing.
 """
@@ -18,6 +24,7 @@ ticks that only advance running motions allocate nothing.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from fractions import Fraction
 
@@ -27,14 +34,18 @@ from .. import layout, puma560
 from ..channels import InterpolatingFifo, RequestQueue
 from ..config import ms_to_ns
 from ..daemon import Daemon
-from ..layout import CalibState, MotionKind, PowerState, RequestState
+from ..kinematics import KinematicsError
+from ..layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
 from ..servolevel import FIFO_CAPACITY
+from .cartesian import CartesianMotion, base_transform, decode_config
 from .profiles import JointMotion, MotionError, StopRamp, check_joint_target
 
 MAX_REQUESTS_PER_TICK = 8  # requests taken from the queue per tick (the rest wait a tick)
 STOP_TIME_S = 0.3  # a stop ramps the path speed to zero over this long
 LEAD = 2  # set-points kept in each FIFO ahead of SIO
 CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
+CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before they start
+CHECK_CHUNK = 8  # path samples checked between looks at the time
 
 
 @dataclass
@@ -43,7 +54,10 @@ class Motion:
 
     seq: int
     robots: list[int]
-    profile: JointMotion
+    profile: JointMotion | CartesianMotion
+    checking: bool = False  # a Cartesian path still being checked: the arms hold
+    ending: RequestState | None = None  # the last set-point is pushed: DONE/STOPPED when
+    ending_message: str = ""  # SIO has taken it (the demand is there), not before
     tau: float = 0.0
     stop: StopRamp | None = None
     stop_t: float = 0.0
@@ -79,6 +93,13 @@ class TrajectoryGenerator(Daemon):
         ]
         self.robots = None  # SIO's records, once SIO has created them
         self.dt = cfg.clock.tg_period_ms / 1000.0
+        self.check_ns = int(CHECK_SHARE * ms_to_ns(cfg.clock.tg_period_ms))
+        # kalictl rate tg MS changes the period in the registry slot: _follow_rate reads it
+        self._own_period = inst.procs["period_ticks"][self.slot, ...]  # 0-d view
+        self._period_followed = 0  # none yet: the first cycle sets the FIFOs' ratio
+        self._base_ns = int(inst.clock["base_tick_ns"])
+        self._servo_ns = ms_to_ns(cfg.clock.servo_period_ms)
+        self.bases = [base_transform(r.base_xyz, r.base_yaw_deg) for r in cfg.robots]
         self.request = np.zeros(1, dtype=layout.MOTION_REQUEST)
         self.v_max = np.array(puma560.QD_MAX)
         self.a_max = np.array(puma560.QDD_MAX)
@@ -98,6 +119,7 @@ class TrajectoryGenerator(Daemon):
 
     def cycle(self, tick: int) -> None:
         """Halts first, then new requests, then every running motion's next set-point."""
+        self._follow_rate()
         if self.robots is None:
             self.robots = self._attach_robots()
             if self.robots is None:
@@ -116,9 +138,30 @@ class TrajectoryGenerator(Daemon):
             why = self._unpowered(m.robots)
             if why:  # SIO holds an unpowered arm where it is: the motion cannot go on
                 self._end_motion(m, RequestState.ABORTED, why)
+            elif m.checking:
+                self._check(m)
+            elif m.ending is not None:
+                if not any(self.fifos[k].pending() for k in m.robots):
+                    self._end_motion(m, m.ending, m.ending_message)
             else:
                 self._advance(m)
         self._tick[...] = tick
+
+    def _follow_rate(self) -> None:
+        """Follow this TG's own period, changed on line by ``kalictl rate``: τ's step, the
+        check slice and the ratio of the set-points pushed from this tick on.  In the cycle;
+        allocates only when the period has changed (the first cycle counts as a change: a
+        restarted TG may find the FIFOs at the ratio it set before)."""
+        ticks = int(self._own_period)
+        if ticks == self._period_followed:
+            return
+        self._period_followed = ticks
+        period_ns = ticks * self._base_ns
+        self.dt = period_ns / 1e9
+        self.check_ns = int(CHECK_SHARE * period_ns)
+        ratio = Fraction(period_ns, self._servo_ns)
+        for fifo in self.fifos:
+            fifo.set_ratio(ratio)
 
     def _attach_robots(self) -> np.ndarray | None:
         if self.inst.arena.lookup(layout.KEY_ROBOTS) is None:
@@ -161,9 +204,12 @@ class TrajectoryGenerator(Daemon):
                 self._stop(robots, abort=kind == MotionKind.ABORT)
                 self._say(seq, RequestState.DONE, MotionKind(kind).name.lower())
                 return
-            if kind != MotionKind.JOINTS:
+            if kind == MotionKind.JOINTS:
+                self._validate_joints(req, robots)
+            elif kind == MotionKind.PATH:
+                self._validate_path(req, robots)
+            else:
                 raise MotionError(f"motion kind {kind} is not one this TG carries out")
-            self._validate_joints(req, robots)
         except MotionError as exc:
             self._say(seq, RequestState.REFUSED, str(exc))
             return
@@ -176,6 +222,32 @@ class TrajectoryGenerator(Daemon):
             raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
         for i, k in enumerate(robots):
             check_joint_target(self.names[k], req["joints"][i])
+
+    def _validate_path(self, req: np.void, robots: list[int]) -> None:
+        """What can be checked without the arms' start: numbers, counts, flags, calibration
+        (the path itself is checked when the arms are free, ``_check``)."""
+        n_seg = int(req["n_segments"])
+        if not 1 <= n_seg <= layout.MAX_SEGMENTS:
+            raise MotionError(f"{n_seg} path targets; 1 to {layout.MAX_SEGMENTS} allowed")
+        for name in ("speed", "angular_speed", "transition_s"):
+            if not math.isfinite(float(req[name])):
+                raise MotionError(f"path {name} is {float(req[name])}, must be finite")
+        for i in range(n_seg):
+            if not np.isfinite(req["poses"][i]).all():
+                raise MotionError(f"path targets[{i}] is not finite")
+        for i, k in enumerate(robots):
+            decode_config(int(req["config"][i]))
+            if not np.isfinite(req["grasps"][i]).all():
+                raise MotionError(f"grasp of robot '{self.names[k]}' is not finite")
+            if self.robots is not None:
+                self._require_calibrated(k)
+
+    def _require_calibrated(self, k: int) -> None:
+        if not int(self.robots["calibrated"][k]):
+            raise MotionError(
+                f"robot '{self.names[k]}' is not calibrated; Cartesian motion needs its true "
+                f"joint angles (kalictl calibrate {self.names[k]})"
+            )
 
     def _start_waiting(self) -> None:
         """Start each waiting request whose robots are idle, in order of arrival."""
@@ -204,6 +276,9 @@ class TrajectoryGenerator(Daemon):
         return ""
 
     def _start(self, seq: int, req: np.void, robots: list[int]) -> None:
+        if int(req["kind"]) == MotionKind.PATH:
+            self._plan_path(seq, req, robots)
+            return
         scale = float(req["speed_scale"])
         start = np.concatenate([self._start_point(k) for k in robots])
         target = np.concatenate([req["joints"][i] for i in range(len(robots))])
@@ -218,13 +293,61 @@ class TrajectoryGenerator(Daemon):
         m = Motion(seq, robots, profile, out=np.zeros(6 * n))
         for k in robots:
             self.tg_robots["busy_seq"][k] = seq
-        rec = self.status[seq % layout.STATUS_RING]
-        rec["duration_s"] = profile.duration
-        rec["progress"] = 0.0
-        self._say(seq, RequestState.RUNNING)
         self.motions.append(m)
+        self._run(m)
+
+    def _run(self, m: Motion) -> None:
+        """Motion ``m`` is planned (and checked): it runs from this tick."""
+        rec = self.status[m.seq % layout.STATUS_RING]
+        rec["duration_s"] = m.profile.duration
+        rec["progress"] = 0.0
+        self._say(m.seq, RequestState.RUNNING)
         for _ in range(LEAD - 1):  # run ahead of SIO by LEAD set-points
             self._advance(m)
+
+    def _plan_path(self, seq: int, req: np.void, robots: list[int]) -> None:
+        """Plan a Cartesian request from where its arms are; its check starts this tick."""
+        n = len(robots)
+        try:
+            for k in robots:
+                self._require_calibrated(k)
+            plan = CartesianMotion(
+                [self.names[k] for k in robots],
+                [self.bases[k] for k in robots],
+                [req["grasps"][i] for i in range(n)],
+                np.array([self._start_point(k) for k in robots]),
+                [decode_config(int(req["config"][i])) for i in range(n)],
+                [req["poses"][i] for i in range(int(req["n_segments"]))],
+                float(req["speed"]),
+                float(req["angular_speed"]),
+                float(req["transition_s"]),
+                self.dt,
+            )
+        except MotionError as exc:
+            self._say(seq, RequestState.REFUSED, str(exc))
+            return
+        m = Motion(seq, robots, plan, checking=True, out=np.zeros(6 * n))
+        for k in robots:
+            self.tg_robots["busy_seq"][k] = seq
+        self._say(seq, RequestState.QUEUED, "checking the path")
+        self.motions.append(m)
+        self._check(m)
+
+    def _check(self, m: Motion) -> None:
+        """Walk a slice of ``m``'s path (``CHECK_SHARE`` of a tick); run or refuse it at the end."""
+        plan = m.profile
+        assert isinstance(plan, CartesianMotion)
+        t0 = time.monotonic_ns()
+        try:
+            while not plan.check_some(CHECK_CHUNK):
+                self._progress[m.seq % layout.STATUS_RING] = plan.checked / plan.n_samples
+                if time.monotonic_ns() - t0 > self.check_ns:
+                    return
+        except MotionError as exc:
+            self._end_motion(m, RequestState.REFUSED, str(exc))
+            return
+        m.checking = False
+        self._run(m)
 
     def _start_point(self, k: int) -> np.ndarray:
         """Where robot ``k``'s next motion starts: its last set-point while the FIFO still
@@ -237,9 +360,12 @@ class TrajectoryGenerator(Daemon):
         for m in list(self.motions):
             if not set(m.robots) & set(robots):
                 continue
-            if abort:
+            if m.checking:  # nothing has moved yet
+                state = RequestState.ABORTED if abort else RequestState.STOPPED
+                self._end_motion(m, state, "cancelled while its path was checked")
+            elif abort:
                 self._end_motion(m, RequestState.ABORTED, "aborted")
-            elif m.stop is None:
+            elif m.stop is None and m.ending is None:  # not once it is arriving
                 m.stop = StopRamp(m.tau, STOP_TIME_S)
                 m.stop_t = 0.0
         for seq, req in list(self.waiting):
@@ -257,16 +383,37 @@ class TrajectoryGenerator(Daemon):
             m.tau = min(m.stop.tau(m.stop_t), p.duration)
         else:
             m.tau = min(m.tau + self.dt, p.duration)
-        p.sample(m.tau, m.out)
-        for i, k in enumerate(m.robots):
-            q = m.out[6 * i : 6 * i + 6]
-            self.fifos[k].push(q)
-            self._setpoints[k] = q
+        if isinstance(p, CartesianMotion):
+            try:
+                rows = p.sample(m.tau)
+            except KinematicsError as exc:  # the check let it through: stop and halt (2.2.1)
+                self._kinematics_halt(m, p, str(exc))
+                return
+            for i, k in enumerate(m.robots):
+                self.fifos[k].push(rows[i])
+                self._setpoints[k] = rows[i]
+        else:
+            p.sample(m.tau, m.out)
+            for i, k in enumerate(m.robots):
+                q = m.out[6 * i : 6 * i + 6]
+                self.fifos[k].push(q)
+                self._setpoints[k] = q
         self._progress[m.seq % layout.STATUS_RING] = m.tau / p.duration
         if m.stop is not None and (m.stop.sigma(m.stop_t) == 0.0 or m.tau >= p.duration):
-            self._end_motion(m, RequestState.STOPPED, "stopped on the path")
+            m.ending, m.ending_message = RequestState.STOPPED, "stopped on the path"
         elif m.stop is None and m.tau >= p.duration:
-            self._end_motion(m, RequestState.DONE)
+            m.ending = RequestState.DONE
+
+    def _kinematics_halt(self, m: Motion, plan: CartesianMotion, why: str) -> None:
+        """No joint solution at run time: the arms hold at their last set-points and the
+        system halts, naming the motion system, the segment and the reason."""
+        names = ", ".join(f"'{self.names[k]}'" for k in m.robots)
+        text = (
+            f"motion system {names}, request {m.seq}: no joint solution at "
+            f"{plan.segment_label(m.tau)}, {m.tau:.2f} s into the motion: {why}"
+        )
+        self._end_motion(m, RequestState.HALTED, text)
+        self.inst.raise_fault(FaultCode.SINGULARITY, self.name, text)
 
     def _end_motion(self, m: Motion, state: RequestState, message: str = "") -> None:
         self.motions.remove(m)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from ..config import ns_to_ms, period_ticks
+from ..config import ms_to_ns, ns_to_ms, period_ticks
 from ..daemon import FunctionDaemon
 from ..errors import ClockError
 from ..instance import Instance, decode
@@ -73,7 +73,12 @@ def step_kali_clock(inst: Instance, ticks: int, wait: bool = True, timeout: floa
 
 def set_control_rate(inst: Instance, process: str, period_ms: float) -> None:
     """Change the period of ``process`` to ``period_ms`` (a whole multiple of the base tick,
-    which may be a fraction of a ms: 1.5 with a 0.5 ms tick is 3 ticks)."""
+    which may be a fraction of a ms: 1.5 with a 0.5 ms tick is 3 ticks).
+
+    A TG period is at least the servo period: SIO spends one servo tick or more on each
+    set-point (the FIFO ratio, thesis 2.2.2, is >= 1).  The TG follows its new period from
+    its next tick, and its FIFOs from the next set-point it pushes.
+    """
     base_ms = ns_to_ms(int(inst.clock["base_tick_ns"]))
     try:
         if isinstance(period_ms, bool) or not isinstance(period_ms, int | float):
@@ -87,6 +92,21 @@ def set_control_rate(inst: Instance, process: str, period_ms: float) -> None:
     i = inst.slot_of(process)
     if not inst.procs[i]["periodic"]:
         raise ClockError(f"process '{process}' is not driven by the wall clock")
+    cfg = inst.config
+    servo_ms = cfg.clock.servo_period_ms
+    kind = next((p.kind for p in cfg.processes if p.name == process), "")
+    if kind in ("sio", "sv"):
+        raise ClockError(
+            f"rate of '{process}': the servo period ({servo_ms:g} ms) is fixed while Kali runs "
+            f"(the servos' gains, filters and the FIFO ratio are set for it); change "
+            f"clock.servo_period_ms in the config and restart"
+        )
+    is_tg = kind == "tg"
+    if is_tg and ticks * int(inst.clock["base_tick_ns"]) < ms_to_ns(servo_ms):
+        raise ClockError(
+            f"rate of '{process}': period {period_ms:g} ms is shorter than the servo period "
+            f"{servo_ms:g} ms; the TG must run at most as fast as the servos (FIFO ratio >= 1)"
+        )
     inst.procs[i]["period_ticks"] = ticks
     inst.bump_registry()
 

@@ -1,0 +1,304 @@
+"""Cartesian motion of one motion system: each arm's T6 from the object's path, inverse
+kinematics every TG tick, and the whole-path check before anything moves (thesis 2.2.1,
+3.3.1; DESIGN 5).
+
+A motion system is one arm, or several arms holding one object.  Its path is the pose O(τ)
+of the object's control frame in the world frame (a ``profiles.CartesianPath``); arm k, with
+its base at B_k in the world and its flange held at G_k in the object's frame (the *grasp*,
+tool transforms folded in by the client: a lone arm with tool Tool has G = Tool⁻¹, so O is
+the tool's pose; the arms must agree on O at the start within ``GRASP_TOL_M`` /
+``GRASP_TOL_RAD``, and each arm's grasp is then taken as it really holds the object, so no
+arm jumps when the motion starts), has
+
+    T6_k(τ) = B_k⁻¹ · O(τ) · G_k
+
+and its joint set-point is ``kinematics.ikine(T6_k, config_k, q_ref = its last set-point)``.
+The configuration is the one each arm is in when the motion starts: a straight line cannot
+change it (2.2.1), so a request naming another one is refused.
+
+The check (``check_some``) walks the path at exactly the path times the TG will use (every
+TG period, τ = dt, 2·dt, …, duration) and refuses, naming the segment, the arm, the joint or
+the singularity and the place, any sample where
+
+- the pose is out of the arm's reach or needs a joint outside its limits (``ikine`` fails),
+- the arm comes within ``SHOULDER_MIN_M`` of the shoulder singularity, ``ELBOW_MIN_M`` of the
+  elbow singularity or ``WRIST_MIN_DEG`` of the wrist singularity (``kinematics.singularities``),
+- a joint would have to move faster than its limit (``puma560.QD_MAX``; near a singularity
+  the joint speeds a straight line needs grow without bound),
+- the configuration would change (a safety net: with fixed flags it can only happen on a
+  singularity, which the distances above already keep away from).
+
+A stop only slows the motion along the same path (``profiles.StopRamp``), so set-points at
+run time lie between checked ones.  If ``ikine`` fails at run time anyway, the TG stops the
+motion system and halts the system (FaultCode.SINGULARITY), as in the thesis.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from collections.abc import Sequence
+from typing import Final
+
+import numpy as np
+
+from .. import kinematics, layout, puma560
+from ..kinematics import Config, KinematicsError
+from .profiles import CartesianPath, MotionError
+
+SHOULDER_MIN_M: Final = 0.05  # closest approach of the wrist centre to the shoulder singularity
+ELBOW_MIN_M: Final = 0.05  # ... to the elbow singularity (arm stretched or folded)
+WRIST_MIN_DEG: Final = 5.0  # closest |θ5| to the wrist singularity
+GRASP_TOL_M: Final = 0.002  # arms of one motion system must agree on the object's pose to this
+GRASP_TOL_RAD: Final = 0.01
+SPEED_MARGIN: Final = 1.0 + 1e-9  # rounding allowance on the joint speed limits
+
+_WRIST_MIN_RAD: Final = math.radians(WRIST_MIN_DEG)
+_QD_MAX: Final = tuple(float(v) for v in puma560.QD_MAX)
+
+
+def encode_config(config: Config | None) -> int:
+    """A request's configuration byte (``layout.CONFIG_*``); None: the arm's own."""
+    if config is None:
+        return 0
+    return (
+        layout.CONFIG_GIVEN
+        | (layout.CONFIG_RIGHT if config.right else 0)
+        | (layout.CONFIG_UP if config.up else 0)
+        | (layout.CONFIG_FLIP if config.flip else 0)
+    )
+
+
+def decode_config(code: int) -> Config | None:
+    """The configuration a request's byte names (None: the arm's own); MotionError if bad."""
+    if code == 0:
+        return None
+    if not code & layout.CONFIG_GIVEN or code >= 2 * layout.CONFIG_GIVEN:
+        raise MotionError(f"configuration byte {code:#x} is not one of layout.CONFIG_*")
+    return Config(
+        right=bool(code & layout.CONFIG_RIGHT),
+        up=bool(code & layout.CONFIG_UP),
+        flip=bool(code & layout.CONFIG_FLIP),
+    )
+
+
+def base_transform(xyz: Sequence[float], yaw_deg: float) -> np.ndarray:
+    """The 4×4 pose of a robot's base in the world: at ``xyz`` (m), turned ``yaw_deg`` about z."""
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    t = np.eye(4)
+    t[:2, :2] = ((c, -s), (s, c))
+    t[:3, 3] = xyz
+    return t
+
+
+def inverse(t: np.ndarray) -> np.ndarray:
+    """The inverse of a rigid 4×4 transform (Rᵀ, −Rᵀp)."""
+    out = np.eye(4)
+    out[:3, :3] = t[:3, :3].T
+    out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
+    return out
+
+
+def _rotation_angle(r: np.ndarray) -> float:
+    return math.acos(max(-1.0, min(1.0, 0.5 * (float(np.trace(r)) - 1.0))))
+
+
+def _why(exc: KinematicsError) -> str:
+    """An ikine error's message without its "kinematics: ikine: " prefix."""
+    return str(exc).removeprefix(f"{exc.subsystem}: ").removeprefix("ikine: ")
+
+
+def _deg(x: float) -> str:
+    return f"{math.degrees(x):.1f}°"
+
+
+def _xyz(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{float(v):.3f}" for v in p) + ") m"
+
+
+class CartesianMotion:
+    """One Cartesian request of one motion system: planned, checked, then sampled per tick.
+
+    ``names`` are the arms' names (messages), ``bases`` their B_k and ``grasps`` their G_k,
+    ``q_start`` (n, 6) where each arm starts, ``configs`` the configuration each must keep
+    (None: the one it starts in), ``targets`` the object's poses in the world, ``dt`` the TG
+    period (s).  Raises ``MotionError`` when the request cannot even be planned: arms that do
+    not agree on where the object is, a configuration other than the arm's, a bad path.
+    """
+
+    def __init__(
+        self,
+        names: Sequence[str],
+        bases: Sequence[np.ndarray],
+        grasps: Sequence[np.ndarray],
+        q_start: np.ndarray,
+        configs: Sequence[Config | None],
+        targets: Sequence[np.ndarray],
+        speed: float,
+        angular_speed: float,
+        transition_s: float,
+        dt: float,
+    ) -> None:
+        self.names = list(names)
+        n = len(self.names)
+        self.n = n
+        self.dt = float(dt)
+        self._to_base = [inverse(np.asarray(b, dtype=np.float64)) for b in bases]
+        self._grasps = [np.asarray(g, dtype=np.float64).copy() for g in grasps]
+        q_start = np.asarray(q_start, dtype=np.float64).reshape(n, 6)
+        # scratch, so sampling allocates nothing
+        self._obj = np.empty((4, 4))
+        self._tmp = np.empty((4, 4))
+        self._t6 = np.empty((4, 4))
+        self._q = np.empty(6)
+        self.configs: list[Config] = []
+        for k in range(n):
+            have = kinematics.config_of(q_start[k])
+            want = configs[k]
+            if want is not None and want != have:
+                raise MotionError(
+                    f"robot '{self.names[k]}' is in configuration '{have}', the request asks "
+                    f"for '{want}': a straight line cannot change configuration (move_joints "
+                    f"into '{want}' first)"
+                )
+            self.configs.append(have)
+        start = self.object_pose(0, q_start[0])
+        for k in range(1, n):
+            other = self.object_pose(k, q_start[k])
+            gap = float(np.linalg.norm(other[:3, 3] - start[:3, 3]))
+            turn = _rotation_angle(start[:3, :3].T @ other[:3, :3])
+            if gap > GRASP_TOL_M or turn > GRASP_TOL_RAD:
+                raise MotionError(
+                    f"robots '{self.names[0]}' and '{self.names[k]}' do not hold the object "
+                    f"where their grasps say: their object poses differ by {gap * 1000:.1f} mm "
+                    f"and {_deg(turn)} (allowed {GRASP_TOL_M * 1000:g} mm, "
+                    f"{_deg(GRASP_TOL_RAD)})"
+                )
+            # hold the object as the arm really does: no jump at the start, whatever the
+            # (tolerated) disagreement; a squeeze it would cause stays a squeeze
+            self._grasps[k] = (
+                inverse(start) @ inverse(self._to_base[k]) @ kinematics.fkine(q_start[k])
+            )
+        self.path = CartesianPath(start, list(targets), speed, angular_speed, transition_s)
+        for i in range(1, len(self.path.poses)):  # each target first: the plainest refusal
+            np.copyto(self._obj, self.path.poses[i])
+            for k in range(n):
+                try:
+                    kinematics.ikine(self._t6_of(k), self.configs[k])
+                except KinematicsError as exc:
+                    raise MotionError(
+                        f"path refused: targets[{i - 1}] at {_xyz(self._obj[:3, 3])}: robot "
+                        f"'{self.names[k]}': {_why(exc)}"
+                    ) from None
+        self.duration = float(self.path.duration)
+        self.n_samples = max(1, math.ceil(self.duration / self.dt - 1e-9))
+        self.q_ref = q_start.copy()  # each arm's last set-point: ikine's q_ref at run time
+        self._rows = [self.q_ref[k] for k in range(n)]
+        # the check's own walk
+        self.checked = 0  # samples checked so far (1..n_samples)
+        self._check_q = q_start.copy()
+
+    # ------------------------------------------------------------------ frames
+
+    def object_pose(self, k: int, q: np.ndarray) -> np.ndarray:
+        """Where arm ``k`` at joints ``q`` holds the object: B_k · T6(q) · G_k⁻¹ (world)."""
+        t6 = kinematics.fkine(np.asarray(q, dtype=np.float64))
+        return inverse(self._to_base[k]) @ t6 @ inverse(self._grasps[k])
+
+    def _t6_of(self, k: int) -> np.ndarray:
+        """T6 of arm ``k`` for the object pose in ``_obj`` (into scratch; no allocation)."""
+        np.matmul(self._to_base[k], self._obj, out=self._tmp)
+        np.matmul(self._tmp, self._grasps[k], out=self._t6)
+        return self._t6
+
+    # ------------------------------------------------------------------ the check
+
+    def segment_label(self, tau: float) -> str:
+        """Which segment path time ``tau`` is in, for messages ("segment 2 of 4")."""
+        n_seg = len(self.path.segment_times)
+        s = min(max(bisect_right(self.path.via_times.tolist(), tau), 1), n_seg)
+        return f"segment {s} of {n_seg}"
+
+    def check_some(self, samples: int) -> bool:
+        """Check up to ``samples`` more path samples; True once the whole path is checked.
+
+        Raises ``MotionError`` with the reason at the first sample that fails.
+        """
+        end = min(self.n_samples, self.checked + samples)
+        while self.checked < end:
+            self.checked += 1
+            tau = min(self.checked * self.dt, self.duration)
+            self.path.sample(tau, self._obj)
+            for k in range(self.n):
+                self._check_sample(k, tau)
+        return self.checked >= self.n_samples
+
+    def check_all(self) -> None:
+        """The whole check at once (the client's, before it queues the request)."""
+        self.check_some(self.n_samples)
+
+    def _refuse(self, k: int, tau: float, what: str) -> MotionError:
+        where = _xyz(self._obj[:3, 3])
+        return MotionError(
+            f"path refused: {self.segment_label(tau)}, {tau:.2f} s into the motion, object at "
+            f"{where}: robot '{self.names[k]}' {what}"
+        )
+
+    def _check_sample(self, k: int, tau: float) -> None:
+        t6 = self._t6_of(k)
+        prev = self._check_q[k]
+        try:
+            q = kinematics.ikine(t6, self.configs[k], q_ref=prev, out=self._q)
+        except KinematicsError as exc:
+            raise self._refuse(k, tau, _why(exc)) from None
+        sing = kinematics.singularities(q)
+        wc = _xyz(t6[:3, 3])
+        if sing.shoulder < SHOULDER_MIN_M:
+            raise self._refuse(
+                k,
+                tau,
+                f"comes within {sing.shoulder * 100:.1f} cm of the shoulder singularity "
+                f"(limit {SHOULDER_MIN_M * 100:g} cm): wrist centre at {wc} in its base frame",
+            )
+        if sing.elbow < ELBOW_MIN_M:
+            raise self._refuse(
+                k,
+                tau,
+                f"comes within {sing.elbow * 100:.1f} cm of the elbow singularity (arm "
+                f"stretched; limit {ELBOW_MIN_M * 100:g} cm): wrist centre at {wc} in its "
+                f"base frame",
+            )
+        if sing.wrist < _WRIST_MIN_RAD:
+            raise self._refuse(
+                k,
+                tau,
+                f"comes within {_deg(sing.wrist)} of the wrist singularity (joint 5 at "
+                f"{_deg(float(q[4]))}; limit {WRIST_MIN_DEG:g}°)",
+            )
+        for j in range(6):
+            speed = abs(float(q[j]) - float(prev[j])) / self.dt
+            if speed > _QD_MAX[j] * SPEED_MARGIN:
+                raise self._refuse(
+                    k,
+                    tau,
+                    f"needs joint {j + 1} at {math.degrees(speed):.1f}°/s, above its limit "
+                    f"{math.degrees(_QD_MAX[j]):.0f}°/s (slow the path down)",
+                )
+        have = kinematics.config_of(q)
+        if have != self.configs[k]:
+            raise self._refuse(
+                k, tau, f"would change configuration from '{self.configs[k]}' to '{have}'"
+            )
+        prev[:] = q
+
+    # ------------------------------------------------------------------ run time
+
+    def sample(self, tau: float) -> list[np.ndarray]:
+        """Every arm's joint set-point at path time ``tau``, each solved near its last one;
+        returns the rows of ``q_ref`` (views, overwritten next time).  ``KinematicsError``
+        if an arm has no solution.  Inside the cycle: nothing allocated unless it fails."""
+        self.path.sample(tau, self._obj)
+        rows = self._rows
+        for k in range(self.n):
+            kinematics.ikine(self._t6_of(k), self.configs[k], q_ref=rows[k], out=rows[k])
+        return rows

@@ -1,0 +1,163 @@
+"""Cartesian motion planning for motion systems (``tg.cartesian``), in-process: T6 of each arm
+from the object's path, joint set-points on the commanded lines, and the whole-path check."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from kali_daemons import kinematics, puma560
+from kali_daemons.kinematics import CONFIGS, KinematicsError
+from kali_daemons.tg.cartesian import (
+    CartesianMotion,
+    base_transform,
+    decode_config,
+    encode_config,
+    inverse,
+)
+from kali_daemons.tg.profiles import MotionError
+
+DT = 0.01
+LEFT = base_transform((-0.6, 0.0, 0.0), 0.0)
+RIGHT = base_transform((0.6, 0.0, 0.0), 180.0)
+
+
+def world_pose(base: np.ndarray, q: np.ndarray) -> np.ndarray:
+    return base @ kinematics.fkine(np.asarray(q, dtype=float))
+
+
+def translated(t: np.ndarray, dxyz: tuple[float, float, float]) -> np.ndarray:
+    out = t.copy()
+    out[:3, 3] += np.array(dxyz)
+    return out
+
+
+def one_arm(q0: np.ndarray, targets: list[np.ndarray], **kw: object) -> CartesianMotion:
+    args = {"speed": 0.2, "angular_speed": 1.0, "transition_s": 0.1, **kw}
+    return CartesianMotion(
+        ["left"], [LEFT], [np.eye(4)], q0[None], [kw.pop("config", None)], targets,
+        args["speed"], args["angular_speed"], args["transition_s"], DT,
+    )  # fmt: skip
+
+
+def test_config_bytes_round_trip_and_bad_ones_are_refused() -> None:
+    assert decode_config(encode_config(None)) is None
+    for c in CONFIGS:
+        assert decode_config(encode_config(c)) == c
+    for bad in (1, 7, 0x10, 0xFF):
+        with pytest.raises(MotionError, match="configuration byte"):
+            decode_config(bad)
+
+
+def test_base_transform_and_inverse() -> None:
+    t = base_transform((0.6, 0.1, 0.2), 180.0)
+    np.testing.assert_allclose(t @ np.array([1.0, 0, 0, 1]), [-0.4, 0.1, 0.2, 1], atol=1e-12)
+    np.testing.assert_allclose(inverse(t) @ t, np.eye(4), atol=1e-12)
+
+
+def test_line_set_points_lie_on_the_line_and_are_continuous() -> None:
+    q0 = np.array(puma560.QN)
+    start = world_pose(LEFT, q0)
+    goal = translated(start, (0.0, 0.15, 0.1))
+    plan = one_arm(q0, [goal])
+    plan.check_all()
+    a, b = start[:3, 3], goal[:3, 3]
+    u = (b - a) / np.linalg.norm(b - a)
+    prev = q0.copy()
+    steps = 0
+    tau = 0.0
+    while tau < plan.duration:
+        tau = min(tau + DT, plan.duration)
+        q = plan.sample(tau)[0].copy()
+        p = world_pose(LEFT, q)
+        off = (p[:3, 3] - a) - np.dot(p[:3, 3] - a, u) * u
+        assert np.linalg.norm(off) < 1e-6  # on the line: FK(IK(T)) = T
+        np.testing.assert_allclose(p[:3, :3], start[:3, :3], atol=1e-9)  # orientation kept
+        assert (np.abs(q - prev) / DT <= puma560.QD_MAX * (1 + 1e-9)).all()
+        assert kinematics.config_of(q) == kinematics.config_of(q0)
+        prev = q
+        steps += 1
+    np.testing.assert_allclose(world_pose(LEFT, prev), goal, atol=1e-9)
+    assert steps == plan.n_samples
+
+
+def test_two_arms_holding_one_object_agree_on_it_at_every_sample() -> None:
+    q_left = q_right = np.array(puma560.QN)  # the arms face each other, flanges 0.3 m apart
+    obj = translated(world_pose(LEFT, q_left), (0.0, 0.15, 0.0))  # the object between them
+    g_left = inverse(obj) @ world_pose(LEFT, q_left)
+    g_right = inverse(obj) @ world_pose(RIGHT, q_right)
+    target = translated(obj, (0.0, 0.05, 0.08))
+    plan = CartesianMotion(
+        ["left", "right"], [LEFT, RIGHT], [g_left, g_right], np.array([q_left, q_right]),
+        [None, None], [target], 0.1, 0.5, 0.1, DT,
+    )  # fmt: skip
+    plan.check_all()
+    for i in range(1, plan.n_samples + 1):
+        rows = plan.sample(min(i * DT, plan.duration))
+        o_left = world_pose(LEFT, rows[0]) @ inverse(g_left)
+        o_right = world_pose(RIGHT, rows[1]) @ inverse(g_right)
+        np.testing.assert_allclose(o_left, o_right, atol=1e-9)
+    np.testing.assert_allclose(o_left, target, atol=1e-9)
+
+
+def test_arms_that_do_not_hold_the_object_where_their_grasps_say_are_refused() -> None:
+    q = np.array(puma560.QN)
+    obj = world_pose(LEFT, q)
+    off = translated(np.eye(4), (0.005, 0.0, 0.0))
+    with pytest.raises(MotionError, match=r"'left' and 'right' do not hold the object.*5\.0 mm"):
+        CartesianMotion(
+            ["left", "right"], [LEFT, LEFT], [np.eye(4), off], np.array([q, q]),
+            [None, None], [translated(obj, (0, 0, 0.1))], 0.1, 0.5, 0.1, DT,
+        )  # fmt: skip
+
+
+def test_check_refuses_with_segment_arm_and_reason() -> None:
+    q0 = np.array(puma560.QN)
+    start = world_pose(LEFT, q0)
+    # a target out of reach is refused as such, before the path is walked
+    a = translated(start, (0.0, 0.1, 0.0))
+    b = translated(a, (1.0, 0.0, 0.0))
+    with pytest.raises(MotionError, match=r"targets\[1\] at .*robot 'left': pose out of reach"):
+        one_arm(q0, [a, b])
+    # segment 2 of 2 nearly stretches the arm on its way to a reachable target: the wrist
+    # spins (joint 5 near 0 there) faster than joint 4 may turn
+    c = translated(a, (0.2785, 0.0, 0.0))
+    with pytest.raises(MotionError, match=r"segment 2 of 2, 18.8\d s .*'left' needs joint 4 at"):
+        one_arm(q0, [a, c], speed=0.02).check_all()
+    one_arm(q0, [a, translated(a, (0.27, 0.0, 0.0))], speed=0.02).check_all()  # short of it
+    # turning the flange so that joint 5 passes 0: the wrist singularity
+    q_w = q0.copy()
+    q_w[3:5] = np.radians([90, 20])
+    t = world_pose(LEFT, q_w)
+    q_goal = q_w.copy()
+    q_goal[4] = math.radians(-20)
+    goal = world_pose(LEFT, q_goal)
+    goal[:3, 3] = t[:3, 3]
+    with pytest.raises(MotionError, match=r"wrist singularity \(joint 5 at"):
+        one_arm(q_w, [goal]).check_all()
+    # a fast turn about the approach axis needs joint 6 above its 120°/s
+    spin = t.copy()
+    c, s = math.cos(1.5), math.sin(1.5)
+    spin[:3, :3] = t[:3, :3] @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    with pytest.raises(MotionError, match=r"needs joint 6 at [\d.]+°/s, above its limit 120°/s"):
+        one_arm(q_w, [spin], angular_speed=4.0).check_all()
+    one_arm(q_w, [spin], angular_speed=1.0).check_all()  # slower: fine
+    # a configuration other than the arm's
+    with pytest.raises(MotionError, match=r"in configuration 'ruf', the request asks for 'luf'"):
+        one_arm(q0, [a], config=kinematics.Config.from_string("luf"))
+
+
+def test_check_goes_in_slices_and_sampling_fails_loudly_if_the_path_breaks() -> None:
+    q0 = np.array(puma560.QN)
+    start = world_pose(LEFT, q0)
+    plan = one_arm(q0, [translated(start, (0.0, 0.0, 0.2))], speed=0.05)
+    assert plan.n_samples > 300
+    assert not plan.check_some(100) and plan.checked == 100
+    while not plan.check_some(100):
+        pass
+    assert plan.checked == plan.n_samples
+    plan._to_base[0] = inverse(base_transform((-3.0, 0.0, 0.0), 0.0))  # the arm "moved" away
+    with pytest.raises(KinematicsError, match="out of reach"):
+        plan.sample(DT)
