@@ -1,0 +1,95 @@
+"""Robot programs as separate processes (issue 5): a program that dies mid-motion leaves the
+motion running and the queue whole; ``Kali.control`` runs a program's function on the wall
+clock.  Lockstep instances; the test steps the clock while the program runs."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import textwrap
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from kali_daemons.layout import RequestState
+from kali_daemons.wallclock import step_kali_clock
+
+from .conftest import ROOT
+from .test_tg import powered
+
+
+def program(source: str, name: str) -> subprocess.Popen[str]:
+    """Start ``source`` as a robot program attached to instance ``name``."""
+    return subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(source)],
+        cwd=ROOT,
+        env={"KALI_INSTANCE": name, "PATH": "/usr/bin:/bin"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_a_program_killed_mid_motion_leaves_the_motion_and_the_queue_working(
+    kali: Callable[..., str],
+) -> None:
+    name = kali(lockstep=True)
+    with powered(name) as k:
+        start = k.servo.level.robots["demand"][0].copy()
+        target = start + np.radians([15, -10, 10, 0, 0, 0])
+        prog = program(
+            f"""
+            import os, signal
+            import numpy as np
+            from kali_daemons.client import Kali
+            kali = Kali()
+            h = kali.robot("left").move_joints(np.array({target.tolist()}), wait=False)
+            print(h.seq, flush=True)
+            os.kill(os.getpid(), signal.SIGKILL)  # dies with its request queued
+            """,
+            name,
+        )
+        out, err = prog.communicate(timeout=60)
+        assert prog.returncode == -9, err
+        seq = int(out.split()[0])
+        for _ in range(300):
+            step_kali_clock(k.inst, 10)
+            if int(k.status["state"][seq % len(k.status)]) == RequestState.DONE:
+                break
+        assert int(k.status["state"][seq % len(k.status)]) == RequestState.DONE
+        np.testing.assert_allclose(k.servo.level.robots["demand"][0], target, atol=1e-12)
+        back = k.robot("left").move_joints(start, wait=False)  # the queue still works
+        back.wait(timeout=60)  # (lockstep: waiting steps the clock)
+        step_kali_clock(k.inst, 500)
+        assert np.abs(k.servo.level.robots["q"][0] - start).max() < math.radians(0.1)
+        assert k.inst.fault_text() is None
+
+
+def test_control_runs_the_programs_function_on_the_wall_clock(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    with powered(name) as k:
+        prog = program(
+            """
+            from kali_daemons.client import Kali
+            ticks = []
+            def every_10ms(tick):
+                ticks.append(tick)
+                return len(ticks) < 5  # False releases it
+            with Kali() as kali:
+                status = kali.control(every_10ms, period_ms=10)
+            print(status, *ticks, flush=True)
+            """,
+            name,
+        )
+        deadline = time.monotonic() + 60
+        while prog.poll() is None and time.monotonic() < deadline:
+            step_kali_clock(k.inst, 10)
+        out, err = prog.communicate(timeout=10)
+        assert prog.returncode == 0, err
+        status, *ticks = [int(v) for v in out.split()]
+        assert status == 0 and len(ticks) == 5
+        gaps = np.diff(ticks).tolist()  # every 10 ms of the wall clock, on multiples of 10
+        assert gaps[1:] == [10] * 3 and 0 < gaps[0] <= 10 and ticks[-1] % 10 == 0, ticks
+        assert k.inst.fault_text() is None
