@@ -33,7 +33,7 @@ from types import TracebackType
 
 import numpy as np
 
-from .. import layout
+from .. import kinematics, layout
 from ..channels import RequestQueue
 from ..errors import KaliError, ServoError
 from ..instance import Instance, decode
@@ -429,14 +429,15 @@ class Kali:
         self, names: Sequence[str], grasps: Sequence[np.ndarray] | None = None
     ) -> MotionSystem:
         """Arms ``names`` holding one object.  ``grasps[k]`` is arm k's flange in the
-        object's frame; None takes them from where the arms are now, with the object's
-        frame at the first arm's tool."""
+        object's frame; None takes them from where the arms are now (their set-points), with
+        the object's frame at the first arm's tool."""
         robots = [self.robot(n) for n in names]
         if not robots or len({r.index for r in robots}) != len(robots):
             raise MotionError(f"motion_system: {list(names)}: name each arm once, at least one")
-        if grasps is None:
-            obj = robots[0].read_pose()
-            grasps = [inverse(obj) @ r.base @ r.read_t6() for r in robots]
+        if grasps is None:  # from the set-points the TG starts from, not the sagging arms
+            flanges = [r.base @ kinematics.fkine(self.start_point(r.index)) for r in robots]
+            obj = flanges[0] @ robots[0].tool
+            grasps = [inverse(obj) @ f for f in flanges]
         else:
             grasps = [_pose_arg(f"motion_system: grasps[{i}]", g) for i, g in enumerate(grasps)]
             if len(grasps) != len(robots):

@@ -30,7 +30,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from .. import layout, puma560
+from .. import kinematics, layout, puma560
 from ..channels import InterpolatingFifo, RequestQueue
 from ..config import ms_to_ns
 from ..daemon import Daemon
@@ -106,6 +106,22 @@ class TrajectoryGenerator(Daemon):
         self.motions: list[Motion] = []
         self.waiting: list[tuple[int, np.void]] = []  # accepted, robots still busy
         self._faults_seen = int(inst.fault["count"])
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Plan, check and sample one short Cartesian path and one joint move (outside the
+        cycle): numpy's first matrix product starts its BLAS, which under ``mlockall`` faults
+        in and locks its buffers, 20-30 ms, once; the first real motion must not pay that."""
+        q = np.array(puma560.QN)
+        start = kinematics.fkine(q)
+        target = start.copy()
+        target[2, 3] += 0.01
+        plan = CartesianMotion(
+            ["warm-up"], [np.eye(4)], [np.eye(4)], q[None], [None], [target], 0.1, 0.5, 0.0, self.dt
+        )
+        plan.check_all()
+        plan.sample(0.5 * plan.duration)
+        JointMotion(q, q + 0.01, self.v_max, self.a_max).sample(0.01, np.zeros(6))
 
     # ------------------------------------------------------------------ status records
 
