@@ -118,7 +118,7 @@ from kali_daemons.client.motion import MotionHandle, MotionSystem
 from kali_daemons.config import KaliConfig, load_config, parse_config
 from kali_daemons.errors import KaliError
 from kali_daemons.instance import Instance
-from kali_daemons.layout import CalibState, RequestState
+from kali_daemons.layout import RequestState
 from kali_daemons.servolevel import FIFO_CAPACITY
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator
@@ -585,33 +585,12 @@ def check_fault(inst: Instance, res: RtResult, what: str) -> None:
         raise BenchError(f"halted {what}: {res.fault}")
 
 
-def calibrate(kali: Kali, res: RtResult) -> None:
-    """Calibrate every arm (they are powered) and wait until each is DONE."""
-    for name in kali.names:
-        kali.servo.calibrate(name)
-    deadline = time.monotonic() + CALIB_TIMEOUT_S
-    while True:
-        check_fault(kali.inst, res, "while calibrating")
-        states = {n: kali.servo.calibration(n) for n in kali.names}
-        failed = [f"{n}: {s[2]}" for n, s in states.items() if s[0] == CalibState.FAILED]
-        if failed:
-            raise BenchError(f"calibration failed: {'; '.join(failed)}")
-        if all(s[0] == CalibState.DONE for s in states.values()):
-            return
-        if time.monotonic() > deadline:
-            what = ", ".join(f"{n} {s[0].name}" for n, s in states.items())
-            raise BenchError(f"the arms were not calibrated within {CALIB_TIMEOUT_S:g} s: {what}")
-        time.sleep(0.05)
-
-
 def cooperating_pair(kali: Kali) -> tuple[MotionSystem, list[np.ndarray]]:
-    """Both arms as one motion system holding an imaginary object at the left tool, grasps
-    from where the TG will start them (their demands), and the object's square."""
-    robots = [kali.robot(n) for n in kali.names]
-    t6 = [kinematics.fkine(kali.start_point(r.index)) for r in robots]
-    obj = robots[0].base @ t6[0]
-    grasps = [inverse(obj) @ r.base @ t for r, t in zip(robots, t6, strict=True)]
-    return kali.motion_system(kali.names, grasps), square(obj)
+    """Both arms as one motion system holding an imaginary object at the left tool (grasps
+    from where the TG will start them, ``motion_system``'s default), and the object's square."""
+    system = kali.motion_system(kali.names)
+    obj = system.robots[0].base @ kinematics.fkine(kali.start_point(system.indices[0]))
+    return system, square(obj)
 
 
 def inst_status_duration(kali: Kali, h: MotionHandle) -> float:
@@ -698,7 +677,11 @@ def measure_into(res: RtResult, tmp: Path) -> None:
                 power_on(inst, kali.servo)
                 time.sleep(POWER_SETTLE_S)
                 check_fault(inst, res, "after power-on")
-                calibrate(kali, res)
+                try:  # the arms are powered: this calibrates them
+                    kali.ready(timeout=CALIB_TIMEOUT_S)
+                except KaliError as exc:
+                    check_fault(inst, res, "while calibrating")
+                    raise BenchError(str(exc)) from None
                 time.sleep(POWER_SETTLE_S)
                 check_fault(inst, res, "after calibration")
                 # idle: powered, calibrated, no motion
