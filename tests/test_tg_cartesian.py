@@ -1,5 +1,6 @@
 """Cartesian motion through the trajectory generator (issue 5), end to end in lockstep mode:
-straight lines of one arm's tool, the whole-path check and its refusals, stops."""
+straight lines of one arm's tool, the whole-path check and its refusals, stops, and the halt
+when a checked path has no joint solution at run time."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ from kali_daemons import kinematics, layout
 from kali_daemons.client import Kali, MotionFailedError, pose
 from kali_daemons.errors import ServoError
 from kali_daemons.layout import CalibState, MotionKind, PowerState, RequestState
-from kali_daemons.tg.cartesian import encode_config
+from kali_daemons.tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
+from kali_daemons.tg.daemon import Motion, TrajectoryGenerator
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
 
@@ -216,3 +218,57 @@ def test_a_stop_ends_a_line_at_rest_on_it(kali: Callable[..., str]) -> None:
         assert 0.01 < p[1] - here[1, 3] < 0.19
         assert distance_to_polyline(p, [here[:3, 3], goal[:3, 3]]) < SQUARE_TOL_M
         assert k.inst.fault_text() is None
+
+
+class _TgMethods:
+    """The TG's own motion-ending methods over a real instance's records, for the one case the
+    check leaves no way to reach from outside: no joint solution at run time."""
+
+    _advance = TrajectoryGenerator._advance
+    _kinematics_halt = TrajectoryGenerator._kinematics_halt
+    _end_motion = TrajectoryGenerator._end_motion
+    _say = TrajectoryGenerator._say
+
+    def __init__(self, k: Kali) -> None:
+        self.inst = k.inst
+        self.name = "tg"
+        self.names = k.names
+        self.dt = k.tg_dt
+        self.fifos = k.fifos
+        self.status = k.status
+        self.tg_robots = k.tg_robots
+        self._setpoints = k.tg_robots["setpoint"]
+        self._progress = k.status["progress"]
+        self.motions: list[Motion] = []
+
+
+def test_no_joint_solution_at_run_time_stops_the_motion_and_halts(
+    kali: Callable[..., str],
+) -> None:
+    name = kali(lockstep=True)
+    with calibrated(name) as k:
+        left = k.robot("left")
+        q0 = k.start_point(0)
+        start = left.base @ kinematics.fkine(q0)
+        plan = CartesianMotion(
+            ["left"], [left.base], [np.eye(4)], q0[None], [None],
+            [pose(start[:3, 3] + np.array([0, 0, 0.05]), start)], 0.1, 0.5, 0.1, k.tg_dt,
+        )  # fmt: skip
+        plan.check_all()
+        # the arm's base "moves" after the check (nothing outside the TG can do this)
+        plan._to_base[0] = inverse(base_transform((-3.0, 0.0, 0.0), 0.0))
+        tg = _TgMethods(k)
+        m = Motion(77, [0], plan)
+        tg.motions.append(m)
+        k.tg_robots["busy_seq"][0] = 77
+        tg._advance(m)
+        assert tg.motions == [] and int(k.tg_robots["busy_seq"][0]) == 0
+        rec = k.status[77 % layout.STATUS_RING]
+        assert int(rec["state"]) == RequestState.HALTED
+        text = k.inst.fault_text()
+        assert text is not None and "SINGULARITY" in text, text
+        assert "motion system 'left', request 77: no joint solution at segment 1 of 1" in text
+        assert "out of reach" in text
+        csr = k.inst.boards()["csr"]
+        assert not (csr & layout.CSR_NO_DISABLE).any()  # every amplifier cut by the halt
+        del csr
