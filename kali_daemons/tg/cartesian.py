@@ -143,7 +143,8 @@ class CartesianMotion:
         n = len(self.names)
         self.n = n
         self.dt = float(dt)
-        self._to_base = [inverse(np.asarray(b, dtype=np.float64)) for b in bases]
+        self._bases = [np.asarray(b, dtype=np.float64) for b in bases]
+        self._to_base = [inverse(b) for b in self._bases]
         self._grasps = [np.asarray(g, dtype=np.float64).copy() for g in grasps]
         q_start = np.asarray(q_start, dtype=np.float64).reshape(n, 6)
         # scratch, so sampling allocates nothing
@@ -176,9 +177,7 @@ class CartesianMotion:
                 )
             # hold the object as the arm really does: no jump at the start, whatever the
             # (tolerated) disagreement; a squeeze it would cause stays a squeeze
-            self._grasps[k] = (
-                inverse(start) @ inverse(self._to_base[k]) @ kinematics.fkine(q_start[k])
-            )
+            self._grasps[k] = inverse(start) @ self._bases[k] @ kinematics.fkine(q_start[k])
         self.path = CartesianPath(start, list(targets), speed, angular_speed, transition_s)
         for i in range(1, len(self.path.poses)):  # each target first: the plainest refusal
             np.copyto(self._obj, self.path.poses[i])
@@ -203,7 +202,7 @@ class CartesianMotion:
     def object_pose(self, k: int, q: np.ndarray) -> np.ndarray:
         """Where arm ``k`` at joints ``q`` holds the object: B_k · T6(q) · G_k⁻¹ (world)."""
         t6 = kinematics.fkine(np.asarray(q, dtype=np.float64))
-        return inverse(self._to_base[k]) @ t6 @ inverse(self._grasps[k])
+        return self._bases[k] @ t6 @ inverse(self._grasps[k])
 
     def _t6_of(self, k: int) -> np.ndarray:
         """T6 of arm ``k`` for the object pose in ``_obj`` (into scratch; no allocation)."""
