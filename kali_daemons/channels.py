@@ -477,6 +477,46 @@ class InterpolatingFifo:
         self._h["ratio_den"] = den
         self._acc[...] = 0
 
+    def target_index(self) -> int:
+        """Index (0 = the first ever pushed) of the set-point the output moves to or holds:
+        the last one taken, -1 before any.  After ``reset`` the output holds at the position
+        it was given, not at that set-point.  Consumer; safe in a cycle."""
+        return atomic.load64(self._head_addr) - 1
+
+    def progress(self) -> float:
+        """How far the output is along its segment, 0 < p <= 1 (1 when holding).  Consumer;
+        safe in a cycle."""
+        ticks = int(self._seg_ticks)
+        done = int(self._seg_done)
+        return done / ticks if 0 < done < ticks else 1.0
+
+    # ---------------------------------------------------------------- observers (dynamics)
+
+    def indices(self) -> tuple[int, int]:
+        """(head, tail): the next set-point to take and the next to be pushed (a snapshot)."""
+        head = atomic.load64(self._head_addr)
+        return head, atomic.load64(self._tail_addr)
+
+    def read(self, index: int, out: np.ndarray) -> bool:
+        """Copy set-point ``index`` into ``out`` if it is still in the ring (pushed, and not
+        yet overwritten by later pushes, also after the copy); False otherwise.  Any reader,
+        without locking: a row is never written again until the ring wraps past it."""
+        tail = atomic.load64(self._tail_addr)
+        if index < 0 or index >= tail or index < tail - self._capacity:
+            return False
+        np.copyto(out, self._rows[index % self._capacity])
+        return index >= atomic.load64(self._tail_addr) - self._capacity
+
+    def ratio_of(self, index: int) -> float:
+        """The ratio (servo ticks per TG period) set-point ``index`` was stamped with, i.e.
+        the servo ticks of the segment that ends at it; meaningful while it is in the ring."""
+        word = int(self._stamps[index % self._capacity])
+        return (word & 0xFFFFFFFF) / (word >> 32) if word >> 32 else 1.0
+
+    def held(self, out: np.ndarray) -> None:
+        """Copy the segment's target B, where the output ends or holds, into ``out``."""
+        np.copyto(out, self._target)
+
     def pending(self) -> int:
         """Set-points pushed and not yet taken (a snapshot).  Safe in a cycle."""
         head = atomic.load64(self._head_addr)

@@ -1,6 +1,7 @@
 """``kalictl``: start, stop and inspect a Kali instance (DESIGN section 8).
 
-    kalictl start [-c FILE] [--lockstep]     kalictl status        kalictl mem
+    kalictl start [-c FILE] [--lockstep]     kalictl status [--json]   kalictl mem
+    kalictl top [--once]                     kalictl flight [FILE]
     kalictl clock start|stop|set MS|step N   kalictl rate PROCESS MS
     kalictl reset                            kalictl stop
 
@@ -10,6 +11,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -23,7 +25,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from . import launcher
+from . import flightrec, introspect, launcher
 from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
 from .errors import KaliError
@@ -88,13 +90,21 @@ def main(ctx: click.Context, instance: str | None) -> None:
     help=f"Config file (default {DEFAULT_CONFIG}).",
 )
 @click.option("--lockstep", is_flag=True, help="Deterministic mode: the clock never sleeps.")
+@click.option(
+    "--record",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Also record the dashboard to this .rrd file (replay: rerun FILE).",
+)
 @click.pass_context
 @_errors
-def start(ctx: click.Context, config_path: Path | None, lockstep: bool) -> None:
+def start(
+    ctx: click.Context, config_path: Path | None, lockstep: bool, record: Path | None
+) -> None:
     """Start every Kali process; return when all are ready."""
     cfg = load_config(config_path or DEFAULT_CONFIG)
     name = ctx.obj["instance"] or cfg.instance
-    report = launcher.start(cfg, lockstep=lockstep, instance=name)
+    report = launcher.start(cfg, lockstep=lockstep, instance=name, record=record)
     if report.stale_cleaned:
         click.echo(
             f"cleaned a stale instance '{name}' left by a crash: " + ", ".join(report.stale_cleaned)
@@ -105,6 +115,40 @@ def start(ctx: click.Context, config_path: Path | None, lockstep: bool) -> None:
         + ", ".join(f"{n}[{p}]" for n, p in report.pids.items())
     )
     click.echo(f"logs in {report.log_dir}")
+    with Instance.attach(name) as inst:
+        _echo_dashboard(launcher.dashboard(inst))
+
+
+def _echo_dashboard(d: launcher.Dashboard | None) -> None:
+    """Where the live dashboard is, a line per sink."""
+    if d is None or not d.ready:
+        click.echo("dashboard: the viewer is not up")
+        return
+    if d.web_url:
+        click.echo(f"dashboard: {d.web_url}")
+    if d.live_url:
+        click.echo(f"dashboard: streaming to the rerun viewer at {d.live_url}")
+    if d.record:
+        click.echo(f"dashboard: recording to {d.record} (replay: rerun {d.record})")
+    if d.message:
+        click.echo(f"dashboard: {d.message}")
+
+
+@main.command()
+@click.option("--url", "url_only", is_flag=True, help="Print only the web viewer's URL.")
+@click.pass_context
+@_errors
+def view(ctx: click.Context, url_only: bool) -> None:
+    """Where the live dashboard is: open the URL in a browser (thesis 3.3.7's viewer)."""
+    with _attach(ctx) as inst:
+        d = launcher.dashboard(inst)
+        if url_only:
+            if d is None or not d.web_url:
+                click.echo(f"kalictl: instance '{inst.name}': no web viewer served", err=True)
+                sys.exit(1)
+            click.echo(d.web_url)
+            return
+        _echo_dashboard(d)
 
 
 @main.command()
@@ -127,11 +171,16 @@ def stop(ctx: click.Context) -> None:
 
 
 @main.command()
+@click.option("--json", "as_json", is_flag=True, help="Everything, as one JSON document.")
 @click.pass_context
 @_errors
-def status(ctx: click.Context) -> None:
-    """Clock, fault and per-process timing statistics."""
+def status(ctx: click.Context, as_json: bool) -> None:
+    """Clock, fault and per-process timing statistics (--json: also robots, servo level, TG,
+    flight recorder, for scripts)."""
     with _attach(ctx) as inst:
+        if as_json:
+            click.echo(json.dumps(introspect.snapshot(inst), indent=2, allow_nan=False))
+            return
         c = inst.clock
         mode = RunMode(int(c["mode"])).name.lower()
         click.echo(
@@ -142,6 +191,12 @@ def status(ctx: click.Context) -> None:
         )
         fault = inst.fault_text()
         click.echo(f"fault: {fault}" if fault else "fault: none")
+        dump = introspect.Introspector(inst).flight()
+        if dump is not None and dump["last_dump"]:
+            click.echo(
+                f"flight recorder: last dump {dump['last_dump']} (fault at tick "
+                f"{dump['last_dump_tick']}; kalictl flight)"
+            )
         head = (
             f"{'process':<10} {'pid':>7} {'state':<9} {'cpu':>3} {'prio':>4} {'period':>7} "
             f"{'ser':>3} {'signals':>9} {'acks':>9} {'miss':>6} {'exec':>8} {'exec max':>9} "
@@ -203,6 +258,54 @@ def mem(ctx: click.Context) -> None:
             f"{s.free_fragments} fragments (largest {s.largest_free} B), "
             f"fragmentation {100 * s.fragmentation:.1f} %"
         )
+
+
+@main.command()
+@click.option("--once", is_flag=True, help="Print one frame (after one interval) and exit.")
+@click.option(
+    "--interval",
+    default=0.5,
+    show_default=True,
+    type=click.FloatRange(0.05, 60.0),
+    help="Seconds between refreshes.",
+)
+@click.pass_context
+@_errors
+def top(ctx: click.Context, once: bool, interval: float) -> None:
+    """A live table: processes, robots, servo latency, clock and fault; Ctrl-C quits.
+
+    Rates and lateness percentiles are over the last interval (in lockstep mode per second
+    of Kali's clock); the "all" columns are since start.
+    """
+    from . import top as top_view  # rich is loaded for this command only
+
+    with _attach(ctx) as inst:
+        top_view.run(inst, interval, once)
+
+
+@main.command()
+@click.argument(
+    "file", required=False, type=click.Path(exists=True, dir_okay=False, path_type=Path)
+)
+@click.option(
+    "--ticks",
+    default=10,
+    show_default=True,
+    type=click.IntRange(1, 10_000),
+    help="Ticks before the fault shown one by one.",
+)
+@click.pass_context
+@_errors
+def flight(ctx: click.Context, file: Path | None, ticks: int) -> None:
+    """What led to a halt: the flight recorder's dump FILE (default: the instance's latest).
+
+    The fault, the ticks covered, each robot's worst tracking error, torque and current over
+    them, and tick by tick before the halt.
+    """
+    path = file or flightrec.find_latest(_instance_name(ctx))
+    click.echo(f"flight recorder dump {path}")
+    for line in flightrec.summary(flightrec.load(path), ticks):
+        click.echo(line)
 
 
 @main.group()
@@ -374,6 +477,22 @@ def enable(ctx: click.Context, robot: str | None) -> None:
 def disable(ctx: click.Context, robot: str | None) -> None:
     """Cut ROBOT's amplifiers (default: every robot); the brakes follow."""
     _power(ctx, robot, False, 2.0)
+
+
+@main.command()
+@click.argument("mode", type=click.Choice(["on", "off", "gravity", "full"]))
+@click.argument("robot", required=False)
+@click.pass_context
+@_errors
+def ff(ctx: click.Context, mode: str, robot: str | None) -> None:
+    """Feed-forward of ROBOT (default: every robot), on line (thesis 3.3.6): on (= full, the
+    inverse dynamics of the demanded motion), gravity, or off.  It fades in or out."""
+    with _servo_client(ctx) as (_inst, client):
+        names = _robots(client, robot)
+        for name in names:
+            client.feedforward(name, mode)
+        shown = "full" if mode == "on" else mode
+        click.echo(f"feed-forward {shown}: {', '.join(names)}")
 
 
 @main.command()

@@ -66,8 +66,8 @@ _PROCESS_KEYS = {
     "tg": ("cpu", "priority", "serious", "stage"),
     "sio": ("cpu", "priority", "serious", "stage"),
     "sv": ("count", "cpus", "priority", "serious", "stage"),
-    "dynamics": ("cpu", "priority", "period_ms", "serious", "stage"),
-    "viewer": ("cpu", "priority", "period_ms", "serious", "stage"),
+    "dynamics": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
+    "viewer": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
 }
 _CLOCK_PERIOD_FIELD = {"tg": "clock.tg_period_ms", "sio": "clock.servo_period_ms"}
 _CLOCK_PERIOD_FIELD["sv"] = _CLOCK_PERIOD_FIELD["sio"]
@@ -82,6 +82,8 @@ _TOP_KEYS = (
     "robots",
     "plant",
     "plugins",
+    "feedforward",
+    "dashboard",
 )
 _PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms", "seed")
 _CLOCK_KEYS = (
@@ -100,7 +102,15 @@ _ROBOT_KEYS = (
     "servo",
     "safe_rad",
     "current_fault_ms",
+    "ff",
 )
+FF_MODES = ("off", "gravity", "full")  # layout.FfMode by name
+_FEEDFORWARD_KEYS = ("stale_ms", "ramp_ms")
+_DASHBOARD_KEYS = ("connect", "web", "web_port", "grpc_port", "record", "server_memory_mib")
+DASHBOARD_WEB = ("auto", "on", "off")  # when the viewer serves the web viewer
+# a rerun gRPC address: scheme, host (group 2) and port (group 3)
+GRPC_URL_RE = re.compile(r"rerun(\+https?)?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})/proxy")
+MAX_RECORD_PATH = 200
 DEFAULT_SAFE_RAD = 0.15  # tracking-error tolerance before a runaway halt
 DEFAULT_CURRENT_FAULT_MS = 100.0  # demand beyond the current limit this long halts
 _SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
@@ -182,6 +192,28 @@ class RobotConfig:
     servo: str = "pid"  # the servo algorithm every joint starts with (builtin or plugin)
     safe_rad: tuple[float, ...] = (DEFAULT_SAFE_RAD,) * 6  # tracking tolerance per joint
     current_fault_ms: float = DEFAULT_CURRENT_FAULT_MS  # demand beyond the limit this long halts
+    ff: str = "off"  # feed-forward it starts with: off, gravity or full (FF_MODES)
+
+
+@dataclass(frozen=True)
+class FeedforwardConfig:
+    """How SIO treats the dynamics process's feed-forward torques (thesis 3.3.6)."""
+
+    stale_ms: float = 50.0  # silent or behind this long: SIO drops the feed-forward
+    ramp_ms: float = 200.0  # feed-forward fades in and out over this time: no torque step
+
+
+@dataclass(frozen=True)
+class DashboardConfig:
+    """Where the viewer's live rerun dashboard goes (thesis 3.3.7, DESIGN 8)."""
+
+    # a rerun viewer to stream to when one listens there (None: never look for one)
+    connect: str | None = "rerun+http://127.0.0.1:9876/proxy"
+    web: str = "auto"  # serve the web viewer on 127.0.0.1: auto (no live viewer found), on, off
+    web_port: int = 9090  # its HTTP port; 0 or a taken port: a free one (kalictl view tells)
+    grpc_port: int = 9877  # its data stream; not 9876, where a native viewer listens
+    record: str | None = None  # an .rrd file to record to, relative to the config's directory
+    server_memory_mib: int = 256  # data the web viewer's server keeps for late browsers
 
 
 @dataclass(frozen=True)
@@ -199,6 +231,8 @@ class KaliConfig:
     text: str
     plant: PlantConfig = PlantConfig()
     plugins: tuple[str, ...] = ()  # servo plugin files (relative to base_dir) or module names
+    feedforward: FeedforwardConfig = FeedforwardConfig()
+    dashboard: DashboardConfig = DashboardConfig()
     base_dir: str = "."  # directory relative plugin paths are taken from
 
     def robot(self, name: str) -> RobotConfig:
@@ -593,6 +627,55 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
         text=text,
         plant=plant,
         plugins=plugins,
+        feedforward=_feedforward(doc.get("feedforward", {})),
+        dashboard=_dashboard(doc.get("dashboard", {})),
+    )
+
+
+def _dashboard(node: Any) -> DashboardConfig:
+    """The ``dashboard`` section: the viewer's live viewer address, web viewer and recording."""
+    m = _mapping(node, "dashboard", _DASHBOARD_KEYS)
+    d = DashboardConfig()
+    connect = m.get("connect", d.connect)
+    if connect is not None:
+        url = "a rerun gRPC URL like rerun+http://127.0.0.1:9876/proxy, or null"
+        if not isinstance(connect, str):
+            _fail("dashboard.connect", connect, f"must be {url}, not {_kind_of(connect)}")
+        found = GRPC_URL_RE.fullmatch(connect)
+        if len(connect) > MAX_RECORD_PATH or found is None or not 0 < int(found.group(3)) < 65536:
+            _fail("dashboard.connect", connect, f"must be {url}")
+    web = m.get("web", d.web)
+    web = {True: "on", False: "off"}.get(web, web) if isinstance(web, bool) else web
+    web = _choice(web, "dashboard.web", DASHBOARD_WEB)
+    web_port = _int(m.get("web_port", d.web_port), "dashboard.web_port", 0, 65535)
+    grpc_port = _int(m.get("grpc_port", d.grpc_port), "dashboard.grpc_port", 0, 65535)
+    if grpc_port and grpc_port == web_port:
+        _fail("dashboard.grpc_port", grpc_port, "must differ from dashboard.web_port")
+    record = m.get("record", d.record)
+    if record is not None:
+        allowed = f"must be null or a file path of 1..{MAX_RECORD_PATH} characters"
+        if not isinstance(record, str):
+            _fail("dashboard.record", record, f"{allowed}, not {_kind_of(record)}")
+        if not 0 < len(record) <= MAX_RECORD_PATH or any(c in record for c in "\0\n\r"):
+            _fail("dashboard.record", record, allowed)
+    memory = m.get("server_memory_mib", d.server_memory_mib)
+    return DashboardConfig(
+        connect=connect,
+        web=web,
+        web_port=web_port,
+        grpc_port=grpc_port,
+        record=record,
+        server_memory_mib=_int(memory, "dashboard.server_memory_mib", 16, 65536),
+    )
+
+
+def _feedforward(node: Any) -> FeedforwardConfig:
+    """The ``feedforward`` section: staleness limit and fade time, in ms."""
+    m = _mapping(node, "feedforward", _FEEDFORWARD_KEYS)
+    d = FeedforwardConfig()
+    return FeedforwardConfig(
+        stale_ms=_float(m.get("stale_ms", d.stale_ms), "feedforward.stale_ms", 0.0, 10_000.0),
+        ramp_ms=_float(m.get("ramp_ms", d.ramp_ms), "feedforward.ramp_ms", 0.0, 10_000.0, False),
     )
 
 
@@ -705,6 +788,8 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
     if kind == "wallclock":
         hints["period_ms"] = "not allowed: the wall clock ticks every clock.base_tick_ms"
     m = _mapping(node, path, _PROCESS_KEYS[kind], hints)
+    if not _bool(m.get("enabled", True), f"{path}.enabled"):
+        return []  # an optional process (dynamics, viewer) left out: Kali runs without it
 
     priority = _int(m.get("priority", 0), f"{path}.priority", 0, MAX_PRIORITY)
     serious = _bool(m.get("serious", False), f"{path}.serious")
@@ -780,5 +865,9 @@ def _robots(node: Any) -> tuple[RobotConfig, ...]:
             0.0,
             10_000.0,
         )
-        robots.append(RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms))
+        ff_node = m.get("ff", "off")
+        if ff_node is False:  # YAML 1.1 reads a bare off as false
+            ff_node = "off"
+        ff = _choice(ff_node, f"{path}.ff", FF_MODES)
+        robots.append(RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms, ff))
     return tuple(robots)

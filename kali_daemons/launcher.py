@@ -153,8 +153,11 @@ def _wait_gone(pids: list[int], timeout: float) -> list[int]:
     return left
 
 
-def _create(cfg: KaliConfig, instance: str, lockstep: bool) -> Arena:
-    """Create the segment, its well-known records and every semaphore (owner-only)."""
+def _create(cfg: KaliConfig, instance: str, lockstep: bool, record: str = "") -> Arena:
+    """Create the segment, its well-known records and every semaphore (owner-only).
+
+    ``record`` is the viewer's recording file ('' for none), in its dashboard record.
+    """
     arena = Arena.create(instance, cfg.arena_kib * 1024)
     try:
         arena.header["lockstep"] = int(lockstep)
@@ -170,6 +173,7 @@ def _create(cfg: KaliConfig, instance: str, lockstep: bool) -> Arena:
         arena.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
         arena.record(layout.KEY_FAULT, layout.FAULT)
         arena.record(layout.KEY_MISSES, layout.MISS_LOG)
+        arena.record(layout.KEY_DASHBOARD, layout.DASHBOARD)["record"] = record.encode()
         text = cfg.text.encode()
         raw = arena.record(layout.KEY_CONFIG, np.dtype("u1"), len(text) + 1)
         raw[: len(text)] = np.frombuffer(text, np.uint8)
@@ -208,15 +212,44 @@ def _check_servos(cfg: KaliConfig) -> None:
             raise ConfigError(f"{cfg.source}: robot '{robot.name}' servo: {exc}") from None
 
 
-def start(cfg: KaliConfig, lockstep: bool = False, instance: str | None = None) -> StartReport:
+def _record_path(cfg: KaliConfig, record: str | os.PathLike[str] | None) -> str:
+    """The viewer's recording file as an absolute path ('' for none); ConfigError if its
+    directory does not exist or the path is too long for the dashboard record."""
+    if record is not None:
+        path, field = os.path.abspath(os.fspath(record)), "--record"
+    elif cfg.dashboard.record is not None:
+        path = os.path.join(cfg.base_dir, os.path.expanduser(cfg.dashboard.record))
+        path, field = os.path.abspath(path), "dashboard.record"
+    else:
+        return ""
+    if not os.path.isdir(os.path.dirname(path)):
+        raise ConfigError(f"{cfg.source}: {field} {path}: no directory {os.path.dirname(path)}")
+    if os.path.isdir(path):
+        raise ConfigError(f"{cfg.source}: {field} {path}: is a directory, not a file")
+    if len(path.encode()) >= layout.URL_BYTES:
+        raise ConfigError(
+            f"{cfg.source}: {field} {path}: {len(path.encode())} bytes, at most "
+            f"{layout.URL_BYTES - 1}"
+        )
+    return path
+
+
+def start(
+    cfg: KaliConfig,
+    lockstep: bool = False,
+    instance: str | None = None,
+    record: str | os.PathLike[str] | None = None,
+) -> StartReport:
     """Start every process of ``cfg``; returns when all are ACTIVE, else cleans up and raises.
 
     In real-time mode the clock is started once everyone is ready; in lockstep mode it stays
-    stopped at tick 0 until ``clock start`` or ``clock step N``.
+    stopped at tick 0 until ``clock start`` or ``clock step N``.  ``record`` (relative to the
+    current directory) overrides the config's ``dashboard.record`` (relative to the config's).
     """
     name = check_instance_name(instance or cfg.instance)
     t_start = time.monotonic()
     _check_servos(cfg)
+    record_path = _record_path(cfg, record)
     stale: list[str] = []
     if shm_objects(name):
         running = instance_pids(name)
@@ -229,7 +262,7 @@ def start(cfg: KaliConfig, lockstep: bool = False, instance: str | None = None) 
         stop(name)
     logs = log_dir(name)
     logs.mkdir(parents=True, exist_ok=True)
-    arena = _create(cfg, name, lockstep)
+    arena = _create(cfg, name, lockstep, record_path)
     arena.close()
     inst = Instance.attach(name)
     pids: dict[str, int] = {}
@@ -369,3 +402,34 @@ def percentile(hist: np.ndarray, q: float) -> float:
         return float("nan")
     b = int(np.searchsorted(np.cumsum(hist), q * total, side="left"))
     return layout.bin_upper_us(min(b, len(hist) - 1))
+
+
+@dataclass
+class Dashboard:
+    """Where the viewer's live dashboard is (``kalictl view``), from its dashboard record."""
+
+    ready: bool  # the viewer has set its sinks up
+    web_url: str  # what a browser opens; '' if the web viewer is not served
+    live_url: str  # the live rerun viewer it streams to; '' if none
+    record: str  # the .rrd file it records to; '' if none
+    web_pid: int  # the web viewer server's pid, 0 if none
+    frames: int
+    errors: int
+    message: str  # what the viewer could not do, '' if nothing
+
+
+def dashboard(inst: Instance) -> Dashboard | None:
+    """The instance's dashboard record as plain values; None if it has none."""
+    if inst.arena.lookup(layout.KEY_DASHBOARD) is None:
+        return None
+    d = inst.arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
+    return Dashboard(
+        ready=bool(d["ready"]),
+        web_url=decode(d["web_url"]),
+        live_url=decode(d["live_url"]) if d["live"] else "",
+        record=decode(d["record"]),
+        web_pid=int(d["web_pid"]),
+        frames=int(d["frames"]),
+        errors=int(d["errors"]),
+        message=decode(d["message"]),
+    )

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 MAGIC = int.from_bytes(b"KALIAREN", "little")
-LAYOUT_VERSION = 2
+LAYOUT_VERSION = 3
 
 ALIGN = 64  # every block starts on a cache line, so every 4/8-byte word in it is aligned
 MAX_BLOCKS = 256  # directory descriptors (blocks plus free fragments)
@@ -255,6 +255,31 @@ FAULT = np.dtype(
         ("count", "<u8"),  # faults raised since start (later ones while active are counted)
         ("process", f"S{NAME_BYTES}"),
         ("message", f"S{MESSAGE_BYTES}"),
+    ],
+    align=True,
+)
+
+
+# --------------------------------------------------------------------------------------------
+# Dashboard (DESIGN 8, thesis 3.3.7): where the viewer's live rerun dashboard goes, for
+# ``kalictl view``.  ``record`` is written by kalictl start before the viewer starts; every
+# other field by the viewer.
+
+KEY_DASHBOARD = "viewer.dashboard"
+URL_BYTES = 256  # URLs and paths, UTF-8, NUL-padded
+
+DASHBOARD = np.dtype(
+    [
+        ("record", f"S{URL_BYTES}"),  # kalictl start: the .rrd file to record to ('' = none)
+        ("ready", "<u4"),  # viewer: 1 once its sinks are set up
+        ("live", "<u4"),  # viewer: 1 when it streams to a live rerun viewer at live_url
+        ("web_pid", "<i4"),  # viewer: pid of its web viewer server (rerun --serve-web), 0: none
+        ("_pad", "<u4"),
+        ("frames", "<u8"),  # viewer: dashboard frames logged
+        ("errors", "<u8"),  # viewer: frames that failed (the dashboard never halts the system)
+        ("live_url", f"S{URL_BYTES}"),  # viewer: the live viewer's gRPC address, '' if none
+        ("web_url", f"S{URL_BYTES}"),  # viewer: what a browser opens, '' if not served
+        ("message", f"S{MESSAGE_BYTES}"),  # viewer: what it could not do (a port taken, ...)
     ],
     align=True,
 )
@@ -546,6 +571,57 @@ SERVO_CTRL = np.dtype(
 
 
 # --------------------------------------------------------------------------------------------
+# Feed-forward dynamics (DESIGN 1, thesis 3.3.6, 2.2.3): the dynamics process computes, for
+# each set-point in a robot's TG → SIO FIFO, the joint torque that the demanded motion needs
+# (gravity, or the full inverse dynamics); SIO interpolates them exactly as it interpolates
+# the set-points and adds them to the servo torques.  Rows are keyed by the set-point's
+# absolute FIFO index, so feed-forward and demand stay aligned whatever the dynamics
+# process's own timing.
+
+KEY_FEEDFORWARD = "dyn.ff"  # FEEDFORWARD per robot, config order
+FF_ROWS = 512  # rows per robot: every set-point a full FIFO holds, and the two being used
+FF_NO_KEY = 0xFFFFFFFFFFFFFFFF  # ``key`` of a row not (or being) written
+# A row's key is 1 + the FIFO index of its set-point: the set-point SIO holds before any was
+# pushed has index -1.  Row of key k: k % FF_ROWS.
+
+
+class FfMode(enum.IntEnum):
+    """What feed-forward a robot gets (``kalictl ff on|off|gravity ROBOT``)."""
+
+    OFF = 0
+    GRAVITY = 1  # g(q) at the demanded position
+    FULL = 2  # inverse dynamics of the demanded trajectory: M q̈ + C q̇ + g + friction
+
+
+class FfState(enum.IntEnum):
+    """What SIO does with a robot's feed-forward, tick by tick."""
+
+    OFF = 0  # not asked for (or fading out after being switched off)
+    ON = 1  # applied
+    STALE = 2  # asked for, but the dynamics process is silent or behind: dropped
+
+
+FEEDFORWARD = np.dtype(
+    [
+        ("mode", "u1"),  # clients: FfMode wanted
+        ("state", "u1"),  # SIO: FfState
+        ("computed_mode", "u1"),  # dynamics: FfMode its rows were computed in
+        ("_pad", "u1", (5,)),
+        ("heartbeat_tick", "<i8"),  # dynamics: wall-clock tick of its last cycle
+        ("rows_written", "<u8"),  # dynamics: rows computed since start
+        ("stale_ticks", "<u8"),  # SIO: servo ticks the feed-forward was dropped as stale
+        ("stale_events", "<u4"),  # SIO: times it went stale
+        ("_pad2", "<u4"),
+        ("weight", "<f8"),  # SIO: 0..1, ramps so switching on or off gives no torque step
+        ("key", "<u8", (FF_ROWS,)),  # dynamics: whose row it is, FF_NO_KEY while written
+        ("q", "<f8", (FF_ROWS, 6)),  # dynamics: the demanded position the row is for, rad
+        ("tau", "<f8", (FF_ROWS, 6)),  # dynamics: feed-forward torque there, N·m
+    ],
+    align=True,
+)
+
+
+# --------------------------------------------------------------------------------------------
 # Trajectory generator (DESIGN 5, thesis 3.3.1, 3.3.2): the Type 1 queue of motion requests
 # from user programs, the status of each request, and the TG's view of each robot.
 
@@ -633,6 +709,61 @@ TG_ROBOT = np.dtype(
         ("setpoint", "<f8", (6,)),  # TG: the last joint set-point pushed, rad
         ("t6", "<f8", (4, 4)),  # TG: T6 of that set-point, base frame
         ("tick", "<i8"),  # TG: last TG tick
+    ],
+    align=True,
+)
+
+
+# --------------------------------------------------------------------------------------------
+# Flight recorder (DESIGN 7, 8): the last FLIGHT_SECONDS of every servo tick — demands,
+# positions, torques, currents and SIO's timing — in a ring SIO writes inside its cycle, so a
+# halt can be examined after the fact.  The wall clock dumps the ring to a file in the
+# instance's log directory once per fault, after it has stopped (``flightrec.py``).
+
+KEY_FLIGHT = "flight"  # FLIGHT header
+KEY_FLIGHT_RING = "flight.ring"  # flight_row(n_joints) × FLIGHT header ``rows``
+FLIGHT_SECONDS = 2.0  # servo time the ring holds
+FLIGHT_PATH_BYTES = 256
+FLIGHT_FIELDS = ("q", "demand", "servo_torque", "ff_torque", "torque", "current")
+
+
+def flight_rows(servo_period_ns: int) -> int:
+    """Rows of the ring: FLIGHT_SECONDS of servo ticks (4000 at 0.5 ms, 2000 at 1 ms)."""
+    return max(2, -(-int(FLIGHT_SECONDS * 1e9) // servo_period_ns))
+
+
+def flight_row(n_joints: int) -> np.dtype:
+    """One servo tick in the ring: SIO's flat per-joint arrays (robot k joint j at 6k + j)."""
+    n = (n_joints,)
+    return np.dtype(
+        [
+            ("tick", "<i8"),  # wall-clock tick of the servo cycle
+            ("t_ns", "<i8"),  # CLOCK_MONOTONIC when SIO read the encoders
+            ("latency_ns", "<i8"),  # encoder read to DAC write (SERVO_CTRL latency)
+            ("late_ns", "<i8"),  # SIO's wake-up lateness: encoder read − the tick's due time
+            ("q", "<f8", n),  # measured joint angles, rad
+            ("demand", "<f8", n),  # interpolated set-points, rad
+            ("servo_torque", "<f8", n),  # what the servos asked for, N·m
+            ("ff_torque", "<f8", n),  # feed-forward added, N·m
+            ("torque", "<f8", n),  # torque sent (after the current clamp), N·m
+            ("current", "<f8", n),  # motor current commanded, A
+        ],
+        align=True,
+    )
+
+
+FLIGHT = np.dtype(
+    [
+        ("rows", "<u4"),  # SIO: ring capacity
+        ("n_joints", "<u4"),  # SIO: values per field per row
+        ("servo_period_ns", "<i8"),  # SIO
+        ("count", "<u8"),  # SIO: rows written since start; row i is at i % rows
+        ("dumps", "<u4"),  # wall clock: dump files written
+        ("_pad", "<u4"),
+        ("dumped_fault_ns", "<i8"),  # wall clock: FAULT time_ns of the fault last dumped
+        ("dump_tick", "<i8"),  # wall clock: fault tick of the last dump
+        ("dump_path", f"S{FLIGHT_PATH_BYTES}"),  # wall clock: the last dump file
+        ("dump_message", f"S{MESSAGE_BYTES}"),  # wall clock: what the last dump did, or why not
     ],
     align=True,
 )

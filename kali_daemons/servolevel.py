@@ -30,7 +30,7 @@ from .channels import InterpolatingFifo
 from .config import ms_to_ns
 from .errors import KaliError, ServoError
 from .instance import Instance, decode
-from .layout import CalibState, PowerCmd, PowerState, SlotOp
+from .layout import CalibState, FfMode, FfState, PowerCmd, PowerState, SlotOp
 from .servo import Handover, Registry, ServoAlgorithm, registry_for, struct_view
 from .spinlock import SpinLock
 
@@ -329,6 +329,32 @@ class ServoClient:
     def power_state(self, robot: str | int) -> PowerState:
         """The robot's amplifier power as SIO drives it."""
         return PowerState(int(self.level.robots["power"][self.robot_index(robot)]))
+
+    # ------------------------------------------------------------------ feed-forward (3.3.6)
+
+    def feedforward(self, robot: str | int, mode: str) -> None:
+        """Switch a robot's feed-forward on line: ``off``, ``gravity``, or ``full`` (``on``):
+        the inverse dynamics of the demanded motion.  SIO fades it in or out (no torque
+        step); the dynamics process computes it."""
+        k = self.robot_index(robot)
+        modes = {"off": FfMode.OFF, "gravity": FfMode.GRAVITY, "full": FfMode.FULL}
+        modes["on"] = FfMode.FULL
+        if mode not in modes:
+            raise ServoError(
+                f"feed-forward of robot '{self.names[k]}': mode {mode!r}, must be one of "
+                f"{', '.join(modes)}"
+            )
+        self._ff_records()["mode"][k] = modes[mode]
+
+    def feedforward_state(self, robot: str | int) -> tuple[FfMode, FfState]:
+        """(mode asked for, what SIO does with it) of a robot's feed-forward."""
+        rec = self._ff_records()[self.robot_index(robot)]
+        return FfMode(int(rec["mode"])), FfState(int(rec["state"]))
+
+    def _ff_records(self) -> np.ndarray:
+        if self.inst.arena.lookup(layout.KEY_FEEDFORWARD) is None:
+            raise ServoError("feed-forward: SIO has not laid out its records yet")
+        return self.inst.arena.existing(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, len(self.names))
 
     # ------------------------------------------------------------------ calibration (3.5.1)
 

@@ -19,8 +19,13 @@ FIRST_BACKOFF_S = 20e-6
 MAX_BACKOFF_S = 1e-3
 
 
+PF_EXITING = 0x4  # /proc/<pid>/stat flags: the process is tearing itself down
+
+
 def pid_alive(pid: int) -> bool:
-    """True if ``pid`` names a running process (a zombie counts as dead)."""
+    """True if ``pid`` names a running process.  A zombie counts as dead, and so does a
+    process already exiting (killed, freeing its locked memory: that can take longer than a
+    serious deadline, and it will never acknowledge again)."""
     if pid <= 0:
         return False
     try:
@@ -31,10 +36,11 @@ def pid_alive(pid: int) -> bool:
         return True
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
-            state = f.read().rsplit(b")", 1)[1].split()[0]
-    except (OSError, IndexError):
+            fields = f.read().rsplit(b")", 1)[1].split()
+        state, flags = fields[0], int(fields[6])
+    except (OSError, IndexError, ValueError):
         return False
-    return state not in (b"Z", b"X")
+    return state not in (b"Z", b"X") and not flags & PF_EXITING
 
 
 class SpinLock:

@@ -1,11 +1,19 @@
 """Benchmark: the servo level in real time, two arms (12 joints) moving, beside cyclictest.
 
-What runs.  Four runs by default, ``--seconds`` each (60): {1 SV, 2 SVs} x {servo period
-1 ms, 0.5 ms}, named ``1ms-1sv``, ``1ms-2sv``, ``0.5ms-1sv``, ``0.5ms-2sv``.  Each is
-``config/default.yaml`` (two PUMA 560 arms, ``serious_miss_tolerance_ms`` 20) with, for
+What runs.  Six runs by default, ``--seconds`` each (60): {1 SV, 2 SVs} x {servo period
+1 ms, 0.5 ms}, named ``1ms-1sv``, ``1ms-2sv``, ``0.5ms-1sv``, ``0.5ms-2sv``, and the two 1 ms
+ones again without the dynamics and viewer processes, ``1ms-1sv-bare`` and ``1ms-2sv-bare``.
+Each is ``config/default.yaml`` (two PUMA 560 arms, ``serious_miss_tolerance_ms`` 20) with, for
 0.5 ms, the base tick, the servo period and the plant's period at 0.5 ms (encoders fresh every
 servo tick), and for 1 SV ``sv: {count: 1, cpus: [0]}``, started in real-time mode as its own
-instance.  Both arms are powered, left 2 s to settle, then kept moving: this script (SCHED_OTHER,
+instance.  Except in the ``-bare`` runs both arms get full feed-forward (the dynamics process
+computes a row per set-point, SIO interpolates and adds it) and the viewer logs the dashboard
+at 25 Hz to its web viewer and to a recording in the run's temporary directory; the summary
+then gives, per pair, each servo process's wake-up p99.9 and SIO's sensor-to-DAC p99 with /
+without them (issue 6: they must not disturb the servo figures), beside cyclictest's p99.9 in
+each run, since the host's stalls differ from one minute to the next.
+
+Both arms are powered, left 2 s to settle, then kept moving: this script (SCHED_OTHER,
 unpinned) pushes one set-point per TG period (10 ms) into each robot's TG → SIO FIFO, keeping
 about 20-40 queued, for a ±0.05 rad sinusoid of 2 s period on every joint around where the arm
 was enabled (the TG gets no motion request, so this script is the FIFOs' only producer; the TG
@@ -146,33 +154,40 @@ FIFO_LOW, FIFO_HIGH = 30, 40  # top up below LOW, to HIGH: about 20-40 queued
 AMPLITUDE_RAD = 0.05
 MOTION_PERIOD_S = 2.0
 SIGNS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # neighbouring joints move opposite ways
-REFERENCE = ("wallclock", "plant", "tg", "dynamics")  # wake-up rows shown for reference
+REFERENCE = ("wallclock", "plant", "tg", "dynamics", "viewer")  # wake-up rows shown for reference
 MISS_KINDS = ("tg", "sio", "sv")  # clock-driven, serious: their misses count
 SPIKE_FRACTION = 0.3  # cyclictest logs wake-ups later than this many periods (300 µs at 1 ms)
 
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One configuration: servo period and number of servo workers."""
+    """One configuration: servo period, number of servo workers, and whether the dynamics
+    and viewer processes run (working: full feed-forward on both arms, the dashboard served
+    on the web and recorded) or are left out (``-bare``)."""
 
     name: str
     period_us: int
     n_sv: int
+    extras: bool = True
 
 
 RUNS = {
     r.name: r
     for r in (
         RunSpec("1ms-1sv", 1000, 1),
+        RunSpec("1ms-1sv-bare", 1000, 1, extras=False),
         RunSpec("1ms-2sv", 1000, 2),
+        RunSpec("1ms-2sv-bare", 1000, 2, extras=False),
         RunSpec("0.5ms-1sv", 500, 1),
         RunSpec("0.5ms-2sv", 500, 2),
     )
 }
 
 
-def config_for(spec: RunSpec, instance: str) -> KaliConfig:
-    """default.yaml with ``spec``'s servo period (clock, servo, plant) and SV count."""
+def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> KaliConfig:
+    """default.yaml with ``spec``'s servo period (clock, servo, plant) and SV count; with
+    the extras, full feed-forward on every arm and the dashboard also recorded to ``record``,
+    else no dynamics and no viewer process."""
     base = load_config(DEFAULT_CONFIG)
     doc = yaml.safe_load(base.text)
     ms: float = spec.period_us // 1000 if spec.period_us % 1000 == 0 else spec.period_us / 1000
@@ -187,6 +202,13 @@ def config_for(spec: RunSpec, instance: str) -> KaliConfig:
             raise BenchError(f"{DEFAULT_CONFIG}: processes.sv.cpus {cpus} has < {spec.n_sv} CPUs")
         sv["count"] = spec.n_sv
         sv["cpus"] = cpus[: spec.n_sv]
+        if spec.extras:
+            for robot in doc["robots"]:
+                robot["ff"] = "full"
+            doc.setdefault("dashboard", {})["record"] = str(record) if record else None
+        else:
+            doc["processes"]["dynamics"]["enabled"] = False
+            doc["processes"]["viewer"]["enabled"] = False
     except (KeyError, TypeError) as exc:
         raise BenchError(f"{DEFAULT_CONFIG}: no {exc} to edit for run {spec.name}") from None
     text = yaml.safe_dump(doc, sort_keys=False)
@@ -429,7 +451,7 @@ class RunResult:
 def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResult:
     """Start one instance, power and move the arms, measure the window beside cyclictest."""
     instance = f"bsv{os.getpid()}-{spec.name.replace('.', 'p')}"
-    cfg = config_for(spec, instance)
+    cfg = config_for(spec, instance, tmp / f"{instance}.rrd")
     res = RunResult(spec.name, spec.period_us, spec.n_sv, instance, cfg.source, seconds, 0.0)
     names = [p.name for p in cfg.processes]
     sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
@@ -578,7 +600,7 @@ def analyse(
             k0.procs[n],
             k1.procs[n],
             period,
-            f"period {cfg.process(n).period_ms:g} ms" if n in ("tg", "dynamics") else "",
+            f"period {cfg.process(n).period_ms:g} ms" if n in ("tg", "dynamics", "viewer") else "",
         )
         for n in REFERENCE
         if n in k1.procs
@@ -825,6 +847,7 @@ def format_summary(results: list[RunResult]) -> str:
             f"{r.run:<10} {halted:>7} {ratio:>16} {s2dac:>21} "
             f"{r.latency_p99_of_period:>7.1%} {svp99:>15} {own:>12} {_pct(r.cpu_total_pct):>6}"
         )
+    lines += format_extras(results)
     lines.append("")
     for r in results:
         own = r.misses_kali_only + r.misses - r.misses_logged
@@ -850,6 +873,39 @@ def format_summary(results: list[RunResult]) -> str:
                     "of one core"
                 )
     return "\n".join(lines)
+
+
+def format_extras(results: list[RunResult]) -> list[str]:
+    """Each run beside its ``-bare`` twin: what the dynamics and viewer processes cost the
+    servo figures, as ratios with / without them (issue 6)."""
+    by_name = {r.run: r for r in results if not r.error and r.latency is not None}
+    lines: list[str] = []
+    for bare in by_name.values():
+        if not bare.run.endswith("-bare") or bare.run.removesuffix("-bare") not in by_name:
+            continue
+        full = by_name[bare.run.removesuffix("-bare")]
+        if not lines:
+            lines += [
+                "",
+                "dynamics (full feed-forward, both arms) + viewer (web dashboard, recording) "
+                "running / left out:",
+            ]
+        parts = []
+        for w, b in zip(full.wakeup[1:], bare.wakeup[1:], strict=True):
+            ratio = w.p999_us / b.p999_us if b.p999_us else math.nan
+            parts.append(
+                f"{w.name.removeprefix('kali ')} {us(w.p999_us)}/{us(b.p999_us)}={ratio:.2f}x"
+            )
+        assert full.latency is not None and bare.latency is not None
+        s2dac = full.latency.p99_us / bare.latency.p99_us if bare.latency.p99_us else math.nan
+        ct_w, ct_b = full.wakeup[0].p999_us, bare.wakeup[0].p999_us
+        lines.append(
+            f"{full.run}: wake-up p99.9 µs {', '.join(parts)}; sensor-to-DAC p99 "
+            f"{us(full.latency.p99_us)}/{us(bare.latency.p99_us)}={s2dac:.2f}x; cyclictest "
+            f"p99.9 {us(ct_w)}/{us(ct_b)} (the floor in each); misses {full.misses}/{bare.misses}; "
+            f"CPU {_pct(full.cpu_total_pct)}/{_pct(bare.cpu_total_pct)} %"
+        )
+    return lines
 
 
 # --------------------------------------------------------------------------------------------
@@ -897,7 +953,7 @@ def main(argv: list[str] | None = None) -> int:
         "--runs",
         type=parse_runs,
         default=list(RUNS.values()),
-        help=f"comma-separated subset of {','.join(RUNS)} (default: all four)",
+        help=f"comma-separated subset of {','.join(RUNS)} (default: all six)",
     )
     ap.add_argument(
         "--ct-priority",

@@ -18,6 +18,8 @@ SHIFT = 0.06  # m, sideways while lifted
 with Kali() as kali:
     kali.ready(["left", "right"])
     arms = [kali.robot(name) for name in ("left", "right")]
+    for arm in arms:  # the dynamics process's torques: the arms follow closer, squeeze less
+        arm.feedforward("full")
     on_stand = model.bar_rest_pose()
     grasps = [model.grasp_in_bar(kali.inst.config.robots[a.index]) for a in arms]
     sites = [on_stand @ g for g in grasps]  # where each flange must be to grip

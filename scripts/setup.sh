@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up everything Kali needs on a fresh Debian machine with Python 3.11:
 #   - Debian packages: libatomic1 (the arena's test-and-set), rt-tests (cyclictest, for the
-#     timing benchmarks' floor);
+#     timing benchmarks' floor), chromium (the dashboard test opens the web viewer headless);
 #   - a virtual environment in .venv with the kali_daemons package and its test extras.
 # Safe to run again: it only installs what is missing.
 set -euo pipefail
@@ -10,6 +10,7 @@ cd "$(dirname "$0")/.."
 missing=()
 ldconfig -p 2>/dev/null | grep -q 'libatomic\.so\.1' || missing+=(libatomic1)
 command -v cyclictest >/dev/null 2>&1 || missing+=(rt-tests)
+command -v chromium >/dev/null 2>&1 || missing+=(chromium)
 if [ ${#missing[@]} -gt 0 ]; then
   echo "setup: installing Debian packages: ${missing[*]}"
   sudo_cmd=()

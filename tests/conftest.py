@@ -29,6 +29,9 @@ def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfi
     # an absolute plugin path, so the text also works when a test writes it elsewhere
     plugin = ROOT / "scripts" / "servo_plugin_example.py"
     text = re.sub(r"(?m)^plugins: .*$", f"plugins: [{plugin}]", text)
+    # no web viewer server per test instance (tests/test_viewer.py turns it on where it is the
+    # point): the suite starts dozens of instances
+    text = re.sub(r"(?m)^  web: auto\b", "  web: off ", text)
     for pattern, repl in (edits or {}).items():
         text, n = re.subn(pattern, repl, text, flags=re.M)
         assert n, f"config edit {pattern!r} matched nothing"

@@ -26,6 +26,8 @@ from kali_daemons.config import (
 )
 from kali_daemons.errors import ConfigError
 
+from .conftest import make_config
+
 DEFAULT_PATH = Path(__file__).resolve().parents[1] / "config" / "default.yaml"
 DEFAULT_TEXT = DEFAULT_PATH.read_text(encoding="utf-8")
 SOURCE = "config/default.yaml"
@@ -619,7 +621,7 @@ def test_unknown_key_lists_allowed_keys() -> None:
     message = error_of(edit(("stage: 3}", "stage: 3, colour: red}")))
     assert message == (
         f"config: {SOURCE}: processes.dynamics.colour: unknown key; allowed keys: "
-        "cpu, priority, period_ms, serious, stage"
+        "enabled, cpu, priority, period_ms, serious, stage"
     )
 
 
@@ -755,3 +757,13 @@ def test_config_is_immutable() -> None:
     assert isinstance(cfg.processes, tuple) and isinstance(cfg.robots, tuple)
     assert isinstance(cfg.robots[0].base_xyz, tuple)
     assert hash(cfg) == hash(parse_config(DEFAULT_TEXT))
+
+
+def test_dynamics_and_viewer_may_be_left_out() -> None:
+    cfg = make_config(
+        "opt",
+        {r"^(  dynamics: +\{)": r"\1enabled: false, ", r"^(  viewer: +\{)": r"\1enabled: false, "},
+    )
+    assert [p.name for p in cfg.processes] == ["wallclock", "plant", "tg", "sio", "sv.0", "sv.1"]
+    with pytest.raises(ConfigError, match=r"processes\.tg\.enabled: unknown key"):
+        make_config("opt", {r"^(  tg: +\{)": r"\1enabled: false, "})

@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
 from kali_daemons import kinematics, layout, model
 from kali_daemons.client import Kali
@@ -15,9 +16,10 @@ from kali_daemons.wallclock import step_kali_clock
 from tests.test_tg_cartesian import calibrated
 
 # Squeeze or tension between the grasps while carrying.  Two position-servoed arms welded to
-# one bar fight over their servo errors: with the plain PID (no dynamics feed-forward yet)
-# the squeeze settles near 60 N once the bar's 15 N weight is off the stand.
-INTERNAL_FORCE_MAX_N = 100.0
+# one bar fight over their servo errors: with the plain PID the squeeze settles near 60-66 N
+# once the bar's 15 N weight is off the stand; the dynamics feed-forward (issue 6) halves it
+# (34 N: the bar itself is not in the arms' model, so its weight still makes them sag).
+INTERNAL_FORCE_MAX_N = {"off": 100.0, "full": 45.0}
 LIFT_M = 0.08
 
 
@@ -60,8 +62,11 @@ def go_to_grasps(k: Kali) -> None:
     step_kali_clock(k.inst, 100)
 
 
-def test_two_arms_carry_the_bar_with_a_bounded_internal_force(kali: Callable[..., str]) -> None:
-    name = kali(lockstep=True)
+@pytest.mark.parametrize("ff", ["off", "full"])
+def test_two_arms_carry_the_bar_with_a_bounded_internal_force(
+    kali: Callable[..., str], ff: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    name = kali(lockstep=True, edits={r"^(  - \{name: .*)\}$": rf"\1, ff: {ff}}}"})
     with calibrated(name, ("left", "right")) as k:
         truths = k.inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
         world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
@@ -89,6 +94,8 @@ def test_two_arms_carry_the_bar_with_a_bounded_internal_force(kali: Callable[...
         end = bar_position(world)
         np.testing.assert_allclose(end, start + np.array([0.0, 0.0, LIFT_M]), atol=3e-3)
         assert top > start[2] + LIFT_M - 3e-3
-        assert worst < INTERNAL_FORCE_MAX_N, f"internal force {worst:.1f} N while carrying"
+        with capsys.disabled():
+            print(f"\ncarrying with feed-forward {ff}: internal force up to {worst:.1f} N")
+        assert worst < INTERNAL_FORCE_MAX_N[ff], f"internal force {worst:.1f} N while carrying"
         assert k.inst.fault_text() is None
         del truths, world

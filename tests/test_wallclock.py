@@ -216,7 +216,7 @@ def test_killed_serious_daemon_halts_naming_it(kali: Callable[..., str]) -> None
         os.kill(int(inst.procs[inst.slot_of("sio")]["pid"]), signal.SIGKILL)
         wait_for(lambda: bool(inst.fault["active"]))
         # the first missed tick finds the process gone: halted at once, named as dead
-        assert FaultCode(int(inst.fault["code"])) == FaultCode.PROCESS_DIED
+        assert FaultCode(int(inst.fault["code"])) == FaultCode.PROCESS_DIED, inst.fault_text()
         assert "process 'sio' (pid" in inst.fault_text() and "died" in inst.fault_text()
 
 

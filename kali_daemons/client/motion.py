@@ -228,6 +228,12 @@ class Robot:
             handle.wait(timeout)
         return handle
 
+    def feedforward(self, mode: str) -> None:
+        """This arm's feed-forward from the dynamics process (thesis 3.3.6): ``"full"`` (the
+        inverse dynamics of the demanded motion), ``"gravity"`` or ``"off"``; it fades in or
+        out over ``feedforward.ramp_ms``."""
+        self.kali.servo.feedforward(self.name, mode)
+
     def stop(self) -> None:
         """Decelerate this arm's motion to rest on its path; queued ones are cancelled."""
         self.kali._request(MotionKind.STOP, [self.index])

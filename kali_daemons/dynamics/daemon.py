@@ -1,16 +1,181 @@
-"""Feed-forward dynamics (thesis 3.3.6): gravity and inverse-dynamics torques with Pinocchio, at
-about the TG rate.
+"""Feed-forward dynamics (thesis 3.3.6, 2.2.3): the joint torques the demanded motion needs,
+computed with Pinocchio about as often as the TG runs, for SIO to add to the servo torques.
+
+Thesis 2.2.3: the controller's torque is τ = H(q) u + h(q, q̇), where the inverse dynamics
+H and h change far more slowly than the servo samples, so a process at a few tens of Hz can
+supply them; 3.3.6 makes that an asynchronous process whose torques SIO "reads and adds to
+the amplifier torque demand automatically".  Here it works on the demanded trajectory itself:
+for every set-point in a robot's TG → SIO FIFO (Type 2) it writes one row
+
+    FfMode.GRAVITY:  τ_i = g(q_i)
+    FfMode.FULL:     τ_i = M(q_i) q̈_i + C(q_i, q̇_i) q̇_i + g(q_i) + friction(q̇_i) + k_v q̇_i
+
+keyed by the set-point's absolute FIFO index (``layout.FEEDFORWARD``).  SIO interpolates the
+rows of the segment it is on exactly as it interpolates the positions, so feed-forward and
+demand stay aligned however late this process runs; a row that is not there in time, or a
+process that has gone silent, is SIO's to detect and drop (``sio/daemon.py``).
+
+The last term is the velocity feed-forward of thesis 2.2.3's servo law
+u = q̈_d + k_D (q̇_d − q̇) + k_P (q_d − q): Kali's PID (figure 3.4) damps the *measured*
+velocity, −k_v q̇, which at speed leaves a tracking lag of k_v q̇ / k_p (3° on joint 3 at
+2.4 rad/s) that no model of the arm removes; adding k_v q̇_d turns it into k_v (q̇_d − q̇).
+k_v is read, without locking, from the parameters of each joint's active servo algorithm
+(any algorithm with a ``kv`` parameter: the PID, the PD, plugins that name theirs so).
+
+q̇_i and q̈_i are central differences over the neighbouring set-points, with each segment's
+own duration (its ratio stamp × the servo period), so a row is written once its successor
+has been pushed; while the FIFO is drained SIO holds at the segment's target, and the row of
+that target is the gravity there, refreshed every cycle.  The inertia includes the rotors
+(``model.load_pinocchio``); friction is the motors' viscous and asymmetric Coulomb friction
+of ``puma560`` (the plant's), the Coulomb part smoothed as the plant smooths it.
+
+Pinocchio's Python bindings return each result as a new 6-vector; this process is
+asynchronous and non-serious (3.3.6), so those small allocations are accepted here.
 """
 
 from __future__ import annotations
 
+from fractions import Fraction
+
+import numpy as np
+
+from .. import layout, rt
+from ..channels import InterpolatingFifo
+from ..config import ms_to_ns
 from ..daemon import Daemon
+from ..errors import DaemonError
+from ..layout import FfMode
+from ..servolevel import FIFO_CAPACITY, ServoLevel
+from .inverse import InverseDynamics, central_differences
+
+SIO_WAIT_S = 30.0  # how long the dynamics process waits at start for SIO's servo level
+MAX_ROWS_PER_CYCLE = 64  # per robot: a cycle's work stays bounded when a long move arrives
 
 
 class Dynamics(Daemon):
-    """Issue: dynamics fills this in; for now it registers (non-serious) and acknowledges."""
+    """Writes every robot's feed-forward rows; SIO applies them."""
 
     kind = "dynamics"
 
+    def on_configure(self) -> None:
+        """Load the model, then wait for SIO to lay the servo level out (FIFOs, records)."""
+        inst = self.inst
+        cfg = inst.config
+        self.inverse = InverseDynamics()
+        self.n_robots = len(cfg.robots)
+        self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
+        self.q_prev, self.q_i, self.q_next = np.zeros(6), np.zeros(6), np.zeros(6)
+        self.qd, self.qdd, self._s = np.zeros(6), np.zeros(6), np.zeros(6)
+        arena = inst.arena
+        deadline = rt.monotonic_ns() + int(SIO_WAIT_S * 1e9)
+        while not self._sio_ready():
+            if rt.monotonic_ns() > deadline:
+                raise DaemonError(f"{self.name}: SIO did not lay out the servo level")
+            rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
+        ratio = Fraction(ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms))
+        self.fifos = [
+            InterpolatingFifo(arena, layout.KEY_FIFO.format(robot=r.name), 6, FIFO_CAPACITY, ratio)
+            for r in cfg.robots
+        ]
+        self.ff = arena.existing(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, self.n_robots)
+        level = ServoLevel(inst)
+        self._algo = level.slots["algo"]
+        self._enabled = level.slots["enabled"]
+        # per slot, per algorithm: a view of its kv parameter, or None if it has none
+        self._kv_views = [
+            [rec["kv"].reshape(-1) if "kv" in (rec.dtype.names or ()) else None for rec in row]
+            for row in level.data
+        ]
+        self.kv = np.zeros((self.n_robots, 6))
+        # per robot: the first FIFO index without a row, and the mode the rows are in
+        self.next_row = [fifo.indices()[0] for fifo in self.fifos]
+        self.mode_seen = [FfMode.OFF] * self.n_robots
+
+    def _sio_ready(self) -> bool:
+        arena = self.inst.arena
+        if arena.lookup(layout.KEY_FEEDFORWARD) is None:
+            return False
+        if arena.lookup(layout.KEY_SERVO_CTRL) is None:
+            return False
+        return bool(arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)["ready"])
+
+    # ------------------------------------------------------------------ the cycle
+
     def cycle(self, tick: int) -> None:
-        """Inside the cycle: nothing yet beyond the base class's acknowledgement."""
+        """Rows for every set-point pushed since the last cycle, for every robot that wants
+        feed-forward; then the heartbeat SIO checks."""
+        ff = self.ff
+        for k in range(self.n_robots):
+            mode = FfMode(int(ff["mode"][k]))
+            if mode != self.mode_seen[k]:  # recompute what SIO has not used yet
+                self.mode_seen[k] = mode
+                self.next_row[k] = self.fifos[k].indices()[0] - 1
+            if mode != FfMode.OFF:
+                self._servo_gains(k)
+                self._robot(k, mode)
+                ff["computed_mode"][k] = mode
+        ff["heartbeat_tick"][:] = tick
+
+    def _servo_gains(self, k: int) -> None:
+        """Robot ``k``'s velocity gains k_v now (0 where a servo has none or is disabled)."""
+        for j in range(6):
+            i = 6 * k + j
+            views = self._kv_views[i]
+            algo = int(self._algo[i])
+            view = views[algo] if algo < len(views) else None
+            self.kv[k, j] = float(view[0]) if view is not None and self._enabled[i] else 0.0
+
+    def _robot(self, k: int, mode: FfMode) -> None:
+        """Robot ``k``'s new rows (in the cycle)."""
+        fifo = self.fifos[k]
+        head, tail = fifo.indices()
+        if head == tail:  # drained: SIO holds at B, set-point head - 1's place
+            fifo.held(self.q_i)
+            if fifo.indices() == (head, tail):
+                self.qd.fill(0.0)
+                self.qdd.fill(0.0)
+                self._write(k, head - 1, mode, self.kv[k])
+            self.next_row[k] = head
+            return
+        first = max(self.next_row[k], head - 1)
+        for i in range(first, min(tail, first + MAX_ROWS_PER_CYCLE)):
+            if not fifo.read(i, self.q_i):
+                continue  # overwritten: SIO is long past it
+            if mode == FfMode.GRAVITY:
+                self.qd.fill(0.0)
+                self.qdd.fill(0.0)
+            else:
+                if i + 1 >= tail or not fifo.read(i + 1, self.q_next):
+                    break  # its successor is not pushed yet: next cycle
+                self._previous(k, i)
+                t_in = fifo.ratio_of(i) * self.servo_period_s  # segment ending at i
+                t_out = fifo.ratio_of(i + 1) * self.servo_period_s  # segment leaving i
+                central_differences(
+                    self.q_prev, self.q_i, self.q_next, t_in, t_out, self.qd, self.qdd, self._s
+                )
+            self._write(k, i, mode, self.kv[k])
+            self.next_row[k] = i + 1
+
+    def _previous(self, k: int, i: int) -> None:
+        """q_{i-1} into ``q_prev``: the position its own row was written for (the hold
+        position after a reset), else the ring's set-point, else q_i itself (a start)."""
+        ff = self.ff
+        key = i  # 1 + (i - 1)
+        row = key % layout.FF_ROWS
+        if int(ff["key"][k, row]) == key:
+            np.copyto(self.q_prev, ff["q"][k, row])
+        elif not self.fifos[k].read(i - 1, self.q_prev):
+            np.copyto(self.q_prev, self.q_i)
+
+    def _write(self, k: int, index: int, mode: FfMode, kv: np.ndarray) -> None:
+        """Compute and publish robot ``k``'s row for set-point ``index`` (q_i, qd, qdd)."""
+        ff = self.ff
+        key = index + 1
+        row = key % layout.FF_ROWS
+        tau = self.inverse.torque(mode, self.q_i, self.qd, self.qdd, kv)
+        keys = ff["key"][k]
+        keys[row] = layout.FF_NO_KEY  # SIO ignores the row while it changes
+        ff["q"][k, row] = self.q_i
+        ff["tau"][k, row] = tau
+        keys[row] = key
+        ff["rows_written"][k] += 1

@@ -7,6 +7,8 @@ tick.
     the arm is while it is not powered — check joint range and tracking error, and feed the
     servo slots: demand, position and velocity in, then ``busy`` cleared so the SVs can
     claim them, then one post per SV on its feed semaphore.
+    While the servos run, take each robot's feed-forward from the dynamics process's rows
+    (``feedforward.py``: interpolated like the demand; stale ones dropped).
 (c) Sleep until the SV finishing the last slot posts the done semaphore, add feed-forward,
     convert torques to motor currents and DAC codes (the current check), drive the power
     switch and retrigger the watchdog on each board.
@@ -29,10 +31,11 @@ import numpy as np
 import posix_ipc
 
 from .. import layout, puma560, rt
-from ..config import ms_to_ns
+from ..config import ms_to_ns, period_ticks
 from ..daemon import Daemon
 from ..driver import Puma560Driver
 from ..errors import DaemonError
+from ..flightrec import FlightRecorder
 from ..layout import (
     CSR_ENABLE,
     CSR_INDEX_OFF,
@@ -42,12 +45,14 @@ from ..layout import (
     POWER_AMPS_ON,
     POWER_BRAKES_RELEASED,
     FaultCode,
+    FfMode,
     PowerCmd,
     PowerState,
     SlotReset,
 )
 from ..servolevel import ServoLevel
 from .calibration import ACTIVE, Calibration, PotReader
+from .feedforward import RobotFeedforward
 
 BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
 ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms, C.5.1)
@@ -87,6 +92,11 @@ class ServoIO(Daemon):
         if not first:
             self.driver.load(*self._driver_state)
         self.fifos = [lv.fifo(k) for k in range(nr)]
+        self.ff_records = inst.arena.record(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, nr)
+        if first:
+            self.ff_records["key"] = layout.FF_NO_KEY
+            for k, robot in enumerate(cfg.robots):
+                self.ff_records["mode"][k] = FfMode[robot.ff.upper()]
         self.period_ticks_servo = self.period_ticks
         period_s = lv.servo_period_s
         self.rate = 1.0 / period_s
@@ -160,6 +170,19 @@ class ServoIO(Daemon):
         self._r = [_RobotViews(self, k) for k in range(nr)]
         self._pots = [PotReader(r.adc_control, r.adc_analog) for r in self._r]
         self._calib = [Calibration(self, k) for k in range(nr)]
+        ffc = cfg.feedforward
+        self._ff = [
+            RobotFeedforward(
+                self.ff_records,
+                k,
+                self.fifos[k],
+                self.ff[6 * k : 6 * k + 6],
+                heartbeat_limit=period_ticks(ffc.stale_ms, cfg.clock.base_tick_ms, round_up=True),
+                missing_limit=servo_ticks(ffc.stale_ms),
+                step=cfg.clock.servo_period_ms / ffc.ramp_ms,
+            )
+            for k in range(nr)
+        ]
         if first:
             self.driver.start(self._encoders)
             for k in range(nr):
@@ -172,6 +195,8 @@ class ServoIO(Daemon):
         self.q_prev[:] = self.q
         for k in range(nr):
             self.fifos[k].reset(self.q[6 * k : 6 * k + 6])
+        self.flight = FlightRecorder(inst, n, create=True, slot=self.slot)  # DESIGN 7
+        self.flight.bind(self.q, self.demand, self.servo_torque, self.ff, self.torque, self.current)
         ctrl["ready"] = 1
 
     # ------------------------------------------------------------------ the tick
@@ -215,6 +240,8 @@ class ServoIO(Daemon):
         np.copyto(self._slot_busy, self.busy_src)  # published last: the SVs may claim now
         for sem in self.feeds:
             sem.release()
+        for ff in self._ff:  # while the servos run: this tick's feed-forward (thesis 3.3.6)
+            ff.update(tick)
         # (c) wait for the servos, then torques out
         if fed and not self._wait_done(tick, fed):
             self.fed_mask[:] = False
@@ -239,6 +266,7 @@ class ServoIO(Daemon):
         if late > self._lat_max:
             self._lat_max[...] = late
         self._hist[layout.lateness_bin(late)] += 1
+        self.flight.record(tick, t_read, late)  # the flight recorder's row (DESIGN 7)
 
     def _robot(self, k: int, tick: int, faulted: bool) -> None:
         """Power switch, pots and this tick's demand of robot ``k``."""

@@ -1,16 +1,539 @@
-"""Viewer (thesis 3.3.7): reads the arena without locking and logs the live dashboard to rerun at
-25 Hz.
+"""Viewer (thesis 3.3.7, DESIGN 8): the live rerun dashboard at 25 Hz.
+
+"A separate asynchronous process called the 'viewer' runs on a separate CPU and simply picks
+the relevant data from shared memory and displays it at about 25 Hz refresh so that the user
+can monitor the system status like robot position, tracking error, etc." (3.3.7)
+
+Each cycle it reads the arena without locking (Type 4 records: a torn read costs one frame of
+the dashboard, never a command) and logs to rerun, on the timeline ``kali_time`` (the wall
+clock's running time, so a lockstep run has 25 frames per simulated second):
+
+- ``world/...``: both arms drawn from the URDF's visual shapes (Pinocchio's visual model),
+  placed by forward kinematics of the *measured* joint angles at each robot's base; each
+  flange's frame; the bar at its pose in the plant (``truth.world``) on its stand.
+- ``robots/<robot>/...``: per joint the angle, demand, tracking error (demand − angle; all in
+  degrees), torque and feed-forward torque (N·m) and motor current (A), one entity of six
+  series each; the flange's position (m) and roll/pitch/yaw (degrees) in the world.
+- ``timing/...``: per process its last execution time, wake-up lateness and missed deadlines
+  from the process table; SIO's sensor-to-DAC latency.
+- ``events/...``: faults (ERROR), the robots' power and calibration messages (INFO) and process
+  state changes, as they happen.
+
+Where it goes (``sinks.py``, the config's ``dashboard`` section): a live rerun viewer when one
+listens, else the web viewer served on 127.0.0.1; and a recording file if asked for.  A
+blueprint lays the dashboard out: the arms in 3D and the events on one side, the time series
+on the other.
+
+In real-time mode the viewer keeps its own 40 ms clock (self-timed, like the plant), so it
+keeps drawing after a halt stops the wall clock — when the user most needs to see the arms.
+In lockstep mode the wall clock steps it like every daemon.  It is not a real-time process:
+SCHED_OTHER, memory not locked, and its cycle allocates (rerun's log calls do).  A frame that
+fails is counted and logged, never raised: the dashboard must not halt the system.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+import rerun as rr
+import rerun.blueprint as rrb
+
+from .. import layout, rt
 from ..daemon import Daemon
+from ..errors import DaemonError
+from ..instance import decode
+from ..layout import ProcState
+from ..model import BAR_SIZE, FLANGE_FRAME, STAND_SIZE, load_pinocchio
+from ..puma560 import URDF_PATH
+from ..tg.cartesian import base_transform
+from ..wallclock.clock import time_ms
+from .sinks import WebViewer, grpc_address, pick_port, reachable
+
+TIMELINE = "kali_time"
+READY_TIMEOUT_S = 30.0  # how long the viewer waits at start for SIO's and the plant's records
+PLOT_WINDOW_S = 10.0  # the time series show the last this many seconds
+FLANGE_AXES_M = 0.12
+JOINT_COLORS = np.array(
+    [[228, 26, 28], [255, 127, 0], [190, 170, 0], [77, 175, 74], [55, 126, 184], [152, 78, 163]],
+    dtype=np.uint8,
+)
+DEMAND_COLORS = (JOINT_COLORS // 2 + 128).astype(np.uint8)  # the same hue, paler
+STAND_COLOR = (115, 84, 56)  # as the plant's cell (model.py)
+BAR_COLOR = (217, 89, 26)
+JOINTS = [f"j{j + 1}" for j in range(6)]
+
+
+def _rgba(color: np.ndarray) -> np.ndarray:
+    """An RGBA colour in 0..1 (Pinocchio's) as 0..255 bytes (rerun's)."""
+    return (np.clip(np.asarray(color), 0.0, 1.0) * 255).round().astype(np.uint8)
+
+
+class Arm:
+    """One PUMA 560's visual shapes (the URDF's ``<visual>`` boxes and cylinders, through
+    Pinocchio's visual geometry model), posed by forward kinematics.  Built outside the
+    cycle; ``place`` runs inside it, into preallocated ``poses``."""
+
+    def __init__(self) -> None:
+        self.model = load_pinocchio()
+        self.data = self.model.createData()
+        self.geom = pin.buildGeomFromUrdf(self.model, str(URDF_PATH), pin.GeometryType.VISUAL)
+        self.gdata = pin.GeometryData(self.geom)
+        self.flange = self.model.getFrameId(FLANGE_FRAME)
+        objects = list(self.geom.geometryObjects)
+        kinds = [type(o.geometry).__name__ for o in objects]  # hpp-fcl's or coal's shapes
+        self.boxes = [i for i, kind in enumerate(kinds) if kind == "Box"]
+        self.cylinders = [i for i, kind in enumerate(kinds) if kind == "Cylinder"]
+        if len(self.boxes) + len(self.cylinders) != len(objects):
+            raise DaemonError(f"viewer: {URDF_PATH}: only box and cylinder visuals are drawn")
+        self.half_sizes = np.array([objects[i].geometry.halfSide for i in self.boxes])
+        self.radii = np.array([objects[i].geometry.radius for i in self.cylinders])
+        self.lengths = np.array([2 * objects[i].geometry.halfLength for i in self.cylinders])
+        self.box_colors = np.array([_rgba(objects[i].meshColor) for i in self.boxes])
+        self.cylinder_colors = np.array([_rgba(objects[i].meshColor) for i in self.cylinders])
+        self.poses = np.zeros((len(objects), 7))  # x y z, quaternion x y z w, in the base
+
+    def place(self, q: np.ndarray) -> pin.SE3:
+        """Pose every shape for joint angles ``q`` (``poses``); returns the flange in the base."""
+        pin.forwardKinematics(self.model, self.data, q)
+        pin.updateGeometryPlacements(self.model, self.data, self.geom, self.gdata)
+        for g, placement in enumerate(self.gdata.oMg):
+            self.poses[g] = pin.SE3ToXYZQUAT(placement)
+        return pin.updateFramePlacement(self.model, self.data, self.flange)
+
+
+@dataclass(frozen=True)
+class RobotPaths:
+    """The entity paths of one robot."""
+
+    base: str
+    boxes: str
+    cylinders: str
+    flange: str
+    q: str
+    demand: str
+    error: str
+    torque: str
+    ff_torque: str
+    current: str
+    flange_position: str
+    flange_rpy: str
+    events: str
+
+    @classmethod
+    def of(cls, robot: str) -> RobotPaths:
+        """Paths of robot ``robot``."""
+        r = f"robots/{robot}"
+        base = f"world/{robot}"
+        return cls(
+            base=base,
+            boxes=f"{base}/links/boxes",
+            cylinders=f"{base}/links/cylinders",
+            flange=f"{base}/flange",
+            q=f"{r}/q",
+            demand=f"{r}/demand",
+            error=f"{r}/error",
+            torque=f"{r}/torque",
+            ff_torque=f"{r}/ff_torque",
+            current=f"{r}/current",
+            flange_position=f"{r}/flange/position",
+            flange_rpy=f"{r}/flange/rpy",
+            events=f"events/{robot}",
+        )
+
+
+def blueprint(robots: list[str]) -> rrb.Blueprint:
+    """The dashboard's layout: arms in 3D above the event log; per robot and quantity a time
+    series of the last ``PLOT_WINDOW_S`` seconds; process timing and flanges below."""
+    window = rrb.VisibleTimeRange(
+        TIMELINE,
+        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-PLOT_WINDOW_S),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
+
+    def series(name: str, *contents: str) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(
+            name=name,
+            origin="/",
+            contents=list(contents),
+            time_ranges=window,
+            plot_legend=rrb.PlotLegend(visible=False),
+        )
+
+    paths = [RobotPaths.of(r) for r in robots]
+    plots = []
+    for title, fields in (
+        ("angle, demand (deg)", ("q", "demand")),
+        ("tracking error (deg)", ("error",)),
+        ("torque, feed-forward (N·m)", ("torque", "ff_torque")),
+        ("motor current (A)", ("current",)),
+    ):
+        for r, p in zip(robots, paths, strict=True):
+            plots.append(series(f"{r}: {title}", *(getattr(p, f) for f in fields)))
+    bottom = rrb.Horizontal(
+        series("execution time (µs)", "timing/exec_us"),
+        series("wake-up lateness, SIO sensor→DAC (µs)", "timing/late_us", "timing/sio_latency_us"),
+        rrb.Tabs(
+            series("flange position (m)", *(p.flange_position for p in paths)),
+            series("flange roll, pitch, yaw (deg)", *(p.flange_rpy for p in paths)),
+            series("missed deadlines", "timing/misses"),
+        ),
+    )
+    arms = rrb.Spatial3DView(
+        name="arms",
+        origin="world",
+        eye_controls=rrb.EyeControls3D(
+            position=(0.3, -1.9, 1.35), look_target=(0.0, 0.0, 0.55), eye_up=(0.0, 0.0, 1.0)
+        ),
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(arms, rrb.TextLogView(name="events", origin="events"), row_shares=[3, 1]),
+            rrb.Vertical(rrb.Grid(*plots, grid_columns=len(robots)), bottom, row_shares=[3, 1]),
+            column_shares=[2, 3],
+        ),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
+        collapse_panels=True,
+    )
 
 
 class Viewer(Daemon):
-    """Issue: dashboard fills this in; for now it registers (non-serious) and acknowledges."""
+    """The dashboard process: non-serious, priority 0, on its own CPU (config)."""
 
     kind = "viewer"
+    self_timed_in_realtime = True  # keeps drawing while a halt has stopped the wall clock
+
+    def __init__(self, instance: str, name: str, **kw: object) -> None:
+        kw.setdefault("lock_memory", False)  # not real-time: rerun's buffers need not be locked
+        super().__init__(instance, name, **kw)  # type: ignore[arg-type]
+        self.rec: rr.RecordingStream | None = None
+        self.web: WebViewer | None = None
+        self._errors = 0
+
+    # ------------------------------------------------------------------ set-up
+
+    def on_configure(self) -> None:
+        """Load the arm model, wait for SIO's and the plant's records, set the sinks up and log
+        everything that never changes."""
+        inst = self.inst
+        cfg = inst.config
+        arena = inst.arena
+        self.names = [r.name for r in cfg.robots]
+        self.paths = [RobotPaths.of(r) for r in self.names]
+        self.bases = [pin.SE3(base_transform(r.base_xyz, r.base_yaw_deg)) for r in cfg.robots]
+        self.arm = Arm()
+        self.arm.place(np.zeros(6))  # the first use of Pinocchio faults pages in
+        self.dash = arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
+        deadline = rt.monotonic_ns() + int(READY_TIMEOUT_S * 1e9)
+        while not self._records_ready():
+            if rt.monotonic_ns() > deadline:
+                raise DaemonError(f"{self.name}: SIO and the plant did not lay out their records")
+            if inst.shutting_down:
+                return
+            rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
+        n = len(self.names)
+        self.robots = arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, n)
+        self.ctrl = arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+        self.world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        self.clock, self.procs, self.fault = inst.clock, inst.procs, inst.fault
+        self._proc_names: list[str] = []  # every process seen, in order: the timing series
+        self._proc_slot = np.zeros(0, dtype=np.int64)  # its slot now, -1 when it has left
+        self._proc_state = np.zeros(0, dtype=np.int64)
+        self._gen = -1
+        self._fault_count = 0
+        self._fault_active = False
+        self._messages = np.zeros(n, dtype=self.robots["message"].dtype)
+        self._open_sinks()
+
+    def _records_ready(self) -> bool:
+        arena = self.inst.arena
+        if arena.lookup(layout.KEY_WORLD_TRUTH) is None or arena.lookup(layout.KEY_ROBOTS) is None:
+            return False
+        if arena.lookup(layout.KEY_SERVO_CTRL) is None:
+            return False
+        return bool(arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)["ready"])
+
+    def _open_sinks(self) -> None:
+        """A live viewer if one listens, else the web viewer (``dashboard.web``); a recording
+        file if kalictl start was given one.  Published in the dashboard record."""
+        d = self.inst.config.dashboard
+        dash = self.dash
+        sinks: list[rr.GrpcSink | rr.FileSink] = []
+        notes: list[str] = []
+        live = ""
+        if d.connect is not None and reachable(*grpc_address(d.connect)):
+            live = d.connect
+            sinks.append(rr.GrpcSink(live))
+            self.log.info("dashboard: streaming to the live rerun viewer at %s", live)
+        if d.web == "on" or (d.web == "auto" and not live):
+            web_port, web_taken = pick_port(d.web_port)
+            grpc_port, grpc_taken = pick_port(d.grpc_port)
+            while grpc_port == web_port:
+                grpc_port, _ = pick_port(0)
+            if web_taken:
+                notes.append(f"dashboard.web_port {d.web_port} taken, serving on {web_port}")
+            if grpc_taken:
+                notes.append(f"dashboard.grpc_port {d.grpc_port} taken, using {grpc_port}")
+            web = WebViewer(web_port, grpc_port, d.server_memory_mib)
+            try:
+                web.start()
+                self.web = web
+                sinks.append(rr.GrpcSink(web.grpc_url))
+                dash["web_pid"] = web.proc.pid if web.proc else 0
+                dash["web_url"] = web.url.encode()
+                self.log.info("dashboard: open %s (kalictl view)", web.url)
+            except DaemonError as exc:
+                notes.append(str(exc))
+        record = decode(dash["record"])
+        if record:
+            sinks.append(rr.FileSink(record))
+            self.log.info("dashboard: recording to %s (replay: rerun %s)", record, record)
+        for note in notes:
+            self.log.warning("%s", note)
+        dash["live"] = int(bool(live))
+        dash["live_url"] = live.encode()
+        if not sinks:
+            notes.append("no sink: no live viewer, dashboard.web off and no record")
+            self.log.warning("dashboard: %s", notes[-1])
+        dash["message"] = "; ".join(notes).encode()[: layout.MESSAGE_BYTES - 1]
+        if sinks:
+            rec = rr.RecordingStream(
+                "kali", recording_id=f"{self.inst.name}-{int(self.inst.arena.header['created_ns'])}"
+            )
+            rec.set_sinks(*sinks, default_blueprint=blueprint(self.names))
+            rec.send_recording_name(f"Kali '{self.inst.name}'")
+            self.rec = rec
+            self._log_static()
+        dash["ready"] = 1
+
+    def _log_static(self) -> None:
+        """What never changes: the cell, the arms' shape sizes, series names and colours."""
+        rec = self.rec
+        assert rec is not None
+        arm = self.arm
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        sx, sy, sz = STAND_SIZE
+        rec.log(
+            "world/stand",
+            rr.Boxes3D(
+                half_sizes=[(sx / 2, sy / 2, sz / 2)],
+                centers=[(0.0, 0.0, sz / 2)],
+                colors=[STAND_COLOR],
+                fill_mode="solid",
+            ),
+            static=True,
+        )
+        rec.log(
+            "world/object",
+            rr.Boxes3D(half_sizes=[np.array(BAR_SIZE) / 2], colors=[BAR_COLOR], fill_mode="solid"),
+            static=True,
+        )
+        for p, base in zip(self.paths, self.bases, strict=True):
+            rec.log(
+                p.base,
+                rr.Transform3D(translation=base.translation, mat3x3=base.rotation),
+                static=True,
+            )
+            rec.log(
+                p.boxes,
+                rr.Boxes3D(half_sizes=arm.half_sizes, colors=arm.box_colors, fill_mode="solid"),
+                static=True,
+            )
+            rec.log(
+                p.cylinders,
+                rr.Cylinders3D(
+                    lengths=arm.lengths,
+                    radii=arm.radii,
+                    colors=arm.cylinder_colors,
+                    fill_mode="solid",
+                ),
+                static=True,
+            )
+            rec.log(p.flange, rr.TransformAxes3D(FLANGE_AXES_M), static=True)
+            for path, names, colors in (
+                (p.q, JOINTS, JOINT_COLORS),
+                (p.demand, [f"{j} demand" for j in JOINTS], DEMAND_COLORS),
+                (p.error, JOINTS, JOINT_COLORS),
+                (p.torque, JOINTS, JOINT_COLORS),
+                (p.ff_torque, [f"{j} ff" for j in JOINTS], DEMAND_COLORS),
+                (p.current, JOINTS, JOINT_COLORS),
+                (p.flange_position, ["x", "y", "z"], JOINT_COLORS[[0, 3, 4]]),
+                (p.flange_rpy, ["roll", "pitch", "yaw"], JOINT_COLORS[[0, 3, 4]]),
+            ):
+                rec.log(path, rr.SeriesLines(names=names, colors=colors), static=True)
+        rec.log("timing/sio_latency_us", rr.SeriesLines(names=["SIO sensor→DAC"]), static=True)
+
+    # ------------------------------------------------------------------ the cycle
 
     def cycle(self, tick: int) -> None:
-        """Inside the cycle: nothing yet beyond the base class's acknowledgement."""
+        """Inside the cycle, but not real-time: one dashboard frame (it allocates; rerun does).
+
+        A frame that raises is counted in the dashboard record and logged once; it never
+        halts the system.
+        """
+        if self.rec is None:
+            return
+        try:
+            self._frame()
+            self.dash["frames"] += 1
+        except Exception as exc:  # the dashboard must not halt the system
+            self._errors += 1
+            self.dash["errors"] = self._errors
+            if self._errors == 1:
+                self.log.exception("dashboard frame failed (later failures only counted)")
+                self.dash["message"] = f"frame failed: {exc}".encode()[: layout.MESSAGE_BYTES - 1]
+
+    def _frame(self) -> None:
+        rec = self.rec
+        assert rec is not None
+        rec.set_time(TIMELINE, duration=time_ms(self.clock) / 1000.0)
+        robots = self.robots
+        q = robots["q"].copy()  # Type 4: a snapshot, consistent enough for a picture
+        q_deg = np.degrees(q)
+        demand_deg = np.degrees(robots["demand"])
+        error_deg = demand_deg - q_deg
+        torque, ff, current = robots["torque"], robots["ff_torque"], robots["current"]
+        arm = self.arm
+        for k, p in enumerate(self.paths):
+            if not robots["pots_read"][k]:
+                continue  # SIO has no angles for this arm yet
+            rec.log(p.q, rr.Scalars(q_deg[k]))
+            rec.log(p.demand, rr.Scalars(demand_deg[k]))
+            rec.log(p.error, rr.Scalars(error_deg[k]))
+            rec.log(p.torque, rr.Scalars(torque[k]))
+            rec.log(p.ff_torque, rr.Scalars(ff[k]))
+            rec.log(p.current, rr.Scalars(current[k]))
+            flange = arm.place(q[k])
+            poses = arm.poses
+            rec.log(
+                p.boxes,
+                rr.Boxes3D.from_fields(
+                    centers=poses[arm.boxes, :3], quaternions=poses[arm.boxes, 3:]
+                ),
+            )
+            rec.log(
+                p.cylinders,
+                rr.Cylinders3D.from_fields(
+                    centers=poses[arm.cylinders, :3], quaternions=poses[arm.cylinders, 3:]
+                ),
+            )
+            rec.log(
+                p.flange, rr.Transform3D(translation=flange.translation, mat3x3=flange.rotation)
+            )
+            world = self.bases[k] * flange
+            rec.log(p.flange_position, rr.Scalars(world.translation))
+            rec.log(p.flange_rpy, rr.Scalars(np.degrees(pin.rpy.matrixToRpy(world.rotation))))
+        pose = self.world["object_pose"]
+        if pose[3:] @ pose[3:] > 0.5:  # a unit quaternion once the plant has written it
+            w, x, y, z = pose[3:]
+            rec.log("world/object", rr.Transform3D(translation=pose[:3], quaternion=(x, y, z, w)))
+        self._timing()
+        self._events()
+
+    def _timing(self) -> None:
+        """Per process: last execution time and lateness (µs), missed deadlines; SIO's
+        sensor-to-DAC latency."""
+        rec = self.rec
+        assert rec is not None
+        gen = int(self.clock["registry_gen"])
+        if gen != self._gen:
+            self._gen = gen
+            self._rescan()
+        slots = self._proc_slot
+        here = slots >= 0
+        at = np.where(here, slots, 0)
+        p = self.procs
+        rec.log("timing/exec_us", rr.Scalars(np.where(here, p["exec_last_ns"][at] / 1e3, np.nan)))
+        rec.log("timing/late_us", rr.Scalars(np.where(here, p["late_last_ns"][at] / 1e3, np.nan)))
+        rec.log("timing/misses", rr.Scalars(np.where(here, p["misses"][at], np.nan)))
+        rec.log("timing/sio_latency_us", rr.Scalars(self.ctrl["latency_last_ns"] / 1e3))
+        state = np.where(here, p["state"][at], ProcState.FREE)
+        if not np.array_equal(state, self._proc_state):
+            for i in np.flatnonzero(state != self._proc_state):
+                self._process_event(i, int(self._proc_state[i]), int(state[i]))
+            self._proc_state = state
+
+    def _rescan(self) -> None:
+        """The process table changed: map every process's name to its slot (new names get new
+        series; a process that left keeps its series, empty from then on)."""
+        p = self.procs
+        slots = np.full(len(self._proc_names), -1, dtype=np.int64)
+        grown = False
+        for i in range(layout.MAX_PROCESSES):
+            if p[i]["state"] == ProcState.FREE:
+                continue
+            name = decode(p[i]["name"])
+            if name not in self._proc_names:
+                self._proc_names.append(name)
+                slots = np.append(slots, -1)
+                self._proc_state = np.append(self._proc_state, ProcState.FREE)
+                grown = True
+            slots[self._proc_names.index(name)] = i
+        self._proc_slot = slots
+        if grown and self.rec is not None:
+            names = self._proc_names
+            for path in ("timing/exec_us", "timing/late_us", "timing/misses"):
+                self.rec.log(path, rr.SeriesLines(names=names), static=True)
+
+    def _process_event(self, i: int, was: int, now: int) -> None:
+        assert self.rec is not None
+        name = self._proc_names[i]
+        if now == ProcState.FREE:
+            text, level = f"process '{name}' left", rr.TextLogLevel.INFO
+        else:
+            state = ProcState(now).name
+            text = f"process '{name}': {state}"
+            if was != ProcState.FREE:
+                text += f" (was {ProcState(was).name})"
+            level = rr.TextLogLevel.ERROR if now == ProcState.ERROR else rr.TextLogLevel.INFO
+        self.rec.log("events/processes", rr.TextLog(text, level=level))
+
+    def _events(self) -> None:
+        """Faults and their clearing; the robots' power and calibration messages."""
+        rec = self.rec
+        assert rec is not None
+        f = self.fault
+        count, active = int(f["count"]), bool(f["active"])
+        new = count != self._fault_count
+        if new:
+            text = self.inst.fault_text(last=True) or "fault"
+            more = count - self._fault_count - 1
+            if more > 0:
+                text += f" (and {more} more fault{'s' if more > 1 else ''} while halted)"
+            rec.log("events/faults", rr.TextLog(text, level=rr.TextLogLevel.ERROR))
+            self._fault_count = count
+        if (new or self._fault_active) and not active:  # also one raised and cleared between
+            rec.log("events/faults", rr.TextLog("fault cleared", level=rr.TextLogLevel.INFO))
+        self._fault_active = active
+        messages = self.robots["message"]
+        if not np.array_equal(messages, self._messages):
+            for k in np.flatnonzero(messages != self._messages):
+                text = f"{self.names[k]}: {decode(messages[k])}"
+                rec.log(self.paths[k].events, rr.TextLog(text, level=rr.TextLogLevel.INFO))
+            self._messages[:] = messages
+
+    # ------------------------------------------------------------------ shutdown
+
+    def on_deactivate(self) -> None:
+        """A last frame as the instance stops: in lockstep mode a halt stops the clock before
+        the viewer's stage, so this is where the recording gets the fault and the final
+        state."""
+        self.cycle(-1)
+
+    def on_shutdown(self) -> None:
+        """Flush and close the sinks (the recording gets its footer), then stop the web
+        viewer's server; leaves no process or port behind."""
+        rec, self.rec = self.rec, None
+        if rec is not None:
+            try:
+                rec.flush(timeout_sec=1.0)
+            except Exception:  # a slow sink must not keep the viewer alive
+                self.log.warning("dashboard: flush did not finish within 1 s")
+            rec.disconnect()
+        if self.web is not None:
+            self.web.stop()
+            self.web = None
+
+
+__all__ = ["Viewer", "blueprint"]

@@ -24,6 +24,7 @@ import posix_ipc
 
 from .. import layout, rt
 from ..daemon import Daemon, _CycleStats
+from ..flightrec import FlightDumper
 from ..instance import decode
 from ..layout import ClockCommand, FaultCode, RunMode
 from ..spinlock import pid_alive
@@ -61,6 +62,7 @@ class WallClock(Daemon):
         self._serious: list[bool] = []
         self._period: list[int] = []
         self._stages: list[int] = []
+        self._flight = FlightDumper(self.inst)  # dumps the flight recorder after a halt
 
     def on_activate(self) -> None:
         """Publish the clock as ready (kalictl start waits for it)."""
@@ -109,6 +111,7 @@ class WallClock(Daemon):
             if mode != RunMode.STOPPED and fault["active"]:
                 c["mode"] = mode = RunMode.STOPPED  # halt (DESIGN 7): a fault stops the clock
             if mode == RunMode.STOPPED:
+                self._flight.dump_if_halted()  # once per fault, nothing signalled (DESIGN 7)
                 self.inst.procs[self.slot]["heartbeat_ns"] = now()
                 try:
                     self._cmd_sem.acquire(STOPPED_WAIT_S)

@@ -1,0 +1,89 @@
+"""The feed-forward torques themselves (thesis 2.2.3, 3.3.6), apart from the process that
+schedules them, so they can be checked against an independent model.
+
+``InverseDynamics.torque`` at a demanded (q, q̇, q̈):
+
+    FfMode.GRAVITY:  g(q)
+    FfMode.FULL:     M(q) q̈ + C(q, q̇) q̇ + g(q) + friction(q̇) + k_v q̇
+
+with Pinocchio on the PUMA 560 model both Kali and the plant load (``model.load_pinocchio``:
+rotor inertias included), the motors' viscous and asymmetric Coulomb friction of
+``puma560`` (the Coulomb part smoothed by tanh(|G| q̇ / ω₀) as the plant smooths it), and
+``k_v`` the servos' velocity gains (see ``dynamics/daemon.py``).
+
+``central_differences`` gives q̇ and q̈ at a set-point from its neighbours over segments of
+unequal length (the TG's period may change on line), exact for quadratics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from .. import puma560
+from ..layout import FfMode
+from ..model import load_pinocchio
+from ..plant.motor import OMEGA0
+
+
+class InverseDynamics:
+    """Feed-forward torques of one PUMA 560; every array preallocated except the 6-vectors
+    Pinocchio's Python bindings return."""
+
+    def __init__(self) -> None:
+        self.model = load_pinocchio()
+        self.data = self.model.createData()
+        self.tau = np.zeros(6)
+        self._s, self._c = np.zeros(6), np.zeros(6)
+        self._gear_w = np.abs(puma560.G) / OMEGA0
+        # a first computation now: the first use of Pinocchio faults its pages in
+        self.torque(FfMode.FULL, np.array(puma560.QN), np.ones(6), np.ones(6), np.zeros(6))
+
+    def torque(
+        self, mode: FfMode, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, kv: np.ndarray
+    ) -> np.ndarray:
+        """Feed-forward joint torques (N·m) at (q, q̇, q̈) in ``mode``, into ``self.tau``;
+        ``kv`` the servos' velocity gains (N·m·s/rad, FULL only)."""
+        if mode == FfMode.GRAVITY:
+            np.copyto(self.tau, pin.computeGeneralizedGravity(self.model, self.data, q))
+            return self.tau
+        np.copyto(self.tau, pin.rnea(self.model, self.data, q, qd, qdd))
+        s, c = self._s, self._c
+        np.multiply(qd, puma560.VISCOUS, out=c)
+        np.add(self.tau, c, out=self.tau)
+        np.multiply(qd, self._gear_w, out=s)  # motor speed / ω₀
+        np.tanh(s, out=s)
+        np.maximum(s, 0.0, out=c)
+        np.multiply(c, puma560.COULOMB_POS, out=c)
+        np.add(self.tau, c, out=self.tau)
+        np.minimum(s, 0.0, out=c)
+        np.multiply(c, puma560.COULOMB_NEG, out=c)  # both negative: a positive product
+        np.subtract(self.tau, c, out=self.tau)
+        np.multiply(qd, kv, out=c)  # velocity feed-forward: the servo damps q̇ − q̇_d
+        np.add(self.tau, c, out=self.tau)
+        return self.tau
+
+
+def central_differences(
+    q_prev: np.ndarray,
+    q: np.ndarray,
+    q_next: np.ndarray,
+    t_in: float,
+    t_out: float,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    scratch: np.ndarray,
+) -> None:
+    """q̇ and q̈ at ``q`` from its neighbours ``t_in`` s before and ``t_out`` s after, into
+    ``qd`` and ``qdd`` (``scratch`` a 6-vector); no allocation."""
+    np.subtract(q, q_prev, out=scratch)
+    np.divide(scratch, t_in, out=scratch)  # mean speed over the segment ending at q
+    np.subtract(q_next, q, out=qd)
+    np.divide(qd, t_out, out=qd)  # mean speed over the one leaving it
+    np.subtract(qd, scratch, out=qdd)
+    np.divide(qdd, 0.5 * (t_in + t_out), out=qdd)
+    # the speed at q: the two mean speeds weighted by the other segment's length
+    np.multiply(qd, t_in, out=qd)
+    np.multiply(scratch, t_out, out=scratch)
+    np.add(qd, scratch, out=qd)
+    np.divide(qd, t_in + t_out, out=qd)

@@ -1,0 +1,442 @@
+"""The flight recorder: the last seconds of every servo tick, dumped to a file on every halt.
+
+SIO writes one row per servo tick into a ring in the arena (``layout.KEY_FLIGHT_RING``):
+positions, demands, the servo, feed-forward and sent torques, motor currents, and its own
+timing.  When the system halts (DESIGN 7) the wall clock, once it has stopped, copies the ring
+in chronological order to ``flight-<instance>-<time>-tick<T>.npz`` in the instance's log
+directory, once per fault, and names the file in the ring's header, so ``kalictl status``
+shows it and ``kalictl flight`` summarises what led to the halt.
+
+- ``FlightRecorder``: the writer, inside SIO's cycle (preallocated views, ~1 µs a tick).
+- ``FlightDumper``: the wall clock's side, outside any cycle (the clock is stopped).
+- ``read_ring``, ``load``, ``summary``, ``latest_dump``: readers for kalictl and tests.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import layout, puma560
+from .config import ms_to_ns
+from .errors import ArenaError, ArenaFullError, InstanceError, KaliError
+from .instance import Instance, decode
+from .launcher import log_dir
+from .layout import FaultCode, ProcState
+from .spinlock import pid_alive
+
+FORMAT_VERSION = 1  # of the dump files
+log = logging.getLogger("kali.flight")
+SIO_IDLE_TIMEOUT_S = 1.0  # how long the dumper waits for SIO to finish a tick in progress
+
+
+def _one(rec: np.ndarray, field: str) -> np.ndarray:
+    """A writable one-element view of a 0-d record's field (kept for the cycle)."""
+    return rec[field].reshape(1)
+
+
+class FlightRecorder:
+    """The ring as SIO writes it: one row per servo tick (``record``), inside the cycle.
+
+    ``create=True`` (SIO) allocates the header and ring sized by ``layout.flight_rows`` from
+    the servo period, or attaches to them after a restart and carries on counting.  ``slot``
+    is SIO's process-table slot: its ``release_ns`` (the due time of the tick being served)
+    gives each row's wake-up lateness.  ``bind`` names, once, the arrays each row copies.
+    """
+
+    def __init__(self, inst: Instance, n_joints: int, create: bool = False, slot: int = -1) -> None:
+        cfg = inst.config
+        period_ns = ms_to_ns(cfg.clock.servo_period_ms)
+        rows = layout.flight_rows(period_ns)
+        row = layout.flight_row(n_joints)
+        a = inst.arena
+        if create:
+            try:
+                self.header = a.record(layout.KEY_FLIGHT, layout.FLIGHT)
+                self.ring = a.record(layout.KEY_FLIGHT_RING, row, rows)
+            except ArenaFullError as exc:
+                raise ArenaFullError(
+                    f"flight recorder: {layout.FLIGHT_SECONDS:g} s of {n_joints} joints at a "
+                    f"{cfg.clock.servo_period_ms:g} ms servo period needs {rows} rows of "
+                    f"{row.itemsize} B ({rows * row.itemsize // 1024} KiB), "
+                    f"{str(exc).removeprefix('arena: ')}; raise "
+                    f"arena_kib (now {cfg.arena_kib}) in the config"
+                ) from None
+            h = self.header
+            if int(h["rows"]) == 0:
+                h["rows"], h["n_joints"], h["servo_period_ns"] = rows, n_joints, period_ns
+        else:
+            self.header = a.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+            self.ring = a.existing(layout.KEY_FLIGHT_RING, row, rows)
+        if int(self.header["rows"]) != rows or int(self.header["n_joints"]) != n_joints:
+            raise ArenaError(
+                f"flight recorder: ring holds {int(self.header['rows'])} rows of "
+                f"{int(self.header['n_joints'])} joints, this process expects {rows} of {n_joints}"
+            )
+        self.n_joints = n_joints
+        self._rows = rows
+        self._n = int(self.header["count"])
+        self._count = _one(self.header, "count")
+        r = self.ring
+        self._tick, self._t = r["tick"], r["t_ns"]
+        self._lat, self._late = r["latency_ns"], r["late_ns"]
+        self._dst = tuple(r[f] for f in layout.FLIGHT_FIELDS)
+        self._src: tuple[np.ndarray, ...] = ()
+        self._release = (
+            inst.procs["release_ns"][slot : slot + 1] if slot >= 0 else np.zeros(1, np.int64)
+        )
+
+    def bind(
+        self,
+        q: np.ndarray,
+        demand: np.ndarray,
+        servo_torque: np.ndarray,
+        ff_torque: np.ndarray,
+        torque: np.ndarray,
+        current: np.ndarray,
+    ) -> None:
+        """Outside the cycle: the arrays (flat over all joints, robot k joint j at 6 k + j)
+        every row copies; they must stay the same objects, updated in place."""
+        src = (q, demand, servo_torque, ff_torque, torque, current)
+        for name, a in zip(layout.FLIGHT_FIELDS, src, strict=True):
+            if a.shape != (self.n_joints,):
+                raise ArenaError(
+                    f"flight recorder: {name} has shape {a.shape}, expected ({self.n_joints},)"
+                )
+        self._src = src
+
+    def record(self, tick: int, t_read_ns: int, latency_ns: int) -> None:
+        """Inside the cycle (no allocation, no I/O, no logging): one servo tick's row.
+
+        The row count is published last, so a reader copying the ring knows which rows may
+        be torn (``read_ring``).
+        """
+        n = self._n
+        r = n % self._rows
+        self._tick[r] = tick
+        self._t[r] = t_read_ns
+        self._lat[r] = latency_ns
+        self._late[r] = t_read_ns - self._release[0]
+        q, demand, servo, ff, torque, current = self._dst
+        sq, sdemand, sservo, sff, storque, scurrent = self._src
+        q[r] = sq
+        demand[r] = sdemand
+        servo[r] = sservo
+        ff[r] = sff
+        torque[r] = storque
+        current[r] = scurrent
+        self._n = n + 1
+        self._count[0] = n + 1
+
+
+def read_ring(header: np.ndarray, ring: np.ndarray, writer_idle: bool = False) -> np.ndarray:
+    """A consistent copy of the ring's rows, oldest first, while the writer may still write.
+
+    Rows the writer may have overwritten during the copy (it publishes ``count`` after each
+    row, so the row after the last counted one may be half written) are dropped, so every
+    row returned is whole; ``writer_idle``: the writer is known to be between rows.
+    """
+    rows = int(header["rows"])
+    before = int(header["count"])
+    data = ring[:rows].copy()
+    after = int(header["count"])
+    first = max(0, before - rows, after + (0 if writer_idle and after == before else 1) - rows)
+    return data[np.arange(first, before) % rows]
+
+
+@dataclass
+class FaultInfo:
+    """The fault record, copied."""
+
+    code: str
+    process: str
+    tick: int
+    message: str
+    time_ns: int
+    pid: int
+    active: bool
+
+
+def fault_info(inst: Instance) -> FaultInfo:
+    """A copy of the instance's fault record (the latest fault, even if cleared)."""
+    with inst.fault_lock:
+        f = inst.fault
+        return FaultInfo(
+            FaultCode(int(f["code"])).name,
+            decode(f["process"]),
+            int(f["tick"]),
+            decode(f["message"]),
+            int(f["time_ns"]),
+            int(f["pid"]),
+            bool(f["active"]),
+        )
+
+
+class FlightDumper:
+    """The wall clock's side: after a halt, write the ring to a file, once per fault.
+
+    Outside any cycle: it runs when the clock has stopped (nothing real-time is signalled),
+    waits for SIO to finish a tick it may still be in, then writes the file.  A fault raised
+    while the ring does not exist yet (SIO not configured) is not dumped.
+    """
+
+    def __init__(self, inst: Instance, directory: Path | None = None) -> None:
+        self.inst = inst
+        self.directory = log_dir(inst.name) if directory is None else directory
+        self.header: np.ndarray | None = None
+        self.ring: np.ndarray | None = None
+        self._sio = next((p.name for p in inst.config.processes if p.kind == "sio"), "sio")
+
+    def close(self) -> None:
+        """Drop the views (they pin the arena's buffer); safe to call twice."""
+        self.header = self.ring = None
+
+    def _attach(self) -> bool:
+        if self.header is not None:
+            return True
+        a = self.inst.arena
+        if a.lookup(layout.KEY_FLIGHT) is None or a.lookup(layout.KEY_FLIGHT_RING) is None:
+            return False
+        header = a.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+        rows, n = int(header["rows"]), int(header["n_joints"])
+        if rows == 0:
+            return False  # SIO is laying it out
+        self.ring = a.existing(layout.KEY_FLIGHT_RING, layout.flight_row(n), rows)
+        self.header = header
+        return True
+
+    def pending(self) -> bool:
+        """True when a fault has been raised that is not dumped yet (cheap: a few reads)."""
+        fault_ns = int(self.inst.fault["time_ns"])
+        if fault_ns == 0 or not self._attach():
+            return False
+        assert self.header is not None
+        return int(self.header["dumped_fault_ns"]) != fault_ns
+
+    def dump_if_halted(self) -> Path | None:
+        """Dump the ring if a fault was raised since the last dump; the file, or None."""
+        if not self.pending():
+            return None
+        assert self.header is not None and self.ring is not None
+        h = self.header
+        fault = fault_info(self.inst)
+        h["dumped_fault_ns"] = fault.time_ns  # claimed first: one attempt per fault
+        t0 = time.monotonic()
+        data = read_ring(h, self.ring, writer_idle=self._wait_sio_idle())
+        try:
+            path = write_dump(self.inst, data, fault, self.directory)
+        except Exception as exc:  # a failed dump must not take the wall clock down with it
+            why = f"flight recorder: dump to {self.directory} failed: {type(exc).__name__}: {exc}"
+            log.error("%s", why)
+            h["dump_message"] = _fit(why)
+            return None
+        log.info("flight recorder: %s", path)
+        h["dump_path"] = str(path).encode()[: layout.FLIGHT_PATH_BYTES - 1]
+        h["dump_tick"] = fault.tick
+        h["dumps"] = int(h["dumps"]) + 1
+        span = f"ticks {int(data['tick'][0])}..{int(data['tick'][-1])}" if len(data) else "empty"
+        h["dump_message"] = _fit(
+            f"{len(data)} servo ticks ({span}) in {1000 * (time.monotonic() - t0):.0f} ms"
+        )
+        return path
+
+    def _wait_sio_idle(self) -> bool:
+        """Wait (bounded) until SIO has acknowledged the last tick it was signalled, or is no
+        longer cycling; True if it is idle (between rows)."""
+        i = self.inst.find_slot(self._sio)
+        if i < 0:
+            return True
+        p = self.inst.procs
+        deadline = time.monotonic() + SIO_IDLE_TIMEOUT_S
+        while True:
+            if int(p["ack_tick"][i]) >= int(p["signal_tick"][i]):
+                return True
+            if not pid_alive(int(p["pid"][i])):
+                return False  # killed, perhaps in the middle of a row
+            if int(p["state"][i]) != ProcState.ACTIVE:
+                return True  # its cycle raised or it left: not inside ``record``
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.001)
+
+
+def _fit(text: str) -> bytes:
+    return text.encode()[: layout.MESSAGE_BYTES - 1]
+
+
+def dump_name(instance: str, fault: FaultInfo) -> str:
+    """``flight-<instance>-<YYYYmmdd-HHMMSS>-tick<T>.npz``: sorts by time, names the tick."""
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(fault.time_ns / 1e9))
+    return f"flight-{instance}-{stamp}-tick{fault.tick}.npz"
+
+
+def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Path) -> Path:
+    """Write ``data`` (ring rows, oldest first) and the fault to a new file; its path.
+
+    Arrays per field, shaped (ticks, robots, 6); the fault and the robot and joint names as
+    plain strings, so ``np.load`` needs no pickle.  Written under a temporary name and
+    renamed, so a reader never sees half a file; an existing file is never overwritten.
+    """
+    cfg = inst.config
+    names = [r.name for r in cfg.robots]
+    nr = len(names)
+    robots = inst.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, nr)
+    arrays: dict[str, np.ndarray] = {
+        "format": np.array(FORMAT_VERSION),
+        "instance": np.array(inst.name),
+        "robots": np.array(names),
+        "joints": np.array([f"joint {j + 1}" for j in range(6)]),
+        "servo_period_ns": np.array(ms_to_ns(cfg.clock.servo_period_ms)),
+        "base_tick_ns": np.array(int(inst.clock["base_tick_ns"])),
+        "fault_code": np.array(fault.code),
+        "fault_process": np.array(fault.process),
+        "fault_tick": np.array(fault.tick),
+        "fault_message": np.array(fault.message),
+        "fault_time_ns": np.array(fault.time_ns),
+        "safe": np.array(robots["safe"]),
+        "current_limit": np.tile(puma560.MAX_CURRENT, (nr, 1)),
+        "rad_per_count": np.tile(
+            2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G)), (nr, 1)
+        ),
+    }
+    for f in ("tick", "t_ns", "latency_ns", "late_ns"):
+        arrays[f] = np.ascontiguousarray(data[f])
+    for f in layout.FLIGHT_FIELDS:
+        arrays[f] = np.ascontiguousarray(data[f]).reshape(len(data), nr, 6)
+    directory.mkdir(parents=True, exist_ok=True)
+    base = dump_name(inst.name, fault)
+    path = directory / base
+    k = 1
+    while path.exists():
+        k += 1
+        path = directory / base.replace(".npz", f"-{k}.npz")
+    part = path.with_name(path.name + ".part")
+    with open(part, "xb") as out:
+        np.savez(out, **arrays)
+    os.replace(part, path)
+    return path
+
+
+def latest_dump(directory: Path, instance: str) -> Path | None:
+    """The newest dump of ``instance`` in ``directory``, or None."""
+    files = [p for p in directory.glob(f"flight-{instance}-*.npz") if p.is_file()]
+    return max(files, key=lambda p: p.stat().st_mtime_ns) if files else None
+
+
+def find_latest(instance: str, wait_s: float = 5.0) -> Path:
+    """The latest dump of ``instance``: the one its arena names (waiting up to ``wait_s`` for
+    a halt that is still being dumped), else the newest in its log directory."""
+    try:
+        inst = Instance.attach(instance)
+    except KaliError:
+        inst = None
+    if inst is not None:
+        with inst:
+            dumper = FlightDumper(inst)
+            deadline = time.monotonic() + wait_s
+            while dumper.pending() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            named = decode(dumper.header["dump_path"]) if dumper.header is not None else ""
+            dumper.close()
+            if named:
+                return Path(named)
+    directory = log_dir(instance)
+    found = latest_dump(directory, instance)
+    if found is None:
+        raise InstanceError(
+            f"flight recorder: no dump of instance '{instance}' in {directory} (one is written "
+            f"at every halt; name a file, or set $KALI_LOG_DIR as it was at kalictl start)"
+        )
+    return found
+
+
+def load(path: Path) -> dict[str, np.ndarray]:
+    """A dump file's arrays (no pickle); InstanceError if it is not a readable dump."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as exc:
+        raise InstanceError(f"flight recorder: cannot read {path}: {exc}") from None
+    missing = [k for k in ("format", "tick", "q", "fault_code") if k not in d]
+    if missing:
+        raise InstanceError(
+            f"flight recorder: {path} is not a flight-recorder dump (no {', '.join(missing)})"
+        )
+    if int(d["format"]) != FORMAT_VERSION:
+        raise InstanceError(
+            f"flight recorder: {path} has format {int(d['format'])}, this Kali reads "
+            f"{FORMAT_VERSION}"
+        )
+    return d
+
+
+def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
+    """Lines for ``kalictl flight``: the fault, the ticks covered, each robot's worst tracking
+    error, torque and current over the whole window, and tick by tick up to the fault."""
+    ticks = d["tick"]
+    fault_tick = int(d["fault_tick"])
+    period_ms = int(d["servo_period_ns"]) / 1e6
+    lines = [f"fault: {d['fault_code']} in {d['fault_process']} at tick {fault_tick}: "]
+    lines[0] += str(d["fault_message"])
+    if len(ticks) == 0:
+        return [*lines, "the ring is empty: SIO had not run a tick"]
+    lat_us = d["latency_ns"] / 1e3
+    late_us = d["late_ns"] / 1e3
+    lines += [
+        f"covers ticks {int(ticks[0])}..{int(ticks[-1])}: {len(ticks)} servo ticks, "
+        f"{len(ticks) * period_ms / 1000:.3f} s at {period_ms:g} ms",
+        f"SIO sensor-to-DAC p50 {np.median(lat_us):.0f} µs, max {lat_us.max():.0f} µs; "
+        f"wake-up lateness p50 {np.median(late_us):.0f} µs, max {late_us.max():.0f} µs",
+    ]
+    err = (d["demand"] - d["q"]) / d["rad_per_count"]  # (ticks, robots, 6) encoder counts
+    torque, current = d["torque"], d["current"]
+    load_pct = 100 * np.abs(current) / d["current_limit"]
+    names = [str(n) for n in d["robots"]]
+
+    def worst(a: np.ndarray) -> tuple[float, int, int]:
+        """Signed value, row and joint of the largest |a| in (ticks, 6); the latest of ties."""
+        flat = np.abs(a[::-1]).reshape(-1)
+        row, j = np.unravel_index(int(np.argmax(flat)), a.shape)
+        row = a.shape[0] - 1 - int(row)
+        return float(a[row, j]), row, int(j)
+
+    lines.append("worst over the window per robot (joint, tick):")
+    for k, name in enumerate(names):
+        e, er, ej = worst(err[:, k])
+        t, tr, tj = worst(torque[:, k])
+        c, cr, cj = worst(load_pct[:, k])
+        lines.append(
+            f"  {name:<8} error {e:+.1f} counts (j{ej + 1}, {int(ticks[er])})  "
+            f"torque {t:+.2f} N·m (j{tj + 1}, {int(ticks[tr])})  "
+            f"current {c:.0f} % of limit (j{cj + 1}, {int(ticks[cr])})"
+        )
+    end = int(np.searchsorted(ticks, fault_tick, side="right"))  # rows up to the fault
+    first = max(0, end - last)
+    shown = range(first, len(ticks))
+    lines.append(
+        f"ticks {int(ticks[first])}..{int(ticks[-1])}, worst joint per robot: "
+        "tracking error (counts), torque (N·m), current (A)"
+    )
+    lines.append(
+        f"  {'tick':>9} {'late µs':>7} {'lat µs':>6}  "
+        + "  ".join(f"{name:<30}" for name in names).rstrip()
+    )
+    for row in shown:
+        cells = []
+        for k in range(len(names)):
+            e, _, ej = worst(err[row : row + 1, k])
+            t, _, tj = worst(torque[row : row + 1, k])
+            c, _, cj = worst(current[row : row + 1, k])
+            cells.append(f"{e:+7.1f} j{ej + 1} {t:+7.2f} j{tj + 1} {c:+6.2f} j{cj + 1}")
+        tick = int(ticks[row])
+        mark = "  <- fault" if tick == fault_tick else ("  (after)" if tick > fault_tick else "")
+        lines.append(
+            f"  {tick:>9} {late_us[row]:>7.0f} {lat_us[row]:>6.0f}  " + "  ".join(cells) + mark
+        )
+    return lines

@@ -1,0 +1,290 @@
+"""Everything an instance shows about itself, gathered once as plain data (DESIGN 8).
+
+``snapshot`` is what ``kalictl status --json`` prints and what ``kalictl top`` draws: the
+clock, the fault, every process's timing, every robot's state, the servo level's latencies,
+the TG's requests, the recent missed deadlines, and the flight recorder's last dump.  Like
+``halcmd show``, it only reads the arena (Type 4 records, no locks taken but the fault's and
+the directory's), so it can run beside a working instance at any time, and it reads the
+records directly rather than through ``ServoLevel``, so it works before SIO has laid them
+out, and without loading servo plugins.
+
+Units are in the keys (``_rad``, ``_nm``, ``_a``, ``_us``, ``_ms``); values are plain JSON
+types, a quantity with no value yet (a percentile of an empty histogram) is ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from . import launcher, layout, puma560
+from .instance import Instance, decode
+from .layout import CalibState, FaultCode, FfMode, FfState, PowerState, RequestState, RunMode
+from .wallclock.clock import time_ms
+
+RAD_PER_COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # per joint
+FF_SCALARS = ("weight", "stale_ticks", "stale_events", "heartbeat_tick", "rows_written")
+
+
+def plain(x: Any) -> Any:
+    """``x`` with numpy scalars and arrays as Python ones and NaN or ±inf as None."""
+    if isinstance(x, dict):
+        return {k: plain(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return plain(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def percentiles_us(hist: np.ndarray, qs: tuple[float, ...] = (0.5, 0.99, 0.999)) -> list[float]:
+    """Quantiles of a lateness-binned histogram in µs (NaN when it is empty)."""
+    return [launcher.percentile(hist, q) for q in qs]
+
+
+class Introspector:
+    """Views of one attached instance, taken once and reused by every ``snapshot``.
+
+    Records that do not exist yet (SIO, the TG or the dynamics process not configured) are
+    looked up again at the next snapshot.
+    """
+
+    def __init__(self, inst: Instance) -> None:
+        self.inst = inst
+        cfg = inst.config
+        self.names = [r.name for r in cfg.robots]
+        self.sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
+        self._views: dict[str, np.ndarray] = {}
+
+    def _view(self, key: str, dtype: np.dtype, count: int | None = None) -> np.ndarray | None:
+        v = self._views.get(key)
+        if v is None:
+            found = self.inst.arena.lookup(key)
+            if found is None or found[1] < (count or 1) * dtype.itemsize:
+                return None
+            v = self._views[key] = self.inst.arena.existing(key, dtype, count)
+        return v
+
+    def close(self) -> None:
+        """Drop the views (they pin the arena's buffer); safe to call twice."""
+        self._views.clear()
+
+    # ------------------------------------------------------------------ pieces
+
+    def histograms(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Copies of every slot's wake-up lateness histogram and of SIO's latency histogram,
+        for statistics over an interval (``kalictl top``)."""
+        ctrl = self._view(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+        lat = None if ctrl is None else np.array(ctrl["latency_hist"], dtype=np.int64)
+        return np.array(self.inst.procs["hist"], dtype=np.int64), lat
+
+    def _clock(self) -> dict[str, Any]:
+        c = self.inst.clock
+        return {
+            "mode": RunMode(int(c["mode"])).name.lower(),
+            "tick": int(c["tick"]),
+            "time_ms": time_ms(c),
+            "base_tick_ms": int(c["base_tick_ns"]) / 1e6,
+            "overruns": int(c["overruns"]),
+            "skipped_ticks": int(c["skipped_ticks"]),
+        }
+
+    def _fault(self) -> dict[str, Any]:
+        f = self.inst.fault
+        return {
+            "active": bool(f["active"]),
+            "code": FaultCode(int(f["code"])).name,
+            "process": decode(f["process"]),
+            "pid": int(f["pid"]),
+            "tick": int(f["tick"]),
+            "time_ns": int(f["time_ns"]),
+            "message": decode(f["message"]),
+            "count": int(f["count"]),
+            "text": self.inst.fault_text(last=True),
+        }
+
+    def _processes(self) -> list[dict[str, Any]]:
+        rows = launcher.describe(self.inst)
+        for r in rows:
+            p = self.inst.procs[int(r["slot"])]  # type: ignore[call-overload]
+            hist = np.array(p["hist"], dtype=np.int64)
+            r["late_p999_us"] = launcher.percentile(hist, 0.999)
+            r["max_consecutive_misses"] = int(p["max_consecutive_misses"])
+            r["ack_tick"] = int(p["ack_tick"])
+        return rows
+
+    def _robots(self) -> list[dict[str, Any]] | None:
+        nr = len(self.names)
+        rs = self._view(layout.KEY_ROBOTS, layout.ROBOT_STATE, nr)
+        if rs is None:
+            return None
+        ff = self._view(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, nr)
+        out = []
+        for k, name in enumerate(self.names):
+            r = rs[k].copy()  # one consistent-enough copy of a Type 4 record
+            err = r["demand"] - r["q"]
+            out.append(
+                {
+                    "name": name,
+                    "tick": int(r["tick"]),
+                    "power": PowerState(int(r["power"])).name,
+                    "calibrated": bool(r["calibrated"]),
+                    "calibration": CalibState(int(r["calib_state"])).name,
+                    "pots_read": bool(r["pots_read"]),
+                    "q_rad": r["q"],
+                    "qd_rad_s": r["qd"],
+                    "demand_rad": r["demand"],
+                    "error_rad": err,
+                    "error_counts": err / RAD_PER_COUNT,
+                    "safe_rad": r["safe"],
+                    "servo_torque_nm": r["servo_torque"],
+                    "ff_torque_nm": r["ff_torque"],
+                    "torque_nm": r["torque"],
+                    "current_a": r["current"],
+                    "current_limit_a": puma560.MAX_CURRENT,
+                    "message": decode(r["message"]),
+                    "feedforward": None if ff is None else self._ff(ff[k]),
+                }
+            )
+        return out
+
+    @staticmethod
+    def _ff(rec: np.void) -> dict[str, Any]:
+        names = rec.dtype.names or ()
+        out: dict[str, Any] = {
+            "mode": FfMode(int(rec["mode"])).name if "mode" in names else None,
+            "state": FfState(int(rec["state"])).name if "state" in names else None,
+        }
+        for f in FF_SCALARS:
+            if f in names:
+                out[f] = rec[f].item()
+        return out
+
+    def _servo(self) -> dict[str, Any] | None:
+        ctrl = self._view(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+        if ctrl is None:
+            return None
+        hist = np.array(ctrl["latency_hist"], dtype=np.int64)
+        p50, p99, p999 = percentiles_us(hist)
+        sv = []
+        for k, name in enumerate(self.sv_names):
+            h = np.array(ctrl["sv_exec_hist"][k], dtype=np.int64)
+            e50, e99, _ = percentiles_us(h)
+            sv.append(
+                {
+                    "name": name,
+                    "servos": int(ctrl["sv_servos"][k]),
+                    "exec_last_us": int(ctrl["sv_exec_last_ns"][k]) / 1e3,
+                    "exec_max_us": int(ctrl["sv_exec_max_ns"][k]) / 1e3,
+                    "exec_p50_us": e50,
+                    "exec_p99_us": e99,
+                }
+            )
+        return {
+            "ready": bool(ctrl["ready"]),
+            "tick": int(ctrl["tick"]),
+            "fed": int(ctrl["fed"]),
+            "latency_us": {
+                "last": int(ctrl["latency_last_ns"]) / 1e3,
+                "max": int(ctrl["latency_max_ns"]) / 1e3,
+                "p50": p50,
+                "p99": p99,
+                "p999": p999,
+                "ticks": int(hist.sum()),
+            },
+            "sv": sv,
+        }
+
+    def _tg(self) -> dict[str, Any] | None:
+        nr = len(self.names)
+        tg = self._view(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, nr)
+        if tg is None:
+            return None
+        status = self._view(layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING)
+        queue = self._view(layout.KEY_MOTION_QUEUE, layout.QUEUE_HEADER)
+        robots = []
+        for k, name in enumerate(self.names):
+            seq = int(tg["busy_seq"][k])
+            entry: dict[str, Any] = {"robot": name, "busy_seq": seq, "tick": int(tg["tick"][k])}
+            if seq and status is not None:
+                s = status[seq % layout.STATUS_RING]
+                if int(s["seq"]) == seq:
+                    entry["state"] = RequestState(int(s["state"])).name
+                    entry["progress"] = float(s["progress"])
+                    entry["duration_s"] = float(s["duration_s"])
+            robots.append(entry)
+        queued = None if queue is None else int(queue["tail"]) - int(queue["head"])
+        return {"queued": queued, "robots": robots}
+
+    def _misses(self) -> dict[str, Any]:
+        return {
+            "total": int(self.inst.misses["count"]),
+            "recent": launcher.recent_misses(self.inst, 5),
+        }
+
+    def flight(self) -> dict[str, Any] | None:
+        """The flight recorder: its ring, and its last dump (None before SIO laid it out)."""
+        h = self._view(layout.KEY_FLIGHT, layout.FLIGHT)
+        if h is None or int(h["rows"]) == 0:
+            return None
+        path = decode(h["dump_path"])
+        pending = int(self.inst.fault["time_ns"]) not in (0, int(h["dumped_fault_ns"]))
+        return {
+            "rows": int(h["rows"]),
+            "seconds": int(h["rows"]) * int(h["servo_period_ns"]) / 1e9,
+            "recorded": int(h["count"]),
+            "dumps": int(h["dumps"]),
+            "last_dump": path or None,
+            "last_dump_tick": int(h["dump_tick"]) if path else None,
+            "message": decode(h["dump_message"]),
+            "pending": pending,
+        }
+
+    def _arena(self) -> dict[str, Any]:
+        s = self.inst.arena.stats()
+        return {
+            "bytes": self.inst.arena.size,
+            "used_bytes": s.used_bytes,
+            "free_bytes": s.free_bytes,
+            "largest_free_bytes": s.largest_free,
+        }
+
+    # ------------------------------------------------------------------ all of it
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything ``kalictl status`` shows and more, as one JSON-ready document."""
+        inst = self.inst
+        return plain(
+            {
+                "instance": inst.name,
+                "mode": "lockstep" if inst.lockstep else "real time",
+                "layout_version": int(inst.arena.header["layout_version"]),
+                "time_ns": time.time_ns(),
+                "monotonic_ns": time.monotonic_ns(),
+                "clock": self._clock(),
+                "fault": self._fault(),
+                "processes": self._processes(),
+                "robots": self._robots(),
+                "servo": self._servo(),
+                "tg": self._tg(),
+                "misses": self._misses(),
+                "flight": self.flight(),
+                "arena": self._arena(),
+            }
+        )
+
+
+def snapshot(inst: Instance) -> dict[str, Any]:
+    """One snapshot of ``inst`` (``kalictl status --json``)."""
+    spy = Introspector(inst)
+    try:
+        return spy.snapshot()
+    finally:
+        spy.close()

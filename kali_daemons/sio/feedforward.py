@@ -1,0 +1,140 @@
+"""Feed-forward as SIO applies it (thesis 3.3.6: "the SIO reads the compensation torque and
+adds it to the amplifier torque demand automatically").
+
+The dynamics process writes one row per set-point of a robot's TG → SIO FIFO, keyed by the
+set-point's FIFO index (``layout.FEEDFORWARD``, ``dynamics/daemon.py``).  Each servo tick
+SIO takes the rows of the segment it is interpolating, A = set-point b − 1 and B = set-point
+b, and interpolates them by the same fraction as the demand, so the torque belongs to the
+position being demanded.
+
+Stale feed-forward is dropped, never applied: when the dynamics process's heartbeat is older
+than ``feedforward.stale_ms``, or the rows SIO needs have been missing that long, the robot's
+state turns STALE, its rows are no longer used and the last good torque fades out.  Switching
+feed-forward on or off fades it in or out the same way, over ``feedforward.ramp_ms``, so the
+servos see no torque step.  A row missing for less than that (the newest set-point's row is
+written once its successor exists) is covered by its neighbour's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import layout
+from ..channels import InterpolatingFifo
+from ..layout import FfMode, FfState
+
+
+class RobotFeedforward:
+    """Robot ``k``'s feed-forward, written into ``out`` (its six entries of SIO's torques)
+    once per servo tick by ``update``; no allocation in the cycle."""
+
+    __slots__ = (
+        "_a",
+        "_b",
+        "_events",
+        "_heartbeat",
+        "_keys",
+        "_last",
+        "_mode",
+        "_stale_count",
+        "_state",
+        "_tau",
+        "_weight_rec",
+        "fifo",
+        "heartbeat_limit",
+        "missing",
+        "missing_limit",
+        "out",
+        "stale",
+        "step",
+        "weight",
+    )
+
+    def __init__(
+        self,
+        records: np.ndarray,
+        k: int,
+        fifo: InterpolatingFifo,
+        out: np.ndarray,
+        heartbeat_limit: int,
+        missing_limit: int,
+        step: float,
+    ) -> None:
+        """``heartbeat_limit`` in wall-clock ticks and ``missing_limit`` in servo ticks are
+        the staleness limits; ``step`` is how much the weight moves per servo tick."""
+
+        def one(field: str) -> np.ndarray:
+            return records[k : k + 1][field].reshape(())
+
+        self._mode, self._state = one("mode"), one("state")
+        self._heartbeat = one("heartbeat_tick")
+        self._stale_count, self._events = one("stale_ticks"), one("stale_events")
+        self._weight_rec = one("weight")
+        self._keys = records["key"][k]
+        self._tau = records["tau"][k]
+        self.fifo = fifo
+        self.out = out
+        self.heartbeat_limit = heartbeat_limit
+        self.missing_limit = missing_limit
+        self.step = step
+        self.weight = float(self._weight_rec)
+        self.missing = 0
+        self.stale = int(self._state) == FfState.STALE
+        self._last = np.zeros(6)  # the last good interpolated torque
+        self._a = np.zeros(6)
+        self._b = np.zeros(6)
+
+    def _row(self, key: int, out: np.ndarray) -> bool:
+        """Copy the row of ``key`` into ``out``; False if it is not there (or changed while
+        being copied: the dynamics process sets its key to FF_NO_KEY while writing)."""
+        if key < 0:
+            return False
+        row = key % layout.FF_ROWS
+        if self._keys[row] != key:
+            return False
+        np.copyto(out, self._tau[row])
+        return self._keys[row] == key
+
+    def update(self, tick: int) -> None:
+        """This tick's feed-forward into ``out`` (inside SIO's cycle)."""
+        mode = int(self._mode)
+        if mode == FfMode.OFF and self.weight == 0.0:
+            if self.stale or int(self._state) != FfState.OFF:
+                self.stale = False
+                self._state[...] = FfState.OFF
+                self.out.fill(0.0)
+            return
+        good = False
+        if mode != FfMode.OFF and tick - int(self._heartbeat) <= self.heartbeat_limit:
+            key_b = self.fifo.target_index() + 1
+            has_b = self._row(key_b, self._b)
+            has_a = self._row(key_b - 1, self._a)
+            if has_a and has_b:  # last = A + (B − A)·progress, as the demand
+                np.subtract(self._b, self._a, out=self._last)
+                np.multiply(self._last, self.fifo.progress(), out=self._last)
+                np.add(self._last, self._a, out=self._last)
+            elif has_b:
+                np.copyto(self._last, self._b)
+            elif has_a:
+                np.copyto(self._last, self._a)
+            good = has_a or has_b
+            self.missing = 0 if good else self.missing + 1
+            stale = not good and self.missing > self.missing_limit
+        else:
+            stale = mode != FfMode.OFF  # the dynamics process is silent
+        if stale:
+            if not self.stale:
+                self._events[...] = int(self._events) + 1
+            self._stale_count[...] = int(self._stale_count) + 1
+        self.stale = stale
+        want = 1.0 if mode != FfMode.OFF and not stale else 0.0
+        if self.weight < want:
+            self.weight = min(want, self.weight + self.step)
+        elif self.weight > want:
+            self.weight = max(want, self.weight - self.step)
+        self._weight_rec[...] = self.weight
+        np.multiply(self._last, self.weight, out=self.out)
+        if stale:
+            self._state[...] = FfState.STALE
+        else:
+            self._state[...] = FfState.ON if mode != FfMode.OFF else FfState.OFF

@@ -1,0 +1,193 @@
+"""Feed-forward dynamics (issue 6, thesis 3.3.6 and 2.2.3): the torques against
+robotics-toolbox-python, tracking of the standard jtraj move with feed-forward off and on,
+and SIO dropping stale feed-forward.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+import roboticstoolbox as rtb
+
+from kali_daemons import layout, puma560
+from kali_daemons.client import Kali
+from kali_daemons.dynamics.inverse import InverseDynamics, central_differences
+from kali_daemons.instance import Instance
+from kali_daemons.layout import FfMode, FfState, PowerState
+from kali_daemons.servolevel import ServoClient
+from kali_daemons.wallclock import step_kali_clock
+
+from .test_launcher import kalictl
+
+# The issue's move is jtraj qz → qn in 1.5 s.  That needs 3.93 rad/s on joint 3, and the
+# PUMA 560's joint-3 motor reaches 2.85 rad/s on the 40 V bus (puma560.MAX_JOINT_SPEED): the
+# amplifier saturates and SIO halts on CURRENT, feed-forward on or off.  2.5 s (peak
+# 2.36 rad/s) is the same standard move at a speed this arm has.
+MOVE_S = 2.5
+SAMPLE_TICKS = 5  # tracking error sampled every 5 servo ticks
+
+
+def ff_records(inst: Instance) -> np.ndarray:
+    return inst.arena.existing(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, 2)
+
+
+def test_full_torques_match_the_toolbox_rne() -> None:
+    """M q̈ + C q̇ + g + rotor inertia + motor friction, against rtb's rne with its friction."""
+    puma = rtb.models.DH.Puma560()
+    inverse = InverseDynamics()
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        q = rng.uniform(puma560.Q_MIN, puma560.Q_MAX)
+        qd = rng.uniform(0.5, 2.0, 6) * rng.choice([-1.0, 1.0], 6)  # tanh(|G| q̇ / ω₀) ≈ 1
+        qdd = rng.uniform(-5.0, 5.0, 6)
+        ours = inverse.torque(FfMode.FULL, q, qd, qdd, np.zeros(6)).copy()
+        np.testing.assert_allclose(ours, puma.rne(q, qd, qdd), atol=0.05, rtol=1e-3)
+        gravity = inverse.torque(FfMode.GRAVITY, q, qd, qdd, np.zeros(6))
+        np.testing.assert_allclose(gravity, puma.gravload(q), atol=1e-6)
+    kv = np.array([250.0, 330.0, 75.0, 16.0, 14.0, 16.0])
+    with_kv = inverse.torque(FfMode.FULL, q, qd, qdd, kv).copy()
+    np.testing.assert_allclose(with_kv - ours, kv * qd, atol=1e-9)
+
+
+def test_central_differences_are_exact_for_a_parabola_over_unequal_segments() -> None:
+    a, b, c = np.arange(6.0), np.linspace(-1, 1, 6), np.full(6, 0.7)
+
+    def q(t: float) -> np.ndarray:
+        return a + b * t + 0.5 * c * t * t
+
+    qd, qdd, scratch = np.zeros(6), np.zeros(6), np.zeros(6)
+    central_differences(q(0.3), q(0.32), q(0.345), 0.02, 0.025, qd, qdd, scratch)
+    np.testing.assert_allclose(qd, b + c * 0.32, atol=1e-9)
+    np.testing.assert_allclose(qdd, c, atol=1e-7)
+
+
+def _run(inst: Instance, client: ServoClient, traj: np.ndarray) -> np.ndarray:
+    """Push ``traj`` (TG-rate set-points) into left's FIFO as the commanded path, step the
+    clock through it and return the tracking error (demand − q) every SAMPLE_TICKS."""
+    r = client.level.robots
+    fifo = client.level.fifo(0)
+    ratio = int(fifo.ratio)
+    for row in traj[1:]:
+        fifo.push(row)
+    errors = []
+    for k in range(1, (len(traj) - 1) * ratio // SAMPLE_TICKS + 1):
+        step_kali_clock(inst, SAMPLE_TICKS)
+        errors.append(r["demand"][0] - r["q"][0])
+        if k * SAMPLE_TICKS % ratio == 0:  # a set-point instant: the demand is the path's
+            np.testing.assert_array_equal(r["demand"][0], traj[k * SAMPLE_TICKS // ratio])
+    step_kali_clock(inst, 300)  # the arm comes to rest
+    assert inst.fault_text() is None
+    return np.array(errors)
+
+
+def test_full_feedforward_lowers_the_tracking_error_of_the_standard_jtraj_move(
+    kali: Callable[..., str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst, Kali(name) as program:
+        client = ServoClient(inst)
+        step_kali_clock(inst, 30)
+        client.power("left", True)
+        step_kali_clock(inst, 300)
+        assert client.power_state("left") == PowerState.ON
+        home = program.robot("left").move_joints(np.zeros(6), speed=0.5, wait=False)
+        while not home.done:
+            step_kali_clock(inst, 50)
+        step_kali_clock(inst, 1000)
+        puma = rtb.models.DH.Puma560()
+        period_s = inst.config.clock.tg_period_ms / 1000.0
+        t = np.linspace(0.0, MOVE_S, round(MOVE_S / period_s) + 1)
+        q0 = client.level.robots["demand"][0].copy()  # qz as this arm measures it
+        there = rtb.jtraj(puma.qz, puma.qn, t).q + q0
+        back = there[::-1].copy()
+        rms = {}
+        for mode in ("off", "on"):
+            r = kalictl("-i", name, "ff", mode, "left")
+            assert r.returncode == 0, r.stderr
+            step_kali_clock(inst, 1000)  # faded in (ramp_ms 200) and settled
+            want = FfState.ON if mode == "on" else FfState.OFF
+            assert FfState(int(ff_records(inst)["state"][0])) == want
+            rms[mode] = np.sqrt((_run(inst, client, there) ** 2).mean(axis=0))
+            _run(inst, client, back)
+        rows = ff_records(inst)["rows_written"][0]
+        client.close()
+    off, on = np.degrees(rms["off"]), np.degrees(rms["on"])
+    with capsys.disabled():
+        print(f"\njtraj qz → qn in {MOVE_S:g} s, RMS tracking error (deg), left arm:")
+        print("joint          " + "".join(f"{j:>9}" for j in range(1, 7)))
+        print("ff off         " + "".join(f"{v:9.4f}" for v in off))
+        print("ff on (full)   " + "".join(f"{v:9.4f}" for v in on))
+        print(f"all joints: {np.sqrt((off**2).mean()):.4f}° off, {np.sqrt((on**2).mean()):.4f}° on")
+    assert rows > 2 * len(there)
+    for j in (1, 2, 4):  # the joints that move
+        assert on[j] < 0.2 * off[j], f"joint {j + 1}: {on[j]:.4f}° on against {off[j]:.4f}° off"
+    assert np.sqrt((on**2).mean()) < 0.1 * np.sqrt((off**2).mean())
+
+
+def _wait(what: str, cond: Callable[[], bool], timeout_s: float) -> float:
+    """Seconds until ``cond`` holds; fails naming ``what`` after ``timeout_s``."""
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout_s, f"not within {timeout_s} s: {what}"
+        time.sleep(0.005)
+    return time.monotonic() - t0
+
+
+def test_stale_feedforward_is_dropped_and_comes_back(kali: Callable[..., str]) -> None:
+    """Real time: the dynamics process stopped (SIGSTOP) → STALE within feedforward.stale_ms,
+    its torque faded out within ramp_ms, no halt; continued (SIGCONT) → ON again."""
+    name = kali(lockstep=False, edits={r"^(  - \{name: left.*)\}$": r"\1, ff: gravity}"})
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        _stop_and_continue_dynamics(inst, client)
+        client.close()
+
+
+def _stop_and_continue_dynamics(inst: Instance, client: ServoClient) -> None:
+    ffc = inst.config.feedforward
+    rec = ff_records(inst)
+    r = client.level.robots
+    client.power("left", True)
+    _wait("left powered", lambda: client.power_state("left") == PowerState.ON, 5.0)
+    _wait("feed-forward on", lambda: float(rec["weight"][0]) == 1.0, 5.0)
+    assert FfMode(int(rec["mode"][0])) == FfMode.GRAVITY
+    assert FfState(int(rec["state"][0])) == FfState.ON
+    gravity = r["ff_torque"][0].copy()
+    assert abs(gravity[1]) > 5.0, f"joint 2 gravity feed-forward {gravity[1]:.2f} N·m"
+    pid = int(inst.procs[inst.find_slot("dynamics")]["pid"])
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        went = _wait(
+            "STALE", lambda: int(rec["state"][0]) == FfState.STALE, 2.0 + ffc.stale_ms / 1e3
+        )
+        _wait("faded out", lambda: not r["ff_torque"][0].any(), 2.0 + ffc.ramp_ms / 1e3)
+        assert int(rec["stale_events"][0]) == 1
+        assert client.power_state("left") == PowerState.ON
+        assert inst.fault_text() is None
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    _wait("back on", lambda: int(rec["state"][0]) == FfState.ON, 2.0)
+    _wait("faded in", lambda: float(rec["weight"][0]) == 1.0, 2.0 + ffc.ramp_ms / 1e3)
+    np.testing.assert_allclose(r["ff_torque"][0], gravity, atol=0.5)
+    assert int(rec["stale_events"][0]) == 1
+    assert inst.fault_text() is None
+    assert went < 1.0 + ffc.stale_ms / 1e3
+
+
+def test_kalictl_ff_names_the_modes_and_robots(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "ff", "gravity", "right")
+    assert r.returncode == 0 and "feed-forward gravity: right" in r.stdout, r.stderr
+    r = kalictl("-i", name, "ff", "on")
+    assert r.returncode == 0 and "feed-forward full: left, right" in r.stdout, r.stderr
+    r = kalictl("-i", name, "ff", "loud", "left")
+    assert r.returncode != 0 and "loud" in r.stderr
+    r = kalictl("-i", name, "ff", "off", "middle")
+    assert r.returncode != 0 and "middle" in r.stderr and "left, right" in r.stderr
+    with Instance.attach(name) as inst:
+        assert list(ff_records(inst)["mode"]) == [FfMode.FULL, FfMode.FULL]

@@ -1,0 +1,209 @@
+"""The flight recorder (DESIGN 7): SIO's ring of every servo tick, dumped on every halt.
+
+The ring itself is tested on a bare arena; the dump end to end on a lockstep instance: a
+runaway halts it, the wall clock writes the last two seconds to a file, ``kalictl flight``
+and ``kalictl status`` name it, and a second halt after ``kalictl reset`` gives a second file.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kali_daemons import flightrec, launcher, layout
+from kali_daemons.arena import Arena
+from kali_daemons.config import KaliConfig
+from kali_daemons.errors import ArenaFullError, InstanceError
+from kali_daemons.instance import Instance
+from kali_daemons.introspect import Introspector
+from kali_daemons.layout import FaultCode, PowerState
+from kali_daemons.servolevel import ServoClient
+from kali_daemons.wallclock import step_kali_clock
+
+from .conftest import make_config, unique_name
+from .test_launcher import kalictl
+
+ROWS = 2000  # 2 s at the default 1 ms servo period
+
+
+@dataclass
+class Shim:
+    """What FlightRecorder needs of an Instance."""
+
+    arena: Arena
+    config: KaliConfig
+    procs: np.ndarray
+
+
+def recorder(arena: Arena, n: int = 12) -> tuple[flightrec.FlightRecorder, list[np.ndarray]]:
+    procs = arena.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
+    rec = flightrec.FlightRecorder(Shim(arena, make_config("ring"), procs), n, create=True, slot=2)
+    src = [np.zeros(n) for _ in layout.FLIGHT_FIELDS]
+    rec.bind(*src)
+    return rec, src
+
+
+def write(rec: flightrec.FlightRecorder, src: list[np.ndarray], ticks: range) -> None:
+    for t in ticks:
+        for k, a in enumerate(src):
+            a[:] = t + k / 10
+        rec.record(t, 1_000 * t, 7)
+
+
+@pytest.fixture
+def arena() -> Iterator[Arena]:
+    """A fresh 2 MiB arena (the ring of 12 joints takes 1.2 MB), unlinked afterwards."""
+    name = unique_name("fr")
+    a = Arena.create(name, 2 << 20)
+    yield a
+    a.close()
+    launcher.stop(name)
+
+
+def test_the_ring_wraps_and_reads_back_oldest_first(arena: Arena) -> None:
+    rec, src = recorder(arena)
+    assert layout.flight_rows(1_000_000) == ROWS and layout.flight_rows(500_000) == 2 * ROWS
+    write(rec, src, range(10))
+    part = flightrec.read_ring(rec.header, rec.ring, writer_idle=True)
+    assert list(part["tick"]) == list(range(10))
+    write(rec, src, range(10, ROWS + 777))  # wraps: the oldest 777 rows are gone
+    data = flightrec.read_ring(rec.header, rec.ring, writer_idle=True)
+    assert len(data) == ROWS and int(rec.header["count"]) == ROWS + 777
+    assert (np.diff(data["tick"]) == 1).all() and data["tick"][-1] == ROWS + 776
+    for k, f in enumerate(layout.FLIGHT_FIELDS):
+        assert np.array_equal(data[f][:, 3], data["tick"] + k / 10), f
+    assert (data["t_ns"] == 1_000 * data["tick"]).all() and (data["latency_ns"] == 7).all()
+    # a writer that may be inside a row: the row it may be overwriting is left out
+    assert len(flightrec.read_ring(rec.header, rec.ring)) == ROWS - 1
+    # a restarted SIO attaches to the same ring and carries on counting
+    again, src2 = recorder(arena)
+    write(again, src2, range(ROWS + 777, ROWS + 780))
+    data = flightrec.read_ring(again.header, again.ring, writer_idle=True)
+    assert data["tick"][-1] == ROWS + 779 and (np.diff(data["tick"]) == 1).all()
+    del rec, again, data, part
+
+
+def test_a_ring_too_big_for_the_arena_says_what_to_change() -> None:
+    name = unique_name("fr")
+    a = Arena.create(name, 256 * 1024)
+    try:
+        procs = a.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
+        with pytest.raises(ArenaFullError, match=r"flight recorder: 2 s of 24 joints .* arena_kib"):
+            flightrec.FlightRecorder(Shim(a, make_config(name), procs), 24, create=True)
+        del procs
+    finally:
+        a.close()
+        launcher.stop(name)
+
+
+def wait_dumps(inst: Instance, n: int, timeout: float = 10.0) -> dict:
+    """The flight recorder's state once it has written ``n`` dumps."""
+    spy = Introspector(inst)
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            fl = spy.flight()
+            if fl is not None and fl["dumps"] >= n and not fl["pending"]:
+                return fl
+            assert time.monotonic() < deadline, f"no dump {n} within {timeout} s: {fl}"
+            time.sleep(0.01)
+    finally:
+        spy.close()
+
+
+def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_path: Path) -> None:
+    name = kali(lockstep=True)
+    logs = tmp_path / "logs"
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            step_kali_clock(inst, 30)  # SIO reads the pots
+            for robot in client.names:
+                client.power(robot, True)
+            step_kali_clock(inst, 2300)  # more than the ring holds
+            assert client.power_state("right") == PowerState.ON
+            # a runaway: a set-point 0.05 rad away with a tolerance of 0.01 rad
+            target = client.level.robots["demand"][1].copy()
+            target[2] += 0.05
+            client.level.fifo(1).push(target)
+            client.set_safe("right", 3, 0.01)
+            step_kali_clock(inst, 20)
+            f = inst.fault
+            assert int(f["code"]) == FaultCode.RUNAWAY, inst.fault_text()
+            fault_tick = int(f["tick"])
+            fl = wait_dumps(inst, 1)
+            path = Path(fl["last_dump"])
+            assert path.parent == logs and path.name.endswith(f"-tick{fault_tick}.npz")
+            assert fl["last_dump_tick"] == fault_tick
+            d = flightrec.load(path)
+            ticks = d["tick"]
+            assert len(ticks) == ROWS and (np.diff(ticks) == 1).all()
+            assert fault_tick <= ticks[-1] <= fault_tick + 1
+            assert (np.diff(d["t_ns"]) > 0).all() and (d["latency_ns"] > 0).all()
+            assert str(d["fault_code"]) == "RUNAWAY" and str(d["fault_process"]) == "sio"
+            assert list(d["robots"]) == ["left", "right"] and d["q"].shape == (ROWS, 2, 6)
+            # the last row is what SIO published in the robot records at that tick
+            r = client.level.robots
+            row = int(np.searchsorted(ticks, int(r["tick"][1])))
+            for f_ in ("q", "demand", "torque", "current"):
+                assert np.array_equal(d[f_][row], r[f_]), f_
+            # ... and the error it halted on is the recorded demand - position
+            fault_row = int(np.searchsorted(ticks, fault_tick))
+            err = float(d["demand"][fault_row, 1, 2] - d["q"][fault_row, 1, 2])
+            assert f"tracking error {err:+.4f} rad" in str(d["fault_message"])
+            assert math.isclose(abs(err), 0.015, abs_tol=0.01)
+            # the error grew over the last ticks while the left arm held
+            assert abs(d["demand"][fault_row - 5, 1, 2] - d["q"][fault_row - 5, 1, 2]) < abs(err)
+            errors = (d["demand"] - d["q"])[:, 0] / d["rad_per_count"][0]
+            assert np.abs(errors[-500:]).max() <= 2.0
+
+            out = kalictl("-i", name, "flight")
+            assert out.returncode == 0, out.stderr
+            assert str(path) in out.stdout and f"RUNAWAY in sio at tick {fault_tick}" in out.stdout
+            assert f"covers ticks {ticks[0]}..{ticks[-1]}: {ROWS} servo ticks" in out.stdout
+            assert f"{fault_tick} " in out.stdout and "<- fault" in out.stdout
+            out = kalictl("-i", name, "status")
+            assert f"flight recorder: last dump {path}" in out.stdout
+
+            # reset, power again, and a second halt: a second file; a fault raised while one
+            # is active is counted but dumped no more
+            assert kalictl("-i", name, "reset").returncode == 0
+            client.set_safe("right", 3, 0.15)
+            for robot in client.names:
+                client.power(robot, True)
+            step_kali_clock(inst, 300)
+            assert inst.fault_text() is None
+            assert inst.raise_fault(FaultCode.OPERATOR, "test", "second halt")
+            second_tick = int(inst.fault["tick"])
+            fl = wait_dumps(inst, 2)
+            assert not inst.raise_fault(FaultCode.OPERATOR, "test", "third, while active")
+            time.sleep(0.3)
+            assert wait_dumps(inst, 2)["dumps"] == 2
+            second = Path(fl["last_dump"])
+            assert second != path and path.exists() and second.name.endswith(f"{second_tick}.npz")
+            d2 = flightrec.load(second)
+            assert str(d2["fault_code"]) == "OPERATOR"
+            # raised between ticks (the clock stopped at the next one): ends just before it
+            assert d2["tick"][-1] == second_tick - 1 and len(d2["tick"]) == ROWS
+            assert sorted(logs.glob(f"flight-{name}-*.npz")) == sorted([path, second])
+        finally:
+            client.close()
+    out = kalictl("-i", name, "flight", str(path), "--ticks", "3")
+    assert out.returncode == 0 and out.stdout.count("\n") < 20, out.stderr
+
+
+def test_flight_names_what_is_missing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path))
+    out = kalictl("-i", "nothing-here", "flight")
+    assert out.returncode == 1
+    assert f"no dump of instance 'nothing-here' in {tmp_path}" in out.stderr
+    bad = tmp_path / "x.npz"
+    np.savez(bad, a=np.zeros(2))
+    with pytest.raises(InstanceError, match="is not a flight-recorder dump"):
+        flightrec.load(bad)

@@ -1,0 +1,458 @@
+"""The viewer (issue 6, thesis 3.3.7): the live rerun dashboard.
+
+A lockstep instance records its dashboard to a file, which is read back; a headless chromium
+opens the web viewer of another and its screenshot must show the arms and the plots; a
+real-time instance keeps drawing after a halt, and its viewer dying halts nothing and leaves
+no process or port behind.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import json
+import os
+import select
+import shutil
+import signal
+import subprocess
+import time
+import urllib.parse
+from collections import Counter
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kali_daemons import launcher, layout
+from kali_daemons.config import DashboardConfig
+from kali_daemons.errors import ConfigError
+from kali_daemons.instance import Instance
+from kali_daemons.layout import FaultCode, RunMode
+from kali_daemons.servolevel import ServoClient
+from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
+from kali_daemons.wallclock import start_kali_clock, step_kali_clock
+
+from .conftest import make_config
+from .test_launcher import kalictl
+
+DASHBOARD = r"^dashboard:\n(?:  .*\n?)*"  # the section in config/default.yaml
+
+
+def dashboard(**fields: object) -> dict[str, str]:
+    """A config edit replacing the ``dashboard`` section by ``dashboard: {fields}``."""
+    text = ", ".join(f"{k}: {json.dumps(v)}" for k, v in fields.items())
+    return {DASHBOARD: f"dashboard: {{{text}}}\n"}
+
+
+@contextmanager
+def moving(name: str) -> Iterator[tuple[Instance, ServoClient]]:
+    """Attach, power both arms and send each a one-second move of two joints."""
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            step_kali_clock(inst, 30)  # SIO reads the pots
+            for robot in client.names:
+                client.power(robot, True)
+            step_kali_clock(inst, 200)
+            for k, moves in enumerate(({1: 0.5, 2: -0.4}, {0: 0.4, 4: 0.5})):
+                fifo = client.level.fifo(k)
+                start = client.level.robots["demand"][k].copy()
+                for m in range(1, 101):  # 100 TG set-points: 1 s
+                    target = start.copy()
+                    for j, delta in moves.items():
+                        target[j] += delta * m / 100
+                    fifo.push(target)
+            yield inst, client
+        finally:
+            client.close()
+
+
+# ---------------------------------------------------------------------------- configuration
+
+
+def test_dashboard_config_and_record_path(tmp_path: Path) -> None:
+    cfg = make_config("cfgonly")  # default.yaml, but the tests' instances serve no web viewer
+    assert cfg.dashboard == dataclasses.replace(DashboardConfig(), web="off")
+    assert launcher._record_path(cfg, None) == ""
+    cfg = make_config("cfgonly", dashboard(record="runs/a.rrd", web=False, connect=None))
+    assert (cfg.dashboard.record, cfg.dashboard.web, cfg.dashboard.connect) == (
+        "runs/a.rrd",
+        "off",
+        None,
+    )
+    with pytest.raises(ConfigError, match=r"dashboard.record .*/config/runs/a\.rrd: no directory"):
+        launcher._record_path(cfg, None)  # relative to the config's directory
+    assert launcher._record_path(cfg, tmp_path / "b.rrd") == str(tmp_path / "b.rrd")  # --record
+    with pytest.raises(ConfigError, match=r"--record .*: is a directory"):
+        launcher._record_path(cfg, tmp_path)
+    for fields, message in (
+        ({"web": "maybe"}, "dashboard.web = 'maybe': must be one of: auto, on, off"),
+        ({"connect": "http://x:1"}, "dashboard.connect = 'http://x:1': must be a rerun gRPC"),
+        ({"web_port": 9000, "grpc_port": 9000}, "dashboard.grpc_port = 9000: must differ"),
+        ({"web_port": 70000}, "dashboard.web_port = 70000: must be an integer >= 0"),
+        ({"record": ""}, "dashboard.record = '': must be null or a file path"),
+        ({"port": 1}, "dashboard.port: unknown key"),
+    ):
+        with pytest.raises(ConfigError, match=message):
+            make_config("cfgonly", dashboard(**fields))
+
+
+# ---------------------------------------------------------------------------- the recording
+
+
+def read_rrd(path: Path) -> tuple[Counter[str], dict[str, list[float]], dict[str, list], int]:
+    """Rows per entity, kali_time (s) of the temporal rows, TextLog texts, blueprints."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    rows: Counter[str] = Counter()
+    times: dict[str, list[float]] = {}
+    texts: dict[str, list] = {}
+    for chunk in reader.stream():
+        rows[chunk.entity_path] += chunk.num_rows
+        batch = chunk.to_record_batch()
+        if "kali_time" in chunk.timeline_names:
+            t = batch.column("kali_time").to_pylist()
+            times.setdefault(chunk.entity_path, []).extend(x.total_seconds() for x in t)
+        if "TextLog:text" in batch.schema.names:
+            texts.setdefault(chunk.entity_path, []).extend(
+                (level[0], text[0])
+                for level, text in zip(
+                    batch.column("TextLog:level").to_pylist(),
+                    batch.column("TextLog:text").to_pylist(),
+                    strict=True,
+                )
+            )
+        if chunk.entity_path == "/robots/left/q" and "Scalars:scalars" in batch.schema.names:
+            texts.setdefault("q", []).extend(batch.column("Scalars:scalars").to_pylist())
+    return rows, times, texts, len(reader.blueprints())
+
+
+def test_recording_has_the_arms_joints_timing_and_faults_at_25_hz(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    rrd = tmp_path / "run.rrd"
+    name = kali(lockstep=True, edits=dashboard(web="off", connect=None, record=str(rrd)))
+    with moving(name) as (inst, _):
+        step_kali_clock(inst, 2000)
+        d = launcher.dashboard(inst)
+        assert d is not None and d.record == str(rrd) and not d.web_url and not d.web_pid
+        assert d.frames == 2230 // 40 + 1 and d.errors == 0, d
+        inst.raise_fault(FaultCode.OPERATOR, "test", "halted by the viewer test")
+        inst.clear_fault()
+        step_kali_clock(inst, 80)
+        assert inst.fault_text() is None
+    launcher.stop(name)  # flushes the recording
+    rows, times, texts, blueprints = read_rrd(rrd)
+
+    assert blueprints == 1
+    for robot in ("left", "right"):
+        for part in ("links/boxes", "links/cylinders", "flange"):
+            assert rows[f"/world/{robot}/{part}"] > 50, (robot, part)
+        for q in ("q", "demand", "error", "torque", "ff_torque", "current"):
+            assert rows[f"/robots/{robot}/{q}"] > 50, (robot, q)
+        assert rows[f"/robots/{robot}/flange/position"] > 50
+    for entity in ("exec_us", "late_us", "misses", "sio_latency_us"):
+        assert rows[f"/timing/{entity}"] > 50, entity
+    assert rows["/world/object"] > 50 and rows["/world/stand"] == 1
+
+    # 25 frames per second of Kali time: a frame every 40 ticks of 1 ms, in lockstep exactly
+    t = np.array(sorted(times["/robots/left/q"]))
+    assert t[-1] >= 2.2
+    inside = t[(t >= 0.5) & (t < 2.5)]
+    assert 20 <= len(inside) / 2.0 <= 30, len(inside)
+    assert np.allclose(np.diff(t[t < 2.3]), 0.04)
+
+    # the left arm's joint 2 went 0.5 rad (28.6°) up, joint 3 0.4 rad down
+    q = np.array(texts["q"])
+    assert q[-1][1] - q[0][1] == pytest.approx(28.6, abs=1.0)
+    assert q[-1][2] - q[0][2] == pytest.approx(-22.9, abs=1.0)
+
+    faults = texts["/events/faults"]
+    assert ("ERROR", "OPERATOR in test at tick 2230: halted by the viewer test") in faults
+    assert ("INFO", "fault cleared") in faults
+    assert ("INFO", "left: on") in texts["/events/left"]
+    assert ("INFO", "process 'sio': ACTIVE") in texts["/events/processes"]
+
+
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # what rerun --save writes
+def test_a_live_viewer_listening_gets_the_dashboard_and_no_web_viewer_starts(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    port, _ = pick_port(0)
+    saved = tmp_path / "live.rrd"
+    # a stand-in for a native viewer: rerun's gRPC server, saving what it receives
+    live = subprocess.Popen(
+        [str(rerun_binary()), "--bind", "127.0.0.1", "--port", str(port), "--save", str(saved)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 10.0
+        while not reachable("127.0.0.1", port):
+            assert time.monotonic() < deadline and live.poll() is None
+            time.sleep(0.05)
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        name = kali(lockstep=True, edits=dashboard(connect=url, web_port=0, grpc_port=0))
+        with Instance.attach(name) as inst:
+            d = launcher.dashboard(inst)
+            assert d is not None and d.live_url == url and not d.web_url and not d.web_pid, d
+            assert kalictl("-i", name, "view").stdout == (
+                f"dashboard: streaming to the rerun viewer at {url}\n"
+            )
+            step_kali_clock(inst, 400)
+        launcher.stop(name)
+    finally:
+        live.terminate()
+        live.wait(5.0)
+    rows, _, _, _ = read_rrd(saved)
+    assert rows["/world/left/links/boxes"] >= 10 and rows["/robots/right/current"] >= 10
+
+
+# ---------------------------------------------------------------------------- the web viewer
+
+
+class Chromium:
+    """Headless chromium driven over the DevTools protocol on a pipe (fds 3 and 4), so no
+    port and no websocket library are needed."""
+
+    def __init__(self, profile: Path, size: tuple[int, int] = (1600, 1000)) -> None:
+        to_r, self._to_w = os.pipe()
+        self._from_r, from_w = os.pipe()
+        os.set_inheritable(to_r, True)
+        os.set_inheritable(from_w, True)
+
+        def fds() -> None:  # in the child: the browser reads fd 3 and writes fd 4
+            a, b = os.dup(to_r), os.dup(from_w)
+            os.dup2(a, 3)
+            os.dup2(b, 4)
+
+        self.proc = subprocess.Popen(
+            [
+                "chromium",
+                "--headless=new",
+                "--no-sandbox",  # root, in a VM
+                "--remote-debugging-pipe",
+                "--use-angle=swiftshader",  # no GPU: WebGPU/WebGL in software
+                "--enable-unsafe-swiftshader",
+                "--ignore-gpu-blocklist",
+                f"--window-size={size[0]},{size[1]}",
+                f"--user-data-dir={profile}",
+                "about:blank",
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            preexec_fn=fds,  # the test process runs no threads of its own
+            close_fds=False,
+            start_new_session=True,
+        )
+        os.close(to_r)
+        os.close(from_w)
+        self._buf = b""
+        self._id = 0
+        self.session = ""
+
+    def send(self, method: str, params: dict | None = None, timeout: float = 20.0) -> dict:
+        """One DevTools command; its result."""
+        self._id += 1
+        msg: dict = {"id": self._id, "method": method, "params": params or {}}
+        if self.session:
+            msg["sessionId"] = self.session
+        os.write(self._to_w, json.dumps(msg).encode() + b"\0")
+        deadline = time.monotonic() + timeout
+        while True:
+            while b"\0" in self._buf:
+                raw, self._buf = self._buf.split(b"\0", 1)
+                reply = json.loads(raw)
+                if reply.get("id") == self._id:
+                    if "error" in reply:
+                        raise RuntimeError(f"{method}: {reply['error']}")
+                    return reply["result"]
+            ready, _, _ = select.select([self._from_r], [], [], deadline - time.monotonic())
+            if not ready:
+                raise TimeoutError(f"chromium did not answer {method} within {timeout:g} s")
+            data = os.read(self._from_r, 1 << 20)
+            if not data:
+                raise EOFError("chromium closed the DevTools pipe")
+            self._buf += data
+
+    def open(self, url: str) -> None:
+        """Open ``url`` in a new page and talk to that page from now on."""
+        target = self.send("Target.createTarget", {"url": url})["targetId"]
+        self.session = self.send("Target.attachToTarget", {"targetId": target, "flatten": True})[
+            "sessionId"
+        ]
+
+    def screenshot(self) -> bytes:
+        """The page as PNG."""
+        return base64.b64decode(self.send("Page.captureScreenshot", {"format": "png"})["data"])
+
+    def close(self) -> None:
+        """Close the browser and reap it; kill its session if it does not leave."""
+        try:
+            self.session = ""
+            self.send("Browser.close", timeout=5.0)
+        except (OSError, RuntimeError, TimeoutError, EOFError):
+            pass
+        try:
+            self.proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        deadline = time.monotonic() + 5.0
+        while self.left() and time.monotonic() < deadline:  # its renderer, GPU and zygote
+            time.sleep(0.05)
+        if self.left():
+            os.killpg(self.proc.pid, signal.SIGKILL)  # the session it was started in
+        os.close(self._to_w)
+        os.close(self._from_r)
+
+    def left(self) -> list[int]:
+        """Pids still running in the browser's session (it leads one of its own)."""
+        pids = []
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[3]) == self.proc.pid and fields[0] != "Z":  # session id, state
+                pids.append(int(stat.parent.name))
+        return pids
+
+
+def alive(pid: int) -> bool:
+    """True while ``pid`` runs (a zombie waiting for its reaper does not count)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def listening(port: int) -> list[str]:
+    """Local addresses (hex, as /proc/net/tcp* shows them) listening on ``port``."""
+    found = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            addr, hexport = local.rsplit(":", 1)
+            if state == "0A" and int(hexport, 16) == port:  # 0A: LISTEN
+                found.append(addr)
+    return found
+
+
+def looks(png: bytes) -> dict[str, int]:
+    """Pixel counts that tell a drawn dashboard from a blank or loading page.
+
+    The left 2/5 of the page is the 3D view (above the event log), the rest the plots.
+    """
+    from io import BytesIO
+
+    from PIL import Image
+
+    img = np.asarray(Image.open(BytesIO(png)).convert("RGB")).astype(int)
+    h, w, _ = img.shape
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    view = np.zeros((h, w), bool)
+    view[int(0.05 * h) : int(0.6 * h), : int(0.38 * w)] = True
+    plots = np.zeros((h, w), bool)
+    plots[int(0.05 * h) : int(0.6 * h), int(0.42 * w) :] = True
+    cream = (r > 150) & (r - b > 15) & (r - b < 60) & (g > 0.85 * r)  # the PUMA's links
+    brown = (r > 70) & (r < 160) & (r - b > 40) & (g < 0.85 * r) & (g > 0.5 * r)  # the stand
+    orange = (r > 200) & (g > 90) & (g < 170) & (b < 80)  # joint 2's lines
+    blue = (b > 150) & (r < 110) & (g > 90) & (g < 160)  # joint 5's lines
+    coarse = (img[plots] // 32) @ np.array([64, 8, 1])
+    return {
+        "cream in 3D": int((cream & view).sum()),
+        "brown in 3D": int((brown & view).sum()),
+        "orange in plots": int((orange & plots).sum()),
+        "blue in plots": int((blue & plots).sum()),
+        "colours in plots": len(np.unique(coarse)),
+    }
+
+
+def drawn(counts: dict[str, int]) -> bool:
+    """The arms, the stand and the joint series are all there."""
+    return (
+        counts["cream in 3D"] > 2000
+        and counts["brown in 3D"] > 500
+        and counts["orange in plots"] > 300
+        and counts["blue in plots"] > 100
+        and counts["colours in plots"] > 40
+    )
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="needs Debian's chromium")
+def test_web_dashboard_shows_the_arms_and_plots_in_a_browser(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    name = kali(lockstep=True, edits=dashboard(web="on", web_port=0, grpc_port=0, connect=None))
+    with moving(name) as (inst, _):
+        step_kali_clock(inst, 1500)
+        d = launcher.dashboard(inst)
+        assert d is not None and d.ready and d.web_url and d.web_pid > 0, d
+        url = urllib.parse.urlsplit(d.web_url)
+        grpc = urllib.parse.urlsplit(urllib.parse.parse_qs(url.query)["url"][0])
+        assert url.hostname == grpc.hostname == "127.0.0.1"
+        ports = (url.port, grpc.port)
+        for port in ports:
+            assert listening(port) == ["0100007F"], port  # 127.0.0.1 only
+        view = kalictl("-i", name, "view", "--url")
+        assert view.returncode == 0 and view.stdout.strip() == d.web_url, view.stderr
+
+        browser = Chromium(tmp_path / "chromium")
+        try:
+            browser.open(d.web_url)
+            deadline = time.monotonic() + 40.0
+            seen = 0
+            while seen < 2 and time.monotonic() < deadline:
+                time.sleep(1.5)  # the wasm viewer loads, connects, draws, then settles
+                png = browser.screenshot()
+                counts = looks(png)
+                seen = seen + 1 if drawn(counts) else 0
+        finally:
+            browser.close()
+        assert browser.left() == []
+        shot = tmp_path / "dashboard.png"
+        shot.write_bytes(png)
+        assert drawn(counts), f"{counts}: see {shot}"
+        web_pid = d.web_pid
+    launcher.stop(name)
+    assert not alive(web_pid)
+    for port in ports:
+        assert listening(port) == [], port
+
+
+# ---------------------------------------------------------------------------- real time
+
+
+def test_realtime_viewer_draws_through_a_halt_and_its_death_halts_nothing(
+    kali: Callable[..., str],
+) -> None:
+    name = kali(lockstep=False, edits=dashboard(web="on", web_port=0, grpc_port=0, connect=None))
+    with Instance.attach(name) as inst:
+        rec = inst.arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
+        viewer = inst.procs[inst.find_slot("viewer")]
+        assert not viewer["periodic"]  # self-timed in real time, like the plant
+        time.sleep(0.3)
+        assert int(rec["frames"]) >= 3
+        inst.raise_fault(FaultCode.OPERATOR, "test", "halt")
+        time.sleep(0.1)
+        assert int(inst.clock["mode"]) == RunMode.STOPPED
+        frames, tick = int(rec["frames"]), int(inst.clock["tick"])
+        time.sleep(0.4)
+        assert int(rec["frames"]) >= frames + 5  # still drawing: the arms fall, brakes bite
+        assert int(inst.clock["tick"]) == tick
+        inst.clear_fault()
+        start_kali_clock(inst)
+        pid, web_pid = int(viewer["pid"]), int(rec["web_pid"])
+        count = int(inst.fault["count"])
+        os.kill(pid, signal.SIGKILL)
+        time.sleep(0.5)
+        assert not alive(web_pid)  # the web server died with it
+        # nothing halted for it (a host stall may halt a serious process meanwhile: not ours)
+        assert int(inst.fault["count"]) == count or "viewer" not in inst.fault_text(last=True)
+        del rec, viewer
