@@ -6,6 +6,7 @@ Each setting is applied where the OS permits; a refusal is reported once, never 
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import time
@@ -71,6 +72,15 @@ class RtReport:
     warnings: list[str]
 
 
+def _bind_other_threads(cpu: int) -> None:
+    """Bind the threads libraries started at import (BLAS workers, rerun's tokio runtime) to
+    ``cpu`` too: ``sched_setaffinity(0)`` moves only the calling thread, and a stray thread
+    left free runs on the servo CPU, evicting its caches."""
+    for tid in os.listdir("/proc/self/task"):
+        with contextlib.suppress(OSError):  # a thread that has just exited
+            os.sched_setaffinity(int(tid), {cpu})
+
+
 def prepare(cpu: int | None, lock_memory: bool = True) -> RtReport:
     """Bind to ``cpu``, set timer slack to 1 ns and lock memory, still as SCHED_OTHER.
 
@@ -85,6 +95,8 @@ def prepare(cpu: int | None, lock_memory: bool = True) -> RtReport:
             bound = cpu
         except OSError as exc:
             warnings.append(f"cannot bind to CPU {cpu}: {exc.strerror}")
+        else:
+            _bind_other_threads(cpu)
     slack = 0
     if _libc.prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(1), 0, 0, 0) == 0:
         slack = 1

@@ -899,11 +899,14 @@ def format_extras(results: list[RunResult]) -> list[str]:
         assert full.latency is not None and bare.latency is not None
         s2dac = full.latency.p99_us / bare.latency.p99_us if bare.latency.p99_us else math.nan
         ct_w, ct_b = full.wakeup[0].p999_us, bare.wakeup[0].p999_us
+        floor = full.sio_ratio / bare.sio_ratio if bare.sio_ratio else math.nan
         lines.append(
             f"{full.run}: wake-up p99.9 µs {', '.join(parts)}; sensor-to-DAC p99 "
             f"{us(full.latency.p99_us)}/{us(bare.latency.p99_us)}={s2dac:.2f}x; cyclictest "
-            f"p99.9 {us(ct_w)}/{us(ct_b)} (the floor in each); misses {full.misses}/{bare.misses}; "
-            f"CPU {_pct(full.cpu_total_pct)}/{_pct(bare.cpu_total_pct)} %"
+            f"p99.9 {us(ct_w)}/{us(ct_b)} (the floor in each), so sio/cyclictest "
+            f"{full.sio_ratio:.2f}/{bare.sio_ratio:.2f}={floor:.2f}x; misses "
+            f"{full.misses}/{bare.misses}; CPU {_pct(full.cpu_total_pct)}/"
+            f"{_pct(bare.cpu_total_pct)} %"
         )
     return lines
 
