@@ -28,6 +28,7 @@ from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import make_config, unique_name
 from .test_launcher import kalictl
+from .test_servo_level import power_all
 
 ROWS = 2000  # 2 s at the default 1 ms servo period
 
@@ -123,10 +124,7 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
     with Instance.attach(name) as inst:
         client = ServoClient(inst)
         try:
-            step_kali_clock(inst, 30)  # SIO reads the pots
-            for robot in client.names:
-                client.power(robot, True)
-            step_kali_clock(inst, 2300)  # more than the ring holds
+            power_all(inst, client, 2300)  # more than the ring holds
             assert client.power_state("right") == PowerState.ON
             # a runaway: a set-point 0.05 rad away with a tolerance of 0.01 rad
             target = client.level.robots["demand"][1].copy()

@@ -36,16 +36,21 @@ COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # rad 
 SETTLE_TICKS = 3500  # gravity sag of joint 2 is taken up by the integral within ~3 s
 
 
+def power_all(inst: Instance, client: ServoClient, ticks: int) -> None:
+    """Let SIO read the pots, power every arm, then step ``ticks`` more (lockstep)."""
+    step_kali_clock(inst, 30)
+    for robot in client.names:
+        client.power(robot, True)
+    step_kali_clock(inst, ticks)
+
+
 @contextmanager
 def servoing(name: str) -> Iterator[tuple[Instance, ServoClient]]:
     """Attach, power both arms and let them settle at rest."""
     with Instance.attach(name) as inst:
         client = ServoClient(inst)
         try:
-            step_kali_clock(inst, 30)  # SIO reads the pots
-            for robot in client.names:
-                client.power(robot, True)
-            step_kali_clock(inst, 100)
+            power_all(inst, client, 100)
             assert [client.power_state(r) for r in client.names] == [PowerState.ON] * 2
             step_kali_clock(inst, SETTLE_TICKS)
             yield inst, client

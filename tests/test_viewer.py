@@ -37,6 +37,7 @@ from kali_daemons.wallclock import start_kali_clock, step_kali_clock
 
 from .conftest import make_config
 from .test_launcher import kalictl
+from .test_servo_level import power_all
 
 DASHBOARD = r"^dashboard:\n(?:  .*\n?)*"  # the section in config/default.yaml
 
@@ -53,10 +54,7 @@ def moving(name: str) -> Iterator[tuple[Instance, ServoClient]]:
     with Instance.attach(name) as inst:
         client = ServoClient(inst)
         try:
-            step_kali_clock(inst, 30)  # SIO reads the pots
-            for robot in client.names:
-                client.power(robot, True)
-            step_kali_clock(inst, 200)
+            power_all(inst, client, 200)
             for k, moves in enumerate(({1: 0.5, 2: -0.4}, {0: 0.4, 4: 0.5})):
                 fifo = client.level.fifo(k)
                 start = client.level.robots["demand"][k].copy()
