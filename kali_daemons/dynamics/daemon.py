@@ -25,9 +25,8 @@ k_v is read, without locking, from the parameters of each joint's active servo a
 q̇_i and q̈_i are central differences over the neighbouring set-points, with each segment's
 own duration (its ratio stamp × the servo period), so a row is written once its successor
 has been pushed; while the FIFO is drained SIO holds at the segment's target, and the row of
-that target is the gravity there, refreshed every cycle.  The inertia includes the rotors
-(``model.load_pinocchio``); friction is the motors' viscous and asymmetric Coulomb friction
-of ``puma560`` (the plant's), the Coulomb part smoothed as the plant smooths it.
+that target is the gravity there, refreshed every cycle.  The torques themselves (rotor
+inertia, motor friction) are ``inverse.py``'s.
 
 Pinocchio's Python bindings return each result as a new 6-vector; this process is
 asynchronous and non-serious (3.3.6), so those small allocations are accepted here.
