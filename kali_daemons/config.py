@@ -120,7 +120,7 @@ MAX_PLUGINS = 16
 # Used when the file has no ``processes`` / ``robots`` section (same as config/default.yaml).
 _DEFAULT_PROCESSES: dict[str, dict[str, Any]] = {
     "wallclock": {"cpu": 0, "priority": 90},
-    "plant": {"cpu": 1, "priority": 88, "period_ms": 1, "stage": 0},
+    "plant": {"cpu": 1, "priority": 88, "period_ms": 1, "serious": True, "stage": 0},
     "tg": {"cpu": 1, "priority": 80, "serious": True, "stage": 1},
     "sio": {"cpu": 0, "priority": 85, "serious": True, "stage": 2},
     "sv": {"count": 2, "cpus": [0, 1], "priority": 84, "serious": True, "stage": 2},
@@ -792,7 +792,11 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
         return []  # an optional process (dynamics, viewer) left out: Kali runs without it
 
     priority = _int(m.get("priority", 0), f"{path}.priority", 0, MAX_PRIORITY)
-    serious = _bool(m.get("serious", False), f"{path}.serious")
+    # omitted: serious as in the default config (the plant, tg, sio and sv are; a user who
+    # leaves the key out never loses the halt on a dead or late servo process by accident)
+    serious = _bool(
+        m.get("serious", _DEFAULT_PROCESSES[kind].get("serious", False)), f"{path}.serious"
+    )
     stage = _int(m.get("stage", _DEFAULT_STAGE[kind]), f"{path}.stage", 0, MAX_STAGE)
     if "period_ms" in m:
         period = _period(m["period_ms"], f"{path}.period_ms", clock.base_tick_ms)

@@ -30,8 +30,10 @@ from .config import period_ticks
 from .errors import DaemonError
 from .instance import Instance
 from .layout import FaultCode, ProcState
+from .spinlock import pid_alive
 
 IDLE_WAIT_S = 0.25  # longest semaphore wait before a heartbeat and a shutdown check
+CLOCK_WATCH_S = 0.01  # serious, real time: no signal this long → is the wall clock alive?
 
 
 class Daemon:
@@ -221,13 +223,17 @@ class Daemon:
         ack_sem = inst.ack_semaphore() if inst.lockstep else None
         stats = _CycleStats(procs, i)
         now = rt.monotonic_ns
+        # a serious process in real time notices a dead wall clock within half the boards'
+        # 20 ms watchdog (which cuts the amplifiers anyway); looking costs nothing until then
+        self._idle_wait_s = CLOCK_WATCH_S if self.serious and not inst.lockstep else IDLE_WAIT_S
         while not self._leave:
             try:
-                sem.acquire(IDLE_WAIT_S)
+                sem.acquire(self._idle_wait_s)
             except posix_ipc.BusyError:
                 heart[i] = now()
                 if header["shutdown"]:
                     break
+                self._watch_clock()
                 continue
             except posix_ipc.SignalError:
                 continue
@@ -239,6 +245,20 @@ class Daemon:
             stats.record(tick, int(rel[i]), woke, now())
             if ack_sem is not None:
                 ack_sem.release()
+
+    def _watch_clock(self) -> None:
+        """Halt with PROCESS_DIED naming the wall clock if it is gone (DESIGN 7): nobody
+        else can, and every program waiting for a motion must hear why it stopped."""
+        c, f = self.inst.clock, self.inst.fault
+        pid = int(c["pid"])
+        if pid <= 0 or f["active"] or pid_alive(pid):
+            return
+        self.inst.raise_fault(
+            FaultCode.PROCESS_DIED,
+            "wallclock",
+            f"the wall clock (pid {pid}) died at tick {int(c['tick'])}; "
+            f"{self.name} noticed: no signal for {self._idle_wait_s * 1e3:g} ms",
+        )
 
     def _self_timed_loop(self) -> None:
         """Sleep to this daemon's own absolute deadlines (the plant in real-time mode)."""

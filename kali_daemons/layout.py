@@ -144,6 +144,7 @@ class ProcState(enum.IntEnum):
     ACTIVE = 3  # cycling: ready
     FINALIZED = 4  # shut down cleanly
     ERROR = 5  # failed; see the fault record
+    DIED = 6  # died; the wall clock left this non-serious process out (DESIGN 7: degrade)
 
 
 # Wake-up lateness histogram: 1 µs bins below 1 ms, then eight bins per octave to ~256 ms.
@@ -293,10 +294,14 @@ QUEUE_HEADER = np.dtype(
         ("lock", "<u4"),  # producers' spinlock (multi-producer)
         ("capacity", "<u4"),
         ("entry_bytes", "<u4"),  # payload bytes per entry
-        ("_pad", "<u4"),
+        # entries the consumer dropped: a seq that does not match the entry's place, or a
+        # head/tail no producer wrote (a writer outside the protocol); consumer
+        ("discarded", "<u4"),
         ("head", "<u8"),  # next entry to read; written by the consumer
         ("tail", "<u8"),  # next entry to write; written by producers under the lock
-        ("next_seq", "<u8"),  # sequence number of the next entry; producers under the lock
+        # seq of the next entry, always tail + 1: an entry's seq is its place + 1, so the
+        # consumer tells a stale or forged entry from a real one; producers under the lock
+        ("next_seq", "<u8"),
         ("rejected", "<u8"),  # puts refused because the queue was full
     ],
     align=True,
@@ -323,7 +328,7 @@ FIFO_HEADER = np.dtype(
         ("seg_ticks", "<u4"),  # servo ticks in the current segment
         ("seg_done", "<u4"),  # ticks of it already output
         ("primed", "<u4"),  # 1 once the first set-point has been taken
-        ("_pad", "<u4"),
+        ("rejected", "<u4"),  # set-points (or ratio stamps) the consumer refused as garbage
         ("underruns", "<u8"),  # servo ticks with no set-point to move to (holds B)
         ("overflows", "<u8"),  # pushes refused because the ring was full
         # The ratio the next set-point pushed is stamped with (num | den << 32, one atomic
@@ -492,6 +497,7 @@ class SlotReset(enum.IntEnum):
 
 
 SLOT_NOT_FED = 0xFFFFFFFF  # ``busy`` of a slot SIO did not feed this tick
+OP_REFUSED = -1  # ``op_status`` of a mailbox operation the SV refused (see the staging bytes)
 
 ROBOT_STATE = np.dtype(
     [
@@ -540,7 +546,9 @@ SERVO_SLOT = np.dtype(
         ("torque", "<f8"),  # SV: torque demand, N·m (held while the servo is not run)
         ("error", "<f8"),  # SV: the servo's tracking error, rad
         ("reset", "<u4"),  # SIO: SlotReset; the SV clears it
-        ("_pad0", "<u4"),
+        # SV: 0 = the last mailbox op was carried out, OP_REFUSED = refused, the reason as
+        # UTF-8 text in the slot's staging bytes; written before ops_done is incremented
+        ("op_status", "<i4"),
         ("ran_tick", "<i8"),  # SV: last tick the servo ran
         ("exec_ns", "<i8"),  # SV: duration of the last step
         ("sv", "<i4"),  # SV: which worker ran it last

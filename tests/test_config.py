@@ -66,7 +66,7 @@ def line_of(fragment: str) -> int:
 
 EXPECTED_PROCESSES = (
     ProcessConfig("wallclock", "wallclock", 0, 90, 1, False, 0),
-    ProcessConfig("plant", "plant", 1, 88, 1, False, 0),
+    ProcessConfig("plant", "plant", 1, 88, 1, True, 0),
     ProcessConfig("tg", "tg", 1, 80, 10, True, 1),
     ProcessConfig("sio", "sio", 0, 85, 1, True, 2),
     ProcessConfig("sv.0", "sv", 0, 84, 1, True, 2),
@@ -150,7 +150,10 @@ def test_process_entries_default_per_kind() -> None:
         "dynamics": 3,
         "viewer": 4,
     }
-    assert all(p.cpu is None and p.priority == 0 and not p.serious for p in cfg.processes)
+    assert all(p.cpu is None and p.priority == 0 for p in cfg.processes)
+    # left out, ``serious`` is as in the default config: a servo process never loses its halt
+    serious = {"plant", "tg", "sio", "sv.0", "sv.1"}
+    assert {p.name for p in cfg.processes if p.serious} == serious
 
 
 def test_sv_count_expands_workers_in_order() -> None:
@@ -185,7 +188,7 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "plant-substep-longer-than-the-plant-period",
         [
             ("base_tick_ms: 1 ", "base_tick_ms: 0.5 "),
-            ("period_ms: 1, stage: 0", "period_ms: 0.5, stage: 0"),
+            ("period_ms: 1, serious: true, stage: 0", "period_ms: 0.5, serious: true, stage: 0"),
             ("substep_ms: 0.5 ", "substep_ms: 1 "),
         ],
         "plant.substep_ms = 1.0: must divide processes.plant.period_ms = 0.5",
@@ -448,7 +451,7 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         [
             ("base_tick_ms: 1 ", "base_tick_ms: 2 "),
             ("servo_period_ms: 1 ", "servo_period_ms: 2 "),
-            ("period_ms: 1, stage: 0", "period_ms: 2, stage: 0"),
+            ("period_ms: 1, serious: true, stage: 0", "period_ms: 2, serious: true, stage: 0"),
             ("period_ms: 40,", "period_ms: 45,"),
         ],
         "processes.viewer.period_ms = 45: must be a multiple of clock.base_tick_ms (2)",

@@ -95,7 +95,7 @@ def test_lockstep_signals_each_process_at_its_period(kali: Callable[..., str]) -
 HALF_MS_TICK = {
     r"^  base_tick_ms: 1 ": "  base_tick_ms: 0.5 ",
     r"^  servo_period_ms: 1 ": "  servo_period_ms: 0.5 ",
-    r"period_ms: 1, stage: 0": "period_ms: 0.5, stage: 0",  # the plant: one 0.5 ms substep
+    r"period_ms: 1, serious: true, stage: 0": "period_ms: 0.5, serious: true, stage: 0",  # the plant: one 0.5 ms substep
 }
 
 
@@ -224,13 +224,34 @@ def test_lockstep_timeout_names_the_process(kali: Callable[..., str], program: P
     name = kali(
         lockstep=True, edits={r"lockstep_ack_timeout_s: .*$": "lockstep_ack_timeout_s: 0.5"}
     )
-    program("hang", name, "sleeper", "--after", "5")
+    program("hang", name, "sleeper", "--after", "5", "--serious")
     with Instance.attach(name) as inst:
         step_kali_clock(inst, 20)
         assert FaultCode(int(inst.fault["code"])) == FaultCode.LOCKSTEP_TIMEOUT
         assert int(inst.fault["tick"]) == 5
         assert "sleeper did not acknowledge tick 5 within 0.5 s" in inst.fault_text()
         assert int(inst.clock["tick"]) == 5
+
+
+def test_lockstep_skips_a_hung_non_serious_process(
+    kali: Callable[..., str], program: Program
+) -> None:
+    """As in real time, a late non-serious process costs misses, not a halt: the clock waits
+    for it once (the timeout), then signals it only when it has acknowledged again."""
+    name = kali(
+        lockstep=True, edits={r"lockstep_ack_timeout_s: .*$": "lockstep_ack_timeout_s: 0.5"}
+    )
+    program("hang", name, "sleeper", "--after", "5")
+    with Instance.attach(name) as inst:
+        t = time.monotonic()
+        assert step_kali_clock(inst, 20) == 20
+        assert time.monotonic() - t < 3.0  # one timeout, not one per tick
+        assert inst.fault_text() is None
+        p = inst.procs[inst.slot_of("sleeper")]
+        # signalled at ticks 0-5, hung in the sixth cycle: a miss at its timeout (tick 5)
+        # and at each of ticks 6-19
+        assert (int(p["signals"]), int(p["acks"]), int(p["misses"])) == (6, 5, 15)
+        assert int(inst.procs[inst.slot_of("sio")]["acks"]) == 20  # the rest ran every tick
 
 
 def test_daemon_error_halts_with_the_exception(kali: Callable[..., str], program: Program) -> None:

@@ -51,6 +51,7 @@ from ..layout import (
     SlotReset,
 )
 from ..servolevel import ServoLevel
+from ..spinlock import pid_alive
 from .calibration import ACTIVE, Calibration, PotReader
 from .feedforward import RobotFeedforward
 
@@ -115,11 +116,16 @@ class ServoIO(Daemon):
         ctrl["sv_count"] = len(sv_names)
         self.feeds = [inst.feed_semaphore(k) for k in range(len(sv_names))]
         self.done_sem = inst.done_semaphore()
-        self.wait_s = (
-            cfg.clock.lockstep_ack_timeout_s
-            if inst.lockstep
-            else cfg.clock.serious_miss_tolerance_ms / 1000.0
-        )
+        # How long the servos may take: inside the clock's own limit for SIO, so a late servo
+        # is named here rather than SIO by the clock.  Waited in slices of a servo period,
+        # after each of which an SV that died holding a slot halts at once (PROCESS_DIED).
+        if inst.lockstep:
+            self.wait_s = 0.8 * cfg.clock.lockstep_ack_timeout_s
+        else:
+            tolerance_s = cfg.clock.serious_miss_tolerance_ms / 1000.0
+            self.wait_s = max(period_s, tolerance_s - 2 * period_s)
+        self.slice_s = period_s
+        self.sv_slots = [inst.slot_of(name) for name in sv_names]
         # private, preallocated arrays: flat over all joints (robot k joint j at 6 k + j)
         self.q = np.zeros(n)
         self.q_prev = np.zeros(n)
@@ -403,13 +409,22 @@ class ServoIO(Daemon):
         return True
 
     def _wait_done(self, tick: int, fed: int) -> bool:
-        """Sleep until every fed slot ran; a serious fault names the ones that did not."""
+        """Sleep until every fed slot ran; False after halting, naming the culprit.
+
+        The common path is one semaphore wait.  Past a servo period the wait goes on in
+        slices, and after each an SV that died holding a slot halts the system at once
+        (PROCESS_DIED); past ``wait_s`` a servo still unfinished halts it (DEADLINE), naming
+        the SV that holds it and the algorithm, or the joints no SV claimed.
+        """
         done = self._ctrl_done
+        waited = 0.0
         while int(done) < fed:
             try:
-                self.done_sem.acquire(self.wait_s)
+                self.done_sem.acquire(self.slice_s)
             except posix_ipc.BusyError:
-                break
+                waited += self.slice_s
+                if self._dead_servo(tick) or waited >= self.wait_s:
+                    break
         # drain a post that raced with the last check
         while True:
             try:
@@ -418,22 +433,54 @@ class ServoIO(Daemon):
                 break
         if int(done) >= fed:
             return True
+        if self.inst.fault["active"]:
+            return False  # _dead_servo halted
         lv = self.level
-        late = [
-            f"{lv.names[i // 6]} joint {i % 6 + 1}"
-            + (
-                " (unclaimed)"
-                if self._slot_busy[i] == 0
-                else f" (claimed by sv.{int(self._slot_busy[i]) - 1})"
-            )
-            for i in range(lv.n)
-            if self.fed_mask[i] and int(lv.slots["ran_tick"][i]) != tick
-        ]
-        self._halt(
+        late, holders = [], []
+        for i in range(lv.n):
+            if not self.fed_mask[i] or int(lv.slots["ran_tick"][i]) == tick:
+                continue
+            holder = int(self._slot_busy[i])
+            joint = f"{lv.names[i // 6]} joint {i % 6 + 1}"
+            if holder == 0:
+                late.append(f"{joint} (unclaimed)")
+                continue
+            algo = lv.registry[int(lv.slot_structs[i].algo)].name
+            late.append(f"{joint} (servo '{algo}', claimed by sv.{holder - 1})")
+            holders.append(f"sv.{holder - 1}")
+        self.inst.raise_fault(
             FaultCode.DEADLINE,
-            tick,
-            f"servos not done {self.wait_s * 1000:g} ms after tick {tick}: {', '.join(late)}",
+            holders[0] if holders else self.name,  # the culprit, if one SV holds it
+            f"servos not done {self.wait_s * 1000:g} ms after tick {tick} "
+            f"(sio waited): {', '.join(late)}",
+            tick=tick,
         )
+        self.driver.zero(self._codes)
+        return False
+
+    def _dead_servo(self, tick: int) -> bool:
+        """Halt with PROCESS_DIED if an SV holding an unfinished slot died; True if so.
+        Only after a servo period without the done post: never on the common path."""
+        lv = self.level
+        for i in range(lv.n):
+            holder = int(self._slot_busy[i])
+            if not self.fed_mask[i] or int(lv.slots["ran_tick"][i]) == tick:
+                continue
+            if not 0 < holder <= len(self.sv_slots):
+                continue  # unclaimed (or a busy word no SV wrote): the deadline names it
+            slot = self.sv_slots[holder - 1]
+            pid = int(self.inst.procs[slot]["pid"])
+            if not pid_alive(pid):
+                name = f"sv.{holder - 1}"
+                self.inst.raise_fault(
+                    FaultCode.PROCESS_DIED,
+                    name,
+                    f"process '{name}' (pid {pid}) died holding robot '{lv.names[i // 6]}' "
+                    f"joint {i % 6 + 1} at tick {tick} (sio noticed)",
+                    tick=tick,
+                )
+                self.driver.zero(self._codes)
+                return True
         return False
 
     def _write_csr(self, k: int) -> None:

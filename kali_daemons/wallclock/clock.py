@@ -13,6 +13,15 @@ Real-time mode sleeps to absolute deadlines (optionally busy-waiting the last µ
 ahead after an overrun instead of bursting catch-up ticks.  Lockstep mode never sleeps: each
 tick it signals the due slots stage by stage and waits for all their acknowledgements, so a
 run is deterministic and as fast as the CPUs allow.
+
+The clock also supervises (DESIGN 7).  A clocked process that misses a deadline, and in
+real-time mode a self-timed one (the plant, the viewer) whose heartbeat is two periods old,
+is looked up: if it died, a serious one halts the system (PROCESS_DIED, naming it) and a
+non-serious one (dynamics, viewer) is left out from then on (state DIED) while the rest runs
+on without it: no feed-forward, no dashboard.  In lockstep mode a non-serious process that
+does not acknowledge within the timeout is skipped (a miss) instead of halting the system,
+as a late one is in real time.  Nobody watches a dead wall clock from here: the serious
+processes do (``Daemon._watch_clock``), and the boards' watchdogs cut the amplifiers.
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ from .. import layout, rt
 from ..daemon import Daemon, _CycleStats
 from ..flightrec import FlightDumper
 from ..instance import decode
-from ..layout import ClockCommand, FaultCode, RunMode
+from ..layout import ClockCommand, FaultCode, ProcState, RunMode
 from ..spinlock import pid_alive
 
 STOPPED_WAIT_S = 0.2
@@ -62,6 +71,10 @@ class WallClock(Daemon):
         self._serious: list[bool] = []
         self._period: list[int] = []
         self._stages: list[int] = []
+        self._watched: list[int] = []  # self-timed slots (real time): watched by heartbeat
+        self._watch_ns: list[int] = []  # heartbeat age that makes the clock look them up
+        self._watch_next: list[int] = []  # earliest next look-up of a stale, live one
+        self._heart = p["heartbeat_ns"]
         self._flight = FlightDumper(self.inst)  # dumps the flight recorder after a halt
 
     def on_activate(self) -> None:
@@ -91,6 +104,18 @@ class WallClock(Daemon):
         self._serious = [bool(p[i]["serious"]) for i in live]
         self._period = [max(1, int(p[i]["period_ticks"])) for i in live]
         self._stages = [int(p[i]["stage"]) for i in live]
+        self._watched = [
+            i
+            for i in range(layout.MAX_PROCESSES)
+            if i != self.slot
+            and not p[i]["periodic"]
+            and p[i]["state"] == layout.ProcState.ACTIVE
+            and int(p[i]["pid"]) > 0
+        ]
+        self._watch_ns = [
+            2 * max(1, int(p[i]["period_ticks"])) * self.base_ns for i in self._watched
+        ]
+        self._watch_next = [0] * len(self._watched)
 
     # ------------------------------------------------------------------ loop
 
@@ -147,6 +172,8 @@ class WallClock(Daemon):
             c["tick"] = tick
             self._realtime_tick(tick, due)
             stats.record(tick, planned, woke, now())
+            if self._watched:
+                self._watch(now())
             tick += 1
 
     def _realtime_tick(self, tick: int, due: int) -> None:
@@ -185,7 +212,7 @@ class WallClock(Daemon):
         e["consecutive"] = n
         self._log_count[0] = count + 1
         overdue_ns = n * self._period[k] * self.base_ns
-        if self._serious[k] and self._died(i, tick):
+        if self._died(i, tick, self._serious[k]):
             return
         if self._serious[k] and overdue_ns > self.tolerance_ns:
             name = decode(self.inst.procs[i]["name"])
@@ -201,10 +228,23 @@ class WallClock(Daemon):
             )
             self.inst.clock["mode"] = RunMode.STOPPED
 
+    def _watch(self, now_ns: int) -> None:
+        """Look up self-timed processes whose heartbeat is two periods old (real time): a
+        dead one halts (serious) or is left out.  After the cycle's signals, so the /proc
+        read of a stale one never delays a tick; a live but stalled one is looked up again
+        only a watch interval later."""
+        heart = self._heart
+        for k, i in enumerate(self._watched):
+            if now_ns - heart[i] <= self._watch_ns[k] or now_ns < self._watch_next[k]:
+                continue
+            self._watch_next[k] = now_ns + self._watch_ns[k]
+            self._died(i, int(self.inst.clock["tick"]), bool(self.inst.procs[i]["serious"]))
+
     def _lockstep_tick(self, tick: int) -> bool:
         """Signal due slots stage by stage, waiting for every acknowledgement of a stage.
 
-        Returns False if the system halted during the tick.
+        A non-serious slot still busy with an earlier tick (it timed out) is not signalled:
+        a miss, as in real time.  Returns False if the system halted during the tick.
         """
         n = len(self._slots)
         k = 0
@@ -216,52 +256,90 @@ class WallClock(Daemon):
                 if tick >= self._due[i]:
                     per = self._period[k]
                     self._due[i] = (tick // per + 1) * per
-                    self._sig[i] = tick
-                    self._rel[i] = rt.monotonic_ns()
-                    self._signals[i] += 1
-                    self._sems[i].release()
-                    posted.append(i)
+                    if self._ack[i] < self._sig[i]:
+                        self._missed(k, i, tick, rt.monotonic_ns())
+                    else:
+                        self._sig[i] = tick
+                        self._rel[i] = rt.monotonic_ns()
+                        self._signals[i] += 1
+                        self._sems[i].release()
+                        posted.append(k)
                 k += 1
-            for _ in posted:
-                try:
-                    self._await_ack(posted, tick)
-                    if self.inst.fault["active"]:
-                        return False  # a process halted the system; the loop stops the clock
-                except posix_ipc.BusyError:
-                    late = [i for i in posted if self._ack[i] < tick]
-                    names = ", ".join(decode(self.inst.procs[i]["name"]) for i in late)
-                    self.inst.raise_fault(
-                        FaultCode.LOCKSTEP_TIMEOUT,
-                        names or "wallclock",
-                        f"lockstep: {names} did not acknowledge tick {tick} within "
-                        f"{self.lockstep_timeout_s:g} s",
-                        tick=tick,
-                    )
-                    self.inst.clock["mode"] = RunMode.STOPPED
-                    return False
+            if posted and not self._await_stage(posted, tick):
+                return False
         return True
 
-    def _await_ack(self, posted: list[int], tick: int) -> None:
-        """One lockstep acknowledgement; BusyError after the timeout.  Waits in slices so a
-        process that died meanwhile halts the system at once (PROCESS_DIED)."""
-        deadline = rt.monotonic_ns() + int(self.lockstep_timeout_s * 1e9)
-        while True:
-            try:
-                self._ack_sem.acquire(LOCKSTEP_SLICE_S)
-                return
-            except posix_ipc.BusyError:
-                for i in posted:
-                    if self._ack[i] < tick and self._died(i, tick):
-                        return
-                if rt.monotonic_ns() > deadline:
-                    raise
+    def _await_stage(self, posted: list[int], tick: int) -> bool:
+        """Wait until every slot of ``posted`` (indices into the slot lists) acknowledged
+        ``tick``; False if the system halted meanwhile.
 
-    def _died(self, i: int, tick: int) -> bool:
-        """Halt with PROCESS_DIED if slot ``i``'s process is gone; True if it did."""
+        The acknowledgement fields decide; the semaphore wakes the clock, one post per
+        acknowledgement, all consumed so none is left for the next stage.  Waits in slices
+        so a process that died meanwhile is found at once: a serious one halts
+        (PROCESS_DIED), a non-serious one is left out.  After the timeout a serious late one
+        halts (LOCKSTEP_TIMEOUT); a non-serious one is skipped with a miss.
+        """
+        ack, slots, sem = self._ack, self._slots, self._ack_sem
+        deadline = rt.monotonic_ns() + int(self.lockstep_timeout_s * 1e9)
+        expected, got = len(posted), 0
+        waiting = [k for k in posted if ack[slots[k]] < tick]
+        while waiting:
+            if self.inst.fault["active"]:
+                return False  # a process halted the system; the loop stops the clock
+            try:
+                sem.acquire(LOCKSTEP_SLICE_S)
+                got += 1
+            except posix_ipc.BusyError:
+                dead = [k for k in waiting if self._died(slots[k], tick, self._serious[k])]
+                if self.inst.fault["active"]:
+                    return False
+                expected -= len(dead)
+                waiting = [k for k in waiting if k not in dead]
+                if rt.monotonic_ns() > deadline:
+                    late = [k for k in waiting if ack[slots[k]] < tick]
+                    expected -= len(late)
+                    return self._lockstep_late(late, tick)
+            waiting = [k for k in waiting if ack[slots[k]] < tick]
+        while got < expected:  # acknowledgements read before their post arrived
+            try:
+                sem.acquire(LOCKSTEP_SLICE_S)
+                got += 1
+            except posix_ipc.BusyError:
+                break
+        return not self.inst.fault["active"]
+
+    def _lockstep_late(self, late: list[int], tick: int) -> bool:
+        """The lockstep timeout passed with ``late`` unacknowledged: halt if one of them is
+        serious (False), else count a miss for each and go on (True)."""
+        serious = [k for k in late if self._serious[k]]
+        if not serious:
+            for k in late:
+                self._missed(k, self._slots[k], tick, rt.monotonic_ns())
+            return True
+        names = ", ".join(decode(self.inst.procs[self._slots[k]]["name"]) for k in serious)
+        self.inst.raise_fault(
+            FaultCode.LOCKSTEP_TIMEOUT,
+            names,
+            f"lockstep: {names} did not acknowledge tick {tick} within "
+            f"{self.lockstep_timeout_s:g} s",
+            tick=tick,
+        )
+        self.inst.clock["mode"] = RunMode.STOPPED
+        return False
+
+    def _died(self, i: int, tick: int, serious: bool) -> bool:
+        """True if slot ``i``'s process is gone.  A serious one halts the system with
+        PROCESS_DIED; a non-serious one is left out (state DIED) and the system runs on."""
         pid = int(self.inst.procs[i]["pid"])
         if pid <= 0 or pid_alive(pid):
             return False
-        name = decode(self.inst.procs[i]["name"])
+        p = self.inst.procs[i]
+        name = decode(p["name"])
+        if not serious:
+            p["periodic"] = 0  # the owner is gone: the clock writes its state for it
+            p["state"] = ProcState.DIED
+            self.inst.bump_registry()
+            return True
         self.inst.raise_fault(
             FaultCode.PROCESS_DIED,
             name,

@@ -1,0 +1,1 @@
+"""Whole-system tests (issue 7): fault injection, hostile input, isolation."""
