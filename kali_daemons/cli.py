@@ -30,7 +30,7 @@ from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
 from .errors import KaliError
 from .instance import Instance, decode
-from .layout import CalibState, FaultCode, PowerState, RunMode
+from .layout import CalibState, FaultCode, PowerState, ProcState, RunMode
 from .servolevel import ServoClient, ServoError
 from .wallclock import (
     set_control_rate,
@@ -42,6 +42,8 @@ from .wallclock import (
 from .wallclock.clock import time_ms
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "default.yaml"
+# what the system runs without when a non-serious process dies (DESIGN 7: degrade)
+DEGRADED = {"dynamics": "feed-forward (SIO drops it as stale)", "viewer": "dashboard"}
 
 
 def _errors(fn: Callable) -> Callable:
@@ -191,6 +193,14 @@ def status(ctx: click.Context, as_json: bool) -> None:
         )
         fault = inst.fault_text()
         click.echo(f"fault: {fault}" if fault else "fault: none")
+        rows = launcher.describe(inst)
+        for r in rows:
+            if r["state"] == ProcState.DIED.name:
+                lost = DEGRADED.get(str(r["name"]))
+                click.echo(
+                    f"degraded: {r['name']} (pid {r['pid']}) died; not serious, so the rest "
+                    f"runs on without it" + (f": no {lost}" if lost else "")
+                )
         dump = introspect.Introspector(inst).flight()
         if dump is not None and dump["last_dump"]:
             click.echo(
@@ -203,7 +213,7 @@ def status(ctx: click.Context, as_json: bool) -> None:
             f"{'late p50':>9} {'late p99':>9} {'late max':>9} {'hb age':>7}"
         )
         click.echo(head)
-        for r in launcher.describe(inst):
+        for r in rows:
             period = f"{r['period_ms']:g}ms" if r["periodic"] else "own"
             if r["name"] == "wallclock":
                 period = f"{int(c['base_tick_ns']) / 1e6:g}ms"

@@ -25,6 +25,11 @@ def unique_name(prefix: str = "t") -> str:
 
 def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfig:
     """The default config for ``instance``, with regex substitutions ``pattern -> repl``."""
+    return parse_config(config_text(instance, edits), f"<test {instance}>", str(ROOT / "config"))
+
+
+def config_text(instance: str, edits: dict[str, str] | None = None) -> str:
+    """The text of ``make_config``'s config (for ``kalictl start -c FILE``)."""
     text = re.sub(r"(?m)^instance: .*$", f"instance: {instance}", DEFAULT_TEXT)
     # an absolute plugin path, so the text also works when a test writes it elsewhere
     plugin = ROOT / "scripts" / "servo_plugin_example.py"
@@ -35,7 +40,7 @@ def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfi
     for pattern, repl in (edits or {}).items():
         text, n = re.subn(pattern, repl, text, flags=re.M)
         assert n, f"config edit {pattern!r} matched nothing"
-    return parse_config(text, f"<test {instance}>", str(ROOT / "config"))
+    return text
 
 
 def leftovers(instance: str) -> tuple[list[str], list[int]]:

@@ -125,6 +125,7 @@ class ServoIO(Daemon):
             tolerance_s = cfg.clock.serious_miss_tolerance_ms / 1000.0
             self.wait_s = max(period_s, tolerance_s - 2 * period_s)
         self.slice_s = period_s
+        self.slice_ns, self.wait_ns = int(period_s * 1e9), int(self.wait_s * 1e9)
         self.sv_slots = [inst.slot_of(name) for name in sv_names]
         # private, preallocated arrays: flat over all joints (robot k joint j at 6 k + j)
         self.q = np.zeros(n)
@@ -417,13 +418,15 @@ class ServoIO(Daemon):
         the SV that holds it and the algorithm, or the joints no SV claimed.
         """
         done = self._ctrl_done
-        waited = 0.0
+        deadline = 0
         while int(done) < fed:
             try:
                 self.done_sem.acquire(self.slice_s)
             except posix_ipc.BusyError:
-                waited += self.slice_s
-                if self._dead_servo(tick) or waited >= self.wait_s:
+                now = rt.monotonic_ns()
+                if not deadline:  # measured from the wait's start: slices overrun a little
+                    deadline = now - self.slice_ns + self.wait_ns
+                if self._dead_servo(tick) or now >= deadline:
                     break
         # drain a post that raced with the last check
         while True:

@@ -1,0 +1,57 @@
+"""The robot program of the fault-injection matrix: both arms moving until the system halts.
+
+    python -m tests.system.mover INSTANCE
+
+It powers both arms, turns full feed-forward on, prints ``moving``, then swings every joint
+of both arms back and forth with joint moves (no calibration needed), waiting on each.  When
+a wait is woken by a halt it prints ``woken <CLOCK_REALTIME ns> <the error>`` and exits 3;
+any other failure exits 1 with the traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from kali_daemons.client import Kali
+from kali_daemons.client.motion import MotionFailedError
+from kali_daemons.layout import PowerState
+
+SWING = np.radians([20.0, -8.0, 8.0, 20.0, 15.0, 20.0])  # about each arm's start
+SPEED = 0.3  # of the joint speed and acceleration limits: a swing takes about a second
+
+
+def main(instance: str) -> int:
+    with Kali(instance) as kali:
+        for name in kali.names:
+            kali.servo.power(name, True)
+        deadline = time.monotonic() + 10.0
+        while any(kali.servo.power_state(n) != PowerState.ON for n in kali.names):
+            if time.monotonic() > deadline or kali.inst.fault["active"]:
+                print(f"power failed: {kali.inst.fault_text()}", flush=True)
+                return 1
+            time.sleep(0.01)
+        arms = [kali.robot(n) for n in kali.names]
+        for arm in arms:
+            arm.feedforward("full")
+        start = [arm.read_joints() for arm in arms]
+        print("moving", flush=True)
+        sign = 1.0
+        while True:
+            handles = [
+                arm.move_joints(q + sign * SWING, speed=SPEED, wait=False)
+                for arm, q in zip(arms, start, strict=True)
+            ]
+            try:
+                for h in handles:
+                    h.wait(timeout=60.0)
+            except MotionFailedError as exc:
+                print(f"woken {time.time_ns()} {exc}", flush=True)
+                return 3
+            sign = -sign
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1]))
