@@ -53,6 +53,7 @@ from kali_daemons.layout import (
 )
 from kali_daemons.servolevel import ServoClient
 from kali_daemons.spinlock import pid_alive
+from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import ROOT, config_text, leftovers, unique_name
 from ..test_launcher import kalictl
@@ -390,3 +391,21 @@ def test_pids_are_gone(cell: Cell) -> None:
     if cell.running:
         cell.stop()
     assert not [p for p in launcher.instance_pids(cell.name) if pid_alive(p)]
+
+
+def test_lockstep_runs_on_without_a_dead_dynamics_or_viewer(kali: Callable[..., str]) -> None:
+    """Lockstep too: the clock finds the dead non-serious processes while it waits for their
+    acknowledgements, leaves them out, and every other process keeps every tick."""
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        step_kali_clock(inst, 50)
+        victims = [int(inst.procs[inst.slot_of(v)]["pid"]) for v in ("dynamics", "viewer")]
+        for pid in victims:
+            os.kill(pid, signal.SIGKILL)
+        assert step_kali_clock(inst, 200) == 250
+        assert inst.fault_text() is None
+        for v in ("dynamics", "viewer"):
+            assert int(inst.procs[inst.slot_of(v)]["state"]) == ProcState.DIED
+        assert int(inst.procs[inst.slot_of("sio")]["acks"]) == 250
+        r = kalictl("-i", name, "status")
+        assert "degraded: dynamics" in r.stdout and "degraded: viewer" in r.stdout, r.stdout
