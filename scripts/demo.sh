@@ -14,8 +14,8 @@ $kalictl servo list
 echo; echo "== kalictl calibrate: every joint onto its nearest index pulse; exact angles from now on"
 $kalictl calibrate
 echo; echo "== kalictl move: a smooth joint move of the left arm, and back"
-$kalictl move left --joints 20,30,-160,10,30,45 --speed 45
-$kalictl move left --joints 0,45,-180,0,45,0 --speed 45
+$kalictl move left --joints 20,30,-160,10,30,45 --speed 0.5
+$kalictl move left --joints 0,45,-180,0,45,0 --speed 0.5
 echo; echo "== kalictl servo: read the PID of left joint 2, raise kp, switch joint 6 to the PD"
 $kalictl servo get left 2
 $kalictl servo set left 2 kp=14000
