@@ -16,6 +16,9 @@ $kalictl calibrate
 echo; echo "== kalictl move: a smooth joint move of the left arm, and back"
 $kalictl move left --joints 20,30,-160,10,30,45 --speed 0.5
 $kalictl move left --joints 0,45,-180,0,45,0 --speed 0.5
+echo; echo "== kalictl run: a robot program, both arms pick up the bar, carry it and put it back"
+$kalictl run scripts/example_carry.py
+$kalictl top --once
 echo; echo "== kalictl servo: read the PID of left joint 2, raise kp, switch joint 6 to the PD"
 $kalictl servo get left 2
 $kalictl servo set left 2 kp=14000
