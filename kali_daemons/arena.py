@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import mmap
 import os
+import pwd
+import stat
 import time
 from dataclasses import dataclass
 
@@ -124,6 +126,11 @@ class Arena:
             raise ArenaError(
                 f"no instance '{instance}': {name} does not exist (is it started?)"
             ) from exc
+        except posix_ipc.PermissionsError:
+            raise ArenaError(
+                f"instance '{instance}' is not yours: {name} {owner_text(name)}; "
+                f"{user_text()} may not attach (Kali instances are owner-only)"
+            ) from None
         try:
             if shm.size < layout.HEADER.itemsize:
                 raise ArenaError(f"{name} is {shm.size} B, smaller than a header")
@@ -376,6 +383,30 @@ class Arena:
         """Occupancy and fragmentation of the heap."""
         with self._dir_lock:
             return self._stats_locked()
+
+
+def shm_path(name: str, semaphore: bool = False) -> str:
+    """Where Linux shows the POSIX segment (or semaphore) ``name`` in the file system."""
+    return f"/dev/shm/{'sem.' if semaphore else ''}{name.lstrip('/')}"
+
+
+def user_text(uid: int | None = None) -> str:
+    """``uid`` (default: this process's effective one) with its user name, for messages."""
+    uid = os.geteuid() if uid is None else uid
+    try:
+        return f"uid {uid} ({pwd.getpwuid(uid).pw_name})"
+    except KeyError:
+        return f"uid {uid}"
+
+
+def owner_text(name: str, semaphore: bool = False) -> str:
+    """Who owns the POSIX object ``name`` and its mode, e.g. "belongs to uid 0 (root), mode
+    0600", for a refusal's message."""
+    try:
+        st = os.stat(shm_path(name, semaphore))
+    except OSError:
+        return "belongs to another user"
+    return f"belongs to {user_text(st.st_uid)}, mode {stat.S_IMODE(st.st_mode):04o}"
 
 
 def unlink_segment(name: str) -> bool:

@@ -17,10 +17,17 @@ Head and tail counters are monotonically increasing u64 words (slot = counter % 
 A writer fills a slot and then publishes the new tail with one atomic 64-bit store; the reader
 loads the tail atomically before reading slots and publishes its head the same way after
 copying.  "Safe in a cycle" below means: no array allocation, no I/O, no logging.
+
+Consumers never trust what another process wrote (DESIGN 7): the Type 1 consumer keeps its
+own head, checks the tail against it and each entry's sequence number against the entry's
+place, and drops what does not fit (``discarded``); the Type 2 consumer refuses set-points that
+are not finite (or beyond its ``bound``) and ratio stamps below 1, holding instead
+(``rejected``).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Mapping
@@ -76,8 +83,10 @@ class RequestQueue:
 
     Block ``key`` holds a ``layout.QUEUE_HEADER``; block ``key + ".slots"`` holds ``capacity``
     ``layout.queue_entry(payload)`` entries.  Each entry carries a sequence number, starting at
-    1 and strictly increasing in the order entries were accepted.  A full queue refuses the
-    entry (:class:`QueueFullError`) and overwrites nothing.
+    1 and strictly increasing in the order entries were accepted: its place in the queue + 1
+    (the tail it was written at + 1), which is how the consumer knows an entry was written for
+    the place it reads.  A full queue refuses the entry (:class:`QueueFullError`) and
+    overwrites nothing.
     """
 
     def __init__(self, arena: Arena, key: str, payload: np.dtype, capacity: int) -> None:
@@ -111,6 +120,10 @@ class RequestQueue:
         payloads = self._slots["payload"]
         self._cells = [payloads[i : i + 1].reshape(()) for i in range(cap)]  # 0-d views
         self._staging = np.zeros((), dtype=self.payload)  # validated copy of a put's values
+        # the consumer's own head: the arena's copy is published for producers, never read
+        # back, so a write to it from outside cannot make the consumer replay old entries
+        self._next = atomic.load64(self._head_addr)
+        self._discarded = self._h["discarded"]
 
     # ---------------------------------------------------------------- producers
 
@@ -166,7 +179,7 @@ class RequestQueue:
                 full = (tail - head, int(self._seqs[head % self._capacity]))
             else:
                 slot = tail % self._capacity
-                seq = int(self._h["next_seq"])
+                seq = tail + 1  # from the place, never from next_seq: see the class doc
                 np.copyto(self._cells[slot], self._staging)
                 self._seqs[slot] = seq
                 self._h["next_seq"] = seq + 1
@@ -183,20 +196,36 @@ class RequestQueue:
     def get_into(self, out: np.ndarray) -> int | None:
         """Copy the oldest payload into ``out`` (a preallocated one-record array of ``payload``)
         and return its seq, or None when empty.  Single consumer; never locks; safe in a cycle.
+
+        What only a writer outside the protocol can produce is dropped and counted in
+        ``discarded``, never returned: an entry whose seq is not its place + 1 (a stale slot
+        behind a forged tail, a torn or forged entry), and a tail behind the consumer's head
+        or more than ``capacity`` ahead of it (the consumer then skips to the tail).
         """
         if out.dtype != self.payload or out.size != 1:
             raise ChannelError(
                 f"queue '{self.key}': get_into needs one preallocated record of "
                 f"{self.payload}, got dtype {out.dtype} shape {out.shape}"
             )
-        head = atomic.load64(self._head_addr)
-        if head == atomic.load64(self._tail_addr):
-            return None
-        slot = head % self._capacity
-        np.copyto(out, self._cells[slot])
-        seq = int(self._seqs[slot])
-        atomic.store64(self._head_addr, head + 1)  # the slot may be reused from here on
-        return seq
+        for _ in range(self._capacity + 1):
+            head = self._next
+            tail = atomic.load64(self._tail_addr)
+            if head == tail:
+                return None
+            if not 0 < tail - head <= self._capacity:  # no producer wrote this tail
+                self._discarded[...] = int(self._discarded) + 1
+                self._next = tail
+                atomic.store64(self._head_addr, tail)
+                return None
+            slot = head % self._capacity
+            np.copyto(out, self._cells[slot])
+            seq = int(self._seqs[slot])
+            self._next = head + 1
+            atomic.store64(self._head_addr, head + 1)  # the slot may be reused from here on
+            if seq == head + 1:
+                return seq
+            self._discarded[...] = int(self._discarded) + 1
+        return None
 
     def peek_seq(self) -> int | None:
         """Seq of the oldest unread entry, or None when empty.  Consumer; safe in a cycle."""
@@ -219,6 +248,11 @@ class RequestQueue:
     def rejected(self) -> int:
         """Puts refused because the queue was full, since creation.  Safe in a cycle."""
         return int(self._h["rejected"])
+
+    @property
+    def discarded(self) -> int:
+        """Entries the consumer dropped as not written by the protocol (``get_into``)."""
+        return int(self._discarded)
 
 
 # --------------------------------------------------------------------------------------------
@@ -287,12 +321,15 @@ class InterpolatingFifo:
         width: int,
         capacity: int,
         ratio: Fraction | tuple[int, int],
+        bound: float | None = None,
     ) -> None:
         """Create or attach (outside the cycle).
 
         The creator fixes ``ratio``; an attacher (a restarted SIO or TG, a user program)
         checks capacity and width but adopts the FIFO's ratios, which may have changed on
-        line since: ``ratio`` need only be valid.
+        line since: ``ratio`` need only be valid.  ``bound`` is this consumer's sanity limit:
+        a set-point with a value not strictly within ±``bound`` (and any non-finite one,
+        bound or not) is refused when taken (see ``pop_into``).
         """
         self.key = key
         cap = _check_capacity("fifo", key, capacity)
@@ -327,6 +364,10 @@ class InterpolatingFifo:
         self._overflows = h["overflows"]
         self._scratch = np.empty(width)
         self._finite = np.empty(width, dtype=bool)
+        if bound is not None and not (isinstance(bound, int | float) and bound > 0):
+            raise ChannelError(f"fifo '{key}': bound {bound!r}, must be a number > 0 or None")
+        self._bound = math.inf if bound is None else float(bound)
+        self._rejected = h["rejected"]
 
     def _init_geometry(self, cap_addr: int, cap: int, width: int, r: Fraction) -> None:
         ok, seen = atomic.CompareExchange32()(cap_addr, 0, _INITIALISING)
@@ -423,6 +464,12 @@ class InterpolatingFifo:
         False when holding.  Before the first set-point or ``reset`` nothing is known: ``out``
         is left unchanged, the tick counts as an underrun and False is returned.
         Single consumer; safe in a cycle.
+
+        A set-point that is not finite or not within ±``bound`` (written by something other
+        than ``push``) is refused and counted in ``rejected``: its segment holds at the
+        previous target B, keeping its timing, so later set-points (and the feed-forward rows
+        keyed by their index) stay where they belong.  A ratio stamp below 1 or with a zero
+        term is refused the same way and the segment keeps the ratio in force.
         """
         done = int(self._seg_done)
         ticks = int(self._seg_ticks)
@@ -440,16 +487,24 @@ class InterpolatingFifo:
             stamp = int(self._stamps[slot])
             if stamp != self._stamp:  # the set-point was pushed under another ratio
                 self._switch(stamp)
+            np.abs(row, out=self._scratch)
+            np.less(self._scratch, self._bound, out=self._finite)  # False for NaN and inf
+            good = bool(self._finite.all())
+            if not good:
+                self._rejected[...] = int(self._rejected) + 1
             if not self._primed:
+                atomic.store64(self._head_addr, head + 1)
+                if not good:
+                    return False
                 np.copyto(self._cur, row)
                 np.copyto(self._start, row)
                 np.copyto(self._target, row)
-                atomic.store64(self._head_addr, head + 1)
                 self._primed[...] = 1
                 np.copyto(out, self._cur)
                 return True
             np.copyto(self._start, self._target)
-            np.copyto(self._target, row)
+            if good:
+                np.copyto(self._target, row)
             atomic.store64(self._head_addr, head + 1)
             acc = int(self._acc) + self._num
             ticks = acc // self._den
@@ -470,8 +525,12 @@ class InterpolatingFifo:
         return True
 
     def _switch(self, stamp: int) -> None:
-        """Interpolate from now on with the ratio word ``stamp`` (consumer; in the cycle)."""
+        """Interpolate from now on with the ratio word ``stamp`` (consumer; in the cycle);
+        a word no ``set_ratio`` writes (a zero term, a ratio below 1) is refused, counted."""
         num, den = stamp & 0xFFFFFFFF, stamp >> 32
+        if not 1 <= den <= num:
+            self._rejected[...] = int(self._rejected) + 1
+            return
         self._num, self._den, self._num_f, self._stamp = num, den, float(num), stamp
         self._h["ratio_num"] = num
         self._h["ratio_den"] = den
@@ -547,6 +606,11 @@ class InterpolatingFifo:
     def overflows(self) -> int:
         """Pushes refused because the ring was full.  Safe in a cycle."""
         return int(self._overflows)
+
+    @property
+    def rejected(self) -> int:
+        """Set-points and ratio stamps the consumer refused as garbage (``pop_into``)."""
+        return int(self._rejected)
 
 
 # --------------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ import numpy as np
 import posix_ipc
 
 from . import atomic, layout
-from .arena import Arena, segment_name
+from .arena import Arena, owner_text, segment_name, user_text
 from .config import KaliConfig, parse_config
 from .errors import ClockError, InstanceError
 from .layout import FaultCode, ProcState
@@ -176,6 +176,11 @@ class Instance:
                 sem = posix_ipc.Semaphore(posix_name)
             except posix_ipc.ExistentialError as exc:
                 raise InstanceError(f"instance '{self.name}': no semaphore {posix_name}") from exc
+            except posix_ipc.PermissionsError:
+                raise InstanceError(
+                    f"instance '{self.name}': semaphore {posix_name} "
+                    f"{owner_text(posix_name, semaphore=True)}; {user_text()} may not use it"
+                ) from None
             self._sems[posix_name] = sem
         return sem
 

@@ -14,6 +14,7 @@ types, a quantity with no value yet (a percentile of an empty histogram) is ``No
 
 from __future__ import annotations
 
+import enum
 import math
 import time
 from typing import Any
@@ -42,6 +43,15 @@ def plain(x: Any) -> Any:
     if isinstance(x, float) and not math.isfinite(x):
         return None
     return x
+
+
+def _name(kind: type[enum.IntEnum], value: int) -> str:
+    """An enum word's name, or INVALID(value) for a word a client wrote outside the enum (a
+    snapshot shows the arena as it is and never raises on it)."""
+    try:
+        return kind(value).name
+    except ValueError:
+        return f"INVALID({value})"
 
 
 def percentiles_us(hist: np.ndarray, qs: tuple[float, ...] = (0.5, 0.99, 0.999)) -> list[float]:
@@ -159,8 +169,8 @@ class Introspector:
     def _ff(rec: np.void) -> dict[str, Any]:
         names = rec.dtype.names or ()
         out: dict[str, Any] = {
-            "mode": FfMode(int(rec["mode"])).name if "mode" in names else None,
-            "state": FfState(int(rec["state"])).name if "state" in names else None,
+            "mode": _name(FfMode, int(rec["mode"])) if "mode" in names else None,
+            "state": _name(FfState, int(rec["state"])) if "state" in names else None,
         }
         for f in FF_SCALARS:
             if f in names:
@@ -221,7 +231,8 @@ class Introspector:
                     entry["duration_s"] = float(s["duration_s"])
             robots.append(entry)
         queued = None if queue is None else int(queue["tail"]) - int(queue["head"])
-        return {"queued": queued, "robots": robots}
+        discarded = None if queue is None else int(queue["discarded"])
+        return {"queued": queued, "discarded": discarded, "robots": robots}
 
     def _misses(self) -> dict[str, Any]:
         return {

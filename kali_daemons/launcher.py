@@ -12,6 +12,7 @@ from __future__ import annotations
 import glob
 import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -22,7 +23,7 @@ import numpy as np
 import posix_ipc
 
 from . import layout
-from .arena import Arena, segment_name, unlink_segment
+from .arena import Arena, segment_name, unlink_segment, user_text
 from .config import KaliConfig, ms_to_ns, ns_to_ms
 from .errors import ArenaError, ConfigError, InstanceError
 from .instance import Instance, all_semaphore_names, check_instance_name, decode
@@ -38,6 +39,45 @@ KILL_GRACE_S = 2.0
 def log_dir(instance: str) -> Path:
     """Where the daemons' logs go: ``$KALI_LOG_DIR`` or ``/tmp/kali-<instance>``."""
     return Path(os.environ.get("KALI_LOG_DIR", f"/tmp/kali-{instance}"))
+
+
+def private_log_dir(path: Path) -> Path:
+    """Create the log directory ``path`` (mode 0700) or check the one there: it must be a real
+    directory (not a symbolic link) of this user that neither group nor others can write, so
+    no other user can plant a link the daemons' logs or flight dumps would follow, or swap
+    the files; InstanceError naming the directory and its owner otherwise."""
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    st = os.lstat(path)
+    if not stat.S_ISDIR(st.st_mode):
+        raise InstanceError(f"log directory {path} is not a directory (a symbolic link?)")
+    if st.st_uid != os.geteuid():
+        raise InstanceError(
+            f"log directory {path} belongs to {user_text(st.st_uid)}, not {user_text()}: "
+            f"remove it or set KALI_LOG_DIR to a directory of your own"
+        )
+    if st.st_mode & 0o022:
+        raise InstanceError(
+            f"log directory {path} has mode {stat.S_IMODE(st.st_mode):04o}: group or others "
+            f"may write it; chmod go-w it or set KALI_LOG_DIR"
+        )
+    return path
+
+
+def check_owner(instance: str) -> None:
+    """InstanceError unless this user may stop or replace ``instance``: every /dev/shm object
+    of it must be this user's (root may stop anyone's)."""
+    if os.geteuid() == 0:
+        return
+    for path in shm_objects(instance):
+        try:
+            uid = os.lstat(path).st_uid
+        except FileNotFoundError:
+            continue
+        if uid != os.geteuid():
+            raise InstanceError(
+                f"instance '{instance}' is not yours: {path} belongs to {user_text(uid)}; "
+                f"only its owner (or root) can stop it"
+            )
 
 
 def shm_objects(instance: str) -> list[str]:
@@ -94,8 +134,10 @@ class StopReport:
 
 
 def stop(instance: str) -> StopReport:
-    """Stop every process of ``instance`` and remove its segment and semaphores."""
+    """Stop every process of ``instance`` and remove its segment and semaphores; another
+    user's instance is refused (``check_owner``) before anything is touched."""
     check_instance_name(instance)
+    check_owner(instance)
     report = StopReport()
     pids = instance_pids(instance)
     try:
@@ -260,8 +302,7 @@ def start(
             )
         stale = shm_objects(name)
         stop(name)
-    logs = log_dir(name)
-    logs.mkdir(parents=True, exist_ok=True)
+    logs = private_log_dir(log_dir(name))
     arena = _create(cfg, name, lockstep, record_path)
     arena.close()
     inst = Instance.attach(name)

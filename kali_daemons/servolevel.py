@@ -9,6 +9,11 @@ and clients see it.
 - The put/get mailbox (3.4): a client never touches a running servo's data.  It writes the
   staging bytes and the operation, and the SV carries it out at the slot's next run, before
   the step.  So a servo is never skipped for an update and never sees half-written data.
+  The SV trusts none of it (DESIGN 7): an undefined operation, an algorithm index outside the
+  registry, a PUT record with a non-finite field or a parameter out of range, a PARAMS value
+  out of range are refused (``apply_op``), the servo's data unchanged; the slot's
+  ``op_status`` says so and the staging bytes then hold the reason, which ``ServoClient``
+  raises as a ServoError.
 
 ``ServoLevel`` is the view; ``ServoClient`` adds the operations users call (put/get/select,
 gains, enable, range checking, ``safe``, power, calibration).
@@ -35,8 +40,21 @@ from .servo import Handover, Registry, ServoAlgorithm, registry_for, struct_view
 from .spinlock import SpinLock
 
 FIFO_CAPACITY = 256  # TG set-points the TG → SIO FIFO holds (2.56 s at 10 ms)
+# SIO refuses a set-point beyond ±this (rad) as garbage, holding instead: two full turns either
+# way is no joint angle (joint range itself is SIO's range check, which halts)
+SETPOINT_BOUND_RAD = 4.0 * math.pi
 OP_TIMEOUT_S = 2.0  # how long a client waits for the SV to carry out a mailbox operation
 SlotStruct = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)
+
+
+def flag(what: str, value: object) -> bool:
+    """``value`` as an on/off flag: a bool, or the integers 0 and 1 (numpy's too); ServoError
+    naming ``what`` for anything else (an array's truth is ambiguous, a string's meaningless)."""
+    if isinstance(value, bool | np.bool_) or (
+        isinstance(value, int | np.integer) and int(value) in (0, 1)
+    ):
+        return bool(value)
+    raise ServoError(f"{what}: {value!r:.60} is not a flag (True/False, 1/0)")
 
 
 def init_data_for(model: str, algo: ServoAlgorithm, joint: int) -> dict[str, float]:
@@ -89,9 +107,12 @@ class ServoLevel:
         )  # exact: periods are whole ns
 
     def fifo(self, robot: int) -> InterpolatingFifo:
-        """The TG → SIO set-point FIFO of robot index ``robot`` (Type 2, 2.2.2)."""
+        """The TG → SIO set-point FIFO of robot index ``robot`` (Type 2, 2.2.2); as SIO
+        consumes it, a set-point beyond ``SETPOINT_BOUND_RAD`` or not finite is refused."""
         key = layout.KEY_FIFO.format(robot=self.names[robot])
-        return InterpolatingFifo(self.inst.arena, key, 6, FIFO_CAPACITY, self.fifo_ratio)
+        return InterpolatingFifo(
+            self.inst.arena, key, 6, FIFO_CAPACITY, self.fifo_ratio, bound=SETPOINT_BOUND_RAD
+        )
 
     def initialise(self) -> None:
         """First start (SIO): every joint's servo, data, tolerances and checks from the config."""
@@ -139,7 +160,7 @@ class ServoClient:
                 return robot
         elif isinstance(robot, str) and robot in self.names:
             return self.names.index(robot)
-        raise ServoError(f"no robot {robot!r}; robots: {', '.join(self.names)}")
+        raise ServoError(f"no robot {robot!r:.60}; robots: {', '.join(self.names)}")
 
     def slot(self, robot: str | int, joint: int) -> int:
         """Slot index of ``joint`` (1..6, as the thesis and the PUMA number them)."""
@@ -149,14 +170,14 @@ class ServoClient:
             or not isinstance(joint, int | np.integer)
             or not 1 <= joint <= 6
         ):
-            raise ServoError(f"joint {joint!r} of robot '{self.names[k]}', must be 1..6")
+            raise ServoError(f"joint {joint!r:.60} of robot '{self.names[k]}', must be 1..6")
         return 6 * k + int(joint) - 1
 
     def algorithm(self, name: str) -> tuple[int, ServoAlgorithm]:
         """(index, algorithm) of a registered servo algorithm; ServoError naming them."""
         registry = self.level.registry
-        if name not in registry.names():
-            raise ServoError(f"no algorithm {name!r}; known: {', '.join(registry.names())}")
+        if not isinstance(name, str) or name not in registry.names():
+            raise ServoError(f"no algorithm {name!r:.60}; known: {', '.join(registry.names())}")
         idx = registry.index(name)
         return idx, registry[idx]
 
@@ -182,14 +203,22 @@ class ServoClient:
             s = lv.slot_structs[i]
             s.op_algo = algo
             if not self._clock_running() and op != SlotOp.SELECT:
-                apply_op(lv, i, int(op))  # no SV runs while the clock is stopped
+                if not apply_op(lv, i, int(op)):  # no SV runs while the clock is stopped
+                    self._check_refused(i)
                 return
             done = int(s.ops_done)
             atomic.store32(lv.op_addr[i], int(op))  # published last: the SV acts on it
             if wait and self._clock_running():
                 self._wait_done(i, done)
+                if int(s.ops_done) != done:
+                    self._check_refused(i)
         finally:
             lock.release()
+
+    def _check_refused(self, i: int) -> None:
+        """ServoError with the SV's reason if slot ``i``'s last mailbox operation was refused."""
+        if int(self.level.slot_structs[i].op_status) == layout.OP_REFUSED:
+            raise ServoError(f"{self._where(i)}: {refusal_text(self.level, i)}")
 
     def _wait_op_clear(self, i: int) -> None:
         deadline = time.monotonic() + OP_TIMEOUT_S
@@ -263,9 +292,14 @@ class ServoClient:
         Validated here first, on a copy, so a bad value changes nothing.
         """
         i = self.slot(robot, joint)
-        name = servo or self.active(robot, joint)
+        name = self.active(robot, joint) if servo is None else servo
         idx, alg = self.algorithm(name)
-        unknown = sorted(set(params) - set(alg.params))
+        if not isinstance(params, Mapping):
+            raise ServoError(
+                f"{self._where(i)} '{name}': parameters {params!r:.60} are not a mapping of "
+                f"names to values (e.g. {{'kp': 9000}})"
+            )
+        unknown = sorted(str(k) for k in set(params) - set(alg.params))
         if unknown:
             raise ServoError(
                 f"'{name}' has no parameter {', '.join(unknown)}; "
@@ -285,33 +319,46 @@ class ServoClient:
         self, robot: str | int, joint: int, servo: str | None = None
     ) -> dict[str, float]:
         """The parameters of ``servo`` (default: the active one) on a joint."""
-        name = servo or self.active(robot, joint)
+        name = self.active(robot, joint) if servo is None else servo
         _, alg = self.algorithm(name)
         rec = self.get_servo(robot, joint, name)
         return alg.get_params(struct_view(rec.copy()))
 
     def active(self, robot: str | int, joint: int) -> str:
-        """Name of the joint's active servo algorithm."""
+        """Name of the joint's active servo algorithm; ServoError if the slot holds an index
+        outside the registry (written by something other than an SV, which restores it)."""
         i = self.slot(robot, joint)
-        return self.level.registry[int(self.level.slot_structs[i].algo)].name
+        a = int(self.level.slot_structs[i].algo)
+        registry = self.level.registry
+        if not 0 <= a < len(registry):
+            raise ServoError(
+                f"{self._where(i)}: algorithm index {a} in the arena, registered 0.."
+                f"{len(registry) - 1}; the SV restores the robot's configured servo at its next run"
+            )
+        return registry[a].name
 
     # ------------------------------------------------------------------ single words
 
     def enable_servo(self, robot: str | int, joint: int, on: bool = True) -> None:
         """Run (or stop: zero torque) one joint's servo."""
-        self.level.slot_structs[self.slot(robot, joint)].enabled = int(bool(on))
+        i = self.slot(robot, joint)
+        self.level.slot_structs[i].enabled = int(flag(f"enable_servo {self._where(i)}", on))
 
     def range_check(self, robot: str | int, joint: int, on: bool = True) -> None:
         """Turn SIO's joint-range check for one joint on or off."""
         i = self.slot(robot, joint)
-        self.level.robots["range_check"][i // 6, i % 6] = int(bool(on))
+        on = flag(f"range_check {self._where(i)}", on)
+        self.level.robots["range_check"][i // 6, i % 6] = int(on)
 
     def set_safe(self, robot: str | int, joint: int, safe_rad: float) -> None:
         """Set a joint's tracking-error tolerance (rad) before a runaway halt."""
         i = self.slot(robot, joint)
-        value = float(safe_rad)
-        if not 0.0 < value <= math.pi:
-            raise ServoError(f"safe {safe_rad!r} rad for {self._where(i)}, must be in (0, π]")
+        try:
+            value = float(safe_rad)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            value = math.nan
+        if isinstance(safe_rad, bool) or not 0.0 < value <= math.pi:
+            raise ServoError(f"safe {safe_rad!r:.60} rad for {self._where(i)}, must be in (0, π]")
         self.level.robots["safe"][i // 6, i % 6] = value
 
     # ------------------------------------------------------------------ power
@@ -319,6 +366,7 @@ class ServoClient:
     def power(self, robot: str | int, on: bool) -> None:
         """Ask SIO to enable (or disable) a robot's amplifiers; see ``wait_power``."""
         k = self.robot_index(robot)
+        on = flag(f"power of robot '{self.names[k]}'", on)
         if on and self.inst.fault["active"]:
             raise ServoError(
                 f"cannot enable '{self.names[k]}' while a fault is active "
@@ -339,17 +387,26 @@ class ServoClient:
         k = self.robot_index(robot)
         modes = {"off": FfMode.OFF, "gravity": FfMode.GRAVITY, "full": FfMode.FULL}
         modes["on"] = FfMode.FULL
-        if mode not in modes:
+        if not isinstance(mode, str) or mode not in modes:
             raise ServoError(
-                f"feed-forward of robot '{self.names[k]}': mode {mode!r}, must be one of "
+                f"feed-forward of robot '{self.names[k]}': mode {mode!r:.60}, must be one of "
                 f"{', '.join(modes)}"
             )
         self._ff_records()["mode"][k] = modes[mode]
 
     def feedforward_state(self, robot: str | int) -> tuple[FfMode, FfState]:
-        """(mode asked for, what SIO does with it) of a robot's feed-forward."""
-        rec = self._ff_records()[self.robot_index(robot)]
-        return FfMode(int(rec["mode"])), FfState(int(rec["state"]))
+        """(mode asked for, what SIO does with it) of a robot's feed-forward; ServoError if
+        the mode word holds no FfMode (written outside ``feedforward``; SIO and the dynamics
+        process keep the last valid mode meanwhile)."""
+        k = self.robot_index(robot)
+        rec = self._ff_records()[k]
+        mode, state = int(rec["mode"]), int(rec["state"])
+        if mode not in FF_MODES or state not in FF_STATES:
+            raise ServoError(
+                f"feed-forward of robot '{self.names[k]}': mode word {mode}, state {state} in "
+                f"the arena; modes are {', '.join(f'{m.value} {m.name}' for m in FfMode)}"
+            )
+        return FfMode(mode), FfState(state)
 
     def _ff_records(self) -> np.ndarray:
         if self.inst.arena.lookup(layout.KEY_FEEDFORWARD) is None:
@@ -388,29 +445,95 @@ class ServoClient:
             )
 
 
-def apply_op(level: ServoLevel, i: int, op: int) -> None:
+FF_MODES = frozenset(int(m) for m in FfMode)
+FF_STATES = frozenset(int(m) for m in FfState)
+_OPS = frozenset((SlotOp.PUT, SlotOp.GET, SlotOp.SELECT, SlotOp.PARAMS))
+
+
+def apply_op(level: ServoLevel, i: int, op: int) -> bool:
     """Carry out mailbox operation ``op`` on slot ``i`` (the SV, or a client while the clock
-    is stopped and no SV runs).  Only PARAMS allocates, and only when asked for."""
+    is stopped and no SV runs); True if done, False if refused.
+
+    Every word and byte of the mailbox is a client's, so each is checked first: ``op`` must be
+    PUT, GET, SELECT or PARAMS and ``op_algo`` a registered index; a PUT record must have
+    every field finite and pass the algorithm's own ``set_params`` with its own parameters (on
+    a copy, which also recomputes the terms derived from them; that copy is what is put); a
+    PARAMS value must pass ``set_params`` (NaN = unchanged), on a copy too.  A refusal
+    changes no servo data: ``op_status`` = OP_REFUSED and the reason, as UTF-8, in the staging
+    bytes.  Anything an algorithm raises refuses the operation the same way, never the SV.
+    ``ops_done`` is incremented either way.  GET and SELECT allocate nothing; PUT, PARAMS
+    and a refusal allocate, only when asked for.
+    """
     s = level.slot_structs[i]
-    a = int(s.op_algo)
-    if a >= len(level.registry):
-        s.status = -1
-        return
-    alg = level.registry[a]
+    try:
+        why = _carry_out(level, i, op, int(s.op_algo))
+    except Exception as exc:  # an algorithm's own code raised: refuse, never halt
+        why = f"{_op_name(op)} refused: {type(exc).__name__}: {exc}"
+    if why:
+        text = why.encode()[: layout.SERVO_STAGING_BYTES - 1]
+        level.staging[i, : len(text)] = np.frombuffer(text, np.uint8)
+        level.staging[i, len(text)] = 0
+        s.op_status = layout.OP_REFUSED
+    else:
+        s.op_status = 0
+    s.ops_done += 1
+    return not why
+
+
+def _op_name(op: int) -> str:
+    return SlotOp(op).name if op in _OPS else f"operation {op}"
+
+
+def _carry_out(level: ServoLevel, i: int, op: int, a: int) -> str:
+    """Apply one checked mailbox operation; '' when done, else why it was refused."""
+    registry = level.registry
+    if op not in _OPS:
+        ops = ", ".join(f"{SlotOp(o).name} {int(o)}" for o in sorted(_OPS))
+        return f"mailbox operation {op} is not one of {ops}"
+    if not 0 <= a < len(registry):
+        return (
+            f"{SlotOp(op).name} refused: algorithm index {a}, registered 0..{len(registry) - 1} "
+            f"({', '.join(registry.names())})"
+        )
+    alg = registry[a]
     size = alg.dtype.itemsize
-    if op == SlotOp.PUT:
-        ctypes.memmove(ctypes.addressof(level.structs[i][a]), level.staging[i].ctypes.data, size)
-    elif op == SlotOp.GET:
+    if op == SlotOp.GET:
         ctypes.memmove(level.staging[i].ctypes.data, ctypes.addressof(level.structs[i][a]), size)
     elif op == SlotOp.SELECT:
         handover(level, i, a)
-    elif op == SlotOp.PARAMS:
+    elif op == SlotOp.PUT:
+        trial = level.staging[i, :size].copy().view(alg.dtype).reshape(())
+        for name in alg.dtype.names or ():
+            value = trial[name]
+            if value.dtype.kind == "f" and not math.isfinite(float(value)):
+                return f"PUT '{alg.name}' refused: field {name} is {float(value)}, must be finite"
+        view = struct_view(trial)
+        try:
+            alg.set_params(view, alg.get_params(view))
+        except KaliError as exc:
+            return f"PUT '{alg.name}' refused: {_bare(exc)}"
+        ctypes.memmove(ctypes.addressof(level.structs[i][a]), ctypes.addressof(view), size)
+    else:  # PARAMS
         values = level.staging[i, : 8 * len(alg.params)].view(np.float64)
-        alg.set_params(
-            level.structs[i][a],
-            {p: float(v) for p, v in zip(alg.params, values, strict=True) if not math.isnan(v)},
-        )
-    s.ops_done += 1
+        changes = {p: float(v) for p, v in zip(alg.params, values, strict=True) if v == v}
+        trial = level.data[i][a].copy()
+        view = struct_view(trial)
+        try:
+            alg.set_params(view, changes)
+        except KaliError as exc:
+            return f"PARAMS '{alg.name}' refused: {_bare(exc)}"
+        ctypes.memmove(ctypes.addressof(level.structs[i][a]), ctypes.addressof(view), size)
+    return ""
+
+
+def _bare(exc: KaliError) -> str:
+    """An error's message without its subsystem prefix (the refusal names the operation)."""
+    return str(exc).removeprefix(f"{exc.subsystem}: ")
+
+
+def refusal_text(level: ServoLevel, i: int) -> str:
+    """The reason the SV gave for refusing slot ``i``'s last mailbox operation."""
+    return decode(level.staging[i].tobytes())
 
 
 def handover(level: ServoLevel, i: int, a: int) -> None:

@@ -18,9 +18,11 @@ one.  A robot's T6 (``read_t6``) is its flange in its own base frame (thesis 3.3
 
 Requests go through the TG's Type 1 queue; each request's fate comes back in its status
 record.  Everything is validated here before it is queued (the TG validates again): a bad
-request raises ``MotionError`` and nothing moves.  A Cartesian path whose arms are idle is
-checked whole here, with the TG's own check (``tg.cartesian``), so the reason comes back at
-once.  A halt wakes every waiting program with the fault (``MotionFailedError``).
+request raises ``MotionError`` (``ServoError`` for a robot name, power or calibration) naming
+the argument, and nothing moves; no other exception comes out of a bad argument.  A Cartesian
+path whose arms are idle is checked whole here, with the TG's own check (``tg.cartesian``),
+so the reason comes back at once.  A halt wakes every waiting program with the fault
+(``MotionFailedError``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from types import TracebackType
 
 import numpy as np
@@ -88,6 +90,7 @@ class MotionHandle:
     def wait(self, timeout: float | None = None) -> None:
         """Block until the motion has arrived; MotionFailedError if it ended any other way (refused,
         stopped, aborted, halted: the message says why), TimeoutError after ``timeout`` s."""
+        timeout = _timeout_arg(f"wait: request {self.seq}", timeout)
         deadline = None if timeout is None else time.monotonic() + timeout
         inst = self.kali.inst
         while not self.done:
@@ -119,11 +122,20 @@ def pose(xyz: Sequence[float], rotation: np.ndarray | None = None) -> np.ndarray
     return t
 
 
-def _pose_arg(what: str, value: object) -> np.ndarray:
+def _real_array(what: str, value: object, expected: str) -> np.ndarray:
+    """``value`` as a float64 array if it holds real numbers (not complex, text, objects or
+    bools, which numpy would convert or refuse in its own words); MotionError otherwise."""
     try:
-        t = np.asarray(value, dtype=np.float64)
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "iuf":
+            raise TypeError(f"dtype {raw.dtype}")
+        return raw.astype(np.float64)
     except (TypeError, ValueError) as exc:
-        raise MotionError(f"{what}: {value!r} is not a 4×4 pose ({exc})") from None
+        raise MotionError(f"{what}: {value!r:.60} is not {expected} ({exc})") from None
+
+
+def _pose_arg(what: str, value: object) -> np.ndarray:
+    t = _real_array(what, value, "a 4×4 pose")
     if t.shape != (4, 4):
         raise MotionError(f"{what}: shape {t.shape}, expected a 4×4 pose")
     if not np.isfinite(t).all():
@@ -134,15 +146,46 @@ def _pose_arg(what: str, value: object) -> np.ndarray:
 def _config_arg(what: str, value: Config | str | None) -> Config | None:
     if value is None or isinstance(value, Config):
         return value
+    if not isinstance(value, str):
+        raise MotionError(f"{what}: {value!r:.60} is not a configuration like 'ruf', or None")
     try:
         return Config.from_string(value)
     except KinematicsError as exc:
         raise MotionError(f"{what}: {exc}") from None
 
 
+def _timeout_arg(what: str, value: object) -> float | None:
+    """A timeout in seconds: None (no limit) or a number >= 0; MotionError otherwise."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+        raise MotionError(f"{what}: timeout {value!r:.60}, must be None or seconds >= 0")
+    return float(value)
+
+
+def _flag_arg(what: str, name: str, value: object) -> bool:
+    """A yes/no argument (``wait``, ``close``): a bool or 0/1; MotionError otherwise."""
+    if isinstance(value, bool | np.bool_) or (
+        isinstance(value, int | np.integer) and int(value) in (0, 1)
+    ):
+        return bool(value)
+    raise MotionError(f"{what}: {name} {value!r:.60} is not True or False")
+
+
+def _list_arg(what: str, name: str, value: object) -> list:
+    """A sequence argument (poses, names, configurations) as a list; MotionError if it is
+    none (a number, None, a mapping: iterating a mapping would take its keys)."""
+    if isinstance(value, Mapping | str | bytes) or value is None:
+        raise MotionError(f"{what}: {name} {value!r:.60} is not a list")
+    try:
+        return list(value)  # type: ignore[call-overload]
+    except TypeError:
+        raise MotionError(f"{what}: {name} {value!r:.60} is not a list") from None
+
+
 def _speed_arg(what: str, name: str, value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise MotionError(f"{what}: {name} {value!r} is not a finite number")
+        raise MotionError(f"{what}: {name} {value!r:.60} is not a finite number")
     return float(value)
 
 
@@ -173,6 +216,7 @@ class Robot:
     def grip(self, close: bool = True) -> None:
         """Close (or open) the gripper: its output bit on the robot's I/O board.  The plant
         welds a closing gripper to the object if the flange is within reach of its grasp."""
+        close = _flag_arg(f"grip: robot '{self.name}'", "close", close)
         self.kali.inst.boards()["gripper"][self.index] = 1 if close else 0
 
     def set_tool(self, tool: np.ndarray) -> None:
@@ -216,11 +260,17 @@ class Robot:
         """A smooth joint move to ``q`` (rad, 6 values), every joint arriving together, at
         ``speed`` (0, 1] of the joint speed and acceleration limits.  Blocks until there unless
         ``wait`` is False; returns the request's handle either way."""
+        what = f"move_joints: robot '{self.name}'"
         target = _joints(self.name, q)
-        if not (isinstance(speed, int | float) and math.isfinite(speed) and 0.0 < speed <= 1.0):
-            raise MotionError(
-                f"move_joints: robot '{self.name}': speed {speed!r}, must be in (0, 1]"
-            )
+        if not (
+            isinstance(speed, int | float)
+            and not isinstance(speed, bool)
+            and math.isfinite(speed)
+            and 0.0 < speed <= 1.0
+        ):
+            raise MotionError(f"{what}: speed {speed!r:.60}, must be in (0, 1]")
+        wait = _flag_arg(what, "wait", wait)
+        timeout = _timeout_arg(what, timeout)
         handle = self.kali._request(
             MotionKind.JOINTS, [self.index], joints=target[None, :], speed_scale=float(speed)
         )
@@ -290,15 +340,22 @@ class MotionSystem:
         what = f"move_path: {', '.join(repr(n) for n in self.names)}"
         if isinstance(targets, np.ndarray) and targets.shape == (4, 4):
             raise MotionError(f"{what}: targets is one pose; pass a list ([pose])")
-        targets = [_pose_arg(f"{what}: targets[{i}]", t) for i, t in enumerate(targets)]
+        targets = _list_arg(what, "targets", targets)
         if not 1 <= len(targets) <= layout.MAX_SEGMENTS:
             raise MotionError(
                 f"{what}: {len(targets)} targets; 1 to {layout.MAX_SEGMENTS} per request"
             )
+        targets = [_pose_arg(f"{what}: targets[{i}]", t) for i, t in enumerate(targets)]
         speed = _speed_arg(what, "speed", speed)
         angular_speed = _speed_arg(what, "angular_speed", angular_speed)
         transition_s = _speed_arg(what, "transition_s", transition_s)
-        configs = list(configs) if configs is not None else [None] * len(self.robots)
+        configs = (
+            _list_arg(what, "configs", configs)
+            if configs is not None
+            else [None] * len(self.robots)
+        )
+        wait = _flag_arg(what, "wait", wait)
+        timeout = _timeout_arg(what, timeout)
         if len(configs) != len(self.robots):
             raise MotionError(f"{what}: {len(configs)} configs for {len(self.robots)} arms")
         flags = [_config_arg(f"{what}: config", c) for c in configs]
@@ -344,10 +401,7 @@ class MotionSystem:
 
 
 def _joints(robot: str, q: np.ndarray) -> np.ndarray:
-    try:
-        target = np.asarray(q, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise MotionError(f"move_joints: robot '{robot}': {q!r} is not 6 numbers ({exc})") from None
+    target = _real_array(f"move_joints: robot '{robot}'", q, "6 numbers")
     if target.shape != (6,):
         raise MotionError(f"move_joints: robot '{robot}': shape {target.shape}, expected (6,)")
     check_joint_target(robot, target)
@@ -396,8 +450,11 @@ class Kali:
     def ready(self, names: Sequence[str] | None = None, timeout: float = 30.0) -> None:
         """Power the robots ``names`` (default: all) and calibrate those not calibrated yet,
         waiting until they are; ServoError with the reason otherwise (thesis 3.5.1)."""
-        names = list(self.names if names is None else names)
-        deadline = time.monotonic() + timeout
+        names = list(self.names) if names is None else _list_arg("ready", "names", names)
+        for n in names:
+            self.servo.robot_index(n)  # ServoError naming the robots for any other
+        limit = _timeout_arg("ready", timeout)
+        deadline = time.monotonic() + (math.inf if limit is None else limit)
 
         def wait_until(done: Callable[[], bool], what: str) -> None:
             while not done():
@@ -437,7 +494,7 @@ class Kali:
         """Arms ``names`` holding one object.  ``grasps[k]`` is arm k's flange in the
         object's frame; None takes them from where the arms are now (their set-points), with
         the object's frame at the first arm's tool."""
-        robots = [self.robot(n) for n in names]
+        robots = [self.robot(n) for n in _list_arg("motion_system", "names", names)]
         if not robots or len({r.index for r in robots}) != len(robots):
             raise MotionError(f"motion_system: {list(names)}: name each arm once, at least one")
         if grasps is None:  # from the set-points the TG starts from, not the sagging arms
@@ -445,6 +502,7 @@ class Kali:
             obj = flanges[0] @ robots[0].tool
             grasps = [inverse(obj) @ f for f in flanges]
         else:
+            grasps = _list_arg("motion_system", "grasps", grasps)
             grasps = [_pose_arg(f"motion_system: grasps[{i}]", g) for i, g in enumerate(grasps)]
             if len(grasps) != len(robots):
                 raise MotionError(f"motion_system: {len(grasps)} grasps for {len(robots)} arms")

@@ -30,6 +30,11 @@ inertia, motor friction) are ``inverse.py``'s.
 
 Pinocchio's Python bindings return each result as a new 6-vector; this process is
 asynchronous and non-serious (3.3.6), so those small allocations are accepted here.
+
+What others write is checked here (DESIGN 7): a mode word that is no FfMode (a client's
+garbage) leaves the last valid mode in force, and a set-point that is not finite gets no row
+(SIO refuses it too and covers the gap with its neighbour's row); a torque that comes out
+non-finite is never published.
 """
 
 from __future__ import annotations
@@ -44,7 +49,7 @@ from ..config import ms_to_ns
 from ..daemon import Daemon
 from ..errors import DaemonError
 from ..layout import FfMode
-from ..servolevel import FIFO_CAPACITY, ServoLevel
+from ..servolevel import FF_MODES, FIFO_CAPACITY, ServoLevel
 from .inverse import InverseDynamics, central_differences
 
 SIO_WAIT_S = 30.0  # how long the dynamics process waits at start for SIO's servo level
@@ -105,7 +110,8 @@ class Dynamics(Daemon):
         feed-forward; then the heartbeat SIO checks."""
         ff = self.ff
         for k in range(self.n_robots):
-            mode = FfMode(int(ff["mode"][k]))
+            word = int(ff["mode"][k])
+            mode = FfMode(word) if word in FF_MODES else self.mode_seen[k]
             if mode != self.mode_seen[k]:  # recompute what SIO has not used yet
                 self.mode_seen[k] = mode
                 self.next_row[k] = self.fifos[k].indices()[0] - 1
@@ -140,6 +146,9 @@ class Dynamics(Daemon):
         for i in range(first, min(tail, first + MAX_ROWS_PER_CYCLE)):
             if not fifo.read(i, self.q_i):
                 continue  # overwritten: SIO is long past it
+            if not np.isfinite(self.q_i).all():
+                self.next_row[k] = i + 1
+                continue  # garbage SIO refuses as well: no row
             if mode == FfMode.GRAVITY:
                 self.qd.fill(0.0)
                 self.qdd.fill(0.0)
@@ -172,6 +181,8 @@ class Dynamics(Daemon):
         key = index + 1
         row = key % layout.FF_ROWS
         tau = self.inverse.torque(mode, self.q_i, self.qd, self.qdd, kv)
+        if not np.isfinite(tau).all():
+            return  # never publish a torque SIO could not use (a neighbour's covers it)
         keys = ff["key"][k]
         keys[row] = layout.FF_NO_KEY  # SIO ignores the row while it changes
         ff["q"][k, row] = self.q_i

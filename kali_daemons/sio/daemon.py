@@ -31,7 +31,7 @@ import numpy as np
 import posix_ipc
 
 from .. import layout, puma560, rt
-from ..config import ms_to_ns, period_ticks
+from ..config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks
 from ..daemon import Daemon
 from ..driver import Puma560Driver
 from ..errors import DaemonError
@@ -287,10 +287,16 @@ class ServoIO(Daemon):
         cmd = int(r.power_cmd)
         if cmd:
             r.power_cmd[...] = PowerCmd.NONE
+            if cmd not in (PowerCmd.ENABLE, PowerCmd.DISABLE):  # a client's garbage (DESIGN 7)
+                r.message[...] = f"power command word {cmd} ignored (1 on, 2 off)".encode()
+                cmd = PowerCmd.NONE
         calib = self._calib[k]
-        if int(r.calib_cmd):
+        word = int(r.calib_cmd)
+        if word:
             r.calib_cmd[...] = 0
-            if state == PowerState.ON and not faulted and int(r.calib_state) not in ACTIVE:
+            if word != 1:
+                r.message[...] = f"calibration word {word} ignored (1 = calibrate)".encode()
+            elif state == PowerState.ON and not faulted and int(r.calib_state) not in ACTIVE:
                 calib.begin()
             elif int(r.calib_state) not in ACTIVE:
                 calib.fail("the robot is not powered (kalictl enable first)")
@@ -371,9 +377,15 @@ class ServoIO(Daemon):
                         f"robot '{lv.names[k]}' joint {j + 1} at {math.degrees(q[j]):.2f}° is "
                         f"beyond its limit {math.degrees(limit):.2f}°",
                     )
+            # the client-written limits, only those in (0, π] (NaN fails both): a garbage
+            # one leaves the last valid limit in force (DESIGN 7)
+            np.greater(r.safe, 0.0, out=r.safe_in)
+            np.less_equal(r.safe, math.pi, out=r.bad)
+            np.logical_and(r.safe_in, r.bad, out=r.safe_in)
+            np.copyto(r.safe_ok, r.safe, where=r.safe_in)
             np.subtract(r.demand, q, out=r.err)
             np.abs(r.err, out=r.err)
-            np.greater(r.err, r.safe, out=r.bad)
+            np.greater(r.err, r.safe_ok, out=r.bad)
             if r.bad.any():
                 j = int(np.argmax(r.bad))
                 return self._halt(
@@ -381,7 +393,7 @@ class ServoIO(Daemon):
                     tick,
                     f"robot '{lv.names[k]}' joint {j + 1}: tracking error "
                     f"{float(self.demand[6 * k + j] - q[j]):+.4f} rad beyond safe "
-                    f"{float(r.safe[j]):.4f} rad (runaway)",
+                    f"{float(r.safe_ok[j]):.4f} rad (runaway)",
                 )
         return False
 
@@ -535,6 +547,8 @@ class _RobotViews:
         "q",
         "range_check",
         "safe",
+        "safe_in",
+        "safe_ok",
         "slot_reset",
     )
 
@@ -556,7 +570,10 @@ class _RobotViews:
             "calibrated",
         ):
             setattr(self, field, one(robots, field))
-        self.safe = robots["safe"][k]
+        self.safe = robots["safe"][k]  # written by clients (ServoClient.set_safe)
+        self.safe_in = np.zeros(6, dtype=bool)
+        ok = np.asarray(self.safe, dtype=np.float64)  # SIO's own copy, only valid limits
+        self.safe_ok = np.where((ok > 0) & (ok <= math.pi), ok, DEFAULT_SAFE_RAD)
         self.calib_shift = robots["calib_shift"][k]
         self.encoder = boards["encoder"][k]
         self.index = one(boards, "index")

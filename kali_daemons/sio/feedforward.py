@@ -13,6 +13,10 @@ state turns STALE, its rows are no longer used and the last good torque fades ou
 feed-forward on or off fades it in or out the same way, over ``feedforward.ramp_ms``, so the
 servos see no torque step.  A row missing for less than that (the newest set-point's row is
 written once its successor exists) is covered by its neighbour's.
+
+Nothing written by another process is taken on trust (DESIGN 7): a mode word that is no
+FfMode leaves the last valid mode in force, and an interpolated torque that is not finite
+counts as a missing row (the last good torque is kept; missing long enough, it is stale).
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ import numpy as np
 from .. import layout
 from ..channels import InterpolatingFifo
 from ..layout import FfMode, FfState
+
+_MODES = frozenset(int(m) for m in FfMode)
 
 
 class RobotFeedforward:
@@ -36,9 +42,12 @@ class RobotFeedforward:
         "_keys",
         "_last",
         "_mode",
+        "_mode_ok",
+        "_ok",
         "_stale_count",
         "_state",
         "_tau",
+        "_try",
         "_weight_rec",
         "fifo",
         "heartbeat_limit",
@@ -81,8 +90,12 @@ class RobotFeedforward:
         self.missing = 0
         self.stale = int(self._state) == FfState.STALE
         self._last = np.zeros(6)  # the last good interpolated torque
+        self._try = np.zeros(6)  # this tick's, until it is known to be finite
+        self._ok = np.zeros(6, dtype=bool)
         self._a = np.zeros(6)
         self._b = np.zeros(6)
+        word = int(self._mode)
+        self._mode_ok = word if word in _MODES else int(FfMode.OFF)  # the last valid mode
 
     def _row(self, key: int, out: np.ndarray) -> bool:
         """Copy the row of ``key`` into ``out``; False if it is not there (or changed while
@@ -98,6 +111,10 @@ class RobotFeedforward:
     def update(self, tick: int) -> None:
         """This tick's feed-forward into ``out`` (inside SIO's cycle)."""
         mode = int(self._mode)
+        if mode in _MODES:
+            self._mode_ok = mode
+        else:  # a client's garbage: the last valid mode stays in force
+            mode = self._mode_ok
         if mode == FfMode.OFF and self.weight == 0.0:
             if self.stale or int(self._state) != FfState.OFF:
                 self.stale = False
@@ -109,15 +126,21 @@ class RobotFeedforward:
             key_b = self.fifo.target_index() + 1
             has_b = self._row(key_b, self._b)
             has_a = self._row(key_b - 1, self._a)
-            if has_a and has_b:  # last = A + (B − A)·progress, as the demand
-                np.subtract(self._b, self._a, out=self._last)
-                np.multiply(self._last, self.fifo.progress(), out=self._last)
-                np.add(self._last, self._a, out=self._last)
+            t = self._try
+            if has_a and has_b:  # A + (B − A)·progress, as the demand
+                np.subtract(self._b, self._a, out=t)
+                np.multiply(t, self.fifo.progress(), out=t)
+                np.add(t, self._a, out=t)
             elif has_b:
-                np.copyto(self._last, self._b)
+                np.copyto(t, self._b)
             elif has_a:
-                np.copyto(self._last, self._a)
+                np.copyto(t, self._a)
             good = has_a or has_b
+            if good:
+                np.isfinite(t, out=self._ok)
+                good = bool(self._ok.all())
+                if good:
+                    np.copyto(self._last, t)
             self.missing = 0 if good else self.missing + 1
             stale = not good and self.missing > self.missing_limit
         else:

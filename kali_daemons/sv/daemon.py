@@ -10,6 +10,12 @@ and status.  The SV that finishes the tick's last slot posts SIO's done semaphor
 A servo that raises, returns a bad status or a non-finite torque halts the system with a
 SERVO fault naming robot, joint and algorithm.  Waiting always sleeps (two cores: never spin
 a CPU without bound, DESIGN 10).
+
+What clients write is checked where the SV reads it (DESIGN 7): the mailbox by ``apply_op``
+(a bad operation is refused with the reason, the servo runs on unchanged), and a slot's
+active-algorithm word, should anything but an SV write an index outside the registry there,
+is restored to the robot's configured servo, handed over bumplessly from the slot's last
+torque, before the step.
 """
 
 from __future__ import annotations
@@ -60,6 +66,12 @@ class ServoWorker(Daemon):
         start = (self.index * n) // count
         self.order = [(start + m) % n for m in range(n)]
         self.busy = self.level.slots["busy"]
+        registry = self.level.registry
+        self.n_algos = len(registry)
+        # per slot: the algorithm its robot starts with, what an invalid index is restored to
+        self.configured = [
+            registry.index(robot.servo) for robot in inst.config.robots for _ in range(6)
+        ]
         self.cas = atomic.CompareExchange32()
         c = self.level.ctrl
         self._fed = c["fed"]
@@ -115,6 +127,8 @@ class ServoWorker(Daemon):
         if op != SlotOp.NONE:
             apply_op(lv, i, op)
             atomic.store32(lv.op_addr[i], SlotOp.NONE)
+        if s.algo >= self.n_algos:  # not an SV's write: back to the configured servo
+            handover(lv, i, self.configured[i])
         if s.reset:
             a = int(s.algo)
             if s.reset == SlotReset.SHIFT:  # new coordinates, same motion: bumpless

@@ -44,7 +44,7 @@ import numpy as np
 
 from .. import kinematics, layout, puma560
 from ..kinematics import Config, KinematicsError
-from .profiles import CartesianPath, MotionError
+from .profiles import MAX_MOTION_S, CartesianPath, MotionError, rigid_pose
 
 SHOULDER_MIN_M: Final = 0.05  # closest approach of the wrist centre to the shoulder singularity
 ELBOW_MIN_M: Final = 0.05  # ... to the elbow singularity (arm stretched or folded)
@@ -145,7 +145,15 @@ class CartesianMotion:
         self.dt = float(dt)
         self._bases = [np.asarray(b, dtype=np.float64) for b in bases]
         self._to_base = [inverse(b) for b in self._bases]
-        self._grasps = [np.asarray(g, dtype=np.float64).copy() for g in grasps]
+        if not len(grasps) == len(bases) == len(configs) == n:
+            raise MotionError(
+                f"cartesian motion: {n} arms, but {len(grasps)} grasps, {len(bases)} bases and "
+                f"{len(configs)} configurations"
+            )
+        self._grasps = [
+            rigid_pose("cartesian motion", f"grasp of robot '{self.names[k]}'", g)
+            for k, g in enumerate(grasps)
+        ]
         q_start = np.asarray(q_start, dtype=np.float64).reshape(n, 6)
         # scratch, so sampling allocates nothing
         self._obj = np.empty((4, 4))
@@ -190,6 +198,12 @@ class CartesianMotion:
                         f"'{self.names[k]}': {_why(exc)}"
                     ) from None
         self.duration = float(self.path.duration)
+        if not self.duration <= MAX_MOTION_S:  # also NaN, inf: a speed of 1e-300 m/s
+            raise MotionError(
+                f"path refused: it would last {self.duration:.3g} s, more than the "
+                f"{MAX_MOTION_S:g} s a motion may take (speed {self.path.speed:g} m/s, "
+                f"angular_speed {self.path.angular_speed:g} rad/s)"
+            )
         self.n_samples = max(1, math.ceil(self.duration / self.dt - 1e-9))
         self.q_ref = q_start.copy()  # each arm's last set-point: ikine's q_ref at run time
         self._rows = [self.q_ref[k] for k in range(n)]

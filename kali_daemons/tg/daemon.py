@@ -19,6 +19,15 @@ motion system and halts the system (FaultCode.SINGULARITY, thesis 2.2.1).
 
 Allocation happens only when a request is accepted (planning builds its motion object);
 ticks that only advance running motions allocate nothing.
+
+Hostile input (DESIGN 7): a request is checked field by field where the TG takes it
+(``check_request``: kind, robot count and indices, finite numbers in range, segment count,
+configuration bytes, calibration) and planned (``plan_joints``, ``plan_path``: a motion longer
+than ``MAX_MOTION_S`` is refused too).  Whatever a request holds, it is refused with a message
+in its status record and nothing moves: an exception these checks did not foresee refuses it
+as well, naming the exception, rather than halting the cell.  Entries the queue itself cannot
+vouch for (a sequence number that does not match their place, a corrupt head or tail) are
+dropped by ``RequestQueue.get_into`` and counted; they have no status record to answer in.
 """
 
 from __future__ import annotations
@@ -32,13 +41,13 @@ import numpy as np
 
 from .. import kinematics, layout, puma560
 from ..channels import InterpolatingFifo, RequestQueue
-from ..config import ms_to_ns
+from ..config import MAX_PERIOD_MS, ms_to_ns
 from ..daemon import Daemon
 from ..kinematics import KinematicsError
 from ..layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
 from ..servolevel import FIFO_CAPACITY
 from .cartesian import CartesianMotion, base_transform, decode_config
-from .profiles import JointMotion, MotionError, StopRamp, check_joint_target
+from .profiles import MAX_MOTION_S, JointMotion, MotionError, StopRamp, check_joint_target
 
 MAX_REQUESTS_PER_TICK = 8  # requests taken from the queue per tick (the rest wait a tick)
 STOP_TIME_S = 0.3  # a stop ramps the path speed to zero over this long
@@ -46,6 +55,126 @@ LEAD = 2  # set-points kept in each FIFO ahead of SIO
 CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
 CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before they start
 CHECK_CHUNK = 8  # path samples checked between looks at the time
+_KINDS = frozenset(int(k) for k in MotionKind)
+
+
+def request_robots(req: np.void, n_robots: int) -> list[int]:
+    """The robot indices request ``req`` names (``n_robots`` of them, distinct, each in
+    0 .. ``n_robots`` - 1 of this cell); MotionError naming the bad count or index."""
+    n = int(req["n_robots"])
+    if not 1 <= n <= n_robots:
+        raise MotionError(f"{n} robots in the request; this cell has 1 to {n_robots}")
+    robots = [int(k) for k in req["robots"][:n]]
+    for k in robots:
+        if not 0 <= k < n_robots:
+            raise MotionError(f"robot index {k}; robots are 0..{n_robots - 1}")
+    if len(set(robots)) != n:
+        raise MotionError(f"robot listed twice: {robots}")
+    return robots
+
+
+def check_request(
+    req: np.void, names: list[str], calibrated: np.ndarray | None = None
+) -> tuple[MotionKind, list[int]]:
+    """(kind, robot indices) of request ``req`` (one ``layout.MOTION_REQUEST``), after
+    checking everything that does not need the arms' start; MotionError with the reason.
+
+    ``names`` are the cell's robots; ``calibrated`` (per robot, None: not known yet) is
+    needed by a PATH.  Checks the kind, the robots (``request_robots``), for JOINTS the speed
+    scale in (0, 1] and each target finite and within the joint range, for PATH the segment
+    count, finite speeds, targets and grasps and valid configuration bytes.  Pure: the TG
+    calls it on every request it takes, tests call it on random bytes.
+    """
+    kind = int(req["kind"])
+    if kind not in _KINDS:
+        allowed = ", ".join(f"{k.value} ({k.name})" for k in MotionKind)
+        raise MotionError(f"motion kind {kind} is not one this TG carries out; kinds: {allowed}")
+    robots = request_robots(req, len(names))
+    if kind == MotionKind.JOINTS:
+        scale = float(req["speed_scale"])
+        if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
+            raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
+        for i, k in enumerate(robots):
+            check_joint_target(names[k], req["joints"][i])
+    elif kind == MotionKind.PATH:
+        n_seg = int(req["n_segments"])
+        if not 1 <= n_seg <= layout.MAX_SEGMENTS:
+            raise MotionError(f"{n_seg} path targets; 1 to {layout.MAX_SEGMENTS} allowed")
+        for field_name in ("speed", "angular_speed", "transition_s"):
+            value = float(req[field_name])
+            if not math.isfinite(value):
+                raise MotionError(f"path {field_name} is {value}, must be finite")
+        for i in range(n_seg):
+            if not np.isfinite(req["poses"][i]).all():
+                raise MotionError(f"path targets[{i}] is not finite")
+        for i, k in enumerate(robots):
+            decode_config(int(req["config"][i]))
+            if not np.isfinite(req["grasps"][i]).all():
+                raise MotionError(f"grasp of robot '{names[k]}' is not finite")
+            if calibrated is not None and not int(calibrated[k]):
+                raise MotionError(
+                    f"robot '{names[k]}' is not calibrated; Cartesian motion needs its true "
+                    f"joint angles (kalictl calibrate {names[k]})"
+                )
+    return MotionKind(kind), robots
+
+
+def _bounded(what: str, duration: float) -> None:
+    """MotionError unless a planned motion ends within ``MAX_MOTION_S``."""
+    if not (math.isfinite(duration) and duration <= MAX_MOTION_S):
+        raise MotionError(
+            f"{what} would last {duration:.3g} s, more than the {MAX_MOTION_S:g} s a request "
+            f"may take; nothing moved"
+        )
+
+
+def plan_joints(
+    req: np.void, robots: list[int], start: np.ndarray, v_max: np.ndarray, a_max: np.ndarray
+) -> JointMotion:
+    """The joint motion a checked JOINTS request asks for, from ``start`` (6 per robot) with
+    the per-joint limits ``v_max``/``a_max`` scaled by its speed scale; MotionError if it
+    cannot be planned or would outlast ``MAX_MOTION_S``."""
+    scale = float(req["speed_scale"])
+    n = len(robots)
+    target = np.concatenate([req["joints"][i] for i in range(n)])
+    profile = JointMotion(start, target, np.tile(v_max, n) * scale, np.tile(a_max, n) * scale)
+    _bounded("joint motion", profile.duration)
+    return profile
+
+
+def plan_path(
+    req: np.void,
+    robots: list[int],
+    names: list[str],
+    bases: list[np.ndarray],
+    start: np.ndarray,
+    dt: float,
+) -> CartesianMotion:
+    """The Cartesian motion a checked PATH request asks for, its arms starting at ``start``
+    (one row of 6 per robot), sampled every ``dt`` s; MotionError if it cannot be planned
+    or would outlast ``MAX_MOTION_S`` (the whole-path check is ``CartesianMotion.check_some``,
+    run afterwards)."""
+    n = len(robots)
+    return CartesianMotion(
+        [names[k] for k in robots],
+        [bases[k] for k in robots],
+        [req["grasps"][i] for i in range(n)],
+        start,
+        [decode_config(int(req["config"][i])) for i in range(n)],
+        [req["poses"][i] for i in range(int(req["n_segments"]))],
+        float(req["speed"]),
+        float(req["angular_speed"]),
+        float(req["transition_s"]),
+        dt,
+    )
+
+
+def refusal(exc: Exception) -> str:
+    """The status message refusing a request that raised ``exc`` while being checked or
+    planned: a MotionError's own text; anything else named, so nothing is hidden."""
+    if isinstance(exc, MotionError):
+        return str(exc)
+    return f"request refused: it could not be checked ({type(exc).__name__}: {exc})"
 
 
 @dataclass
@@ -99,6 +228,7 @@ class TrajectoryGenerator(Daemon):
         self._period_followed = 0  # none yet: the first cycle sets the FIFOs' ratio
         self._base_ns = int(inst.clock["base_tick_ns"])
         self._servo_ns = ms_to_ns(cfg.clock.servo_period_ms)
+        self._max_period_ns = ms_to_ns(MAX_PERIOD_MS)
         self.bases = [base_transform(r.base_xyz, r.base_yaw_deg) for r in cfg.robots]
         self.request = np.zeros(1, dtype=layout.MOTION_REQUEST)
         self.v_max = np.array(puma560.QD_MAX)
@@ -167,12 +297,18 @@ class TrajectoryGenerator(Daemon):
         """Follow this TG's own period, changed on line by ``kalictl rate``: τ's step, the
         check slice and the ratio of the set-points pushed from this tick on.  In the cycle;
         allocates only when the period has changed (the first cycle counts as a change: a
-        restarted TG may find the FIFOs at the ratio it set before)."""
+        restarted TG may find the FIFOs at the ratio it set before).
+
+        A period ``set_control_rate`` would refuse (shorter than the servo period, longer than
+        ``config.MAX_PERIOD_MS``: written into the process table by something else) is not
+        followed: τ's step and the FIFOs' ratio stay as they were."""
         ticks = int(self._own_period)
         if ticks == self._period_followed:
             return
         self._period_followed = ticks
         period_ns = ticks * self._base_ns
+        if not self._servo_ns <= period_ns <= self._max_period_ns:
+            return
         self.dt = period_ns / 1e9
         self.check_ns = int(CHECK_SHARE * period_ns)
         ratio = Fraction(period_ns, self._servo_ns)
@@ -200,63 +336,24 @@ class TrajectoryGenerator(Daemon):
     # ------------------------------------------------------------------ requests
 
     def _robots_of(self, req: np.void) -> list[int]:
-        n = int(req["n_robots"])
-        if not 1 <= n <= self.n_robots:
-            raise MotionError(f"{n} robots in the request; this cell has {self.n_robots}")
-        robots = [int(k) for k in req["robots"][:n]]
-        for k in robots:
-            if not 0 <= k < self.n_robots:
-                raise MotionError(f"robot index {k}; robots are 0..{self.n_robots - 1}")
-        if len(set(robots)) != n:
-            raise MotionError(f"robot listed twice: {robots}")
-        return robots
+        """The robots of a request already checked by ``check_request``."""
+        return request_robots(req, self.n_robots)
 
     def _take(self, seq: int, req: np.void) -> None:
-        """Validate a new request; queue, refuse, or act on it (stop, abort)."""
+        """Check a new request; queue, refuse, or act on it (stop, abort).  Nothing a request
+        holds raises out of here: whatever is wrong with it refuses it (``refusal``)."""
+        calibrated = None if self.robots is None else self.robots["calibrated"]
         try:
-            kind = int(req["kind"])
-            robots = self._robots_of(req)
-            if kind in (MotionKind.STOP, MotionKind.ABORT):
-                self._stop(robots, abort=kind == MotionKind.ABORT)
-                self._say(seq, RequestState.DONE, MotionKind(kind).name.lower())
-                return
-            if kind == MotionKind.JOINTS:
-                self._validate_joints(req, robots)
-            elif kind == MotionKind.PATH:
-                self._validate_path(req, robots)
-            else:
-                raise MotionError(f"motion kind {kind} is not one this TG carries out")
-        except MotionError as exc:
-            self._say(seq, RequestState.REFUSED, str(exc))
+            kind, robots = check_request(req, self.names, calibrated)
+        except Exception as exc:  # a request never halts the cell
+            self._say(seq, RequestState.REFUSED, refusal(exc))
+            return
+        if kind in (MotionKind.STOP, MotionKind.ABORT):
+            self._stop(robots, abort=kind == MotionKind.ABORT)
+            self._say(seq, RequestState.DONE, kind.name.lower())
             return
         self._say(seq, RequestState.QUEUED)
         self.waiting.append((seq, req))
-
-    def _validate_joints(self, req: np.void, robots: list[int]) -> None:
-        scale = float(req["speed_scale"])
-        if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
-            raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
-        for i, k in enumerate(robots):
-            check_joint_target(self.names[k], req["joints"][i])
-
-    def _validate_path(self, req: np.void, robots: list[int]) -> None:
-        """What can be checked without the arms' start: numbers, counts, flags, calibration
-        (the path itself is checked when the arms are free, ``_check``)."""
-        n_seg = int(req["n_segments"])
-        if not 1 <= n_seg <= layout.MAX_SEGMENTS:
-            raise MotionError(f"{n_seg} path targets; 1 to {layout.MAX_SEGMENTS} allowed")
-        for name in ("speed", "angular_speed", "transition_s"):
-            if not math.isfinite(float(req[name])):
-                raise MotionError(f"path {name} is {float(req[name])}, must be finite")
-        for i in range(n_seg):
-            if not np.isfinite(req["poses"][i]).all():
-                raise MotionError(f"path targets[{i}] is not finite")
-        for i, k in enumerate(robots):
-            decode_config(int(req["config"][i]))
-            if not np.isfinite(req["grasps"][i]).all():
-                raise MotionError(f"grasp of robot '{self.names[k]}' is not finite")
-            if self.robots is not None:
-                self._require_calibrated(k)
 
     def _require_calibrated(self, k: int) -> None:
         if not int(self.robots["calibrated"][k]):
@@ -295,16 +392,12 @@ class TrajectoryGenerator(Daemon):
         if int(req["kind"]) == MotionKind.PATH:
             self._plan_path(seq, req, robots)
             return
-        scale = float(req["speed_scale"])
         start = np.concatenate([self._start_point(k) for k in robots])
-        target = np.concatenate([req["joints"][i] for i in range(len(robots))])
         n = len(robots)
         try:
-            profile = JointMotion(
-                start, target, np.tile(self.v_max, n) * scale, np.tile(self.a_max, n) * scale
-            )
-        except MotionError as exc:
-            self._say(seq, RequestState.REFUSED, str(exc))
+            profile = plan_joints(req, robots, start, self.v_max, self.a_max)
+        except Exception as exc:  # a request never halts the cell
+            self._say(seq, RequestState.REFUSED, refusal(exc))
             return
         m = Motion(seq, robots, profile, out=np.zeros(6 * n))
         for k in robots:
@@ -327,20 +420,10 @@ class TrajectoryGenerator(Daemon):
         try:
             for k in robots:
                 self._require_calibrated(k)
-            plan = CartesianMotion(
-                [self.names[k] for k in robots],
-                [self.bases[k] for k in robots],
-                [req["grasps"][i] for i in range(n)],
-                np.array([self._start_point(k) for k in robots]),
-                [decode_config(int(req["config"][i])) for i in range(n)],
-                [req["poses"][i] for i in range(int(req["n_segments"]))],
-                float(req["speed"]),
-                float(req["angular_speed"]),
-                float(req["transition_s"]),
-                self.dt,
-            )
-        except MotionError as exc:
-            self._say(seq, RequestState.REFUSED, str(exc))
+            start = np.array([self._start_point(k) for k in robots])
+            plan = plan_path(req, robots, self.names, self.bases, start, self.dt)
+        except Exception as exc:  # a request never halts the cell
+            self._say(seq, RequestState.REFUSED, refusal(exc))
             return
         m = Motion(seq, robots, plan, checking=True, out=np.zeros(6 * n))
         for k in robots:
@@ -359,8 +442,8 @@ class TrajectoryGenerator(Daemon):
                 self._progress[m.seq % layout.STATUS_RING] = plan.checked / plan.n_samples
                 if time.monotonic_ns() - t0 > self.check_ns:
                     return
-        except MotionError as exc:
-            self._end_motion(m, RequestState.REFUSED, str(exc))
+        except Exception as exc:  # nothing has moved: refuse, never halt
+            self._end_motion(m, RequestState.REFUSED, refusal(exc))
             return
         m.checking = False
         self._run(m)
@@ -392,7 +475,14 @@ class TrajectoryGenerator(Daemon):
     # ------------------------------------------------------------------ running motions
 
     def _advance(self, m: Motion) -> None:
-        """One TG tick of motion ``m``: the next set-point of each of its robots."""
+        """One TG tick of motion ``m``: the next set-point of each of its robots.
+
+        A FIFO with no room left (the TG signalled faster than its period: a period in the
+        process table that no ``set_control_rate`` wrote) holds the motion for a tick instead
+        of overflowing; SIO goes on taking set-points at the servo rate."""
+        for k in m.robots:
+            if self.fifos[k].pending() >= FIFO_CAPACITY - 1:
+                return
         p = m.profile
         if m.stop is not None:
             m.stop_t += self.dt

@@ -93,6 +93,8 @@ JERK_RAMP_FRACTION = 0.25  # share of each acceleration phase spent ramping the 
 MAX_LINEAR_SPEED_M_S = 5.0  # a Cartesian speed above this is a units mistake, not a request
 MAX_ANGULAR_SPEED_RAD_S = 10.0
 RIGID_TOLERANCE = 1e-6  # max |RᵀR − I| of a pose's rotation
+MAX_POSE_M = 10.0  # a pose or grasp further than this from its frame's origin is garbage
+MAX_MOTION_S = 3600.0  # a motion lasting longer is a units mistake or garbage: refused
 MIN_SEGMENT_LENGTH = 1e-9  # m and rad: below both, a segment goes nowhere
 BLEND_ACCEL_FACTOR = {"paul": 1.5, "parabolic": 1.0}  # peak accel of a blend, × |Δv| / τ_b
 
@@ -139,13 +141,27 @@ def _positive(what: str, name: str, value: object, n: int, unit: str) -> np.ndar
     return a
 
 
-def _pose(what: str, name: str, value: object) -> np.ndarray:
-    """A homogeneous transform whose rotation is orthonormal to RIGID_TOLERANCE, returned with
-    the rotation projected exactly onto SO(3) so set-points built from it stay rigid."""
+def rigid_pose(what: str, name: str, value: object) -> np.ndarray:
+    """A homogeneous transform whose rotation is orthonormal to RIGID_TOLERANCE and whose
+    translation is within MAX_POSE_M, returned with the rotation projected exactly onto SO(3)
+    so set-points built from it stay rigid; MotionError naming ``name`` otherwise.  Magnitudes
+    are checked before any product, so garbage (1e300) is refused without overflowing."""
     t = _array(what, name, value, (4, 4))
     if np.max(np.abs(t[3] - (0.0, 0.0, 0.0, 1.0))) > 1e-9:
         raise MotionError(f"{what}: {name} bottom row is {t[3].tolist()}, expected [0, 0, 0, 1]")
+    offset = float(np.max(np.abs(t[:3, 3])))
+    if offset > MAX_POSE_M:
+        raise MotionError(
+            f"{what}: {name} is {offset:.3g} m from its frame's origin along an axis; beyond "
+            f"{MAX_POSE_M:g} m no arm of this cell reaches"
+        )
     r = t[:3, :3]
+    biggest = float(np.max(np.abs(r)))
+    if biggest > 2.0:  # far from rigid: say so before RᵀR could overflow
+        raise MotionError(
+            f"{what}: {name} is not a rigid pose: a rotation entry of {biggest:.3g} (a rotation's "
+            f"entries are within ±1)"
+        )
     error = float(np.max(np.abs(r.T @ r - np.eye(3))))
     if error > RIGID_TOLERANCE or np.linalg.det(r) <= 0.0:
         raise MotionError(
@@ -401,8 +417,8 @@ class CartesianPath:
             raise MotionError(f"{what}: targets is {targets!r}, not a list of poses") from None
         if not targets:
             raise MotionError(f"{what}: targets is empty; give at least one pose")
-        poses = [_pose(what, "start", start)]
-        poses += [_pose(what, f"targets[{i}]", t) for i, t in enumerate(targets)]
+        poses = [rigid_pose(what, "start", start)]
+        poses += [rigid_pose(what, f"targets[{i}]", t) for i, t in enumerate(targets)]
         self.poses = np.array(poses)
         self._plan_segments()
         self._precompute_pieces()
@@ -634,10 +650,12 @@ def check_joint_target(robot: str, q: np.ndarray) -> None:
     for j in range(6):
         v = float(q[j])
         if not math.isfinite(v):
-            raise MotionError(f"robot '{robot}' joint {j + 1}: target {v}")
+            raise MotionError(f"robot '{robot}' joint {j + 1}: target {v} rad, must be finite")
         lo, hi = float(puma560.Q_MIN[j]), float(puma560.Q_MAX[j])
         if not lo <= v <= hi:
+            deg = math.degrees(v)
+            shown = f"{deg:.2f}" if abs(deg) < 1e6 else f"{deg:.3g}"  # garbage stays one line
             raise MotionError(
-                f"robot '{robot}' joint {j + 1}: target {math.degrees(v):.2f}° outside its "
+                f"robot '{robot}' joint {j + 1}: target {shown}° outside its "
                 f"range {math.degrees(lo):.1f}° .. {math.degrees(hi):.1f}°; nothing moved"
             )

@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from ..config import ms_to_ns, ns_to_ms, period_ticks
+from ..config import MAX_PERIOD_MS, ms_to_ns, ns_to_ms, period_ticks
 from ..daemon import FunctionDaemon
 from ..errors import ClockError
 from ..instance import Instance, decode
@@ -86,9 +86,14 @@ def set_control_rate(inst: Instance, process: str, period_ms: float) -> None:
         ticks = period_ticks(period_ms, base_ms)
     except ValueError:
         raise ClockError(
-            f"rate of '{process}': {period_ms!r} ms must be a whole multiple of the "
+            f"rate of '{process}': {period_ms!r:.60} ms must be a whole multiple of the "
             f"{base_ms} ms base tick"
         ) from None
+    if ticks * int(inst.clock["base_tick_ns"]) > ms_to_ns(MAX_PERIOD_MS):
+        raise ClockError(
+            f"rate of '{process}': period {period_ms:g} ms is longer than {MAX_PERIOD_MS} ms, "
+            f"the longest a Kali process may have"
+        )
     i = inst.slot_of(process)
     if not inst.procs[i]["periodic"]:
         raise ClockError(f"process '{process}' is not driven by the wall clock")
@@ -143,7 +148,16 @@ def control(
 
 
 def release(inst: Instance, process: str) -> None:
-    """Stop the wall clock from signalling ``process`` (thesis ``release``)."""
+    """Stop the wall clock from signalling ``process`` (thesis ``release``): a function a
+    program registered with ``control``.  Kali's own daemons are refused (ClockError): a
+    released SIO would leave the arms unservoed with nothing noticing; ``kalictl stop`` ends
+    them."""
+    daemons = [p.name for p in inst.config.processes]
+    if process in daemons:
+        raise ClockError(
+            f"release: '{process}' is one of Kali's daemons ({', '.join(daemons)}), not a "
+            f"function registered with control(); kalictl stop ends them"
+        )
     i = inst.slot_of(process)
     inst.procs[i]["periodic"] = 0
     inst.bump_registry()

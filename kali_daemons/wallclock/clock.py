@@ -26,12 +26,14 @@ processes do (``Daemon._watch_clock``), and the boards' watchdogs cut the amplif
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 import posix_ipc
 
 from .. import layout, rt
+from ..config import MAX_PERIOD_MS, ms_to_ns
 from ..daemon import Daemon, _CycleStats
 from ..flightrec import FlightDumper
 from ..instance import decode
@@ -39,6 +41,7 @@ from ..layout import ClockCommand, FaultCode, ProcState, RunMode
 from ..spinlock import pid_alive
 
 STOPPED_WAIT_S = 0.2
+MAX_CLOCK_ARG = 1e12  # ticks to step, or ms to set the time to: ~30 years at 1 ms
 LOCKSTEP_SLICE_S = 0.05  # lockstep ack waits check for dead processes this often
 
 
@@ -76,6 +79,8 @@ class WallClock(Daemon):
         self._watch_next: list[int] = []  # earliest next look-up of a stale, live one
         self._heart = p["heartbeat_ns"]
         self._flight = FlightDumper(self.inst)  # dumps the flight recorder after a halt
+        self.max_period_ticks = max(1, ms_to_ns(MAX_PERIOD_MS) // self.base_ns)
+        self._good_period = np.ones(layout.MAX_PROCESSES, dtype=np.int64)
 
     def on_activate(self) -> None:
         """Publish the clock as ready (kalictl start waits for it)."""
@@ -102,8 +107,12 @@ class WallClock(Daemon):
         live.sort(key=lambda i: (int(p[i]["stage"]), i))
         self._slots = live
         self._serious = [bool(p[i]["serious"]) for i in live]
-        self._period = [max(1, int(p[i]["period_ticks"])) for i in live]
+        self._period = [self._valid_period(i) for i in live]
         self._stages = [int(p[i]["stage"]) for i in live]
+        tick = int(self.inst.clock["tick"])
+        for i, per in zip(live, self._period, strict=True):
+            if self._due[i] > tick + per:  # due under a (garbage) longer period: re-align
+                self._due[i] = (tick // per + 1) * per
         self._watched = [
             i
             for i in range(layout.MAX_PROCESSES)
@@ -116,6 +125,15 @@ class WallClock(Daemon):
             2 * max(1, int(p[i]["period_ticks"])) * self.base_ns for i in self._watched
         ]
         self._watch_next = [0] * len(self._watched)
+
+    def _valid_period(self, i: int) -> int:
+        """Slot ``i``'s period in ticks: the one in its record if ``set_control_rate`` would
+        allow it (1 tick .. MAX_PERIOD_MS), else the last valid one (DESIGN 7: the process
+        table is written by other processes)."""
+        per = int(self.inst.procs[i]["period_ticks"])
+        if 1 <= per <= self.max_period_ticks:
+            self._good_period[i] = per
+        return int(self._good_period[i])
 
     # ------------------------------------------------------------------ loop
 
@@ -359,7 +377,14 @@ class WallClock(Daemon):
         status, message = 0, ""
         tick = int(c["tick"])
         base_ms = self.base_ns / 1e6
-        if cmd in (ClockCommand.START, ClockCommand.STEP) and self.inst.fault["active"]:
+        if cmd in (ClockCommand.STEP, ClockCommand.SET_TIME) and not (
+            math.isfinite(arg) and abs(arg) <= MAX_CLOCK_ARG
+        ):  # written by any client (DESIGN 7): refused, nothing changes
+            status = -1
+            message = f"clock: argument {arg!r} must be finite and at most {MAX_CLOCK_ARG:g}"
+        elif cmd == ClockCommand.STEP and (arg < 0 or arg != int(arg)):
+            status, message = -1, f"clock step: {arg!r} ticks, must be a whole number >= 0"
+        elif cmd in (ClockCommand.START, ClockCommand.STEP) and self.inst.fault["active"]:
             status = -1
             message = f"fault active, kalictl reset first: {self.inst.fault_text()}"
         elif cmd == ClockCommand.START:
