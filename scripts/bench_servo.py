@@ -81,18 +81,15 @@ up to S seconds before each run for them to stop.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
 import shlex
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -101,8 +98,10 @@ import numpy as np
 import yaml
 from benchlib import (
     CT_PRIORITY,
+    CT_THREADS,
     CYCLICTEST_MISSING,
     KALI_UPPER,
+    SPIKE_FRACTION,
     BenchError,
     CtResult,
     ForeignWatch,
@@ -121,13 +120,17 @@ from benchlib import (
     quantile_upper,
     row_head,
     run_ns,
+    signals_held,
     snapshot,
+    stalls_before,
     steal_ms,
     stop_cyclictest,
+    stop_instance,
     to_json,
     unexplained_misses,
     unwind_on_sigterm,
     us,
+    wait_quiet,
     window_row,
 )
 
@@ -141,7 +144,6 @@ from kali_daemons.servolevel import ServoClient
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "default.yaml"
-CT_THREADS = 2  # one cyclictest thread pinned per CPU, as bench_wallclock's default
 POWER_TIMEOUT_S = 5.0  # both arms must report ON within this after the enable request
 SETTLE_S = 2.0  # after power-on: let the arms settle before the motion starts
 LEAD_IN_S = 1.0  # motion running before the window opens
@@ -156,7 +158,6 @@ MOTION_PERIOD_S = 2.0
 SIGNS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # neighbouring joints move opposite ways
 REFERENCE = ("wallclock", "plant", "tg", "dynamics", "viewer")  # wake-up rows shown for reference
 MISS_KINDS = ("tg", "sio", "sv")  # clock-driven, serious: their misses count
-SPIKE_FRACTION = 0.3  # cyclictest logs wake-ups later than this many periods (300 µs at 1 ms)
 
 
 @dataclass(frozen=True)
@@ -370,36 +371,6 @@ def warm_up(
     return None if inst.fault["active"] else motion
 
 
-@contextlib.contextmanager
-def signals_held() -> Iterator[None]:
-    """Hold SIGINT/SIGTERM back (delivered afterwards), so cleanup is not cut short."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
-def stop_instance(instance: str, pids: list[int]) -> list[str]:
-    """Stop ``instance``, reap its daemons (this script started them: they would stay zombies
-    until it exits) and check nothing of it is left; what was left, if anything."""
-    with signals_held():
-        launcher.stop(instance)
-        for pid in pids:
-            with contextlib.suppress(ChildProcessError):
-                os.waitpid(pid, os.WNOHANG)
-        left = launcher.shm_objects(instance) + [
-            f"pid {p}" for p in launcher.instance_pids(instance)
-        ]
-        if left:
-            launcher.stop(instance)
-            left = launcher.shm_objects(instance) + [
-                f"pid {p}" for p in launcher.instance_pids(instance)
-            ]
-    return left
-
-
 @dataclass
 class RunResult:
     """Everything one run prints, also written by ``--json``."""
@@ -549,30 +520,6 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
     analyse(res, cfg, s0, s1, ct_res, logged, stalls, sio_samples, servo_names)
     res.notes += watch.notes()
     return res
-
-
-def stalls_before(stdout: str, t_ns: int) -> str:
-    """The longest cyclictest stall per thread (= CPU, ``-a``) ending in the second before
-    ``t_ns`` (CLOCK_MONOTONIC) or just after it: what the machine did when Kali halted."""
-    longest: dict[int, tuple[int, int]] = {}
-    for line in stdout.splitlines():
-        parts = line.replace(":", " ").split()
-        if len(parts) >= 6 and parts[0] == "T" and parts[2] == "Spike" and parts[4] == "TS":
-            thread, late_us, end_ns = int(parts[1]), int(parts[3]), int(parts[5]) * 1000
-            near = t_ns - 1_000_000_000 <= end_ns <= t_ns + 100_000_000
-            if near and late_us > longest.get(thread, (0, 0))[0]:
-                longest[thread] = (late_us, end_ns)
-    if not longest:
-        return "cyclictest saw no stall in the second before the halt"
-
-    def when(end_ns: int) -> str:
-        d = (t_ns - end_ns) / 1e6
-        return f"{d:.0f} ms before it" if d >= 0 else f"{-d:.0f} ms after it"
-
-    return "cyclictest's longest stall in the second before the halt: " + ", ".join(
-        f"CPU {c} {late / 1000:.1f} ms (ended {when(end)})"
-        for c, (late, end) in sorted(longest.items())
-    )
 
 
 def analyse(
@@ -925,24 +872,6 @@ def parse_runs(text: str) -> list[RunSpec]:
     return out
 
 
-def wait_quiet(limit_s: float) -> None:
-    """Wait up to ``limit_s`` for other Kali instances (e.g. a test suite's) to go away."""
-    deadline = time.monotonic() + limit_s
-    said = False
-    while others := [n for n in os.listdir("/dev/shm") if n.startswith("kali.")]:
-        if time.monotonic() > deadline:
-            return
-        if not said:
-            print(
-                f"bench_servo: waiting up to {limit_s:g} s for other Kali instances to stop "
-                f"({', '.join(others[:3])}{', ...' if len(others) > 3 else ''})",
-                file=sys.stderr,
-                flush=True,
-            )
-            said = True
-        time.sleep(1.0)
-
-
 def emit(text: str) -> None:
     """Print and flush (a run's block appears when the run ends)."""
     print(text, flush=True)
@@ -1001,7 +930,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             earlier: list[str] = []  # halts in warm-up, before the window opened
             for attempt in range(1, WARMUP_ATTEMPTS + 1):
-                wait_quiet(args.wait_quiet)
+                wait_quiet(args.wait_quiet, "bench_servo")
                 try:
                     res = measure(spec, args.seconds, tmp, args.ct_priority)
                 except (KaliError, BenchError, OSError, subprocess.SubprocessError) as exc:

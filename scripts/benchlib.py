@@ -1,4 +1,4 @@
-"""Shared machinery of the real-time benchmarks (bench_wallclock.py, bench_servo.py).
+"""Shared machinery of the real-time benchmarks (bench_wallclock.py, bench_servo.py, soak.py).
 
 Kali side: copies of the arena's per-process counters (wake-up lateness histograms, missed
 deadlines) taken at the start and end of a window and subtracted, since nothing in the arena
@@ -15,11 +15,14 @@ cyclictest's has 1 µs bins, so the two are directly comparable below 1 ms.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
 import subprocess
+import sys
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -33,6 +36,8 @@ CT_HIST_US = 20_000  # cyclictest histogram range; later wake-ups count as overf
 POLL_S = 1.0  # how often the (SCHED_OTHER) benchmark scans /proc for real-time threads
 SHM_POLL_S = 0.1  # how often it lists /dev/shm for other Kali instances (cheap)
 SPIKE_US = 300  # cyclictest logs every wake-up later than this, with its CLOCK_MONOTONIC time
+SPIKE_FRACTION = 0.3  # cyclictest logs wake-ups later than this many periods (300 µs at 1 ms)
+CT_THREADS = 2  # one cyclictest thread pinned per CPU, as bench_wallclock's default
 SPIKE_NODES = 200_000
 CYCLICTEST_MISSING = (
     "cyclictest not found; install Debian's rt-tests:\n    apt-get install rt-tests"
@@ -227,6 +232,36 @@ class MissTail:
         ]
 
 
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold SIGINT/SIGTERM back (delivered afterwards), so cleanup is not cut short."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def stop_instance(instance: str, pids: list[int]) -> list[str]:
+    """Stop ``instance``, reap its daemons (this script started them: they would stay zombies
+    until it exits) and check nothing of it is left; what was left, if anything."""
+    with signals_held():
+        launcher.stop(instance)
+        for pid in pids:
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(pid, os.WNOHANG)
+        left = launcher.shm_objects(instance) + [
+            f"pid {p}" for p in launcher.instance_pids(instance)
+        ]
+        if left:
+            launcher.stop(instance)
+            left = launcher.shm_objects(instance) + [
+                f"pid {p}" for p in launcher.instance_pids(instance)
+            ]
+    return left
+
+
 # --------------------------------------------------------------------------------------------
 # cyclictest side
 
@@ -283,6 +318,30 @@ def unexplained_misses(
         if k == 0 or ends[:k].max() < lo:
             out.append(m)
     return out
+
+
+def stalls_before(stdout: str, t_ns: int) -> str:
+    """The longest cyclictest stall per thread (= CPU, ``-a``) ending in the second before
+    ``t_ns`` (CLOCK_MONOTONIC) or just after it: what the machine did when Kali halted."""
+    longest: dict[int, tuple[int, int]] = {}
+    for line in stdout.splitlines():
+        parts = line.replace(":", " ").split()
+        if len(parts) >= 6 and parts[0] == "T" and parts[2] == "Spike" and parts[4] == "TS":
+            thread, late_us, end_ns = int(parts[1]), int(parts[3]), int(parts[5]) * 1000
+            near = t_ns - 1_000_000_000 <= end_ns <= t_ns + 100_000_000
+            if near and late_us > longest.get(thread, (0, 0))[0]:
+                longest[thread] = (late_us, end_ns)
+    if not longest:
+        return "cyclictest saw no stall in the second before the halt"
+
+    def when(end_ns: int) -> str:
+        d = (t_ns - end_ns) / 1e6
+        return f"{d:.0f} ms before it" if d >= 0 else f"{-d:.0f} ms after it"
+
+    return "cyclictest's longest stall in the second before the halt: " + ", ".join(
+        f"CPU {c} {late / 1000:.1f} ms (ended {when(end)})"
+        for c, (late, end) in sorted(longest.items())
+    )
 
 
 @dataclass
@@ -469,6 +528,25 @@ class ForeignWatch:
                 f"(/dev/shm/{', /dev/shm/'.join(sorted(self.segments))})"
             )
         return notes
+
+
+def wait_quiet(limit_s: float, who: str) -> None:
+    """Wait up to ``limit_s`` for other Kali instances (e.g. a test suite's) to go away;
+    ``who`` (the benchmark's name) says so on stderr once."""
+    deadline = time.monotonic() + limit_s
+    said = False
+    while others := [n for n in os.listdir("/dev/shm") if n.startswith("kali.")]:
+        if time.monotonic() > deadline:
+            return
+        if not said:
+            print(
+                f"{who}: waiting up to {limit_s:g} s for other Kali instances to stop "
+                f"({', '.join(others[:3])}{', ...' if len(others) > 3 else ''})",
+                file=sys.stderr,
+                flush=True,
+            )
+            said = True
+        time.sleep(1.0)
 
 
 def cpu_times() -> dict[str, list[int]]:
