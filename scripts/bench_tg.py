@@ -107,6 +107,7 @@ from benchlib import (
     to_json,
     unwind_on_sigterm,
     us,
+    wait_quiet,
     window_row,
 )
 
@@ -858,27 +859,6 @@ def verdict(rt: RtResult | None, rows: list[CostRow]) -> str:
 # Main
 
 
-def wait_quiet(limit_s: float) -> None:
-    """Wait up to ``limit_s`` for other Kali instances to go and the load average to drop."""
-    deadline = time.monotonic() + limit_s
-    said = False
-    while True:
-        others = [n for n in os.listdir("/dev/shm") if n.startswith("kali.")]
-        load = os.getloadavg()[0]
-        if (not others and load < QUIET_LOAD) or time.monotonic() > deadline:
-            return
-        if not said:
-            print(
-                f"bench_tg: waiting up to {limit_s:g} s for other Kali instances to stop and the "
-                f"load average to drop below {QUIET_LOAD:g} (now {load:.2f}, "
-                f"{len(others)} instances)",
-                file=sys.stderr,
-                flush=True,
-            )
-            said = True
-        time.sleep(1.0)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run the in-process table, then (unless --skip-rt) the real-time part and the verdict."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -927,7 +907,7 @@ def main(argv: list[str] | None = None) -> int:
         checks = [check_cost(m, dt) for m in ("cart 1 arm", "cart pair")]
         print(format_costs(rows, checks, dt) + "\n", flush=True)
         if not args.skip_rt:
-            wait_quiet(args.wait_quiet)
+            wait_quiet(args.wait_quiet, "bench_tg", QUIET_LOAD)
             print(
                 f"bench_tg: real-time part ({args.seconds} s moving)", file=sys.stderr, flush=True
             )
@@ -942,7 +922,7 @@ def main(argv: list[str] | None = None) -> int:
                     file=sys.stderr,
                     flush=True,
                 )
-                wait_quiet(args.wait_quiet)
+                wait_quiet(args.wait_quiet, "bench_tg", QUIET_LOAD)
             rt.notes += [
                 f"attempt {i + 1} halted before the window opened: {f}"
                 for i, f in enumerate(earlier)

@@ -530,21 +530,23 @@ class ForeignWatch:
         return notes
 
 
-def wait_quiet(limit_s: float, who: str) -> None:
-    """Wait up to ``limit_s`` for other Kali instances (e.g. a test suite's) to go away;
-    ``who`` (the benchmark's name) says so on stderr once."""
+def wait_quiet(limit_s: float, who: str, max_load: float | None = None) -> None:
+    """Wait up to ``limit_s`` for other Kali instances (e.g. a test suite's) to go away, and
+    with ``max_load`` for the 1-minute load average to drop below it; ``who`` (the
+    benchmark's name) says so on stderr once."""
     deadline = time.monotonic() + limit_s
     said = False
-    while others := [n for n in os.listdir("/dev/shm") if n.startswith("kali.")]:
-        if time.monotonic() > deadline:
+    while True:
+        others = [n for n in os.listdir("/dev/shm") if n.startswith("kali.")]
+        load = os.getloadavg()[0]
+        busy = max_load is not None and load >= max_load
+        if not (others or busy) or time.monotonic() > deadline:
             return
         if not said:
-            print(
-                f"{who}: waiting up to {limit_s:g} s for other Kali instances to stop "
-                f"({', '.join(others[:3])}{', ...' if len(others) > 3 else ''})",
-                file=sys.stderr,
-                flush=True,
-            )
+            what = f"{len(others)} other Kali instances ({', '.join(others[:3])}) to stop"
+            if max_load is not None:
+                what += f" and the load average to drop below {max_load:g} (now {load:.2f})"
+            print(f"{who}: waiting up to {limit_s:g} s for {what}", file=sys.stderr, flush=True)
             said = True
         time.sleep(1.0)
 
