@@ -95,7 +95,8 @@ def test_lockstep_signals_each_process_at_its_period(kali: Callable[..., str]) -
 HALF_MS_TICK = {
     r"^  base_tick_ms: 1 ": "  base_tick_ms: 0.5 ",
     r"^  servo_period_ms: 1 ": "  servo_period_ms: 0.5 ",
-    r"period_ms: 1, serious: true, stage: 0": "period_ms: 0.5, serious: true, stage: 0",  # the plant: one 0.5 ms substep
+    # the plant: one 0.5 ms substep
+    r"period_ms: 1, serious: true, stage: 0": "period_ms: 0.5, serious: true, stage: 0",
 }
 
 
