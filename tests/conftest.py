@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -41,6 +42,18 @@ def config_text(instance: str, edits: dict[str, str] | None = None) -> str:
         text, n = re.subn(pattern, repl, text, flags=re.M)
         assert n, f"config edit {pattern!r} matched nothing"
     return text
+
+
+def wait_for(
+    cond: Callable[[], bool], timeout: float = 20.0, what: str = "condition", poll_s: float = 0.001
+) -> float:
+    """Poll ``cond`` until true; the seconds it took; AssertionError naming ``what`` after
+    ``timeout`` s."""
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout, f"not within {timeout:g} s: {what}"
+        time.sleep(poll_s)
+    return time.monotonic() - t0
 
 
 def leftovers(instance: str) -> tuple[list[str], list[int]]:

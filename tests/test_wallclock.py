@@ -26,7 +26,7 @@ from kali_daemons.wallclock import (
 )
 from kali_daemons.wallclock.clock import time_ms
 
-from .conftest import ROOT
+from .conftest import ROOT, wait_for
 from .periodic_programs import trace_view
 
 Program = Callable[..., subprocess.Popen]
@@ -59,13 +59,6 @@ def program() -> Iterator[Program]:
         if p.poll() is None:
             p.kill()
         p.wait()
-
-
-def wait_for(cond: Callable[[], bool], timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        assert time.monotonic() < deadline, "condition not met in time"
-        time.sleep(0.01)
 
 
 def counts(inst: Instance) -> dict[str, tuple[int, int, int]]:

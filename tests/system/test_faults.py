@@ -55,7 +55,7 @@ from kali_daemons.servolevel import ServoClient
 from kali_daemons.spinlock import pid_alive
 from kali_daemons.wallclock import step_kali_clock
 
-from ..conftest import ROOT, config_text, leftovers, unique_name
+from ..conftest import ROOT, config_text, leftovers, unique_name, wait_for
 from ..test_launcher import kalictl
 from .conftest import MATRIX
 
@@ -158,16 +158,6 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
             os.environ.pop("KALI_LOG_DIR", None)
         else:
             os.environ["KALI_LOG_DIR"] = old
-
-
-def wait_for(cond: Callable[[], bool], timeout: float, what: str) -> float:
-    """Poll ``cond`` every ms; seconds it took; AssertionError after ``timeout``."""
-    t0 = time.monotonic()
-    while not cond():
-        if time.monotonic() - t0 > timeout:
-            raise AssertionError(f"not within {timeout:g} s: {what}")
-        time.sleep(0.001)
-    return time.monotonic() - t0
 
 
 def start_mover(name: str) -> subprocess.Popen[str]:
