@@ -221,6 +221,27 @@ def test_a_dead_sv_halts_naming_it(kali: Callable[..., str]) -> None:
         assert not (inst.boards()["csr"] & CSR_NO_DISABLE).any()  # amplifiers commanded off
 
 
+def test_a_feed_post_left_from_a_missed_tick_does_not_idle_an_sv(
+    kali: Callable[..., str],
+) -> None:
+    """SIO posts every SV's feed semaphore each tick it runs, so a tick an SV missed leaves
+    a post behind (here: posted by hand).  Taken for the next tick's, the SV would find that
+    tick's slots not yet published and go idle, every tick after; it passes it over."""
+    name = kali(lockstep=True)
+    with servoing(name) as (inst, _):
+        sem = inst.feed_semaphore(1)
+        ran = inst.arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)["sv_servos"]
+        sem.release()
+        step_kali_clock(inst, 5)
+        before = ran.copy()
+        step_kali_clock(inst, 300)
+        share = ran - before
+        assert sem.value == 0, "the stale post is still there"
+        assert share.sum() == 12 * 300 and (share[:2] > 0).all(), f"servos per SV: {share[:2]}"
+        assert inst.fault_text() is None
+        del ran
+
+
 def test_a_dead_sio_halts_and_the_watchdog_trips(kali: Callable[..., str]) -> None:
     name = kali(lockstep=False)  # the plant's own clock must run for the watchdog
     with Instance.attach(name) as inst:

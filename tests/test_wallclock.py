@@ -214,6 +214,40 @@ def test_killed_serious_daemon_halts_naming_it(kali: Callable[..., str]) -> None
         assert "process 'sio' (pid" in inst.fault_text() and "died" in inst.fault_text()
 
 
+def test_svs_are_not_signalled_on_a_tick_sio_misses(kali: Callable[..., str]) -> None:
+    """The SVs are gang-scheduled with SIO (thesis 3.3.4).  SIO is stalled (SIGSTOP) for a
+    few ms, many times, at random phases: when it comes back it may acknowledge just after
+    a tick the SVs, which acknowledge first, are already clear for.  Signalled alone there,
+    they would wait for a feed that comes only with SIO's next tick and miss that tick too,
+    after the stall: the misses cyclictest never sees.  No SV may miss a signal it got on a
+    tick SIO missed (an SV whose own acknowledgement is late misses with SIO, as it should)."""
+    name = kali(lockstep=False)
+    rng = np.random.default_rng(7)
+    with Instance.attach(name) as inst:
+        pid = int(inst.procs[inst.slot_of("sio")]["pid"])
+        log = inst.misses
+        seen = int(log["count"])
+        misses: list[dict[str, object]] = []
+        for _ in range(120):
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(rng.uniform(0.0015, 0.004))
+            os.kill(pid, signal.SIGCONT)
+            time.sleep(rng.uniform(0.004, 0.010))
+            count = int(log["count"])
+            assert count - seen < layout.MISS_LOG_LEN, "the miss log wrapped before it was read"
+            misses += launcher.recent_misses(inst, count - seen)
+            seen = count
+        assert inst.fault_text() is None
+        sio = {int(m["due_ns"]) for m in misses if m["process"] == "sio"}
+        assert len(sio) >= 100, f"SIO missed only {len(sio)} ticks: the stalls did not bite"
+        alone = [
+            (m["process"], m["tick"])
+            for m in misses
+            if str(m["process"]).startswith("sv.") and int(m["signal_ns"]) in sio
+        ]
+        assert not alone, f"SVs signalled on a tick SIO missed, then missed: {alone}"
+
+
 def test_lockstep_timeout_names_the_process(kali: Callable[..., str], program: Program) -> None:
     name = kali(
         lockstep=True, edits={r"lockstep_ack_timeout_s: .*$": "lockstep_ack_timeout_s: 0.5"}

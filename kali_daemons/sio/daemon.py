@@ -6,7 +6,8 @@ tick.
 (b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
     the arm is while it is not powered — check joint range and tracking error, and feed the
     servo slots: demand, position and velocity in, then ``busy`` cleared so the SVs can
-    claim them, then one post per SV on its feed semaphore.
+    claim them, then the tick they are fed for, then one post per SV on its feed semaphore
+    (an SV passes over a post left from a tick it missed).
     While the servos run, take each robot's feed-forward from the dynamics process's rows
     (``feedforward.py``: interpolated like the demand; stale ones dropped).
 (c) Sleep until the SV finishing the last slot posts the done semaphore, add feed-forward,
@@ -239,12 +240,12 @@ class ServoIO(Daemon):
         np.copyto(self._slot_position, self.q)
         np.copyto(self._slot_velocity, self.qd)
         fed = int(np.count_nonzero(self.fed_mask))
-        self._ctrl_tick[...] = tick
         self._ctrl_fed[...] = fed
         self._ctrl_done[...] = 0
         self.busy_src.fill(layout.SLOT_NOT_FED)
         np.copyto(self.busy_src, 0, where=self.fed_mask)
-        np.copyto(self._slot_busy, self.busy_src)  # published last: the SVs may claim now
+        np.copyto(self._slot_busy, self.busy_src)  # the SVs may claim now
+        self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         for sem in self.feeds:
             sem.release()
         for ff in self._ff:  # while the servos run: this tick's feed-forward (thesis 3.3.6)

@@ -1,7 +1,8 @@
 """Servo executor with dynamic loading (thesis 3.3.4, 3.3.5).
 
-Every SV is woken by the wall clock with SIO (the SVs are gang-scheduled), then sleeps on its
-feed semaphore until SIO has fed the slots.  It then walks the slots and claims each fed one
+Every SV is woken by the wall clock with SIO (the SVs are gang-scheduled: a tick SIO misses,
+they are not signalled either), then sleeps on its feed semaphore until SIO has fed the slots
+of that tick.  It then walks the slots and claims each fed one
 by test-and-set of its ``busy`` word; whichever SV is free takes the next joint, so a costly
 servo simply takes more of the workers.  For a claimed slot it carries out a pending mailbox
 operation (put/get/select/params, 3.4), runs the joint's algorithm and stores torque, error
@@ -89,9 +90,7 @@ class ServoWorker(Daemon):
 
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
-        try:
-            self.feed.acquire(self.feed_timeout_s)
-        except posix_ipc.BusyError:
+        if not self._await_feed(tick):
             return  # SIO did not feed this tick (halted, or itself late): nothing to run
         lv = self.level
         t0 = rt.monotonic_ns()
@@ -119,6 +118,27 @@ class ServoWorker(Daemon):
                 self._exec_max[0] = exe
             self._servos[0] += ran
             self._exec_hist[layout.lateness_bin(exe)] += 1
+
+    def _await_feed(self, tick: int) -> bool:
+        """Sleep until SIO has fed ``tick`` (or a later tick); False on the timeout.
+
+        SIO posts every SV's feed semaphore each tick it runs, so a tick this SV missed
+        leaves a post behind.  Taken as this tick's, it would find the previous tick's slots
+        all claimed and return at once, leaving its share to the others while SIO is still
+        feeding; so a post for an older tick than SIO's fed one is passed over.
+        """
+        wait_s = self.feed_timeout_s
+        end = rt.monotonic_ns() + int(wait_s * 1e9)
+        while True:
+            try:
+                self.feed.acquire(wait_s)
+            except posix_ipc.BusyError:
+                return False
+            if int(self._tick) >= tick:
+                return True
+            wait_s = (end - rt.monotonic_ns()) / 1e9  # a stale post: wait on for this tick's
+            if wait_s <= 0:
+                return False
 
     def _run(self, i: int, s: Any, tick: int) -> None:
         """Run slot ``i``'s servo once (mailbox first, then a reset, then the step)."""

@@ -81,6 +81,11 @@ class WallClock(Daemon):
         self._flight = FlightDumper(self.inst)  # dumps the flight recorder after a halt
         self.max_period_ticks = max(1, ms_to_ns(MAX_PERIOD_MS) // self.base_ns)
         self._good_period = np.ones(layout.MAX_PROCESSES, dtype=np.int64)
+        procs = self.inst.config.processes
+        self._gang_lead = next((q.name for q in procs if q.kind == "sio"), "")
+        self._gang_names = {q.name for q in procs if q.kind == "sv"}
+        self._lead = -1  # slot of SIO while it is clocked, else -1
+        self._member: list[bool] = []  # per entry of _slots: an SV, signalled only with SIO
 
     def on_activate(self) -> None:
         """Publish the clock as ready (kalictl start waits for it)."""
@@ -109,6 +114,9 @@ class WallClock(Daemon):
         self._serious = [bool(p[i]["serious"]) for i in live]
         self._period = [self._valid_period(i) for i in live]
         self._stages = [int(p[i]["stage"]) for i in live]
+        names = [decode(p[i]["name"]) for i in live]
+        self._lead = next((i for i, n in zip(live, names, strict=True) if n == self._gang_lead), -1)
+        self._member = [self._lead >= 0 and n in self._gang_names for n in names]
         tick = int(self.inst.clock["tick"])
         for i, per in zip(live, self._period, strict=True):
             if self._due[i] > tick + per:  # due under a (garbage) longer period: re-align
@@ -195,18 +203,29 @@ class WallClock(Daemon):
             tick += 1
 
     def _realtime_tick(self, tick: int, due: int) -> None:
-        """Check acknowledgements and signal every slot due at ``tick``; inside the cycle."""
+        """Check acknowledgements and signal every slot due at ``tick``; inside the cycle.
+
+        The SVs are gang-scheduled with SIO (thesis 3.3.4): a tick SIO misses, they are not
+        signalled either.  Signalled alone they would wait for a feed that comes only with
+        SIO's next tick, and so miss that tick themselves, after the stall that delayed SIO
+        is over.  Whether SIO is skipped is read once, before anyone is signalled.
+        """
         nd, sig, ack = self._due, self._sig, self._ack
+        lead = self._lead
+        gang_skip = lead >= 0 and tick >= nd[lead] and ack[lead] < sig[lead]
+        member = self._member
         for k, i in enumerate(self._slots):
             if tick < nd[i]:
                 continue
             per = self._period[k]
             nd[i] = (tick // per + 1) * per
-            if ack[i] < sig[i]:
+            if ack[i] < sig[i] or (gang_skip and i == lead):
                 self._missed(k, i, tick, due)
                 if self.inst.fault["active"]:
                     return
                 continue
+            if gang_skip and member[k]:
+                continue  # acknowledged, but SIO feeds nothing this tick: not signalled
             if self._consec[i]:
                 self._consec[i] = 0
             sig[i] = tick
