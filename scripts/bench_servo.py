@@ -122,6 +122,7 @@ from benchlib import (
     run_ns,
     signals_held,
     snapshot,
+    spikes_unlogged,
     stalls_before,
     steal_ms,
     stop_cyclictest,
@@ -509,6 +510,8 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
             raise BenchError(f"cyclictest exited {ct.returncode}: {err.strip()}")
         ct_res = parse_histfile(histfile)
         stalls = parse_spikes(out)
+        if unlogged := spikes_unlogged(out):
+            res.notes.append(f"cyclictest's spike log filled: {unlogged} later stalls unlogged")
         if res.halted_at_s is not None:
             res.halt_stalls = stalls_before(out, t0 + int(res.halted_at_s * 1e9))
     finally:

@@ -86,6 +86,7 @@ from benchlib import (
     row_head,
     run_cyclictest_alone,
     snapshot,
+    spikes_unlogged,
     steal_ms,
     stop_cyclictest,
     to_json,
@@ -203,6 +204,8 @@ def measure(
                 raise BenchError(f"cyclictest exited {ct.returncode}: {err.strip()}")
             ct_res = parse_histfile(histfile)
             stalls = parse_spikes(out)
+            if unlogged := spikes_unlogged(out):
+                notes.append(f"cyclictest's spike log filled: {unlogged} later stalls unlogged")
         finally:
             stop_cyclictest(ct)
             launcher.stop(instance)
