@@ -1,8 +1,8 @@
 """Servo executor with dynamic loading (thesis 3.3.4, 3.3.5).
 
-Every SV is woken by the wall clock with SIO (the SVs are gang-scheduled: a tick SIO misses,
-they are not signalled either), then sleeps on its feed semaphore until SIO has fed the slots
-of that tick.  It then walks the slots and claims each fed one
+Every SV is woken by the wall clock with SIO (the SVs are gang-scheduled: signalled with SIO
+or not at all, ``wallclock.clock.gang_state``), then sleeps on its feed semaphore until SIO
+has fed the slots of that tick.  It then walks the slots and claims each fed one
 by test-and-set of its ``busy`` word; whichever SV is free takes the next joint, so a costly
 servo simply takes more of the workers.  For a claimed slot it carries out a pending mailbox
 operation (put/get/select/params, 3.4), runs the joint's algorithm and stores torque, error

@@ -18,10 +18,12 @@ The clock also supervises (DESIGN 7).  A clocked process that misses a deadline,
 real-time mode a self-timed one (the plant, the viewer) whose heartbeat is two periods old,
 is looked up: if it died, a serious one halts the system (PROCESS_DIED, naming it) and a
 non-serious one (dynamics, viewer) is left out from then on (state DIED) while the rest runs
-on without it: no feed-forward, no dashboard.  In lockstep mode a non-serious process that
-does not acknowledge within the timeout is skipped (a miss) instead of halting the system,
-as a late one is in real time.  Nobody watches a dead wall clock from here: the serious
-processes do (``Daemon._watch_clock``), and the boards' watchdogs cut the amplifiers.
+on without it: no feed-forward, no dashboard.  A serious self-timed one that is alive but has
+not run for the serious tolerance (stalled) halts with DEADLINE, like a clocked one.  In
+lockstep mode a non-serious process that does not acknowledge within the timeout is skipped
+(a miss) instead of halting the system, as a late one is in real time.  Nobody watches a dead
+wall clock from here: the serious processes do (``Daemon._watch_clock``), and the boards'
+watchdogs cut the amplifiers.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from ..spinlock import pid_alive
 STOPPED_WAIT_S = 0.2
 MAX_CLOCK_ARG = 1e12  # ticks to step, or ms to set the time to: ~30 years at 1 ms
 LOCKSTEP_SLICE_S = 0.05  # lockstep ack waits check for dead processes this often
+GANG_RUNS, GANG_SIO_LATE, GANG_SVS_LATE = 0, 1, 2  # gang_state: SIO and the SVs this tick
 
 
 class WallClock(Daemon):
@@ -85,7 +88,8 @@ class WallClock(Daemon):
         self._gang_lead = next((q.name for q in procs if q.kind == "sio"), "")
         self._gang_names = {q.name for q in procs if q.kind == "sv"}
         self._lead = -1  # slot of SIO while it is clocked, else -1
-        self._member: list[bool] = []  # per entry of _slots: an SV, signalled only with SIO
+        self._members: list[int] = []  # slots of the clocked SVs (SIO's gang)
+        self._member: list[bool] = []  # per entry of _slots: an SV
 
     def on_activate(self) -> None:
         """Publish the clock as ready (kalictl start waits for it)."""
@@ -117,6 +121,7 @@ class WallClock(Daemon):
         names = [decode(p[i]["name"]) for i in live]
         self._lead = next((i for i, n in zip(live, names, strict=True) if n == self._gang_lead), -1)
         self._member = [self._lead >= 0 and n in self._gang_names for n in names]
+        self._members = [i for i, m in zip(live, self._member, strict=True) if m]
         tick = int(self.inst.clock["tick"])
         for i, per in zip(live, self._period, strict=True):
             if self._due[i] > tick + per:  # due under a (garbage) longer period: re-align
@@ -205,27 +210,27 @@ class WallClock(Daemon):
     def _realtime_tick(self, tick: int, due: int) -> None:
         """Check acknowledgements and signal every slot due at ``tick``; inside the cycle.
 
-        The SVs are gang-scheduled with SIO (thesis 3.3.4): a tick SIO misses, they are not
-        signalled either.  Signalled alone they would wait for a feed that comes only with
-        SIO's next tick, and so miss that tick themselves, after the stall that delayed SIO
-        is over.  Whether SIO is skipped is read once, before anyone is signalled.
+        SIO and the SVs run as a gang (thesis 3.3.4, ``gang_state``): a tick SIO misses,
+        or every SV does, none of them is signalled, and each that missed counts its miss.
         """
         nd, sig, ack = self._due, self._sig, self._ack
         lead = self._lead
-        gang_skip = lead >= 0 and tick >= nd[lead] and ack[lead] < sig[lead]
+        gang = GANG_RUNS
+        if lead >= 0 and tick >= nd[lead]:
+            gang = gang_state(lead, self._members, ack, sig)
         member = self._member
         for k, i in enumerate(self._slots):
             if tick < nd[i]:
                 continue
             per = self._period[k]
             nd[i] = (tick // per + 1) * per
-            if ack[i] < sig[i] or (gang_skip and i == lead):
+            if ack[i] < sig[i] or (i == lead and gang == GANG_SIO_LATE):
                 self._missed(k, i, tick, due)
                 if self.inst.fault["active"]:
                     return
                 continue
-            if gang_skip and member[k]:
-                continue  # acknowledged, but SIO feeds nothing this tick: not signalled
+            if gang != GANG_RUNS and (i == lead or member[k]):
+                continue  # acknowledged, but its gang sits this tick out
             if self._consec[i]:
                 self._consec[i] = 0
             sig[i] = tick
@@ -267,15 +272,33 @@ class WallClock(Daemon):
 
     def _watch(self, now_ns: int) -> None:
         """Look up self-timed processes whose heartbeat is two periods old (real time): a
-        dead one halts (serious) or is left out.  After the cycle's signals, so the /proc
-        read of a stale one never delays a tick; a live but stalled one is looked up again
-        only a watch interval later."""
+        dead one halts (serious) or is left out, and a serious one alive but stalled beyond
+        ``serious_miss_tolerance_ms`` halts with DEADLINE, as a clocked one would.  After the
+        cycle's signals, so the /proc read of a stale one never delays a tick; a live but
+        stalled one is looked up again only a watch interval later."""
         heart = self._heart
         for k, i in enumerate(self._watched):
-            if now_ns - heart[i] <= self._watch_ns[k] or now_ns < self._watch_next[k]:
+            age = now_ns - heart[i]
+            if age <= self._watch_ns[k] or now_ns < self._watch_next[k]:
                 continue
             self._watch_next[k] = now_ns + self._watch_ns[k]
-            self._died(i, int(self.inst.clock["tick"]), bool(self.inst.procs[i]["serious"]))
+            tick = int(self.inst.clock["tick"])
+            serious = bool(self.inst.procs[i]["serious"])
+            if self._died(i, tick, serious) or not serious or age <= self.tolerance_ns:
+                continue
+            p = self.inst.procs[i]
+            name = decode(p["name"])
+            self.inst.raise_fault(
+                FaultCode.DEADLINE,
+                name,
+                f"serious process '{name}' (pid {int(p['pid'])}, self-timed every "
+                f"{int(p['period_ticks']) * self.base_ns / 1e6:g} ms) has not run for "
+                f"{age / 1e6:.1f} ms (tolerance {self.tolerance_ns / 1e6:g} ms): alive but "
+                "stalled",
+                tick=tick,
+            )
+            self.inst.clock["mode"] = RunMode.STOPPED
+            return
 
     def _lockstep_tick(self, tick: int) -> bool:
         """Signal due slots stage by stage, waiting for every acknowledgement of a stage.
@@ -437,6 +460,25 @@ class WallClock(Daemon):
                 self._ack_sem.acquire(0)
         except posix_ipc.BusyError:
             pass
+
+
+def gang_state(lead: int, members: list[int], ack: np.ndarray, sig: np.ndarray) -> int:
+    """Whether SIO (slot ``lead``) and its SVs (slots ``members``) are signalled this tick.
+
+    They are one gang (thesis 3.3.4): SIO feeds the slots, the SVs run them, SIO waits.
+    If SIO has not acknowledged its last signal, signalling the SVs alone would set them
+    waiting for a feed that comes only with SIO's next tick: they would miss that tick too,
+    after whatever delayed SIO was over (GANG_SIO_LATE).  If no SV has acknowledged, SIO
+    signalled alone would feed slots nobody is signalled to run and wait for them until it
+    halts (GANG_SVS_LATE).  Else the gang runs; an SV that is late misses on its own, and
+    the others take its share.  Read once per tick, before anyone is signalled.
+    """
+    if ack[lead] < sig[lead]:
+        return GANG_SIO_LATE
+    for m in members:
+        if ack[m] >= sig[m]:
+            return GANG_RUNS
+    return GANG_SVS_LATE if members else GANG_RUNS
 
 
 def time_ms(clock: np.ndarray) -> float:
