@@ -11,8 +11,9 @@ with full feed-forward), injects one fault and checks what the thesis promises:
   when the fault is raised, and the clock stops at its next tick, one more), and in wall ms:
   servo-rate failures (a dead SIO or SV, a servo that raises or returns NaN) within
   2 servo periods; a dead TG within 2 of its periods; a dead plant within 2 of its periods
-  and a tick; a stalled process or a slow servo within the serious tolerance (20 ms, DESIGN
-  10 item 6: the host's own stalls) and 3 servo periods; a dead wall clock (no ticks to
+  and a tick; a stalled process (the plant too, which the clock watches by its heartbeat)
+  or a slow servo within the serious tolerance (20 ms, DESIGN 10 item 6: the host's own
+  stalls) and 3 servo periods; a dead wall clock (no ticks to
   count) within the boards' 20 ms watchdog;
 - the amplifiers are off (the board says so; a dead plant's board is gone, so the command
   register says so), the brakes follow, the fault names the culprit, the waiting program is
@@ -105,6 +106,9 @@ ROWS = [
           r"'sio' missed \d+ consecutive deadlines", bound_ticks=STALL_TICKS),
     Fault("SIGSTOP sv.1", "sv.1", "stop", FaultCode.DEADLINE, "sv.1",
           r"sv.1", bound_ticks=STALL_TICKS),
+    Fault("SIGSTOP plant", "plant", "stop", FaultCode.DEADLINE, "plant",
+          r"'plant' .* has not run for [\d.]+ ms \(tolerance 20 ms\): alive but stalled",
+          bound_ticks=STALL_TICKS),
     Fault("servo raises", "left 1", "raise", FaultCode.SERVO, r"sv\.[01]",
           r"servo 'faulty' on robot 'left' joint 1 raised RuntimeError: injected",
           bound_ticks=2 * SERVO + 1),
