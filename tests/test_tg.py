@@ -4,6 +4,8 @@ programs' requests through the Type 1 queue, set-points through the FIFOs, statu
 from __future__ import annotations
 
 import math
+import sys
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -13,6 +15,7 @@ import pytest
 from kali_daemons import layout, puma560
 from kali_daemons.client import Kali, MotionFailedError
 from kali_daemons.layout import FaultCode, MotionKind, PowerState, RequestState
+from kali_daemons.tg.daemon import write_status
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
 
@@ -159,3 +162,42 @@ def test_a_halt_wakes_the_waiting_program_with_the_fault(kali: Callable[..., str
         assert h.state == RequestState.HALTED and queued.state == RequestState.HALTED
         assert "operator pressed the e-stop" in h.message
         assert k.servo.power_state("left") == PowerState.OFF  # and power stays off
+
+
+def test_a_status_record_taken_over_never_shows_its_new_seq_with_the_old_state() -> None:
+    """The TG reuses status record seq % STATUS_RING while clients poll it (seq, then state):
+    a client must never see its seq with the DONE of the request that had the record before.
+    Writer and reader threads switch every few bytecodes, between any two stores."""
+    status = np.zeros(1, dtype=layout.REQUEST_STATUS)
+    rec = status[0]
+    arrived = [0]  # the last seq the writer has marked DONE
+    seen_early: list[int] = []
+    stop = threading.Event()
+
+    def writer() -> None:
+        for seq in range(1, 20_001):
+            write_status(rec, seq, RequestState.QUEUED)
+            write_status(rec, seq, RequestState.RUNNING)
+            write_status(rec, seq, RequestState.DONE, "arrived")
+            arrived[0] = seq
+        stop.set()
+
+    def reader() -> None:
+        while not stop.is_set():
+            seq = int(rec["seq"])
+            state = int(rec["state"])
+            if state == RequestState.DONE and seq > arrived[0]:
+                seen_early.append(seq)
+
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        threads = [threading.Thread(target=writer), threading.Thread(target=reader)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+    finally:
+        sys.setswitchinterval(old)
+    assert arrived[0] == 20_000
+    assert not seen_early, f"{len(seen_early)} polls saw a seq DONE before it began"

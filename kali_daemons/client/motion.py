@@ -93,16 +93,15 @@ class MotionHandle:
         timeout = _timeout_arg(f"wait: request {self.seq}", timeout)
         deadline = None if timeout is None else time.monotonic() + timeout
         inst = self.kali.inst
-        while not self.done:
+        while (state := self.state) not in TERMINAL_STATES:  # one read: judged as it was seen
             if inst.fault["active"]:  # the clock, and so the TG, has stopped: say it here
                 raise MotionFailedError(f"request {self.seq} halted: {inst.fault_text()}")
             if deadline is not None and time.monotonic() > deadline:
                 raise TimeoutError(
                     f"motion: request {self.seq} not done within {timeout:g} s "
-                    f"({self.state.name.lower()})"
+                    f"({state.name.lower()})"
                 )
             self.kali.pause()
-        state = self.state
         if state != RequestState.DONE:
             raise MotionFailedError(f"request {self.seq} {state.name.lower()}: {self.message}")
 

@@ -169,6 +169,24 @@ def plan_path(
     )
 
 
+def write_status(rec: np.void, seq: int, state: RequestState, message: str = "") -> None:
+    """Write request ``seq``'s state into its status record ``rec`` (seq % STATUS_RING).
+
+    A waiting client reads the seq, then the state, then the message, while this writes, so
+    the state goes last, after its message; and a record taken over from request
+    seq - STATUS_RING first has that request's state withdrawn (FREE), before the new seq
+    appears.  Else a client that polls early would see its seq with the old request's DONE
+    and think its motion over before it began: a soak caught it, three times in 30 min.
+    """
+    if int(rec["seq"]) != seq:
+        rec["state"] = RequestState.FREE
+        rec["duration_s"] = 0.0
+        rec["progress"] = 0.0
+    rec["seq"] = seq
+    rec["message"] = message.encode()[: layout.MESSAGE_BYTES]
+    rec["state"] = state
+
+
 def refusal(exc: Exception) -> str:
     """The status message refusing a request that raised ``exc`` while being checked or
     planned: a MotionError's own text; anything else named, so nothing is hidden."""
@@ -256,10 +274,7 @@ class TrajectoryGenerator(Daemon):
     # ------------------------------------------------------------------ status records
 
     def _say(self, seq: int, state: RequestState, message: str = "") -> None:
-        rec = self.status[seq % layout.STATUS_RING]
-        rec["seq"] = seq
-        rec["message"] = message.encode()[: layout.MESSAGE_BYTES]
-        rec["state"] = state  # written last: a waiting client reads the message after it
+        write_status(self.status[seq % layout.STATUS_RING], seq, state, message)
 
     # ------------------------------------------------------------------ the tick
 
