@@ -29,6 +29,7 @@ from kali_daemons.layout import (
 from kali_daemons.plant.board import EncoderBank, IoBoardSim, adc_code, pot_volts
 from kali_daemons.plant.motor import MotorBank
 from kali_daemons.plant.sim import PlantSim
+from kali_daemons.sio.calibration import PotReader
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
 
 from .conftest import make_config
@@ -279,6 +280,27 @@ def _convert(board: IoBoardSim, regs: np.ndarray, q: np.ndarray, ch: int) -> int
     board.convert(q)
     assert not int(regs["adc_analog"]) & ADC_DONE
     return value & 0xFF
+
+
+def test_sio_reads_every_pot_right_when_the_board_falls_behind(arena: Arena) -> None:
+    """SIO's pot reader (thesis C.5) against the board: in real time the plant keeps its own
+    time, so between two of SIO's ticks it may run once, twice or not at all.  Whatever the
+    interleaving, each channel's code is that pot's, never the previous channel's."""
+    board, _, regs = _board(arena)
+    q = np.radians([-120.0, 200.0, -200.0, 150.0, -80.0, 250.0])  # six distinct pot codes
+    want = [adc_code(pot_volts(float(q[j]), puma560.Q_MIN[j], puma560.Q_MAX[j])) for j in range(6)]
+    assert len(set(want)) == 6
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        reader = PotReader(regs["adc_control"], regs["adc_analog"])  # 0-d views, as SIO's
+        reader.restart()
+        for _tick in range(200):
+            if reader.poll():
+                break
+            for _ in range(int(rng.choice([0, 0, 1, 1, 2]))):  # board cycles this tick
+                board.convert(q)
+        assert reader.poll(), "the six channels were read"
+        assert reader.codes == want
 
 
 def test_potentiometers_are_monotonic_8_bit_and_tell_index_pulses_apart(arena: Arena) -> None:

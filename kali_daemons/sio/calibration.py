@@ -46,14 +46,22 @@ ACTIVE = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
 
 class PotReader:
     """Reads one arm's six potentiometers through its board's TLC532A (C.5): START with the
-    channel in the control register, wait for DONE in the analog register, next channel."""
+    channel in the control register, wait for DONE in the analog register, START off, and
+    wait for the board to withdraw DONE before the next channel.
+
+    The board converts on START's rising edge and withdraws DONE when START falls, each at
+    its own cycle.  Without the last wait, a board cycle that falls behind SIO's (the plant
+    keeps its own time in real-time mode) never sees START fall between two channels: no
+    rising edge, no conversion, and the previous channel's DONE read as this one's.  A soak
+    calibrated a joint 0.8 rad off that way and drove it into its limit.
+    """
 
     def __init__(self, control: np.ndarray, analog: np.ndarray) -> None:
         self.control = control  # 0-d views of the board's ADC registers
         self.analog = analog
         self.codes = [0] * 6
         self._channel = 0
-        self._waiting = False
+        self._waiting = False  # START written for this channel, DONE not seen yet
 
     def restart(self) -> None:
         """Begin again at channel 0."""
@@ -66,11 +74,13 @@ class PotReader:
         c = self._channel
         if c >= 6:
             return True
+        value = int(self.analog)
         if not self._waiting:
+            if value & ADC_DONE:
+                return False  # the board has not seen START fall since the last conversion
             self.control[...] = ADC_START | c
             self._waiting = True
             return False
-        value = int(self.analog)
         if not value & ADC_DONE:
             return False  # not converted yet
         self.codes[c] = value & layout.ADC_VALUE_MASK
