@@ -509,7 +509,7 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
         if ct.returncode != 0:
             raise BenchError(f"cyclictest exited {ct.returncode}: {err.strip()}")
         ct_res = parse_histfile(histfile)
-        stalls = parse_spikes(out)
+        stalls = parse_spikes(out, spec.period_us)
         if unlogged := spikes_unlogged(out):
             res.notes.append(f"cyclictest's spike log filled: {unlogged} later stalls unlogged")
         if res.halted_at_s is not None:

@@ -203,7 +203,7 @@ def measure(
             if ct.returncode != 0:
                 raise BenchError(f"cyclictest exited {ct.returncode}: {err.strip()}")
             ct_res = parse_histfile(histfile)
-            stalls = parse_spikes(out)
+            stalls = parse_spikes(out, PERIOD_US)
             if unlogged := spikes_unlogged(out):
                 notes.append(f"cyclictest's spike log filled: {unlogged} later stalls unlogged")
         finally:

@@ -289,17 +289,20 @@ def cyclictest_command(
     return cmd
 
 
-def parse_spikes(stdout: str) -> list[tuple[int, int]]:
+def parse_spikes(stdout: str, interval_us: int) -> list[tuple[int, int]]:
     """cyclictest's ``T: n Spike: LAT: TS: US`` lines as stall intervals (start_ns, end_ns).
 
-    TS is the late wake-up in µs of CLOCK_MONOTONIC, the clock Kali's miss log uses.
+    TS is the late wake-up in µs of CLOCK_MONOTONIC, the clock Kali's miss log uses.  A late
+    wake-up shows that its thread (its CPU, ``-a``) did not run from its due time until TS,
+    and that it last ran at its previous wake-up, one ``interval_us`` before: the stall may
+    have begun anywhere after that, which cyclictest cannot see, so it starts there.
     """
     stalls = []
     for line in stdout.splitlines():
         parts = line.replace(":", " ").split()
         if len(parts) >= 6 and parts[0] == "T" and parts[2] == "Spike" and parts[4] == "TS":
             late_us, ts_us = int(parts[3]), int(parts[5])
-            stalls.append(((ts_us - late_us) * 1000, ts_us * 1000))
+            stalls.append(((ts_us - late_us - interval_us) * 1000, ts_us * 1000))
     return stalls
 
 
@@ -311,7 +314,7 @@ def spikes_unlogged(stdout: str) -> int:
     for line in stdout.splitlines():
         if line.startswith("spikes = "):
             total = int(line.split("=", 1)[1])
-    return max(0, total - len(parse_spikes(stdout)))
+    return max(0, total - sum(1 for line in stdout.splitlines() if " Spike:" in line))
 
 
 def unexplained_misses(
@@ -320,7 +323,8 @@ def unexplained_misses(
     """The Kali misses during which cyclictest saw no stall: Kali's own, not the machine's.
 
     A miss means the process did not acknowledge between its signal's due time and the next
-    due tick; cyclictest "also saw it" when one of its late wake-ups overlaps that interval.
+    due tick; cyclictest "also saw it" when one of its stalls (``parse_spikes``: from the
+    thread's last wake-up before a late one to the late one) overlaps that interval.
     """
     starts = np.array(sorted(s for s, _ in stalls), dtype=np.int64)
     ends = np.array([e for _, e in sorted(stalls)], dtype=np.int64)

@@ -606,7 +606,7 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         if ct.returncode not in (0, -signal.SIGINT):
             raise BenchError(f"cyclictest exited {ct.returncode}: {ct_err.read_text().strip()}")
         ct_text = ct_out.read_text()
-        stalls = parse_spikes(ct_text)
+        stalls = parse_spikes(ct_text, res.period_us)
         res.cyclictest_unlogged = spikes_unlogged(ct_text)
         if res.halted_at_s is not None:
             res.halt_stalls = stalls_before(ct_text, t0 + int(res.halted_at_s * 1e9))
