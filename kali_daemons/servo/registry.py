@@ -372,11 +372,15 @@ def _import_plugin(spec: str, base_dir: Path | None) -> Any:
                 f"plugin {spec!r}: import failed: {type(exc).__name__}: {exc}"
             ) from exc
     path = Path(spec)
+    relative = ""
     if not path.is_absolute():
-        path = (base_dir or Path.cwd()) / path
+        base = base_dir or Path.cwd()
+        path = base / path
+        what = "the config file's directory" if base_dir else "the current directory"
+        relative = f" (a relative path is taken from {what}, {base})"
     path = path.resolve()
     if not path.is_file():
-        raise ConfigError(f"plugin {spec!r}: file {path} does not exist")
+        raise ConfigError(f"plugin {spec!r}: file {path} does not exist{relative}")
     # One module per file, named after its path, so two plugins may share a file name.
     stem = re.sub(r"\W", "_", path.stem)
     mod_name = f"kali_servo_plugin_{stem}_{zlib.crc32(str(path).encode()):08x}"
