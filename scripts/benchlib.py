@@ -314,7 +314,7 @@ def spikes_unlogged(stdout: str) -> int:
     for line in stdout.splitlines():
         if line.startswith("spikes = "):
             total = int(line.split("=", 1)[1])
-    return max(0, total - sum(1 for line in stdout.splitlines() if " Spike:" in line))
+    return max(0, total - len(parse_spikes(stdout, 0)))
 
 
 def unexplained_misses(
