@@ -39,6 +39,13 @@ SPIKE_US = 300  # cyclictest logs every wake-up later than this, with its CLOCK_
 SPIKE_FRACTION = 0.3  # cyclictest logs wake-ups later than this many periods (300 µs at 1 ms)
 CT_THREADS = 2  # one cyclictest thread pinned per CPU, as bench_wallclock's default
 SPIKE_NODES = 200_000
+# The stall detector (soak.py): a second cyclictest above every Kali process, sampling each
+# CPU ten times a servo period, so a stall between the floor's 1 ms samples is seen too and
+# no stall it logs can be Kali's own work (the floor, at SCHED_FIFO 80, waits for SIO and
+# the SVs on its CPU).  Each wake-up costs a few µs of every CPU: ~3 % at 100 µs.
+DETECT_PRIORITY = 99
+DETECT_INTERVAL_US = 100
+DETECT_FRACTION = 0.2  # it logs wake-ups later than this many servo periods (200 µs at 1 ms)
 CYCLICTEST_MISSING = (
     "cyclictest not found; install Debian's rt-tests:\n    apt-get install rt-tests"
 )
@@ -269,7 +276,7 @@ def stop_instance(instance: str, pids: list[int]) -> list[str]:
 def cyclictest_command(
     seconds: int,
     threads: int,
-    histfile: Path,
+    histfile: Path | None,
     period_us: int,
     spike_us: int = SPIKE_US,
     priority: int = CT_PRIORITY,
@@ -277,15 +284,19 @@ def cyclictest_command(
 ) -> list[str]:
     """The cyclictest command line (``--laptop``: never touch /dev/cpu_dma_latency).
 
-    Every wake-up later than ``spike_us`` is logged with its time (``parse_spikes``), the
-    first ``spike_nodes`` of them (``spikes_unlogged``).
+    With a ``histfile``, the histogram of every wake-up's lateness (``parse_histfile``).
+    With ``spike_us`` > 0, every wake-up later than that is logged with its time
+    (``parse_spikes``), the first ``spike_nodes`` of them (``spikes_unlogged``).
     """
     cmd = ["cyclictest", "--laptop", "-m", "-p", str(priority), "-i", str(period_us)]
     cmd += ["-t", str(threads)]
     if threads > 1:
         cmd.append("-a")  # thread N on CPU N
-    cmd += ["-q", "-D", f"{seconds}s", "-h", str(CT_HIST_US), f"--histfile={histfile}"]
-    cmd += [f"--spike={spike_us}", f"--spike-nodes={spike_nodes}"]
+    cmd += ["-q", "-D", f"{seconds}s"]
+    if histfile is not None:
+        cmd += ["-h", str(CT_HIST_US), f"--histfile={histfile}"]
+    if spike_us > 0:
+        cmd += [f"--spike={spike_us}", f"--spike-nodes={spike_nodes}"]
     return cmd
 
 
@@ -335,6 +346,25 @@ def unexplained_misses(
         if k == 0 or ends[:k].max() < lo:
             out.append(m)
     return out
+
+
+def chance_overlap(stalls: list[tuple[int, int]], window_ns: int, t0_ns: int, t1_ns: int) -> float:
+    """The share of start times in [t0, t1] at which a window ``window_ns`` long overlaps one
+    of ``stalls``: how often a miss placed at random would count as "also seen".
+
+    A window [x, x + w] overlaps the stall [s, e] for x in [s - w, e]; the measure of the
+    union of those over all stalls, clipped to [t0, t1], over t1 - t0.
+    """
+    if t1_ns <= t0_ns:
+        return math.nan
+    covered = 0
+    end = t0_ns
+    for s, e in sorted(stalls):
+        lo, hi = max(s - window_ns, end), min(e, t1_ns)
+        if hi > lo:
+            covered += hi - lo
+            end = hi
+    return covered / (t1_ns - t0_ns)
 
 
 def stalls_before(stdout: str, t_ns: int) -> str:

@@ -7,10 +7,19 @@ over as a user runs it: one ``kalictl -i INSTANCE run`` client process per itera
 in its own session.  The first iteration is the warm-up (power-on and calibration, the
 daemons' first motions, BLAS and rerun buffers settling): the window opens when it ends and
 closes when the first iteration that ends after ``--minutes`` ends, so both ends of the
-window fall at the same point of the demo's cycle.  ``cyclictest --laptop`` (two threads, one
-pinned per CPU, SCHED_FIFO 80 or ``--ct-priority``, interval = the servo period, ``--spike``
-log of wake-ups later than 0.3 periods) runs through the window as the machine's floor, as
-in bench_servo.py.  A halt (``Instance.fault_text``) ends the soak at once: the report names
+window fall at the same point of the demo's cycle.  Two cyclictests run through the window:
+
+- the floor, ``cyclictest --laptop`` (two threads, one pinned per CPU, SCHED_FIFO 80 or
+  ``--ct-priority``, interval = the servo period), as in bench_servo.py: the lateness every
+  process is compared with;
+- the stall detector (``benchlib.DETECT_*``): two threads pinned per CPU at SCHED_FIFO 99,
+  above every Kali process, waking every 100 µs and logging each wake-up later than 0.2
+  servo periods with its time.  It says when a CPU was gone: a stall it logs cannot be Kali's
+  own work, and one between the floor's 1 ms samples is seen too (the floor, at the servo
+  period, missed half-millisecond stalls, and below SIO and the SVs it waits for their work).
+  Its wake-ups cost each CPU a few per cent.
+
+A halt (``Instance.fault_text``) ends the soak at once: the report names
 the fault, and the daemon logs and flight-recorder dump are kept.  So does a demo that fails
 ``MAX_FAILS_IN_ROW`` times in a row; a single failed iteration (nonzero exit; its stderr
 tail is kept) is counted and the loop goes on.
@@ -31,10 +40,12 @@ closes, as bench_servo does; nothing in the arena is reset):
   bin edges, ``launcher.percentile``'s rule), beside cyclictest's, and each process's p99.9 /
   cyclictest's p99.9 (the note column).
 - Missed deadlines per process (the wall clock's counters) and, read from its miss log as
-  they come, those cyclictest did not also see (``benchlib.unexplained_misses``: no
-  cyclictest stall overlaps the interval the process was unacknowledged), each with its time.
-  Only serious processes' misses judge the goal; the others (dynamics: its overruns skip a
-  signal by design) are shown.
+  they come, those cyclictest did not also see (``benchlib.unexplained_misses``: no stall the
+  detector logged overlaps the interval the process was unacknowledged), each with its time
+  and SIO's timing around it from the flight recorder (``SioTail``), and how often a window
+  placed at random would overlap a stall (``benchlib.chance_overlap``: how much "also seen"
+  can be luck).  Only serious processes' misses judge the goal; the others (dynamics: its
+  overruns skip a signal by design) are shown.
 - The arena: bytes used and free, the largest free block, fragmentation and the number of
   blocks when the window opens and closes.  It should not change: Kali allocates at start-up
   and nothing after (allocation-static).
@@ -43,7 +54,7 @@ closes, as bench_servo does; nothing in the arena is reset):
 How to read it.  The goal (issue 7): ``GOAL 30 min soak: PASS (memory flat, 0 misses
 cyclictest did not also see)``; shorter runs print ``soak N min (the goal is 30 min)``.  FAIL
 names every reason: a halt, a process whose memory is not flat, misses of Kali's own, miss-log
-entries overwritten unread or stalls cyclictest counted after its spike log filled (either
+entries overwritten unread or stalls the detector counted after its log filled (either
 leaves misses unmatched), failed demo iterations, an arena that changed, anything left behind
 after the stop.  The host stalls every program here a few times a minute
 by 0.3-9 ms (DESIGN 10), and every process misses the ticks a stall covers: compare with the
@@ -81,7 +92,9 @@ from benchlib import (
     CT_PRIORITY,
     CT_THREADS,
     CYCLICTEST_MISSING,
-    SPIKE_FRACTION,
+    DETECT_FRACTION,
+    DETECT_INTERVAL_US,
+    DETECT_PRIORITY,
     SPIKE_NODES,
     BenchError,
     CtResult,
@@ -89,6 +102,7 @@ from benchlib import (
     KaliSnap,
     MissTail,
     Row,
+    chance_overlap,
     cpu_times,
     ct_row,
     cyclictest_command,
@@ -112,9 +126,10 @@ from benchlib import (
     window_row,
 )
 
-from kali_daemons import launcher
+from kali_daemons import launcher, layout
 from kali_daemons.config import KaliConfig, load_config
 from kali_daemons.errors import KaliError
+from kali_daemons.flightrec import read_ring
 from kali_daemons.instance import Instance
 from kali_daemons.introspect import Introspector
 
@@ -129,8 +144,9 @@ ITERATION_TIMEOUT_S = 180.0  # an iteration takes ~10 s; the demo's own waits gi
 MAX_FAILS_IN_ROW = 3  # the demo failing this often in a row ends the soak (FAIL)
 DEMO_STOP_S = 5.0  # after SIGINT, the demo's time to stop its arms (kalictl run) before SIGKILL
 HALT_EXIT_S = 5.0  # after a halt, the demo's time to exit on its own (it hears of the halt)
-SPIKE_SHARE = 8  # cyclictest's spike log holds a stall at one wake-up in this many
+DETECT_SHARE = 64  # the stall detector's log holds a stall at one wake-up in this many
 CT_SLACK_S = 60  # cyclictest's -D beyond the window's longest end; it is stopped at the end
+SIO_BEFORE = 2  # SIO's ticks before a missed one whose timing the report gives
 STDERR_LINES = 6  # of a failed iteration's stderr, kept and printed
 WIDTH = 100  # report columns (the cyclictest command and the machine line may be longer)
 
@@ -420,6 +436,59 @@ def kalictl_path() -> str:
 
 
 # --------------------------------------------------------------------------------------------
+# SIO's side of a miss
+
+
+class SioTail:
+    """SIO's timing around every serious miss, from the flight recorder's ring, read as the
+    misses come (the ring holds FLIGHT_SECONDS, the loop polls every POLL_S): the ticks
+    ``SIO_BEFORE`` before the missed one to the one after, each as (tick, how late SIO woke,
+    how long it took from reading the board to writing it), in µs.  A miss of Kali's own is
+    then told apart: SIO woke late (its CPU was busy or gone), or its tick ran long.
+    """
+
+    def __init__(self, inst: Instance, tail: MissTail, serious: set[str]) -> None:
+        a = inst.arena
+        self.header = a.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+        rows, n = int(self.header["rows"]), int(self.header["n_joints"])
+        self.ring = a.existing(layout.KEY_FLIGHT_RING, layout.flight_row(n), rows)
+        self.tail = tail
+        self.serious = serious
+        self.read = len(tail.rows)
+        self.ticks: dict[int, list[tuple[int, int, int]]] = {}
+
+    def poll(self) -> None:
+        """Copy the ring's rows around the ticks of the serious misses logged since."""
+        new = self.tail.rows[self.read :]
+        self.read = len(self.tail.rows)
+        ticks = {int(m["tick"]) for m in new if m["process"] in self.serious}
+        if not ticks:
+            return
+        data = read_ring(self.header, self.ring)
+        for tick in ticks - self.ticks.keys():
+            near = data[(data["tick"] >= tick - SIO_BEFORE) & (data["tick"] <= tick + 1)]
+            self.ticks[tick] = [
+                (int(r["tick"]), int(r["late_ns"]) // 1000, int(r["latency_ns"]) // 1000)
+                for r in near
+            ]
+
+
+def sio_story(tick: int, rows: list[tuple[int, int, int]]) -> str:
+    """SIO's ticks around a missed ``tick`` as one line: ``tick-1 woke 40 took 280`` ...;
+    a tick SIO did not serve (it missed it) is absent from the ring, and says so."""
+    served = {t: (late, took) for t, late, took in rows}
+    parts = []
+    for t in range(tick - SIO_BEFORE, tick + 2):
+        rel = "N" if t == tick else f"N{t - tick:+d}"
+        if t in served:
+            late, took = served[t]
+            parts.append(f"{rel} woke {late} took {took}")
+        else:
+            parts.append(f"{rel} not served")
+    return "SIO (µs late, µs read to write): " + "; ".join(parts)
+
+
+# --------------------------------------------------------------------------------------------
 # The soak
 
 
@@ -435,7 +504,8 @@ class SoakResult:
     machine: dict[str, object] = field(default_factory=dict)
     cyclictest_command: str = ""
     ct_priority: int = CT_PRIORITY
-    spike_us: int = 0
+    detector_command: str = ""
+    detect_us: int = 0  # the stall detector logs wake-ups later than this
     log_dir: str = ""
     warmup: Iteration | None = None
     iterations: list[Iteration] = field(default_factory=list)  # in the window
@@ -447,8 +517,9 @@ class SoakResult:
     misses: dict[str, dict[str, int]] = field(default_factory=dict)  # per process
     unexplained: list[dict[str, object]] = field(default_factory=list)  # with t_s, clock
     misses_lost: int = 0  # miss-log entries overwritten before they were read
-    cyclictest_stalls: int = 0
-    cyclictest_unlogged: int = 0  # stalls cyclictest counted after its spike log filled
+    detector_stalls: int = 0
+    detector_unlogged: int = 0  # stalls the detector counted after its log filled
+    chance_overlap: float = math.nan  # share of random 1-period windows a stall overlaps
     arena_start: ArenaState | None = None
     arena_end: ArenaState | None = None
     arena_changes: list[str] = field(default_factory=list)
@@ -502,17 +573,21 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     res.machine = machine_facts()
     os.environ["KALI_LOG_DIR"] = res.log_dir = str(tmp / instance)  # kept on a failure
     histfile, ct_out, ct_err = (tmp / f"cyclictest.{x}" for x in ("hist", "out", "err"))
-    res.spike_us = round(SPIKE_FRACTION * res.period_us)
+    det_out, det_err = tmp / "detector.out", tmp / "detector.err"
     ct_seconds = math.ceil(res.minutes * 60 + ITERATION_TIMEOUT_S) + CT_SLACK_S
-    # room to log a stall at one wake-up in SPIKE_SHARE (the noisiest soak so far: 1 in 23)
-    wakeups = ct_seconds * CT_THREADS * 1_000_000 // res.period_us
-    nodes = max(SPIKE_NODES, wakeups // SPIKE_SHARE)
-    cmd = cyclictest_command(
-        ct_seconds, CT_THREADS, histfile, res.period_us, res.spike_us, res.ct_priority, nodes
-    )
+    cmd = cyclictest_command(ct_seconds, CT_THREADS, histfile, res.period_us, 0, res.ct_priority)
     res.cyclictest_command = shlex.join(cmd)
+    # the stall detector: room to log a stall at one wake-up in DETECT_SHARE (~47 B a node)
+    res.detect_us = round(DETECT_FRACTION * res.period_us)
+    wakeups = ct_seconds * CT_THREADS * 1_000_000 // DETECT_INTERVAL_US
+    nodes = max(SPIKE_NODES, wakeups // DETECT_SHARE)
+    det_cmd = cyclictest_command(
+        ct_seconds, CT_THREADS, None, DETECT_INTERVAL_US, res.detect_us, DETECT_PRIORITY, nodes
+    )
+    res.detector_command = shlex.join(det_cmd)
     kalictl = kalictl_path()
     ct: subprocess.Popen[str] | None = None
+    det: subprocess.Popen[str] | None = None
     demo: Demo | None = None
     rss: RssLog | None = None
     watch = ForeignWatch(instance)
@@ -537,11 +612,14 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                 res.flight_dump = flight_dump(inst)
                 return
             # the window
+            with open(det_out, "w") as out, open(det_err, "w") as err:
+                det = subprocess.Popen(det_cmd, stdout=out, stderr=err, text=True)
             with open(ct_out, "w") as out, open(ct_err, "w") as err:
                 ct = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
-            watch.exclude.add(ct.pid)
+            watch.exclude.update((ct.pid, det.pid))
             ct_end = time.monotonic_ns() + ct_seconds * 1_000_000_000
             tail = MissTail(inst)
+            sio = SioTail(inst, tail, {p.name for p in cfg.processes if p.serious})
             s0 = snapshot(inst, names)
             t0 = s0.t_ns
             stat0 = cpu_times()
@@ -556,7 +634,9 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
             def poll() -> None:
                 nonlocal next_sample
                 tail.poll()
+                sio.poll()
                 watch.poll(ct, ct_end)
+                watch.poll(det, ct_end)
                 now = time.monotonic_ns()
                 if now >= next_sample:
                     rss.sample((now - t0) / 1e9)
@@ -599,22 +679,30 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
             res.arena_end = arena_state(inst)
             res.machine["steal_ms"] = steal_ms(stat0, cpu_times())
             tail.poll()
+            sio.poll()
             res.misses_lost = tail.lost
             logged = tail.between(names, t0, s1.t_ns)
+            for m in logged:
+                if m["process"] in sio.serious:
+                    m["sio"] = sio.ticks.get(int(m["tick"]), [])
         with signals_held():
+            stop_cyclictest(det)
             stop_cyclictest(ct)
-        if ct.returncode not in (0, -signal.SIGINT):
-            raise BenchError(f"cyclictest exited {ct.returncode}: {ct_err.read_text().strip()}")
-        ct_text = ct_out.read_text()
-        stalls = parse_spikes(ct_text, res.period_us)
-        res.cyclictest_unlogged = spikes_unlogged(ct_text)
+        for proc, err_path, what in ((ct, ct_err, "cyclictest"), (det, det_err, "detector")):
+            if proc.returncode not in (0, -signal.SIGINT):
+                err_text = err_path.read_text().strip()
+                raise BenchError(f"{what} exited {proc.returncode}: {err_text}")
+        det_text = det_out.read_text()
+        stalls = parse_spikes(det_text, DETECT_INTERVAL_US)
+        res.detector_unlogged = spikes_unlogged(det_text)
         if res.halted_at_s is not None:
-            res.halt_stalls = stalls_before(ct_text, t0 + int(res.halted_at_s * 1e9))
+            res.halt_stalls = stalls_before(det_text, t0 + int(res.halted_at_s * 1e9))
         analyse(res, cfg, s0, s1, parse_histfile(histfile), logged, stalls, t0, real_offset)
     finally:
         with signals_held():
             if demo is not None:
                 demo.stop()
+            stop_cyclictest(det)
             stop_cyclictest(ct)
             res.left_behind = stop_instance(instance, started)
             if demo is not None:
@@ -678,7 +766,8 @@ def analyse(
             "logged": sum(m["process"] == p.name for m in logged),
             "unexplained": sum(m["process"] == p.name for m in own),
         }
-    res.cyclictest_stalls = len(stalls)
+    res.detector_stalls = len(stalls)
+    res.chance_overlap = chance_overlap(stalls, period * 1000, t0, s1.t_ns)
     res.clock_overruns = s1.overruns - s0.overruns
     res.clock_skipped_ticks = s1.skipped_ticks - s0.skipped_ticks
     assert res.arena_start is not None and res.arena_end is not None
@@ -700,9 +789,9 @@ def judge(res: SoakResult) -> None:
     own = sum(res.misses[n]["unexplained"] for n in serious)
     if own:
         p.append(f"{own} misses of serious processes cyclictest did not also see")
-    if res.cyclictest_unlogged:
+    if res.detector_unlogged:
         p.append(
-            f"cyclictest's spike log filled: {res.cyclictest_unlogged} later stalls unlogged, "
+            f"the stall detector's log filled: {res.detector_unlogged} later stalls unlogged, "
             "so misses after it filled could not be matched"
         )
     unread = sum(res.misses[n]["total"] - res.misses[n]["logged"] for n in serious)
@@ -763,7 +852,9 @@ def format_report(r: SoakResult) -> str:
             + ", ".join(f"{c} {v:.0f} ms" for c, v in steal.items())
         )
     if r.cyclictest_command:
-        lines.append(f"cyclictest: {r.cyclictest_command}")
+        lines.append(f"cyclictest (the floor): {r.cyclictest_command}")
+    if r.detector_command:
+        lines.append(f"stall detector: {r.detector_command}")
     w = r.warmup
     if w is not None and r.halted_in_warmup:
         lines.append(f"warm-up iteration: halted after {w.seconds:.1f} s; no window")
@@ -852,8 +943,9 @@ def format_misses(r: SoakResult) -> list[str]:
             f"{m['logged']:>7} {m['unexplained']:>7}"
         )
     lines += wrap(
-        f"own: no cyclictest stall > {r.spike_us} µs overlaps the miss (cyclictest logged "
-        f"{r.cyclictest_stalls} such stalls); wall clock overruns {r.clock_overruns}, "
+        f"own: no stall > {r.detect_us} µs the stall detector logged overlaps the miss (it "
+        f"logged {r.detector_stalls}; a {r.period_us} µs window placed at random overlaps one "
+        f"{r.chance_overlap:.1%} of the time); wall clock overruns {r.clock_overruns}, "
         f"skipped ticks {r.clock_skipped_ticks}"
     )
     for m in r.unexplained[:20]:
@@ -861,6 +953,9 @@ def format_misses(r: SoakResult) -> list[str]:
             f"  own miss: {m['process']} at {m['t_s']:.3f} s ({m['clock']}), tick {m['tick']}, "
             f"{m['consecutive']} in a row"
         )
+        if "sio" in m:  # a serious process's miss
+            rows: list[tuple[int, int, int]] = m["sio"]  # type: ignore[assignment]
+            lines += wrap(f"    {sio_story(int(m['tick']), rows)}")
     if len(r.unexplained) > 20:
         lines.append(f"  ... and {len(r.unexplained) - 20} more (--json has them)")
     if r.misses_lost:
