@@ -120,7 +120,7 @@ MAX_PLUGINS = 16
 # Used when the file has no ``processes`` / ``robots`` section (same as config/default.yaml).
 _DEFAULT_PROCESSES: dict[str, dict[str, Any]] = {
     "wallclock": {"cpu": 0, "priority": 90},
-    "plant": {"cpu": 1, "priority": 88, "period_ms": 1, "serious": True, "stage": 0},
+    "plant": {"cpu": 1, "priority": 83, "period_ms": 1, "serious": True, "stage": 0},
     "tg": {"cpu": 1, "priority": 80, "serious": True, "stage": 1},
     "sio": {"cpu": 0, "priority": 85, "serious": True, "stage": 2},
     "sv": {"count": 2, "cpus": [0, 1], "priority": 84, "serious": True, "stage": 2},

@@ -45,7 +45,9 @@ SPIKE_NODES = 200_000
 # the SVs on its CPU).  Each wake-up costs a few µs of every CPU: ~3 % at 100 µs.
 DETECT_PRIORITY = 99
 DETECT_INTERVAL_US = 100
-DETECT_FRACTION = 0.2  # it logs wake-ups later than this many servo periods (200 µs at 1 ms)
+DETECT_LOG_US = 50  # it logs every wake-up later than this (its own noise is 5-40 µs)
+DETECT_FRACTION = 0.2  # a stall this many servo periods long (200 µs at 1 ms), or a CPU lost
+# for this long inside a miss in pieces of > DETECT_LOG_US, counts as the machine's doing
 CYCLICTEST_MISSING = (
     "cyclictest not found; install Debian's rt-tests:\n    apt-get install rt-tests"
 )
@@ -300,21 +302,32 @@ def cyclictest_command(
     return cmd
 
 
-def parse_spikes(stdout: str, interval_us: int) -> list[tuple[int, int]]:
-    """cyclictest's ``T: n Spike: LAT: TS: US`` lines as stall intervals (start_ns, end_ns).
+def spike_lines(stdout: str) -> list[tuple[int, int, int]]:
+    """cyclictest's ``T: n Spike: LAT: TS: US`` lines as (thread, late_us, ts_us).
 
-    TS is the late wake-up in µs of CLOCK_MONOTONIC, the clock Kali's miss log uses.  A late
-    wake-up shows that its thread (its CPU, ``-a``) did not run from its due time until TS,
-    and that it last ran at its previous wake-up, one ``interval_us`` before: the stall may
-    have begun anywhere after that, which cyclictest cannot see, so it starts there.
+    TS is the late wake-up in µs of CLOCK_MONOTONIC, the clock Kali's miss log uses; with
+    ``-a`` thread n runs on CPU n.
     """
-    stalls = []
+    out = []
     for line in stdout.splitlines():
         parts = line.replace(":", " ").split()
         if len(parts) >= 6 and parts[0] == "T" and parts[2] == "Spike" and parts[4] == "TS":
-            late_us, ts_us = int(parts[3]), int(parts[5])
-            stalls.append(((ts_us - late_us - interval_us) * 1000, ts_us * 1000))
-    return stalls
+            out.append((int(parts[1]), int(parts[3]), int(parts[5])))
+    return out
+
+
+def parse_spikes(stdout: str, interval_us: int, min_us: int = 0) -> list[tuple[int, int]]:
+    """The wake-ups later than ``min_us`` as stall intervals (start_ns, end_ns).
+
+    A late wake-up shows that its thread (its CPU, ``-a``) did not run from its due time
+    until TS, and that it last ran at its previous wake-up, one ``interval_us`` before: the
+    stall may have begun anywhere after that, which cyclictest cannot see, so it starts there.
+    """
+    return [
+        ((ts - late - interval_us) * 1000, ts * 1000)
+        for _, late, ts in spike_lines(stdout)
+        if late > min_us
+    ]
 
 
 def spikes_unlogged(stdout: str) -> int:
@@ -325,17 +338,51 @@ def spikes_unlogged(stdout: str) -> int:
     for line in stdout.splitlines():
         if line.startswith("spikes = "):
             total = int(line.split("=", 1)[1])
-    return max(0, total - len(parse_spikes(stdout, 0)))
+    return max(0, total - len(spike_lines(stdout)))
+
+
+class LostTime:
+    """How long each CPU was gone, from a cyclictest's logged wake-ups (``spike_lines``).
+
+    A wake-up ``late`` µs late shows its CPU (``-a``) did not run its thread from the due
+    time until TS: [TS - late, TS] was lost, at least.  Several short losses add up to as
+    much as one long stall: a servo tick that needs most of its period misses either way,
+    and a rule that looks only for long stalls sees none of the short ones.
+    """
+
+    def __init__(self, lines: list[tuple[int, int, int]]) -> None:
+        self.cpus: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for cpu in sorted({t for t, _, _ in lines}):
+            mine = sorted((ts, late) for t, late, ts in lines if t == cpu)
+            ends = np.array([ts for ts, _ in mine], dtype=np.int64) * 1000
+            starts = ends - np.array([late for _, late in mine], dtype=np.int64) * 1000
+            self.cpus[cpu] = (starts, ends)
+
+    def within(self, lo_ns: int, hi_ns: int) -> dict[int, int]:
+        """Per CPU, the ns it lost inside [lo, hi] (only CPUs that lost some)."""
+        out = {}
+        for cpu, (starts, ends) in self.cpus.items():
+            a = int(np.searchsorted(ends, lo_ns, side="right"))
+            b = int(np.searchsorted(starts, hi_ns, side="left"))
+            if b > a:
+                lost = np.minimum(ends[a:b], hi_ns) - np.maximum(starts[a:b], lo_ns)
+                out[cpu] = int(lost[lost > 0].sum())
+        return out
 
 
 def unexplained_misses(
-    misses: list[dict[str, object]], stalls: list[tuple[int, int]]
+    misses: list[dict[str, object]],
+    stalls: list[tuple[int, int]],
+    lost: LostTime | None = None,
+    lost_limit_ns: int = 0,
 ) -> list[dict[str, object]]:
     """The Kali misses during which cyclictest saw no stall: Kali's own, not the machine's.
 
     A miss means the process did not acknowledge between its signal's due time and the next
     due tick; cyclictest "also saw it" when one of its stalls (``parse_spikes``: from the
-    thread's last wake-up before a late one to the late one) overlaps that interval.
+    thread's last wake-up before a late one to the late one) overlaps that interval, or,
+    with ``lost``, when one CPU lost at least ``lost_limit_ns`` inside it in short pieces.
+    Each miss of Kali's own is returned with ``lost_us``: what each CPU lost inside it.
     """
     starts = np.array(sorted(s for s, _ in stalls), dtype=np.int64)
     ends = np.array([e for _, e in sorted(stalls)], dtype=np.int64)
@@ -343,28 +390,35 @@ def unexplained_misses(
     for m in misses:
         lo, hi = int(m["signal_ns"]), int(m["due_ns"])
         k = int(np.searchsorted(starts, hi, side="right"))  # stalls starting before hi
-        if k == 0 or ends[:k].max() < lo:
-            out.append(m)
+        if k and ends[:k].max() >= lo:
+            continue
+        inside = lost.within(lo, hi) if lost is not None else {}
+        if inside and max(inside.values()) >= lost_limit_ns:
+            continue
+        out.append(m | {"lost_us": {c: v // 1000 for c, v in inside.items()}})
     return out
 
 
-def chance_overlap(stalls: list[tuple[int, int]], window_ns: int, t0_ns: int, t1_ns: int) -> float:
-    """The share of start times in [t0, t1] at which a window ``window_ns`` long overlaps one
-    of ``stalls``: how often a miss placed at random would count as "also seen".
-
-    A window [x, x + w] overlaps the stall [s, e] for x in [s - w, e]; the measure of the
-    union of those over all stalls, clipped to [t0, t1], over t1 - t0.
-    """
-    if t1_ns <= t0_ns:
+def chance_seen(
+    stalls: list[tuple[int, int]],
+    lost: LostTime | None,
+    lost_limit_ns: int,
+    window_ns: int,
+    t0_ns: int,
+    t1_ns: int,
+    n: int = 20_000,
+) -> float:
+    """The share of ``n`` windows ``window_ns`` long, evenly spaced over [t0, t1], that
+    ``unexplained_misses`` would count as also seen: how often a miss placed at random would
+    be put down to the machine, so how much an "also seen" can be luck."""
+    step = (t1_ns - t0_ns - window_ns) / n
+    if step <= 0:
         return math.nan
-    covered = 0
-    end = t0_ns
-    for s, e in sorted(stalls):
-        lo, hi = max(s - window_ns, end), min(e, t1_ns)
-        if hi > lo:
-            covered += hi - lo
-            end = hi
-    return covered / (t1_ns - t0_ns)
+    starts = (t0_ns + np.arange(n) * step).astype(np.int64)
+    windows: list[dict[str, object]] = [
+        {"signal_ns": int(x), "due_ns": int(x) + window_ns} for x in starts
+    ]
+    return 1.0 - len(unexplained_misses(windows, stalls, lost, lost_limit_ns)) / n
 
 
 def stalls_before(stdout: str, t_ns: int) -> str:

@@ -42,10 +42,13 @@ closes, as bench_servo does; nothing in the arena is reset):
 - Missed deadlines per process (the wall clock's counters) and, read from its miss log as
   they come, those cyclictest did not also see (``benchlib.unexplained_misses``: no stall the
   detector logged overlaps the interval the process was unacknowledged), each with its time
-  and SIO's timing around it from the flight recorder (``SioTail``), and how often a window
-  placed at random would overlap a stall (``benchlib.chance_overlap``: how much "also seen"
-  can be luck).  Only serious processes' misses judge the goal; the others (dynamics: its
-  overruns skip a signal by design) are shown.
+  and SIO's timing around it from the flight recorder (``SioTail``).  Also seen means: a
+  stall of more than 0.2 servo periods overlaps the miss, or one CPU lost that long inside
+  it in pieces (``benchlib.LostTime``: the detector's wake-ups later than 50 µs).  The report
+  gives how often a window anywhere in the run would count as also seen
+  (``benchlib.chance_seen``): how much of "also seen" can be luck.  Only serious processes'
+  misses judge the goal; the others (dynamics: its overruns skip a signal by design) are
+  shown.
 - The arena: bytes used and free, the largest free block, fragmentation and the number of
   blocks when the window opens and closes.  It should not change: Kali allocates at start-up
   and nothing after (allocation-static).
@@ -94,15 +97,17 @@ from benchlib import (
     CYCLICTEST_MISSING,
     DETECT_FRACTION,
     DETECT_INTERVAL_US,
+    DETECT_LOG_US,
     DETECT_PRIORITY,
     SPIKE_NODES,
     BenchError,
     CtResult,
     ForeignWatch,
     KaliSnap,
+    LostTime,
     MissTail,
     Row,
-    chance_overlap,
+    chance_seen,
     cpu_times,
     ct_row,
     cyclictest_command,
@@ -114,6 +119,7 @@ from benchlib import (
     row_head,
     signals_held,
     snapshot,
+    spike_lines,
     spikes_unlogged,
     stalls_before,
     steal_ms,
@@ -519,7 +525,7 @@ class SoakResult:
     misses_lost: int = 0  # miss-log entries overwritten before they were read
     detector_stalls: int = 0
     detector_unlogged: int = 0  # stalls the detector counted after its log filled
-    chance_overlap: float = math.nan  # share of random 1-period windows a stall overlaps
+    chance_seen: float = math.nan  # share of 1-period windows the machine would explain
     arena_start: ArenaState | None = None
     arena_end: ArenaState | None = None
     arena_changes: list[str] = field(default_factory=list)
@@ -582,7 +588,7 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     wakeups = ct_seconds * CT_THREADS * 1_000_000 // DETECT_INTERVAL_US
     nodes = max(SPIKE_NODES, wakeups // DETECT_SHARE)
     det_cmd = cyclictest_command(
-        ct_seconds, CT_THREADS, None, DETECT_INTERVAL_US, res.detect_us, DETECT_PRIORITY, nodes
+        ct_seconds, CT_THREADS, None, DETECT_INTERVAL_US, DETECT_LOG_US, DETECT_PRIORITY, nodes
     )
     res.detector_command = shlex.join(det_cmd)
     kalictl = kalictl_path()
@@ -693,11 +699,13 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                 err_text = err_path.read_text().strip()
                 raise BenchError(f"{what} exited {proc.returncode}: {err_text}")
         det_text = det_out.read_text()
-        stalls = parse_spikes(det_text, DETECT_INTERVAL_US)
+        stalls = parse_spikes(det_text, DETECT_INTERVAL_US, res.detect_us)
+        lost = LostTime(spike_lines(det_text))
         res.detector_unlogged = spikes_unlogged(det_text)
         if res.halted_at_s is not None:
             res.halt_stalls = stalls_before(det_text, t0 + int(res.halted_at_s * 1e9))
-        analyse(res, cfg, s0, s1, parse_histfile(histfile), logged, stalls, t0, real_offset)
+        hist = parse_histfile(histfile)
+        analyse(res, cfg, s0, s1, hist, logged, stalls, lost, t0, real_offset)
     finally:
         with signals_held():
             if demo is not None:
@@ -740,6 +748,7 @@ def analyse(
     ct_hist: CtResult,
     logged: list[dict[str, object]],
     stalls: list[tuple[int, int]],
+    lost: LostTime,
     t0: int,
     real_offset: int,
 ) -> None:
@@ -752,7 +761,7 @@ def analyse(
         ratio = row.p999_us / ct.p999_us if ct.p999_us else math.nan
         row.note = f"{ratio:.2f}x"
         res.wakeup.append(row)
-    own = unexplained_misses(logged, stalls)
+    own = unexplained_misses(logged, stalls, lost, res.detect_us * 1000)
     for m in own:
         m["t_s"] = round((int(m["due_ns"]) - t0) / 1e9, 3)
         real_ms = (int(m["due_ns"]) + real_offset) // 1_000_000
@@ -767,7 +776,8 @@ def analyse(
             "unexplained": sum(m["process"] == p.name for m in own),
         }
     res.detector_stalls = len(stalls)
-    res.chance_overlap = chance_overlap(stalls, period * 1000, t0, s1.t_ns)
+    limit = res.detect_us * 1000
+    res.chance_seen = chance_seen(stalls, lost, limit, period * 1000, t0, s1.t_ns)
     res.clock_overruns = s1.overruns - s0.overruns
     res.clock_skipped_ticks = s1.skipped_ticks - s0.skipped_ticks
     assert res.arena_start is not None and res.arena_end is not None
@@ -943,15 +953,18 @@ def format_misses(r: SoakResult) -> list[str]:
             f"{m['logged']:>7} {m['unexplained']:>7}"
         )
     lines += wrap(
-        f"own: no stall > {r.detect_us} µs the stall detector logged overlaps the miss (it "
-        f"logged {r.detector_stalls}; a {r.period_us} µs window placed at random overlaps one "
-        f"{r.chance_overlap:.1%} of the time); wall clock overruns {r.clock_overruns}, "
+        f"own: the stall detector saw no stall > {r.detect_us} µs overlap the miss (it logged "
+        f"{r.detector_stalls}), and no CPU lose {r.detect_us} µs inside it in pieces > "
+        f"{DETECT_LOG_US} µs; a {r.period_us} µs window anywhere would be put down to the "
+        f"machine {r.chance_seen:.1%} of the time; wall clock overruns {r.clock_overruns}, "
         f"skipped ticks {r.clock_skipped_ticks}"
     )
     for m in r.unexplained[:20]:
+        lost: dict[int, int] = m.get("lost_us", {})  # type: ignore[assignment]
+        gone = ", ".join(f"CPU {c} {v} µs" for c, v in sorted(lost.items())) or "nothing"
         lines.append(
             f"  own miss: {m['process']} at {m['t_s']:.3f} s ({m['clock']}), tick {m['tick']}, "
-            f"{m['consecutive']} in a row"
+            f"{m['consecutive']} in a row; lost inside it: {gone}"
         )
         if "sio" in m:  # a serious process's miss
             rows: list[tuple[int, int, int]] = m["sio"]  # type: ignore[assignment]

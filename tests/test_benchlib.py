@@ -14,7 +14,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
 
 from benchlib import (
-    chance_overlap,
+    LostTime,
+    chance_seen,
     cyclictest_command,
     parse_spikes,
     spikes_unlogged,
@@ -35,6 +36,7 @@ def test_a_spike_is_a_stall_from_the_threads_previous_wake_up_to_the_late_one() 
         ((33612617925 - 344 - 100) * 1000, 33612617925 * 1000),
         ((33612619000 - 1200 - 100) * 1000, 33612619000 * 1000),
     ]
+    assert parse_spikes(SPIKES, 100, min_us=344) == parse_spikes(SPIKES, 100)[1:]
 
 
 def test_spikes_cyclictest_counted_but_did_not_log_are_counted() -> None:
@@ -51,33 +53,41 @@ def test_a_miss_is_also_seen_only_when_a_stall_overlaps_its_window() -> None:
         {"signal_ns": 10_400, "due_ns": 20_000},  # the second stall ends in it
     ]
     own = unexplained_misses(misses, stalls)
-    assert own == [misses[0], misses[2]]
-    assert unexplained_misses(misses[:1], []) == misses[:1]
+    assert own == [misses[0] | {"lost_us": {}}, misses[2] | {"lost_us": {}}]
 
 
-def test_chance_overlap_is_the_share_of_window_starts_that_meet_a_stall() -> None:
-    # a 5 ns window starting in [5, 20] meets the stall [10, 20]
-    assert chance_overlap([(10, 20)], 5, 0, 100) == pytest.approx(0.15)
-    # overlapping stalls count once: starts in [5, 30]
-    assert chance_overlap([(10, 20), (12, 30)], 5, 0, 100) == pytest.approx(0.25)
-    # a stall inside an earlier one adds nothing
-    assert chance_overlap([(10, 40), (15, 20)], 5, 0, 100) == pytest.approx(0.35)
-    # clipped to the window: starts in [0, 10] of [0, 100]
-    assert chance_overlap([(-50, 10)], 5, 0, 100) == pytest.approx(0.10)
-    assert chance_overlap([], 5, 0, 100) == 0.0
+def test_short_losses_of_one_cpu_add_up_to_a_stall() -> None:
+    """Three 100 µs losses of CPU 0 inside a 1 ms miss: 300 µs lost, which a rule looking
+    only for stalls > 200 µs would never see."""
+    lines = [(0, 100, 1_100), (0, 100, 1_400), (0, 100, 1_800), (1, 60, 1_500), (0, 100, 5_000)]
+    lost = LostTime(lines)
+    assert lost.within(1_000_000, 2_000_000) == {0: 300_000, 1: 60_000}
+    assert lost.within(1_050_000, 1_350_000) == {0: 100_000}  # CPU 1 lost nothing there
+    miss = {"signal_ns": 1_000_000, "due_ns": 2_000_000}
+    assert unexplained_misses([miss], [], lost, 300_000) == []
+    own = unexplained_misses([miss], [], lost, 300_001)
+    assert own == [miss | {"lost_us": {0: 300, 1: 60}}]
 
 
-def test_chance_overlap_agrees_with_placing_windows_at_random() -> None:
+def test_chance_seen_is_the_share_of_windows_the_rules_would_explain() -> None:
+    # a 5 µs window starting in [5, 20] µs meets the stall [10, 20] µs: 15 % of [0, 100] µs
+    stall = [(10_000, 20_000)]
+    assert chance_seen(stall, None, 0, 5_000, 0, 105_000) == pytest.approx(0.15, abs=0.001)
+    assert chance_seen([], None, 0, 5_000, 0, 105_000) == 0.0
+    # or CPU 0 losing 10-11 and 11-12 µs: only windows holding both lose 2 µs, starts in [7, 10]
+    lost = LostTime([(0, 1, 11), (0, 1, 12)])
+    assert chance_seen([], lost, 2_000, 5_000, 0, 105_000) == pytest.approx(0.03, abs=0.001)
+
+
+def test_chance_seen_agrees_with_placing_windows_at_random() -> None:
     rng = np.random.default_rng(7)
     starts = rng.integers(0, 1_000_000, 40)
-    stalls = [
-        (int(s), int(s) + int(d)) for s, d in zip(starts, rng.integers(1, 5_000, 40), strict=True)
-    ]
+    lengths = rng.integers(1, 5_000, 40)
+    stalls = [(int(s), int(s) + int(d)) for s, d in zip(starts, lengths, strict=True)]
     w = 2_000
-    miss_starts = rng.integers(0, 1_000_000 - w, 20_000)
-    misses = [{"signal_ns": int(x), "due_ns": int(x) + w} for x in miss_starts]
+    misses = [{"signal_ns": int(x), "due_ns": int(x) + w} for x in rng.integers(0, 998_000, 20_000)]
     seen = 1 - len(unexplained_misses(misses, stalls)) / len(misses)
-    assert chance_overlap(stalls, w, 0, 1_000_000 - w) == pytest.approx(seen, abs=0.01)
+    assert chance_seen(stalls, None, 0, w, 0, 1_000_000) == pytest.approx(seen, abs=0.01)
 
 
 def test_the_stall_detector_command_has_no_histogram() -> None:

@@ -66,7 +66,7 @@ def line_of(fragment: str) -> int:
 
 EXPECTED_PROCESSES = (
     ProcessConfig("wallclock", "wallclock", 0, 90, 1, False, 0),
-    ProcessConfig("plant", "plant", 1, 88, 1, True, 0),
+    ProcessConfig("plant", "plant", 1, 83, 1, True, 0),
     ProcessConfig("tg", "tg", 1, 80, 10, True, 1),
     ProcessConfig("sio", "sio", 0, 85, 1, True, 2),
     ProcessConfig("sv.0", "sv", 0, 84, 1, True, 2),

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -28,6 +29,7 @@ from kali_daemons.wallclock.clock import (
     GANG_RUNS,
     GANG_SIO_LATE,
     GANG_SVS_LATE,
+    WallClock,
     gang_state,
     time_ms,
 )
@@ -235,6 +237,77 @@ def test_gang_state_signals_sio_and_the_svs_together_or_not_at_all() -> None:
     assert state(9, 9, 9) == GANG_SIO_LATE
     assert state(10, 9, 9) == GANG_SVS_LATE  # SIO would feed slots no SV was signalled for
     assert gang_state(3, [], np.full(8, 10), sig) == GANG_RUNS
+
+
+def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]]) -> WallClock:
+    """A real-time wall clock's tick logic over three serious slots (pids ``pids``), with
+    the process table, fault and miss log in plain arrays and semaphores that record."""
+
+    class Sem:
+        def __init__(self, i: int) -> None:
+            self.i = i
+
+        def release(self) -> None:
+            events.append(("signal", self.i))
+
+    procs = np.zeros(layout.MAX_PROCESSES, dtype=layout.PROCESS)
+    procs["pid"][:3] = pids
+    misses = np.zeros((), dtype=layout.MISS_LOG)
+    fault = {"active": 0}
+
+    def raise_fault(code: FaultCode, process: str, message: str, tick: int) -> None:
+        events.append(("fault", int(code)))
+        fault["active"] = 1
+
+    c = object.__new__(WallClock)
+    c.inst = SimpleNamespace(  # type: ignore[assignment]
+        procs=procs, fault=fault, clock={"mode": RunMode.RUNNING}, raise_fault=raise_fault
+    )
+    c._due, c._sig, c._ack = procs["next_due"], procs["signal_tick"], procs["ack_tick"]
+    c._rel, c._signals, c._misses = procs["release_ns"], procs["signals"], procs["misses"]
+    c._consec, c._max_consec = procs["consecutive_misses"], procs["max_consecutive_misses"]
+    c._log_entries, c._log_count = misses["entries"], misses["count"].reshape(1)
+    c._sems = [Sem(i) for i in range(layout.MAX_PROCESSES)]  # type: ignore[misc]
+    c._slots, c._serious, c._period = [0, 1, 2], [True] * 3, [1] * 3
+    c._lead, c._members, c._member = -1, [], [False] * 3
+    c._suspect = [0] * layout.MAX_PROCESSES
+    c.base_ns, c.tolerance_ns = 1_000_000, 20_000_000
+    return c
+
+
+def test_a_miss_is_looked_up_in_proc_only_after_the_ticks_signals(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Whether a process that missed has died is a /proc read (``pid_alive``): I/O, so in
+    real time it comes after every signal of the tick and never delays one on time (the wall
+    clock outranks SIO and an SV on CPU 0: a read before their signals held them all back).
+    A dead serious process still halts in the same tick."""
+    from kali_daemons.wallclock import clock as wc
+
+    events: list[tuple[str, int]] = []
+    alive = {100, 101, 102}
+
+    def pid_alive(pid: int) -> bool:
+        events.append(("proc", pid))
+        return pid in alive
+
+    monkeypatch.setattr(wc, "pid_alive", pid_alive)
+    c = _tick_clock([100, 101, 102], alive, events)
+    c._ack[:3], c._sig[:3] = [3, 4, 4], [4, 4, 4]  # slot 0 did not acknowledge tick 4
+    c._realtime_tick(5, 5_000_000)
+    assert events == [("signal", 1), ("signal", 2), ("proc", 100)]
+    assert c._misses[0] == 1 and c._log_count[0] == 1 and c._sig[0] == 4
+
+    events.clear()
+    alive.discard(100)  # now it is gone: PROCESS_DIED, at this tick
+    c._ack[1:3] = 5
+    c._realtime_tick(6, 6_000_000)
+    assert events == [
+        ("signal", 1),
+        ("signal", 2),
+        ("proc", 100),
+        ("fault", FaultCode.PROCESS_DIED),
+    ]
 
 
 def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -> None:

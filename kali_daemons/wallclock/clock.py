@@ -90,6 +90,7 @@ class WallClock(Daemon):
         self._lead = -1  # slot of SIO while it is clocked, else -1
         self._members: list[int] = []  # slots of the clocked SVs (SIO's gang)
         self._member: list[bool] = []  # per entry of _slots: an SV
+        self._suspect = [0] * layout.MAX_PROCESSES  # a tick's missers (_slots indices)
 
     def on_activate(self) -> None:
         """Publish the clock as ready (kalictl start waits for it)."""
@@ -218,16 +219,18 @@ class WallClock(Daemon):
         gang = GANG_RUNS
         if lead >= 0 and tick >= nd[lead]:
             gang = gang_state(lead, self._members, ack, sig)
-        member = self._member
+        member, suspect = self._member, self._suspect
+        n_suspect = 0
         for k, i in enumerate(self._slots):
             if tick < nd[i]:
                 continue
             per = self._period[k]
             nd[i] = (tick // per + 1) * per
             if ack[i] < sig[i] or (i == lead and gang == GANG_SIO_LATE):
-                self._missed(k, i, tick, due)
-                if self.inst.fault["active"]:
+                if self._missed(k, i, tick, due):
                     return
+                suspect[n_suspect] = k
+                n_suspect += 1
                 continue
             if gang != GANG_RUNS and (i == lead or member[k]):
                 continue  # acknowledged, but its gang sits this tick out
@@ -237,9 +240,16 @@ class WallClock(Daemon):
             self._rel[i] = due
             self._signals[i] += 1
             self._sems[i].release()
+        for j in range(n_suspect):  # after every signal: their /proc reads never delay one
+            k = suspect[j]
+            if self._died(self._slots[k], tick, self._serious[k]) and self.inst.fault["active"]:
+                return
 
-    def _missed(self, k: int, i: int, tick: int, due: int) -> None:
-        """Count and log a missed deadline of slot ``i``; halt if serious and out of tolerance."""
+    def _missed(self, k: int, i: int, tick: int, due: int) -> bool:
+        """Count and log a missed deadline of slot ``i``; halt if it is serious and out of
+        tolerance (True), with PROCESS_DIED if it is gone.  Whether a process that missed
+        within tolerance died is the caller's to look up (``_died``, a /proc read): in real
+        time after the tick's signals."""
         self._misses[i] += 1
         n = int(self._consec[i]) + 1
         self._consec[i] = n
@@ -254,9 +264,9 @@ class WallClock(Daemon):
         e["consecutive"] = n
         self._log_count[0] = count + 1
         overdue_ns = n * self._period[k] * self.base_ns
-        if self._died(i, tick, self._serious[k]):
-            return
         if self._serious[k] and overdue_ns > self.tolerance_ns:
+            if self._died(i, tick, True):
+                return True
             name = decode(self.inst.procs[i]["name"])
             period_ms = self._period[k] * self.base_ns / 1e6
             self.inst.raise_fault(
@@ -269,6 +279,8 @@ class WallClock(Daemon):
                 tick=tick,
             )
             self.inst.clock["mode"] = RunMode.STOPPED
+            return True
+        return False
 
     def _watch(self, now_ns: int) -> None:
         """Look up self-timed processes whose heartbeat is two periods old (real time): a
@@ -317,7 +329,8 @@ class WallClock(Daemon):
                     per = self._period[k]
                     self._due[i] = (tick // per + 1) * per
                     if self._ack[i] < self._sig[i]:
-                        self._missed(k, i, tick, rt.monotonic_ns())
+                        if not self._missed(k, i, tick, rt.monotonic_ns()):
+                            self._died(i, tick, self._serious[k])
                     else:
                         self._sig[i] = tick
                         self._rel[i] = rt.monotonic_ns()
@@ -374,7 +387,8 @@ class WallClock(Daemon):
         serious = [k for k in late if self._serious[k]]
         if not serious:
             for k in late:
-                self._missed(k, self._slots[k], tick, rt.monotonic_ns())
+                if not self._missed(k, self._slots[k], tick, rt.monotonic_ns()):
+                    self._died(self._slots[k], tick, False)
             return True
         names = ", ".join(decode(self.inst.procs[self._slots[k]]["name"]) for k in serious)
         self.inst.raise_fault(
