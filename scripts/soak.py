@@ -43,8 +43,9 @@ closes, as bench_servo does; nothing in the arena is reset):
   they come, those cyclictest did not also see (``benchlib.unexplained_misses``: no stall the
   detector logged overlaps the interval the process was unacknowledged), each with its time
   and SIO's timing around it from the flight recorder (``SioTail``).  Also seen means: a
-  stall of more than 0.2 servo periods overlaps the miss, or one CPU lost that long inside
-  it in pieces (``benchlib.LostTime``: the detector's wake-ups later than 50 µs).  The report
+  stall of more than 0.2 servo periods overlaps the miss, or one CPU lost 0.1 periods inside
+  it in pieces (``benchlib.LostTime``: the detector's wake-ups later than 50 µs; the report
+  also counts the misses left own with other limits, ``SENSITIVITY_US``).  The report
   gives how often a window anywhere in the run would count as also seen
   (``benchlib.chance_seen``): how much of "also seen" can be luck.  Only serious processes'
   misses judge the goal; the others (dynamics: its overruns skip a signal by design) are
@@ -95,10 +96,11 @@ from benchlib import (
     CT_PRIORITY,
     CT_THREADS,
     CYCLICTEST_MISSING,
-    DETECT_FRACTION,
     DETECT_INTERVAL_US,
     DETECT_LOG_US,
+    DETECT_LOST_FRACTION,
     DETECT_PRIORITY,
+    DETECT_STALL_FRACTION,
     SPIKE_NODES,
     BenchError,
     CtResult,
@@ -152,6 +154,7 @@ DEMO_STOP_S = 5.0  # after SIGINT, the demo's time to stop its arms (kalictl run
 HALT_EXIT_S = 5.0  # after a halt, the demo's time to exit on its own (it hears of the halt)
 DETECT_SHARE = 64  # the stall detector's log holds a stall at one wake-up in this many
 CT_SLACK_S = 60  # cyclictest's -D beyond the window's longest end; it is stopped at the end
+SENSITIVITY_US = (50, 100, 200, 1_000_000)  # lost-time limits the report compares (µs)
 SIO_BEFORE = 2  # SIO's ticks before a missed one whose timing the report gives
 STDERR_LINES = 6  # of a failed iteration's stderr, kept and printed
 WIDTH = 100  # report columns (the cyclictest command and the machine line may be longer)
@@ -511,7 +514,8 @@ class SoakResult:
     cyclictest_command: str = ""
     ct_priority: int = CT_PRIORITY
     detector_command: str = ""
-    detect_us: int = 0  # the stall detector logs wake-ups later than this
+    detect_us: int = 0  # a stall longer than this overlapping a miss: the machine's
+    lost_us: int = 0  # or a CPU lost this long inside the miss
     log_dir: str = ""
     warmup: Iteration | None = None
     iterations: list[Iteration] = field(default_factory=list)  # in the window
@@ -526,6 +530,7 @@ class SoakResult:
     detector_stalls: int = 0
     detector_unlogged: int = 0  # stalls the detector counted after its log filled
     chance_seen: float = math.nan  # share of 1-period windows the machine would explain
+    sensitivity: list[dict[str, float]] = field(default_factory=list)  # other lost limits
     arena_start: ArenaState | None = None
     arena_end: ArenaState | None = None
     arena_changes: list[str] = field(default_factory=list)
@@ -584,7 +589,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     cmd = cyclictest_command(ct_seconds, CT_THREADS, histfile, res.period_us, 0, res.ct_priority)
     res.cyclictest_command = shlex.join(cmd)
     # the stall detector: room to log a stall at one wake-up in DETECT_SHARE (~47 B a node)
-    res.detect_us = round(DETECT_FRACTION * res.period_us)
+    res.detect_us = round(DETECT_STALL_FRACTION * res.period_us)
+    res.lost_us = round(DETECT_LOST_FRACTION * res.period_us)
     wakeups = ct_seconds * CT_THREADS * 1_000_000 // DETECT_INTERVAL_US
     nodes = max(SPIKE_NODES, wakeups // DETECT_SHARE)
     det_cmd = cyclictest_command(
@@ -761,7 +767,7 @@ def analyse(
         ratio = row.p999_us / ct.p999_us if ct.p999_us else math.nan
         row.note = f"{ratio:.2f}x"
         res.wakeup.append(row)
-    own = unexplained_misses(logged, stalls, lost, res.detect_us * 1000)
+    own = unexplained_misses(logged, stalls, lost, res.lost_us * 1000)
     for m in own:
         m["t_s"] = round((int(m["due_ns"]) - t0) / 1e9, 3)
         real_ms = (int(m["due_ns"]) + real_offset) // 1_000_000
@@ -776,8 +782,16 @@ def analyse(
             "unexplained": sum(m["process"] == p.name for m in own),
         }
     res.detector_stalls = len(stalls)
-    limit = res.detect_us * 1000
-    res.chance_seen = chance_seen(stalls, lost, limit, period * 1000, t0, s1.t_ns)
+    res.chance_seen = chance_seen(stalls, lost, res.lost_us * 1000, period * 1000, t0, s1.t_ns)
+    serious = [m for m in logged if cfg.process(str(m["process"])).serious]
+    for limit_us in SENSITIVITY_US:  # how the verdict's rule compares with stricter, looser
+        res.sensitivity.append(
+            {
+                "lost_us": limit_us,
+                "own": len(unexplained_misses(serious, stalls, lost, limit_us * 1000)),
+                "chance": chance_seen(stalls, lost, limit_us * 1000, period * 1000, t0, s1.t_ns),
+            }
+        )
     res.clock_overruns = s1.overruns - s0.overruns
     res.clock_skipped_ticks = s1.skipped_ticks - s0.skipped_ticks
     assert res.arena_start is not None and res.arena_end is not None
@@ -954,11 +968,23 @@ def format_misses(r: SoakResult) -> list[str]:
         )
     lines += wrap(
         f"own: the stall detector saw no stall > {r.detect_us} µs overlap the miss (it logged "
-        f"{r.detector_stalls}), and no CPU lose {r.detect_us} µs inside it in pieces > "
+        f"{r.detector_stalls}), and no CPU lose {r.lost_us} µs inside it in pieces > "
         f"{DETECT_LOG_US} µs; a {r.period_us} µs window anywhere would be put down to the "
         f"machine {r.chance_seen:.1%} of the time; wall clock overruns {r.clock_overruns}, "
         f"skipped ticks {r.clock_skipped_ticks}"
     )
+    if r.sensitivity:
+
+        def limit(us: float) -> str:
+            return "stalls only" if us >= 1_000_000 else f"{us:g} µs"
+
+        lines += wrap(
+            "the lost-time limit against others (serious misses left own; a window's chance to "
+            "count as the machine's): "
+            + "; ".join(
+                f"{limit(x['lost_us'])}: {x['own']:g} own, {x['chance']:.1%}" for x in r.sensitivity
+            )
+        )
     for m in r.unexplained[:20]:
         lost: dict[int, int] = m.get("lost_us", {})  # type: ignore[assignment]
         gone = ", ".join(f"CPU {c} {v} µs" for c, v in sorted(lost.items())) or "nothing"
