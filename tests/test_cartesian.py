@@ -4,11 +4,12 @@ from the object's path, joint set-points on the commanded lines, and the whole-p
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
 
-from kali_daemons import kinematics, puma560
+from kali_daemons import kinematics, layout, puma560
 from kali_daemons.kinematics import CONFIGS, KinematicsError
 from kali_daemons.tg.cartesian import (
     CartesianMotion,
@@ -17,6 +18,7 @@ from kali_daemons.tg.cartesian import (
     encode_config,
     inverse,
 )
+from kali_daemons.tg.daemon import CHECK_CHUNK, Motion, TrajectoryGenerator
 from kali_daemons.tg.profiles import MotionError
 
 DT = 0.01
@@ -147,6 +149,38 @@ def test_check_refuses_with_segment_arm_and_reason() -> None:
     # a configuration other than the arm's
     with pytest.raises(MotionError, match=r"in configuration 'ruf', the request asks for 'luf'"):
         one_arm(q0, [a], config=kinematics.Config.from_string("luf"))
+
+
+class _Checker:
+    """The TG's ``_check`` over one motion, with ``_run`` recorded instead of run."""
+
+    _check = TrajectoryGenerator._check
+
+    def __init__(self, until_ns: int) -> None:
+        self.check_ns = 2_500_000  # CHECK_SHARE of a 10 ms period
+        self._check_until = until_ns
+        self._progress = np.zeros(layout.STATUS_RING)
+        self.ran: list[Motion] = []
+
+    def _run(self, m: Motion) -> None:
+        self.ran.append(m)
+
+
+def test_a_ticks_path_check_ends_with_the_ticks_check_share() -> None:
+    """The check's slice ends CHECK_SHARE of a period after the TG's tick began, so planning
+    in the same tick (or another motion's check) leaves it less: a tick whose share is spent
+    checks one chunk (so every check still ends) and returns; the TG once took 7.5 ms of its
+    10 ms tick for a plan and a whole slice on top."""
+    q0 = np.array(puma560.QN)
+    start = world_pose(LEFT, q0)
+    plan = one_arm(q0, [translated(start, (0.0, 0.0, 0.2))], speed=0.05)
+    m = Motion(5, [0], plan, checking=True)
+    spent = _Checker(time.monotonic_ns() - 1)
+    spent._check(m)
+    assert plan.checked == CHECK_CHUNK and m.checking and spent.ran == []
+    ample = _Checker(time.monotonic_ns() + 60_000_000_000)
+    ample._check(m)
+    assert plan.checked == plan.n_samples and not m.checking and ample.ran == [m]
 
 
 def test_check_goes_in_slices_and_sampling_fails_loudly_if_the_path_breaks() -> None:
