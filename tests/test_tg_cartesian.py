@@ -17,7 +17,7 @@ from kali_daemons.client import Kali, MotionFailedError, pose
 from kali_daemons.errors import ServoError
 from kali_daemons.layout import CalibState, MotionKind, PowerState, RequestState
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
-from kali_daemons.tg.daemon import Motion, TrajectoryGenerator
+from kali_daemons.tg.daemon import LEAD, Motion, TrajectoryGenerator
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
 
@@ -199,6 +199,33 @@ def test_a_path_queued_behind_a_joint_move_is_checked_from_where_that_ends(
         second.wait(0)
         end = left.read_pose()[:3, 3]
         assert np.linalg.norm(end - (there[:3, 3] + np.array([0, 0, 0.05]))) < 2e-4
+        assert k.inst.fault_text() is None
+
+
+def test_a_line_checked_over_several_ticks_starts_as_far_ahead_of_sio_as_any_motion(
+    kali: Callable[..., str],
+) -> None:
+    """A path whose check ends in a later tick than its planning starts with LEAD set-points
+    in the FIFO, like a joint move or a path checked at once.  It once started one short
+    (the tick's loop did not advance a motion whose check ended in it), so SIO's demand ran a
+    set-point late: the two-arm carry's internal force rose from 19 to 47 N once the check
+    share was counted from the tick's start and checks ended a tick later."""
+    name = kali(lockstep=True)
+    with calibrated(name) as k:
+        left = k.robot("left")
+        here = left.read_pose()
+        fifo = k.fifos[0]
+        h = left.move_line(pose(here[:3, 3] + np.array([0, 0, 0.1]), here), speed=0.02, wait=False)
+        ticks_checking = 0
+        while h.state in (RequestState.QUEUED, RequestState.FREE):
+            step_kali_clock(k.inst, 10)  # one TG tick
+            ticks_checking += 1
+            assert ticks_checking < 500, h.state
+        assert ticks_checking > 1, "the check ended at once: this test needs a longer path"
+        # after the TG tick it started in and that tick's servo ticks, SIO has taken one
+        assert fifo.pending() == LEAD - 1
+        run_until(k, h, 8000)
+        assert h.state == RequestState.DONE, h.message
         assert k.inst.fault_text() is None
 
 

@@ -303,6 +303,8 @@ class TrajectoryGenerator(Daemon):
                 self._end_motion(m, RequestState.ABORTED, why)
             elif m.checking:
                 self._check(m)
+                if not m.checking and m in self.motions:
+                    self._advance(m)  # started: its first tick's set-point, as any motion's
             elif m.ending is not None:
                 if not any(self.fifos[k].pending() for k in m.robots):
                     self._end_motion(m, m.ending, m.ending_message)
