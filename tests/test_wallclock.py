@@ -310,6 +310,33 @@ def test_a_miss_is_looked_up_in_proc_only_after_the_ticks_signals(
     ]
 
 
+def test_a_self_timed_process_is_stalled_only_while_the_clock_ran(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The plant (self-timed, serious) not running for more than the tolerance halts with
+    DEADLINE, but not when the whole machine stopped: the clock then overran by as much, no
+    clocked process missed, and the plant had no chance to run since the clock woke (a 58 ms
+    host stall of both CPUs once halted a CI run this way)."""
+    from kali_daemons.wallclock import clock as wc
+
+    events: list[tuple[str, int]] = []
+    monkeypatch.setattr(wc, "pid_alive", lambda pid: True)
+    c = _tick_clock([100, 101, 102], {100, 101, 102}, events)
+    c.inst.clock["tick"] = 0  # type: ignore[index]
+    procs = c.inst.procs
+    procs[3]["pid"], procs[3]["serious"], procs[3]["period_ticks"] = 103, 1, 1
+    procs[3]["name"] = b"plant"
+    c._heart = procs["heartbeat_ns"]
+    c._watched, c._watch_ns, c._watch_next = [3], [2_000_000], [0]
+    c._heart[3] = 1_000_000_000
+    c._resumed_ns = 1_058_000_000  # the clock woke 58 ms late: the machine had stopped
+    c._watch(1_058_500_000)
+    assert events == [] and not c.inst.fault["active"]
+    c._watch_next[0] = 0
+    c._watch(1_079_000_000)  # 21 ms since the clock woke, and the plant never ran: stalled
+    assert events == [("fault", FaultCode.DEADLINE)]
+
+
 def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -> None:
     """Both SVs stalled together for a few ms, many times, at random phases: the servo level
     rides it out, no halt, SIO runs on.  (The narrow race in which SIO acknowledges just

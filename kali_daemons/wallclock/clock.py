@@ -91,6 +91,7 @@ class WallClock(Daemon):
         self._members: list[int] = []  # slots of the clocked SVs (SIO's gang)
         self._member: list[bool] = []  # per entry of _slots: an SV
         self._suspect = [0] * layout.MAX_PROCESSES  # a tick's missers (_slots indices)
+        self._resumed_ns = 0  # when the clock last woke from an overrun (the machine stalled)
 
     def on_activate(self) -> None:
         """Publish the clock as ready (kalictl start waits for it)."""
@@ -197,6 +198,7 @@ class WallClock(Daemon):
             planned = due  # lateness is measured against the deadline that was missed
             if woke - due >= base:  # overrun: skip ahead, no burst of catch-up ticks
                 skip = (woke - due) // base
+                self._resumed_ns = woke  # nobody ran meanwhile: see _watch
                 c["overruns"] += 1
                 c["skipped_ticks"] += skip
                 tick += skip
@@ -287,7 +289,12 @@ class WallClock(Daemon):
         dead one halts (serious) or is left out, and a serious one alive but stalled beyond
         ``serious_miss_tolerance_ms`` halts with DEADLINE, as a clocked one would.  After the
         cycle's signals, so the /proc read of a stale one never delays a tick; a live but
-        stalled one is looked up again only a watch interval later."""
+        stalled one is looked up again only a watch interval later.
+
+        Stalled counts from the clock's last overrun, not only from the heartbeat: when the
+        whole machine stops (the host took both CPUs for 58 ms in a CI run), the clock stops
+        too and no clocked process misses, so a self-timed one must not halt the system for
+        the same stall just because the clock looked at it first on waking."""
         heart = self._heart
         for k, i in enumerate(self._watched):
             age = now_ns - heart[i]
@@ -296,7 +303,9 @@ class WallClock(Daemon):
             self._watch_next[k] = now_ns + self._watch_ns[k]
             tick = int(self.inst.clock["tick"])
             serious = bool(self.inst.procs[i]["serious"])
-            if self._died(i, tick, serious) or not serious or age <= self.tolerance_ns:
+            if self._died(i, tick, serious) or not serious:
+                continue
+            if now_ns - max(int(heart[i]), self._resumed_ns) <= self.tolerance_ns:
                 continue
             p = self.inst.procs[i]
             name = decode(p["name"])
