@@ -430,13 +430,11 @@ def stalls_before(stdout: str, t_ns: int) -> str:
     """The longest cyclictest stall per thread (= CPU, ``-a``) ending in the second before
     ``t_ns`` (CLOCK_MONOTONIC) or just after it: what the machine did when Kali halted."""
     longest: dict[int, tuple[int, int]] = {}
-    for line in stdout.splitlines():
-        parts = line.replace(":", " ").split()
-        if len(parts) >= 6 and parts[0] == "T" and parts[2] == "Spike" and parts[4] == "TS":
-            thread, late_us, end_ns = int(parts[1]), int(parts[3]), int(parts[5]) * 1000
-            near = t_ns - 1_000_000_000 <= end_ns <= t_ns + 100_000_000
-            if near and late_us > longest.get(thread, (0, 0))[0]:
-                longest[thread] = (late_us, end_ns)
+    for thread, late_us, ts_us in spike_lines(stdout):
+        end_ns = ts_us * 1000
+        near = t_ns - 1_000_000_000 <= end_ns <= t_ns + 100_000_000
+        if near and late_us > longest.get(thread, (0, 0))[0]:
+            longest[thread] = (late_us, end_ns)
     if not longest:
         return "cyclictest saw no stall in the second before the halt"
 
