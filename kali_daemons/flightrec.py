@@ -361,8 +361,13 @@ def load(path: Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
-        raise InstanceError(f"flight recorder: cannot read {path}: {exc}") from None
+    except OSError as exc:
+        raise InstanceError(f"flight recorder: cannot read {path}: {exc.strerror}") from None
+    except ValueError:  # not .npz: numpy's advice to allow pickles is no advice here
+        raise InstanceError(
+            f"flight recorder: {path} is not a flight-recorder dump (the .npz Kali writes at "
+            f"a halt, flight-INSTANCE-*.npz)"
+        ) from None
     missing = [k for k in ("format", "tick", "q", "fault_code") if k not in d]
     if missing:
         raise InstanceError(

@@ -205,3 +205,11 @@ def test_flight_names_what_is_missing(tmp_path: Path, monkeypatch: pytest.Monkey
     np.savez(bad, a=np.zeros(2))
     with pytest.raises(InstanceError, match="is not a flight-recorder dump"):
         flightrec.load(bad)
+    log = tmp_path / "wallclock.log"  # the log beside the dumps, given by mistake
+    log.write_text("wallclock: started\n")
+    out = kalictl("-i", "nothing-here", "flight", str(log))
+    assert out.returncode == 1
+    assert f"{log} is not a flight-recorder dump" in out.stderr
+    assert "pickle" not in out.stderr
+    with pytest.raises(InstanceError, match=r"cannot read .*: No such file or directory"):
+        flightrec.load(tmp_path / "gone.npz")

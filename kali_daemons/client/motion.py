@@ -96,6 +96,11 @@ class MotionHandle:
         while (state := self.state) not in TERMINAL_STATES:  # one read: judged as it was seen
             if inst.fault["active"]:  # the clock, and so the TG, has stopped: say it here
                 raise MotionFailedError(f"request {self.seq} halted: {inst.fault_text()}")
+            if inst.shutting_down:  # nothing is left to finish it, or to say so
+                raise MotionFailedError(
+                    f"request {self.seq} {state.name.lower()}: instance '{inst.name}' was "
+                    f"stopped (kalictl stop)"
+                )
             if deadline is not None and time.monotonic() > deadline:
                 raise TimeoutError(
                     f"motion: request {self.seq} not done within {timeout:g} s "
@@ -459,6 +464,8 @@ class Kali:
             while not done():
                 if self.inst.fault["active"]:
                     raise ServoError(f"{what}: the system halted: {self.inst.fault_text()}")
+                if self.inst.shutting_down:
+                    raise ServoError(f"{what}: instance '{self.inst.name}' was stopped")
                 if time.monotonic() > deadline:
                     raise ServoError(f"{what}: not done within {timeout:g} s")
                 self.pause()

@@ -31,6 +31,8 @@ def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
         inst.command_semaphore().release()
         deadline = time.monotonic() + COMMAND_TIMEOUT_S
         while int(c["cmd_done"]) < seq:
+            if inst.shutting_down:  # the clock has left (kalictl stop): nobody will take it
+                raise ClockError(f"{cmd.name}: instance '{inst.name}' was stopped")
             if time.monotonic() > deadline:
                 raise ClockError(
                     f"wall clock (pid {int(c['pid'])}) did not take command {cmd.name} "
@@ -65,6 +67,8 @@ def step_kali_clock(inst: Instance, ticks: int, wait: bool = True, timeout: floa
         target = int(inst.clock["step_target"])
         deadline = time.monotonic() + timeout
         while int(inst.clock["mode"]) != RunMode.STOPPED:
+            if inst.shutting_down:
+                raise ClockError(f"step to tick {target}: instance '{inst.name}' was stopped")
             if time.monotonic() > deadline:
                 raise ClockError(f"step to tick {target} not finished within {timeout:g} s")
             time.sleep(0.0005)

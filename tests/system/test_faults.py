@@ -403,3 +403,21 @@ def test_lockstep_runs_on_without_a_dead_dynamics_or_viewer(kali: Callable[..., 
         assert int(inst.procs[inst.slot_of("sio")]["acks"]) == 250
         r = kalictl("-i", name, "status")
         assert "degraded: dynamics" in r.stdout and "degraded: viewer" in r.stdout, r.stdout
+
+
+def test_kalictl_stop_wakes_a_program_waiting_for_a_motion(kali: Callable[..., str]) -> None:
+    """``kalictl stop`` while a program waits for its arms: the wait ends at once and says
+    why, and the program exits.  (It used to wait for a status nobody would write again,
+    holding the unlinked arena, until its own timeout: for ever with none.)"""
+    name = kali(lockstep=False)
+    mover = start_mover(name)
+    try:
+        t0 = time.monotonic()
+        launcher.stop(name)
+        out, err = mover.communicate(timeout=10.0)
+        took = time.monotonic() - t0
+    finally:
+        mover.kill()
+    assert mover.returncode == 3, f"exit {mover.returncode}: {out} {err}"
+    assert re.search(rf"woken \d+ motion: request \d+ \w+: instance '{name}' was stopped", out), out
+    assert took < 5.0, f"the program took {took:.1f} s to notice"
