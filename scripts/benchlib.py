@@ -40,11 +40,14 @@ SPIKE_FRACTION = 0.3  # cyclictest logs wake-ups later than this many periods (3
 CT_THREADS = 2  # one cyclictest thread pinned per CPU, as bench_wallclock's default
 SPIKE_NODES = 200_000
 # The stall detector (soak.py): a second cyclictest above every Kali process, sampling each
-# CPU ten times a servo period, so a stall between the floor's 1 ms samples is seen too and
+# CPU four times a servo period, so a stall between the floor's 1 ms samples is seen too and
 # no stall it logs can be Kali's own work (the floor, at SCHED_FIFO 80, waits for SIO and
-# the SVs on its CPU).  Each wake-up costs a few µs of every CPU: ~3 % at 100 µs.
+# the SVs on its CPU).  Why not denser: it disturbs what it measures.  Its wake-ups are
+# 18 µs late at p50 here (the VM delivering a timer), and at 100 µs they tripled Kali's
+# misses: the two-arm demo in a loop, 60 s windows taken in turn, SIO missed 3-18 ticks a
+# minute without it (mean 9), 12-42 with it at 100 µs (mean 29), 7-17 at 250 µs (mean 12).
 DETECT_PRIORITY = 99
-DETECT_INTERVAL_US = 100
+DETECT_INTERVAL_US = 250
 DETECT_LOG_US = 50  # it logs every wake-up later than this (its own noise is 5-40 µs)
 # A miss counts as the machine's doing when a stall of more than DETECT_STALL_FRACTION servo
 # periods overlaps it (200 µs at 1 ms), or one CPU lost DETECT_LOST_FRACTION of a period
