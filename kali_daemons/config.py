@@ -332,6 +332,17 @@ def ns_to_ms(ns: int) -> float:
     return ns // NS_PER_MS if ns % NS_PER_MS == 0 else ns / NS_PER_MS
 
 
+def retrigger_hold_ticks(servo_period_ms: float, plant_period_ms: float) -> int:
+    """How many servo ticks SIO holds the board's watchdog retrigger bit high, and then low
+    ("one must set high state then low state to perform a retrigger", thesis C.5): the
+    fewest that last two plant periods.  The simulated board reads its registers once a
+    plant period, so a level held one 1 ms servo tick can fall between two reads, and when
+    the plant reads as SIO writes, every falling edge can for 20 ms: a soak halted so, SIO
+    on time at every tick.  Held two reads long, each level is read at least once."""
+    servo_ns, plant_ns = ms_to_ns(servo_period_ms), ms_to_ns(plant_period_ms)
+    return max(1, -(-2 * plant_ns // servo_ns))
+
+
 def period_ticks(period_ms: float, base_tick_ms: float, *, round_up: bool = False) -> int:
     """The whole number of base ticks in ``period_ms``, compared in integer nanoseconds.
 
@@ -610,7 +621,7 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
             raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
     robots = _robots(doc.get("robots", _DEFAULT_ROBOTS))
     plant_period = next(p.period_ms for p in processes if p.kind == "plant")
-    plant = _plant(doc.get("plant", {}), plant_period)
+    plant = _plant(doc.get("plant", {}), plant_period, clock.servo_period_ms)
     plugins = tuple(
         _identifier(p, f"plugins[{i}]", _PLUGIN_RE)
         for i, p in enumerate(_list(doc.get("plugins", []), "plugins", 0, MAX_PLUGINS))
@@ -679,10 +690,11 @@ def _feedforward(node: Any) -> FeedforwardConfig:
     )
 
 
-def _plant(node: Any, period_ms: float) -> PlantConfig:
+def _plant(node: Any, period_ms: float, servo_ms: float) -> PlantConfig:
     """The ``plant`` section; the substep must divide the plant's period (``period_ms``).
 
     The plant advances one whole period per cycle, in ``period_ms / substep_ms`` MuJoCo steps.
+    The watchdog must outlast SIO's retrigger cycle (``retrigger_hold_ticks``).
     """
     d = PlantConfig()
     m = _mapping(node, "plant", _PLANT_KEYS)
@@ -695,9 +707,19 @@ def _plant(node: Any, period_ms: float) -> PlantConfig:
             f"must divide processes.plant.period_ms = {period_ms} "
             "(the plant advances one period per cycle, in whole substeps)",
         )
+    watchdog = _float(m.get("watchdog_ms", d.watchdog_ms), "plant.watchdog_ms", 0.0, 1000.0)
+    cycle = 2 * retrigger_hold_ticks(servo_ms, period_ms) * servo_ms
+    if watchdog <= cycle:
+        _fail(
+            "plant.watchdog_ms",
+            watchdog,
+            f"must be > {cycle:g}: SIO retriggers the board every {cycle:g} ms (each level "
+            f"held for the whole {servo_ms:g} ms servo periods that last two plant periods, "
+            f"{period_ms:g} ms, so that the board reads it)",
+        )
     return PlantConfig(
         substep_ms=sub,
-        watchdog_ms=_float(m.get("watchdog_ms", d.watchdog_ms), "plant.watchdog_ms", 0.0, 1000.0),
+        watchdog_ms=watchdog,
         enable_hold_ms=_float(
             m.get("enable_hold_ms", d.enable_hold_ms), "plant.enable_hold_ms", 0.0, 1000.0
         ),

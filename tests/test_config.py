@@ -203,6 +203,21 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         [("watchdog_ms: 20 ", "watchdog_ms: -5 ")],
         "plant.watchdog_ms = -5",
     ),
+    (
+        "plant-watchdog-not-longer-than-the-retrigger-cycle",
+        [("watchdog_ms: 20 ", "watchdog_ms: 4 ")],
+        "plant.watchdog_ms = 4.0: must be > 4: SIO retriggers the board every 4 ms (each level "
+        "held for the whole 1 ms servo periods that last two plant periods, 1 ms, so that the "
+        "board reads it)",
+    ),
+    (
+        "plant-watchdog-not-longer-than-the-retrigger-cycle-of-a-slow-plant",
+        [
+            ("period_ms: 1, serious: true, stage: 0", "period_ms: 10, serious: true, stage: 0"),
+            ("watchdog_ms: 20 ", "watchdog_ms: 40 "),
+        ],
+        "plant.watchdog_ms = 40.0: must be > 40: SIO retriggers the board every 40 ms",
+    ),
     # (id, edits, expected substring of the message)
     (
         "tick-negative",

@@ -12,6 +12,7 @@ import pytest
 
 from kali_daemons import layout, puma560
 from kali_daemons.arena import Arena
+from kali_daemons.config import retrigger_hold_ticks
 from kali_daemons.instance import Instance
 from kali_daemons.layout import (
     ADC_DONE,
@@ -30,6 +31,7 @@ from kali_daemons.plant.board import EncoderBank, IoBoardSim, adc_code, pot_volt
 from kali_daemons.plant.motor import MotorBank
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.sio.calibration import PotReader
+from kali_daemons.sio.daemon import retrigger_bit
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
 
 from .conftest import make_config
@@ -120,6 +122,28 @@ def test_watchdog_trips_after_20_ms_then_brakes(plant: PlantSim) -> None:
     run_ms(plant, 2, retrigger)  # a retrigger clears the trip; then enable works
     enable(plant, csr_extra=on)
     assert power(plant) & POWER_AMPS_ON
+
+
+@pytest.mark.parametrize("hold", [None, 1])
+def test_sios_retrigger_reaches_a_board_that_reads_as_sio_writes(
+    plant: PlantSim, hold: int | None
+) -> None:
+    """The plant reads a board once a period and SIO writes it once a servo tick: when the
+    plant reads as SIO writes, each read finds this tick's CSR or the last tick's.  The worst
+    order (this tick's, then the last's, in turn) hides every falling edge of a bit toggled
+    each tick (``hold`` 1, as SIO did): the watchdog trips with SIO on time, as in a soak.
+    SIO's levels (``retrigger_hold_ticks``) last two reads: the board sees every one."""
+    ticks = hold or retrigger_hold_ticks(CFG.clock.servo_period_ms, CFG.process("plant").period_ms)
+    regs = plant.boards[0].regs
+    on = CSR_NO_DISABLE | CSR_TIMEOUT_ON
+    enable(plant, csr_extra=CSR_TIMEOUT_ON)
+    run_ms(plant, 4, lambda t: regs.__setitem__("csr", on | retrigger_bit(t, 1)))
+    assert power(plant) & POWER_AMPS_ON
+    for t in range(1000):  # read t sees SIO's tick t, or t - 1
+        regs["csr"] = on | retrigger_bit(t - t % 2, ticks)
+        plant.cycle()
+    tripped = power(plant) & POWER_WATCHDOG_TRIPPED
+    assert bool(tripped) == (hold == 1), f"power 0x{power(plant):02x}"
 
 
 def test_estop_cuts_power_and_blocks_enables(plant: PlantSim) -> None:

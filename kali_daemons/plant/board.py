@@ -8,7 +8,9 @@ What Kali sees is only the ``layout.IO_BOARD`` record; this class plays the hard
   both directions (on enable the brakes hold briefly while the amplifiers are on).
 - **Watchdog** (C.4).  With the timeout mode bit 6 set, a high-then-low pulse on bit 5
   retriggers it; ``watchdog_ms`` without one trips it: amplifiers off, buzzer, and the robot
-  stays disabled until a retrigger and a new enable.
+  stays disabled until a retrigger and a new enable.  Unlike the real circuit, this board
+  reads the bit once a plant cycle, so a level shorter than a cycle can go unseen: SIO holds
+  each two cycles long (``config.retrigger_hold_ticks``).
 - **Emergency stop**: the operator's button disables like bit 7 while pressed.
 - **Encoders** (HCTL-2000, C.3): 12-bit counters of quadrature counts of the motor angle,
   wrapping at 4096.  With index capture enabled (bit 4 low), an index pulse, once per motor

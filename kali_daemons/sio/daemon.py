@@ -32,7 +32,7 @@ import numpy as np
 import posix_ipc
 
 from .. import layout, puma560, rt
-from ..config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks
+from ..config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks, retrigger_hold_ticks
 from ..daemon import Daemon
 from ..driver import Puma560Driver
 from ..errors import DaemonError
@@ -110,6 +110,9 @@ class ServoIO(Daemon):
         self.hold_ticks = servo_ticks(ENABLE_HOLD_MS)
         self.power_timeout_ticks = servo_ticks(POWER_ON_TIMEOUT_MS)
         self.servo_ticks = 0  # cycles run: the watchdog pulse counts these
+        self.retrigger_ticks = retrigger_hold_ticks(
+            cfg.clock.servo_period_ms, cfg.process("plant").period_ms
+        )
         self.current_ticks = np.array(
             [servo_ticks(r.current_fault_ms) for r in cfg.robots for _ in range(6)]
         )
@@ -508,8 +511,7 @@ class ServoIO(Daemon):
             csr &= ~CSR_NO_DISABLE
         elif power == PowerState.ENABLING and int(r.enable_ticks) <= self.hold_ticks:
             csr |= CSR_ENABLE
-        if self.servo_ticks % 2 == 0:  # high one servo tick, low the next: a falling edge
-            csr |= CSR_RETRIGGER  # every two servo periods, far inside the 20 ms timeout
+        csr |= retrigger_bit(self.servo_ticks, self.retrigger_ticks)
         if self._calib[k].capture:
             csr &= ~CSR_INDEX_OFF  # index capture on: the pulse resets the counter (C.3)
         if power == PowerState.OFF:
@@ -517,6 +519,12 @@ class ServoIO(Daemon):
             if int(r.board_power) & POWER_AMPS_ON:
                 csr &= ~CSR_NO_DISABLE  # bit 7 low cuts the amplifiers (disable, C.5.1)
         r.csr[...] = csr
+
+
+def retrigger_bit(servo_tick: int, hold_ticks: int) -> int:
+    """The watchdog's retrigger bit at ``servo_tick``: high for ``hold_ticks``, low for as many
+    (``config.retrigger_hold_ticks``), so every falling edge reaches the board (C.5)."""
+    return CSR_RETRIGGER if (servo_tick // hold_ticks) % 2 == 0 else 0
 
 
 class _RobotViews:
