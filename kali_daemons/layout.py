@@ -370,6 +370,21 @@ POWER_BRAKES_RELEASED = 1 << 1  # brake solenoids released (0: brakes holding)
 POWER_WATCHDOG_TRIPPED = 1 << 2  # the watchdog timed out; cleared by a retrigger
 POWER_ESTOP = 1 << 3  # the emergency-stop input is pressed
 POWER_BUZZER = 1 << 4  # the timeout buzzer sounds
+_POWER_NAMES = (
+    (POWER_AMPS_ON, "amplifiers on"),
+    (POWER_BRAKES_RELEASED, "brakes released"),
+    (POWER_WATCHDOG_TRIPPED, "watchdog tripped"),
+    (POWER_ESTOP, "e-stop pressed"),
+    (POWER_BUZZER, "buzzer"),
+)
+
+
+def power_text(bits: int) -> str:
+    """The board power register as a fault message gives it: ``0x16 (brakes released,
+    watchdog tripped, buzzer)``; never in a cycle (it builds a string)."""
+    names = [name for bit, name in _POWER_NAMES if bits & bit] or ["amplifiers off"]
+    return f"0x{bits:02x} ({', '.join(names)})"
+
 
 # TLC532A analog register: bit 8 = conversion complete, low 8 bits = value (±1/2 LSB).
 ADC_START = 1 << 7  # control register: start a conversion of channel (bits 0-3)

@@ -196,6 +196,38 @@ def test_range_halts(kali: Callable[..., str]) -> None:
         assert "robot 'left' joint 5 at 100." in text and "beyond its limit 100.00°" in text
 
 
+def test_amplifiers_going_off_while_servoing_halt_naming_the_boards_bits(
+    kali: Callable[..., str],
+) -> None:
+    """The robot's own e-stop button, pressed with nobody telling Kali: the board cuts the
+    amplifiers, and SIO halts with the power register spelled out, not only in hex."""
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            power_all(inst, client, 100)
+            boards = inst.boards()
+            boards[1]["estop"] = 1
+            step_kali_clock(inst, 5)
+            code, process, text = fault(inst)
+            assert code == FaultCode.POWER and process == "sio", text
+            assert (
+                "robot 'right': amplifiers went off while servoing (board power register 0x0a "
+                "(brakes released, e-stop pressed))"
+            ) in text
+            del boards
+        finally:
+            client.close()
+
+
+def test_power_text_names_every_bit() -> None:
+    assert layout.power_text(0) == "0x00 (amplifiers off)"
+    assert layout.power_text(0x16) == "0x16 (brakes released, watchdog tripped, buzzer)"
+    assert layout.power_text(0x1F) == (
+        "0x1f (amplifiers on, brakes released, watchdog tripped, e-stop pressed, buzzer)"
+    )
+
+
 def test_current_beyond_the_limit_halts(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True)
     with servoing(name) as (inst, client):

@@ -324,7 +324,7 @@ class ServoIO(Daemon):
                 r.power[...] = state = PowerState.OFF
                 r.message[...] = (
                     f"power did not come on within {POWER_ON_TIMEOUT_MS:g} ms "
-                    f"(board power register 0x{power_bits:02x}: e-stop or watchdog?)"
+                    f"(board power register {layout.power_text(power_bits)})"
                 ).encode()
         elif state == PowerState.ON and not power_bits & POWER_AMPS_ON:
             r.power[...] = PowerState.OFF
@@ -332,7 +332,7 @@ class ServoIO(Daemon):
                 FaultCode.POWER,
                 self.name,
                 f"robot '{self.level.names[k]}': amplifiers went off while servoing "
-                f"(board power register 0x{power_bits:02x})",
+                f"(board power register {layout.power_text(power_bits)})",
             )
             return
         if state == PowerState.OFF:
