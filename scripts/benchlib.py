@@ -429,23 +429,38 @@ def chance_seen(
     return 1.0 - len(unexplained_misses(windows, stalls, lost, lost_limit_ns)) / n
 
 
-def stalls_before(stdout: str, t_ns: int) -> str:
-    """The longest cyclictest stall per thread (= CPU, ``-a``) ending in the second before
-    ``t_ns`` (CLOCK_MONOTONIC) or just after it: what the machine did when Kali halted."""
+def stalls_before(stdout: str, t_ns: int, window_ns: int) -> str:
+    """What cyclictest saw of the machine when Kali halted at ``t_ns`` (CLOCK_MONOTONIC): the
+    time each CPU (thread, ``-a``) lost in the ``window_ns`` before it (the serious tolerance:
+    what decides a halt), and its longest stall ending in the second before or just after.
+
+    Both, because a host that takes most of a CPU in pieces of a few hundred µs halts Kali as
+    surely as one long stall: a soak halted with CPU 0 losing 15 ms of the 20 before, when
+    its longest stall was 1.5 ms.  Another halted with nothing lost: that one was Kali's.
+    """
+    lines = spike_lines(stdout)
+    lost = LostTime(lines).within(t_ns - window_ns, t_ns)
+    window = f"{window_ns / 1e6:g} ms"
+    if lost:
+        head = f"cyclictest's CPUs lost in the {window} before the halt: " + ", ".join(
+            f"CPU {c} {ns / 1e6:.1f} ms" for c, ns in sorted(lost.items())
+        )
+    else:
+        head = f"cyclictest's CPUs lost nothing in the {window} before the halt"
     longest: dict[int, tuple[int, int]] = {}
-    for thread, late_us, ts_us in spike_lines(stdout):
+    for thread, late_us, ts_us in lines:
         end_ns = ts_us * 1000
         near = t_ns - 1_000_000_000 <= end_ns <= t_ns + 100_000_000
         if near and late_us > longest.get(thread, (0, 0))[0]:
             longest[thread] = (late_us, end_ns)
     if not longest:
-        return "cyclictest saw no stall in the second before the halt"
+        return f"{head}; no stall in the second before it"
 
     def when(end_ns: int) -> str:
         d = (t_ns - end_ns) / 1e6
         return f"{d:.0f} ms before it" if d >= 0 else f"{-d:.0f} ms after it"
 
-    return "cyclictest's longest stall in the second before the halt: " + ", ".join(
+    return f"{head}; longest stall in the second before it: " + ", ".join(
         f"CPU {c} {late / 1000:.1f} ms (ended {when(end)})"
         for c, (late, end) in sorted(longest.items())
     )

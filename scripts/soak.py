@@ -136,7 +136,7 @@ from benchlib import (
 )
 
 from kali_daemons import launcher, layout
-from kali_daemons.config import KaliConfig, load_config
+from kali_daemons.config import KaliConfig, load_config, ms_to_ns
 from kali_daemons.errors import KaliError
 from kali_daemons.flightrec import read_ring
 from kali_daemons.instance import Instance
@@ -436,6 +436,12 @@ class Demo:
         return "\n".join(lines[-STDERR_LINES:])
 
 
+def halt_window_ns(cfg: KaliConfig) -> int:
+    """How far back from a halt the machine's lost time is counted: as long as Kali may go
+    without a servo tick before it halts (the serious tolerance, or the boards' watchdog)."""
+    return ms_to_ns(max(cfg.clock.serious_miss_tolerance_ms, cfg.plant.watchdog_ms))
+
+
 def kalictl_path() -> str:
     """The kalictl beside this Python (the venv's), else the one on PATH."""
     beside = Path(sys.executable).parent / "kalictl"
@@ -710,7 +716,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         lost = LostTime(spike_lines(det_text))
         res.detector_unlogged = spikes_unlogged(det_text)
         if res.halted_at_s is not None:
-            res.halt_stalls = stalls_before(det_text, t0 + int(res.halted_at_s * 1e9))
+            t_halt = t0 + int(res.halted_at_s * 1e9)
+            res.halt_stalls = stalls_before(det_text, t_halt, halt_window_ns(cfg))
         hist = parse_histfile(histfile)
         analyse(res, cfg, s0, s1, hist, logged, stalls, lost, t0, real_offset)
     finally:

@@ -19,6 +19,7 @@ from benchlib import (
     cyclictest_command,
     parse_spikes,
     spikes_unlogged,
+    stalls_before,
     unexplained_misses,
 )
 
@@ -37,6 +38,29 @@ def test_a_spike_is_a_stall_from_the_threads_previous_wake_up_to_the_late_one() 
         ((33612619000 - 1200 - 100) * 1000, 33612619000 * 1000),
     ]
     assert parse_spikes(SPIKES, 100, min_us=344) == parse_spikes(SPIKES, 100)[1:]
+
+
+def test_a_halt_is_told_with_the_time_each_cpu_lost_before_it() -> None:
+    """A host taking most of a CPU in short pieces halts Kali as surely as one long stall:
+    the report gives the time lost in the window before the halt, not only the longest."""
+    halt_us = 50_000_000
+    pieces = (
+        "".join(  # CPU 0 gone 400 µs of every 500 for the last 20 ms, CPU 1 a little
+            f"T: 0 Spike: 400: TS: {halt_us - k * 500}\n" for k in range(40)
+        )
+        + f"T: 1 Spike: 300: TS: {halt_us - 5_000}\n"
+    )
+    text = stalls_before(pieces, halt_us * 1000, 20_000_000)
+    assert text == (
+        "cyclictest's CPUs lost in the 20 ms before the halt: CPU 0 16.0 ms, CPU 1 0.3 ms; "
+        "longest stall in the second before it: CPU 0 0.4 ms (ended 0 ms before it), "
+        "CPU 1 0.3 ms (ended 5 ms before it)"
+    )
+    quiet = "T: 0 Spike: 60: TS: 10000000\n"  # long before: a halt of Kali's own
+    assert stalls_before(quiet, halt_us * 1000, 20_000_000) == (
+        "cyclictest's CPUs lost nothing in the 20 ms before the halt; no stall in the "
+        "second before it"
+    )
 
 
 def test_spikes_cyclictest_counted_but_did_not_log_are_counted() -> None:
