@@ -71,6 +71,15 @@ speed_limits = st.lists(st.floats(0.5, 4.0), min_size=6, max_size=6).map(np.arra
 accel_limits = st.lists(st.floats(0.5, 20.0), min_size=6, max_size=6).map(np.array)
 
 
+def test_a_joint_that_stays_put_has_no_peaks_even_beside_a_minute_move() -> None:
+    """A move of 1e-300 rad makes the law's jerk overflow; the joints that stay put still
+    report zero peaks, not NaN (0 x inf), and numpy warns of nothing (the fuzz test found it)."""
+    with np.errstate(all="raise"):
+        m = JointMotion(np.zeros(6), np.r_[1e-300, np.zeros(5)], np.ones(6), np.ones(6))
+    for peak in (m.peak_speed, m.peak_accel, m.peak_jerk):
+        assert not np.isnan(peak).any() and (peak[1:] == 0.0).all()
+
+
 @settings(max_examples=40, deadline=None)
 @given(start=joint_vectors, step=joint_steps, v_max=speed_limits, a_max=accel_limits)
 def test_joint_motion_is_smooth_within_limits_and_arrives_together(

@@ -309,9 +309,12 @@ class JointMotion:
         else:
             self.law = SmoothTrapezoid(v_norm, a_norm)
         self.duration = self.law.duration
-        self.peak_speed = distance * self.law.peak_speed  # per joint, ≤ v_max
-        self.peak_accel = distance * self.law.peak_accel  # per joint, ≤ a_max
-        self.peak_jerk = distance * self.law.jerk
+        # per joint; a joint that stays put has none, also when a tiny move's law is steep
+        # enough to overflow (0 x inf would be NaN)
+        with np.errstate(invalid="ignore"):
+            self.peak_speed = np.where(moving, distance * self.law.peak_speed, 0.0)  # ≤ v_max
+            self.peak_accel = np.where(moving, distance * self.law.peak_accel, 0.0)  # ≤ a_max
+            self.peak_jerk = np.where(moving, distance * self.law.jerk, 0.0)
 
     def sample(
         self,
