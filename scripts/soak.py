@@ -22,7 +22,8 @@ window fall at the same point of the demo's cycle.  Two cyclictests run through 
 
 A halt (``Instance.fault_text``) ends the soak at once: the report names
 the fault and what the detector saw of the machine before it (``benchlib.stalls_before``: the
-time each CPU lost in the serious tolerance before the halt, and its longest stall), and the
+time each CPU lost in the serious tolerance and in five times that before the halt, and its
+longest stall), and the
 daemon logs and flight-recorder dump are kept.  So does a demo that fails
 ``MAX_FAILS_IN_ROW`` times in a row; a single failed iteration (nonzero exit; its stderr
 tail is kept) is counted and the loop goes on.

@@ -52,14 +52,21 @@ def test_a_halt_is_told_with_the_time_each_cpu_lost_before_it() -> None:
     )
     text = stalls_before(pieces, halt_us * 1000, 20_000_000)
     assert text == (
-        "cyclictest's CPUs lost in the 20 ms before the halt: CPU 0 16.0 ms, CPU 1 0.3 ms; "
+        "time cyclictest's CPUs lost before the halt: in 20 ms CPU 0 16.0 ms, CPU 1 0.3 ms; "
+        "in 100 ms CPU 0 16.0 ms, CPU 1 0.3 ms; "
         "longest stall in the second before it: CPU 0 0.4 ms (ended 0 ms before it), "
         "CPU 1 0.3 ms (ended 5 ms before it)"
     )
+    earlier = "".join(  # the same 16 ms, ended 25 ms before a halt the tolerance decided
+        f"T: 0 Spike: 400: TS: {halt_us - 25_000 - k * 500}\n" for k in range(40)
+    )
+    assert stalls_before(earlier, halt_us * 1000, 20_000_000).startswith(
+        "time cyclictest's CPUs lost before the halt: in 20 ms nothing; in 100 ms CPU 0 16.0 ms; "
+    )
     quiet = "T: 0 Spike: 60: TS: 10000000\n"  # long before: a halt of Kali's own
     assert stalls_before(quiet, halt_us * 1000, 20_000_000) == (
-        "cyclictest's CPUs lost nothing in the 20 ms before the halt; no stall in the "
-        "second before it"
+        "time cyclictest's CPUs lost before the halt: in 20 ms nothing; in 100 ms nothing; "
+        "no stall in the second before it"
     )
 
 
