@@ -20,11 +20,10 @@ window fall at the same point of the demo's cycle.  Two cyclictests run through 
   is no denser because it disturbs what it measures: at 100 µs it tripled Kali's misses
   (``benchlib.DETECT_INTERVAL_US`` gives the measurement).
 
-A halt (``Instance.fault_text``) ends the soak at once: the report names
-the fault and what the detector saw of the machine before it (``benchlib.stalls_before``: the
-time each CPU lost in the serious tolerance and in five times that before the halt, and its
-longest stall), and the
-daemon logs and flight-recorder dump are kept.  So does a demo that fails
+A halt (``Instance.fault_text``) ends the soak at once: the report names the fault and what
+the detector saw of the machine before it (``benchlib.stalls_before``: the time each CPU lost
+in the serious tolerance and in five times that before the halt, and its longest stall), and
+the daemon logs and flight-recorder dump are kept.  So does a demo that fails
 ``MAX_FAILS_IN_ROW`` times in a row; a single failed iteration (nonzero exit; its stderr
 tail is kept) is counted and the loop goes on.
 
