@@ -483,3 +483,18 @@ def test_histogram_bins() -> None:
     b = layout.lateness_bin(3_000_000)
     assert layout.bin_upper_us(b - 1) <= 3000 < layout.bin_upper_us(b)
     assert layout.lateness_bin(10**12) == layout.HIST_BINS - 1
+
+
+def test_a_program_stepping_the_clock_hears_that_the_instance_was_stopped(
+    kali: Callable[..., str],
+) -> None:
+    """Lockstep: a program stepping the clock (``Kali.pause`` does) when ``kalictl stop``
+    comes gets a ClockError at once, not a wait for the 600 s step timeout."""
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        step_kali_clock(inst, 10)
+        launcher.stop(name)
+        t0 = time.monotonic()
+        with pytest.raises(ClockError, match=f"instance '{name}' was stopped"):
+            step_kali_clock(inst, 10)
+        assert time.monotonic() - t0 < 1.0
