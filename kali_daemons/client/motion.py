@@ -465,7 +465,9 @@ class Kali:
                 if self.inst.fault["active"]:
                     raise ServoError(f"{what}: the system halted: {self.inst.fault_text()}")
                 if self.inst.shutting_down:
-                    raise ServoError(f"{what}: instance '{self.inst.name}' was stopped")
+                    raise ServoError(
+                        f"{what}: instance '{self.inst.name}' was stopped (kalictl stop)"
+                    )
                 if time.monotonic() > deadline:
                     raise ServoError(f"{what}: not done within {timeout:g} s")
                 self.pause()
