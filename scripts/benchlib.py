@@ -429,11 +429,13 @@ def chance_seen(
     return 1.0 - len(unexplained_misses(windows, stalls, lost, lost_limit_ns)) / n
 
 
-def stalls_before(stdout: str, t_ns: int, window_ns: int) -> str:
-    """What cyclictest saw of the machine when Kali halted at ``t_ns`` (CLOCK_MONOTONIC): the
-    time each CPU (thread, ``-a``) lost in the ``window_ns`` before it (the serious tolerance:
-    what decides a halt) and in five times that, and its longest stall ending in the second
-    before or just after.
+def stalls_before(
+    lines: list[tuple[int, int, int]], lost: LostTime, t_ns: int, window_ns: int
+) -> str:
+    """What cyclictest saw of the machine when Kali halted at ``t_ns`` (CLOCK_MONOTONIC), from
+    its ``spike_lines`` and their ``LostTime``: the time each CPU (thread, ``-a``) lost in the
+    ``window_ns`` before it (the serious tolerance: what decides a halt) and in five times
+    that, and its longest stall ending in the second before or just after.
 
     Lost time, because a host that takes most of a CPU in pieces of a few hundred µs halts
     Kali as surely as one long stall: a soak halted with CPU 0 losing 15 ms of the 20 before,
@@ -443,8 +445,6 @@ def stalls_before(stdout: str, t_ns: int, window_ns: int) -> str:
     finishing the tick the stall slowed (a soak's SIO halt came 48 ms after its last
     acknowledgement, CPU 0 having lost 25 ms of the 30 before the last 20).
     """
-    lines = spike_lines(stdout)
-    lost = LostTime(lines)
 
     def lost_in(ns: int) -> str:
         per_cpu = lost.within(t_ns - ns, t_ns)

@@ -715,11 +715,12 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                 raise BenchError(f"{what} exited {proc.returncode}: {err_text}")
         det_text = det_out.read_text()
         stalls = parse_spikes(det_text, DETECT_INTERVAL_US, res.detect_us)
-        lost = LostTime(spike_lines(det_text))
+        lines = spike_lines(det_text)
+        lost = LostTime(lines)
         res.detector_unlogged = spikes_unlogged(det_text)
         if res.halted_at_s is not None:
             t_halt = t0 + int(res.halted_at_s * 1e9)
-            res.halt_stalls = stalls_before(det_text, t_halt, halt_window_ns(cfg))
+            res.halt_stalls = stalls_before(lines, lost, t_halt, halt_window_ns(cfg))
         hist = parse_histfile(histfile)
         analyse(res, cfg, s0, s1, hist, logged, stalls, lost, t0, real_offset)
     finally:

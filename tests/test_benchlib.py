@@ -18,6 +18,7 @@ from benchlib import (
     chance_seen,
     cyclictest_command,
     parse_spikes,
+    spike_lines,
     spikes_unlogged,
     stalls_before,
     unexplained_misses,
@@ -40,6 +41,11 @@ def test_a_spike_is_a_stall_from_the_threads_previous_wake_up_to_the_late_one() 
     assert parse_spikes(SPIKES, 100, min_us=344) == parse_spikes(SPIKES, 100)[1:]
 
 
+def halt_text(stdout: str, t_ns: int) -> str:
+    lines = spike_lines(stdout)
+    return stalls_before(lines, LostTime(lines), t_ns, 20_000_000)
+
+
 def test_a_halt_is_told_with_the_time_each_cpu_lost_before_it() -> None:
     """A host taking most of a CPU in short pieces halts Kali as surely as one long stall:
     the report gives the time lost in the window before the halt, not only the longest."""
@@ -50,7 +56,7 @@ def test_a_halt_is_told_with_the_time_each_cpu_lost_before_it() -> None:
         )
         + f"T: 1 Spike: 300: TS: {halt_us - 5_000}\n"
     )
-    text = stalls_before(pieces, halt_us * 1000, 20_000_000)
+    text = halt_text(pieces, halt_us * 1000)
     assert text == (
         "time cyclictest's CPUs lost before the halt: in 20 ms CPU 0 16.0 ms, CPU 1 0.3 ms; "
         "in 100 ms CPU 0 16.0 ms, CPU 1 0.3 ms; "
@@ -60,11 +66,11 @@ def test_a_halt_is_told_with_the_time_each_cpu_lost_before_it() -> None:
     earlier = "".join(  # the same 16 ms, ended 25 ms before a halt the tolerance decided
         f"T: 0 Spike: 400: TS: {halt_us - 25_000 - k * 500}\n" for k in range(40)
     )
-    assert stalls_before(earlier, halt_us * 1000, 20_000_000).startswith(
+    assert halt_text(earlier, halt_us * 1000).startswith(
         "time cyclictest's CPUs lost before the halt: in 20 ms nothing; in 100 ms CPU 0 16.0 ms; "
     )
     quiet = "T: 0 Spike: 60: TS: 10000000\n"  # long before: a halt of Kali's own
-    assert stalls_before(quiet, halt_us * 1000, 20_000_000) == (
+    assert halt_text(quiet, halt_us * 1000) == (
         "time cyclictest's CPUs lost before the halt: in 20 ms nothing; in 100 ms nothing; "
         "no stall in the second before it"
     )
