@@ -588,6 +588,7 @@ SERVO_CTRL = np.dtype(
         ("sv_exec_max_ns", "<i8", (MAX_SV,)),
         ("sv_servos", "<u8", (MAX_SV,)),  # SV k: servos it has run
         ("sv_exec_hist", "<u4", (MAX_SV, HIST_BINS)),  # SV k: feed-to-done time histogram
+        ("sv_fed_tick", "<i8", (MAX_SV,)),  # SV k: the tick whose feed it took last (-1: none)
     ],
     align=True,
 )

@@ -30,6 +30,7 @@ from kali_daemons.layout import (
 from kali_daemons.servolevel import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
+from .conftest import wait_for
 from .test_launcher import kalictl
 
 COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # rad per count
@@ -272,6 +273,44 @@ def test_a_feed_post_left_from_a_missed_tick_does_not_idle_an_sv(
         assert share.sum() == 12 * 300 and (share[:2] > 0).all(), f"servos per SV: {share[:2]}"
         assert inst.fault_text() is None
         del ran
+
+
+def test_an_sv_whose_servos_are_done_is_acknowledged_before_sio_writes_the_dacs(
+    kali: Callable[..., str],
+) -> None:
+    """The SV that finishes a tick's last servo posts SIO's done semaphore, and SIO, above
+    it on the same CPU, preempts it at once to write the DACs.  Were the SV's own
+    acknowledgement all the clock had, it would wait behind SIO's output every tick, and
+    on a tick SIO finished just in time the SV would miss although its servos were long
+    done (soak N's three misses).  So SIO acknowledges the tick for every SV that took its
+    feed, before its own: read SIO's acknowledgement first, the SV's is never older.
+
+    Real time, one SV on SIO's CPU: every tick it is the SV SIO preempts."""
+    name = kali(lockstep=False, edits={r"count: 2, cpus: \[0, 1\]": "count: 1, cpus: [0]"})
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            for robot in client.names:
+                client.power(robot, True)
+            wait_for(
+                lambda: all(client.power_state(r) == PowerState.ON for r in client.names),
+                what="both arms powered",
+            )
+            ack = inst.procs["ack_tick"]
+            sio, sv = inst.slot_of("sio"), inst.slot_of("sv.0")
+            reads = behind = 0
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                for _ in range(1000):
+                    a = int(ack[sio])
+                    if int(ack[sv]) < a:
+                        behind += 1
+                reads += 1000
+            assert inst.fault_text() is None
+            assert behind == 0, f"sv.0's acknowledgement older than SIO's in {behind} of {reads}"
+            del ack
+        finally:
+            client.close()
 
 
 def test_a_dead_sio_halts_and_the_watchdog_trips(kali: Callable[..., str]) -> None:

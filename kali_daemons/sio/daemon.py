@@ -10,9 +10,10 @@ tick.
     (an SV passes over a post left from a tick it missed).
     While the servos run, take each robot's feed-forward from the dynamics process's rows
     (``feedforward.py``: interpolated like the demand; stale ones dropped).
-(c) Sleep until the SV finishing the last slot posts the done semaphore, add feed-forward,
-    convert torques to motor currents and DAC codes (the current check), drive the power
-    switch and retrigger the watchdog on each board.
+(c) Sleep until the SV finishing the last slot posts the done semaphore, acknowledge the
+    tick for each SV that took its feed (``_ack_gang``), add feed-forward, convert torques
+    to motor currents and DAC codes (the current check), drive the power switch and
+    retrigger the watchdog on each board.
 
 Range, runaway (tracking error beyond ``safe``), a current demand beyond the motor's limit for
 ``current_fault_ms``, amplifiers dropping out, and servo slots not done within the serious
@@ -131,6 +132,12 @@ class ServoIO(Daemon):
         self.slice_s = period_s
         self.slice_ns, self.wait_ns = int(period_s * 1e9), int(self.wait_s * 1e9)
         self.sv_slots = [inst.slot_of(name) for name in sv_names]
+        ctrl["sv_fed_tick"] = -1
+        self._sv_fed_tick = ctrl["sv_fed_tick"]
+        self._sig, self._ack = inst.procs["signal_tick"], inst.procs["ack_tick"]
+        # lockstep has no deadlines, and its clock counts one acknowledgement post per
+        # process: there every SV acknowledges for itself
+        self._gang = [] if inst.lockstep else list(enumerate(self.sv_slots))
         # private, preallocated arrays: flat over all joints (robot k joint j at 6 k + j)
         self.q = np.zeros(n)
         self.q_prev = np.zeros(n)
@@ -256,6 +263,8 @@ class ServoIO(Daemon):
         # (c) wait for the servos, then torques out
         if fed and not self._wait_done(tick, fed):
             self.fed_mask[:] = False
+        else:
+            self._ack_gang(tick)
         np.copyto(self.servo_torque, self._slot_torque)
         np.copyto(self.fed_f, self.fed_mask)
         np.multiply(self.servo_torque, self.fed_f, out=self.servo_torque)
@@ -476,6 +485,22 @@ class ServoIO(Daemon):
         )
         self.driver.zero(self._codes)
         return False
+
+    def _ack_gang(self, tick: int) -> None:
+        """Acknowledge ``tick`` for every SV signalled for it that took its feed: every fed
+        servo is done, so what is left of such an SV's cycle is bookkeeping (thesis 3.3.4:
+        SIO and the SVs are one gang).
+
+        The SV that finishes the last servo posts the done semaphore, and SIO, above it on
+        the same CPU, preempts it at once: the SV's own acknowledgement waits behind SIO's
+        output.  On a tick SIO finishes just in time, the clock would count that SV late
+        though its servos were long done (three such misses in a 30-minute soak, SIO on
+        time in each).  An SV that has not taken its feed is not acknowledged: a stalled
+        or dead one still misses, and the clock names it.  Real time only (``_gang``)."""
+        fed, sig, ack = self._sv_fed_tick, self._sig, self._ack
+        for k, slot in self._gang:
+            if fed[k] == tick and sig[slot] == tick:
+                ack[slot] = tick  # the same tick the SV itself writes when it gets the CPU
 
     def _dead_servo(self, tick: int) -> bool:
         """Halt with PROCESS_DIED if an SV holding an unfinished slot died; True if so.

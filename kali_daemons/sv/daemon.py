@@ -6,7 +6,10 @@ has fed the slots of that tick.  It then walks the slots and claims each fed one
 by test-and-set of its ``busy`` word; whichever SV is free takes the next joint, so a costly
 servo simply takes more of the workers.  For a claimed slot it carries out a pending mailbox
 operation (put/get/select/params, 3.4), runs the joint's algorithm and stores torque, error
-and status.  The SV that finishes the tick's last slot posts SIO's done semaphore.
+and status.  The SV that finishes the tick's last slot posts SIO's done semaphore.  Each
+SV notes the tick whose feed it took (``sv_fed_tick``): SIO acknowledges that tick for it
+as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU below
+SIO's priority, would wait behind SIO's output (``SioDaemon._ack_gang``).
 
 A servo that raises, returns a bad status or a non-finite torque halts the system with a
 SERVO fault naming robot, joint and algorithm.  Waiting always sleeps (two cores: never spin
@@ -81,6 +84,7 @@ class ServoWorker(Daemon):
         self._exec_max = c["sv_exec_max_ns"][self.index : self.index + 1]
         self._servos = c["sv_servos"][self.index : self.index + 1]
         self._exec_hist = c["sv_exec_hist"][self.index]
+        self._fed_tick = c["sv_fed_tick"][self.index : self.index + 1]
         lockstep = inst.lockstep
         self.feed_timeout_s = (
             inst.config.clock.lockstep_ack_timeout_s
@@ -134,7 +138,9 @@ class ServoWorker(Daemon):
                 self.feed.acquire(wait_s)
             except posix_ipc.BusyError:
                 return False
-            if int(self._tick) >= tick:
+            fed = int(self._tick)
+            if fed >= tick:
+                self._fed_tick[0] = fed  # before any slot: SIO may acknowledge for it now
                 return True
             wait_s = (end - rt.monotonic_ns()) / 1e9  # a stale post: wait on for this tick's
             if wait_s <= 0:
