@@ -29,7 +29,7 @@ from . import layout, rt
 from .config import period_ticks
 from .errors import DaemonError
 from .instance import Instance
-from .layout import FaultCode, ProcState
+from .layout import FaultCode, ProcState, RunMode
 from .spinlock import pid_alive
 
 IDLE_WAIT_S = 0.25  # longest semaphore wait before a heartbeat and a shutdown check
@@ -226,6 +226,7 @@ class Daemon:
         # a serious process in real time notices a dead wall clock within half the boards'
         # 20 ms watchdog (which cuts the amplifiers anyway); looking costs nothing until then
         self._idle_wait_s = CLOCK_WATCH_S if self.serious and not inst.lockstep else IDLE_WAIT_S
+        self._clock_tick, self._clock_waits = -1, 0  # _watch_clock's view of a standing clock
         while not self._leave:
             try:
                 sem.acquire(self._idle_wait_s)
@@ -247,18 +248,43 @@ class Daemon:
                 ack_sem.release()
 
     def _watch_clock(self) -> None:
-        """Halt with PROCESS_DIED naming the wall clock if it is gone (DESIGN 7): nobody
-        else can, and every program waiting for a motion must hear why it stopped."""
+        """Halt naming the wall clock if it is gone or stands still (DESIGN 7): nobody else
+        can, and every program waiting for a motion must hear why it stopped.
+
+        Gone: PROCESS_DIED at once.  Alive but not ticking while it should run (real time):
+        the boards' watchdog cuts the amplifiers after ``watchdog_ms``, since SIO is not
+        signalled either, and this halts with DEADLINE once this process has seen the
+        tick stand still through timed-out waits of its own adding up to the serious
+        tolerance.  Its own waits, so a stall of the whole machine (the host stops every
+        vCPU, DESIGN 10: the clock too, and this process with it) is one late wake-up and
+        never counts, as the clock's ``_watch`` rules for the plant."""
         c, f = self.inst.clock, self.inst.fault
         pid = int(c["pid"])
-        if pid <= 0 or f["active"] or pid_alive(pid):
+        if pid <= 0 or f["active"]:
             return
-        self.inst.raise_fault(
-            FaultCode.PROCESS_DIED,
-            "wallclock",
-            f"the wall clock (pid {pid}) died at tick {int(c['tick'])}; "
-            f"{self.name} noticed: no signal for {self._idle_wait_s * 1e3:g} ms",
-        )
+        tick = int(c["tick"])
+        if not pid_alive(pid):
+            self.inst.raise_fault(
+                FaultCode.PROCESS_DIED,
+                "wallclock",
+                f"the wall clock (pid {pid}) died at tick {tick}; "
+                f"{self.name} noticed: no signal for {self._idle_wait_s * 1e3:g} ms",
+            )
+            return
+        if tick != self._clock_tick or self.inst.lockstep or c["mode"] != RunMode.RUNNING:
+            self._clock_tick, self._clock_waits = tick, 0
+            return
+        self._clock_waits += 1
+        watched_ms = self._clock_waits * self._idle_wait_s * 1e3
+        tolerance_ms = int(c["serious_miss_tolerance_ms"])
+        if watched_ms >= tolerance_ms:
+            self.inst.raise_fault(
+                FaultCode.DEADLINE,
+                "wallclock",
+                f"the wall clock (pid {pid}) is alive but stands at tick {tick}: {self.name} "
+                f"waited {watched_ms:g} ms more for a signal (tolerance {tolerance_ms} ms)",
+                tick=tick,
+            )
 
     def _self_timed_loop(self) -> None:
         """Sleep to this daemon's own absolute deadlines (the plant in real-time mode)."""

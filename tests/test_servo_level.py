@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import signal
 import time
 from collections.abc import Callable, Iterator
@@ -216,6 +217,12 @@ def test_amplifiers_going_off_while_servoing_halt_naming_the_boards_bits(
                 "robot 'right': amplifiers went off while servoing (board power register 0x0a "
                 "(brakes released, e-stop pressed))"
             ) in text
+            # SIO was on time: its last retrigger is within one retrigger cycle (4 ticks)
+            assert re.search(
+                r"; SIO last retriggered the watchdog [1-4] ms before this tick "
+                r"\(tick \d+; watchdog 20 ms\)$",
+                text,
+            ), text
             del boards
         finally:
             client.close()

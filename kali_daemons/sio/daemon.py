@@ -114,6 +114,9 @@ class ServoIO(Daemon):
         self.retrigger_ticks = retrigger_hold_ticks(
             cfg.clock.servo_period_ms, cfg.process("plant").period_ms
         )
+        self.retrigger_tick = -1  # the tick of SIO's last retrigger (falling edge, C.4)
+        self.watchdog_ms = cfg.plant.watchdog_ms
+        self.servo_ms = cfg.clock.servo_period_ms
         self.current_ticks = np.array(
             [servo_ticks(r.current_fault_ms) for r in cfg.robots for _ in range(6)]
         )
@@ -277,6 +280,8 @@ class ServoIO(Daemon):
         self.servo_ticks += 1
         for k in range(lv.n_robots):
             self._write_csr(k)
+        if self.servo_ticks % (2 * self.retrigger_ticks) == self.retrigger_ticks:
+            self.retrigger_tick = tick  # ``retrigger_bit`` just went low
         for dst, src in self._pub:
             np.copyto(dst, src)
         self.driver.store(*self._driver_state)
@@ -341,7 +346,7 @@ class ServoIO(Daemon):
                 FaultCode.POWER,
                 self.name,
                 f"robot '{self.level.names[k]}': amplifiers went off while servoing "
-                f"(board power register {layout.power_text(power_bits)})",
+                f"(board power register {layout.power_text(power_bits)}); {self._since(tick)}",
             )
             return
         if state == PowerState.OFF:
@@ -526,6 +531,19 @@ class ServoIO(Daemon):
                 self.driver.zero(self._codes)
                 return True
         return False
+
+    def _since(self, tick: int) -> str:
+        """How long before ``tick`` SIO last retriggered the watchdog: a gap beyond
+        ``watchdog_ms`` says the watchdog cut the amplifiers because SIO did not run (the
+        board clears its trip bit at the next retrigger, so the register may no longer
+        show it).  In ticks, so lockstep reads it in the plant's time."""
+        if self.retrigger_tick < 0:
+            return "SIO has not retriggered the watchdog yet"
+        gap_ms = (tick - self.retrigger_tick) * self.servo_ms
+        return (
+            f"SIO last retriggered the watchdog {gap_ms:g} ms before this tick "
+            f"(tick {self.retrigger_tick}; watchdog {self.watchdog_ms:g} ms)"
+        )
 
     def _write_csr(self, k: int) -> None:
         """Drive robot ``k``'s power switch and retrigger its watchdog (C.4, C.5.1)."""

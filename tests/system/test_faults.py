@@ -14,7 +14,9 @@ with full feed-forward), injects one fault and checks what the thesis promises:
   and a tick; a stalled process (the plant too, which the clock watches by its heartbeat)
   or a slow servo within the serious tolerance (20 ms, DESIGN 10 item 6: the host's own
   stalls) and 3 servo periods; a dead wall clock (no ticks to
-  count) within the boards' 20 ms watchdog;
+  count) within the boards' 20 ms watchdog, a stalled one (the watchdog cuts the amplifiers
+  first) once a serious process has watched it stand for the tolerance, from its first
+  look 10 ms after its last signal: within the tolerance and two looks;
 - the amplifiers are off (the board says so; a dead plant's board is gone, so the command
   register says so), the brakes follow, the fault names the culprit, the waiting program is
   woken with it, and ``kalictl status`` shows the fault and the dead process;
@@ -63,7 +65,9 @@ from .conftest import MATRIX
 PLUGIN = Path(__file__).with_name("faulty_servo.py")
 FAILS = {"raise": 1.0, "nan": 2.0, "slow": 3.0}  # faulty_servo.py's ``fail`` parameter
 TOLERANCE_TICKS = 20  # clock.serious_miss_tolerance_ms / base_tick_ms of the default config
+TOLERANCE_MS = 20.0  # clock.serious_miss_tolerance_ms
 WATCHDOG_MS = 20.0  # plant.watchdog_ms
+CLOCK_WATCH_MS = 10.0  # daemon.CLOCK_WATCH_S: how often a serious process looks at the clock
 SERVO, TG, PLANT = 1, 10, 1  # periods in base ticks (1 ms) of the default config
 # A stall halts once a serious process is unacknowledged beyond the tolerance: the 21st
 # consecutive miss, found at the tick after it; a tick more when the signal caught the victim
@@ -102,6 +106,9 @@ ROWS = [
     Fault("kill -9 dynamics", "dynamics", "kill"),
     Fault("kill -9 viewer", "viewer", "kill"),
     Fault("kill -9 program", "program", "kill"),
+    Fault("SIGSTOP wallclock", "wallclock", "stop", FaultCode.DEADLINE, "wallclock",
+          r"the wall clock \(pid \d+\) is alive but stands at tick \d+: \S+ waited 20 ms",
+          bound_ms=TOLERANCE_MS + 2 * CLOCK_WATCH_MS),
     Fault("SIGSTOP sio", "sio", "stop", FaultCode.DEADLINE, "sio",
           r"'sio' missed \d+ consecutive deadlines", bound_ticks=STALL_TICKS),
     Fault("SIGSTOP sv.1", "sv.1", "stop", FaultCode.DEADLINE, "sv.1",
@@ -286,7 +293,7 @@ def _halts(
         truth = inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
         wait_for(lambda: not (boards["power"] & POWER_AMPS_ON).any(), 0.5, "amplifiers off")
         row["amps"] = "off"
-        if fault.victim in ("wallclock", "sio") and fault.how == "kill":
+        if fault.victim == "wallclock" or (fault.victim == "sio" and fault.how == "kill"):
             wait_for(
                 lambda: bool((boards["power"] & POWER_WATCHDOG_TRIPPED).all()),
                 0.5,
