@@ -114,9 +114,12 @@ class ServoIO(Daemon):
         self.retrigger_ticks = retrigger_hold_ticks(
             cfg.clock.servo_period_ms, cfg.process("plant").period_ms
         )
-        self.retrigger_tick = -1  # the tick of SIO's last retrigger (falling edge, C.4)
+        # the clock's tick at SIO's last retrigger (falling edge, C.4): the clock's, not the
+        # signalled one, since a late cycle writes the boards ticks after its signal
+        self.retrigger_tick = -1
+        self._clock = inst.clock  # a record: its fields are read afresh each time
         self.watchdog_ms = cfg.plant.watchdog_ms
-        self.servo_ms = cfg.clock.servo_period_ms
+        self.base_ms = cfg.clock.base_tick_ms
         self.current_ticks = np.array(
             [servo_ticks(r.current_fault_ms) for r in cfg.robots for _ in range(6)]
         )
@@ -281,7 +284,7 @@ class ServoIO(Daemon):
         for k in range(lv.n_robots):
             self._write_csr(k)
         if self.servo_ticks % (2 * self.retrigger_ticks) == self.retrigger_ticks:
-            self.retrigger_tick = tick  # ``retrigger_bit`` just went low
+            self.retrigger_tick = int(self._clock["tick"])  # ``retrigger_bit`` just went low
         for dst, src in self._pub:
             np.copyto(dst, src)
         self.driver.store(*self._driver_state)
@@ -346,7 +349,7 @@ class ServoIO(Daemon):
                 FaultCode.POWER,
                 self.name,
                 f"robot '{self.level.names[k]}': amplifiers went off while servoing "
-                f"(board power register {layout.power_text(power_bits)}); {self._since(tick)}",
+                f"(board power register {layout.power_text(power_bits)}); {self._since()}",
             )
             return
         if state == PowerState.OFF:
@@ -532,17 +535,19 @@ class ServoIO(Daemon):
                 return True
         return False
 
-    def _since(self, tick: int) -> str:
-        """How long before ``tick`` SIO last retriggered the watchdog: a gap beyond
+    def _since(self) -> str:
+        """How long ago, by the clock, SIO last retriggered the watchdog: a gap beyond
         ``watchdog_ms`` says the watchdog cut the amplifiers because SIO did not run (the
         board clears its trip bit at the next retrigger, so the register may no longer
-        show it).  In ticks, so lockstep reads it in the plant's time."""
+        show it).  In the clock's ticks: wall time in real time, the plant's in lockstep;
+        not SIO's signalled tick, which after a stall is the one it was signalled long ago."""
         if self.retrigger_tick < 0:
             return "SIO has not retriggered the watchdog yet"
-        gap_ms = (tick - self.retrigger_tick) * self.servo_ms
+        now = int(self._clock["tick"])
+        gap_ms = (now - self.retrigger_tick) * self.base_ms
         return (
-            f"SIO last retriggered the watchdog {gap_ms:g} ms before this tick "
-            f"(tick {self.retrigger_tick}; watchdog {self.watchdog_ms:g} ms)"
+            f"SIO last retriggered the watchdog {gap_ms:g} ms ago (at clock tick "
+            f"{self.retrigger_tick}, now {now}; watchdog {self.watchdog_ms:g} ms)"
         )
 
     def _write_csr(self, k: int) -> None:
