@@ -383,6 +383,7 @@ def unexplained_misses(
     stalls: list[tuple[int, int]],
     lost: LostTime | None = None,
     lost_limit_ns: int = 0,
+    lead_ns: int = 0,
 ) -> list[dict[str, object]]:
     """The Kali misses during which cyclictest saw no stall: Kali's own, not the machine's.
 
@@ -390,13 +391,15 @@ def unexplained_misses(
     due tick; cyclictest "also saw it" when one of its stalls (``parse_spikes``: from the
     thread's last wake-up before a late one to the late one) overlaps that interval, or,
     with ``lost``, when one CPU lost at least ``lost_limit_ns`` inside it in short pieces.
-    Each miss of Kali's own is returned with ``lost_us``: what each CPU lost inside it.
+    With ``lead_ns`` the interval starts that long before the signal: what the machine did
+    just before a tick counts too.  Each miss of Kali's own is returned with ``lost_us``:
+    what each CPU lost inside it.
     """
     starts = np.array(sorted(s for s, _ in stalls), dtype=np.int64)
     ends = np.array([e for _, e in sorted(stalls)], dtype=np.int64)
     out = []
     for m in misses:
-        lo, hi = int(m["signal_ns"]), int(m["due_ns"])
+        lo, hi = int(m["signal_ns"]) - lead_ns, int(m["due_ns"])
         k = int(np.searchsorted(starts, hi, side="right"))  # stalls starting before hi
         if k and ends[:k].max() >= lo:
             continue

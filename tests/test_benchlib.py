@@ -106,6 +106,16 @@ def test_short_losses_of_one_cpu_add_up_to_a_stall() -> None:
     assert own == [miss | {"lost_us": {0: 300, 1: 60}}]
 
 
+def test_a_lead_counts_what_the_machine_did_just_before_the_signal() -> None:
+    """CPU 0 lost 190 µs ending 94 µs before the signal (soak P's first own miss): nothing
+    inside the miss, but inside it with a 500 µs lead."""
+    lost = LostTime([(0, 190, 906)])  # late 190 µs, woke at 906 µs: lost [716, 906] µs
+    miss = {"signal_ns": 1_000_000, "due_ns": 2_000_000}
+    assert unexplained_misses([miss], [], lost, 100_000) == [miss | {"lost_us": {}}]
+    assert unexplained_misses([miss], [], lost, 100_000, lead_ns=500_000) == []
+    assert unexplained_misses([miss], [], lost, 100_000, lead_ns=50_000) != []
+
+
 def test_chance_seen_is_the_share_of_windows_the_rules_would_explain() -> None:
     # a 5 µs window starting in [5, 20] µs meets the stall [10, 20] µs: 15 % of [0, 100] µs
     stall = [(10_000, 20_000)]
