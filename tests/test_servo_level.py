@@ -60,6 +60,23 @@ def servoing(name: str) -> Iterator[tuple[Instance, ServoClient]]:
             client.close()
 
 
+@contextmanager
+def powered_in_real_time(name: str) -> Iterator[tuple[Instance, ServoClient]]:
+    """Attach to a real-time instance and power both arms (the clock runs on its own)."""
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            for robot in client.names:
+                client.power(robot, True)
+            wait_for(
+                lambda: all(client.power_state(r) == PowerState.ON for r in client.names),
+                what="both arms powered",
+            )
+            yield inst, client
+        finally:
+            client.close()
+
+
 def error_counts(client: ServoClient) -> np.ndarray:
     """Tracking error of every joint in encoder counts, (robots, 6)."""
     r = client.level.robots
@@ -294,30 +311,20 @@ def test_an_sv_whose_servos_are_done_is_acknowledged_before_sio_writes_the_dacs(
 
     Real time, one SV on SIO's CPU: every tick it is the SV SIO preempts."""
     name = kali(lockstep=False, edits={r"count: 2, cpus: \[0, 1\]": "count: 1, cpus: [0]"})
-    with Instance.attach(name) as inst:
-        client = ServoClient(inst)
-        try:
-            for robot in client.names:
-                client.power(robot, True)
-            wait_for(
-                lambda: all(client.power_state(r) == PowerState.ON for r in client.names),
-                what="both arms powered",
-            )
-            ack = inst.procs["ack_tick"]
-            sio, sv = inst.slot_of("sio"), inst.slot_of("sv.0")
-            reads = behind = 0
-            end = time.monotonic() + 1.0
-            while time.monotonic() < end:
-                for _ in range(1000):
-                    a = int(ack[sio])
-                    if int(ack[sv]) < a:
-                        behind += 1
-                reads += 1000
-            assert inst.fault_text() is None
-            assert behind == 0, f"sv.0's acknowledgement older than SIO's in {behind} of {reads}"
-            del ack
-        finally:
-            client.close()
+    with powered_in_real_time(name) as (inst, _):
+        ack = inst.procs["ack_tick"]
+        sio, sv = inst.slot_of("sio"), inst.slot_of("sv.0")
+        reads = behind = 0
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            for _ in range(1000):
+                a = int(ack[sio])
+                if int(ack[sv]) < a:
+                    behind += 1
+            reads += 1000
+        assert inst.fault_text() is None
+        assert behind == 0, f"sv.0's acknowledgement older than SIO's in {behind} of {reads}"
+        del ack
 
 
 def test_a_power_halt_after_a_stall_says_how_long_sio_was_away(kali: Callable[..., str]) -> None:
@@ -325,29 +332,19 @@ def test_a_power_halt_after_a_stall_says_how_long_sio_was_away(kali: Callable[..
     boards' watchdog cuts the arms, and the POWER fault says SIO last retriggered it about
     40 ms before (the register alone may no longer show the trip: a retrigger clears it)."""
     name = kali(lockstep=False)  # the plant's own clock must run for the watchdog
-    with Instance.attach(name) as inst:
-        client = ServoClient(inst)
-        try:
-            for robot in client.names:
-                client.power(robot, True)
-            wait_for(
-                lambda: all(client.power_state(r) == PowerState.ON for r in client.names),
-                what="both arms powered",
-            )
-            names = ("wallclock", "sio", "sv.0", "sv.1", "tg")
-            pids = [int(inst.procs[inst.slot_of(n)]["pid"]) for n in names]
-            for pid in pids:
-                os.kill(pid, signal.SIGSTOP)
-            time.sleep(0.04)
-            for pid in reversed(pids):  # the clock last: nobody sees it stand still
-                os.kill(pid, signal.SIGCONT)
-            wait_for(lambda: bool(inst.fault["active"]), 2.0, "a halt")
-            code, process, text = fault(inst)
-            assert code == FaultCode.POWER and process == "sio", text
-            m = re.search(r"SIO last retriggered the watchdog (\d+) ms ago", text)
-            assert m and 40 <= int(m.group(1)) < 200, text
-        finally:
-            client.close()
+    with powered_in_real_time(name) as (inst, _):
+        names = ("wallclock", "sio", "sv.0", "sv.1", "tg")
+        pids = [int(inst.procs[inst.slot_of(n)]["pid"]) for n in names]
+        for pid in pids:
+            os.kill(pid, signal.SIGSTOP)
+        time.sleep(0.04)
+        for pid in reversed(pids):  # the clock last: nobody sees it stand still
+            os.kill(pid, signal.SIGCONT)
+        wait_for(lambda: bool(inst.fault["active"]), 2.0, "a halt")
+        code, process, text = fault(inst)
+        assert code == FaultCode.POWER and process == "sio", text
+        m = re.search(r"SIO last retriggered the watchdog (\d+) ms ago", text)
+        assert m and 40 <= int(m.group(1)) < 200, text
 
 
 def test_a_dead_sio_halts_and_the_watchdog_trips(kali: Callable[..., str]) -> None:

@@ -283,8 +283,9 @@ class ServoIO(Daemon):
         self.servo_ticks += 1
         for k in range(lv.n_robots):
             self._write_csr(k)
-        if self.servo_ticks % (2 * self.retrigger_ticks) == self.retrigger_ticks:
-            self.retrigger_tick = int(self._clock["tick"])  # ``retrigger_bit`` just went low
+        hold = self.retrigger_ticks
+        if retrigger_bit(self.servo_ticks - 1, hold) and not retrigger_bit(self.servo_ticks, hold):
+            self.retrigger_tick = int(self._clock["tick"])  # a falling edge: a retrigger
         for dst, src in self._pub:
             np.copyto(dst, src)
         self.driver.store(*self._driver_state)

@@ -9,7 +9,7 @@ operation (put/get/select/params, 3.4), runs the joint's algorithm and stores to
 and status.  The SV that finishes the tick's last slot posts SIO's done semaphore.  Each
 SV notes the tick whose feed it took (``sv_fed_tick``): SIO acknowledges that tick for it
 as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU below
-SIO's priority, would wait behind SIO's output (``SioDaemon._ack_gang``).
+SIO's priority, would wait behind SIO's output (``ServoIO._ack_gang``).
 
 A servo that raises, returns a bad status or a non-finite torque halts the system with a
 SERVO fault naming robot, joint and algorithm.  Waiting always sleeps (two cores: never spin
