@@ -288,8 +288,9 @@ class WallClock(Daemon):
         """Look up self-timed processes whose heartbeat is two periods old (real time): a
         dead one halts (serious) or is left out, and a serious one alive but stalled beyond
         ``serious_miss_tolerance_ms`` halts with DEADLINE, as a clocked one would.  After the
-        cycle's signals, so the /proc read of a stale one never delays a tick; a live but
-        stalled one is looked up again only a watch interval later.
+        cycle's signals, so the /proc read of a stale one never delays a signal (it does
+        delay SIO, which runs below the clock on its CPU only once the clock sleeps); a live
+        but stalled one is looked up again only a watch interval later.
 
         Stalled counts from the clock's last overrun, not only from the heartbeat: when the
         whole machine stops (the host took both CPUs for 58 ms in a CI run), the clock stops
