@@ -8,12 +8,12 @@ tick.
     servo slots: demand, position and velocity in, then ``busy`` cleared so the SVs can
     claim them, then the tick they are fed for, then one post per SV on its feed semaphore
     (an SV passes over a post left from a tick it missed).
-    While the servos run, take each robot's feed-forward from the dynamics process's rows
-    (``feedforward.py``: interpolated like the demand; stale ones dropped).
-(c) Sleep until the SV finishing the last slot posts the done semaphore, acknowledge the
-    tick for each SV that took its feed (``_ack_gang``), add feed-forward, convert torques
-    to motor currents and DAC codes (the current check), drive the power switch and
-    retrigger the watchdog on each board.
+(c) Sleep at once until the SV finishing the last slot posts the done semaphore, so the SV
+    on SIO's CPU takes its feed before the servos are done; acknowledge the tick for each
+    SV that took its feed (``_ack_gang``); take each robot's feed-forward from the dynamics
+    process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped)
+    and add it, convert torques to motor currents and DAC codes (the current check), drive
+    the power switch and retrigger the watchdog on each board.
 
 Range, runaway (tracking error beyond ``safe``), a current demand beyond the motor's limit for
 ``current_fault_ms``, amplifiers dropping out, and servo slots not done within the serious
@@ -264,13 +264,14 @@ class ServoIO(Daemon):
         self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         for sem in self.feeds:
             sem.release()
-        for ff in self._ff:  # while the servos run: this tick's feed-forward (thesis 3.3.6)
-            ff.update(tick)
-        # (c) wait for the servos, then torques out
+        # (c) wait for the servos at once (the SV on this CPU takes its feed now, not after
+        # SIO's next work: see _ack_gang), then feed-forward and torques out
         if fed and not self._wait_done(tick, fed):
             self.fed_mask[:] = False
         else:
             self._ack_gang(tick)
+        for ff in self._ff:  # this tick's feed-forward (thesis 3.3.6)
+            ff.update(tick)
         np.copyto(self.servo_torque, self._slot_torque)
         np.copyto(self.fed_f, self.fed_mask)
         np.multiply(self.servo_torque, self.fed_f, out=self.servo_torque)
@@ -505,7 +506,11 @@ class ServoIO(Daemon):
         output.  On a tick SIO finishes just in time, the clock would count that SV late
         though its servos were long done (three such misses in a 30-minute soak, SIO on
         time in each).  An SV that has not taken its feed is not acknowledged: a stalled
-        or dead one still misses, and the clock names it.  Real time only (``_gang``)."""
+        or dead one still misses, and the clock names it.  So SIO sleeps on the done
+        semaphore right after the feeds: the SV on its CPU, next below it, takes its feed
+        then.  (Computing feed-forward first, sv.1 on the other CPU ran every servo while
+        sv.0 waited, and sv.0, never fed in time, missed alone in two soaks with SIO on
+        time.)  Real time only (``_gang``)."""
         fed, sig, ack = self._sv_fed_tick, self._sig, self._ack
         for k, slot in self._gang:
             if fed[k] == tick and sig[slot] == tick:
