@@ -334,6 +334,35 @@ def test_an_sv_whose_servos_are_done_is_acknowledged_before_sio_writes_the_dacs(
         del ack
 
 
+def test_sio_acknowledges_its_tick_once_the_boards_are_written(kali: Callable[..., str]) -> None:
+    """In real time SIO acknowledges a tick as soon as the DACs and the watchdog are
+    written: publishing the robots' state, the driver's counters, its statistics and the
+    flight recorder's row is bookkeeping the clock need not wait for (a slowed CPU made
+    that tail decide misses in the soak).  A reader on the other CPU sees the
+    acknowledgement ahead of the published tick, which the old order never showed."""
+    name = kali(lockstep=False)
+    mask = os.sched_getaffinity(0)
+    with powered_in_real_time(name) as (inst, client):
+        os.sched_setaffinity(0, {1})  # beside SIO, not below it on its CPU
+        try:
+            ack, published = inst.procs["ack_tick"], client.level.robots["tick"]
+            sio = inst.slot_of("sio")
+            reads = ahead = 0
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                for _ in range(1000):
+                    a = int(ack[sio])
+                    if int(published[0]) < a:
+                        ahead += 1
+                reads += 1000
+        finally:
+            os.sched_setaffinity(0, mask)
+        assert inst.fault_text() is None
+        assert ahead > 0, f"SIO's acknowledgement never ahead of its publication ({reads} reads)"
+        assert ahead < reads // 10, f"ahead in {ahead} of {reads} reads: bookkeeping that long?"
+        del ack, published
+
+
 def test_a_power_halt_after_a_stall_says_how_long_sio_was_away(kali: Callable[..., str]) -> None:
     """Every Kali process but the plant stopped for 40 ms, as the host does to a VM: the
     boards' watchdog cuts the arms, and the POWER fault says SIO last retriggered it about
