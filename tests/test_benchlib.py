@@ -23,6 +23,7 @@ from benchlib import (
     stalls_before,
     unexplained_misses,
 )
+from soak import SIO_BEFORE, sio_story
 
 SPIKES = """\
 # some header cyclictest may print
@@ -159,3 +160,17 @@ def test_cyclictest_logs_its_spikes_in_clock_monotonic(tmp_path: Path) -> None:
     stalls = parse_spikes(out, 1000)
     assert len(stalls) > 100, out[-500:]
     assert all(t0 <= end <= t1 for _, end in stalls)
+
+
+def test_the_soak_tells_sio_s_own_work_from_the_servos_around_a_miss() -> None:
+    """Each own miss's line gives SIO's ticks around it from the flight recorder: how late
+    it woke, how long it took, and how much of that it slept for the servos; a tick it did
+    not serve is absent from the ring and says so."""
+    rows = [(98, 81, 235, 90), (99, 278, 941, 120), (101, 79, 289, 95)]
+    line = sio_story(100, rows)
+    assert SIO_BEFORE == 2
+    assert line == (
+        "SIO (µs late, µs read to write, of which asleep for the servos): "
+        "N-2 woke 81 took 235 (servos 90); N-1 woke 278 took 941 (servos 120); "
+        "N not served; N+1 woke 79 took 289 (servos 95)"
+    )

@@ -265,6 +265,7 @@ class ServoIO(Daemon):
         np.copyto(self.busy_src, 0, where=self.fed_mask)
         np.copyto(self._slot_busy, self.busy_src)  # the SVs may claim now
         self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
+        t_fed = rt.monotonic_ns()
         for sem in self.feeds:
             sem.release()
         # (c) wait for the servos at once (the SV on this CPU takes its feed now, not after
@@ -273,6 +274,7 @@ class ServoIO(Daemon):
             self.fed_mask[:] = False
         else:
             self._ack_gang(tick)
+        t_done = rt.monotonic_ns()
         for ff in self._ff:  # this tick's feed-forward (thesis 3.3.6)
             ff.update(tick)
         np.copyto(self.servo_torque, self._slot_torque)
@@ -301,7 +303,7 @@ class ServoIO(Daemon):
         if late > self._lat_max:
             self._lat_max[...] = late
         self._hist[layout.lateness_bin(late)] += 1
-        self.flight.record(tick, t_read, late)  # the flight recorder's row (DESIGN 7)
+        self.flight.record(tick, t_read, late, t_done - t_fed)  # its row (DESIGN 7)
 
     def _robot(self, k: int, tick: int, faulted: bool) -> None:
         """Power switch, pots and this tick's demand of robot ``k``."""
