@@ -76,6 +76,7 @@ class Daemon:
         self.period_ticks = 1
         self.serious = False
         self.stage = 0
+        self._ack_early: np.ndarray | None = None  # acknowledge's view (real time only)
 
     # ------------------------------------------------------------------ hooks
 
@@ -99,6 +100,14 @@ class Daemon:
         """Outside the cycle: the daemon failed with ``exc`` (the fault is already raised)."""
 
     # ------------------------------------------------------------------ driver
+
+    def acknowledge(self, tick: int) -> None:
+        """Inside the cycle: tell the clock, in real time, that the work ``tick``'s deadline
+        is about is done, so what follows in the cycle is bookkeeping it need not wait for
+        (SIO, once the boards are written).  The loop acknowledges again at the end; in
+        lockstep only that counts, since the next stage reads what the cycle publishes."""
+        if self._ack_early is not None:
+            self._ack_early[0] = tick
 
     def leave(self) -> None:
         """Ask the loop to end after the current cycle (signal handlers, ``release``)."""
@@ -173,6 +182,8 @@ class Daemon:
         p["stage"] = self.stage
         p["signal_tick"] = -1
         p["ack_tick"] = -1
+        if not self.inst.lockstep:
+            self._ack_early = self.inst.procs["ack_tick"][self.slot : self.slot + 1]
         clocked = self.inst.lockstep or not self.self_timed_in_realtime
         p["periodic"] = int(clocked and self.kind != "wallclock")
 

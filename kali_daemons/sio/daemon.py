@@ -144,9 +144,6 @@ class ServoIO(Daemon):
         # lockstep has no deadlines, and its clock counts one acknowledgement post per
         # process: there every SV acknowledges for itself
         self._gang = [] if inst.lockstep else list(enumerate(self.sv_slots))
-        # real time: SIO acknowledges its tick once the boards are written (cycle, (c));
-        # in lockstep the next stage reads what it publishes after, so only at the end
-        self._own_ack = None if inst.lockstep else self._ack[self.slot : self.slot + 1]
         # private, preallocated arrays: flat over all joints (robot k joint j at 6 k + j)
         self.q = np.zeros(n)
         self.q_prev = np.zeros(n)
@@ -292,8 +289,7 @@ class ServoIO(Daemon):
         hold = self.retrigger_ticks
         if retrigger_bit(self.servo_ticks - 1, hold) and not retrigger_bit(self.servo_ticks, hold):
             self.retrigger_tick = int(self._clock["tick"])  # a falling edge: a retrigger
-        if self._own_ack is not None:  # the tick's I/O is done: what follows is bookkeeping
-            self._own_ack[0] = tick
+        self.acknowledge(tick)  # the tick's I/O is done: what follows is bookkeeping
         for dst, src in self._pub:
             np.copyto(dst, src)
         self.driver.store(*self._driver_state)
