@@ -86,6 +86,7 @@ class FlightRecorder:
         r = self.ring
         self._tick, self._t = r["tick"], r["t_ns"]
         self._lat, self._late, self._wait = r["latency_ns"], r["late_ns"], r["wait_ns"]
+        self._ran = r["ran_ns"]
         self._dst = tuple(r[f] for f in layout.FLIGHT_FIELDS)
         self._src: tuple[np.ndarray, ...] = ()
         self._release = (
@@ -111,10 +112,13 @@ class FlightRecorder:
                 )
         self._src = src
 
-    def record(self, tick: int, t_read_ns: int, latency_ns: int, wait_ns: int) -> None:
+    def record(self, tick: int, t_read_ns: int, latency_ns: int, wait_ns: int, ran_ns: int) -> None:
         """Inside the cycle (no allocation, no I/O, no logging): one servo tick's row.
         ``wait_ns`` is the part of ``latency_ns`` SIO slept for the servos (the SVs' share,
-        on every CPU), so a slow tick tells whether SIO or the servos were slow.
+        on every CPU), so a slow tick tells whether SIO or the servos were slow; ``ran_ns``
+        the CPU time SIO's thread had meanwhile (``rt.thread_time_ns``), so SIO's own share
+        (latency - wait) tells its work from the time its CPU did something else: the
+        clock above it, interrupts, or the host taking the vCPU.
 
         The row count is published last, so a reader copying the ring knows which rows may
         be torn (``read_ring``).
@@ -126,6 +130,7 @@ class FlightRecorder:
         self._lat[r] = latency_ns
         self._late[r] = t_read_ns - self._release[0]
         self._wait[r] = wait_ns
+        self._ran[r] = ran_ns
         q, demand, servo, ff, torque, current = self._dst
         sq, sdemand, sservo, sff, storque, scurrent = self._src
         q[r] = sq
@@ -308,7 +313,7 @@ def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Pa
             2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G)), (nr, 1)
         ),
     }
-    for f in ("tick", "t_ns", "latency_ns", "late_ns", "wait_ns"):
+    for f in ("tick", "t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"):
         arrays[f] = np.ascontiguousarray(data[f])
     for f in layout.FLIGHT_FIELDS:
         arrays[f] = np.ascontiguousarray(data[f]).reshape(len(data), nr, 6)
@@ -397,12 +402,14 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
     lat_us = d["latency_ns"] / 1e3
     late_us = d["late_ns"] / 1e3
     wait_us = d["wait_ns"] / 1e3 if "wait_ns" in d else np.full(len(ticks), np.nan)
+    ran_us = d["ran_ns"] / 1e3 if "ran_ns" in d else np.full(len(ticks), np.nan)
     lines += [
         f"covers ticks {int(ticks[0])}..{int(ticks[-1])}: {len(ticks)} servo ticks, "
         f"{len(ticks) * period_ms / 1000:.3f} s at {period_ms:g} ms",
         f"SIO sensor-to-DAC p50 {np.median(lat_us):.0f} µs, max {lat_us.max():.0f} µs "
         f"(asleep for the servos p50 {np.median(wait_us):.0f} µs, max {wait_us.max():.0f} "
-        f"µs); wake-up lateness p50 {np.median(late_us):.0f} µs, max {late_us.max():.0f} µs",
+        f"µs; SIO's own CPU time p50 {np.median(ran_us):.0f} µs, max {ran_us.max():.0f} µs); "
+        f"wake-up lateness p50 {np.median(late_us):.0f} µs, max {late_us.max():.0f} µs",
     ]
     err = (d["demand"] - d["q"]) / d["rad_per_count"]  # (ticks, robots, 6) encoder counts
     torque, current = d["torque"], d["current"]
@@ -434,7 +441,7 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
         "tracking error (counts), torque (N·m), current (A)"
     )
     lines.append(
-        f"  {'tick':>9} {'late µs':>7} {'lat µs':>6} {'servos':>6}  "
+        f"  {'tick':>9} {'late µs':>7} {'lat µs':>6} {'servos':>6} {'ran':>5}  "
         + "  ".join(f"{name:<30}" for name in names).rstrip()
     )
     for row in shown:
@@ -447,8 +454,7 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
         tick = int(ticks[row])
         mark = "  <- fault" if tick == fault_tick else ("  (after)" if tick > fault_tick else "")
         lines.append(
-            f"  {tick:>9} {late_us[row]:>7.0f} {lat_us[row]:>6.0f} {wait_us[row]:>6.0f}  "
-            + "  ".join(cells)
-            + mark
+            f"  {tick:>9} {late_us[row]:>7.0f} {lat_us[row]:>6.0f} {wait_us[row]:>6.0f} "
+            f"{ran_us[row]:>5.0f}  " + "  ".join(cells) + mark
         )
     return lines

@@ -466,9 +466,10 @@ class SioTail:
     """SIO's timing around every serious miss, from the flight recorder's ring, read as the
     misses come (the ring holds FLIGHT_SECONDS, the loop polls every POLL_S): the ticks
     ``SIO_BEFORE`` before the missed one to the one after, each as (tick, how late SIO woke,
-    how long it took from reading the board to writing it, and how much of that it slept
-    for the servos), in µs.  A miss of Kali's own is then told apart: SIO woke late (its CPU
-    was busy or gone), or its tick ran long, in its own work or in the servos'.
+    how long it took from reading the board to writing it, how much of that it slept for the
+    servos, and the CPU time it had), in µs.  A miss of Kali's own is then told apart: SIO
+    woke late (its CPU was busy or gone), or its tick ran long, in the servos' work, in its
+    own, or in neither (its own share far above its CPU time: the CPU did something else).
     """
 
     def __init__(self, inst: Instance, tail: MissTail, serious: set[str]) -> None:
@@ -479,7 +480,7 @@ class SioTail:
         self.tail = tail
         self.serious = serious
         self.read = len(tail.rows)
-        self.ticks: dict[int, list[tuple[int, int, int, int]]] = {}
+        self.ticks: dict[int, list[tuple[int, int, int, int, int]]] = {}
 
     def poll(self) -> None:
         """Copy the ring's rows around the ticks of the serious misses logged since."""
@@ -497,24 +498,27 @@ class SioTail:
                     int(r["late_ns"]) // 1000,
                     int(r["latency_ns"]) // 1000,
                     int(r["wait_ns"]) // 1000,
+                    int(r["ran_ns"]) // 1000,
                 )
                 for r in near
             ]
 
 
-def sio_story(tick: int, rows: list[tuple[int, int, int, int]]) -> str:
+def sio_story(tick: int, rows: list[tuple[int, int, int, int, int]]) -> str:
     """SIO's ticks around a missed ``tick`` as one line: ``N-1 woke 40 took 280 (servos
-    90)`` ...; a tick SIO did not serve (it missed it) is absent from the ring, and says so."""
-    served = {t: (late, took, wait) for t, late, took, wait in rows}
+    90, ran 150)`` ...; a tick SIO did not serve (it missed it) is absent from the ring, and
+    says so."""
+    served = {t: (late, took, wait, ran) for t, late, took, wait, ran in rows}
     parts = []
     for t in range(tick - SIO_BEFORE, tick + 2):
         rel = "N" if t == tick else f"N{t - tick:+d}"
         if t in served:
-            late, took, wait = served[t]
-            parts.append(f"{rel} woke {late} took {took} (servos {wait})")
+            late, took, wait, ran = served[t]
+            parts.append(f"{rel} woke {late} took {took} (servos {wait}, ran {ran})")
         else:
             parts.append(f"{rel} not served")
-    return "SIO (µs late, µs read to write, of which asleep for the servos): " + "; ".join(parts)
+    head = "SIO (µs late, µs read to write, of which asleep for the servos, its CPU time): "
+    return head + "; ".join(parts)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1028,7 +1032,7 @@ def format_misses(r: SoakResult) -> list[str]:
             f"{m['consecutive']} in a row; lost inside it: {gone}"
         )
         if "sio" in m:  # a serious process's miss
-            rows: list[tuple[int, int, int, int]] = m["sio"]  # type: ignore[assignment]
+            rows: list[tuple[int, int, int, int, int]] = m["sio"]  # type: ignore[assignment]
             lines += wrap(f"    {sio_story(int(m['tick']), rows)}")
     if len(r.unexplained) > 20:
         lines.append(f"  ... and {len(r.unexplained) - 20} more (--json has them)")

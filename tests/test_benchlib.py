@@ -164,13 +164,13 @@ def test_cyclictest_logs_its_spikes_in_clock_monotonic(tmp_path: Path) -> None:
 
 def test_the_soak_tells_sio_s_own_work_from_the_servos_around_a_miss() -> None:
     """Each own miss's line gives SIO's ticks around it from the flight recorder: how late
-    it woke, how long it took, and how much of that it slept for the servos; a tick it did
-    not serve is absent from the ring and says so."""
-    rows = [(98, 81, 235, 90), (99, 278, 941, 120), (101, 79, 289, 95)]
+    it woke, how long it took, how much of that it slept for the servos and how much CPU
+    time it had; a tick it did not serve is absent from the ring and says so."""
+    rows = [(98, 81, 235, 90, 140), (99, 278, 941, 120, 150), (101, 79, 289, 95, 190)]
     line = sio_story(100, rows)
     assert SIO_BEFORE == 2
     assert line == (
-        "SIO (µs late, µs read to write, of which asleep for the servos): "
-        "N-2 woke 81 took 235 (servos 90); N-1 woke 278 took 941 (servos 120); "
-        "N not served; N+1 woke 79 took 289 (servos 95)"
+        "SIO (µs late, µs read to write, of which asleep for the servos, its CPU time): "
+        "N-2 woke 81 took 235 (servos 90, ran 140); N-1 woke 278 took 941 (servos 120, "
+        "ran 150); N not served; N+1 woke 79 took 289 (servos 95, ran 190)"
     )

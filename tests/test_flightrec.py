@@ -54,7 +54,7 @@ def write(rec: flightrec.FlightRecorder, src: list[np.ndarray], ticks: range) ->
     for t in ticks:
         for k, a in enumerate(src):
             a[:] = t + k / 10
-        rec.record(t, 1_000 * t, 7, 3)
+        rec.record(t, 1_000 * t, 7, 3, 2)
 
 
 @pytest.fixture
@@ -80,7 +80,7 @@ def test_the_ring_wraps_and_reads_back_oldest_first(arena: Arena) -> None:
     for k, f in enumerate(layout.FLIGHT_FIELDS):
         assert np.array_equal(data[f][:, 3], data["tick"] + k / 10), f
     assert (data["t_ns"] == 1_000 * data["tick"]).all() and (data["latency_ns"] == 7).all()
-    assert (data["wait_ns"] == 3).all()
+    assert (data["wait_ns"] == 3).all() and (data["ran_ns"] == 2).all()
     # a writer that may be inside a row: the row it may be overwriting is left out
     assert len(flightrec.read_ring(rec.header, rec.ring)) == ROWS - 1
     # a restarted SIO attaches to the same ring and carries on counting
@@ -147,6 +147,8 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
             assert (np.diff(d["t_ns"]) > 0).all() and (d["latency_ns"] > 0).all()
             # both arms servoing: SIO slept for the servos every tick, within its latency
             assert (d["wait_ns"] > 0).all() and (d["wait_ns"] < d["latency_ns"]).all()
+            # SIO's CPU time: some every tick, less than the latency, which has its sleep
+            assert (d["ran_ns"] > 0).all() and (d["ran_ns"] < d["latency_ns"]).all()
             assert str(d["fault_code"]) == "RUNAWAY" and str(d["fault_process"]) == "sio"
             assert list(d["robots"]) == ["left", "right"] and d["q"].shape == (ROWS, 2, 6)
             # the last row is what SIO published in the robot records at that tick
@@ -170,6 +172,7 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
             assert f"covers ticks {ticks[0]}..{ticks[-1]}: {ROWS} servo ticks" in out.stdout
             assert f"{fault_tick} " in out.stdout and "<- fault" in out.stdout
             assert "(asleep for the servos p50 " in out.stdout and " servos " in out.stdout
+            assert "SIO's own CPU time p50 " in out.stdout and " ran " in out.stdout
             out = kalictl("-i", name, "status")
             assert f"flight recorder: last dump {path}" in out.stdout
 

@@ -229,6 +229,7 @@ class ServoIO(Daemon):
         """Inside the cycle: (a) sensors, (b) checks and feed, (c) torques out."""
         lv = self.level
         t_read = rt.monotonic_ns()
+        c_read = rt.thread_time_ns()
         faulted = bool(self._fault_active)
         count = int(self._fault_count)
         if count != self._faults_seen:  # a halt since the last tick, maybe already cleared:
@@ -283,6 +284,7 @@ class ServoIO(Daemon):
         np.multiply(self.torque, self.fed_f, out=self.torque)
         self._current_check(tick)
         t_out = rt.monotonic_ns()
+        c_out = rt.thread_time_ns()
         self.servo_ticks += 1
         for k in range(lv.n_robots):
             self._write_csr(k)
@@ -299,7 +301,7 @@ class ServoIO(Daemon):
         if late > self._lat_max:
             self._lat_max[...] = late
         self._hist[layout.lateness_bin(late)] += 1
-        self.flight.record(tick, t_read, late, t_done - t_fed)  # its row (DESIGN 7)
+        self.flight.record(tick, t_read, late, t_done - t_fed, c_out - c_read)  # DESIGN 7
 
     def _robot(self, k: int, tick: int, faulted: bool) -> None:
         """Power switch, pots and this tick's demand of robot ``k``."""
