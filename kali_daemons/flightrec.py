@@ -116,9 +116,11 @@ class FlightRecorder:
         """Inside the cycle (no allocation, no I/O, no logging): one servo tick's row.
         ``wait_ns`` is the part of ``latency_ns`` SIO slept for the servos (the SVs' share,
         on every CPU), so a slow tick tells whether SIO or the servos were slow; ``ran_ns``
-        the CPU time SIO's thread had meanwhile (``rt.thread_time_ns``), so SIO's own share
-        (latency - wait) tells its work from the time its CPU did something else: the
-        clock above it, interrupts, or the host taking the vCPU.
+        the CPU time SIO's thread had from the read to the write (``rt.thread_time_ns``: its
+        work, with posting the feeds and waking inside the wait, p50 ~90 µs).  A tick whose
+        own share (latency - wait) is far above it lost the difference to something else on
+        its CPU: the clock above it, interrupts, or the host taking the vCPU (a pause the
+        host does not report as steal still counts as run time).
 
         The row count is published last, so a reader copying the ring knows which rows may
         be torn (``read_ring``).

@@ -766,7 +766,7 @@ def flight_row(n_joints: int) -> np.dtype:
             ("latency_ns", "<i8"),  # encoder read to DAC write (SERVO_CTRL latency)
             ("late_ns", "<i8"),  # SIO's wake-up lateness: encoder read − the tick's due time
             ("wait_ns", "<i8"),  # of latency_ns, SIO asleep for the servos: feeds to done
-            ("ran_ns", "<i8"),  # of latency_ns, SIO's own CPU time (rt.thread_time_ns)
+            ("ran_ns", "<i8"),  # SIO's CPU time from the read to the write (rt.thread_time_ns)
             ("q", "<f8", n),  # measured joint angles, rad
             ("demand", "<f8", n),  # interpolated set-points, rad
             ("servo_torque", "<f8", n),  # what the servos asked for, N·m

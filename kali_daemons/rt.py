@@ -34,8 +34,8 @@ _clock_nanosleep.restype = ctypes.c_int
 
 monotonic_ns = time.monotonic_ns  # CLOCK_MONOTONIC: one time base for every Kali process
 # CLOCK_THREAD_CPUTIME_ID: the CPU time the calling thread has had.  The kernel leaves out
-# time spent in interrupts and the time the host took the vCPU (steal), so a cycle whose wall
-# time far exceeds it, with nothing else scheduled, lost the CPU from under it.
+# time spent in interrupts and the time the host says it took the vCPU (steal), so a cycle
+# whose wall time far exceeds it, with nothing else scheduled, lost the CPU from under it.
 thread_time_ns = time.thread_time_ns
 
 
