@@ -401,10 +401,14 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
     lines[0] += str(d["fault_message"])
     if len(ticks) == 0:
         return [*lines, "the ring is empty: SIO had not run a tick"]
-    lat_us = d["latency_ns"] / 1e3
-    late_us = d["late_ns"] / 1e3
-    wait_us = d["wait_ns"] / 1e3 if "wait_ns" in d else np.full(len(ticks), np.nan)
-    ran_us = d["ran_ns"] / 1e3 if "ran_ns" in d else np.full(len(ticks), np.nan)
+
+    def us(field: str) -> np.ndarray:
+        """A timing field in µs; NaN for a field older dumps do not have."""
+        return d[field] / 1e3 if field in d else np.full(len(ticks), np.nan)
+
+    lat_us, late_us, wait_us, ran_us = (
+        us(f) for f in ("latency_ns", "late_ns", "wait_ns", "ran_ns")
+    )
     lines += [
         f"covers ticks {int(ticks[0])}..{int(ticks[-1])}: {len(ticks)} servo ticks, "
         f"{len(ticks) * period_ms / 1000:.3f} s at {period_ms:g} ms",

@@ -462,6 +462,12 @@ def kalictl_path() -> str:
 # SIO's side of a miss
 
 
+# a flight-recorder row as the soak keeps it: tick, then µs late, read to write, asleep for
+# the servos, SIO's CPU time (the ring's fields below, in that order)
+SioRow = tuple[int, int, int, int, int]
+SIO_ROW_FIELDS = ("late_ns", "latency_ns", "wait_ns", "ran_ns")
+
+
 class SioTail:
     """SIO's timing around every serious miss, from the flight recorder's ring, read as the
     misses come (the ring holds FLIGHT_SECONDS, the loop polls every POLL_S): the ticks
@@ -480,7 +486,7 @@ class SioTail:
         self.tail = tail
         self.serious = serious
         self.read = len(tail.rows)
-        self.ticks: dict[int, list[tuple[int, int, int, int, int]]] = {}
+        self.ticks: dict[int, list[SioRow]] = {}
 
     def poll(self) -> None:
         """Copy the ring's rows around the ticks of the serious misses logged since."""
@@ -493,18 +499,12 @@ class SioTail:
         for tick in ticks - self.ticks.keys():
             near = data[(data["tick"] >= tick - SIO_BEFORE) & (data["tick"] <= tick + 1)]
             self.ticks[tick] = [
-                (
-                    int(r["tick"]),
-                    int(r["late_ns"]) // 1000,
-                    int(r["latency_ns"]) // 1000,
-                    int(r["wait_ns"]) // 1000,
-                    int(r["ran_ns"]) // 1000,
-                )
+                (int(r["tick"]), *(int(r[f]) // 1000 for f in SIO_ROW_FIELDS))  # type: ignore[misc]
                 for r in near
             ]
 
 
-def sio_story(tick: int, rows: list[tuple[int, int, int, int, int]]) -> str:
+def sio_story(tick: int, rows: list[SioRow]) -> str:
     """SIO's ticks around a missed ``tick`` as one line: ``N-1 woke 40 took 280 (servos
     90, ran 150)`` ...; a tick SIO did not serve (it missed it) is absent from the ring, and
     says so."""
@@ -1032,7 +1032,7 @@ def format_misses(r: SoakResult) -> list[str]:
             f"{m['consecutive']} in a row; lost inside it: {gone}"
         )
         if "sio" in m:  # a serious process's miss
-            rows: list[tuple[int, int, int, int, int]] = m["sio"]  # type: ignore[assignment]
+            rows: list[SioRow] = m["sio"]  # type: ignore[assignment]
             lines += wrap(f"    {sio_story(int(m['tick']), rows)}")
     if len(r.unexplained) > 20:
         lines.append(f"  ... and {len(r.unexplained) - 20} more (--json has them)")

@@ -513,10 +513,11 @@ class ServoIO(Daemon):
         time in each).  An SV that has not taken its feed is not acknowledged: a stalled
         or dead one still misses, and the clock names it.  So SIO sleeps on the done
         semaphore right after the feeds: the SV on its CPU, next below it, normally takes
-        its feed then (soaks still show it missing alone now and then, cause not yet
-        found).  (Computing feed-forward first, sv.1 on the other CPU ran every servo while
-        sv.0 waited, and sv.0, never fed in time, missed alone in two soaks with SIO on
-        time.)  Real time only (``_gang``)."""
+        its feed then.  Not when SIO's vCPU pauses right after waking sv.1 on the other CPU
+        (an IPI; config/default.yaml gives the kernel trace) and sv.1 meanwhile runs every
+        servo: the likely cause of the soaks' sv.0-only misses.  (Computing feed-forward
+        first, sv.1 on the other CPU ran every servo while sv.0 waited, and sv.0, never fed
+        in time, missed alone in two soaks with SIO on time.)  Real time only (``_gang``)."""
         fed, sig, ack = self._sv_fed_tick, self._sig, self._ack
         for k, slot in self._gang:
             if fed[k] == tick and sig[slot] == tick:
