@@ -37,6 +37,7 @@ ROBOT_MODELS = ("puma560",)
 MAX_SV_WORKERS = 8
 MAX_ROBOTS = 4
 MAX_STAGE = 15
+MAX_POLL_US = 500  # an SV's poll for its signal and feed (processes.sv.poll_us)
 MAX_PRIORITY = 99
 MAX_PERIOD_MS = 60_000  # one minute; anything longer is a typo, not a control period
 MIN_BASE_TICK_MS = 0.1  # 10 kHz; the wall clock cannot keep a shorter tick
@@ -65,7 +66,7 @@ _PROCESS_KEYS = {
     "plant": ("cpu", "priority", "period_ms", "serious", "stage"),
     "tg": ("cpu", "priority", "serious", "stage"),
     "sio": ("cpu", "priority", "serious", "stage"),
-    "sv": ("count", "cpus", "priority", "serious", "stage"),
+    "sv": ("count", "cpus", "priority", "serious", "stage", "poll_us"),
     "dynamics": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
     "viewer": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
 }
@@ -123,7 +124,14 @@ _DEFAULT_PROCESSES: dict[str, dict[str, Any]] = {
     "plant": {"cpu": 1, "priority": 83, "period_ms": 1, "serious": True, "stage": 0},
     "tg": {"cpu": 1, "priority": 80, "serious": True, "stage": 1},
     "sio": {"cpu": 0, "priority": 85, "serious": True, "stage": 2},
-    "sv": {"count": 2, "cpus": [0, 1], "priority": 84, "serious": True, "stage": 2},
+    "sv": {
+        "count": 2,
+        "cpus": [0, 1],
+        "priority": 84,
+        "serious": True,
+        "stage": 2,
+        "poll_us": 200,
+    },
     "dynamics": {"cpu": 1, "priority": 40, "period_ms": 10, "serious": False, "stage": 3},
     "viewer": {"cpu": 1, "priority": 0, "period_ms": 40, "serious": False, "stage": 4},
 }
@@ -168,6 +176,10 @@ class ProcessConfig:
     period_ms: float  # a whole number of base ticks; an int when whole ms
     serious: bool
     stage: int
+    # sv only: a worker bound to another CPU than SIO's wakes on its own timer at each due
+    # tick and polls this long for the clock's signal, then for SIO's feed, before it sleeps
+    # on them (``Daemon.poll_ns``); 0: it always sleeps
+    poll_us: int = 0
 
 
 @dataclass(frozen=True)
@@ -825,11 +837,14 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
     else:
         period = _default_period(kind, clock)
 
-    def make(name: str, cpu: int | None) -> ProcessConfig:
-        return ProcessConfig(name, kind, cpu, priority, period, serious, stage)
+    def make(name: str, cpu: int | None, poll_us: int = 0) -> ProcessConfig:
+        return ProcessConfig(name, kind, cpu, priority, period, serious, stage, poll_us)
 
     if kind != "sv":
         return [make(kind, _cpu(m.get("cpu"), f"{path}.cpu"))]
+    poll = _int(
+        m.get("poll_us", _DEFAULT_PROCESSES["sv"]["poll_us"]), f"{path}.poll_us", 0, MAX_POLL_US
+    )
     count = _int(m.get("count", 2), f"{path}.count", 1, MAX_SV_WORKERS)
     if "cpus" in m:
         cpus_node = m["cpus"]
@@ -846,7 +861,7 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
         cpus = [_cpu(c, f"{path}.cpus[{i}]") for i, c in enumerate(cpus_node)]
     else:
         cpus = [None] * count
-    return [make(f"sv.{i}", cpu) for i, cpu in enumerate(cpus)]
+    return [make(f"sv.{i}", cpu, poll) for i, cpu in enumerate(cpus)]
 
 
 def _robots(node: Any) -> tuple[RobotConfig, ...]:

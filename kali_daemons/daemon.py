@@ -77,6 +77,10 @@ class Daemon:
         self.serious = False
         self.stage = 0
         self._ack_early: np.ndarray | None = None  # acknowledge's view (real time only)
+        # real time: wake on this CPU's own timer at each due tick and poll this long for the
+        # clock's signal before sleeping on it, so the signal wakes no halted vCPU (an SV on
+        # the other CPU, ``processes.sv.poll_us``); 0: sleep on the semaphore
+        self.poll_ns = 0
 
     # ------------------------------------------------------------------ hooks
 
@@ -226,7 +230,14 @@ class Daemon:
             self._self_timed_loop()
 
     def _clock_driven_loop(self) -> None:
-        """Wait on this slot's semaphore; the wall clock posts it at each due tick."""
+        """Wait on this slot's semaphore; the wall clock posts it at each due tick.
+
+        With ``poll_ns`` (real time), while the clock keeps signalling, sleep instead on this
+        CPU's own timer to the next due tick (the one after the last signal's ``release_ns``)
+        and poll for the post there, then take it: the clock's post finds no waiter and
+        wakes nobody across vCPUs.  A signal later than the poll, or none (the clock stopped,
+        the gang sat the tick out), is waited for as without it.
+        """
         inst, i = self.inst, self.slot
         procs, header = inst.procs, inst.arena.header
         sig, rel, heart = procs["signal_tick"], procs["release_ns"], procs["heartbeat_ns"]
@@ -238,10 +249,22 @@ class Daemon:
         # 20 ms watchdog (which cuts the amplifiers anyway); looking costs nothing until then
         self._idle_wait_s = CLOCK_WATCH_S if self.serious and not inst.lockstep else IDLE_WAIT_S
         self._clock_tick, self._clock_waits = -1, 0  # _watch_clock's view of a standing clock
+        poll_ns = 0 if inst.lockstep else self.poll_ns
+        period_ns = self.period_ticks * int(inst.clock["base_tick_ns"])
+        sleeper = rt.AbsoluteSleeper()
+        signalled = False
         while not self._leave:
+            if poll_ns and signalled:
+                due = int(rel[i]) + period_ns
+                t = now()
+                if t < due:
+                    sleeper.until(due)
+                    t = due
+                rt.poll_semaphore(sem, t + poll_ns)
             try:
                 sem.acquire(self._idle_wait_s)
             except posix_ipc.BusyError:
+                signalled = False
                 heart[i] = now()
                 if header["shutdown"]:
                     break
@@ -250,6 +273,7 @@ class Daemon:
             except posix_ipc.SignalError:
                 continue
             woke = now()
+            signalled = True
             if header["shutdown"]:
                 break
             tick = int(sig[i])

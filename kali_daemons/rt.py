@@ -11,6 +11,10 @@ import ctypes
 import os
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import posix_ipc
 
 _libc = ctypes.CDLL(None, use_errno=True)
 _PR_SET_TIMERSLACK = 29
@@ -63,6 +67,21 @@ def spin_until(deadline_ns: int) -> None:
     """Busy-wait to ``deadline_ns`` (the last tens of µs before a tick, DESIGN 10 item 4)."""
     while monotonic_ns() < deadline_ns:
         pass
+
+
+def poll_semaphore(sem: posix_ipc.Semaphore, deadline_ns: int) -> bool:
+    """Busy-wait until ``sem`` is posted or ``deadline_ns`` passes; True if it was posted.
+
+    The value is read, never taken: the caller then takes the post with an ordinary wait,
+    which returns at once.  A process polling is no waiter, so the post wakes nobody: no
+    wake-up crosses vCPUs, and no IPI pauses the poster's vCPU (DESIGN 10 items 1-2;
+    ``config/default.yaml`` gives the kernel trace).  Bounded by the caller, as DESIGN 10
+    item 1 asks of every spin on these two cores.
+    """
+    while sem.value == 0:
+        if monotonic_ns() >= deadline_ns:
+            return False
+    return True
 
 
 @dataclass

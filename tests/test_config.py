@@ -69,8 +69,8 @@ EXPECTED_PROCESSES = (
     ProcessConfig("plant", "plant", 1, 83, 1, True, 0),
     ProcessConfig("tg", "tg", 1, 80, 10, True, 1),
     ProcessConfig("sio", "sio", 0, 85, 1, True, 2),
-    ProcessConfig("sv.0", "sv", 0, 84, 1, True, 2),
-    ProcessConfig("sv.1", "sv", 1, 84, 1, True, 2),
+    ProcessConfig("sv.0", "sv", 0, 84, 1, True, 2, 200),
+    ProcessConfig("sv.1", "sv", 1, 84, 1, True, 2, 200),
     ProcessConfig("dynamics", "dynamics", 1, 40, 10, False, 3),
     ProcessConfig("viewer", "viewer", 1, 0, 40, False, 4),
 )
@@ -309,6 +309,21 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "busy-wait-too-long",
         [("busy_wait_us: 0 ", "busy_wait_us: 501 ")],
         "clock.busy_wait_us = 501: must be an integer >= 0 and <= 500",
+    ),
+    (
+        "sv-poll-too-long",
+        [("poll_us: 200", "poll_us: 501")],
+        "processes.sv.poll_us = 501: must be an integer >= 0 and <= 500",
+    ),
+    (
+        "sv-poll-negative",
+        [("poll_us: 200", "poll_us: -1")],
+        "processes.sv.poll_us = -1: must be an integer >= 0 and <= 500",
+    ),
+    (
+        "poll-on-sio",
+        [("stage: 2}\n  # sv", "stage: 2, poll_us: 200}\n  # sv")],
+        "processes.sio.poll_us: unknown key",
     ),
     (
         "version-2",
@@ -582,6 +597,19 @@ def test_cpu_beyond_real_machine_names_cpu_count(monkeypatch: pytest.MonkeyPatch
     message = error_of(text)
     assert f"processes.sio.cpu = {ncpu}:" in message
     assert f"(this machine has {ncpu} CPUs)" in message
+
+
+def test_sv_poll_applies_to_every_worker_and_defaults_to_the_default_files() -> None:
+    """``processes.sv.poll_us`` is the SVs' alone; left out, it is the default file's."""
+
+    def polls(text: str) -> dict[str, int]:
+        return {p.name: p.poll_us for p in parse_config(text, SOURCE).processes if p.poll_us}
+
+    assert polls(DEFAULT_TEXT) == {"sv.0": 200, "sv.1": 200}
+    assert polls(edit((", poll_us: 200", ""))) == {"sv.0": 200, "sv.1": 200}
+    assert polls(edit(("poll_us: 200", "poll_us: 0"))) == {}
+    three = edit(("count: 2, cpus: [0, 1]", "count: 3, cpus: [0, 1, 1]"), ("_us: 200", "_us: 7"))
+    assert polls(three) == {"sv.0": 7, "sv.1": 7, "sv.2": 7}
 
 
 # --------------------------------------------------------------------------------------------

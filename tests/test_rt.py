@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import ctypes
 import os
+import threading
 from collections.abc import Callable
 
+import posix_ipc
 import pytest
 
 from kali_daemons import rt
@@ -77,3 +79,28 @@ def test_absolute_sleeper_never_returns_early() -> None:
     t = rt.monotonic_ns()
     sleeper.until(t - 1_000_000)  # a deadline in the past returns at once
     assert rt.monotonic_ns() - t < 50_000_000
+
+
+def test_poll_semaphore_sees_a_post_without_taking_it_and_gives_up_at_its_deadline() -> None:
+    """An SV polls its signal and feed so their posts wake nobody (``rt.poll_semaphore``):
+    a post already there is seen at once and left for the wait that takes it, a post
+    arriving mid-poll ends the poll, and with none the poll ends at its deadline."""
+    name = f"/kali-test-poll-{os.getpid()}"
+    sem = posix_ipc.Semaphore(name, posix_ipc.O_CREX, mode=0o600)
+    try:
+        t = rt.monotonic_ns()
+        assert not rt.poll_semaphore(sem, t + 2_000_000)
+        assert rt.monotonic_ns() - t >= 2_000_000  # the deadline, not earlier
+        sem.release()
+        assert rt.poll_semaphore(sem, rt.monotonic_ns() + 1_000_000_000)
+        assert sem.value == 1  # seen, not taken
+        sem.acquire(0)
+        poster = threading.Timer(0.02, sem.release)
+        poster.start()
+        t = rt.monotonic_ns()
+        assert rt.poll_semaphore(sem, t + 10_000_000_000)
+        assert 15_000_000 <= rt.monotonic_ns() - t < 5_000_000_000
+        poster.join()
+    finally:
+        sem.unlink()
+        sem.close()

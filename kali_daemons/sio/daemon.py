@@ -513,9 +513,10 @@ class ServoIO(Daemon):
         time in each).  An SV that has not taken its feed is not acknowledged: a stalled
         or dead one still misses, and the clock names it.  So SIO sleeps on the done
         semaphore right after the feeds: the SV on its CPU, next below it, normally takes
-        its feed then.  Not when SIO's vCPU pauses right after waking sv.1 on the other CPU
-        (an IPI; config/default.yaml gives the kernel trace) and sv.1 meanwhile runs every
-        servo: the likely cause of the soaks' sv.0-only misses.  (Computing feed-forward
+        its feed then.  Not when SIO's vCPU pauses right after feeding and sv.1 on the other
+        CPU meanwhile runs every servo: the likely cause of the soaks' sv.0-only misses
+        while SIO's feed woke sv.1 from halt (an IPI, which now and then paused the sender's
+        vCPU: config/default.yaml gives the kernel trace; sv.1 now polls).  (Computing feed-forward
         first, sv.1 on the other CPU ran every servo while sv.0 waited, and sv.0, never fed
         in time, missed alone in two soaks with SIO on time.)  Real time only (``_gang``)."""
         fed, sig, ack = self._sv_fed_tick, self._sig, self._ack

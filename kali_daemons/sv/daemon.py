@@ -1,8 +1,8 @@
 """Servo executor with dynamic loading (thesis 3.3.4, 3.3.5).
 
-Every SV is woken by the wall clock with SIO (the SVs are gang-scheduled: signalled with SIO
-or not at all, ``wallclock.clock.gang_state``), then sleeps on its feed semaphore until SIO
-has fed the slots of that tick.  It then walks the slots and claims each fed one
+Every SV is signalled by the wall clock with SIO (the SVs are gang-scheduled: signalled with
+SIO or not at all, ``wallclock.clock.gang_state``), then waits on its feed semaphore until
+SIO has fed the slots of that tick.  It then walks the slots and claims each fed one
 by test-and-set of its ``busy`` word; whichever SV is free takes the next joint, so a costly
 servo simply takes more of the workers.  For a claimed slot it carries out a pending mailbox
 operation (put/get/select/params, 3.4), runs the joint's algorithm and stores torque, error
@@ -11,9 +11,14 @@ SV notes the tick whose feed it took (``sv_fed_tick``): SIO acknowledges that ti
 as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU below
 SIO's priority, would wait behind SIO's output (``ServoIO._ack_gang``).
 
+An SV bound to another CPU than SIO's (sv.1 by default) is woken by neither post: in real time it
+sleeps on its own CPU's timer to the tick, then polls for the clock's signal and SIO's feed,
+at most ``processes.sv.poll_us`` each, so no post has to wake a halted vCPU (a kernel trace
+showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms: config/default.yaml).
+Every other wait sleeps (two cores: never spin a CPU without bound, DESIGN 10).
+
 A servo that raises, returns a bad status or a non-finite torque halts the system with a
-SERVO fault naming robot, joint and algorithm.  Waiting always sleeps (two cores: never spin
-a CPU without bound, DESIGN 10).
+SERVO fault naming robot, joint and algorithm.
 
 What clients write is checked where the SV reads it (DESIGN 7): the mailbox by ``apply_op``
 (a bad operation is refused with the reason, the servo runs on unchanged), and a slot's
@@ -91,6 +96,11 @@ class ServoWorker(Daemon):
             if lockstep
             else inst.config.clock.serious_miss_tolerance_ms / 1000.0
         )
+        me, sio = inst.config.process(self.name), inst.config.process("sio")
+        if not lockstep and me.cpu is not None and me.cpu != sio.cpu:
+            # poll at most half a servo period (a short servo period, a long poll_us)
+            period_ns = self.period_ticks * int(inst.clock["base_tick_ns"])
+            self.poll_ns = min(me.poll_us * 1000, period_ns // 2)
 
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
@@ -126,16 +136,26 @@ class ServoWorker(Daemon):
     def _await_feed(self, tick: int) -> bool:
         """Sleep until SIO has fed ``tick`` (or a later tick); False on the timeout.
 
+        An SV on another CPU than SIO's first polls the feed for ``poll_ns`` (it is awake
+        anyway, polling for the clock's signal since the tick: ``Daemon._clock_driven_loop``),
+        so SIO's post wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and
+        after now and then one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's
+        CPU time counting on: ``config/default.yaml`` gives the kernel trace.
+
         SIO posts every SV's feed semaphore each tick it runs, so a tick this SV missed
         leaves a post behind.  Taken as this tick's, it would find the previous tick's slots
         all claimed and return at once, leaving its share to the others while SIO is still
         feeding; so a post for an older tick than SIO's fed one is passed over.
         """
         wait_s = self.feed_timeout_s
-        end = rt.monotonic_ns() + int(wait_s * 1e9)
+        now = rt.monotonic_ns()
+        end, poll_end = now + int(wait_s * 1e9), now + self.poll_ns
+        feed = self.feed
         while True:
+            if self.poll_ns:
+                rt.poll_semaphore(feed, poll_end)
             try:
-                self.feed.acquire(wait_s)
+                feed.acquire(wait_s)
             except posix_ipc.BusyError:
                 return False
             fed = int(self._tick)
