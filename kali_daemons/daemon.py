@@ -105,6 +105,11 @@ class Daemon:
 
     # ------------------------------------------------------------------ driver
 
+    @property
+    def period_ns(self) -> int:
+        """This daemon's period in ns (whole base ticks); once configured, outside the cycle."""
+        return self.period_ticks * int(self.inst.clock["base_tick_ns"])
+
     def acknowledge(self, tick: int) -> None:
         """Inside the cycle: tell the clock, in real time, that the work ``tick``'s deadline
         is about is done, so what follows in the cycle is bookkeeping it need not wait for
@@ -250,7 +255,7 @@ class Daemon:
         self._idle_wait_s = CLOCK_WATCH_S if self.serious and not inst.lockstep else IDLE_WAIT_S
         self._clock_tick, self._clock_waits = -1, 0  # _watch_clock's view of a standing clock
         poll_ns = 0 if inst.lockstep else self.poll_ns
-        period_ns = self.period_ticks * int(inst.clock["base_tick_ns"])
+        period_ns = self.period_ns
         sleeper = rt.AbsoluteSleeper()
         signalled = False
         while not self._leave:
@@ -325,7 +330,7 @@ class Daemon:
         """Sleep to this daemon's own absolute deadlines (the plant in real-time mode)."""
         inst = self.inst
         header = inst.arena.header
-        period_ns = self.period_ticks * int(inst.clock["base_tick_ns"])
+        period_ns = self.period_ns
         sleeper = rt.AbsoluteSleeper()
         stats = _CycleStats(inst.procs, self.slot)
         now = rt.monotonic_ns

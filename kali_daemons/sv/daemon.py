@@ -99,8 +99,7 @@ class ServoWorker(Daemon):
         me, sio = inst.config.process(self.name), inst.config.process("sio")
         if not lockstep and me.cpu is not None and me.cpu != sio.cpu:
             # poll at most half a servo period (a short servo period, a long poll_us)
-            period_ns = self.period_ticks * int(inst.clock["base_tick_ns"])
-            self.poll_ns = min(me.poll_us * 1000, period_ns // 2)
+            self.poll_ns = min(me.poll_us * 1000, self.period_ns // 2)
 
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
