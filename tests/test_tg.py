@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -15,7 +16,7 @@ import pytest
 from kali_daemons import layout, puma560
 from kali_daemons.client import Kali, MotionFailedError
 from kali_daemons.layout import FaultCode, MotionKind, PowerState, RequestState
-from kali_daemons.tg.daemon import write_status
+from kali_daemons.tg.daemon import TrajectoryGenerator, write_status
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
 
@@ -201,3 +202,46 @@ def test_a_status_record_taken_over_never_shows_its_new_seq_with_the_old_state()
         sys.setswitchinterval(old)
     assert arrived[0] == 20_000
     assert not seen_early, f"{len(seen_early)} polls saw a seq DONE before it began"
+
+
+class _Waiting:
+    """The TG's start of waiting requests, with ``_start`` noting what it would start."""
+
+    _start_waiting = TrajectoryGenerator._start_waiting
+    _robots_of = TrajectoryGenerator._robots_of
+
+    def __init__(self, check_until: int) -> None:
+        self.n_robots = 2
+        self.motions: list[object] = []
+        self.waiting: list[tuple[int, np.void]] = []
+        self._check_until = check_until
+        self.started: list[int] = []
+
+    def _unpowered(self, robots: list[int]) -> str:
+        return ""
+
+    def _start(self, seq: int, req: np.void, robots: list[int]) -> None:
+        self.started.append(seq)
+
+    def wait(self, seq: int, kind: MotionKind, robot: int) -> None:
+        req = np.zeros((), dtype=layout.MOTION_REQUEST)
+        req["kind"], req["n_robots"], req["robots"][0] = kind, 1, robot
+        self.waiting.append((seq, req[()]))
+
+
+@pytest.mark.parametrize("share", ["left", "spent"])
+def test_a_path_is_planned_only_while_the_tick_s_check_share_lasts(share: str) -> None:
+    """Planning a Cartesian path costs as much CPU as a slice of checks (two planned in one
+    tick took the TG 19 ms on its shared CPU): once the tick's check share is spent a path
+    waits for the next tick, in order behind it the requests for its robots, while a joint
+    move of another robot starts."""
+    now = time.monotonic_ns()
+    tg = _Waiting(now + 10**9 if share == "left" else now - 1)
+    tg.wait(1, MotionKind.PATH, 0)
+    tg.wait(2, MotionKind.JOINTS, 0)  # behind the path: same robot
+    tg.wait(3, MotionKind.JOINTS, 1)
+    tg._start_waiting()
+    if share == "left":
+        assert tg.started == [1, 3] and [seq for seq, _ in tg.waiting] == [2]
+    else:
+        assert tg.started == [3] and [seq for seq, _ in tg.waiting] == [1, 2]
