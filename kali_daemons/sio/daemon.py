@@ -160,8 +160,19 @@ class ServoIO(Daemon):
         self.fed_f = np.zeros(n)
         self.busy_src = np.full(n, layout.SLOT_NOT_FED, dtype=np.uint32)
         self.over = np.zeros(n, dtype=np.int64)
-        self.err = np.zeros(n)
-        self.bad = np.zeros(n, dtype=bool)
+        # the checks' arrays, (robots, 6): every joint at once (_checks)
+        self._q2, self._demand2 = self.q.reshape(nr, 6), self.demand.reshape(nr, 6)
+        self._fed2 = self.fed_mask.reshape(nr, 6)
+        self._q_min2 = self.driver.q_min.reshape(nr, 6)
+        self._q_max2 = self.driver.q_max.reshape(nr, 6)
+        self._range_check = rs["range_check"]  # written by clients: nonzero = checked
+        self._safe = rs["safe"]  # written by clients (ServoClient.set_safe)
+        ok = np.asarray(self._safe, dtype=np.float64)  # SIO's own copy, only valid limits
+        self._safe_ok = np.where((ok > 0) & (ok <= math.pi), ok, DEFAULT_SAFE_RAD)
+        self._safe_in = np.zeros((nr, 6), dtype=bool)
+        self._beyond = np.zeros((nr, 6), dtype=bool)
+        self._over = np.zeros((nr, 6), dtype=bool)
+        self._err = np.zeros((nr, 6))
         self.ff = np.zeros(n)
         self._encoders = self.boards["encoder"]
         self._codes = self.dacs["code"]
@@ -389,39 +400,55 @@ class ServoIO(Daemon):
         r.message[...] = b"joint angles from the potentiometers (not calibrated)"
 
     def _checks(self, tick: int) -> bool:
-        """Joint range and runaway on powered joints; True when it halted."""
+        """Joint range and runaway on powered joints; True when it halted.
+
+        Every joint at once (a loop over the joints took ~30 µs of SIO's tick on this VM);
+        only a fault walks them, in ``_check_fault``.  The client-written limits count only
+        in (0, π] (NaN fails both): a garbage one leaves the last valid limit in force
+        (DESIGN 7)."""
+        q, fed, beyond, over = self._q2, self._fed2, self._beyond, self._over
+        np.less(q, self._q_min2, out=beyond)
+        np.greater(q, self._q_max2, out=over)
+        np.logical_or(beyond, over, out=beyond)
+        np.logical_and(beyond, self._range_check, out=beyond)
+        np.logical_and(beyond, fed, out=beyond)
+        safe, safe_in = self._safe, self._safe_in
+        np.greater(safe, 0.0, out=safe_in)
+        np.less_equal(safe, math.pi, out=over)
+        np.logical_and(safe_in, over, out=safe_in)
+        np.copyto(self._safe_ok, safe, where=safe_in)
+        np.subtract(self._demand2, q, out=self._err)
+        np.abs(self._err, out=self._err)
+        np.greater(self._err, self._safe_ok, out=over)
+        np.logical_and(over, fed, out=over)
+        if not (beyond.any() or over.any()):
+            return False
+        return self._check_fault(tick)
+
+    def _check_fault(self, tick: int) -> bool:
+        """Halt for the first robot at fault, its range before its runaway (outside the
+        common path: the tick halts)."""
         lv = self.level
+        q = self._q2
         for k in range(lv.n_robots):
-            r = self._r[k]
-            if not r.fed[0]:
-                continue
-            q = r.q
             for j in range(6):
-                if r.range_check[j] and not self._q_min[j] <= q[j] <= self._q_max[j]:
-                    limit = self._q_max[j] if q[j] > self._q_max[j] else self._q_min[j]
+                if self._beyond[k, j]:
+                    above = q[k, j] > self._q_max2[k, j]
+                    limit = self._q_max2[k, j] if above else self._q_min2[k, j]
                     return self._halt(
                         FaultCode.RANGE,
                         tick,
-                        f"robot '{lv.names[k]}' joint {j + 1} at {math.degrees(q[j]):.2f}° is "
-                        f"beyond its limit {math.degrees(limit):.2f}°",
+                        f"robot '{lv.names[k]}' joint {j + 1} at {math.degrees(q[k, j]):.2f}° "
+                        f"is beyond its limit {math.degrees(limit):.2f}°",
                     )
-            # the client-written limits, only those in (0, π] (NaN fails both): a garbage
-            # one leaves the last valid limit in force (DESIGN 7)
-            np.greater(r.safe, 0.0, out=r.safe_in)
-            np.less_equal(r.safe, math.pi, out=r.bad)
-            np.logical_and(r.safe_in, r.bad, out=r.safe_in)
-            np.copyto(r.safe_ok, r.safe, where=r.safe_in)
-            np.subtract(r.demand, q, out=r.err)
-            np.abs(r.err, out=r.err)
-            np.greater(r.err, r.safe_ok, out=r.bad)
-            if r.bad.any():
-                j = int(np.argmax(r.bad))
+            if self._over[k].any():
+                j = int(np.argmax(self._over[k]))
                 return self._halt(
                     FaultCode.RUNAWAY,
                     tick,
                     f"robot '{lv.names[k]}' joint {j + 1}: tracking error "
-                    f"{float(self.demand[6 * k + j] - q[j]):+.4f} rad beyond safe "
-                    f"{float(r.safe_ok[j]):.4f} rad (runaway)",
+                    f"{float(self._demand2[k, j] - q[k, j]):+.4f} rad beyond safe "
+                    f"{float(self._safe_ok[k, j]):.4f} rad (runaway)",
                 )
         return False
 
@@ -596,7 +623,6 @@ class _RobotViews:
     __slots__ = (
         "adc_analog",
         "adc_control",
-        "bad",
         "board_power",
         "calib_cmd",
         "calib_found",
@@ -608,7 +634,6 @@ class _RobotViews:
         "demand",
         "enable_ticks",
         "encoder",
-        "err",
         "fed",
         "index",
         "message",
@@ -616,10 +641,6 @@ class _RobotViews:
         "power",
         "power_cmd",
         "q",
-        "range_check",
-        "safe",
-        "safe_in",
-        "safe_ok",
         "slot_reset",
     )
 
@@ -641,14 +662,9 @@ class _RobotViews:
             "calibrated",
         ):
             setattr(self, field, one(robots, field))
-        self.safe = robots["safe"][k]  # written by clients (ServoClient.set_safe)
-        self.safe_in = np.zeros(6, dtype=bool)
-        ok = np.asarray(self.safe, dtype=np.float64)  # SIO's own copy, only valid limits
-        self.safe_ok = np.where((ok > 0) & (ok <= math.pi), ok, DEFAULT_SAFE_RAD)
         self.calib_shift = robots["calib_shift"][k]
         self.encoder = boards["encoder"][k]
         self.index = one(boards, "index")
-        self.range_check = robots["range_check"][k]
         self.board_power = one(boards, "power")
         self.csr = one(boards, "csr")
         self.adc_control = one(boards, "adc_control")
@@ -656,5 +672,5 @@ class _RobotViews:
         self.codes = sio.dacs["code"][k, :6]
         sl = slice(6 * k, 6 * k + 6)
         self.q, self.demand = sio.q[sl], sio.demand[sl]
-        self.err, self.bad, self.fed = sio.err[sl], sio.bad[sl], sio.fed_mask[sl]
+        self.fed = sio.fed_mask[sl]
         self.slot_reset = sio.level.slots["reset"][sl]
