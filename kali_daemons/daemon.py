@@ -82,6 +82,8 @@ class Daemon:
         # clock's signal before sleeping on it, so the signal wakes no halted vCPU (an SV on
         # the other CPU, ``processes.sv.poll_us``); 0: sleep on the semaphore
         self.poll_ns = 0
+        # polling: wake this long after the due tick (when its work can start: an SV's feed)
+        self.poll_after_ns = 0
 
     # ------------------------------------------------------------------ hooks
 
@@ -240,10 +242,10 @@ class Daemon:
         """Wait on this slot's semaphore; the wall clock posts it at each due tick.
 
         With ``poll_ns`` (real time), while the clock keeps signalling, sleep instead on this
-        CPU's own timer to the next due tick (the one after the last signal's ``release_ns``)
-        and poll for the post there, then take it: the clock's post finds no waiter and
-        wakes nobody across vCPUs.  A signal later than the poll, or none (the clock stopped,
-        the gang sat the tick out), is waited for as without it.
+        CPU's own timer to the next due tick (the one after the last signal's ``release_ns``),
+        or ``poll_after_ns`` after it, and poll for the post there, then take it: the clock's
+        post finds no waiter and wakes nobody across vCPUs.  A signal later than the poll, or
+        none (the clock stopped, the gang sat the tick out), is waited for as without it.
         """
         inst, i = self.inst, self.slot
         procs, header = inst.procs, inst.arena.header
@@ -261,8 +263,9 @@ class Daemon:
         sleeper = rt.AbsoluteSleeper()
         signalled = False
         while not self._leave:
+            after = self.poll_after_ns if poll_ns and signalled else 0
             if poll_ns and signalled:
-                due = int(rel[i]) + period_ns
+                due = int(rel[i]) + period_ns + after
                 t = now()
                 if t < due:
                     sleeper.until(due)
@@ -285,7 +288,8 @@ class Daemon:
                 break
             tick = int(sig[i])
             self.cycle(tick)
-            stats.record(tick, int(rel[i]), woke, now())
+            # lateness from when it meant to wake: the tick's release, or after it (polling)
+            stats.record(tick, int(rel[i]) + after, woke, now())
             if ack_sem is not None:
                 ack_sem.release()
 
