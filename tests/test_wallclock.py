@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from types import SimpleNamespace
 
 import numpy as np
@@ -364,6 +365,23 @@ def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -
         assert inst.fault_text() is None, f"{int(sio['misses']) - misses0} SIO misses"
 
 
+@contextmanager
+def on_time() -> Iterator[None]:
+    """This test process at SCHED_FIFO 95, above every Kali process, where permitted: a
+    stall it times must end when it says (as SCHED_OTHER it once woke ~17 ms late to send
+    SIGCONT, and the clock halted on a 21 ms stop meant to last at most 4)."""
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(95))
+    except PermissionError:
+        yield
+        return
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
+
+
 def test_svs_are_not_signalled_on_a_tick_sio_misses(kali: Callable[..., str]) -> None:
     """The SVs are gang-scheduled with SIO (thesis 3.3.4).  SIO is stalled (SIGSTOP) for a
     few ms, many times, at random phases: when it comes back it may acknowledge just after
@@ -378,15 +396,16 @@ def test_svs_are_not_signalled_on_a_tick_sio_misses(kali: Callable[..., str]) ->
         log = inst.misses
         seen = int(log["count"])
         misses: list[dict[str, object]] = []
-        for _ in range(120):
-            os.kill(pid, signal.SIGSTOP)
-            time.sleep(rng.uniform(0.0015, 0.004))
-            os.kill(pid, signal.SIGCONT)
-            time.sleep(rng.uniform(0.004, 0.010))
-            count = int(log["count"])
-            assert count - seen < layout.MISS_LOG_LEN, "the miss log wrapped before it was read"
-            misses += launcher.recent_misses(inst, count - seen)
-            seen = count
+        with on_time():
+            for _ in range(120):
+                os.kill(pid, signal.SIGSTOP)
+                time.sleep(rng.uniform(0.0015, 0.004))
+                os.kill(pid, signal.SIGCONT)
+                time.sleep(rng.uniform(0.004, 0.010))
+                count = int(log["count"])
+                assert count - seen < layout.MISS_LOG_LEN, "the miss log wrapped before read"
+                misses += launcher.recent_misses(inst, count - seen)
+                seen = count
         assert inst.fault_text() is None
         sio = {int(m["due_ns"]) for m in misses if m["process"] == "sio"}
         assert len(sio) >= 100, f"SIO missed only {len(sio)} ticks: the stalls did not bite"

@@ -12,8 +12,9 @@ as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU
 SIO's priority, would wait behind SIO's output (``ServoIO._ack_gang``).
 
 An SV bound to another CPU than SIO's (sv.1 by default) is woken by neither post: in real time it
-sleeps on its own CPU's timer to the tick, then polls for the clock's signal and SIO's feed,
-at most ``processes.sv.poll_us`` each, so no post has to wake a halted vCPU (a kernel trace
+sleeps on its own CPU's timer to shortly before SIO's feed is due (learnt over the last ticks,
+``_learn_feed``), then polls for the clock's signal and SIO's feed, at most
+``processes.sv.poll_us`` each, so no post has to wake a halted vCPU (a kernel trace
 showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms: config/default.yaml).
 Every other wait sleeps (two cores: never spin a CPU without bound, DESIGN 10).
 
@@ -143,8 +144,9 @@ class ServoWorker(Daemon):
         """Sleep until SIO has fed ``tick`` (or a later tick); False on the timeout.
 
         An SV on another CPU than SIO's first polls the feed for ``poll_ns`` (it is awake
-        anyway, polling for the clock's signal since the tick: ``Daemon._clock_driven_loop``),
-        so SIO's post wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and
+        anyway, having woken on its timer shortly before the feed is due and polled for the
+        clock's signal: ``Daemon._clock_driven_loop``, ``_learn_feed``), so SIO's post
+        wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and
         after now and then one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's
         CPU time counting on: ``config/default.yaml`` gives the kernel trace.
 
