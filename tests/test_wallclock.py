@@ -338,33 +338,6 @@ def test_a_self_timed_process_is_stalled_only_while_the_clock_ran(
     assert events == [("fault", FaultCode.DEADLINE)]
 
 
-def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -> None:
-    """Both SVs stalled together for a few ms, many times, at random phases: the servo level
-    rides it out, no halt, SIO runs on.  (The narrow race in which SIO acknowledges just
-    before a tick neither SV has, GANG_SVS_LATE, is too rare to provoke here: the test above
-    checks the decision, the soak the race; it once halted a soak with SIO waiting 18 ms for
-    slots no SV had been signalled to run.)"""
-    name = kali(lockstep=False)
-    rng = np.random.default_rng(11)
-    with Instance.attach(name) as inst:
-        pids = [int(inst.procs[inst.slot_of(n)]["pid"]) for n in ("sv.0", "sv.1")]
-        sio = inst.procs[inst.slot_of("sio")]
-        misses0 = int(sio["misses"])
-        for _ in range(100):
-            for pid in pids:
-                os.kill(pid, signal.SIGSTOP)
-            time.sleep(rng.uniform(0.0005, 0.004))
-            for pid in reversed(pids):
-                os.kill(pid, signal.SIGCONT)
-            time.sleep(rng.uniform(0.002, 0.008))
-            assert inst.fault_text() is None
-        svs = sum(int(inst.procs[inst.slot_of(n)]["misses"]) for n in ("sv.0", "sv.1"))
-        assert svs >= 100, f"the SVs missed only {svs} ticks: the stalls did not bite"
-        acks = int(sio["acks"])
-        wait_for(lambda: int(sio["acks"]) > acks + 50, 2.0, "SIO runs on")
-        assert inst.fault_text() is None, f"{int(sio['misses']) - misses0} SIO misses"
-
-
 @contextmanager
 def on_time() -> Iterator[None]:
     """This test process at SCHED_FIFO 95, above every Kali process, where permitted: a
@@ -380,6 +353,34 @@ def on_time() -> Iterator[None]:
         yield
     finally:
         os.sched_setscheduler(0, policy, param)
+
+
+def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -> None:
+    """Both SVs stalled together for a few ms, many times, at random phases: the servo level
+    rides it out, no halt, SIO runs on.  (The narrow race in which SIO acknowledges just
+    before a tick neither SV has, GANG_SVS_LATE, is too rare to provoke here: the test above
+    checks the decision, the soak the race; it once halted a soak with SIO waiting 18 ms for
+    slots no SV had been signalled to run.)"""
+    name = kali(lockstep=False)
+    rng = np.random.default_rng(11)
+    with Instance.attach(name) as inst:
+        pids = [int(inst.procs[inst.slot_of(n)]["pid"]) for n in ("sv.0", "sv.1")]
+        sio = inst.procs[inst.slot_of("sio")]
+        misses0 = int(sio["misses"])
+        with on_time():
+            for _ in range(100):
+                for pid in pids:
+                    os.kill(pid, signal.SIGSTOP)
+                time.sleep(rng.uniform(0.0005, 0.004))
+                for pid in reversed(pids):
+                    os.kill(pid, signal.SIGCONT)
+                time.sleep(rng.uniform(0.002, 0.008))
+                assert inst.fault_text() is None
+        svs = sum(int(inst.procs[inst.slot_of(n)]["misses"]) for n in ("sv.0", "sv.1"))
+        assert svs >= 100, f"the SVs missed only {svs} ticks: the stalls did not bite"
+        acks = int(sio["acks"])
+        wait_for(lambda: int(sio["acks"]) > acks + 50, 2.0, "SIO runs on")
+        assert inst.fault_text() is None, f"{int(sio['misses']) - misses0} SIO misses"
 
 
 def test_svs_are_not_signalled_on_a_tick_sio_misses(kali: Callable[..., str]) -> None:
