@@ -806,7 +806,25 @@ def _processes(node: Any, clock: ClockConfig) -> tuple[ProcessConfig, ...]:
     out: list[ProcessConfig] = []
     for kind in PROCESS_NAMES:
         out.extend(_process(kind, m[kind], clock))
+    _check_servo_stage(out)
     return tuple(out)
+
+
+def _check_servo_stage(processes: list[ProcessConfig]) -> None:
+    """The SVs share SIO's lockstep stage (thesis 3.3.4: one gang each servo tick).  SIO
+    waits inside its tick for the SVs' servos, and a lockstep stage ends only when all of
+    its processes have acknowledged, so SVs in an earlier stage would wait for a feed that
+    never comes, and in a later one SIO would wait for them, either way until the lockstep
+    timeout halted the first tick."""
+    sio = next(p for p in processes if p.kind == "sio")
+    sv = next(p for p in processes if p.kind == "sv")
+    if sv.stage != sio.stage:
+        _fail(
+            "processes.sv.stage",
+            sv.stage,
+            f"must equal processes.sio.stage ({sio.stage}): SIO waits within its tick for "
+            "the SVs' servos, so in lockstep they run in one stage",
+        )
 
 
 def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:

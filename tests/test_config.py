@@ -472,6 +472,17 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "processes.viewer.stage = 16: must be an integer >= 0 and <= 15",
     ),
     (
+        "sv-stage-after-sio",
+        [("stage: 2, poll_us: 200}", "stage: 3, poll_us: 200}")],
+        "processes.sv.stage = 3: must equal processes.sio.stage (2): SIO waits within its "
+        "tick for the SVs' servos, so in lockstep they run in one stage",
+    ),
+    (
+        "sio-stage-before-sv",
+        [("serious: true, stage: 2}\n  # sv", "serious: true, stage: 3}\n  # sv")],
+        "processes.sv.stage = 2: must equal processes.sio.stage (3)",
+    ),
+    (
         "serious-int",
         [("priority: 80, serious: true", "priority: 80, serious: 1")],
         "processes.tg.serious = 1: must be true or false, not an integer",
