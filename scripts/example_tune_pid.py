@@ -2,40 +2,52 @@
 
     kalictl start && kalictl run scripts/example_tune_pid.py
 
-The left arm's shoulder (joint 2) swings ±10° again and again through the trajectory
-generator; before each swing the program sets a new proportional gain ``kp`` through the
-servo interface (thesis 3.4, bumpless) and measures the tracking error during the swing.
-Too soft lags, too stiff rings: the table shows where this joint's gain is best.
+The left arm's shoulder (joint 2) swings 10° out and back, once per gain; before each swing
+the program sets a new proportional gain ``kp`` through the servo interface (thesis 3.4,
+bumpless) and measures the joint's tracking error during the swing.  Every gain sees the
+same motion, so the table compares the gains alone: too soft lags, too stiff rings.
+
+The servo interface numbers joints 1..6 as the thesis and the PUMA do; joint vectors such as
+``read_joints()`` are indexed from 0, so joint 2 is index 1 there.
 """
 
 import math
+import sys
 
 import numpy as np
 
 from kali_daemons.client import Kali
 
-ROBOT, JOINT = "left", 1  # joint index 1 = joint 2, the shoulder
+ROBOT, JOINT = "left", 2  # the shoulder; index JOINT - 1 in joint vectors
 SWING = math.radians(10)
 
 with Kali() as kali:
     kali.ready([ROBOT])
     arm = kali.robot(ROBOT)
     servo = kali.servo
+    j = JOINT - 1
+    algorithm, params = servo.active(ROBOT, JOINT), servo.get_params(ROBOT, JOINT)
+    if "kp" not in params:
+        sys.exit(
+            f"{ROBOT} joint {JOINT} runs '{algorithm}', which has no kp to tune: "
+            f"kalictl servo select {ROBOT} {JOINT} pid"
+        )
+    kp0 = params["kp"]
     q0 = arm.read_joints()
-    kp0 = servo.get_params(ROBOT, JOINT)["kp"]
+    out = q0.copy()
+    out[j] += SWING
     robots = servo.level.robots
-    print(f"{ROBOT} joint {JOINT + 1}: {servo.active(ROBOT, JOINT)}, kp {kp0:g} at start")
+    print(f"{ROBOT} joint {JOINT}: {algorithm}, kp {kp0:g} at start")
     print("    kp   rms error (mrad)   max error (mrad)")
-    for i, scale in enumerate((0.5, 1.0, 2.0)):
+    for scale in (0.5, 1.0, 2.0):
         servo.set_params(ROBOT, JOINT, {"kp": kp0 * scale})  # on line, while holding
-        target = q0.copy()
-        target[JOINT] += SWING if i % 2 == 0 else -SWING
-        swing = arm.move_joints(target, speed=0.5, wait=False)
         errors = []
-        while not swing.done:
-            kali.pause()
-            errors.append(float(robots["q"][arm.index][JOINT] - robots["demand"][arm.index][JOINT]))
-        swing.wait(0)
+        for target in (out, q0):  # out and back: the same swing for every gain
+            swing = arm.move_joints(target, speed=0.5, wait=False)
+            while not swing.done:
+                kali.pause()
+                errors.append(float(robots["q"][arm.index][j] - robots["demand"][arm.index][j]))
+            swing.wait(0)
         e = np.array(errors) * 1000
         print(f"{kp0 * scale:6g}   {np.sqrt(np.mean(e**2)):17.3f}   {np.abs(e).max():16.3f}")
     servo.set_params(ROBOT, JOINT, {"kp": kp0})

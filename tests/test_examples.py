@@ -8,6 +8,8 @@ from collections.abc import Callable
 
 import pytest
 
+from kali_daemons.puma560 import PID_DEFAULTS
+
 from .conftest import ROOT
 from .test_launcher import kalictl
 
@@ -30,14 +32,27 @@ def test_carry_example_puts_the_bar_back(kali: Callable[..., str]) -> None:
 
 
 def test_pid_tuning_example_prints_its_table(kali: Callable[..., str]) -> None:
+    """It tunes the joint it swings (joint 2, the shoulder: index 1 of a joint vector, once
+    mixed up with joint 1's gain), each gain over the same swing, so the error falls as kp
+    rises; a joint with no kp is named with the command that gives it one."""
     name = kali(lockstep=True)
     r = kalictl("-i", name, "run", "scripts/example_tune_pid.py")
     assert r.returncode == 0, r.stdout + r.stderr
+    kp0 = PID_DEFAULTS[1]["kp"]  # joint 2's configured kp
+    assert f"left joint 2: pid, kp {kp0:g} at start" in r.stdout, r.stdout
     rows = re.findall(r"^\s*([\d.]+)\s+([\d.]+)\s+([\d.]+)$", r.stdout, re.M)
-    assert len(rows) == 3, r.stdout
-    rms = sorted(float(row[1]) for row in rows)
-    assert rms[0] > 0 and rms[1] > 1.05 * rms[0] and rms[2] > 1.05 * rms[1]  # each gain tells
-    assert re.search(r"kp back to 9000; the arm is where it started", r.stdout), r.stdout
+    assert [float(row[0]) for row in rows] == [kp0 / 2, kp0, 2 * kp0], r.stdout
+    rms = [float(row[1]) for row in rows]
+    assert rms[0] > 1.5 * rms[1] > 0 and rms[1] > 1.5 * rms[2] > 0, r.stdout  # stiffer, closer
+    assert f"kp back to {kp0:g}; the arm is where it started" in r.stdout, r.stdout
+
+    assert kalictl("-i", name, "servo", "select", "left", "2", "bwpd").returncode == 0
+    kalictl("-i", name, "clock", "step", "5")  # the SV applies the selection at its tick
+    r = kalictl("-i", name, "run", "scripts/example_tune_pid.py")
+    assert r.returncode != 0
+    assert "left joint 2 runs 'bwpd', which has no kp to tune: kalictl servo select left 2 pid" in (
+        r.stderr
+    ), r.stderr
 
 
 def test_run_says_when_the_instance_or_program_is_missing(kali: Callable[..., str]) -> None:
