@@ -28,4 +28,4 @@ fi
 [ -x .venv/bin/python ] || "$python" -m venv .venv
 .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip
 .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test]'
-echo "setup: ready ($(.venv/bin/python --version), kalictl at .venv/bin/kalictl)"
+echo "setup: ready ($(.venv/bin/python --version), kalictl at .venv/bin/kalictl; source .venv/bin/activate to put it on PATH)"
