@@ -814,8 +814,9 @@ def _check_servo_stage(processes: list[ProcessConfig]) -> None:
     """The SVs share SIO's lockstep stage (thesis 3.3.4: one gang each servo tick).  SIO
     waits inside its tick for the SVs' servos, and a lockstep stage ends only when all of
     its processes have acknowledged, so SVs in an earlier stage would wait for a feed that
-    never comes, and in a later one SIO would wait for them, either way until the lockstep
-    timeout halted the first tick."""
+    never comes, and in a later one SIO would wait for them: the first powered tick then
+    halted after 4 s (0.8 of the lockstep timeout) with "DEADLINE in sio: servos not done
+    ... (unclaimed)" for every joint, which names the symptom, not the config."""
     sio = next(p for p in processes if p.kind == "sio")
     sv = next(p for p in processes if p.kind == "sv")
     if sv.stage != sio.stage:
