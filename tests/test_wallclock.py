@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from kali_daemons import launcher, layout
+from kali_daemons import launcher, layout, rt
 from kali_daemons.errors import ClockError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import FaultCode, ProcState, RunMode
@@ -343,16 +343,11 @@ def on_time() -> Iterator[None]:
     """This test process at SCHED_FIFO 95, above every Kali process, where permitted: a
     stall it times must end when it says (as SCHED_OTHER it once woke ~17 ms late to send
     SIGCONT, and the clock halted on a 21 ms stop meant to last at most 4)."""
-    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(95))
-    except PermissionError:
-        yield
-        return
+    rt.go_realtime(rt.RtReport(-1, 0, 0, False, []), 95)  # refused: stays SCHED_OTHER
     try:
         yield
     finally:
-        os.sched_setscheduler(0, policy, param)
+        rt.leave_realtime()
 
 
 def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -> None:
