@@ -3,9 +3,13 @@
 Layout: a versioned header, a directory of block descriptors kept as a doubly linked list in
 address order (the thesis's "master list"), then the heap.  ``shmalloc(key, size)`` returns
 the existing block when the key exists, else allocates first-fit and splits;
-``shfree(key)`` returns the block and coalesces it with free neighbours.  The directory is
-guarded by a test-and-set spinlock in the header.  Only offsets are stored; ``address`` is
-the one place an offset becomes an address.
+``shfree(key)`` returns the block and coalesces it with free neighbours.  Changes to the
+directory are serialised by a test-and-set spinlock in the header; reading it takes no lock,
+so a process stopped (or dead) while holding that lock can keep nobody from attaching,
+looking a block up, halting or stopping the instance: ``lookup`` scans the descriptors (a
+block in use never moves), and ``blocks``/``stats`` copy the directory between two equal
+even values of the header's ``dir_gen`` sequence count.  Only offsets are stored;
+``address`` is the one place an offset becomes an address.
 
 ``kalictl start`` creates and ``kalictl stop`` unlinks the segment; everyone else attaches
 and closes.  The segment is opened through ``posix_ipc`` and mapped with ``mmap``, so no
@@ -25,11 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 import posix_ipc
 
-from . import layout
+from . import atomic, layout
 from .errors import ArenaError, ArenaFullError
-from .spinlock import SpinLock
+from .spinlock import SpinLock, holder_text
 
 SEGMENT_PREFIX = "/kali."
+DIR_READ_WAIT_S = 0.5  # longest a reader waits for a directory change to finish
+SEM_BYTES = 32  # sizeof(sem_t) on Linux: the size of a real POSIX semaphore's file
 
 
 def segment_name(instance: str) -> str:
@@ -91,6 +97,7 @@ class Arena:
         d1 = d0 + layout.MAX_BLOCKS * layout.DESCRIPTOR.itemsize
         self.directory = self._bytes[d0:d1].view(layout.DESCRIPTOR)
         self._dir_lock = SpinLock(self.address_of_field(0, layout.HEADER, "dir_lock"), "arena")
+        self._dir_gen = self.address_of_field(0, layout.HEADER, "dir_gen")
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -132,8 +139,12 @@ class Arena:
                 f"{user_text()} may not attach (Kali instances are owner-only)"
             ) from None
         try:
-            if shm.size < layout.HEADER.itemsize:
-                raise ArenaError(f"{name} is {shm.size} B, smaller than a header")
+            if shm.size < layout.header_bytes():
+                raise ArenaError(
+                    f"instance '{instance}': {shm_path(name)} {owner_text(name)}, {shm.size} B:"
+                    f" smaller than an arena header ({layout.header_bytes()} B), not a Kali "
+                    f"arena (squatted, or left by a failed start)"
+                )
             mm = mmap.mmap(shm.fd, shm.size)
         finally:
             shm.close_fd()
@@ -240,54 +251,94 @@ class Arena:
     # ---------------------------------------------------------------- allocator
 
     def _find(self, raw: bytes) -> int:
+        """Descriptor of the block named ``raw``, or NULL_INDEX; never locks.
+
+        Scans the descriptors rather than the address-ordered list: a change in progress
+        rewires the list, but never touches a descriptor in use, so a block that exists
+        throughout is always found, whoever holds the directory lock.
+        """
         d = self.directory
-        i = int(self.header["head"])
-        while i != layout.NULL_INDEX:
-            if d[i]["used"] and d[i]["key"] == raw:
-                return i
-            i = int(d[i]["next"])
+        hits = np.flatnonzero((d["used"] == 1) & (d["key"] == raw))
+        for i in hits:
+            if d[i]["used"] and d[i]["key"] == raw:  # still it, after the vector scan
+                return int(i)
         return layout.NULL_INDEX
 
     def lookup(self, key: str) -> tuple[int, int] | None:
-        """(offset, size) of the block named ``key``, or None."""
+        """(offset, size) of the block named ``key``, or None; takes no lock."""
+        b = self.block(key)
+        return None if b is None else (b.offset, b.size)
+
+    def block(self, key: str) -> Block | None:
+        """The block named ``key`` (with the size it was requested with), or None; takes no
+        lock (a block allocated or freed at the same moment may or may not be seen)."""
         raw = _key_bytes(key)
-        with self._dir_lock:
-            i = self._find(raw)
-            if i == layout.NULL_INDEX:
-                return None
-            return int(self.directory[i]["offset"]), int(self.directory[i]["size"])
+        i = self._find(raw)
+        if i == layout.NULL_INDEX:
+            return None
+        e = self.directory[i]
+        return Block(key, int(e["offset"]), int(e["size"]), int(e["requested"]), True)
 
     def shmalloc(self, key: str, size: int) -> int:
-        """Offset of block ``key``: the existing one, else a new first-fit block, zeroed."""
+        """Offset of block ``key``: the existing one, else a new first-fit block, zeroed.
+
+        An existing block is found without the directory lock, so attaching to records laid
+        out at start never waits on another process.
+        """
         raw = _key_bytes(key)
         if size <= 0:
             raise ArenaError(f"block '{key}': size {size} B, must be > 0")
         need = _round_up(size)
         d = self.directory
-        with self._dir_lock:
-            i = self._find(raw)
-            if i != layout.NULL_INDEX:
-                have = int(d[i]["requested"])
-                if size > have:
-                    raise ArenaError(f"block '{key}' exists with {have} B, {size} B requested")
-                return int(d[i]["offset"])
-            i = int(self.header["head"])
-            while i != layout.NULL_INDEX and (d[i]["used"] or int(d[i]["size"]) < need):
-                i = int(d[i]["next"])
-            if i == layout.NULL_INDEX:
-                s = self._stats_locked()
-                raise ArenaFullError(
-                    f"block '{key}' needs {need} B, {s.free_bytes} B free in "
-                    f"{s.free_fragments} fragments (largest {s.largest_free} B)"
-                )
+        i = self._find(raw)
+        if i == layout.NULL_INDEX:
+            with self._dir_lock:
+                return self._allocate(raw, key, size, need)
+        have = int(d[i]["requested"])
+        if size > have:
+            raise ArenaError(f"block '{key}' exists with {have} B, {size} B requested")
+        return int(d[i]["offset"])
+
+    def _allocate(self, raw: bytes, key: str, size: int, need: int) -> int:
+        """shmalloc's writer side, with the directory lock held."""
+        d = self.directory
+        i = self._find(raw)
+        if i != layout.NULL_INDEX:  # made since the unlocked look
+            have = int(d[i]["requested"])
+            if size > have:
+                raise ArenaError(f"block '{key}' exists with {have} B, {size} B requested")
+            return int(d[i]["offset"])
+        i = int(self.header["head"])
+        while i != layout.NULL_INDEX and (d[i]["used"] or int(d[i]["size"]) < need):
+            i = int(d[i]["next"])
+        if i == layout.NULL_INDEX:
+            s = _stats_of(d, int(self.header["head"]), self._heap_bytes())
+            raise ArenaFullError(
+                f"block '{key}' needs {need} B, {s.free_bytes} B free in "
+                f"{s.free_fragments} fragments (largest {s.largest_free} B)"
+            )
+        gen = self._begin_change()
+        try:
             if int(d[i]["size"]) > need:
                 self._split(i, need, key)
-            d[i]["used"] = 1
-            d[i]["key"] = raw
             d[i]["requested"] = size
-            offset = int(d[i]["offset"])
-            self._bytes[offset : offset + need] = 0
-            return offset
+            d[i]["key"] = raw
+            d[i]["used"] = 1
+        finally:
+            self._end_change(gen)
+        offset = int(d[i]["offset"])
+        self._bytes[offset : offset + need] = 0
+        return offset
+
+    def _begin_change(self) -> int:
+        """Mark the directory as changing (odd ``dir_gen``); the lock holder only."""
+        gen = (atomic.load32(self._dir_gen) | 1) & 0xFFFFFFFF
+        atomic.store32(self._dir_gen, gen)
+        return gen
+
+    def _end_change(self, gen: int) -> None:
+        """Mark the change done (even ``dir_gen``)."""
+        atomic.store32(self._dir_gen, (gen + 1) & 0xFFFFFFFF)
 
     def _split(self, i: int, need: int, key: str) -> None:
         d = self.directory
@@ -320,15 +371,19 @@ class Arena:
             i = self._find(raw)
             if i == layout.NULL_INDEX:
                 raise ArenaError(f"{self.name}: shfree of unknown block '{key}'")
-            d[i]["used"] = 0
-            d[i]["key"] = b""
-            d[i]["requested"] = 0
-            nxt = int(d[i]["next"])
-            if nxt != layout.NULL_INDEX and not d[nxt]["used"]:
-                self._absorb_next(i)
-            prv = int(d[i]["prev"])
-            if prv != layout.NULL_INDEX and not d[prv]["used"]:
-                self._absorb_next(prv)
+            gen = self._begin_change()
+            try:
+                d[i]["used"] = 0
+                d[i]["key"] = b""
+                d[i]["requested"] = 0
+                nxt = int(d[i]["next"])
+                if nxt != layout.NULL_INDEX and not d[nxt]["used"]:
+                    self._absorb_next(i)
+                prv = int(d[i]["prev"])
+                if prv != layout.NULL_INDEX and not d[prv]["used"]:
+                    self._absorb_next(prv)
+            finally:
+                self._end_change(gen)
 
     def _absorb_next(self, i: int) -> None:
         d = self.directory
@@ -342,47 +397,72 @@ class Arena:
 
     # ---------------------------------------------------------------- introspection
 
-    def blocks(self) -> list[Block]:
-        """Every block and free fragment in address order."""
-        d = self.directory
-        out: list[Block] = []
-        with self._dir_lock:
-            i = int(self.header["head"])
-            while i != layout.NULL_INDEX:
-                e = d[i]
-                out.append(
-                    Block(
-                        key=bytes(e["key"]).decode("ascii", "replace"),
-                        offset=int(e["offset"]),
-                        size=int(e["size"]),
-                        requested=int(e["requested"]),
-                        used=bool(e["used"]),
-                    )
+    def _snapshot(self) -> tuple[np.ndarray, int]:
+        """A consistent copy of the directory and its head, taken without the lock: copied
+        between two equal even ``dir_gen`` values.  ArenaError naming the lock's holder if a
+        change stays unfinished for DIR_READ_WAIT_S (its writer stopped or died mid-way)."""
+        deadline = time.monotonic() + DIR_READ_WAIT_S
+        while True:
+            gen = atomic.load32(self._dir_gen)
+            if not gen & 1:
+                d = self.directory.copy()
+                head = int(self.header["head"])
+                if atomic.load32(self._dir_gen) == gen:
+                    return d, head
+            if time.monotonic() > deadline:
+                raise ArenaError(
+                    f"{self.name}: directory left half-changed for more than "
+                    f"{DIR_READ_WAIT_S:g} s by {holder_text(self._dir_lock.holder)}"
                 )
-                i = int(e["next"])
+            time.sleep(0.001)
+
+    def _heap_bytes(self) -> int:
+        return self.size - int(self.header["header_bytes"])
+
+    def blocks(self) -> list[Block]:
+        """Every block and free fragment in address order (a snapshot; takes no lock)."""
+        d, i = self._snapshot()
+        out: list[Block] = []
+        while i != layout.NULL_INDEX:
+            e = d[i]
+            out.append(
+                Block(
+                    key=bytes(e["key"]).decode("ascii", "replace"),
+                    offset=int(e["offset"]),
+                    size=int(e["size"]),
+                    requested=int(e["requested"]),
+                    used=bool(e["used"]),
+                )
+            )
+            i = int(e["next"])
         return out
 
-    def _stats_locked(self) -> ArenaStats:
-        d = self.directory
-        used = free = nused = nfree = largest = 0
-        i = int(self.header["head"])
-        while i != layout.NULL_INDEX:
-            size = int(d[i]["size"])
-            if d[i]["used"]:
-                used += size
-                nused += 1
-            else:
-                free += size
-                nfree += 1
-                largest = max(largest, size)
-            i = int(d[i]["next"])
-        heap = self.size - int(self.header["header_bytes"])
-        return ArenaStats(heap, used, nused, free, nfree, largest)
-
     def stats(self) -> ArenaStats:
-        """Occupancy and fragmentation of the heap."""
-        with self._dir_lock:
-            return self._stats_locked()
+        """Occupancy and fragmentation of the heap (a snapshot; takes no lock)."""
+        d, head = self._snapshot()
+        return _stats_of(d, head, self._heap_bytes())
+
+    @property
+    def dir_lock_holder(self) -> int:
+        """Pid holding the directory lock, 0 if free (for kalictl status)."""
+        return self._dir_lock.holder
+
+
+def _stats_of(d: np.ndarray, head: int, heap_bytes: int) -> ArenaStats:
+    """Occupancy of the address-ordered list starting at ``head`` in directory ``d``."""
+    used = free = nused = nfree = largest = 0
+    i = head
+    while i != layout.NULL_INDEX:
+        size = int(d[i]["size"])
+        if d[i]["used"]:
+            used += size
+            nused += 1
+        else:
+            free += size
+            nfree += 1
+            largest = max(largest, size)
+        i = int(d[i]["next"])
+    return ArenaStats(heap_bytes, used, nused, free, nfree, largest)
 
 
 def shm_path(name: str, semaphore: bool = False) -> str:
@@ -406,6 +486,34 @@ def owner_text(name: str, semaphore: bool = False) -> str:
         st = os.stat(shm_path(name, semaphore))
     except OSError:
         return "belongs to another user"
+    return _owner_of(st)
+
+
+def foreign_object(path: str, semaphore: bool = False, any_owner: bool = False) -> str | None:
+    """Why the ``/dev/shm`` entry ``path`` is not an object this user's Kali made, or None.
+
+    Another user's object (unless ``any_owner``), a non-file, or a file too small to be what
+    its name says (a semaphore's file is SEM_BYTES, a segment at least a header): opening
+    and mapping such a squatted object would touch memory past its end (SIGBUS) or another
+    user's data.
+    """
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    what = f"{path} {_owner_of(st)}, {st.st_size} B"
+    if not stat.S_ISREG(st.st_mode):
+        return f"{what}: not a regular file"
+    if st.st_uid != os.geteuid() and not any_owner:
+        return f"{what}: not {user_text()}'s"
+    least = SEM_BYTES if semaphore else layout.header_bytes()
+    if st.st_size < least:
+        kind = "semaphore" if semaphore else "arena"
+        return f"{what}: smaller than a {kind} ({least} B)"
+    return None
+
+
+def _owner_of(st: os.stat_result) -> str:
     return f"belongs to {user_text(st.st_uid)}, mode {stat.S_IMODE(st.st_mode):04o}"
 
 

@@ -29,7 +29,7 @@ from . import flightrec, introspect, launcher
 from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
 from .errors import KaliError
-from .instance import Instance, decode
+from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode
 from .layout import CalibState, FaultCode, PowerState, ProcState, RunMode
 from .servolevel import ServoClient, ServoError
 from .wallclock import (
@@ -61,7 +61,10 @@ def _errors(fn: Callable) -> Callable:
 
 
 def _instance_name(ctx: click.Context) -> str:
-    return ctx.obj["instance"] or "default"
+    """The instance named by -i or $KALI_INSTANCE, else 'default'; an empty name is refused
+    (it is a mistake, not a wish for the default)."""
+    name = ctx.obj["instance"]
+    return "default" if name is None else check_instance_name(name)
 
 
 def _attach(ctx: click.Context) -> Instance:
@@ -105,7 +108,7 @@ def start(
 ) -> None:
     """Start every Kali process; return when all are ready."""
     cfg = load_config(config_path or DEFAULT_CONFIG)
-    name = ctx.obj["instance"] or cfg.instance
+    name = cfg.instance if ctx.obj["instance"] is None else ctx.obj["instance"]
     report = launcher.start(cfg, lockstep=lockstep, instance=name, record=record)
     if report.stale_cleaned:
         click.echo(
@@ -193,6 +196,11 @@ def status(ctx: click.Context, as_json: bool) -> None:
         )
         fault = inst.fault_text()
         click.echo(f"fault: {fault}" if fault else "fault: none")
+        for lock in inst.held_locks():
+            click.echo(
+                f"lock: '{lock.name}' held by {lock.holder} for over {LOCK_STUCK_S:g} s "
+                f"(nothing on the safety path waits for it)"
+            )
         rows = launcher.describe(inst)
         for r in rows:
             if r["state"] == ProcState.DIED.name:

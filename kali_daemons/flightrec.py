@@ -18,7 +18,6 @@ import logging
 import math
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +25,9 @@ import numpy as np
 from . import layout, puma560
 from .config import ms_to_ns
 from .errors import ArenaError, ArenaFullError, InstanceError, KaliError
-from .instance import Instance, decode
+from .instance import FaultInfo, Instance, decode
 from .launcher import log_dir
-from .layout import FaultCode, ProcState
+from .layout import ProcState
 from .spinlock import pid_alive
 
 FORMAT_VERSION = 1  # of the dump files
@@ -160,32 +159,9 @@ def read_ring(header: np.ndarray, ring: np.ndarray, writer_idle: bool = False) -
     return data[np.arange(first, before) % rows]
 
 
-@dataclass
-class FaultInfo:
-    """The fault record, copied."""
-
-    code: str
-    process: str
-    tick: int
-    message: str
-    time_ns: int
-    pid: int
-    active: bool
-
-
 def fault_info(inst: Instance) -> FaultInfo:
     """A copy of the instance's fault record (the latest fault, even if cleared)."""
-    with inst.fault_lock:
-        f = inst.fault
-        return FaultInfo(
-            FaultCode(int(f["code"])).name,
-            decode(f["process"]),
-            int(f["tick"]),
-            decode(f["message"]),
-            int(f["time_ns"]),
-            int(f["pid"]),
-            bool(f["active"]),
-        )
+    return inst.read_fault()
 
 
 class FlightDumper:

@@ -14,16 +14,20 @@ from __future__ import annotations
 import os
 import re
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import posix_ipc
 
 from . import atomic, layout
-from .arena import Arena, owner_text, segment_name, user_text
+from .arena import Arena, foreign_object, owner_text, segment_name, shm_path, user_text
 from .config import KaliConfig, parse_config
 from .errors import ClockError, InstanceError
 from .layout import FaultCode, ProcState
-from .spinlock import SpinLock
+from .spinlock import SpinLock, holder_text
+
+FAULT_READ_WAIT_S = 0.05  # longest a reader waits for a fault's writer to finish its record
+LOCK_STUCK_S = 0.2  # a lock held by one pid this long is reported stuck (kalictl status)
 
 INSTANCE_RE = re.compile(r"^[a-z0-9][a-z0-9_-]{0,23}$")
 
@@ -74,6 +78,29 @@ def all_semaphore_names(instance: str) -> list[str]:
     ]
 
 
+@dataclass(frozen=True)
+class FaultInfo:
+    """The fault record, copied consistently (``Instance.read_fault``)."""
+
+    code: str  # FaultCode name; UNFINISHED while a stopped or dead writer's record is partial
+    process: str
+    tick: int
+    message: str
+    time_ns: int
+    pid: int
+    active: bool
+    count: int
+
+
+@dataclass(frozen=True)
+class HeldLock:
+    """A lock of the instance held by one process for at least LOCK_STUCK_S."""
+
+    name: str
+    pid: int
+    holder: str  # holder_text: pid, command, state (stopped, dead, ...)
+
+
 def decode(raw: bytes | np.bytes_) -> str:
     """A fixed-width arena string as text."""
     return bytes(raw).split(b"\0", 1)[0].decode("utf-8", "replace")
@@ -91,6 +118,7 @@ class Instance:
         self.misses = arena.existing(layout.KEY_MISSES, layout.MISS_LOG)
         self._config: KaliConfig | None = None
         self._sems: dict[str, posix_ipc.Semaphore] = {}
+        self._boards: np.ndarray | None = None  # cached once the plant has made them
         clock_off = arena.lookup(layout.KEY_CLOCK)[0]  # type: ignore[index]
         fault_off = arena.lookup(layout.KEY_FAULT)[0]  # type: ignore[index]
         self.table_lock = SpinLock(
@@ -99,9 +127,10 @@ class Instance:
         self.cmd_lock = SpinLock(
             arena.address_of_field(clock_off, layout.CLOCK, "cmd_lock"), "clock command"
         )
-        self.fault_lock = SpinLock(
-            arena.address_of_field(fault_off, layout.FAULT, "lock"), "fault record"
-        )
+        self._fault_word = arena.address_of_field(fault_off, layout.FAULT, "active")
+        self._fault_seq = arena.address_of_field(fault_off, layout.FAULT, "seq")
+        self._fault_count = arena.address_of_field(fault_off, layout.FAULT, "count")
+        self._fault_cas = atomic.CompareExchange32()
         self.registry_gen_addr = arena.address_of_field(clock_off, layout.CLOCK, "registry_gen")
 
     @classmethod
@@ -172,6 +201,10 @@ class Instance:
         """Open (once) one of the instance's semaphores."""
         sem = self._sems.get(posix_name)
         if sem is None:
+            path = shm_path(posix_name, semaphore=True)
+            why = foreign_object(path, semaphore=True, any_owner=True)
+            if why is not None:
+                raise InstanceError(f"instance '{self.name}': semaphore {why}; not opened")
             try:
                 sem = posix_ipc.Semaphore(posix_name)
             except posix_ipc.ExistentialError as exc:
@@ -269,46 +302,143 @@ class Instance:
 
         A halt disables every robot's amplifiers through its board first (DESIGN 7: bit 7 of
         the command/status register low cuts them at once; the brakes follow in the plant),
-        whoever raises it.  The wall clock stops itself when it sees an active fault.  Returns
+        whoever raises it.  Lock-free: one compare-and-swap of the fault word from 0 to this
+        pid decides the winner, who alone writes the rest between two steps of the record's
+        sequence count, so no process holding anything, stopped or dead, can keep a halt from
+        being recorded.  The wall clock stops itself when it sees the fault word set.  Returns
         True if this call recorded the fault, False if one was already active (still counted).
         """
         self.power_off_all()
-        with self.fault_lock:
-            f = self.fault
-            f["count"] = int(f["count"]) + 1
-            if f["active"]:
-                return False
-            f["code"] = int(code)
-            f["pid"] = os.getpid()
-            f["tick"] = int(self.clock["tick"]) if tick is None else tick
-            f["time_ns"] = time.time_ns()
-            f["process"] = process.encode()[: layout.NAME_BYTES - 1]
-            f["message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
-            f["active"] = 1
+        atomic.fetch_add64(self._fault_count, 1)
+        pid = os.getpid()
+        won, _ = self._fault_cas(self._fault_word, 0, pid)
+        if not won:
+            return False
+        seq = atomic.load32(self._fault_seq) | 1  # odd: being written
+        atomic.store32(self._fault_seq, seq)
+        f = self.fault
+        f["code"] = int(code)
+        f["pid"] = pid
+        f["tick"] = int(self.clock["tick"]) if tick is None else tick
+        f["time_ns"] = time.time_ns()
+        f["process"] = process.encode()[: layout.NAME_BYTES - 1]
+        f["message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
+        atomic.store32(self._fault_seq, (seq + 1) & 0xFFFFFFFF)  # even: written
         self.command_semaphore().release()  # a stopped-but-waiting clock notices at once
         if self.lockstep:
             self.ack_semaphore().release()  # a clock waiting for lockstep acks notices too
         return True
 
     def power_off_all(self) -> None:
-        """Disable every robot's amplifiers through the board (safe from any process)."""
-        if self.arena.lookup(layout.KEY_BOARDS) is None:
-            return  # no plant or boards yet: nothing is powered
-        csr = self.boards()["csr"]
+        """Disable every robot's amplifiers through the board (safe from any process; takes
+        no lock, so it works whoever holds what)."""
+        if self._boards is None:
+            if self.arena.lookup(layout.KEY_BOARDS) is None:
+                return  # no plant or boards yet: nothing is powered
+            self._boards = self.boards()
+        csr = self._boards["csr"]
         csr &= ~np.uint8(layout.CSR_NO_DISABLE)
 
     def clear_fault(self) -> bool:
         """Clear the active fault (kalictl reset); False if none was active."""
-        with self.fault_lock:
-            was = bool(self.fault["active"])
-            self.fault["active"] = 0
-        return was
+        return atomic.exchange32(self._fault_word, 0) != 0
+
+    def read_fault(self) -> FaultInfo:
+        """A consistent copy of the fault record (the latest fault, even if cleared).
+
+        Copied between two equal even values of its sequence count.  If the winner of a
+        fault stops or dies before its record is written, the copy says so (code UNFINISHED,
+        naming the writer) after FAULT_READ_WAIT_S: the halt itself stands all the same.
+        """
+        f = self.fault
+        deadline = time.monotonic() + FAULT_READ_WAIT_S
+        while True:
+            seq = atomic.load32(self._fault_seq)
+            word = atomic.load32(self._fault_word)
+            if not seq & 1:
+                info = FaultInfo(
+                    code=_code_name(int(f["code"])),
+                    process=decode(f["process"]),
+                    tick=int(f["tick"]),
+                    message=decode(f["message"]),
+                    time_ns=int(f["time_ns"]),
+                    pid=int(f["pid"]),
+                    active=word != 0,
+                    count=int(atomic.load64(self._fault_count)),
+                )
+                if atomic.load32(self._fault_seq) == seq:
+                    return info
+            elif time.monotonic() > deadline:
+                writer = word or int(f["pid"])
+                return FaultInfo(
+                    code="UNFINISHED",
+                    process=f"pid {writer}",
+                    tick=int(self.clock["tick"]),
+                    message=f"the record of this halt was left unfinished by {holder_text(writer)}",
+                    time_ns=0,
+                    pid=writer,
+                    active=word != 0,
+                    count=int(atomic.load64(self._fault_count)),
+                )
+            time.sleep(0.0005)
 
     def fault_text(self, last: bool = False) -> str | None:
         """The active fault as one line, or None; ``last``: the latest fault even if cleared
         (None if there never was one)."""
-        f = self.fault
-        if not (f["active"] or (last and int(f["count"]))):
+        if not (atomic.load32(self._fault_word) or (last and atomic.load64(self._fault_count))):
             return None
-        code = FaultCode(int(f["code"])).name
-        return f"{code} in {decode(f['process'])} at tick {int(f['tick'])}: {decode(f['message'])}"
+        f = self.read_fault()
+        return f"{f.code} in {f.process} at tick {f.tick}: {f.message}"
+
+    # ---------------------------------------------------------------- locks
+
+    def lock_words(self) -> list[tuple[str, int]]:
+        """Every spinlock of the instance as (name, address): the arena directory, the
+        process table, the clock's command, the motion queue's producers and each servo
+        slot's mailbox (those not laid out yet are left out)."""
+        clock_off = self.arena.lookup(layout.KEY_CLOCK)[0]  # type: ignore[index]
+        a = self.arena
+        words = [
+            ("arena directory", a.address_of_field(0, layout.HEADER, "dir_lock")),
+            ("process table", a.address_of_field(clock_off, layout.CLOCK, "table_lock")),
+            ("clock command", a.address_of_field(clock_off, layout.CLOCK, "cmd_lock")),
+        ]
+        queue = a.lookup(layout.KEY_MOTION_QUEUE)
+        if queue is not None:
+            words.append(
+                (
+                    f"queue {layout.KEY_MOTION_QUEUE}",
+                    a.address_of_field(queue[0], layout.QUEUE_HEADER, "lock"),
+                )
+            )
+        slots = a.lookup(layout.KEY_SLOTS)
+        if slots is not None:
+            for k, robot in enumerate(self.config.robots):
+                for j in range(layout.ARM_JOINTS):
+                    i = k * layout.ARM_JOINTS + j
+                    if (i + 1) * layout.SERVO_SLOT.itemsize <= slots[1]:
+                        addr = a.address_of_field(slots[0], layout.SERVO_SLOT, "op_lock", i)
+                        words.append((f"servo mailbox {robot.name} joint {j + 1}", addr))
+        return words
+
+    def held_locks(self, hold_s: float = LOCK_STUCK_S) -> list[HeldLock]:
+        """The locks one process has held for at least ``hold_s`` (sampled at both ends of
+        that time): a holder that is stopped, hung or dead.  Never in a cycle (it sleeps)."""
+        words = self.lock_words()
+        first = [atomic.load32(addr) for _, addr in words]
+        if not any(first):
+            return []
+        time.sleep(hold_s)
+        held = []
+        for (name, addr), pid in zip(words, first, strict=True):
+            if pid and atomic.load32(addr) == pid:
+                held.append(HeldLock(name, pid, holder_text(pid)))
+        return held
+
+
+def _code_name(code: int) -> str:
+    """A fault code's name; the number itself if the record holds no FaultCode."""
+    try:
+        return FaultCode(code).name
+    except ValueError:
+        return f"code {code}"

@@ -23,7 +23,7 @@ import numpy as np
 
 from . import launcher, layout, puma560
 from .instance import Instance, decode
-from .layout import CalibState, FaultCode, FfMode, FfState, PowerState, RequestState, RunMode
+from .layout import CalibState, FfMode, FfState, PowerState, RequestState, RunMode
 from .wallclock.clock import time_ms
 
 RAD_PER_COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # per joint
@@ -107,18 +107,21 @@ class Introspector:
         }
 
     def _fault(self) -> dict[str, Any]:
-        f = self.inst.fault
+        f = self.inst.read_fault()
         return {
-            "active": bool(f["active"]),
-            "code": FaultCode(int(f["code"])).name,
-            "process": decode(f["process"]),
-            "pid": int(f["pid"]),
-            "tick": int(f["tick"]),
-            "time_ns": int(f["time_ns"]),
-            "message": decode(f["message"]),
-            "count": int(f["count"]),
+            "active": f.active,
+            "code": f.code,
+            "process": f.process,
+            "pid": f.pid,
+            "tick": f.tick,
+            "time_ns": f.time_ns,
+            "message": f.message,
+            "count": f.count,
             "text": self.inst.fault_text(last=True),
         }
+
+    def _locks(self) -> list[dict[str, Any]]:
+        return [{"name": h.name, "pid": h.pid, "holder": h.holder} for h in self.inst.held_locks()]
 
     def _processes(self) -> list[dict[str, Any]]:
         rows = launcher.describe(self.inst)
@@ -288,6 +291,7 @@ class Introspector:
                 "misses": self._misses(),
                 "flight": self.flight(),
                 "arena": self._arena(),
+                "held_locks": self._locks(),
             }
         )
 

@@ -3,12 +3,17 @@
 Only this module creates and unlinks an instance's segment and semaphores (owner-only,
 0600).  ``start`` returns when every process is ACTIVE, or fails naming the one that is not
 and cleans up.  ``stop`` leaves no process, no ``/dev/shm`` object and no semaphore behind,
-whatever state the instance is in (also after a ``kill -9`` of any Kali process); the next
-``start`` detects and cleans an instance left by a crash.
+whatever state the instance is in (also after a ``kill -9`` of any Kali process, and with
+any of its spinlocks held by a stopped or dead process: it reads the process table and the
+``/dev/shm`` names without them); the next ``start`` detects and cleans an instance left by
+a crash.  Start, stop and that clean-up are serialised per instance by an OS lock
+(``flock``) on ``<runtime dir>/<instance>.lock``, so a second ``start`` never takes a first
+one's half-made instance for a stale one.
 """
 
 from __future__ import annotations
 
+import fcntl
 import glob
 import os
 import signal
@@ -16,6 +21,8 @@ import stat
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,17 +30,18 @@ import numpy as np
 import posix_ipc
 
 from . import layout
-from .arena import Arena, segment_name, unlink_segment, user_text
+from .arena import Arena, foreign_object, segment_name, shm_path, unlink_segment, user_text
 from .config import KaliConfig, ms_to_ns, ns_to_ms
 from .errors import ArenaError, ConfigError, InstanceError
 from .instance import Instance, all_semaphore_names, check_instance_name, decode
 from .layout import ProcState, RunMode
 from .servo import registry_for
-from .spinlock import pid_alive
+from .spinlock import holder_text, pid_alive
 from .wallclock import start_kali_clock
 
 STOP_GRACE_S = 3.0
 KILL_GRACE_S = 2.0
+LIFECYCLE_WAIT_S = 60.0  # longest ``stop`` waits for a start or stop of the instance to end
 
 
 def log_dir(instance: str) -> Path:
@@ -46,21 +54,112 @@ def private_log_dir(path: Path) -> Path:
     directory (not a symbolic link) of this user that neither group nor others can write, so
     no other user can plant a link the daemons' logs or flight dumps would follow, or swap
     the files; InstanceError naming the directory and its owner otherwise."""
+    return _private_dir(path, "log directory", "KALI_LOG_DIR")
+
+
+def _private_dir(path: Path, what: str, env: str) -> Path:
+    """Create ``path`` (mode 0700) or check it is a real directory of this user that neither
+    group nor others can write; InstanceError naming it, its owner and ``env`` otherwise."""
     path.mkdir(mode=0o700, parents=True, exist_ok=True)
     st = os.lstat(path)
     if not stat.S_ISDIR(st.st_mode):
-        raise InstanceError(f"log directory {path} is not a directory (a symbolic link?)")
+        raise InstanceError(f"{what} {path} is not a directory (a symbolic link?)")
     if st.st_uid != os.geteuid():
         raise InstanceError(
-            f"log directory {path} belongs to {user_text(st.st_uid)}, not {user_text()}: "
-            f"remove it or set KALI_LOG_DIR to a directory of your own"
+            f"{what} {path} belongs to {user_text(st.st_uid)}, not {user_text()}: "
+            f"remove it or set {env} to a directory of your own"
         )
     if st.st_mode & 0o022:
         raise InstanceError(
-            f"log directory {path} has mode {stat.S_IMODE(st.st_mode):04o}: group or others "
-            f"may write it; chmod go-w it or set KALI_LOG_DIR"
+            f"{what} {path} has mode {stat.S_IMODE(st.st_mode):04o}: group or others "
+            f"may write it; chmod go-w it or set {env}"
         )
     return path
+
+
+def runtime_dir() -> Path:
+    """Where the instances' lifecycle locks live: ``$KALI_RUNTIME_DIR``, else
+    ``$XDG_RUNTIME_DIR/kali``, else ``/run/kali`` for root and ``/tmp/kali-run-<uid>``."""
+    env = os.environ.get("KALI_RUNTIME_DIR")
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_RUNTIME_DIR")
+    if xdg:
+        return Path(xdg) / "kali"
+    return Path("/run/kali") if os.geteuid() == 0 else Path(f"/tmp/kali-run-{os.geteuid()}")
+
+
+@contextmanager
+def lifecycle_lock(instance: str, operation: str, wait_s: float = 0.0) -> Iterator[None]:
+    """Hold ``instance``'s lifecycle lock (an exclusive ``flock``) for ``operation``.
+
+    Waits up to ``wait_s`` for another start or stop to finish (never for a holder that is
+    stopped), then refuses with InstanceError naming the holder's pid and operation, which
+    the holder writes into the file.  The file is removed by whoever holds the lock when the
+    instance is gone, so nothing is left behind; a locker checks it still locked the file
+    that has the name (not one just removed).
+    """
+    path = _private_dir(runtime_dir(), "runtime directory", "KALI_RUNTIME_DIR") / (
+        f"{instance}.lock"
+    )
+    deadline = time.monotonic() + wait_s
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pid, held_for = _lock_holder(fd)
+            os.close(fd)
+            who = holder_text(pid) if pid else "another kalictl"
+            if time.monotonic() >= deadline or "stopped" in who:
+                raise InstanceError(
+                    f"instance '{instance}': {operation} refused: {who} holds its lifecycle "
+                    f"lock {path} for kalictl {held_for}; try again when it is done"
+                ) from None
+            time.sleep(0.05)
+            continue
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if not same:  # removed by the last holder between our open and our flock
+            os.close(fd)
+            continue
+        break
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()} {operation}\n".encode(), 0)
+        yield
+        if not shm_objects(instance):
+            path.unlink(missing_ok=True)
+    finally:
+        os.close(fd)
+
+
+def _lock_holder(fd: int) -> tuple[int, str]:
+    """The (pid, operation) a lifecycle lock's holder wrote; (0, "?") if not written yet."""
+    try:
+        words = os.pread(fd, 64, 0).decode("ascii", "replace").split()
+        return int(words[0]), words[1]
+    except (OSError, ValueError, IndexError):
+        return 0, "?"
+
+
+def check_not_squatted(instance: str, own_too: bool = True) -> None:
+    """InstanceError naming the object and its owner if a ``/dev/shm`` name of ``instance``
+    is taken by an object that is not this user's Kali's (another user's, or too small to
+    be a segment or semaphore): neither mapped nor removed.  ``own_too=False`` (stop) lets
+    this user's own broken objects through to be removed, and another user's real Kali
+    objects too (root may stop anyone's instance)."""
+    for path in shm_objects(instance):
+        sem = os.path.basename(path).startswith("sem.")
+        why = foreign_object(path, semaphore=sem, any_owner=not own_too)
+        if why is None or (not own_too and os.lstat(path).st_uid == os.geteuid()):
+            continue
+        raise InstanceError(
+            f"instance '{instance}': {why}; kalictl will not use or remove it: its owner "
+            f"must, or use another instance name (-i NAME)"
+        )
 
 
 def check_owner(instance: str) -> None:
@@ -135,9 +234,18 @@ class StopReport:
 
 def stop(instance: str) -> StopReport:
     """Stop every process of ``instance`` and remove its segment and semaphores; another
-    user's instance is refused (``check_owner``) before anything is touched."""
+    user's instance is refused (``check_owner``) before anything is touched.  Waits for a
+    start or stop of the instance in progress to end (``lifecycle_lock``)."""
     check_instance_name(instance)
     check_owner(instance)
+    check_not_squatted(instance, own_too=False)
+    with lifecycle_lock(instance, "stop", wait_s=LIFECYCLE_WAIT_S):
+        return _stop(instance)
+
+
+def _stop(instance: str) -> StopReport:
+    """``stop`` with the lifecycle lock held.  Takes no arena lock: the process table is
+    read in place and every name is known, so it works whoever holds what."""
     report = StopReport()
     pids = instance_pids(instance)
     try:
@@ -148,6 +256,8 @@ def stop(instance: str) -> StopReport:
         arena.header["shutdown"] = 1
         arena.close()
     for name in all_semaphore_names(instance):  # wake every waiter so it sees shutdown
+        if foreign_object(shm_path(name, semaphore=True), semaphore=True, any_owner=True):
+            continue  # not a semaphore (squatted): never mapped
         try:
             sem = posix_ipc.Semaphore(name)
         except posix_ipc.ExistentialError:
@@ -227,7 +337,7 @@ def _create(cfg: KaliConfig, instance: str, lockstep: bool, record: str = "") ->
             posix_ipc.Semaphore(name, posix_ipc.O_CREX, mode=0o600, initial_value=0).close()
     except BaseException:
         arena.close()
-        stop(instance)
+        _stop(instance)
         raise
     return arena
 
@@ -288,10 +398,19 @@ def start(
     stopped at tick 0 until ``clock start`` or ``clock step N``.  ``record`` (relative to the
     current directory) overrides the config's ``dashboard.record`` (relative to the config's).
     """
-    name = check_instance_name(instance or cfg.instance)
+    name = check_instance_name(cfg.instance if instance is None else instance)
     t_start = time.monotonic()
     _check_servos(cfg)
     record_path = _record_path(cfg, record)
+    with lifecycle_lock(name, "start"):
+        return _start(cfg, name, lockstep, record_path, t_start)
+
+
+def _start(
+    cfg: KaliConfig, name: str, lockstep: bool, record_path: str, t_start: float
+) -> StartReport:
+    """``start`` with the lifecycle lock held."""
+    check_not_squatted(name)
     stale: list[str] = []
     if shm_objects(name):
         running = instance_pids(name)
@@ -301,7 +420,7 @@ def start(
                 f"kalictl -i {name} stop first, or start another with -i NAME"
             )
         stale = shm_objects(name)
-        stop(name)
+        _stop(name)
     logs = private_log_dir(log_dir(name))
     arena = _create(cfg, name, lockstep, record_path)
     arena.close()
@@ -337,7 +456,7 @@ def start(
             start_kali_clock(inst)
     except BaseException:
         inst.close()
-        stop(name)
+        _stop(name)
         raise
     inst.close()
     return StartReport(name, pids, stale, time.monotonic() - t_start, logs)

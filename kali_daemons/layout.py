@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 MAGIC = int.from_bytes(b"KALIAREN", "little")
-LAYOUT_VERSION = 3
+LAYOUT_VERSION = 4
 
 ALIGN = 64  # every block starts on a cache line, so every 4/8-byte word in it is aligned
 MAX_BLOCKS = 256  # directory descriptors (blocks plus free fragments)
@@ -50,7 +50,9 @@ HEADER = np.dtype(
         ("shutdown", "<u4"),  # 1 once kalictl stop has asked every process to leave
         ("created_ns", "<i8"),  # CLOCK_REALTIME at creation, for kalictl status
         ("lockstep", "<u4"),  # 1 when the instance runs in lockstep mode
-        ("_pad", "<u4"),
+        # Directory generation, a sequence count: odd while a dir_lock holder changes the
+        # directory, so a reader walks it without the lock and retries if it changed
+        ("dir_gen", "<u4"),
     ],
     align=True,
 )
@@ -224,7 +226,9 @@ MISS_LOG = np.dtype(
 
 
 # --------------------------------------------------------------------------------------------
-# Fault record (DESIGN section 7).  First fault wins; writers take ``lock``.
+# Fault record (DESIGN section 7).  Lock-free, so no process, stopped or dead, can keep a halt
+# from being recorded: the first writer wins by one compare-and-swap of ``active`` from 0 to
+# its pid, then writes the rest alone; readers check ``seq`` before and after a copy.
 
 
 class FaultCode(enum.IntEnum):
@@ -247,13 +251,15 @@ class FaultCode(enum.IntEnum):
 
 FAULT = np.dtype(
     [
-        ("lock", "<u4"),
-        ("active", "<u4"),  # 1 while a fault is uncleared
+        # The fault word: 0 while no fault is active, else the pid of the process whose fault
+        # it is (set by compare-and-swap from 0; kalictl reset exchanges it back to 0)
+        ("active", "<u4"),
+        ("seq", "<u4"),  # the winner's sequence count: odd while it writes the fields below
         ("code", "<u4"),  # FaultCode
         ("pid", "<i4"),  # process that raised it
         ("tick", "<i8"),
         ("time_ns", "<i8"),  # CLOCK_REALTIME
-        ("count", "<u8"),  # faults raised since start (later ones while active are counted)
+        ("count", "<u8"),  # faults raised since start, atomic add (later ones are counted too)
         ("process", f"S{NAME_BYTES}"),
         ("message", f"S{MESSAGE_BYTES}"),
     ],

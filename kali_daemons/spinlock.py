@@ -43,6 +43,32 @@ def pid_alive(pid: int) -> bool:
     return state not in (b"Z", b"X") and not flags & PF_EXITING
 
 
+_STATES = {
+    b"R": "running",
+    b"S": "sleeping",
+    b"D": "in the kernel",
+    b"T": "stopped",
+    b"t": "stopped by a debugger",
+    b"Z": "dead",
+    b"X": "dead",
+}
+
+
+def holder_text(pid: int) -> str:
+    """A lock holder as a message names it: ``pid 4242 (python3, stopped)``; never in a
+    cycle (it reads /proc and builds a string)."""
+    if pid <= 0:
+        return "nobody"
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            raw = f.read()
+    except OSError:
+        return f"pid {pid} (dead)"
+    comm = raw[raw.find(b"(") + 1 : raw.rfind(b")")].decode("utf-8", "replace")
+    state = raw.rsplit(b")", 1)[1].split()[0]
+    return f"pid {pid} ({comm}, {_STATES.get(state, state.decode('ascii', 'replace'))})"
+
+
 class SpinLock:
     """A spinlock on the 32-bit arena word at absolute address ``addr``.
 
@@ -98,7 +124,7 @@ class SpinLock:
                 continue
             if time.monotonic() > deadline:
                 raise LockError(
-                    f"lock '{self.name}' held by pid {seen} for more than {timeout:g} s"
+                    f"lock '{self.name}' held by {holder_text(seen)} for more than {timeout:g} s"
                 )
             time.sleep(backoff)
             backoff = min(backoff * 2, MAX_BACKOFF_S)

@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, precondition, rule
 
-from kali_daemons import layout
-from kali_daemons.arena import Arena, segment_name, unlink_segment
+from kali_daemons import atomic, layout
+from kali_daemons.arena import DIR_READ_WAIT_S, Arena, segment_name, unlink_segment
 from kali_daemons.errors import ArenaError, ArenaFullError
 
 from .conftest import unique_name
@@ -102,6 +102,35 @@ def test_bad_keys_and_sizes(arena: Arena) -> None:
         arena.shmalloc("zero", 0)
     with pytest.raises(ArenaError, match="shfree of unknown block 'ghost'"):
         arena.shfree("ghost")
+
+
+def test_reading_the_directory_takes_no_lock(arena: Arena) -> None:
+    """Another process holding the directory lock (stopped, hung or dead) keeps nobody from
+    looking a block up, attaching to an existing one or listing the arena."""
+    off = arena.shmalloc("a", 100)
+    arena.shmalloc("b", 200)
+    lock_word = arena.address_of_field(0, layout.HEADER, "dir_lock")
+    atomic.store32(lock_word, 4_000_000)  # a pid nobody has: as if its holder were stopped
+    assert arena.lookup("a") == (off, 128)
+    assert arena.shmalloc("a", 100) == off  # an existing block: no lock needed
+    assert [b.key for b in arena.blocks() if b.used] == ["a", "b"]
+    assert arena.stats().used_blocks == 2
+    assert arena.block("b") is not None and arena.block("b").requested == 200
+    assert arena.lookup("c") is None
+
+
+def test_a_directory_left_half_changed_is_named_not_waited_on(arena: Arena) -> None:
+    arena.shmalloc("a", 100)
+    atomic.store32(arena.address_of_field(0, layout.HEADER, "dir_lock"), os.getpid())
+    gen = arena.address_of_field(0, layout.HEADER, "dir_gen")
+    atomic.store32(gen, atomic.load32(gen) | 1)  # its writer stopped in the middle of a change
+    with pytest.raises(
+        ArenaError,
+        match=rf"half-changed for more than {DIR_READ_WAIT_S:g} s by "
+        rf"pid {os.getpid()} \(python",
+    ):
+        arena.blocks()
+    assert arena.lookup("a") is not None  # a block in use never moves: still found
 
 
 def test_new_block_is_zeroed_and_freed_memory_reused(arena: Arena) -> None:
