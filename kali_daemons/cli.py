@@ -639,7 +639,9 @@ def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:
     """Ctrl-C under ``kalictl run``: stop the program's arms, then signal it; a second
     Ctrl-C kills it.  The program's exit status (negative: the signal that ended it)."""
     try:
-        owned = kali.owned_by(proc.pid)
+        owned = sorted(
+            {k for pid in [proc.pid, *_descendants(proc.pid)] for k in kali.owned_by(pid)}
+        )
         kali.stop_robots(owned, force=True)  # before the signal: it may ignore it
         arms = ", ".join(kali.names[k] for k in owned) or "none moving"
         click.echo(f"run: {program} interrupted; arms stopped on their paths: {arms}", err=True)

@@ -96,11 +96,12 @@ def program_name() -> bytes:
 class MotionHandle:
     """One request: ``done``, ``state``, ``wait(timeout)``, ``cancel()``."""
 
-    def __init__(self, kali: Kali, seq: int, robots: list[int], epoch: int) -> None:
+    def __init__(self, kali: Kali, seq: int, robots: list[int], epoch: int | None = None) -> None:
         self.kali = kali
         self.seq = seq
         self.robots = robots
-        self.epoch = epoch  # fault count when it was put
+        # the fault count when it was put (None: now); a fault counted after it halts it
+        self.epoch = int(kali.inst.fault["count"]) if epoch is None else epoch
         self._final: tuple[RequestState, str] | None = None  # the TG's last word, once read
         self._released = False  # the TG was told it may reuse the status record
 
@@ -134,6 +135,21 @@ class MotionHandle:
         if fault is not None:
             return RequestState.HALTED, f"halted: {fault}"
         return state, ""
+
+    def _own_blocker(self) -> int:
+        """The seq of this program's own ended, unread request whose status record this one
+        waits for in the queue (the TG takes it only once that one is read), else 0: a wait
+        that would never end."""
+        rec = self.kali.status[self.seq % layout.STATUS_RING]
+        have = int(rec["seq"])
+        if (
+            0 < have < self.seq
+            and int(rec["client_pid"]) == os.getpid()
+            and int(rec["state"]) in _ENDED
+            and not int(rec["read"])
+        ):
+            return have
+        return 0
 
     def _release(self) -> None:
         """Tell the TG this program is done with the status record (once, and only while the
@@ -185,6 +201,13 @@ class MotionHandle:
                 raise TimeoutError(
                     f"motion: request {self.seq} not done within {timeout:g} s "
                     f"({state.name.lower()})"
+                )
+            blocker = self._own_blocker()
+            if blocker:
+                raise MotionFailedError(
+                    f"request {self.seq} can never start: its status record still holds "
+                    f"this program's request {blocker}, ended and never read; read it "
+                    f"(handle.state or wait) or drop its handle first"
                 )
             self.kali.pause()
         if state == RequestState.LOST:

@@ -83,6 +83,24 @@ def test_a_flood_of_10000_requests_every_handle_resolves(kali: Callable[..., str
         tg = k.inst.arena.record(layout.KEY_TG_STATE, layout.TG_STATE)
         assert int(tg["record_waits"]) > 0  # the TG waited for records rather than lose them
         assert int(tg["taken_seq"]) == handles[-1].seq
+        # a program waiting on a request stuck behind its own unread outcome is told so
+        unread = []
+        while len(unread) < layout.STATUS_RING:
+            try:
+                unread.append(k._request(MotionKind.STOP, [1]))
+            except QueueFullError:
+                step_kali_clock(k.inst, 10)
+        step_kali_clock(k.inst, 100)
+        stuck = k._request(MotionKind.STOP, [1])
+        with pytest.raises(
+            MotionFailedError,
+            match=f"request {stuck.seq} can never start: .* "
+            f"this program's request {unread[0].seq}, ended and never read",
+        ):
+            stuck.wait(timeout=60)
+        del unread  # dropped: the TG may reuse their records
+        step_kali_clock(k.inst, 20)
+        assert stuck.state == RequestState.DONE
         # a record reused behind a handle's back (a writer outside the protocol) is LOST, and
         # its wait says so instead of hanging
         h = left.move_joints(home, wait=False)
