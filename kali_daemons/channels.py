@@ -227,6 +227,12 @@ class RequestQueue:
             self._discarded[...] = int(self._discarded) + 1
         return None
 
+    def next_seq(self) -> int | None:
+        """The seq ``get_into`` returns next if the queue is as its producers wrote it, or
+        None when empty: lets the consumer take an entry only once it can answer for it.
+        Single consumer; never locks; safe in a cycle."""
+        return None if self._next == atomic.load64(self._tail_addr) else self._next + 1
+
     def peek_seq(self) -> int | None:
         """Seq of the oldest unread entry, or None when empty.  Consumer; safe in a cycle."""
         head = atomic.load64(self._head_addr)

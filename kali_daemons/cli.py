@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -586,31 +587,82 @@ def _follow_calibration(
         raise ServoError(f"calibrate: failed on {', '.join(failed)}")
 
 
-@main.command(context_settings={"ignore_unknown_options": True})
+def _descendants(pid: int) -> list[int]:
+    """Every live descendant of ``pid`` (from /proc), children first."""
+    found: list[int] = []
+    todo = [pid]
+    while todo:
+        parent = todo.pop()
+        for task in Path(f"/proc/{parent}/task").glob("*/children"):
+            try:
+                kids = [int(c) for c in task.read_text().split()]
+            except OSError:
+                continue
+            found += kids
+            todo += kids
+    return found
+
+
+def _kill_tree(proc: subprocess.Popen) -> int:
+    """SIGKILL ``proc`` and everything it started, and reap it: nothing is left behind."""
+    for pid in [*_descendants(proc.pid), proc.pid]:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    return proc.wait()
+
+
+@main.command(context_settings={"ignore_unknown_options": True, "allow_interspersed_args": False})
 @click.argument("program", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.argument("args", nargs=-1, type=click.UNPROCESSED)
 @click.pass_context
 @_errors
 def run(ctx: click.Context, program: Path, args: tuple[str, ...]) -> None:
-    """Run the robot program PROGRAM (a Python file, with ARGS) attached to this instance.
+    """Run the robot program PROGRAM (a Python file) attached to this instance; everything
+    after PROGRAM (after a ``--``, if one follows it) goes to the program unchanged.
 
-    ``Kali()`` in the program connects to it ($KALI_INSTANCE).  Ctrl-C ends the program and
-    brings every arm to rest on its path; the exit status is the program's.
+    ``Kali()`` in the program connects to it ($KALI_INSTANCE).  Ctrl-C first stops the arms
+    the program owns on their paths, through the TG's queue (taking them over, so the program
+    cannot start them again), then sends it SIGINT; a second Ctrl-C kills it and whatever it
+    started.  The exit status is the program's (128 + N when signal N ended it).
     """
     name = _instance_name(ctx)
-    with _attach(ctx):
-        pass  # the instance must be up: say so before the program starts
+    if args[:1] == ("--",):
+        args = args[1:]
+    kali = Kali(name, force=True)  # the instance must be up: say so before the program starts
     env = {**os.environ, INSTANCE_ENV: name}
-    proc = subprocess.Popen([sys.executable, str(program), *args], env=env)
     try:
-        status = proc.wait()
-    except KeyboardInterrupt:  # the program got the SIGINT too (same process group)
-        status = proc.wait()
-        with Kali(name) as kali:
-            for robot in kali.names:
-                kali.robot(robot).stop()
-        click.echo(f"run: {program} interrupted; every arm stopped on its path", err=True)
-    sys.exit(status)
+        proc = subprocess.Popen([sys.executable, str(program), *args], env=env)
+        try:
+            status = proc.wait()
+        except KeyboardInterrupt:
+            status = _interrupted(kali, proc, program)
+    finally:
+        kali.close()
+    sys.exit(status if status >= 0 else 128 - status)  # a signal's death as a shell says it
+
+
+def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:
+    """Ctrl-C under ``kalictl run``: stop the program's arms, then signal it; a second
+    Ctrl-C kills it.  The program's exit status (negative: the signal that ended it)."""
+    try:
+        owned = sorted(
+            {k for pid in [proc.pid, *_descendants(proc.pid)] for k in kali.owned_by(pid)}
+        )
+        kali.stop_robots(owned, force=True)  # before the signal: it may ignore it
+        arms = ", ".join(kali.names[k] for k in owned) or "none moving"
+        click.echo(f"run: {program} interrupted; arms stopped on their paths: {arms}", err=True)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        return proc.wait()
+    except KeyboardInterrupt:
+        status = _kill_tree(proc)
+        click.echo(f"run: {program} killed (second Ctrl-C)", err=True)
+        return status
+    except BaseException:
+        _kill_tree(proc)
+        raise
 
 
 @main.command()
@@ -626,11 +678,15 @@ def run(ctx: click.Context, program: Path, args: tuple[str, ...]) -> None:
     help="fraction of the joint speed and acceleration limits",
 )
 @click.option("--timeout", default=60.0, show_default=True, help="seconds to wait")
+@click.option("--force", is_flag=True, help="take the arm over from the program that owns it")
 @click.pass_context
 @_errors
-def move(ctx: click.Context, robot: str, joints: str, speed: float, timeout: float) -> None:
+def move(
+    ctx: click.Context, robot: str, joints: str, speed: float, timeout: float, force: bool
+) -> None:
     """Move ROBOT's joints smoothly to --joints through the trajectory generator, every joint
-    arriving together; waits until the arm is there."""
+    arriving together; waits until the arm is there.  An arm another program owns is refused,
+    naming it, unless --force (which stops that program's motion on it)."""
     try:
         target_deg = [float(v) for v in joints.replace(" ", "").split(",")]
     except ValueError:
@@ -639,10 +695,16 @@ def move(ctx: click.Context, robot: str, joints: str, speed: float, timeout: flo
         ) from None
     if len(target_deg) != 6:
         raise ServoError(f"move: --joints {joints!r}: {len(target_deg)} values, expected 6")
-    with Kali(_instance_name(ctx)) as kali:
+    with Kali(_instance_name(ctx), force=force) as kali:
         arm = kali.robot(robot)
         if kali.servo.power_state(arm.name) != PowerState.ON:
             raise ServoError(f"move: robot '{arm.name}' is not powered; kalictl enable {arm.name}")
+        owner = kali.owner(arm.index)
+        if owner is not None and not force:  # the TG refuses it anyway: say so at once
+            raise ServoError(
+                f"move: robot '{arm.name}' is owned by pid {owner[0]} ({owner[1]}); "
+                f"kalictl move --force takes it over"
+            )
         t0 = time.monotonic()
         handle = arm.move_joints(np.radians(target_deg), speed=speed, wait=False)
         if kali.inst.lockstep:

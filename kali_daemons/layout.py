@@ -662,6 +662,13 @@ STATUS_RING = 256  # request statuses kept; request seq s lives at s % STATUS_RI
 KEY_MOTION_QUEUE = "tg.requests"
 KEY_MOTION_STATUS = "tg.status"
 KEY_TG_ROBOTS = "tg.robots"
+KEY_TG_STATE = "tg.state"
+KEY_TG_LEASES = "tg.leases"
+PROGRAM_BYTES = 24  # a client's program name in its requests and leases
+
+# A request's ``flags``.
+REQUEST_FORCE = 1 << 0  # take the arms over from the program that owns them (kalictl --force)
+REQUEST_UNWATCHED = 1 << 1  # nobody reads the outcome: its status record is free once it ends
 
 
 class MotionKind(enum.IntEnum):
@@ -684,6 +691,7 @@ class RequestState(enum.IntEnum):
     STOPPED = 5  # stopped on request, at rest on the path
     ABORTED = 6
     HALTED = 7  # the system halted: the message is the fault
+    LOST = 8  # client only, never written: the status record now holds a later request
 
 
 TERMINAL_STATES = (
@@ -692,6 +700,7 @@ TERMINAL_STATES = (
     RequestState.STOPPED,
     RequestState.ABORTED,
     RequestState.HALTED,
+    RequestState.LOST,
 )
 
 # A PATH request's configuration per robot (kinematics.Config): CONFIG_GIVEN set means bits
@@ -706,10 +715,14 @@ MOTION_REQUEST = np.dtype(
         ("kind", "u1"),  # MotionKind
         ("n_robots", "u1"),  # robots in the motion system
         ("n_segments", "u1"),  # PATH: poses used
-        ("_pad", "u1"),
+        ("flags", "u1"),  # REQUEST_* bits
         ("robots", "u1", (MAX_ROBOTS,)),  # robot indices (config order)
         ("config", "u1", (MAX_ROBOTS,)),  # PATH: CONFIG_* bits per robot; 0 = the arm's own
-        ("client_pid", "<i4"),
+        ("client_pid", "<i4"),  # the program asking: it owns the arms (lease) and the outcome
+        # FAULT ``count`` when the client put it: a fault raised since halts the request, one
+        # cleared before it does not (the TG judges it by the state it finds)
+        ("fault_epoch", "<u8"),
+        ("client_name", f"S{PROGRAM_BYTES}"),  # the program's name, for refusals and leases
         ("joints", "<f8", (MAX_ROBOTS, 6)),  # JOINTS: targets, rad
         ("speed_scale", "<f8"),  # JOINTS: fraction (0, 1] of the joint speed/accel limits
         ("poses", "<f8", (MAX_SEGMENTS, 4, 4)),  # PATH: control-frame targets, world frame
@@ -725,7 +738,11 @@ REQUEST_STATUS = np.dtype(
     [
         ("seq", "<u8"),  # the request this record is about (0: none yet)
         ("state", "u1"),  # RequestState
-        ("_pad", "u1", (7,)),
+        # the owning client, once it has seen the final state (or dropped its handle); the TG
+        # reuses a record only when it is read or its client_pid is dead
+        ("read", "u1"),
+        ("_pad", "u1", (2,)),
+        ("client_pid", "<i4"),  # TG: the request's client_pid
         ("duration_s", "<f8"),  # planned duration once running
         ("progress", "<f8"),  # path time / duration, 0..1
         ("message", f"S{MESSAGE_BYTES}"),  # why refused, stopped or halted
@@ -739,6 +756,31 @@ TG_ROBOT = np.dtype(
         ("setpoint", "<f8", (6,)),  # TG: the last joint set-point pushed, rad
         ("t6", "<f8", (4, 4)),  # TG: T6 of that set-point, base frame
         ("tick", "<i8"),  # TG: last TG tick
+    ],
+    align=True,
+)
+
+TG_STATE = np.dtype(
+    [
+        ("taken_seq", "<u8"),  # TG: the last request taken from the queue
+        # TG: ticks the next request waited in the queue for its status record (unread by a
+        # live client): admission is bounded, the queue pushes back on producers
+        ("record_waits", "<u8"),
+        ("unreported", "<u8"),  # TG: requests with no record to answer in (a forged queue)
+    ],
+    align=True,
+)
+
+# A motion system's arms belong to one program at a time (like ros2_control's claimed command
+# interfaces): the TG gives an arm to the first live program that requests it and refuses the
+# others, naming the owner, until the owner's pid is dead or a request with REQUEST_FORCE
+# takes it over.  Writer: the TG.  Readers: clients, kalictl.
+LEASE = np.dtype(
+    [
+        ("pid", "<i4"),  # the owning program (0: none)
+        ("_pad", "<i4"),
+        ("tick", "<i8"),  # TG tick it was claimed
+        ("name", f"S{PROGRAM_BYTES}"),  # the owner's program name
     ],
     align=True,
 )

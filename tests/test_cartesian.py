@@ -18,7 +18,12 @@ from kali_daemons.tg.cartesian import (
     encode_config,
     inverse,
 )
-from kali_daemons.tg.daemon import CHECK_CHUNK, Motion, TrajectoryGenerator
+from kali_daemons.tg.daemon import (
+    CHECK_CHUNK,
+    LOCKSTEP_CHECK_SAMPLES,
+    Motion,
+    TrajectoryGenerator,
+)
 from kali_daemons.tg.profiles import MotionError
 
 DT = 0.01
@@ -155,10 +160,13 @@ class _Checker:
     """The TG's ``_check`` over one motion, with ``_run`` recorded instead of run."""
 
     _check = TrajectoryGenerator._check
+    _spent = TrajectoryGenerator._spent
 
-    def __init__(self, until_ns: int) -> None:
+    def __init__(self, until_ns: int, lockstep: bool = False) -> None:
         self.check_ns = 2_500_000  # CHECK_SHARE of a 10 ms period
         self._check_until = until_ns
+        self.lockstep = lockstep
+        self._work = 0
         self._progress = np.zeros(layout.STATUS_RING)
         self.ran: list[Motion] = []
 
@@ -181,6 +189,25 @@ def test_a_ticks_path_check_ends_with_the_ticks_check_share() -> None:
     ample = _Checker(time.monotonic_ns() + 60_000_000_000)
     ample._check(m)
     assert plan.checked == plan.n_samples and not m.checking and ample.ran == [m]
+
+
+def test_in_lockstep_a_ticks_path_check_is_a_count_of_samples_not_wall_time() -> None:
+    """Lockstep: each tick checks LOCKSTEP_CHECK_SAMPLES path samples whatever the clock on
+    the wall says (spent long ago, or an hour left), so the tick a path starts on depends on
+    simulated time only (issue 24 item 7: the wall-time slice made identical runs differ)."""
+    q0 = np.array(puma560.QN)
+    start = world_pose(LEFT, q0)
+    for until in (time.monotonic_ns() - 1, time.monotonic_ns() + 3_600_000_000_000):
+        plan = one_arm(q0, [translated(start, (0.0, 0.0, 0.2))], speed=0.05)
+        m = Motion(5, [0], plan, checking=True)
+        tg = _Checker(until, lockstep=True)
+        ticks = 0
+        while m.checking:
+            tg._work = 0  # as each cycle begins
+            tg._check(m)
+            ticks += 1
+            assert plan.checked == min(plan.n_samples, ticks * LOCKSTEP_CHECK_SAMPLES)
+        assert ticks == -(-plan.n_samples // LOCKSTEP_CHECK_SAMPLES) and tg.ran == [m]
 
 
 def test_check_goes_in_slices_and_sampling_fails_loudly_if_the_path_breaks() -> None:

@@ -209,9 +209,11 @@ class _Waiting:
 
     _start_waiting = TrajectoryGenerator._start_waiting
     _robots_of = TrajectoryGenerator._robots_of
+    _spent = TrajectoryGenerator._spent
 
     def __init__(self, check_until: int) -> None:
         self.n_robots = 2
+        self.lockstep = False  # real time: the share is wall time
         self.motions: list[object] = []
         self.waiting: list[tuple[int, np.void]] = []
         self._check_until = check_until

@@ -23,6 +23,15 @@ the argument, and nothing moves; no other exception comes out of a bad argument.
 path whose arms are idle is checked whole here, with the TG's own check (``tg.cartesian``),
 so the reason comes back at once.  A halt wakes every waiting program with the fault
 (``MotionFailedError``).
+
+Every request's outcome stays readable until this program has read it (or dropped its
+handle, or exited): the TG reuses a status record only then, and takes no request it could not
+answer for, so a flood of requests meets ``QueueFullError`` instead of losing outcomes.  A
+handle whose record was reused anyway (by a writer outside the protocol) reads LOST and its
+``wait`` raises ``RequestLostError``.  A halt reads HALTED at once on every request not over,
+with the fault: nothing waits for the TG to tick again.  An arm belongs to the first program
+that moves it until that program exits; another program's requests for it are refused naming
+the owner (``force=True``, as ``kalictl move --force``, takes it over).
 """
 
 from __future__ import annotations
@@ -42,12 +51,14 @@ from ..instance import Instance, decode
 from ..kinematics import Config, KinematicsError
 from ..layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
 from ..servolevel import ServoClient
+from ..spinlock import pid_alive
 from ..tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
 from ..tg.profiles import MotionError, check_joint_target
 from ..wallclock import control as _control
 from ..wallclock import step_kali_clock
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
+_ENDED = frozenset(int(s) for s in TERMINAL_STATES if s != RequestState.LOST)
 LOCKSTEP_STEP = 10  # ticks a waiting program steps a lockstep instance's clock at a time
 DEFAULT_INSTANCE = "default"
 INSTANCE_ENV = "KALI_INSTANCE"  # set by `kalictl -i NAME run PROGRAM`
@@ -57,30 +68,117 @@ class MotionFailedError(MotionError):
     """The system halted (or the request was refused, stopped or aborted) while waiting."""
 
 
+class RequestLostError(MotionFailedError):
+    """The request's status record holds a later request: its outcome cannot be told."""
+
+
+def fault_since(inst: Instance, epoch: int) -> str | None:
+    """The fault that halts a request put at fault count ``epoch``: the active one, or one
+    raised (and maybe cleared) since; None if there is none."""
+    if inst.fault_text() is not None or int(inst.fault["count"]) > epoch:
+        return inst.fault_text(last=True) or "the system halted"
+    return None
+
+
+def program_name() -> bytes:
+    """This program's name as requests carry it (the script's file name, else the pid)."""
+    import sys
+
+    path = sys.argv[0] if sys.argv else ""
+    name = os.path.basename(path)
+    if name == "__main__.py":  # python -m PACKAGE
+        name = os.path.basename(os.path.dirname(path))
+    if name in ("", "-c", "-m"):
+        name = f"python pid {os.getpid()}"
+    return name.encode()[: layout.PROGRAM_BYTES]
+
+
 class MotionHandle:
     """One request: ``done``, ``state``, ``wait(timeout)``, ``cancel()``."""
 
-    def __init__(self, kali: Kali, seq: int, robots: list[int]) -> None:
+    def __init__(self, kali: Kali, seq: int, robots: list[int], epoch: int | None = None) -> None:
         self.kali = kali
         self.seq = seq
         self.robots = robots
+        # the fault count when it was put (None: now); a fault counted after it halts it
+        self.epoch = int(kali.inst.fault["count"]) if epoch is None else epoch
+        self._final: tuple[RequestState, str] | None = None  # the TG's last word, once read
+        self._released = False  # the TG was told it may reuse the status record
 
-    @property
-    def _status(self) -> np.void | None:
+    def _read(self) -> tuple[RequestState, str]:
+        """(state, message) as the TG wrote them, or HALTED with the fault when one has been
+        raised since the request was put and the TG has not ended it yet (the TG cannot tick
+        while halted; the process raising the fault does not know the requests)."""
+        if self._final is not None:
+            return self._final
         rec = self.kali.status[self.seq % layout.STATUS_RING]
-        return rec if int(rec["seq"]) == self.seq else None
+        have = int(rec["seq"])
+        state = RequestState.QUEUED  # still in the queue, or taken and not yet written
+        if have == self.seq:
+            raw = int(rec["state"])
+            message = decode(rec["message"])  # the TG writes the message before the state
+            if raw in _ENDED and int(rec["seq"]) == self.seq:
+                self._final = (RequestState(raw), message)
+                self._release()
+                return self._final
+            if raw in (RequestState.QUEUED, RequestState.RUNNING):
+                state = RequestState(raw)
+        elif have > self.seq:
+            self._final = (
+                RequestState.LOST,
+                f"its status record {self.seq % layout.STATUS_RING} now holds request {have} "
+                f"(written outside the protocol, or by a TG that did not keep it); the outcome "
+                f"is unknown",
+            )
+            return self._final
+        fault = fault_since(self.kali.inst, self.epoch)
+        if fault is not None:
+            return RequestState.HALTED, f"halted: {fault}"
+        return state, ""
+
+    def _own_blocker(self) -> int:
+        """The seq of this program's own ended, unread request whose status record this one
+        waits for in the queue (the TG takes it only once that one is read), else 0: a wait
+        that would never end."""
+        rec = self.kali.status[self.seq % layout.STATUS_RING]
+        have = int(rec["seq"])
+        if (
+            0 < have < self.seq
+            and int(rec["client_pid"]) == os.getpid()
+            and int(rec["state"]) in _ENDED
+            and not int(rec["read"])
+        ):
+            return have
+        return 0
+
+    def _release(self) -> None:
+        """Tell the TG this program is done with the status record (once, and only while the
+        record still holds this request: the TG cannot have reused it before)."""
+        if self._released:
+            return
+        self._released = True
+        status = self.kali.status
+        if status is not None:
+            rec = status[self.seq % layout.STATUS_RING]
+            if int(rec["seq"]) == self.seq:
+                rec["read"] = 1
+
+    def __del__(self) -> None:
+        try:
+            self._release()  # nobody can read it any more
+        except Exception:
+            pass
 
     @property
     def state(self) -> RequestState:
-        """Where the request is (QUEUED until the TG has taken it)."""
-        rec = self._status
-        return RequestState.QUEUED if rec is None else RequestState(int(rec["state"]))
+        """Where the request is (QUEUED until the TG has taken it; HALTED at once on a halt;
+        LOST if its record was reused)."""
+        return self._read()[0]
 
     @property
     def message(self) -> str:
         """Why it was refused, stopped or halted ('' otherwise)."""
-        rec = self._status
-        return "" if rec is None else decode(rec["message"])
+        return self._read()[1]
 
     @property
     def done(self) -> bool:
@@ -94,8 +192,6 @@ class MotionHandle:
         deadline = None if timeout is None else time.monotonic() + timeout
         inst = self.kali.inst
         while (state := self.state) not in TERMINAL_STATES:  # one read: judged as it was seen
-            if inst.fault["active"]:  # the clock, and so the TG, has stopped: say it here
-                raise MotionFailedError(f"request {self.seq} halted: {inst.fault_text()}")
             if inst.shutting_down:  # nothing is left to finish it, or to say so
                 raise MotionFailedError(
                     f"request {self.seq} {state.name.lower()}: instance '{inst.name}' was "
@@ -106,13 +202,22 @@ class MotionHandle:
                     f"motion: request {self.seq} not done within {timeout:g} s "
                     f"({state.name.lower()})"
                 )
+            blocker = self._own_blocker()
+            if blocker:
+                raise MotionFailedError(
+                    f"request {self.seq} can never start: its status record still holds "
+                    f"this program's request {blocker}, ended and never read; read it "
+                    f"(handle.state or wait) or drop its handle first"
+                )
             self.kali.pause()
+        if state == RequestState.LOST:
+            raise RequestLostError(f"request {self.seq} lost: {self.message}")
         if state != RequestState.DONE:
             raise MotionFailedError(f"request {self.seq} {state.name.lower()}: {self.message}")
 
     def cancel(self) -> None:
         """Stop the motion smoothly on its path (a queued one never starts)."""
-        self.kali._request(MotionKind.STOP, self.robots)
+        self.kali._order(MotionKind.STOP, self.robots)
 
 
 def pose(xyz: Sequence[float], rotation: np.ndarray | None = None) -> np.ndarray:
@@ -290,11 +395,11 @@ class Robot:
 
     def stop(self) -> None:
         """Decelerate this arm's motion to rest on its path; queued ones are cancelled."""
-        self.kali._request(MotionKind.STOP, [self.index])
+        self.kali._order(MotionKind.STOP, [self.index])
 
     def abort(self) -> None:
         """Drop this arm's motion at once: it holds at the last set-point."""
-        self.kali._request(MotionKind.ABORT, [self.index])
+        self.kali._order(MotionKind.ABORT, [self.index])
 
 
 class MotionSystem:
@@ -397,11 +502,11 @@ class MotionSystem:
 
     def stop(self) -> None:
         """Decelerate the motion system to rest on its path."""
-        self.kali._request(MotionKind.STOP, self.indices)
+        self.kali._order(MotionKind.STOP, self.indices)
 
     def abort(self) -> None:
         """Drop the motion system's motion at once."""
-        self.kali._request(MotionKind.ABORT, self.indices)
+        self.kali._order(MotionKind.ABORT, self.indices)
 
 
 def _joints(robot: str, q: np.ndarray) -> np.ndarray:
@@ -415,9 +520,12 @@ def _joints(robot: str, q: np.ndarray) -> np.ndarray:
 class Kali:
     """A user program's connection to a running instance (attach by name)."""
 
-    def __init__(self, instance: str | None = None) -> None:
+    def __init__(self, instance: str | None = None, force: bool = False) -> None:
         """Attach to ``instance`` (default: $KALI_INSTANCE, set by ``kalictl run``, else
-        'default')."""
+        'default').  ``force``: every request takes its arms over from the program owning
+        them (``kalictl move --force``)."""
+        self.force = force
+        self.program = program_name()
         self.inst = Instance.attach(instance or os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE))
         try:
             self.servo = ServoClient(self.inst)
@@ -431,6 +539,7 @@ class Kali:
             self.tg_robots = arena.record(
                 layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.servo.names)
             )
+            self.leases = arena.record(layout.KEY_TG_LEASES, layout.LEASE, len(self.servo.names))
             self.fifos = [self.servo.level.fifo(k) for k in range(len(self.servo.names))]
         except KaliError:
             self.inst.close()
@@ -552,19 +661,56 @@ class Kali:
             return self.tg_robots["setpoint"][k].copy()
         return self.servo.level.robots["demand"][k].copy()
 
-    def _request(self, kind: MotionKind, robots: list[int], **fields: object) -> MotionHandle:
+    def owner(self, k: int) -> tuple[int, str] | None:
+        """(pid, program name) of the live program owning robot ``k``, or None."""
+        lease = self.leases[k]
+        pid = int(lease["pid"])
+        return (pid, decode(lease["name"])) if pid_alive(pid) else None
+
+    def owned_by(self, pid: int) -> list[int]:
+        """The robots program ``pid`` owns."""
+        return [k for k in range(len(self.names)) if int(self.leases["pid"][k]) == pid]
+
+    def _order(self, kind: MotionKind, robots: list[int], force: bool = False) -> None:
+        """A STOP or ABORT nobody waits on (its status record is free once it is done); none
+        while the system is halted: nothing moves then, and the TG ends every motion."""
+        if fault_since(self.inst, int(self.inst.fault["count"])) is None:
+            flags = layout.REQUEST_UNWATCHED | (layout.REQUEST_FORCE if force else 0)
+            self._request(kind, robots, flags=flags)
+
+    def stop_robots(self, robots: Sequence[int], force: bool = False) -> None:
+        """Stop ``robots`` (indices) on their paths; ``force`` takes them over from the
+        program that owns them (``kalictl run`` on Ctrl-C)."""
+        if robots:
+            self._order(MotionKind.STOP, list(robots), force)
+
+    def _request(
+        self, kind: MotionKind, robots: list[int], flags: int = 0, **fields: object
+    ) -> MotionHandle:
+        """Put one request; MotionFailedError while the system is halted (it would only be
+        halted: the TG is stopped), QueueFullError when the TG cannot take more yet."""
+        epoch = int(self.inst.fault["count"])
+        fault = fault_since(self.inst, epoch)
+        if fault is not None:
+            raise MotionFailedError(
+                f"{kind.name.lower()} request refused: the system is halted ({fault}); "
+                f"kalictl reset first"
+            )
         req = np.zeros((), dtype=layout.MOTION_REQUEST)
         req["kind"] = kind
+        req["flags"] = flags | (layout.REQUEST_FORCE if self.force else 0)
         req["n_robots"] = len(robots)
         req["robots"][: len(robots)] = robots
         req["client_pid"] = os.getpid()
+        req["client_name"] = self.program
+        req["fault_epoch"] = epoch
         for name, value in fields.items():
             if name in ("joints", "grasps", "config"):  # one per robot of the request
                 req[name][: len(robots)] = value
             else:
                 req[name] = value
         seq = self.queue.put(req)
-        return MotionHandle(self, seq, robots)
+        return MotionHandle(self, seq, robots, epoch)
 
     def close(self) -> None:
         """Detach (the motions already requested go on)."""
@@ -572,6 +718,7 @@ class Kali:
         self.tg_robots = None  # type: ignore[assignment]
         self.fifos = []
         self.status = None  # type: ignore[assignment]
+        self.leases = None  # type: ignore[assignment]
         self.queue = None  # type: ignore[assignment]
         self.inst.close()
 

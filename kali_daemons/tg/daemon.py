@@ -3,8 +3,20 @@ of every motion system each TG tick, time-sharing them.
 
 Requests come from user programs through the Type 1 queue ``tg.requests`` (3.3.2); each one's
 fate is written to its status record in ``tg.status`` (seq % STATUS_RING) so a waiting program
-sees it.  Every request is validated again here, whatever the client checked: the arena is
-never trusted.  A motion runs on its path time τ; each tick τ advances by the TG period, or by
+sees it.  Admission is bounded end to end: the TG takes a request from the queue only when its
+status record is free to reuse (never used, or its last request ended and its client has read
+that, dropped its handle or is dead), so it never holds more than it can answer for; until
+then the request waits in the queue, and a full queue refuses producers (QueueFullError).
+
+Arms are owned (``tg.leases``): the first live program to request an arm owns it until it is
+dead; another program's request for it is refused naming the owner, unless it asks with
+REQUEST_FORCE (``kalictl move --force``, ``kalictl run`` on Ctrl-C), which takes the arm over
+and stops the old owner's motions on it.  The claim is checked here, where a request is taken:
+a client cannot be trusted to check it.  A request put before a fault that has since been
+raised is HALTED when taken (its ``fault_epoch``); one put after a reset is judged as usual.
+
+Every request is validated again here, whatever the client checked: the arena is never
+trusted.  A motion runs on its path time τ; each tick τ advances by the TG period, or by
 σ · period while a stop ramps σ smoothly to 0 (``profiles.StopRamp``), and the set-point for τ
 goes into each robot's TG → SIO FIFO (Type 2), which SIO interpolates at the servo rate.
 
@@ -13,8 +25,10 @@ On a halt every motion is dropped and every request waiting or running is told t
 
 A Cartesian request (PATH) is checked before anything moves (``cartesian.CartesianMotion``):
 once its arms are free, its whole path is walked at the TG's own sample times, a slice of
-each tick (``CHECK_SHARE`` of the period), while the arms hold; it starts when the walk is
-through, or is refused with the reason.  An inverse kinematics failure at run time stops the
+each tick (``CHECK_SHARE`` of the period in real time; in lockstep ``LOCKSTEP_CHECK_SAMPLES``
+path samples, so the tick a path starts on depends on simulated time only, never on the
+host's load), while the arms hold; it starts when the walk is through, or is refused with
+the reason.  An inverse kinematics failure at run time stops the
 motion system and halts the system (FaultCode.SINGULARITY, thesis 2.2.1).
 
 Allocation happens only when a request is accepted (planning builds its motion object);
@@ -43,9 +57,11 @@ from .. import kinematics, layout, puma560
 from ..channels import InterpolatingFifo, RequestQueue
 from ..config import MAX_PERIOD_MS, ms_to_ns
 from ..daemon import Daemon
+from ..instance import decode
 from ..kinematics import KinematicsError
 from ..layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
 from ..servolevel import FIFO_CAPACITY
+from ..spinlock import pid_alive
 from .cartesian import CartesianMotion, base_transform, decode_config
 from .profiles import MAX_MOTION_S, JointMotion, MotionError, StopRamp, check_joint_target
 
@@ -55,7 +71,12 @@ LEAD = 2  # set-points kept in each FIFO ahead of SIO
 CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
 CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before they start
 CHECK_CHUNK = 8  # path samples checked between looks at the time
+# Lockstep: the tick's share of checks and planning counted in path samples, not wall time
+# (about what a 10 ms tick's share checks on this VM); planning a path counts as PLAN_SAMPLES.
+LOCKSTEP_CHECK_SAMPLES = 64
+PLAN_SAMPLES = 32
 _KINDS = frozenset(int(k) for k in MotionKind)
+_ENDED = frozenset(int(s) for s in layout.TERMINAL_STATES)
 
 
 def request_robots(req: np.void, n_robots: int) -> list[int]:
@@ -182,6 +203,8 @@ def write_status(rec: np.void, seq: int, state: RequestState, message: str = "")
         rec["state"] = RequestState.FREE
         rec["duration_s"] = 0.0
         rec["progress"] = 0.0
+        rec["read"] = 0
+        rec["client_pid"] = 0
     rec["seq"] = seq
     rec["message"] = message.encode()[: layout.MESSAGE_BYTES]
     rec["state"] = state
@@ -229,6 +252,12 @@ class TrajectoryGenerator(Daemon):
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
         self.tg_robots = arena.record(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, self.n_robots)
+        self.state = arena.record(layout.KEY_TG_STATE, layout.TG_STATE)
+        self.leases = arena.record(layout.KEY_TG_LEASES, layout.LEASE, self.n_robots)
+        self._lease_pid = self.leases["pid"]
+        self.lockstep = inst.lockstep
+        self._work = 0  # lockstep: path samples checked (and plans) this tick
+        self._now = 0  # this tick
         # field views taken once: indexing a record by name builds a new view every time
         self._setpoints = self.tg_robots["setpoint"]
         self._progress = self.status["progress"]
@@ -282,6 +311,8 @@ class TrajectoryGenerator(Daemon):
     def cycle(self, tick: int) -> None:
         """Halts first, then new requests, then every running motion's next set-point."""
         self._check_until = time.monotonic_ns() + self.check_ns  # the whole tick's check share
+        self._work = 0
+        self._now = tick
         self._follow_rate()
         if self.robots is None:
             self.robots = self._attach_robots()
@@ -292,9 +323,19 @@ class TrajectoryGenerator(Daemon):
             self._faults_seen = count
             self._halt_all()
         for _ in range(MAX_REQUESTS_PER_TICK):
+            nxt = self.queue.next_seq()
+            if nxt is None:
+                break
+            if not self._record_free(nxt):  # it waits in the queue: the queue pushes back
+                self.state["record_waits"] += 1
+                break
             seq = self.queue.get_into(self.request)
             if seq is None:
                 break
+            if seq != nxt and not self._record_free(seq):  # entries before it were forged
+                self.state["unreported"] += 1
+                continue
+            self.state["taken_seq"] = seq
             self._take(seq, self.request[0].copy())
         self._start_waiting()
         for m in list(self.motions):
@@ -340,7 +381,10 @@ class TrajectoryGenerator(Daemon):
         return self.inst.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
 
     def _halt_all(self) -> None:
-        text = f"halted: {self.inst.fault_text(last=True) or 'the system halted'}"
+        """Tell every motion and waiting request the fault (readers have said HALTED since it
+        was raised: ``MotionHandle``).  Requests still in the queue are judged when taken, by
+        their ``fault_epoch``: those put before the fault are HALTED, later ones run."""
+        text = self._halt_text()
         for m in self.motions:
             self._say(m.seq, RequestState.HALTED, text)
             for k in m.robots:
@@ -349,8 +393,63 @@ class TrajectoryGenerator(Daemon):
         for seq, _ in self.waiting:
             self._say(seq, RequestState.HALTED, text)
         self.waiting.clear()
-        while (seq := self.queue.get_into(self.request)) is not None:
-            self._say(seq, RequestState.HALTED, text)
+
+    def _halt_text(self) -> str:
+        return f"halted: {self.inst.fault_text(last=True) or 'the system halted'}"
+
+    # ------------------------------------------------------------------ admission
+
+    def _holds(self, seq: int) -> bool:
+        """True if request ``seq`` is a motion or waiting here (its record is in use)."""
+        return any(m.seq == seq for m in self.motions) or any(s == seq for s, _ in self.waiting)
+
+    def _record_free(self, seq: int) -> bool:
+        """True if request ``seq``'s status record may be taken for it: never used, or its
+        last request ended and its client read that (or dropped its handle, or asked with
+        REQUEST_UNWATCHED) or is dead.  A record not ended that no motion or waiting request
+        here holds was written by something else and is free too.  In the cycle; looks at
+        /proc only for an ended, unread record."""
+        rec = self.status[seq % layout.STATUS_RING]
+        have = int(rec["seq"])
+        if have == 0 or have >= seq:
+            return True
+        if int(rec["state"]) not in _ENDED:
+            return not self._holds(have)
+        return bool(rec["read"]) or not pid_alive(int(rec["client_pid"]))
+
+    def _claim(self, robots: list[int], req: np.void) -> str:
+        """Give ``robots`` to the request's program, or say who owns them ('' when given).
+
+        An arm is free when no pid holds it or its holder is dead; REQUEST_FORCE takes it
+        from a live owner and stops that owner's motions on it.  A request with no pid (0:
+        not from a client) neither claims nor takes over."""
+        pid = int(req["client_pid"])
+        force = bool(int(req["flags"]) & layout.REQUEST_FORCE)
+        taken = []
+        for k in robots:
+            held = int(self._lease_pid[k])
+            if held in (0, pid) or not pid_alive(held):
+                continue
+            if not force:
+                lease = self.leases[k]
+                return (
+                    f"robot '{self.names[k]}' is owned by pid {held} "
+                    f"({decode(lease['name']) or 'a program'}) since tick {int(lease['tick'])}; "
+                    f"another program's requests for it are refused until that one exits "
+                    f"(kalictl move --force takes it over)"
+                )
+            taken.append(k)
+        if pid <= 0:
+            return ""
+        if taken:
+            self._stop(taken, abort=False)
+        for k in robots:
+            if int(self._lease_pid[k]) != pid:
+                lease = self.leases[k]
+                lease["pid"] = pid
+                lease["tick"] = self._now
+                lease["name"] = req["client_name"]
+        return ""
 
     # ------------------------------------------------------------------ requests
 
@@ -362,10 +461,21 @@ class TrajectoryGenerator(Daemon):
         """Check a new request; queue, refuse, or act on it (stop, abort).  Nothing a request
         holds raises out of here: whatever is wrong with it refuses it (``refusal``)."""
         calibrated = None if self.robots is None else self.robots["calibrated"]
+        rec = self.status[seq % layout.STATUS_RING]
+        write_status(rec, seq, RequestState.FREE)  # this request's from here on
+        rec["client_pid"] = req["client_pid"]
+        rec["read"] = 1 if int(req["flags"]) & layout.REQUEST_UNWATCHED else 0
+        if int(req["fault_epoch"]) < int(self.inst.fault["count"]):  # put before a fault
+            self._say(seq, RequestState.HALTED, self._halt_text())
+            return
         try:
             kind, robots = check_request(req, self.names, calibrated)
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
+            return
+        owner = self._claim(robots, req)
+        if owner:
+            self._say(seq, RequestState.REFUSED, owner)
             return
         if kind in (MotionKind.STOP, MotionKind.ABORT):
             self._stop(robots, abort=kind == MotionKind.ABORT)
@@ -394,7 +504,7 @@ class TrajectoryGenerator(Daemon):
         for seq, req in self.waiting:
             robots = self._robots_of(req)
             if busy & set(robots) or (
-                int(req["kind"]) == MotionKind.PATH and time.monotonic_ns() > self._check_until
+                int(req["kind"]) == MotionKind.PATH and self._spent()
             ):  # robots busy, or this tick's share of planning and checks is spent
                 still.append((seq, req))
                 busy |= set(robots)  # keep the order: later requests wait behind this one
@@ -406,6 +516,14 @@ class TrajectoryGenerator(Daemon):
             self._start(seq, req, robots)
             busy |= set(robots)
         self.waiting = still
+
+    def _spent(self) -> bool:
+        """True once this tick's share of path checks and planning is used up: wall time in
+        real time, a count of path samples in lockstep (so a run there depends on simulated
+        time only, bit for bit whatever the host's load).  In the cycle."""
+        if self.lockstep:
+            return self._work >= LOCKSTEP_CHECK_SAMPLES
+        return time.monotonic_ns() > self._check_until
 
     def _unpowered(self, robots: list[int]) -> str:
         for k in robots:
@@ -448,6 +566,7 @@ class TrajectoryGenerator(Daemon):
             for k in robots:
                 self._require_calibrated(k)
             start = np.array([self._start_point(k) for k in robots])
+            self._work += PLAN_SAMPLES
             plan = plan_path(req, robots, self.names, self.bases, start, self.dt)
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
@@ -471,7 +590,8 @@ class TrajectoryGenerator(Daemon):
         try:
             while not plan.check_some(CHECK_CHUNK):
                 self._progress[m.seq % layout.STATUS_RING] = plan.checked / plan.n_samples
-                if time.monotonic_ns() > self._check_until:
+                self._work += CHECK_CHUNK
+                if self._spent():
                     return
         except Exception as exc:  # nothing has moved: refuse, never halt
             self._end_motion(m, RequestState.REFUSED, refusal(exc))
