@@ -86,10 +86,19 @@ class RequestQueue:
     1 and strictly increasing in the order entries were accepted: its place in the queue + 1
     (the tail it was written at + 1), which is how the consumer knows an entry was written for
     the place it reads.  A full queue refuses the entry (:class:`QueueFullError`) and
-    overwrites nothing.
+    overwrites nothing.  With ``share=(field, n)``, producers are told apart by a payload
+    field (the TG's queue: the client's pid) and each may hold at most ``n`` unread entries,
+    so one producer flooding it cannot keep the others out.
     """
 
-    def __init__(self, arena: Arena, key: str, payload: np.dtype, capacity: int) -> None:
+    def __init__(
+        self,
+        arena: Arena,
+        key: str,
+        payload: np.dtype,
+        capacity: int,
+        share: tuple[str, int] | None = None,
+    ) -> None:
         """Create or attach (outside the cycle: takes the directory and producers' locks)."""
         self.key = key
         self.payload = np.dtype(payload)
@@ -115,6 +124,9 @@ class RequestQueue:
                 if have_bytes != self.payload.itemsize:
                     raise _mismatch("queue", key, "entry_bytes", have_bytes, self.payload.itemsize)
         self._capacity = cap
+        if share is not None and (share[0] not in self.payload.fields or not 0 < share[1] <= cap):
+            raise ChannelError(f"queue '{key}': share {share!r}: a payload field and 1..{cap}")
+        self._share = share
         self._slots = arena.record(key + ".slots", layout.queue_entry(self.payload), cap)
         self._seqs = self._slots["seq"]
         payloads = self._slots["payload"]
@@ -174,9 +186,12 @@ class RequestQueue:
         with self._lock:
             tail = int(self._h["tail"])  # only lock holders write it
             head = atomic.load64(self._head_addr)
+            mine = self._held(head, tail)
             if tail - head >= self._capacity:
                 self._h["rejected"] += 1
                 full = (tail - head, int(self._seqs[head % self._capacity]))
+            elif mine is not None:
+                self._h["rejected"] += 1
             else:
                 slot = tail % self._capacity
                 seq = tail + 1  # from the place, never from next_seq: see the class doc
@@ -189,7 +204,25 @@ class RequestQueue:
                 f"queue '{self.key}' full: {full[0]} of {self._capacity} entries unread "
                 f"(oldest seq {full[1]}); entry refused, nothing overwritten"
             )
+        if mine is not None:
+            field, n = self._share  # type: ignore[misc]
+            raise QueueFullError(
+                f"queue '{self.key}': {field} {mine} already has {n} of its share of {n} "
+                f"entries unread; entry refused until the consumer takes one"
+            )
         return seq
+
+    def _held(self, head: int, tail: int) -> object | None:
+        """With a share: the staged entry's producer if it already holds its share of the
+        unread entries [head, tail), else None.  Under the producers' lock."""
+        if self._share is None or tail <= head:
+            return None
+        field, n = self._share
+        places = np.arange(head, tail) % self._capacity
+        who = self._staging[field]
+        if np.count_nonzero(self._slots["payload"][field][places] == who) < n:
+            return None
+        return who.item()
 
     # ---------------------------------------------------------------- the consumer
 

@@ -658,6 +658,7 @@ FEEDFORWARD = np.dtype(
 MAX_ROBOTS = 4  # arms in one cell (config.MAX_ROBOTS)
 MAX_SEGMENTS = 16  # straight-line segments in one Cartesian path request
 MOTION_QUEUE_CAPACITY = 64  # requests waiting for the TG
+MOTION_QUEUE_SHARE = 16  # of them, unread entries one program (client_pid) may hold
 STATUS_RING = 256  # request statuses kept; request seq s lives at s % STATUS_RING
 KEY_MOTION_QUEUE = "tg.requests"
 KEY_MOTION_STATUS = "tg.status"

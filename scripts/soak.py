@@ -4,7 +4,13 @@ What runs.  ``--config`` (``config/default.yaml``) started in real-time mode as 
 instance (``soak<pid>``, never a user's), and ``scripts/example_carry.py`` (both arms pick
 the bar up from its stand, carry it and put it back, with full feed-forward) run over and
 over as a user runs it: one ``kalictl -i INSTANCE run`` client process per iteration, each
-in its own session.  The first iteration is the warm-up (power-on and calibration, the
+in its own session.  Through the window two hostile clients run beside it (issue 24;
+``--no-hostile`` leaves them out): ``soak_flood.py`` under ``kalictl run``, flooding the
+request queue with stops of the demo's arms and waiting for every outcome, and
+``soak_locks.py``, taking and releasing every arena lock in turn, which the soak stops
+(SIGSTOP) for ``STOP_S`` and continues for ``RUN_S`` at random, so it often sits stopped
+holding a lock.  A flood outcome lost or left unresolved, or a hostile client that dies,
+fails the soak.  The first iteration is the warm-up (power-on and calibration, the
 daemons' first motions, BLAS and rerun buffers settling): the window opens when it ends and
 closes when the first iteration that ends after ``--minutes`` ends, so both ends of the
 window fall at the same point of the demo's cycle.  Two cyclictests run through the window:
@@ -83,6 +89,7 @@ import argparse
 import json
 import math
 import os
+import random
 import shlex
 import shutil
 import signal
@@ -149,6 +156,15 @@ REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "default.yaml"
 DEMO = REPO / "scripts" / "example_carry.py"
 DEMO_ROBOTS = ("left", "right")  # the arms example_carry.py moves
+FLOOD = REPO / "scripts" / "soak_flood.py"  # issue 24: a client flooding requests
+LOCKER = REPO / "scripts" / "soak_locks.py"  # issue 24: a client taking every lock in turn
+# The locker is stopped (SIGSTOP) for a random STOP_S and then continued (SIGCONT) for a
+# random RUN_S, over and over: a program under a debugger or Ctrl-Z now and then holding a
+# lock.  Stops stay below the spinlock's 5 s wait, so the demo's own requests (which share
+# the queue's producer lock with it) are delayed, never refused.
+STOP_S = (0.01, 0.5)
+RUN_S = (0.2, 2.0)
+HOSTILE_EXIT_S = 10.0  # after SIGTERM, a hostile client's time to report and exit
 GOAL_MINUTES = 30
 POLL_S = 0.05  # the loop: miss log (512 entries, at most one per process and tick), fault, demo
 SAMPLE_S = 30.0  # RSS sampling period (default of --sample-s)
@@ -443,6 +459,85 @@ class Demo:
         return "\n".join(lines[-STDERR_LINES:])
 
 
+class Hostiles:
+    """The soak's two hostile clients (issue 24): ``soak_flood.py`` under ``kalictl run``
+    (requests as fast as the queue takes them, every outcome waited for) and
+    ``soak_locks.py`` (every arena lock taken and released in turn), which ``poll`` stops
+    and continues at random.  ``finish`` ends both and returns what they reported."""
+
+    def __init__(self, kalictl: str, instance: str, tmp: Path, seed: int) -> None:
+        self.rng = random.Random(seed)
+        self.procs: dict[str, subprocess.Popen[str]] = {}
+        self.err = {name: tmp / f"{name}.stderr" for name in ("flood", "locker")}
+        for name, cmd in (
+            ("flood", [kalictl, "-i", instance, "run", str(FLOOD)]),
+            ("locker", [sys.executable, str(LOCKER), instance]),
+        ):
+            with open(self.err[name], "w") as err:
+                self.procs[name] = subprocess.Popen(
+                    cmd,
+                    stdin=subprocess.DEVNULL,
+                    stdout=subprocess.PIPE,
+                    stderr=err,
+                    text=True,
+                    start_new_session=True,
+                )
+        self.stopped = False
+        self.stops = 0
+        self.stopped_s = 0.0
+        self.longest_stop_s = 0.0
+        self._since = time.monotonic()
+        self._next = self._since + self.rng.uniform(*RUN_S)
+
+    def pids(self) -> list[int]:
+        """The hostile clients' pids (so the foreign-work watch leaves them out)."""
+        return [p.pid for p in self.procs.values()]
+
+    def poll(self) -> None:
+        """Stop or continue the locker when its random time is up."""
+        now = time.monotonic()
+        if now < self._next or self.procs["locker"].poll() is not None:
+            return
+        if self.stopped:
+            os.kill(self.procs["locker"].pid, signal.SIGCONT)
+            self.stopped_s += now - self._since
+            self.longest_stop_s = max(self.longest_stop_s, now - self._since)
+            self._next = now + self.rng.uniform(*RUN_S)
+        else:
+            os.kill(self.procs["locker"].pid, signal.SIGSTOP)
+            self.stops += 1
+            self._next = now + self.rng.uniform(*STOP_S)
+        self.stopped = not self.stopped
+        self._since = now
+
+    def died(self) -> list[str]:
+        """Hostile clients that have exited before ``finish``, with their status."""
+        return [f"{n} (exit {p.returncode})" for n, p in self.procs.items() if p.poll() is not None]
+
+    def finish(self) -> dict[str, object]:
+        """Continue, end (SIGINT to the flood's ``kalictl run``, SIGTERM to the locker) and
+        collect each one's last JSON line, exit status and stderr tail."""
+        out: dict[str, object] = {"stops": self.stops, "stopped_s": round(self.stopped_s, 1)}
+        out["longest_stop_s"] = round(self.longest_stop_s, 3)
+        for name, p in self.procs.items():
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGCONT)
+                os.killpg(p.pid, signal.SIGINT if name == "flood" else signal.SIGTERM)
+            try:
+                text, _ = p.communicate(timeout=HOSTILE_EXIT_S)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                text, _ = p.communicate()
+            lines = [t for t in (text or "").splitlines() if t.startswith("{")]
+            try:
+                last = json.loads(lines[-1]) if lines else {}
+            except json.JSONDecodeError:
+                last = {}
+            err = self.err[name].read_text(errors="replace").strip().splitlines()
+            out[name] = {"exit": p.returncode, "report": last, "stderr": err[-STDERR_LINES:]}
+        return out
+
+
 def halt_window_ns(cfg: KaliConfig) -> int:
     """How far back from a halt the machine's lost time is counted: as long as Kali may go
     without a servo tick before it halts (the serious tolerance, or the boards' watchdog)."""
@@ -572,6 +667,9 @@ class SoakResult:
     notes: list[str] = field(default_factory=list)
     error: str | None = None
     verdict: str = ""
+    hostile: bool = True  # the flood and locker clients ran beside the demo (issue 24)
+    hostiles: dict[str, object] = field(default_factory=dict)  # Hostiles.finish
+    hostiles_died: list[str] = field(default_factory=list)  # exited inside the window
 
 
 def run_iteration(
@@ -626,6 +724,7 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     ct: subprocess.Popen[str] | None = None
     det: subprocess.Popen[str] | None = None
     demo: Demo | None = None
+    hostiles: Hostiles | None = None
     rss: RssLog | None = None
     watch = ForeignWatch(instance)
     watch.poll_rt()
@@ -654,6 +753,9 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
             with open(ct_out, "w") as out, open(ct_err, "w") as err:
                 ct = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
             watch.exclude.update((ct.pid, det.pid))
+            if res.hostile:
+                hostiles = Hostiles(kalictl, instance, tmp, os.getpid())
+                watch.exclude.update(hostiles.pids())
             ct_end = time.monotonic_ns() + ct_seconds * 1_000_000_000
             tail = MissTail(inst)
             sio = SioTail(inst, tail, {p.name for p in cfg.processes if p.serious})
@@ -674,6 +776,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                 sio.poll()
                 watch.poll(ct, ct_end)
                 watch.poll(det, ct_end)
+                if hostiles is not None:
+                    hostiles.poll()
                 now = time.monotonic_ns()
                 if now >= next_sample:
                     rss.sample((now - t0) / 1e9)
@@ -712,6 +816,10 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                     res.halted_at_s = (int(inst.fault["time_ns"]) - real_offset - t0) / 1e9
                     res.flight_dump = flight_dump(inst)
             res.window_s = (s1.t_ns - t0) / 1e9
+            if hostiles is not None:
+                res.hostiles_died = hostiles.died()
+                res.hostiles = hostiles.finish()
+                hostiles = None
             rss.sample(res.window_s)
             res.arena_end = arena_state(inst)
             res.machine["steal_ms"] = steal_ms(stat0, cpu_times())
@@ -743,6 +851,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         with signals_held():
             if demo is not None:
                 demo.stop()
+            if hostiles is not None:
+                res.hostiles = hostiles.finish()
             stop_cyclictest(det)
             stop_cyclictest(ct)
             res.left_behind = stop_instance(instance, started)
@@ -860,6 +970,7 @@ def judge(res: SoakResult) -> None:
         p.append(f"{failed} of {len(its)} demo iterations failed (the warm-up included)")
     if res.arena_changes:
         p.append(f"the arena changed while running ({len(res.arena_changes)} blocks)")
+    p += hostile_problems(res)
     if res.left_behind:
         p.append(f"left behind after the stop: {', '.join(res.left_behind)}")
     if not res.memory and not res.fault and not res.error:
@@ -875,6 +986,30 @@ def judge(res: SoakResult) -> None:
         res.verdict = f"{goal}: PASS (memory flat, 0 misses cyclictest did not also see)"
     if any(n.startswith("NOT REPRESENTATIVE") for n in res.notes):
         res.verdict += " - NOT REPRESENTATIVE, see the notes"
+
+
+def hostile_problems(res: SoakResult) -> list[str]:
+    """Why the hostile clients fail the soak: one died inside the window, the flood lost an
+    outcome or left a request unresolved, or one of them did nothing."""
+    if not res.hostile or not res.hostiles:
+        return []
+    p = [f"a hostile client exited inside the window: {d}" for d in res.hostiles_died]
+    flood = res.hostiles.get("flood", {})
+    locker = res.hostiles.get("locker", {})
+    fr: dict[str, int] = flood.get("report", {})  # type: ignore[union-attr]
+    lr: dict[str, int] = locker.get("report", {})  # type: ignore[union-attr]
+    if not fr:
+        p.append(f"the flood reported nothing (exit {flood.get('exit')})")
+    elif fr.get("lost", 0) or fr.get("unresolved", 0):
+        p.append(
+            f"the flood lost {fr.get('lost', 0)} outcomes and left {fr.get('unresolved', 0)} "
+            f"requests unresolved of {fr.get('requests', 0)}"
+        )
+    elif not fr.get("requests"):
+        p.append("the flood put no request")
+    if not lr.get("taken"):
+        p.append(f"the locker took no lock (exit {locker.get('exit')})")
+    return p
 
 
 # --------------------------------------------------------------------------------------------
@@ -922,7 +1057,8 @@ def format_report(r: SoakResult) -> str:
         )
         if w.error:
             lines += ["  warm-up: " + t for t in w.error.splitlines()]
-    for part in (format_memory, format_wakeup, format_misses, format_arena, format_demo):
+    parts = (format_memory, format_wakeup, format_misses, format_arena, format_demo, format_hostile)
+    for part in parts:
         lines += ["", *part(r)]
     lines.append("")
     if r.fault:
@@ -1083,6 +1219,34 @@ def format_demo(r: SoakResult) -> list[str]:
     return lines
 
 
+def format_hostile(r: SoakResult) -> list[str]:
+    """What the flood and the locker did, and what the locker's stops were."""
+    if not r.hostile:
+        return ["hostile clients: none (--no-hostile)"]
+    h = r.hostiles
+    if not h:
+        return ["hostile clients: did not run"]
+    flood = h.get("flood", {})
+    locker = h.get("locker", {})
+    fr = flood.get("report", {})  # type: ignore[union-attr]
+    lr = locker.get("report", {})  # type: ignore[union-attr]
+    lines = [
+        "hostile clients beside the demo:",
+        "  flood (kalictl run soak_flood.py): "
+        + ", ".join(f"{k} {v}" for k, v in fr.items())
+        + f"; exit {flood.get('exit')}",
+        "  locker (soak_locks.py): "
+        + ", ".join(f"{k} {v}" for k, v in lr.items())
+        + f"; exit {locker.get('exit')}; stopped {h.get('stops')} times for "
+        f"{h.get('stopped_s')} s in all, longest {h.get('longest_stop_s')} s",
+    ]
+    for name in ("flood", "locker"):
+        part = h.get(name, {})
+        if part.get("exit") not in (0, None):  # type: ignore[union-attr]
+            lines += [f"  {name} stderr: {t}" for t in part.get("stderr", [])]  # type: ignore[union-attr]
+    return lines
+
+
 # --------------------------------------------------------------------------------------------
 # Main
 
@@ -1125,6 +1289,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--json", type=Path, default=None, metavar="PATH", help="also write the results to PATH"
     )
+    ap.add_argument(
+        "--no-hostile",
+        action="store_true",
+        help="run the demo alone, without the request flood and the lock-taking client that "
+        "is stopped and continued at random (issue 24's soak runs them)",
+    )
     args = ap.parse_args(argv)
     if args.minutes <= 0:
         ap.error("--minutes must be > 0")
@@ -1140,6 +1310,7 @@ def main(argv: list[str] | None = None) -> int:
         print("soak: note: this script runs real-time; run it SCHED_OTHER", file=sys.stderr)
     res = SoakResult(f"soak{os.getpid()}", str(args.config), args.minutes, args.sample_s)
     res.ct_priority = args.ct_priority
+    res.hostile = not args.no_hostile
     tmp = Path(tempfile.mkdtemp(prefix="soak."))
     t_start = time.monotonic()
     try:

@@ -101,6 +101,25 @@ def test_queue_full_refuses_and_overwrites_nothing(arena: Arena) -> None:
     assert got == [101, 102, 103]
 
 
+def test_one_producer_flooding_keeps_no_other_out_of_the_queue(arena: Arena) -> None:
+    """With a share, each producer (told apart by a payload field) may hold at most that many
+    unread entries: a flood meets QueueFullError naming its share while others still get in
+    (before: the flooder filled all of it and every other producer was refused too)."""
+    q = RequestQueue(arena, "tg.requests", MOTION, 8, share=("kind", 3))
+    for _ in range(3):
+        q.put(motion(1))
+    with pytest.raises(QueueFullError, match=r"kind 1 already has 3 of its share of 3 entries"):
+        q.put(motion(1))
+    others = [q.put(motion(2)) for _ in range(3)] + [q.put(motion(3)) for _ in range(2)]
+    assert len(others) == 5 and len(q) == 8
+    with pytest.raises(QueueFullError, match=r"full: 8 of 8 entries unread"):
+        q.put(motion(4))
+    out = np.zeros((), MOTION)
+    q.get_into(out)
+    assert int(out["kind"]) == 1
+    q.put(motion(1))  # its share has room again
+
+
 def test_queue_wraps_around(arena: Arena) -> None:
     q = RequestQueue(arena, "q", PAYLOAD, 5)
     out = np.zeros((), PAYLOAD)

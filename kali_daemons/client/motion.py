@@ -531,7 +531,11 @@ class Kali:
             self.servo = ServoClient(self.inst)
             arena = self.inst.arena
             self.queue = RequestQueue(
-                arena, layout.KEY_MOTION_QUEUE, layout.MOTION_REQUEST, layout.MOTION_QUEUE_CAPACITY
+                arena,
+                layout.KEY_MOTION_QUEUE,
+                layout.MOTION_REQUEST,
+                layout.MOTION_QUEUE_CAPACITY,
+                share=("client_pid", layout.MOTION_QUEUE_SHARE),
             )
             self.status = arena.record(
                 layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING

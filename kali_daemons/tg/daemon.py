@@ -246,7 +246,11 @@ class TrajectoryGenerator(Daemon):
         self.names = [r.name for r in cfg.robots]
         self.n_robots = len(self.names)
         self.queue = RequestQueue(
-            arena, layout.KEY_MOTION_QUEUE, layout.MOTION_REQUEST, layout.MOTION_QUEUE_CAPACITY
+            arena,
+            layout.KEY_MOTION_QUEUE,
+            layout.MOTION_REQUEST,
+            layout.MOTION_QUEUE_CAPACITY,
+            share=("client_pid", layout.MOTION_QUEUE_SHARE),
         )
         self.status = arena.record(
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
@@ -422,9 +426,12 @@ class TrajectoryGenerator(Daemon):
 
         An arm is free when no pid holds it or its holder is dead; REQUEST_FORCE takes it
         from a live owner and stops that owner's motions on it.  A request with no pid (0:
-        not from a client) neither claims nor takes over."""
+        not from a client) neither claims nor takes over, and neither does a STOP or ABORT
+        without REQUEST_FORCE: stopping an arm moves nothing, so it gives no ownership (it
+        is still refused on an arm another program owns)."""
         pid = int(req["client_pid"])
         force = bool(int(req["flags"]) & layout.REQUEST_FORCE)
+        moves = int(req["kind"]) in (MotionKind.JOINTS, MotionKind.PATH)
         taken = []
         for k in robots:
             held = int(self._lease_pid[k])
@@ -443,6 +450,8 @@ class TrajectoryGenerator(Daemon):
             return ""
         if taken:
             self._stop(taken, abort=False)
+        if not (moves or force):
+            return ""
         for k in robots:
             if int(self._lease_pid[k]) != pid:
                 lease = self.leases[k]

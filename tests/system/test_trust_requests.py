@@ -70,7 +70,8 @@ def test_a_flood_of_10000_requests_every_handle_resolves(kali: Callable[..., str
                 except QueueFullError:
                     full += 1
                     step_kali_clock(k.inst, 10)
-                    if len(k.queue) == k.queue.capacity:  # the TG takes nothing: collect
+                    # this program's whole share is unread: the TG takes nothing, collect
+                    if len(k.queue) >= layout.MOTION_QUEUE_SHARE:
                         for _ in range(min(64, len(outstanding))):
                             outstanding.popleft().wait(timeout=60)
             handles.append(h)
@@ -352,3 +353,41 @@ def test_lockstep_is_bit_for_bit_repeatable_under_load(kali: Callable[..., str])
             f"{field}: {differ.size} rows differ, the first at tick {int(quiet['tick'][differ[0]])}"
         )
     assert quiet.tobytes() == loaded.tobytes()
+
+
+def test_a_stop_of_a_free_arm_gives_its_program_no_ownership(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """Stopping an arm moves nothing, so a program's STOP of an arm nobody owns does not make
+    it the owner: another program can still move the arm (the soak's request flood stops
+    the demo's arms between its iterations)."""
+    name = kali(lockstep=True)
+    with powered(name) as k:
+        prog = _program(
+            tmp_path,
+            """
+            import sys
+            from kali_daemons.client import Kali
+            with Kali() as kali:
+                kali.robot("left").stop()
+                print("stopped", flush=True)
+                sys.stdin.readline()
+            """,
+        )
+        stopper = subprocess.Popen(
+            [sys.executable, str(prog)],
+            env={**ENV, "KALI_INSTANCE": name},
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert _line(stopper) == "stopped"
+            step_kali_clock(k.inst, 20)  # the TG takes the stop
+            assert k.owner(0) is None
+            target = k.servo.level.robots["demand"][0] + np.radians([2, 0, 0, 0, 0, 0])
+            k.robot("left").move_joints(target, speed=1.0, timeout=60)
+            assert k.owner(0) == (os.getpid(), k.program.decode())
+        finally:
+            stopper.kill()
+            stopper.wait(10)
