@@ -28,7 +28,7 @@ import numpy as np
 from . import flightrec, introspect, launcher
 from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
-from .errors import KaliError
+from .errors import InstanceError, KaliError
 from .instance import Instance, decode
 from .layout import CalibState, FaultCode, PowerState, ProcState, RunMode
 from .servolevel import ServoClient, ServoError
@@ -410,8 +410,19 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
 @click.pass_context
 @_errors
 def reset(ctx: click.Context) -> None:
-    """Clear the active fault and restart the clock; power stays off until `kalictl enable`."""
+    """Clear the active fault and restart the clock; power stays off until `kalictl enable`.
+
+    Refused while an e-stop button is still pressed (LinuxCNC: the e-stop chain must be
+    closed before the machine can be reset)."""
     with _attach(ctx) as inst:
+        buttons = [int(b) for b in inst.boards()["estop"]]
+        pressed = [r.name for r, b in zip(inst.config.robots, buttons, strict=True) if b]
+        if pressed:
+            raise InstanceError(
+                f"reset: the e-stop of robot '{pressed[0]}' is still pressed"
+                + (f" (also {', '.join(repr(p) for p in pressed[1:])})" if pressed[1:] else "")
+                + f"; release it first: kalictl estop --release {pressed[0]}"
+            )
         text = inst.fault_text()
         if inst.clear_fault():
             click.echo(f"cleared: {text}")
