@@ -368,6 +368,16 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "arena_kib = 63: must be an integer >= 64 and <= 1048576",
     ),
     (
+        "miss-tolerance-not-beyond-a-servo-period",
+        [("serious_miss_tolerance_ms: 20", "serious_miss_tolerance_ms: 1")],
+        "clock.serious_miss_tolerance_ms = 1: must exceed clock.servo_period_ms = 1",
+    ),
+    (
+        "miss-tolerance-zero",
+        [("serious_miss_tolerance_ms: 20", "serious_miss_tolerance_ms: 0")],
+        "clock.serious_miss_tolerance_ms = 0: must exceed clock.servo_period_ms = 1",
+    ),
+    (
         "arena-string",
         [("arena_kib: 4096", "arena_kib: '4096'")],
         "arena_kib = '4096': must be an integer >= 64 and <= 1048576, not a string",
