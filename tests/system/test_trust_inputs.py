@@ -392,8 +392,11 @@ def test_a_plugin_step_returning_the_wrong_type_is_refused_at_start(
     plugin.write_text(BAD_STEP.replace("RESULT", result))
     name = unique_name()
     cfg = make_config(name, {r"(?m)^plugins: .*$": f"plugins: [{plugin}]"})
-    with pytest.raises(ConfigError) as info:
-        launcher.start(cfg, lockstep=True)
+    try:
+        with pytest.raises(ConfigError) as info:
+            launcher.start(cfg, lockstep=True)
+    finally:
+        launcher.stop(name)  # had it started (the old code did), nothing is left behind
     text = str(info.value)
     assert f"plugin '{plugin}'" in text and "'badstep'" in text and shown in text, text
     assert "(torque, error, status)" in text, text
