@@ -27,6 +27,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
+import numpy as np
 import yaml
 
 from kali_daemons.errors import ConfigError
@@ -298,7 +299,9 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | None = Non
         cfg = _build(doc, source, text)
     except _InvalidError as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    return dataclasses.replace(cfg, base_dir=os.path.abspath(base_dir or "."))
+    cfg = dataclasses.replace(cfg, base_dir=os.path.abspath(base_dir or "."))
+    check_arena(cfg)
+    return cfg
 
 
 _FILE_KINDS = {
@@ -362,7 +365,108 @@ def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
                 raise _InvalidError(f"{key}: cannot be overridden; overridable fields: {allowed}")
         except _InvalidError as exc:
             raise ConfigError(f"{cfg.source} (override): {exc}") from None
-    return dataclasses.replace(cfg, **checked)
+    out = dataclasses.replace(cfg, **checked)
+    check_arena(out)
+    return out
+
+
+def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
+    """(bytes, blocks, the parts' bytes by what they are for) the cell's arena must hold:
+    the header and directory plus every record ``kalictl start`` and the daemons lay out
+    (launcher._create; the plant's boards; SIO's servo level, FIFOs, feed-forward and
+    flight recorder; the TG's queue, statuses and FIFOs), each rounded up to a block.
+
+    A plugin's private data is counted at its largest (``MAX_DATA_BYTES`` a joint): its
+    dtype is known only once the plugin is imported, which parsing does not do.  Outside
+    anything real-time; ``tests/system/test_trust_inputs.py`` holds it against a started
+    instance (never less than it uses, never much more)."""
+    from . import layout
+    from .servo import MAX_DATA_BYTES, Registry
+    from .servolevel import FIFO_CAPACITY
+
+    def block(dtype: np.dtype | str, count: int = 1) -> int:
+        return -(-np.dtype(dtype).itemsize * count // layout.ALIGN) * layout.ALIGN
+
+    nr = len(cfg.robots)
+    n = 6 * nr
+    builtin_bytes = [block(a.dtype) for a in Registry()]
+    algos = len(builtin_bytes) + len(cfg.plugins)
+    servo_data = n * (sum(builtin_bytes) + len(cfg.plugins) * block("u1", MAX_DATA_BYTES))
+    fifo = (
+        block(layout.FIFO_HEADER)
+        + block("<f8", FIFO_CAPACITY * 6)
+        + block("<u8", FIFO_CAPACITY)
+        + block("<f8", 3 * 6)
+    )
+    rows = layout.flight_rows(ms_to_ns(cfg.clock.servo_period_ms))
+    parts = [
+        ("header and directory", layout.header_bytes()),
+        (
+            "clock, process table, fault, misses, dashboard, config",
+            block(layout.CLOCK)
+            + block(layout.PROCESS, layout.MAX_PROCESSES)
+            + block(layout.FAULT)
+            + block(layout.MISS_LOG)
+            + block(layout.DASHBOARD)
+            + block("u1", len(cfg.text.encode()) + 1)
+            + block("u1", len(cfg.base_dir.encode()) + 1),
+        ),
+        (
+            "motion queue and statuses",
+            block(layout.QUEUE_HEADER)
+            + block(layout.queue_entry(layout.MOTION_REQUEST), layout.MOTION_QUEUE_CAPACITY)
+            + block(layout.REQUEST_STATUS, layout.STATUS_RING)
+            + block(layout.TG_ROBOT, nr),
+        ),
+        (f"set-point FIFOs ({nr} robots)", nr * fifo),
+        (
+            "boards and plant",
+            block(layout.IO_BOARD, nr)
+            + block(layout.DAC_BOARD, nr)
+            + block(layout.ARM_TRUTH, nr)
+            + block(layout.WORLD_TRUTH),
+        ),
+        (
+            f"servo level ({n} joints, {algos} algorithms)",
+            block(layout.ROBOT_STATE, nr)
+            + block(layout.SERVO_SLOT, n)
+            + block(layout.SERVO_CTRL)
+            + block("u1", n * layout.SERVO_STAGING_BYTES)
+            + servo_data,
+        ),
+        ("feed-forward", block(layout.FEEDFORWARD, nr)),
+        (
+            f"flight recorder ({rows} rows)",
+            block(layout.FLIGHT) + block(layout.flight_row(n), rows),
+        ),
+    ]
+    # a directory entry per record above (22 the cell's, 4 per robot, one per joint and
+    # algorithm) and one for the free space after them
+    blocks = 22 + 4 * nr + n * algos + 1
+    return sum(b for _, b in parts), blocks, parts
+
+
+def check_arena(cfg: KaliConfig) -> None:
+    """ConfigError if ``arena_kib`` cannot hold the cell (``arena_need``): the size needed,
+    in KiB, and its largest parts; before this, a small arena started and failed seconds
+    later in whichever daemon allocated last."""
+    from . import layout
+
+    need, blocks, parts = arena_need(cfg)
+    have = cfg.arena_kib * 1024
+    if need > have:
+        kib = -(-need // 1024)
+        biggest = sorted(parts, key=lambda p: -p[1])[:3]
+        detail = ", ".join(f"{what} {size // 1024} KiB" for what, size in biggest)
+        raise ConfigError(
+            f"{cfg.source}: arena_kib = {cfg.arena_kib}: the cell needs {kib} KiB "
+            f"({detail}, ...); set arena_kib to at least {kib}"
+        )
+    if blocks > layout.MAX_BLOCKS:
+        raise ConfigError(
+            f"{cfg.source}: the cell needs {blocks} arena blocks, the directory holds "
+            f"{layout.MAX_BLOCKS} (robots x joints x servo algorithms: fewer plugins or robots)"
+        )
 
 
 def ms_to_ns(ms: float) -> int:

@@ -20,11 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import launcher
-from kali_daemons.config import load_config, parse_config
+from kali_daemons import launcher, layout
+from kali_daemons.config import arena_need, load_config, parse_config
 from kali_daemons.errors import ConfigError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import PowerCmd, PowerState
+from kali_daemons.servo import MAX_DATA_BYTES
 from kali_daemons.servolevel import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
@@ -185,6 +186,33 @@ def test_kalictl_start_with_dev_zero_is_one_line() -> None:
     r = kalictl("start", "-c", "/dev/zero")
     assert r.returncode != 0 and "not a regular file" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_the_arena_needed_is_what_an_instance_uses(kali: Callable[..., str]) -> None:
+    """The size computed at parse time is at least what a started instance lays out (header
+    and directory plus every block), and more only by the plugins' largest allowance (their
+    dtypes are not known before they are imported)."""
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        step_kali_clock(inst, POTS_TICKS)  # every daemon has laid out its records
+        cfg = inst.config
+        stats = inst.arena.stats()
+        used = layout.header_bytes() + stats.used_bytes
+        need, blocks, _ = arena_need(cfg)
+        allowance = 6 * len(cfg.robots) * MAX_DATA_BYTES * len(cfg.plugins)
+        assert used <= need <= used + allowance, (need, used, allowance)
+        assert blocks == stats.used_blocks + stats.free_fragments
+
+
+@pytest.mark.parametrize("kib", [256, 1024, 1800])
+def test_an_arena_too_small_is_refused_at_parse_time(kib: int) -> None:
+    """256-1024 KiB used to start and then fail 6 s later in whichever daemon came last."""
+    text = DEFAULT_TEXT.replace("arena_kib: 4096", f"arena_kib: {kib}")
+    with pytest.raises(ConfigError) as info:
+        parse_config(text, "small.yaml")
+    need_kib = -(-arena_need(parse_config(DEFAULT_TEXT, "x"))[0] // 1024)
+    assert f"arena_kib = {kib}: the cell needs {need_kib} KiB" in str(info.value)
+    assert f"set arena_kib to at least {need_kib}" in str(info.value)
 
 
 # ------------------------------------------------------------------ item 8: command line
