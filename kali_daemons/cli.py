@@ -30,7 +30,7 @@ from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
 from .errors import InstanceError, KaliError, MotionError
 from .instance import Instance, decode
-from .layout import CalibState, FaultCode, PowerState, ProcState, RunMode
+from .layout import KEY_BOARDS, CalibState, FaultCode, PowerState, ProcState, RunMode
 from .servolevel import ServoClient, ServoError
 from .wallclock import (
     set_control_rate,
@@ -443,8 +443,9 @@ def reset(ctx: click.Context) -> None:
     Refused while an e-stop button is still pressed (LinuxCNC: the e-stop chain must be
     closed before the machine can be reset)."""
     with _attach(ctx) as inst:
-        buttons = [int(b) for b in inst.boards()["estop"]]
-        pressed = [r.name for r, b in zip(inst.config.robots, buttons, strict=True) if b]
+        boards_laid_out = inst.arena.lookup(KEY_BOARDS) is not None  # not before the plant
+        buttons = [int(b) for b in inst.boards()["estop"]] if boards_laid_out else []
+        pressed = [r.name for r, b in zip(inst.config.robots, buttons, strict=False) if b]
         if pressed:
             raise InstanceError(
                 f"reset: the e-stop of robot '{pressed[0]}' is still pressed"

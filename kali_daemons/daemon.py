@@ -336,9 +336,13 @@ class Daemon:
 
     def _dump_flight(self) -> None:
         """Write the flight recorder's dump of the halt this process recorded (outside any
-        cycle: the system has halted); a failure is logged, never raised."""
+        cycle: the system has halted); a failure is logged, never raised.  At normal
+        priority: tens of ms of compression and file I/O at SCHED_FIFO would starve the
+        plant on this CPU while its brakes come on."""
         from .flightrec import FlightDumper  # flightrec imports the launcher: not at load
 
+        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+        rt.leave_realtime()
         dumper = FlightDumper(self.inst)
         try:
             dumper.dump_if_halted()
@@ -346,6 +350,10 @@ class Daemon:
             self.log.exception("flight recorder dump failed")
         finally:
             dumper.close()
+            try:
+                os.sched_setscheduler(0, policy, param)
+            except OSError:
+                pass
 
     def _self_timed_loop(self) -> None:
         """Sleep to this daemon's own absolute deadlines (the plant in real-time mode)."""
