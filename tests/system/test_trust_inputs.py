@@ -364,6 +364,26 @@ def test_flight_never_shows_an_earlier_runs_dump_as_this_halt(
         assert leftovers(name) == ([], [])
 
 
+def test_flight_never_shows_an_earlier_halts_dump_when_this_ones_failed(
+    kali: Callable[..., str],
+) -> None:
+    """Two halts; the second's dump cannot be written (its directory is gone, a file in its
+    place): kalictl flight says there is no dump of this halt and why, not the first's."""
+    name = kali(lockstep=True)
+    with Instance.attach(name) as inst:
+        step_kali_clock(inst, POTS_TICKS)
+    first = _dump_of_an_estop(name)
+    _ok("-i", name, "estop", "--release")
+    _ok("-i", name, "reset")
+    logs = launcher.log_dir(name)
+    logs.rename(logs.with_name(f"{name}.moved"))
+    logs.write_text("a file where the log directory was\n")
+    _ok("-i", name, "estop")
+    r = kalictl("-i", name, "flight")
+    err = _one_line_error(r, "no dump of this halt (ESTOP in kalictl", "dump to", "failed")
+    assert f"{first} is of an earlier halt" in err, err
+
+
 # ------------------------------------------------------------------ item 8: logs
 
 
