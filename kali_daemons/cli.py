@@ -29,9 +29,9 @@ import numpy as np
 from . import flightrec, introspect, launcher
 from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
-from .errors import KaliError
+from .errors import InstanceError, KaliError, MotionError
 from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode
-from .layout import CalibState, FaultCode, PowerState, ProcState, RunMode
+from .layout import KEY_BOARDS, CalibState, FaultCode, PowerState, ProcState, RunMode
 from .servolevel import ServoClient, ServoError
 from .wallclock import (
     set_control_rate,
@@ -44,6 +44,8 @@ from .wallclock.clock import time_ms
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "default.yaml"
 # what the system runs without when a non-serious process dies (DESIGN 7: degrade)
+TOP_INTERVAL_S = (0.05, 60.0)  # kalictl top's refresh interval
+MOVE_TIMEOUT_S = 3600.0  # kalictl move's longest wait
 DEGRADED = {"dynamics": "feed-forward (SIO drops it as stale)", "viewer": "dashboard"}
 
 
@@ -59,6 +61,30 @@ def _errors(fn: Callable) -> Callable:
             sys.exit(1)
 
     return wrapper
+
+
+def _number(
+    command: str,
+    option: str,
+    text: str,
+    lo: float,
+    hi: float,
+    unit: str,
+    error: type[KaliError] = KaliError,
+    lo_open: bool = False,
+) -> float:
+    """``text`` as a finite number in [lo, hi] ((lo, hi] with ``lo_open``); a one-line
+    ``error`` naming the command, option and value if not (click's FloatRange lets NaN
+    through: every comparison with it is false)."""
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        value = math.nan
+    above = lo < value if lo_open else lo <= value
+    if not (above and value <= hi):  # NaN fails both
+        span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        raise error(f"{command}: {option} {text}: must be a number of {unit} in {span}")
+    return value
 
 
 def _instance_name(ctx: click.Context) -> str:
@@ -285,12 +311,12 @@ def mem(ctx: click.Context) -> None:
     "--interval",
     default=0.5,
     show_default=True,
-    type=click.FloatRange(0.05, 60.0),
-    help="Seconds between refreshes.",
+    type=str,
+    help=f"Seconds between refreshes, {TOP_INTERVAL_S[0]:g} to {TOP_INTERVAL_S[1]:g}.",
 )
 @click.pass_context
 @_errors
-def top(ctx: click.Context, once: bool, interval: float) -> None:
+def top(ctx: click.Context, once: bool, interval: str) -> None:
     """A live table: processes, robots, servo latency, clock and fault; Ctrl-C quits.
 
     Rates and lateness percentiles are over the last interval (in lockstep mode per second
@@ -298,6 +324,8 @@ def top(ctx: click.Context, once: bool, interval: float) -> None:
     """
     from . import top as top_view  # rich is loaded for this command only
 
+    lo, hi = TOP_INTERVAL_S
+    interval = _number("top", "--interval", interval, lo, hi, "seconds")
     with _attach(ctx) as inst:
         top_view.run(inst, interval, once)
 
@@ -419,8 +447,20 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
 @click.pass_context
 @_errors
 def reset(ctx: click.Context) -> None:
-    """Clear the active fault and restart the clock; power stays off until `kalictl enable`."""
+    """Clear the active fault and restart the clock; power stays off until `kalictl enable`.
+
+    Refused while an e-stop button is still pressed (LinuxCNC: the e-stop chain must be
+    closed before the machine can be reset)."""
     with _attach(ctx) as inst:
+        boards_laid_out = inst.arena.lookup(KEY_BOARDS) is not None  # not before the plant
+        buttons = [int(b) for b in inst.boards()["estop"]] if boards_laid_out else []
+        pressed = [r.name for r, b in zip(inst.config.robots, buttons, strict=False) if b]
+        if pressed:
+            raise InstanceError(
+                f"reset: the e-stop of robot '{pressed[0]}' is still pressed"
+                + (f" (also {', '.join(repr(p) for p in pressed[1:])})" if pressed[1:] else "")
+                + f"; release it first: kalictl estop --release {pressed[0]}"
+            )
         text = inst.fault_text()
         if inst.clear_fault():
             click.echo(f"cleared: {text}")
@@ -672,30 +712,34 @@ def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:
 )
 @click.option(
     "--speed",
-    default=0.5,
+    default="0.5",
     show_default=True,
-    type=click.FloatRange(0.0, 1.0, min_open=True),
-    help="fraction of the joint speed and acceleration limits",
+    help="fraction of the joint speed and acceleration limits, in (0, 1]",
 )
-@click.option("--timeout", default=60.0, show_default=True, help="seconds to wait")
+@click.option(
+    "--timeout",
+    default="60",
+    show_default=True,
+    help=f"seconds to wait, in (0, {MOVE_TIMEOUT_S:g}]; then the arm is stopped on its path",
+)
 @click.option("--force", is_flag=True, help="take the arm over from the program that owns it")
 @click.pass_context
 @_errors
 def move(
-    ctx: click.Context, robot: str, joints: str, speed: float, timeout: float, force: bool
+    ctx: click.Context, robot: str, joints: str, speed: str, timeout: str, force: bool
 ) -> None:
     """Move ROBOT's joints smoothly to --joints through the trajectory generator, every joint
-    arriving together; waits until the arm is there.  An arm another program owns is refused,
-    naming it, unless --force (which stops that program's motion on it)."""
-    try:
-        target_deg = [float(v) for v in joints.replace(" ", "").split(",")]
-    except ValueError:
-        raise ServoError(
-            f"move: --joints {joints!r}: six numbers in degrees, e.g. 0,45,-180,0,45,0"
-        ) from None
-    if len(target_deg) != 6:
-        raise ServoError(f"move: --joints {joints!r}: {len(target_deg)} values, expected 6")
+    arriving together; waits until the arm is there.  Every argument is checked before
+    anything is queued.  An arm another program owns is refused, naming it, unless --force
+    (which stops that program's motion on it)."""
+    target_deg = _joint_degrees(joints)
+    speed_f = _number("move", "--speed", speed, 0.0, 1.0, "(0, 1]", MotionError, lo_open=True)
+    timeout_s = _number(
+        "move", "--timeout", timeout, 0.0, MOVE_TIMEOUT_S, "seconds", MotionError, lo_open=True
+    )
     with Kali(_instance_name(ctx), force=force) as kali:
+        if robot not in kali.names:
+            raise ServoError(f"move: no robot {robot!r:.40}; robots: {', '.join(kali.names)}")
         arm = kali.robot(robot)
         if kali.servo.power_state(arm.name) != PowerState.ON:
             raise ServoError(f"move: robot '{arm.name}' is not powered; kalictl enable {arm.name}")
@@ -706,15 +750,41 @@ def move(
                 f"kalictl move --force takes it over"
             )
         t0 = time.monotonic()
-        handle = arm.move_joints(np.radians(target_deg), speed=speed, wait=False)
+        handle = arm.move_joints(np.radians(target_deg), speed=speed_f, wait=False)
         if kali.inst.lockstep:
             click.echo(
                 f"move requested: {arm.name}, request {handle.seq} (lockstep: step the clock)"
             )
             return
-        handle.wait(timeout)
+        try:
+            handle.wait(timeout_s)
+        except TimeoutError:
+            state = handle.state.name.lower()
+            handle.cancel()  # an arm left moving after the command gave up would surprise
+            raise MotionError(
+                f"move: robot '{arm.name}' not there within {timeout_s:g} s (--timeout; request "
+                f"{handle.seq} was {state}): stopped on its path"
+            ) from None
         at = ", ".join(f"{math.degrees(float(v)):.2f}" for v in arm.read_joints())
         click.echo(f"{arm.name}: at [{at}]° after {time.monotonic() - t0:.2f} s")
+
+
+def _joint_degrees(joints: str) -> list[float]:
+    """``--joints``: six finite numbers in degrees; MotionError naming the value if not."""
+    example = "six numbers in degrees, e.g. 0,45,-180,0,45,0"
+    values = joints.replace(" ", "").split(",")
+    if len(values) != 6:
+        raise MotionError(f"move: --joints {joints!r:.80}: {len(values)} values, expected 6")
+    out = []
+    for j, text in enumerate(values, 1):
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v):
+            raise MotionError(f"move: --joints {joints!r:.80}: joint {j} = {text!r:.40}: {example}")
+        out.append(v)
+    return out
 
 
 @main.group()

@@ -22,10 +22,12 @@ import difflib
 import math
 import os
 import re
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
+import numpy as np
 import yaml
 
 from kali_daemons.errors import ConfigError
@@ -45,6 +47,9 @@ MAX_BASE_TICK_MS = 100
 NS_PER_MS = 1_000_000
 MAX_TIMEOUT_S = 600.0
 VIEWER_PERIOD_MS = 40
+MAX_CONFIG_BYTES = 1 << 20  # a config is a few KiB; /dev/zero or a log file is not one
+MAX_YAML_DEPTH = 32  # the deepest real config is 4 levels
+MAX_YAML_NODES = 100_000  # after alias expansion; the default config has ~600
 
 _INSTANCE_RE = re.compile(r"[a-z0-9][a-z0-9_-]{0,23}")
 _ROBOT_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,15}")
@@ -294,18 +299,47 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | None = Non
         cfg = _build(doc, source, text)
     except _InvalidError as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    return dataclasses.replace(cfg, base_dir=os.path.abspath(base_dir or "."))
+    cfg = dataclasses.replace(cfg, base_dir=os.path.abspath(base_dir or "."))
+    check_arena(cfg)
+    return cfg
+
+
+_FILE_KINDS = {
+    stat.S_IFIFO: "a FIFO",
+    stat.S_IFCHR: "a character device",
+    stat.S_IFBLK: "a block device",
+    stat.S_IFSOCK: "a socket",
+    stat.S_IFDIR: "a directory",
+}
 
 
 def load_config(path: str | os.PathLike[str]) -> KaliConfig:
     """Read and parse the config file at ``path``; a missing or unreadable file is a ConfigError."""
     source = os.fspath(path)
     try:
-        with open(source, encoding="utf-8") as f:
-            text = f.read()
+        # non-blocking: opening a FIFO for reading would wait for a writer forever
+        fd = os.open(source, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except OSError as exc:
         reason = exc.strerror or exc.__class__.__name__
         raise ConfigError(f"{source}: cannot read config file: {reason}") from None
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        kind = _FILE_KINDS.get(stat.S_IFMT(mode), "not a file")
+        raise ConfigError(f"{source}: cannot read config file: not a regular file ({kind})")
+    with os.fdopen(fd, "rb") as f:
+        try:
+            data = f.read(MAX_CONFIG_BYTES + 1)
+        except OSError as exc:
+            reason = exc.strerror or exc.__class__.__name__
+            raise ConfigError(f"{source}: cannot read config file: {reason}") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{source}: config file larger than {MAX_CONFIG_BYTES // 1024} KiB; "
+            "a config is a few KiB of YAML"
+        )
+    try:
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{source}: config file is not UTF-8 text: {exc.reason}") from None
     return parse_config(text, source, os.path.dirname(os.path.abspath(source)))
@@ -331,7 +365,111 @@ def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
                 raise _InvalidError(f"{key}: cannot be overridden; overridable fields: {allowed}")
         except _InvalidError as exc:
             raise ConfigError(f"{cfg.source} (override): {exc}") from None
-    return dataclasses.replace(cfg, **checked)
+    out = dataclasses.replace(cfg, **checked)
+    check_arena(out)
+    return out
+
+
+def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
+    """(bytes, blocks, the parts' bytes by what they are for) the cell's arena must hold:
+    the header and directory plus every record ``kalictl start`` and the daemons lay out
+    (launcher._create; the plant's boards; SIO's servo level, FIFOs, feed-forward and
+    flight recorder; the TG's queue, statuses, state, leases and FIFOs), each rounded up to
+    a block.
+
+    A plugin's private data is counted at its largest (``MAX_DATA_BYTES`` a joint): its
+    dtype is known only once the plugin is imported, which parsing does not do.  Outside
+    anything real-time; ``tests/system/test_trust_inputs.py`` holds it against a started
+    instance (never less than it uses, never much more)."""
+    from . import layout
+    from .servo import MAX_DATA_BYTES, Registry
+    from .servolevel import FIFO_CAPACITY
+
+    def block(dtype: np.dtype | str, count: int = 1) -> int:
+        return -(-np.dtype(dtype).itemsize * count // layout.ALIGN) * layout.ALIGN
+
+    nr = len(cfg.robots)
+    n = 6 * nr
+    builtin_bytes = [block(a.dtype) for a in Registry()]
+    algos = len(builtin_bytes) + len(cfg.plugins)
+    servo_data = n * (sum(builtin_bytes) + len(cfg.plugins) * block("u1", MAX_DATA_BYTES))
+    fifo = (
+        block(layout.FIFO_HEADER)
+        + block("<f8", FIFO_CAPACITY * 6)
+        + block("<u8", FIFO_CAPACITY)
+        + block("<f8", 3 * 6)
+    )
+    rows = layout.flight_rows(ms_to_ns(cfg.clock.servo_period_ms))
+    parts = [
+        ("header and directory", layout.header_bytes()),
+        (
+            "clock, process table, fault, misses, dashboard, config",
+            block(layout.CLOCK)
+            + block(layout.PROCESS, layout.MAX_PROCESSES)
+            + block(layout.FAULT)
+            + block(layout.MISS_LOG)
+            + block(layout.DASHBOARD)
+            + block("u1", len(cfg.text.encode()) + 1)
+            + block("u1", len(cfg.base_dir.encode()) + 1),
+        ),
+        (
+            "motion queue and statuses",
+            block(layout.QUEUE_HEADER)
+            + block(layout.queue_entry(layout.MOTION_REQUEST), layout.MOTION_QUEUE_CAPACITY)
+            + block(layout.REQUEST_STATUS, layout.STATUS_RING)
+            + block(layout.TG_ROBOT, nr)
+            + block(layout.TG_STATE)
+            + block(layout.LEASE, nr),
+        ),
+        (f"set-point FIFOs ({nr} robots)", nr * fifo),
+        (
+            "boards and plant",
+            block(layout.IO_BOARD, nr)
+            + block(layout.DAC_BOARD, nr)
+            + block(layout.ARM_TRUTH, nr)
+            + block(layout.WORLD_TRUTH),
+        ),
+        (
+            f"servo level ({n} joints, {algos} algorithms)",
+            block(layout.ROBOT_STATE, nr)
+            + block(layout.SERVO_SLOT, n)
+            + block(layout.SERVO_CTRL)
+            + block("u1", n * layout.SERVO_STAGING_BYTES)
+            + servo_data,
+        ),
+        ("feed-forward", block(layout.FEEDFORWARD, nr)),
+        (
+            f"flight recorder ({rows} rows)",
+            block(layout.FLIGHT) + block(layout.flight_row(n), rows),
+        ),
+    ]
+    # a directory entry per record above (24 the cell's, 4 per robot, one per joint and
+    # algorithm) and one for the free space after them
+    blocks = 24 + 4 * nr + n * algos + 1
+    return sum(b for _, b in parts), blocks, parts
+
+
+def check_arena(cfg: KaliConfig) -> None:
+    """ConfigError if ``arena_kib`` cannot hold the cell (``arena_need``): the size needed,
+    in KiB, and its largest parts; before this, a small arena started and failed seconds
+    later in whichever daemon allocated last."""
+    from . import layout
+
+    need, blocks, parts = arena_need(cfg)
+    have = cfg.arena_kib * 1024
+    if need > have:
+        kib = -(-need // 1024)
+        biggest = sorted(parts, key=lambda p: -p[1])[:3]
+        detail = ", ".join(f"{what} {size // 1024} KiB" for what, size in biggest)
+        raise ConfigError(
+            f"{cfg.source}: arena_kib = {cfg.arena_kib}: the cell needs {kib} KiB "
+            f"({detail}, ...); set arena_kib to at least {kib}"
+        )
+    if blocks > layout.MAX_BLOCKS:
+        raise ConfigError(
+            f"{cfg.source}: the cell needs {blocks} arena blocks, the directory holds "
+            f"{layout.MAX_BLOCKS} (robots x joints x servo algorithms: fewer plugins or robots)"
+        )
 
 
 def ms_to_ns(ms: float) -> int:
@@ -381,7 +519,56 @@ def period_ticks(period_ms: float, base_tick_ms: float, *, round_up: bool = Fals
 
 
 class _Loader(yaml.SafeLoader):
-    """A SafeLoader that rejects duplicate mapping keys (PyYAML silently keeps the last)."""
+    """A SafeLoader that rejects duplicate mapping keys (PyYAML silently keeps the last),
+    nesting deeper than MAX_YAML_DEPTH (Python's recursion limit would end it with a
+    traceback) and aliases expanding to more than MAX_YAML_NODES nodes ("billion laughs":
+    PyYAML shares aliased objects, but every walk of the document, an error message's
+    rendering of a value included, would visit each of the 10**9 leaves)."""
+
+    _depth = 0
+
+    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node:
+        if self._depth >= MAX_YAML_DEPTH:
+            raise yaml.composer.ComposerError(
+                None,
+                None,
+                f"nested deeper than {MAX_YAML_DEPTH} levels",
+                self.peek_event().start_mark,
+            )
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def compose_document(self) -> yaml.Node:
+        node = super().compose_document()
+        sizes: dict[int, int] = {}  # id(node) -> expanded size: an alias is its anchor's node
+
+        def size(n: yaml.Node) -> int:  # depth bounded by MAX_YAML_DEPTH
+            if id(n) not in sizes:
+                if isinstance(n, yaml.SequenceNode):
+                    children = n.value
+                elif isinstance(n, yaml.MappingNode):
+                    children = [c for pair in n.value for c in pair]
+                else:
+                    children = []
+                total = 1
+                for c in children:
+                    total += size(c)
+                    if total > MAX_YAML_NODES:
+                        raise yaml.composer.ComposerError(
+                            None,
+                            None,
+                            f"aliases expand to more than {MAX_YAML_NODES} nodes",
+                            n.start_mark,
+                        )
+                sizes[id(n)] = total
+            return sizes[id(n)]
+
+        if node is not None:
+            size(node)
+        return node
 
     def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[Any, Any]:
         seen: set[tuple[str, str]] = set()
@@ -749,7 +936,7 @@ def _clock(node: Any) -> ClockConfig:
     tick = _base_tick(m.get("base_tick_ms", d.base_tick_ms), "clock.base_tick_ms")
     servo = _clock_period(m, "servo_period_ms", d.servo_period_ms, tick, tick, "base_tick_ms")
     tg = _clock_period(m, "tg_period_ms", d.tg_period_ms, tick, servo, "servo_period_ms")
-    return ClockConfig(
+    clock = ClockConfig(
         base_tick_ms=tick,
         servo_period_ms=servo,
         tg_period_ms=tg,
@@ -767,6 +954,14 @@ def _clock(node: Any) -> ClockConfig:
         ),
         busy_wait_us=_int(m.get("busy_wait_us", d.busy_wait_us), "clock.busy_wait_us", 0, 500),
     )
+    if clock.serious_miss_tolerance_ms <= servo:  # a serious servo would halt at its first miss
+        _fail(
+            "clock.serious_miss_tolerance_ms",
+            clock.serious_miss_tolerance_ms,
+            f"must exceed clock.servo_period_ms = {servo:g} (at or below one period a serious "
+            "servo-rate process halts the system at its first late tick)",
+        )
+    return clock
 
 
 def _clock_period(

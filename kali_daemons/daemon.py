@@ -310,12 +310,14 @@ class Daemon:
             return
         tick = int(c["tick"])
         if not pid_alive(pid):
-            self.inst.raise_fault(
+            recorded = self.inst.raise_fault(
                 FaultCode.PROCESS_DIED,
                 "wallclock",
                 f"the wall clock (pid {pid}) died at tick {tick}; "
                 f"{self.name} noticed: no signal for {self._idle_wait_s * 1e3:g} ms",
             )
+            if recorded:  # the wall clock writes every other halt's dump: not this one's
+                self._dump_flight()
             return
         if tick != self._clock_tick or self.inst.lockstep or c["mode"] != RunMode.RUNNING:
             self._clock_tick, self._clock_waits = tick, 0
@@ -331,6 +333,27 @@ class Daemon:
                 f"waited {watched_ms:g} ms more for a signal (tolerance {tolerance_ms} ms)",
                 tick=tick,
             )
+
+    def _dump_flight(self) -> None:
+        """Write the flight recorder's dump of the halt this process recorded (outside any
+        cycle: the system has halted); a failure is logged, never raised.  At normal
+        priority: tens of ms of compression and file I/O at SCHED_FIFO would starve the
+        plant on this CPU while its brakes come on."""
+        from .flightrec import FlightDumper  # flightrec imports the launcher: not at load
+
+        policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+        rt.leave_realtime()
+        dumper = FlightDumper(self.inst)
+        try:
+            dumper.dump_if_halted()
+        except Exception:  # a failed dump must not take this process down
+            self.log.exception("flight recorder dump failed")
+        finally:
+            dumper.close()
+            try:
+                os.sched_setscheduler(0, policy, param)
+            except OSError:
+                pass
 
     def _self_timed_loop(self) -> None:
         """Sleep to this daemon's own absolute deadlines (the plant in real-time mode)."""

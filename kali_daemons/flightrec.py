@@ -316,23 +316,20 @@ def latest_dump(directory: Path, instance: str) -> Path | None:
 
 
 def find_latest(instance: str, wait_s: float = 5.0) -> Path:
-    """The latest dump of ``instance``: the one its arena names (waiting up to ``wait_s`` for
-    a halt that is still being dumped), else the newest in its log directory."""
+    """The dump of the running instance's latest halt (waiting up to ``wait_s`` for one still
+    being written), or, with no instance running, the newest in its log directory.
+
+    Never an earlier halt's dump as this one: a running instance that has not halted, or
+    whose latest halt has no dump (the dump failed or is not written yet), is an
+    InstanceError saying so, naming the dump there is and whose it is."""
     try:
         inst = Instance.attach(instance)
     except KaliError:
         inst = None
+    directory = log_dir(instance)
     if inst is not None:
         with inst:
-            dumper = FlightDumper(inst)
-            deadline = time.monotonic() + wait_s
-            while dumper.pending() and time.monotonic() < deadline:
-                time.sleep(0.01)
-            named = decode(dumper.header["dump_path"]) if dumper.header is not None else ""
-            dumper.close()
-            if named:
-                return Path(named)
-    directory = log_dir(instance)
+            return _dump_of_this_halt(inst, directory, wait_s)
     found = latest_dump(directory, instance)
     if found is None:
         raise InstanceError(
@@ -342,29 +339,106 @@ def find_latest(instance: str, wait_s: float = 5.0) -> Path:
     return found
 
 
+def _dump_of_this_halt(inst: Instance, directory: Path, wait_s: float) -> Path:
+    """The dump whose fault time is the instance's latest fault's; InstanceError if none."""
+    fault_ns = int(inst.fault["time_ns"])
+    if fault_ns == 0:
+        older = latest_dump(directory, inst.name)
+        where = (
+            f"; {older} is from an earlier run (kalictl flight {older} reads it)"
+            if older
+            else f"; no dump in {directory}"
+        )
+        raise InstanceError(
+            f"flight recorder: instance '{inst.name}' has not halted since it started{where}"
+        )
+    dumper = FlightDumper(inst, directory)
+    try:
+        deadline = time.monotonic() + wait_s
+        while dumper.pending() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        h = dumper.header
+        named = decode(h["dump_path"]) if h is not None else ""
+        why = decode(h["dump_message"]) if h is not None else "no flight recorder in the arena"
+    finally:
+        dumper.close()
+    if named and dump_fault_ns(Path(named)) == fault_ns:
+        return Path(named)
+    earlier = f"; {named} is of an earlier halt" if named else ""
+    raise InstanceError(
+        f"flight recorder: no dump of this halt ({inst.fault_text(last=True)}): {why}{earlier}"
+    )
+
+
+def dump_fault_ns(path: Path) -> int | None:
+    """The fault time recorded in a dump file, or None if it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return int(z["fault_time_ns"])
+    except Exception:  # a missing, damaged or foreign file: it is not this halt's dump
+        return None
+
+
 def load(path: Path) -> dict[str, np.ndarray]:
-    """A dump file's arrays (no pickle); InstanceError if it is not a readable dump."""
+    """A dump file's arrays (no pickle); InstanceError if it is not a readable dump: cut
+    short, not a zip, a member that does not decompress, or arrays of the wrong shapes."""
+    not_dump = f"flight recorder: {path} is not a flight-recorder dump"
     try:
         with np.load(path, allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}
-    except OSError as exc:
+    except (FileNotFoundError, PermissionError, IsADirectoryError) as exc:
         raise InstanceError(f"flight recorder: cannot read {path}: {exc.strerror}") from None
     except ValueError:  # not .npz: numpy's advice to allow pickles is no advice here
         raise InstanceError(
-            f"flight recorder: {path} is not a flight-recorder dump (the .npz Kali writes at "
-            f"a halt, flight-INSTANCE-*.npz)"
+            f"{not_dump} (the .npz Kali writes at a halt, flight-INSTANCE-*.npz)"
         ) from None
-    missing = [k for k in ("format", "tick", "q", "fault_code") if k not in d]
+    except Exception as exc:  # zipfile, zlib, EOF, OSError: a file cut short or corrupt
+        why = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise InstanceError(f"{not_dump} (damaged: {why})") from None
+    missing = [k for k in DUMP_KEYS if k not in d]
     if missing:
+        raise InstanceError(f"{not_dump} (no {', '.join(missing)})")
+    if d["format"].shape != () or int(d["format"]) != FORMAT_VERSION:
         raise InstanceError(
-            f"flight recorder: {path} is not a flight-recorder dump (no {', '.join(missing)})"
-        )
-    if int(d["format"]) != FORMAT_VERSION:
-        raise InstanceError(
-            f"flight recorder: {path} has format {int(d['format'])}, this Kali reads "
+            f"flight recorder: {path} has format {d['format']!r:.40}, this Kali reads "
             f"{FORMAT_VERSION}"
         )
+    _check_shapes(d, not_dump)
     return d
+
+
+DUMP_KEYS = (
+    "format", "robots", "servo_period_ns", "fault_code", "fault_process", "fault_tick",
+    "fault_message", "rad_per_count", "current_limit", "tick", "q", "demand", "torque",
+    "current",
+)  # fmt: skip
+
+
+def _check_shapes(d: dict[str, np.ndarray], not_dump: str) -> None:
+    """Every array the summary reads has the shape ``write_dump`` gives it."""
+    robots = d["robots"]
+    nr = len(robots) if robots.ndim == 1 else -1
+    ticks = d["tick"]
+    n = len(ticks) if ticks.ndim == 1 else -1
+    want = {"robots": (nr,), "tick": (n,), "rad_per_count": (nr, 6), "current_limit": (nr, 6)}
+    for f in ("servo_period_ns", "fault_code", "fault_process", "fault_tick", "fault_message"):
+        want[f] = ()
+    for f in layout.FLIGHT_FIELDS:
+        if f in d:
+            want[f] = (n, nr, 6)
+    for f in ("t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"):
+        if f in d:
+            want[f] = (n,)
+    numeric = [
+        f for f in want if f not in ("robots", "fault_code", "fault_process", "fault_message")
+    ]
+    for f, shape in want.items():
+        a = d[f]
+        if nr < 0 or n < 0 or a.shape != shape:
+            expected = str(shape).replace("-1", "n")  # n: a dimension already wrong
+            raise InstanceError(f"{not_dump} ({f} has shape {a.shape}, expected {expected})")
+        if f in numeric and a.dtype.kind not in "iuf":
+            raise InstanceError(f"{not_dump} ({f} holds {a.dtype}, expected numbers)")
 
 
 def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:

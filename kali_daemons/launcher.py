@@ -45,8 +45,11 @@ LIFECYCLE_WAIT_S = 60.0  # longest ``stop`` waits for a start or stop of the ins
 
 
 def log_dir(instance: str) -> Path:
-    """Where the daemons' logs go: ``$KALI_LOG_DIR`` or ``/tmp/kali-<instance>``."""
-    return Path(os.environ.get("KALI_LOG_DIR", f"/tmp/kali-{instance}"))
+    """Where the daemons' logs and flight dumps go: ``$KALI_LOG_DIR/<instance>`` or
+    ``/tmp/kali-<instance>``: one directory per instance, so two instances never write the
+    same ``<process>.log`` (one KALI_LOG_DIR shared by two instances interleaved them)."""
+    base = os.environ.get("KALI_LOG_DIR")
+    return Path(base) / instance if base else Path(f"/tmp/kali-{instance}")
 
 
 def private_log_dir(path: Path) -> Path:

@@ -481,7 +481,8 @@ class PowerState(enum.IntEnum):
 
 
 class PowerCmd(enum.IntEnum):
-    """Requests to SIO in ``ROBOT_STATE.power_cmd`` (kalictl enable/disable); SIO clears."""
+    """Requests to SIO in ``ROBOT_STATE.power_cmd`` (kalictl enable/disable); SIO clears.
+    A halt voids a pending one (``cmd_faults``)."""
 
     NONE = 0
     ENABLE = 1
@@ -545,6 +546,9 @@ ROBOT_STATE = np.dtype(
         ("_pad", "u1", (3,)),
         ("calib_shift", "<f8", (ARM_JOINTS,)),  # SIO: how far calibration moved each angle, rad
         ("enable_ticks", "<i4"),  # SIO: ticks into the enable sequence
+        # clients: the fault count (low 32 bits) seen when power_cmd / calib_cmd was written;
+        # SIO takes a command only while it matches and no fault is active: a halt voids it
+        ("cmd_faults", "<u4"),
         ("tick", "<i8"),  # SIO: last servo tick
         ("message", f"S{MESSAGE_BYTES}"),  # SIO: last calibration or power message
     ],

@@ -367,12 +367,21 @@ class ServoClient:
         """Ask SIO to enable (or disable) a robot's amplifiers; see ``wait_power``."""
         k = self.robot_index(robot)
         on = flag(f"power of robot '{self.names[k]}'", on)
+        stamp = self._faults()  # before the check: a halt after it changes the count
         if on and self.inst.fault["active"]:
             raise ServoError(
                 f"cannot enable '{self.names[k]}' while a fault is active "
                 f"({self.inst.fault_text()}); kalictl reset first"
             )
+        self.level.robots["cmd_faults"][k] = stamp
         self.level.robots["power_cmd"][k] = PowerCmd.ENABLE if on else PowerCmd.DISABLE
+
+    def _faults(self) -> int:
+        """The stamp of a command: the faults raised so far (low 32 bits), read before the
+        fault check and written before the command word.  SIO drops a command whose stamp is
+        not the current count, so a halt after the check voids it (LinuxCNC: a halt forgets
+        every pending command)."""
+        return int(self.inst.fault["count"]) & 0xFFFFFFFF
 
     def power_state(self, robot: str | int) -> PowerState:
         """The robot's amplifier power as SIO drives it."""
@@ -418,11 +427,13 @@ class ServoClient:
     def calibrate(self, robot: str | int) -> None:
         """Ask SIO to calibrate a powered robot against its index pulses; see ``calibration``."""
         k = self.robot_index(robot)
+        stamp = self._faults()
         if self.inst.fault["active"]:
             raise ServoError(
                 f"calibrate: robot '{self.names[k]}' cannot calibrate while a fault is active "
                 f"({self.inst.fault_text()}); kalictl reset first"
             )
+        self.level.robots["cmd_faults"][k] = stamp
         self.level.robots["calib_cmd"][k] = 1
 
     def calibration(self, robot: str | int) -> tuple[CalibState, int, str]:

@@ -430,7 +430,7 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
     servo_names = ["sio", *sv_names]
     miss_names = [p.name for p in cfg.processes if p.kind in MISS_KINDS]
     res.machine = machine_facts()
-    os.environ["KALI_LOG_DIR"] = str(tmp / instance)  # the daemons' logs, kept on a halt
+    os.environ["KALI_LOG_DIR"] = str(tmp)  # the daemons' logs in tmp/<instance>, kept on a halt
     histfile = tmp / f"{instance}.cyclictest.hist"
     spike_us = round(SPIKE_FRACTION * spec.period_us)
     res.spike_us = spike_us

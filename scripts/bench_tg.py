@@ -657,7 +657,7 @@ def measure_into(res: RtResult, tmp: Path) -> None:
     res.tg_period_ms = cfg.clock.tg_period_ms
     period_us = round(cfg.clock.tg_period_ms * 1000)
     res.machine = machine_facts()
-    os.environ["KALI_LOG_DIR"] = str(tmp / instance)
+    os.environ["KALI_LOG_DIR"] = str(tmp)  # the logs go to tmp/<instance>
     histfile = tmp / f"{instance}.cyclictest.hist"
     cmd = cyclictest_command(seconds, CT_THREADS, histfile, period_us)
     res.cyclictest_command = shlex.join(cmd)

@@ -705,7 +705,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     names = [p.name for p in cfg.processes]
     res.period_us = round(cfg.clock.servo_period_ms * 1000)
     res.machine = machine_facts()
-    os.environ["KALI_LOG_DIR"] = res.log_dir = str(tmp / instance)  # kept on a failure
+    os.environ["KALI_LOG_DIR"] = str(tmp)  # kept on a failure
+    res.log_dir = str(launcher.log_dir(instance))  # $KALI_LOG_DIR/<instance>
     histfile, ct_out, ct_err = (tmp / f"cyclictest.{x}" for x in ("hist", "out", "err"))
     det_out, det_err = tmp / "detector.out", tmp / "detector.err"
     ct_seconds = math.ceil(res.minutes * 60 + ITERATION_TIMEOUT_S) + CT_SLACK_S

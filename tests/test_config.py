@@ -368,6 +368,21 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "arena_kib = 63: must be an integer >= 64 and <= 1048576",
     ),
     (
+        "miss-tolerance-not-beyond-a-servo-period",
+        [("serious_miss_tolerance_ms: 20", "serious_miss_tolerance_ms: 1")],
+        "clock.serious_miss_tolerance_ms = 1: must exceed clock.servo_period_ms = 1",
+    ),
+    (
+        "miss-tolerance-zero",
+        [("serious_miss_tolerance_ms: 20", "serious_miss_tolerance_ms: 0")],
+        "clock.serious_miss_tolerance_ms = 0: must exceed clock.servo_period_ms = 1",
+    ),
+    (
+        "arena-too-small-for-the-cell",
+        [("arena_kib: 4096", "arena_kib: 1024")],
+        "arena_kib = 1024: the cell needs 18",  # ~1,850 KiB: the flight recorder's 1,219
+    ),
+    (
         "arena-string",
         [("arena_kib: 4096", "arena_kib: '4096'")],
         "arena_kib = '4096': must be an integer >= 64 and <= 1048576, not a string",
@@ -717,6 +732,7 @@ def test_fractional_base_tick_is_accepted() -> None:
     # a tick of a tenth of a ms: 3 and 7 ticks, stored as the decimals written
     tenth = parse_config(
         edit(
+            ("arena_kib: 4096", "arena_kib: 8192"),  # 2 s of flight recorder at 0.3 ms
             ("base_tick_ms: 1 ", "base_tick_ms: 0.1 "),
             ("servo_period_ms: 1 ", "servo_period_ms: 0.3 "),
             ("tg_period_ms: 10 ", "tg_period_ms: 0.7 "),
@@ -737,7 +753,7 @@ def test_integer_periods_stay_integers() -> None:
 
 
 def test_viewer_default_rounds_up_to_whole_fractional_ticks() -> None:
-    text = "version: 1\ninstance: x\n"
+    text = "version: 1\ninstance: x\narena_kib: 8192\n"  # 2 s of flight recorder at 0.3 ms
     text += "clock: {base_tick_ms: 0.3, servo_period_ms: 0.3, tg_period_ms: 3}\n"
     text += "processes: {" + ", ".join(f"{k}: {{}}" for k in PROCESS_NAMES) + "}\n"
     text += "plant: {substep_ms: 0.1}\n"
@@ -792,8 +808,10 @@ def test_load_error_names_the_file(tmp_path: Path) -> None:
 
 def test_with_overrides_replaces_and_validates() -> None:
     cfg = parse_config(DEFAULT_TEXT, SOURCE)
-    other = with_overrides(cfg, instance="test-1", arena_kib=128)
-    assert (other.instance, other.arena_kib) == ("test-1", 128)
+    other = with_overrides(cfg, instance="test-1", arena_kib=8192)
+    assert (other.instance, other.arena_kib) == ("test-1", 8192)
+    with pytest.raises(ConfigError, match=r"arena_kib = 128: the cell needs \d+ KiB"):
+        with_overrides(cfg, arena_kib=128)
     assert other.processes == cfg.processes and cfg.instance == "default"
     with pytest.raises(ConfigError, match=r"\(override\): instance = 'Bad/Name': must be"):
         with_overrides(cfg, instance="Bad/Name")

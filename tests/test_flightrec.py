@@ -121,7 +121,7 @@ def wait_dumps(inst: Instance, n: int, timeout: float = 10.0) -> dict:
 
 def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_path: Path) -> None:
     name = kali(lockstep=True)
-    logs = tmp_path / "logs"
+    logs = tmp_path / "logs" / name  # the kali fixture's KALI_LOG_DIR, one directory per instance
     with Instance.attach(name) as inst:
         client = ServoClient(inst)
         try:

@@ -258,7 +258,7 @@ def test_pid_filters_match_the_backward_difference_formula() -> None:
 
 def test_pid_torque_is_kp_e_plus_ki_integral_minus_kv_v() -> None:
     g = {"kp": 200.0, "ki": 3000.0, "kv": 7.0, "fe": 40.0, "fv": 20.0}
-    g |= {"integration_band": 1.0, "integration_reset": 1e6}
+    g |= {"integration_band": 1.0, "integration_reset": 1e4}  # the bound: never reached here
     _, d = fresh(PID, g)
     demand = [0.1, 0.1, 0.1, 0.12, 0.12, 0.12]
     pos = [0.0, 0.001, 0.003, 0.006, 0.01, 0.015]
@@ -428,7 +428,7 @@ from kali_daemons.servo import ServoAlgorithm, PD
 def register(registry):
     {body}
 """
-GOOD_DTYPE = "np.dtype([('kp', '<f8'), ('n', '<u4')], align=True)"
+GOOD_DTYPE = "PD.dtype"  # the functions' own: registering steps the algorithm once
 
 
 def plugin_source(
@@ -516,6 +516,24 @@ PLUGIN_FAULTS = [  # (id, file text or None for no file, spec, substrings of the
         plugin_source(step="None"),
         "bad.py",
         ["plugin 'bad.py': algorithm 'mine': step is None, not a callable"],
+    ),
+    (
+        "step-returns-a-bare-torque",
+        plugin_source(step="lambda data, demand, position: 0.5"),
+        "bad.py",
+        ["algorithm 'mine': step(data, 0.01, 0.0) at its defaults returned 0.5; it must "],
+    ),
+    (
+        "step-returns-a-nan-torque",
+        plugin_source(step="lambda data, demand, position: (float('nan'), 0.0, 0)"),
+        "bad.py",
+        ["algorithm 'mine': step(data, 0.01, 0.0) at its defaults returned (nan, 0.0, 0)"],
+    ),
+    (
+        "step-raises",
+        plugin_source(step="lambda data, demand, position: data.missing"),
+        "bad.py",
+        ["algorithm 'mine': step(data, 0.01, 0.0) at its defaults raised AttributeError"],
     ),
 ]
 

@@ -53,15 +53,48 @@ from .registry import (
 
 # ------------------------------------------------------------------------------ PID
 
+# Upper bounds: far beyond any tuning of a PUMA 560 joint (puma560.PID_DEFAULTS: kp up to
+# 13,000, ki 260,000, kv 330; stable with every gain doubled), so only a typo meets them.
+# The filters' cut-offs have none: above the sample rate they pass the signal through.
+KP_MAX = 1e6  # N·m/rad: 1 mrad of error asks 1,000 N·m, ~7 times joint 2's peak torque
+KI_MAX = 1e8  # N·m/(rad·s)
+KV_MAX = 1e5  # N·m·s/rad
+RESET_MAX = 1e4  # N·m
+BIAS_TAU_MAX = 3600.0  # s
+
 PID_PARAMS: tuple[Param, ...] = (
-    Param("kp", 100.0, "N·m/rad", "proportional gain on the filtered error"),
-    Param("ki", 0.0, "N·m/(rad·s)", "integral gain"),
-    Param("kv", 5.0, "N·m·s/rad", "velocity (derivative) gain on the filtered velocity"),
+    Param("kp", 100.0, "N·m/rad", "proportional gain on the filtered error", maximum=KP_MAX),
+    Param("ki", 0.0, "N·m/(rad·s)", "integral gain", maximum=KI_MAX),
+    Param(
+        "kv",
+        5.0,
+        "N·m·s/rad",
+        "velocity (derivative) gain on the filtered velocity",
+        maximum=KV_MAX,
+    ),
     Param("fe", 50.0, "Hz", "cut-off of the error's low-pass filter", positive=True),
     Param("fv", 25.0, "Hz", "cut-off of the velocity's low-pass filter", positive=True),
-    Param("integration_band", 0.05, "rad", "the integral accumulates only while |e| <= this"),
-    Param("integration_reset", 10.0, "N·m", "limit of the integral's torque, ± (anti-windup)"),
-    Param("bias_tau", 0.5, "s", "time constant of the decaying hand-over bias"),
+    Param(
+        "integration_band",
+        0.05,
+        "rad",
+        "the integral accumulates only while |e| <= this",
+        maximum=math.pi,
+    ),
+    Param(
+        "integration_reset",
+        10.0,
+        "N·m",
+        "limit of the integral's torque, ± (anti-windup)",
+        maximum=RESET_MAX,
+    ),
+    Param(
+        "bias_tau",
+        0.5,
+        "s",
+        "time constant of the decaying hand-over bias",
+        maximum=BIAS_TAU_MAX,
+    ),
 )
 
 PID_DTYPE = np.dtype(
@@ -215,10 +248,16 @@ PID = ServoAlgorithm(
 # ------------------------------------------------------------------------------ PD
 
 PD_PARAMS: tuple[Param, ...] = (
-    Param("kp", 100.0, "N·m/rad", "proportional gain on the error"),
-    Param("kv", 5.0, "N·m·s/rad", "velocity gain on the filtered velocity"),
+    Param("kp", 100.0, "N·m/rad", "proportional gain on the error", maximum=KP_MAX),
+    Param("kv", 5.0, "N·m·s/rad", "velocity gain on the filtered velocity", maximum=KV_MAX),
     Param("fv", 25.0, "Hz", "cut-off of the velocity's low-pass filter", positive=True),
-    Param("bias_tau", 0.5, "s", "time constant of the decaying hand-over bias"),
+    Param(
+        "bias_tau",
+        0.5,
+        "s",
+        "time constant of the decaying hand-over bias",
+        maximum=BIAS_TAU_MAX,
+    ),
 )
 
 PD_DTYPE = np.dtype(

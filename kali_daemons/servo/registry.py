@@ -95,10 +95,12 @@ class ServoAlgorithm:
 
 
 class Param(NamedTuple):
-    """A parameter declared once: name, default, unit, one line of doc, and its lower bound.
+    """A parameter declared once: name, default, unit, one line of doc, and its bounds.
 
-    ``minimum`` is inclusive unless ``positive`` (then the value must be strictly above it).
-    Used by the built-ins and available to plugins through ``resolve_params``.
+    ``minimum`` is inclusive unless ``positive`` (then the value must be strictly above it);
+    ``maximum`` is inclusive (a gain beyond it is a typo, not a tuning: ``kalictl servo set``
+    refuses it naming the bound).  Used by the built-ins and available to plugins through
+    ``resolve_params``.
     """
 
     name: str
@@ -107,6 +109,7 @@ class Param(NamedTuple):
     doc: str
     minimum: float = 0.0
     positive: bool = False
+    maximum: float = math.inf
 
 
 def resolve_params(
@@ -137,6 +140,11 @@ def resolve_params(
             bound = f"> {spec.minimum:g}" if spec.positive else f">= {spec.minimum:g}"
             raise ConfigError(
                 f"servo {algo}: parameter {key} = {value:g} {spec.unit} must be {bound}"
+            )
+        if value > spec.maximum:
+            raise ConfigError(
+                f"servo {algo}: parameter {key} = {value:g} {spec.unit} must be "
+                f"<= {spec.maximum:g} (the algorithm's declared bound)"
             )
         out[key] = value
     return out
@@ -306,6 +314,7 @@ class Registry:
             )
         if len(set(params)) != len(params):
             raise ConfigError(f"{where}: algorithm {name!r}: params {params!r} repeat a name")
+        _probe_step(algo, f"{where}: algorithm {name!r}")
         self._by_name[name] = len(self._algos)
         self._origin[name] = where
         self._algos.append(algo)
@@ -352,6 +361,59 @@ class Registry:
         """After dropping a failed plugin's algorithms: names and origins of the rest."""
         self._by_name = {a.name: i for i, a in enumerate(self._algos)}
         self._origin = {n: o for n, o in self._origin.items() if n in self._by_name}
+
+
+PROBE_INTERVAL_S = 0.001  # the test input ``register`` steps a new algorithm with
+PROBE_DEMAND, PROBE_POSITION = 0.01, 0.0  # rad: a small error, as at the first tick
+
+
+def _probe_step(algo: ServoAlgorithm, what: str) -> None:
+    """Step ``algo`` once on a scratch record (its defaults, a 0.01 rad error) and check it
+    returns (torque, error, status): two finite real numbers and an integer.  Outside the
+    cycle; a wrong return would otherwise surface only in an SV at the first powered tick,
+    where it halts the system."""
+    record = np.zeros(1, dtype=algo.dtype)
+    data = struct_view(record)
+    try:
+        algo.init(data, {}, PROBE_INTERVAL_S)
+        result = algo.step(data, PROBE_DEMAND, PROBE_POSITION)
+    except ConfigError:
+        raise
+    except Exception as exc:
+        raise ConfigError(
+            f"{what}: step(data, {PROBE_DEMAND}, {PROBE_POSITION}) at its defaults raised "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
+    finally:
+        del data
+    ok = (
+        isinstance(result, tuple)
+        and len(result) == 3
+        and all(_is_real(v) and math.isfinite(v) for v in result[:2])
+        and _is_integer(result[2])
+    )
+    if not ok:
+        raise ConfigError(
+            f"{what}: step(data, {PROBE_DEMAND}, {PROBE_POSITION}) at its defaults returned "
+            f"{_short(result)}; it must return (torque, error, status): two finite numbers "
+            f"(N·m, rad) and an integer status"
+        )
+
+
+def _is_real(v: Any) -> bool:
+    return isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool)
+
+
+def _is_integer(v: Any) -> bool:
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` cut at ``limit`` characters, with its type if that is not obvious."""
+    text = repr(value)
+    text = text if len(text) <= limit else text[: limit - 3] + "..."
+    obvious = isinstance(value, tuple | list | float | int | str | type(None))
+    return text if obvious else f"{text} (a {type(value).__name__})"
 
 
 def _is_path(spec: str) -> bool:

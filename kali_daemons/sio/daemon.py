@@ -62,6 +62,7 @@ ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms,
 POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
 VELOCITY_FILTER_HZ = 25.0  # low-pass on encoder velocities, as the PID's (figure 3.4)
 BASE_CSR = CSR_NO_DISABLE | CSR_TIMEOUT_ON | CSR_INDEX_OFF
+STAMP = 0xFFFFFFFF  # a command's ``cmd_faults`` stamp holds the fault count's low 32 bits
 
 
 class ServoIO(Daemon):
@@ -324,17 +325,25 @@ class ServoIO(Daemon):
             return
         state = int(r.power)
         cmd = int(r.power_cmd)
+        word = int(r.calib_cmd)
+        # a command stamped before the latest halt, or written during one, is void: a halt
+        # forgets every pending command (LinuxCNC), so nothing powers on by itself at reset
+        void = bool(self._fault_active) or int(r.cmd_faults) != int(self._fault_count) & STAMP
         if cmd:
             r.power_cmd[...] = PowerCmd.NONE
             if cmd not in (PowerCmd.ENABLE, PowerCmd.DISABLE):  # a client's garbage (DESIGN 7)
                 r.message[...] = f"power command word {cmd} ignored (1 on, 2 off)".encode()
                 cmd = PowerCmd.NONE
+            elif void:
+                r.message[...] = b"power command dropped: a halt came after it (enable again)"
+                cmd = PowerCmd.NONE
         calib = self._calib[k]
-        word = int(r.calib_cmd)
         if word:
             r.calib_cmd[...] = 0
             if word != 1:
                 r.message[...] = f"calibration word {word} ignored (1 = calibrate)".encode()
+            elif void:
+                r.message[...] = b"calibration command dropped: a halt came after it"
             elif state == PowerState.ON and not faulted and int(r.calib_state) not in ACTIVE:
                 calib.begin()
             elif int(r.calib_state) not in ACTIVE:
@@ -629,6 +638,7 @@ class _RobotViews:
         "calib_shift",
         "calib_state",
         "calibrated",
+        "cmd_faults",
         "codes",
         "csr",
         "demand",
@@ -660,6 +670,7 @@ class _RobotViews:
             "calib_state",
             "calib_found",
             "calibrated",
+            "cmd_faults",
         ):
             setattr(self, field, one(robots, field))
         self.calib_shift = robots["calib_shift"][k]
