@@ -98,9 +98,9 @@ def lifecycle_lock(instance: str, operation: str, wait_s: float = 0.0) -> Iterat
 
     Waits up to ``wait_s`` for another start or stop to finish (never for a holder that is
     stopped), then refuses with InstanceError naming the holder's pid and operation, which
-    the holder writes into the file.  The file is removed by whoever holds the lock when the
-    instance is gone, so nothing is left behind; a locker checks it still locked the file
-    that has the name (not one just removed).
+    the holder writes into the file.  The holder removes the file as it lets go, so nothing
+    is left behind; a locker checks it locked the file that has the name (not one removed
+    while it waited).
     """
     path = _private_dir(runtime_dir(), "runtime directory", "KALI_RUNTIME_DIR") / (
         f"{instance}.lock"
@@ -133,9 +133,8 @@ def lifecycle_lock(instance: str, operation: str, wait_s: float = 0.0) -> Iterat
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()} {operation}\n".encode(), 0)
         yield
-        if not shm_objects(instance):
-            path.unlink(missing_ok=True)
     finally:
+        path.unlink(missing_ok=True)  # still ours: a waiter finds the new file's inode
         os.close(fd)
 
 

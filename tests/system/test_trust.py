@@ -341,6 +341,7 @@ def test_an_object_squatted_by_another_user_is_refused_naming_it_and_its_owner(
     finally:
         os.unlink(path)
     assert leftovers(name) == ([], [])
+    assert not (launcher.runtime_dir() / f"{name}.lock").exists()  # nor a lock file
 
 
 def test_a_too_small_semaphore_of_ones_own_is_never_mapped(tmp_path: Path) -> None:
