@@ -526,7 +526,8 @@ class Kali:
         them (``kalictl move --force``)."""
         self.force = force
         self.program = program_name()
-        self.inst = Instance.attach(instance or os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE))
+        name = os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE) if instance is None else instance
+        self.inst = Instance.attach(name)  # an empty name is refused, never the default
         try:
             self.servo = ServoClient(self.inst)
             arena = self.inst.arena

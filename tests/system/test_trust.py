@@ -313,6 +313,18 @@ def test_an_empty_instance_name_is_refused_not_taken_as_default(
     assert leftovers(name) == ([], [])
 
 
+def test_a_program_given_an_empty_instance_name_is_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from kali_daemons.client import Kali
+
+    with pytest.raises(InstanceError, match="instance name '' is not allowed"):
+        Kali("")
+    monkeypatch.setenv("KALI_INSTANCE", "")
+    with pytest.raises(InstanceError, match="instance name '' is not allowed"):
+        Kali()
+
+
 requires_root = pytest.mark.skipif(os.geteuid() != 0, reason="chown to another user needs root")
 
 
