@@ -45,28 +45,41 @@ os.kill(os.getpid(), signal.SIGSTOP)
 
 
 @pytest.fixture
-def holder() -> Iterator[Callable[[str], subprocess.Popen]]:
-    """``holder(instance)``: a client that takes every lock of the instance and stops itself
-    (SIGSTOP) holding them; killed afterwards."""
+def stopped() -> Iterator[Callable[..., tuple[subprocess.Popen, str]]]:
+    """``stopped(script, *args)``: run a Python script that prints one line and then stops
+    itself (SIGSTOP), as a program under Ctrl-Z or a debugger; (its process, that line) once
+    it is stopped.  Killed afterwards."""
     procs: list[subprocess.Popen] = []
 
-    def start(instance: str) -> subprocess.Popen:
+    def start(script: str, *args: str) -> tuple[subprocess.Popen, str]:
         p = subprocess.Popen(
-            [sys.executable, "-c", HOLDER, instance],
-            stdout=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
+            [sys.executable, "-c", script, *args], stdout=subprocess.PIPE, text=True, cwd=ROOT
         )
         procs.append(p)
         assert p.stdout is not None
-        assert int(p.stdout.readline()) >= 5  # directory, table, command, queue, mailboxes
-        wait_for(lambda: _state(p.pid) == "T", 10, "the lock holder stopped")
-        return p
+        line = p.stdout.readline().strip()
+        wait_for(lambda: _state(p.pid) == "T", 10, f"pid {p.pid} stopped")
+        return p, line
 
     yield start
     for p in procs:
         p.kill()
         p.wait(10)
+
+
+@pytest.fixture
+def holder(
+    stopped: Callable[..., tuple[subprocess.Popen, str]],
+) -> Callable[[str], subprocess.Popen]:
+    """``holder(instance)``: a client that takes every lock of the instance and stops itself
+    holding them."""
+
+    def start(instance: str) -> subprocess.Popen:
+        p, locks = stopped(HOLDER, instance)
+        assert int(locks) >= 5  # directory, table, command, queue, mailboxes
+        return p
+
+    return start
 
 
 def _state(pid: int) -> str:
@@ -133,7 +146,7 @@ STOP_BOUND_S = launcher.STOP_GRACE_S + 2 * launcher.KILL_GRACE_S + 5.0
 
 
 def test_a_fault_writer_stopped_half_way_still_halts_and_is_named(
-    kali: Callable[..., str],
+    kali: Callable[..., str], stopped: Callable[..., tuple[subprocess.Popen, str]]
 ) -> None:
     """The winner of the fault word stops before it has written its record: the clock halts
     all the same, and readers say whose record is unfinished instead of waiting for it."""
@@ -149,25 +162,17 @@ def test_a_fault_writer_stopped_half_way_still_halts_and_is_named(
         "print(int(ok), flush=True)\n"
         "os.kill(os.getpid(), signal.SIGSTOP)\n"
     )
-    p = subprocess.Popen(
-        [sys.executable, "-c", script, name], stdout=subprocess.PIPE, text=True, cwd=ROOT
-    )
-    try:
-        assert p.stdout is not None and p.stdout.readline().strip() == "1"
-        wait_for(lambda: _state(p.pid) == "T", 10, "the writer stopped")
-        with Instance.attach(name) as inst:
-            text = inst.fault_text()
-            assert text is not None and text.startswith("UNFINISHED in pid ")
-            assert f"left unfinished by pid {p.pid} (python" in text and "stopped)" in text
-            start_kali_clock_refused = kalictl("-i", name, "clock", "start")
-            assert start_kali_clock_refused.returncode == 1
-            assert "fault active" in start_kali_clock_refused.stderr
-            r = kalictl("-i", name, "reset")
-            assert r.returncode == 0, r.stderr
-            assert inst.fault_text() is None
-    finally:
-        p.kill()
-        p.wait(10)
+    p, won = stopped(script, name)
+    assert won == "1"
+    with Instance.attach(name) as inst:
+        text = inst.fault_text()
+        assert text is not None and text.startswith("UNFINISHED in pid ")
+        assert f"left unfinished by pid {p.pid} (python" in text and "stopped)" in text
+        refused = kalictl("-i", name, "clock", "start")
+        assert refused.returncode == 1 and "fault active" in refused.stderr
+        r = kalictl("-i", name, "reset")
+        assert r.returncode == 0, r.stderr
+        assert inst.fault_text() is None
 
 
 def test_many_processes_raising_at_once_record_one_fault_and_count_all(
@@ -268,7 +273,9 @@ def test_a_stop_waits_for_a_start_in_progress_instead_of_tearing_it_down(
     assert leftovers(name) == ([], [])
 
 
-def test_a_lifecycle_lock_held_by_a_stopped_kalictl_is_refused_at_once_naming_it() -> None:
+def test_a_lifecycle_lock_held_by_a_stopped_kalictl_is_refused_at_once_naming_it(
+    stopped: Callable[..., tuple[subprocess.Popen, str]],
+) -> None:
     name = unique_name("held")
     script = (
         "import os, signal, sys\n"
@@ -277,19 +284,14 @@ def test_a_lifecycle_lock_held_by_a_stopped_kalictl_is_refused_at_once_naming_it
         "    print('in', flush=True)\n"
         "    os.kill(os.getpid(), signal.SIGSTOP)\n"
     )
-    p = subprocess.Popen(
-        [sys.executable, "-c", script, name], stdout=subprocess.PIPE, text=True, cwd=ROOT
-    )
-    try:
-        assert p.stdout is not None and p.stdout.readline().strip() == "in"
-        wait_for(lambda: _state(p.pid) == "T", 10, "the holder stopped")
-        t0 = time.monotonic()
-        with pytest.raises(InstanceError, match=rf"stop refused: pid {p.pid} \(python"):
-            launcher.stop(name)
-        assert time.monotonic() - t0 < 2.0  # not the whole LIFECYCLE_WAIT_S
-    finally:
-        p.kill()
-        p.wait(10)
+    p, line = stopped(script, name)
+    assert line == "in"
+    t0 = time.monotonic()
+    with pytest.raises(InstanceError, match=rf"stop refused: pid {p.pid} \(python"):
+        launcher.stop(name)
+    assert time.monotonic() - t0 < 2.0  # not the whole LIFECYCLE_WAIT_S
+    p.kill()
+    p.wait(10)
     launcher.stop(name)  # the lock of a dead holder is free again
     assert not (launcher.runtime_dir() / f"{name}.lock").exists()
 
