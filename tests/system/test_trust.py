@@ -207,9 +207,9 @@ def test_many_processes_raising_at_once_record_one_fault_and_count_all(
         assert f.pid == racers[won.index(1)].pid
 
 
-def test_two_starts_of_one_instance_at_once_the_second_is_refused_naming_the_first(
-    tmp_path: Path,
-) -> None:
+def _start_half_way(tmp_path: Path) -> tuple[str, Path, dict[str, str], subprocess.Popen]:
+    """A ``kalictl start --lockstep`` of a new instance in the background, returned once it
+    is half-way (its segment exists, its daemons are not up yet): (name, config, env, it)."""
     name = unique_name("race")
     cfg = tmp_path / "race.yaml"
     cfg.write_text(config_text(name))
@@ -222,9 +222,15 @@ def test_two_starts_of_one_instance_at_once_the_second_is_refused_naming_the_fir
         cwd=ROOT,
         env={**os.environ, **env},
     )
+    wait_for(lambda: bool(launcher.shm_objects(name)), 30, "the first start's segment")
+    return name, cfg, env, first
+
+
+def test_two_starts_of_one_instance_at_once_the_second_is_refused_naming_the_first(
+    tmp_path: Path,
+) -> None:
+    name, cfg, env, first = _start_half_way(tmp_path)
     try:
-        # the first is half-way: its segment exists, its daemons are not up yet
-        wait_for(lambda: bool(launcher.shm_objects(name)), 30, "the first start's segment")
         second = kalictl("-i", name, "start", "-c", str(cfg), "--lockstep", env=env)
         _, err = first.communicate(timeout=120)
         assert first.returncode == 0, err
@@ -248,19 +254,8 @@ def test_two_starts_of_one_instance_at_once_the_second_is_refused_naming_the_fir
 def test_a_stop_waits_for_a_start_in_progress_instead_of_tearing_it_down(
     tmp_path: Path,
 ) -> None:
-    name = unique_name("race")
-    cfg = tmp_path / "race.yaml"
-    cfg.write_text(config_text(name))
-    first = subprocess.Popen(
-        [sys.executable, "-m", "kali_daemons", "-i", name, "start", "-c", str(cfg), "--lockstep"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "KALI_LOG_DIR": str(tmp_path / "logs")},
-    )
+    name, _, _, first = _start_half_way(tmp_path)
     try:
-        wait_for(lambda: bool(launcher.shm_objects(name)), 30, "the first start's segment")
         r = kalictl("-i", name, "stop")
         _, err = first.communicate(timeout=120)
         assert first.returncode == 0, err  # its start finished, then the stop took it down
