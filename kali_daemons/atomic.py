@@ -56,6 +56,7 @@ _add4 = _fn("__atomic_fetch_add_4", _u32, _ptr, _u32, _int)
 _load8 = _fn("__atomic_load_8", _u64, _ptr, _int)
 _store8 = _fn("__atomic_store_8", None, _ptr, _u64, _int)
 _add8 = _fn("__atomic_fetch_add_8", _u64, _ptr, _u64, _int)
+_cas8 = _fn("__atomic_compare_exchange_8", ctypes.c_bool, _ptr, _ptr, _u64, _int, _int)
 
 
 def load32(addr: int) -> int:
@@ -90,6 +91,22 @@ class CompareExchange32:
         """Swap in ``desired`` if the word equals ``expected``; return (swapped, observed)."""
         self._cell.value = expected
         ok = _cas4(addr, self._cell_addr, desired, _SEQ_CST, _SEQ_CST)
+        return bool(ok), self._cell.value
+
+
+class CompareExchange64:
+    """Compare-and-swap on 64-bit words, like ``CompareExchange32``."""
+
+    __slots__ = ("_cell", "_cell_addr")
+
+    def __init__(self) -> None:
+        self._cell = ctypes.c_uint64(0)
+        self._cell_addr = ctypes.addressof(self._cell)
+
+    def __call__(self, addr: int, expected: int, desired: int) -> tuple[bool, int]:
+        """Swap in ``desired`` if the word equals ``expected``; return (swapped, observed)."""
+        self._cell.value = expected
+        ok = _cas8(addr, self._cell_addr, desired & 0xFFFFFFFFFFFFFFFF, _SEQ_CST, _SEQ_CST)
         return bool(ok), self._cell.value
 
 

@@ -26,6 +26,7 @@ from .errors import ClockError, InstanceError
 from .layout import FaultCode, ProcState
 from .spinlock import SpinLock, holder_text
 
+_WORD = 0xFFFFFFFF  # the fault word: the low half of the fault record's 64-bit state word
 FAULT_READ_WAIT_S = 0.05  # longest a reader waits for a fault's writer to finish its record
 LOCK_STUCK_S = 0.2  # a lock held by one pid this long is reported stuck (kalictl status)
 
@@ -127,10 +128,10 @@ class Instance:
         self.cmd_lock = SpinLock(
             arena.address_of_field(clock_off, layout.CLOCK, "cmd_lock"), "clock command"
         )
-        self._fault_word = arena.address_of_field(fault_off, layout.FAULT, "active")
-        self._fault_seq = arena.address_of_field(fault_off, layout.FAULT, "seq")
+        # the fault word and its sequence count, read and swapped as one 64-bit state word
+        self._fault_state = arena.address_of_field(fault_off, layout.FAULT, "active")
         self._fault_count = arena.address_of_field(fault_off, layout.FAULT, "count")
-        self._fault_cas = atomic.CompareExchange32()
+        self._fault_cas = atomic.CompareExchange64()
         self.registry_gen_addr = arena.address_of_field(clock_off, layout.CLOCK, "registry_gen")
 
     @classmethod
@@ -302,20 +303,27 @@ class Instance:
 
         A halt disables every robot's amplifiers through its board first (DESIGN 7: bit 7 of
         the command/status register low cuts them at once; the brakes follow in the plant),
-        whoever raises it.  Lock-free: one compare-and-swap of the fault word from 0 to this
-        pid decides the winner, who alone writes the rest between two steps of the record's
-        sequence count, so no process holding anything, stopped or dead, can keep a halt from
-        being recorded.  The wall clock stops itself when it sees the fault word set.  Returns
-        True if this call recorded the fault, False if one was already active (still counted).
+        whoever raises it.  Lock-free: one compare-and-swap of the record's 64-bit state word,
+        from (fault word 0, even sequence count) to (this pid, odd count), decides the winner
+        and opens the record in one step; the winner alone writes the rest and then makes the
+        count even.  So no process holding anything, stopped or dead, can keep a halt from
+        being recorded, and no reader sees the fault word set beside an earlier fault's
+        fields.  The wall clock stops itself when it sees the fault word set.  Returns True if
+        this call recorded the fault, False if one was already active (still counted).
         """
         self.power_off_all()
         atomic.fetch_add64(self._fault_count, 1)
         pid = os.getpid()
-        won, _ = self._fault_cas(self._fault_word, 0, pid)
-        if not won:
-            return False
-        seq = atomic.load32(self._fault_seq) | 1  # odd: being written
-        atomic.store32(self._fault_seq, seq)
+        state = atomic.load64(self._fault_state)
+        while True:
+            if state & _WORD:
+                return False  # an uncleared fault is active: it stands
+            # win and open the record in one step: the word becomes this pid and the sequence
+            # count odd (a writer that died half-way left it odd already: step past it)
+            seq = (state >> 32) + 1 + (state >> 32 & 1)
+            won, state = self._fault_cas(self._fault_state, state, (seq & _WORD) << 32 | pid)
+            if won:
+                break
         f = self.fault
         f["code"] = int(code)
         f["pid"] = pid
@@ -323,7 +331,7 @@ class Instance:
         f["time_ns"] = time.time_ns()
         f["process"] = process.encode()[: layout.NAME_BYTES - 1]
         f["message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
-        atomic.store32(self._fault_seq, (seq + 1) & 0xFFFFFFFF)  # even: written
+        atomic.fetch_add64(self._fault_state, 1 << 32)  # even: written (whether reset or not)
         self.command_semaphore().release()  # a stopped-but-waiting clock notices at once
         if self.lockstep:
             self.ack_semaphore().release()  # a clock waiting for lockstep acks notices too
@@ -341,7 +349,12 @@ class Instance:
 
     def clear_fault(self) -> bool:
         """Clear the active fault (kalictl reset); False if none was active."""
-        return atomic.exchange32(self._fault_word, 0) != 0
+        state = atomic.load64(self._fault_state)
+        while state & _WORD:  # clear the word, keep the sequence count (a writer may be busy)
+            cleared, state = self._fault_cas(self._fault_state, state, state & ~_WORD)
+            if cleared:
+                return True
+        return False
 
     def read_fault(self) -> FaultInfo:
         """A consistent copy of the fault record (the latest fault, even if cleared).
@@ -353,8 +366,8 @@ class Instance:
         f = self.fault
         deadline = time.monotonic() + FAULT_READ_WAIT_S
         while True:
-            seq = atomic.load32(self._fault_seq)
-            word = atomic.load32(self._fault_word)
+            state = atomic.load64(self._fault_state)
+            seq, word = state >> 32, state & _WORD
             if not seq & 1:
                 info = FaultInfo(
                     code=_code_name(int(f["code"])),
@@ -366,7 +379,7 @@ class Instance:
                     active=word != 0,
                     count=int(atomic.load64(self._fault_count)),
                 )
-                if atomic.load32(self._fault_seq) == seq:
+                if atomic.load64(self._fault_state) >> 32 == seq:
                     return info
             elif time.monotonic() > deadline:
                 writer = word or int(f["pid"])
@@ -385,7 +398,8 @@ class Instance:
     def fault_text(self, last: bool = False) -> str | None:
         """The active fault as one line, or None; ``last``: the latest fault even if cleared
         (None if there never was one)."""
-        if not (atomic.load32(self._fault_word) or (last and atomic.load64(self._fault_count))):
+        active = atomic.load64(self._fault_state) & _WORD
+        if not (active or (last and atomic.load64(self._fault_count))):
             return None
         f = self.read_fault()
         return f"{f.code} in {f.process} at tick {f.tick}: {f.message}"

@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 MAGIC = int.from_bytes(b"KALIAREN", "little")
-LAYOUT_VERSION = 4
+LAYOUT_VERSION = 5
 
 ALIGN = 64  # every block starts on a cache line, so every 4/8-byte word in it is aligned
 MAX_BLOCKS = 256  # directory descriptors (blocks plus free fragments)
@@ -251,10 +251,11 @@ class FaultCode(enum.IntEnum):
 
 FAULT = np.dtype(
     [
+        # ``active`` and ``seq`` are one 64-bit state word, swapped whole (Instance.raise_fault).
         # The fault word: 0 while no fault is active, else the pid of the process whose fault
-        # it is (set by compare-and-swap from 0; kalictl reset exchanges it back to 0)
+        # it is (set with ``seq`` by one compare-and-swap; kalictl reset sets it back to 0)
         ("active", "<u4"),
-        ("seq", "<u4"),  # the winner's sequence count: odd while it writes the fields below
+        ("seq", "<u4"),  # the record's sequence count: odd while the winner writes the rest
         ("code", "<u4"),  # FaultCode
         ("pid", "<i4"),  # process that raised it
         ("tick", "<i8"),

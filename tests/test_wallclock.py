@@ -170,8 +170,8 @@ def test_slow_serious_process_halts_the_clock(kali: Callable[..., str], program:
     name = kali(lockstep=False)
     program("slow", name, "slowpoke", "--serious", "--after", "50", "--sleep-ms", "40")
     with Instance.attach(name) as inst:
-        wait_for(lambda: bool(inst.fault["active"]))
-        assert FaultCode(int(inst.fault["code"])) == FaultCode.DEADLINE
+        wait_for(lambda: inst.read_fault().active)
+        assert inst.read_fault().code == FaultCode.DEADLINE.name
         text = inst.fault_text()
         assert "slowpoke" in text
         assert (
@@ -217,9 +217,9 @@ def test_killed_serious_daemon_halts_naming_it(kali: Callable[..., str]) -> None
     name = kali(lockstep=False)
     with Instance.attach(name) as inst:
         os.kill(int(inst.procs[inst.slot_of("sio")]["pid"]), signal.SIGKILL)
-        wait_for(lambda: bool(inst.fault["active"]))
+        wait_for(lambda: inst.read_fault().active)
         # the first missed tick finds the process gone: halted at once, named as dead
-        assert FaultCode(int(inst.fault["code"])) == FaultCode.PROCESS_DIED, inst.fault_text()
+        assert inst.read_fault().code == FaultCode.PROCESS_DIED.name, inst.fault_text()
         assert "process 'sio' (pid" in inst.fault_text() and "died" in inst.fault_text()
 
 

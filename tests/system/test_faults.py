@@ -43,7 +43,7 @@ import numpy as np
 import pytest
 
 from kali_daemons import launcher, layout
-from kali_daemons.instance import Instance, decode
+from kali_daemons.instance import Instance
 from kali_daemons.layout import (
     CSR_NO_DISABLE,
     POWER_AMPS_ON,
@@ -266,12 +266,12 @@ def _halts(
     program woken.  ``before``: the clock's tick, its skipped ticks and the time just before
     the injection, and the ticks the injection itself took."""
     tick0, skipped0, t0, slack = before
-    f, c = inst.fault, inst.clock
-    wait_for(lambda: bool(f["active"]), 5.0, f"{fault.label}: a halt")
-    code, process = FaultCode(int(f["code"])), decode(f["process"])
-    message = decode(f["message"])
+    c = inst.clock
+    wait_for(lambda: inst.read_fault().active, 5.0, f"{fault.label}: a halt")
+    info = inst.read_fault()  # the whole record: its writer may still be filling it in
+    code, process, message = FaultCode[info.code], info.process, info.message
     row["halt"] = f"{code.name} in {process}"
-    ms = (int(f["time_ns"]) - t0) / 1e6
+    ms = (info.time_ns - t0) / 1e6
     assert code == fault.code and re.fullmatch(fault.culprit, process), inst.fault_text()
     assert re.search(fault.says, message), inst.fault_text()
     if fault.bound_ticks is not None:
@@ -306,7 +306,7 @@ def _halts(
     woken = re.search(r"^woken (\d+) (.*)$", out, re.M)
     assert mover.returncode == 3 and woken, f"the program was not woken: {out}\n{err}"
     assert f"{code.name} in {process}" in woken.group(2)
-    row["program"] = f"woken {(int(woken.group(1)) - int(f['time_ns'])) / 1e6:.0f} ms"
+    row["program"] = f"woken {(int(woken.group(1)) - info.time_ns) / 1e6:.0f} ms"
 
 
 def _degrades(

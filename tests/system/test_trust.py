@@ -152,15 +152,16 @@ def test_a_fault_writer_stopped_half_way_still_halts_and_is_named(
     all the same, and readers say whose record is unfinished instead of waiting for it."""
     name = kali(lockstep=True)
     script = (
-        "import os, signal, sys\n"
-        "from kali_daemons import atomic\n"
+        "import os, signal, sys, time\n"
         "from kali_daemons.instance import Instance\n"
+        "from kali_daemons.layout import FaultCode\n"
         "inst = Instance.attach(sys.argv[1])\n"
-        "inst.power_off_all()\n"
-        "ok, _ = inst._fault_cas(inst._fault_word, 0, os.getpid())\n"
-        "atomic.store32(inst._fault_seq, atomic.load32(inst._fault_seq) | 1)\n"
-        "print(int(ok), flush=True)\n"
-        "os.kill(os.getpid(), signal.SIGSTOP)\n"
+        "def stop_half_way():  # raise_fault asks the time once it has won, mid-record\n"
+        "    print(1, flush=True)\n"
+        "    os.kill(os.getpid(), signal.SIGSTOP)\n"
+        "    return 0\n"
+        "time.time_ns = stop_half_way\n"
+        "inst.raise_fault(FaultCode.OPERATOR, 'half-way', 'never finished')\n"
     )
     p, won = stopped(script, name)
     assert won == "1"
