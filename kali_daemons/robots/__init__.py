@@ -1,0 +1,51 @@
+"""Robot types, found by name (issue 25; thesis 3.1, 3.5).
+
+``robot_type("puma560")`` imports ``kali_daemons.robots.puma560`` and returns its ``ROBOT``.
+A type is one package here (or, for a researcher's own arm, a module file named in the
+config); see ``profile.py`` for what it declares.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+from functools import cache
+
+from ..errors import ConfigError
+from .profile import MAX_JOINTS, Drive, Kinematics, RobotType
+
+_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+@cache
+def robot_type(name: str) -> RobotType:
+    """The robot type ``name`` (a package under ``kali_daemons/robots``); ``ConfigError``
+    naming the types there if there is none."""
+    if not _NAME.match(name or ""):
+        raise ConfigError(f"robot type {name!r}: not a type name ({_NAME.pattern})")
+    try:
+        module = importlib.import_module(f"{__name__}.{name}")
+    except ModuleNotFoundError as exc:
+        if exc.name != f"{__name__}.{name}":
+            raise
+        raise ConfigError(
+            f"robot type {name!r}: no such type (known: {', '.join(known_types())})"
+        ) from None
+    robot = getattr(module, "ROBOT", None)
+    if not isinstance(robot, RobotType):
+        raise ConfigError(f"robot type {name!r}: {module.__file__} defines no ROBOT RobotType")
+    return robot
+
+
+def known_types() -> list[str]:
+    """The names of the robot types shipped with Kali."""
+    from importlib import resources
+
+    return sorted(
+        p.name
+        for p in resources.files(__name__).iterdir()
+        if p.is_dir() and (p / "__init__.py").is_file()
+    )
+
+
+__all__ = ["MAX_JOINTS", "Drive", "Kinematics", "RobotType", "known_types", "robot_type"]
