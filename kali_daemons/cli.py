@@ -521,6 +521,17 @@ def _wait_power(
 
 
 @main.command()
+@_errors
+def types() -> None:
+    """List the robot types a config's robots[].model may name (kali_daemons/robots)."""
+    from .robots import known_types, robot_type
+
+    for name in known_types():
+        t = robot_type(name)
+        click.echo(f"{name:<12} {t.n_joints} joints  {t.description}")
+
+
+@main.command()
 @click.argument("robot", required=False)
 @click.pass_context
 @_errors

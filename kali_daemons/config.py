@@ -31,10 +31,12 @@ import numpy as np
 import yaml
 
 from kali_daemons.errors import ConfigError
+from kali_daemons.layout import ARM_JOINTS
+from kali_daemons.robots import RobotType, known_types, robot_type
 
 CONFIG_VERSION = 1
 PROCESS_NAMES = ("wallclock", "plant", "tg", "sio", "sv", "dynamics", "viewer")
-ROBOT_MODELS = ("puma560",)
+DEFAULT_MODEL = "puma560"  # a robot entry without a model
 
 MAX_SV_WORKERS = 8
 MAX_ROBOTS = 4
@@ -91,7 +93,7 @@ _TOP_KEYS = (
     "feedforward",
     "dashboard",
 )
-_PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms", "seed")
+_PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms")
 _CLOCK_KEYS = (
     "base_tick_ms",
     "servo_period_ms",
@@ -109,6 +111,7 @@ _ROBOT_KEYS = (
     "safe_rad",
     "current_fault_ms",
     "ff",
+    "index_phases_deg",
 )
 FF_MODES = ("off", "gravity", "full")  # layout.FfMode by name
 _FEEDFORWARD_KEYS = ("stale_ms", "ramp_ms")
@@ -195,7 +198,6 @@ class PlantConfig:
     watchdog_ms: float = 20.0  # I/O board safety timeout (appendix C.4)
     enable_hold_ms: float = 15.0  # enable bit must stay high this long (power switch relay)
     brake_delay_ms: float = 50.0  # brake solenoids engage/release this long after the amps
-    seed: int = 0  # seeds the index-pulse phases of the simulated encoders
 
 
 @dataclass(frozen=True)
@@ -210,6 +212,19 @@ class RobotConfig:
     safe_rad: tuple[float, ...] = (DEFAULT_SAFE_RAD,) * 6  # tracking tolerance per joint
     current_fault_ms: float = DEFAULT_CURRENT_FAULT_MS  # demand beyond the limit this long halts
     ff: str = "off"  # feed-forward it starts with: off, gravity or full (FF_MODES)
+    # the arm's calibration sheet (thesis 3.5.1): each joint's index-pulse motor angle, rad;
+    # the config's index_phases_deg, else (left empty) its robot type's
+    index_phases: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.index_phases:
+            sheet = tuple(float(v) for v in self.type.index_phases)
+            object.__setattr__(self, "index_phases", sheet)
+
+    @property
+    def type(self) -> RobotType:
+        """The arm's robot type (``kali_daemons.robots``)."""
+        return robot_type(self.model)
 
 
 @dataclass(frozen=True)
@@ -675,6 +690,25 @@ def _float(value: Any, path: str, lo: float, hi: float, lo_open: bool = True) ->
     return number
 
 
+def _per_joint(
+    value: Any, path: str, n: int, lo: float, hi: float, per_joint_only: bool = False
+) -> tuple[float, ...]:
+    """One number for every joint, or a list of ``n`` numbers in ``[lo, hi)``
+    (``per_joint_only``: the list only)."""
+    form = f"a list of {n} numbers" if per_joint_only else f"a number or a list of {n} numbers"
+    if not isinstance(value, list):
+        if per_joint_only:
+            _fail(path, value, f"must be {form}")
+        value = [value] * n
+    elif len(value) != n:
+        _fail(path, value, f"must be {form} (one per joint), not {len(value)}")
+    out = tuple(_float(v, f"{path}[{j}]", lo, hi, lo_open=False) for j, v in enumerate(value))
+    for j, v in enumerate(out):
+        if v == hi:
+            _fail(f"{path}[{j}]", v, f"must be >= {lo:g} and < {hi:g}")
+    return out
+
+
 def _finite(value: Any, path: str) -> float:
     """Any finite number (an int is accepted, a bool is not)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
@@ -925,7 +959,6 @@ def _plant(node: Any, period_ms: float, servo_ms: float) -> PlantConfig:
         brake_delay_ms=_float(
             m.get("brake_delay_ms", d.brake_delay_ms), "plant.brake_delay_ms", 0.0, 1000.0
         ),
-        seed=_int(m.get("seed", d.seed), "plant.seed", 0, 2**31 - 1),
     )
 
 
@@ -1098,7 +1131,14 @@ def _robots(node: Any) -> tuple[RobotConfig, ...]:
                 f"duplicate; robot names must be unique (also robots[{first_index[name]}])",
             )
         first_index[name] = i
-        model = _choice(m.get("model", ROBOT_MODELS[0]), f"{path}.model", ROBOT_MODELS)
+        model = _choice(m.get("model", DEFAULT_MODEL), f"{path}.model", tuple(known_types()))
+        rtype = robot_type(model)
+        if rtype.n_joints != ARM_JOINTS:
+            _fail(
+                f"{path}.model",
+                model,
+                f"has {rtype.n_joints} joints; this Kali lays out {ARM_JOINTS} per arm",
+            )
         xyz_node = m.get("base_xyz", [0.0, 0.0, 0.0])
         if not isinstance(xyz_node, list) or len(xyz_node) != 3:
             _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")
@@ -1124,5 +1164,16 @@ def _robots(node: Any) -> tuple[RobotConfig, ...]:
         if ff_node is False:  # YAML 1.1 reads a bare off as false
             ff_node = "off"
         ff = _choice(ff_node, f"{path}.ff", FF_MODES)
-        robots.append(RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms, ff))
+        sheet: tuple[float, ...] = ()  # the type's
+        if "index_phases_deg" in m:
+            phases = _per_joint(
+                m["index_phases_deg"],
+                f"{path}.index_phases_deg",
+                rtype.n_joints,
+                0.0,
+                360.0,
+                per_joint_only=True,
+            )
+            sheet = tuple(math.radians(v) for v in phases)
+        robots.append(RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms, ff, sheet))
     return tuple(robots)

@@ -1,9 +1,9 @@
 """Robot driver (thesis 3.5): the table of functions between board registers and the units
-servos work in, for PUMA 560 arms on McGill I/O and DAC boards.
+servos work in, for arms of any robot type on McGill I/O and DAC boards.
 
 Servos only ever see joint radians and joint N·m (3.3.4); this module owns every conversion
 between those and the hardware, vectorised over all arms (joint ``6 k + j`` is joint ``j``
-of arm ``k``):
+of arm ``k``), with each arm's drive from its robot type (``kali_daemons.robots``):
 
 - **Encoders** (figure C.3): each 12-bit HCTL-2000 reading is compared with the previous one
   and the difference, wrapped at half range (±2048), is added to a 32-bit accumulated count.
@@ -12,8 +12,9 @@ of arm ``k``):
 - **Angles**: ``q = counts / (counts per motor rev · G / 2π) + offset``; the signed gear
   ratio G gives the direction, the offset comes from calibration (3.5.1).
 - **Torque out**: joint torque τ → motor current ``i = τ / (G · Kt)``, clamped at the
-  current limit → amplifier input ``V = i / 2.5 A/V`` → 12-bit offset-binary DAC code over
-  ±10 V.  Returns whether each joint's demand had to be clamped, for SIO's current check.
+  current limit → amplifier input ``V = i / (A per V)`` → 12-bit offset-binary DAC code
+  over the DAC's ± full scale.  Returns whether each joint's demand had to be clamped, for
+  SIO's current check.
 
 Inside the cycle: preallocated arrays only.
 """
@@ -24,17 +25,17 @@ import math
 
 import numpy as np
 
-from . import layout, puma560
+from . import layout
+from .robots import RobotType
 
 COUNTER_BITS = 12
 COUNTER_MODULO = 1 << COUNTER_BITS
 COUNTER_HALF = COUNTER_MODULO // 2  # wrap threshold of figure C.3
 DAC_MAX = (1 << layout.DAC_BITS) - 1
-CODES_PER_VOLT = layout.DAC_ZERO / puma560.DAC_VOLTS  # 204.8
 
 
-class Puma560Driver:
-    """Conversions for ``n_arms`` PUMA 560s.
+class JointDriver:
+    """Conversions for the arms of ``types`` (one robot type per arm, in robot order).
 
     Its state, ``acc`` (int32 accumulated counts), ``prev`` (last raw readings) and ``offset``
     (rad), is flat and private; ``load``/``store`` move it from/to the arena's per-robot
@@ -43,32 +44,38 @@ class Puma560Driver:
 
     def __init__(
         self,
-        n_arms: int,
+        types: list[RobotType],
         current_limit: np.ndarray | None = None,
         index_phase: np.ndarray | None = None,
     ) -> None:
         """``index_phase``: each joint's index-pulse motor angle (rad, flat ``(6 n_arms,)``),
-        the arms' calibration sheets (``puma560.index_phases``); needed only to calibrate."""
-        self.n_arms = n_arms
+        the arms' calibration sheets (``RobotConfig.index_phases``); needed only to calibrate."""
+        n_arms = self.n_arms = len(types)
         n = self.n = 6 * n_arms
+        assert all(t.n_joints == 6 for t in types), "the arena lays out 6 joints per arm"
 
-        def tile(values: np.ndarray) -> np.ndarray:
-            return np.tile(np.asarray(values, dtype=np.float64), n_arms)
+        def tile(values: object) -> np.ndarray:
+            return np.concatenate([np.asarray(values(t), dtype=np.float64) for t in types])
 
+        self.types = types
         self.acc = np.zeros(n, dtype=np.int32)
         self.prev = np.zeros(n, dtype=np.int32)
         self.offset = np.zeros(n)
+        self.gear = tile(lambda t: t.drive.gear)  # signed: motor angle = G · joint angle
         # counts per joint radian, signed: counts grow with the motor angle G·q
-        self.counts_per_rad = tile(puma560.COUNTS_PER_MOTOR_REV * puma560.G / (2.0 * math.pi))
+        self.counts_per_rad = tile(lambda t: t.drive.counts_per_rev) * self.gear / (2.0 * math.pi)
         self.rad_per_count = 1.0 / self.counts_per_rad
-        self.q_min = tile(puma560.Q_MIN)
-        self.q_max = tile(puma560.Q_MAX)
-        self.gkt = tile(puma560.G * puma560.KT)  # joint N·m per motor A
-        limit = tile(puma560.MAX_CURRENT) if current_limit is None else current_limit
+        self.q_min = tile(lambda t: t.q_min)
+        self.q_max = tile(lambda t: t.q_max)
+        self.gkt = self.gear * tile(lambda t: t.drive.kt)  # joint N·m per motor A
+        limit = tile(lambda t: t.drive.max_current) if current_limit is None else current_limit
         self.current_limit = np.broadcast_to(np.asarray(limit, dtype=np.float64), (n,)).copy()
         self.torque_limit = self.current_limit * np.abs(self.gkt)  # N·m at the joint
-        self.gear = tile(puma560.G)  # signed: motor angle = G · joint angle
-        self.index_spacing = tile(2.0 * math.pi / np.abs(puma560.G))  # rad between index pulses
+        self.index_spacing = 2.0 * math.pi / np.abs(self.gear)  # rad between index pulses
+        # DAC codes per motor ampere: codes per volt over the amplifier's amperes per volt
+        self.codes_per_amp = tile(
+            lambda t: [layout.DAC_ZERO / t.drive.dac_volts / t.drive.amp_gain_a_per_v] * 6
+        )
         self.index_phase = (
             np.zeros(n) if index_phase is None else np.asarray(index_phase, dtype=np.float64)
         ).reshape(n)
@@ -162,7 +169,7 @@ class Puma560Driver:
 
     def codes_of(self, current: np.ndarray, out: np.ndarray) -> None:
         """Motor currents (A) → DAC codes as float64 (rounded, 0 .. 4095)."""
-        np.multiply(current, CODES_PER_VOLT / puma560.AMP_GAIN_A_PER_V, out=out)
+        np.multiply(current, self.codes_per_amp, out=out)
         np.add(out, layout.DAC_ZERO, out=out)
         np.rint(out, out=out)
         np.maximum(out, 0, out=out)
@@ -174,15 +181,14 @@ class Puma560Driver:
 
     # ------------------------------------------------------------------ potentiometers
 
-    @staticmethod
-    def pot_table(joint: int) -> tuple[np.ndarray, np.ndarray]:
-        """The linear interpolation table of one joint's potentiometer (3.5.1): ADC codes and
-        the joint angles they read.  Two points, at the joint limits (0.25 V and 4.75 V)."""
+    def pot_table(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The linear interpolation table of joint ``i``'s potentiometer (3.5.1): ADC codes
+        and the joint angles they read.  Two points, at the joint limits (0.25 V and 4.75 V)."""
         codes = np.array([0.25, 4.75]) / 5.0 * 255.0
-        angles = np.array([puma560.Q_MIN[joint], puma560.Q_MAX[joint]])
+        angles = np.array([self.q_min[i], self.q_max[i]])
         return codes, angles
 
     def pot_angle(self, i: int, code: int) -> float:
         """Joint ``i``'s angle (rad) as its 8-bit pot reading ``code`` tells it (coarse)."""
-        codes, angles = self.pot_table(i % 6)
+        codes, angles = self.pot_table(i)
         return float(np.interp(code, codes, angles, left=angles[0], right=angles[1]))

@@ -15,14 +15,13 @@ shows it and ``kalictl flight`` summarises what led to the halt.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import time
 from pathlib import Path
 
 import numpy as np
 
-from . import layout, puma560
+from . import layout
 from .config import ms_to_ns
 from .errors import ArenaError, ArenaFullError, InstanceError, KaliError
 from .instance import FaultInfo, Instance, decode
@@ -286,10 +285,8 @@ def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Pa
         "fault_message": np.array(fault.message),
         "fault_time_ns": np.array(fault.time_ns),
         "safe": np.array(robots["safe"]),
-        "current_limit": np.tile(puma560.MAX_CURRENT, (nr, 1)),
-        "rad_per_count": np.tile(
-            2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G)), (nr, 1)
-        ),
+        "current_limit": np.array([r.type.drive.max_current for r in cfg.robots]),
+        "rad_per_count": np.array([r.type.drive.rad_per_count for r in cfg.robots]),
     }
     for f in ("tick", "t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"):
         arrays[f] = np.ascontiguousarray(data[f])

@@ -21,12 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from . import launcher, layout, puma560
+from . import launcher, layout
 from .instance import Instance, decode
 from .layout import CalibState, FfMode, FfState, PowerState, RequestState, RunMode
 from .wallclock.clock import time_ms
 
-RAD_PER_COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # per joint
 FF_SCALARS = ("weight", "stale_ticks", "stale_events", "heartbeat_tick", "rows_written")
 
 
@@ -70,6 +69,7 @@ class Introspector:
         self.inst = inst
         cfg = inst.config
         self.names = [r.name for r in cfg.robots]
+        self.drives = [r.type.drive for r in cfg.robots]
         self.sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
         self._views: dict[str, np.ndarray] = {}
 
@@ -155,13 +155,13 @@ class Introspector:
                     "qd_rad_s": r["qd"],
                     "demand_rad": r["demand"],
                     "error_rad": err,
-                    "error_counts": err / RAD_PER_COUNT,
+                    "error_counts": err / self.drives[k].rad_per_count,
                     "safe_rad": r["safe"],
                     "servo_torque_nm": r["servo_torque"],
                     "ff_torque_nm": r["ff_torque"],
                     "torque_nm": r["torque"],
                     "current_a": r["current"],
-                    "current_limit_a": puma560.MAX_CURRENT,
+                    "current_limit_a": self.drives[k].max_current,
                     "message": decode(r["message"]),
                     "feedforward": None if ff is None else self._ff(ff[k]),
                 }

@@ -709,12 +709,10 @@ TERMINAL_STATES = (
     RequestState.LOST,
 )
 
-# A PATH request's configuration per robot (kinematics.Config): CONFIG_GIVEN set means bits
-# 0-2 name the configuration the arm must be in; 0 means "the one it is in".
-CONFIG_RIGHT = 1 << 0
-CONFIG_UP = 1 << 1
-CONFIG_FLIP = 1 << 2
-CONFIG_GIVEN = 1 << 3
+# A PATH request's configuration per robot: CONFIG_GIVEN set means the low bits are the
+# index, in its robot type's ``kinematics.configs``, of the inverse-kinematics branch the arm
+# must be in; 0 means "the one it is in".
+CONFIG_GIVEN = 1 << 7
 
 MOTION_REQUEST = np.dtype(
     [

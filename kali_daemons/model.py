@@ -1,10 +1,11 @@
-"""The PUMA 560 model, loaded from the one URDF by both sides (DESIGN.md section 6).
+"""Arm models, loaded from each robot type's one URDF by both sides (DESIGN.md section 6).
 
-``load_pinocchio`` gives the controller its arm model; ``build_world`` gives the plant a MuJoCo
-cell of one or more arms from the same ``config/puma560.urdf``, plus a stand and a bar the
-arms can carry together.  Neither loader reads rotor inertia from URDF, so both set
-``puma560.ARMATURE`` here; that and the world's layout are the only things added on top of
-the file.  Everything runs outside the cycle (it allocates and reads files).
+``load_pinocchio`` gives the controller an arm model; ``build_world`` gives the plant a MuJoCo
+cell of one or more arms, each from its robot type's URDF (``kali_daemons.robots``), plus a
+stand and a bar the arms can carry together.  Neither loader reads rotor inertia from URDF,
+so both set the drive's armature here; that, the motors and the world's layout are the only
+things added on top of the file.  Everything runs outside the cycle (it allocates and reads
+files).
 """
 
 from __future__ import annotations
@@ -22,20 +23,11 @@ import pinocchio as pin
 
 from kali_daemons.config import RobotConfig
 from kali_daemons.errors import ModelError
-from kali_daemons.puma560 import (
-    AMP_BANDWIDTH_HZ,
-    ARMATURE,
-    GRAVITY,
-    KT,
-    MAX_CURRENT,
-    NJOINTS,
-    URDF_PATH,
-    G,
-)
+from kali_daemons.robots import RobotType
 
 IntArray = npt.NDArray[np.int64]
 
-FLANGE_FRAME: Final = "flange"  # the URDF link at DH frame 6 (Pinocchio frame, MuJoCo body)
+FLANGE_FRAME: Final = "flange"  # the URDF link of the flange (Pinocchio frame, MuJoCo body)
 
 # The cell (metres, kilograms).  A table-like stand at the origin, between the arms, and a
 # square bar lying on it along x; each arm grasps the end nearer to it from above.
@@ -123,40 +115,41 @@ class World:
         data.eq_active[eq] = 1
 
 
-def load_pinocchio(urdf: Path = URDF_PATH) -> pin.Model:
-    """The arm as a Pinocchio model, base at the origin, with armature and g = 9.81 m/s².
+def load_pinocchio(robot: RobotType) -> pin.Model:
+    """An arm of type ``robot`` as a Pinocchio model, base at the origin, with its armature
+    and gravity.
 
-    ``rnea`` / ``crba`` / ``aba`` on it include the rotor inertia ``ARMATURE``.  The flange is
-    the frame named ``FLANGE_FRAME``.
+    ``rnea`` / ``crba`` / ``aba`` on it include the drive's rotor inertia.  The flange is the
+    frame named ``FLANGE_FRAME``.
     """
+    urdf = robot.urdf
     if not Path(urdf).is_file():
         raise ModelError(f"{urdf}: no such file")
     try:
         model = pin.buildModelFromUrdf(str(urdf))
     except (RuntimeError, ValueError) as exc:
         raise ModelError(f"{urdf}: Pinocchio cannot load it: {exc}") from None
-    if model.nv != NJOINTS or not model.existFrame(FLANGE_FRAME):
+    if model.nv != robot.n_joints or not model.existFrame(FLANGE_FRAME):
         raise ModelError(
-            f"{urdf}: expected {NJOINTS} joints and a {FLANGE_FRAME!r} frame, "
-            f"found {model.nv} joints"
+            f"{urdf}: robot type {robot.name!r} expects {robot.n_joints} joints and a "
+            f"{FLANGE_FRAME!r} frame, found {model.nv} joints"
         )
-    model.armature = np.array(ARMATURE, dtype=float)
-    model.gravity = pin.Motion(np.array([0.0, 0.0, -GRAVITY]), np.zeros(3))
+    model.armature = np.array(robot.drive.armature, dtype=float)
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -robot.gravity]), np.zeros(3))
     return model
 
 
-def build_world(
-    robots: Sequence[RobotConfig], urdf: Path = URDF_PATH, timestep: float = 0.0005
-) -> World:
-    """The plant's MuJoCo cell: the URDF attached once per robot, a stand and a bar.
+def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> World:
+    """The plant's MuJoCo cell: each robot's type's URDF attached once per robot, a stand and
+    a bar.
 
-    Each arm is ``urdf`` loaded with ``MjSpec.from_file`` and attached under the name prefix
-    ``"<robot>/"`` at its ``base_xyz``, turned ``base_yaw_deg`` about z; every arm dof gets
-    ``ARMATURE``.  Integrator: ``implicitfast``.  The plant's friction torques are explicit
+    Each arm is its type's URDF loaded with ``MjSpec.from_file`` and attached under the name prefix
+    ``"<robot>/"`` at its ``base_xyz``, turned ``base_yaw_deg`` about z; every arm dof gets its
+    drive's armature.  Integrator: ``implicitfast``.  The plant's friction torques are explicit
     (``qfrc_applied``), which is stable here with a wide margin: the stiffest ratio of viscous
-    friction to joint inertia is joint 1's 5.8 N·m·s / 0.78 kg·m², so dt·b/I ≈ 0.004 at
-    0.5 ms against the explicit bound of 2.  ``implicitfast`` costs no more than Euler with
-    no damping in the model, and keeps any damping or actuator added later implicit.
+    friction to joint inertia is joint 1's 5.8 N·m·s / 0.78 kg·m², so dt·b/I ≈ 0.004 at 0.5 ms
+    against the explicit bound of 2.  ``implicitfast`` costs no more than Euler with no damping in
+    the model, and keeps any damping or actuator added later implicit.
     """
     if not robots:
         raise ModelError("build_world: no robots; the cell needs at least one arm")
@@ -165,26 +158,28 @@ def build_world(
     names = tuple(r.name for r in robots)
     if len(set(names)) != len(names):
         raise ModelError(f"build_world: robot names must be unique, got {list(names)}")
-    for r in robots:
-        if r.model != "puma560":
-            raise ModelError(f"build_world: robot {r.name!r}: model {r.model!r} not supported")
+    types = [r.type for r in robots]
+    if len({t.gravity for t in types}) != 1:
+        raise ModelError(f"build_world: robot types disagree on gravity: {types}")
 
     spec = mujoco.MjSpec()
     spec.modelname = "kali_cell"
     spec.option.timestep = timestep
-    spec.option.gravity = [0.0, 0.0, -GRAVITY]
+    spec.option.gravity = [0.0, 0.0, -types[0].gravity]
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     _add_scenery(spec)
     bar = _add_bar(spec, robots)
-    for r in robots:
-        _attach_arm(spec, r, urdf)
-        _add_motors(spec, r.name)
+    for r, t in zip(robots, types, strict=True):
+        _attach_arm(spec, r, t)
+        _add_motors(spec, r.name, t)
         _add_weld(spec, r.name, bar, WELD_TIMECONST_STEPS * timestep)
 
     try:
         model = spec.compile()
     except ValueError as exc:
-        raise ModelError(f"{urdf}: MuJoCo cannot build the cell: {exc}") from None
+        urdfs = ", ".join(sorted({str(t.urdf) for t in types}))
+        raise ModelError(f"{urdfs}: MuJoCo cannot build the cell: {exc}") from None
+    joints = {r.name: t.n_joints for r, t in zip(robots, types, strict=True)}
 
     def jid(robot: str, j: int) -> int:
         return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{robot}/j{j + 1}")
@@ -193,12 +188,14 @@ def build_world(
         return mujoco.mj_name2id(model, kind, name)
 
     def adr(table: np.ndarray, robot: str) -> IntArray:
-        out = np.array([table[jid(robot, j)] for j in range(NJOINTS)], dtype=np.int64)
+        out = np.array([table[jid(robot, j)] for j in range(joints[robot])], dtype=np.int64)
         out.setflags(write=False)
         return out
 
     def motors(robot: str, table: np.ndarray | None = None) -> IntArray:
-        ids = [oid(mujoco.mjtObj.mjOBJ_ACTUATOR, f"{robot}/motor{j + 1}") for j in range(NJOINTS)]
+        ids = [
+            oid(mujoco.mjtObj.mjOBJ_ACTUATOR, f"{robot}/motor{j + 1}") for j in range(joints[robot])
+        ]
         out = np.array(ids if table is None else [table[i] for i in ids], dtype=np.int64)
         out.setflags(write=False)
         return out
@@ -311,8 +308,9 @@ def _add_bar(spec: mujoco.MjSpec, robots: Sequence[RobotConfig]) -> mujoco.MjsBo
     return body
 
 
-def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, urdf: Path) -> None:
-    """Attach the URDF arm at the robot's base; set armature; switch its contacts off."""
+def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> None:
+    """Attach the type's URDF arm at the robot's base; set armature; switch its contacts off."""
+    urdf = rtype.urdf
     if not Path(urdf).is_file():
         raise ModelError(f"{urdf}: no such file")
     try:
@@ -322,11 +320,12 @@ def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, urdf: Path) -> None:
     frame = spec.worldbody.add_frame(pos=list(robot.base_xyz), quat=_yaw_quat(robot.base_yaw_deg))
     prefix = f"{robot.name}/"
     spec.attach(arm, prefix=prefix, frame=frame)
-    for j in range(NJOINTS):
+    armature = rtype.drive.armature
+    for j in range(rtype.n_joints):
         joint = spec.joint(f"{prefix}j{j + 1}")
         if joint is None:
             raise ModelError(f"{urdf}: no joint 'j{j + 1}'")
-        joint.armature = float(ARMATURE[j])
+        joint.armature = float(armature[j])
         joint.damping = np.zeros(3)  # MuJoCo 4: damping polynomial coefficients
         joint.frictionloss = 0.0
     for geom in spec.geoms:
@@ -341,28 +340,29 @@ def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, urdf: Path) -> None:
     flange.add_site(name=f"{prefix}flange", size=[0.008, 0.008, 0.008], rgba=[0.9, 0.1, 0.1, 1])
 
 
-def _add_motors(spec: mujoco.MjSpec, robot: str) -> None:
+def _add_motors(spec: mujoco.MjSpec, robot: str, rtype: RobotType) -> None:
     """One motor per joint: its amplifier's current loop as a first-order actuator.
 
-    The activation is the motor current (A), filtered exactly at the 500 Hz bandwidth
+    The activation is the motor current (A), filtered exactly at the amplifier's bandwidth
     (``filterexact``); the gear G·Kt turns it into joint torque.  ``actrange`` is compiled as
     the motor's peak current; the plant narrows it every cycle to the bus-voltage limits, or
     to [0, 0] while the amplifier is off.
     """
-    for j in range(NJOINTS):
+    d = rtype.drive
+    for j in range(rtype.n_joints):
         act = spec.add_actuator()
         act.name = f"{robot}/motor{j + 1}"
         act.target = f"{robot}/j{j + 1}"
         act.trntype = mujoco.mjtTrn.mjTRN_JOINT
         act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
-        act.dynprm[0] = 1.0 / (2.0 * math.pi * AMP_BANDWIDTH_HZ)
+        act.dynprm[0] = 1.0 / (2.0 * math.pi * d.amp_bandwidth_hz)
         act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         act.gainprm[0] = 1.0
         act.biastype = mujoco.mjtBias.mjBIAS_NONE
-        act.gear[0] = float(G[j] * KT[j])
+        act.gear[0] = float(d.gear[j] * d.kt[j])
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         act.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        act.actrange = [-float(MAX_CURRENT[j]), float(MAX_CURRENT[j])]
+        act.actrange = [-float(d.max_current[j]), float(d.max_current[j])]
 
 
 def _add_weld(spec: mujoco.MjSpec, robot: str, bar: mujoco.MjsBody, timeconst: float) -> None:

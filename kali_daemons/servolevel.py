@@ -30,12 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import atomic, layout, puma560
+from . import atomic, layout
 from .channels import InterpolatingFifo
 from .config import ms_to_ns
 from .errors import KaliError, ServoError
 from .instance import Instance, decode
 from .layout import CalibState, FfMode, FfState, PowerCmd, PowerState, SlotOp
+from .robots import robot_type
 from .servo import Handover, Registry, ServoAlgorithm, registry_for, struct_view
 from .spinlock import SpinLock
 
@@ -58,10 +59,11 @@ def flag(what: str, value: object) -> bool:
 
 
 def init_data_for(model: str, algo: ServoAlgorithm, joint: int) -> dict[str, float]:
-    """The parameters a joint's private data starts with: the robot model's tuned gains for
+    """The parameters a joint's private data starts with: the robot type's tuned gains for
     the built-ins, the algorithm's own defaults for plugins."""
-    tables = {"pid": puma560.PID_DEFAULTS, "pd": puma560.PD_DEFAULTS}
-    if model == "puma560" and algo.name in tables:
+    rtype = robot_type(model)
+    tables = {"pid": rtype.pid_defaults, "pd": rtype.pd_defaults}
+    if algo.name in tables:
         return dict(tables[algo.name][joint])
     return {}
 

@@ -111,7 +111,7 @@ from benchlib import (
     window_row,
 )
 
-from kali_daemons import kinematics, launcher, layout, puma560
+from kali_daemons import launcher, layout
 from kali_daemons.arena import Arena
 from kali_daemons.channels import InterpolatingFifo
 from kali_daemons.client import Kali
@@ -120,6 +120,8 @@ from kali_daemons.config import KaliConfig, load_config, parse_config
 from kali_daemons.errors import KaliError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import RequestState
+from kali_daemons.robots import puma560
+from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.servolevel import FIFO_CAPACITY
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator
@@ -246,6 +248,7 @@ def make_motions(mode: str, systems: int, dt: float) -> list[Motion]:
             grasps = [inverse(obj) @ b @ kinematics.fkine(q0) for b in bases]
             profile = CartesianMotion(
                 [f"arm{k}" for k in robots],
+                [puma560.ROBOT] * len(robots),
                 bases,
                 grasps,
                 np.tile(q0, (n, 1)),

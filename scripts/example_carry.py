@@ -9,8 +9,9 @@ bar's frame (``model.grasp_in_bar``).
 
 import numpy as np
 
-from kali_daemons import kinematics, model
+from kali_daemons import model
 from kali_daemons.client import Kali
+from kali_daemons.robots.puma560 import kinematics
 
 LIFT = 0.08  # m
 SHIFT = 0.06  # m, sideways while lifted

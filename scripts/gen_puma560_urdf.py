@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from kali_daemons import puma560
+from kali_daemons.robots import puma560
 
 CREAM = (0.89, 0.86, 0.78, 1.0)
 DARK = (0.22, 0.22, 0.25, 1.0)

@@ -9,8 +9,10 @@ import time
 import numpy as np
 import pytest
 
-from kali_daemons import kinematics, layout, puma560
-from kali_daemons.kinematics import CONFIGS, KinematicsError
+from kali_daemons import layout
+from kali_daemons.robots import puma560
+from kali_daemons.robots.puma560 import kinematics
+from kali_daemons.robots.puma560.kinematics import CONFIGS, KinematicsError
 from kali_daemons.tg.cartesian import (
     CartesianMotion,
     base_transform,
@@ -30,6 +32,8 @@ DT = 0.01
 LEFT = base_transform((-0.6, 0.0, 0.0), 0.0)
 RIGHT = base_transform((0.6, 0.0, 0.0), 180.0)
 
+PUMA = puma560.ROBOT
+
 
 def world_pose(base: np.ndarray, q: np.ndarray) -> np.ndarray:
     return base @ kinematics.fkine(np.asarray(q, dtype=float))
@@ -44,18 +48,19 @@ def translated(t: np.ndarray, dxyz: tuple[float, float, float]) -> np.ndarray:
 def one_arm(q0: np.ndarray, targets: list[np.ndarray], **kw: object) -> CartesianMotion:
     args = {"speed": 0.2, "angular_speed": 1.0, "transition_s": 0.1, **kw}
     return CartesianMotion(
-        ["left"], [LEFT], [np.eye(4)], q0[None], [kw.pop("config", None)], targets,
+        ["left"], [PUMA], [LEFT], [np.eye(4)], q0[None], [kw.pop("config", None)], targets,
         args["speed"], args["angular_speed"], args["transition_s"], DT,
     )  # fmt: skip
 
 
 def test_config_bytes_round_trip_and_bad_ones_are_refused() -> None:
-    assert decode_config(encode_config(None)) is None
+    kin = PUMA.kinematics
+    assert decode_config(encode_config(None, kin), kin) is None
     for c in CONFIGS:
-        assert decode_config(encode_config(c)) == c
-    for bad in (1, 7, 0x10, 0xFF):
+        assert decode_config(encode_config(c, kin), kin) == c
+    for bad in (1, 7, 0x10, 0x7F, 0x88, 0xFF):
         with pytest.raises(MotionError, match="configuration byte"):
-            decode_config(bad)
+            decode_config(bad, kin)
 
 
 def test_base_transform_and_inverse() -> None:
@@ -97,8 +102,8 @@ def test_two_arms_holding_one_object_agree_on_it_at_every_sample() -> None:
     g_right = inverse(obj) @ world_pose(RIGHT, q_right)
     target = translated(obj, (0.0, 0.05, 0.08))
     plan = CartesianMotion(
-        ["left", "right"], [LEFT, RIGHT], [g_left, g_right], np.array([q_left, q_right]),
-        [None, None], [target], 0.1, 0.5, 0.1, DT,
+        ["left", "right"], [PUMA, PUMA], [LEFT, RIGHT], [g_left, g_right],
+        np.array([q_left, q_right]), [None, None], [target], 0.1, 0.5, 0.1, DT,
     )  # fmt: skip
     plan.check_all()
     for i in range(1, plan.n_samples + 1):
@@ -115,7 +120,7 @@ def test_arms_that_do_not_hold_the_object_where_their_grasps_say_are_refused() -
     off = translated(np.eye(4), (0.005, 0.0, 0.0))
     with pytest.raises(MotionError, match=r"'left' and 'right' do not hold the object.*5\.0 mm"):
         CartesianMotion(
-            ["left", "right"], [LEFT, LEFT], [np.eye(4), off], np.array([q, q]),
+            ["left", "right"], [PUMA, PUMA], [LEFT, LEFT], [np.eye(4), off], np.array([q, q]),
             [None, None], [translated(obj, (0, 0, 0.1))], 0.1, 0.5, 0.1, DT,
         )  # fmt: skip
 

@@ -195,8 +195,8 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     ),
     (
         "plant-unknown-key",
-        [("  seed: 0 ", "  sead: 0 ")],
-        "plant.sead: unknown key (did you mean 'seed'?); allowed keys: substep_ms, watchdog_ms",
+        [("  brake_delay_ms: 50 ", "  brake_delay: 50 ")],
+        "plant.brake_delay: unknown key (did you mean 'brake_delay_ms'?); allowed keys: ",
     ),
     (
         "plant-negative-watchdog",
@@ -550,8 +550,19 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     ),
     (
         "robot-model",
-        [("{name: left,  model: puma560", "{name: left,  model: ur5")],
-        "robots[0].model = 'ur5': must be one of: puma560",
+        [("{name: left,  model: puma560", "{name: left,  model: kuka_kr6")],
+        "robots[0].model = 'kuka_kr6': must be one of: ",
+    ),
+    (
+        "robot-index-phases-length",
+        [("base_yaw_deg: 0}", "base_yaw_deg: 0, index_phases_deg: [1, 2, 3]}")],
+        "robots[0].index_phases_deg = [1, 2, 3]: must be a list of 6 numbers (one per joint), "
+        "not 3",
+    ),
+    (
+        "robot-index-phases-range",
+        [("base_yaw_deg: 0}", "base_yaw_deg: 0, index_phases_deg: [1, 2, 3, 4, 5, 360]}")],
+        "robots[0].index_phases_deg[5] = 360.0: must be >= 0 and < 360",
     ),
     (
         "robot-xyz-length",

@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 import roboticstoolbox as rtb
 
-from kali_daemons import layout, puma560
+from kali_daemons import layout
 from kali_daemons.client import Kali
 from kali_daemons.dynamics.inverse import InverseDynamics, central_differences
 from kali_daemons.instance import Instance
 from kali_daemons.layout import FfMode, FfState, PowerState
+from kali_daemons.robots import puma560
 from kali_daemons.servolevel import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
@@ -39,7 +40,7 @@ def ff_records(inst: Instance) -> np.ndarray:
 def test_full_torques_match_the_toolbox_rne() -> None:
     """M q̈ + C q̇ + g + rotor inertia + motor friction, against rtb's rne with its friction."""
     puma = rtb.models.DH.Puma560()
-    inverse = InverseDynamics()
+    inverse = InverseDynamics(puma560.ROBOT)
     rng = np.random.default_rng(6)
     for _ in range(20):
         q = rng.uniform(puma560.Q_MIN, puma560.Q_MAX)

@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import pytest
 
-from kali_daemons.puma560 import PID_DEFAULTS
+from kali_daemons.robots.puma560 import PID_DEFAULTS
 
 from .conftest import ROOT
 from .test_launcher import kalictl

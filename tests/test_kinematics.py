@@ -17,9 +17,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kali_daemons import puma560
 from kali_daemons.errors import KaliError
-from kali_daemons.kinematics import (
+from kali_daemons.model import FLANGE_FRAME, load_pinocchio
+from kali_daemons.robots import puma560
+from kali_daemons.robots.puma560.kinematics import (
     CONFIGS,
     REACH_MAX,
     REACH_MIN,
@@ -32,7 +33,6 @@ from kali_daemons.kinematics import (
     singularities,
     wrist_centre,
 )
-from kali_daemons.model import FLANGE_FRAME, load_pinocchio
 
 N_POSES = 200
 N_TOOLBOX_POSES = 200  # × 8 configurations; ikine_a takes ~0.3 ms a call
@@ -69,7 +69,7 @@ def rtb_puma() -> Any:
 
 @pytest.fixture(scope="module")
 def pin_model() -> pin.Model:
-    return load_pinocchio()
+    return load_pinocchio(puma560.ROBOT)
 
 
 def random_q(n: int, seed: int = 5601) -> np.ndarray:

@@ -8,6 +8,7 @@ Pinocchio and MuJoCo must agree to rounding error.
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -18,15 +19,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from kali_daemons import puma560
 from kali_daemons.config import RobotConfig, load_config
-from kali_daemons.errors import ModelError
+from kali_daemons.errors import ConfigError, ModelError
 from kali_daemons.model import (
     FLANGE_FRAME,
     World,
     build_world,
     load_pinocchio,
 )
+from kali_daemons.robots import puma560
 
 ROOT = Path(__file__).resolve().parents[1]
 GEN_SCRIPT = ROOT / "scripts" / "gen_puma560_urdf.py"
@@ -64,7 +65,7 @@ def rtb_puma(rtb_raw: Any) -> Any:
 
 @pytest.fixture(scope="module")
 def pin_model() -> pin.Model:
-    return load_pinocchio()
+    return load_pinocchio(puma560.ROBOT)
 
 
 @pytest.fixture(scope="module")
@@ -198,9 +199,9 @@ def test_pinocchio_model(pin_model: pin.Model) -> None:
     assert pin_model.existFrame(FLANGE_FRAME)
 
 
-def test_load_pinocchio_refuses_a_missing_file(tmp_path: Path) -> None:
-    with pytest.raises(ModelError, match=r"model: .*nope\.urdf: no such file"):
-        load_pinocchio(tmp_path / "nope.urdf")
+def test_a_robot_type_without_its_urdf_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"robot type 'puma560': urdf = .*nope\.urdf'"):
+        dataclasses.replace(puma560.ROBOT, urdf=tmp_path / "nope.urdf")
 
 
 # --------------------------------------------------------------------------------------------
@@ -473,7 +474,7 @@ def test_world_index(cell: World) -> None:
 def test_build_world_refusals() -> None:
     with pytest.raises(ModelError, match="no robots"):
         build_world([])
-    with pytest.raises(ModelError, match="model 'kuka'"):
+    with pytest.raises(ConfigError, match="robot type 'kuka': no such type"):
         build_world([RobotConfig("a", "kuka", (0.0, 0.0, 0.0), 0.0)])
     with pytest.raises(ModelError, match="timestep"):
         build_world([RobotConfig("a", "puma560", (0.0, 0.0, 0.0), 0.0)], timestep=0.0)

@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from kali_daemons import layout, puma560
+from kali_daemons import layout
 from kali_daemons.arena import Arena
 from kali_daemons.config import retrigger_hold_ticks
 from kali_daemons.instance import Instance
@@ -30,6 +30,7 @@ from kali_daemons.layout import (
 from kali_daemons.plant.board import EncoderBank, IoBoardSim, adc_code, pot_volts
 from kali_daemons.plant.motor import MotorBank
 from kali_daemons.plant.sim import PlantSim
+from kali_daemons.robots import puma560
 from kali_daemons.sio.calibration import PotReader
 from kali_daemons.sio.daemon import retrigger_bit
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
@@ -226,7 +227,7 @@ def test_current_saturates_at_the_motor_peak(plant: PlantSim) -> None:
 
 
 def test_back_emf_limits_the_current_at_speed() -> None:
-    bank = MotorBank(1)
+    bank = MotorBank([puma560.ROBOT])
     bank.enabled[:] = 1.0
     omega_m = np.array([140.0, 140.0, 140.0, 400.0, 400.0, 400.0])  # motor speeds, rad/s
     qd = omega_m / np.asarray(puma560.G)
@@ -263,8 +264,8 @@ def test_back_emf_limits_the_current_in_the_plant(plant: PlantSim) -> None:
 def _board(arena: Arena, phase: float = 0.3) -> tuple[IoBoardSim, EncoderBank, np.ndarray]:
     rack = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, 1)
     regs = rack[0:1].reshape(())
-    board = IoBoardSim(regs, CFG.plant)
-    return board, EncoderBank(rack, np.full(6, phase), np.zeros(6)), regs
+    board = IoBoardSim(regs, CFG.plant, puma560.ROBOT)
+    return board, EncoderBank(rack, [puma560.ROBOT], np.full(6, phase), np.zeros(6)), regs
 
 
 def test_encoder_counts_follow_motor_angle_wrap_and_index_reset(arena: Arena) -> None:

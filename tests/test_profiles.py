@@ -19,6 +19,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from kali_daemons.tg.profiles import (
+    MIN_MOVE_RAD,
     PEAK_SPEED_FACTOR,
     ZERO_MOVE_S,
     CartesianPath,
@@ -80,6 +81,18 @@ def test_a_joint_that_stays_put_has_no_peaks_even_beside_a_minute_move() -> None
         assert not np.isnan(peak).any() and (peak[1:] == 0.0).all()
 
 
+def test_a_minute_move_samples_finite_positions_on_its_way() -> None:
+    """A move of 1.9e-234 rad: the law's constants overflowed and every sample on the way was
+    NaN (hypothesis found it); now it is a move that goes nowhere, done at the next tick."""
+    start, target = np.zeros(6), np.r_[np.zeros(5), 1.8829589513075994e-234]
+    m = JointMotion(start, target, np.ones(6), np.ones(6))
+    q = np.empty(6)
+    for tau in (0.0, m.duration / 3, m.duration / 2, m.duration):
+        m.sample(tau, q)
+        assert np.isfinite(q).all() and (q >= start).all() and (q <= target).all(), q
+    assert m.duration == ZERO_MOVE_S
+
+
 @settings(max_examples=40, deadline=None)
 @given(start=joint_vectors, step=joint_steps, v_max=speed_limits, a_max=accel_limits)
 def test_joint_motion_is_smooth_within_limits_and_arrives_together(
@@ -87,7 +100,7 @@ def test_joint_motion_is_smooth_within_limits_and_arrives_together(
 ) -> None:
     target = start + step
     m = JointMotion(start, target, v_max, a_max)
-    moving = target != start
+    moving = np.abs(target - start) > MIN_MOVE_RAD  # shorter moves go nowhere, at once
     assert np.all(m.peak_speed <= v_max * (1 + 1e-12))
     assert np.all(m.peak_accel <= a_max * (1 + 1e-12))
     if moving.any():  # the slowest joint works at one of its limits

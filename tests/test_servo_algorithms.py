@@ -18,12 +18,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from kali_daemons import puma560
 from kali_daemons.arena import Arena
-from kali_daemons.driver import Puma560Driver
+from kali_daemons.driver import JointDriver
 from kali_daemons.errors import ConfigError
 from kali_daemons.layout import CSR_ENABLE, CSR_INDEX_OFF, CSR_NO_DISABLE
 from kali_daemons.plant.sim import PlantSim
+from kali_daemons.robots import puma560
 from kali_daemons.servo import (
     PD,
     PID,
@@ -75,7 +75,7 @@ class ServoLoop:
         if pose is not None:
             sim.place_arm(0, pose)
         self.registry = registry
-        self.driver = Puma560Driver(1)
+        self.driver = JointDriver([puma560.ROBOT])
         self.encoder = sim.regs["encoder"]
         self.driver.start(self.encoder)
         self.driver.offset[:] = sim.truth["q"][0]  # set-up only: the arm starts calibrated

@@ -18,7 +18,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from kali_daemons import layout, puma560
+from kali_daemons import layout
 from kali_daemons.instance import Instance
 from kali_daemons.layout import (
     CSR_NO_DISABLE,
@@ -28,6 +28,7 @@ from kali_daemons.layout import (
     FaultCode,
     PowerState,
 )
+from kali_daemons.robots import puma560
 from kali_daemons.servolevel import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
@@ -533,7 +534,7 @@ def test_calibration_finds_the_index_pulses_and_then_holds_within_one_count(
         # every joint rests on its index pulse and holds there within ±1 count
         spacing = 2 * math.pi / np.abs(puma560.G)
         for k in range(2):
-            phase = puma560.index_phases(0, k)
+            phase = np.array(inst.config.robots[k].index_phases)  # the arm's sheet
             m = np.round((puma560.G * r["demand"][k] - phase) / (2 * math.pi))
             pulse = (phase + 2 * math.pi * m) / puma560.G
             assert np.abs(r["demand"][k] - pulse).max() < 1e-9

@@ -13,9 +13,10 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from kali_daemons import layout, puma560
+from kali_daemons import layout
 from kali_daemons.client import Kali, MotionFailedError
 from kali_daemons.layout import FaultCode, MotionKind, PowerState, RequestState
+from kali_daemons.robots import puma560
 from kali_daemons.tg.daemon import TrajectoryGenerator, write_status
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock

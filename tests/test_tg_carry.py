@@ -9,9 +9,10 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import kinematics, layout, model
+from kali_daemons import layout, model
 from kali_daemons.client import Kali
 from kali_daemons.layout import RequestState
+from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_tg_cartesian import calibrated
 

@@ -12,10 +12,12 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from kali_daemons import kinematics, layout
+from kali_daemons import layout
 from kali_daemons.client import Kali, MotionFailedError, pose
 from kali_daemons.errors import ServoError
 from kali_daemons.layout import CalibState, MotionKind, PowerState, RequestState
+from kali_daemons.robots import puma560
+from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
 from kali_daemons.tg.daemon import LEAD, Motion, TrajectoryGenerator
 from kali_daemons.tg.profiles import MotionError
@@ -167,7 +169,7 @@ def test_bad_paths_are_refused_with_the_reason_and_nothing_moves(
             n_segments=1,
             poses=poses,
             grasps=grasp[None],
-            config=[encode_config(None)],
+            config=[encode_config(None, puma560.ROBOT.kinematics)],
             speed=0.1,
             angular_speed=0.5,
             transition_s=0.1,
@@ -278,7 +280,7 @@ def test_no_joint_solution_at_run_time_stops_the_motion_and_halts(
         q0 = k.start_point(0)
         start = left.base @ kinematics.fkine(q0)
         plan = CartesianMotion(
-            ["left"], [left.base], [np.eye(4)], q0[None], [None],
+            ["left"], [left.type], [left.base], [np.eye(4)], q0[None], [None],
             [pose(start[:3, 3] + np.array([0, 0, 0.05]), start)], 0.1, 0.5, 0.1, k.tg_dt,
         )  # fmt: skip
         plan.check_all()

@@ -11,10 +11,11 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from kali_daemons import layout, puma560
+from kali_daemons import layout
 from kali_daemons.client import Kali, set_control_rate
 from kali_daemons.errors import ClockError
 from kali_daemons.layout import RequestState
+from kali_daemons.robots import puma560
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_launcher import kalictl

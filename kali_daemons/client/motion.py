@@ -44,12 +44,12 @@ from types import TracebackType
 
 import numpy as np
 
-from .. import kinematics, layout
+from .. import layout
 from ..channels import RequestQueue
-from ..errors import KaliError, ServoError
+from ..errors import KaliError, KinematicsError, ServoError
 from ..instance import Instance, decode
-from ..kinematics import Config, KinematicsError
 from ..layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
+from ..robots import Kinematics, RobotType
 from ..servolevel import ServoClient
 from ..spinlock import pid_alive
 from ..tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
@@ -252,13 +252,17 @@ def _pose_arg(what: str, value: object) -> np.ndarray:
     return t
 
 
-def _config_arg(what: str, value: Config | str | None) -> Config | None:
-    if value is None or isinstance(value, Config):
+def _config_arg(what: str, value: object, kin: Kinematics) -> object | None:
+    """A configuration of the arm's type: one of ``kin.configs``, its string, or None."""
+    if value is None or value in kin.configs:
         return value
     if not isinstance(value, str):
-        raise MotionError(f"{what}: {value!r:.60} is not a configuration like 'ruf', or None")
+        raise MotionError(
+            f"{what}: {value!r:.60} is not one of the arm's configurations "
+            f"({', '.join(map(str, kin.configs))}), nor None"
+        )
     try:
-        return Config.from_string(value)
+        return kin.parse_config(value)
     except KinematicsError as exc:
         raise MotionError(f"{what}: {exc}") from None
 
@@ -306,6 +310,7 @@ class Robot:
         self.index = index
         self.name = kali.names[index]
         cfg = kali.inst.config.robots[index]
+        self.type = cfg.type  # its robot type: joints, limits, kinematics
         self.base = base_transform(cfg.base_xyz, cfg.base_yaw_deg)  # base in the world
         self.tool = np.eye(4)  # tool in the flange frame
 
@@ -316,7 +321,7 @@ class Robot:
     def read_t6(self) -> np.ndarray:
         """T6 from the measured joints: the flange in the robot's base frame (4×4, thesis
         3.3.1), by Pinocchio's forward kinematics of the arm model."""
-        return self.kali.flange_pose(self.read_joints())
+        return self.kali.flange_pose(self.read_joints(), self.index)
 
     def read_pose(self) -> np.ndarray:
         """The tool's pose in the world from the measured joints: B · T6 · Tool."""
@@ -337,7 +342,7 @@ class Robot:
         target: np.ndarray,
         speed: float = 0.1,
         angular_speed: float = 0.5,
-        config: Config | str | None = None,
+        config: object | str | None = None,
         wait: bool = True,
         timeout: float | None = None,
     ) -> MotionHandle:
@@ -352,7 +357,7 @@ class Robot:
         speed: float = 0.1,
         angular_speed: float = 0.5,
         transition_s: float = 0.2,
-        config: Config | str | None = None,
+        config: object | str | None = None,
         wait: bool = True,
         timeout: float | None = None,
     ) -> MotionHandle:
@@ -370,7 +375,7 @@ class Robot:
         ``speed`` (0, 1] of the joint speed and acceleration limits.  Blocks until there unless
         ``wait`` is False; returns the request's handle either way."""
         what = f"move_joints: robot '{self.name}'"
-        target = _joints(self.name, q)
+        target = _joints(self.name, q, self.type)
         if not (
             isinstance(speed, int | float)
             and not isinstance(speed, bool)
@@ -426,7 +431,7 @@ class MotionSystem:
         target: np.ndarray,
         speed: float = 0.1,
         angular_speed: float = 0.5,
-        configs: Sequence[Config | str | None] | None = None,
+        configs: Sequence[object | str | None] | None = None,
         wait: bool = True,
         timeout: float | None = None,
     ) -> MotionHandle:
@@ -439,7 +444,7 @@ class MotionSystem:
         speed: float = 0.1,
         angular_speed: float = 0.5,
         transition_s: float = 0.2,
-        configs: Sequence[Config | str | None] | None = None,
+        configs: Sequence[object | str | None] | None = None,
         wait: bool = True,
         timeout: float | None = None,
     ) -> MotionHandle:
@@ -467,12 +472,16 @@ class MotionSystem:
         timeout = _timeout_arg(what, timeout)
         if len(configs) != len(self.robots):
             raise MotionError(f"{what}: {len(configs)} configs for {len(self.robots)} arms")
-        flags = [_config_arg(f"{what}: config", c) for c in configs]
+        flags = [
+            _config_arg(f"{what}: config", c, r.type.kinematics)
+            for c, r in zip(configs, self.robots, strict=True)
+        ]
         for r in self.robots:
             self.kali.servo.require_calibrated(r.index, what)
         if self.kali.idle(self.indices):  # the start is known: plan and check it all now
             CartesianMotion(
                 self.names,
+                [r.type for r in self.robots],
                 [r.base for r in self.robots],
                 self.grasps,
                 np.array([self.kali.start_point(k) for k in self.indices]),
@@ -491,7 +500,9 @@ class MotionSystem:
             n_segments=len(targets),
             poses=poses,
             grasps=np.array(self.grasps),
-            config=[encode_config(c) for c in flags],
+            config=[
+                encode_config(c, r.type.kinematics) for c, r in zip(flags, self.robots, strict=True)
+            ],
             speed=speed,
             angular_speed=angular_speed,
             transition_s=transition_s,
@@ -509,11 +520,12 @@ class MotionSystem:
         self.kali._order(MotionKind.ABORT, self.indices)
 
 
-def _joints(robot: str, q: np.ndarray) -> np.ndarray:
-    target = _real_array(f"move_joints: robot '{robot}'", q, "6 numbers")
-    if target.shape != (6,):
-        raise MotionError(f"move_joints: robot '{robot}': shape {target.shape}, expected (6,)")
-    check_joint_target(robot, target)
+def _joints(robot: str, q: np.ndarray, rtype: RobotType) -> np.ndarray:
+    n = rtype.n_joints
+    target = _real_array(f"move_joints: robot '{robot}'", q, f"{n} numbers")
+    if target.shape != (n,):
+        raise MotionError(f"move_joints: robot '{robot}': shape {target.shape}, expected ({n},)")
+    check_joint_target(robot, target, rtype)
     return target
 
 
@@ -551,7 +563,7 @@ class Kali:
             raise
         self.names = self.servo.names
         self.tg_dt = self.inst.config.clock.tg_period_ms / 1000.0
-        self._pin: tuple[object, object, int] | None = None  # Pinocchio model, data, frame
+        self._pin: dict[str, tuple] = {}  # per robot type: Pinocchio model, data, flange frame
 
     def robot(self, name: str) -> Robot:
         """The arm called ``name``; ServoError naming the robots otherwise."""
@@ -620,7 +632,7 @@ class Kali:
         if not robots or len({r.index for r in robots}) != len(robots):
             raise MotionError(f"motion_system: {list(names)}: name each arm once, at least one")
         if grasps is None:  # from the set-points the TG starts from, not the sagging arms
-            flanges = [r.base @ kinematics.fkine(self.start_point(r.index)) for r in robots]
+            flanges = [r.base @ r.type.kinematics.fkine(self.start_point(r.index)) for r in robots]
             obj = flanges[0] @ robots[0].tool
             grasps = [inverse(obj) @ f for f in flanges]
         else:
@@ -640,16 +652,18 @@ class Kali:
             self.inst.name, func, name=f"prog.{os.getpid()}", serious=serious, period_ms=period_ms
         )
 
-    def flange_pose(self, q: np.ndarray) -> np.ndarray:
-        """T6 (flange in the base frame) of joints ``q``, by Pinocchio (loaded on first use)."""
+    def flange_pose(self, q: np.ndarray, robot: int = 0) -> np.ndarray:
+        """T6 (flange in the base frame) of robot ``robot``'s joints ``q``, by Pinocchio's
+        model of its type (loaded on first use)."""
         import pinocchio as pin  # here: a program that never asks pays nothing for it
 
         from ..model import FLANGE_FRAME, load_pinocchio
 
-        if self._pin is None:
-            model = load_pinocchio()
-            self._pin = (model, model.createData(), model.getFrameId(FLANGE_FRAME))
-        model, data, frame = self._pin
+        rtype = self.inst.config.robots[robot].type
+        if rtype.name not in self._pin:
+            model = load_pinocchio(rtype)
+            self._pin[rtype.name] = (model, model.createData(), model.getFrameId(FLANGE_FRAME))
+        model, data, frame = self._pin[rtype.name]
         pin.framesForwardKinematics(model, data, np.asarray(q, dtype=np.float64))
         return np.array(data.oMf[frame].homogeneous)
 

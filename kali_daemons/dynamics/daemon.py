@@ -65,7 +65,10 @@ class Dynamics(Daemon):
         """Load the model, then wait for SIO to lay the servo level out (FIFOs, records)."""
         inst = self.inst
         cfg = inst.config
-        self.inverse = InverseDynamics()
+        models: dict[str, InverseDynamics] = {}  # one per robot type
+        for r in cfg.robots:
+            models.setdefault(r.model, InverseDynamics(r.type))
+        self.inverse = [models[r.model] for r in cfg.robots]
         self.n_robots = len(cfg.robots)
         self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
         self.q_prev, self.q_i, self.q_next = np.zeros(6), np.zeros(6), np.zeros(6)
@@ -180,7 +183,7 @@ class Dynamics(Daemon):
         ff = self.ff
         key = index + 1
         row = key % layout.FF_ROWS
-        tau = self.inverse.torque(mode, self.q_i, self.qd, self.qdd, kv)
+        tau = self.inverse[k].torque(mode, self.q_i, self.qd, self.qdd, kv)
         if not np.isfinite(tau).all():
             return  # never publish a torque SIO could not use (a neighbour's covers it)
         keys = ff["key"][k]

@@ -6,9 +6,9 @@ schedules them, so they can be checked against an independent model.
     FfMode.GRAVITY:  g(q)
     FfMode.FULL:     M(q) q̈ + C(q, q̇) q̇ + g(q) + friction(q̇) + k_v q̇
 
-with Pinocchio on the PUMA 560 model both Kali and the plant load (``model.load_pinocchio``:
-rotor inertias included), the motors' viscous and asymmetric Coulomb friction of
-``puma560`` (the Coulomb part smoothed by tanh(|G| q̇ / ω₀) as the plant smooths it), and
+with Pinocchio on the robot type's model both Kali and the plant load
+(``model.load_pinocchio``: rotor inertias included), its drive's viscous and asymmetric
+Coulomb friction (the Coulomb part smoothed by tanh(|G| q̇ / ω₀) as the plant smooths it), and
 ``k_v`` the servos' velocity gains (see ``dynamics/daemon.py``).
 
 ``central_differences`` gives q̇ and q̈ at a set-point from its neighbours over segments of
@@ -20,24 +20,31 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from .. import puma560
 from ..layout import FfMode
 from ..model import load_pinocchio
 from ..plant.motor import OMEGA0
+from ..robots import RobotType
 
 
 class InverseDynamics:
-    """Feed-forward torques of one PUMA 560; every array preallocated except the 6-vectors
-    Pinocchio's Python bindings return."""
+    """Feed-forward torques of one arm of type ``robot``; every array preallocated except the
+    vectors Pinocchio's Python bindings return."""
 
-    def __init__(self) -> None:
-        self.model = load_pinocchio()
+    def __init__(self, robot: RobotType) -> None:
+        self.model = load_pinocchio(robot)
         self.data = self.model.createData()
-        self.tau = np.zeros(6)
-        self._s, self._c = np.zeros(6), np.zeros(6)
-        self._gear_w = np.abs(puma560.G) / OMEGA0
+        n = robot.n_joints
+        self.tau = np.zeros(n)
+        self._s, self._c = np.zeros(n), np.zeros(n)
+        d = robot.drive
+        self._gear_w = np.abs(d.gear) / OMEGA0
+        self._viscous, self._coulomb_pos, self._coulomb_neg = (
+            d.viscous,
+            d.coulomb_pos,
+            d.coulomb_neg,
+        )
         # a first computation now: the first use of Pinocchio faults its pages in
-        self.torque(FfMode.FULL, np.array(puma560.QN), np.ones(6), np.ones(6), np.zeros(6))
+        self.torque(FfMode.FULL, robot.q_home.copy(), np.ones(n), np.ones(n), np.zeros(n))
 
     def torque(
         self, mode: FfMode, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, kv: np.ndarray
@@ -49,15 +56,15 @@ class InverseDynamics:
             return self.tau
         np.copyto(self.tau, pin.rnea(self.model, self.data, q, qd, qdd))
         s, c = self._s, self._c
-        np.multiply(qd, puma560.VISCOUS, out=c)
+        np.multiply(qd, self._viscous, out=c)
         np.add(self.tau, c, out=self.tau)
         np.multiply(qd, self._gear_w, out=s)  # motor speed / ω₀
         np.tanh(s, out=s)
         np.maximum(s, 0.0, out=c)
-        np.multiply(c, puma560.COULOMB_POS, out=c)
+        np.multiply(c, self._coulomb_pos, out=c)
         np.add(self.tau, c, out=self.tau)
         np.minimum(s, 0.0, out=c)
-        np.multiply(c, puma560.COULOMB_NEG, out=c)  # both negative: a positive product
+        np.multiply(c, self._coulomb_neg, out=c)  # both negative: a positive product
         np.subtract(self.tau, c, out=self.tau)
         np.multiply(qd, kv, out=c)  # velocity feed-forward: the servo damps q̇ − q̇_d
         np.add(self.tau, c, out=self.tau)

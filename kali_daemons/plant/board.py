@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from .. import layout, puma560
+from .. import layout
 from ..config import PlantConfig
 from ..layout import (
     ADC_CHANNEL_MASK,
@@ -46,6 +46,7 @@ from ..layout import (
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
+from ..robots import RobotType
 
 TWO_PI = 2.0 * math.pi
 COUNTER_MODULO = 4096
@@ -69,12 +70,12 @@ class IoBoardSim:
     """One arm's I/O board: power, watchdog and pot ADC; ``update`` and ``convert`` once per
     plant cycle.  The encoders of every board are counted together by ``EncoderBank``."""
 
-    def __init__(self, regs: np.ndarray, cfg: PlantConfig) -> None:
+    def __init__(self, regs: np.ndarray, cfg: PlantConfig, robot: RobotType) -> None:
         self.regs = regs
         self.hold_ns = int(cfg.enable_hold_ms * 1e6)
         self.watchdog_ns = int(cfg.watchdog_ms * 1e6)
         self.brake_ns = int(cfg.brake_delay_ms * 1e6)
-        self.lo, self.hi = puma560.Q_MIN, puma560.Q_MAX
+        self.lo, self.hi = robot.q_min, robot.q_max  # the pots span the joint range
         self._mid = self.lo + (self.hi - self.lo) * (2.5 - POT_V_MIN) / (POT_V_MAX - POT_V_MIN)
         self._above = np.zeros(6, dtype=bool)
         self._bits = 1 << np.arange(6)
@@ -169,11 +170,13 @@ class EncoderBank:
     index register.  ``sample`` runs once per plant cycle on preallocated buffers.
     """
 
-    def __init__(self, regs: np.ndarray, phase: np.ndarray, motor_angle: np.ndarray) -> None:
+    def __init__(
+        self, regs: np.ndarray, types: list[RobotType], phase: np.ndarray, motor_angle: np.ndarray
+    ) -> None:
         self.regs = regs  # IO_BOARD records, one per arm
         self.n_arms = len(regs)
         n = 6 * self.n_arms
-        cpr = np.tile(np.asarray(puma560.COUNTS_PER_MOTOR_REV, dtype=np.float64), self.n_arms)
+        cpr = np.concatenate([np.asarray(t.drive.counts_per_rev, np.float64) for t in types])
         self.phase = np.asarray(phase, dtype=np.float64).reshape(n)  # index motor angle, rad
         self._counts_per_rad = cpr / TWO_PI
         self._encoder = regs["encoder"][:, :6]

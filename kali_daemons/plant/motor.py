@@ -1,10 +1,11 @@
-"""Motors and PWM amplifiers of every joint (thesis table 3.1 and 3.7.2; puma560.md).
+"""Motors and PWM amplifiers of every joint (thesis table 3.1 and 3.7.2), from each arm's
+robot type's drive (``kali_daemons.robots``; the PUMA's numbers are in puma560.md).
 
 Per joint, vectorised over all arms:
 
-    DAC volts → commanded current (2.5 A/V, clipped at the motor's peak current)
-      → current loop, first order at 500 Hz, whose output the bus voltage limits:
-        R·i + Kt·ω_m must stay within ±40 V (so back-EMF limits the current at speed)
+    DAC volts → commanded current (the amplifier's A/V, clipped at the motor's peak current)
+      → current loop, first order (500 Hz on the PUMA), whose output the bus voltage limits:
+        R·i + Kt·ω_m must stay within ± the bus (so back-EMF limits the current at speed)
       → motor torque Kt·i → joint torque G·Kt·i (signed gear ratio).
 
 The current loop itself runs inside MuJoCo, at every substep: each joint has a
@@ -14,7 +15,7 @@ with its inputs: the commanded current, and the range the current may take, i.e.
 voltage limits at the present motor speed, or [0, 0] when the amplifier is off (it cuts its
 current at once, < 1 µs, appendix C.4).
 
-Friction is the motor's (puma560.md): viscous G²·B and asymmetric Coulomb |G|·Tc±.  The
+Friction is the drive's, at the joint: viscous G²·B and asymmetric Coulomb |G|·Tc±.  The
 symmetric part of the Coulomb friction, |G|·min(Tc+, |Tc−|), and the viscous part go to
 MuJoCo as ``dof_frictionloss`` and ``dof_damping``, which it treats as constraints and
 implicitly, so stiction holds exactly and stays stable at the plant's step; this model adds
@@ -26,40 +27,38 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import puma560
+from ..robots import RobotType
 
 OMEGA0 = 2.0  # rad/s at the motor: regularisation of the asymmetric Coulomb remainder
 
-# Holding torque of the brakes at the joint, N·m.  Not in puma560.md: chosen well above the
-# largest gravity torque of each joint (37.5 N·m on joint 2) so an engaged brake holds the arm.
-BRAKE_TORQUE = np.array([150.0, 150.0, 80.0, 20.0, 20.0, 20.0])
-
 
 class MotorBank:
-    """The amplifiers and motors of ``n_arms`` PUMA 560 arms, as the plant's MuJoCo
-    actuators see them (their activations are the motor currents).
+    """The amplifiers and motors of the arms of ``types`` (one robot type per arm), as the
+    plant's MuJoCo actuators see them (their activations are the motor currents).
 
     ``cycle`` runs inside the plant's cycle: every array is preallocated, no allocation.
     """
 
-    def __init__(self, n_arms: int) -> None:
-        def tile(a: np.ndarray) -> np.ndarray:
-            return np.tile(np.asarray(a, dtype=np.float64), n_arms)
+    def __init__(self, types: list[RobotType]) -> None:
+        def tile(field: str) -> np.ndarray:
+            return np.concatenate([np.asarray(getattr(t.drive, field), float) for t in types])
 
-        self.n = 6 * n_arms
-        self.gear = tile(puma560.G)
-        self.kt = tile(puma560.KT)
-        self.r = tile(puma560.R_ARMATURE)
-        self.i_max = tile(puma560.MAX_CURRENT)
-        tc_pos, tc_neg = tile(puma560.TC_POS), np.abs(tile(puma560.TC_NEG))
+        self.n = sum(t.n_joints for t in types)
+        self.gear = tile("gear")
+        self.kt = tile("kt")
+        self.r = tile("r_armature")
+        self.i_max = tile("max_current")
+        # motor side Coulomb levels, |G|·Tc at the joint
+        tc_pos = tile("coulomb_pos") / np.abs(self.gear)
+        tc_neg = np.abs(tile("coulomb_neg")) / np.abs(self.gear)
         sym = np.minimum(tc_pos, tc_neg)
         self.extra_pos = tc_pos - sym  # motor-side Coulomb beyond the symmetric part
         self.extra_neg = tc_neg - sym
         self.frictionloss = np.abs(self.gear) * sym  # joint side, for MuJoCo
-        self.damping = tile(puma560.VISCOUS)  # joint side, for MuJoCo
-        self.brake = tile(BRAKE_TORQUE)
-        self.gain = puma560.AMP_GAIN_A_PER_V
-        self.v_bus = puma560.BUS_VOLTAGE
+        self.damping = tile("viscous")  # joint side, for MuJoCo
+        self.brake = tile("brake_torque")
+        self.gain = np.concatenate([[t.drive.amp_gain_a_per_v] * t.n_joints for t in types])
+        self.v_bus = np.concatenate([[t.drive.bus_voltage] * t.n_joints for t in types])
         self.enabled = np.zeros(self.n)  # 1.0 where the joint's amplifier is on
         self.ctrl = np.zeros(self.n)  # A: the current the loop drives toward
         self.range = np.zeros((self.n, 2))  # A: [low, high] the current may take

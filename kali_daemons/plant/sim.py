@@ -19,7 +19,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from .. import layout, puma560
+from .. import layout
 from ..arena import Arena
 from ..config import KaliConfig
 from ..model import World, build_world
@@ -28,7 +28,6 @@ from .motor import MotorBank
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
-INITIAL_POSE = np.asarray(puma560.QN, dtype=np.float64)  # where the arms are at power-on
 
 
 class PlantSim:
@@ -47,7 +46,8 @@ class PlantSim:
         n_arms = len(self.names)
         self.dofs = np.concatenate([self.world.dof_adr[k] for k in range(n_arms)])
         self.qpos_idx = np.concatenate([self.world.qpos_adr[k] for k in range(n_arms)])
-        self.motors = MotorBank(n_arms)
+        types = [r.type for r in cfg.robots]
+        self.motors = MotorBank(types)
         self.acts = np.concatenate([self.world.motor[k] for k in range(n_arms)])
         self.act_adr = np.concatenate([self.world.motor_act_adr[k] for k in range(n_arms)])
         self.current = np.zeros(self.motors.n)
@@ -60,7 +60,7 @@ class PlantSim:
         self.braked = np.ones(self.motors.n, dtype=bool)  # brakes hold at power-on
         self._frictionloss = np.zeros(self.motors.n)
         self._apply_brakes()
-        d.qpos[self.qpos_idx] = np.tile(INITIAL_POSE, n_arms)
+        d.qpos[self.qpos_idx] = np.concatenate([t.q_home for t in types])  # at power-on
         mujoco.mj_forward(m, d)
         self.gear = self.motors.gear
         self.q = np.zeros(self.motors.n)
@@ -73,9 +73,12 @@ class PlantSim:
         self.dac = arena.record(layout.KEY_DACS, layout.DAC_BOARD, n_arms)
         self.dac["code"] = layout.DAC_ZERO
         self.truth = arena.record(layout.KEY_TRUTHS, layout.ARM_TRUTH, n_arms)
-        self.boards = [IoBoardSim(self.regs[k : k + 1].reshape(()), pc) for k in range(n_arms)]
-        phases = np.concatenate([puma560.index_phases(pc.seed, k) for k in range(n_arms)])
-        self.encoders = EncoderBank(self.regs, phases, self.motor_angle)
+        self.boards = [
+            IoBoardSim(self.regs[k : k + 1].reshape(()), pc, types[k]) for k in range(n_arms)
+        ]
+        # each arm is built to its calibration sheet (thesis 3.5.1): the robot's config says it
+        phases = np.concatenate([r.index_phases for r in cfg.robots])
+        self.encoders = EncoderBank(self.regs, types, phases, self.motor_angle)
         self._codes = self.dac["code"][:, :6]
         self._volts_arms = self.volts.reshape(n_arms, 6)
         self._gripper_prev = [0] * n_arms

@@ -21,12 +21,14 @@ Conventions every type keeps:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
+
+from ..errors import ConfigError
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -68,6 +70,11 @@ class Drive:
     def armature(self) -> FloatArray:
         """Reflected rotor inertia at the joint, kg·m² (MuJoCo armature, Pinocchio armature)."""
         return read_only(self.rotor_inertia * self.gear**2)
+
+    @property
+    def rad_per_count(self) -> FloatArray:
+        """Joint angle of one encoder count, rad (unsigned)."""
+        return read_only(2.0 * np.pi / (self.counts_per_rev * np.abs(self.gear)))
 
     @property
     def peak_joint_torque(self) -> FloatArray:
@@ -140,3 +147,39 @@ class RobotType:
     # [0, 2π), measured once per arm; a robot's config may name its own.
     index_phases: FloatArray = field(default_factory=lambda: read_only([]))
     gravity: float = 9.81  # m/s²
+
+    def __post_init__(self) -> None:
+        """Refuse a declaration Kali cannot drive, naming the type, field, value and rule."""
+
+        def bad(what: str, value: object, rule: str) -> ConfigError:
+            return ConfigError(f"robot type {self.name!r}: {what} = {value!r:.80}: {rule}")
+
+        n = self.n_joints
+        if not (isinstance(n, int) and 1 <= n <= MAX_JOINTS):
+            raise bad("n_joints", n, f"must be 1 .. {MAX_JOINTS} (one McGill board's channels)")
+        per_joint = [(f.name, getattr(self, f.name)) for f in fields(self)]
+        per_joint += [(f"drive.{f.name}", getattr(self.drive, f.name)) for f in fields(Drive)]
+        for what, value in per_joint:
+            skip = not isinstance(value, np.ndarray) or what == "index_phases"
+            if not skip and (value.shape != (n,) or not np.isfinite(value).all()):
+                raise bad(what, value, f"must be {n} finite numbers, one per joint")
+        for what, table in (("pid_defaults", self.pid_defaults), ("pd_defaults", self.pd_defaults)):
+            if len(table) != n:
+                raise bad(what, len(table), f"must have {n} entries, one per joint")
+        if not (self.q_min < self.q_max).all():
+            raise bad("q_min", self.q_min, "must be below q_max on every joint")
+        if not ((self.q_min <= self.q_home) & (self.q_home <= self.q_max)).all():
+            raise bad("q_home", self.q_home, "must be within q_min .. q_max")
+        for what in ("qd_max", "qdd_max"):
+            if not (getattr(self, what) > 0).all():
+                raise bad(what, getattr(self, what), "must be > 0 on every joint")
+        d = self.drive
+        if (d.gear == 0).any() or (d.counts_per_rev <= 0).any() or (d.kt <= 0).any():
+            raise bad("drive", d.gear, "gear ratios must be non-zero, counts and Kt > 0")
+        if (d.max_current <= 0).any():
+            raise bad("drive.max_current", d.max_current, "must be > 0 on every joint")
+        sheet = self.index_phases
+        if len(sheet) not in (0, n) or not ((sheet >= 0) & (sheet < 2 * np.pi)).all():
+            raise bad("index_phases", sheet, f"must be {n} motor angles in [0, 2π) rad")
+        if not Path(self.urdf).is_file():
+            raise bad("urdf", str(self.urdf), "no such file")

@@ -26,8 +26,8 @@ Two choices the figure leaves open, made here so a researcher's on-line changes 
 **PD.**  ``torque = kp·e − kv·v + bias`` with the raw error, the same velocity filter and
 the same decaying hand-over bias.  No integral: a joint under load holds with an offset.
 
-Gains and filter frequencies for the PUMA 560's joints are in ``puma560.PID_DEFAULTS`` and
-``puma560.PD_DEFAULTS``; the defaults here are the figure's (kp 50-200, kv 1-7, fe 50,
+Each robot type's tuned gains are its ``pid_defaults`` and ``pd_defaults``
+(``kali_daemons.robots``); the defaults here are the figure's (kp 50-200, kv 1-7, fe 50,
 fv 25) with no integral action, for an unknown joint.
 """
 

@@ -8,7 +8,7 @@ Encoders are relative: at power-on Kali knows each joint only from its potentiom
    spacing per ``SEARCH_S``, about one count per millisecond) toward the index pulse its
    present angle predicts, away from a joint limit, for at most ``SEARCH_SPAN`` spacings.
    When a joint's bit appears in the index register its counter has just been reset by the
-   pulse: the driver counts from the pulse from then on (``Puma560Driver.at_index``) and the
+   pulse: the driver counts from the pulse from then on (``JointDriver.at_index``) and the
    joint is servoed onto it.  All joints search at once.
 2. **Settle.**  Every pulse found, capture off; the joints come to rest on their pulses.
 3. **Pots.**  Read the six potentiometers through the TLC532A.  Each reading, less the counts

@@ -32,10 +32,10 @@ import math
 import numpy as np
 import posix_ipc
 
-from .. import layout, puma560, rt
+from .. import layout, rt
 from ..config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks, retrigger_hold_ticks
 from ..daemon import Daemon
-from ..driver import Puma560Driver
+from ..driver import JointDriver
 from ..errors import DaemonError
 from ..flightrec import FlightRecorder
 from ..layout import (
@@ -90,8 +90,9 @@ class ServoIO(Daemon):
             lv.initialise()
         nr, n = lv.n_robots, lv.n
         rs = lv.robots
-        phases = np.concatenate([puma560.index_phases(cfg.plant.seed, k) for k in range(nr)])
-        self.driver = Puma560Driver(nr, index_phase=phases)
+        # the arms' calibration sheets (thesis 3.5.1), from their configs
+        phases = np.concatenate([r.index_phases for r in cfg.robots])
+        self.driver = JointDriver([r.type for r in cfg.robots], index_phase=phases)
         self._driver_state = (rs["acc"], rs["prev"], rs["offset"])
         if not first:
             self.driver.load(*self._driver_state)

@@ -12,7 +12,8 @@ arm jumps when the motion starts), has
 
     T6_k(τ) = B_k⁻¹ · O(τ) · G_k
 
-and its joint set-point is ``kinematics.ikine(T6_k, config_k, q_ref = its last set-point)``.
+and its joint set-point is ``ikine(T6_k, config_k, q_ref = its last set-point)`` of its robot
+type's kinematics (``kali_daemons.robots``).
 The configuration is the one each arm is in when the motion starts: a straight line cannot
 change it (2.2.1), so a request naming another one is refused.
 
@@ -21,9 +22,9 @@ TG period, τ = dt, 2·dt, …, duration) and refuses, naming the segment, the a
 the singularity and the place, any sample where
 
 - the pose is out of the arm's reach or needs a joint outside its limits (``ikine`` fails),
-- the arm comes within ``SHOULDER_MIN_M`` of the shoulder singularity, ``ELBOW_MIN_M`` of the
-  elbow singularity or ``WRIST_MIN_DEG`` of the wrist singularity (``kinematics.singularities``),
-- a joint would have to move faster than its limit (``puma560.QD_MAX``; near a singularity
+- the arm comes too near a singularity (its type's ``kinematics.singular`` says how near; the
+  PUMA's: 5 cm of the shoulder or elbow singularity, 5° of the wrist one),
+- a joint would have to move faster than its limit (the type's ``qd_max``; near a singularity
   the joint speeds a straight line needs grow without bound),
 - the configuration would change (a safety net: with fixed flags it can only happen on a
   singularity, which the distances above already keep away from).
@@ -42,44 +43,35 @@ from typing import Final
 
 import numpy as np
 
-from .. import kinematics, layout, puma560
-from ..kinematics import Config, KinematicsError
+from .. import layout
+from ..errors import KinematicsError
+from ..robots import Kinematics, RobotType
 from .profiles import MAX_MOTION_S, CartesianPath, MotionError, rigid_pose
 
-SHOULDER_MIN_M: Final = 0.05  # closest approach of the wrist centre to the shoulder singularity
-ELBOW_MIN_M: Final = 0.05  # ... to the elbow singularity (arm stretched or folded)
-WRIST_MIN_DEG: Final = 5.0  # closest |θ5| to the wrist singularity
 GRASP_TOL_M: Final = 0.002  # arms of one motion system must agree on the object's pose to this
 GRASP_TOL_RAD: Final = 0.01
 SPEED_MARGIN: Final = 1.0 + 1e-9  # rounding allowance on the joint speed limits
 
-_WRIST_MIN_RAD: Final = math.radians(WRIST_MIN_DEG)
-_QD_MAX: Final = tuple(float(v) for v in puma560.QD_MAX)
 
-
-def encode_config(config: Config | None) -> int:
-    """A request's configuration byte (``layout.CONFIG_*``); None: the arm's own."""
+def encode_config(config: object | None, kin: Kinematics) -> int:
+    """A request's configuration byte (``layout.CONFIG_GIVEN`` | the branch's index in
+    ``kin.configs``); None: the arm's own."""
     if config is None:
         return 0
-    return (
-        layout.CONFIG_GIVEN
-        | (layout.CONFIG_RIGHT if config.right else 0)
-        | (layout.CONFIG_UP if config.up else 0)
-        | (layout.CONFIG_FLIP if config.flip else 0)
-    )
+    return layout.CONFIG_GIVEN | kin.configs.index(config)
 
 
-def decode_config(code: int) -> Config | None:
+def decode_config(code: int, kin: Kinematics) -> object | None:
     """The configuration a request's byte names (None: the arm's own); MotionError if bad."""
     if code == 0:
         return None
-    if not code & layout.CONFIG_GIVEN or code >= 2 * layout.CONFIG_GIVEN:
-        raise MotionError(f"configuration byte {code:#x} is not one of layout.CONFIG_*")
-    return Config(
-        right=bool(code & layout.CONFIG_RIGHT),
-        up=bool(code & layout.CONFIG_UP),
-        flip=bool(code & layout.CONFIG_FLIP),
-    )
+    index = code - layout.CONFIG_GIVEN
+    if not 0 <= index < len(kin.configs):
+        raise MotionError(
+            f"configuration byte {code:#x} names none of the arm's {len(kin.configs)} "
+            f"configurations (layout.CONFIG_GIVEN | 0..{len(kin.configs) - 1})"
+        )
+    return kin.configs[index]
 
 
 def base_transform(xyz: Sequence[float], yaw_deg: float) -> np.ndarray:
@@ -119,20 +111,21 @@ def _xyz(p: np.ndarray) -> str:
 class CartesianMotion:
     """One Cartesian request of one motion system: planned, checked, then sampled per tick.
 
-    ``names`` are the arms' names (messages), ``bases`` their B_k and ``grasps`` their G_k,
-    ``q_start`` (n, 6) where each arm starts, ``configs`` the configuration each must keep
-    (None: the one it starts in), ``targets`` the object's poses in the world, ``dt`` the TG
-    period (s).  Raises ``MotionError`` when the request cannot even be planned: arms that do
+    ``names`` are the arms' names (messages), ``types`` their robot types, ``bases`` their B_k and
+    ``grasps`` their G_k, ``q_start`` (n, 6) where each arm starts, ``configs`` the configuration
+    each must keep (None: the one it starts in), ``targets`` the object's poses in the world, ``dt``
+    the TG period (s).  Raises ``MotionError`` when the request cannot even be planned: arms that do
     not agree on where the object is, a configuration other than the arm's, a bad path.
     """
 
     def __init__(
         self,
         names: Sequence[str],
+        types: Sequence[RobotType],
         bases: Sequence[np.ndarray],
         grasps: Sequence[np.ndarray],
         q_start: np.ndarray,
-        configs: Sequence[Config | None],
+        configs: Sequence[object | None],
         targets: Sequence[np.ndarray],
         speed: float,
         angular_speed: float,
@@ -143,9 +136,11 @@ class CartesianMotion:
         n = len(self.names)
         self.n = n
         self.dt = float(dt)
+        self._kin = [t.kinematics for t in types]
+        self._qd_max = [tuple(float(v) for v in t.qd_max) for t in types]
         self._bases = [np.asarray(b, dtype=np.float64) for b in bases]
         self._to_base = [inverse(b) for b in self._bases]
-        if not len(grasps) == len(bases) == len(configs) == n:
+        if not len(grasps) == len(bases) == len(configs) == len(types) == n:
             raise MotionError(
                 f"cartesian motion: {n} arms, but {len(grasps)} grasps, {len(bases)} bases and "
                 f"{len(configs)} configurations"
@@ -160,9 +155,9 @@ class CartesianMotion:
         self._tmp = np.empty((4, 4))
         self._t6 = np.empty((4, 4))
         self._q = np.empty(6)
-        self.configs: list[Config] = []
+        self.configs: list[object] = []
         for k in range(n):
-            have = kinematics.config_of(q_start[k])
+            have = self._kin[k].config_of(q_start[k])
             want = configs[k]
             if want is not None and want != have:
                 raise MotionError(
@@ -185,13 +180,13 @@ class CartesianMotion:
                 )
             # hold the object as the arm really does: no jump at the start, whatever the
             # (tolerated) disagreement; a squeeze it would cause stays a squeeze
-            self._grasps[k] = inverse(start) @ self._bases[k] @ kinematics.fkine(q_start[k])
+            self._grasps[k] = inverse(start) @ self._bases[k] @ self._kin[k].fkine(q_start[k])
         self.path = CartesianPath(start, list(targets), speed, angular_speed, transition_s)
         for i in range(1, len(self.path.poses)):  # each target first: the plainest refusal
             np.copyto(self._obj, self.path.poses[i])
             for k in range(n):
                 try:
-                    kinematics.ikine(self._t6_of(k), self.configs[k])
+                    self._kin[k].ikine(self._t6_of(k), self.configs[k])
                 except KinematicsError as exc:
                     raise MotionError(
                         f"path refused: targets[{i - 1}] at {_xyz(self._obj[:3, 3])}: robot "
@@ -215,7 +210,7 @@ class CartesianMotion:
 
     def object_pose(self, k: int, q: np.ndarray) -> np.ndarray:
         """Where arm ``k`` at joints ``q`` holds the object: B_k · T6(q) · G_k⁻¹ (world)."""
-        t6 = kinematics.fkine(np.asarray(q, dtype=np.float64))
+        t6 = self._kin[k].fkine(np.asarray(q, dtype=np.float64))
         return self._bases[k] @ t6 @ inverse(self._grasps[k])
 
     def _t6_of(self, k: int) -> np.ndarray:
@@ -261,43 +256,23 @@ class CartesianMotion:
         t6 = self._t6_of(k)
         prev = self._check_q[k]
         try:
-            q = kinematics.ikine(t6, self.configs[k], q_ref=prev, out=self._q)
+            q = self._kin[k].ikine(t6, self.configs[k], q_ref=prev, out=self._q)
         except KinematicsError as exc:
             raise self._refuse(k, tau, _why(exc)) from None
-        sing = kinematics.singularities(q)
-        wc = _xyz(t6[:3, 3])
-        if sing.shoulder < SHOULDER_MIN_M:
-            raise self._refuse(
-                k,
-                tau,
-                f"comes within {sing.shoulder * 100:.1f} cm of the shoulder singularity "
-                f"(limit {SHOULDER_MIN_M * 100:g} cm): wrist centre at {wc} in its base frame",
-            )
-        if sing.elbow < ELBOW_MIN_M:
-            raise self._refuse(
-                k,
-                tau,
-                f"comes within {sing.elbow * 100:.1f} cm of the elbow singularity (arm "
-                f"stretched; limit {ELBOW_MIN_M * 100:g} cm): wrist centre at {wc} in its "
-                f"base frame",
-            )
-        if sing.wrist < _WRIST_MIN_RAD:
-            raise self._refuse(
-                k,
-                tau,
-                f"comes within {_deg(sing.wrist)} of the wrist singularity (joint 5 at "
-                f"{_deg(float(q[4]))}; limit {WRIST_MIN_DEG:g}°)",
-            )
-        for j in range(6):
+        near = self._kin[k].singular(q)
+        if near is not None:
+            raise self._refuse(k, tau, near)
+        qd_max = self._qd_max[k]
+        for j in range(len(qd_max)):
             speed = abs(float(q[j]) - float(prev[j])) / self.dt
-            if speed > _QD_MAX[j] * SPEED_MARGIN:
+            if speed > qd_max[j] * SPEED_MARGIN:
                 raise self._refuse(
                     k,
                     tau,
                     f"needs joint {j + 1} at {math.degrees(speed):.1f}°/s, above its limit "
-                    f"{math.degrees(_QD_MAX[j]):.0f}°/s (slow the path down)",
+                    f"{math.degrees(qd_max[j]):.0f}°/s (slow the path down)",
                 )
-        have = kinematics.config_of(q)
+        have = self._kin[k].config_of(q)
         if have != self.configs[k]:
             raise self._refuse(
                 k, tau, f"would change configuration from '{self.configs[k]}' to '{have}'"
@@ -313,5 +288,5 @@ class CartesianMotion:
         self.path.sample(tau, self._obj)
         rows = self._rows
         for k in range(self.n):
-            kinematics.ikine(self._t6_of(k), self.configs[k], q_ref=rows[k], out=rows[k])
+            self._kin[k].ikine(self._t6_of(k), self.configs[k], q_ref=rows[k], out=rows[k])
         return rows

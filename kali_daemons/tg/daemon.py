@@ -53,13 +53,14 @@ from fractions import Fraction
 
 import numpy as np
 
-from .. import kinematics, layout, puma560
+from .. import layout
 from ..channels import InterpolatingFifo, RequestQueue
 from ..config import MAX_PERIOD_MS, ms_to_ns
 from ..daemon import Daemon
+from ..errors import KinematicsError
 from ..instance import decode
-from ..kinematics import KinematicsError
 from ..layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
+from ..robots import RobotType
 from ..servolevel import FIFO_CAPACITY
 from ..spinlock import pid_alive
 from .cartesian import CartesianMotion, base_transform, decode_config
@@ -95,15 +96,18 @@ def request_robots(req: np.void, n_robots: int) -> list[int]:
 
 
 def check_request(
-    req: np.void, names: list[str], calibrated: np.ndarray | None = None
+    req: np.void,
+    names: list[str],
+    types: list[RobotType],
+    calibrated: np.ndarray | None = None,
 ) -> tuple[MotionKind, list[int]]:
     """(kind, robot indices) of request ``req`` (one ``layout.MOTION_REQUEST``), after
     checking everything that does not need the arms' start; MotionError with the reason.
 
-    ``names`` are the cell's robots; ``calibrated`` (per robot, None: not known yet) is
-    needed by a PATH.  Checks the kind, the robots (``request_robots``), for JOINTS the speed
-    scale in (0, 1] and each target finite and within the joint range, for PATH the segment
-    count, finite speeds, targets and grasps and valid configuration bytes.  Pure: the TG
+    ``names`` are the cell's robots and ``types`` their robot types; ``calibrated`` (per robot,
+    None: not known yet) is needed by a PATH.  Checks the kind, the robots (``request_robots``), for
+    JOINTS the speed scale in (0, 1] and each target finite and within the joint range, for PATH the
+    segment count, finite speeds, targets and grasps and valid configuration bytes.  Pure: the TG
     calls it on every request it takes, tests call it on random bytes.
     """
     kind = int(req["kind"])
@@ -116,7 +120,7 @@ def check_request(
         if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
             raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
         for i, k in enumerate(robots):
-            check_joint_target(names[k], req["joints"][i])
+            check_joint_target(names[k], req["joints"][i], types[k])
     elif kind == MotionKind.PATH:
         n_seg = int(req["n_segments"])
         if not 1 <= n_seg <= layout.MAX_SEGMENTS:
@@ -129,7 +133,7 @@ def check_request(
             if not np.isfinite(req["poses"][i]).all():
                 raise MotionError(f"path targets[{i}] is not finite")
         for i, k in enumerate(robots):
-            decode_config(int(req["config"][i]))
+            decode_config(int(req["config"][i]), types[k].kinematics)
             if not np.isfinite(req["grasps"][i]).all():
                 raise MotionError(f"grasp of robot '{names[k]}' is not finite")
             if calibrated is not None and not int(calibrated[k]):
@@ -150,15 +154,17 @@ def _bounded(what: str, duration: float) -> None:
 
 
 def plan_joints(
-    req: np.void, robots: list[int], start: np.ndarray, v_max: np.ndarray, a_max: np.ndarray
+    req: np.void, robots: list[int], start: np.ndarray, types: list[RobotType]
 ) -> JointMotion:
     """The joint motion a checked JOINTS request asks for, from ``start`` (6 per robot) with
-    the per-joint limits ``v_max``/``a_max`` scaled by its speed scale; MotionError if it
-    cannot be planned or would outlast ``MAX_MOTION_S``."""
+    the per-joint limits of each robot's type (``qd_max``, ``qdd_max``) scaled by its speed
+    scale; MotionError if it cannot be planned or would outlast ``MAX_MOTION_S``."""
     scale = float(req["speed_scale"])
     n = len(robots)
     target = np.concatenate([req["joints"][i] for i in range(n)])
-    profile = JointMotion(start, target, np.tile(v_max, n) * scale, np.tile(a_max, n) * scale)
+    v_max = np.concatenate([types[k].qd_max for k in robots]) * scale
+    a_max = np.concatenate([types[k].qdd_max for k in robots]) * scale
+    profile = JointMotion(start, target, v_max, a_max)
     _bounded("joint motion", profile.duration)
     return profile
 
@@ -167,6 +173,7 @@ def plan_path(
     req: np.void,
     robots: list[int],
     names: list[str],
+    types: list[RobotType],
     bases: list[np.ndarray],
     start: np.ndarray,
     dt: float,
@@ -178,10 +185,11 @@ def plan_path(
     n = len(robots)
     return CartesianMotion(
         [names[k] for k in robots],
+        [types[k] for k in robots],
         [bases[k] for k in robots],
         [req["grasps"][i] for i in range(n)],
         start,
-        [decode_config(int(req["config"][i])) for i in range(n)],
+        [decode_config(int(req["config"][i]), types[k].kinematics) for i, k in enumerate(robots)],
         [req["poses"][i] for i in range(int(req["n_segments"]))],
         float(req["speed"]),
         float(req["angular_speed"]),
@@ -283,8 +291,7 @@ class TrajectoryGenerator(Daemon):
         self._max_period_ns = ms_to_ns(MAX_PERIOD_MS)
         self.bases = [base_transform(r.base_xyz, r.base_yaw_deg) for r in cfg.robots]
         self.request = np.zeros(1, dtype=layout.MOTION_REQUEST)
-        self.v_max = np.array(puma560.QD_MAX)
-        self.a_max = np.array(puma560.QDD_MAX)
+        self.types = [r.type for r in cfg.robots]
         self.motions: list[Motion] = []
         self.waiting: list[tuple[int, np.void]] = []  # accepted, robots still busy
         self._faults_seen = int(inst.fault["count"])
@@ -294,16 +301,18 @@ class TrajectoryGenerator(Daemon):
         """Plan, check and sample one short Cartesian path and one joint move (outside the
         cycle): numpy's first matrix product starts its BLAS, which under ``mlockall`` faults
         in and locks its buffers, 20-30 ms, once; the first real motion must not pay that."""
-        q = np.array(puma560.QN)
-        start = kinematics.fkine(q)
-        target = start.copy()
-        target[2, 3] += 0.01
-        plan = CartesianMotion(
-            ["warm-up"], [np.eye(4)], [np.eye(4)], q[None], [None], [target], 0.1, 0.5, 0.0, self.dt
-        )
-        plan.check_all()
-        plan.sample(0.5 * plan.duration)
-        JointMotion(q, q + 0.01, self.v_max, self.a_max).sample(0.01, np.zeros(6))
+        for t in {t.name: t for t in self.types}.values():
+            q = t.q_home.copy()
+            start = t.kinematics.fkine(q)
+            target = start.copy()
+            target[2, 3] += 0.01
+            plan = CartesianMotion(
+                ["warm-up"], [t], [np.eye(4)], [np.eye(4)], q[None], [None], [target], 0.1, 0.5,
+                0.0, self.dt,
+            )  # fmt: skip
+            plan.check_all()
+            plan.sample(0.5 * plan.duration)
+            JointMotion(q, q + 0.01, t.qd_max, t.qdd_max).sample(0.01, np.zeros(t.n_joints))
 
     # ------------------------------------------------------------------ status records
 
@@ -478,7 +487,7 @@ class TrajectoryGenerator(Daemon):
             self._say(seq, RequestState.HALTED, self._halt_text())
             return
         try:
-            kind, robots = check_request(req, self.names, calibrated)
+            kind, robots = check_request(req, self.names, self.types, calibrated)
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return
@@ -549,7 +558,7 @@ class TrajectoryGenerator(Daemon):
         start = np.concatenate([self._start_point(k) for k in robots])
         n = len(robots)
         try:
-            profile = plan_joints(req, robots, start, self.v_max, self.a_max)
+            profile = plan_joints(req, robots, start, self.types)
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return
@@ -576,7 +585,7 @@ class TrajectoryGenerator(Daemon):
                 self._require_calibrated(k)
             start = np.array([self._start_point(k) for k in robots])
             self._work += PLAN_SAMPLES
-            plan = plan_path(req, robots, self.names, self.bases, start, self.dt)
+            plan = plan_path(req, robots, self.names, self.types, self.bases, start, self.dt)
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return

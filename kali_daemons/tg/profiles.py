@@ -28,8 +28,8 @@ from typing import Literal
 
 import numpy as np
 
-from .. import puma560
 from ..errors import MotionError
+from ..robots import RobotType
 
 PEAK_SPEED_FACTOR = 15.0 / 8.0  # peak of the quintic's velocity, in units of distance/time
 MIN_DURATION_S = 0.1
@@ -89,6 +89,10 @@ def joint_move(
 # Limits and tolerances of the motion classes below
 
 ZERO_MOVE_S = 1e-6  # duration of a joint motion that goes nowhere: done at the next tick
+# A joint move shorter than this goes nowhere (done at the next tick): far below any
+# encoder's count (the PUMA's finest is 1e-4 rad), and a law planned for it would overflow
+# (1e-234 rad made every sample on the way NaN)
+MIN_MOVE_RAD = 1e-12
 JERK_RAMP_FRACTION = 0.25  # share of each acceleration phase spent ramping the acceleration
 MAX_LINEAR_SPEED_M_S = 5.0  # a Cartesian speed above this is a units mistake, not a request
 MAX_ANGULAR_SPEED_RAD_S = 10.0
@@ -278,12 +282,12 @@ class JointMotion:
     """A smooth joint-mode motion from ``start`` to ``target`` (thesis 2.2.1, "joint mode").
 
     Every joint follows q_j(τ) = start_j + (target_j − start_j)·s(τ) with one shared
-    ``SmoothTrapezoid`` s, so all joints start and arrive together and their normalised
-    progress is equal at every τ; s's limits are the tightest of v_max_j / |Δq_j| and
-    a_max_j / |Δq_j|, so no joint exceeds its speed or acceleration limit.  A move that goes
-    nowhere lasts ``ZERO_MOVE_S`` and stays put.  Any number of joints (a motion system may
-    have several arms); ``start`` sets it.  ``peak_speed``, ``peak_accel`` and ``peak_jerk``
-    are each joint's maxima over the motion.
+    ``SmoothTrapezoid`` s, so all joints start and arrive together and their normalised progress is
+    equal at every τ; s's limits are the tightest of v_max_j / |Δq_j| and a_max_j / |Δq_j|, so no
+    joint exceeds its speed or acceleration limit.  A move that goes nowhere (every joint less than
+    ``MIN_MOVE_RAD``) lasts ``ZERO_MOVE_S``.  Any number of joints (a motion system may have several
+    arms); ``start`` sets it.  ``peak_speed``, ``peak_accel`` and ``peak_jerk`` are each joint's
+    maxima over the motion.
     """
 
     def __init__(
@@ -300,21 +304,18 @@ class JointMotion:
         self.a_max = _positive(what, "a_max", a_max, n, "rad/s²")
         self._delta = self.target - self.start
         distance = np.abs(self._delta)
-        moving = distance > 0.0
-        with np.errstate(over="ignore"):
-            v_norm = float(np.min(self.v_max[moving] / distance[moving])) if moving.any() else 0.0
-            a_norm = float(np.min(self.a_max[moving] / distance[moving])) if moving.any() else 0.0
-        if not (math.isfinite(v_norm) and math.isfinite(a_norm) and v_norm > 0.0):
-            self.law = SmoothTrapezoid.lasting(ZERO_MOVE_S)  # nowhere to go: only the clock
-        else:
+        planned = distance > MIN_MOVE_RAD  # the joints whose limits set the law
+        if planned.any():
+            v_norm = float(np.min(self.v_max[planned] / distance[planned]))
+            a_norm = float(np.min(self.a_max[planned] / distance[planned]))
             self.law = SmoothTrapezoid(v_norm, a_norm)
+        else:
+            self.law = SmoothTrapezoid.lasting(ZERO_MOVE_S)  # nowhere to go: only the clock
         self.duration = self.law.duration
-        # per joint; a joint that stays put has none, also when a tiny move's law is steep
-        # enough to overflow (0 x inf would be NaN)
-        with np.errstate(invalid="ignore"):
-            self.peak_speed = np.where(moving, distance * self.law.peak_speed, 0.0)  # ≤ v_max
-            self.peak_accel = np.where(moving, distance * self.law.peak_accel, 0.0)  # ≤ a_max
-            self.peak_jerk = np.where(moving, distance * self.law.jerk, 0.0)
+        # per joint; a joint that stays put has none
+        self.peak_speed = distance * self.law.peak_speed  # ≤ v_max
+        self.peak_accel = distance * self.law.peak_accel  # ≤ a_max
+        self.peak_jerk = distance * self.law.jerk
 
     def sample(
         self,
@@ -647,14 +648,15 @@ class StopRamp:
         return hi
 
 
-def check_joint_target(robot: str, q: np.ndarray) -> None:
-    """MotionError unless ``q`` (float64, 6) is finite and within the PUMA 560's joint range;
-    the one check the client makes before queueing and the TG makes again on taking it."""
-    for j in range(6):
+def check_joint_target(robot: str, q: np.ndarray, rtype: RobotType) -> None:
+    """MotionError unless ``q`` (float64, one per joint) is finite and within the joint range
+    of the robot's type; the one check the client makes before queueing and the TG makes
+    again on taking it."""
+    for j in range(rtype.n_joints):
         v = float(q[j])
         if not math.isfinite(v):
             raise MotionError(f"robot '{robot}' joint {j + 1}: target {v} rad, must be finite")
-        lo, hi = float(puma560.Q_MIN[j]), float(puma560.Q_MAX[j])
+        lo, hi = float(rtype.q_min[j]), float(rtype.q_max[j])
         if not lo <= v <= hi:
             deg = math.degrees(v)
             shown = f"{deg:.2f}" if abs(deg) < 1e6 else f"{deg:.3g}"  # garbage stays one line

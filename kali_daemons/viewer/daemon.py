@@ -46,7 +46,7 @@ from ..errors import DaemonError
 from ..instance import decode
 from ..layout import ProcState
 from ..model import BAR_SIZE, FLANGE_FRAME, STAND_SIZE, load_pinocchio
-from ..puma560 import URDF_PATH
+from ..robots import RobotType
 from ..tg.cartesian import base_transform
 from ..wallclock.clock import time_ms
 from .sinks import WebViewer, grpc_address, pick_port, reachable
@@ -71,14 +71,15 @@ def _rgba(color: np.ndarray) -> np.ndarray:
 
 
 class Arm:
-    """One PUMA 560's visual shapes (the URDF's ``<visual>`` boxes and cylinders, through
-    Pinocchio's visual geometry model), posed by forward kinematics.  Built outside the
-    cycle; ``place`` runs inside it, into preallocated ``poses``."""
+    """The visual shapes of an arm of type ``robot`` (its URDF's ``<visual>`` boxes and
+    cylinders, through Pinocchio's visual geometry model), posed by forward kinematics.
+    Built outside the cycle; ``place`` runs inside it, into preallocated ``poses``."""
 
-    def __init__(self) -> None:
-        self.model = load_pinocchio()
+    def __init__(self, robot: RobotType) -> None:
+        self.model = load_pinocchio(robot)
         self.data = self.model.createData()
-        self.geom = pin.buildGeomFromUrdf(self.model, str(URDF_PATH), pin.GeometryType.VISUAL)
+        urdf = robot.urdf
+        self.geom = pin.buildGeomFromUrdf(self.model, str(urdf), pin.GeometryType.VISUAL)
         self.gdata = pin.GeometryData(self.geom)
         self.flange = self.model.getFrameId(FLANGE_FRAME)
         objects = list(self.geom.geometryObjects)
@@ -86,7 +87,7 @@ class Arm:
         self.boxes = [i for i, kind in enumerate(kinds) if kind == "Box"]
         self.cylinders = [i for i, kind in enumerate(kinds) if kind == "Cylinder"]
         if len(self.boxes) + len(self.cylinders) != len(objects):
-            raise DaemonError(f"viewer: {URDF_PATH}: only box and cylinder visuals are drawn")
+            raise DaemonError(f"viewer: {urdf}: only box and cylinder visuals are drawn")
         self.half_sizes = np.array([objects[i].geometry.halfSide for i in self.boxes])
         self.radii = np.array([objects[i].geometry.radius for i in self.cylinders])
         self.lengths = np.array([2 * objects[i].geometry.halfLength for i in self.cylinders])
@@ -222,8 +223,12 @@ class Viewer(Daemon):
         self.names = [r.name for r in cfg.robots]
         self.paths = [RobotPaths.of(r) for r in self.names]
         self.bases = [pin.SE3(base_transform(r.base_xyz, r.base_yaw_deg)) for r in cfg.robots]
-        self.arm = Arm()
-        self.arm.place(np.zeros(6))  # the first use of Pinocchio faults pages in
+        shapes: dict[str, Arm] = {}  # one per robot type
+        for r in cfg.robots:
+            shapes.setdefault(r.model, Arm(r.type))
+        self.arms = [shapes[r.model] for r in cfg.robots]
+        for r, arm in zip(cfg.robots, self.arms, strict=True):
+            arm.place(r.type.q_home.copy())  # the first use of Pinocchio faults pages in
         self.dash = arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
         deadline = rt.monotonic_ns() + int(READY_TIMEOUT_S * 1e9)
         while not self._records_ready():
@@ -311,7 +316,6 @@ class Viewer(Daemon):
         """What never changes: the cell, the arms' shape sizes, series names and colours."""
         rec = self.rec
         assert rec is not None
-        arm = self.arm
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         sx, sy, sz = STAND_SIZE
         rec.log(
@@ -329,7 +333,7 @@ class Viewer(Daemon):
             rr.Boxes3D(half_sizes=[np.array(BAR_SIZE) / 2], colors=[BAR_COLOR], fill_mode="solid"),
             static=True,
         )
-        for p, base in zip(self.paths, self.bases, strict=True):
+        for p, base, arm in zip(self.paths, self.bases, self.arms, strict=True):
             rec.log(
                 p.base,
                 rr.Transform3D(translation=base.translation, mat3x3=base.rotation),
@@ -394,8 +398,8 @@ class Viewer(Daemon):
         demand_deg = np.degrees(robots["demand"])
         error_deg = demand_deg - q_deg
         torque, ff, current = robots["torque"], robots["ff_torque"], robots["current"]
-        arm = self.arm
         for k, p in enumerate(self.paths):
+            arm = self.arms[k]
             if not robots["pots_read"][k]:
                 continue  # SIO has no angles for this arm yet
             rec.log(p.q, rr.Scalars(q_deg[k]))

@@ -38,12 +38,14 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from kali_daemons import atomic, kinematics, launcher, layout, puma560
+from kali_daemons import atomic, launcher, layout
 from kali_daemons.cli import main as kalictl
 from kali_daemons.client import Kali, MotionHandle
 from kali_daemons.config import KaliConfig, parse_config
 from kali_daemons.errors import ChannelError, ConfigError, KaliError, MotionError
 from kali_daemons.layout import MotionKind, ProcState, RequestState, SlotOp
+from kali_daemons.robots import puma560
+from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.spinlock import pid_alive
 from kali_daemons.tg.cartesian import base_transform
 from kali_daemons.tg.daemon import check_request, plan_joints, plan_path
@@ -171,7 +173,7 @@ def test_random_text_as_a_config_is_a_config_error(text: str) -> None:
 
 BASES = [base_transform((-0.6, 0.0, 0.0), 0.0), base_transform((0.6, 0.0, 0.0), 180.0)]
 START = np.array([puma560.QN, puma560.QN], dtype=np.float64)
-V_MAX, A_MAX = np.array(puma560.QD_MAX), np.array(puma560.QDD_MAX)
+TYPES = [puma560.ROBOT, puma560.ROBOT]  # the default cell's arms
 GARBAGE_F8 = st.one_of(
     st.floats(),
     st.sampled_from([0.0, -1.0, 0.5, 1.0, 1e-300, 5e-324, 1e300, math.nan, math.inf]),
@@ -219,16 +221,16 @@ def motion_requests(draw: st.DrawFn) -> np.ndarray:
 @given(req=motion_requests())
 def test_any_motion_request_is_planned_or_refused_with_a_motion_error(req: np.ndarray) -> None:
     try:
-        kind, robots = check_request(req, NAMES, np.ones(2))
+        kind, robots = check_request(req, NAMES, TYPES, np.ones(2))
         start = START[robots]
         if kind == MotionKind.JOINTS:
-            plan = plan_joints(req, robots, start.reshape(-1), V_MAX, A_MAX)
+            plan = plan_joints(req, robots, start.reshape(-1), TYPES)
             out = np.zeros(6 * len(robots))
             for tau in (0.0, 0.5 * plan.duration, plan.duration):
                 plan.sample(tau, out)
                 assert np.isfinite(out).all()
         elif kind == MotionKind.PATH:
-            path = plan_path(req, robots, NAMES, BASES, start, 0.01)
+            path = plan_path(req, robots, NAMES, TYPES, BASES, start, 0.01)
             path.check_some(50)
         event(f"{kind.name}: planned")
     except MotionError as exc:

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from kali_daemons import atomic, introspect, kinematics, launcher, layout
+from kali_daemons import atomic, introspect, launcher, layout
 from kali_daemons.channels import InterpolatingFifo, RequestQueue
 from kali_daemons.client import Kali
 from kali_daemons.errors import ChannelError, ClockError, ServoError
@@ -65,6 +65,7 @@ from kali_daemons.layout import (
     RequestState,
     SlotOp,
 )
+from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.servolevel import refusal_text
 from kali_daemons.spinlock import pid_alive
 from kali_daemons.wallclock import release, set_control_rate, step_kali_clock
@@ -244,8 +245,8 @@ QUEUE_GARBAGE: list[tuple[str, str, Edits, str]] = [
     ("grasp zero", "path", {"grasps": {0: np.zeros((4, 4))}}, "'left' bottom row is [0.0, 0"),
     ("grasp far", "path", {"grasps": {(0, 2, 3): -1e300}}, "grasp of robot 'left' is 1e+300 m"),
     ("grasp mirrored", "path", {"grasps": _scaled(-1.0)}, "'left' is not a rigid pose"),
-    ("config 0x10", "path", {"config": {0: 0x10}}, "configuration byte 0x10 is not one of"),
-    ("config 0x07", "path", {"config": {0: 0x07}}, "configuration byte 0x7 is not one of"),
+    ("config 0x10", "path", {"config": {0: 0x10}}, "configuration byte 0x10 names none of"),
+    ("config 0x07", "path", {"config": {0: 0x07}}, "configuration byte 0x7 names none of"),
     ("config 0xff", "path", {"config": {0: 0xFF}}, "configuration byte 0xff"),
     ("stop robot 9", "joints", {"kind": MotionKind.STOP, "robots": {0: 9}}, "robot index 9"),
     ("abort nobody", "joints", {"kind": MotionKind.ABORT, "n_robots": 0}, "0 robots in the"),

@@ -32,7 +32,6 @@ from ``MASS_RAW``/``INERTIA_RAW`` in exactly two places:
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Final
 
@@ -45,7 +44,7 @@ IntArray = npt.NDArray[np.int64]
 NJOINTS: Final = 6
 GRAVITY: Final = 9.81  # m/s², as in robotics-toolbox-python, so the gravity torques compare
 
-URDF_PATH: Final = Path(__file__).resolve().parent.parent / "config" / "puma560.urdf"
+URDF_PATH: Final = Path(__file__).resolve().parents[3] / "config" / "puma560.urdf"
 
 
 def _ro(values: object, dtype: type = np.float64) -> npt.NDArray:
@@ -150,6 +149,10 @@ KT: Final[FloatArray] = _ro([0.261] * _LARGE + [0.091] * _SMALL)  # N·m/A = V/(
 R_ARMATURE: Final[FloatArray] = _ro([1.6] * _LARGE + [3.9] * _SMALL)  # Ω, ±12.5 %
 L_ARMATURE: Final[FloatArray] = _ro([2.6e-3] * _LARGE + [2.3e-3] * _SMALL)  # H, ±30 %
 
+# Holding torque of the brakes at the joint, N·m.  Not in puma560.md: chosen well above the
+# largest gravity torque of each joint (37.5 N·m on joint 2) so an engaged brake holds the arm.
+BRAKE_TORQUE: Final[FloatArray] = _ro([150.0, 150.0, 80.0, 20.0, 20.0, 20.0])
+
 # Amplifiers (Contraves CSR NC600 PWM, thesis 3.7.2).
 AMP_GAIN_A_PER_V: Final = 2.5  # A per volt of DAC output
 AMP_BANDWIDTH_HZ: Final = 500.0  # current loop
@@ -177,18 +180,6 @@ MAX_JOINT_SPEED: Final[FloatArray] = _ro(BUS_VOLTAGE / KT / np.abs(G))  # rad/s
 
 GRAVITY_QZ: Final[FloatArray] = _ro([0.0, 37.48, 0.249, 0.0, 0.0, 0.0])  # N·m
 GRAVITY_QN: Final[FloatArray] = _ro([0.0, 31.64, 6.04, 0.0, 0.028, 0.0])  # N·m
-
-
-def index_phases(seed: int, robot: int) -> FloatArray:
-    """Motor angle (rad, 0 .. 2π) of each joint's encoder index pulse: the arm's calibration
-    sheet (thesis 3.5.1, C.3), measured once with an external reference.
-
-    The simulated cell builds arm ``robot`` to this sheet (``plant.seed`` in the config names
-    the cell) and the driver calibrates against it, as RCCL did with its tables.  Index
-    pulses sit at joint angles ``(phase + 2π k) / G``.
-    """
-    rng = np.random.default_rng([seed, robot])
-    return rng.uniform(0.0, 2.0 * math.pi, size=NJOINTS)
 
 
 # --------------------------------------------------------------------------------------------

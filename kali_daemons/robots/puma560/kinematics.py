@@ -8,13 +8,14 @@ current joints" is not a safe rule near a singularity; 3.3.1: ``write_t6`` / ``r
 this module is plain ``math`` on Python floats, no Pinocchio and no numpy temporaries.  The
 budget is 10 µs per ``fkine`` and 30 µs per ``ikine``; they take about 2 µs and 6 µs.
 
-Conventions (``kali_daemons.puma560``).  Standard DH, ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)``
-with d = (d1, 0, d3, d4, 0, 0), a = (0, a2, a3, 0, 0, 0), α = (90°, 0, −90°, 90°, −90°, 0°);
-d1 = 0.6718 m includes the pedestal.  ``T6 = A_1···A_6`` is DH frame 6, the flange, in the
-robot's base frame (DH frame 0, on the floor under joint 1); no tool transform.  It is the
-``flange`` frame of ``kali_daemons.model`` (Pinocchio, MuJoCo) and the toolbox's ``fkine``
-with its d1 set to ours.  As d5 = d6 = 0 the flange origin *is* the wrist centre (the point
-where the axes of joints 4, 5 and 6 meet).
+Conventions (``kali_daemons.robots.puma560``).  Standard DH,
+``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)`` with d = (d1, 0, d3, d4, 0, 0),
+a = (0, a2, a3, 0, 0, 0), α = (90°, 0, −90°, 90°, −90°, 0°); d1 = 0.6718 m includes the
+pedestal.  ``T6 = A_1···A_6`` is DH frame 6, the flange, in the robot's base frame (DH frame 0,
+on the floor under joint 1); no tool transform.  It is the ``flange`` frame of
+``kali_daemons.model`` (Pinocchio, MuJoCo) and the toolbox's ``fkine`` with its d1 set to ours.
+As d5 = d6 = 0 the flange origin *is* the wrist centre
+(the point where the axes of joints 4, 5 and 6 meet).
 
 Closed form.  Paul, Shimano & Mayer, "Kinematic control equations for simple manipulators",
 IEEE Trans. SMC 11(6), 1981, and Paul & Zhang, "Computationally efficient kinematics for
@@ -69,8 +70,8 @@ from typing import Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from .errors import KinematicsError
-from .puma560 import ALPHA, NJOINTS, Q_MAX, Q_MIN, A, D
+from ...errors import KinematicsError
+from .facts import ALPHA, NJOINTS, Q_MAX, Q_MIN, A, D
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -427,8 +428,69 @@ def singularities(q: FloatArray | list[float] | tuple[float, ...]) -> Singularit
     return Singularities(abs(rho), abs(e), math.asin(min(1.0, abs(math.sin(q5)))))
 
 
+# How near a singularity a Cartesian path may come (checked by the trajectory generator
+# before a motion starts, thesis 2.2.1).
+SHOULDER_MIN_M: Final = 0.05  # closest approach of the wrist centre to the shoulder singularity
+ELBOW_MIN_M: Final = 0.05  # ... to the elbow singularity (arm stretched or folded)
+WRIST_MIN_DEG: Final = 5.0  # closest |θ5| to the wrist singularity
+_WRIST_MIN_RAD: Final = math.radians(WRIST_MIN_DEG)
+
+
+def singular(q: FloatArray | list[float] | tuple[float, ...]) -> str | None:
+    """Why joint angles ``q`` are too near a singularity for a Cartesian path, or None.
+
+    Inside the cycle: nothing allocated unless it answers (then the motion is refused).
+    """
+    sing = singularities(q)
+    if sing.shoulder >= SHOULDER_MIN_M and sing.elbow >= ELBOW_MIN_M:
+        if sing.wrist >= _WRIST_MIN_RAD:
+            return None
+        return (
+            f"comes within {math.degrees(sing.wrist):.1f}° of the wrist singularity (joint 5 "
+            f"at {math.degrees(float(q[4])):.1f}°; limit {WRIST_MIN_DEG:g}°)"
+        )
+    wc = "(" + ", ".join(f"{v:.3f}" for v in fkine(q)[:3, 3]) + ") m"
+    if sing.shoulder < SHOULDER_MIN_M:
+        return (
+            f"comes within {sing.shoulder * 100:.1f} cm of the shoulder singularity "
+            f"(limit {SHOULDER_MIN_M * 100:g} cm): wrist centre at {wc} in its base frame"
+        )
+    return (
+        f"comes within {sing.elbow * 100:.1f} cm of the elbow singularity (arm "
+        f"stretched; limit {ELBOW_MIN_M * 100:g} cm): wrist centre at {wc} in its "
+        f"base frame"
+    )
+
+
+class PumaKinematics:
+    """The PUMA 560's kinematics as a robot type declares it (``robots.Kinematics``)."""
+
+    configs: Final = CONFIGS
+    fkine = staticmethod(fkine)
+    config_of = staticmethod(config_of)
+    parse_config = staticmethod(Config.from_string)
+    singular = staticmethod(singular)
+
+    @staticmethod
+    def ikine(
+        t6: FloatArray,
+        config: Config | str,
+        q_ref: FloatArray | None = None,
+        out: FloatArray | None = None,
+        redundancy: float | None = None,
+    ) -> FloatArray:
+        """``ikine`` (the PUMA is not redundant: ``redundancy`` must be None)."""
+        if redundancy is not None:
+            raise KinematicsError("ikine: the PUMA 560 has no redundancy parameter")
+        return ikine(t6, config, q_ref, out)
+
+
+KINEMATICS: Final = PumaKinematics()
+
+
 __all__ = [
     "CONFIGS",
+    "KINEMATICS",
     "REACH_MAX",
     "REACH_MIN",
     "STRETCH_Q3",
@@ -438,6 +500,7 @@ __all__ = [
     "config_of",
     "fkine",
     "ikine",
+    "singular",
     "singularities",
     "wrist_centre",
 ]
