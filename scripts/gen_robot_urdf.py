@@ -1,7 +1,7 @@
-"""Generate ``config/ur5.urdf`` from its robot type's facts.
+"""Generate ``config/ur5.urdf`` and ``config/panda.urdf`` from their robot types' facts.
 
-    .venv/bin/python scripts/gen_robot_urdf.py                 # (re)write all
-    .venv/bin/python scripts/gen_robot_urdf.py ur5             # one of them
+    .venv/bin/python scripts/gen_robot_urdf.py                 # (re)write both
+    .venv/bin/python scripts/gen_robot_urdf.py panda           # one of them
     .venv/bin/python scripts/gen_robot_urdf.py --check         # exit 1 if a file is stale
 
 The conventions of ``scripts/gen_puma560_urdf.py``: revolute joints ``j1 .. jN`` about their
@@ -16,6 +16,10 @@ from discarding the visuals.  Rotor inertia is not in the file (neither loader r
   PUMA, URDF link ``i`` is DH frame ``i-1`` turned by θ_i, joint ``j<i>``'s origin is
   ``M_{i-1}``, the flange is ``M_6`` past link 6, and link i's inertial (given in DH frame i)
   sits at ``M_i`` composed with its centre of mass.
+- Panda, modified DH (``T_i = Rx(α_{i-1})·Tx(a_{i-1})·Rz(θ_i)·Tz(d_i)``): URDF link ``i`` is
+  DH frame ``i`` itself, joint ``j<i>``'s origin is ``Rx(α_{i-1})·Tx(a_{i-1})·Tz(d_i)``, the
+  flange is ``Tz(0.107)`` past link 7, and the inertials are in the link frames already.
+
 The output is deterministic (shortest round-trip float text, fixed order), so ``--check``
 compares it byte for byte with the committed file.
 """
@@ -34,6 +38,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from kali_daemons.robots.panda import facts as panda
 from kali_daemons.robots.ur5 import facts as ur5
 
 Vec = tuple[float, float, float]
@@ -204,7 +209,51 @@ def ur5_arm() -> Arm:
     )
 
 
-ARMS = {"ur5": ur5_arm}
+def panda_arm() -> Arm:
+    """The Panda from ``kali_daemons.robots.panda.facts`` (modified DH)."""
+    links = [Link("base_link")]
+    for i in range(panda.NJOINTS):
+        alpha, a, d = float(panda.ALPHA[i]), float(panda.A[i]), float(panda.D[i])
+        ixx, iyy, izz, ixy, ixz, iyz = (float(v) for v in panda.INERTIA[i])
+        links.append(
+            Link(
+                f"link{i + 1}",
+                joint_xyz=_snap((a, -d * math.sin(alpha), d * math.cos(alpha))),
+                joint_rpy=(alpha, 0.0, 0.0),
+                inertial=Inertial(
+                    float(panda.MASS[i]),
+                    _snap(panda.COM[i]),
+                    (0.0, 0.0, 0.0),
+                    (ixx, iyy, izz, ixy, ixz, iyz),
+                ),
+            )
+        )
+    flange_xyz = (0.0, 0.0, panda.D_FLANGE)
+    _add_shapes(
+        links,
+        flange_xyz,
+        housing=[(0.06, 0.12)] * 4 + [(0.05, 0.1)] * 3,
+        bone_radius=[0.06, 0.06, 0.05, 0.05, 0.045, 0.045, 0.04],
+        base_bone=0.07,
+        colours=("panda_white", "panda_dark"),
+    )
+    return Arm(
+        name="panda",
+        comment="Franka Emika Panda, modified DH (Franka's table), Gaz et al. 2019 "
+        "inertials:\n     kali_daemons/robots/panda/facts.py",
+        path=panda.URDF_PATH,
+        links=links,
+        flange_xyz=flange_xyz,
+        flange_rpy=(0.0, 0.0, 0.0),
+        q_min=panda.Q_MIN,
+        q_max=panda.Q_MAX,
+        effort=panda.PEAK_JOINT_TORQUE,
+        velocity=panda.MAX_JOINT_SPEED,
+        materials={"panda_white": (0.92, 0.92, 0.9, 1.0), "panda_dark": (0.2, 0.2, 0.22, 1.0)},
+    )
+
+
+ARMS = {"ur5": ur5_arm, "panda": panda_arm}
 
 
 def _shape_xml(shape: Cylinder, tag: str) -> list[str]:
