@@ -1,0 +1,448 @@
+"""Numerical inverse kinematics on a Pinocchio model, for robot types without a closed form.
+
+``DlsIk`` solves for the joint angles that put one frame of a serial chain of revolute joints
+at a pose, by damped least squares (Levenberg-Marquardt) from a starting guess, so it stays
+on the branch nearest the guess: the trajectory generator starts it from the previous
+set-point, a few millimetres away, and it converges in two or three iterations.  One joint
+may be *held* at a given angle, which removes the redundancy of a 7-joint arm.
+
+Each iteration: Pinocchio's ``forwardKinematics`` (C++, into its ``Data``) gives the joint
+frames; the flange pose, the pose error and the geometric Jacobian are then computed in Python
+floats from views of ``Data.oMi`` (no numpy temporaries), and the damped normal equations
+(J·Jᵀ + λ²·I)·y = e, Δq = Jᵀ·y are solved by a 6×6 Cholesky factorisation in floats:
+
+- e = (p* − p, log(R*·Rᵀ)): position error and the rotation vector taking the present
+  orientation to the target, both in the base frame, where the Jacobian's columns are
+  (w_j × (p − o_j), w_j) for joint j's axis w_j through o_j;
+- λ² = ``DAMPING`` + |e|² (Yamashita and Fukushima's choice: heavily damped far from the
+  target, Newton's quadratic convergence near it);
+- a step is scaled so no joint moves more than ``MAX_STEP`` rad, and each joint is clamped to
+  its limits after the step, so a pose whose solution lies beyond a limit ends with an error
+  left and is refused, naming the joints on their limits.
+
+It converges when the position error is below ``tol_m`` and the rotation error below
+``tol_rad``, and gives up after ``max_iter`` iterations.  ``solve`` with ``out`` allocates
+nothing numpy on the success path (inside the cycle); building the solver loads nothing but
+allocates (outside the cycle).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Final
+
+import numpy as np
+import pinocchio as pin
+
+from ..errors import KinematicsError
+from .profile import FloatArray
+
+DAMPING: Final = 1e-10  # λ² floor, (m or rad)²: keeps the step finite on a singularity
+MAX_STEP: Final = 0.3  # rad, the largest joint change in one iteration
+TASK: Final = 6  # rows of the Jacobian: 3 translation, 3 rotation
+
+_AXES: Final = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
+
+
+def _log3(
+    r00: float,
+    r01: float,
+    r02: float,
+    r10: float,
+    r11: float,
+    r12: float,
+    r20: float,
+    r21: float,
+    r22: float,
+) -> tuple[float, float, float]:
+    """The rotation vector (axis · angle, |angle| ≤ π) of a rotation matrix, in floats."""
+    cos = 0.5 * (r00 + r11 + r22 - 1.0)
+    vx, vy, vz = r21 - r12, r02 - r20, r10 - r01  # 2·sin θ · axis
+    if cos > 1.0 - 1e-6:  # θ < 1.4e-3 rad: sin θ / θ ≈ 1 − θ²/6, θ² ≈ 2(1 − cos)
+        k = 0.5 * (1.0 + (1.0 - cos) / 3.0)
+        return k * vx, k * vy, k * vz
+    if cos > -0.999:
+        theta = math.acos(cos)
+        k = 0.5 * theta / math.sin(theta)
+        return k * vx, k * vy, k * vz
+    # near π: R = cos θ·I + sin θ·[a]× + (1 − cos θ)·a·aᵀ, so a_i² = (R_ii − cos θ)/(1 − cos θ)
+    # and the symmetric part gives the signs of a_i·a_j
+    theta = math.acos(max(-1.0, cos))
+    one_c = 1.0 - cos
+    ax = math.sqrt(max(0.0, (r00 - cos) / one_c))
+    ay = math.sqrt(max(0.0, (r11 - cos) / one_c))
+    az = math.sqrt(max(0.0, (r22 - cos) / one_c))
+    # fix relative signs from the off-diagonal (symmetric) part, largest component positive
+    if ax >= ay and ax >= az:
+        ay = math.copysign(ay, r01 + r10)
+        az = math.copysign(az, r02 + r20)
+    elif ay >= az:
+        ax = math.copysign(ax, r01 + r10)
+        az = math.copysign(az, r12 + r21)
+    else:
+        ax = math.copysign(ax, r02 + r20)
+        ay = math.copysign(ay, r12 + r21)
+    norm = math.sqrt(ax * ax + ay * ay + az * az)
+    # the remaining sign: the skew part (vx, vy, vz) = 2 sin θ · axis, tiny but signed
+    if ax * vx + ay * vy + az * vz < 0.0:
+        norm = -norm
+    return theta * ax / norm, theta * ay / norm, theta * az / norm
+
+
+def cholesky_solve(a: list[float], b: list[float], m: int) -> bool:
+    """Solve a·x = b for a symmetric positive definite ``m``×``m`` ``a`` (row-major list), in
+    place: ``a`` becomes its Cholesky factor, ``b`` the solution.  False if ``a`` is not
+    positive definite (a pivot ≤ 0).  Floats only: no allocation but loop iterators.
+    """
+    for i in range(m):
+        row = i * m
+        for j in range(i + 1):
+            s = a[row + j]
+            col = j * m
+            for k in range(j):
+                s -= a[row + k] * a[col + k]
+            if i == j:
+                if s <= 0.0:
+                    return False
+                a[row + i] = math.sqrt(s)
+            else:
+                a[row + j] = s / a[col + j]
+    for i in range(m):
+        s = b[i]
+        row = i * m
+        for k in range(i):
+            s -= a[row + k] * b[k]
+        b[i] = s / a[row + i]
+    for i in range(m - 1, -1, -1):
+        s = b[i]
+        for k in range(i + 1, m):
+            s -= a[k * m + i] * b[k]
+        b[i] = s / a[i * m + i]
+    return True
+
+
+class DlsIk:
+    """Damped-least-squares inverse kinematics of frame ``tip`` of ``model`` (see the module).
+
+    ``model``: a Pinocchio model whose joints are all revolute about their x, y or z axis
+    (URDF revolute joints; Kali's generated URDFs turn about z), one configuration entry each.
+    ``held``: the index of the joint held at a given angle (the redundancy parameter), or
+    None.  ``name`` prefixes error messages.  Not thread-safe: one solver per process.
+    """
+
+    def __init__(
+        self,
+        model: pin.Model,
+        tip: str,
+        q_min: FloatArray,
+        q_max: FloatArray,
+        *,
+        name: str,
+        held: int | None = None,
+        tol_m: float = 1e-11,
+        tol_rad: float = 1e-11,
+        max_iter: int = 60,
+    ) -> None:
+        n = model.nq
+        if model.nv != n or len(q_min) != n or len(q_max) != n:
+            raise KinematicsError(
+                f"{name}: the model has nq = {model.nq}, nv = {model.nv}, limits for "
+                f"{len(q_min)}/{len(q_max)} joints: expected one angle per joint"
+            )
+        if not model.existFrame(tip):
+            raise KinematicsError(f"{name}: the model has no frame {tip!r}")
+        if held is not None and not 0 <= held < n:
+            raise KinematicsError(f"{name}: held joint index {held} not in 0..{n - 1}")
+        self.name = name
+        self.n = n
+        self.held = held
+        self.tol_m = tol_m
+        self.tol_rad = tol_rad
+        self.max_iter = max_iter
+        self.lo = [float(v) for v in q_min]
+        self.hi = [float(v) for v in q_max]
+        self.model = model
+        self.data = model.createData()
+        frame = model.frames[model.getFrameId(tip)]
+        chain = list(model.supports[frame.parentJoint])[1:]  # joint ids, base to tip
+        if len(chain) != n:
+            raise KinematicsError(f"{name}: frame {tip!r} is moved by {len(chain)} of {n} joints")
+        self._axis: list[int] = []
+        self._idx: list[int] = []
+        for jid in chain:
+            joint = model.joints[jid]
+            kind = joint.shortname()
+            if kind not in _AXES:
+                raise KinematicsError(
+                    f"{name}: joint {model.names[jid]!r} is a {kind}; DlsIk handles revolute "
+                    f"joints about their x, y or z axis"
+                )
+            self._axis.append(_AXES[kind])
+            self._idx.append(joint.idx_q)
+        # Views into Data: forwardKinematics writes there in place.
+        self._rot = [self.data.oMi[jid].rotation for jid in chain]
+        self._pos = [self.data.oMi[jid].translation for jid in chain]
+        tip_rot, tip_pos = frame.placement.rotation, frame.placement.translation
+        self._tip_r = [float(v) for v in tip_rot.flatten()]
+        self._tip_p = [float(v) for v in tip_pos]
+        # An upper bound on the reach from joint 1's origin: the sum of the link offsets.
+        self.reach = float(
+            sum(np.linalg.norm(model.jointPlacements[jid].translation) for jid in chain[1:])
+            + np.linalg.norm(tip_pos)
+        )
+        self._base = [float(v) for v in model.jointPlacements[chain[0]].translation]
+        # work space
+        self._q = np.zeros(n)  # Pinocchio's input
+        self.qv = [0.0] * n  # the iterate
+        self.jac = [0.0] * (TASK * n)  # column j: jac[6j .. 6j+5]
+        self.pose = [0.0] * 12  # R row-major, then p
+        self._a = [0.0] * (TASK * TASK)
+        self._y = [0.0] * TASK
+        self.iterations = 0  # of the last solve
+
+    # ---------------------------------------------------------------- forward kinematics
+
+    def forward(self, q: list[float], jacobian: bool) -> None:
+        """The tip pose of ``q`` into ``pose`` and, if asked, the Jacobian into ``jac``."""
+        buf = self._q
+        for k in range(self.n):
+            buf[self._idx[k]] = q[k]
+        pin.forwardKinematics(self.model, self.data, buf)
+        r = self._rot[-1]
+        p = self._pos[-1]
+        r00, r01, r02 = r.item(0), r.item(1), r.item(2)
+        r10, r11, r12 = r.item(3), r.item(4), r.item(5)
+        r20, r21, r22 = r.item(6), r.item(7), r.item(8)
+        t = self._tip_r
+        tp = self._tip_p
+        pose = self.pose
+        pose[0] = r00 * t[0] + r01 * t[3] + r02 * t[6]
+        pose[1] = r00 * t[1] + r01 * t[4] + r02 * t[7]
+        pose[2] = r00 * t[2] + r01 * t[5] + r02 * t[8]
+        pose[3] = r10 * t[0] + r11 * t[3] + r12 * t[6]
+        pose[4] = r10 * t[1] + r11 * t[4] + r12 * t[7]
+        pose[5] = r10 * t[2] + r11 * t[5] + r12 * t[8]
+        pose[6] = r20 * t[0] + r21 * t[3] + r22 * t[6]
+        pose[7] = r20 * t[1] + r21 * t[4] + r22 * t[7]
+        pose[8] = r20 * t[2] + r21 * t[5] + r22 * t[8]
+        px = p.item(0) + r00 * tp[0] + r01 * tp[1] + r02 * tp[2]
+        py = p.item(1) + r10 * tp[0] + r11 * tp[1] + r12 * tp[2]
+        pz = p.item(2) + r20 * tp[0] + r21 * tp[1] + r22 * tp[2]
+        pose[9], pose[10], pose[11] = px, py, pz
+        if jacobian:
+            self._jacobian()
+
+    def _jacobian(self) -> None:
+        """The geometric Jacobian of the tip at the joint frames ``forward`` left in Data."""
+        jac, pose = self.jac, self.pose
+        px, py, pz = pose[9], pose[10], pose[11]
+        for j in range(self.n):
+            rj = self._rot[j]
+            c = self._axis[j]
+            wx, wy, wz = rj.item(c), rj.item(3 + c), rj.item(6 + c)
+            oj = self._pos[j]
+            dx, dy, dz = px - oj.item(0), py - oj.item(1), pz - oj.item(2)
+            col = TASK * j
+            jac[col] = wy * dz - wz * dy
+            jac[col + 1] = wz * dx - wx * dz
+            jac[col + 2] = wx * dy - wy * dx
+            jac[col + 3] = wx
+            jac[col + 4] = wy
+            jac[col + 5] = wz
+
+    def fkine(self, q: FloatArray | list[float], out: FloatArray | None = None) -> FloatArray:
+        """The tip pose (4×4) for joint angles ``q``; into ``out`` without allocating."""
+        qv = self.qv
+        for k in range(self.n):
+            qv[k] = float(q[k])
+        self.forward(qv, jacobian=False)
+        if out is None:
+            out = np.empty((4, 4))
+        pose = self.pose
+        out[0, 0], out[0, 1], out[0, 2], out[0, 3] = pose[0], pose[1], pose[2], pose[9]
+        out[1, 0], out[1, 1], out[1, 2], out[1, 3] = pose[3], pose[4], pose[5], pose[10]
+        out[2, 0], out[2, 1], out[2, 2], out[2, 3] = pose[6], pose[7], pose[8], pose[11]
+        out[3, 0] = out[3, 1] = out[3, 2] = 0.0
+        out[3, 3] = 1.0
+        return out
+
+    # ---------------------------------------------------------------- conditioning
+
+    def min_singular_above(self, sigma: float, skip: int | None) -> bool:
+        """Whether the smallest singular value of the Jacobian ``forward`` left (without
+        column ``skip``) is at least ``sigma``: J·Jᵀ − σ²·I positive definite (one Cholesky)."""
+        self._normal(skip, -sigma * sigma)
+        return cholesky_solve(self._a, self._y, TASK)
+
+    def singular_values(self, q: FloatArray | list[float], skip: int | None) -> FloatArray:
+        """The Jacobian's singular values at ``q`` (without column ``skip``); allocates."""
+        qv = [float(v) for v in q]
+        self.forward(qv, jacobian=True)
+        jac = np.array(self.jac).reshape(self.n, TASK).T
+        if skip is not None:
+            jac = np.delete(jac, skip, axis=1)
+        return np.linalg.svd(jac, compute_uv=False)
+
+    def _normal(self, skip: int | None, diag: float) -> None:
+        """``_a`` = J·Jᵀ + diag·I over the joints other than ``skip`` (unrolled: this is
+        most of an iteration's arithmetic)."""
+        jac = self.jac
+        a00 = a10 = a11 = a20 = a21 = a22 = a30 = a31 = a32 = a33 = 0.0
+        a40 = a41 = a42 = a43 = a44 = a50 = a51 = a52 = a53 = a54 = a55 = 0.0
+        for j in range(self.n):
+            if j == skip:
+                continue
+            c = TASK * j
+            j0, j1, j2, j3, j4, j5 = (
+                jac[c],
+                jac[c + 1],
+                jac[c + 2],
+                jac[c + 3],
+                jac[c + 4],
+                jac[c + 5],
+            )
+            a00 += j0 * j0
+            a10 += j1 * j0
+            a11 += j1 * j1
+            a20 += j2 * j0
+            a21 += j2 * j1
+            a22 += j2 * j2
+            a30 += j3 * j0
+            a31 += j3 * j1
+            a32 += j3 * j2
+            a33 += j3 * j3
+            a40 += j4 * j0
+            a41 += j4 * j1
+            a42 += j4 * j2
+            a43 += j4 * j3
+            a44 += j4 * j4
+            a50 += j5 * j0
+            a51 += j5 * j1
+            a52 += j5 * j2
+            a53 += j5 * j3
+            a54 += j5 * j4
+            a55 += j5 * j5
+        a = self._a  # only the lower triangle is read by cholesky_solve
+        a[0], a[6], a[7], a[12], a[13], a[14] = a00 + diag, a10, a11 + diag, a20, a21, a22 + diag
+        a[18], a[19], a[20], a[21] = a30, a31, a32, a33 + diag
+        a[24], a[25], a[26], a[27], a[28] = a40, a41, a42, a43, a44 + diag
+        a[30], a[31], a[32], a[33], a[34], a[35] = a50, a51, a52, a53, a54, a55 + diag
+
+    # ---------------------------------------------------------------- inverse kinematics
+
+    def solve(
+        self,
+        t: FloatArray,
+        q_start: FloatArray | list[float],
+        out: FloatArray | None = None,
+        held_value: float | None = None,
+    ) -> FloatArray:
+        """Joint angles putting the tip at ``t`` (4×4), found from ``q_start``; the held
+        joint at ``held_value`` (default: its value in ``q_start``).  ``KinematicsError``
+        with the numbers when the iteration does not converge within the limits.
+        """
+        n, name = self.n, self.name
+        tr00, tr01, tr02, tpx = t.item(0), t.item(1), t.item(2), t.item(3)
+        tr10, tr11, tr12, tpy = t.item(4), t.item(5), t.item(6), t.item(7)
+        tr20, tr21, tr22, tpz = t.item(8), t.item(9), t.item(10), t.item(11)
+        if not math.isfinite(
+            tr00 + tr01 + tr02 + tpx + tr10 + tr11 + tr12 + tpy + tr20 + tr21 + tr22 + tpz
+        ):
+            raise KinematicsError(f"{name} ikine: T is not finite: {t.tolist()}")
+        bx, by, bz = self._base
+        dist = math.sqrt((tpx - bx) ** 2 + (tpy - by) ** 2 + (tpz - bz) ** 2)
+        if dist > self.reach:
+            raise KinematicsError(
+                f"{name} ikine: pose out of reach: the flange at ({tpx:.4f}, {tpy:.4f}, "
+                f"{tpz:.4f}) m is {dist:.4f} m from joint 1's origin, beyond the "
+                f"{self.reach:.4f} m the links add up to"
+            )
+        q = self.qv
+        lo, hi, held = self.lo, self.hi, self.held
+        for k in range(n):
+            q[k] = min(max(float(q_start[k]), lo[k]), hi[k])
+        if held is not None and held_value is not None:
+            if not lo[held] <= held_value <= hi[held]:
+                raise KinematicsError(
+                    f"{name} ikine: joint {held + 1} held at {held_value:.4f} rad, outside its "
+                    f"limits {lo[held]:.4f} .. {hi[held]:.4f} rad"
+                )
+            q[held] = held_value
+        pose, jac, a, y = self.pose, self.jac, self._a, self._y
+        err_p = err_r = math.inf
+        for it in range(self.max_iter + 1):
+            self.forward(q, jacobian=False)
+            ex, ey, ez = tpx - pose[9], tpy - pose[10], tpz - pose[11]
+            # R*·Rᵀ
+            r0, r1, r2, r3, r4, r5, r6, r7, r8 = (
+                pose[0],
+                pose[1],
+                pose[2],
+                pose[3],
+                pose[4],
+                pose[5],
+                pose[6],
+                pose[7],
+                pose[8],
+            )
+            wx, wy, wz = _log3(
+                tr00 * r0 + tr01 * r1 + tr02 * r2,
+                tr00 * r3 + tr01 * r4 + tr02 * r5,
+                tr00 * r6 + tr01 * r7 + tr02 * r8,
+                tr10 * r0 + tr11 * r1 + tr12 * r2,
+                tr10 * r3 + tr11 * r4 + tr12 * r5,
+                tr10 * r6 + tr11 * r7 + tr12 * r8,
+                tr20 * r0 + tr21 * r1 + tr22 * r2,
+                tr20 * r3 + tr21 * r4 + tr22 * r5,
+                tr20 * r6 + tr21 * r7 + tr22 * r8,
+            )
+            err_p = math.sqrt(ex * ex + ey * ey + ez * ez)
+            err_r = math.sqrt(wx * wx + wy * wy + wz * wz)
+            if err_p <= self.tol_m and err_r <= self.tol_rad:
+                self.iterations = it
+                if out is None:
+                    out = np.empty(n)
+                for k in range(n):
+                    out[k] = q[k]
+                return out
+            if it == self.max_iter:
+                break
+            self._jacobian()
+            self._normal(held, DAMPING + err_p * err_p + err_r * err_r)
+            y[0], y[1], y[2], y[3], y[4], y[5] = ex, ey, ez, wx, wy, wz
+            if not cholesky_solve(a, y, TASK):  # cannot happen with λ² > 0; be explicit
+                break
+            y0, y1, y2, y3, y4, y5 = y[0], y[1], y[2], y[3], y[4], y[5]
+            biggest = 0.0
+            for j in range(n):
+                if j != held:
+                    c = TASK * j
+                    d = (
+                        jac[c] * y0
+                        + jac[c + 1] * y1
+                        + jac[c + 2] * y2
+                        + jac[c + 3] * y3
+                        + jac[c + 4] * y4
+                        + jac[c + 5] * y5
+                    )
+                    a[j] = d  # reuse: the step, joint by joint
+                    if abs(d) > biggest:
+                        biggest = abs(d)
+            scale = MAX_STEP / biggest if biggest > MAX_STEP else 1.0
+            for j in range(n):
+                if j != held:
+                    v = q[j] + scale * a[j]
+                    q[j] = lo[j] if v < lo[j] else hi[j] if v > hi[j] else v
+        self.iterations = self.max_iter
+        at_limit = [
+            f"joint {k + 1} at {q[k]:.4f} rad (limits {lo[k]:.4f} .. {hi[k]:.4f})"
+            for k in range(n)
+            if k != held and (q[k] <= lo[k] or q[k] >= hi[k])
+        ]
+        held_text = "" if held is None else f" with joint {held + 1} held at {q[held]:.4f} rad"
+        raise KinematicsError(
+            f"{name} ikine: no solution{held_text} within {self.max_iter} iterations: "
+            f"{err_p * 1000:.3f} mm and {math.degrees(err_r):.4f}° left"
+            + (f"; on their limits: {'; '.join(at_limit)}" if at_limit else "")
+            + " (out of reach or out of the joint limits from this start)"
+        )

@@ -1,0 +1,196 @@
+"""The UR5's facts as typed constants: kinematics, link dynamics, limits, drives, servo gains.
+
+Sources, number by number:
+
+- Kinematics (standard DH) and link masses and centres of mass: Universal Robots, "DH
+  parameters for calculations of kinematics and dynamics" (the UR5 / CB3 table), the values
+  robotics-toolbox-python 1.5 carries in ``roboticstoolbox/models/DH/UR5.py`` except for
+  three transcription slips there, where UR's table (and ur_description, and the UR5 manual's
+  DH table "UR5 serie 3") is followed: d1 = 0.089159 m (the toolbox: 0.089459), link 6's
+  mass 0.1879 kg (the toolbox: 0.1897) and link 5's centre of mass y = +0.0018 m (the
+  toolbox: -0.0018).  ``tests/robots/test_ur5.py`` checks that these are the only
+  differences.
+- Inertia tensors: UR does not publish them for the UR5 (its page says they are negligible at
+  this size) and the toolbox has none.  Each link is taken as a uniform solid cylinder of the
+  link's mass about its centre of mass, radius 0.06 m (0.0375 m for the flange link), the
+  axis and length given in ``CYLINDERS``: the kind of approximation ur_description makes for
+  its inertials (its shoulder link's, 0.0103 kg·m² across, is this link 1).  It is an
+  approximation, stated as such; gravity torques depend only on the published masses and
+  centres of mass.
+- Joint limits: ±360° on the real arm; Kali uses ±2π for joints 1, 2, 4, 5, 6 and ±π for
+  joint 3, as ur_description does since the elbow cannot pass through itself (at ±π the
+  forearm lies on the upper arm).  ±2π leaves two 2π-equivalents for most angles, so the
+  inverse kinematics can keep a wrist joint's turn count near the current joints.
+- Speed limits: the UR5 data sheet's 180°/s on every joint, derated by half, as the PUMA's
+  are set well inside what its drives do: ``QD_MAX`` = 90°/s.  ``QDD_MAX`` = 2 s⁻¹ · QD_MAX
+  (full speed in 0.5 s), the PUMA's ratio.
+- Drives: plausible equivalents, not UR's (see the package docstring).
+
+Conventions.  Standard DH, ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)``; DH frame ``i`` is fixed
+to link ``i``; centres of mass and inertias are in DH frame ``i``.  Arrays are indexed by
+joint, 0..5 for joints 1..6.  ``G`` is the signed gear ratio (motor angle = G · joint angle).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+
+from ..profile import FloatArray, IntArray, read_only
+
+NJOINTS: Final = 6
+GRAVITY: Final = 9.81  # m/s², as the PUMA's and the toolbox's
+URDF_PATH: Final = Path(__file__).resolve().parents[3] / "config" / "ur5.urdf"
+
+# --------------------------------------------------------------------------------------------
+# Kinematics: standard DH (UR's table, UR5)
+
+D: Final[FloatArray] = read_only([0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823])  # m
+A: Final[FloatArray] = read_only([0.0, -0.425, -0.39225, 0.0, 0.0, 0.0])  # m
+ALPHA: Final[FloatArray] = read_only([math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0])
+
+Q_MIN: Final[FloatArray] = read_only([-2 * math.pi, -2 * math.pi, -math.pi] + [-2 * math.pi] * 3)
+Q_MAX: Final[FloatArray] = read_only([2 * math.pi, 2 * math.pi, math.pi] + [2 * math.pi] * 3)
+QD_MAX: Final[FloatArray] = read_only(np.radians([90.0] * NJOINTS))  # rad/s
+QDD_MAX: Final[FloatArray] = read_only(np.radians([180.0] * NJOINTS))  # rad/s²
+
+# Named poses (rad).  QZ is the stretched zero pose (elbow and wrist singular); Q_HOME is the
+# usual UR home: upper arm up, forearm level, wrist down (shoulder 0.487 m, elbow 0.392 m and
+# wrist 90° from their singularities; branch 'lun').
+QZ: Final[FloatArray] = read_only([0.0] * NJOINTS)
+Q_HOME: Final[FloatArray] = read_only(np.radians([0.0, -90.0, 90.0, -90.0, -90.0, 0.0]))
+
+# --------------------------------------------------------------------------------------------
+# Link dynamics: UR's masses and centres of mass (m, in DH frame i)
+
+MASS: Final[FloatArray] = read_only([3.7, 8.393, 2.33, 1.219, 1.219, 0.1879])  # kg
+COM: Final[FloatArray] = read_only(
+    [
+        [0.0, -0.02561, 0.00193],
+        [0.2125, 0.0, 0.11336],
+        [0.15, 0.0, 0.0265],
+        [0.0, -0.0018, 0.01634],
+        [0.0, 0.0018, 0.01634],
+        [0.0, 0.0, -0.001159],
+    ]
+)
+
+# The cylinder each link is approximated by: (axis of DH frame i it lies along, radius m,
+# length m).  Link 1 is the shoulder housing around joint 2's axis, links 2 and 3 the upper
+# arm and forearm tubes along their DH x axes (|a2|, |a3| long), links 4 and 5 the wrist
+# housings around the next joint's axis, link 6 the flange disc.
+CYLINDERS: Final = (
+    ("z", 0.06, 0.15),
+    ("x", 0.06, 0.425),
+    ("x", 0.06, 0.39225),
+    ("z", 0.06, 0.12),
+    ("z", 0.06, 0.12),
+    ("z", 0.0375, 0.0345),
+)
+
+
+def _cylinder_inertia(mass: float, axis: str, radius: float, length: float) -> list[float]:
+    """Principal moments (Ixx, Iyy, Izz) of a uniform solid cylinder about its centre."""
+    along = 0.5 * mass * radius**2
+    across = mass * (3.0 * radius**2 + length**2) / 12.0
+    return [along if axis == name else across for name in "xyz"]
+
+
+INERTIA: Final[FloatArray] = read_only(  # kg·m², principal moments about the COM, DH frame i
+    [_cylinder_inertia(float(m), *c) for m, c in zip(MASS, CYLINDERS, strict=True)]
+)
+
+# --------------------------------------------------------------------------------------------
+# Drives (plausible equivalents on a McGill-style board, see the package docstring).  Joints
+# 1-3 are the UR5's large joints (150 N·m), 4-6 the small ones (28 N·m).
+
+_LARGE, _SMALL = 3, 3
+G: Final[FloatArray] = read_only([101.0] * NJOINTS)  # harmonic drives, 101:1
+KT: Final[FloatArray] = read_only([0.1] * _LARGE + [0.035] * _SMALL)  # N·m/A = V/(rad/s)
+R_ARMATURE: Final[FloatArray] = read_only([0.3] * _LARGE + [1.0] * _SMALL)  # Ω
+MAX_CURRENT: Final[FloatArray] = read_only([15.0] * _LARGE + [8.0] * _SMALL)  # A, peak
+JM: Final[FloatArray] = read_only([4.0e-5] * _LARGE + [6.0e-6] * _SMALL)  # kg·m², rotor
+COUNTS_PER_MOTOR_REV: Final[IntArray] = read_only([1000] * NJOINTS, np.int64)  # 250 lines × 4
+# Joint side friction of the harmonic drive and motor, symmetric: about 4 % of the peak
+# torque as Coulomb friction, viscous 2 and 0.4 N·m·s/rad.
+VISCOUS: Final[FloatArray] = read_only([2.0] * _LARGE + [0.4] * _SMALL)  # N·m·s/rad
+COULOMB_POS: Final[FloatArray] = read_only([6.0] * _LARGE + [1.2] * _SMALL)  # N·m
+COULOMB_NEG: Final[FloatArray] = read_only(-COULOMB_POS)  # N·m
+# Brake holding torque at the joint: the joint's peak torque, 2.7 times the largest gravity
+# torque of joint 2 (GRAVITY_MAX) and far above the wrist's.
+BRAKE_TORQUE: Final[FloatArray] = read_only([150.0] * _LARGE + [28.0] * _SMALL)  # N·m
+
+AMP_GAIN_A_PER_V: Final = 2.5  # A per V of DAC output, the PUMA's amplifier scale
+AMP_BANDWIDTH_HZ: Final = 500.0  # current loop, as the PUMA's
+BUS_VOLTAGE: Final = 48.0  # V, the UR controller's DC bus
+DAC_VOLTS: Final = 10.0  # ±10 V, 12 bits: 25 A of command range covers the 15 A peak
+
+ARMATURE: Final[FloatArray] = read_only(JM * G**2)  # kg·m², reflected rotor inertia
+PEAK_JOINT_TORQUE: Final[FloatArray] = read_only(MAX_CURRENT * KT * np.abs(G))  # N·m
+MAX_JOINT_SPEED: Final[FloatArray] = read_only(BUS_VOLTAGE / KT / np.abs(G))  # rad/s
+COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
+    COUNTS_PER_MOTOR_REV * np.abs(G) / (2 * math.pi)
+)
+
+# --------------------------------------------------------------------------------------------
+# Default servo gains, by the PUMA's rule (kali_daemons/puma560.py):
+#
+#   kp = J·ωn², kv = 2ζ·J·ωn − viscous, ki = 20 s⁻¹ · kp,
+#   integration_reset = 1.2 · (the largest gravity torque + Coulomb friction), rounded up to
+#       a whole N·m: what the integral must hold, with a margin (the PUMA's has 15-20 %),
+#   integration_band = max(0.01 rad, 2.5 · integration_reset / kp): the PUMA's band, wider
+#       only where the load needs it,
+#
+# with ζ = 0.7, ωn = 50 rad/s on joints 1-3 and 60 rad/s on 4-6 (the PUMA's values), and J
+# the joint-side inertia at Q_HOME including the armature: the diagonal of Pinocchio's crba
+# on config/ur5.urdf with ARMATURE set.  GRAVITY_MAX is the largest gravity torque over the
+# joint ranges (joint 2 with the arm stretched level).  tests/robots/test_ur5.py recomputes
+# both tables from the model.
+
+J_HOME: Final[FloatArray] = read_only([1.282, 2.497, 1.118, 0.0805, 0.0654, 0.0613])  # kg·m²
+GRAVITY_MAX: Final[FloatArray] = read_only([0.0, 55.25, 17.15, 1.52, 0.34, 0.0])  # N·m
+WN: Final[FloatArray] = read_only([50.0] * _LARGE + [60.0] * _SMALL)  # rad/s
+ZETA: Final = 0.7
+
+
+def servo_gains(
+    j_home: FloatArray,
+    wn: FloatArray,
+    zeta: float,
+    viscous: FloatArray,
+    hold: FloatArray,
+) -> tuple[tuple[dict[str, float], ...], tuple[dict[str, float], ...]]:
+    """The built-in PID's and PD's init data per joint by the rule above; ``hold`` is the
+    largest gravity plus Coulomb friction torque per joint (N·m)."""
+    pid: list[dict[str, float]] = []
+    for j, inertia in enumerate(j_home):
+        kp = float(inertia * wn[j] ** 2)
+        reset = float(max(1.0, math.ceil(1.2 * hold[j])))
+        pid.append(
+            {
+                "kp": kp,  # N·m/rad
+                "ki": 20.0 * kp,  # N·m/(rad·s)
+                "kv": float(2.0 * zeta * inertia * wn[j] - viscous[j]),  # N·m·s/rad
+                "fe": 50.0,  # Hz, error filter (thesis figure 3.4)
+                "fv": 25.0,  # Hz, velocity filter
+                "integration_band": max(0.01, 2.5 * reset / kp),  # rad
+                "integration_reset": reset,  # N·m
+                "bias_tau": 0.5,  # s, hand-over bias
+            }
+        )
+    pd = [{"kp": g["kp"], "kv": g["kv"], "fv": g["fv"], "bias_tau": 0.5} for g in pid]
+    return tuple(pid), tuple(pd)
+
+
+PID_DEFAULTS, PD_DEFAULTS = servo_gains(
+    J_HOME, WN, ZETA, VISCOUS, GRAVITY_MAX + np.maximum(COULOMB_POS, -COULOMB_NEG)
+)
+
+# The arm's calibration sheet: each joint's index-pulse motor angle, rad in [0, 2π), drawn
+# once with numpy.random.default_rng(5).uniform(0, 2π, 6) and written down here.
+INDEX_PHASES: Final[FloatArray] = read_only(
+    [5.057983, 5.076442, 3.237886, 1.795743, 0.338857, 2.408778]
+)
