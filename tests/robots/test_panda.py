@@ -147,7 +147,7 @@ def test_robot_type_is_complete() -> None:
 
 
 def test_gains_follow_the_rule_on_the_model(pin_model: pin.Model) -> None:
-    from kali_daemons import puma560
+    from kali_daemons.robots import puma560
 
     data = pin_model.createData()
     np.testing.assert_allclose(

@@ -143,7 +143,7 @@ def test_robot_type_is_complete() -> None:
 def test_gains_follow_the_rule_on_the_model(pin_model: pin.Model) -> None:
     """J at home (crba with armature) and the gravity maxima are what the model gives; the
     gains are the PUMA's rule on them, with the PUMA's keys."""
-    from kali_daemons import puma560
+    from kali_daemons.robots import puma560
 
     data = pin_model.createData()
     np.testing.assert_allclose(
