@@ -21,6 +21,7 @@ Conventions every type keeps:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Protocol
@@ -124,6 +125,39 @@ class Kinematics(Protocol):
     def singular(self, q: FloatArray) -> str | None:
         """Why ``q`` is too near a singularity for a Cartesian path, or None if it is not."""
         ...
+
+
+def servo_gains(
+    j_home: FloatArray,
+    wn: FloatArray,
+    zeta: float,
+    viscous: FloatArray,
+    hold: FloatArray,
+) -> tuple[tuple[dict[str, float], ...], tuple[dict[str, float], ...]]:
+    """The built-in PID's and PD's init data per joint, by the rule the PUMA's gains were
+    tuned with (``robots/puma560/facts.py``): kp = J·ωn², kv = 2ζ·J·ωn − viscous,
+    ki = 20 s⁻¹ · kp, integration_reset = 1.2 · ``hold`` rounded up to a whole N·m,
+    integration_band = max(0.01 rad, 2.5 · reset / kp).  ``j_home``: the joint-side inertia
+    at the home pose with armature; ``hold``: the largest gravity plus Coulomb friction
+    torque per joint (N·m).  A type without a tuning of its own uses it."""
+    pid: list[dict[str, float]] = []
+    for j, inertia in enumerate(j_home):
+        kp = float(inertia * wn[j] ** 2)
+        reset = float(max(1.0, math.ceil(1.2 * hold[j])))
+        pid.append(
+            {
+                "kp": kp,  # N·m/rad
+                "ki": 20.0 * kp,  # N·m/(rad·s)
+                "kv": float(2.0 * zeta * inertia * wn[j] - viscous[j]),  # N·m·s/rad
+                "fe": 50.0,  # Hz, error filter (thesis figure 3.4)
+                "fv": 25.0,  # Hz, velocity filter
+                "integration_band": max(0.01, 2.5 * reset / kp),  # rad
+                "integration_reset": reset,  # N·m
+                "bias_tau": 0.5,  # s, hand-over bias
+            }
+        )
+    pd = [{"kp": g["kp"], "kv": g["kv"], "fv": g["fv"], "bias_tau": 0.5} for g in pid]
+    return tuple(pid), tuple(pd)
 
 
 @dataclass(frozen=True)

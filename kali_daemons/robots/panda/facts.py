@@ -38,7 +38,7 @@ from typing import Final
 
 import numpy as np
 
-from ..profile import FloatArray, IntArray, read_only
+from ..profile import FloatArray, IntArray, read_only, servo_gains
 
 NJOINTS: Final = 7
 GRAVITY: Final = 9.81  # m/s²
@@ -153,35 +153,6 @@ GRAVITY_MAX: Final[FloatArray] = read_only(  # N·m
 )
 WN: Final[FloatArray] = read_only([50.0] * _LARGE + [60.0] * _SMALL)  # rad/s
 ZETA: Final = 0.7
-
-
-def servo_gains(
-    j_home: FloatArray,
-    wn: FloatArray,
-    zeta: float,
-    viscous: FloatArray,
-    hold: FloatArray,
-) -> tuple[tuple[dict[str, float], ...], tuple[dict[str, float], ...]]:
-    """The built-in PID's and PD's init data per joint by the rule above; ``hold`` is the
-    largest gravity plus Coulomb friction torque per joint (N·m)."""
-    pid: list[dict[str, float]] = []
-    for j, inertia in enumerate(j_home):
-        kp = float(inertia * wn[j] ** 2)
-        reset = float(max(1.0, math.ceil(1.2 * hold[j])))
-        pid.append(
-            {
-                "kp": kp,  # N·m/rad
-                "ki": 20.0 * kp,  # N·m/(rad·s)
-                "kv": float(2.0 * zeta * inertia * wn[j] - viscous[j]),  # N·m·s/rad
-                "fe": 50.0,  # Hz, error filter (thesis figure 3.4)
-                "fv": 25.0,  # Hz, velocity filter
-                "integration_band": max(0.01, 2.5 * reset / kp),  # rad
-                "integration_reset": reset,  # N·m
-                "bias_tau": 0.5,  # s, hand-over bias
-            }
-        )
-    pd = [{"kp": g["kp"], "kv": g["kv"], "fv": g["fv"], "bias_tau": 0.5} for g in pid]
-    return tuple(pid), tuple(pd)
 
 
 PID_DEFAULTS, PD_DEFAULTS = servo_gains(
