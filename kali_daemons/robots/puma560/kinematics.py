@@ -71,6 +71,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ...errors import KinematicsError
+from ..closed_form import check_rigid, into_limits
 from .facts import ALPHA, NJOINTS, Q_MAX, Q_MIN, A, D
 
 FloatArray = npt.NDArray[np.float64]
@@ -92,14 +93,11 @@ STRETCH_Q3: Final = _PHI - math.pi / 2  # rad, θ3 of the stretched arm (elbow s
 
 _LO: Final = tuple(float(v) for v in Q_MIN)
 _HI: Final = tuple(float(v) for v in Q_MAX)
-_TWO_PI: Final = 2.0 * math.pi
 
 # Tolerances.  A pose computed by fkine exactly at a boundary may miss it by rounding; these
 # accept it (and are far below anything a motion would notice).
 REACH_TOL_M2: Final = 1e-12  # m², on ρ² = x² + y² − d3² and on L² − (elbow term)²
-LIMIT_TOL: Final = 1e-10  # rad: a joint this far outside a limit is put on it
 WRIST_SINGULAR_RAD: Final = 1e-10  # |θ5| below this is θ5 = 0 and θ4 is taken from q_ref
-RIGID_TOL: Final = 1e-6  # |RᵀR − I| entries, and the bottom row
 
 
 def _check_geometry() -> None:
@@ -250,47 +248,6 @@ def _deg(x: float) -> str:
     return f"{math.degrees(x):.2f}°"
 
 
-def _into_limits(theta: float, j: int, ref: float) -> float:
-    """The 2π-equivalent of ``theta`` within joint ``j``'s limits nearest ``ref``, or NaN."""
-    lo, hi = _LO[j], _HI[j]
-    t = theta + _TWO_PI * round((ref - theta) / _TWO_PI)
-    if t > hi + LIMIT_TOL:
-        t -= _TWO_PI * math.ceil((t - hi - LIMIT_TOL) / _TWO_PI)
-    elif t < lo - LIMIT_TOL:
-        t += _TWO_PI * math.ceil((lo - LIMIT_TOL - t) / _TWO_PI)
-    if t > hi + LIMIT_TOL or t < lo - LIMIT_TOL:
-        return math.nan
-    return hi if t > hi else lo if t < lo else t
-
-
-def _check_rigid(rows: list[list[float]]) -> None:
-    """Refuse a non-finite or non-rigid transform, naming what is wrong."""
-    flat = [v for row in rows for v in row]
-    if not all(map(math.isfinite, flat)):
-        bad = [f"T[{k // 4}, {k % 4}] = {v}" for k, v in enumerate(flat) if not math.isfinite(v)]
-        raise KinematicsError(f"ikine: T is not finite: {', '.join(bad)}")
-    (nx, ox, ax, _), (ny, oy, ay, _), (nz, oz, az, _), bottom = rows
-    gram = (
-        nx * nx + ny * ny + nz * nz - 1.0,
-        ox * ox + oy * oy + oz * oz - 1.0,
-        ax * ax + ay * ay + az * az - 1.0,
-        nx * ox + ny * oy + nz * oz,
-        nx * ax + ny * ay + nz * az,
-        ox * ax + oy * ay + oz * az,
-    )
-    worst = max(map(abs, gram))
-    if worst > RIGID_TOL:
-        raise KinematicsError(
-            f"ikine: the rotation of T is not orthonormal: max |RᵀR − I| = {worst:.3g} "
-            f"> {RIGID_TOL:g}"
-        )
-    det = ax * (ny * oz - nz * oy) + ay * (nz * ox - nx * oz) + az * (nx * oy - ny * ox)
-    if det < 0.0:
-        raise KinematicsError(f"ikine: the rotation of T is a reflection (det = {det:.6g})")
-    if max(abs(bottom[0]), abs(bottom[1]), abs(bottom[2]), abs(bottom[3] - 1.0)) > RIGID_TOL:
-        raise KinematicsError(f"ikine: the bottom row of T is {bottom}, not [0, 0, 0, 1]")
-
-
 def ikine(
     t6: FloatArray,
     config: Config | str,
@@ -320,7 +277,7 @@ def ikine(
             f"ikine: T must be a 4×4 array, got {type(t6).__name__} {getattr(t6, 'shape', '')}"
         )
     rows = t6.tolist()
-    _check_rigid(rows)
+    check_rigid(rows)
     (nx, ox, ax, px), (ny, oy, ay, py), (nz, oz, az, pz), _ = rows
     ref = (0.0,) * NJOINTS if q_ref is None else _floats(q_ref)
 
@@ -381,7 +338,7 @@ def ikine(
             q4, q6 = math.atan2(m12, m02), math.atan2(m21, -m20)
 
     raw = (q1, q2, q3, q4, q5, q6)
-    q = tuple(_into_limits(raw[j], j, ref[j]) for j in range(NJOINTS))
+    q = tuple(into_limits(raw[j], _LO[j], _HI[j], ref[j]) for j in range(NJOINTS))
     if any(map(math.isnan, q)):
         bad = [
             f"joint {j + 1} = {_deg(raw[j])} is outside its limits {_deg(_LO[j])} .. {_deg(_HI[j])}"

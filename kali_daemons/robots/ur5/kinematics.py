@@ -53,6 +53,7 @@ from typing import Final
 import numpy as np
 
 from ...errors import KinematicsError
+from ..closed_form import check_rigid, into_limits
 from ..profile import FloatArray
 from . import facts
 
@@ -65,16 +66,13 @@ _D6: Final = float(facts.D[5])
 _LO: Final = tuple(float(v) for v in facts.Q_MIN)
 _HI: Final = tuple(float(v) for v in facts.Q_MAX)
 _N: Final = facts.NJOINTS
-_TWO_PI: Final = 2.0 * math.pi
 
 REACH_MIN: Final = abs(abs(_A2) - abs(_A3))  # m, shoulder to joint 4's axis in the arm plane
 REACH_MAX: Final = abs(_A2) + abs(_A3)  # m
 
 # Tolerances, as the PUMA's: a pose exactly on a boundary may miss it by rounding.
 REACH_TOL: Final = 1e-12  # on s² (m²) and on |cos θ3| − 1
-LIMIT_TOL: Final = 1e-10  # rad: a joint this far outside a limit is put on it
 WRIST_SINGULAR: Final = 1e-10  # |sin θ5| below this is θ5 = 0 and θ6 is taken from q_ref
-RIGID_TOL: Final = 1e-6  # |RᵀR − I| entries, and the bottom row
 
 # Singularity thresholds for Cartesian paths: the PUMA's (kali_daemons/tg/cartesian.py).
 SHOULDER_MIN_M: Final = 0.05
@@ -219,67 +217,15 @@ def _deg(x: float) -> str:
     return f"{math.degrees(x):.2f}°"
 
 
-def _into_limits(theta: float, j: int, ref: float) -> float:
-    """The 2π-equivalent of ``theta`` within joint ``j``'s limits nearest ``ref``, or NaN."""
-    lo, hi = _LO[j], _HI[j]
-    t = theta + _TWO_PI * round((ref - theta) / _TWO_PI)
-    if t > hi + LIMIT_TOL:
-        t -= _TWO_PI * math.ceil((t - hi - LIMIT_TOL) / _TWO_PI)
-    elif t < lo - LIMIT_TOL:
-        t += _TWO_PI * math.ceil((lo - LIMIT_TOL - t) / _TWO_PI)
-    if t > hi + LIMIT_TOL or t < lo - LIMIT_TOL:
-        return math.nan
-    return hi if t > hi else lo if t < lo else t
-
-
 def _pose(t6: FloatArray) -> tuple[float, ...]:
     """The top three rows of ``t6`` as 12 floats, refused unless finite and rigid."""
     if not isinstance(t6, np.ndarray) or t6.shape != (4, 4):
         raise KinematicsError(
             f"ur5 ikine: T must be a 4×4 array, got {type(t6).__name__} {getattr(t6, 'shape', '')}"
         )
-    nx, ox, ax, px = t6.item(0), t6.item(1), t6.item(2), t6.item(3)
-    ny, oy, ay, py = t6.item(4), t6.item(5), t6.item(6), t6.item(7)
-    nz, oz, az, pz = t6.item(8), t6.item(9), t6.item(10), t6.item(11)
-    b0, b1, b2, b3 = t6.item(12), t6.item(13), t6.item(14), t6.item(15)
-    # a NaN or an infinity anywhere makes the sum of squares non-finite
-    if not math.isfinite(
-        nx * nx
-        + ox * ox
-        + ax * ax
-        + px * px
-        + ny * ny
-        + oy * oy
-        + ay * ay
-        + py * py
-        + nz * nz
-        + oz * oz
-        + az * az
-        + pz * pz
-        + b0 * b0
-        + b1 * b1
-        + b2 * b2
-        + b3 * b3
-    ):
-        raise KinematicsError(f"ur5 ikine: T is not finite: {t6.tolist()}")
-    worst = max(
-        abs(nx * nx + ny * ny + nz * nz - 1.0),
-        abs(ox * ox + oy * oy + oz * oz - 1.0),
-        abs(ax * ax + ay * ay + az * az - 1.0),
-        abs(nx * ox + ny * oy + nz * oz),
-        abs(nx * ax + ny * ay + nz * az),
-        abs(ox * ax + oy * ay + oz * az),
-    )
-    if worst > RIGID_TOL:
-        raise KinematicsError(
-            f"ur5 ikine: the rotation of T is not orthonormal: max |RᵀR − I| = {worst:.3g} "
-            f"> {RIGID_TOL:g}"
-        )
-    det = ax * (ny * oz - nz * oy) + ay * (nz * ox - nx * oz) + az * (nx * oy - ny * ox)
-    if det < 0.0:
-        raise KinematicsError(f"ur5 ikine: the rotation of T is a reflection (det = {det:.6g})")
-    if max(abs(b0), abs(b1), abs(b2), abs(b3 - 1.0)) > RIGID_TOL:
-        raise KinematicsError(f"ur5 ikine: the bottom row of T is {[b0, b1, b2, b3]}")
+    rows = t6.tolist()
+    check_rigid(rows, "ur5 ikine")
+    (nx, ox, ax, px), (ny, oy, ay, py), (nz, oz, az, pz), _ = rows
     return nx, ox, ax, px, ny, oy, ay, py, nz, oz, az, pz
 
 
@@ -368,14 +314,14 @@ def ikine(
     q4 = q234 - q2 - q3
 
     r1, r2, r3 = (
-        _into_limits(q1, 0, ref[0]),
-        _into_limits(q2, 1, ref[1]),
-        _into_limits(q3, 2, ref[2]),
+        into_limits(q1, _LO[0], _HI[0], ref[0]),
+        into_limits(q2, _LO[1], _HI[1], ref[1]),
+        into_limits(q3, _LO[2], _HI[2], ref[2]),
     )
     r4, r5, r6 = (
-        _into_limits(q4, 3, ref[3]),
-        _into_limits(q5, 4, ref[4]),
-        _into_limits(q6, 5, ref[5]),
+        into_limits(q4, _LO[3], _HI[3], ref[3]),
+        into_limits(q5, _LO[4], _HI[4], ref[4]),
+        into_limits(q6, _LO[5], _HI[5], ref[5]),
     )
     if math.isnan(r1 + r2 + r3 + r4 + r5 + r6):
         raw = (q1, q2, q3, q4, q5, q6)
