@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from . import flightrec, introspect, launcher
+from . import flightrec, introspect, launcher, layout
 from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
 from .errors import InstanceError, KaliError, MotionError
@@ -613,7 +613,9 @@ def _follow_calibration(
             taken = not int(robots["calib_cmd"][k])
             line = f"{n}: {message}"
             if state == CalibState.SEARCH:
-                joints = " ".join(str(j + 1) for j in range(6) if found >> j & 1) or "none"
+                n_joints = inst.config.robots[k].n_joints
+                joints = " ".join(str(j + 1) for j in range(n_joints) if found >> j & 1)
+                joints = joints or "none"
                 line += f" (found: joints {joints})"
             if taken and shown.get(n) != line:
                 click.echo(line)
@@ -743,7 +745,7 @@ def move(
     arriving together; waits until the arm is there.  Every argument is checked before
     anything is queued.  An arm another program owns is refused, naming it, unless --force
     (which stops that program's motion on it)."""
-    target_deg = _joint_degrees(joints)
+    target_deg = _joint_degrees(joints)  # its count is checked against the arm's below
     speed_f = _number("move", "--speed", speed, 0.0, 1.0, "(0, 1]", MotionError, lo_open=True)
     timeout_s = _number(
         "move", "--timeout", timeout, 0.0, MOVE_TIMEOUT_S, "seconds", MotionError, lo_open=True
@@ -752,6 +754,13 @@ def move(
         if robot not in kali.names:
             raise ServoError(f"move: no robot {robot!r:.40}; robots: {', '.join(kali.names)}")
         arm = kali.robot(robot)
+        n = kali.inst.config.robots[arm.index].n_joints
+        if len(target_deg) != n:
+            model = kali.inst.config.robots[arm.index].model
+            raise MotionError(
+                f"move: --joints {joints!r:.80}: {len(target_deg)} values, expected {n} "
+                f"(robot '{arm.name}' is a {model})"
+            )
         if kali.servo.power_state(arm.name) != PowerState.ON:
             raise ServoError(f"move: robot '{arm.name}' is not powered; kalictl enable {arm.name}")
         owner = kali.owner(arm.index)
@@ -781,11 +790,15 @@ def move(
 
 
 def _joint_degrees(joints: str) -> list[float]:
-    """``--joints``: six finite numbers in degrees; MotionError naming the value if not."""
-    example = "six numbers in degrees, e.g. 0,45,-180,0,45,0"
+    """``--joints``: finite numbers in degrees, one per joint; MotionError naming the value
+    if not (the count is the arm's, checked once the instance is attached)."""
+    example = "one number in degrees per joint, e.g. 0,45,-180,0,45,0"
     values = joints.replace(" ", "").split(",")
-    if len(values) != 6:
-        raise MotionError(f"move: --joints {joints!r:.80}: {len(values)} values, expected 6")
+    if not 1 <= len(values) <= layout.MAX_JOINTS:
+        raise MotionError(
+            f"move: --joints {joints!r:.80}: {len(values)} values, an arm has 1 .. "
+            f"{layout.MAX_JOINTS} joints"
+        )
     out = []
     for j, text in enumerate(values, 1):
         try:
@@ -815,8 +828,8 @@ def servo_list(ctx: click.Context) -> None:
         for k, name in enumerate(client.names):
             r = client.level.robots[k]
             joints = []
-            for j in range(1, 7):
-                s = client.level.slot_structs[6 * k + j - 1]
+            for j in range(1, client.level.map.counts[k] + 1):
+                s = client.level.slot_structs[client.level.map.index(k, j - 1)]
                 mark = "" if s.enabled else " (off)"
                 joints.append(f"{j}:{client.active(name, j)}{mark}")
             state = PowerState(int(r["power"])).name.lower()
@@ -830,7 +843,7 @@ def servo_list(ctx: click.Context) -> None:
 @click.pass_context
 @_errors
 def servo_select(ctx: click.Context, robot: str, joint: int, algorithm: str) -> None:
-    """Switch ROBOT's JOINT (1..6) to ALGORITHM, bumplessly, while it moves."""
+    """Switch ROBOT's JOINT (1..n) to ALGORITHM, bumplessly, while it moves."""
     with _servo_client(ctx) as (inst, client):
         client.select(robot, joint, algorithm, wait=not inst.lockstep)
         click.echo(f"{robot} joint {joint}: {algorithm}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import os
 import re
@@ -31,7 +32,7 @@ import numpy as np
 import yaml
 
 from kali_daemons.errors import ConfigError
-from kali_daemons.layout import ARM_JOINTS
+from kali_daemons.joints import JointMap
 from kali_daemons.robots import RobotType, known_types, robot_type
 
 CONFIG_VERSION = 1
@@ -209,7 +210,7 @@ class RobotConfig:
     base_xyz: tuple[float, float, float]
     base_yaw_deg: float
     servo: str = "pid"  # the servo algorithm every joint starts with (builtin or plugin)
-    safe_rad: tuple[float, ...] = (DEFAULT_SAFE_RAD,) * 6  # tracking tolerance per joint
+    safe_rad: tuple[float, ...] = ()  # tracking tolerance per joint; empty: DEFAULT_SAFE_RAD
     current_fault_ms: float = DEFAULT_CURRENT_FAULT_MS  # demand beyond the limit this long halts
     ff: str = "off"  # feed-forward it starts with: off, gravity or full (FF_MODES)
     # the arm's calibration sheet (thesis 3.5.1): each joint's index-pulse motor angle, rad;
@@ -220,6 +221,13 @@ class RobotConfig:
         if not self.index_phases:
             sheet = tuple(float(v) for v in self.type.index_phases)
             object.__setattr__(self, "index_phases", sheet)
+        if not self.safe_rad:
+            object.__setattr__(self, "safe_rad", (DEFAULT_SAFE_RAD,) * self.n_joints)
+
+    @property
+    def n_joints(self) -> int:
+        """Joints of the arm: its robot type's."""
+        return self.type.n_joints
 
     @property
     def type(self) -> RobotType:
@@ -266,6 +274,11 @@ class KaliConfig:
     feedforward: FeedforwardConfig = FeedforwardConfig()
     dashboard: DashboardConfig = DashboardConfig()
     base_dir: str = "."  # directory relative plugin paths are taken from
+
+    @functools.cached_property
+    def joints(self) -> JointMap:
+        """The cell's joints numbered flat, arm by arm in config order."""
+        return JointMap(tuple(r.name for r in self.robots), tuple(r.n_joints for r in self.robots))
 
     def robot(self, name: str) -> RobotConfig:
         """The robot called ``name``; ConfigError naming the robots."""
@@ -404,15 +417,16 @@ def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
         return -(-np.dtype(dtype).itemsize * count // layout.ALIGN) * layout.ALIGN
 
     nr = len(cfg.robots)
-    n = 6 * nr
+    n = cfg.joints.total
     builtin_bytes = [block(a.dtype) for a in Registry()]
     algos = len(builtin_bytes) + len(cfg.plugins)
     servo_data = n * (sum(builtin_bytes) + len(cfg.plugins) * block("u1", MAX_DATA_BYTES))
-    fifo = (
+    fifos = sum(
         block(layout.FIFO_HEADER)
-        + block("<f8", FIFO_CAPACITY * 6)
+        + block("<f8", FIFO_CAPACITY * r.n_joints)
         + block("<u8", FIFO_CAPACITY)
-        + block("<f8", 3 * 6)
+        + block("<f8", 3 * r.n_joints)
+        for r in cfg.robots
     )
     rows = layout.flight_rows(ms_to_ns(cfg.clock.servo_period_ms))
     parts = [
@@ -436,17 +450,19 @@ def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
             + block(layout.TG_STATE)
             + block(layout.LEASE, nr),
         ),
-        (f"set-point FIFOs ({nr} robots)", nr * fifo),
+        (f"set-point FIFOs ({nr} robots)", fifos),
         (
             "boards and plant",
             block(layout.IO_BOARD, nr)
             + block(layout.DAC_BOARD, nr)
             + block(layout.ARM_TRUTH, nr)
+            + block(layout.JOINT_TRUTH, n)
             + block(layout.WORLD_TRUTH),
         ),
         (
             f"servo level ({n} joints, {algos} algorithms)",
             block(layout.ROBOT_STATE, nr)
+            + block(layout.JOINT_STATE, n)
             + block(layout.SERVO_SLOT, n)
             + block(layout.SERVO_CTRL)
             + block("u1", n * layout.SERVO_STAGING_BYTES)
@@ -458,9 +474,9 @@ def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
             block(layout.FLIGHT) + block(layout.flight_row(n), rows),
         ),
     ]
-    # a directory entry per record above (24 the cell's, 4 per robot, one per joint and
+    # a directory entry per record above (26 the cell's, 4 per robot, one per joint and
     # algorithm) and one for the free space after them
-    blocks = 24 + 4 * nr + n * algos + 1
+    blocks = 26 + 4 * nr + n * algos + 1
     return sum(b for _, b in parts), blocks, parts
 
 
@@ -1133,12 +1149,6 @@ def _robots(node: Any) -> tuple[RobotConfig, ...]:
         first_index[name] = i
         model = _choice(m.get("model", DEFAULT_MODEL), f"{path}.model", tuple(known_types()))
         rtype = robot_type(model)
-        if rtype.n_joints != ARM_JOINTS:
-            _fail(
-                f"{path}.model",
-                model,
-                f"has {rtype.n_joints} joints; this Kali lays out {ARM_JOINTS} per arm",
-            )
         xyz_node = m.get("base_xyz", [0.0, 0.0, 0.0])
         if not isinstance(xyz_node, list) or len(xyz_node) != 3:
             _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")
@@ -1146,14 +1156,20 @@ def _robots(node: Any) -> tuple[RobotConfig, ...]:
         yaw = _finite(m.get("base_yaw_deg", 0.0), f"{path}.base_yaw_deg")
         servo = _identifier(m.get("servo", "pid"), f"{path}.servo", _SERVO_NAME_RE)
         safe_node = m.get("safe_rad", DEFAULT_SAFE_RAD)
+        nj = rtype.n_joints
         if isinstance(safe_node, list):
-            if len(safe_node) != 6:
-                _fail(f"{path}.safe_rad", safe_node, "must be a number or a list of 6 numbers")
+            if len(safe_node) != nj:
+                _fail(
+                    f"{path}.safe_rad",
+                    safe_node,
+                    f"must be a number or a list of {nj} numbers (one per joint of a {model}), "
+                    f"not {len(safe_node)}",
+                )
             safe = tuple(
                 _float(v, f"{path}.safe_rad[{j}]", 0.0, math.pi) for j, v in enumerate(safe_node)
             )
         else:
-            safe = (_float(safe_node, f"{path}.safe_rad", 0.0, math.pi),) * 6
+            safe = (_float(safe_node, f"{path}.safe_rad", 0.0, math.pi),) * nj
         fault_ms = _float(
             m.get("current_fault_ms", DEFAULT_CURRENT_FAULT_MS),
             f"{path}.current_fault_ms",

@@ -2,8 +2,9 @@
 servos work in, for arms of any robot type on McGill I/O and DAC boards.
 
 Servos only ever see joint radians and joint N·m (3.3.4); this module owns every conversion
-between those and the hardware, vectorised over all arms (joint ``6 k + j`` is joint ``j``
-of arm ``k``), with each arm's drive from its robot type (``kali_daemons.robots``):
+between those and the hardware, vectorised over all arms (flat joints, arm ``k``'s joint ``j``
+at ``JointMap.base[k] + j``; on the arm's board, channel ``j``), with each arm's drive from
+its robot type (``kali_daemons.robots``):
 
 - **Encoders** (figure C.3): each 12-bit HCTL-2000 reading is compared with the previous one
   and the difference, wrapped at half range (±2048), is added to a 32-bit accumulated count.
@@ -26,6 +27,7 @@ import math
 import numpy as np
 
 from . import layout
+from .joints import ArmCopy, JointMap
 from .robots import RobotType
 
 COUNTER_BITS = 12
@@ -35,24 +37,30 @@ DAC_MAX = (1 << layout.DAC_BITS) - 1
 
 
 class JointDriver:
-    """Conversions for the arms of ``types`` (one robot type per arm, in robot order).
+    """Conversions for the arms of ``types`` (one robot type per arm, in robot order), on the
+    boards whose encoder and DAC registers are ``encoders`` and ``codes`` (``(n_arms, 8)``
+    uint16 views, joint ``j`` on channel ``j``).
 
     Its state, ``acc`` (int32 accumulated counts), ``prev`` (last raw readings) and ``offset``
-    (rad), is flat and private; ``load``/``store`` move it from/to the arena's per-robot
+    (rad), is flat and private; ``load``/``store`` move it from/to the arena's per-joint
     records so a restarted SIO resumes with the same counts and calibration.
     """
 
     def __init__(
         self,
         types: list[RobotType],
+        encoders: np.ndarray,
+        codes: np.ndarray,
         current_limit: np.ndarray | None = None,
         index_phase: np.ndarray | None = None,
     ) -> None:
-        """``index_phase``: each joint's index-pulse motor angle (rad, flat ``(6 n_arms,)``),
-        the arms' calibration sheets (``RobotConfig.index_phases``); needed only to calibrate."""
-        n_arms = self.n_arms = len(types)
-        n = self.n = 6 * n_arms
-        assert all(t.n_joints == 6 for t in types), "the arena lays out 6 joints per arm"
+        """``index_phase``: each joint's index-pulse motor angle (rad, flat), the arms'
+        calibration sheets (``RobotConfig.index_phases``); needed only to calibrate."""
+        self.n_arms = len(types)
+        self.map = JointMap(
+            tuple(f"arm {k}" for k in range(len(types))), tuple(t.n_joints for t in types)
+        )
+        n = self.n = self.map.total
 
         def tile(values: object) -> np.ndarray:
             return np.concatenate([np.asarray(values(t), dtype=np.float64) for t in types])
@@ -74,7 +82,7 @@ class JointDriver:
         self.index_spacing = 2.0 * math.pi / np.abs(self.gear)  # rad between index pulses
         # DAC codes per motor ampere: codes per volt over the amplifier's amperes per volt
         self.codes_per_amp = tile(
-            lambda t: [layout.DAC_ZERO / t.drive.dac_volts / t.drive.amp_gain_a_per_v] * 6
+            lambda t: [layout.DAC_ZERO / t.drive.dac_volts / t.drive.amp_gain_a_per_v] * t.n_joints
         )
         self.index_phase = (
             np.zeros(n) if index_phase is None else np.asarray(index_phase, dtype=np.float64)
@@ -82,32 +90,35 @@ class JointDriver:
         self._raw = np.zeros(n, dtype=np.int32)
         self._delta = np.zeros(n, dtype=np.int32)
         self._f = np.zeros(n)
+        self._encoders = ArmCopy(self.map, self._raw, encoders)  # counters → _raw
+        self._codes = ArmCopy(self.map, self._f, codes)  # _f → DAC codes
 
     # ------------------------------------------------------------------ state
 
     def load(self, acc: np.ndarray, prev: np.ndarray, offset: np.ndarray) -> None:
-        """Take the state from ``(n_arms, 6)`` views (outside the cycle)."""
-        np.copyto(self.acc.reshape(self.n_arms, 6), acc)
-        np.copyto(self.prev.reshape(self.n_arms, 6), prev)
-        np.copyto(self.offset.reshape(self.n_arms, 6), offset)
+        """Take the state from flat per-joint views (outside the cycle)."""
+        np.copyto(self.acc, acc)
+        np.copyto(self.prev, prev)
+        np.copyto(self.offset, offset)
 
     def store(self, acc: np.ndarray, prev: np.ndarray, offset: np.ndarray) -> None:
-        """Publish the state into ``(n_arms, 6)`` views; safe inside the cycle."""
-        np.copyto(acc, self.acc.reshape(self.n_arms, 6))
-        np.copyto(prev, self.prev.reshape(self.n_arms, 6))
-        np.copyto(offset, self.offset.reshape(self.n_arms, 6))
+        """Publish the state into flat per-joint views; safe inside the cycle."""
+        np.copyto(acc, self.acc)
+        np.copyto(prev, self.prev)
+        np.copyto(offset, self.offset)
 
     # ------------------------------------------------------------------ encoders → radians
 
-    def start(self, raw: np.ndarray) -> None:
-        """Take ``raw`` (``(n_arms, ≥6)`` counter readings) as the reference: no motion yet."""
-        np.copyto(self.prev.reshape(self.n_arms, 6), raw[:, :6], casting="unsafe")
+    def start(self) -> None:
+        """Take the counters' readings as the reference: no motion yet."""
+        self._encoders.to_flat()
+        np.copyto(self.prev, self._raw)
 
-    def read(self, raw: np.ndarray, q: np.ndarray) -> None:
-        """Accumulate the counter readings ``raw`` (``(n_arms, ≥6)`` uint16 view, low 12 bits)
-        and write joint angles (rad) into ``q`` (``(n,)`` float64)."""
+    def read(self, q: np.ndarray) -> None:
+        """Accumulate the counter readings (low 12 bits) and write joint angles (rad) into
+        ``q`` (``(n,)`` float64)."""
         r, d = self._raw, self._delta
-        np.copyto(r.reshape(self.n_arms, 6), raw[:, :6], casting="unsafe")
+        self._encoders.to_flat()
         np.bitwise_and(r, COUNTER_MODULO - 1, out=r)
         np.subtract(r, self.prev, out=d)
         np.add(d, COUNTER_HALF, out=d)  # wrap the difference into -2048 .. 2047
@@ -151,13 +162,10 @@ class JointDriver:
 
     # ------------------------------------------------------------------ torque → DAC
 
-    def output(
-        self, torque: np.ndarray, current: np.ndarray, codes: np.ndarray, clamped: np.ndarray
-    ) -> None:
+    def output(self, torque: np.ndarray, current: np.ndarray, clamped: np.ndarray) -> None:
         """Joint torques (N·m) → motor currents (A, clamped at the limit) → DAC codes.
 
-        ``codes`` is the ``(n_arms, ≥6)`` uint16 DAC register view; ``clamped`` (bool ``(n,)``)
-        is set where the demand exceeded the current limit.
+        ``clamped`` (bool ``(n,)``) is set where the demand exceeded the current limit.
         """
         np.divide(torque, self.gkt, out=current)
         np.greater(np.abs(current, out=self._f), self.current_limit, out=clamped)
@@ -165,7 +173,7 @@ class JointDriver:
         np.negative(self.current_limit, out=self._f)
         np.maximum(current, self._f, out=current)
         self.codes_of(current, self._f)
-        np.copyto(codes[:, :6], self._f.reshape(self.n_arms, 6), casting="unsafe")
+        self._codes.to_arms()
 
     def codes_of(self, current: np.ndarray, out: np.ndarray) -> None:
         """Motor currents (A) → DAC codes as float64 (rounded, 0 .. 4095)."""
@@ -175,9 +183,9 @@ class JointDriver:
         np.maximum(out, 0, out=out)
         np.minimum(out, DAC_MAX, out=out)
 
-    def zero(self, codes: np.ndarray) -> None:
-        """Every DAC channel to 0 V (codes view ``(n_arms, ≥6)``)."""
-        codes[:, :6] = layout.DAC_ZERO
+    def zero(self) -> None:
+        """Every joint's DAC channel to 0 V."""
+        self._codes.fill_arms(layout.DAC_ZERO)
 
     # ------------------------------------------------------------------ potentiometers
 

@@ -29,7 +29,10 @@ from .launcher import log_dir
 from .layout import ProcState
 from .spinlock import pid_alive
 
-FORMAT_VERSION = 1  # of the dump files
+# of the dump files; 2 added ``n_joints`` (arms of different joint counts, NaN-padded); a
+# format 1 dump (every arm 6 joints) still loads
+FORMAT_VERSION = 2
+READABLE_FORMATS = (1, 2)
 log = logging.getLogger("kali.flight")
 SIO_IDLE_TIMEOUT_S = 1.0  # how long the dumper waits for SIO to finish a tick in progress
 
@@ -100,7 +103,7 @@ class FlightRecorder:
         torque: np.ndarray,
         current: np.ndarray,
     ) -> None:
-        """Outside the cycle: the arrays (flat over all joints, robot k joint j at 6 k + j)
+        """Outside the cycle: the arrays (flat over all joints, ``joints.JointMap`` order)
         every row copies; they must stay the same objects, updated in place."""
         src = (q, demand, servo_torque, ff_torque, torque, current)
         for name, a in zip(layout.FLIGHT_FIELDS, src, strict=True):
@@ -264,19 +267,34 @@ def dump_name(instance: str, fault: FaultInfo) -> str:
 def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Path) -> Path:
     """Write ``data`` (ring rows, oldest first) and the fault to a new file; its path.
 
-    Arrays per field, shaped (ticks, robots, 6); the fault and the robot and joint names as
-    plain strings, so ``np.load`` needs no pickle.  Written under a temporary name and
-    renamed, so a reader never sees half a file; an existing file is never overwritten.
+    Arrays per field, shaped (ticks, robots, J) with J the most joints an arm has (an arm with fewer
+    has NaN in the rest; ``n_joints`` says how many it has); the fault and the robot and joint names
+    as plain strings, so ``np.load`` needs no pickle.  Written under a temporary name and renamed,
+    so a reader never sees half a file; an existing file is never overwritten.
     """
     cfg = inst.config
     names = [r.name for r in cfg.robots]
     nr = len(names)
-    robots = inst.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, nr)
+    jm = cfg.joints
+    width = jm.widest
+    joints = inst.arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, jm.total)
+
+    def by_robot(flat: np.ndarray) -> np.ndarray:
+        """(..., joints) flat → (..., robots, width), NaN where an arm has no such joint."""
+        out = np.full((*flat.shape[:-1], nr, width), np.nan)
+        for k in range(nr):
+            out[..., k, : jm.counts[k]] = flat[..., jm.span(k)]
+        return out
+
+    def per_robot(values: list[np.ndarray]) -> np.ndarray:
+        return by_robot(np.concatenate([np.asarray(v, dtype=np.float64) for v in values]))
+
     arrays: dict[str, np.ndarray] = {
         "format": np.array(FORMAT_VERSION),
         "instance": np.array(inst.name),
         "robots": np.array(names),
-        "joints": np.array([f"joint {j + 1}" for j in range(6)]),
+        "n_joints": np.array(jm.counts),
+        "joints": np.array([f"joint {j + 1}" for j in range(width)]),
         "servo_period_ns": np.array(ms_to_ns(cfg.clock.servo_period_ms)),
         "base_tick_ns": np.array(int(inst.clock["base_tick_ns"])),
         "fault_code": np.array(fault.code),
@@ -284,14 +302,14 @@ def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Pa
         "fault_tick": np.array(fault.tick),
         "fault_message": np.array(fault.message),
         "fault_time_ns": np.array(fault.time_ns),
-        "safe": np.array(robots["safe"]),
-        "current_limit": np.array([r.type.drive.max_current for r in cfg.robots]),
-        "rad_per_count": np.array([r.type.drive.rad_per_count for r in cfg.robots]),
+        "safe": by_robot(np.array(joints["safe"])),
+        "current_limit": per_robot([r.type.drive.max_current for r in cfg.robots]),
+        "rad_per_count": per_robot([r.type.drive.rad_per_count for r in cfg.robots]),
     }
     for f in ("tick", "t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"):
         arrays[f] = np.ascontiguousarray(data[f])
     for f in layout.FLIGHT_FIELDS:
-        arrays[f] = np.ascontiguousarray(data[f]).reshape(len(data), nr, 6)
+        arrays[f] = by_robot(np.ascontiguousarray(data[f]).reshape(len(data), jm.total))
     directory.mkdir(parents=True, exist_ok=True)
     base = dump_name(inst.name, fault)
     path = directory / base
@@ -395,7 +413,7 @@ def load(path: Path) -> dict[str, np.ndarray]:
     missing = [k for k in DUMP_KEYS if k not in d]
     if missing:
         raise InstanceError(f"{not_dump} (no {', '.join(missing)})")
-    if d["format"].shape != () or int(d["format"]) != FORMAT_VERSION:
+    if d["format"].shape != () or int(d["format"]) not in READABLE_FORMATS:
         raise InstanceError(
             f"flight recorder: {path} has format {d['format']!r:.40}, this Kali reads "
             f"{FORMAT_VERSION}"
@@ -417,12 +435,21 @@ def _check_shapes(d: dict[str, np.ndarray], not_dump: str) -> None:
     nr = len(robots) if robots.ndim == 1 else -1
     ticks = d["tick"]
     n = len(ticks) if ticks.ndim == 1 else -1
-    want = {"robots": (nr,), "tick": (n,), "rad_per_count": (nr, 6), "current_limit": (nr, 6)}
+    rpc = d["rad_per_count"]
+    width = rpc.shape[-1] if rpc.ndim == 2 and 1 <= rpc.shape[-1] <= layout.MAX_JOINTS else -1
+    want = {
+        "robots": (nr,),
+        "tick": (n,),
+        "rad_per_count": (nr, width),
+        "current_limit": (nr, width),
+    }
+    if "n_joints" in d:
+        want["n_joints"] = (nr,)
     for f in ("servo_period_ns", "fault_code", "fault_process", "fault_tick", "fault_message"):
         want[f] = ()
     for f in layout.FLIGHT_FIELDS:
         if f in d:
-            want[f] = (n, nr, 6)
+            want[f] = (n, nr, width)
     for f in ("t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"):
         if f in d:
             want[f] = (n,)
@@ -464,14 +491,15 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
         f"µs; SIO's own CPU time p50 {np.median(ran_us):.0f} µs, max {ran_us.max():.0f} µs); "
         f"wake-up lateness p50 {np.median(late_us):.0f} µs, max {late_us.max():.0f} µs",
     ]
-    err = (d["demand"] - d["q"]) / d["rad_per_count"]  # (ticks, robots, 6) encoder counts
+    err = (d["demand"] - d["q"]) / d["rad_per_count"]  # (ticks, robots, J) encoder counts
     torque, current = d["torque"], d["current"]
     load_pct = 100 * np.abs(current) / d["current_limit"]
     names = [str(n) for n in d["robots"]]
 
     def worst(a: np.ndarray) -> tuple[float, int, int]:
-        """Signed value, row and joint of the largest |a| in (ticks, 6); the latest of ties."""
-        flat = np.abs(a[::-1]).reshape(-1)
+        """Signed value, row and joint of the largest |a| in (ticks, J), NaN (no such joint)
+        left out; the latest of ties."""
+        flat = np.nan_to_num(np.abs(a[::-1]), nan=-1.0).reshape(-1)
         row, j = np.unravel_index(int(np.argmax(flat)), a.shape)
         row = a.shape[0] - 1 - int(row)
         return float(a[row, j]), row, int(j)

@@ -427,9 +427,10 @@ class Instance:
             )
         slots = a.lookup(layout.KEY_SLOTS)
         if slots is not None:
+            joints = self.config.joints
             for k, robot in enumerate(self.config.robots):
-                for j in range(layout.ARM_JOINTS):
-                    i = k * layout.ARM_JOINTS + j
+                for j in range(robot.n_joints):
+                    i = joints.index(k, j)
                     if (i + 1) * layout.SERVO_SLOT.itemsize <= slots[1]:
                         addr = a.address_of_field(slots[0], layout.SERVO_SLOT, "op_lock", i)
                         words.append((f"servo mailbox {robot.name} joint {j + 1}", addr))

@@ -70,6 +70,7 @@ class Introspector:
         cfg = inst.config
         self.names = [r.name for r in cfg.robots]
         self.drives = [r.type.drive for r in cfg.robots]
+        self.joints = cfg.joints
         self.sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
         self._views: dict[str, np.ndarray] = {}
 
@@ -136,13 +137,15 @@ class Introspector:
     def _robots(self) -> list[dict[str, Any]] | None:
         nr = len(self.names)
         rs = self._view(layout.KEY_ROBOTS, layout.ROBOT_STATE, nr)
-        if rs is None:
+        js = self._view(layout.KEY_JOINTS, layout.JOINT_STATE, self.joints.total)
+        if rs is None or js is None:
             return None
         ff = self._view(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, nr)
         out = []
         for k, name in enumerate(self.names):
             r = rs[k].copy()  # one consistent-enough copy of a Type 4 record
-            err = r["demand"] - r["q"]
+            j = js[self.joints.span(k)].copy()  # and of the arm's joints
+            err = j["demand"] - j["q"]
             out.append(
                 {
                     "name": name,
@@ -151,16 +154,17 @@ class Introspector:
                     "calibrated": bool(r["calibrated"]),
                     "calibration": CalibState(int(r["calib_state"])).name,
                     "pots_read": bool(r["pots_read"]),
-                    "q_rad": r["q"],
-                    "qd_rad_s": r["qd"],
-                    "demand_rad": r["demand"],
+                    "n_joints": self.joints.counts[k],
+                    "q_rad": j["q"],
+                    "qd_rad_s": j["qd"],
+                    "demand_rad": j["demand"],
                     "error_rad": err,
                     "error_counts": err / self.drives[k].rad_per_count,
-                    "safe_rad": r["safe"],
-                    "servo_torque_nm": r["servo_torque"],
-                    "ff_torque_nm": r["ff_torque"],
-                    "torque_nm": r["torque"],
-                    "current_a": r["current"],
+                    "safe_rad": j["safe"],
+                    "servo_torque_nm": j["servo_torque"],
+                    "ff_torque_nm": j["ff_torque"],
+                    "torque_nm": j["torque"],
+                    "current_a": j["current"],
                     "current_limit_a": self.drives[k].max_current,
                     "message": decode(r["message"]),
                     "feedforward": None if ff is None else self._ff(ff[k]),

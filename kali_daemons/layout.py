@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 MAGIC = int.from_bytes(b"KALIAREN", "little")
-LAYOUT_VERSION = 5
+LAYOUT_VERSION = 6
 
 ALIGN = 64  # every block starts on a cache line, so every 4/8-byte word in it is aligned
 MAX_BLOCKS = 256  # directory descriptors (blocks plus free fragments)
@@ -358,6 +358,7 @@ FLAG = np.dtype([("word", "<u4")])  # Type 3 test-and-set flag: 0 clear, else th
 KEY_BOARDS = "boards"  # McGill I/O boards, IO_BOARD per robot
 KEY_DACS = "dacs"  # DAC boards, DAC_BOARD per robot
 KEY_TRUTHS = "truths"  # plant-only truth, ARM_TRUTH per robot (never read by the controller)
+KEY_JOINT_TRUTHS = "truths.joints"  # plant-only truth, JOINT_TRUTH per joint of the cell
 KEY_WORLD_TRUTH = "truth.world"
 
 # Command/status register bits (appendix C.5.1).  Note the inverted senses of the thesis.
@@ -403,7 +404,10 @@ BOARD_CHANNELS = 8  # encoder/pot channels per board
 DAC_CHANNELS = 8
 DAC_BITS = 12
 DAC_ZERO = 1 << (DAC_BITS - 1)  # offset binary: 0 = -10 V, 2048 = 0 V, 4095 = +9.995 V
-ARM_JOINTS = 6
+# Joints an arm may have: one board's channels, joint j on channel j.  Per-arm records size
+# their joint arrays by it; per-joint records (JOINT_STATE, JOINT_TRUTH) hold the cell's
+# joints flat instead, arm k's joint j at joints.JointMap.base[k] + j.
+MAX_JOINTS = BOARD_CHANNELS
 
 IO_BOARD = np.dtype(
     [
@@ -432,11 +436,6 @@ DAC_BOARD = np.dtype(
 
 ARM_TRUTH = np.dtype(
     [
-        ("q", "<f8", (ARM_JOINTS,)),  # joint angles, rad
-        ("qd", "<f8", (ARM_JOINTS,)),  # joint velocities, rad/s
-        ("current", "<f8", (ARM_JOINTS,)),  # motor currents, A
-        ("torque", "<f8", (ARM_JOINTS,)),  # motor torque at the joint (G·Kt·i), N·m
-        ("motor_angle", "<f8", (ARM_JOINTS,)),  # rad, G·q (what the encoder sees)
         ("grasp_wrench", "<f8", (6,)),  # weld force (N) and torque (N·m) on the object, world
         ("amps_on", "u1"),
         ("brakes_engaged", "u1"),
@@ -444,6 +443,17 @@ ARM_TRUTH = np.dtype(
         ("watchdog_tripped", "u1"),
         ("estop", "u1"),
         ("_pad", "u1", (3,)),
+    ],
+    align=True,
+)
+
+JOINT_TRUTH = np.dtype(  # one per joint of the cell, flat (joints.JointMap)
+    [
+        ("q", "<f8"),  # joint angle, rad
+        ("qd", "<f8"),  # joint velocity, rad/s
+        ("current", "<f8"),  # motor current, A
+        ("torque", "<f8"),  # motor torque at the joint (G·Kt·i), N·m
+        ("motor_angle", "<f8"),  # rad, G·q (what the encoder sees)
     ],
     align=True,
 )
@@ -466,11 +476,12 @@ WORLD_TRUTH = np.dtype(
 MAX_SV = 8  # servo workers (thesis 3.3.4: one to eight)
 SERVO_STAGING_BYTES = 1024  # largest private servo data a put/get mailbox carries
 KEY_ROBOTS = "robots"  # ROBOT_STATE per robot, config order
-KEY_SLOTS = "servo.slots"  # SERVO_SLOT per joint: robot k joint j is slot 6 k + j
+KEY_JOINTS = "robots.joints"  # JOINT_STATE per joint of the cell, flat (joints.JointMap)
+KEY_SLOTS = "servo.slots"  # SERVO_SLOT per joint, flat: robot k joint j is slot base[k] + j
 KEY_STAGING = "servo.staging"  # SERVO_STAGING_BYTES per slot: the put/get mailbox data
 KEY_SERVO_CTRL = "servo.ctrl"
 KEY_SERVO_DATA = "servo.{slot}.{algo}"  # private data of one algorithm on one joint
-KEY_FIFO = "fifo.{robot}"  # TG → SIO set-points (Type 2), 6 joint angles each
+KEY_FIFO = "fifo.{robot}"  # TG → SIO set-points (Type 2), the robot's joint angles each
 
 
 class PowerState(enum.IntEnum):
@@ -524,19 +535,8 @@ OP_REFUSED = -1  # ``op_status`` of a mailbox operation the SV refused (see the 
 
 ROBOT_STATE = np.dtype(
     [
-        ("q", "<f8", (ARM_JOINTS,)),  # SIO: measured joint angles, rad
-        ("qd", "<f8", (ARM_JOINTS,)),  # SIO: joint velocities from the encoders, rad/s
-        ("demand", "<f8", (ARM_JOINTS,)),  # SIO: this tick's interpolated set-points, rad
-        ("servo_torque", "<f8", (ARM_JOINTS,)),  # SIO: what the servos asked for, N·m
-        ("ff_torque", "<f8", (ARM_JOINTS,)),  # SIO: feed-forward added this tick, N·m
-        ("torque", "<f8", (ARM_JOINTS,)),  # SIO: torque sent (after the current clamp), N·m
-        ("current", "<f8", (ARM_JOINTS,)),  # SIO: motor current commanded, A
-        ("offset", "<f8", (ARM_JOINTS,)),  # SIO: calibration offsets of the driver, rad
-        ("safe", "<f8", (ARM_JOINTS,)),  # clients: tracking-error tolerance, rad
-        ("acc", "<i4", (ARM_JOINTS,)),  # SIO: 32-bit accumulated encoder counts
-        ("prev", "<i4", (ARM_JOINTS,)),  # SIO: last 12-bit counter readings
-        ("over_ticks", "<i4", (ARM_JOINTS,)),  # SIO: consecutive ticks beyond the current limit
-        ("range_check", "u1", (ARM_JOINTS,)),  # clients: 1 = joint range checked
+        ("first_joint", "<u4"),  # SIO: the flat index of its joint 1 in JOINT_STATE and slots
+        ("n_joints", "<u4"),  # SIO: its robot type's joint count
         ("power", "u1"),  # SIO: PowerState
         ("power_cmd", "u1"),  # clients: PowerCmd; SIO clears it when taken
         ("calibrated", "u1"),  # SIO: 1 once calibrated against the index pulses
@@ -544,14 +544,34 @@ ROBOT_STATE = np.dtype(
         ("calib_cmd", "u1"),  # clients: 1 = calibrate; SIO clears it when taken
         ("calib_state", "u1"),  # SIO: CalibState
         ("calib_found", "u1"),  # SIO: bit j = joint j's index pulse found
-        ("_pad", "u1", (3,)),
-        ("calib_shift", "<f8", (ARM_JOINTS,)),  # SIO: how far calibration moved each angle, rad
+        ("_pad", "u1", (1,)),
         ("enable_ticks", "<i4"),  # SIO: ticks into the enable sequence
         # clients: the fault count (low 32 bits) seen when power_cmd / calib_cmd was written;
         # SIO takes a command only while it matches and no fault is active: a halt voids it
         ("cmd_faults", "<u4"),
         ("tick", "<i8"),  # SIO: last servo tick
         ("message", f"S{MESSAGE_BYTES}"),  # SIO: last calibration or power message
+    ],
+    align=True,
+)
+
+JOINT_STATE = np.dtype(  # one per joint of the cell, flat (joints.JointMap)
+    [
+        ("q", "<f8"),  # SIO: measured joint angle, rad
+        ("qd", "<f8"),  # SIO: joint velocity from the encoder, rad/s
+        ("demand", "<f8"),  # SIO: this tick's interpolated set-point, rad
+        ("servo_torque", "<f8"),  # SIO: what the servo asked for, N·m
+        ("ff_torque", "<f8"),  # SIO: feed-forward added this tick, N·m
+        ("torque", "<f8"),  # SIO: torque sent (after the current clamp), N·m
+        ("current", "<f8"),  # SIO: motor current commanded, A
+        ("offset", "<f8"),  # SIO: calibration offset of the driver, rad
+        ("safe", "<f8"),  # clients: tracking-error tolerance, rad
+        ("calib_shift", "<f8"),  # SIO: how far calibration moved the angle, rad
+        ("acc", "<i4"),  # SIO: 32-bit accumulated encoder counts
+        ("prev", "<i4"),  # SIO: last 12-bit counter reading
+        ("over_ticks", "<i4"),  # SIO: consecutive ticks beyond the current limit
+        ("range_check", "u1"),  # clients: 1 = joint range checked
+        ("_pad", "u1", (3,)),
     ],
     align=True,
 )
@@ -649,8 +669,9 @@ FEEDFORWARD = np.dtype(
         ("_pad2", "<u4"),
         ("weight", "<f8"),  # SIO: 0..1, ramps so switching on or off gives no torque step
         ("key", "<u8", (FF_ROWS,)),  # dynamics: whose row it is, FF_NO_KEY while written
-        ("q", "<f8", (FF_ROWS, 6)),  # dynamics: the demanded position the row is for, rad
-        ("tau", "<f8", (FF_ROWS, 6)),  # dynamics: feed-forward torque there, N·m
+        # dynamics: the demanded position the row is for, rad (the robot's n_joints used)
+        ("q", "<f8", (FF_ROWS, MAX_JOINTS)),
+        ("tau", "<f8", (FF_ROWS, MAX_JOINTS)),  # dynamics: feed-forward torque there, N·m
     ],
     align=True,
 )
@@ -727,7 +748,7 @@ MOTION_REQUEST = np.dtype(
         # cleared before it does not (the TG judges it by the state it finds)
         ("fault_epoch", "<u8"),
         ("client_name", f"S{PROGRAM_BYTES}"),  # the program's name, for refusals and leases
-        ("joints", "<f8", (MAX_ROBOTS, 6)),  # JOINTS: targets, rad
+        ("joints", "<f8", (MAX_ROBOTS, MAX_JOINTS)),  # JOINTS: targets, rad (n_joints used)
         ("speed_scale", "<f8"),  # JOINTS: fraction (0, 1] of the joint speed/accel limits
         ("poses", "<f8", (MAX_SEGMENTS, 4, 4)),  # PATH: control-frame targets, world frame
         ("grasps", "<f8", (MAX_ROBOTS, 4, 4)),  # PATH: each arm's flange in the control frame
@@ -757,7 +778,7 @@ REQUEST_STATUS = np.dtype(
 TG_ROBOT = np.dtype(
     [
         ("busy_seq", "<u8"),  # TG: the request moving this robot (0: idle)
-        ("setpoint", "<f8", (6,)),  # TG: the last joint set-point pushed, rad
+        ("setpoint", "<f8", (MAX_JOINTS,)),  # TG: the last joint set-point pushed, rad
         ("t6", "<f8", (4, 4)),  # TG: T6 of that set-point, base frame
         ("tick", "<i8"),  # TG: last TG tick
     ],
@@ -809,7 +830,7 @@ def flight_rows(servo_period_ns: int) -> int:
 
 
 def flight_row(n_joints: int) -> np.dtype:
-    """One servo tick in the ring: SIO's flat per-joint arrays (robot k joint j at 6k + j)."""
+    """One servo tick in the ring: SIO's flat per-joint arrays (joints.JointMap order)."""
     n = (n_joints,)
     return np.dtype(
         [

@@ -70,15 +70,15 @@ class World:
 
     model: mujoco.MjModel
     robots: tuple[str, ...]  # names, in config order
-    qpos_adr: tuple[IntArray, ...]  # per robot: 6 qpos indices of joints j1..j6
-    dof_adr: tuple[IntArray, ...]  # per robot: 6 dof indices (qvel, qacc, qfrc_*) of j1..j6
-    flange_site: tuple[int, ...]  # per robot: site at the flange frame (DH frame 6)
+    qpos_adr: tuple[IntArray, ...]  # per robot: qpos indices of its joints j1..jn (n_joints)
+    dof_adr: tuple[IntArray, ...]  # per robot: dof indices (qvel, qacc, qfrc_*) of j1..jn
+    flange_site: tuple[int, ...]  # per robot: site at the flange frame (the last DH frame)
     grasp_site: tuple[int, ...]  # per robot: site on the bar where its flange frame should go
     weld: tuple[int, ...]  # per robot: equality id, bar <-> its flange, inactive at start
     object_body: int  # the bar
     object_qpos_adr: int  # first of the bar's 7 free-joint qpos (position, quaternion)
     object_dof_adr: int  # first of its 6 dofs
-    motor: tuple[IntArray, ...] = ()  # per robot: the 6 motor actuator ids
+    motor: tuple[IntArray, ...] = ()  # per robot: its n_joints motor actuator ids, j1..jn
     motor_act_adr: tuple[IntArray, ...] = ()  # per robot: their activations (currents) in data.act
 
     def index(self, robot: int | str) -> int:
@@ -143,13 +143,15 @@ def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> Worl
     """The plant's MuJoCo cell: each robot's type's URDF attached once per robot, a stand and
     a bar.
 
-    Each arm is its type's URDF loaded with ``MjSpec.from_file`` and attached under the name prefix
-    ``"<robot>/"`` at its ``base_xyz``, turned ``base_yaw_deg`` about z; every arm dof gets its
-    drive's armature.  Integrator: ``implicitfast``.  The plant's friction torques are explicit
-    (``qfrc_applied``), which is stable here with a wide margin: the stiffest ratio of viscous
-    friction to joint inertia is joint 1's 5.8 N·m·s / 0.78 kg·m², so dt·b/I ≈ 0.004 at 0.5 ms
-    against the explicit bound of 2.  ``implicitfast`` costs no more than Euler with no damping in
-    the model, and keeps any damping or actuator added later implicit.
+    Each arm is its type's URDF loaded with ``MjSpec.from_file`` and attached under the name
+    prefix ``"<robot>/"`` at its ``base_xyz``, turned ``base_yaw_deg`` about z; every arm dof
+    gets its drive's armature.  Arms may differ in joint count: every per-robot index of the
+    ``World`` has that robot type's ``n_joints`` entries.  Integrator: ``implicitfast``.  The
+    plant's friction torques are explicit (``qfrc_applied``), which is stable here with a wide
+    margin: the stiffest ratio of viscous friction to joint inertia (the PUMA's joint 1,
+    5.8 N·m·s / 0.78 kg·m²) gives dt·b/I ≈ 0.004 at 0.5 ms against the explicit bound of 2.
+    ``implicitfast`` costs no more than Euler with no damping in the model, and keeps any
+    damping or actuator added later implicit.
     """
     if not robots:
         raise ModelError("build_world: no robots; the cell needs at least one arm")
@@ -309,7 +311,10 @@ def _add_bar(spec: mujoco.MjSpec, robots: Sequence[RobotConfig]) -> mujoco.MjsBo
 
 
 def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> None:
-    """Attach the type's URDF arm at the robot's base; set armature; switch its contacts off."""
+    """Attach the type's URDF arm at the robot's base; set armature; switch its contacts off.
+
+    The file must have exactly the type's ``n_joints`` moving joints, named ``j1``..``jn``.
+    """
     urdf = rtype.urdf
     if not Path(urdf).is_file():
         raise ModelError(f"{urdf}: no such file")
@@ -317,6 +322,12 @@ def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> No
         arm = mujoco.MjSpec.from_file(str(urdf))
     except ValueError as exc:
         raise ModelError(f"{urdf}: MuJoCo cannot load it: {exc}") from None
+    found = [j.name for j in arm.joints]
+    if len(found) != rtype.n_joints:  # one more would move unactuated, one fewer unmodelled
+        raise ModelError(
+            f"{urdf}: robot type {rtype.name!r} expects {rtype.n_joints} moving joints, "
+            f"the file has {len(found)}: {', '.join(found)}"
+        )
     frame = spec.worldbody.add_frame(pos=list(robot.base_xyz), quat=_yaw_quat(robot.base_yaw_deg))
     prefix = f"{robot.name}/"
     spec.attach(arm, prefix=prefix, frame=frame)

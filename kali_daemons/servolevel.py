@@ -1,8 +1,10 @@
 """The servo level in the arena (DESIGN 4, thesis 3.3.3 - 3.4, figure 3.3), as SIO, the SVs
 and clients see it.
 
-- ``robots``: one ``ROBOT_STATE`` per robot (SIO's measurements, power, calibration).
-- ``slots``: one ``SERVO_SLOT`` per joint (robot k joint j is slot ``6 k + j``).  SIO feeds
+- ``robots``: one ``ROBOT_STATE`` per robot (power, calibration).
+- ``joints``: one ``JOINT_STATE`` per joint of the cell (SIO's measurements, the clients'
+  tolerances and checks), flat: robot k joint j is ``cfg.joints.base[k] + j``.
+- ``slots``: one ``SERVO_SLOT`` per joint, flat in the same order.  SIO feeds
   them and clears ``busy``; an SV claims a slot by test-and-set of ``busy`` (3.3.5).
 - Private data: one record per (slot, algorithm) of that algorithm's dtype, so a joint keeps
   the state of every algorithm it may switch to, and any SV can run any joint (3.3.4).
@@ -77,11 +79,13 @@ class ServoLevel:
         self.cfg = cfg
         self.names = [r.name for r in cfg.robots]
         self.n_robots = len(self.names)
-        n = self.n = 6 * self.n_robots
+        self.map = cfg.joints  # the flat joint numbering
+        n = self.n = self.map.total
         self.registry: Registry = registry_for(cfg.plugins, Path(cfg.base_dir))
         a = inst.arena
         get = a.record if create else a.existing
         self.robots = get(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
+        self.joints = get(layout.KEY_JOINTS, layout.JOINT_STATE, n)
         self.slots = get(layout.KEY_SLOTS, layout.SERVO_SLOT, n)
         self.ctrl = get(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
         width = layout.SERVO_STAGING_BYTES
@@ -108,25 +112,34 @@ class ServoLevel:
             ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms)
         )  # exact: periods are whole ns
 
+    def arm(self, field: str, robot: int) -> np.ndarray:
+        """Robot index ``robot``'s joints of a ``JOINT_STATE`` field: a live view into the
+        arena (``arm("q", 0)`` is the first arm's measured angles); outside the cycle."""
+        return self.joints[field][self.map.span(robot)]
+
     def fifo(self, robot: int) -> InterpolatingFifo:
         """The TG → SIO set-point FIFO of robot index ``robot`` (Type 2, 2.2.2); as SIO
         consumes it, a set-point beyond ``SETPOINT_BOUND_RAD`` or not finite is refused."""
         key = layout.KEY_FIFO.format(robot=self.names[robot])
+        width = self.map.counts[robot]
         return InterpolatingFifo(
-            self.inst.arena, key, 6, FIFO_CAPACITY, self.fifo_ratio, bound=SETPOINT_BOUND_RAD
+            self.inst.arena, key, width, FIFO_CAPACITY, self.fifo_ratio, bound=SETPOINT_BOUND_RAD
         )
 
     def initialise(self) -> None:
         """First start (SIO): every joint's servo, data, tolerances and checks from the config."""
         for k, robot in enumerate(self.cfg.robots):
             r = self.robots[k]
-            r["safe"] = robot.safe_rad
-            r["range_check"] = 1
+            span = self.map.span(k)
+            r["first_joint"] = span.start
+            r["n_joints"] = robot.n_joints
+            self.joints["safe"][span] = robot.safe_rad
+            self.joints["range_check"][span] = 1
             r["power"] = PowerState.OFF
             r["calib_state"] = CalibState.IDLE
             first = self.registry.index(robot.servo)
-            for j in range(6):
-                i = 6 * k + j
+            for j in range(robot.n_joints):
+                i = self.map.index(k, j)
                 s = self.slot_structs[i]
                 s.busy = layout.SLOT_NOT_FED
                 s.algo = first
@@ -165,15 +178,16 @@ class ServoClient:
         raise ServoError(f"no robot {robot!r:.60}; robots: {', '.join(self.names)}")
 
     def slot(self, robot: str | int, joint: int) -> int:
-        """Slot index of ``joint`` (1..6, as the thesis and the PUMA number them)."""
+        """Slot index of ``joint`` (1..n, as the thesis numbers the PUMA's)."""
         k = self.robot_index(robot)
+        n = self.level.map.counts[k]
         if (
             isinstance(joint, bool)
             or not isinstance(joint, int | np.integer)
-            or not 1 <= joint <= 6
+            or not 1 <= joint <= n
         ):
-            raise ServoError(f"joint {joint!r:.60} of robot '{self.names[k]}', must be 1..6")
-        return 6 * k + int(joint) - 1
+            raise ServoError(f"joint {joint!r:.60} of robot '{self.names[k]}', must be 1..{n}")
+        return self.level.map.index(k, int(joint) - 1)
 
     def algorithm(self, name: str) -> tuple[int, ServoAlgorithm]:
         """(index, algorithm) of a registered servo algorithm; ServoError naming them."""
@@ -184,7 +198,7 @@ class ServoClient:
         return idx, registry[idx]
 
     def _where(self, i: int) -> str:
-        return f"robot '{self.names[i // 6]}' joint {i % 6 + 1}"
+        return self.level.map.label(i)
 
     # ------------------------------------------------------------------ the mailbox
 
@@ -350,7 +364,7 @@ class ServoClient:
         """Turn SIO's joint-range check for one joint on or off."""
         i = self.slot(robot, joint)
         on = flag(f"range_check {self._where(i)}", on)
-        self.level.robots["range_check"][i // 6, i % 6] = int(on)
+        self.level.joints["range_check"][i] = int(on)
 
     def set_safe(self, robot: str | int, joint: int, safe_rad: float) -> None:
         """Set a joint's tracking-error tolerance (rad) before a runaway halt."""
@@ -361,7 +375,7 @@ class ServoClient:
             value = math.nan
         if isinstance(safe_rad, bool) or not 0.0 < value <= math.pi:
             raise ServoError(f"safe {safe_rad!r:.60} rad for {self._where(i)}, must be in (0, π]")
-        self.level.robots["safe"][i // 6, i % 6] = value
+        self.level.joints["safe"][i] = value
 
     # ------------------------------------------------------------------ power
 

@@ -71,7 +71,7 @@ def power_up(sim: PlantSim) -> None:
         sim.cycle()
     for board in sim.boards:
         board.regs["csr"] = CSR_NO_DISABLE
-    sim.dac["code"][:, :6] = layout.DAC_ZERO + 100
+    sim.dac["code"][:, : layout.MAX_JOINTS] = layout.DAC_ZERO + 100  # every channel
 
 
 def in_process(arms: int, cycles: int) -> tuple[float, float]:

@@ -156,7 +156,7 @@ FEED_S = 0.05  # how often the benchmark tops the FIFOs up (5 set-points at 10 m
 FIFO_LOW, FIFO_HIGH = 30, 40  # top up below LOW, to HIGH: about 20-40 queued
 AMPLITUDE_RAD = 0.05
 MOTION_PERIOD_S = 2.0
-SIGNS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0])  # neighbouring joints move opposite ways
+SIGNS = np.array([1.0, -1.0] * (layout.MAX_JOINTS // 2))  # neighbouring joints: opposite ways
 REFERENCE = ("wallclock", "plant", "tg", "dynamics", "viewer")  # wake-up rows shown for reference
 MISS_KINDS = ("tg", "sio", "sv")  # clock-driven, serious: their misses count
 
@@ -302,9 +302,11 @@ class Motion:
     """
 
     def __init__(self, client: ServoClient, fifos: list[InterpolatingFifo], tg_s: float) -> None:
-        self.robots = client.level.robots
+        self.level = client.level
         self.fifos = fifos
-        self.centre = [self.robots["demand"][k].copy() for k in range(len(fifos))]
+        self.centre = [self.level.arm("demand", k).copy() for k in range(len(fifos))]
+        # neighbouring joints move opposite ways, whatever the arm's joint count
+        self.signs = [SIGNS[: len(c)] for c in self.centre]
         self.step = 2.0 * math.pi * tg_s / MOTION_PERIOD_S
         self.sent = [0] * len(fifos)
         self.pending_min = FIFO_HIGH
@@ -325,15 +327,15 @@ class Motion:
                 continue
             for _ in range(FIFO_HIGH - pending):
                 s = math.sin(self.step * self.sent[k])
-                fifo.push(self.centre[k] + AMPLITUDE_RAD * s * SIGNS)
+                fifo.push(self.centre[k] + AMPLITUDE_RAD * s * self.signs[k])
                 self.sent[k] += 1
 
     def observe(self) -> None:
         """Note how far the arms moved and how well they track (samples, every FEED_S)."""
         for k in range(len(self.fifos)):
-            q = self.robots["q"][k]
+            q = self.level.arm("q", k)
             self.swing[k] = max(self.swing[k], float(np.max(np.abs(q - self.centre[k]))))
-            self.track = max(self.track, float(np.max(np.abs(self.robots["demand"][k] - q))))
+            self.track = max(self.track, float(np.max(np.abs(self.level.arm("demand", k) - q))))
 
 
 def power_on(inst: Instance, client: ServoClient) -> None:

@@ -124,7 +124,7 @@ from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.servolevel import FIFO_CAPACITY
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
-from kali_daemons.tg.daemon import Motion, TrajectoryGenerator
+from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows
 from kali_daemons.tg.profiles import JointMotion
 
 REPO = Path(__file__).resolve().parent.parent
@@ -148,6 +148,7 @@ ANGULAR_SPEED = 0.5
 TRANSITION_S = 0.1
 JOINT_MOVE_DEG = np.array([40.0, -30.0, 30.0, 60.0, -40.0, 90.0])  # joint mode: QN → QN + this
 JOINT_SPEED = 0.5  # of the joint speed and acceleration limits
+N = puma560.ROBOT.n_joints  # joints of every arm here (PUMAs)
 # In-process timing
 BLOCK_TICKS = 50  # ticks per timed block (the FIFOs are popped between blocks)
 COLD_TICKS = 200  # single ticks timed after evicting the caches, per row
@@ -199,7 +200,7 @@ class TgStandIn:
         self.dt = dt
         self.fifos = [
             InterpolatingFifo(
-                arena, layout.KEY_FIFO.format(robot=f"arm{k}"), 6, FIFO_CAPACITY, ratio
+                arena, layout.KEY_FIFO.format(robot=f"arm{k}"), N, FIFO_CAPACITY, ratio
             )
             for k in range(n_arms)
         ]
@@ -207,10 +208,10 @@ class TgStandIn:
         self.status = arena.record(
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
-        self._setpoints = self.tg_robots["setpoint"]
+        self._setpoint_of = [self.tg_robots["setpoint"][k, :N] for k in range(n_arms)]
         self._progress = self.status["progress"]
         self._tick = self.tg_robots["tick"]
-        self._out = np.empty(6)
+        self._out = np.empty(N)
 
     def drain(self) -> None:
         """Pop every FIFO as SIO would, until every set-point has been taken (untimed)."""
@@ -259,7 +260,8 @@ def make_motions(mode: str, systems: int, dt: float) -> list[Motion]:
                 TRANSITION_S,
                 dt,
             )
-        motions.append(Motion(s + 1, robots, profile, out=np.zeros(6 * n)))
+        out, rows = joint_rows([N] * n)
+        motions.append(Motion(s + 1, robots, profile, out=out, rows=rows))
     return motions
 
 

@@ -36,7 +36,7 @@ with Kali() as kali:
     q0 = arm.read_joints()
     out = q0.copy()
     out[j] += SWING
-    robots = servo.level.robots
+    q, demand = servo.level.arm("q", arm.index), servo.level.arm("demand", arm.index)
     print(f"{ROBOT} joint {JOINT}: {algorithm}, kp {kp0:g} at start")
     print("    kp   rms error (mrad)   max error (mrad)")
     for scale in (0.5, 1.0, 2.0):
@@ -46,11 +46,11 @@ with Kali() as kali:
             swing = arm.move_joints(target, speed=0.5, wait=False)
             while not swing.done:
                 kali.pause()
-                errors.append(float(robots["q"][arm.index][j] - robots["demand"][arm.index][j]))
+                errors.append(float(q[j] - demand[j]))
             swing.wait(0)
         e = np.array(errors) * 1000
         print(f"{kp0 * scale:6g}   {np.sqrt(np.mean(e**2)):17.3f}   {np.abs(e).max():16.3f}")
     servo.set_params(ROBOT, JOINT, {"kp": kp0})
     arm.move_joints(q0)
     print(f"kp back to {servo.get_params(ROBOT, JOINT)['kp']:g}; the arm is where it started")
-    del robots
+    del q, demand

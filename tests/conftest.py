@@ -9,9 +9,10 @@ import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from kali_daemons import launcher
+from kali_daemons import launcher, layout
 from kali_daemons.arena import Arena
 from kali_daemons.config import KaliConfig, parse_config
 
@@ -22,6 +23,21 @@ DEFAULT_TEXT = (ROOT / "config" / "default.yaml").read_text()
 def unique_name(prefix: str = "t") -> str:
     """An instance name no other test (or test run) uses."""
     return f"{prefix}{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+class ByArm:
+    """A uniform cell's servo level (every arm with the same joint count, as the default
+    config's two PUMAs): ``JOINT_STATE`` fields as live ``(robots, joints)`` views, the
+    ``ROBOT_STATE`` fields as they are, so ``by_arm["q"][k, j]`` is arm k's joint j."""
+
+    def __init__(self, level: object) -> None:
+        self.level = level
+
+    def __getitem__(self, field: str) -> np.ndarray:
+        level = self.level
+        if field in (layout.JOINT_STATE.names or ()):
+            return level.joints[field].reshape(level.n_robots, -1)  # type: ignore[attr-defined]
+        return level.robots[field]  # type: ignore[attr-defined]
 
 
 def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfig:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kali_daemons import layout
-from kali_daemons.robots import puma560
+from kali_daemons.robots import puma560, robot_type
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.robots.puma560.kinematics import CONFIGS, KinematicsError
 from kali_daemons.tg.cartesian import (
@@ -33,6 +33,7 @@ LEFT = base_transform((-0.6, 0.0, 0.0), 0.0)
 RIGHT = base_transform((0.6, 0.0, 0.0), 180.0)
 
 PUMA = puma560.ROBOT
+PANDA = robot_type("panda")
 
 
 def world_pose(base: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -112,6 +113,32 @@ def test_two_arms_holding_one_object_agree_on_it_at_every_sample() -> None:
         o_right = world_pose(RIGHT, rows[1]) @ inverse(g_right)
         np.testing.assert_allclose(o_left, o_right, atol=1e-9)
     np.testing.assert_allclose(o_left, target, atol=1e-9)
+
+
+def test_a_puma_and_a_panda_hold_one_object_each_with_its_own_joints() -> None:
+    """A motion system of a 6-joint and a 7-joint arm: each starts, is checked and sampled
+    over its own joint count, and a start of another length is refused, naming the arm,
+    its type and its count."""
+    q_left, q_right = np.array(puma560.QN), PANDA.q_home.copy()
+    obj = world_pose(LEFT, q_left)
+    g_left = np.eye(4)
+    g_right = inverse(obj) @ RIGHT @ PANDA.kinematics.fkine(q_right)
+    target = translated(obj, (0.0, 0.03, 0.05))
+    plan = CartesianMotion(
+        ["left", "right"], [PUMA, PANDA], [LEFT, RIGHT], [g_left, g_right],
+        [q_left, q_right], [None, None], [target], 0.1, 0.5, 0.0, DT,
+    )  # fmt: skip
+    plan.check_all()
+    rows = plan.sample(plan.duration)
+    assert [r.shape for r in rows] == [(6,), (7,)]
+    o_right = RIGHT @ PANDA.kinematics.fkine(rows[1]) @ inverse(g_right)
+    np.testing.assert_allclose(world_pose(LEFT, rows[0]), target, atol=1e-9)
+    np.testing.assert_allclose(o_right, target, atol=1e-6)
+    with pytest.raises(MotionError, match=r"robot 'right' \(panda, 7 joints\) starts at 6 joint"):
+        CartesianMotion(
+            ["left", "right"], [PUMA, PANDA], [LEFT, RIGHT], [g_left, g_right],
+            [q_left, q_right[:6]], [None, None], [target], 0.1, 0.5, 0.0, DT,
+        )  # fmt: skip
 
 
 def test_arms_that_do_not_hold_the_object_where_their_grasps_say_are_refused() -> None:

@@ -15,7 +15,9 @@ import pytest
 import roboticstoolbox as rtb
 
 from kali_daemons import layout
+from kali_daemons.arena import Arena
 from kali_daemons.client import Kali
+from kali_daemons.dynamics.daemon import Dynamics
 from kali_daemons.dynamics.inverse import InverseDynamics, central_differences
 from kali_daemons.instance import Instance
 from kali_daemons.layout import FfMode, FfState, PowerState
@@ -23,7 +25,9 @@ from kali_daemons.robots import puma560
 from kali_daemons.servolevel import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
+from .conftest import make_config
 from .test_launcher import kalictl
+from .test_tg import MIXED
 
 # The issue's move is jtraj qz → qn in 1.5 s.  That needs 3.93 rad/s on joint 3, and the
 # PUMA 560's joint-3 motor reaches 2.85 rad/s on the 40 V bus (puma560.MAX_JOINT_SPEED): the
@@ -31,6 +35,7 @@ from .test_launcher import kalictl
 # 2.36 rad/s) is the same standard move at a speed this arm has.
 MOVE_S = 2.5
 SAMPLE_TICKS = 5  # tracking error sampled every 5 servo ticks
+LEFT = slice(0, puma560.ROBOT.n_joints)  # the default cell's left PUMA: the first flat joints
 
 
 def ff_records(inst: Instance) -> np.ndarray:
@@ -67,10 +72,45 @@ def test_central_differences_are_exact_for_a_parabola_over_unequal_segments() ->
     np.testing.assert_allclose(qdd, c, atol=1e-7)
 
 
+def test_a_mixed_cell_gets_rows_as_wide_as_each_arm(arena: Arena) -> None:
+    """A PUMA 560 (6 joints) and a Panda (7): each arm's FIFO, scratch and feed-forward
+    columns are its joint count wide (the record's other columns stay 0), its torques are its
+    own type's, and its servos' k_v are read from its own slots (flat base[k] + j)."""
+    cfg = make_config("mixed", MIXED)
+    arena.record(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, 2)  # as SIO lays it out
+    dyn = Dynamics(cfg.instance, "dynamics")
+    dyn.load(cfg)
+    dyn.attach(cfg, arena)
+    assert [f.width for f in dyn.fifos] == [6, 7] and [a.n for a in dyn.arms] == [6, 7]
+    dyn._algo = np.zeros(13, dtype=np.uint32)
+    dyn._enabled = np.ones(13, dtype=np.uint8)
+    dyn._kv_views = [[np.array([float(i)])] for i in range(13)]  # slot i's only algorithm: i
+    dyn._servo_gains(1)
+    np.testing.assert_array_equal(dyn.arms[1].kv, np.arange(6.0, 13.0))
+    ff = dyn.ff
+    for k, r in enumerate(cfg.robots):
+        rtype = r.type
+        points = [rtype.q_home + 0.01 * i for i in range(3)]
+        for q in points:
+            dyn.fifos[k].push(q)
+        dyn._robot(k, FfMode.GRAVITY)
+        own = InverseDynamics(rtype)
+        for i, q in enumerate(points):
+            row = (i + 1) % layout.FF_ROWS
+            assert int(ff["key"][k, row]) == i + 1
+            np.testing.assert_array_equal(ff["q"][k, row, : rtype.n_joints], q)
+            zero = np.zeros(rtype.n_joints)
+            gravity = own.torque(FfMode.GRAVITY, q, zero, zero, zero)
+            np.testing.assert_allclose(ff["tau"][k, row, : rtype.n_joints], gravity, atol=1e-12)
+            assert not ff["q"][k, row, rtype.n_joints :].any()
+            assert not ff["tau"][k, row, rtype.n_joints :].any()
+    del ff
+
+
 def _run(inst: Instance, client: ServoClient, traj: np.ndarray) -> np.ndarray:
     """Push ``traj`` (TG-rate set-points) into left's FIFO as the commanded path, step the
     clock through it and return the tracking error (demand − q) every SAMPLE_TICKS."""
-    r = client.level.robots
+    r = client.level.joints  # per joint, flat; the left arm's are LEFT
     fifo = client.level.fifo(0)
     ratio = int(fifo.ratio)
     for row in traj[1:]:
@@ -78,9 +118,9 @@ def _run(inst: Instance, client: ServoClient, traj: np.ndarray) -> np.ndarray:
     errors = []
     for k in range(1, (len(traj) - 1) * ratio // SAMPLE_TICKS + 1):
         step_kali_clock(inst, SAMPLE_TICKS)
-        errors.append(r["demand"][0] - r["q"][0])
+        errors.append(r["demand"][LEFT] - r["q"][LEFT])
         if k * SAMPLE_TICKS % ratio == 0:  # a set-point instant: the demand is the path's
-            np.testing.assert_array_equal(r["demand"][0], traj[k * SAMPLE_TICKS // ratio])
+            np.testing.assert_array_equal(r["demand"][LEFT], traj[k * SAMPLE_TICKS // ratio])
     step_kali_clock(inst, 300)  # the arm comes to rest
     assert inst.fault_text() is None
     return np.array(errors)
@@ -103,7 +143,7 @@ def test_full_feedforward_lowers_the_tracking_error_of_the_standard_jtraj_move(
         puma = rtb.models.DH.Puma560()
         period_s = inst.config.clock.tg_period_ms / 1000.0
         t = np.linspace(0.0, MOVE_S, round(MOVE_S / period_s) + 1)
-        q0 = client.level.robots["demand"][0].copy()  # qz as this arm measures it
+        q0 = client.level.joints["demand"][LEFT].copy()  # qz as this arm measures it
         there = rtb.jtraj(puma.qz, puma.qn, t).q + q0
         back = there[::-1].copy()
         rms = {}
@@ -152,13 +192,13 @@ def test_stale_feedforward_is_dropped_and_comes_back(kali: Callable[..., str]) -
 def _stop_and_continue_dynamics(inst: Instance, client: ServoClient) -> None:
     ffc = inst.config.feedforward
     rec = ff_records(inst)
-    r = client.level.robots
+    r = client.level.joints
     client.power("left", True)
     _wait("left powered", lambda: client.power_state("left") == PowerState.ON, 5.0)
     _wait("feed-forward on", lambda: float(rec["weight"][0]) == 1.0, 5.0)
     assert FfMode(int(rec["mode"][0])) == FfMode.GRAVITY
     assert FfState(int(rec["state"][0])) == FfState.ON
-    gravity = r["ff_torque"][0].copy()
+    gravity = r["ff_torque"][LEFT].copy()
     assert abs(gravity[1]) > 5.0, f"joint 2 gravity feed-forward {gravity[1]:.2f} N·m"
     pid = int(inst.procs[inst.find_slot("dynamics")]["pid"])
     os.kill(pid, signal.SIGSTOP)
@@ -166,7 +206,7 @@ def _stop_and_continue_dynamics(inst: Instance, client: ServoClient) -> None:
         went = _wait(
             "STALE", lambda: int(rec["state"][0]) == FfState.STALE, 2.0 + ffc.stale_ms / 1e3
         )
-        _wait("faded out", lambda: not r["ff_torque"][0].any(), 2.0 + ffc.ramp_ms / 1e3)
+        _wait("faded out", lambda: not r["ff_torque"][LEFT].any(), 2.0 + ffc.ramp_ms / 1e3)
         assert int(rec["stale_events"][0]) == 1
         assert client.power_state("left") == PowerState.ON
         assert inst.fault_text() is None
@@ -174,7 +214,7 @@ def _stop_and_continue_dynamics(inst: Instance, client: ServoClient) -> None:
         os.kill(pid, signal.SIGCONT)
     _wait("back on", lambda: int(rec["state"][0]) == FfState.ON, 2.0)
     _wait("faded in", lambda: float(rec["weight"][0]) == 1.0, 2.0 + ffc.ramp_ms / 1e3)
-    np.testing.assert_allclose(r["ff_torque"][0], gravity, atol=0.5)
+    np.testing.assert_allclose(r["ff_torque"][LEFT], gravity, atol=0.5)
     assert int(rec["stale_events"][0]) == 1
     assert inst.fault_text() is None
     assert went < 1.0 + ffc.stale_ms / 1e3

@@ -128,7 +128,7 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
             power_all(inst, client, 2300)  # more than the ring holds
             assert client.power_state("right") == PowerState.ON
             # a runaway: a set-point 0.05 rad away with a tolerance of 0.01 rad
-            target = client.level.robots["demand"][1].copy()
+            target = client.level.arm("demand", 1).copy()
             target[2] += 0.05
             client.level.fifo(1).push(target)
             client.set_safe("right", 3, 0.01)
@@ -153,10 +153,9 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
             assert str(d["fault_code"]) == "RUNAWAY" and str(d["fault_process"]) == "sio"
             assert list(d["robots"]) == ["left", "right"] and d["q"].shape == (ROWS, 2, 6)
             # the last row is what SIO published in the robot records at that tick
-            r = client.level.robots
-            row = int(np.searchsorted(ticks, int(r["tick"][1])))
+            row = int(np.searchsorted(ticks, int(client.level.robots["tick"][1])))
             for f_ in ("q", "demand", "torque", "current"):
-                assert np.array_equal(d[f_][row], r[f_]), f_
+                assert np.array_equal(d[f_][row], client.level.joints[f_].reshape(2, 6)), f_
             # ... and the error it halted on is the recorded demand - position
             fault_row = int(np.searchsorted(ticks, fault_tick))
             err = float(d["demand"][fault_row, 1, 2] - d["q"][fault_row, 1, 2])

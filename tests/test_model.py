@@ -1,4 +1,5 @@
-"""Tests for the PUMA 560 model: facts, the generated URDF, Pinocchio and the MuJoCo cell.
+"""Tests for the arm models: the PUMA 560 facts, the generated URDF, Pinocchio and the MuJoCo
+cell (also a mixed one with a 7-joint Panda).
 
 robotics-toolbox-python's ``Puma560`` (the source puma560.md transcribes) is the independent
 oracle: its recursive Newton-Euler and forward kinematics are computed straight from the DH
@@ -24,10 +25,11 @@ from kali_daemons.errors import ConfigError, ModelError
 from kali_daemons.model import (
     FLANGE_FRAME,
     World,
+    _attach_arm,
     build_world,
     load_pinocchio,
 )
-from kali_daemons.robots import puma560
+from kali_daemons.robots import puma560, robot_type
 
 ROOT = Path(__file__).resolve().parents[1]
 GEN_SCRIPT = ROOT / "scripts" / "gen_puma560_urdf.py"
@@ -469,6 +471,56 @@ def test_world_index(cell: World) -> None:
         cell.index("middle")
     with pytest.raises(ModelError, match="out of range"):
         cell.index(2)
+
+
+def test_a_mixed_cell_sizes_each_robot_by_its_type() -> None:
+    """A PUMA 560 and a 7-joint Panda in one cell: every per-robot index has the type's joint
+    count, addresses never overlap, each dof has its drive's armature and motor, and the
+    Panda's flange in MuJoCo is Pinocchio's on the same URDF."""
+    robots = (
+        RobotConfig("left", "puma560", (-0.6, 0.0, 0.0), 0.0),
+        RobotConfig("right", "panda", (0.6, 0.0, 0.0), 180.0),
+    )
+    world = build_world(robots)
+    m = world.model
+    assert [r.n_joints for r in robots] == [6, 7]
+    for field in ("qpos_adr", "dof_adr", "motor", "motor_act_adr"):
+        sizes = [len(a) for a in getattr(world, field)]
+        assert sizes == [6, 7], field
+        flat = np.concatenate(getattr(world, field))
+        assert len(set(flat.tolist())) == 13, f"{field}: every joint its own"
+    assert m.nu == m.na == 13
+    for k, r in enumerate(robots):
+        t = r.type
+        dofs, motors = world.dof_adr[k], world.motor[k]
+        np.testing.assert_array_equal(m.dof_armature[dofs], t.drive.armature)
+        np.testing.assert_allclose(m.actuator_gear[motors, 0], t.drive.gear * t.drive.kt)
+        np.testing.assert_array_equal(m.actuator_trnid[motors, 0], m.dof_jntid[dofs])
+        np.testing.assert_allclose(m.actuator_actrange[motors, 1], t.drive.max_current)
+        assert m.jnt_qposadr[m.dof_jntid[dofs]].tolist() == world.qpos_adr[k].tolist()
+    panda = robot_type("panda")
+    pmodel = load_pinocchio(panda)
+    pdata = pmodel.createData()
+    fid = pmodel.getFrameId(FLANGE_FRAME)
+    data = mujoco.MjData(m)
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        q = rng.uniform(panda.q_min, panda.q_max)
+        data.qpos[world.qpos_adr[1]] = q
+        mujoco.mj_kinematics(m, data)
+        pin.framesForwardKinematics(pmodel, pdata, q)
+        expected = yaw_transform(robots[1]) * pdata.oMf[fid]
+        flange = site_pose(world, data, world.flange_site[1])
+        np.testing.assert_allclose(flange.translation, expected.translation, atol=1e-12)
+        np.testing.assert_allclose(flange.rotation, expected.rotation, atol=1e-12)
+
+
+def test_an_arm_file_with_another_joint_count_is_refused() -> None:
+    """A type of 6 joints on the Panda's 7-joint file: one joint would move unactuated."""
+    wrong = dataclasses.replace(puma560.ROBOT, urdf=robot_type("panda").urdf)
+    robot = RobotConfig("a", "puma560", (0.0, 0.0, 0.0), 0.0)
+    with pytest.raises(ModelError, match=r"expects 6 moving joints, the file has 7: j1, .*j7"):
+        _attach_arm(mujoco.MjSpec(), robot, wrong)
 
 
 def test_build_world_refusals() -> None:

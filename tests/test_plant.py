@@ -40,6 +40,8 @@ from .test_launcher import kalictl
 
 CFG = make_config("plant")
 MS = 1_000_000
+N = puma560.ROBOT.n_joints  # the PUMA's joints: channels 0..N-1 of its boards
+LEFT = CFG.joints.span(0)  # the left arm's joints in the plant's flat arrays
 
 
 @pytest.fixture
@@ -110,7 +112,7 @@ def test_watchdog_trips_after_20_ms_then_brakes(plant: PlantSim) -> None:
             t_off = t
             assert power(plant) & POWER_WATCHDOG_TRIPPED
             assert power(plant) & POWER_BRAKES_RELEASED  # brakes still open: ~50 ms solenoid
-            assert np.all(plant.current[:6] == 0.0)
+            assert np.all(plant.current[LEFT] == 0.0)
         if t_off is not None and not power(plant) & POWER_BRAKES_RELEASED:
             assert 48 <= t - t_off <= 52
             break
@@ -167,22 +169,22 @@ def test_estop_cuts_power_and_blocks_enables(plant: PlantSim) -> None:
 
 
 def test_zero_dac_brakes_released_the_arm_falls_brakes_hold(plant: PlantSim) -> None:
-    q0 = plant.q[:6].copy()
+    q0 = plant.q[LEFT].copy()
     run_ms(plant, 1000)  # power off: brakes hold
-    assert np.max(np.abs(plant.q[:6] - q0)) < 2e-3
+    assert np.max(np.abs(plant.q[LEFT] - q0)) < 2e-3
     enable(plant)
     run_ms(plant, 49)  # brakes still engaged after the enable
-    assert np.max(np.abs(plant.q[:6] - q0)) < 2e-3
+    assert np.max(np.abs(plant.q[LEFT] - q0)) < 2e-3
     run_ms(plant, 400)  # zero current, brakes released: gravity wins over friction
     assert abs(plant.q[1] - q0[1]) > 0.1
     plant.boards[0].regs["csr"] = 0  # power off: the brakes catch it ~50 ms later
     run_ms(plant, 40)
-    assert np.any(np.abs(plant.qd[:6]) > 0.05)  # still falling while the solenoids move
+    assert np.any(np.abs(plant.qd[LEFT]) > 0.05)  # still falling while the solenoids move
     run_ms(plant, 200)
-    assert np.all(np.abs(plant.qd[:6]) < 1e-3)  # stopped by the brakes
-    q1 = plant.q[:6].copy()
+    assert np.all(np.abs(plant.qd[LEFT]) < 1e-3)  # stopped by the brakes
+    q1 = plant.q[LEFT].copy()
     run_ms(plant, 1000)
-    assert np.max(np.abs(plant.q[:6] - q1)) < 2e-3
+    assert np.max(np.abs(plant.q[LEFT] - q1)) < 2e-3
 
 
 def test_dac_drives_the_joint_with_the_right_sign(plant: PlantSim) -> None:
@@ -206,24 +208,24 @@ def test_dac_codes_beyond_12_bits_are_clamped_and_counted(plant: PlantSim) -> No
 
 def test_current_loop_is_first_order_at_500_hz(plant: PlantSim) -> None:
     enable(plant)  # brakes still hold for ~50 ms: the joints stay put while we watch
-    plant.dac[0]["code"][:6] = layout.DAC_ZERO + 82  # 0.4 V → 1 A, below every limit
+    plant.dac[0]["code"][:N] = layout.DAC_ZERO + 82  # 0.4 V → 1 A, below every limit
     plant.cycle()
     tau = 1.0 / (2 * math.pi * 500)
     expected = 2.5 * 82 * 10 / 2048 * (1.0 - math.exp(-0.001 / tau))  # one 1 ms cycle
-    assert plant.current[:6] == pytest.approx(np.full(6, expected), rel=1e-6)
-    assert plant.torque[:6] == pytest.approx(
-        np.asarray(puma560.G) * np.asarray(puma560.KT) * plant.current[:6]
+    assert plant.current[LEFT] == pytest.approx(np.full(N, expected), rel=1e-6)
+    assert plant.torque[LEFT] == pytest.approx(
+        np.asarray(puma560.G) * np.asarray(puma560.KT) * plant.current[LEFT]
     )
 
 
 def test_current_saturates_at_the_motor_peak(plant: PlantSim) -> None:
     enable(plant)
-    plant.dac[0]["code"][:6] = 4095  # +10 V: 25 A asked for
+    plant.dac[0]["code"][:N] = 4095  # +10 V: 25 A asked for
     run_ms(plant, 10)  # the brakes still hold: no speed, no back-EMF
-    assert np.allclose(plant.current[:6], puma560.MAX_CURRENT)
+    assert np.allclose(plant.current[LEFT], puma560.MAX_CURRENT)
     plant.boards[0].regs["csr"] = 0  # power off
     plant.cycle()
-    assert np.all(plant.current[:6] == 0.0)  # a disabled amplifier cuts its current at once
+    assert np.all(plant.current[LEFT] == 0.0)  # a disabled amplifier cuts its current at once
 
 
 def test_back_emf_limits_the_current_at_speed() -> None:
@@ -231,16 +233,16 @@ def test_back_emf_limits_the_current_at_speed() -> None:
     bank.enabled[:] = 1.0
     omega_m = np.array([140.0, 140.0, 140.0, 400.0, 400.0, 400.0])  # motor speeds, rad/s
     qd = omega_m / np.asarray(puma560.G)
-    bank.cycle(np.full(6, 10.0), qd)
+    bank.cycle(np.full(N, 10.0), qd)
     kt, r = np.asarray(puma560.KT), np.asarray(puma560.R_ARMATURE)
     limit = (puma560.BUS_VOLTAGE - kt * omega_m) / r
     assert np.all(limit < np.asarray(puma560.MAX_CURRENT))  # the voltage, not the peak, binds
     assert bank.range[:, 1] == pytest.approx(limit)
     assert bank.ctrl == pytest.approx(limit)
-    bank.cycle(np.full(6, -10.0), qd)  # braking against the motion gets the full peak
+    bank.cycle(np.full(N, -10.0), qd)  # braking against the motion gets the full peak
     assert bank.ctrl == pytest.approx(-np.asarray(puma560.MAX_CURRENT))
     bank.enabled[:] = 0.0
-    bank.cycle(np.full(6, 10.0), qd)
+    bank.cycle(np.full(N, 10.0), qd)
     assert np.all(bank.range == 0.0) and np.all(bank.ctrl == 0.0)
 
 
@@ -265,7 +267,7 @@ def _board(arena: Arena, phase: float = 0.3) -> tuple[IoBoardSim, EncoderBank, n
     rack = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, 1)
     regs = rack[0:1].reshape(())
     board = IoBoardSim(regs, CFG.plant, puma560.ROBOT)
-    return board, EncoderBank(rack, [puma560.ROBOT], np.full(6, phase), np.zeros(6)), regs
+    return board, EncoderBank(rack, [puma560.ROBOT], np.full(N, phase), np.zeros(N)), regs
 
 
 def test_encoder_counts_follow_motor_angle_wrap_and_index_reset(arena: Arena) -> None:
@@ -274,23 +276,23 @@ def test_encoder_counts_follow_motor_angle_wrap_and_index_reset(arena: Arena) ->
     regs["csr"] = CSR_INDEX_OFF  # capture off: a free-running 12-bit counter
     angles = np.linspace(0, 12 * math.pi, 3000)  # six motor revolutions, forward
     for a in angles:
-        encoders.sample(np.full(6, a))
+        encoders.sample(np.full(N, a))
         expected = np.floor(a / (2 * math.pi) * cpr).astype(int) % 4096
-        assert list(regs["encoder"][:6]) == list(expected)
+        assert list(regs["encoder"][:N]) == list(expected)
     assert int(regs["index"]) == 0
     for a in angles[::-1]:  # and back: counts go down, wrapping below 0 to 4095
-        encoders.sample(np.full(6, a - 12 * math.pi))
-    assert list(regs["encoder"][:6]) == list(np.floor(-12 * math.pi / (2 * math.pi) * cpr) % 4096)
+        encoders.sample(np.full(N, a - 12 * math.pi))
+    assert list(regs["encoder"][:N]) == list(np.floor(-12 * math.pi / (2 * math.pi) * cpr) % 4096)
     # capture on: passing the index pulse (motor angle 0.3 rad + 2πk) resets the counter
-    encoders.sample(np.full(6, 0.0))
+    encoders.sample(np.full(N, 0.0))
     regs["csr"] = 0
-    encoders.sample(np.full(6, 0.29))
+    encoders.sample(np.full(N, 0.29))
     assert int(regs["index"]) == 0
-    encoders.sample(np.full(6, 0.31))
-    assert int(regs["index"]) == 0b111111
+    encoders.sample(np.full(N, 0.31))
+    assert int(regs["index"]) == (1 << N) - 1
     at_index = np.floor(0.3 / (2 * math.pi) * cpr)
     expected = (np.floor(0.31 / (2 * math.pi) * cpr) - at_index) % 4096
-    assert list(regs["encoder"][:6]) == list(expected.astype(int))
+    assert list(regs["encoder"][:N]) == list(expected.astype(int))
     regs["csr"] = CSR_INDEX_OFF  # disabling capture clears the register
     board.update(0)
     assert int(regs["index"]) == 0
@@ -313,29 +315,29 @@ def test_sio_reads_every_pot_right_when_the_board_falls_behind(arena: Arena) -> 
     interleaving, each channel's code is that pot's, never the previous channel's."""
     board, _, regs = _board(arena)
     q = np.radians([-120.0, 200.0, -200.0, 150.0, -80.0, 250.0])  # six distinct pot codes
-    want = [adc_code(pot_volts(float(q[j]), puma560.Q_MIN[j], puma560.Q_MAX[j])) for j in range(6)]
-    assert len(set(want)) == 6
+    want = [adc_code(pot_volts(float(q[j]), puma560.Q_MIN[j], puma560.Q_MAX[j])) for j in range(N)]
+    assert len(set(want)) == N
     rng = np.random.default_rng(3)
     for _ in range(50):
-        reader = PotReader(regs["adc_control"], regs["adc_analog"])  # 0-d views, as SIO's
+        reader = PotReader(regs["adc_control"], regs["adc_analog"], N)  # 0-d views, as SIO's
         reader.restart()
         for _tick in range(200):
             if reader.poll():
                 break
             for _ in range(int(rng.choice([0, 0, 1, 1, 2]))):  # board cycles this tick
                 board.convert(q)
-        assert reader.poll(), "the six channels were read"
+        assert reader.poll(), "every channel was read"
         assert reader.codes == want
 
 
 def test_potentiometers_are_monotonic_8_bit_and_tell_index_pulses_apart(arena: Arena) -> None:
     board, _, regs = _board(arena)
     lo, hi = puma560.Q_MIN, puma560.Q_MAX
-    for j in range(6):
+    for j in range(N):
         qs = np.linspace(lo[j], hi[j], 400)
         codes = []
         for qj in qs:
-            q = np.zeros(6)
+            q = np.zeros(N)
             q[j] = qj
             codes.append(_convert(board, regs, q, j))
         assert all(b >= a for a, b in itertools.pairwise(codes))
@@ -343,11 +345,93 @@ def test_potentiometers_are_monotonic_8_bit_and_tell_index_pulses_apart(arena: A
         spacing = 2 * math.pi / abs(puma560.G[j])  # joint angle between index pulses
         span = (hi[j] - lo[j]) / spacing
         assert (max(codes) - min(codes)) / span >= 2.0, f"joint {j + 1}: pot too coarse"
-    assert _convert(board, regs, np.zeros(6), 10) == adc_code(2.5)  # self-test reference
+    assert _convert(board, regs, np.zeros(N), 10) == adc_code(2.5)  # self-test reference
     regs["adc_control"] = ADC_START | 15  # beyond the 11 inputs: clamped and counted
-    board.convert(np.zeros(6))
+    board.convert(np.zeros(N))
     assert int(regs["clamped"]) == 1
     assert pot_volts(lo[0], lo[0], hi[0]) == pytest.approx(0.25)
+
+
+# ---------------------------------------------------------------------- a mixed cell
+
+MIXED = make_config("plant-mixed", {r"^(  - \{name: right, +)model: puma560": r"\1model: panda"})
+
+
+def _counts(motor_angle: np.ndarray, at_zero: np.ndarray, cpr: np.ndarray) -> np.ndarray:
+    """What a free-running HCTL-2000 reads: counts since ``at_zero``, modulo 4096."""
+    per_rad = cpr / (2 * math.pi)
+    return (np.floor(motor_angle * per_rad) - np.floor(at_zero * per_rad)) % 4096
+
+
+def test_a_puma_and_a_panda_keep_their_joints_on_their_own_channels(arena: Arena) -> None:
+    """A PUMA 560 (6 joints) and a Panda (7) in one plant: 13 joints flat in the plant and in
+    JOINT_TRUTH, each arm's joint j on channel j of its own boards, channels past an arm's
+    joint count untouched.  Amplifiers off, brakes on; the arms are moved by hand."""
+    joints = MIXED.joints
+    assert joints.counts == (6, 7) and joints.total == 13
+    sim = PlantSim(MIXED, arena)
+    types = [r.type for r in MIXED.robots]
+    truth = arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, joints.total)
+    np.testing.assert_array_equal(truth["q"], np.concatenate([t.q_home for t in types]))
+    at_zero = truth["motor_angle"].copy()  # where each counter was powered on
+    # every DAC channel of both boards gets a code; only the arms' joints' channels are read
+    codes = layout.DAC_ZERO + 100 * np.arange(1, layout.DAC_CHANNELS + 1)
+    for k, count in enumerate(joints.counts):
+        sim.dac[k]["code"] = codes
+        sim.dac[k]["code"][count:] = 5000  # beyond 12 bits, but on no joint: never clamped
+        sim.boards[k].regs["csr"] = CSR_INDEX_OFF  # amplifiers off; counters free-running
+    # by hand, every joint a little off its home angle, each by its own amount
+    for k, t in enumerate(types):
+        moved = t.q_home + 0.01 * np.arange(1, t.n_joints + 1) * (1 if k == 0 else -1)
+        sim.data.qpos[sim.world.qpos_adr[k]] = moved
+    run_ms(sim, 50)
+    assert len(truth) == joints.total
+    for k, (robot, t) in enumerate(zip(MIXED.robots, types, strict=True)):
+        n, span, board = t.n_joints, joints.span(k), sim.boards[k].regs
+        q = truth["q"][span]
+        np.testing.assert_array_equal(q, sim.data.qpos[sim.world.qpos_adr[k]])
+        moved = t.q_home + 0.01 * np.arange(1, n + 1) * (1 if k == 0 else -1)
+        assert np.abs(q - moved).max() < 1e-4, f"{robot.name}: the brakes hold"
+        np.testing.assert_array_equal(truth["motor_angle"][span], t.drive.gear * q)
+        assert not truth["current"][span].any() and not truth["torque"][span].any()
+        arm = sim.truth[k]
+        assert int(arm["brakes_engaged"]) == 1 and int(arm["amps_on"]) == 0
+        assert int(board["power"]) & (POWER_AMPS_ON | POWER_BRAKES_RELEASED) == 0
+        cpr = np.asarray(t.drive.counts_per_rev, dtype=float)
+        want = _counts(truth["motor_angle"][span], at_zero[span], cpr)
+        assert want.min() > 0, "every joint moved by counts"
+        assert list(board["encoder"][:n]) == list(want.astype(int)), robot.name
+        assert not board["encoder"][n:].any(), f"{robot.name}: channels {n}.. stay 0"
+        assert int(board["index"]) == 0
+        np.testing.assert_allclose(sim.volts[span], (codes[:n] - layout.DAC_ZERO) * 10 / 2048)
+        assert int(sim.dac[k]["clamped"]) == 0
+        # the pots: channel j is joint j of this arm; past the arm's joints, unconnected
+        for ch in range(layout.BOARD_CHANNELS):
+            got = _convert(sim.boards[k], board, q, ch)
+            pot = adc_code(pot_volts(float(q[ch]), t.q_min[ch], t.q_max[ch])) if ch < n else 0
+            assert got == pot, f"{robot.name} channel {ch}"
+        assert int(board["adc_digital"]) >> n == 0
+    # an index pulse on the Panda's joint 7 is captured on channel 6 of the right board only
+    right, j = 1, 6
+    i = joints.index(right, j)
+    gear = float(types[right].drive.gear[j])
+    phase = float(MIXED.robots[right].index_phases[j])
+    board = sim.boards[right].regs
+    for regs in (sim.boards[0].regs, board):
+        regs["csr"] = 0  # capture on (still disabled: no amplifiers)
+    run_ms(sim, 1)
+    around = 2 * math.pi * math.floor(sim.motor_angle[i] / (2 * math.pi)) + phase
+    for motor in (around - 0.02, around + 0.02):
+        sim.data.qpos[sim.world.qpos_adr[right][j]] = motor / gear
+        run_ms(sim, 1)
+    assert int(board["index"]) == 1 << j
+    assert int(sim.boards[0].regs["index"]) == 0
+    cpr = float(types[right].drive.counts_per_rev[j])
+    after = math.floor((around + 0.02) * cpr / (2 * math.pi)) - math.floor(
+        around * cpr / (2 * math.pi)
+    )
+    assert int(board["encoder"][j]) == after % 4096
+    assert not board["encoder"][7:].any()
 
 
 # ---------------------------------------------------------------------- as a process

@@ -18,6 +18,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from kali_daemons.robots import robot_type
 from kali_daemons.tg.profiles import (
     MIN_MOVE_RAD,
     PEAK_SPEED_FACTOR,
@@ -26,6 +27,7 @@ from kali_daemons.tg.profiles import (
     JointMotion,
     MotionError,
     StopRamp,
+    check_joint_target,
     stop_profile,
     stop_time_for,
 )
@@ -666,6 +668,25 @@ def test_slightly_imperfect_rotations_are_accepted_and_made_rigid() -> None:
     r = path.poses[1, :3, :3]
     assert np.allclose(r.T @ r, np.eye(3), rtol=0, atol=1e-15)
     assert np.allclose(r, noisy[:3, :3], rtol=0, atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# Joint targets, per robot type
+
+
+def test_joint_targets_are_checked_over_the_type_s_own_joints() -> None:
+    """A 7-joint Panda's target: all seven in range, the seventh's range its own; columns past
+    its count (a request record's) are not looked at; fewer values than joints are refused."""
+    panda = robot_type("panda")
+    q = panda.q_home.copy()
+    check_joint_target("right", q, panda)
+    check_joint_target("right", np.append(q, 99.0), panda)  # a MAX_JOINTS-wide row's spare
+    bad = q.copy()
+    bad[6] = panda.q_max[6] + 0.1
+    with pytest.raises(MotionError, match=r"robot 'right' joint 7: target .* outside its range"):
+        check_joint_target("right", bad, panda)
+    with pytest.raises(MotionError, match=r"robot 'right' \(panda\) has 7 joints; 6 target"):
+        check_joint_target("right", q[:6], panda)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -37,7 +37,7 @@ def test_a_program_killed_mid_motion_leaves_the_motion_and_the_queue_working(
 ) -> None:
     name = kali(lockstep=True)
     with powered(name) as k:
-        start = k.servo.level.robots["demand"][0].copy()
+        start = k.servo.level.arm("demand", 0).copy()
         target = start + np.radians([15, -10, 10, 0, 0, 0])
         prog = program(
             f"""
@@ -59,11 +59,11 @@ def test_a_program_killed_mid_motion_leaves_the_motion_and_the_queue_working(
             if int(k.status["state"][seq % len(k.status)]) == RequestState.DONE:
                 break
         assert int(k.status["state"][seq % len(k.status)]) == RequestState.DONE
-        np.testing.assert_allclose(k.servo.level.robots["demand"][0], target, atol=1e-12)
+        np.testing.assert_allclose(k.servo.level.arm("demand", 0), target, atol=1e-12)
         back = k.robot("left").move_joints(start, wait=False)  # the queue still works
         back.wait(timeout=60)  # (lockstep: waiting steps the clock)
         step_kali_clock(k.inst, 500)
-        assert np.abs(k.servo.level.robots["q"][0] - start).max() < math.radians(0.1)
+        assert np.abs(k.servo.level.arm("q", 0) - start).max() < math.radians(0.1)
         assert k.inst.fault_text() is None
 
 

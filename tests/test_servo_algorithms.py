@@ -75,10 +75,9 @@ class ServoLoop:
         if pose is not None:
             sim.place_arm(0, pose)
         self.registry = registry
-        self.driver = JointDriver([puma560.ROBOT])
-        self.encoder = sim.regs["encoder"]
-        self.driver.start(self.encoder)
-        self.driver.offset[:] = sim.truth["q"][0]  # set-up only: the arm starts calibrated
+        self.driver = JointDriver([puma560.ROBOT], sim.regs["encoder"], sim.dac["code"])
+        self.driver.start()
+        self.driver.offset[:] = sim.joint_truth["q"][CFG.joints.span(0)]  # starts calibrated
         self.q = np.zeros(6)
         self.q_prev = self.driver.offset.copy()
         self.demand = self.driver.offset.copy()
@@ -111,7 +110,7 @@ class ServoLoop:
 
     def tick(self) -> None:
         """One servo interval: read, hand over where asked, step every joint, write, plant."""
-        self.driver.read(self.encoder, self.q)
+        self.driver.read(self.q)
         q, demand = self.q.tolist(), self.demand.tolist()
         for j, index in self._pending.items():
             v = (q[j] - float(self.q_prev[j])) / T  # as SIO measures it: backward difference
@@ -125,7 +124,7 @@ class ServoLoop:
             assert status == 0
             self.torque[j] = tau
             self.error[j] = err
-        self.driver.output(self.torque, self.current, self.sim.dac["code"], self.clamped)
+        self.driver.output(self.torque, self.current, self.clamped)
         self.sim.cycle()
         np.copyto(self.q_prev, self.q)
         self.log_q.append(self.q.copy())

@@ -32,7 +32,7 @@ from kali_daemons.robots import puma560
 from kali_daemons.servolevel import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
-from .conftest import wait_for
+from .conftest import ByArm, wait_for
 from .test_launcher import kalictl
 
 COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # rad per count
@@ -80,7 +80,7 @@ def powered_in_real_time(name: str) -> Iterator[tuple[Instance, ServoClient]]:
 
 def error_counts(client: ServoClient) -> np.ndarray:
     """Tracking error of every joint in encoder counts, (robots, 6)."""
-    r = client.level.robots
+    r = ByArm(client.level)
     return (r["demand"] - r["q"]) / COUNT
 
 
@@ -99,9 +99,10 @@ def test_both_arms_hold_within_one_encoder_count(kali: Callable[..., str]) -> No
             worst = np.maximum(worst, np.abs(error_counts(client)))
         assert (worst <= 1.0).all(), f"hold error (counts) {worst}"
         # the measured angles are the plant's true ones to within the pot-based offsets
-        truth = inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
-        r = client.level.robots
-        assert np.abs(r["q"] - truth["q"]).max() < math.radians(2.0)
+        n = inst.config.joints.total
+        truth = inst.arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, n)
+        r = ByArm(client.level)
+        assert np.abs(r["q"] - truth["q"].reshape(2, 6)).max() < math.radians(2.0)
         assert inst.fault_text() is None
         ctrl = client.level.ctrl
         assert int(ctrl["sv_servos"][0]) + int(ctrl["sv_servos"][1]) >= 12 * SETTLE_TICKS
@@ -111,7 +112,7 @@ def test_both_arms_hold_within_one_encoder_count(kali: Callable[..., str]) -> No
 def _ramp(client: ServoClient, robot: int, joint: int, delta: float, points: int) -> None:
     """Push TG-rate set-points moving one joint by ``delta`` rad in ``points`` steps."""
     fifo = client.level.fifo(robot)
-    start = client.level.robots["demand"][robot].copy()
+    start = ByArm(client.level)["demand"][robot].copy()
     for m in range(1, points + 1):
         target = start.copy()
         target[joint] += delta * m / points
@@ -121,7 +122,7 @@ def _ramp(client: ServoClient, robot: int, joint: int, delta: float, points: int
 def test_a_step_and_a_ramp_settle_with_bounded_overshoot(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True)
     with servoing(name) as (inst, client):
-        r = client.level.robots
+        r = ByArm(client.level)
         for j in range(6):
             delta = 0.02
             q0 = float(r["q"][0, j])
@@ -149,7 +150,7 @@ def test_gains_and_algorithm_change_while_moving_without_a_torque_jump(
 ) -> None:
     name = kali(lockstep=True)
     with servoing(name) as (inst, client):
-        r = client.level.robots
+        r = ByArm(client.level)
         slots = client.level.slots
         _ramp(client, 0, 1, 0.15, 150)  # joint 2 moving for 1.5 s
         step_kali_clock(inst, 300)
@@ -199,7 +200,7 @@ def test_runaway_halts_naming_robot_joint_value_and_limit(kali: Callable[..., st
         step_kali_clock(inst, 100 + SETTLE_TICKS)
         assert client.power_state("right") == PowerState.ON, (
             inst.fault_text(),
-            client.level.robots["message"],
+            ByArm(client.level)["message"],
         )
         assert (np.abs(error_counts(client)) <= 1.0).all()
 
@@ -207,7 +208,7 @@ def test_runaway_halts_naming_robot_joint_value_and_limit(kali: Callable[..., st
 def test_range_halts(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True)
     with servoing(name) as (inst, client):
-        q5 = float(client.level.robots["q"][0, 4])
+        q5 = float(ByArm(client.level)["q"][0, 4])
         limit = float(puma560.Q_MAX[4])
         _ramp(client, 0, 4, limit + 0.05 - q5, 60)  # past +100° over 0.6 s
         step_kali_clock(inst, 800)
@@ -419,7 +420,7 @@ def test_sio_acknowledges_its_tick_once_the_boards_are_written(kali: Callable[..
     with powered_in_real_time(name) as (inst, client):
         os.sched_setaffinity(0, {1})  # beside SIO, not below it on its CPU
         try:
-            ack, published = inst.procs["ack_tick"], client.level.robots["tick"]
+            ack, published = inst.procs["ack_tick"], ByArm(client.level)["tick"]
             sio = inst.slot_of("sio")
             reads = ahead = 0
             end = time.monotonic() + 1.0
@@ -517,9 +518,10 @@ def test_calibration_finds_the_index_pulses_and_then_holds_within_one_count(
 ) -> None:
     name = kali(lockstep=True)
     with servoing(name) as (inst, client):
-        truth = inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
-        r = client.level.robots
-        before = (r["q"] - truth["q"]) / COUNT  # pot-based angles: off by many counts
+        n = inst.config.joints.total
+        truth = inst.arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, n)
+        r = ByArm(client.level)
+        before = (r["q"] - truth["q"].reshape(2, 6)) / COUNT  # pot-based angles: off by many counts
         assert np.abs(before).max() > 20
         assert not any(client.calibrated(n) for n in client.names)
         messages = _calibrate(inst, client)
@@ -529,7 +531,7 @@ def test_calibration_finds_the_index_pulses_and_then_holds_within_one_count(
         # the correction is the pot-based error, and the angles are now the true ones
         assert np.abs(r["calib_shift"] / COUNT + before).max() < 3
         step_kali_clock(inst, 1000)
-        after = (r["q"] - truth["q"]) / COUNT
+        after = (r["q"] - truth["q"].reshape(2, 6)) / COUNT
         assert np.abs(after).max() <= 1.0, f"calibrated angle error (counts) {after}"
         # every joint rests on its index pulse and holds there within ±1 count
         spacing = 2 * math.pi / np.abs(puma560.G)
@@ -584,13 +586,13 @@ def test_kalictl_calibrate_and_move(kali: Callable[..., str]) -> None:
                 if client.calibrated("left"):
                     break
             assert client.calibrated("left"), client.calibration("left")
-            rs = client.level.robots
+            rs = ByArm(client.level)
             start = np.degrees(rs["demand"][0])
             target = start + np.array([10, -5, 8, 20, -15, 30])
             joints = ",".join(f"{v:.4f}" for v in target)
             for bad, why in (
                 ("1,2,3", "3 values, expected 6"),
-                ("a,b,c,d,e,f", "six numbers in degrees"),
+                ("a,b,c,d,e,f", "one number in degrees per joint"),
                 ("0,0,0,0,0,300", "joint 6: target 300.00° outside its range"),
             ):
                 r = kalictl("-i", name, "move", "left", "--joints", bad)
@@ -631,7 +633,7 @@ def test_sio_interpolates_the_fifo_by_the_thesis_formula_at_a_non_integer_ratio(
             client.power("left", True)
             step_kali_clock(inst, 2000)
             assert client.power_state("left") == PowerState.ON, client.calibration("left")[2]
-            rs = client.level.robots
+            rs = ByArm(client.level)
             a = rs["demand"][0].copy()
             points = [
                 a + np.array([0.004, -0.002, 0.003, 0.01, -0.01, 0.02]) * m for m in (1, 2, 3, 4)

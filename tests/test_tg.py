@@ -9,17 +9,30 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from fractions import Fraction
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.client import Kali, MotionFailedError
-from kali_daemons.layout import FaultCode, MotionKind, PowerState, RequestState
+from kali_daemons import launcher, layout
+from kali_daemons.arena import Arena
+from kali_daemons.channels import InterpolatingFifo
+from kali_daemons.client import Kali, MotionFailedError, MotionHandle, pose
+from kali_daemons.client.motion import Robot
+from kali_daemons.config import KaliConfig, ms_to_ns
+from kali_daemons.joints import per_joint
+from kali_daemons.layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
 from kali_daemons.robots import puma560
-from kali_daemons.tg.daemon import TrajectoryGenerator, write_status
+from kali_daemons.servolevel import FIFO_CAPACITY
+from kali_daemons.tg.cartesian import base_transform, inverse
+from kali_daemons.tg.daemon import TrajectoryGenerator, check_request, write_status
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
+
+from .conftest import make_config, unique_name
+
+LEFT = slice(0, puma560.ROBOT.n_joints)  # the default cell's left PUMA: the first flat joints
 
 
 @contextmanager
@@ -38,14 +51,14 @@ def test_move_joints_arrives_smoothly_and_together(kali: Callable[..., str]) -> 
     name = kali(lockstep=True)
     with powered(name) as k:
         left = k.robot("left")
-        rs = k.servo.level.robots
-        start = rs["demand"][0].copy()
+        rs = k.servo.level.joints  # per joint, flat; the left arm's are LEFT
+        start = rs["demand"][LEFT].copy()
         target = start + np.radians([20, -10, 15, 30, -20, 40])
         h = left.move_joints(target, speed=1.0, wait=False)
         demands = []
         for _ in range(3000):  # 3 s
             step_kali_clock(k.inst, 1)
-            demands.append(rs["demand"][0].copy())
+            demands.append(rs["demand"][LEFT].copy())
             if h.done and len(demands) > 50 and np.array_equal(demands[-1], target):
                 break
         assert h.state == RequestState.DONE, h.message
@@ -63,7 +76,7 @@ def test_move_joints_arrives_smoothly_and_together(kali: Callable[..., str]) -> 
         duration = float(k.status["duration_s"][h.seq % layout.STATUS_RING])
         assert 0.5 < duration < 2.0
         step_kali_clock(k.inst, 1000)
-        assert np.abs(rs["q"][0] - target).max() < math.radians(0.05)
+        assert np.abs(rs["q"][LEFT] - target).max() < math.radians(0.05)
         assert k.inst.fault_text() is None
         del rs
 
@@ -72,8 +85,8 @@ def test_requests_queue_behind_each_other_and_stop_on_the_path(kali: Callable[..
     name = kali(lockstep=True)
     with powered(name) as k:
         left = k.robot("left")
-        rs = k.servo.level.robots
-        start = rs["demand"][0].copy()
+        rs = k.servo.level.joints  # per joint, flat; the left arm's are LEFT
+        start = rs["demand"][LEFT].copy()
         a = start + np.radians([10, 0, 0, 0, 0, 0])
         first = left.move_joints(a, speed=0.5, wait=False)
         second = left.move_joints(start, speed=0.5, wait=False)
@@ -95,10 +108,10 @@ def test_requests_queue_behind_each_other_and_stop_on_the_path(kali: Callable[..
         with pytest.raises(MotionFailedError, match="stopped"):
             second.wait(0)
         step_kali_clock(k.inst, 30)  # SIO takes the set-points the TG had pushed ahead
-        q1 = rs["demand"][0, 0]
+        q1 = rs["demand"][LEFT.start]
         assert start[0] < q1 < a[0]  # stopped between the two, on the joint path
         step_kali_clock(k.inst, 100)
-        assert rs["demand"][0, 0] == q1  # and holds there
+        assert rs["demand"][LEFT.start] == q1  # and holds there
         del rs
 
 
@@ -106,7 +119,7 @@ def test_bad_requests_are_refused_and_nothing_moves(kali: Callable[..., str]) ->
     name = kali(lockstep=True)
     with powered(name) as k:
         left = k.robot("left")
-        rs = k.servo.level.robots
+        rs = k.servo.level.joints  # per joint, flat; the left arm's are LEFT
         before = rs["demand"].copy()
         for bad, why in (
             ([0, 0, 0], r"shape \(3,\), expected \(6,\)"),
@@ -117,7 +130,7 @@ def test_bad_requests_are_refused_and_nothing_moves(kali: Callable[..., str]) ->
             with pytest.raises(MotionError, match=why):
                 left.move_joints(bad, wait=False)
         with pytest.raises(MotionError, match=r"speed 2, must be in \(0, 1\]"):
-            left.move_joints(before[0], speed=2, wait=False)
+            left.move_joints(before[LEFT], speed=2, wait=False)
         # a rogue client writes garbage straight into the queue: the TG refuses it
         rogue = np.zeros((), dtype=layout.MOTION_REQUEST)
         rogue["kind"] = MotionKind.JOINTS
@@ -150,7 +163,7 @@ def test_a_halt_wakes_the_waiting_program_with_the_fault(kali: Callable[..., str
     name = kali(lockstep=True)
     with powered(name) as k:
         left = k.robot("left")
-        start = k.servo.level.robots["demand"][0].copy()
+        start = k.servo.level.joints["demand"][LEFT].copy()
         h = left.move_joints(start + np.radians([30, 0, 0, 0, 0, 0]), speed=0.2, wait=False)
         step_kali_clock(k.inst, 100)
         assert h.state == RequestState.RUNNING
@@ -248,3 +261,211 @@ def test_a_path_is_planned_only_while_the_tick_s_check_share_lasts(share: str) -
         assert tg.started == [1, 3] and [seq for seq, _ in tg.waiting] == [2]
     else:
         assert tg.started == [3] and [seq for seq, _ in tg.waiting] == [1, 2]
+
+
+# ---------------------------------------------------------------------------- a mixed cell
+
+MIXED = {r"^(  - \{name: right, model: )puma560": r"\1panda"}  # PUMA 560 left, Panda right
+
+
+class BareTg:
+    """The TG configured by its own ``on_configure`` over a bare arena, no processes: the test
+    lays SIO's records out (every arm powered and calibrated, holding its type's home pose),
+    puts requests in the TG's queue and plays SIO, taking each FIFO's demands at the servo
+    rate into the joints' records."""
+
+    def __init__(self, cfg: KaliConfig, arena: Arena) -> None:
+        self.cfg = cfg
+        jm = cfg.joints
+        robots = arena.record(layout.KEY_ROBOTS, layout.ROBOT_STATE, jm.n_robots)
+        robots["power"] = PowerState.ON
+        robots["calibrated"] = 1
+        robots["calib_state"] = CalibState.DONE
+        self.joints = arena.record(layout.KEY_JOINTS, layout.JOINT_STATE, jm.total)
+        self.joints["demand"] = per_joint([r.type.q_home for r in cfg.robots])
+        servo_ns, tg_ns = ms_to_ns(cfg.clock.servo_period_ms), ms_to_ns(cfg.clock.tg_period_ms)
+        self.ratio = Fraction(tg_ns, servo_ns)
+        clock = np.zeros((), layout.CLOCK)
+        clock["base_tick_ns"] = servo_ns
+        procs = np.zeros(1, layout.PROCESS)
+        procs["period_ticks"] = int(self.ratio)
+        self.fault = np.zeros((), layout.FAULT)
+        self.tg = TrajectoryGenerator(cfg.instance, "tg")
+        self.tg.inst = SimpleNamespace(  # type: ignore[assignment]
+            config=cfg, arena=arena, lockstep=True, clock=clock, procs=procs, fault=self.fault
+        )
+        self.tg.slot = 0
+        self.tg.on_configure()
+        self.sio = [  # SIO's ends of the FIFOs: attaching checks their width
+            InterpolatingFifo(
+                arena, layout.KEY_FIFO.format(robot=r.name), r.n_joints, FIFO_CAPACITY, self.ratio
+            )
+            for r in cfg.robots
+        ]
+        self.demand = jm.split(self.joints["demand"])
+        for fifo, q in zip(self.sio, self.demand, strict=True):
+            fifo.reset(q.copy())
+        self.tick = 0
+
+    def put(self, kind: MotionKind, robots: list[int], **fields: object) -> int:
+        """Queue a request as a client would (``joints``: one row per robot); its seq."""
+        req = np.zeros((), dtype=layout.MOTION_REQUEST)
+        req["kind"] = kind
+        req["n_robots"] = len(robots)
+        req["robots"][: len(robots)] = robots
+        for name, value in fields.items():
+            if name == "joints":
+                for i, row in enumerate(value):  # type: ignore[arg-type]
+                    req["joints"][i, : len(row)] = row
+            elif name in ("grasps", "config"):
+                req[name][: len(robots)] = value
+            else:
+                req[name] = value
+        return self.tg.queue.put(req)
+
+    def run(self, seq: int, max_ticks: int = 2000) -> tuple[RequestState, str]:
+        """TG ticks, each followed by its servo ticks of SIO, until request ``seq`` has ended
+        and its set-points have been taken."""
+        for _ in range(max_ticks):
+            self.tg.cycle(self.tick)
+            for _ in range(int(self.ratio)):
+                for fifo, q in zip(self.sio, self.demand, strict=True):
+                    fifo.pop_into(q)
+            self.tick += 1
+            rec = self.tg.status[seq % layout.STATUS_RING]
+            if int(rec["seq"]) == seq and int(rec["state"]) in layout.TERMINAL_STATES:
+                return RequestState(int(rec["state"])), bytes(rec["message"]).decode()
+        raise AssertionError(f"request {seq} not over within {max_ticks} TG ticks")
+
+
+@pytest.fixture
+def bare_arena() -> Iterator[Arena]:
+    """A fresh 16 MiB arena (a TG's records and FIFOs), unlinked afterwards."""
+    name = unique_name("tg")
+    a = Arena.create(name, 16 << 20)
+    yield a
+    a.close()
+    launcher.stop(name)
+
+
+def test_a_mixed_cell_moves_each_arm_over_its_own_joints(bare_arena: Arena) -> None:
+    """A PUMA 560 (6 joints) and a Panda (7) in one cell: the TG's FIFOs and set-points are 6
+    and 7 wide, a joint move of both arms and a Cartesian path of both holding one object plan
+    and arrive, and a request naming a joint the arm does not have is refused."""
+    cfg = make_config("mixed", MIXED)
+    assert [r.n_joints for r in cfg.robots] == [6, 7] and cfg.joints.total == 13
+    cell = BareTg(cfg, bare_arena)
+    tg = cell.tg
+    assert [f.width for f in tg.fifos] == [6, 7]
+    puma, panda = (r.type for r in cfg.robots)
+
+    # joint mode: both arms, each its own joint count
+    q_left = puma.q_home + np.radians([10, -5, 5, 10, -10, 15])
+    q_right = panda.q_home + np.radians([-10, 5, 10, 5, -5, 10, 20])
+    seq = cell.put(MotionKind.JOINTS, [0, 1], joints=[q_left, q_right], speed_scale=0.8)
+    assert cell.run(seq) == (RequestState.DONE, "")
+    np.testing.assert_array_equal(cell.demand[0], q_left)
+    np.testing.assert_array_equal(cell.demand[1], q_right)
+    setpoints = tg.tg_robots["setpoint"]
+    np.testing.assert_array_equal(setpoints[0, :6], q_left)
+    np.testing.assert_array_equal(setpoints[1, :7], q_right)
+    assert not setpoints[0, 6:].any() and not setpoints[1, 7:].any()
+
+    # Cartesian: both arms hold one object (its frame at the PUMA's flange) and lift it 3 cm
+    bases = [base_transform(r.base_xyz, r.base_yaw_deg) for r in cfg.robots]
+    start = [cell.demand[0].copy(), cell.demand[1].copy()]
+    flanges = [
+        b @ t.kinematics.fkine(q) for b, t, q in zip(bases, (puma, panda), start, strict=True)
+    ]
+    obj = flanges[0]
+    grasps = np.array([inverse(obj) @ f for f in flanges])
+    target = obj.copy()
+    target[2, 3] += 0.03
+    poses = np.zeros((layout.MAX_SEGMENTS, 4, 4))
+    poses[0] = target
+    seq = cell.put(
+        MotionKind.PATH, [0, 1], n_segments=1, poses=poses, grasps=grasps, config=[0, 0],
+        speed=0.05, angular_speed=0.5, transition_s=0.0,
+    )  # fmt: skip
+    assert cell.run(seq) == (RequestState.DONE, "")
+    for k, (b, t) in enumerate(zip(bases, (puma, panda), strict=True)):
+        assert cell.demand[k].shape == (t.n_joints,)
+        lifted = b @ t.kinematics.fkine(cell.demand[k].copy())
+        np.testing.assert_allclose(lifted[:3, 3], flanges[k][:3, 3] + [0, 0, 0.03], atol=1e-6)
+        np.testing.assert_allclose(lifted[:3, :3], flanges[k][:3, :3], atol=1e-6)
+        np.testing.assert_array_equal(setpoints[k, : t.n_joints], cell.demand[k])
+    assert panda.kinematics.config_of(cell.demand[1]) == panda.kinematics.config_of(start[1])
+
+    # a seventh joint for the PUMA, a NaN seventh for the Panda: refused, nothing moves
+    before = cell.joints["demand"].copy()
+    seq = cell.put(MotionKind.JOINTS, [0], joints=[np.append(cell.demand[0], 0.5)], speed_scale=0.5)
+    state, message = cell.run(seq)
+    assert state == RequestState.REFUSED
+    assert "robot 'left' (puma560) has 6 joints, but the request gives joint 7" in message
+    req = np.zeros((), dtype=layout.MOTION_REQUEST)
+    req["kind"], req["n_robots"], req["robots"][0] = MotionKind.JOINTS, 1, 1
+    req["speed_scale"] = 0.5
+    req["joints"][0, :6] = cell.demand[1][:6]
+    req["joints"][0, 6] = math.nan
+    with pytest.raises(MotionError, match="robot 'right' joint 7: target nan"):
+        check_request(req[()], tg.names, tg.types)
+    np.testing.assert_array_equal(cell.joints["demand"], before)
+
+
+def test_move_joints_refuses_a_count_other_than_the_arm_s() -> None:
+    """The client checks the joint count before anything is queued, naming the robot, its
+    type and its count (no instance needed: the check comes first)."""
+    cfg = make_config("mixed", MIXED)
+    kali = SimpleNamespace(names=[r.name for r in cfg.robots], inst=SimpleNamespace(config=cfg))
+    left, right = Robot(kali, 0), Robot(kali, 1)  # type: ignore[arg-type]
+    assert (left.n_joints, right.n_joints) == (6, 7)
+    assert (left.span, right.span) == (slice(0, 6), slice(6, 13))
+    with pytest.raises(
+        MotionError,
+        match=r"move_joints: robot 'right' \(panda, 7 joints\): 6 values given, shape \(6,\), "
+        r"expected \(7,\)",
+    ):
+        right.move_joints(np.zeros(6))
+    with pytest.raises(MotionError, match=r"robot 'left' \(puma560, 6 joints\): 7 values given"):
+        left.move_joints(np.zeros(7))
+
+
+def finish(k: Kali, handle: MotionHandle, ticks: int = 5000) -> None:
+    """Step the clock until ``handle``'s request is over (at most ``ticks``); it arrived."""
+    for _ in range(ticks // 10):
+        if handle.done:
+            break
+        step_kali_clock(k.inst, 10)
+    handle.wait(0)
+
+
+def test_a_mixed_cell_moves_the_panda_in_joints_and_in_a_line(kali: Callable[..., str]) -> None:
+    """End to end in lockstep: the Panda beside a PUMA arrives at a 7-joint target and, once
+    calibrated, lifts its flange 3 cm in a straight line."""
+    name = kali(lockstep=True, edits=MIXED)
+    with Kali(name) as k:
+        step_kali_clock(k.inst, 30)
+        for robot in k.names:
+            k.servo.power(robot, True)
+        step_kali_clock(k.inst, 1500)
+        assert [k.servo.power_state(r) for r in k.names] == [PowerState.ON] * 2
+        right = k.robot("right")
+        assert [f.width for f in k.fifos] == [6, 7] and right.read_joints().shape == (7,)
+        target = k.start_point(1) + np.radians([10, -5, 5, 5, -5, 10, 15])
+        h = right.move_joints(target, speed=0.5, wait=False)
+        finish(k, h)
+        np.testing.assert_array_equal(k.tg_robots["setpoint"][1, :7], target)
+        step_kali_clock(k.inst, 500)
+        assert np.abs(right.read_joints() - target).max() < math.radians(0.05)
+        k.servo.calibrate("right")
+        for _ in range(100):
+            step_kali_clock(k.inst, 50)
+            if k.servo.calibration("right")[0] in (CalibState.DONE, CalibState.FAILED):
+                break
+        assert k.servo.calibrated("right"), k.servo.calibration("right")
+        here = right.read_pose()
+        h = right.move_line(pose(here[:3, 3] + [0, 0, 0.03], here), speed=0.05, wait=False)
+        finish(k, h)
+        step_kali_clock(k.inst, 500)
+        np.testing.assert_allclose(right.read_pose()[:3, 3], here[:3, 3] + [0, 0, 0.03], atol=2e-4)
+        assert k.inst.fault_text() is None

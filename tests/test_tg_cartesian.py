@@ -24,6 +24,7 @@ from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
 
 SQUARE_TOL_M = 0.002  # the measured tool path stays this close to the commanded lines
+LEFT = slice(0, puma560.ROBOT.n_joints)  # the default cell's left PUMA: the first flat joints
 
 
 @contextmanager
@@ -52,11 +53,11 @@ def run_until(kali: Kali, handle: object, ticks: int, every: int = 10) -> list[n
     seen = []
     for _ in range(ticks // every):
         step_kali_clock(kali.inst, every)
-        seen.append(kali.servo.level.robots["q"].copy())
+        seen.append(kali.servo.level.joints["q"].copy())
         if handle.done:  # type: ignore[attr-defined]
             break
     step_kali_clock(kali.inst, 300)
-    seen.append(kali.servo.level.robots["q"].copy())
+    seen.append(kali.servo.level.joints["q"].copy())
     return seen
 
 
@@ -89,12 +90,12 @@ def test_square_of_the_tool_stays_on_its_lines(kali: Callable[..., str]) -> None
         polyline = [start[:3, 3]] + [c[:3, 3] for c in corners]
         worst = 0.0
         for q in seen:
-            p = (base @ kinematics.fkine(q[0]))[:3, 3]
+            p = (base @ kinematics.fkine(q[LEFT]))[:3, 3]
             worst = max(worst, distance_to_polyline(p, polyline))
         assert worst < SQUARE_TOL_M, f"tool {worst * 1000:.2f} mm off the square's lines"
         end = left.read_pose()
         assert np.linalg.norm(end[:3, 3] - start[:3, 3]) < 5e-4  # the servo's rest error
-        demand = left.base @ kinematics.fkine(k.servo.level.robots["demand"][0])
+        demand = left.base @ kinematics.fkine(k.servo.level.joints["demand"][LEFT])
         np.testing.assert_allclose(demand[:3, 3], start[:3, 3], atol=1e-6)  # set-points: exact
         assert kinematics.config_of(left.read_joints()) == kinematics.config_of(q0)
         assert k.inst.fault_text() is None
@@ -110,8 +111,8 @@ def test_bad_paths_are_refused_with_the_reason_and_nothing_moves(
             right.move_line(right.read_pose())
         here = left.read_pose()
         p = here[:3, 3]
-        demand = k.servo.level.robots["demand"][0].copy()
-        q_wrist = k.servo.level.robots["demand"][0].copy()
+        demand = k.servo.level.joints["demand"][LEFT].copy()
+        q_wrist = k.servo.level.joints["demand"][LEFT].copy()
         q_wrist[4] = math.radians(3)  # joint 5 at 3°: 2° inside the wrist singularity's margin
         near_wrist = left.base @ kinematics.fkine(q_wrist)
         table = [
@@ -145,7 +146,7 @@ def test_bad_paths_are_refused_with_the_reason_and_nothing_moves(
             with pytest.raises(MotionError, match=why):
                 left.move_path(**{"transition_s": 0.1, **kw})
         step_kali_clock(k.inst, 50)
-        np.testing.assert_array_equal(k.servo.level.robots["demand"][0], demand)
+        np.testing.assert_array_equal(k.servo.level.joints["demand"][LEFT], demand)
         # the TG checks again whatever the client did: a raw request with a target in a wall
         poses = np.zeros((layout.MAX_SEGMENTS, 4, 4))
         poses[0] = pose(p + np.array([2.0, 0, 0]), here)
@@ -179,7 +180,7 @@ def test_bad_paths_are_refused_with_the_reason_and_nothing_moves(
         with pytest.raises(MotionFailedError, match="refused"):
             h.wait(0)
         step_kali_clock(k.inst, 50)
-        np.testing.assert_array_equal(k.servo.level.robots["demand"][0], demand)
+        np.testing.assert_array_equal(k.servo.level.joints["demand"][LEFT], demand)
         assert k.inst.fault_text() is None
 
 
@@ -266,7 +267,9 @@ class _TgMethods:
         self.fifos = k.fifos
         self.status = k.status
         self.tg_robots = k.tg_robots
-        self._setpoints = k.tg_robots["setpoint"]
+        self._setpoint_of = [
+            k.tg_robots["setpoint"][i, : r.n_joints] for i, r in enumerate(k.inst.config.robots)
+        ]
         self._progress = k.status["progress"]
         self.motions: list[Motion] = []
 

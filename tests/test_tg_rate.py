@@ -19,7 +19,7 @@ from kali_daemons.robots import puma560
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_launcher import kalictl
-from .test_tg import powered
+from .test_tg import LEFT, powered
 
 SERVO_2MS = {
     r"^  servo_period_ms: 1 ": "  servo_period_ms: 2 ",
@@ -33,16 +33,16 @@ def move_with_rate_change(
     """Move the left arm to ``target``, calling ``change`` once ``at_fraction`` of the planned
     duration has run.  Returns SIO's demand at each servo tick from the request on, the
     FIFO underruns while the arm moved, and the planned duration (s)."""
-    rs = k.servo.level.robots
+    rs = k.servo.level.joints
     fifo = k.servo.level.fifo(0)
-    start = rs["demand"][0].copy()
+    start = rs["demand"][LEFT].copy()
     h = k.robot("left").move_joints(target, speed=0.5, wait=False)
     demands, underruns = [start], [fifo.underruns]
     first = 0  # the first servo tick the arm moved at
     changed = False
     for _ in range(20_000):
         step_kali_clock(k.inst, servo_ms)  # one SIO tick
-        demands.append(rs["demand"][0].copy())
+        demands.append(rs["demand"][LEFT].copy())
         underruns.append(fifo.underruns)
         if not first and not np.array_equal(demands[-1], start):
             first = len(demands) - 1
@@ -61,7 +61,7 @@ def move_with_rate_change(
     d = np.array(demands)
     last = int(np.flatnonzero((d == target).all(axis=1))[0])
     step_kali_clock(k.inst, 50)
-    assert np.array_equal(rs["demand"][0], target)  # arrived exactly, and stays
+    assert np.array_equal(rs["demand"][LEFT], target)  # arrived exactly, and stays
     starved = underruns[last] - underruns[first - 1]  # an underrun holds the arm: not moving
     del rs, fifo
     return d[first - 1 : last + 1], starved, duration
@@ -81,7 +81,7 @@ def test_slower_tg_mid_motion_keeps_speed_and_arrives(kali: Callable[..., str]) 
     name = kali(lockstep=True)
     with powered(name) as k:
         tg = k.inst.slot_of("tg")
-        target = k.servo.level.robots["demand"][0] + np.radians([30, -20, 25, 40, -30, 50])
+        target = k.servo.level.joints["demand"][LEFT] + np.radians([30, -20, 25, 40, -30, 50])
         d, starved, duration = move_with_rate_change(
             k, target, lambda: set_control_rate(k.inst, "tg", 20), 0.3, servo_ms=1
         )
@@ -97,7 +97,7 @@ def test_slower_tg_mid_motion_keeps_speed_and_arrives(kali: Callable[..., str]) 
         fifo = k.servo.level.fifo(0)
         assert fifo.ratio == fifo.segment_ratio == 20
         # back to 10 ms through the command line, mid-way home: faster set-points this time
-        start = k.servo.level.robots["demand"][0].copy()
+        start = k.servo.level.joints["demand"][LEFT].copy()
         back = start - np.radians([30, -20, 25, 40, -30, 50])
 
         def cli_rate() -> None:
@@ -108,7 +108,7 @@ def test_slower_tg_mid_motion_keeps_speed_and_arrives(kali: Callable[..., str]) 
         check_motion(d, starved, duration, servo_ms=1, tg_ms=20)
         assert fifo.ratio == fifo.segment_ratio == 10
         step_kali_clock(k.inst, 1000)
-        assert np.abs(k.servo.level.robots["q"][0] - back).max() < math.radians(0.05)
+        assert np.abs(k.servo.level.joints["q"][LEFT] - back).max() < math.radians(0.05)
         assert k.inst.fault_text() is None
         del fifo
 
@@ -131,7 +131,7 @@ def test_fractional_ratio_change_and_too_short_a_period(kali: Callable[..., str]
             with pytest.raises(ClockError, match=rf"rate of '{servo}': the servo period \(2 ms\)"):
                 set_control_rate(k.inst, servo, 4)
         assert int(k.inst.procs[tg]["period_ticks"]) == 5  # nothing changed
-        target = k.servo.level.robots["demand"][0] + np.radians([-25, 15, -20, 30, 25, -40])
+        target = k.servo.level.joints["demand"][LEFT] + np.radians([-25, 15, -20, 30, 25, -40])
         d, starved, duration = move_with_rate_change(
             k, target, lambda: set_control_rate(k.inst, "tg", 8), 0.4, servo_ms=2
         )

@@ -22,22 +22,29 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import rerun as rr
 
 from kali_daemons import launcher, layout
+from kali_daemons.arena import Arena
 from kali_daemons.config import DashboardConfig
 from kali_daemons.errors import ConfigError
 from kali_daemons.instance import Instance
+from kali_daemons.joints import per_joint
 from kali_daemons.layout import FaultCode, RunMode
 from kali_daemons.servolevel import ServoClient
+from kali_daemons.tg.cartesian import base_transform
+from kali_daemons.viewer.daemon import Viewer
 from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
 from kali_daemons.wallclock import start_kali_clock, step_kali_clock
 
 from .conftest import make_config
 from .test_launcher import kalictl
 from .test_servo_level import power_all
+from .test_tg import MIXED
 
 DASHBOARD = r"^dashboard:\n(?:  .*\n?)*"  # the section in config/default.yaml
 
@@ -57,7 +64,7 @@ def moving(name: str) -> Iterator[tuple[Instance, ServoClient]]:
             power_all(inst, client, 200)
             for k, moves in enumerate(({1: 0.5, 2: -0.4}, {0: 0.4, 4: 0.5})):
                 fifo = client.level.fifo(k)
-                start = client.level.robots["demand"][k].copy()
+                start = client.level.joints["demand"][inst.config.joints.span(k)].copy()
                 for m in range(1, 101):  # 100 TG set-points: 1 s
                     target = start.copy()
                     for j, delta in moves.items():
@@ -174,6 +181,65 @@ def test_recording_has_the_arms_joints_timing_and_faults_at_25_hz(
     assert ("INFO", "fault cleared") in faults
     assert ("INFO", "left: on") in texts["/events/left"]
     assert ("INFO", "process 'sio': ACTIVE") in texts["/events/processes"]
+
+
+def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
+    arena: Arena, tmp_path: Path
+) -> None:
+    """A PUMA 560 (6 joints) and a Panda (7): the viewer's frame, over records laid out by
+    hand (no processes), plots each arm's joints j1..jN from the per-joint records and
+    draws each arm with its own type's shapes at those angles."""
+    cfg = make_config("mixed", MIXED)
+    jm = cfg.joints
+    robots = arena.record(layout.KEY_ROBOTS, layout.ROBOT_STATE, 2)
+    robots["pots_read"] = 1
+    joints = arena.record(layout.KEY_JOINTS, layout.JOINT_STATE, jm.total)
+    joints["q"] = per_joint([r.type.q_home for r in cfg.robots])
+    joints["demand"] = joints["q"] + 0.01
+    joints["torque"] = np.arange(jm.total)
+    arena.record(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+    arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+    viewer = Viewer(cfg.instance, "viewer")
+    viewer.inst = SimpleNamespace(  # type: ignore[assignment]
+        config=cfg,
+        arena=arena,
+        clock=np.zeros((), layout.CLOCK),
+        procs=np.zeros(layout.MAX_PROCESSES, layout.PROCESS),
+        fault=np.zeros((), layout.FAULT),
+    )
+    viewer.load(cfg)
+    viewer.attach()
+    assert [a.model.nq for a in viewer.arms] == [6, 7]
+    rrd = tmp_path / "mixed.rrd"
+    rec = rr.RecordingStream("kali-test")
+    rec.set_sinks(rr.FileSink(str(rrd)))
+    viewer.rec = rec
+    viewer._log_static()
+    viewer._frame()
+    rec.flush(timeout_sec=5.0)
+    rec.disconnect()
+    del robots, joints
+
+    from rerun.chunk import RrdReader
+
+    scalars: dict[str, list] = {}
+    series: dict[str, list] = {}
+    for chunk in RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        if "Scalars:scalars" in batch.schema.names:
+            scalars[chunk.entity_path] = batch.column("Scalars:scalars").to_pylist()[0]
+        if "SeriesLines:names" in batch.schema.names:
+            series[chunk.entity_path] = batch.column("SeriesLines:names").to_pylist()[0]
+    assert series["/robots/left/q"] == [f"j{j}" for j in range(1, 7)]
+    assert series["/robots/right/q"] == [f"j{j}" for j in range(1, 8)]
+    assert series["/robots/right/ff_torque"] == [f"j{j} ff" for j in range(1, 8)]
+    left, right = (r.type for r in cfg.robots)
+    np.testing.assert_allclose(scalars["/robots/left/q"], np.degrees(left.q_home))
+    np.testing.assert_allclose(scalars["/robots/right/q"], np.degrees(right.q_home))
+    np.testing.assert_allclose(scalars["/robots/right/error"], [np.degrees(0.01)] * 7)
+    assert scalars["/robots/right/torque"] == list(range(6, 13))
+    flange = base_transform((0.6, 0.0, 0.0), 180.0) @ right.kinematics.fkine(right.q_home)
+    np.testing.assert_allclose(scalars["/robots/right/flange/position"], flange[:3, 3], atol=1e-9)
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # what rerun --save writes

@@ -311,12 +311,14 @@ class Robot:
         self.name = kali.names[index]
         cfg = kali.inst.config.robots[index]
         self.type = cfg.type  # its robot type: joints, limits, kinematics
+        self.n_joints = cfg.n_joints
+        self.span = kali.inst.config.joints.span(index)  # its joints in the flat records
         self.base = base_transform(cfg.base_xyz, cfg.base_yaw_deg)  # base in the world
         self.tool = np.eye(4)  # tool in the flange frame
 
     def read_joints(self) -> np.ndarray:
-        """The measured joint angles (rad), a copy."""
-        return self.kali.servo.level.robots["q"][self.index].copy()
+        """The measured joint angles (rad, one per joint of its type), a copy."""
+        return self.kali.servo.level.joints["q"][self.span].copy()
 
     def read_t6(self) -> np.ndarray:
         """T6 from the measured joints: the flange in the robot's base frame (4×4, thesis
@@ -371,9 +373,10 @@ class Robot:
     def move_joints(
         self, q: np.ndarray, speed: float = 0.5, wait: bool = True, timeout: float | None = None
     ) -> MotionHandle:
-        """A smooth joint move to ``q`` (rad, 6 values), every joint arriving together, at
-        ``speed`` (0, 1] of the joint speed and acceleration limits.  Blocks until there unless
-        ``wait`` is False; returns the request's handle either way."""
+        """A smooth joint move to ``q`` (rad, one value per joint of the arm's type:
+        ``n_joints``), every joint arriving together, at ``speed`` (0, 1] of the joint speed
+        and acceleration limits.  Blocks until there unless ``wait`` is False; returns the
+        request's handle either way."""
         what = f"move_joints: robot '{self.name}'"
         target = _joints(self.name, q, self.type)
         if not (
@@ -386,7 +389,7 @@ class Robot:
         wait = _flag_arg(what, "wait", wait)
         timeout = _timeout_arg(what, timeout)
         handle = self.kali._request(
-            MotionKind.JOINTS, [self.index], joints=target[None, :], speed_scale=float(speed)
+            MotionKind.JOINTS, [self.index], joints=[target], speed_scale=float(speed)
         )
         if wait:
             handle.wait(timeout)
@@ -484,7 +487,7 @@ class MotionSystem:
                 [r.type for r in self.robots],
                 [r.base for r in self.robots],
                 self.grasps,
-                np.array([self.kali.start_point(k) for k in self.indices]),
+                [self.kali.start_point(k) for k in self.indices],
                 flags,
                 targets,
                 speed,
@@ -521,10 +524,15 @@ class MotionSystem:
 
 
 def _joints(robot: str, q: np.ndarray, rtype: RobotType) -> np.ndarray:
+    """A joint target for robot ``robot`` of type ``rtype``: its ``n_joints`` angles, finite
+    and within range; MotionError naming the robot, its type and joint count otherwise."""
     n = rtype.n_joints
-    target = _real_array(f"move_joints: robot '{robot}'", q, f"{n} numbers")
+    what = f"move_joints: robot '{robot}' ({rtype.name}, {n} joints)"
+    target = _real_array(what, q, f"{n} numbers")
     if target.shape != (n,):
-        raise MotionError(f"move_joints: robot '{robot}': shape {target.shape}, expected ({n},)")
+        raise MotionError(
+            f"{what}: {target.size} values given, shape {target.shape}, expected ({n},)"
+        )
     check_joint_target(robot, target, rtype)
     return target
 
@@ -675,10 +683,12 @@ class Kali:
 
     def start_point(self, k: int) -> np.ndarray:
         """Where robot ``k``'s next motion starts when it is idle: the TG's last set-point
-        while SIO is still interpolating towards it, else SIO's demand (as the TG does)."""
+        while SIO is still interpolating towards it, else SIO's demand (as the TG does); one
+        angle per joint of its type."""
+        span = self.inst.config.joints.span(k)
         if self.fifos[k].pending():
-            return self.tg_robots["setpoint"][k].copy()
-        return self.servo.level.robots["demand"][k].copy()
+            return self.tg_robots["setpoint"][k, : span.stop - span.start].copy()
+        return self.servo.level.joints["demand"][span].copy()
 
     def owner(self, k: int) -> tuple[int, str] | None:
         """(pid, program name) of the live program owning robot ``k``, or None."""
@@ -724,7 +734,10 @@ class Kali:
         req["client_name"] = self.program
         req["fault_epoch"] = epoch
         for name, value in fields.items():
-            if name in ("joints", "grasps", "config"):  # one per robot of the request
+            if name == "joints":  # one row per robot, its joint count of the record's columns
+                for i, row in enumerate(value):  # type: ignore[arg-type]
+                    req["joints"][i, : len(row)] = row
+            elif name in ("grasps", "config"):  # one per robot of the request
                 req[name][: len(robots)] = value
             else:
                 req[name] = value

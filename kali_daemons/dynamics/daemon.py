@@ -28,8 +28,12 @@ has been pushed; while the FIFO is drained SIO holds at the segment's target, an
 that target is the gravity there, refreshed every cycle.  The torques themselves (rotor
 inertia, motor friction) are ``inverse.py``'s.
 
-Pinocchio's Python bindings return each result as a new 6-vector; this process is
-asynchronous and non-serious (3.3.6), so those small allocations are accepted here.
+Pinocchio's Python bindings return each result as a new vector (one entry per joint); this
+process is asynchronous and non-serious (3.3.6), so those small allocations are accepted here.
+
+Each robot has as many joints as its type (``cfg.joints``): its FIFO, its scratch vectors and
+the columns of its ``FEEDFORWARD`` rows it writes (``q``/``tau`` are ``layout.MAX_JOINTS``
+wide; the rest stay 0) are that wide, and its joint ``j``'s servo is slot ``base[k] + j``.
 
 What others write is checked here (DESIGN 7): a mode word that is no FfMode (a client's
 garbage) leaves the last valid mode in force, and a set-point that is not finite gets no row
@@ -39,13 +43,15 @@ non-finite is never published.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from fractions import Fraction
 
 import numpy as np
 
 from .. import layout, rt
+from ..arena import Arena
 from ..channels import InterpolatingFifo
-from ..config import ms_to_ns
+from ..config import KaliConfig, ms_to_ns
 from ..daemon import Daemon
 from ..errors import DaemonError
 from ..layout import FfMode
@@ -56,35 +62,40 @@ SIO_WAIT_S = 30.0  # how long the dynamics process waits at start for SIO's serv
 MAX_ROWS_PER_CYCLE = 64  # per robot: a cycle's work stays bounded when a long move arrives
 
 
+@dataclass
+class ArmScratch:
+    """One robot's working vectors, its joint count long (allocated at set-up)."""
+
+    n: int
+    q_prev: np.ndarray = field(init=False)
+    q_i: np.ndarray = field(init=False)
+    q_next: np.ndarray = field(init=False)
+    qd: np.ndarray = field(init=False)
+    qdd: np.ndarray = field(init=False)
+    s: np.ndarray = field(init=False)
+    kv: np.ndarray = field(init=False)  # the servos' velocity gains now
+
+    def __post_init__(self) -> None:
+        for name in ("q_prev", "q_i", "q_next", "qd", "qdd", "s", "kv"):
+            setattr(self, name, np.zeros(self.n))
+
+
 class Dynamics(Daemon):
     """Writes every robot's feed-forward rows; SIO applies them."""
 
     kind = "dynamics"
 
     def on_configure(self) -> None:
-        """Load the model, then wait for SIO to lay the servo level out (FIFOs, records)."""
+        """Load the models, then wait for SIO to lay the servo level out (FIFOs, records)."""
         inst = self.inst
         cfg = inst.config
-        models: dict[str, InverseDynamics] = {}  # one per robot type
-        for r in cfg.robots:
-            models.setdefault(r.model, InverseDynamics(r.type))
-        self.inverse = [models[r.model] for r in cfg.robots]
-        self.n_robots = len(cfg.robots)
-        self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
-        self.q_prev, self.q_i, self.q_next = np.zeros(6), np.zeros(6), np.zeros(6)
-        self.qd, self.qdd, self._s = np.zeros(6), np.zeros(6), np.zeros(6)
-        arena = inst.arena
+        self.load(cfg)
         deadline = rt.monotonic_ns() + int(SIO_WAIT_S * 1e9)
         while not self._sio_ready():
             if rt.monotonic_ns() > deadline:
                 raise DaemonError(f"{self.name}: SIO did not lay out the servo level")
             rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
-        ratio = Fraction(ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms))
-        self.fifos = [
-            InterpolatingFifo(arena, layout.KEY_FIFO.format(robot=r.name), 6, FIFO_CAPACITY, ratio)
-            for r in cfg.robots
-        ]
-        self.ff = arena.existing(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, self.n_robots)
+        self.attach(cfg, inst.arena)
         level = ServoLevel(inst)
         self._algo = level.slots["algo"]
         self._enabled = level.slots["enabled"]
@@ -93,7 +104,34 @@ class Dynamics(Daemon):
             [rec["kv"].reshape(-1) if "kv" in (rec.dtype.names or ()) else None for rec in row]
             for row in level.data
         ]
-        self.kv = np.zeros((self.n_robots, 6))
+
+    def load(self, cfg: KaliConfig) -> None:
+        """Each robot type's model and each robot's scratch, its joint count wide (outside
+        the cycle)."""
+        models: dict[str, InverseDynamics] = {}  # one per robot type
+        for r in cfg.robots:
+            models.setdefault(r.model, InverseDynamics(r.type))
+        self.inverse = [models[r.model] for r in cfg.robots]
+        self.n_robots = len(cfg.robots)
+        self.joint_map = cfg.joints  # robot k's joint j: flat index (servo slot) base[k] + j
+        self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
+        self.arms = [ArmScratch(n) for n in self.joint_map.counts]
+
+    def attach(self, cfg: KaliConfig, arena: Arena) -> None:
+        """Each robot's FIFO (its joint count wide) and its columns of the ``FEEDFORWARD``
+        rows, once SIO has laid the record out (outside the cycle)."""
+        ratio = Fraction(ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms))
+        self.fifos = [
+            InterpolatingFifo(
+                arena, layout.KEY_FIFO.format(robot=r.name), r.n_joints, FIFO_CAPACITY, ratio
+            )
+            for r in cfg.robots
+        ]
+        self.ff = arena.existing(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, self.n_robots)
+        # per robot: its columns of every row's q and tau, (FF_ROWS, n_joints) views
+        counts = self.joint_map.counts
+        self._ff_q = [self.ff["q"][k, :, :n] for k, n in enumerate(counts)]
+        self._ff_tau = [self.ff["tau"][k, :, :n] for k, n in enumerate(counts)]
         # per robot: the first FIFO index without a row, and the mode the rows are in
         self.next_row = [fifo.indices()[0] for fifo in self.fifos]
         self.mode_seen = [FfMode.OFF] * self.n_robots
@@ -126,69 +164,72 @@ class Dynamics(Daemon):
 
     def _servo_gains(self, k: int) -> None:
         """Robot ``k``'s velocity gains k_v now (0 where a servo has none or is disabled)."""
-        for j in range(6):
-            i = 6 * k + j
+        kv = self.arms[k].kv
+        base = self.joint_map.base[k]
+        for j in range(len(kv)):
+            i = base + j
             views = self._kv_views[i]
             algo = int(self._algo[i])
             view = views[algo] if algo < len(views) else None
-            self.kv[k, j] = float(view[0]) if view is not None and self._enabled[i] else 0.0
+            kv[j] = float(view[0]) if view is not None and self._enabled[i] else 0.0
 
     def _robot(self, k: int, mode: FfMode) -> None:
         """Robot ``k``'s new rows (in the cycle)."""
         fifo = self.fifos[k]
+        a = self.arms[k]
         head, tail = fifo.indices()
         if head == tail:  # drained: SIO holds at B, set-point head - 1's place
-            fifo.held(self.q_i)
+            fifo.held(a.q_i)
             if fifo.indices() == (head, tail):
-                self.qd.fill(0.0)
-                self.qdd.fill(0.0)
-                self._write(k, head - 1, mode, self.kv[k])
+                a.qd.fill(0.0)
+                a.qdd.fill(0.0)
+                self._write(k, head - 1, mode)
             self.next_row[k] = head
             return
         first = max(self.next_row[k], head - 1)
         for i in range(first, min(tail, first + MAX_ROWS_PER_CYCLE)):
-            if not fifo.read(i, self.q_i):
+            if not fifo.read(i, a.q_i):
                 continue  # overwritten: SIO is long past it
-            if not np.isfinite(self.q_i).all():
+            if not np.isfinite(a.q_i).all():
                 self.next_row[k] = i + 1
                 continue  # garbage SIO refuses as well: no row
             if mode == FfMode.GRAVITY:
-                self.qd.fill(0.0)
-                self.qdd.fill(0.0)
+                a.qd.fill(0.0)
+                a.qdd.fill(0.0)
             else:
-                if i + 1 >= tail or not fifo.read(i + 1, self.q_next):
+                if i + 1 >= tail or not fifo.read(i + 1, a.q_next):
                     break  # its successor is not pushed yet: next cycle
                 self._previous(k, i)
                 t_in = fifo.ratio_of(i) * self.servo_period_s  # segment ending at i
                 t_out = fifo.ratio_of(i + 1) * self.servo_period_s  # segment leaving i
-                central_differences(
-                    self.q_prev, self.q_i, self.q_next, t_in, t_out, self.qd, self.qdd, self._s
-                )
-            self._write(k, i, mode, self.kv[k])
+                central_differences(a.q_prev, a.q_i, a.q_next, t_in, t_out, a.qd, a.qdd, a.s)
+            self._write(k, i, mode)
             self.next_row[k] = i + 1
 
     def _previous(self, k: int, i: int) -> None:
         """q_{i-1} into ``q_prev``: the position its own row was written for (the hold
         position after a reset), else the ring's set-point, else q_i itself (a start)."""
-        ff = self.ff
+        a = self.arms[k]
         key = i  # 1 + (i - 1)
         row = key % layout.FF_ROWS
-        if int(ff["key"][k, row]) == key:
-            np.copyto(self.q_prev, ff["q"][k, row])
-        elif not self.fifos[k].read(i - 1, self.q_prev):
-            np.copyto(self.q_prev, self.q_i)
+        if int(self.ff["key"][k, row]) == key:
+            np.copyto(a.q_prev, self._ff_q[k][row])
+        elif not self.fifos[k].read(i - 1, a.q_prev):
+            np.copyto(a.q_prev, a.q_i)
 
-    def _write(self, k: int, index: int, mode: FfMode, kv: np.ndarray) -> None:
-        """Compute and publish robot ``k``'s row for set-point ``index`` (q_i, qd, qdd)."""
+    def _write(self, k: int, index: int, mode: FfMode) -> None:
+        """Compute and publish robot ``k``'s row for set-point ``index`` (its scratch's q_i,
+        qd, qdd and kv), in the row's first n_joints columns."""
         ff = self.ff
+        a = self.arms[k]
         key = index + 1
         row = key % layout.FF_ROWS
-        tau = self.inverse[k].torque(mode, self.q_i, self.qd, self.qdd, kv)
+        tau = self.inverse[k].torque(mode, a.q_i, a.qd, a.qdd, a.kv)
         if not np.isfinite(tau).all():
             return  # never publish a torque SIO could not use (a neighbour's covers it)
         keys = ff["key"][k]
         keys[row] = layout.FF_NO_KEY  # SIO ignores the row while it changes
-        ff["q"][k, row] = self.q_i
-        ff["tau"][k, row] = tau
+        self._ff_q[k][row] = a.q_i
+        self._ff_tau[k][row] = tau
         keys[row] = key
         ff["rows_written"][k] += 1

@@ -82,7 +82,7 @@ def central_differences(
     scratch: np.ndarray,
 ) -> None:
     """q̇ and q̈ at ``q`` from its neighbours ``t_in`` s before and ``t_out`` s after, into
-    ``qd`` and ``qdd`` (``scratch`` a 6-vector); no allocation."""
+    ``qd`` and ``qdd`` (``scratch`` as long as ``q``: one entry per joint); no allocation."""
     np.subtract(q, q_prev, out=scratch)
     np.divide(scratch, t_in, out=scratch)  # mean speed over the segment ending at q
     np.subtract(q_next, q, out=qd)

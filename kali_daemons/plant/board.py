@@ -13,12 +13,13 @@ What Kali sees is only the ``layout.IO_BOARD`` record; this class plays the hard
   each two cycles long (``config.retrigger_hold_ticks``).
 - **Emergency stop**: the operator's button disables like bit 7 while pressed.
 - **Encoders** (HCTL-2000, C.3): 12-bit counters of quadrature counts of the motor angle,
-  wrapping at 4096.  With index capture enabled (bit 4 low), an index pulse, once per motor
-  revolution at a fixed motor angle, resets the channel's counter to 0 and sets its bit in
-  the index register; disabling capture clears the register.
-- **Potentiometers** through the TLC532A: a conversion starts on a rising START bit in the
-  control register and completes with ``ADC_DONE | value`` in the analog register; the
-  digital register reads the channels above 2.5 V.
+  wrapping at 4096, joint j on channel j (an arm of n joints leaves channels n.. at 0).
+  With index capture enabled (bit 4 low), an index pulse, once per motor revolution at a
+  fixed motor angle, resets the channel's counter to 0 and sets its bit in the index
+  register; disabling capture clears the register.
+- **Potentiometers** (joint j's on ADC channel j) through the TLC532A: a conversion starts
+  on a rising START bit in the control register and completes with ``ADC_DONE | value`` in
+  the analog register; the digital register reads the channels above 2.5 V.
 
 All times are the plant's simulated time, so lockstep runs are deterministic.
 """
@@ -31,6 +32,7 @@ import numpy as np
 
 from .. import layout
 from ..config import PlantConfig
+from ..joints import ArmCopy, JointMap
 from ..layout import (
     ADC_CHANNEL_MASK,
     ADC_DONE,
@@ -68,17 +70,20 @@ def adc_code(volts: float) -> int:
 
 class IoBoardSim:
     """One arm's I/O board: power, watchdog and pot ADC; ``update`` and ``convert`` once per
-    plant cycle.  The encoders of every board are counted together by ``EncoderBank``."""
+    plant cycle.  Joint j's pot is ADC channel j, for the arm's ``n_joints`` joints; the other
+    inputs are unconnected.  The encoders of every board are counted together by
+    ``EncoderBank``."""
 
     def __init__(self, regs: np.ndarray, cfg: PlantConfig, robot: RobotType) -> None:
         self.regs = regs
+        self.n_joints = n = robot.n_joints
         self.hold_ns = int(cfg.enable_hold_ms * 1e6)
         self.watchdog_ns = int(cfg.watchdog_ms * 1e6)
         self.brake_ns = int(cfg.brake_delay_ms * 1e6)
         self.lo, self.hi = robot.q_min, robot.q_max  # the pots span the joint range
         self._mid = self.lo + (self.hi - self.lo) * (2.5 - POT_V_MIN) / (POT_V_MAX - POT_V_MIN)
-        self._above = np.zeros(6, dtype=bool)
-        self._bits = 1 << np.arange(6)
+        self._above = np.zeros(n, dtype=bool)
+        self._bits = 1 << np.arange(n)
         self.amps_on = False
         self.brakes_released = False
         self.tripped = False
@@ -137,7 +142,8 @@ class IoBoardSim:
     # ------------------------------------------------------------------ potentiometers
 
     def convert(self, q: np.ndarray) -> None:
-        """Serve the TLC532A: a rising START converts the selected channel."""
+        """Serve the TLC532A for the arm's joint angles ``q`` (``n_joints``): a rising START
+        converts the selected channel.  Inside the cycle."""
         r = self.regs
         ctrl = int(r["adc_control"])
         start = bool(ctrl & ADC_START)
@@ -146,7 +152,7 @@ class IoBoardSim:
             if ch >= ADC_CHANNELS:
                 r["clamped"] += 1
                 ch = ADC_CHANNELS - 1
-            if ch < 6:
+            if ch < self.n_joints:
                 code = adc_code(pot_volts(float(q[ch]), float(self.lo[ch]), float(self.hi[ch])))
             elif ch == ADC_SELF_TEST:
                 code = adc_code(2.5)
@@ -162,47 +168,65 @@ class IoBoardSim:
 
 
 class EncoderBank:
-    """The HCTL-2000 counters of every board (C.3), counted in one pass over all arms.
+    """The HCTL-2000 counters of every board (C.3), counted in one pass over all the cell's
+    joints, numbered flat (``joints.JointMap``): arm ``k``'s joint ``j`` is flat index
+    ``base[k] + j`` here and channel ``j`` of the arm's board.
 
     Each channel counts quadrature counts of its motor angle modulo 4096.  With index capture
     enabled on its board (CSR bit 4 low), passing the index pulse (once per motor revolution,
     at the motor angle ``phase``) resets the counter to 0 and sets the channel's bit in the
-    index register.  ``sample`` runs once per plant cycle on preallocated buffers.
+    index register.  ``sample`` runs once per plant cycle on preallocated buffers.  Channels
+    beyond an arm's joint count are never written (they stay 0).
     """
 
     def __init__(
-        self, regs: np.ndarray, types: list[RobotType], phase: np.ndarray, motor_angle: np.ndarray
+        self,
+        regs: np.ndarray,
+        types: list[RobotType],
+        phase: np.ndarray,
+        motor_angle: np.ndarray,
+        joints: JointMap | None = None,
     ) -> None:
+        """``regs``: the IO_BOARD records, one per arm of ``types``; ``phase`` and
+        ``motor_angle``: flat per joint.  ``joints`` defaults to the map of ``types``'
+        joint counts (the plant passes its config's)."""
+        if joints is None:
+            joints = JointMap(tuple(t.name for t in types), tuple(t.n_joints for t in types))
+        assert joints.counts == tuple(t.n_joints for t in types), "joints disagree with types"
+        assert len(regs) == joints.n_robots, "one IO_BOARD record per arm"
+        self.joints = joints
         self.regs = regs  # IO_BOARD records, one per arm
-        self.n_arms = len(regs)
-        n = 6 * self.n_arms
+        self.n_arms = joints.n_robots
+        n = joints.total
         cpr = np.concatenate([np.asarray(t.drive.counts_per_rev, np.float64) for t in types])
         self.phase = np.asarray(phase, dtype=np.float64).reshape(n)  # index motor angle, rad
         self._counts_per_rad = cpr / TWO_PI
-        self._encoder = regs["encoder"][:, :6]
         self._index = regs["index"]
         self._csr = regs["csr"]
         self._raw = np.zeros(n, dtype=np.int64)
         self._count = np.zeros(n, dtype=np.int64)
-        self._count_arms = self._count.reshape(self.n_arms, 6)
+        self._to_boards = ArmCopy(joints, self._count, regs["encoder"])
         self._ref = np.zeros(n, dtype=np.int64)
         self._rev = np.zeros(n)
         self._f = np.zeros(n)
         self._g = np.zeros(n)
         self._crossed = np.zeros(n, dtype=bool)
         for k in range(self.n_arms):
-            self.power_on(k, motor_angle[6 * k : 6 * k + 6])
+            self.power_on(k, motor_angle[joints.span(k)])
 
     def power_on(self, k: int, motor_angle: np.ndarray) -> None:
-        """Arm ``k``'s counters read 0 at motor angles ``motor_angle`` (power-on, set-up)."""
-        sl = slice(6 * k, 6 * k + 6)
+        """Arm ``k``'s counters read 0 at motor angles ``motor_angle`` (its joints; power-on,
+        set-up)."""
+        sl = self.joints.span(k)
         self._ref[sl] = np.floor(motor_angle * self._counts_per_rad[sl]).astype(np.int64)
         self._rev[sl] = np.floor((motor_angle - self.phase[sl]) / TWO_PI)
-        self._encoder[k] = 0
+        self._count[sl] = 0
+        self.regs["encoder"][k] = 0
         self._index[k] = 0
 
     def sample(self, motor_angle: np.ndarray) -> None:
-        """Count the motor angles of every arm into the counter registers; capture indexes."""
+        """Count the motor angles of every joint (flat) into the counter registers; capture
+        indexes.  Inside the cycle."""
         f, rev = self._f, self._g
         np.multiply(motor_angle, self._counts_per_rad, out=f)
         np.floor(f, out=f)
@@ -212,8 +236,9 @@ class EncoderBank:
         np.floor(rev, out=rev)
         np.not_equal(rev, self._rev, out=self._crossed)
         if self._crossed.any():  # rare: a few times per motor revolution
+            robot_of, joint_of = self.joints.robot_of, self.joints.joint_of
             for j in np.flatnonzero(self._crossed):
-                k, ch = divmod(int(j), 6)
+                k, ch = int(robot_of[j]), int(joint_of[j])
                 if int(self._csr[k]) & CSR_INDEX_OFF:
                     continue  # capture disabled: the counter just keeps counting
                 passed = max(rev[j], self._rev[j])  # the revolution whose index was passed
@@ -223,4 +248,4 @@ class EncoderBank:
         np.copyto(self._rev, rev)
         np.subtract(self._raw, self._ref, out=self._count)
         np.mod(self._count, COUNTER_MODULO, out=self._count)
-        np.copyto(self._encoder, self._count_arms, casting="unsafe")
+        self._to_boards.to_arms()

@@ -1,5 +1,5 @@
-"""Plant (thesis 3.7, appendix C): the simulated PUMA 560 arms, motors, amplifiers, I/O and
-DAC boards, behind their registers in the arena.
+"""Plant (thesis 3.7, appendix C): the simulated arms (each of its robot type, PUMA 560 or
+another), motors, amplifiers, I/O and DAC boards, behind their registers in the arena.
 """
 
 from __future__ import annotations

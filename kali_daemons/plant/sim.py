@@ -12,6 +12,12 @@ in-process and the plant daemon calls ``cycle`` from its loop.  One cycle:
 5. the encoders count the new motor angles (once per cycle is enough: at the motors' top
    speed, 40 V / Kt, a motor turns under 0.03 revolutions per millisecond, so no index
    pulse is passed unseen), the pot ADCs serve conversions, and the truth records are written.
+
+Arms may differ in joint count (``joints.JointMap``, the config's ``joints``): every per-joint
+array here (``q``, ``volts``, ``motor_angle``, ...) holds the cell's joints flat, arm ``k``'s
+joint ``j`` at ``base[k] + j``, as does the truth record ``JOINT_TRUTH``; the boards keep
+joint ``j`` on channel ``j`` of its arm's IO_BOARD and DAC_BOARD, channels past the arm's
+joint count unused.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import numpy as np
 from .. import layout
 from ..arena import Arena
 from ..config import KaliConfig
+from ..joints import ArmCopy
 from ..model import World, build_world
 from .board import EncoderBank, IoBoardSim
 from .motor import MotorBank
@@ -31,9 +38,11 @@ GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to
 
 
 class PlantSim:
-    """The plant of one instance: owns the MuJoCo model and data and the register records."""
+    """The plant of one instance: owns the MuJoCo model and data, the register records and
+    the truth records (``ARM_TRUTH`` per arm, ``JOINT_TRUTH`` per joint)."""
 
     def __init__(self, cfg: KaliConfig, arena: Arena, period_ms: float | None = None) -> None:
+        """Build the world and lay out or attach the records (outside the cycle)."""
         pc = self._plant_cfg = cfg.plant
         self.dt = pc.substep_ms / 1000.0
         self.dt_ns = round(pc.substep_ms * 1e6)
@@ -41,6 +50,7 @@ class PlantSim:
         self.substeps = max(1, round(period / pc.substep_ms))
         self.world: World = build_world(cfg.robots, timestep=self.dt)
         self.names = [r.name for r in cfg.robots]
+        joints = self.joints = cfg.joints
         m = self.model = self.world.model
         d = self.data = mujoco.MjData(m)
         n_arms = len(self.names)
@@ -48,6 +58,7 @@ class PlantSim:
         self.qpos_idx = np.concatenate([self.world.qpos_adr[k] for k in range(n_arms)])
         types = [r.type for r in cfg.robots]
         self.motors = MotorBank(types)
+        assert self.motors.n == joints.total, "the motors are the config's joints"
         self.acts = np.concatenate([self.world.motor[k] for k in range(n_arms)])
         self.act_adr = np.concatenate([self.world.motor_act_adr[k] for k in range(n_arms)])
         self.current = np.zeros(self.motors.n)
@@ -73,14 +84,16 @@ class PlantSim:
         self.dac = arena.record(layout.KEY_DACS, layout.DAC_BOARD, n_arms)
         self.dac["code"] = layout.DAC_ZERO
         self.truth = arena.record(layout.KEY_TRUTHS, layout.ARM_TRUTH, n_arms)
+        self.joint_truth = arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, joints.total)
         self.boards = [
             IoBoardSim(self.regs[k : k + 1].reshape(()), pc, types[k]) for k in range(n_arms)
         ]
         # each arm is built to its calibration sheet (thesis 3.5.1): the robot's config says it
         phases = np.concatenate([r.index_phases for r in cfg.robots])
-        self.encoders = EncoderBank(self.regs, types, phases, self.motor_angle)
-        self._codes = self.dac["code"][:, :6]
-        self._volts_arms = self.volts.reshape(n_arms, 6)
+        self.encoders = EncoderBank(self.regs, types, phases, self.motor_angle, joints)
+        self._codes_to_volts = ArmCopy(joints, self.volts, self.dac["code"])
+        self._spans = [joints.span(k) for k in range(n_arms)]  # each arm's joints, flat
+        self._q_arms = joints.split(self.q)  # views, bound once
         self._gripper_prev = [0] * n_arms
         self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
         self._forces: list[np.ndarray | None] = [None] * n_arms
@@ -98,7 +111,7 @@ class PlantSim:
         self.data.qvel[self.world.dof_adr[k]] = 0.0
         mujoco.mj_forward(self.model, self.data)
         self._read_joints()
-        self.encoders.power_on(k, self.motor_angle[6 * k : 6 * k + 6])
+        self.encoders.power_on(k, self.motor_angle[self._spans[k]])
         self._write_truth()
 
     # ------------------------------------------------------------------ one cycle
@@ -109,10 +122,10 @@ class PlantSim:
         changed = False
         for k, board in enumerate(self.boards):
             board.update(self.sim_ns)
-            sl = slice(6 * k, 6 * k + 6)
+            sl = self._spans[k]
             motors.enabled[sl] = 1.0 if board.amps_on else 0.0
             braked = not board.brakes_released
-            if self.braked[6 * k] != braked:
+            if self.braked[sl.start] != braked:
                 self.braked[sl] = braked
                 changed = True
             self._gripper(k)
@@ -131,8 +144,8 @@ class PlantSim:
         self.sim_ns += self.substeps * self.dt_ns
         self._read_joints()
         self.encoders.sample(self.motor_angle)
-        for k, board in enumerate(self.boards):
-            board.convert(self.q[6 * k : 6 * k + 6])
+        for board, q in zip(self.boards, self._q_arms, strict=True):
+            board.convert(q)
         self.ticks += 1
         self._write_truth()
 
@@ -144,13 +157,13 @@ class PlantSim:
         np.multiply(self.motors.gkt, self.current, out=self.torque)
 
     def _read_dac(self) -> None:
-        """DAC codes → amplifier input volts; codes above 12 bits are clamped and counted."""
-        out = self._volts_arms
-        np.copyto(out, self._codes)
+        """DAC codes (arm k's joint j on channel j) → amplifier input volts, flat; codes
+        above 12 bits are clamped and counted on their board."""
+        out = self.volts
+        self._codes_to_volts.to_flat()
         if out.max() > DAC_MAX:  # rare: a bad register value
-            over = out > DAC_MAX
-            for k in np.flatnonzero(over.any(axis=1)):
-                self.dac["clamped"][k] += np.count_nonzero(over[k])
+            for k in self.joints.robot_of[np.flatnonzero(out > DAC_MAX)]:
+                self.dac["clamped"][k] += 1
             np.minimum(out, DAC_MAX, out=out)
         np.subtract(out, layout.DAC_ZERO, out=out)
         np.multiply(out, 10.0 / layout.DAC_ZERO, out=out)
@@ -205,7 +218,7 @@ class PlantSim:
         sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)
         fields = ("q", "qd", "current", "torque", "motor_angle")
         self._truth_copies = [
-            (self.truth[f], src.reshape(n, 6)) for f, src in zip(fields, sources, strict=True)
+            (self.joint_truth[f], src) for f, src in zip(fields, sources, strict=True)
         ]
         self._truth_flags = [
             tuple(
@@ -221,7 +234,8 @@ class PlantSim:
         self._object_pose = (w["object_pose"], self.data.qpos[adr : adr + 7])
 
     def _write_truth(self) -> None:
-        """The plant-only records (outside the controller's view): true state of every arm."""
+        """The plant-only records (outside the controller's view): true state of every joint
+        and arm."""
         for dst, src in self._truth_copies:
             np.copyto(dst, src)
         forces = self._forces

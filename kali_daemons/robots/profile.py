@@ -30,11 +30,10 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError
+from ..layout import MAX_JOINTS
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-
-MAX_JOINTS = 8  # one McGill board: 8 counter and 8 DAC channels (thesis appendix C)
 
 
 def read_only(values: object, dtype: type = np.float64) -> npt.NDArray:

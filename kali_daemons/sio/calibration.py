@@ -56,10 +56,11 @@ class PotReader:
     calibrated a joint 0.8 rad off that way and drove it into its limit.
     """
 
-    def __init__(self, control: np.ndarray, analog: np.ndarray) -> None:
+    def __init__(self, control: np.ndarray, analog: np.ndarray, channels: int) -> None:
         self.control = control  # 0-d views of the board's ADC registers
         self.analog = analog
-        self.codes = [0] * 6
+        self.channels = channels  # the arm's joints: one pot on each of its channels
+        self.codes = [0] * channels
         self._channel = 0
         self._waiting = False  # START written for this channel, DONE not seen yet
 
@@ -70,9 +71,9 @@ class PotReader:
         self.control[...] = 0
 
     def poll(self) -> bool:
-        """One step, once per tick; True once all six codes are in ``codes``."""
+        """One step, once per tick; True once every channel's code is in ``codes``."""
         c = self._channel
-        if c >= 6:
+        if c >= self.channels:
             return True
         value = int(self.analog)
         if not self._waiting:
@@ -87,7 +88,7 @@ class PotReader:
         self.control[...] = 0
         self._waiting = False
         self._channel = c + 1
-        return self._channel >= 6
+        return self._channel >= self.channels
 
 
 class Calibration:
@@ -97,19 +98,22 @@ class Calibration:
         self.sio = sio
         self.k = k
         self.r = sio._r[k]  # the robot's views (q, demand, board registers, ...)
-        self.base = 6 * k
+        span = sio.level.map.span(k)
+        self.base = span.start
+        n = self.n = span.stop - span.start
+        self.all_found = (1 << n) - 1  # calib_found once every joint's pulse is found
         self.driver = sio.driver
         self.capture = False  # SIO writes CSR bit 4 low while True
-        self.pots = PotReader(self.r.adc_control, self.r.adc_analog)
+        self.pots = PotReader(self.r.adc_control, self.r.adc_analog, n)
         rate = sio.rate
-        spacing = sio.driver.index_spacing[self.base : self.base + 6]
+        spacing = sio.driver.index_spacing[span]
         self.speed_per_tick = spacing / (SEARCH_S * rate)  # rad per servo tick
         self.travel = SEARCH_SPAN * spacing
         self.search_ticks = math.ceil((SEARCH_SPAN * SEARCH_S + SEARCH_GRACE_S) * rate)
         self.settle_ticks = math.ceil(SETTLE_S * rate)
-        self.start = np.zeros(6)
-        self.direction = np.ones(6)
-        self.shift = np.zeros(6)
+        self.start = np.zeros(n)
+        self.direction = np.ones(n)
+        self.shift = np.zeros(n)
         self.ticks = 0
 
     @property
@@ -127,7 +131,7 @@ class Calibration:
         """Start: choose each joint's sweep, capture on (the register starts clear)."""
         d, b = self.driver, self.base
         q = self.r.q
-        for j in range(6):
+        for j in range(self.n):
             i = b + j
             ahead = d.nearest_index(i, float(q[j])) - float(q[j])
             sign = 1.0 if ahead >= 0.0 else -1.0
@@ -169,11 +173,11 @@ class Calibration:
         since the last reading.  Count from the pulse from now on and servo onto it."""
         r, d, b = self.r, self.driver, self.base
         found = int(r.calib_found)
-        new = int(r.index) & 0x3F & ~found
+        new = int(r.index) & self.all_found & ~found
         if not new:
             return
         q, q_prev = self.sio.q, self.sio.q_prev
-        for j in range(6):
+        for j in range(self.n):
             if new >> j & 1:
                 # the pulse lies between the last reading and this one, about a count apart:
                 # take it at the last reading's angle
@@ -187,16 +191,16 @@ class Calibration:
     def _search(self) -> None:
         r = self.r
         found = int(r.calib_found)
-        for j in range(6):
+        for j in range(self.n):
             if not found >> j & 1:
                 step = min(self.ticks * float(self.speed_per_tick[j]), float(self.travel[j]))
                 r.demand[j] = self.start[j] + self.direction[j] * step
-        if found == 0x3F:
+        if found == self.all_found:
             self.capture = False
             self.ticks = 0
             self._say(CalibState.SETTLE, "calibrating: every index pulse found, settling")
         elif self.ticks > self.search_ticks:
-            missing = [str(j + 1) for j in range(6) if not found >> j & 1]
+            missing = [str(j + 1) for j in range(self.n) if not found >> j & 1]
             self.fail(
                 f"no index pulse on joint {', '.join(missing)} within "
                 f"{SEARCH_SPAN:g} index spacings of travel (is the encoder's index connected?)"
@@ -205,7 +209,7 @@ class Calibration:
     def _finish(self) -> None:
         d, b, r = self.driver, self.base, self.r
         worst, worst_j = 0.0, 0
-        for j in range(6):
+        for j in range(self.n):
             i = b + j
             pot = d.pot_angle(i, self.pots.codes[j])
             rpc = float(d.rad_per_count[i])
@@ -222,7 +226,7 @@ class Calibration:
                 f"ambiguous; check the pot table"
             )
             return
-        for j in range(6):
+        for j in range(self.n):
             i = b + j
             s = float(self.shift[j])
             d.offset[i] += s

@@ -92,8 +92,14 @@ class ServoIO(Daemon):
         rs = lv.robots
         # the arms' calibration sheets (thesis 3.5.1), from their configs
         phases = np.concatenate([r.index_phases for r in cfg.robots])
-        self.driver = JointDriver([r.type for r in cfg.robots], index_phase=phases)
-        self._driver_state = (rs["acc"], rs["prev"], rs["offset"])
+        self.driver = JointDriver(
+            [r.type for r in cfg.robots],
+            self.boards["encoder"],
+            self.dacs["code"],
+            index_phase=phases,
+        )
+        js = lv.joints
+        self._driver_state = (js["acc"], js["prev"], js["offset"])
         if not first:
             self.driver.load(*self._driver_state)
         self.fifos = [lv.fifo(k) for k in range(nr)]
@@ -123,7 +129,7 @@ class ServoIO(Daemon):
         self.watchdog_ms = cfg.plant.watchdog_ms
         self.base_ms = cfg.clock.base_tick_ms
         self.current_ticks = np.array(
-            [servo_ticks(r.current_fault_ms) for r in cfg.robots for _ in range(6)]
+            [servo_ticks(r.current_fault_ms) for r in cfg.robots for _ in range(r.n_joints)]
         )
         sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
         ctrl["sv_count"] = len(sv_names)
@@ -146,7 +152,7 @@ class ServoIO(Daemon):
         # lockstep has no deadlines, and its clock counts one acknowledgement post per
         # process: there every SV acknowledges for itself
         self._gang = [] if inst.lockstep else list(enumerate(self.sv_slots))
-        # private, preallocated arrays: flat over all joints (robot k joint j at 6 k + j)
+        # private, preallocated arrays: flat over all joints (robot k joint j at base[k] + j)
         self.q = np.zeros(n)
         self.q_prev = np.zeros(n)
         self.qd = np.zeros(n)
@@ -162,22 +168,16 @@ class ServoIO(Daemon):
         self.fed_f = np.zeros(n)
         self.busy_src = np.full(n, layout.SLOT_NOT_FED, dtype=np.uint32)
         self.over = np.zeros(n, dtype=np.int64)
-        # the checks' arrays, (robots, 6): every joint at once (_checks)
-        self._q2, self._demand2 = self.q.reshape(nr, 6), self.demand.reshape(nr, 6)
-        self._fed2 = self.fed_mask.reshape(nr, 6)
-        self._q_min2 = self.driver.q_min.reshape(nr, 6)
-        self._q_max2 = self.driver.q_max.reshape(nr, 6)
-        self._range_check = rs["range_check"]  # written by clients: nonzero = checked
-        self._safe = rs["safe"]  # written by clients (ServoClient.set_safe)
+        # the checks' arrays: every joint at once (_checks)
+        self._range_check = js["range_check"]  # written by clients: nonzero = checked
+        self._safe = js["safe"]  # written by clients (ServoClient.set_safe)
         ok = np.asarray(self._safe, dtype=np.float64)  # SIO's own copy, only valid limits
         self._safe_ok = np.where((ok > 0) & (ok <= math.pi), ok, DEFAULT_SAFE_RAD)
-        self._safe_in = np.zeros((nr, 6), dtype=bool)
-        self._beyond = np.zeros((nr, 6), dtype=bool)
-        self._over = np.zeros((nr, 6), dtype=bool)
-        self._err = np.zeros((nr, 6))
+        self._safe_in = np.zeros(n, dtype=bool)
+        self._beyond = np.zeros(n, dtype=bool)
+        self._over = np.zeros(n, dtype=bool)
+        self._err = np.zeros(n)
         self.ff = np.zeros(n)
-        self._encoders = self.boards["encoder"]
-        self._codes = self.dacs["code"]
         self._slot_demand = lv.slots["demand"]
         self._slot_position = lv.slots["position"]
         self._slot_velocity = lv.slots["velocity"]
@@ -189,7 +189,7 @@ class ServoIO(Daemon):
         self._fault_count = inst.fault["count"]
         self._faults_seen = int(self._fault_count)
         self._pub = [
-            (rs[f], src.reshape(nr, 6))
+            (js[f], src)
             for f, src in (
                 ("q", self.q),
                 ("qd", self.qd),
@@ -205,7 +205,10 @@ class ServoIO(Daemon):
         self._lat_last, self._lat_max = ctrl["latency_last_ns"], ctrl["latency_max_ns"]
         self._robots_tick = rs["tick"]
         self._r = [_RobotViews(self, k) for k in range(nr)]
-        self._pots = [PotReader(r.adc_control, r.adc_analog) for r in self._r]
+        self._pots = [
+            PotReader(r.adc_control, r.adc_analog, n_joints)
+            for r, n_joints in zip(self._r, lv.map.counts, strict=True)
+        ]
         self._calib = [Calibration(self, k) for k in range(nr)]
         ffc = cfg.feedforward
         self._ff = [
@@ -213,7 +216,7 @@ class ServoIO(Daemon):
                 self.ff_records,
                 k,
                 self.fifos[k],
-                self.ff[6 * k : 6 * k + 6],
+                self.ff[lv.map.span(k)],
                 heartbeat_limit=period_ticks(ffc.stale_ms, cfg.clock.base_tick_ms, round_up=True),
                 missing_limit=servo_ticks(ffc.stale_ms),
                 step=cfg.clock.servo_period_ms / ffc.ramp_ms,
@@ -221,7 +224,7 @@ class ServoIO(Daemon):
             for k in range(nr)
         ]
         if first:
-            self.driver.start(self._encoders)
+            self.driver.start()
             for k in range(nr):
                 self.boards[k]["csr"] = BASE_CSR
                 self.boards[k]["adc_control"] = 0
@@ -231,7 +234,7 @@ class ServoIO(Daemon):
         self.driver.angles(self.q)
         self.q_prev[:] = self.q
         for k in range(nr):
-            self.fifos[k].reset(self.q[6 * k : 6 * k + 6])
+            self.fifos[k].reset(self.q[lv.map.span(k)])
         self.flight = FlightRecorder(inst, n, create=True, slot=self.slot)  # DESIGN 7
         self.flight.bind(self.q, self.demand, self.servo_torque, self.ff, self.torque, self.current)
         ctrl["ready"] = 1
@@ -249,7 +252,7 @@ class ServoIO(Daemon):
             self._faults_seen = count  # power stays off until the operator enables it
             faulted = True
         # (a) encoders → radians, velocity by backward difference
-        self.driver.read(self._encoders, self.q)
+        self.driver.read(self.q)
         for calib in self._calib:
             if calib.capture:  # calibrating: a counter reset by its index pulse
                 calib.catch_index()
@@ -293,7 +296,7 @@ class ServoIO(Daemon):
         np.multiply(self.servo_torque, self.fed_f, out=self.servo_torque)
         np.multiply(self.ff, self.fed_f, out=self.ff)
         np.add(self.servo_torque, self.ff, out=self.torque)
-        self.driver.output(self.torque, self.current, self._codes, self.clamped)
+        self.driver.output(self.torque, self.current, self.clamped)
         np.multiply(self.torque, self.fed_f, out=self.torque)
         self._current_check(tick)
         t_out = rt.monotonic_ns()
@@ -395,16 +398,16 @@ class ServoIO(Daemon):
             r.fed[:] = True
 
     def _read_pots(self, k: int) -> None:
-        """One step of reading robot ``k``'s six pots at start; then the angles from them."""
+        """One step of reading robot ``k``'s pots at start; then the angles from them."""
         reader = self._pots[k]
         if not reader.poll():
             return
         r = self._r[k]
-        for j in range(6):
-            i = 6 * k + j
+        for j in range(reader.channels):
+            i = self.level.map.index(k, j)
             self.driver.set_angle(i, self.driver.pot_angle(i, reader.codes[j]))
         self.driver.angles(self.q)
-        self.q_prev[6 * k : 6 * k + 6] = r.q
+        self.q_prev[self.level.map.span(k)] = r.q
         self.fifos[k].reset(r.q)
         r.pots_read[...] = 1
         r.message[...] = b"joint angles from the potentiometers (not calibrated)"
@@ -416,9 +419,9 @@ class ServoIO(Daemon):
         only a fault walks them, in ``_check_fault``.  The client-written limits count only
         in (0, π] (NaN fails both): a garbage one leaves the last valid limit in force
         (DESIGN 7)."""
-        q, fed, beyond, over = self._q2, self._fed2, self._beyond, self._over
-        np.less(q, self._q_min2, out=beyond)
-        np.greater(q, self._q_max2, out=over)
+        q, fed, beyond, over = self.q, self.fed_mask, self._beyond, self._over
+        np.less(q, self._q_min, out=beyond)
+        np.greater(q, self._q_max, out=over)
         np.logical_or(beyond, over, out=beyond)
         np.logical_and(beyond, self._range_check, out=beyond)
         np.logical_and(beyond, fed, out=beyond)
@@ -427,7 +430,7 @@ class ServoIO(Daemon):
         np.less_equal(safe, math.pi, out=over)
         np.logical_and(safe_in, over, out=safe_in)
         np.copyto(self._safe_ok, safe, where=safe_in)
-        np.subtract(self._demand2, q, out=self._err)
+        np.subtract(self.demand, q, out=self._err)
         np.abs(self._err, out=self._err)
         np.greater(self._err, self._safe_ok, out=over)
         np.logical_and(over, fed, out=over)
@@ -439,26 +442,27 @@ class ServoIO(Daemon):
         """Halt for the first robot at fault, its range before its runaway (outside the
         common path: the tick halts)."""
         lv = self.level
-        q = self._q2
+        q = self.q
         for k in range(lv.n_robots):
-            for j in range(6):
-                if self._beyond[k, j]:
-                    above = q[k, j] > self._q_max2[k, j]
-                    limit = self._q_max2[k, j] if above else self._q_min2[k, j]
+            span = lv.map.span(k)
+            for i in range(span.start, span.stop):
+                if self._beyond[i]:
+                    above = q[i] > self._q_max[i]
+                    limit = self._q_max[i] if above else self._q_min[i]
                     return self._halt(
                         FaultCode.RANGE,
                         tick,
-                        f"robot '{lv.names[k]}' joint {j + 1} at {math.degrees(q[k, j]):.2f}° "
+                        f"{lv.map.label(i)} at {math.degrees(q[i]):.2f}° "
                         f"is beyond its limit {math.degrees(limit):.2f}°",
                     )
-            if self._over[k].any():
-                j = int(np.argmax(self._over[k]))
+            if self._over[span].any():
+                i = span.start + int(np.argmax(self._over[span]))
                 return self._halt(
                     FaultCode.RUNAWAY,
                     tick,
-                    f"robot '{lv.names[k]}' joint {j + 1}: tracking error "
-                    f"{float(self._demand2[k, j] - q[k, j]):+.4f} rad beyond safe "
-                    f"{float(self._safe_ok[k, j]):.4f} rad (runaway)",
+                    f"{lv.map.label(i)}: tracking error "
+                    f"{float(self.demand[i] - q[i]):+.4f} rad beyond safe "
+                    f"{float(self._safe_ok[i]):.4f} rad (runaway)",
                 )
         return False
 
@@ -474,7 +478,7 @@ class ServoIO(Daemon):
             self._halt(
                 FaultCode.CURRENT,
                 tick,
-                f"robot '{lv.names[i // 6]}' joint {i % 6 + 1}: motor current demand "
+                f"{lv.map.label(i)}: motor current demand "
                 f"{demand:+.2f} A beyond its limit {float(self.driver.current_limit[i]):.2f} A "
                 f"for {int(self.over[i]) * lv.cfg.clock.servo_period_ms:g} ms",
             )
@@ -483,7 +487,7 @@ class ServoIO(Daemon):
     def _halt(self, code: FaultCode, tick: int, message: str) -> bool:
         """Raise a fault (power off through the boards, clock stops); DAC to zero."""
         self.inst.raise_fault(code, self.name, message, tick=tick)
-        self.driver.zero(self._codes)
+        self.driver.zero()
         return True
 
     def _wait_done(self, tick: int, fed: int) -> bool:
@@ -521,7 +525,7 @@ class ServoIO(Daemon):
             if not self.fed_mask[i] or int(lv.slots["ran_tick"][i]) == tick:
                 continue
             holder = int(self._slot_busy[i])
-            joint = f"{lv.names[i // 6]} joint {i % 6 + 1}"
+            joint = f"{lv.names[lv.map.robot_of[i]]} joint {lv.map.joint_of[i] + 1}"
             if holder == 0:
                 late.append(f"{joint} (unclaimed)")
                 continue
@@ -535,7 +539,7 @@ class ServoIO(Daemon):
             f"(sio waited): {', '.join(late)}",
             tick=tick,
         )
-        self.driver.zero(self._codes)
+        self.driver.zero()
         return False
 
     def _ack_gang(self, tick: int) -> None:
@@ -578,11 +582,11 @@ class ServoIO(Daemon):
                 self.inst.raise_fault(
                     FaultCode.PROCESS_DIED,
                     name,
-                    f"process '{name}' (pid {pid}) died holding robot '{lv.names[i // 6]}' "
-                    f"joint {i % 6 + 1} at tick {tick} (sio noticed)",
+                    f"process '{name}' (pid {pid}) died holding {lv.map.label(i)} "
+                    f"at tick {tick} (sio noticed)",
                     tick=tick,
                 )
-                self.driver.zero(self._codes)
+                self.driver.zero()
                 return True
         return False
 
@@ -674,15 +678,15 @@ class _RobotViews:
             "cmd_faults",
         ):
             setattr(self, field, one(robots, field))
-        self.calib_shift = robots["calib_shift"][k]
+        span = sio.level.map.span(k)
+        self.calib_shift = sio.level.joints["calib_shift"][span]
         self.encoder = boards["encoder"][k]
         self.index = one(boards, "index")
         self.board_power = one(boards, "power")
         self.csr = one(boards, "csr")
         self.adc_control = one(boards, "adc_control")
         self.adc_analog = one(boards, "adc_analog")
-        self.codes = sio.dacs["code"][k, :6]
-        sl = slice(6 * k, 6 * k + 6)
-        self.q, self.demand = sio.q[sl], sio.demand[sl]
-        self.fed = sio.fed_mask[sl]
-        self.slot_reset = sio.level.slots["reset"][sl]
+        self.codes = sio.dacs["code"][k, : span.stop - span.start]
+        self.q, self.demand = sio.q[span], sio.demand[span]
+        self.fed = sio.fed_mask[span]
+        self.slot_reset = sio.level.slots["reset"][span]

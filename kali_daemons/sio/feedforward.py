@@ -79,8 +79,9 @@ class RobotFeedforward:
         self._heartbeat = one("heartbeat_tick")
         self._stale_count, self._events = one("stale_ticks"), one("stale_events")
         self._weight_rec = one("weight")
+        n = out.shape[0]  # the robot's joints: its rows' first n columns
         self._keys = records["key"][k]
-        self._tau = records["tau"][k]
+        self._tau = records["tau"][k][:, :n]
         self.fifo = fifo
         self.out = out
         self.heartbeat_limit = heartbeat_limit
@@ -89,11 +90,11 @@ class RobotFeedforward:
         self.weight = float(self._weight_rec)
         self.missing = 0
         self.stale = int(self._state) == FfState.STALE
-        self._last = np.zeros(6)  # the last good interpolated torque
-        self._try = np.zeros(6)  # this tick's, until it is known to be finite
-        self._ok = np.zeros(6, dtype=bool)
-        self._a = np.zeros(6)
-        self._b = np.zeros(6)
+        self._last = np.zeros(n)  # the last good interpolated torque
+        self._try = np.zeros(n)  # this tick's, until it is known to be finite
+        self._ok = np.zeros(n, dtype=bool)
+        self._a = np.zeros(n)
+        self._b = np.zeros(n)
         word = int(self._mode)
         self._mode_ok = word if word in _MODES else int(FfMode.OFF)  # the last valid mode
 

@@ -82,7 +82,9 @@ class ServoWorker(Daemon):
         self.n_algos = len(registry)
         # per slot: the algorithm its robot starts with, what an invalid index is restored to
         self.configured = [
-            registry.index(robot.servo) for robot in inst.config.robots for _ in range(6)
+            registry.index(robot.servo)
+            for robot in inst.config.robots
+            for _ in range(robot.n_joints)
         ]
         self.cas = atomic.CompareExchange32()
         c = self.level.ctrl
@@ -240,9 +242,6 @@ class ServoWorker(Daemon):
     def _servo_fault(self, i: int, algo: str, what: str) -> None:
         s = self.level.slot_structs[i]
         s.torque = 0.0
-        robot = self.level.names[i // 6]
         self.inst.raise_fault(
-            FaultCode.SERVO,
-            self.name,
-            f"servo '{algo}' on robot '{robot}' joint {i % 6 + 1} {what}",
+            FaultCode.SERVO, self.name, f"servo '{algo}' on {self.level.map.label(i)} {what}"
         )

@@ -112,10 +112,12 @@ class CartesianMotion:
     """One Cartesian request of one motion system: planned, checked, then sampled per tick.
 
     ``names`` are the arms' names (messages), ``types`` their robot types, ``bases`` their B_k and
-    ``grasps`` their G_k, ``q_start`` (n, 6) where each arm starts, ``configs`` the configuration
-    each must keep (None: the one it starts in), ``targets`` the object's poses in the world, ``dt``
-    the TG period (s).  Raises ``MotionError`` when the request cannot even be planned: arms that do
-    not agree on where the object is, a configuration other than the arm's, a bad path.
+    ``grasps`` their G_k, ``q_start`` where each arm starts (one row per arm, as many angles as its
+    type has joints: a list, or a 2-D array when the arms have the same count), ``configs`` the
+    configuration each must keep (None: the one it starts in), ``targets`` the object's poses in
+    the world, ``dt`` the TG period (s).  Raises ``MotionError`` when the request cannot even be
+    planned: a start of the wrong length, arms that do not agree on where the object is, a
+    configuration other than the arm's, a bad path.
     """
 
     def __init__(
@@ -124,7 +126,7 @@ class CartesianMotion:
         types: Sequence[RobotType],
         bases: Sequence[np.ndarray],
         grasps: Sequence[np.ndarray],
-        q_start: np.ndarray,
+        q_start: np.ndarray | Sequence[np.ndarray],
         configs: Sequence[object | None],
         targets: Sequence[np.ndarray],
         speed: float,
@@ -149,15 +151,23 @@ class CartesianMotion:
             rigid_pose("cartesian motion", f"grasp of robot '{self.names[k]}'", g)
             for k, g in enumerate(grasps)
         ]
-        q_start = np.asarray(q_start, dtype=np.float64).reshape(n, 6)
+        if len(q_start) != n:
+            raise MotionError(f"cartesian motion: {n} arms, but {len(q_start)} start rows")
+        starts = [np.array(q, dtype=np.float64).reshape(-1) for q in q_start]
+        for k, (q, t) in enumerate(zip(starts, types, strict=True)):
+            if q.shape != (t.n_joints,):
+                raise MotionError(
+                    f"cartesian motion: robot '{self.names[k]}' ({t.name}, {t.n_joints} "
+                    f"joints) starts at {q.size} joint angles"
+                )
         # scratch, so sampling allocates nothing
         self._obj = np.empty((4, 4))
         self._tmp = np.empty((4, 4))
         self._t6 = np.empty((4, 4))
-        self._q = np.empty(6)
+        self._q = [np.empty(t.n_joints) for t in types]  # per arm: the check's solution
         self.configs: list[object] = []
         for k in range(n):
-            have = self._kin[k].config_of(q_start[k])
+            have = self._kin[k].config_of(starts[k])
             want = configs[k]
             if want is not None and want != have:
                 raise MotionError(
@@ -166,9 +176,9 @@ class CartesianMotion:
                     f"into '{want}' first)"
                 )
             self.configs.append(have)
-        start = self.object_pose(0, q_start[0])
+        start = self.object_pose(0, starts[0])
         for k in range(1, n):
-            other = self.object_pose(k, q_start[k])
+            other = self.object_pose(k, starts[k])
             gap = float(np.linalg.norm(other[:3, 3] - start[:3, 3]))
             turn = _rotation_angle(start[:3, :3].T @ other[:3, :3])
             if gap > GRASP_TOL_M or turn > GRASP_TOL_RAD:
@@ -180,7 +190,7 @@ class CartesianMotion:
                 )
             # hold the object as the arm really does: no jump at the start, whatever the
             # (tolerated) disagreement; a squeeze it would cause stays a squeeze
-            self._grasps[k] = inverse(start) @ self._bases[k] @ self._kin[k].fkine(q_start[k])
+            self._grasps[k] = inverse(start) @ self._bases[k] @ self._kin[k].fkine(starts[k])
         self.path = CartesianPath(start, list(targets), speed, angular_speed, transition_s)
         for i in range(1, len(self.path.poses)):  # each target first: the plainest refusal
             np.copyto(self._obj, self.path.poses[i])
@@ -200,11 +210,11 @@ class CartesianMotion:
                 f"angular_speed {self.path.angular_speed:g} rad/s)"
             )
         self.n_samples = max(1, math.ceil(self.duration / self.dt - 1e-9))
-        self.q_ref = q_start.copy()  # each arm's last set-point: ikine's q_ref at run time
-        self._rows = [self.q_ref[k] for k in range(n)]
+        # each arm's last set-point (its own width): ikine's q_ref at run time
+        self.q_ref = [q.copy() for q in starts]
         # the check's own walk
         self.checked = 0  # samples checked so far (1..n_samples)
-        self._check_q = q_start.copy()
+        self._check_q = [q.copy() for q in starts]
 
     # ------------------------------------------------------------------ frames
 
@@ -256,7 +266,7 @@ class CartesianMotion:
         t6 = self._t6_of(k)
         prev = self._check_q[k]
         try:
-            q = self._kin[k].ikine(t6, self.configs[k], q_ref=prev, out=self._q)
+            q = self._kin[k].ikine(t6, self.configs[k], q_ref=prev, out=self._q[k])
         except KinematicsError as exc:
             raise self._refuse(k, tau, _why(exc)) from None
         near = self._kin[k].singular(q)
@@ -283,10 +293,11 @@ class CartesianMotion:
 
     def sample(self, tau: float) -> list[np.ndarray]:
         """Every arm's joint set-point at path time ``tau``, each solved near its last one;
-        returns the rows of ``q_ref`` (views, overwritten next time).  ``KinematicsError``
-        if an arm has no solution.  Inside the cycle: nothing allocated unless it fails."""
+        returns ``q_ref``, one array per arm of its type's joint count (overwritten next
+        time).  ``KinematicsError`` if an arm has no solution.  Inside the cycle: nothing
+        allocated unless it fails."""
         self.path.sample(tau, self._obj)
-        rows = self._rows
+        rows = self.q_ref
         for k in range(self.n):
             self._kin[k].ikine(self._t6_of(k), self.configs[k], q_ref=rows[k], out=rows[k])
         return rows

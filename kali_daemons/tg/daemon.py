@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
 
@@ -106,9 +107,10 @@ def check_request(
 
     ``names`` are the cell's robots and ``types`` their robot types; ``calibrated`` (per robot,
     None: not known yet) is needed by a PATH.  Checks the kind, the robots (``request_robots``), for
-    JOINTS the speed scale in (0, 1] and each target finite and within the joint range, for PATH the
-    segment count, finite speeds, targets and grasps and valid configuration bytes.  Pure: the TG
-    calls it on every request it takes, tests call it on random bytes.
+    JOINTS the speed scale in (0, 1], each target finite and within the joint range and the row's
+    columns past the robot's joint count 0, for PATH the segment count, finite speeds, targets and
+    grasps and valid configuration bytes.  Pure: the TG calls it on every request it takes, tests
+    call it on random bytes.
     """
     kind = int(req["kind"])
     if kind not in _KINDS:
@@ -120,7 +122,16 @@ def check_request(
         if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
             raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
         for i, k in enumerate(robots):
-            check_joint_target(names[k], req["joints"][i], types[k])
+            row = req["joints"][i]
+            check_joint_target(names[k], row, types[k])
+            n = types[k].n_joints
+            extra = np.flatnonzero(row[n:])  # NaN is not 0 either
+            if extra.size:
+                j = n + int(extra[0])
+                raise MotionError(
+                    f"robot '{names[k]}' ({types[k].name}) has {n} joints, but the request "
+                    f"gives joint {j + 1} a target ({float(row[j])} rad)"
+                )
     elif kind == MotionKind.PATH:
         n_seg = int(req["n_segments"])
         if not 1 <= n_seg <= layout.MAX_SEGMENTS:
@@ -156,12 +167,12 @@ def _bounded(what: str, duration: float) -> None:
 def plan_joints(
     req: np.void, robots: list[int], start: np.ndarray, types: list[RobotType]
 ) -> JointMotion:
-    """The joint motion a checked JOINTS request asks for, from ``start`` (6 per robot) with
-    the per-joint limits of each robot's type (``qd_max``, ``qdd_max``) scaled by its speed
-    scale; MotionError if it cannot be planned or would outlast ``MAX_MOTION_S``."""
+    """The joint motion a checked JOINTS request asks for, from ``start`` (each robot's joints
+    one after another, as many as its type has) with the per-joint limits of each robot's type
+    (``qd_max``, ``qdd_max``) scaled by its speed scale; MotionError if it cannot be planned or
+    would outlast ``MAX_MOTION_S``."""
     scale = float(req["speed_scale"])
-    n = len(robots)
-    target = np.concatenate([req["joints"][i] for i in range(n)])
+    target = np.concatenate([req["joints"][i][: types[k].n_joints] for i, k in enumerate(robots)])
     v_max = np.concatenate([types[k].qd_max for k in robots]) * scale
     a_max = np.concatenate([types[k].qdd_max for k in robots]) * scale
     profile = JointMotion(start, target, v_max, a_max)
@@ -175,13 +186,13 @@ def plan_path(
     names: list[str],
     types: list[RobotType],
     bases: list[np.ndarray],
-    start: np.ndarray,
+    start: Sequence[np.ndarray],
     dt: float,
 ) -> CartesianMotion:
     """The Cartesian motion a checked PATH request asks for, its arms starting at ``start``
-    (one row of 6 per robot), sampled every ``dt`` s; MotionError if it cannot be planned
-    or would outlast ``MAX_MOTION_S`` (the whole-path check is ``CartesianMotion.check_some``,
-    run afterwards)."""
+    (one row per robot, its type's joint count long), sampled every ``dt`` s; MotionError if it
+    cannot be planned or would outlast ``MAX_MOTION_S`` (the whole-path check is
+    ``CartesianMotion.check_some``, run afterwards)."""
     n = len(robots)
     return CartesianMotion(
         [names[k] for k in robots],
@@ -228,7 +239,9 @@ def refusal(exc: Exception) -> str:
 
 @dataclass
 class Motion:
-    """One accepted request: the robots it moves and its profile."""
+    """One accepted request: the robots it moves and its profile.  A joint motion samples
+    into ``out`` (its robots' joints one after another); ``rows`` are ``out``'s views of each
+    robot's joints, bound once (``joint_rows``) so the cycle slices nothing."""
 
     seq: int
     robots: list[int]
@@ -239,7 +252,16 @@ class Motion:
     tau: float = 0.0
     stop: StopRamp | None = None
     stop_t: float = 0.0
-    out: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    out: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    rows: list[np.ndarray] = field(default_factory=list)
+
+
+def joint_rows(widths: Sequence[int]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """A joint motion's ``out`` for robots of ``widths`` joints, and its per-robot views
+    (outside the cycle: when the motion is accepted)."""
+    out = np.zeros(sum(widths))
+    ends = np.cumsum(widths)
+    return out, [out[end - w : end] for w, end in zip(widths, ends, strict=True)]
 
 
 class TrajectoryGenerator(Daemon):
@@ -253,6 +275,7 @@ class TrajectoryGenerator(Daemon):
         arena = inst.arena
         self.names = [r.name for r in cfg.robots]
         self.n_robots = len(self.names)
+        self.joint_map = cfg.joints  # robot k's joints: flat base[k] .. + counts[k]
         self.queue = RequestQueue(
             arena,
             layout.KEY_MOTION_QUEUE,
@@ -271,13 +294,16 @@ class TrajectoryGenerator(Daemon):
         self._work = 0  # lockstep: path samples checked (and plans) this tick
         self._now = 0  # this tick
         # field views taken once: indexing a record by name builds a new view every time
-        self._setpoints = self.tg_robots["setpoint"]
+        # each robot's set-point: as many of the record's MAX_JOINTS columns as it has joints
+        setpoints = self.tg_robots["setpoint"]
+        self._setpoint_of = [setpoints[k, :n] for k, n in enumerate(self.joint_map.counts)]
+        self._demand_of: list[np.ndarray] = []  # SIO's demands per robot, once attached
         self._progress = self.status["progress"]
         self._tick = self.tg_robots["tick"]
         ratio = Fraction(ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms))
         self.fifos = [
-            InterpolatingFifo(arena, layout.KEY_FIFO.format(robot=name), 6, FIFO_CAPACITY, ratio)
-            for name in self.names
+            InterpolatingFifo(arena, layout.KEY_FIFO.format(robot=name), n, FIFO_CAPACITY, ratio)
+            for name, n in zip(self.names, self.joint_map.counts, strict=True)
         ]
         self.robots = None  # SIO's records, once SIO has created them
         self.dt = cfg.clock.tg_period_ms / 1000.0
@@ -389,9 +415,14 @@ class TrajectoryGenerator(Daemon):
             fifo.set_ratio(ratio)
 
     def _attach_robots(self) -> np.ndarray | None:
-        if self.inst.arena.lookup(layout.KEY_ROBOTS) is None:
+        """SIO's per-robot records once it has laid them and the per-joint ones out (None
+        before); binds each robot's view of the joints' demands."""
+        arena = self.inst.arena
+        if arena.lookup(layout.KEY_ROBOTS) is None or arena.lookup(layout.KEY_JOINTS) is None:
             return None
-        return self.inst.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
+        joints = arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, self.joint_map.total)
+        self._demand_of = self.joint_map.split(joints["demand"])
+        return arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
 
     def _halt_all(self) -> None:
         """Tell every motion and waiting request the fault (readers have said HALTED since it
@@ -556,13 +587,13 @@ class TrajectoryGenerator(Daemon):
             self._plan_path(seq, req, robots)
             return
         start = np.concatenate([self._start_point(k) for k in robots])
-        n = len(robots)
         try:
             profile = plan_joints(req, robots, start, self.types)
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return
-        m = Motion(seq, robots, profile, out=np.zeros(6 * n))
+        out, rows = joint_rows([self.joint_map.counts[k] for k in robots])
+        m = Motion(seq, robots, profile, out=out, rows=rows)
         for k in robots:
             self.tg_robots["busy_seq"][k] = seq
         self.motions.append(m)
@@ -579,17 +610,16 @@ class TrajectoryGenerator(Daemon):
 
     def _plan_path(self, seq: int, req: np.void, robots: list[int]) -> None:
         """Plan a Cartesian request from where its arms are; its check starts this tick."""
-        n = len(robots)
         try:
             for k in robots:
                 self._require_calibrated(k)
-            start = np.array([self._start_point(k) for k in robots])
+            start = [self._start_point(k) for k in robots]
             self._work += PLAN_SAMPLES
             plan = plan_path(req, robots, self.names, self.types, self.bases, start, self.dt)
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return
-        m = Motion(seq, robots, plan, checking=True, out=np.zeros(6 * n))
+        m = Motion(seq, robots, plan, checking=True)
         for k in robots:
             self.tg_robots["busy_seq"][k] = seq
         self._say(seq, RequestState.QUEUED, "checking the path")
@@ -621,8 +651,8 @@ class TrajectoryGenerator(Daemon):
         """Where robot ``k``'s next motion starts: its last set-point while the FIFO still
         holds some, else SIO's present demand (where the FIFO holds)."""
         if self.fifos[k].pending():
-            return self.tg_robots["setpoint"][k].copy()
-        return self.robots["demand"][k].copy()
+            return self._setpoint_of[k].copy()
+        return self._demand_of[k].copy()
 
     def _stop(self, robots: list[int], abort: bool) -> None:
         for m in list(self.motions):
@@ -666,13 +696,13 @@ class TrajectoryGenerator(Daemon):
                 return
             for i, k in enumerate(m.robots):
                 self.fifos[k].push(rows[i])
-                self._setpoints[k] = rows[i]
+                np.copyto(self._setpoint_of[k], rows[i])
         else:
             p.sample(m.tau, m.out)
             for i, k in enumerate(m.robots):
-                q = m.out[6 * i : 6 * i + 6]
+                q = m.rows[i]
                 self.fifos[k].push(q)
-                self._setpoints[k] = q
+                np.copyto(self._setpoint_of[k], q)
         self._progress[m.seq % layout.STATUS_RING] = m.tau / p.duration
         if m.stop is not None and (m.stop.sigma(m.stop_t) == 0.0 or m.tau >= p.duration):
             m.ending, m.ending_message = RequestState.STOPPED, "stopped on the path"

@@ -55,7 +55,7 @@ def joint_move(
     q_max: np.ndarray,
     robot: str = "robot",
 ) -> np.ndarray:
-    """Set-points ``(n, 6)`` at ``period_s`` from ``start`` (exclusive) to ``target``
+    """Set-points ``(steps, joints)`` at ``period_s`` from ``start`` (exclusive) to ``target``
     (inclusive, the last row exactly), or MotionError naming the joint, value and limit."""
     start = np.asarray(start, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64)
@@ -649,9 +649,15 @@ class StopRamp:
 
 
 def check_joint_target(robot: str, q: np.ndarray, rtype: RobotType) -> None:
-    """MotionError unless ``q`` (float64, one per joint) is finite and within the joint range
-    of the robot's type; the one check the client makes before queueing and the TG makes
-    again on taking it."""
+    """MotionError unless ``q`` (float64, one per joint of the robot's type; entries past its
+    ``n_joints``, such as a request record's unused columns, are not looked at) is finite and
+    within the joint range of the type; the one check the client makes before queueing and
+    the TG makes again on taking it."""
+    if len(q) < rtype.n_joints:
+        raise MotionError(
+            f"robot '{robot}' ({rtype.name}) has {rtype.n_joints} joints; "
+            f"{len(q)} target values given"
+        )
     for j in range(rtype.n_joints):
         v = float(q[j])
         if not math.isfinite(v):

@@ -8,12 +8,13 @@ Each cycle it reads the arena without locking (Type 4 records: a torn read costs
 the dashboard, never a command) and logs to rerun, on the timeline ``kali_time`` (the wall
 clock's running time, so a lockstep run has 25 frames per simulated second):
 
-- ``world/...``: both arms drawn from the URDF's visual shapes (Pinocchio's visual model),
+- ``world/...``: every arm drawn from its type's URDF visual shapes (Pinocchio's visual model),
   placed by forward kinematics of the *measured* joint angles at each robot's base; each
   flange's frame; the bar at its pose in the plant (``truth.world``) on its stand.
 - ``robots/<robot>/...``: per joint the angle, demand, tracking error (demand − angle; all in
-  degrees), torque and feed-forward torque (N·m) and motor current (A), one entity of six
-  series each; the flange's position (m) and roll/pitch/yaw (degrees) in the world.
+  degrees), torque and feed-forward torque (N·m) and motor current (A), one entity with a
+  series per joint of the arm's type (j1 .. jN, from ``layout.JOINT_STATE``); the flange's
+  position (m) and roll/pitch/yaw (degrees) in the world.
 - ``timing/...``: per process its last execution time, wake-up lateness and missed deadlines
   from the process table; SIO's sensor-to-DAC latency.
 - ``events/...``: faults (ERROR), the robots' power and calibration messages (INFO) and process
@@ -41,6 +42,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from .. import layout, rt
+from ..config import KaliConfig
 from ..daemon import Daemon
 from ..errors import DaemonError
 from ..instance import decode
@@ -55,14 +57,28 @@ TIMELINE = "kali_time"
 READY_TIMEOUT_S = 30.0  # how long the viewer waits at start for SIO's and the plant's records
 PLOT_WINDOW_S = 10.0  # the time series show the last this many seconds
 FLANGE_AXES_M = 0.12
-JOINT_COLORS = np.array(
-    [[228, 26, 28], [255, 127, 0], [190, 170, 0], [77, 175, 74], [55, 126, 184], [152, 78, 163]],
+JOINT_COLORS = np.array(  # one per joint an arm may have (layout.MAX_JOINTS)
+    [
+        [228, 26, 28],
+        [255, 127, 0],
+        [190, 170, 0],
+        [77, 175, 74],
+        [55, 126, 184],
+        [152, 78, 163],
+        [166, 86, 40],
+        [247, 129, 191],
+    ],
     dtype=np.uint8,
 )
 DEMAND_COLORS = (JOINT_COLORS // 2 + 128).astype(np.uint8)  # the same hue, paler
 STAND_COLOR = (115, 84, 56)  # as the plant's cell (model.py)
 BAR_COLOR = (217, 89, 26)
-JOINTS = [f"j{j + 1}" for j in range(6)]
+AXIS_COLORS = JOINT_COLORS[[0, 3, 4]]  # x y z, roll pitch yaw
+
+
+def joint_names(n_joints: int) -> list[str]:
+    """The series names of an arm's joints: j1 .. jN, as its URDF names them."""
+    return [f"j{j + 1}" for j in range(n_joints)]
 
 
 def _rgba(color: np.ndarray) -> np.ndarray:
@@ -215,11 +231,24 @@ class Viewer(Daemon):
     # ------------------------------------------------------------------ set-up
 
     def on_configure(self) -> None:
-        """Load the arm model, wait for SIO's and the plant's records, set the sinks up and log
-        everything that never changes."""
+        """Load the arm models, wait for SIO's and the plant's records, set the sinks up and
+        log everything that never changes."""
         inst = self.inst
-        cfg = inst.config
-        arena = inst.arena
+        self.load(inst.config)
+        self.dash = inst.arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
+        deadline = rt.monotonic_ns() + int(READY_TIMEOUT_S * 1e9)
+        while not self._records_ready():
+            if rt.monotonic_ns() > deadline:
+                raise DaemonError(f"{self.name}: SIO and the plant did not lay out their records")
+            if inst.shutting_down:
+                return
+            rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
+        self.attach()
+        self._open_sinks()
+
+    def load(self, cfg: KaliConfig) -> None:
+        """Each robot's entity paths, base and arm shapes (one ``Arm`` per robot type), and
+        where its joints sit in the per-joint records (outside the cycle)."""
         self.names = [r.name for r in cfg.robots]
         self.paths = [RobotPaths.of(r) for r in self.names]
         self.bases = [pin.SE3(base_transform(r.base_xyz, r.base_yaw_deg)) for r in cfg.robots]
@@ -229,16 +258,16 @@ class Viewer(Daemon):
         self.arms = [shapes[r.model] for r in cfg.robots]
         for r, arm in zip(cfg.robots, self.arms, strict=True):
             arm.place(r.type.q_home.copy())  # the first use of Pinocchio faults pages in
-        self.dash = arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
-        deadline = rt.monotonic_ns() + int(READY_TIMEOUT_S * 1e9)
-        while not self._records_ready():
-            if rt.monotonic_ns() > deadline:
-                raise DaemonError(f"{self.name}: SIO and the plant did not lay out their records")
-            if inst.shutting_down:
-                return
-            rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
+        self.joint_map = cfg.joints
+        self.spans = [self.joint_map.span(k) for k in range(len(self.names))]
+
+    def attach(self) -> None:
+        """SIO's, the plant's and the instance's records, once they are laid out."""
+        inst = self.inst
+        arena = inst.arena
         n = len(self.names)
         self.robots = arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, n)
+        self.joints = arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, self.joint_map.total)
         self.ctrl = arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
         self.world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
         self.clock, self.procs, self.fault = inst.clock, inst.procs, inst.fault
@@ -249,7 +278,6 @@ class Viewer(Daemon):
         self._fault_count = 0
         self._fault_active = False
         self._messages = np.zeros(n, dtype=self.robots["message"].dtype)
-        self._open_sinks()
 
     def _records_ready(self) -> bool:
         arena = self.inst.arena
@@ -333,7 +361,9 @@ class Viewer(Daemon):
             rr.Boxes3D(half_sizes=[np.array(BAR_SIZE) / 2], colors=[BAR_COLOR], fill_mode="solid"),
             static=True,
         )
-        for p, base, arm in zip(self.paths, self.bases, self.arms, strict=True):
+        for p, base, arm, n in zip(
+            self.paths, self.bases, self.arms, self.joint_map.counts, strict=True
+        ):
             rec.log(
                 p.base,
                 rr.Transform3D(translation=base.translation, mat3x3=base.rotation),
@@ -355,15 +385,16 @@ class Viewer(Daemon):
                 static=True,
             )
             rec.log(p.flange, rr.TransformAxes3D(FLANGE_AXES_M), static=True)
+            joints, hues, paler = joint_names(n), JOINT_COLORS[:n], DEMAND_COLORS[:n]
             for path, names, colors in (
-                (p.q, JOINTS, JOINT_COLORS),
-                (p.demand, [f"{j} demand" for j in JOINTS], DEMAND_COLORS),
-                (p.error, JOINTS, JOINT_COLORS),
-                (p.torque, JOINTS, JOINT_COLORS),
-                (p.ff_torque, [f"{j} ff" for j in JOINTS], DEMAND_COLORS),
-                (p.current, JOINTS, JOINT_COLORS),
-                (p.flange_position, ["x", "y", "z"], JOINT_COLORS[[0, 3, 4]]),
-                (p.flange_rpy, ["roll", "pitch", "yaw"], JOINT_COLORS[[0, 3, 4]]),
+                (p.q, joints, hues),
+                (p.demand, [f"{j} demand" for j in joints], paler),
+                (p.error, joints, hues),
+                (p.torque, joints, hues),
+                (p.ff_torque, [f"{j} ff" for j in joints], paler),
+                (p.current, joints, hues),
+                (p.flange_position, ["x", "y", "z"], AXIS_COLORS),
+                (p.flange_rpy, ["roll", "pitch", "yaw"], AXIS_COLORS),
             ):
                 rec.log(path, rr.SeriesLines(names=names, colors=colors), static=True)
         rec.log("timing/sio_latency_us", rr.SeriesLines(names=["SIO sensor→DAC"]), static=True)
@@ -392,23 +423,24 @@ class Viewer(Daemon):
         rec = self.rec
         assert rec is not None
         rec.set_time(TIMELINE, duration=time_ms(self.clock) / 1000.0)
-        robots = self.robots
-        q = robots["q"].copy()  # Type 4: a snapshot, consistent enough for a picture
+        robots, joints = self.robots, self.joints
+        q = joints["q"].copy()  # Type 4: a snapshot, consistent enough for a picture
         q_deg = np.degrees(q)
-        demand_deg = np.degrees(robots["demand"])
+        demand_deg = np.degrees(joints["demand"])
         error_deg = demand_deg - q_deg
-        torque, ff, current = robots["torque"], robots["ff_torque"], robots["current"]
+        torque, ff, current = joints["torque"], joints["ff_torque"], joints["current"]
         for k, p in enumerate(self.paths):
             arm = self.arms[k]
             if not robots["pots_read"][k]:
                 continue  # SIO has no angles for this arm yet
-            rec.log(p.q, rr.Scalars(q_deg[k]))
-            rec.log(p.demand, rr.Scalars(demand_deg[k]))
-            rec.log(p.error, rr.Scalars(error_deg[k]))
-            rec.log(p.torque, rr.Scalars(torque[k]))
-            rec.log(p.ff_torque, rr.Scalars(ff[k]))
-            rec.log(p.current, rr.Scalars(current[k]))
-            flange = arm.place(q[k])
+            span = self.spans[k]  # the arm's joints in the flat per-joint arrays
+            rec.log(p.q, rr.Scalars(q_deg[span]))
+            rec.log(p.demand, rr.Scalars(demand_deg[span]))
+            rec.log(p.error, rr.Scalars(error_deg[span]))
+            rec.log(p.torque, rr.Scalars(torque[span]))
+            rec.log(p.ff_torque, rr.Scalars(ff[span]))
+            rec.log(p.current, rr.Scalars(current[span]))
+            flange = arm.place(q[span])
             poses = arm.poses
             rec.log(
                 p.boxes,

@@ -188,11 +188,11 @@ def start_mover(name: str) -> subprocess.Popen[str]:
 
 def demand_moves(inst: Instance, seconds: float = 0.2) -> bool:
     """Whether both arms' demands change over ``seconds``."""
-    robots = inst.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, 2)
-    a = robots["demand"].copy()
+    joints = inst.arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, 12)
+    a = joints["demand"].reshape(2, 6).copy()
     time.sleep(seconds)
-    moved = np.abs(robots["demand"] - a).max(axis=1)
-    del robots
+    moved = np.abs(joints["demand"].reshape(2, 6) - a).max(axis=1)
+    del joints
     return bool((moved > 1e-4).all())
 
 

@@ -187,7 +187,7 @@ def _plausible(draw: st.DrawFn) -> np.ndarray:
     req["kind"] = draw(st.sampled_from([*kinds, MotionKind.STOP, MotionKind.ABORT, 0, 255]))
     req["n_robots"] = draw(st.sampled_from([1, 1, 1, 1, 2, 0, 255]))
     req["robots"][:2] = draw(st.permutations([0, 1]))
-    req["joints"][:2] = START + draw(hnp.arrays(np.float64, (2, 6), elements=st.floats(-1, 1)))
+    req["joints"][:2, :6] = START + draw(hnp.arrays(np.float64, (2, 6), elements=st.floats(-1, 1)))
     req["speed_scale"] = draw(st.floats(0.01, 1.0))
     req["n_segments"] = draw(st.integers(1, 3))
     here = BASES[0] @ kinematics.fkine(START[0])

@@ -95,12 +95,13 @@ class Cell:
         return self.kali.inst
 
     def truth(self) -> np.ndarray:
-        """The plant's true joint angles (never read by the controller)."""
-        return self.inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)["q"].copy()
+        """The plant's true joint angles, (robots, 6) (never read by the controller)."""
+        truth = self.inst.arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, 12)
+        return truth["q"].reshape(2, 6).copy()
 
     def rebase(self) -> None:
         """Take where the arms are now as where they hold."""
-        self.q0 = self.kali.servo.level.robots["q"].copy()
+        self.q0 = self.kali.servo.level.joints["q"].reshape(2, 6).copy()
         self.truth0 = self.truth()
         self.faults = int(self.inst.fault["count"])
 
@@ -144,7 +145,7 @@ def untouched(c: Cell) -> None:
     assert int(inst.fault["count"]) == c.faults, inst.fault_text(last=True)
     servo = c.kali.servo
     assert [servo.power_state(r) for r in servo.names] == [PowerState.ON] * 2
-    moved = np.abs(servo.level.robots["q"] - c.q0) / COUNT
+    moved = np.abs(servo.level.joints["q"].reshape(2, 6) - c.q0) / COUNT
     assert moved.max() <= HOLD_COUNTS, f"measured joints moved (counts):\n{moved}"
     moved = np.abs(c.truth() - c.truth0) / COUNT
     assert moved.max() <= HOLD_COUNTS, f"true joints moved (counts):\n{moved}"
@@ -158,7 +159,7 @@ def _joints_request(c: Cell) -> np.ndarray:
     req = np.zeros((), dtype=layout.MOTION_REQUEST)
     req["kind"] = MotionKind.JOINTS
     req["n_robots"] = 1
-    req["joints"][0] = c.kali.start_point(0)
+    req["joints"][0, :6] = c.kali.start_point(0)
     req["speed_scale"] = 0.5
     return req
 
@@ -340,8 +341,8 @@ def test_forged_queue_entries_and_counters_are_dropped_and_never_replayed(cell: 
     untouched(cell)
     # the queue still works, and a head moved back does not replay what was taken
     left = cell.kali.robot("left")
-    there = left.move_joints(_move_request(cell, 3.0)["joints"][0], speed=1.0, timeout=30)
-    back = left.move_joints(_joints_request(cell)["joints"][0] - math.radians(3.0) * _e6())
+    there = left.move_joints(_move_request(cell, 3.0)["joints"][0, :6], speed=1.0, timeout=30)
+    back = left.move_joints(_joints_request(cell)["joints"][0, :6] - math.radians(3.0) * _e6())
     step_kali_clock(cell.inst, 300)
     assert there.state == back.state == RequestState.DONE
     cell.rebase()
@@ -509,7 +510,7 @@ def test_a_feedforward_mode_outside_ffmode_keeps_the_last_valid_mode(cell: Cell)
     with pytest.raises(ServoError, match="feed-forward of robot 'left': mode word 7, state 0"):
         servo.feedforward_state("left")
     assert [int(s) for s in ff["state"]] == [FfState.OFF] * 2  # off, as configured
-    assert not servo.level.robots["ff_torque"].any()
+    assert not servo.level.joints["ff_torque"].reshape(2, 6).any()
     snap = introspect.snapshot(cell.inst)
     assert snap["robots"][0]["feedforward"]["mode"] == "INVALID(7)"
     ff["mode"][:] = 0
@@ -555,7 +556,7 @@ def test_a_garbage_set_point_in_the_fifo_is_refused_and_the_arm_holds(
     header["tail"] = tail + 1
     step_kali_clock(cell.inst, STEP)
     assert fifo.rejected == rejected + 1
-    assert np.isfinite(cell.kali.servo.level.robots["demand"]).all()
+    assert np.isfinite(cell.kali.servo.level.joints["demand"].reshape(2, 6)).all()
     del header, ring, stamps
     untouched(cell)
 
@@ -656,8 +657,7 @@ def test_a_calibration_word_with_an_undefined_value_is_ignored(victim: Kali) -> 
 
 
 def test_a_negative_safe_limit_is_ignored(victim: Kali) -> None:
-    robots = victim.servo.level.robots
-    robots["safe"][1, 2] = -1.0  # ServoClient.set_safe allows (0, π]
+    victim.servo.level.arm("safe", 1)[2] = -1.0  # ServoClient.set_safe allows (0, π]
     step_kali_clock(victim.inst, STEP)
     try:
         assert not int(victim.inst.fault["active"]), victim.inst.fault_text()
@@ -671,9 +671,9 @@ def test_a_nan_safe_limit_leaves_the_runaway_check_on(victim: Kali) -> None:
     faults = int(victim.inst.fault["count"])
     servo.set_safe("right", 3, 0.01)
     step_kali_clock(victim.inst, 2)  # SIO takes the valid limit at its next tick
-    servo.level.robots["safe"][1, 2] = math.nan  # NaN: every "error > safe" is False
+    servo.level.arm("safe", 1)[2] = math.nan  # NaN: every "error > safe" is False
     fifo = servo.level.fifo(1)
-    target = servo.level.robots["demand"][1].copy()
+    target = servo.level.arm("demand", 1).copy()
     target[2] += 0.05  # a runaway against the last valid limit, 0.01 rad
     fifo.push(target)
     step_kali_clock(victim.inst, 20)

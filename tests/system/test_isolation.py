@@ -170,7 +170,8 @@ def test_two_instances_side_by_side_never_see_each_other(kali: Callable[..., str
         step_kali_clock(inst_b, 50)
         quiet = snapshot(inst_b)
         robots_b = inst_b.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, 2)
-        q_b = robots_b["q"].copy()
+        joints_b = inst_b.arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, 12)
+        q_b = joints_b["q"].copy()
         with Kali(a) as ka:  # power, move, then e-stop instance a
             power_all(ka.inst, ka.servo, 300)
             left = ka.robot("left")
@@ -182,7 +183,7 @@ def test_two_instances_side_by_side_never_see_each_other(kali: Callable[..., str
             assert int(ka.inst.fault["code"]) == FaultCode.ESTOP
             assert not (ka.inst.boards()["csr"] & layout.CSR_NO_DISABLE).any()  # amps cut
         assert snapshot(inst_b) == quiet  # clock, fault, processes, boards untouched
-        assert np.array_equal(robots_b["q"], q_b) and not robots_b["power"].any()
+        assert np.array_equal(joints_b["q"], q_b) and not robots_b["power"].any()
         r = kalictl("-i", a, "stop")
         assert r.returncode == 0 and f"instance '{a}' stopped" in r.stdout, r.stderr
         assert leftovers(a) == ([], [])
@@ -192,7 +193,7 @@ def test_two_instances_side_by_side_never_see_each_other(kali: Callable[..., str
         states = [row[2] for row in after["procs"]]  # type: ignore[attr-defined]
         assert states == [ProcState.ACTIVE.name] * 8
         assert step_kali_clock(inst_b, 10) == quiet["tick"] + 10  # b runs on
-        del robots_b
+        del robots_b, joints_b
     r = kalictl("-i", a, "status")
     assert r.returncode == 1 and "Traceback" not in r.stderr
     assert f"kalictl: arena: no instance '{a}': /kali.{a} does not exist" in r.stderr

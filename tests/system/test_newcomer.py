@@ -146,9 +146,7 @@ def test_the_readmes_servo_plugin_steps_work(
             try:
                 assert client.active("left", 1) == "mine"
                 assert client.get_params("left", 1)["bandwidth_hz"] == 6.0
-                error = abs(
-                    float(client.level.robots["demand"][0][0] - client.level.robots["q"][0][0])
-                )
+                error = abs(float(client.level.arm("demand", 0)[0] - client.level.arm("q", 0)[0]))
                 assert error < 1e-3, f"joint 1 holds under 'mine': error {error} rad"
             finally:
                 client.close()

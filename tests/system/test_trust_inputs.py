@@ -287,7 +287,7 @@ def test_move_validates_every_argument_before_anything_moves(kali: Callable[...,
     name = kali(lockstep=True)
     inst, client = _powered(name)
     try:
-        demand = np.array(client.level.robots["demand"])
+        demand = np.array(client.level.joints["demand"].reshape(2, 6))
         go = ["-i", name, "move", "left", "--joints", "10,0,0,0,0,0"]
         cases = [
             (["-i", name, "move", "lfet", "--joints", "0,0,0,0,0,0"], "'lfet'"),
@@ -305,7 +305,7 @@ def test_move_validates_every_argument_before_anything_moves(kali: Callable[...,
         for args, expected in cases:
             _one_line_error(kalictl(*args), "move", expected)
         step_kali_clock(inst, 300)
-        assert np.abs(client.level.robots["demand"] - demand).max() < 1e-6
+        assert np.abs(client.level.joints["demand"].reshape(2, 6) - demand).max() < 1e-6
     finally:
         client.close()
         inst.close()

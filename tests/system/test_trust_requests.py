@@ -54,7 +54,7 @@ def test_a_flood_of_10000_requests_every_handle_resolves(kali: Callable[..., str
     name = kali(lockstep=True)
     with powered(name) as k:
         left = k.robot("left")
-        home = k.servo.level.robots["demand"][0].copy()
+        home = k.servo.level.arm("demand", 0).copy()
         nudge = home + np.radians([0.5, 0, 0, 0, 0, 0])
         handles = []
         outstanding: collections.deque = collections.deque()
@@ -123,7 +123,7 @@ def test_a_halt_reads_halted_at_once_and_a_request_after_reset_meets_the_present
     name = kali(lockstep=True)
     with powered(name) as k:
         left = k.robot("left")
-        start = k.servo.level.robots["demand"][0].copy()
+        start = k.servo.level.arm("demand", 0).copy()
         running = left.move_joints(start + np.radians([30, 0, 0, 0, 0, 0]), speed=0.2, wait=False)
         step_kali_clock(k.inst, 100)
         assert running.state == RequestState.RUNNING
@@ -157,7 +157,7 @@ def test_two_programs_on_one_arm_the_second_is_refused_naming_the_owner(
     frees it."""
     name = kali(lockstep=True)
     with powered(name) as k:
-        start = k.servo.level.robots["demand"][0].copy()
+        start = k.servo.level.arm("demand", 0).copy()
         far = start + np.radians([40, 0, 0, 0, 0, 0])
         prog = _program(
             tmp_path,
@@ -193,7 +193,7 @@ def test_two_programs_on_one_arm_the_second_is_refused_naming_the_owner(
             assert theirs.state == RequestState.REFUSED
             assert f"owned by pid {owner.pid} (prog.py)" in theirs.message, theirs.message
             assert k.owner(0) == (owner.pid, "prog.py")
-            k.robot("right").move_joints(k.servo.level.robots["demand"][1], timeout=30)  # free
+            k.robot("right").move_joints(k.servo.level.arm("demand", 1), timeout=30)  # free
             cli = [*KALICTL, "-i", name, "move", "left"]
             joints = "--joints=" + ",".join(f"{v:.4f}" for v in np.degrees(start))
             refused = subprocess.run([*cli, joints], env=ENV, capture_output=True, text=True)
@@ -239,7 +239,7 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
     kills it and nothing is left running; ``--`` passes the rest through."""
     name = kali(lockstep=True)
     with powered(name) as k:
-        start = k.servo.level.robots["demand"][0].copy()
+        start = k.servo.level.arm("demand", 0).copy()
         far = start + np.radians([60, 0, 0, 0, 0, 0])
         prog = _program(
             tmp_path,
@@ -279,7 +279,7 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
                     f"the arm was not stopped: {RequestState(int(state[0])).name}"
                 )
                 time.sleep(0.01)
-            held = k.servo.level.robots["demand"][0].copy()
+            held = k.servo.level.arm("demand", 0).copy()
             assert start[0] < held[0] < far[0]  # stopped on its path, short of the target
             assert pid_alive(pid) and run.poll() is None  # it ignores SIGINT, kalictl waits
             run.send_signal(signal.SIGINT)
@@ -385,7 +385,7 @@ def test_a_stop_of_a_free_arm_gives_its_program_no_ownership(
             assert _line(stopper) == "stopped"
             step_kali_clock(k.inst, 20)  # the TG takes the stop
             assert k.owner(0) is None
-            target = k.servo.level.robots["demand"][0] + np.radians([2, 0, 0, 0, 0, 0])
+            target = k.servo.level.arm("demand", 0) + np.radians([2, 0, 0, 0, 0, 0])
             k.robot("left").move_joints(target, speed=1.0, timeout=60)
             assert k.owner(0) == (os.getpid(), k.program.decode())
         finally:
