@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from . import flightrec, introspect, launcher, layout
+from . import boards, flightrec, introspect, launcher, layout
 from .client.motion import INSTANCE_ENV, Kali
 from .config import load_config
 from .errors import InstanceError, KaliError, MotionError
@@ -430,10 +430,10 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
     with _attach(ctx) as inst:
         names = [r.name for r in inst.config.robots]
         targets = [robot] if robot else names
-        boards = inst.boards()
+        records = inst.boards()
         for name in targets:
-            boards[inst.robot_index(name)]["estop"] = 0 if release else 1
-        del boards
+            boards.press_estop(records, inst.robot_index(name), not release)
+        del records
         if release:
             click.echo(f"e-stop released: {', '.join(targets)}")
             return
@@ -453,7 +453,7 @@ def reset(ctx: click.Context) -> None:
     closed before the machine can be reset)."""
     with _attach(ctx) as inst:
         boards_laid_out = inst.arena.lookup(KEY_BOARDS) is not None  # not before the plant
-        buttons = [int(b) for b in inst.boards()["estop"]] if boards_laid_out else []
+        buttons = boards.estops_pressed(inst.boards()) if boards_laid_out else []
         pressed = [r.name for r, b in zip(inst.config.robots, buttons, strict=False) if b]
         if pressed:
             raise InstanceError(

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import posix_ipc
 
-from . import atomic, layout
+from . import atomic, boards, layout
 from .arena import Arena, foreign_object, owner_text, segment_name, shm_path, user_text
 from .config import KaliConfig, parse_config
 from .errors import ClockError, InstanceError
@@ -344,8 +344,7 @@ class Instance:
             if self.arena.lookup(layout.KEY_BOARDS) is None:
                 return  # no plant or boards yet: nothing is powered
             self._boards = self.boards()
-        csr = self._boards["csr"]
-        csr &= ~np.uint8(layout.CSR_NO_DISABLE)
+        boards.cut_all(self._boards)
 
     def clear_fault(self) -> bool:
         """Clear the active fault (kalictl reset); False if none was active."""

@@ -12,6 +12,7 @@ import pytest
 
 from kali_daemons import layout
 from kali_daemons.arena import Arena
+from kali_daemons.boards.mcgill import PotReader, retrigger_bit
 from kali_daemons.config import retrigger_hold_ticks
 from kali_daemons.instance import Instance
 from kali_daemons.layout import (
@@ -31,8 +32,6 @@ from kali_daemons.plant.board import EncoderBank, IoBoardSim, adc_code, pot_volt
 from kali_daemons.plant.motor import MotorBank
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.robots import puma560
-from kali_daemons.sio.calibration import PotReader
-from kali_daemons.sio.daemon import retrigger_bit
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
 
 from .conftest import make_config

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from kali_daemons.arena import Arena
-from kali_daemons.driver import JointDriver
+from kali_daemons.boards import JointDriver
 from kali_daemons.errors import ConfigError
 from kali_daemons.layout import CSR_ENABLE, CSR_INDEX_OFF, CSR_NO_DISABLE
 from kali_daemons.plant.sim import PlantSim

@@ -44,7 +44,7 @@ from types import TracebackType
 
 import numpy as np
 
-from .. import layout
+from .. import boards, layout
 from ..channels import RequestQueue
 from ..errors import KaliError, KinematicsError, ServoError
 from ..instance import Instance, decode
@@ -333,7 +333,7 @@ class Robot:
         """Close (or open) the gripper: its output bit on the robot's I/O board.  The plant
         welds a closing gripper to the object if the flange is within reach of its grasp."""
         close = _flag_arg(f"grip: robot '{self.name}'", "close", close)
-        self.kali.inst.boards()["gripper"][self.index] = 1 if close else 0
+        boards.grip(self.kali.inst.boards(), self.index, close)
 
     def set_tool(self, tool: np.ndarray) -> None:
         """The tool frame in the flange frame (4×4) for this program's Cartesian moves."""

@@ -22,8 +22,8 @@ import pinocchio as pin
 
 from ..layout import FfMode
 from ..model import load_pinocchio
-from ..plant.motor import OMEGA0
 from ..robots import RobotType
+from ..robots.profile import FRICTION_SMOOTHING_RAD_S
 
 
 class InverseDynamics:
@@ -37,7 +37,7 @@ class InverseDynamics:
         self.tau = np.zeros(n)
         self._s, self._c = np.zeros(n), np.zeros(n)
         d = robot.drive
-        self._gear_w = np.abs(d.gear) / OMEGA0
+        self._gear_w = np.abs(d.gear) / FRICTION_SMOOTHING_RAD_S
         self._viscous, self._coulomb_pos, self._coulomb_neg = (
             d.viscous,
             d.coulomb_pos,

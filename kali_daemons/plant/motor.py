@@ -28,8 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..robots import RobotType
-
-OMEGA0 = 2.0  # rad/s at the motor: regularisation of the asymmetric Coulomb remainder
+from ..robots.profile import FRICTION_SMOOTHING_RAD_S
 
 
 class MotorBank:
@@ -67,7 +66,7 @@ class MotorBank:
         self._vbus_r = self.v_bus / self.r  # A
         self._kt_r = self.kt / self.r  # A per rad/s of motor speed (back-EMF)
         self.gkt = self.gear * self.kt  # joint torque per A
-        self._w_scale = self.gear / OMEGA0
+        self._w_scale = self.gear / FRICTION_SMOOTHING_RAD_S
         self._g_extra_pos = self.gear * self.extra_pos
         self._g_extra_neg = self.gear * self.extra_neg
         self._a = np.zeros(self.n)

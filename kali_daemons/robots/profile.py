@@ -36,6 +36,12 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 
+# The friction model every drive follows (``Drive.coulomb_pos``/``coulomb_neg``): the Coulomb
+# remainder's sign is smoothed over ± this motor speed, so the plant and the feed-forward
+# dynamics use one continuous friction law
+FRICTION_SMOOTHING_RAD_S = 2.0  # rad/s at the motor
+
+
 def read_only(values: object, dtype: type = np.float64) -> npt.NDArray:
     """A read-only copy: a robot type's facts, nobody changes them in place."""
     arr = np.array(values, dtype=dtype)

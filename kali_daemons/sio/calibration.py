@@ -4,17 +4,17 @@ appendix C.3, C.5), as SIO does it inside its servo tick.
 Encoders are relative: at power-on Kali knows each joint only from its potentiometer, an
 8-bit reading good to a degree or so.  Calibration makes the angles exact:
 
-1. **Search.**  Index capture on (CSR bit 4 low); every joint is servoed slowly (one index
-   spacing per ``SEARCH_S``, about one count per millisecond) toward the index pulse its
-   present angle predicts, away from a joint limit, for at most ``SEARCH_SPAN`` spacings.
-   When a joint's bit appears in the index register its counter has just been reset by the
-   pulse: the driver counts from the pulse from then on (``JointDriver.at_index``) and the
-   joint is servoed onto it.  All joints search at once.
+1. **Search.**  Index capture on (the McGill board's CSR bit 4 low); every joint is servoed
+   slowly (one index spacing per ``SEARCH_S``, about one count per millisecond) toward the
+   index pulse its present angle predicts, away from a joint limit, for at most
+   ``SEARCH_SPAN`` spacings.  When a joint's bit appears in the index register its counter
+   has just been reset by the pulse: the driver counts from the pulse from then on
+   (``JointDriver.at_index``) and the joint is servoed onto it.  All joints search at once.
 2. **Settle.**  Every pulse found, capture off; the joints come to rest on their pulses.
-3. **Pots.**  Read the six potentiometers through the TLC532A.  Each reading, less the counts
-   since the pulse, says which pulse it is: the nearest one in the driver's table of pulse
-   angles (the linear interpolation method of figure 3.6).  A reading further than
-   ``AMBIGUOUS`` of a spacing from every pulse is refused rather than guessed.
+3. **Pots.**  Read the potentiometers (on the McGill board, through the TLC532A).  Each
+   reading, less the counts since the pulse, says which pulse it is: the nearest one in the
+   driver's table of pulse angles (the linear interpolation method of figure 3.6).  A reading
+   further than ``AMBIGUOUS`` of a spacing from every pulse is refused rather than guessed.
 4. **Done.**  Each offset is set so its pulse reads its exact angle.  Positions and demands
    move by the same constant, the servos are handed over bumplessly in the new coordinates
    (``SlotReset.SHIFT``), and the arm holds on the pulses.
@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import layout
-from ..layout import ADC_DONE, ADC_START, CalibState, SlotReset
+from ..layout import CalibState, SlotReset
 
 if TYPE_CHECKING:
     from .daemon import ServoIO
@@ -42,53 +42,6 @@ LIMIT_MARGIN = 0.02  # rad kept from a joint limit when choosing the direction t
 SETTLE_S = 0.3  # rest on the pulses before reading the pots
 AMBIGUOUS = 0.4  # pot further than this fraction of a spacing from every pulse: refuse
 ACTIVE = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
-
-
-class PotReader:
-    """Reads one arm's six potentiometers through its board's TLC532A (C.5): START with the
-    channel in the control register, wait for DONE in the analog register, START off, and
-    wait for the board to withdraw DONE before the next channel.
-
-    The board converts on START's rising edge and withdraws DONE when START falls, each at
-    its own cycle.  Without the last wait, a board cycle that falls behind SIO's (the plant
-    keeps its own time in real-time mode) never sees START fall between two channels: no
-    rising edge, no conversion, and the previous channel's DONE read as this one's.  A soak
-    calibrated a joint 0.8 rad off that way and drove it into its limit.
-    """
-
-    def __init__(self, control: np.ndarray, analog: np.ndarray, channels: int) -> None:
-        self.control = control  # 0-d views of the board's ADC registers
-        self.analog = analog
-        self.channels = channels  # the arm's joints: one pot on each of its channels
-        self.codes = [0] * channels
-        self._channel = 0
-        self._waiting = False  # START written for this channel, DONE not seen yet
-
-    def restart(self) -> None:
-        """Begin again at channel 0."""
-        self._channel = 0
-        self._waiting = False
-        self.control[...] = 0
-
-    def poll(self) -> bool:
-        """One step, once per tick; True once every channel's code is in ``codes``."""
-        c = self._channel
-        if c >= self.channels:
-            return True
-        value = int(self.analog)
-        if not self._waiting:
-            if value & ADC_DONE:
-                return False  # the board has not seen START fall since the last conversion
-            self.control[...] = ADC_START | c
-            self._waiting = True
-            return False
-        if not value & ADC_DONE:
-            return False  # not converted yet
-        self.codes[c] = value & layout.ADC_VALUE_MASK
-        self.control[...] = 0
-        self._waiting = False
-        self._channel = c + 1
-        return self._channel >= self.channels
 
 
 class Calibration:
@@ -104,7 +57,8 @@ class Calibration:
         self.all_found = (1 << n) - 1  # calib_found once every joint's pulse is found
         self.driver = sio.driver
         self.capture = False  # SIO writes CSR bit 4 low while True
-        self.pots = PotReader(self.r.adc_control, self.r.adc_analog, n)
+        self.hw = sio.hw
+        self.pots = sio.hw.pots(k)
         rate = sio.rate
         spacing = sio.driver.index_spacing[span]
         self.speed_per_tick = spacing / (SEARCH_S * rate)  # rad per servo tick
@@ -173,7 +127,7 @@ class Calibration:
         since the last reading.  Count from the pulse from now on and servo onto it."""
         r, d, b = self.r, self.driver, self.base
         found = int(r.calib_found)
-        new = int(r.index) & self.all_found & ~found
+        new = self.hw.index_hits(self.k) & self.all_found & ~found
         if not new:
             return
         q, q_prev = self.sio.q, self.sio.q_prev
@@ -183,7 +137,7 @@ class Calibration:
                 # take it at the last reading's angle
                 i = b + j
                 index_angle = float(q_prev[i])
-                d.at_index(i, int(r.encoder[j]), index_angle)
+                self.hw.at_index(self.k, j, i, index_angle)
                 q[i] = index_angle + float(d.acc[i]) * float(d.rad_per_count[i])
                 r.demand[j] = index_angle
         r.calib_found[...] = found | new

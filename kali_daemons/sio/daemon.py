@@ -1,7 +1,8 @@
 """Servo I/O (thesis 3.3.3, 3.3.5, figure 3.2): the servo level's bottleneck, once per servo
 tick.
 
-(a) Read every encoder through the robot driver (counts → radians) and estimate velocities
+(a) Read every joint through the boards (``boards.Hardware``: the McGill board's counters and
+    the robot driver, counts → radians) and estimate velocities
     (backward difference through a 25 Hz first-order low-pass, as the PID of figure 3.4).
 (b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
     the arm is while it is not powered — check joint range and tracking error, and feed the
@@ -12,8 +13,11 @@ tick.
     on SIO's CPU takes its feed before the servos are done; acknowledge the tick for each
     SV that took its feed (``_ack_gang``); take each robot's feed-forward from the dynamics
     process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped)
-    and add it, convert torques to motor currents and DAC codes (the current check), drive
-    the power switch and retrigger the watchdog on each board.
+    and add it, write the torques to the boards (motor currents, the current check), and
+    drive each board's power switch and keep-alive (the McGill board's watchdog).
+
+Every register bit is the board module's (``kali_daemons/boards/mcgill.py``); SIO asks it
+for angles, torques out, power, pots and index pulses.
 
 Range, runaway (tracking error beyond ``safe``), a current demand beyond the motor's limit for
 ``current_fault_ms``, amplifiers dropping out, and servo slots not done within the serious
@@ -33,35 +37,21 @@ import numpy as np
 import posix_ipc
 
 from .. import layout, rt
+from ..boards import Hardware, McGillBoards
+from ..boards.mcgill import ENABLE_HOLD_MS
 from ..config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks, retrigger_hold_ticks
 from ..daemon import Daemon
-from ..driver import JointDriver
 from ..errors import DaemonError
 from ..flightrec import FlightRecorder
-from ..layout import (
-    CSR_ENABLE,
-    CSR_INDEX_OFF,
-    CSR_NO_DISABLE,
-    CSR_RETRIGGER,
-    CSR_TIMEOUT_ON,
-    POWER_AMPS_ON,
-    POWER_BRAKES_RELEASED,
-    FaultCode,
-    FfMode,
-    PowerCmd,
-    PowerState,
-    SlotReset,
-)
+from ..layout import FaultCode, FfMode, PowerCmd, PowerState, SlotReset
 from ..servolevel import ServoLevel
 from ..spinlock import pid_alive
-from .calibration import ACTIVE, Calibration, PotReader
+from .calibration import ACTIVE, Calibration
 from .feedforward import RobotFeedforward
 
 BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
-ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms, C.5.1)
 POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
 VELOCITY_FILTER_HZ = 25.0  # low-pass on encoder velocities, as the PID's (figure 3.4)
-BASE_CSR = CSR_NO_DISABLE | CSR_TIMEOUT_ON | CSR_INDEX_OFF
 STAMP = 0xFFFFFFFF  # a command's ``cmd_faults`` stamp holds the fault count's low 32 bits
 
 
@@ -81,8 +71,6 @@ class ServoIO(Daemon):
             if rt.monotonic_ns() > deadline:
                 raise DaemonError(f"{self.name}: no board registers (is the plant running?)")
             rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
-        self.boards = inst.boards()
-        self.dacs = inst.dacs()
         lv = self.level = ServoLevel(inst, create=True)
         ctrl = lv.ctrl
         first = not int(ctrl["ready"])
@@ -90,18 +78,8 @@ class ServoIO(Daemon):
             lv.initialise()
         nr, n = lv.n_robots, lv.n
         rs = lv.robots
-        # the arms' calibration sheets (thesis 3.5.1), from their configs
-        phases = np.concatenate([r.index_phases for r in cfg.robots])
-        self.driver = JointDriver(
-            [r.type for r in cfg.robots],
-            self.boards["encoder"],
-            self.dacs["code"],
-            index_phase=phases,
-        )
         js = lv.joints
         self._driver_state = (js["acc"], js["prev"], js["offset"])
-        if not first:
-            self.driver.load(*self._driver_state)
         self.fifos = [lv.fifo(k) for k in range(nr)]
         self.ff_records = inst.arena.record(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, nr)
         if first:
@@ -116,12 +94,21 @@ class ServoIO(Daemon):
         def servo_ticks(ms: float) -> int:  # at least ``ms`` of servo ticks, at least one
             return max(1, -(-ms_to_ns(ms) // period_ns))
 
-        self.hold_ticks = servo_ticks(ENABLE_HOLD_MS)
         self.power_timeout_ticks = servo_ticks(POWER_ON_TIMEOUT_MS)
-        self.servo_ticks = 0  # cycles run: the watchdog pulse counts these
-        self.retrigger_ticks = retrigger_hold_ticks(
-            cfg.clock.servo_period_ms, cfg.process("plant").period_ms
+        # the boards, with the arms' calibration sheets (thesis 3.5.1) from their configs
+        self.hw: Hardware = McGillBoards(
+            inst.boards(),
+            inst.dacs(),
+            [r.type for r in cfg.robots],
+            np.concatenate([r.index_phases for r in cfg.robots]),
+            hold_ticks=servo_ticks(ENABLE_HOLD_MS),
+            retrigger_ticks=retrigger_hold_ticks(
+                cfg.clock.servo_period_ms, cfg.process("plant").period_ms
+            ),
         )
+        self.driver = self.hw.driver  # conversions and calibration offsets (thesis 3.5)
+        if not first:
+            self.driver.load(*self._driver_state)
         # the clock's tick at SIO's last retrigger (falling edge, C.4): the clock's, not the
         # signalled one, since a late cycle writes the boards ticks after its signal
         self.retrigger_tick = -1
@@ -205,10 +192,6 @@ class ServoIO(Daemon):
         self._lat_last, self._lat_max = ctrl["latency_last_ns"], ctrl["latency_max_ns"]
         self._robots_tick = rs["tick"]
         self._r = [_RobotViews(self, k) for k in range(nr)]
-        self._pots = [
-            PotReader(r.adc_control, r.adc_analog, n_joints)
-            for r, n_joints in zip(self._r, lv.map.counts, strict=True)
-        ]
         self._calib = [Calibration(self, k) for k in range(nr)]
         ffc = cfg.feedforward
         self._ff = [
@@ -224,10 +207,7 @@ class ServoIO(Daemon):
             for k in range(nr)
         ]
         if first:
-            self.driver.start()
-            for k in range(nr):
-                self.boards[k]["csr"] = BASE_CSR
-                self.boards[k]["adc_control"] = 0
+            self.hw.start()
         for k in range(nr):
             if int(rs[k]["calib_state"]) in ACTIVE:  # a restarted SIO does not resume one
                 self._calib[k].fail("SIO restarted during calibration")
@@ -252,7 +232,7 @@ class ServoIO(Daemon):
             self._faults_seen = count  # power stays off until the operator enables it
             faulted = True
         # (a) encoders → radians, velocity by backward difference
-        self.driver.read(self.q)
+        self.hw.read(self.q)
         for calib in self._calib:
             if calib.capture:  # calibrating: a counter reset by its index pulse
                 calib.catch_index()
@@ -296,17 +276,17 @@ class ServoIO(Daemon):
         np.multiply(self.servo_torque, self.fed_f, out=self.servo_torque)
         np.multiply(self.ff, self.fed_f, out=self.ff)
         np.add(self.servo_torque, self.ff, out=self.torque)
-        self.driver.output(self.torque, self.current, self.clamped)
+        self.hw.write(self.torque, self.current, self.clamped)
         np.multiply(self.torque, self.fed_f, out=self.torque)
         self._current_check(tick)
         t_out = rt.monotonic_ns()
         c_out = rt.thread_time_ns()
-        self.servo_ticks += 1
+        halted = bool(self._fault_active)
         for k in range(lv.n_robots):
-            self._write_csr(k)
-        hold = self.retrigger_ticks
-        if retrigger_bit(self.servo_ticks - 1, hold) and not retrigger_bit(self.servo_ticks, hold):
-            self.retrigger_tick = int(self._clock["tick"])  # a falling edge: a retrigger
+            r = self._r[k]
+            self.hw.control(k, int(r.power), int(r.enable_ticks), self._calib[k].capture, halted)
+        if self.hw.end_tick():
+            self.retrigger_tick = int(self._clock["tick"])
         self.acknowledge(tick)  # the tick's I/O is done: what follows is bookkeeping
         for dst, src in self._pub:
             np.copyto(dst, src)
@@ -361,26 +341,25 @@ class ServoIO(Daemon):
             r.message[...] = b"enabling"
             self.fifos[k].reset(q)
             r.slot_reset[:] = SlotReset.REST  # every servo takes over at rest at its first run
-        power_bits = int(r.board_power)
+        hw = self.hw
         if state == PowerState.ENABLING:
             n = int(r.enable_ticks) + 1
             r.enable_ticks[...] = n
-            if power_bits & POWER_AMPS_ON and power_bits & POWER_BRAKES_RELEASED:
+            if hw.powered(k):
                 r.power[...] = state = PowerState.ON
                 r.message[...] = b"on"
             elif n > self.power_timeout_ticks:
                 r.power[...] = state = PowerState.OFF
                 r.message[...] = (
-                    f"power did not come on within {POWER_ON_TIMEOUT_MS:g} ms "
-                    f"(board power register {layout.power_text(power_bits)})"
+                    f"power did not come on within {POWER_ON_TIMEOUT_MS:g} ms ({hw.power_text(k)})"
                 ).encode()
-        elif state == PowerState.ON and not power_bits & POWER_AMPS_ON:
+        elif state == PowerState.ON and not hw.amps_on(k):
             r.power[...] = PowerState.OFF
             self.inst.raise_fault(
                 FaultCode.POWER,
                 self.name,
                 f"robot '{self.level.names[k]}': amplifiers went off while servoing "
-                f"(board power register {layout.power_text(power_bits)}); {self._since()}",
+                f"({hw.power_text(k)}); {self._since()}",
             )
             return
         if state == PowerState.OFF:
@@ -394,12 +373,12 @@ class ServoIO(Daemon):
             self.fifos[k].reset(demand)
         else:
             self.fifos[k].pop_into(demand)
-        if power_bits & POWER_AMPS_ON:
+        if hw.amps_on(k):
             r.fed[:] = True
 
     def _read_pots(self, k: int) -> None:
         """One step of reading robot ``k``'s pots at start; then the angles from them."""
-        reader = self._pots[k]
+        reader = self.hw.pots(k)
         if not reader.poll():
             return
         r = self._r[k]
@@ -605,52 +584,21 @@ class ServoIO(Daemon):
             f"{self.retrigger_tick}, now {now}; watchdog {self.watchdog_ms:g} ms)"
         )
 
-    def _write_csr(self, k: int) -> None:
-        """Drive robot ``k``'s power switch and retrigger its watchdog (C.4, C.5.1)."""
-        r = self._r[k]
-        csr = BASE_CSR
-        power = int(r.power)
-        if int(self._fault_active):
-            csr &= ~CSR_NO_DISABLE
-        elif power == PowerState.ENABLING and int(r.enable_ticks) <= self.hold_ticks:
-            csr |= CSR_ENABLE
-        csr |= retrigger_bit(self.servo_ticks, self.retrigger_ticks)
-        if self._calib[k].capture:
-            csr &= ~CSR_INDEX_OFF  # index capture on: the pulse resets the counter (C.3)
-        if power == PowerState.OFF:
-            r.codes[:] = layout.DAC_ZERO
-            if int(r.board_power) & POWER_AMPS_ON:
-                csr &= ~CSR_NO_DISABLE  # bit 7 low cuts the amplifiers (disable, C.5.1)
-        r.csr[...] = csr
-
-
-def retrigger_bit(servo_tick: int, hold_ticks: int) -> int:
-    """The watchdog's retrigger bit at ``servo_tick``: high for ``hold_ticks``, low for as many
-    (``config.retrigger_hold_ticks``), so every falling edge reaches the board (C.5)."""
-    return CSR_RETRIGGER if (servo_tick // hold_ticks) % 2 == 0 else 0
-
 
 class _RobotViews:
     """Robot ``k``'s fields, viewed once at configure: indexing a record by field name builds
     a new view every time, which has no place in the cycle."""
 
     __slots__ = (
-        "adc_analog",
-        "adc_control",
-        "board_power",
         "calib_cmd",
         "calib_found",
         "calib_shift",
         "calib_state",
         "calibrated",
         "cmd_faults",
-        "codes",
-        "csr",
         "demand",
         "enable_ticks",
-        "encoder",
         "fed",
-        "index",
         "message",
         "pots_read",
         "power",
@@ -660,7 +608,7 @@ class _RobotViews:
     )
 
     def __init__(self, sio: ServoIO, k: int) -> None:
-        robots, boards = sio.level.robots, sio.boards
+        robots = sio.level.robots
 
         def one(records: np.ndarray, field: str) -> np.ndarray:
             return records[k : k + 1][field].reshape(())
@@ -680,13 +628,6 @@ class _RobotViews:
             setattr(self, field, one(robots, field))
         span = sio.level.map.span(k)
         self.calib_shift = sio.level.joints["calib_shift"][span]
-        self.encoder = boards["encoder"][k]
-        self.index = one(boards, "index")
-        self.board_power = one(boards, "power")
-        self.csr = one(boards, "csr")
-        self.adc_control = one(boards, "adc_control")
-        self.adc_analog = one(boards, "adc_analog")
-        self.codes = sio.dacs["code"][k, : span.stop - span.start]
         self.q, self.demand = sio.q[span], sio.demand[span]
         self.fed = sio.fed_mask[span]
         self.slot_reset = sio.level.slots["reset"][span]

@@ -26,9 +26,9 @@ import math
 
 import numpy as np
 
-from . import layout
-from .joints import ArmCopy, JointMap
-from .robots import RobotType
+from .. import layout
+from ..joints import ArmCopy, JointMap
+from ..robots import RobotType
 
 COUNTER_BITS = 12
 COUNTER_MODULO = 1 << COUNTER_BITS
