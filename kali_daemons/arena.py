@@ -292,6 +292,12 @@ class Arena:
         d = self.directory
         i = self._find(raw)
         if i == layout.NULL_INDEX:
+            if int(self.header["sealed"]) and layout.is_layout_key(key):
+                raise ArenaError(
+                    f"{self.name}: no block '{key}', a record of layout.RECORDS, and the arena "
+                    f"is sealed: kalictl start lays out every such record before any process "
+                    f"starts, a process only attaches (a program's own blocks are its own)"
+                )
             with self._dir_lock:
                 return self._allocate(raw, key, size, need)
         have = int(d[i]["requested"])

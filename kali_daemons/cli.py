@@ -28,10 +28,11 @@ import numpy as np
 
 from . import boards, flightrec, introspect, launcher, layout
 from .client.motion import INSTANCE_ENV, Kali
-from .config import load_config
+from .config import cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
 from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode
 from .layout import KEY_BOARDS, CalibState, FaultCode, PowerState, ProcState, RunMode
+from .servo import registry_for
 from .servolevel import ServoClient, ServoError
 from .wallclock import (
     set_control_rate,
@@ -274,14 +275,32 @@ def status(ctx: click.Context, as_json: bool) -> None:
 
 
 @main.command()
+@click.option(
+    "--fields",
+    "pattern",
+    default=None,
+    is_flag=False,
+    flag_value="*",
+    metavar="[KEYS]",
+    help="Each record's fields and values (KEYS: a glob of block keys, e.g. 'robots*').",
+)
 @click.pass_context
 @_errors
-def mem(ctx: click.Context) -> None:
-    """Show the arena: blocks, free list, fragmentation.
+def mem(ctx: click.Context, pattern: str | None) -> None:
+    """Show the arena: blocks, free list, fragmentation; with --fields, every record of the
+    layout with its writer, readers, fields and values.
 
     Like LinuxCNC's ``halcmd show``: every block in shared memory by name.
     """
     with _attach(ctx) as inst:
+        if pattern is not None:
+            registry = registry_for(inst.config.plugins, inst.config.base_dir)
+            cell = cell_of(inst.config, tuple(alg.dtype for alg in registry))
+            lines = introspect.record_lines(inst, cell, pattern)
+            if not lines:
+                raise InstanceError(f"mem --fields {pattern!r}: no block of the layout matches")
+            click.echo("\n".join(lines))
+            return
         a = inst.arena
         h = a.header
         click.echo(

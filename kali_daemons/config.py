@@ -31,6 +31,7 @@ from typing import Any, NoReturn
 import numpy as np
 import yaml
 
+from kali_daemons import layout
 from kali_daemons.errors import ConfigError
 from kali_daemons.joints import JointMap
 from kali_daemons.robots import RobotType, known_types, robot_type
@@ -398,99 +399,54 @@ def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
     return out
 
 
+def cell_of(cfg: KaliConfig, algorithms: tuple[np.dtype, ...]) -> layout.Cell:
+    """What ``cfg``'s arena layout depends on (``layout.blocks``), with ``algorithms`` the
+    servo registry's private-data dtypes in registry order."""
+    return layout.Cell(
+        robots=tuple(r.name for r in cfg.robots),
+        joints=cfg.joints.counts,
+        flight_rows=layout.flight_rows(ms_to_ns(cfg.clock.servo_period_ms)),
+        algorithms=algorithms,
+        config_bytes=len(cfg.text.encode()),
+        config_dir_bytes=len(cfg.base_dir.encode()),
+    )
+
+
 def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
-    """(bytes, blocks, the parts' bytes by what they are for) the cell's arena must hold:
-    the header and directory plus every record ``kalictl start`` and the daemons lay out
-    (launcher._create; the plant's boards; SIO's servo level, FIFOs, feed-forward and
-    flight recorder; the TG's queue, statuses, state, leases and FIFOs), each rounded up to
-    a block.
+    """(bytes, blocks, the parts' bytes by key, the largest first) the cell's arena must hold:
+    the header and directory plus every block of ``layout.blocks``, each rounded up to
+    ``ALIGN``, and a directory entry for the free space after them.
 
     A plugin's private data is counted at its largest (``MAX_DATA_BYTES`` a joint): its
     dtype is known only once the plugin is imported, which parsing does not do.  Outside
-    anything real-time; ``tests/system/test_trust_inputs.py`` holds it against a started
-    instance (never less than it uses, never much more)."""
-    from . import layout
+    anything real-time."""
     from .servo import MAX_DATA_BYTES, Registry
-    from .servolevel import FIFO_CAPACITY
 
-    def block(dtype: np.dtype | str, count: int = 1) -> int:
-        return -(-np.dtype(dtype).itemsize * count // layout.ALIGN) * layout.ALIGN
+    def rounded(nbytes: int) -> int:
+        return -(-nbytes // layout.ALIGN) * layout.ALIGN
 
-    nr = len(cfg.robots)
-    n = cfg.joints.total
-    builtin_bytes = [block(a.dtype) for a in Registry()]
-    algos = len(builtin_bytes) + len(cfg.plugins)
-    servo_data = n * (sum(builtin_bytes) + len(cfg.plugins) * block("u1", MAX_DATA_BYTES))
-    fifos = sum(
-        block(layout.FIFO_HEADER)
-        + block("<f8", FIFO_CAPACITY * r.n_joints)
-        + block("<u8", FIFO_CAPACITY)
-        + block("<f8", 3 * r.n_joints)
-        for r in cfg.robots
+    algorithms = tuple(a.dtype for a in Registry()) + (np.dtype(("u1", MAX_DATA_BYTES)),) * len(
+        cfg.plugins
     )
-    rows = layout.flight_rows(ms_to_ns(cfg.clock.servo_period_ms))
-    parts = [
-        ("header and directory", layout.header_bytes()),
-        (
-            "clock, process table, fault, misses, dashboard, config",
-            block(layout.CLOCK)
-            + block(layout.PROCESS, layout.MAX_PROCESSES)
-            + block(layout.FAULT)
-            + block(layout.MISS_LOG)
-            + block(layout.DASHBOARD)
-            + block("u1", len(cfg.text.encode()) + 1)
-            + block("u1", len(cfg.base_dir.encode()) + 1),
-        ),
-        (
-            "motion queue and statuses",
-            block(layout.QUEUE_HEADER)
-            + block(layout.queue_entry(layout.MOTION_REQUEST), layout.MOTION_QUEUE_CAPACITY)
-            + block(layout.REQUEST_STATUS, layout.STATUS_RING)
-            + block(layout.TG_ROBOT, nr)
-            + block(layout.TG_STATE)
-            + block(layout.LEASE, nr),
-        ),
-        (f"set-point FIFOs ({nr} robots)", fifos),
-        (
-            "boards and plant",
-            block(layout.IO_BOARD, nr)
-            + block(layout.DAC_BOARD, nr)
-            + block(layout.ARM_TRUTH, nr)
-            + block(layout.JOINT_TRUTH, n)
-            + block(layout.WORLD_TRUTH),
-        ),
-        (
-            f"servo level ({n} joints, {algos} algorithms)",
-            block(layout.ROBOT_STATE, nr)
-            + block(layout.JOINT_STATE, n)
-            + block(layout.SERVO_SLOT, n)
-            + block(layout.SERVO_CTRL)
-            + block("u1", n * layout.SERVO_STAGING_BYTES)
-            + servo_data,
-        ),
-        ("feed-forward", block(layout.FEEDFORWARD, nr)),
-        (
-            f"flight recorder ({rows} rows)",
-            block(layout.FLIGHT) + block(layout.flight_row(n), rows),
-        ),
-    ]
-    # a directory entry per record above (26 the cell's, 4 per robot, one per joint and
-    # algorithm) and one for the free space after them
-    blocks = 26 + 4 * nr + n * algos + 1
-    return sum(b for _, b in parts), blocks, parts
+    laid = layout.blocks(cell_of(cfg, algorithms))
+    by_key: dict[str, int] = {}
+    for b in laid:  # servo.3.1 → servo.*.* : the parts a reader can act on
+        part = re.sub(r"\.\d+", ".*", b.key) if b.key.startswith("servo.") else b.key
+        by_key[part] = by_key.get(part, 0) + rounded(b.nbytes)
+    parts = [("header and directory", layout.header_bytes()), *by_key.items()]
+    parts.sort(key=lambda p: -p[1])
+    return sum(size for _, size in parts), len(laid) + 1, parts
 
 
 def check_arena(cfg: KaliConfig) -> None:
     """ConfigError if ``arena_kib`` cannot hold the cell (``arena_need``): the size needed,
     in KiB, and its largest parts; before this, a small arena started and failed seconds
     later in whichever daemon allocated last."""
-    from . import layout
-
     need, blocks, parts = arena_need(cfg)
     have = cfg.arena_kib * 1024
     if need > have:
         kib = -(-need // 1024)
-        biggest = sorted(parts, key=lambda p: -p[1])[:3]
+        biggest = parts[:3]
         detail = ", ".join(f"{what} {size // 1024} KiB" for what, size in biggest)
         raise ConfigError(
             f"{cfg.source}: arena_kib = {cfg.arena_kib}: the cell needs {kib} KiB "

@@ -307,3 +307,54 @@ def snapshot(inst: Instance) -> dict[str, Any]:
         return spy.snapshot()
     finally:
         spy.close()
+
+
+def _value_text(v: np.ndarray) -> str:
+    """One field's values on one line: bytes as text, arrays summarised (numpy's ``...``)."""
+    if v.dtype.kind == "S":
+        texts = [decode(x) for x in np.atleast_1d(v).reshape(-1)]
+        return (
+            repr(texts[0])
+            if v.ndim == 0
+            else "[" + ", ".join(map(repr, texts[:4])) + (", ...]" if len(texts) > 4 else "]")
+        )
+    if v.ndim == 0:
+        return str(v.item())
+    return np.array2string(
+        v.reshape(-1) if v.ndim > 2 else v,
+        threshold=12,
+        edgeitems=4,
+        max_line_width=10_000,
+        precision=6,
+    ).replace("\n", "")
+
+
+def record_lines(inst: Instance, cell: layout.Cell, pattern: str = "*") -> list[str]:
+    """``kalictl mem --fields``: every record of the layout whose key matches ``pattern`` (a
+    glob), its dtype, count, writer and readers, then each field and its values, one line
+    per field (across all records of the block), like ``halcmd show``.  Reads the arena
+    without locks (Type 4: values of one moment, not one consistent copy)."""
+    import fnmatch
+
+    lines = []
+    for b in layout.blocks(cell):
+        if not fnmatch.fnmatchcase(b.key, pattern):
+            continue
+        found = inst.arena.lookup(b.key)
+        if found is None or found[1] < b.nbytes:
+            lines.append(f"{b.key}: not laid out")
+            continue
+        view = inst.arena.existing(b.key, b.dtype, b.count)
+        count = "1 record" if b.count is None else f"{b.count} records"
+        lines.append(
+            f"{b.key}  {count} of {b.dtype.itemsize} B  "
+            f"writer: {b.record.writer}; readers: {b.record.readers}"
+        )
+        for name in b.dtype.names or ():
+            if name.startswith("_"):
+                continue
+            lines.append(f"    {name:<26} {_value_text(np.asarray(view[name]))}")
+        if b.dtype.names is None:
+            lines.append(f"    {'(values)':<26} {_value_text(np.asarray(view))}")
+        del view
+    return lines

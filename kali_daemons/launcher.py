@@ -31,11 +31,11 @@ import posix_ipc
 
 from . import layout
 from .arena import Arena, foreign_object, segment_name, shm_path, unlink_segment, user_text
-from .config import KaliConfig, ms_to_ns, ns_to_ms
+from .config import KaliConfig, cell_of, ms_to_ns, ns_to_ms
 from .errors import ArenaError, ConfigError, InstanceError
 from .instance import Instance, all_semaphore_names, check_instance_name, decode
 from .layout import ProcState, RunMode
-from .servo import registry_for
+from .servo import Registry, registry_for
 from .spinlock import holder_text, pid_alive
 from .wallclock import start_kali_clock
 
@@ -307,14 +307,26 @@ def _wait_gone(pids: list[int], timeout: float) -> list[int]:
     return left
 
 
-def _create(cfg: KaliConfig, instance: str, lockstep: bool, record: str = "") -> Arena:
-    """Create the segment, its well-known records and every semaphore (owner-only).
+def _create(
+    cfg: KaliConfig,
+    instance: str,
+    lockstep: bool,
+    record: str = "",
+    registry: Registry | None = None,
+) -> Arena:
+    """Create the segment, every record of the layout (``layout.blocks``, in order, zeroed)
+    and every semaphore (owner-only), then seal the arena: the daemons only attach.
 
-    ``record`` is the viewer's recording file ('' for none), in its dashboard record.
+    ``record`` is the viewer's recording file ('' for none), in its dashboard record;
+    ``registry`` the servo algorithms (their private data is laid out per joint).
     """
+    registry = registry_for(cfg.plugins, cfg.base_dir) if registry is None else registry
+    cell = cell_of(cfg, tuple(a.dtype for a in registry))
     arena = Arena.create(instance, cfg.arena_kib * 1024)
     try:
         arena.header["lockstep"] = int(lockstep)
+        for b in layout.blocks(cell):
+            arena.shmalloc(b.key, b.nbytes)
         clock = arena.record(layout.KEY_CLOCK, layout.CLOCK)
         clock["base_tick_ns"] = ms_to_ns(cfg.clock.base_tick_ms)
         clock["serious_miss_tolerance_ms"] = cfg.clock.serious_miss_tolerance_ms
@@ -335,6 +347,7 @@ def _create(cfg: KaliConfig, instance: str, lockstep: bool, record: str = "") ->
         raw = arena.record(layout.KEY_CONFIG_DIR, np.dtype("u1"), len(base) + 1)
         raw[: len(base)] = np.frombuffer(base, np.uint8)
         del raw
+        arena.header["sealed"] = 1
         for name in all_semaphore_names(instance):
             posix_ipc.Semaphore(name, posix_ipc.O_CREX, mode=0o600, initial_value=0).close()
     except BaseException:
@@ -355,15 +368,17 @@ class StartReport:
     log_dir: Path
 
 
-def _check_servos(cfg: KaliConfig) -> None:
+def _check_servos(cfg: KaliConfig) -> Registry:
     """Load the servo plugins and look up every robot's servo before anything starts, so a
-    bad plugin or algorithm name is a ConfigError here, not a daemon failing at start-up."""
+    bad plugin or algorithm name is a ConfigError here, not a daemon failing at start-up;
+    the registry (the arena lays out each algorithm's private data)."""
     registry = registry_for(cfg.plugins, cfg.base_dir)
     for robot in cfg.robots:
         try:
             registry.index(robot.servo)
         except ConfigError as exc:
             raise ConfigError(f"{cfg.source}: robot '{robot.name}' servo: {exc}") from None
+    return registry
 
 
 def _record_path(cfg: KaliConfig, record: str | os.PathLike[str] | None) -> str:
@@ -402,14 +417,19 @@ def start(
     """
     name = check_instance_name(cfg.instance if instance is None else instance)
     t_start = time.monotonic()
-    _check_servos(cfg)
+    registry = _check_servos(cfg)
     record_path = _record_path(cfg, record)
     with lifecycle_lock(name, "start"):
-        return _start(cfg, name, lockstep, record_path, t_start)
+        return _start(cfg, name, lockstep, record_path, t_start, registry)
 
 
 def _start(
-    cfg: KaliConfig, name: str, lockstep: bool, record_path: str, t_start: float
+    cfg: KaliConfig,
+    name: str,
+    lockstep: bool,
+    record_path: str,
+    t_start: float,
+    registry: Registry,
 ) -> StartReport:
     """``start`` with the lifecycle lock held."""
     check_not_squatted(name)
@@ -424,7 +444,7 @@ def _start(
         stale = shm_objects(name)
         _stop(name)
     logs = private_log_dir(log_dir(name))
-    arena = _create(cfg, name, lockstep, record_path)
+    arena = _create(cfg, name, lockstep, record_path, registry)
     arena.close()
     inst = Instance.attach(name)
     pids: dict[str, int] = {}

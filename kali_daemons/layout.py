@@ -6,17 +6,26 @@ has exactly one writer, so most records need no lock (Type 4, thesis 3.2.1).
 
 References inside the arena are byte offsets from its base, never addresses; ``NULL_INDEX``
 is the named null of the directory's linked list.
+
+``RECORDS`` at the end lists every record (key, dtype, count, writer, readers).  ``kalictl
+start`` allocates them all (``blocks``) before any process starts and seals the arena, so a
+daemon only attaches; ``LAYOUT_VERSION`` is a digest of every dtype here.
 """
 
 from __future__ import annotations
 
 import enum
+import hashlib
 import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 MAGIC = int.from_bytes(b"KALIAREN", "little")
-LAYOUT_VERSION = 6
+# LAYOUT_VERSION, a digest of every dtype here, is computed at the end of the module
 
 ALIGN = 64  # every block starts on a cache line, so every 4/8-byte word in it is aligned
 MAX_BLOCKS = 256  # directory descriptors (blocks plus free fragments)
@@ -53,6 +62,9 @@ HEADER = np.dtype(
         # Directory generation, a sequence count: odd while a dir_lock holder changes the
         # directory, so a reader walks it without the lock and retries if it changed
         ("dir_gen", "<u4"),
+        # 1 once kalictl start has laid out every record of RECORDS: no block can be added
+        ("sealed", "<u4"),
+        ("_pad", "<u4"),
     ],
     align=True,
 )
@@ -420,7 +432,8 @@ IO_BOARD = np.dtype(
         ("adc_digital", "<u2"),  # plant: TLC532A digital register, bit j = channel j > 2.5 V
         ("adc_analog", "<u2"),  # plant: TLC532A analog register, ADC_DONE | value
         ("gripper", "u1"),  # Kali: 1 = close the gripper (weld to the object if in reach)
-        ("_pad", "u1", (3,)),
+        ("present", "u1"),  # plant: 1 once the board answers (its registers are valid)
+        ("_pad", "u1", (2,)),
         ("clamped", "<u4"),  # plant: out-of-range register values clamped, as hardware does
     ],
     align=True,
@@ -866,3 +879,191 @@ FLIGHT = np.dtype(
     ],
     align=True,
 )
+
+
+# --------------------------------------------------------------------------------------------
+# The layout itself (issue 25 item 6, after iceoryx): every record of the arena in one
+# declarative list, allocated by ``kalictl start`` before any process starts (then the arena is
+# sealed: a daemon attaches to what is here and cannot add a block), and the layout's version
+# as a digest of every dtype, so a changed record can never keep an old version number.
+
+FIFO_CAPACITY = 256  # TG set-points a TG → SIO FIFO holds (2.56 s at 10 ms)
+
+
+@dataclass(frozen=True)
+class Cell:
+    """What the arena's layout depends on: the arms, the servo algorithms and the config."""
+
+    robots: tuple[str, ...]  # robot names, config order
+    joints: tuple[int, ...]  # each robot's joint count
+    flight_rows: int  # servo ticks the flight recorder holds (``flight_rows``)
+    algorithms: tuple[np.dtype, ...]  # each servo algorithm's private data, registry order
+    config_bytes: int  # the config text's UTF-8 bytes
+    config_dir_bytes: int  # its directory's
+
+    @property
+    def n_joints(self) -> int:
+        """Joints of the cell (every per-joint record has this many)."""
+        return sum(self.joints)
+
+
+# A record's dtype and count: fixed, or computed from the cell and the record's index (the
+# robot for a ``{robot}`` key, (slot, algorithm) for a ``{slot}.{algo}`` key, else None).
+Sized = Callable[[Cell, Any], int]
+Typed = Callable[[Cell, Any], np.dtype]
+
+
+@dataclass(frozen=True)
+class Record:
+    """One entry of the layout: ``count`` records of ``dtype`` (None: one, viewed 0-d) at
+    ``key``; ``writer`` and ``readers`` say who touches it (a field may name its own writer)."""
+
+    key: str
+    dtype: np.dtype | Typed
+    count: int | Sized | None
+    writer: str
+    readers: str
+
+
+def _u1(n: Sized) -> tuple[Typed, Sized]:
+    return (lambda c, i: np.dtype("u1")), n
+
+
+RECORDS: tuple[Record, ...] = (
+    Record(KEY_CLOCK, CLOCK, None, "wallclock (commands: kalictl, clients)", "all"),
+    Record(KEY_PROCESSES, PROCESS, MAX_PROCESSES, "each slot's owner; the wallclock", "all"),
+    Record(KEY_FAULT, FAULT, None, "whoever halts (one CAS wins)", "all"),
+    Record(KEY_MISSES, MISS_LOG, None, "wallclock", "kalictl status, benchmarks"),
+    Record(KEY_DASHBOARD, DASHBOARD, None, "viewer (record: kalictl start)", "kalictl view"),
+    Record(KEY_CONFIG, *_u1(lambda c, i: c.config_bytes + 1), "kalictl start", "all"),
+    Record(KEY_CONFIG_DIR, *_u1(lambda c, i: c.config_dir_bytes + 1), "kalictl start", "all"),
+    # the hardware (the plant simulates it)
+    Record(KEY_BOARDS, IO_BOARD, lambda c, i: len(c.robots), "SIO and the plant", "SIO"),
+    Record(KEY_DACS, DAC_BOARD, lambda c, i: len(c.robots), "SIO", "the plant"),
+    Record(KEY_TRUTHS, ARM_TRUTH, lambda c, i: len(c.robots), "plant", "tests, viewer"),
+    Record(KEY_JOINT_TRUTHS, JOINT_TRUTH, lambda c, i: c.n_joints, "plant", "tests"),
+    Record(KEY_WORLD_TRUTH, WORLD_TRUTH, None, "plant", "viewer, tests"),
+    # the servo level
+    Record(KEY_ROBOTS, ROBOT_STATE, lambda c, i: len(c.robots), "SIO (commands: clients)", "all"),
+    Record(KEY_JOINTS, JOINT_STATE, lambda c, i: c.n_joints, "SIO (limits: clients)", "all"),
+    Record(KEY_SLOTS, SERVO_SLOT, lambda c, i: c.n_joints, "SIO, SVs, clients", "SIO, SVs"),
+    Record(KEY_SERVO_CTRL, SERVO_CTRL, None, "SIO, SVs", "all"),
+    Record(
+        KEY_STAGING,
+        *_u1(lambda c, i: c.n_joints * SERVO_STAGING_BYTES),
+        "clients, SVs",
+        "SVs, clients",
+    ),
+    Record(
+        KEY_SERVO_DATA,
+        lambda c, i: c.algorithms[i[1]],
+        None,
+        "SVs (put: mailbox)",
+        "SVs",
+    ),
+    Record(KEY_FEEDFORWARD, FEEDFORWARD, lambda c, i: len(c.robots), "dynamics, SIO", "SIO"),
+    Record(KEY_FLIGHT, FLIGHT, None, "SIO, the wallclock (dumps)", "kalictl flight"),
+    Record(
+        KEY_FLIGHT_RING,
+        lambda c, i: flight_row(c.n_joints),
+        lambda c, i: c.flight_rows,
+        "SIO",
+        "the wallclock",
+    ),
+    # TG → SIO set-points, one FIFO per robot (channels.InterpolatingFifo)
+    Record(KEY_FIFO, FIFO_HEADER, None, "TG (push), SIO (take)", "TG, SIO, dynamics"),
+    Record(
+        KEY_FIFO + ".ring",
+        np.dtype("<f8"),
+        lambda c, k: FIFO_CAPACITY * c.joints[k],
+        "TG",
+        "SIO, dynamics",
+    ),
+    Record(KEY_FIFO + ".ratios", np.dtype("<u8"), FIFO_CAPACITY, "TG", "SIO, dynamics"),
+    Record(KEY_FIFO + ".state", np.dtype("<f8"), lambda c, k: 3 * c.joints[k], "SIO", "SIO"),
+    # motion requests (channels.RequestQueue) and the TG's records
+    Record(KEY_MOTION_QUEUE, QUEUE_HEADER, None, "clients (tail), TG (head)", "clients, TG"),
+    Record(
+        KEY_MOTION_QUEUE + ".slots",
+        queue_entry(MOTION_REQUEST),
+        MOTION_QUEUE_CAPACITY,
+        "clients",
+        "TG",
+    ),
+    Record(KEY_MOTION_STATUS, REQUEST_STATUS, STATUS_RING, "TG (read: clients)", "clients"),
+    Record(KEY_TG_ROBOTS, TG_ROBOT, lambda c, i: len(c.robots), "TG", "clients, viewer"),
+    Record(KEY_TG_STATE, TG_STATE, None, "TG", "kalictl status"),
+    Record(KEY_TG_LEASES, LEASE, lambda c, i: len(c.robots), "TG", "clients, kalictl"),
+)
+
+
+@dataclass(frozen=True)
+class Block:
+    """One record of the layout for one cell: its key, dtype and count, and the entry."""
+
+    key: str
+    dtype: np.dtype
+    count: int | None
+    record: Record
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes asked of the arena (before rounding up to ALIGN)."""
+        return self.dtype.itemsize * (1 if self.count is None else self.count)
+
+
+def blocks(cell: Cell) -> list[Block]:
+    """Every block of ``cell``'s arena, in ``RECORDS`` order: a ``{robot}`` key once per robot,
+    a ``{slot}.{algo}`` key once per joint and algorithm."""
+    out: list[Block] = []
+    for rec in RECORDS:
+        if "{robot}" in rec.key:
+            at = [(rec.key.format(robot=name), k) for k, name in enumerate(cell.robots)]
+        elif "{slot}" in rec.key:
+            at = [
+                (rec.key.format(slot=s, algo=a), (s, a))
+                for s in range(cell.n_joints)
+                for a in range(len(cell.algorithms))
+            ]
+        else:
+            at = [(rec.key, None)]
+        for key, index in at:
+            dtype = rec.dtype if isinstance(rec.dtype, np.dtype) else rec.dtype(cell, index)
+            count = rec.count(cell, index) if callable(rec.count) else rec.count
+            out.append(Block(key, dtype, count, rec))
+    return out
+
+
+def _key_pattern(template: str) -> str:
+    return (
+        re.escape(template)
+        .replace(r"\{robot\}", r"[^.]+")
+        .replace(r"\{slot\}", r"\d+")
+        .replace(r"\{algo\}", r"\d+")
+    )
+
+
+_LAYOUT_KEYS = re.compile("|".join(f"(?:{_key_pattern(r.key)})" for r in RECORDS))
+
+
+def is_layout_key(key: str) -> bool:
+    """Whether ``key`` names a record of ``RECORDS`` (for some robot, slot or algorithm): once
+    the arena is sealed no such block may be created; a program's own blocks may."""
+    return _LAYOUT_KEYS.fullmatch(key) is not None
+
+
+def _digest() -> int:
+    """The layout's version: 32 bits of a BLAKE2b digest of every dtype this module declares
+    (names, types, shapes and offsets of every field, by the dtype's ``descr``)."""
+    shapes = [
+        (name, value.descr if value.names else value.str)
+        for name, value in sorted(globals().items())
+        if isinstance(value, np.dtype)
+    ]
+    shapes.append(("flight_row", flight_row(1).descr))
+    shapes.append(("queue_entry", queue_entry(MOTION_REQUEST).descr))
+    text = repr((shapes, ALIGN, MAX_BLOCKS, MAX_PROCESSES)).encode()
+    return int.from_bytes(hashlib.blake2b(text, digest_size=4).digest(), "little")
+
+
+LAYOUT_VERSION = _digest()

@@ -42,7 +42,7 @@ from .robots import robot_type
 from .servo import Handover, Registry, ServoAlgorithm, registry_for, struct_view
 from .spinlock import SpinLock
 
-FIFO_CAPACITY = 256  # TG set-points the TG → SIO FIFO holds (2.56 s at 10 ms)
+FIFO_CAPACITY = layout.FIFO_CAPACITY  # TG set-points a TG → SIO FIFO holds (the layout sizes it)
 # SIO refuses a set-point beyond ±this (rad) as garbage, holding instead: two full turns either
 # way is no joint angle (joint range itself is SIO's range check, which halts)
 SETPOINT_BOUND_RAD = 4.0 * math.pi

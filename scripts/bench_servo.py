@@ -1,4 +1,5 @@
-"""Benchmark: the servo level in real time, two arms (12 joints) moving, beside cyclictest.
+"""Benchmark: the servo level in real time, two arms (12 joints; or a mixed or 4-arm cell) moving,
+beside cyclictest.
 
 What runs.  Six runs by default, ``--seconds`` each (60): {1 SV, 2 SVs} x {servo period
 1 ms, 0.5 ms}, named ``1ms-1sv``, ``1ms-2sv``, ``0.5ms-1sv``, ``0.5ms-2sv``, and the two 1 ms
@@ -11,7 +12,10 @@ computes a row per set-point, SIO interpolates and adds it) and the viewer logs 
 at 25 Hz to its web viewer and to a recording in the run's temporary directory; the summary
 then gives, per pair, each servo process's wake-up p99.9 and SIO's sensor-to-DAC p99 with /
 without them (issue 6: they must not disturb the servo figures), beside cyclictest's p99.9 in
-each run, since the host's stalls differ from one minute to the next.
+each run, since the host's stalls differ from one minute to the next.  Two more run only when
+named (``--runs``): ``mixed-1ms-2sv``, a PUMA 560 facing a Panda (13 joints), and
+``four-1ms-2sv``, two PUMAs, a UR5 and a Panda (25 joints) (issue 25: any arm, the joint count
+as data), each otherwise as ``1ms-2sv``.
 
 Both arms are powered, left 2 s to settle, then kept moving: this script (SCHED_OTHER,
 unpinned) pushes one set-point per TG period (10 ms) into each robot's TG → SIO FIFO, keeping
@@ -171,7 +175,22 @@ class RunSpec:
     period_us: int
     n_sv: int
     extras: bool = True
+    cell: str = "pumas"  # CELLS: the arms (default.yaml's two PUMAs, or another cell)
 
+
+# The arms of each cell: (name, model, base x, y, yaw°).  ``pumas`` is default.yaml's as it is;
+# ``mixed`` a PUMA facing a Panda (issue 25's mixed cell); ``four`` two PUMAs, a UR5 and a
+# Panda on the corners of a 1.8 m square, facing its centre: 6 + 6 + 6 + 7 = 25 joints.
+CELLS: dict[str, tuple[tuple[str, str, float, float, float], ...]] = {
+    "pumas": (),
+    "mixed": (("left", "puma560", -0.6, 0.0, 0.0), ("right", "panda", 0.6, 0.0, 180.0)),
+    "four": (
+        ("left", "puma560", -0.9, -0.9, 45.0),
+        ("right", "puma560", 0.9, 0.9, -135.0),
+        ("ur", "ur5", 0.9, -0.9, 135.0),
+        ("panda", "panda", -0.9, 0.9, -45.0),
+    ),
+}
 
 RUNS = {
     r.name: r
@@ -182,8 +201,11 @@ RUNS = {
         RunSpec("1ms-2sv-bare", 1000, 2, extras=False),
         RunSpec("0.5ms-1sv", 500, 1),
         RunSpec("0.5ms-2sv", 500, 2),
+        RunSpec("mixed-1ms-2sv", 1000, 2, cell="mixed"),
+        RunSpec("four-1ms-2sv", 1000, 2, cell="four"),
     )
 }
+DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv", "0.5ms-2sv")
 
 
 def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> KaliConfig:
@@ -204,6 +226,11 @@ def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> Kali
             raise BenchError(f"{DEFAULT_CONFIG}: processes.sv.cpus {cpus} has < {spec.n_sv} CPUs")
         sv["count"] = spec.n_sv
         sv["cpus"] = cpus[: spec.n_sv]
+        if CELLS[spec.cell]:
+            doc["robots"] = [
+                {"name": n, "model": m, "base_xyz": [x, y, 0.0], "base_yaw_deg": yaw}
+                for n, m, x, y, yaw in CELLS[spec.cell]
+            ]
         if spec.extras:
             for robot in doc["robots"]:
                 robot["ff"] = "full"
@@ -214,10 +241,7 @@ def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> Kali
     except (KeyError, TypeError) as exc:
         raise BenchError(f"{DEFAULT_CONFIG}: no {exc} to edit for run {spec.name}") from None
     text = yaml.safe_dump(doc, sort_keys=False)
-    cfg = parse_config(text, f"{DEFAULT_CONFIG} ({spec.name})", base.base_dir)
-    if len(cfg.robots) != 2:
-        raise BenchError(f"{DEFAULT_CONFIG}: {len(cfg.robots)} robots, the benchmark wants 2")
-    return cfg
+    return parse_config(text, f"{DEFAULT_CONFIG} ({spec.name})", base.base_dir)
 
 
 # --------------------------------------------------------------------------------------------
@@ -385,6 +409,7 @@ class RunResult:
     config: str
     window_s: float  # the planned window
     seconds: float  # the part of it the Kali figures cover (up to a halt)
+    arms: str = "2 arms (12 joints)"  # the cell, as the block's title gives it
     machine: dict[str, object] = field(default_factory=dict)
     cyclictest_command: str = ""
     wakeup: list[Row] = field(default_factory=list)  # cyclictest, sio, sv.N
@@ -427,6 +452,8 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
     instance = f"bsv{os.getpid()}-{spec.name.replace('.', 'p')}"
     cfg = config_for(spec, instance, tmp / f"{instance}.rrd")
     res = RunResult(spec.name, spec.period_us, spec.n_sv, instance, cfg.source, seconds, 0.0)
+    models = ", ".join(r.model for r in cfg.robots)
+    res.arms = f"{len(cfg.robots)} arms ({models}: {cfg.joints.total} joints)"
     names = [p.name for p in cfg.processes]
     sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
     servo_names = ["sio", *sv_names]
@@ -659,7 +686,7 @@ def format_run(r: RunResult) -> str:
     khz = 1e3 / r.period_us
     lines = [
         f"=== {r.run}: servo period {r.period_us} µs ({khz:g} kHz), {r.n_sv} SV"
-        f"{'s' if r.n_sv > 1 else ''}, 2 arms (12 joints), window {r.window_s:g} s ===",
+        f"{'s' if r.n_sv > 1 else ''}, {r.arms}, window {r.window_s:g} s ===",
         f"kali: {r.config}, instance '{r.instance}'",
     ]
     if r.error:
@@ -808,7 +835,7 @@ def format_summary(results: list[RunResult]) -> str:
             why = "; ".join(r.problems or ([r.error] if r.error else []))
             why = f"; {'but: ' if ok else ''}{why}" if why else ""
             lines.append(
-                f"GOAL 1 kHz two arms ({r.run}): {'PASS' if ok else 'FAIL'} "
+                f"GOAL 1 kHz {r.arms} ({r.run}): {'PASS' if ok else 'FAIL'} "
                 f"(misses not seen by cyclictest: {own}){why}"
             )
         else:
@@ -889,8 +916,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--runs",
         type=parse_runs,
-        default=list(RUNS.values()),
-        help=f"comma-separated subset of {','.join(RUNS)} (default: all six)",
+        default=[RUNS[n] for n in DEFAULT_RUNS],
+        help=f"comma-separated subset of {','.join(RUNS)} (default: the six PUMA runs)",
     )
     ap.add_argument(
         "--ct-priority",

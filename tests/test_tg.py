@@ -443,12 +443,7 @@ def test_a_mixed_cell_moves_the_panda_in_joints_and_in_a_line(kali: Callable[...
     """End to end in lockstep: the Panda beside a PUMA arrives at a 7-joint target and, once
     calibrated, lifts its flange 3 cm in a straight line."""
     name = kali(lockstep=True, edits=MIXED)
-    with Kali(name) as k:
-        step_kali_clock(k.inst, 30)
-        for robot in k.names:
-            k.servo.power(robot, True)
-        step_kali_clock(k.inst, 1500)
-        assert [k.servo.power_state(r) for r in k.names] == [PowerState.ON] * 2
+    with powered(name) as k:
         right = k.robot("right")
         assert [f.width for f in k.fifos] == [6, 7] and right.read_joints().shape == (7,)
         target = k.start_point(1) + np.radians([10, -5, 5, 5, -5, 10, 15])

@@ -28,6 +28,8 @@ whoever holds what).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from .. import layout
@@ -235,6 +237,17 @@ class McGillBoards:
 
 # ---------------------------------------------------------------------------------------------
 # From any process, outside any cycle, on the register record (``Instance.boards()``)
+
+
+def boards_present(boards: np.ndarray, timeout_s: float) -> bool:
+    """Wait up to ``timeout_s`` until every board answers (its ``present`` register is set:
+    the plant has laid out its registers; a real board would from power-up)."""
+    deadline = time.monotonic() + timeout_s
+    while not boards["present"].all():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
 
 
 def cut_all(boards: np.ndarray) -> None:

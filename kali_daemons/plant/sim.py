@@ -101,6 +101,7 @@ class PlantSim:
         self.sim_ns = 0
         self.ticks = 0
         self._write_truth()
+        self.regs["present"] = 1  # last: every register above is valid
 
     def place_arm(self, k: int, q: np.ndarray) -> None:
         """Put arm ``k`` at joint angles ``q`` at rest, as if moved there before power-on.

@@ -38,7 +38,7 @@ import posix_ipc
 
 from .. import layout, rt
 from ..boards import Hardware, McGillBoards
-from ..boards.mcgill import ENABLE_HOLD_MS
+from ..boards.mcgill import ENABLE_HOLD_MS, boards_present
 from ..config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks, retrigger_hold_ticks
 from ..daemon import Daemon
 from ..errors import DaemonError
@@ -66,11 +66,11 @@ class ServoIO(Daemon):
         """Lay out the servo level, attach to the boards and build the driver."""
         inst = self.inst
         cfg = inst.config
-        deadline = rt.monotonic_ns() + int(BOARD_WAIT_S * 1e9)
-        while inst.arena.lookup(layout.KEY_DACS) is None:
-            if rt.monotonic_ns() > deadline:
-                raise DaemonError(f"{self.name}: no board registers (is the plant running?)")
-            rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
+        if not boards_present(inst.boards(), BOARD_WAIT_S):
+            raise DaemonError(
+                f"{self.name}: the boards did not answer within {BOARD_WAIT_S:g} s "
+                f"(is the plant running?)"
+            )
         lv = self.level = ServoLevel(inst, create=True)
         ctrl = lv.ctrl
         first = not int(ctrl["ready"])
