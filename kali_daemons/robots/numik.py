@@ -1,5 +1,10 @@
 """Numerical inverse kinematics on a Pinocchio model, for robot types without a closed form.
 
+``NumericalKinematics`` is a whole ``Kinematics`` (``profile.py``) for any serial arm of 1 to
+8 revolute joints described by a URDF: forward kinematics, the inverse from the previous
+set-point (one branch, ``NEAREST``: the solution nearest it), an optional redundancy
+parameter, and a singularity check.  The Panda uses it; so can a researcher's own arm.
+
 ``DlsIk`` solves for the joint angles that put one frame of a serial chain of revolute joints
 at a pose, by damped least squares (Levenberg-Marquardt) from a starting guess, so it stays
 on the branch nearest the guess: the trajectory generator starts it from the previous
@@ -20,6 +25,12 @@ floats from views of ``Data.oMi`` (no numpy temporaries), and the damped normal 
   its limits after the step, so a pose whose solution lies beyond a limit ends with an error
   left and is refused, naming the joints on their limits.
 
+With fewer than 6 joints (a planar arm) J·Jᵀ has rank n < 6 and the damping keeps it
+invertible; every step lies in the span of the joints' motions, so a pose the arm can reach
+(in its plane) converges as fast, and the part of the error no joint can reduce (off the
+plane) stays: the iteration stops as soon as the step is below ``STALL`` of the error and
+refuses the pose, naming what is left.
+
 It converges when the position error is below ``tol_m`` and the rotation error below
 ``tol_rad``, and gives up after ``max_iter`` iterations.  ``solve`` with ``out`` allocates
 nothing numpy on the success path (inside the cycle); building the solver loads nothing but
@@ -29,6 +40,8 @@ allocates (outside the cycle).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Final
 
 import numpy as np
@@ -40,6 +53,8 @@ from .profile import FloatArray
 DAMPING: Final = 1e-10  # λ² floor, (m or rad)²: keeps the step finite on a singularity
 MAX_STEP: Final = 0.3  # rad, the largest joint change in one iteration
 TASK: Final = 6  # rows of the Jacobian: 3 translation, 3 rotation
+# A step below this fraction of the pose error: what is left lies outside every joint's motion
+STALL: Final = 1e-6
 
 _AXES: Final = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
 
@@ -270,9 +285,15 @@ class DlsIk:
 
     def min_singular_above(self, sigma: float, skip: int | None) -> bool:
         """Whether the smallest singular value of the Jacobian ``forward`` left (without
-        column ``skip``) is at least ``sigma``: J·Jᵀ − σ²·I positive definite (one Cholesky)."""
-        self._normal(skip, -sigma * sigma)
-        return cholesky_solve(self._a, self._y, TASK)
+        column ``skip``) is at least ``sigma``: of its min(6, m) singular values for m
+        columns, so J·Jᵀ − σ²·I (6×6) or, with fewer than 6 columns, Jᵀ·J − σ²·I (m×m)
+        positive definite (one Cholesky)."""
+        m = self.n - (skip is not None)
+        if m >= TASK:
+            self._normal(skip, -sigma * sigma)
+            return cholesky_solve(self._a, self._y, TASK)
+        self._gram(skip, -sigma * sigma)
+        return cholesky_solve(self._a, self._y, m)
 
     def singular_values(self, q: FloatArray | list[float], skip: int | None) -> FloatArray:
         """The Jacobian's singular values at ``q`` (without column ``skip``); allocates."""
@@ -282,6 +303,28 @@ class DlsIk:
         if skip is not None:
             jac = np.delete(jac, skip, axis=1)
         return np.linalg.svd(jac, compute_uv=False)
+
+    def _gram(self, skip: int | None, diag: float) -> None:
+        """``_a`` = Jᵀ·J + diag·I over the joints other than ``skip`` (m×m, lower triangle),
+        for a Jacobian of fewer than 6 columns."""
+        jac, a = self.jac, self._a
+        m = self.n - (skip is not None)
+        r = 0
+        for i in range(self.n):
+            if i == skip:
+                continue
+            ci = TASK * i
+            c = 0
+            for j in range(i + 1):
+                if j == skip:
+                    continue
+                cj = TASK * j
+                s = 0.0
+                for k in range(TASK):
+                    s += jac[ci + k] * jac[cj + k]
+                a[r * m + c] = s + diag if r == c else s
+                c += 1
+            r += 1
 
     def _normal(self, skip: int | None, diag: float) -> None:
         """``_a`` = J·Jᵀ + diag·I over the joints other than ``skip`` (unrolled: this is
@@ -428,21 +471,230 @@ class DlsIk:
                     a[j] = d  # reuse: the step, joint by joint
                     if abs(d) > biggest:
                         biggest = abs(d)
+            if biggest < STALL * math.sqrt(err_p * err_p + err_r * err_r):
+                self.iterations = it
+                raise KinematicsError(self._refusal(q, err_p, err_r, it, stalled=True))
             scale = MAX_STEP / biggest if biggest > MAX_STEP else 1.0
             for j in range(n):
                 if j != held:
                     v = q[j] + scale * a[j]
                     q[j] = lo[j] if v < lo[j] else hi[j] if v > hi[j] else v
         self.iterations = self.max_iter
+        raise KinematicsError(self._refusal(q, err_p, err_r, self.max_iter, stalled=False))
+
+    def _refusal(
+        self, q: list[float], err_p: float, err_r: float, iterations: int, stalled: bool
+    ) -> str:
+        """Why ``solve`` gives up at ``q``: the error left, the joints on their limits, and
+        whether no joint's motion reduces what is left (outside the cycle: the tick refuses)."""
+        n, lo, hi, held = self.n, self.lo, self.hi, self.held
         at_limit = [
             f"joint {k + 1} at {q[k]:.4f} rad (limits {lo[k]:.4f} .. {hi[k]:.4f})"
             for k in range(n)
             if k != held and (q[k] <= lo[k] or q[k] >= hi[k])
         ]
         held_text = "" if held is None else f" with joint {held + 1} held at {q[held]:.4f} rad"
-        raise KinematicsError(
-            f"{name} ikine: no solution{held_text} within {self.max_iter} iterations: "
-            f"{err_p * 1000:.3f} mm and {math.degrees(err_r):.4f}° left"
-            + (f"; on their limits: {'; '.join(at_limit)}" if at_limit else "")
-            + " (out of reach or out of the joint limits from this start)"
+        left = f"{err_p * 1000:.3f} mm and {math.degrees(err_r):.4f}° left"
+        limits = f"; on their limits: {'; '.join(at_limit)}" if at_limit else ""
+        if stalled:
+            free = n - (held is not None)
+            why = (
+                f"with {free} free joints the flange moves in only {free} of a pose's "
+                f"{TASK} directions: a pose off them, e.g. off a planar arm's plane, is "
+                f"out of reach"
+                if free < TASK
+                else "the flange cannot move that way from here: out of reach or singular"
+            )
+            return (
+                f"{self.name} ikine: no solution{held_text}: {left} after {iterations} "
+                f"iterations, which no joint's motion reduces{limits} ({why})"
+            )
+        return (
+            f"{self.name} ikine: no solution{held_text} within {self.max_iter} iterations: "
+            f"{left}{limits} (out of reach or out of the joint limits from this start)"
         )
+
+
+# --------------------------------------------------------------------------------------------
+# A whole Kinematics for any serial arm of revolute joints
+
+
+@dataclass(frozen=True, slots=True)
+class Nearest:
+    """The only branch of a numerically solved arm: the solution nearest ``q_ref``, reached
+    continuously from it."""
+
+    def __str__(self) -> str:
+        return "nearest"
+
+
+NEAREST: Final = Nearest()
+SIGMA_MIN: Final = 0.02  # default smallest singular value allowed for a Cartesian path
+FLANGE_FRAME: Final = "flange"  # the URDF link every type's kinematics is of (profile.py)
+
+
+class NumericalKinematics:
+    """A robot type's ``Kinematics`` (``profile.py``) by damped least squares on the
+    Pinocchio model of its URDF: any serial arm of 1 to 8 revolute joints, so a type needs no
+    closed form of its own.
+
+    - ``ikine`` starts from ``q_ref`` (the trajectory generator's previous set-point; default
+      ``q_home``) and finds the solution nearest it: one branch, ``NEAREST``.  An arm with
+      fewer than 6 joints reaches only some poses (a planar arm: those in its plane, turned
+      about its joints' axis); any other is refused naming the error left.
+    - ``redundant_joint``: the index of the joint that is the redundancy parameter of an arm
+      with more than 6 joints; ``ikine`` holds it at ``redundancy`` or, when that is None,
+      at ``q_ref``'s value, so a Cartesian path keeps it.  None: every joint is solved for.
+    - ``singular`` refuses a configuration whose Jacobian (6×n) has a singular value (of its
+      min(6, n)) below ``sigma_min``, or, with a redundant joint, whose Jacobian without it
+      has (holding it there would make the other joints race).  0.02 (m or rad per rad) is
+      what the PUMA's thresholds amount to: its smallest singular value is 0.020 at 5 cm
+      from the elbow singularity and 0.039 at 5° from the wrist one.
+    - ``name`` starts every message (the type's name); ``label`` is what messages call the
+      arm ("Panda"), default ``name``.
+
+    The model is loaded on first use, so importing a type needs no Pinocchio model: a process
+    calls ``load`` while it configures, outside the cycle; ``fkine``, ``ikine`` with ``out``,
+    ``config_of`` and ``singular`` (on its None path) then run inside it without numpy
+    allocation.  One instance per process (the solver keeps work space).
+    """
+
+    configs: tuple[object, ...] = (NEAREST,)
+
+    def __init__(
+        self,
+        urdf: Path | str,
+        q_min: FloatArray,
+        q_max: FloatArray,
+        q_home: FloatArray | None = None,
+        *,
+        name: str,
+        label: str | None = None,
+        redundant_joint: int | None = None,
+        sigma_min: float = SIGMA_MIN,
+        tip: str = FLANGE_FRAME,
+    ) -> None:
+        n = len(q_min)
+        if len(q_max) != n or (q_home is not None and len(q_home) != n):
+            raise KinematicsError(
+                f"{name}: q_min, q_max and q_home have {n}, {len(q_max)} and "
+                f"{n if q_home is None else len(q_home)} angles: expected one per joint"
+            )
+        if redundant_joint is not None and not 0 <= redundant_joint < n:
+            raise KinematicsError(
+                f"{name}: redundant_joint = {redundant_joint}: must be a joint index 0..{n - 1}"
+            )
+        if not sigma_min > 0.0:
+            raise KinematicsError(f"{name}: sigma_min = {sigma_min}: must be > 0")
+        self.urdf = Path(urdf)
+        self.name = name
+        self.label = label or name
+        self.n = n
+        self.q_min = np.array(q_min, dtype=float)
+        self.q_max = np.array(q_max, dtype=float)
+        home = (self.q_min + self.q_max) / 2.0 if q_home is None else q_home
+        self.redundant_joint = redundant_joint
+        self.sigma_min = float(sigma_min)
+        self.tip = tip
+        self._solver: DlsIk | None = None
+        self._qv = [0.0] * n
+        self._home = [float(v) for v in home]
+
+    def load(self) -> DlsIk:
+        """The solver on the URDF's Pinocchio model, loading it the first time (allocates)."""
+        if self._solver is None:
+            if not self.urdf.is_file():
+                raise KinematicsError(f"{self.name}: {self.urdf}: no such file")
+            try:
+                model = pin.buildModelFromUrdf(str(self.urdf))
+            except (RuntimeError, ValueError) as exc:
+                raise KinematicsError(
+                    f"{self.name}: {self.urdf}: Pinocchio cannot load it: {exc}"
+                ) from None
+            self._solver = DlsIk(
+                model,
+                self.tip,
+                self.q_min,
+                self.q_max,
+                name=self.name,
+                held=self.redundant_joint,
+            )
+        return self._solver
+
+    @property
+    def solver(self) -> DlsIk:
+        """``load()``."""
+        return self._solver if self._solver is not None else self.load()
+
+    def fkine(self, q: FloatArray, out: FloatArray | None = None) -> FloatArray:
+        """The flange pose (4×4) in the base frame; into ``out`` without allocating."""
+        return self.solver.fkine(q, out)
+
+    def ikine(
+        self,
+        t6: FloatArray,
+        config: object = NEAREST,
+        q_ref: FloatArray | None = None,
+        out: FloatArray | None = None,
+        redundancy: float | None = None,
+    ) -> FloatArray:
+        """Joint angles within the limits putting the flange at ``t6``, found from ``q_ref``
+        (default ``q_home``); the redundant joint, if any, at ``redundancy`` (default:
+        ``q_ref``'s).
+
+        ``KinematicsError`` for a bad ``t6`` or branch, a pose beyond the arm's reach, one
+        its joints cannot reach (off a planar arm's plane), or no convergence (out of reach
+        or the limits from this start), with the numbers.
+        """
+        if config is not NEAREST and config != NEAREST:
+            raise KinematicsError(
+                f"{self.name} ikine: {config!r} is not a {self.label} configuration"
+            )
+        if not isinstance(t6, np.ndarray) or t6.shape != (4, 4):
+            raise KinematicsError(
+                f"{self.name} ikine: T must be a 4×4 array, got {type(t6).__name__} "
+                f"{getattr(t6, 'shape', '')}"
+            )
+        start = self._home if q_ref is None else q_ref
+        if len(start) != self.n:
+            raise KinematicsError(f"{self.name} ikine: q_ref has {len(start)} angles, not {self.n}")
+        return self.solver.solve(t6, start, out, redundancy)
+
+    def config_of(self, q: FloatArray) -> object:
+        """Always ``NEAREST``: a numerically solved arm has no discrete branches."""
+        return NEAREST
+
+    def parse_config(self, text: str) -> object:
+        """``NEAREST`` from "nearest" (case ignored)."""
+        if isinstance(text, str) and text.lower() == "nearest":
+            return NEAREST
+        held = self.redundant_joint
+        also = "" if held is None else f"; the redundancy parameter is joint {held + 1}"
+        raise KinematicsError(
+            f"{self.name}: configuration {text!r}: the {self.label} has one, 'nearest' (the "
+            f"solution nearest the present joints{also})"
+        )
+
+    def singular(self, q: FloatArray) -> str | None:
+        """Why ``q`` is too near a singularity for a Cartesian path, or None.  Inside the
+        cycle on the None path (one Cholesky per Jacobian); a refusal computes the singular
+        values for its message."""
+        qv, n, held, sigma_min = self._qv, self.n, self.redundant_joint, self.sigma_min
+        for k in range(n):
+            qv[k] = float(q[k])
+        solver = self.solver
+        solver.forward(qv, jacobian=True)
+        if not solver.min_singular_above(sigma_min, None):
+            sigma = float(solver.singular_values(qv, None)[-1])
+            return (
+                f"{sigma:.4f} from a singularity: the 6×{n} Jacobian's smallest singular "
+                f"value is below {sigma_min:g}"
+            )
+        if held is not None and not solver.min_singular_above(sigma_min, held):
+            sigma = float(solver.singular_values(qv, held)[-1])
+            return (
+                f"{sigma:.4f} from a singularity with joint {held + 1} held (at "
+                f"{math.degrees(qv[held]):.2f}°): the 6×{n - 1} Jacobian of the other joints "
+                f"has a singular value below {sigma_min:g}"
+            )
+        return None
