@@ -540,14 +540,25 @@ def _wait_power(
 
 
 @main.command()
+@click.argument("files", nargs=-1)
 @_errors
-def types() -> None:
-    """List the robot types a config's robots[].model may name (kali_daemons/robots)."""
+def types(files: tuple[str, ...]) -> None:
+    """List the robot types a config's robots[].model may name: those shipped with Kali
+    (kali_daemons/robots), then each .py FILE given, loaded and checked as kalictl start
+    would (its ROBOT, URDF and kinematics)."""
     from .robots import known_types, robot_type
 
     for name in known_types():
         t = robot_type(name)
         click.echo(f"{name:<12} {t.n_joints} joints  {t.description}")
+    for file in files:
+        t = robot_type(str(Path(file).expanduser().resolve()) if file.endswith(".py") else file)
+        click.echo(f"{file:<12} {t.n_joints} joints  {t.description} (ROBOT {t.name!r})")
+    if not files:
+        click.echo(
+            "or a .py file defining ROBOT, your own arm (README: Bring your own arm); "
+            "kalictl types FILE checks one"
+        )
 
 
 @main.command()
@@ -775,7 +786,7 @@ def move(
         arm = kali.robot(robot)
         n = kali.inst.config.robots[arm.index].n_joints
         if len(target_deg) != n:
-            model = kali.inst.config.robots[arm.index].model
+            model = kali.inst.config.robots[arm.index].type.name  # not a type file's path
             raise MotionError(
                 f"move: --joints {joints!r:.80}: {len(target_deg)} values, expected {n} "
                 f"(robot '{arm.name}' is a {model})"

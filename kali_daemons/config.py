@@ -34,7 +34,7 @@ import yaml
 from kali_daemons import layout
 from kali_daemons.errors import ConfigError
 from kali_daemons.joints import JointMap
-from kali_daemons.robots import RobotType, known_types, robot_type
+from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
 
 CONFIG_VERSION = 1
 PROCESS_NAMES = ("wallclock", "plant", "tg", "sio", "sv", "dynamics", "viewer")
@@ -309,7 +309,8 @@ class KaliConfig:
 def parse_config(text: str, source: str = "<string>", base_dir: str | None = None) -> KaliConfig:
     """Parse and fully validate YAML ``text``; ``source`` names it in every error message.
 
-    ``base_dir`` is where relative plugin paths are found (default: the current directory).
+    ``base_dir`` is where relative plugin and robot type file paths are found (default: the
+    current directory).
     """
     if not isinstance(text, str):
         raise ConfigError(f"{source}: config text must be a str, not {type(text).__name__}")
@@ -324,11 +325,11 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | None = Non
         raise ConfigError(f"{source}: line {line}: YAML does not parse: {reason}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: YAML does not parse: {exc}") from None
+    base = os.path.abspath(base_dir or ".")
     try:
-        cfg = _build(doc, source, text)
+        cfg = _build(doc, source, text, base)
     except _InvalidError as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    cfg = dataclasses.replace(cfg, base_dir=os.path.abspath(base_dir or "."))
     check_arena(cfg)
     return cfg
 
@@ -797,8 +798,9 @@ def _period(
 # Section builders
 
 
-def _build(doc: Any, source: str, text: str) -> KaliConfig:
-    """Turn the parsed YAML document into a KaliConfig, or raise _InvalidError."""
+def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
+    """Turn the parsed YAML document into a KaliConfig, or raise _InvalidError; relative
+    paths are taken from ``base_dir`` (absolute)."""
     if not isinstance(doc, dict):
         empty = " (the file is empty)" if doc is None else ""
         _fail("the top level", doc, f"must be a mapping{empty}, not {_kind_of(doc)}")
@@ -824,7 +826,7 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
             processes = _processes(_DEFAULT_PROCESSES, clock)
         except _InvalidError as exc:
             raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
-    robots = _robots(doc.get("robots", _DEFAULT_ROBOTS))
+    robots = _robots(doc.get("robots", _DEFAULT_ROBOTS), base_dir)
     plant_period = next(p.period_ms for p in processes if p.kind == "plant")
     plant = _plant(doc.get("plant", {}), plant_period, clock.servo_period_ms)
     plugins = tuple(
@@ -845,6 +847,7 @@ def _build(doc: Any, source: str, text: str) -> KaliConfig:
         plugins=plugins,
         feedforward=_feedforward(doc.get("feedforward", {})),
         dashboard=_dashboard(doc.get("dashboard", {})),
+        base_dir=base_dir,
     )
 
 
@@ -1083,8 +1086,30 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
     return [make(f"sv.{i}", cpu, poll) for i, cpu in enumerate(cpus)]
 
 
-def _robots(node: Any) -> tuple[RobotConfig, ...]:
-    """The ``robots`` list: 1..MAX_ROBOTS arms with unique names."""
+def _model(value: Any, path: str, base_dir: str) -> tuple[str, RobotType]:
+    """A robot's ``model``: a shipped type's name, or a ``.py`` file defining ``ROBOT``
+    (relative to ``base_dir``), returned absolute with its type, loaded and checked
+    (``kali_daemons.robots.typefile``) so that a bad file stops ``kalictl start``."""
+    names = tuple(known_types())
+    if isinstance(value, str) and value in names:
+        return value, robot_type(value)
+    if not isinstance(value, str) or not is_type_file(value):
+        _fail(path, value, f"must be one of: {', '.join(names)}, or a .py file defining ROBOT")
+    given = os.path.expanduser(value)
+    resolved = os.path.realpath(os.path.join(base_dir, given))
+    try:
+        return resolved, robot_type(resolved)
+    except ConfigError as exc:
+        relative = ""
+        if not os.path.isabs(given) and not os.path.isfile(resolved):
+            relative = f" (a relative path is taken from the config file's directory, {base_dir})"
+        text = str(exc).removeprefix("config: ")
+        raise _InvalidError(f"{path} = {_show(value, 200)}: {text}{relative}") from None
+
+
+def _robots(node: Any, base_dir: str) -> tuple[RobotConfig, ...]:
+    """The ``robots`` list: 1..MAX_ROBOTS arms with unique names; a ``model`` that is a file
+    path is taken from ``base_dir`` when relative and stored absolute."""
     entries = _list(node, "robots", 1, MAX_ROBOTS)
     robots: list[RobotConfig] = []
     first_index: dict[str, int] = {}
@@ -1103,8 +1128,7 @@ def _robots(node: Any) -> tuple[RobotConfig, ...]:
                 f"duplicate; robot names must be unique (also robots[{first_index[name]}])",
             )
         first_index[name] = i
-        model = _choice(m.get("model", DEFAULT_MODEL), f"{path}.model", tuple(known_types()))
-        rtype = robot_type(model)
+        model, rtype = _model(m.get("model", DEFAULT_MODEL), f"{path}.model", base_dir)
         xyz_node = m.get("base_xyz", [0.0, 0.0, 0.0])
         if not isinstance(xyz_node, list) or len(xyz_node) != 3:
             _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")

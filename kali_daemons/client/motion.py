@@ -667,11 +667,11 @@ class Kali:
 
         from ..model import FLANGE_FRAME, load_pinocchio
 
-        rtype = self.inst.config.robots[robot].type
-        if rtype.name not in self._pin:
-            model = load_pinocchio(rtype)
-            self._pin[rtype.name] = (model, model.createData(), model.getFrameId(FLANGE_FRAME))
-        model, data, frame = self._pin[rtype.name]
+        rcfg = self.inst.config.robots[robot]
+        if rcfg.model not in self._pin:  # by model: two type files may share a ROBOT.name
+            model = load_pinocchio(rcfg.type)
+            self._pin[rcfg.model] = (model, model.createData(), model.getFrameId(FLANGE_FRAME))
+        model, data, frame = self._pin[rcfg.model]
         pin.framesForwardKinematics(model, data, np.asarray(q, dtype=np.float64))
         return np.array(data.oMf[frame].homogeneous)
 

@@ -5,7 +5,10 @@ A robot type is data plus a few functions, the way Drake and ros2_control descri
 a URDF, a joint count, limits, a drive, kinematics, default servo gains and a calibration
 sheet.  Each type is one package under ``kali_daemons/robots/`` exposing ``ROBOT``, a
 ``RobotType``; ``kali_daemons.robots.robot_type(name)`` finds it by the ``robots[].model``
-name of the config.  Nothing outside the type's package knows which arm it drives.
+name of the config.  A researcher's own arm is one module file anywhere, named in the config
+by its path (``model: arms/myarm.py``) and checked by ``typefile.py``; ``numik.py``'s
+``NumericalKinematics`` gives it kinematics from its URDF.  Nothing outside the type's
+package or file knows which arm it drives.
 
 Conventions every type keeps:
 
@@ -169,7 +172,7 @@ def servo_gains(
 class RobotType:
     """One robot type: everything Kali knows about an arm model, found by ``name``."""
 
-    name: str  # the config's robots[].model
+    name: str  # the config's robots[].model (a type file's own name for it: messages)
     description: str  # one line: maker, model and where the numbers come from
     urdf: Path  # joints j1..jN, a 'flange' link
     n_joints: int  # 1 .. MAX_JOINTS

@@ -1,0 +1,187 @@
+"""A robot type from a module file named in the config (issue 25: bring your own arm).
+
+A researcher's own arm needs no edit to Kali: ``robots[].model`` names a ``.py`` file (the
+config resolves it against its own directory, so every process loads the same file), whose
+module declares ``ROBOT``, a ``RobotType`` (``profile.py``).  ``load_type_file`` imports it
+under a module name of its own and checks everything Kali will rely on before any process
+starts, so ``kalictl start`` refuses a bad file with the file, the field, the value and the
+rule instead of a daemon failing later:
+
+- the file exists and imports (what it raised, and on which of its lines);
+- it defines ``ROBOT``, a ``RobotType`` (whose ``__post_init__`` checks the fields: joint
+  count, per-joint lists, limits, drive, the URDF's existence);
+- the URDF loads in Pinocchio (the controller's model) and in MuJoCo (the plant's), has
+  exactly the revolute joints ``j1 .. jN`` of the type's ``n_joints`` and a ``flange`` link;
+- ``ROBOT.kinematics.fkine(q_home)`` is where the URDF puts the flange (the kinematics
+  describe the same arm).
+
+Everything here runs outside the cycle, once per process while it parses the config.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+import traceback
+import zlib
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+
+from ..errors import ConfigError, KaliError
+from .profile import RobotType
+
+FLANGE_LINK: Final = "flange"
+FKINE_TOL_M: Final = 1e-6  # m and rotation-matrix entries: the kinematics agree with the URDF
+_KINEMATICS_METHODS: Final = ("fkine", "ikine", "config_of", "parse_config", "singular")
+
+
+def is_type_file(model: str) -> bool:
+    """Whether a config's ``robots[].model`` names a module file rather than a shipped type:
+    it ends in ``.py``."""
+    return model.endswith(".py")
+
+
+def load_type_file(path: Path) -> RobotType:
+    """The ``ROBOT`` of the module file at ``path`` (absolute), checked as the module says;
+    ``ConfigError`` naming the file, what is wrong and the rule."""
+    where = f"robot type file {path}"
+    if not path.is_file():
+        raise ConfigError(f"{where}: no such file")
+    # One module per file, named after its path: two files may share a name.
+    stem = re.sub(r"\W", "_", path.stem)
+    mod_name = f"kali_robot_type_{stem}_{zlib.crc32(str(path).encode()):08x}"
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    if spec is None or spec.loader is None:
+        raise ConfigError(f"{where}: cannot be imported as a Python file")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[mod_name] = module  # dataclasses and pickling look modules up here
+    try:
+        spec.loader.exec_module(module)
+    except KaliError as exc:  # a RobotType or kinematics refusing its fields: says which
+        del sys.modules[mod_name]
+        raise ConfigError(f"{where}{_line_in(exc, path)}: {_without_prefix(exc)}") from exc
+    except Exception as exc:
+        del sys.modules[mod_name]
+        raise ConfigError(
+            f"{where}: importing it raised {type(exc).__name__}{_line_in(exc, path)}: {exc}"
+        ) from exc
+    robot = getattr(module, "ROBOT", None)
+    if robot is None:
+        raise ConfigError(
+            f"{where}: defines no ROBOT; the module must set ROBOT = RobotType(...) "
+            f"(kali_daemons.robots.profile)"
+        )
+    if not isinstance(robot, RobotType):
+        raise ConfigError(
+            f"{where}: ROBOT is {type(robot).__name__} {robot!r:.60}, not a RobotType "
+            f"(kali_daemons.robots.profile)"
+        )
+    check_urdf(robot, where)
+    check_kinematics(robot, where)
+    return robot
+
+
+def check_urdf(robot: RobotType, where: str) -> None:
+    """The type's URDF loads in Pinocchio and MuJoCo with joints ``j1 .. jN`` (N = the type's
+    ``n_joints``, revolute, base to tip) and a ``flange`` link; ``ConfigError`` otherwise."""
+    import mujoco
+    import pinocchio as pin
+
+    urdf = Path(robot.urdf)
+    at = f"{where}: ROBOT.urdf {urdf}"
+    want = [f"j{j + 1}" for j in range(robot.n_joints)]
+    try:
+        model = pin.buildModelFromUrdf(str(urdf))
+    except (RuntimeError, ValueError) as exc:
+        raise ConfigError(f"{at}: Pinocchio cannot load it: {_one_line(exc)}") from None
+    names = [model.names[j] for j in range(1, model.njoints)]
+    kinds = [model.joints[j].shortname() for j in range(1, model.njoints)]
+    if names != want or model.nq != robot.n_joints:
+        raise ConfigError(
+            f"{at}: moving joints {names} (Pinocchio): must be exactly {want}, one per joint "
+            f"of ROBOT.n_joints = {robot.n_joints}, named base to tip"
+        )
+    bad = [
+        f"{n} ({k})" for n, k in zip(names, kinds, strict=True) if not k.startswith("JointModelR")
+    ]
+    if bad:
+        raise ConfigError(f"{at}: joints {', '.join(bad)}: must be revolute")
+    if not model.existFrame(FLANGE_LINK):
+        raise ConfigError(f"{at}: no link {FLANGE_LINK!r}: the arm's last link must be named so")
+    try:
+        arm = mujoco.MjSpec.from_file(str(urdf))
+        arm.compile()
+    except ValueError as exc:
+        raise ConfigError(f"{at}: MuJoCo cannot load it: {_one_line(exc)}") from None
+    found = [j.name for j in arm.joints]
+    if found != want:
+        raise ConfigError(f"{at}: moving joints {found} (MuJoCo): must be exactly {want}")
+
+
+def check_kinematics(robot: RobotType, where: str) -> None:
+    """``ROBOT.kinematics`` has the ``Kinematics`` methods and at least one branch, and its
+    ``fkine(q_home)`` is the flange pose the URDF gives (Pinocchio); ``ConfigError``
+    otherwise."""
+    import pinocchio as pin
+
+    kin = robot.kinematics
+    missing = [m for m in _KINEMATICS_METHODS if not callable(getattr(kin, m, None))]
+    configs = getattr(kin, "configs", ())
+    if missing or not isinstance(configs, tuple) or not configs:
+        raise ConfigError(
+            f"{where}: ROBOT.kinematics = {kin!r:.60}: must have configs (a non-empty tuple) "
+            f"and methods {', '.join(_KINEMATICS_METHODS)} (kali_daemons.robots.profile."
+            f"Kinematics; kali_daemons.robots.numik.NumericalKinematics is one for any arm)"
+            + (f"; missing: {', '.join(missing)}" if missing else "")
+        )
+    try:
+        got = np.asarray(kin.fkine(robot.q_home.copy()), dtype=float)
+    except Exception as exc:
+        raise ConfigError(
+            f"{where}: ROBOT.kinematics.fkine(q_home) raised {type(exc).__name__}: {exc}"
+        ) from exc
+    model = pin.buildModelFromUrdf(str(robot.urdf))
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, np.array(robot.q_home, dtype=float))
+    want = data.oMf[model.getFrameId(FLANGE_LINK)].homogeneous
+    if got.shape != (4, 4) or not np.isfinite(got).all():
+        raise ConfigError(
+            f"{where}: ROBOT.kinematics.fkine(q_home) = {got.tolist()!r:.80}: must be a finite "
+            f"4×4 pose"
+        )
+    apart = float(np.linalg.norm(got[:3, 3] - want[:3, 3]))
+    turned = float(np.abs(got[:3, :3] - want[:3, :3]).max())
+    if apart > FKINE_TOL_M or turned > FKINE_TOL_M:
+        raise ConfigError(
+            f"{where}: ROBOT.kinematics.fkine(q_home) puts the flange at {_xyz(got)} m, the "
+            f"URDF at {_xyz(want)} m ({apart * 1000:.3f} mm apart, rotation entries up to "
+            f"{turned:.2g} apart): they must agree within {FKINE_TOL_M:g} (the kinematics "
+            f"and the URDF describe different arms)"
+        )
+
+
+def _xyz(t: np.ndarray) -> str:
+    """A pose's position as ``(x, y, z)``, 4 decimals."""
+    return "({:.4f}, {:.4f}, {:.4f})".format(*(float(v) for v in t[:3, 3]))
+
+
+def _without_prefix(exc: BaseException) -> str:
+    """A ConfigError's text without its leading ``config: `` (the caller adds context)."""
+    return str(exc).removeprefix("config: ")
+
+
+def _line_in(exc: BaseException, path: Path) -> str:
+    """`` (line N)`` of the deepest traceback frame in ``path``, or nothing."""
+    line = None
+    for frame in traceback.extract_tb(exc.__traceback__):
+        if Path(frame.filename) == path:
+            line = frame.lineno
+    return "" if line is None else f" (line {line})"
+
+
+def _one_line(exc: BaseException) -> str:
+    """An exception's text on one line (MuJoCo's and Pinocchio's span several)."""
+    return " ".join(str(exc).split())
