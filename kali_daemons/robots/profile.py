@@ -44,6 +44,9 @@ IntArray = npt.NDArray[np.int64]
 # dynamics use one continuous friction law
 FRICTION_SMOOTHING_RAD_S = 2.0  # rad/s at the motor
 
+# The built-in PID's integration band of every type tuned by ``servo_gains``: the PUMA's
+INTEGRATION_BAND_RAD = 0.01  # rad
+
 
 def read_only(values: object, dtype: type = np.float64) -> npt.NDArray:
     """A read-only copy: a robot type's facts, nobody changes them in place."""
@@ -145,21 +148,30 @@ def servo_gains(
     """The built-in PID's and PD's init data per joint, by the rule the PUMA's gains were
     tuned with (``robots/puma560/facts.py``): kp = J·ωn², kv = 2ζ·J·ωn − viscous,
     ki = 20 s⁻¹ · kp, integration_reset = 1.2 · ``hold`` rounded up to a whole N·m,
-    integration_band = max(0.01 rad, 2.5 · reset / kp).  ``j_home``: the joint-side inertia
-    at the home pose with armature; ``hold``: the largest gravity plus Coulomb friction
-    torque per joint (N·m).  A type without a tuning of its own uses it."""
+    integration_band = ``INTEGRATION_BAND_RAD`` (the PUMA's 0.01 rad).  ``j_home``: the
+    joint-side inertia at the home pose with armature; ``hold``: the largest gravity plus
+    Coulomb friction torque per joint (N·m).  A type without a tuning of its own uses it.
+
+    The band must be 2.5 · reset / kp or wider, or a joint sagging or stuck on friction
+    outside it never integrates; the PUMA's stiff joints meet that at 0.01 rad.  A joint
+    whose load is large for its inertia gets a higher ωn, until kp · 0.01 rad = 2.5 · reset,
+    rather than a wider band: inside the band the integral winds up during a step, and
+    bands of 0.023-0.037 rad (the UR5's and the Panda's joints 2, 3 and 5 at ωn 50-60)
+    overshot a 0.02 rad step by 39-46 % where the PUMA's overshoot 10 %
+    (tests/test_robot_types_functional.py)."""
     pid: list[dict[str, float]] = []
     for j, inertia in enumerate(j_home):
-        kp = float(inertia * wn[j] ** 2)
         reset = float(max(1.0, math.ceil(1.2 * hold[j])))
+        w = max(float(wn[j]), math.sqrt(2.5 * reset / (INTEGRATION_BAND_RAD * inertia)))
+        kp = float(inertia * w**2)
         pid.append(
             {
                 "kp": kp,  # N·m/rad
                 "ki": 20.0 * kp,  # N·m/(rad·s)
-                "kv": float(2.0 * zeta * inertia * wn[j] - viscous[j]),  # N·m·s/rad
+                "kv": float(2.0 * zeta * inertia * w - viscous[j]),  # N·m·s/rad
                 "fe": 50.0,  # Hz, error filter (thesis figure 3.4)
                 "fv": 25.0,  # Hz, velocity filter
-                "integration_band": max(0.01, 2.5 * reset / kp),  # rad
+                "integration_band": INTEGRATION_BAND_RAD,  # rad
                 "integration_reset": reset,  # N·m
                 "bias_tau": 0.5,  # s, hand-over bias
             }

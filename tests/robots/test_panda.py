@@ -18,7 +18,7 @@ from kali_daemons.robots import robot_type
 from kali_daemons.robots.numik import DlsIk, _log3
 from kali_daemons.robots.panda import ROBOT, facts
 from kali_daemons.robots.panda import kinematics as kin
-from kali_daemons.robots.profile import MAX_JOINTS, RobotType
+from kali_daemons.robots.profile import INTEGRATION_BAND_RAD, MAX_JOINTS, RobotType
 
 from . import numpy_data_allocations
 
@@ -161,7 +161,11 @@ def test_gains_follow_the_rule_on_the_model(pin_model: pin.Model) -> None:
     assert {frozenset(g) for g in ROBOT.pid_defaults} == {frozenset(puma560.PID_DEFAULTS[0])}
     assert {frozenset(g) for g in ROBOT.pd_defaults} == {frozenset(puma560.PD_DEFAULTS[0])}
     for j, g in enumerate(ROBOT.pid_defaults):
-        assert g["kp"] == pytest.approx(facts.J_HOME[j] * facts.WN[j] ** 2)
+        # ωn raised where the load needs it, so the band stays the PUMA's
+        wn = max(facts.WN[j], math.sqrt(2.5 * g["integration_reset"] / (0.01 * facts.J_HOME[j])))
+        assert g["kp"] == pytest.approx(facts.J_HOME[j] * wn**2)
+        assert g["kp"] * 0.01 >= 2.5 * g["integration_reset"] - 1e-9
+        assert g["integration_band"] == INTEGRATION_BAND_RAD == 0.01
         assert g["integration_reset"] >= facts.GRAVITY_MAX[j] + facts.COULOMB_POS[j]
 
 

@@ -140,8 +140,11 @@ COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
 # --------------------------------------------------------------------------------------------
 # Default servo gains, by the PUMA's rule as kali_daemons/robots/ur5/facts.py writes it out:
 # kp = J·ωn², kv = 2ζ·J·ωn − viscous, ki = 20 s⁻¹ · kp, integration_reset = 1.2 · (largest
-# gravity + Coulomb) rounded up to a whole N·m, integration_band = max(0.01 rad, 2.5 · reset
-# / kp); ζ = 0.7, ωn = 50 rad/s on joints 1-4 and 60 rad/s on 5-7.  J is the diagonal of
+# gravity + Coulomb) rounded up to a whole N·m, integration_band 0.01 rad; ζ = 0.7, ωn = 50
+# rad/s on joints 1-4 and 60 rad/s on 5-7, raised where kp · 0.01 rad < 2.5 · reset until it
+# is not (robots/profile.py servo_gains): joints 2-7 at 88, 77, 75, 116, 95 and 67 rad/s
+# (joint 2: kp 15 500 N·m/rad, not 5 010; its 0.031 rad band overshot a 0.02 rad step by
+# 44 %, tests/test_robot_types_functional.py).  J is the diagonal of
 # Pinocchio's crba at Q_HOME on config/panda.urdf with ARMATURE set, GRAVITY_MAX the largest
 # gravity torque over the joint ranges; tests/robots/test_panda.py recomputes both.
 

@@ -141,10 +141,12 @@ COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
 #   kp = J·ωn², kv = 2ζ·J·ωn − viscous, ki = 20 s⁻¹ · kp,
 #   integration_reset = 1.2 · (the largest gravity torque + Coulomb friction), rounded up to
 #       a whole N·m: what the integral must hold, with a margin (the PUMA's has 15-20 %),
-#   integration_band = max(0.01 rad, 2.5 · integration_reset / kp): the PUMA's band, wider
-#       only where the load needs it,
+#   integration_band = 0.01 rad, the PUMA's; where kp · 0.01 rad < 2.5 · integration_reset
+#       (a load the integral could not reach from outside the band) ωn is raised until it is
+#       not, rather than the band widened (robots/profile.py servo_gains),
 #
-# with ζ = 0.7, ωn = 50 rad/s on joints 1-3 and 60 rad/s on 4-6 (the PUMA's values), and J
+# with ζ = 0.7, ωn = 50 rad/s on joints 1-3 and 60 rad/s on 4-6 (the PUMA's values), raised
+# so on joints 2-5 to 85, 76, 97 and 62 rad/s (joint 2: kp 18 000 N·m/rad, not 6 240), and J
 # the joint-side inertia at Q_HOME including the armature: the diagonal of Pinocchio's crba
 # on config/ur5.urdf with ARMATURE set.  GRAVITY_MAX is the largest gravity torque over the
 # joint ranges (joint 2 with the arm stretched level).  tests/robots/test_ur5.py recomputes
