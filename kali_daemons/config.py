@@ -114,6 +114,7 @@ _ROBOT_KEYS = (
     "current_fault_ms",
     "ff",
     "index_phases_deg",
+    "grasp_yaw_deg",
 )
 FF_MODES = ("off", "gravity", "full")  # layout.FfMode by name
 _FEEDFORWARD_KEYS = ("stale_ms", "ramp_ms")
@@ -217,6 +218,9 @@ class RobotConfig:
     # the arm's calibration sheet (thesis 3.5.1): each joint's index-pulse motor angle, rad;
     # the config's index_phases_deg, else (left empty) its robot type's
     index_phases: tuple[float, ...] = ()
+    # how its flange holds the bar: its grasp site turned this much (deg, counter-clockwise
+    # seen from above) about the vertical through the grasp point (kali_daemons.model)
+    grasp_yaw_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.index_phases:
@@ -1171,5 +1175,8 @@ def _robots(node: Any, base_dir: str) -> tuple[RobotConfig, ...]:
                 per_joint_only=True,
             )
             sheet = tuple(math.radians(v) for v in phases)
-        robots.append(RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms, ff, sheet))
+        grasp_yaw = _float(m.get("grasp_yaw_deg", 0.0), f"{path}.grasp_yaw_deg", -180.0, 180.0)
+        robots.append(
+            RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms, ff, sheet, grasp_yaw)
+        )
     return tuple(robots)

@@ -250,16 +250,24 @@ def _add_scenery(spec: mujoco.MjSpec) -> None:
 
 
 def _grasp_pose(robot: RobotConfig) -> tuple[list[float], list[float]]:
-    """A robot's grasp site in the bar frame: above the bar end nearer its base, z down.
+    """A robot's grasp site in the bar frame (position, quaternion w x y z): above the bar
+    end nearer its base, z down.
 
     The site's x axis points along the bar towards the robot's base, so a robot at yaw 0 on
     the -x side and one at yaw 180 on the +x side reach their ends with the same joint
-    angles (``θ6`` near +20° rather than -160°).
+    angles (the PUMA's ``θ6`` near +20° rather than -160°).  The robot's ``grasp_yaw_deg``
+    then turns the site about the bar's vertical through the grasp point, for an arm whose
+    last joint cannot turn the flange that way (the Panda's joint 7 stops at ±166°: 180
+    points its flange's x axis to the bar's middle, joint 7 near 0).
     """
     half = BAR_SIZE[0] / 2 - GRASP_INSET
     if robot.base_xyz[0] <= 0.0:  # the -x end; x = -X, z = -Z: a half turn about Y
-        return [-half, 0.0, GRASP_HEIGHT], [0.0, 0.0, 1.0, 0.0]
-    return [half, 0.0, GRASP_HEIGHT], [0.0, 1.0, 0.0, 0.0]  # x = +X, z = -Z: about X
+        pos, quat = [-half, 0.0, GRASP_HEIGHT], np.array([0.0, 0.0, 1.0, 0.0])
+    else:  # the +x end; x = +X, z = -Z: a half turn about X
+        pos, quat = [half, 0.0, GRASP_HEIGHT], np.array([0.0, 1.0, 0.0, 0.0])
+    turned = np.empty(4)
+    mujoco.mju_mulQuat(turned, np.array(_yaw_quat(robot.grasp_yaw_deg)), quat)
+    return pos, [float(v) for v in turned]
 
 
 def bar_rest_pose() -> np.ndarray:

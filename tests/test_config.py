@@ -565,6 +565,16 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "robots[0].index_phases_deg[5] = 360.0: must be >= 0 and < 360",
     ),
     (
+        "robot-grasp-yaw-range",
+        [("base_yaw_deg: 180}", "base_yaw_deg: 180, grasp_yaw_deg: 270}")],
+        "robots[1].grasp_yaw_deg = 270: must be a number > -180 and <= 180",
+    ),
+    (
+        "robot-grasp-yaw-string",
+        [("base_yaw_deg: 180}", "base_yaw_deg: 180, grasp_yaw_deg: half}")],
+        "robots[1].grasp_yaw_deg = 'half': must be a number > -180 and <= 180, not a string",
+    ),
+    (
         "robot-xyz-length",
         [("[-0.6, 0.0, 0.0]", "[-0.6, 0.0]")],
         "robots[0].base_xyz = [-0.6, 0.0]: must be a list of 3 numbers [x, y, z] in metres",
