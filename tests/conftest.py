@@ -40,20 +40,30 @@ class ByArm:
         return level.robots[field]  # type: ignore[attr-defined]
 
 
-def make_config(instance: str, edits: dict[str, str] | None = None) -> KaliConfig:
-    """The default config for ``instance``, with regex substitutions ``pattern -> repl``."""
-    return parse_config(config_text(instance, edits), f"<test {instance}>", str(ROOT / "config"))
+def make_config(
+    instance: str, edits: dict[str, str] | None = None, base: str = "default.yaml"
+) -> KaliConfig:
+    """The config ``config/<base>`` (default: default.yaml) for ``instance``, with regex
+    substitutions ``pattern -> repl``."""
+    return parse_config(
+        config_text(instance, edits, base), f"<test {instance}>", str(ROOT / "config")
+    )
 
 
-def config_text(instance: str, edits: dict[str, str] | None = None) -> str:
+def config_text(
+    instance: str, edits: dict[str, str] | None = None, base: str = "default.yaml"
+) -> str:
     """The text of ``make_config``'s config (for ``kalictl start -c FILE``)."""
-    text = re.sub(r"(?m)^instance: .*$", f"instance: {instance}", DEFAULT_TEXT)
+    source = DEFAULT_TEXT if base == "default.yaml" else (ROOT / "config" / base).read_text()
+    text = re.sub(r"(?m)^instance: .*$", f"instance: {instance}", source)
     # an absolute plugin path, so the text also works when a test writes it elsewhere
     plugin = ROOT / "scripts" / "servo_plugin_example.py"
     text = re.sub(r"(?m)^plugins: .*$", f"plugins: [{plugin}]", text)
     # no web viewer server per test instance (tests/test_viewer.py turns it on where it is the
     # point): the suite starts dozens of instances
     text = re.sub(r"(?m)^  web: auto\b", "  web: off ", text)
+    if not re.search(r"(?m)^dashboard:", text):  # a config taking the default dashboard
+        text += "dashboard: {web: off}\n"
     for pattern, repl in (edits or {}).items():
         text, n = re.subn(pattern, repl, text, flags=re.M)
         assert n, f"config edit {pattern!r} matched nothing"
@@ -89,17 +99,20 @@ def arena() -> Iterator[Arena]:
 
 @pytest.fixture
 def kali(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., str]]:
-    """Start whole instances: ``kali(lockstep=True, edits={...})`` returns the instance name.
+    """Start whole instances: ``kali(lockstep=True, edits={...}, base="default.yaml")``
+    returns the instance name (``base``: the file under config/ the config is made from).
 
     Every instance started is stopped afterwards and must leave nothing behind.
     """
     monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path / "logs"))
     started: list[str] = []
 
-    def start(lockstep: bool = True, edits: dict[str, str] | None = None) -> str:
+    def start(
+        lockstep: bool = True, edits: dict[str, str] | None = None, base: str = "default.yaml"
+    ) -> str:
         name = unique_name()
         started.append(name)
-        launcher.start(make_config(name, edits), lockstep=lockstep)
+        launcher.start(make_config(name, edits, base), lockstep=lockstep)
         return name
 
     yield start
