@@ -239,8 +239,12 @@ def test_the_gains_follow_the_rule_on_the_urdf(planar3: RobotType) -> None:
     for q in rng.uniform(planar3.q_min, planar3.q_max, (2000, 3)):
         gravity = np.maximum(gravity, np.abs(pin.computeGeneralizedGravity(model, data, q)))
     kp = [g["kp"] for g in planar3.pid_defaults]
-    np.testing.assert_allclose(kp, j_home * np.array([40.0, 40.0, 60.0]) ** 2, rtol=1e-3)
     resets = [g["integration_reset"] for g in planar3.pid_defaults]
+    # servo_gains: ωn as written, raised where the load needs it to keep the 0.01 rad band
+    band = [g["integration_band"] for g in planar3.pid_defaults]
+    wn = np.maximum([40.0, 40.0, 60.0], np.sqrt(2.5 * np.array(resets) / (0.01 * j_home)))
+    np.testing.assert_allclose(kp, j_home * wn**2, rtol=1e-3)
+    assert band == [0.01] * 3
     assert (np.array(resets) >= gravity + planar3.drive.coulomb_pos).all(), (resets, gravity)
     assert (planar3.drive.peak_joint_torque > 2 * gravity).all()
 
