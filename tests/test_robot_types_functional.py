@@ -29,6 +29,7 @@ from kali_daemons.servolevel import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ByArm
+from .test_servo_level import switch_jumps
 
 TYPES = ("puma560", "ur5", "panda")
 SETTLE_TICKS = 3500  # as tests/test_servo_level.py: the integrals take up gravity sag
@@ -157,20 +158,7 @@ def test_calibrated_arms_hold_step_ramp_and_switch_servo_bumplessly(
         # a switch of algorithm on the shoulder while it moves under gravity: bumpless
         ramp(client, 0, 1, 0.15, 150)
         step_kali_clock(inst, 300)
-        jumps, usual = [], []
-        for algorithm in ("pd", "pid", "pd", "pid"):
-            changes = []
-            for _ in range(50):
-                before = float(r["servo_torque"][0, 1])
-                step_kali_clock(inst, 1)
-                changes.append(abs(float(r["servo_torque"][0, 1]) - before))
-            usual.append(max(changes))
-            before = float(r["servo_torque"][0, 1])
-            client.select("left", 2, algorithm, wait=False)
-            step_kali_clock(inst, 1)
-            assert client.active("left", 2) == algorithm
-            jumps.append(abs(float(r["servo_torque"][0, 1]) - before))
-            step_kali_clock(inst, 50)
+        jumps, usual = switch_jumps(inst, client)
         for jump, change in zip(jumps, usual, strict=True):
             assert jump <= change + SWITCH_EXTRA_NM, f"{model}: torque jumps {jumps}, usual {usual}"
         assert inst.fault_text() is None

@@ -154,20 +154,7 @@ def test_gains_and_algorithm_change_while_moving_without_a_torque_jump(
         slots = client.level.slots
         _ramp(client, 0, 1, 0.15, 150)  # joint 2 moving for 1.5 s
         step_kali_clock(inst, 300)
-        jumps, normal = [], []
-        for algorithm in ("pd", "pid", "pd", "pid"):
-            steps = []  # the servo's own tick-to-tick torque changes before the switch
-            for _ in range(50):
-                before = float(r["servo_torque"][0, 1])
-                step_kali_clock(inst, 1)
-                steps.append(abs(float(r["servo_torque"][0, 1]) - before))
-            normal.append(max(steps))
-            before = float(r["servo_torque"][0, 1])
-            client.select("left", 2, algorithm, wait=False)
-            step_kali_clock(inst, 1)
-            assert client.active("left", 2) == algorithm
-            jumps.append(abs(float(r["servo_torque"][0, 1]) - before))
-            step_kali_clock(inst, 50)
+        jumps, normal = switch_jumps(inst, client)
         params = client.get_params("left", 2)
         client.set_params("left", 2, {"kp": params["kp"] * 1.2}, wait=False)
         step_kali_clock(inst, 1)
@@ -180,6 +167,28 @@ def test_gains_and_algorithm_change_while_moving_without_a_torque_jump(
             assert jump <= usual + 1.0, f"torque jumps {jumps} N·m, usual changes {normal}"
         assert inst.fault_text() is None
         del r, slots
+
+
+def switch_jumps(inst: Instance, client: ServoClient) -> tuple[list[float], list[float]]:
+    """Switch the left arm's joint 2 pd, pid, pd, pid while it moves, a tick apart in
+    lockstep: the torque's jump at each switch, and the largest tick-to-tick change of its
+    own over the 50 ticks before it (what a bumpless switch is measured against)."""
+    r = ByArm(client.level)
+    jumps, normal = [], []
+    for algorithm in ("pd", "pid", "pd", "pid"):
+        steps = []  # the servo's own tick-to-tick torque changes before the switch
+        for _ in range(50):
+            before = float(r["servo_torque"][0, 1])
+            step_kali_clock(inst, 1)
+            steps.append(abs(float(r["servo_torque"][0, 1]) - before))
+        normal.append(max(steps))
+        before = float(r["servo_torque"][0, 1])
+        client.select("left", 2, algorithm, wait=False)
+        step_kali_clock(inst, 1)
+        assert client.active("left", 2) == algorithm
+        jumps.append(abs(float(r["servo_torque"][0, 1]) - before))
+        step_kali_clock(inst, 50)
+    return jumps, normal
 
 
 def test_runaway_halts_naming_robot_joint_value_and_limit(kali: Callable[..., str]) -> None:

@@ -20,17 +20,14 @@ Everything here runs outside the cycle, once per process while it parses the con
 
 from __future__ import annotations
 
-import importlib.util
-import re
-import sys
 import traceback
-import zlib
 from pathlib import Path
 from typing import Final
 
 import numpy as np
 
 from ..errors import ConfigError, KaliError
+from ..pyfile import import_file
 from .profile import RobotType
 
 FLANGE_LINK: Final = "flange"
@@ -50,24 +47,16 @@ def load_type_file(path: Path) -> RobotType:
     where = f"robot type file {path}"
     if not path.is_file():
         raise ConfigError(f"{where}: no such file")
-    # One module per file, named after its path: two files may share a name.
-    stem = re.sub(r"\W", "_", path.stem)
-    mod_name = f"kali_robot_type_{stem}_{zlib.crc32(str(path).encode()):08x}"
-    spec = importlib.util.spec_from_file_location(mod_name, path)
-    if spec is None or spec.loader is None:
-        raise ConfigError(f"{where}: cannot be imported as a Python file")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[mod_name] = module  # dataclasses and pickling look modules up here
     try:
-        spec.loader.exec_module(module)
+        module = import_file(path, "kali_robot_type")
     except KaliError as exc:  # a RobotType or kinematics refusing its fields: says which
-        del sys.modules[mod_name]
         raise ConfigError(f"{where}{_line_in(exc, path)}: {_without_prefix(exc)}") from exc
     except Exception as exc:
-        del sys.modules[mod_name]
         raise ConfigError(
             f"{where}: importing it raised {type(exc).__name__}{_line_in(exc, path)}: {exc}"
         ) from exc
+    if module is None:
+        raise ConfigError(f"{where}: cannot be imported as a Python file")
     robot = getattr(module, "ROBOT", None)
     if robot is None:
         raise ConfigError(

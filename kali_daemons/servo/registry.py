@@ -33,8 +33,6 @@ import importlib
 import importlib.util
 import math
 import re
-import sys
-import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,6 +42,7 @@ import numpy as np
 
 from .. import layout
 from ..errors import ConfigError
+from ..pyfile import import_file
 
 STATUS_OK = 0  # what ``step`` returns when all is well
 MAX_DATA_BYTES = layout.SERVO_STAGING_BYTES  # private data must fit the put/get mailbox
@@ -443,21 +442,14 @@ def _import_plugin(spec: str, base_dir: Path | None) -> Any:
     path = path.resolve()
     if not path.is_file():
         raise ConfigError(f"plugin {spec!r}: file {path} does not exist{relative}")
-    # One module per file, named after its path, so two plugins may share a file name.
-    stem = re.sub(r"\W", "_", path.stem)
-    mod_name = f"kali_servo_plugin_{stem}_{zlib.crc32(str(path).encode()):08x}"
-    module_spec = importlib.util.spec_from_file_location(mod_name, path)
-    if module_spec is None or module_spec.loader is None:
-        raise ConfigError(f"plugin {spec!r}: {path} cannot be imported as a Python file")
-    module = importlib.util.module_from_spec(module_spec)
-    sys.modules[mod_name] = module  # dataclasses and pickling look modules up here
     try:
-        module_spec.loader.exec_module(module)
+        module = import_file(path, "kali_servo_plugin")
     except Exception as exc:
-        del sys.modules[mod_name]
         raise ConfigError(
             f"plugin {spec!r}: import of {path} failed: {type(exc).__name__}: {exc}"
         ) from exc
+    if module is None:
+        raise ConfigError(f"plugin {spec!r}: {path} cannot be imported as a Python file")
     return module
 
 
