@@ -661,7 +661,7 @@ def _follow_calibration(
     failed = [n for n in names if client.calibration(n)[0] == CalibState.FAILED]
     for n in names:
         if n not in failed:
-            shift = robots["calib_shift"][client.robot_index(n)]
+            shift = client.level.arm("calib_shift", client.robot_index(n))
             moved = "  ".join(
                 f"{j + 1}:{math.degrees(float(v)):+.2f}°" for j, v in enumerate(shift)
             )

@@ -578,6 +578,20 @@ def test_calibration_needs_power_and_says_so(kali: Callable[..., str]) -> None:
             client.close()
 
 
+def test_kalictl_calibrate_follows_to_the_end_in_real_time(kali: Callable[..., str]) -> None:
+    """In real time ``kalictl calibrate`` follows each arm's calibration and ends by saying
+    how far each joint's angle was corrected, one entry per joint of the arm."""
+    name = kali(lockstep=False)
+    with powered_in_real_time(name):
+        r = kalictl("-i", name, "calibrate")
+    assert r.returncode == 0, r.stderr
+    for robot in ("left", "right"):
+        line = next(t for t in r.stdout.splitlines() if t.startswith(f"{robot}: calibrated;"))
+        assert re.fullmatch(
+            rf"{robot}: calibrated; angles corrected by( +[1-6]:[+-]\d+\.\d\d°){{6}}", line
+        ), line
+
+
 def test_kalictl_calibrate_and_move(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True)
     r = kalictl("-i", name, "move", "left", "--joints", "0,-90,90,0,0,0")
