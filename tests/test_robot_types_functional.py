@@ -15,20 +15,24 @@ error, ramp tracking error.
 from __future__ import annotations
 
 import math
+import os
 import re
+import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import numpy as np
 import pytest
 
+from kali_daemons.errors import KaliError
 from kali_daemons.instance import Instance
-from kali_daemons.layout import CalibState, FaultCode, PowerState
+from kali_daemons.layout import CSR_NO_DISABLE, CalibState, FaultCode, PowerState
 from kali_daemons.robots import RobotType, known_types
 from kali_daemons.servolevel import ServoClient
+from kali_daemons.spinlock import pid_alive
 from kali_daemons.wallclock import step_kali_clock
 
-from .conftest import ByArm
+from .conftest import ByArm, wait_for
 from .test_servo_level import switch_jumps
 
 TYPES = ("puma560", "ur5", "panda")
@@ -223,3 +227,59 @@ def test_a_current_demand_beyond_the_motor_limit_halts_naming_it(
         m = re.search(r"robot 'left' joint 1: motor current demand ([+-][\d.]+) A beyond ", text)
         assert m and abs(float(m.group(1))) > limit, text
         assert f"beyond its limit {limit:.2f} A for 100 ms" in text, text
+
+
+# The serious processes whose death halts the system (thesis 3.6.2), and the non-serious ones
+# the system runs on without (DESIGN 7: degrade).  The wall clock's own death is found by the
+# other processes' watch in real time, so it is tested there (tests/system/test_faults.py).
+KILLED_SERIOUS = ("plant", "tg", "sio", "sv.0", "sv.1")
+KILLED_OPTIONAL = ("dynamics", "viewer")
+
+
+@pytest.mark.parametrize("model", TYPES)
+def test_kill_9_of_each_process_halts_or_degrades_with_the_arms_cut(
+    kali: Callable[..., str], model: str
+) -> None:
+    """Per type, a cell of two such arms, powered and holding: kill -9 of a serious process
+    halts (PROCESS_DIED naming it) with the amplifiers commanded off; of an optional one, the
+    arms hold on.  A fresh cell per serious victim; the ``kali`` fixture then stops each and
+    checks nothing is left behind."""
+    for victim in (*KILLED_SERIOUS, "optional"):
+        name = cell(kali, model)
+        with servoing_briefly(name) as (inst, client):
+            victims = KILLED_OPTIONAL if victim == "optional" else (victim,)
+            for v in victims:
+                pid = int(inst.procs[inst.slot_of(v)]["pid"])
+                os.kill(pid, signal.SIGKILL)
+                wait_for(lambda pid=pid: not pid_alive(pid), 5.0, f"{v} gone")
+            try:
+                step_kali_clock(inst, 50)
+            except KaliError:
+                pass  # the clock refuses to step once halted
+            if victim == "optional":  # the servo level runs on, and the arms settle to hold
+                step_kali_clock(inst, SETTLE_TICKS)
+                assert inst.fault_text() is None, f"{model}: {inst.fault_text()}"
+                hold = np.abs(error_counts(client, inst.config.robots[0].type))
+                assert (hold <= ONE_COUNT).all(), f"{model}: {hold} counts"
+                continue
+            info = inst.read_fault()
+            assert info.code == FaultCode.PROCESS_DIED.name, f"{model}, {victim}: {info}"
+            assert f"process '{victim}' (pid" in info.message and "died" in info.message
+            if victim != "plant":  # the plant's death takes the boards' answers with it
+                assert not (inst.boards()["csr"] & CSR_NO_DISABLE).any(), "amplifiers cut"
+
+
+@contextmanager
+def servoing_briefly(name: str) -> Iterator[tuple[Instance, ServoClient]]:
+    """Attach and power both arms (holding, not settled: enough to be cut)."""
+    with Instance.attach(name) as inst:
+        client = ServoClient(inst)
+        try:
+            step_kali_clock(inst, 30)
+            for robot in client.names:
+                client.power(robot, True)
+            step_kali_clock(inst, 400)
+            assert [client.power_state(r) for r in client.names] == [PowerState.ON] * 2
+            yield inst, client
+        finally:
+            client.close()
