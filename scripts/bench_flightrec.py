@@ -47,14 +47,14 @@ def bench(n_joints: int, iterations: int, repeats: int, cfg: KaliConfig) -> tupl
     try:
         procs = arena.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
         rec = FlightRecorder(Shim(arena, cfg, procs), n_joints, create=True, slot=3)  # type: ignore[arg-type]
-        src = [np.random.default_rng(k).random(n_joints) for k in range(6)]
+        src = [np.random.default_rng(k).random(n_joints) for k in range(len(layout.FLIGHT_FIELDS))]
         rec.bind(*src)
         record = rec.record
         per = []
         for _ in range(repeats):
             t0 = time.perf_counter_ns()
             for i in range(iterations):
-                record(i, t0, 150_000)
+                record(i, t0, 150_000, 90_000, 60_000)  # latency, wait, ran (ns)
             per.append((time.perf_counter_ns() - t0) / iterations)
         del rec, procs, record
         return min(per), statistics.median(per)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -178,6 +178,30 @@ def servo_gains(
         )
     pd = [{"kp": g["kp"], "kv": g["kv"], "fv": g["fv"], "bias_tau": 0.5} for g in pid]
     return tuple(pid), tuple(pd)
+
+
+def drive_from_facts(facts: Any) -> Drive:
+    """A type's ``Drive`` from its facts module, by the names every shipped type's facts use
+    (``G``, ``COUNTS_PER_MOTOR_REV``, ``KT``, ``R_ARMATURE``, ``MAX_CURRENT``, ``JM``,
+    ``VISCOUS``, ``COULOMB_POS``/``_NEG``, ``BRAKE_TORQUE``, ``AMP_GAIN_A_PER_V``,
+    ``AMP_BANDWIDTH_HZ``, ``BUS_VOLTAGE``, ``DAC_VOLTS``)."""
+    f = facts
+    return Drive(
+        gear=f.G,
+        counts_per_rev=f.COUNTS_PER_MOTOR_REV,
+        kt=f.KT,
+        r_armature=f.R_ARMATURE,
+        max_current=f.MAX_CURRENT,
+        rotor_inertia=f.JM,
+        viscous=f.VISCOUS,
+        coulomb_pos=f.COULOMB_POS,
+        coulomb_neg=f.COULOMB_NEG,
+        brake_torque=f.BRAKE_TORQUE,
+        amp_gain_a_per_v=f.AMP_GAIN_A_PER_V,
+        amp_bandwidth_hz=f.AMP_BANDWIDTH_HZ,
+        bus_voltage=f.BUS_VOLTAGE,
+        dac_volts=f.DAC_VOLTS,
+    )
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import ctypes
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any
 
 _MALLOC = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t)
 _CALLOC = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t)
@@ -109,3 +110,34 @@ def numpy_data_allocations(fn: Callable[[], object], calls: int = 50) -> int:
         for _ in range(calls):
             fn()
         return count[0] - start
+
+
+def pin_model_of(facts: Any) -> Any:
+    """Pinocchio's model of a type's URDF with its rotors and gravity (``facts``: the type's
+    facts module: URDF_PATH, ARMATURE, GRAVITY)."""
+    import numpy as np
+    import pinocchio as pin
+
+    model = pin.buildModelFromUrdf(str(facts.URDF_PATH))
+    model.armature = np.array(facts.ARMATURE)
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -facts.GRAVITY]), np.zeros(3))
+    return model
+
+
+def mj_model_of(facts: Any) -> Any:
+    """MuJoCo's model of the same URDF, rotors and gravity; contacts off (the links' shapes
+    overlap)."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(facts.URDF_PATH))
+    model.dof_armature[:] = facts.ARMATURE
+    model.opt.gravity[:] = (0.0, 0.0, -facts.GRAVITY)
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    return model
+
+
+def mj_qpos_of(model: Any, n_joints: int) -> Any:
+    """The qpos addresses of joints j1 .. jN in a MuJoCo model."""
+    import numpy as np
+
+    return np.array([model.joint(f"j{j + 1}").qposadr[0] for j in range(n_joints)])

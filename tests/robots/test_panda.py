@@ -20,7 +20,7 @@ from kali_daemons.robots.panda import ROBOT, facts
 from kali_daemons.robots.panda import kinematics as kin
 from kali_daemons.robots.profile import INTEGRATION_BAND_RAD, MAX_JOINTS, RobotType
 
-from . import numpy_data_allocations
+from . import mj_model_of, mj_qpos_of, numpy_data_allocations, pin_model_of
 
 ROOT = Path(__file__).resolve().parents[2]
 N_POSES = 200
@@ -59,23 +59,16 @@ def rtb_panda() -> Any:
 
 @pytest.fixture(scope="module")
 def pin_model() -> pin.Model:
-    model = pin.buildModelFromUrdf(str(facts.URDF_PATH))
-    model.armature = np.array(facts.ARMATURE)
-    model.gravity = pin.Motion(np.array([0.0, 0.0, -facts.GRAVITY]), np.zeros(3))
-    return model
+    return pin_model_of(facts)
 
 
 @pytest.fixture(scope="module")
 def mj_model() -> mujoco.MjModel:
-    model = mujoco.MjModel.from_xml_path(str(facts.URDF_PATH))
-    model.dof_armature[:] = facts.ARMATURE
-    model.opt.gravity[:] = (0.0, 0.0, -facts.GRAVITY)
-    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # the links' shapes overlap
-    return model
+    return mj_model_of(facts)
 
 
 def mj_qpos(model: mujoco.MjModel) -> np.ndarray:
-    return np.array([model.joint(f"j{j + 1}").qposadr[0] for j in range(facts.NJOINTS)])
+    return mj_qpos_of(model, facts.NJOINTS)
 
 
 # --------------------------------------------------------------------------------------------

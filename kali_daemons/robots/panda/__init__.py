@@ -27,26 +27,11 @@ like the arm, not measured on it:
 
 from __future__ import annotations
 
-from ..profile import Drive, RobotType, read_only
+from ..profile import RobotType, drive_from_facts, read_only
 from . import facts
 from .kinematics import KINEMATICS
 
-DRIVE = Drive(
-    gear=facts.G,
-    counts_per_rev=facts.COUNTS_PER_MOTOR_REV,
-    kt=facts.KT,
-    r_armature=facts.R_ARMATURE,
-    max_current=facts.MAX_CURRENT,
-    rotor_inertia=facts.JM,
-    viscous=facts.VISCOUS,
-    coulomb_pos=facts.COULOMB_POS,
-    coulomb_neg=facts.COULOMB_NEG,
-    brake_torque=facts.BRAKE_TORQUE,
-    amp_gain_a_per_v=facts.AMP_GAIN_A_PER_V,
-    amp_bandwidth_hz=facts.AMP_BANDWIDTH_HZ,
-    bus_voltage=facts.BUS_VOLTAGE,
-    dac_volts=facts.DAC_VOLTS,
-)
+DRIVE = drive_from_facts(facts)
 
 ROBOT = RobotType(
     name="panda",

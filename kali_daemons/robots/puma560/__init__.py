@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from typing import Final
 
-from ..profile import Drive, RobotType, read_only
+from ..profile import RobotType, drive_from_facts, read_only
 from . import facts
 from .facts import *  # noqa: F403 - the type's facts, by their published names
 from .kinematics import KINEMATICS
@@ -31,22 +31,7 @@ ROBOT: Final = RobotType(
     qd_max=facts.QD_MAX,
     qdd_max=facts.QDD_MAX,
     q_home=facts.QN,
-    drive=Drive(
-        gear=facts.G,
-        counts_per_rev=facts.COUNTS_PER_MOTOR_REV,
-        kt=facts.KT,
-        r_armature=facts.R_ARMATURE,
-        max_current=facts.MAX_CURRENT,
-        rotor_inertia=facts.JM,
-        viscous=facts.VISCOUS,
-        coulomb_pos=facts.COULOMB_POS,
-        coulomb_neg=facts.COULOMB_NEG,
-        brake_torque=facts.BRAKE_TORQUE,
-        amp_gain_a_per_v=facts.AMP_GAIN_A_PER_V,
-        amp_bandwidth_hz=facts.AMP_BANDWIDTH_HZ,
-        bus_voltage=facts.BUS_VOLTAGE,
-        dac_volts=facts.DAC_VOLTS,
-    ),
+    drive=drive_from_facts(facts),
     kinematics=KINEMATICS,
     pid_defaults=facts.PID_DEFAULTS,
     pd_defaults=facts.PD_DEFAULTS,
