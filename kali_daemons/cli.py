@@ -124,6 +124,13 @@ def main(ctx: click.Context, instance: str | None) -> None:
 )
 @click.option("--lockstep", is_flag=True, help="Deterministic mode: the clock never sleeps.")
 @click.option(
+    "--separate-processes",
+    "separate",
+    is_flag=True,
+    help="With --lockstep: a process per daemon as in real time (to kill one), not the "
+    "lockstep executive's one process.",
+)
+@click.option(
     "--record",
     type=click.Path(dir_okay=False, path_type=Path),
     default=None,
@@ -132,17 +139,26 @@ def main(ctx: click.Context, instance: str | None) -> None:
 @click.pass_context
 @_errors
 def start(
-    ctx: click.Context, config_path: Path | None, lockstep: bool, record: Path | None
+    ctx: click.Context,
+    config_path: Path | None,
+    lockstep: bool,
+    separate: bool,
+    record: Path | None,
 ) -> None:
     """Start every Kali process; return when all are ready."""
+    if separate and not lockstep:
+        raise click.UsageError("--separate-processes goes with --lockstep (real time always is)")
     cfg = load_config(config_path or DEFAULT_CONFIG)
     name = cfg.instance if ctx.obj["instance"] is None else ctx.obj["instance"]
-    report = launcher.start(cfg, lockstep=lockstep, instance=name, record=record)
+    report = launcher.start(cfg, lockstep=lockstep, instance=name, record=record, separate=separate)
     if report.stale_cleaned:
         click.echo(
             f"cleaned a stale instance '{name}' left by a crash: " + ", ".join(report.stale_cleaned)
         )
-    mode = "lockstep (clock stopped at tick 0)" if lockstep else "real time (clock running)"
+    mode = "real time (clock running)"
+    if lockstep:
+        how = "a process per daemon" if separate else "one process"
+        mode = f"lockstep, {how} (clock stopped at tick 0)"
     click.echo(
         f"instance '{name}' started in {report.seconds:.1f} s, {mode}: "
         + ", ".join(f"{n}[{p}]" for n, p in report.pids.items())
@@ -197,7 +213,8 @@ def stop(ctx: click.Context) -> None:
     if not (r.stopped or r.killed or r.removed):
         click.echo(f"instance '{name}': nothing to stop")
         return
-    msg = f"instance '{name}' stopped: {len(r.stopped)} processes left on request"
+    n = len(r.stopped)
+    msg = f"instance '{name}' stopped: {n} process{'es' if n != 1 else ''} left on request"
     if r.killed:
         msg += f", {len(r.killed)} killed ({', '.join(map(str, r.killed))})"
     click.echo(msg + f", {len(r.removed)} /dev/shm objects removed")

@@ -46,6 +46,10 @@ class Daemon:
 
     kind: ClassVar[str] = ""
     self_timed_in_realtime: ClassVar[bool] = False
+    # bind to the config's CPU, lock memory and go SCHED_FIFO; the lockstep executive does
+    # not: it runs flat out as long as there are ticks to step, which at SCHED_FIFO would
+    # starve the programs it waits for and meet the kernel's real-time throttling
+    realtime: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -72,6 +76,7 @@ class Daemon:
         self._lock_memory = lock_memory
         self._leave = False
         self._claimed = False
+        self._hosted = False  # configured inside the lockstep executive's process (host)
         self.inst: Instance
         self.slot = -1
         self.period_ticks = 1
@@ -145,8 +150,17 @@ class Daemon:
             self._finish()
         return 0
 
-    def _configure(self) -> None:
-        self.inst = Instance.attach(self.instance_name)
+    def host(self, inst: Instance) -> None:
+        """Outside the cycle: configure and activate this daemon inside the lockstep
+        executive's process, on its Instance, leaving the process's CPU and scheduling to
+        it; the executive then calls ``cycle`` itself (``wallclock.executive``)."""
+        self._configure(inst)
+        self.on_activate()
+        self._set_state(ProcState.ACTIVE)
+
+    def _configure(self, host: Instance | None = None) -> None:
+        self._hosted = host is not None
+        self.inst = Instance.attach(self.instance_name) if host is None else host
         cfg = self.inst.config
         pcfg = None
         if self.name in {p.name for p in cfg.processes}:
@@ -175,14 +189,16 @@ class Daemon:
         self.stage = int(ov["stage"] if ov["stage"] is not None else (pcfg.stage if pcfg else 8))
         cpu = ov["cpu"] if ov["cpu"] is not None else (pcfg.cpu if pcfg else None)
         prio = ov["priority"] if ov["priority"] is not None else (pcfg.priority if pcfg else 0)
-        report = rt.prepare(cpu, self._lock_memory)
+        realtime = self.realtime and not self._hosted
+        report = rt.prepare(cpu if realtime else None, self._lock_memory and realtime)
         p = self.inst.procs[self.slot]
         p["pid"] = os.getpid()
         p["cpu"] = report.cpu
         p["heartbeat_ns"] = rt.monotonic_ns()
         self._set_state(ProcState.INACTIVE)
         self.on_configure()  # heavy set-up runs before this process becomes real-time
-        rt.go_realtime(report, prio)
+        if realtime:
+            rt.go_realtime(report, prio)
         p["priority"] = report.priority
         for w in report.warnings:  # one warning per refusal, at start-up only
             self.log.warning("%s: %s", self.name, w)
@@ -215,7 +231,8 @@ class Daemon:
             self.log.exception("%s: on_error failed", self.name)
 
     def _finish(self) -> None:
-        rt.leave_realtime()
+        if not self._hosted:  # the executive's scheduling is its own
+            rt.leave_realtime()
         if self.slot < 0:
             return
         try:
@@ -228,7 +245,8 @@ class Daemon:
             self.inst.bump_registry()
             if self._claimed:
                 self.inst.free_slot(self.slot)
-            self.inst.close()
+            if not self._hosted:  # the executive closes the Instance it lent
+                self.inst.close()
 
     # ------------------------------------------------------------------ loops
 

@@ -408,19 +408,23 @@ def start(
     lockstep: bool = False,
     instance: str | None = None,
     record: str | os.PathLike[str] | None = None,
+    separate: bool = False,
 ) -> StartReport:
     """Start every process of ``cfg``; returns when all are ACTIVE, else cleans up and raises.
 
     In real-time mode the clock is started once everyone is ready; in lockstep mode it stays
-    stopped at tick 0 until ``clock start`` or ``clock step N``.  ``record`` (relative to the
-    current directory) overrides the config's ``dashboard.record`` (relative to the config's).
+    stopped at tick 0 until ``clock start`` or ``clock step N``.  A lockstep instance runs
+    every daemon in one process, the lockstep executive (``wallclock/executive.py``), unless
+    ``separate`` asks for a process per daemon as in real time (for fault injection: a test
+    that kills one).  ``record`` (relative to the current directory) overrides the config's
+    ``dashboard.record`` (relative to the config's).
     """
     name = check_instance_name(cfg.instance if instance is None else instance)
     t_start = time.monotonic()
     registry = _check_servos(cfg)
     record_path = _record_path(cfg, record)
     with lifecycle_lock(name, "start"):
-        return _start(cfg, name, lockstep, record_path, t_start, registry)
+        return _start(cfg, name, lockstep, record_path, t_start, registry, separate)
 
 
 def _start(
@@ -430,6 +434,7 @@ def _start(
     record_path: str,
     t_start: float,
     registry: Registry,
+    separate: bool = False,
 ) -> StartReport:
     """``start`` with the lifecycle lock held."""
     check_not_squatted(name)
@@ -449,31 +454,23 @@ def _start(
     inst = Instance.attach(name)
     pids: dict[str, int] = {}
     children: dict[str, subprocess.Popen] = {}
+    logs_of: dict[str, Path] = {}
+    executive = lockstep and not separate
     try:
         for p in cfg.processes:
-            slot = inst.claim_slot(p.name, 0)
-            log = open(logs / f"{p.name}.log", "wb")  # noqa: SIM115 - handed to the child
-            child = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    f"kali_daemons.{p.kind}",
-                    "--instance",
-                    name,
-                    "--name",
-                    p.name,
-                ],
-                stdin=subprocess.DEVNULL,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                start_new_session=True,
-                close_fds=True,
-            )
-            log.close()
-            inst.procs[slot]["pid"] = child.pid
-            pids[p.name] = child.pid
-            children[p.name] = child
-        _wait_ready(inst, cfg, children, logs)
+            inst.claim_slot(p.name, 0)
+            if executive and p.kind != "wallclock":
+                continue  # hosted by the executive: it is the wall clock's process
+            module = "wallclock.executive" if executive else p.kind
+            logs_of[p.name] = logs / f"{p.name}.log"
+            children[p.name] = _spawn(module, name, p.name, logs_of[p.name])
+        if executive:  # one process: every slot is the executive's
+            clock = next(p.name for p in cfg.processes if p.kind == "wallclock")
+            for p in cfg.processes:
+                children[p.name], logs_of[p.name] = children[clock], logs_of[clock]
+        for p in cfg.processes:
+            inst.procs[inst.find_slot(p.name)]["pid"] = pids[p.name] = children[p.name].pid
+        _wait_ready(inst, cfg, children, logs_of)
         if not lockstep:
             start_kali_clock(inst)
     except BaseException:
@@ -484,8 +481,33 @@ def _start(
     return StartReport(name, pids, stale, time.monotonic() - t_start, logs)
 
 
+def _spawn(module: str, instance: str, name: str, log_path: Path) -> subprocess.Popen:
+    """Start ``python -m kali_daemons.<module>`` as process ``name`` of ``instance``, in
+    its own session, its output in ``log_path``."""
+    with open(log_path, "wb") as log:  # the child holds its own descriptor
+        return subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                f"kali_daemons.{module}",
+                "--instance",
+                instance,
+                "--name",
+                name,
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            close_fds=True,
+        )
+
+
 def _wait_ready(
-    inst: Instance, cfg: KaliConfig, children: dict[str, subprocess.Popen], logs: Path
+    inst: Instance,
+    cfg: KaliConfig,
+    children: dict[str, subprocess.Popen],
+    logs_of: dict[str, Path],
 ) -> None:
     """Wait until every process is ACTIVE and the clock is ready; name the first that fails."""
     deadline = time.monotonic() + cfg.startup_timeout_s
@@ -497,8 +519,7 @@ def _wait_ready(
             if child.poll() is not None or state == ProcState.ERROR:
                 raise InstanceError(
                     f"process '{name}' (pid {child.pid}) failed during start-up "
-                    f"(exit {child.returncode}, state {state.name}):\n"
-                    + _tail(logs / f"{name}.log")
+                    f"(exit {child.returncode}, state {state.name}):\n" + _tail(logs_of[name])
                 )
             if state != ProcState.ACTIVE:
                 waiting.append(f"{name} ({state.name})")

@@ -100,7 +100,9 @@ def arena() -> Iterator[Arena]:
 @pytest.fixture
 def kali(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., str]]:
     """Start whole instances: ``kali(lockstep=True, edits={...}, base="default.yaml")``
-    returns the instance name (``base``: the file under config/ the config is made from).
+    returns the instance name (``base``: the file under config/ the config is made from;
+    ``separate``: a lockstep instance with a process per daemon, for a test that kills one,
+    instead of the lockstep executive's one process).
 
     Every instance started is stopped afterwards and must leave nothing behind.
     """
@@ -108,11 +110,14 @@ def kali(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[.
     started: list[str] = []
 
     def start(
-        lockstep: bool = True, edits: dict[str, str] | None = None, base: str = "default.yaml"
+        lockstep: bool = True,
+        edits: dict[str, str] | None = None,
+        base: str = "default.yaml",
+        separate: bool = False,
     ) -> str:
         name = unique_name()
         started.append(name)
-        launcher.start(make_config(name, edits, base), lockstep=lockstep)
+        launcher.start(make_config(name, edits, base), lockstep=lockstep, separate=separate)
         return name
 
     yield start

@@ -80,7 +80,7 @@ def test_segment_and_semaphores_are_owner_only(kali: Callable[..., str]) -> None
 
 @pytest.mark.parametrize("victim", PROCESSES)
 def test_stop_after_kill_9_leaves_nothing(kali: Callable[..., str], victim: str) -> None:
-    name = kali(lockstep=True)
+    name = kali(lockstep=True, separate=True)
     with Instance.attach(name) as inst:
         pid = int(inst.procs[inst.slot_of(victim)]["pid"])
     os.kill(pid, signal.SIGKILL)
@@ -171,7 +171,7 @@ def test_daemon_dying_at_start_up_is_named_with_its_log(
         match=r"process 'sv.1' \(pid \d+\) failed during start-up "
         r"\(exit 3, state SPAWNED\):\n    sv.1 broke",
     ):
-        launcher.start(cfg, lockstep=True)
+        launcher.start(cfg, lockstep=True, separate=True)
     assert leftovers(name) == ([], [])
 
 

@@ -52,9 +52,10 @@ def test_every_shipped_type_is_covered() -> None:
     assert sorted(TYPES) == known_types()
 
 
-def cell(kali: Callable[..., str], model: str) -> str:
-    """A lockstep instance of two arms of type ``model``, facing each other."""
-    return kali(lockstep=True, edits={r"model: puma560": f"model: {model}"})
+def cell(kali: Callable[..., str], model: str, separate: bool = False) -> str:
+    """A lockstep instance of two arms of type ``model``, facing each other (``separate``:
+    a process per daemon, to kill one)."""
+    return kali(lockstep=True, edits={r"model: puma560": f"model: {model}"}, separate=separate)
 
 
 @contextmanager
@@ -245,7 +246,7 @@ def test_kill_9_of_each_process_halts_or_degrades_with_the_arms_cut(
     arms hold on.  A fresh cell per serious victim; the ``kali`` fixture then stops each and
     checks nothing is left behind."""
     for victim in (*KILLED_SERIOUS, "optional"):
-        name = cell(kali, model)
+        name = cell(kali, model, separate=True)
         with servoing_briefly(name) as (inst, client):
             victims = KILLED_OPTIONAL if victim == "optional" else (victim,)
             for v in victims:

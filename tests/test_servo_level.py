@@ -278,7 +278,7 @@ def test_current_beyond_the_limit_halts(kali: Callable[..., str]) -> None:
 
 
 def test_a_dead_sv_halts_naming_it(kali: Callable[..., str]) -> None:
-    name = kali(lockstep=True)
+    name = kali(lockstep=True, separate=True)
     with servoing(name) as (inst, _):
         pid = int(inst.procs[inst.slot_of("sv.1")]["pid"])
         os.kill(pid, signal.SIGKILL)
@@ -295,7 +295,7 @@ def test_a_feed_post_left_from_a_missed_tick_does_not_idle_an_sv(
     """SIO posts every SV's feed semaphore each tick it runs, so a tick an SV missed leaves
     a post behind (here: posted by hand).  Taken for the next tick's, the SV would find that
     tick's slots not yet published and go idle, every tick after; it passes it over."""
-    name = kali(lockstep=True)
+    name = kali(lockstep=True, separate=True)  # the SVs wait on their feed semaphores
     with servoing(name) as (inst, _):
         sem = inst.feed_semaphore(1)
         ran = inst.arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)["sv_servos"]

@@ -32,6 +32,7 @@ pulses (3.5.1, ``calibration.py``), stepped here while the robot is powered.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import posix_ipc
@@ -121,6 +122,9 @@ class ServoIO(Daemon):
         sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
         ctrl["sv_count"] = len(sv_names)
         self.feeds = [inst.feed_semaphore(k) for k in range(len(sv_names))]
+        # the lockstep executive hosting SIO and the SVs in one process sets this: called
+        # with the tick where the feeds would be posted, it runs every SV's share at once
+        self.serve: Callable[[int], None] | None = None
         self.done_sem = inst.done_semaphore()
         # How long the servos may take: inside the clock's own limit for SIO, so a late servo
         # is named here rather than SIO by the clock.  Waited in slices of a servo period,
@@ -260,8 +264,11 @@ class ServoIO(Daemon):
         np.copyto(self._slot_busy, self.busy_src)  # the SVs may claim now
         self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         t_fed = rt.monotonic_ns()
-        for sem in self.feeds:
-            sem.release()
+        if self.serve is None:
+            for sem in self.feeds:
+                sem.release()
+        else:  # the lockstep executive: the SVs run here, in this process (one call)
+            self.serve(tick)
         # (c) wait for the servos at once (the SV on this CPU takes its feed now, not after
         # SIO's next work: see _ack_gang), then feed-forward and torques out
         if fed and not self._wait_done(tick, fed):

@@ -113,8 +113,16 @@ class ServoWorker(Daemon):
 
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
-        if not self._await_feed(tick):
+        fed_tick = self._await_feed(tick)
+        if fed_tick < 0:
             return  # SIO did not feed this tick (halted, or itself late): nothing to run
+        self.serve(fed_tick)
+
+    def serve(self, fed_tick: int) -> None:
+        """Inside the cycle: claim and run fed slots of SIO's tick ``fed_tick`` until none is
+        left.  Called by ``cycle`` once the feed came, and in the lockstep executive by SIO
+        itself where it would post the feeds (``ServoIO.serve``)."""
+        self._fed_tick[0] = fed_tick  # before any slot: SIO may acknowledge for it now
         lv = self.level
         t0 = rt.monotonic_ns()
         fed = int(self._fed)
@@ -142,8 +150,8 @@ class ServoWorker(Daemon):
             self._servos[0] += ran
             self._exec_hist[layout.lateness_bin(exe)] += 1
 
-    def _await_feed(self, tick: int) -> bool:
-        """Sleep until SIO has fed ``tick`` (or a later tick); False on the timeout.
+    def _await_feed(self, tick: int) -> int:
+        """Sleep until SIO has fed ``tick`` (or a later tick); the tick fed, -1 on the timeout.
 
         An SV on another CPU than SIO's first polls the feed for ``poll_ns`` (it is awake
         anyway, having woken on its timer shortly before the feed is due and polled for the
@@ -172,14 +180,13 @@ class ServoWorker(Daemon):
             try:
                 feed.acquire(wait_s)
             except posix_ipc.BusyError:
-                return False
+                return -1
             fed = int(self._tick)
             if fed >= tick:
-                self._fed_tick[0] = fed  # before any slot: SIO may acknowledge for it now
-                return True
+                return fed
             wait_s = (end - rt.monotonic_ns()) / 1e9  # a stale post: wait on for this tick's
             if wait_s <= 0:
-                return False
+                return -1
 
     def _learn_feed(self, there: bool) -> None:
         """A polling SV: note when SIO's feed came this tick, after the tick's due time, and

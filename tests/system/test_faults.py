@@ -397,7 +397,7 @@ def test_pids_are_gone(cell: Cell) -> None:
 def test_lockstep_runs_on_without_a_dead_dynamics_or_viewer(kali: Callable[..., str]) -> None:
     """Lockstep too: the clock finds the dead non-serious processes while it waits for their
     acknowledgements, leaves them out, and every other process keeps every tick."""
-    name = kali(lockstep=True)
+    name = kali(lockstep=True, separate=True)
     with Instance.attach(name) as inst:
         step_kali_clock(inst, 50)
         victims = [int(inst.procs[inst.slot_of(v)]["pid"]) for v in ("dynamics", "viewer")]
