@@ -25,22 +25,19 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import re
 import statistics
 import sys
 import time
-from pathlib import Path
 
 from benchlib import run_ns
+from harness import KaliRun, cell_config, robots
 
 from kali_daemons import launcher, layout
 from kali_daemons.arena import Arena
-from kali_daemons.config import KaliConfig, parse_config
-from kali_daemons.instance import Instance
+from kali_daemons.config import KaliConfig
 from kali_daemons.layout import CSR_ENABLE, CSR_NO_DISABLE
 from kali_daemons.plant.sim import PlantSim
 
-REPO = Path(__file__).resolve().parent.parent
 GOAL_SHARE = 0.15
 REPEATS = 5
 PLACEMENTS = [  # base x, y, yaw: facing the centre of the cell
@@ -52,15 +49,9 @@ PLACEMENTS = [  # base x, y, yaw: facing the centre of the cell
 
 
 def config_for(arms: int, instance: str) -> KaliConfig:
-    """The default config with ``arms`` robots."""
-    text = (REPO / "config" / "default.yaml").read_text()
-    text = re.sub(r"(?m)^instance: .*$", f"instance: {instance}", text)
-    robots = "\n".join(
-        f"  - {{name: arm{k}, model: puma560, base_xyz: [{x}, {y}, 0.0], base_yaw_deg: {yaw}}}"
-        for k, (x, y, yaw) in enumerate(PLACEMENTS[:arms])
-    )
-    text = re.sub(r"(?ms)^robots:\n(  - .*?\n)+", f"robots:\n{robots}\n", text)
-    return parse_config(text, f"<bench {arms} arms>", str(REPO / "config"))
+    """The default config with ``arms`` PUMAs at ``PLACEMENTS``."""
+    cell = [(f"arm{k}", "puma560", x, y, yaw) for k, (x, y, yaw) in enumerate(PLACEMENTS[:arms])]
+    return cell_config({"robots": robots(*cell)}, instance, label=f"{arms} arms")
 
 
 def power_up(sim: PlantSim) -> None:
@@ -101,24 +92,21 @@ def in_process(arms: int, cycles: int) -> tuple[float, float]:
 def as_process(arms: int, seconds: float) -> tuple[list[float], int]:
     """(share of one core in each 1 s window, plant cycles) of a real-time plant daemon."""
     name = f"benchplant{os.getpid()}p"
-    cfg = config_for(arms, name)
-    launcher.start(cfg, lockstep=False, instance=name)
     shares = []
-    try:
-        with Instance.attach(name) as inst:
-            pid = int(inst.procs[inst.slot_of("plant")]["pid"])
-            truth = inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+    with KaliRun(config_for(arms, name)) as run:
+        inst = run.inst
+        assert inst is not None
+        pid = run.pids["plant"]
+        truth = inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        time.sleep(1.0)
+        n0 = int(truth["ticks"])
+        for _ in range(max(1, round(seconds))):
+            r0, w0 = run_ns(pid), time.monotonic_ns()
             time.sleep(1.0)
-            n0 = int(truth["ticks"])
-            for _ in range(max(1, round(seconds))):
-                r0, w0 = run_ns(pid), time.monotonic_ns()
-                time.sleep(1.0)
-                r1, w1 = run_ns(pid), time.monotonic_ns()
-                shares.append((r1 - r0) / (w1 - w0))
-            n1 = int(truth["ticks"])
-            del truth
-    finally:
-        launcher.stop(name)
+            r1, w1 = run_ns(pid), time.monotonic_ns()
+            shares.append((r1 - r0) / (w1 - w0))
+        n1 = int(truth["ticks"])
+        del truth
     return shares, n1 - n0
 
 

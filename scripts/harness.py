@@ -1,0 +1,688 @@
+"""The benchmark harness: what every benchmark and soak in scripts/ does the same way.
+
+A benchmark is a scenario over these pieces (benchlib.py holds the statistics underneath):
+
+- ``cell_config``: a config file with structured overrides, dotted paths into its YAML tree
+  (``{"clock.servo_period_ms": 0.5, "processes.sv.count": 1, "robots.*.ff": "full"}``),
+  validated by ``parse_config`` like any config;
+- ``KaliRun``: an instance started from that config (real time or lockstep), attached, and
+  always stopped and checked for leftovers on the way out, whatever happened;
+- ``Floor``: ``cyclictest --laptop`` run beside the workload in the same window (DESIGN 10);
+- ``Window``: two snapshots of the arena's statistics (process table, SIO's latency and SV
+  histograms, the scheduler's run time per process), subtracted, since nothing in the arena
+  is reset; ``flight_dump`` the flight recorder's dump of a halt;
+- ``Goal``: a goal as data (metric, comparison, limit), judged into met / missed with the
+  ratio to the floor measured in the same run;
+- ``table``, ``rows_table``: report tables rendered with rich, as plain text;
+- ``pss_kib``: a process's proportional and resident set size.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import operator
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from benchlib import (
+    CT_PRIORITY,
+    CT_THREADS,
+    KALI_UPPER,
+    SPIKE_US,
+    BenchError,
+    CtResult,
+    ForeignWatch,
+    KaliSnap,
+    Row,
+    ct_row,
+    cyclictest_command,
+    highest_upper,
+    parse_histfile,
+    period_label,
+    quantile_upper,
+    run_ns,
+    signals_held,
+    snapshot,
+    stop_cyclictest,
+    stop_instance,
+    us,
+)
+from rich import box
+from rich.console import Console
+from rich.table import Table
+
+from kali_daemons import launcher, layout
+from kali_daemons.config import KaliConfig, load_config, parse_config
+from kali_daemons.instance import Instance
+from kali_daemons.introspect import Introspector
+
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT_CONFIG = REPO / "config" / "default.yaml"
+REPORT_WIDTH = 200  # characters of a rendered table (reports are read in logs, not a terminal)
+
+# --------------------------------------------------------------------------------------------
+# Config: a file plus structured overrides
+
+
+def set_path(doc: Any, path: str, value: object) -> None:
+    """Set the node at dotted ``path`` of a YAML tree to ``value``.
+
+    Keys name mapping entries, whole numbers list items, ``*`` every item of a list (or
+    every value of a mapping).  A missing mapping on the way is created (a section the file
+    leaves out, e.g. ``dashboard``); anything else off the tree is a BenchError naming the
+    path.  ``parse_config`` then checks the result like any config.
+    """
+    head, _, rest = path.partition(".")
+    if not head:
+        raise BenchError(f"config override {path!r}: empty key")
+    if head == "*":
+        items = (
+            doc if isinstance(doc, list) else list(doc.values()) if isinstance(doc, dict) else None
+        )
+        if items is None or not rest:
+            raise BenchError(f"config override {path!r}: '*' needs a list or mapping below it")
+        for item in items:
+            set_path(item, rest, value)
+        return
+    if isinstance(doc, list):
+        try:
+            index = int(head)
+            node = doc[index]
+        except (ValueError, IndexError):
+            raise BenchError(
+                f"config override {path!r}: no item {head!r} in a list of {len(doc)}"
+            ) from None
+        if rest:
+            set_path(node, rest, value)
+        else:
+            doc[index] = value
+        return
+    if not isinstance(doc, dict):
+        raise BenchError(f"config override {path!r}: {type(doc).__name__} has no key {head!r}")
+    if not rest:
+        doc[head] = value
+        return
+    if doc.get(head) is None:
+        doc[head] = {}
+    set_path(doc[head], rest, value)
+
+
+def cell_config(
+    overrides: dict[str, object],
+    instance: str,
+    base: Path = DEFAULT_CONFIG,
+    label: str = "",
+) -> KaliConfig:
+    """``base`` with ``overrides`` applied in order and instance name ``instance``, parsed.
+
+    ``label`` names the variant in every error message (``default.yaml (1ms-2sv)``).
+    """
+    cfg = load_config(base)
+    doc = yaml.safe_load(cfg.text)
+    for path, value in {**overrides, "instance": instance}.items():
+        set_path(doc, path, value)
+    source = f"{base} ({label})" if label else str(base)
+    return parse_config(yaml.safe_dump(doc, sort_keys=False), source, cfg.base_dir)
+
+
+def robots(*arms: tuple[str, str, float, float, float]) -> list[dict[str, object]]:
+    """A cell's ``robots`` list from (name, model, base x, y, yaw°) tuples."""
+    return [
+        {"name": n, "model": m, "base_xyz": [x, y, 0.0], "base_yaw_deg": yaw}
+        for n, m, x, y, yaw in arms
+    ]
+
+
+# The cells the benchmarks run, as ``robots`` overrides of default.yaml (``pumas``: as it is).
+# ``mixed``: a PUMA facing a Panda (issue 25); ``four``: two PUMAs, a UR5 and a Panda on the
+# corners of a 1.8 m square, facing its centre: 6 + 6 + 6 + 7 = 25 joints.
+CELLS: dict[str, dict[str, object]] = {
+    "pumas": {},
+    "mixed": {
+        "robots": robots(("left", "puma560", -0.6, 0.0, 0.0), ("right", "panda", 0.6, 0.0, 180.0))
+    },
+    "four": {
+        "robots": robots(
+            ("left", "puma560", -0.9, -0.9, 45.0),
+            ("right", "puma560", 0.9, 0.9, -135.0),
+            ("ur", "ur5", 0.9, -0.9, 135.0),
+            ("panda", "panda", -0.9, 0.9, -45.0),
+        )
+    },
+}
+
+
+def period_overrides(period_us: int) -> dict[str, object]:
+    """Base tick, servo period and the plant's period at ``period_us`` (fresh encoders every
+    servo tick), in whole ms where it is whole."""
+    ms: float = period_us // 1000 if period_us % 1000 == 0 else period_us / 1000
+    return {
+        "clock.base_tick_ms": ms,
+        "clock.servo_period_ms": ms,
+        "processes.plant.period_ms": ms,
+    }
+
+
+def sv_overrides(base: Path, n_sv: int) -> dict[str, object]:
+    """``n_sv`` servo workers on the first ``n_sv`` of the CPUs ``base`` gives them."""
+    sv = yaml.safe_load(load_config(base).text)["processes"]["sv"]
+    cpus = list(sv.get("cpus") or [])
+    if len(cpus) < n_sv:
+        raise BenchError(f"{base}: processes.sv.cpus {cpus} has < {n_sv} CPUs")
+    return {"processes.sv.count": n_sv, "processes.sv.cpus": cpus[:n_sv]}
+
+
+def extras_overrides(on: bool, record: Path | None = None) -> dict[str, object]:
+    """The dynamics and viewer processes working (full feed-forward on every arm, the
+    dashboard also recorded to ``record``) or left out."""
+    if on:
+        return {"robots.*.ff": "full", "dashboard.record": str(record) if record else None}
+    return {"processes.dynamics.enabled": False, "processes.viewer.enabled": False}
+
+
+# --------------------------------------------------------------------------------------------
+# An instance, always stopped
+
+
+class KaliRun:
+    """An instance started from ``cfg`` and attached; stopped and checked on exit.
+
+    ``with KaliRun(cfg, log_dir=tmp, lockstep=True) as run:`` (keywords beyond ``log_dir``
+    and ``watch`` go to ``launcher.start``) gives ``run.inst`` (the arena) and
+    ``run.pids``; on the way out, whatever happened, the instance is stopped with SIGINT and
+    SIGTERM held back, its daemons reaped, and what is left of it, if anything, is in
+    ``run.left_behind``.  ``watch`` learns the daemons' pids so it does not count them as
+    foreign real-time work.
+    """
+
+    def __init__(
+        self,
+        cfg: KaliConfig,
+        log_dir: Path | None = None,
+        watch: ForeignWatch | None = None,
+        **start: Any,
+    ) -> None:
+        self.cfg = cfg
+        self.instance = cfg.instance
+        self.start = start  # launcher.start's keyword arguments: lockstep=..., record=...
+        self.log_dir = log_dir
+        self.watch = watch
+        self.pids: dict[str, int] = {}
+        self.inst: Instance | None = None
+        self.left_behind: list[str] = []
+
+    def __enter__(self) -> KaliRun:
+        if self.log_dir is not None:
+            os.environ["KALI_LOG_DIR"] = str(self.log_dir)  # logs in log_dir/<instance>
+        report = launcher.start(self.cfg, instance=self.instance, **self.start)
+        self.pids = dict(report.pids)
+        if self.watch is not None:
+            self.watch.exclude.update(self.pids.values())
+        try:
+            self.inst = Instance.attach(self.instance)
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def stop(self) -> None:
+        """Detach, stop the instance, reap its daemons; safe to call twice."""
+        if self.inst is not None:
+            self.inst.close()
+            self.inst = None
+        if self.pids:
+            self.left_behind = stop_instance(self.instance, list(self.pids.values()))
+            self.pids = {}
+
+    def notes(self) -> list[str]:
+        """The report's note on leftovers, if any."""
+        if not self.left_behind:
+            return []
+        return [f"left behind after two stops: {', '.join(self.left_behind)}"]
+
+    def cpu_of(self, name: str) -> str:
+        """Where process ``name`` is bound, as the CPU % table groups it."""
+        cpu = self.cfg.process(name).cpu
+        return f"cpu{cpu}" if cpu is not None else "unbound"
+
+
+# --------------------------------------------------------------------------------------------
+# The floor: cyclictest beside the workload
+
+
+class Floor:
+    """``cyclictest --laptop`` over ``seconds`` beside the workload (DESIGN 10).
+
+    ``start()`` when the window opens, ``finish()`` after it (cyclictest runs its whole
+    ``-D``): its histogram and its stdout (the ``--spike`` log).  Leaving the ``with``
+    ends a cyclictest still running and removes its /dev/shm file.  With ``out``/``err``
+    paths its output goes to files (a soak's log can be long) and ``finish`` reads them.
+    """
+
+    def __init__(
+        self,
+        seconds: int,
+        period_us: int,
+        histfile: Path | None,
+        spike_us: int = SPIKE_US,
+        priority: int = CT_PRIORITY,
+        threads: int = CT_THREADS,
+        out: Path | None = None,
+        err: Path | None = None,
+    ) -> None:
+        self.seconds = seconds
+        self.period_us = period_us
+        self.histfile = histfile
+        self.priority = priority
+        self.out, self.err = out, err
+        self.command = cyclictest_command(seconds, threads, histfile, period_us, spike_us, priority)
+        self.proc: subprocess.Popen[str] | None = None
+
+    @property
+    def text(self) -> str:
+        """The command line as the report prints it."""
+        return shlex.join(self.command)
+
+    def start(self, watch: ForeignWatch | None = None) -> subprocess.Popen[str]:
+        """Start cyclictest now (the window opens)."""
+        if self.out is not None and self.err is not None:
+            with self.out.open("w") as out, self.err.open("w") as err:
+                self.proc = subprocess.Popen(self.command, stdout=out, stderr=err, text=True)
+        else:
+            self.proc = subprocess.Popen(
+                self.command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
+        if watch is not None:
+            watch.exclude.add(self.proc.pid)
+        return self.proc
+
+    def finish(self, timeout: float = 30.0) -> tuple[CtResult | None, str]:
+        """Wait for cyclictest's end: its histogram (None without a histfile) and stdout."""
+        assert self.proc is not None, "Floor.finish before start"
+        out, err = self.proc.communicate(timeout=timeout)
+        if self.out is not None:
+            out = self.out.read_text()
+            err = self.err.read_text() if self.err else ""
+        if self.proc.returncode != 0:
+            raise BenchError(f"cyclictest exited {self.proc.returncode}: {(err or '').strip()}")
+        hist = parse_histfile(self.histfile) if self.histfile is not None else None
+        return hist, out or ""
+
+    def row(self, ct: CtResult, name: str = "cyclictest", cpu: str = "0,1") -> Row:
+        """The floor's row in a wake-up table."""
+        return ct_row(name, ct, cpu, self.period_us, self.priority)
+
+    def __enter__(self) -> Floor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        with signals_held():
+            stop_cyclictest(self.proc)
+
+
+# --------------------------------------------------------------------------------------------
+# Windows over the arena's statistics
+
+
+@dataclass
+class Dist:
+    """A duration distribution over a window (not a wake-up lateness)."""
+
+    name: str
+    samples: int
+    p50_us: float
+    p99_us: float
+    p999_us: float
+    max_us: float
+    over_period: int  # samples >= one servo period
+    note: str = ""
+
+
+def dist(
+    name: str, hist: np.ndarray, max0_ns: int, max1_ns: int, period_us: int, note: str = ""
+) -> Dist:
+    """A ``Dist`` from a window histogram; exact max when the running maximum grew."""
+    exact = max1_ns / 1e3 if max1_ns > max0_ns else highest_upper(hist, KALI_UPPER)
+    return Dist(
+        name=name,
+        samples=int(hist.sum()),
+        p50_us=quantile_upper(hist, KALI_UPPER, 0.50),
+        p99_us=quantile_upper(hist, KALI_UPPER, 0.99),
+        p999_us=quantile_upper(hist, KALI_UPPER, 0.999),
+        max_us=exact,
+        over_period=int(hist[layout.lateness_bin(period_us * 1000) :].sum()),
+        note=note,
+    )
+
+
+@dataclass
+class ServoSnap:
+    """The servo level's counters (SIO's sensor-to-DAC histogram, the SVs' execution
+    histograms and servo counts) at one instant, copied out of its control record."""
+
+    latency_hist: np.ndarray
+    latency_max_ns: int
+    sv_exec_hist: np.ndarray  # (n_sv, HIST_BINS)
+    sv_exec_max_ns: np.ndarray
+    sv_servos: np.ndarray
+
+
+def servo_snapshot(ctrl: np.ndarray, n_sv: int) -> ServoSnap:
+    """Copy the servo level's statistics out of ``ServoLevel.ctrl`` (reads only)."""
+    return ServoSnap(
+        latency_hist=np.array(ctrl["latency_hist"], dtype=np.int64),
+        latency_max_ns=int(ctrl["latency_max_ns"]),
+        sv_exec_hist=np.array(ctrl["sv_exec_hist"][:n_sv], dtype=np.int64),
+        sv_exec_max_ns=np.array(ctrl["sv_exec_max_ns"][:n_sv], dtype=np.int64),
+        sv_servos=np.array(ctrl["sv_servos"][:n_sv], dtype=np.int64),
+    )
+
+
+@dataclass
+class Snap:
+    """One end of a window: the process table, the servo level (if asked), every process's
+    scheduler run time and this script's CPU time."""
+
+    kali: KaliSnap
+    servo: ServoSnap | None
+    run_ns: dict[str, int]
+    own_cpu_ns: int
+    extra: Any = None
+
+
+@dataclass
+class Window:
+    """A measurement window: ``open()`` and ``close()`` snapshot, the figures subtract.
+
+    ``names`` are the processes whose table rows are copied, ``pids`` those whose run time
+    is read, ``ctrl`` the servo level's control record (``ServoLevel.ctrl``) with ``n_sv``
+    workers, ``extra`` anything else a benchmark copies at both ends (e.g. FIFO underruns).
+    """
+
+    inst: Instance
+    names: list[str]
+    pids: dict[str, int] = field(default_factory=dict)
+    ctrl: np.ndarray | None = None
+    n_sv: int = 0
+    extra: Callable[[], Any] | None = None
+    a: Snap | None = None
+    b: Snap | None = None
+
+    def snap(self) -> Snap:
+        """Copy everything the window subtracts (outside any cycle; reads only)."""
+        return Snap(
+            kali=snapshot(self.inst, self.names),
+            servo=None if self.ctrl is None else servo_snapshot(self.ctrl, self.n_sv),
+            run_ns={n: run_ns(pid) for n, pid in self.pids.items()},
+            own_cpu_ns=time.process_time_ns(),
+            extra=None if self.extra is None else self.extra(),
+        )
+
+    def open(self) -> Snap:
+        """The window's start."""
+        self.a = self.snap()
+        return self.a
+
+    def close(self) -> Snap:
+        """The window's end (a halt's, when the clock has stopped); once only."""
+        if self.b is None:
+            self.b = self.snap()
+        return self.b
+
+    @property
+    def closed(self) -> bool:
+        """True once ``close`` has run."""
+        return self.b is not None
+
+    @property
+    def wall_ns(self) -> int:
+        """The window's length in CLOCK_MONOTONIC ns."""
+        assert self.a is not None and self.b is not None
+        return self.b.kali.t_ns - self.a.kali.t_ns
+
+    def cpu_pct(self, name: str) -> float:
+        """Process ``name``'s share of one core over the window, % (NaN if it went away)."""
+        assert self.a is not None and self.b is not None
+        r0, r1 = self.a.run_ns.get(name, -1), self.b.run_ns.get(name, -1)
+        wall = self.wall_ns
+        return 100.0 * (r1 - r0) / wall if r0 >= 0 and r1 >= 0 and wall > 0 else math.nan
+
+    def own_cpu_pct(self) -> float:
+        """This script's share of one core over the window, %."""
+        assert self.a is not None and self.b is not None
+        wall = self.wall_ns
+        return 100.0 * (self.b.own_cpu_ns - self.a.own_cpu_ns) / wall if wall > 0 else math.nan
+
+
+def flight_dump(inst: Instance) -> str | None:
+    """The flight recorder's dump of the halt, once the wall clock has written it (≤ 2 s)."""
+    spy = Introspector(inst)
+    try:
+        deadline = time.monotonic() + 2.0
+        while (f := spy.flight()) is not None and f["pending"] and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return None if f is None else f["last_dump"]
+    finally:
+        spy.close()
+
+
+# --------------------------------------------------------------------------------------------
+# Memory
+
+
+def pss_kib(pid: int) -> tuple[int, int]:
+    """(PSS, RSS) of ``pid`` in KiB from /proc/PID/smaps_rollup; (-1, -1) when it is gone.
+
+    PSS shares each page among the processes that map it, so the PSS of a set of processes
+    adds up to what the set costs the machine; RSS counts a shared library in every process.
+    (The same signature as ``kali_daemons.introspect.pss_kib`` once that lands.)
+    """
+    pss = rss = -1
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            key, _, rest = line.partition(":")
+            if key == "Pss":
+                pss = int(rest.split()[0])
+            elif key == "Rss":
+                rss = int(rest.split()[0])
+    except (OSError, ValueError, IndexError):
+        return -1, -1
+    return pss, rss
+
+
+# --------------------------------------------------------------------------------------------
+# Goals as data
+
+COMPARE: dict[str, Callable[[float, float], bool]] = {
+    "<": operator.lt,
+    "<=": operator.le,
+    ">": operator.gt,
+    ">=": operator.ge,
+    "==": operator.eq,
+}
+
+
+@dataclass(frozen=True)
+class Goal:
+    """A goal as data: ``metric`` compared by ``op`` with ``limit`` (in ``unit``).
+
+    ``source`` says where it comes from (an issue), ``floor`` names the figure of the same
+    run it is set beside (e.g. cyclictest's p99.9, or real time for a lockstep speed).
+    """
+
+    name: str
+    metric: str
+    op: str
+    limit: float
+    unit: str = ""
+    source: str = ""
+    floor: str = ""
+
+    def __post_init__(self) -> None:
+        if self.op not in COMPARE:
+            raise BenchError(f"goal {self.name!r}: comparison {self.op!r} not in {list(COMPARE)}")
+
+    def judge(self, value: float | None, floor: float | None = None, why: str = "") -> Verdict:
+        """Met or missed (not measured for None or NaN), with the ratio to ``floor``."""
+        measured = value is not None and not math.isnan(value)
+        met = COMPARE[self.op](value, self.limit) if measured else None  # type: ignore[arg-type]
+        ratio = value / floor if measured and floor else math.nan  # type: ignore[operator]
+        return Verdict(self, value if measured else math.nan, met, ratio, why)
+
+
+@dataclass
+class Verdict:
+    """A goal judged on one run's figure."""
+
+    goal: Goal
+    value: float
+    met: bool | None  # None: not measured
+    ratio_to_floor: float
+    why: str = ""
+
+    @property
+    def word(self) -> str:
+        """``met``, ``MISSED`` or ``not measured``."""
+        return "not measured" if self.met is None else "met" if self.met else "MISSED"
+
+    def line(self) -> str:
+        """``GOAL name: met (metric 12.3 x >= 10 x; 12.30x the floor)``."""
+        g = self.goal
+        head = f"GOAL {g.name}: {self.word}"
+        if self.met is None:
+            return head + (f" ({self.why})" if self.why else "")
+        unit = "" if not g.unit else g.unit if g.unit.startswith("x") else f" {g.unit}"
+        body = f"{g.metric} {self.value:.3g}{unit} {g.op} {g.limit:g}{unit}"
+        if not math.isnan(self.ratio_to_floor):
+            body += f"; {self.ratio_to_floor:.2f}x {g.floor or 'the floor'}"
+        return f"{head} ({body})" + (f"; {self.why}" if self.why else "")
+
+
+# --------------------------------------------------------------------------------------------
+# Report rendering
+
+
+def table(
+    columns: Sequence[str | tuple[str, str]],
+    rows: Iterable[Sequence[object]],
+    title: str = "",
+    caption: str = "",
+) -> str:
+    """A table rendered with rich as plain text: ``columns`` are headings (right-aligned)
+    or (heading, "left"); a row of None is a rule (e.g. before the rows for reference)."""
+    t = Table(title=title or None, caption=caption or None, box=box.SIMPLE_HEAD, pad_edge=False)
+    for c in columns:
+        heading, justify = (c, "right") if isinstance(c, str) else c
+        t.add_column(heading, justify=justify)  # type: ignore[arg-type]
+    for r in rows:
+        if r is None:
+            t.add_section()
+            continue
+        t.add_row(*("" if v is None else str(v) for v in r))
+    return render(t)
+
+
+def render(renderable: object) -> str:
+    """Any rich renderable as plain text (no colour, no terminal needed)."""
+    buf = io.StringIO()
+    Console(file=buf, width=REPORT_WIDTH, color_system=None, force_terminal=False).print(renderable)
+    return "\n".join(line.rstrip() for line in buf.getvalue().rstrip("\n").splitlines())
+
+
+def rows_table(
+    period_us: int, first: str, rows: Sequence[Row], reference: Sequence[Row] = ()
+) -> str:
+    """A wake-up lateness table of ``Row``s (µs); ``reference`` rows after a rule."""
+    cols: list[str | tuple[str, str]] = [
+        (first, "left"),
+        "cpu",
+        "prio",
+        "samples",
+        "p50",
+        "p99",
+        "p99.9",
+        "max",
+        ">=" + period_label(period_us),
+        "misses",
+        ("note", "left"),
+    ]
+
+    def cells(r: Row) -> list[object]:
+        return [
+            r.name, r.cpu, r.prio, r.samples, us(r.p50_us), us(r.p99_us), us(r.p999_us),
+            us(r.max_us), r.over_period, r.misses, r.note,
+        ]  # fmt: skip
+
+    body: list[Sequence[object] | None] = [cells(r) for r in rows]
+    if reference:
+        body += [None, *(cells(r) for r in reference)]
+    return table(cols, body, caption="lateness in µs")  # type: ignore[arg-type]
+
+
+def dist_table(first: str, dists: Sequence[Dist], late: str = ">=period") -> str:
+    """A table of ``Dist``s (µs)."""
+    cols = [(first, "left"), "samples", "p50", "p99", "p99.9", "max", late, ("note", "left")]
+    body = [
+        [d.name, d.samples, us(d.p50_us), us(d.p99_us), us(d.p999_us), us(d.max_us),
+         d.over_period, d.note]
+        for d in dists
+    ]  # fmt: skip
+    return table(cols, body, caption="µs")  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------------------------
+# Runs
+
+
+def retry_warmup(
+    attempt: Callable[[], Any],
+    halted_before_window: Callable[[Any], str | None],
+    attempts: int,
+    who: str,
+    between: Callable[[], None] | None = None,
+) -> tuple[Any, list[str]]:
+    """Run ``attempt`` up to ``attempts`` times while it halts before its window opened (a
+    host stall in start-up measures nothing); the result and the earlier halts' texts."""
+    earlier: list[str] = []
+    for k in range(1, attempts + 1):
+        res = attempt()
+        fault = halted_before_window(res)
+        if fault is None or k == attempts:
+            return res, earlier
+        earlier.append(fault)
+        print(
+            f"{who}: halted before the window opened ({fault}); attempt {k + 1}/{attempts}",
+            file=sys.stderr,
+            flush=True,
+        )
+        if between is not None:
+            between()
+    raise AssertionError("unreachable")
+
+
+@contextlib.contextmanager
+def kept_logs(tmp: Path, who: str, keep: Callable[[], bool]) -> Iterator[Path]:
+    """Remove the run's temporary directory on the way out unless ``keep()`` (a fault or an
+    error: the daemons' logs and dumps are then kept, and the path said on stderr)."""
+    try:
+        yield tmp
+    finally:
+        if keep():
+            print(f"{who}: daemon logs kept in {tmp}", file=sys.stderr)
+        else:
+            shutil.rmtree(tmp, ignore_errors=True)
