@@ -46,6 +46,9 @@ non-empty bin's upper edge.
 - CPU use of every Kali process, % of one core over the window, from the scheduler's run
   time (/proc/<pid>/task/*/schedstat), summed per bound CPU; this script's own for comparison.
   This VM has no steal accounting that works, so host stalls count as run time.
+- Memory of every Kali process at the window's end, PSS and RSS from /proc/PID/smaps_rollup
+  (``harness.pss_kib``): PSS shares each page among the processes mapping it, so its total is
+  what the daemon set costs the machine (issue 26: <= 400 MiB, the wall clock <= 40 MiB).
 - Misses "cyclictest did not also see": every Kali miss (tg, sio, sv.N), read from the clock's
   miss log as it comes, matched against cyclictest's ``--spike`` log of wake-ups later than
   0.3 periods (300 µs at 1 ms, bench_wallclock's threshold; 150 µs at 0.5 ms, where SIO and
@@ -58,8 +61,10 @@ non-empty bin's upper edge.
   report says when it came, and cyclictest's longest stall per CPU in the second before it).
   cyclictest still runs the whole window.
 
-How to read it.  The goal (issue 4): at 1 ms, two arms and no missed deadline that
-cyclictest does not also see (``GOAL 1 kHz two arms: PASS``).  At 0.5 ms the ``2 kHz`` lines
+How to read it.  The goals are data (``GOAL_*``, ``harness.Goal``), judged per 1 ms run as
+met / MISSED: issue 4's, at 1 ms no missed deadline that cyclictest does not also see
+(``GOAL 1 kHz ...: met``); issue 26's, sensor-to-DAC p99 <= 150 µs (with its ratio to
+cyclictest's p99 in the same run) and the PSS limits above.  At 0.5 ms the ``2 kHz`` lines
 say what broke, if anything: halts, misses of Kali's own (or misses that could not be
 matched), a sensor-to-DAC p99 at or beyond the period.  The summary's ``misses (own)`` gives
 all misses of tg, sio and the SVs, and in brackets those cyclictest did not also see (a host
@@ -88,49 +93,35 @@ import argparse
 import json
 import math
 import os
-import shlex
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from benchlib import (
     CT_PRIORITY,
-    CT_THREADS,
     CYCLICTEST_MISSING,
-    KALI_UPPER,
     SPIKE_FRACTION,
     BenchError,
     CtResult,
     ForeignWatch,
-    KaliSnap,
+    LostTime,
     MissTail,
     Row,
     cpu_times,
     ct_row,
-    cyclictest_command,
-    format_row,
-    highest_upper,
     machine_facts,
     machine_line,
-    parse_histfile,
     parse_spikes,
-    quantile_upper,
-    row_head,
-    run_ns,
-    signals_held,
-    snapshot,
+    spike_lines,
     spikes_unlogged,
     stalls_before,
     steal_ms,
-    stop_cyclictest,
-    stop_instance,
     to_json,
     unexplained_misses,
     unwind_on_sigterm,
@@ -138,17 +129,35 @@ from benchlib import (
     wait_quiet,
     window_row,
 )
+from harness import (
+    CELLS,
+    DEFAULT_CONFIG,
+    Dist,
+    Floor,
+    Goal,
+    KaliRun,
+    Verdict,
+    Window,
+    cell_config,
+    dist,
+    dist_table,
+    extras_overrides,
+    halt_window_ns,
+    period_overrides,
+    pss_kib,
+    rows_table,
+    sv_overrides,
+    table,
+)
 
-from kali_daemons import launcher, layout
+from kali_daemons import layout
 from kali_daemons.channels import InterpolatingFifo
-from kali_daemons.config import KaliConfig, load_config, parse_config
+from kali_daemons.config import KaliConfig
 from kali_daemons.errors import KaliError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import PowerState
 from kali_daemons.servolevel import ServoClient
 
-REPO = Path(__file__).resolve().parent.parent
-DEFAULT_CONFIG = REPO / "config" / "default.yaml"
 POWER_TIMEOUT_S = 5.0  # both arms must report ON within this after the enable request
 SETTLE_S = 2.0  # after power-on: let the arms settle before the motion starts
 LEAD_IN_S = 1.0  # motion running before the window opens
@@ -178,20 +187,6 @@ class RunSpec:
     cell: str = "pumas"  # CELLS: the arms (default.yaml's two PUMAs, or another cell)
 
 
-# The arms of each cell: (name, model, base x, y, yaw°).  ``pumas`` is default.yaml's as it is;
-# ``mixed`` a PUMA facing a Panda (issue 25's mixed cell); ``four`` two PUMAs, a UR5 and a
-# Panda on the corners of a 1.8 m square, facing its centre: 6 + 6 + 6 + 7 = 25 joints.
-CELLS: dict[str, tuple[tuple[str, str, float, float, float], ...]] = {
-    "pumas": (),
-    "mixed": (("left", "puma560", -0.6, 0.0, 0.0), ("right", "panda", 0.6, 0.0, 180.0)),
-    "four": (
-        ("left", "puma560", -0.9, -0.9, 45.0),
-        ("right", "puma560", 0.9, 0.9, -135.0),
-        ("ur", "ur5", 0.9, -0.9, 135.0),
-        ("panda", "panda", -0.9, 0.9, -45.0),
-    ),
-}
-
 RUNS = {
     r.name: r
     for r in (
@@ -209,112 +204,30 @@ DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv
 
 
 def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> KaliConfig:
-    """default.yaml with ``spec``'s servo period (clock, servo, plant) and SV count; with
-    the extras, full feed-forward on every arm and the dashboard also recorded to ``record``,
-    else no dynamics and no viewer process."""
-    base = load_config(DEFAULT_CONFIG)
-    doc = yaml.safe_load(base.text)
-    ms: float = spec.period_us // 1000 if spec.period_us % 1000 == 0 else spec.period_us / 1000
-    try:
-        doc["instance"] = instance
-        doc["clock"]["base_tick_ms"] = ms
-        doc["clock"]["servo_period_ms"] = ms
-        doc["processes"]["plant"]["period_ms"] = ms
-        sv = doc["processes"]["sv"]
-        cpus = list(sv.get("cpus") or [])
-        if len(cpus) < spec.n_sv:
-            raise BenchError(f"{DEFAULT_CONFIG}: processes.sv.cpus {cpus} has < {spec.n_sv} CPUs")
-        sv["count"] = spec.n_sv
-        sv["cpus"] = cpus[: spec.n_sv]
-        if CELLS[spec.cell]:
-            doc["robots"] = [
-                {"name": n, "model": m, "base_xyz": [x, y, 0.0], "base_yaw_deg": yaw}
-                for n, m, x, y, yaw in CELLS[spec.cell]
-            ]
-        if spec.extras:
-            for robot in doc["robots"]:
-                robot["ff"] = "full"
-            doc.setdefault("dashboard", {})["record"] = str(record) if record else None
-        else:
-            doc["processes"]["dynamics"]["enabled"] = False
-            doc["processes"]["viewer"]["enabled"] = False
-    except (KeyError, TypeError) as exc:
-        raise BenchError(f"{DEFAULT_CONFIG}: no {exc} to edit for run {spec.name}") from None
-    text = yaml.safe_dump(doc, sort_keys=False)
-    return parse_config(text, f"{DEFAULT_CONFIG} ({spec.name})", base.base_dir)
+    """default.yaml with ``spec``'s servo period (clock, servo, plant), SV count and cell;
+    with the extras, full feed-forward on every arm and the dashboard also recorded to
+    ``record``, else no dynamics and no viewer process."""
+    overrides = {
+        **period_overrides(spec.period_us),
+        **sv_overrides(DEFAULT_CONFIG, spec.n_sv),
+        **CELLS[spec.cell],
+        **extras_overrides(spec.extras, record),
+    }
+    return cell_config(overrides, instance, DEFAULT_CONFIG, spec.name)
+
+
+# Goals as data (judged in the summary): issue 4's, and issue 26's with the floor beside them.
+GOAL_OWN_MISSES = Goal("1 kHz", "misses not seen by cyclictest", "==", 0, source="issue 4")
+GOAL_S2DAC = Goal(
+    "sensor-to-DAC p99 at 1 kHz", "p99", "<=", 150, "µs", source="issue 26",
+    floor="cyclictest's p99 in the same run",
+)  # fmt: skip
+GOAL_PSS_ALL = Goal("PSS of the whole set", "PSS", "<=", 400, "MiB", source="issue 26")
+GOAL_PSS_CLOCK = Goal("PSS of the wall clock", "PSS", "<=", 40, "MiB", source="issue 26")
 
 
 # --------------------------------------------------------------------------------------------
 # Measurements
-
-
-@dataclass
-class Dist:
-    """A duration distribution over the window (not a wake-up lateness)."""
-
-    name: str
-    samples: int
-    p50_us: float
-    p99_us: float
-    p999_us: float
-    max_us: float
-    over_period: int  # samples >= one servo period
-    note: str = ""
-
-
-def dist(
-    name: str, hist: np.ndarray, max0_ns: int, max1_ns: int, period_us: int, note: str = ""
-) -> Dist:
-    """A ``Dist`` from a window histogram; exact max when the running maximum grew."""
-    exact = max1_ns / 1e3 if max1_ns > max0_ns else highest_upper(hist, KALI_UPPER)
-    return Dist(
-        name=name,
-        samples=int(hist.sum()),
-        p50_us=quantile_upper(hist, KALI_UPPER, 0.50),
-        p99_us=quantile_upper(hist, KALI_UPPER, 0.99),
-        p999_us=quantile_upper(hist, KALI_UPPER, 0.999),
-        max_us=exact,
-        over_period=int(hist[layout.lateness_bin(period_us * 1000) :].sum()),
-        note=note,
-    )
-
-
-@dataclass
-class ServoSnap:
-    """The servo level's counters, every process's run time and the FIFOs' at one instant."""
-
-    kali: KaliSnap
-    latency_hist: np.ndarray
-    latency_max_ns: int
-    sv_exec_hist: np.ndarray  # (n_sv, HIST_BINS)
-    sv_exec_max_ns: np.ndarray
-    sv_servos: np.ndarray
-    underruns: list[int]
-    run_ns: dict[str, int]
-    own_cpu_ns: int  # this script's CPU time
-
-
-def servo_snapshot(
-    inst: Instance,
-    client: ServoClient,
-    fifos: list[InterpolatingFifo],
-    names: list[str],
-    pids: dict[str, int],
-    n_sv: int,
-) -> ServoSnap:
-    """Copy everything the window subtracts out of the arena and /proc (reads only)."""
-    c = client.level.ctrl
-    return ServoSnap(
-        kali=snapshot(inst, names),
-        latency_hist=np.array(c["latency_hist"], dtype=np.int64),
-        latency_max_ns=int(c["latency_max_ns"]),
-        sv_exec_hist=np.array(c["sv_exec_hist"][:n_sv], dtype=np.int64),
-        sv_exec_max_ns=np.array(c["sv_exec_max_ns"][:n_sv], dtype=np.int64),
-        sv_servos=np.array(c["sv_servos"][:n_sv], dtype=np.int64),
-        underruns=[f.underruns for f in fifos],
-        run_ns={n: run_ns(pid) for n, pid in pids.items()},
-        own_cpu_ns=time.process_time_ns(),
-    )
 
 
 class Motion:
@@ -425,6 +338,7 @@ class RunResult:
     cpu_by_cpu: dict[str, float] = field(default_factory=dict)
     cpu_total_pct: float = math.nan
     own_cpu_pct: float = math.nan
+    memory_kib: dict[str, tuple[int, int]] = field(default_factory=dict)  # (PSS, RSS) at the end
     sched_fifo: dict[str, int] = field(default_factory=dict)
     misses: int = 0
     misses_logged: int = 0
@@ -459,23 +373,19 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
     servo_names = ["sio", *sv_names]
     miss_names = [p.name for p in cfg.processes if p.kind in MISS_KINDS]
     res.machine = machine_facts()
-    os.environ["KALI_LOG_DIR"] = str(tmp)  # the daemons' logs in tmp/<instance>, kept on a halt
-    histfile = tmp / f"{instance}.cyclictest.hist"
-    spike_us = round(SPIKE_FRACTION * spec.period_us)
-    res.spike_us = spike_us
-    cmd = cyclictest_command(seconds, CT_THREADS, histfile, spec.period_us, spike_us, ct_priority)
+    res.spike_us = round(SPIKE_FRACTION * spec.period_us)
     res.ct_priority = ct_priority
-    res.cyclictest_command = shlex.join(cmd)
-    ct: subprocess.Popen[str] | None = None
+    histfile = tmp / f"{instance}.cyclictest.hist"
+    floor = Floor(seconds, spec.period_us, histfile, res.spike_us, ct_priority)
+    res.cyclictest_command = floor.text
     watch = ForeignWatch(instance)
     watch.poll_rt()
     sio_samples: list[int] = []
-    started: list[int] = []  # daemon pids, to reap after the stop
+    run = KaliRun(cfg, log_dir=tmp, watch=watch, lockstep=False)
     try:
-        report = launcher.start(cfg, lockstep=False, instance=instance)
-        started += report.pids.values()
-        watch.exclude.update(report.pids.values())
-        with Instance.attach(instance) as inst:
+        with run, floor:
+            inst = run.inst
+            assert inst is not None
             client = ServoClient(inst)
             fifos = [client.level.fifo(k) for k in range(len(client.names))]
             try:
@@ -484,24 +394,24 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
                     res.fault = inst.fault_text()
                     res.problems.append(f"halted before the window opened: {res.fault}")
                     return res
-                ct = subprocess.Popen(
-                    cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-                )
-                watch.exclude.add(ct.pid)
+                ct = floor.start(watch)
                 tail = MissTail(inst)
-                s0 = servo_snapshot(inst, client, fifos, names, report.pids, spec.n_sv)
+                window = Window(
+                    inst, names, run.pids, client.level.ctrl, spec.n_sv,
+                    extra=lambda: [f.underruns for f in fifos],
+                )  # fmt: skip
+                s0 = window.open()
                 stat0 = cpu_times()
                 real_offset = time.time_ns() - time.monotonic_ns()
                 t0 = s0.kali.t_ns
                 end = t0 + seconds * 1_000_000_000
-                s1: ServoSnap | None = None
                 sio_rec = inst.procs[inst.slot_of("sio")]
                 while (left := end - time.monotonic_ns()) > 0:
                     time.sleep(min(FEED_S, left / 1e9))
                     tail.poll()
-                    if s1 is None:
+                    if not window.closed:
                         if inst.fault["active"]:  # the clock has stopped: close Kali's window
-                            s1 = servo_snapshot(inst, client, fifos, names, report.pids, spec.n_sv)
+                            window.close()
                             res.fault = inst.fault_text()
                             t_fault = int(inst.fault["time_ns"]) - real_offset
                             res.halted_at_s = (t_fault - t0) / 1e9
@@ -514,8 +424,8 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
                             motion.observe()
                             sio_samples.append(int(sio_rec["exec_last_ns"]))
                     watch.poll(ct, end)
-                if s1 is None:
-                    s1 = servo_snapshot(inst, client, fifos, names, report.pids, spec.n_sv)
+                s1 = window.close()
+                res.memory_kib = {n: pss_kib(pid) for n, pid in run.pids.items()}
                 res.machine["steal_ms"] = steal_ms(stat0, cpu_times())
                 tail.poll()
                 logged = tail.between(miss_names, t0, s1.kali.t_ns)
@@ -527,29 +437,25 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
                     "swing_rad": [round(float(v), 4) for v in motion.swing],
                     "largest_tracking_error_rad": round(motion.track, 5),
                     "fifo_pending": [motion.pending_min, motion.pending_max],
-                    "underruns": sum(s1.underruns) - sum(s0.underruns),
+                    "underruns": sum(s1.extra) - sum(s0.extra),
                     "set_points": sum(motion.sent),
                     "stopped": motion.stopped,
                 }
                 del sio_rec
             finally:
                 client.close()
-        out, err = ct.communicate(timeout=30)
-        if ct.returncode != 0:
-            raise BenchError(f"cyclictest exited {ct.returncode}: {err.strip()}")
-        ct_res = parse_histfile(histfile)
-        stalls = parse_spikes(out, spec.period_us)
-        if unlogged := spikes_unlogged(out):
-            res.notes.append(f"cyclictest's spike log filled: {unlogged} later stalls unlogged")
-        if res.halted_at_s is not None:
-            res.halt_stalls = stalls_before(out, t0 + int(res.halted_at_s * 1e9))
+            ct_res, out = floor.finish()
+            assert ct_res is not None
+            stalls = parse_spikes(out, spec.period_us)
+            if unlogged := spikes_unlogged(out):
+                res.notes.append(f"cyclictest's spike log filled: {unlogged} later stalls unlogged")
+            if res.halted_at_s is not None:
+                lines = spike_lines(out)
+                t_halt = t0 + int(res.halted_at_s * 1e9)
+                res.halt_stalls = stalls_before(lines, LostTime(lines), t_halt, halt_window_ns(cfg))
     finally:
-        with signals_held():
-            stop_cyclictest(ct)
-        left_over = stop_instance(instance, started)
-        if left_over:
-            res.notes.append(f"left behind after two stops: {', '.join(left_over)}")
-    analyse(res, cfg, s0, s1, ct_res, logged, stalls, sio_samples, servo_names)
+        res.notes += run.notes()
+    analyse(res, cfg, window, ct_res, logged, stalls, sio_samples, servo_names)
     res.notes += watch.notes()
     return res
 
@@ -557,19 +463,21 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
 def analyse(
     res: RunResult,
     cfg: KaliConfig,
-    s0: ServoSnap,
-    s1: ServoSnap,
+    window: Window,
     ct_res: CtResult,
     logged: list[dict[str, object]],
     stalls: list[tuple[int, int]],
     sio_samples: list[int],
     servo_names: list[str],
 ) -> None:
-    """Turn the two snapshots and cyclictest's output into the run's figures and problems."""
+    """Turn the window's two snapshots and cyclictest's output into the run's figures and
+    problems."""
     period = res.period_us
-    k0, k1 = s0.kali, s1.kali
+    s0, s1 = window.a, window.b
+    assert s0 is not None and s1 is not None and s0.servo is not None and s1.servo is not None
+    k0, k1, v0, v1 = s0.kali, s1.kali, s0.servo, s1.servo
     res.seconds = (k1.t_ns - k0.t_ns) / 1e9
-    ct = ct_row("cyclictest", ct_res, "0,1", period, res.ct_priority)
+    ct = ct_row("cyclictest", ct_res, "0,1", period, res.ct_priority)  # Floor.row's
     res.wakeup = [ct] + [
         window_row(f"kali {n}", k0.procs[n], k1.procs[n], period) for n in servo_names
     ]
@@ -586,12 +494,12 @@ def analyse(
     ]
     res.latency = dist(
         "SIO sensor-to-DAC",
-        s1.latency_hist - s0.latency_hist,
-        s0.latency_max_ns,
-        s1.latency_max_ns,
+        v1.latency_hist - v0.latency_hist,
+        v0.latency_max_ns,
+        v1.latency_max_ns,
         period,
     )
-    servos = s1.sv_servos - s0.sv_servos
+    servos = v1.sv_servos - v0.sv_servos
     total = int(servos.sum())
     ticks = res.latency.samples
     res.joints_per_tick = total / ticks if ticks else math.nan
@@ -601,9 +509,9 @@ def analyse(
         res.sv_exec.append(
             dist(
                 f"SV exec sv.{k}",
-                s1.sv_exec_hist[k] - s0.sv_exec_hist[k],
-                int(s0.sv_exec_max_ns[k]),
-                int(s1.sv_exec_max_ns[k]),
+                v1.sv_exec_hist[k] - v0.sv_exec_hist[k],
+                int(v0.sv_exec_max_ns[k]),
+                int(v1.sv_exec_max_ns[k]),
                 period,
                 f"ran {share:.1%} of the servos ({share * res.joints_per_tick:.1f} joints/tick)",
             )
@@ -618,17 +526,15 @@ def analyse(
             "n": len(sio_samples),
         }
     # CPU: scheduler run time over the wall time between the two snapshots
-    wall = k1.t_ns - k0.t_ns
     by_cpu: dict[str, float] = {}
     for p in cfg.processes:
-        r0, r1 = s0.run_ns.get(p.name, -1), s1.run_ns.get(p.name, -1)
-        pct = 100.0 * (r1 - r0) / wall if r0 >= 0 and r1 >= 0 and wall > 0 else math.nan
+        pct = window.cpu_pct(p.name)
         res.cpu_pct[p.name] = pct
         where = f"cpu{p.cpu}" if p.cpu is not None else "unbound"
         by_cpu[where] = by_cpu.get(where, 0.0) + pct
     res.cpu_by_cpu = dict(sorted(by_cpu.items()))
     res.cpu_total_pct = sum(res.cpu_pct.values())
-    res.own_cpu_pct = 100.0 * (s1.own_cpu_ns - s0.own_cpu_ns) / wall if wall > 0 else math.nan
+    res.own_cpu_pct = window.own_cpu_pct()
     res.sched_fifo = {n: k1.procs[n].priority for n in k1.procs}
     miss_names = [n for n in k1.procs if cfg.process(n).kind in MISS_KINDS]
     res.misses = sum(k1.procs[n].misses - k0.procs[n].misses for n in miss_names)
@@ -681,6 +587,25 @@ def _pct(v: float) -> str:
     return "nan" if math.isnan(v) else f"{v:.1f}"
 
 
+def mib(kib: int) -> str:
+    """KiB as MiB for a table, ``-`` when the process was gone."""
+    return "-" if kib < 0 else f"{kib / 1024:.1f}"
+
+
+def format_processes(r: RunResult) -> str:
+    """Per process: CPU % of one core over the window, and its memory at the window's end
+    (PSS: its share of every page it maps, so the column adds up to what the set costs)."""
+    rows = []
+    for name, pct in r.cpu_pct.items():
+        pss, rss = r.memory_kib.get(name, (-1, -1))
+        rows.append([name, _pct(pct), mib(pss), mib(rss)])
+    pss_all = sum(v[0] for v in r.memory_kib.values() if v[0] >= 0)
+    rss_all = sum(v[1] for v in r.memory_kib.values() if v[1] >= 0)
+    rows += [None, ["total", _pct(r.cpu_total_pct), mib(pss_all), mib(rss_all)]]
+    cols = [("process", "left"), "CPU % of one core", "PSS MiB", "RSS MiB"]
+    return table(cols, rows)  # type: ignore[arg-type]
+
+
 def format_run(r: RunResult) -> str:
     """One run's block: set-up, wake-ups, servo level, CPU, per-run verdict lines."""
     khz = 1e3 / r.period_us
@@ -715,25 +640,11 @@ def format_run(r: RunResult) -> str:
             f"underruns {mo['underruns']}, set-points pushed {mo['set_points']}"
         )
     lines.append("")
-    head = row_head(r.period_us, "wake-up lateness", 20)
-    lines += [head, "-" * len(head)]
-    lines += [format_row(row, 20) for row in r.wakeup]
-    lines.append("-" * len(head) + "  for reference")
-    lines += [format_row(row, 20) for row in r.reference]
+    lines.append(rows_table(r.period_us, "wake-up lateness", r.wakeup, r.reference))
+    lines.append("(after the rule: for reference)")
     lines.append("")
-    late = ">=period"
-    head = (
-        f"{'servo level':<20} {'samples':>8} {'p50':>6} {'p99':>6} {'p99.9':>6} {'max':>7} "
-        f"{late:>8}  (µs)"
-    )
-    lines += [head, "-" * len(head)]
-    for d in [r.latency, *r.sv_exec]:
-        assert d is not None
-        lines.append(
-            f"{d.name:<20} {d.samples:>8} {us(d.p50_us):>6} {us(d.p99_us):>6} "
-            f"{us(d.p999_us):>6} {us(d.max_us):>7} {d.over_period:>8}"
-            + (f"  {d.note}" if d.note else "")
-        )
+    assert r.latency is not None
+    lines.append(dist_table("servo level", [r.latency, *r.sv_exec]))
     window_max = "no new maximum" if r.sio_exec_max_us is None else f"{r.sio_exec_max_us:.0f} µs"
     sampled = r.sio_exec_sampled
     lines.append(
@@ -747,23 +658,14 @@ def format_run(r: RunResult) -> str:
         )
     )
     lines.append("")
-    procs = list(r.cpu_pct)
-    cols = [*procs, "total"]
-    width = max(7, *(len(c) for c in cols))
-    lines.append(f"{'CPU % of one core':<20} " + " ".join(f"{c:>{width}}" for c in cols))
+    lines.append(format_processes(r))
     lines.append(
-        f"{'':<20} "
-        + " ".join(f"{_pct(r.cpu_pct[c]):>{width}}" for c in procs)
-        + f" {_pct(r.cpu_total_pct):>{width}}"
-    )
-    lines.append(
-        "  by bound CPU: "
+        "  CPU by bound CPU: "
         + ", ".join(f"{c} {_pct(v)}" for c, v in r.cpu_by_cpu.items())
         + f"; this script (SCHED_OTHER) {_pct(r.own_cpu_pct)}"
     )
     lines.append("")
     ct, sio = r.wakeup[0], r.wakeup[1]
-    assert r.latency is not None
     lines.append(
         f"sio wake-up p99.9 / cyclictest p99.9: {us(sio.p999_us)} / {us(ct.p999_us)} µs = "
         f"{r.sio_ratio:.2f}x"
@@ -831,13 +733,7 @@ def format_summary(results: list[RunResult]) -> str:
     for r in results:
         own = r.misses_kali_only + r.misses - r.misses_logged
         if r.period_us == 1000:
-            ok = not r.error and r.latency is not None and not r.fault and own == 0
-            why = "; ".join(r.problems or ([r.error] if r.error else []))
-            why = f"; {'but: ' if ok else ''}{why}" if why else ""
-            lines.append(
-                f"GOAL 1 kHz {r.arms} ({r.run}): {'PASS' if ok else 'FAIL'} "
-                f"(misses not seen by cyclictest: {own}){why}"
-            )
+            lines += [v.line() for v in goals_1khz(r, own)]
         else:
             if r.error:
                 lines.append(f"2 kHz ({r.run}): not measured: {r.error}")
@@ -852,6 +748,36 @@ def format_summary(results: list[RunResult]) -> str:
                     "of one core"
                 )
     return "\n".join(lines)
+
+
+def goals_1khz(r: RunResult, own: int) -> list[Verdict]:
+    """A 1 kHz run judged: no miss of Kali's own (issue 4; a halt or an error misses it),
+    sensor-to-DAC p99 beside cyclictest's p99, and the daemons' PSS (issue 26)."""
+    tag = f" {r.arms} ({r.run})"
+    own_goal = replace(GOAL_OWN_MISSES, name=GOAL_OWN_MISSES.name + tag)
+    if r.error or r.latency is None:
+        verdict = own_goal.judge(None, why=r.error or "; ".join(r.problems) or "no figures")
+        verdict.met = None if r.error else False  # halted before the window: missed
+        return [verdict]
+    tag = f" ({r.run})"
+    why = "; ".join(r.problems)
+    verdicts = [own_goal.judge(own, why=why)]
+    if r.fault:  # a halt misses it whatever the count
+        verdicts[0].met = False
+    verdicts.append(
+        replace(GOAL_S2DAC, name=GOAL_S2DAC.name + tag).judge(r.latency.p99_us, r.wakeup[0].p99_us)
+    )
+    if r.memory_kib:
+        pss = [v[0] for v in r.memory_kib.values()]
+        total = sum(pss) / 1024 if min(pss) >= 0 else None
+        verdicts.append(replace(GOAL_PSS_ALL, name=GOAL_PSS_ALL.name + tag).judge(total))
+        clock = r.memory_kib.get("wallclock", (-1, -1))[0]
+        verdicts.append(
+            replace(GOAL_PSS_CLOCK, name=GOAL_PSS_CLOCK.name + tag).judge(
+                clock / 1024 if clock >= 0 else None
+            )
+        )
+    return verdicts
 
 
 def format_extras(results: list[RunResult]) -> list[str]:

@@ -64,7 +64,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kali_daemons import launcher, layout
-from kali_daemons.config import KaliConfig, load_config, parse_config
+from kali_daemons.config import KaliConfig, load_config, ms_to_ns, parse_config
 from kali_daemons.instance import Instance
 from kali_daemons.introspect import Introspector
 
@@ -469,6 +469,12 @@ class Window:
         return 100.0 * (self.b.own_cpu_ns - self.a.own_cpu_ns) / wall if wall > 0 else math.nan
 
 
+def halt_window_ns(cfg: KaliConfig) -> int:
+    """How far back from a halt the machine's lost time is counted: as long as Kali may go
+    without a servo tick before it halts (the serious tolerance, or the boards' watchdog)."""
+    return ms_to_ns(max(cfg.clock.serious_miss_tolerance_ms, cfg.plant.watchdog_ms))
+
+
 def flight_dump(inst: Instance) -> str | None:
     """The flight recorder's dump of the halt, once the wall clock has written it (≤ 2 s)."""
     spy = Introspector(inst)
@@ -564,7 +570,7 @@ class Verdict:
         """``GOAL name: met (metric 12.3 x >= 10 x; 12.30x the floor)``."""
         g = self.goal
         head = f"GOAL {g.name}: {self.word}"
-        if self.met is None:
+        if self.met is None or math.isnan(self.value):
             return head + (f" ({self.why})" if self.why else "")
         unit = "" if not g.unit else g.unit if g.unit.startswith("x") else f" {g.unit}"
         body = f"{g.metric} {self.value:.3g}{unit} {g.op} {g.limit:g}{unit}"
