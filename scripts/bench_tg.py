@@ -73,7 +73,6 @@ import argparse
 import json
 import math
 import os
-import shlex
 import shutil
 import statistics
 import subprocess
@@ -86,37 +85,31 @@ from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
-import yaml
 from bench_plant import PLACEMENTS
-from bench_servo import power_on, stop_instance
+from bench_servo import power_on
 from benchlib import (
     CYCLICTEST_MISSING,
     BenchError,
     ForeignWatch,
     Row,
-    ct_row,
-    cyclictest_command,
-    format_row,
     machine_facts,
     machine_line,
-    parse_histfile,
-    row_head,
     run_ns,
     snapshot,
-    stop_cyclictest,
     to_json,
     unwind_on_sigterm,
     us,
     wait_quiet,
     window_row,
 )
+from harness import DEFAULT_CONFIG, Floor, Goal, KaliRun, cell_config, rows_table
 
-from kali_daemons import launcher, layout
+from kali_daemons import layout
 from kali_daemons.arena import Arena
 from kali_daemons.channels import InterpolatingFifo
 from kali_daemons.client import Kali
 from kali_daemons.client.motion import MotionHandle, MotionSystem
-from kali_daemons.config import KaliConfig, load_config, parse_config
+from kali_daemons.config import KaliConfig, load_config
 from kali_daemons.errors import KaliError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import RequestState
@@ -127,13 +120,14 @@ from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows
 from kali_daemons.tg.profiles import JointMotion
 
-REPO = Path(__file__).resolve().parent.parent
-DEFAULT_CONFIG = REPO / "config" / "default.yaml"
 SYSTEMS = (1, 2, 4)
 MODES = ("joint", "cart 1 arm", "cart pair")
 ARMS_PER_SYSTEM = {"joint": 1, "cart 1 arm": 1, "cart pair": 2}
-GOAL_SHARE = 0.10  # two cooperating arms at GOAL_HZ in under this share of one core
 GOAL_HZ = 100
+GOAL = Goal(  # issue 5: two cooperating arms at 100 Hz in under 10 % of one core
+    f"two cooperating arms at {GOAL_HZ} Hz", "median TG share", "<", 10.0, "% of one core",
+    source="issue 5",
+)  # fmt: skip
 HALF_CORE = 0.5
 ANCHOR_HZ = 25  # thesis 3.3.1: a 20 MHz MC68020/68881 ran 1-2 motion systems at 25 Hz
 ANCHOR = (
@@ -575,10 +569,7 @@ class RtResult:
 
 def rt_config(instance: str) -> KaliConfig:
     """default.yaml as it is, under instance name ``instance``; two arms wanted."""
-    base = load_config(DEFAULT_CONFIG)
-    doc = yaml.safe_load(base.text)
-    doc["instance"] = instance
-    cfg = parse_config(yaml.safe_dump(doc, sort_keys=False), str(DEFAULT_CONFIG), base.base_dir)
+    cfg = cell_config({}, instance)
     if len(cfg.robots) != 2:
         raise BenchError(f"{DEFAULT_CONFIG}: {len(cfg.robots)} robots, the benchmark wants 2")
     return cfg
@@ -662,99 +653,90 @@ def measure_into(res: RtResult, tmp: Path) -> None:
     res.tg_period_ms = cfg.clock.tg_period_ms
     period_us = round(cfg.clock.tg_period_ms * 1000)
     res.machine = machine_facts()
-    os.environ["KALI_LOG_DIR"] = str(tmp)  # the logs go to tmp/<instance>
-    histfile = tmp / f"{instance}.cyclictest.hist"
-    cmd = cyclictest_command(seconds, CT_THREADS, histfile, period_us)
-    res.cyclictest_command = shlex.join(cmd)
-    ct: subprocess.Popen[str] | None = None
+    floor = Floor(seconds, period_us, tmp / f"{instance}.cyclictest.hist")
+    res.cyclictest_command = floor.text
     watch = ForeignWatch(instance)
     watch.poll_rt()
-    started: list[int] = []
     s0 = s1 = None
+    run = KaliRun(cfg, log_dir=tmp, watch=watch, lockstep=False)
     try:
-        report = launcher.start(cfg, lockstep=False, instance=instance)
-        started += report.pids.values()
-        watch.exclude.update(report.pids.values())
-        pid = report.pids["tg"]
-        with Kali(instance) as kali:
-            inst = kali.inst
-            sampler = CycleSampler(inst, "tg")
-            try:
-                power_on(inst, kali.servo)
-                time.sleep(POWER_SETTLE_S)
-                check_fault(inst, res, "after power-on")
-                try:  # the arms are powered: this calibrates them
-                    kali.ready(timeout=CALIB_TIMEOUT_S)
-                except KaliError as exc:
-                    check_fault(inst, res, "while calibrating")
-                    raise BenchError(str(exc)) from None
-                time.sleep(POWER_SETTLE_S)
-                check_fault(inst, res, "after calibration")
-                # idle: powered, calibrated, no motion
-                begin = sampler.start()
-                res.idle_share = run_windows(idle_seconds, inst, pid, sampler)
-                res.idle_exec = sampler.stats(begin)
-                check_fault(inst, res, "while idle")
-                # moving: the pair round its square, back to back
-                system, targets = cooperating_pair(kali)
-                feeder = PathFeeder(system, targets)
-                feeder.feed()
-                first = feeder.handles[0] if feeder.handles else None
-                deadline = time.monotonic() + START_TIMEOUT_S
-                while first is not None and first.state == RequestState.QUEUED:
-                    check_fault(inst, res, "before the first path ran")
-                    if time.monotonic() > deadline:
-                        raise BenchError(f"the first path was not running in {START_TIMEOUT_S} s")
-                    time.sleep(0.01)
-                if feeder.failed or first is None or first.done:
-                    why = feeder.failed or (first.message if first else "")
-                    raise BenchError(f"the first path did not run: {why}")
-                res.path_s = float(inst_status_duration(kali, first))
-                res.path = (
-                    f"motion system left+right carrying an object at the left tool round a closed "
-                    f"square of {SIDE_M * 100:g} cm sides (world y-z) at {SPEED_M_S:g} m/s, "
-                    f"transition {TRANSITION_S:g} s, {res.path_s:.2f} s a lap, "
-                    f"{QUEUED_PATHS} requests kept queued"
-                )
-                lead_end = time.monotonic() + LEAD_IN_S
-                while time.monotonic() < lead_end and not feeder.failed:
+        with run, floor:
+            pid = run.pids["tg"]
+            with Kali(instance) as kali:
+                inst = kali.inst
+                sampler = CycleSampler(inst, "tg")
+                try:
+                    power_on(inst, kali.servo)
+                    time.sleep(POWER_SETTLE_S)
+                    check_fault(inst, res, "after power-on")
+                    try:  # the arms are powered: this calibrates them
+                        kali.ready(timeout=CALIB_TIMEOUT_S)
+                    except KaliError as exc:
+                        check_fault(inst, res, "while calibrating")
+                        raise BenchError(str(exc)) from None
+                    time.sleep(POWER_SETTLE_S)
+                    check_fault(inst, res, "after calibration")
+                    # idle: powered, calibrated, no motion
+                    begin = sampler.start()
+                    res.idle_share = run_windows(idle_seconds, inst, pid, sampler)
+                    res.idle_exec = sampler.stats(begin)
+                    check_fault(inst, res, "while idle")
+                    # moving: the pair round its square, back to back
+                    system, targets = cooperating_pair(kali)
+                    feeder = PathFeeder(system, targets)
                     feeder.feed()
-                    check_fault(inst, res, "in the lead-in")
-                    time.sleep(SAMPLE_S)
-                done_before = feeder.done
-                ct = subprocess.Popen(
-                    cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-                )
-                watch.exclude.add(ct.pid)
-                s0 = snapshot(inst, ["tg"])
-                res.window_opened = True
-                own0 = time.process_time_ns()
-                begin = sampler.start()
-                res.moving_share = run_windows(seconds, inst, pid, sampler, feeder, (watch, ct))
-                res.moving_exec = sampler.stats(begin)
-                s1 = snapshot(inst, ["tg"])
-                res.own_cpu_pct = 100.0 * (time.process_time_ns() - own0) / (s1.t_ns - s0.t_ns)
-                res.paths_done = feeder.done - done_before
-                res.fault = inst.fault_text()
-                if res.fault:
-                    res.problems.append(f"halted in the moving window: {res.fault}")
-                if feeder.failed:
-                    res.problems.append(f"the motion stopped: {feeder.failed}")
-            finally:
-                sampler.close()
-        _, err = ct.communicate(timeout=seconds + 30)  # it runs its whole window
-        if ct.returncode != 0:
-            raise BenchError(f"cyclictest exited {ct.returncode}: {err.strip()}")
-        ct_res = parse_histfile(histfile)
+                    first = feeder.handles[0] if feeder.handles else None
+                    deadline = time.monotonic() + START_TIMEOUT_S
+                    while first is not None and first.state == RequestState.QUEUED:
+                        check_fault(inst, res, "before the first path ran")
+                        if time.monotonic() > deadline:
+                            raise BenchError(
+                                f"the first path was not running in {START_TIMEOUT_S} s"
+                            )
+                        time.sleep(0.01)
+                    if feeder.failed or first is None or first.done:
+                        why = feeder.failed or (first.message if first else "")
+                        raise BenchError(f"the first path did not run: {why}")
+                    res.path_s = float(inst_status_duration(kali, first))
+                    res.path = (
+                        "motion system left+right carrying an object at the left tool round a "
+                        f"closed square of {SIDE_M * 100:g} cm sides (world y-z) at "
+                        f"{SPEED_M_S:g} m/s, "
+                        f"transition {TRANSITION_S:g} s, {res.path_s:.2f} s a lap, "
+                        f"{QUEUED_PATHS} requests kept queued"
+                    )
+                    lead_end = time.monotonic() + LEAD_IN_S
+                    while time.monotonic() < lead_end and not feeder.failed:
+                        feeder.feed()
+                        check_fault(inst, res, "in the lead-in")
+                        time.sleep(SAMPLE_S)
+                    done_before = feeder.done
+                    ct = floor.start(watch)
+                    s0 = snapshot(inst, ["tg"])
+                    res.window_opened = True
+                    own0 = time.process_time_ns()
+                    begin = sampler.start()
+                    res.moving_share = run_windows(seconds, inst, pid, sampler, feeder, (watch, ct))
+                    res.moving_exec = sampler.stats(begin)
+                    s1 = snapshot(inst, ["tg"])
+                    own_ns = time.process_time_ns() - own0
+                    res.own_cpu_pct = 100.0 * own_ns / (s1.t_ns - s0.t_ns)
+                    res.paths_done = feeder.done - done_before
+                    res.fault = inst.fault_text()
+                    if res.fault:
+                        res.problems.append(f"halted in the moving window: {res.fault}")
+                    if feeder.failed:
+                        res.problems.append(f"the motion stopped: {feeder.failed}")
+                finally:
+                    sampler.close()
+            ct_res, _ = floor.finish(timeout=seconds + 30)  # it runs its whole window
+            assert ct_res is not None
     finally:
-        stop_cyclictest(ct)
-        left = stop_instance(instance, started)
-        if left:
-            res.notes.append(f"left behind after two stops: {', '.join(left)}")
+        res.notes += run.notes()
     assert s0 is not None and s1 is not None
     a, b = s0.procs["tg"], s1.procs["tg"]
     res.tg_cpu, res.tg_priority = b.cpu, b.priority
-    ctr = ct_row("cyclictest", ct_res, "0,1", period_us)
+    ctr = floor.row(ct_res)
     tgr = window_row("kali tg", a, b, period_us, f"period {cfg.clock.tg_period_ms:g} ms")
     res.wakeup = [ctr, tgr]
     res.wake_p99_ratio = tgr.p99_us / ctr.p99_us if ctr.p99_us else math.nan
@@ -828,9 +810,7 @@ def format_rt(r: RtResult) -> str:
             "check the next lap (a slice of 25 % of the period each, plus preemptions)"
         )
     lines.append("")
-    head = row_head(round(r.tg_period_ms * 1000), "wake-up (moving)")
-    lines += [head, "-" * len(head)]
-    lines += [format_row(row) for row in r.wakeup]
+    lines.append(rows_table(round(r.tg_period_ms * 1000), "wake-up (moving)", r.wakeup))
     if len(r.wakeup) == 2:
         ct, tg = r.wakeup
         lines.append(
@@ -844,20 +824,21 @@ def format_rt(r: RtResult) -> str:
 
 
 def verdict(rt: RtResult | None, rows: list[CostRow]) -> str:
-    """The goal's line."""
-    goal = f"GOAL two cooperating arms at {GOAL_HZ} Hz < {GOAL_SHARE * 100:g} % of one core"
+    """The goal's line (``GOAL``, judged on the median 1 s window of the moving part)."""
     pair = next((r for r in rows if r.mode == "cart pair" and r.systems == 1), None)
     estimate = (
-        f"; in process, one pair costs {pair.core_pct_100hz:.2f} % at {GOAL_HZ} Hz" if pair else ""
+        f"in process, one pair costs {pair.core_pct_100hz:.2f} % at {GOAL_HZ} Hz" if pair else ""
     )
     if rt is None:
-        return f"{goal}: not measured (--skip-rt){estimate}"
+        return GOAL.judge(None, why="; ".join(["--skip-rt", estimate][: 1 + bool(pair)])).line()
     if rt.error or not rt.moving_share:
-        return f"{goal}: not measured ({rt.error or 'no moving window'}){estimate}"
-    median = statistics.median(rt.moving_share)
-    ok = median < GOAL_SHARE and not rt.fault and not rt.problems
-    why = f"; {'; '.join(rt.problems)}" if rt.problems else ""
-    return f"{goal}: {'PASS' if ok else 'FAIL'} (median {median * 100:.2f} %){why}"
+        why = [rt.error or "no moving window"] + ([estimate] if pair else [])
+        return GOAL.judge(None, why="; ".join(why)).line()
+    v = GOAL.judge(100.0 * statistics.median(rt.moving_share))
+    if rt.fault or rt.problems:
+        v.met = False
+    v.why = "; ".join(rt.problems)
+    return v.line()
 
 
 # --------------------------------------------------------------------------------------------
