@@ -64,7 +64,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 from benchlib import (
     CYCLICTEST_MISSING,
     SHM_POLL_S,
@@ -74,36 +73,30 @@ from benchlib import (
     Row,
     cpu_times,
     ct_row,
-    cyclictest_command,
-    format_row,
     kali_row,
     logged_misses,
     machine_facts,
     machine_line,
-    parse_histfile,
     parse_spikes,
     rate,
-    row_head,
     run_cyclictest_alone,
-    snapshot,
     spikes_unlogged,
     steal_ms,
-    stop_cyclictest,
     to_json,
     unexplained_misses,
     unwind_on_sigterm,
     window_row,
 )
+from harness import Floor, Goal, KaliRun, Window, cell_config, rows_table
 
-from kali_daemons import launcher, layout
-from kali_daemons.config import KaliConfig, load_config, parse_config
+from kali_daemons import layout
+from kali_daemons.config import KaliConfig, load_config
 from kali_daemons.errors import KaliError
-from kali_daemons.instance import Instance
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "bench_wallclock.yaml"
 PERIOD_US = 1000  # the period of the processes under test and of cyclictest (-i)
-TARGET_P999_RATIO = 3.0
+GOAL_P999 = Goal("the clock chain's wake-up tail", "p99.9 kali (all) / cyclictest", "<=", 3.0, "x")
 SETTLE_S = 1.0  # after start: let the first ticks' transients pass before the window opens
 DRIVEN_KINDS = ("tg", "sio", "sv")  # clock-driven processes; the ones at 1 ms are under test
 
@@ -137,14 +130,6 @@ class Result:
     notes: list[str] = field(default_factory=list)
 
 
-def with_miss_tolerance(cfg: KaliConfig, tolerance: int) -> KaliConfig:
-    """``cfg`` with clock.serious_miss_tolerance_ms replaced (re-validated; comments dropped)."""
-    doc = yaml.safe_load(cfg.text)
-    doc.setdefault("clock", {})["serious_miss_tolerance_ms"] = tolerance
-    text = yaml.safe_dump(doc, sort_keys=False)
-    return parse_config(text, f"{cfg.source} (--miss-tolerance {tolerance})")
-
-
 def under_test(cfg: KaliConfig) -> list[str]:
     """The clock-driven processes running every PERIOD_US, in config order."""
     names = [
@@ -157,60 +142,51 @@ def under_test(cfg: KaliConfig) -> list[str]:
     return names
 
 
-def measure(
-    cfg: KaliConfig, instance: str, seconds: int, ct_threads: int, floor_alone: bool
-) -> Result:
+def measure(cfg: KaliConfig, seconds: int, ct_threads: int, floor_alone: bool) -> Result:
     """Start Kali, run cyclictest beside it for ``seconds``, stop Kali; the table's numbers."""
+    instance = cfg.instance
     names = under_test(cfg)
     reference = [n for n in ("wallclock", "plant") if n in {p.name for p in cfg.processes}]
     facts = machine_facts()
     notes: list[str] = []
+    where = "0,1" if ct_threads > 1 else "any"
     with tempfile.TemporaryDirectory(prefix="bench_wallclock.") as tmpdir:
         tmp = Path(tmpdir)
         alone_row, alone_cmd = None, None
         if floor_alone:
             cmd_alone, ct_alone = run_cyclictest_alone(seconds, ct_threads, tmp, PERIOD_US)
-            where = "0,1" if ct_threads > 1 else "any"
             alone_row = ct_row("cyclictest alone", ct_alone, where, PERIOD_US)
             alone_cmd = shlex.join(cmd_alone)
-        histfile = tmp / "cyclictest.hist"
-        cmd = cyclictest_command(seconds, ct_threads, histfile, PERIOD_US)
-        ct: subprocess.Popen[str] | None = None
+        floor = Floor(seconds, PERIOD_US, tmp / "cyclictest.hist", threads=ct_threads)
         watch = ForeignWatch(instance)
         watch.poll_rt()
-        report = launcher.start(cfg, lockstep=False, instance=instance)
-        watch.exclude.update(report.pids.values())
-        try:
-            with Instance.attach(instance) as inst:
-                time.sleep(SETTLE_S)
-                ct = subprocess.Popen(
-                    cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-                )
-                watch.exclude.add(ct.pid)
-                s0 = snapshot(inst, names + reference)
-                stat0 = cpu_times()
-                if s0.fault:
-                    raise BenchError(f"the instance halted before the window opened: {s0.fault}")
-                end = s0.t_ns + seconds * 1_000_000_000
-                while (left := end - time.monotonic_ns()) > 0:
-                    time.sleep(min(SHM_POLL_S, left / 1e9))
-                    watch.poll(ct, end)
-                s1 = snapshot(inst, names + reference)
-                facts["steal_ms"] = steal_ms(stat0, cpu_times())
-                logged = logged_misses(inst, names, s0.t_ns, s1.t_ns)
-                sched = {n: s1.procs[n].priority for n in names + reference}
-            out, err = ct.communicate(timeout=30)
-            if ct.returncode != 0:
-                raise BenchError(f"cyclictest exited {ct.returncode}: {err.strip()}")
-            ct_res = parse_histfile(histfile)
+        run = KaliRun(cfg, watch=watch, lockstep=False)
+        with run, floor:
+            inst = run.inst
+            assert inst is not None
+            time.sleep(SETTLE_S)
+            ct = floor.start(watch)
+            window = Window(inst, names + reference)
+            s0 = window.open().kali
+            stat0 = cpu_times()
+            if s0.fault:
+                raise BenchError(f"the instance halted before the window opened: {s0.fault}")
+            end = s0.t_ns + seconds * 1_000_000_000
+            while (left := end - time.monotonic_ns()) > 0:
+                time.sleep(min(SHM_POLL_S, left / 1e9))
+                watch.poll(ct, end)
+            s1 = window.close().kali
+            facts["steal_ms"] = steal_ms(stat0, cpu_times())
+            logged = logged_misses(inst, names, s0.t_ns, s1.t_ns)
+            sched = {n: s1.procs[n].priority for n in names + reference}
+            ct_res, out = floor.finish()
+            assert ct_res is not None
             stalls = parse_spikes(out, PERIOD_US)
             if unlogged := spikes_unlogged(out):
                 notes.append(f"cyclictest's spike log filled: {unlogged} later stalls unlogged")
-        finally:
-            stop_cyclictest(ct)
-            launcher.stop(instance)
+        notes += run.notes()
 
-    rows = [ct_row("cyclictest", ct_res, "0,1" if ct_threads > 1 else "any", PERIOD_US)]
+    rows = [floor.row(ct_res, cpu=where)]
     for n in names:
         rows.append(window_row(f"kali {n}", s0.procs[n], s1.procs[n], PERIOD_US))
     union = sum((s1.procs[n].hist - s0.procs[n].hist for n in names), np.zeros(1, np.int64))
@@ -245,7 +221,7 @@ def measure(
         config=cfg.source,
         instance=instance,
         seconds=(s1.t_ns - s0.t_ns) / 1e9,
-        cyclictest_command=shlex.join(cmd),
+        cyclictest_command=floor.text,
         rows=rows,
         reference_rows=ref_rows,
         sched_fifo=sched,
@@ -254,7 +230,7 @@ def measure(
         max_consecutive_misses={n: s1.procs[n].max_consecutive_misses for n in names},
         fault=s1.fault,
         p999_ratio=ratio,
-        p999_pass=ratio <= TARGET_P999_RATIO,
+        p999_pass=bool(GOAL_P999.judge(ratio).met),
         kali_misses=kali_all.misses,
         cyclictest_over_period=ct_row_.misses,
         misses_logged=len(logged),
@@ -289,20 +265,16 @@ def format_report(r: Result, cfg: KaliConfig) -> str:
     if r.floor_alone_command:
         lines.append(f"cyclictest alone (before Kali): {r.floor_alone_command}")
     lines.append("")
-    head = row_head(PERIOD_US)
-    lines.append(head)
-    lines.append("-" * len(head))
-    lines += [format_row(row) for row in r.rows]
     extra = ([r.floor_alone] if r.floor_alone else []) + r.reference_rows
+    lines.append(rows_table(PERIOD_US, "", r.rows, extra))
     if extra:
-        lines.append("-" * len(head) + "  for reference")
-        lines += [format_row(row) for row in extra]
+        lines.append("(after the rule: for reference)")
     lines.append("")
     verdict = "PASS" if r.p999_pass else "FAIL"
     lines.append(
         f"p99.9 ratio kali (all) / cyclictest: {r.rows[-1].p999_us:.0f} / "
-        f"{r.rows[0].p999_us:.0f} µs = {r.p999_ratio:.2f}x  (target <= "
-        f"{TARGET_P999_RATIO:g}x)  {verdict}"
+        f"{r.rows[0].p999_us:.0f} µs = {r.p999_ratio:.2f}x  (target {GOAL_P999.op} "
+        f"{GOAL_P999.limit:g}x)  {verdict}"
     )
     verdict = "PASS" if r.misses_pass else "FAIL"
     consec = ", ".join(f"{n} {v}" for n, v in r.max_consecutive_misses.items())
@@ -374,11 +346,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_wallclock: {CYCLICTEST_MISSING}", file=sys.stderr)
         return 2
     try:
-        cfg = load_config(args.config)
-        if args.miss_tolerance is not None:
-            cfg = with_miss_tolerance(cfg, args.miss_tolerance)
-        instance = args.instance or cfg.instance
-        result = measure(cfg, instance, args.seconds, args.ct_threads, args.floor_alone)
+        tolerance = args.miss_tolerance
+        overrides = {} if tolerance is None else {"clock.serious_miss_tolerance_ms": tolerance}
+        instance = args.instance or load_config(args.config).instance
+        label = "" if tolerance is None else f"--miss-tolerance {tolerance}"
+        cfg = cell_config(overrides, instance, args.config, label)
+        result = measure(cfg, args.seconds, args.ct_threads, args.floor_alone)
         print(format_report(result, cfg))
         if args.json is not None:
             args.json.write_text(json.dumps(to_json(result), indent=2) + "\n")
