@@ -26,6 +26,7 @@ import operator
 import os
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -40,6 +41,7 @@ from benchlib import (
     CT_PRIORITY,
     CT_THREADS,
     KALI_UPPER,
+    SPIKE_NODES,
     SPIKE_US,
     BenchError,
     CtResult,
@@ -216,17 +218,21 @@ class KaliRun:
     ) -> None:
         self.cfg = cfg
         self.instance = cfg.instance
-        self.start = start  # launcher.start's keyword arguments: lockstep=..., record=...
+        self.start_kwargs = start  # launcher.start's keyword arguments: lockstep=..., record=...
         self.log_dir = log_dir
         self.watch = watch
         self.pids: dict[str, int] = {}
         self.inst: Instance | None = None
         self.left_behind: list[str] = []
+        if log_dir is not None:  # the daemons' logs in log_dir/<instance> (launcher.log_dir)
+            os.environ["KALI_LOG_DIR"] = str(log_dir)
 
     def __enter__(self) -> KaliRun:
-        if self.log_dir is not None:
-            os.environ["KALI_LOG_DIR"] = str(self.log_dir)  # logs in log_dir/<instance>
-        report = launcher.start(self.cfg, instance=self.instance, **self.start)
+        return self.start()
+
+    def start(self) -> KaliRun:
+        """Start and attach (``with`` does this); on a failure nothing is left running."""
+        report = launcher.start(self.cfg, instance=self.instance, **self.start_kwargs)
         self.pids = dict(report.pids)
         if self.watch is not None:
             self.watch.exclude.update(self.pids.values())
@@ -284,13 +290,16 @@ class Floor:
         threads: int = CT_THREADS,
         out: Path | None = None,
         err: Path | None = None,
+        spike_nodes: int = SPIKE_NODES,
     ) -> None:
         self.seconds = seconds
         self.period_us = period_us
         self.histfile = histfile
         self.priority = priority
         self.out, self.err = out, err
-        self.command = cyclictest_command(seconds, threads, histfile, period_us, spike_us, priority)
+        self.command = cyclictest_command(
+            seconds, threads, histfile, period_us, spike_us, priority, spike_nodes
+        )
         self.proc: subprocess.Popen[str] | None = None
 
     @property
@@ -323,6 +332,20 @@ class Floor:
         hist = parse_histfile(self.histfile) if self.histfile is not None else None
         return hist, out or ""
 
+    def stop(self) -> None:
+        """End cyclictest now if it still runs (SIGINT: it exits cleanly); safe twice."""
+        with signals_held():
+            stop_cyclictest(self.proc)
+
+    def stopped_output(self, what: str = "cyclictest") -> str:
+        """After ``stop``: its stdout (from ``out``); a BenchError unless it ended cleanly or
+        by the SIGINT of ``stop``."""
+        assert self.proc is not None and self.out is not None
+        if self.proc.returncode not in (0, -signal.SIGINT):
+            err = self.err.read_text().strip() if self.err else ""
+            raise BenchError(f"{what} exited {self.proc.returncode}: {err}")
+        return self.out.read_text()
+
     def row(self, ct: CtResult, name: str = "cyclictest", cpu: str = "0,1") -> Row:
         """The floor's row in a wake-up table."""
         return ct_row(name, ct, cpu, self.period_us, self.priority)
@@ -331,8 +354,7 @@ class Floor:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        with signals_held():
-            stop_cyclictest(self.proc)
+        self.stop()
 
 
 # --------------------------------------------------------------------------------------------

@@ -90,7 +90,6 @@ import json
 import math
 import os
 import random
-import shlex
 import shutil
 import signal
 import subprocess
@@ -123,7 +122,6 @@ from benchlib import (
     chance_seen,
     cpu_times,
     ct_row,
-    cyclictest_command,
     format_row,
     machine_facts,
     machine_line,
@@ -136,21 +134,19 @@ from benchlib import (
     spikes_unlogged,
     stalls_before,
     steal_ms,
-    stop_cyclictest,
-    stop_instance,
     to_json,
     unexplained_misses,
     unwind_on_sigterm,
     wait_quiet,
     window_row,
 )
+from harness import Floor, KaliRun, cell_config, flight_dump, halt_window_ns
 
 from kali_daemons import launcher, layout
-from kali_daemons.config import KaliConfig, load_config, ms_to_ns
+from kali_daemons.config import KaliConfig
 from kali_daemons.errors import KaliError
 from kali_daemons.flightrec import read_ring
 from kali_daemons.instance import Instance
-from kali_daemons.introspect import Introspector
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "default.yaml"
@@ -538,12 +534,6 @@ class Hostiles:
         return out
 
 
-def halt_window_ns(cfg: KaliConfig) -> int:
-    """How far back from a halt the machine's lost time is counted: as long as Kali may go
-    without a servo tick before it halts (the serious tolerance, or the boards' watchdog)."""
-    return ms_to_ns(max(cfg.clock.serious_miss_tolerance_ms, cfg.plant.watchdog_ms))
-
-
 def kalictl_path() -> str:
     """The kalictl beside this Python (the venv's), else the one on PATH."""
     beside = Path(sys.executable).parent / "kalictl"
@@ -705,140 +695,129 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     names = [p.name for p in cfg.processes]
     res.period_us = round(cfg.clock.servo_period_ms * 1000)
     res.machine = machine_facts()
-    os.environ["KALI_LOG_DIR"] = str(tmp)  # kept on a failure
+    watch = ForeignWatch(instance)
+    watch.poll_rt()
+    run = KaliRun(cfg, log_dir=tmp, watch=watch, lockstep=False)  # tmp is kept on a failure
     res.log_dir = str(launcher.log_dir(instance))  # $KALI_LOG_DIR/<instance>
     histfile, ct_out, ct_err = (tmp / f"cyclictest.{x}" for x in ("hist", "out", "err"))
-    det_out, det_err = tmp / "detector.out", tmp / "detector.err"
     ct_seconds = math.ceil(res.minutes * 60 + ITERATION_TIMEOUT_S) + CT_SLACK_S
-    cmd = cyclictest_command(ct_seconds, CT_THREADS, histfile, res.period_us, 0, res.ct_priority)
-    res.cyclictest_command = shlex.join(cmd)
+    floor = Floor(ct_seconds, res.period_us, histfile, 0, res.ct_priority, out=ct_out, err=ct_err)
+    res.cyclictest_command = floor.text
     # the stall detector: room to log a stall at one wake-up in DETECT_SHARE (~47 B a node)
     res.detect_us = round(DETECT_STALL_FRACTION * res.period_us)
     res.lost_us = round(DETECT_LOST_FRACTION * res.period_us)
     wakeups = ct_seconds * CT_THREADS * 1_000_000 // DETECT_INTERVAL_US
     nodes = max(SPIKE_NODES, wakeups // DETECT_SHARE)
-    det_cmd = cyclictest_command(
-        ct_seconds, CT_THREADS, None, DETECT_INTERVAL_US, DETECT_LOG_US, DETECT_PRIORITY, nodes
-    )
-    res.detector_command = shlex.join(det_cmd)
+    detector = Floor(
+        ct_seconds, DETECT_INTERVAL_US, None, DETECT_LOG_US, DETECT_PRIORITY,
+        out=tmp / "detector.out", err=tmp / "detector.err", spike_nodes=nodes,
+    )  # fmt: skip
+    res.detector_command = detector.text
     kalictl = kalictl_path()
-    ct: subprocess.Popen[str] | None = None
-    det: subprocess.Popen[str] | None = None
     demo: Demo | None = None
     hostiles: Hostiles | None = None
     rss: RssLog | None = None
-    watch = ForeignWatch(instance)
-    watch.poll_rt()
-    started: list[int] = []
     real_offset = time.time_ns() - time.monotonic_ns()
     try:
-        report = launcher.start(cfg, lockstep=False, instance=instance)
-        started += report.pids.values()
-        watch.exclude.update(report.pids.values())
-        with Instance.attach(instance) as inst:
-            # warm-up: the first iteration, outside the window
-            demo = Demo(kalictl, instance, tmp / "demo.0.stderr")
-            warm_t0 = time.monotonic_ns()
-            it = run_iteration(demo, 0, warm_t0, inst, watch.poll_shm)
-            it.start_s = -it.seconds
-            res.warmup = it
-            if it.halted:
-                res.fault = inst.fault_text()
-                res.halted_in_warmup = True
-                res.halted_at_s = (int(inst.fault["time_ns"]) - real_offset - warm_t0) / 1e9
-                res.flight_dump = flight_dump(inst)
-                return
-            # the window
-            with open(det_out, "w") as out, open(det_err, "w") as err:
-                det = subprocess.Popen(det_cmd, stdout=out, stderr=err, text=True)
-            with open(ct_out, "w") as out, open(ct_err, "w") as err:
-                ct = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
-            watch.exclude.update((ct.pid, det.pid))
-            if res.hostile:
-                hostiles = Hostiles(kalictl, instance, tmp, os.getpid())
-                watch.exclude.update(hostiles.pids())
-            ct_end = time.monotonic_ns() + ct_seconds * 1_000_000_000
-            tail = MissTail(inst)
-            sio = SioTail(inst, tail, {p.name for p in cfg.processes if p.serious})
-            s0 = snapshot(inst, names)
-            t0 = s0.t_ns
-            stat0 = cpu_times()
-            res.arena_start = arena_state(inst)
-            dash = launcher.dashboard(inst)
-            web_cap = {dash.web_pid: cfg.dashboard.server_memory_mib * 1024} if dash else {}
-            rss = RssLog(report.pids, web_cap)
-            rss.sample(0.0)
-            next_sample = t0 + int(res.sample_s * 1e9)
-            end = t0 + int(res.minutes * 60e9)
+        run.start()
+        inst = run.inst
+        assert inst is not None
+        # warm-up: the first iteration, outside the window
+        demo = Demo(kalictl, instance, tmp / "demo.0.stderr")
+        warm_t0 = time.monotonic_ns()
+        it = run_iteration(demo, 0, warm_t0, inst, watch.poll_shm)
+        it.start_s = -it.seconds
+        res.warmup = it
+        if it.halted:
+            res.fault = inst.fault_text()
+            res.halted_in_warmup = True
+            res.halted_at_s = (int(inst.fault["time_ns"]) - real_offset - warm_t0) / 1e9
+            res.flight_dump = flight_dump(inst)
+            return
+        # the window
+        det = detector.start(watch)
+        ct = floor.start(watch)
+        if res.hostile:
+            hostiles = Hostiles(kalictl, instance, tmp, os.getpid())
+            watch.exclude.update(hostiles.pids())
+        ct_end = time.monotonic_ns() + ct_seconds * 1_000_000_000
+        tail = MissTail(inst)
+        sio = SioTail(inst, tail, {p.name for p in cfg.processes if p.serious})
+        s0 = snapshot(inst, names)
+        t0 = s0.t_ns
+        stat0 = cpu_times()
+        res.arena_start = arena_state(inst)
+        dash = launcher.dashboard(inst)
+        web_cap = {dash.web_pid: cfg.dashboard.server_memory_mib * 1024} if dash else {}
+        rss = RssLog(run.pids, web_cap)
+        rss.sample(0.0)
+        next_sample = t0 + int(res.sample_s * 1e9)
+        end = t0 + int(res.minutes * 60e9)
 
-            def poll() -> None:
-                nonlocal next_sample
-                tail.poll()
-                sio.poll()
-                watch.poll(ct, ct_end)
-                watch.poll(det, ct_end)
-                if hostiles is not None:
-                    hostiles.poll()
-                now = time.monotonic_ns()
-                if now >= next_sample:
-                    rss.sample((now - t0) / 1e9)
-                    next_sample += int(res.sample_s * 1e9)
-
-            fails_in_row = 0
-            s1: KaliSnap | None = None
-            while True:
-                index = len(res.iterations) + 1
-                demo = Demo(kalictl, instance, tmp / f"demo.{index}.stderr")
-                it = run_iteration(demo, index, t0, inst, poll)
-                res.iterations.append(it)
-                if it.returncode != 0:
-                    (tmp / f"demo.{index}.stderr").replace(tmp / f"failed.{index}.stderr")
-                if it.halted:
-                    s1 = snapshot(inst, names)
-                    res.fault = inst.fault_text()
-                    t_fault = int(inst.fault["time_ns"]) - real_offset
-                    res.halted_at_s = (t_fault - t0) / 1e9
-                    res.flight_dump = flight_dump(inst)
-                    break
-                fails_in_row = fails_in_row + 1 if it.returncode != 0 else 0
-                if fails_in_row >= MAX_FAILS_IN_ROW:
-                    res.problems.append(
-                        f"the demo failed {fails_in_row} times in a row; the soak stopped "
-                        f"after {(time.monotonic_ns() - t0) / 60e9:.1f} of {res.minutes:g} min"
-                    )
-                    break
-                (tmp / f"demo.{index}.stderr").unlink(missing_ok=True)
-                if time.monotonic_ns() >= end:
-                    break
-            if s1 is None:
-                s1 = snapshot(inst, names)
-                if inst.fault["active"]:  # halted after the last iteration ended
-                    res.fault = inst.fault_text()
-                    res.halted_at_s = (int(inst.fault["time_ns"]) - real_offset - t0) / 1e9
-                    res.flight_dump = flight_dump(inst)
-            res.window_s = (s1.t_ns - t0) / 1e9
-            if hostiles is not None:
-                res.hostiles_died = hostiles.died()
-                res.hostiles = hostiles.finish()
-                hostiles = None
-            rss.sample(res.window_s)
-            res.arena_end = arena_state(inst)
-            res.machine["steal_ms"] = steal_ms(stat0, cpu_times())
+        def poll() -> None:
+            nonlocal next_sample
             tail.poll()
             sio.poll()
-            res.misses_lost = tail.lost
-            logged = tail.between(names, t0, s1.t_ns)
-            for m in logged:
-                if m["process"] in sio.serious:
-                    m["sio"] = sio.ticks.get(int(m["tick"]), [])
-        with signals_held():
-            stop_cyclictest(det)
-            stop_cyclictest(ct)
-        for proc, err_path, what in ((ct, ct_err, "cyclictest"), (det, det_err, "detector")):
-            if proc.returncode not in (0, -signal.SIGINT):
-                err_text = err_path.read_text().strip()
-                raise BenchError(f"{what} exited {proc.returncode}: {err_text}")
-        det_text = det_out.read_text()
+            watch.poll(ct, ct_end)
+            watch.poll(det, ct_end)
+            if hostiles is not None:
+                hostiles.poll()
+            now = time.monotonic_ns()
+            if now >= next_sample:
+                rss.sample((now - t0) / 1e9)
+                next_sample += int(res.sample_s * 1e9)
+
+        fails_in_row = 0
+        s1: KaliSnap | None = None
+        while True:
+            index = len(res.iterations) + 1
+            demo = Demo(kalictl, instance, tmp / f"demo.{index}.stderr")
+            it = run_iteration(demo, index, t0, inst, poll)
+            res.iterations.append(it)
+            if it.returncode != 0:
+                (tmp / f"demo.{index}.stderr").replace(tmp / f"failed.{index}.stderr")
+            if it.halted:
+                s1 = snapshot(inst, names)
+                res.fault = inst.fault_text()
+                t_fault = int(inst.fault["time_ns"]) - real_offset
+                res.halted_at_s = (t_fault - t0) / 1e9
+                res.flight_dump = flight_dump(inst)
+                break
+            fails_in_row = fails_in_row + 1 if it.returncode != 0 else 0
+            if fails_in_row >= MAX_FAILS_IN_ROW:
+                res.problems.append(
+                    f"the demo failed {fails_in_row} times in a row; the soak stopped "
+                    f"after {(time.monotonic_ns() - t0) / 60e9:.1f} of {res.minutes:g} min"
+                )
+                break
+            (tmp / f"demo.{index}.stderr").unlink(missing_ok=True)
+            if time.monotonic_ns() >= end:
+                break
+        if s1 is None:
+            s1 = snapshot(inst, names)
+            if inst.fault["active"]:  # halted after the last iteration ended
+                res.fault = inst.fault_text()
+                res.halted_at_s = (int(inst.fault["time_ns"]) - real_offset - t0) / 1e9
+                res.flight_dump = flight_dump(inst)
+        res.window_s = (s1.t_ns - t0) / 1e9
+        if hostiles is not None:
+            res.hostiles_died = hostiles.died()
+            res.hostiles = hostiles.finish()
+            hostiles = None
+        rss.sample(res.window_s)
+        res.arena_end = arena_state(inst)
+        res.machine["steal_ms"] = steal_ms(stat0, cpu_times())
+        tail.poll()
+        sio.poll()
+        res.misses_lost = tail.lost
+        logged = tail.between(names, t0, s1.t_ns)
+        for m in logged:
+            if m["process"] in sio.serious:
+                m["sio"] = sio.ticks.get(int(m["tick"]), [])
+        detector.stop()
+        floor.stop()
+        floor.stopped_output()
+        det_text = detector.stopped_output("detector")
         stalls = parse_spikes(det_text, DETECT_INTERVAL_US, res.detect_us)
         lines = spike_lines(det_text)
         lost = LostTime(lines)
@@ -854,9 +833,10 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                 demo.stop()
             if hostiles is not None:
                 res.hostiles = hostiles.finish()
-            stop_cyclictest(det)
-            stop_cyclictest(ct)
-            res.left_behind = stop_instance(instance, started)
+            detector.stop()
+            floor.stop()
+            run.stop()
+            res.left_behind = list(run.left_behind)
             if demo is not None:
                 res.left_behind += [f"demo pid {p}" for p in demo.left()]
             if rss is not None and math.isfinite(res.window_s):
@@ -870,18 +850,6 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                 res.left_behind += rss.alive()
             res.stopped_cleanly = True
         res.notes += watch.notes()
-
-
-def flight_dump(inst: Instance) -> str | None:
-    """The flight recorder's dump of the halt, once the wall clock has written it (≤ 2 s)."""
-    spy = Introspector(inst)
-    try:
-        deadline = time.monotonic() + 2.0
-        while (f := spy.flight()) is not None and f["pending"] and time.monotonic() < deadline:
-            time.sleep(0.05)
-        return None if f is None else f["last_dump"]
-    finally:
-        spy.close()
 
 
 def analyse(
@@ -1315,7 +1283,7 @@ def main(argv: list[str] | None = None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="soak."))
     t_start = time.monotonic()
     try:
-        cfg = load_config(args.config)
+        cfg = cell_config({}, res.instance, args.config)
         res.config = cfg.source
         robots = [r.name for r in cfg.robots]
         if any(n not in robots for n in DEMO_ROBOTS):
