@@ -26,12 +26,12 @@ import ctypes
 import gc
 import mmap
 import os
-import statistics
 import sys
-import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass
+
+from harness import table, time_per_op
 
 from kali_daemons import atomic
 from kali_daemons.spinlock import SpinLock
@@ -48,16 +48,6 @@ class Timing:
     operation: str
     best_ns: float
     median_ns: float
-
-
-def time_loop(body: Callable[[int], None], n: int, repeats: int) -> tuple[float, float]:
-    """Best and median ns per iteration of ``body(n)`` (which runs the loop itself)."""
-    per_op = []
-    for _ in range(repeats):
-        t0 = time.perf_counter_ns()
-        body(n)
-        per_op.append((time.perf_counter_ns() - t0) / n)
-    return min(per_op), statistics.median(per_op)
 
 
 def _noop(addr: int, value: int) -> int:
@@ -202,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             for name, body in cases + extra:
                 body(min(args.iterations, 10_000))  # warm up
-                best, median = time_loop(body, args.iterations, args.repeats)
+                best, median = time_per_op(body, args.iterations, args.repeats)
                 rows.append(Timing(name, best, median))
         finally:
             gc.enable()
@@ -214,11 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     if not extra:
         print("(the atomics package is not installed: its rows are left out)")
-    width = max(len(r.operation) for r in rows)
-    print(f"{'operation':<{width}}  {'ns/op best':>10}  {'median':>8}")
-    print("-" * (width + 22))
-    for r in rows:
-        print(f"{r.operation:<{width}}  {r.best_ns:>10.0f}  {r.median_ns:>8.0f}")
+    cols = [("operation", "left"), "ns/op best", "median"]
+    print(table(cols, [[r.operation, f"{r.best_ns:.0f}", f"{r.median_ns:.0f}"] for r in rows]))
     return 0
 
 

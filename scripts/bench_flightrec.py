@@ -19,16 +19,18 @@ from __future__ import annotations
 import argparse
 import gc
 import os
-import statistics
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from harness import DEFAULT_CONFIG, table, time_per_op
 
 from kali_daemons import launcher, layout
 from kali_daemons.arena import Arena
 from kali_daemons.config import KaliConfig, load_config
 from kali_daemons.flightrec import FlightRecorder
+from kali_daemons.robots import puma560
 
 
 @dataclass
@@ -49,15 +51,15 @@ def bench(n_joints: int, iterations: int, repeats: int, cfg: KaliConfig) -> tupl
         rec = FlightRecorder(Shim(arena, cfg, procs), n_joints, create=True, slot=3)  # type: ignore[arg-type]
         src = [np.random.default_rng(k).random(n_joints) for k in range(len(layout.FLIGHT_FIELDS))]
         rec.bind(*src)
-        record = rec.record
-        per = []
-        for _ in range(repeats):
+
+        def loop(n: int, record: Callable[..., None] = rec.record) -> None:
             t0 = time.perf_counter_ns()
-            for i in range(iterations):
+            for i in range(n):
                 record(i, t0, 150_000, 90_000, 60_000)  # latency, wait, ran (ns)
-            per.append((time.perf_counter_ns() - t0) / iterations)
-        del rec, procs, record
-        return min(per), statistics.median(per)
+
+        best_median = time_per_op(loop, iterations, repeats)
+        del rec, procs, loop  # the arena's views, before it closes
+        return best_median
     finally:
         arena.close()
         launcher.stop(name)
@@ -65,13 +67,12 @@ def bench(n_joints: int, iterations: int, repeats: int, cfg: KaliConfig) -> tupl
 
 def empty_loop(iterations: int, repeats: int) -> tuple[float, float]:
     """The interpreter's loop alone."""
-    per = []
-    for _ in range(repeats):
-        t0 = time.perf_counter_ns()
-        for _i in range(iterations):
+
+    def loop(n: int) -> None:
+        for _i in range(n):
             pass
-        per.append((time.perf_counter_ns() - t0) / iterations)
-    return min(per), statistics.median(per)
+
+    return time_per_op(loop, iterations, repeats)
 
 
 def main() -> None:
@@ -85,23 +86,18 @@ def main() -> None:
         os.sched_setaffinity(0, {args.cpu})
     if args.fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.fifo))
-    cfg = load_config(launcher_default_config())
+    cfg = load_config(DEFAULT_CONFIG)
     gc.disable()
     rows = layout.flight_rows(int(cfg.clock.servo_period_ms * 1e6))
     print(f"flight recorder: {rows} rows ({layout.FLIGHT_SECONDS:g} s at the default period)")
-    print(f"{'':<22} {'best ns/tick':>12} {'median':>8}  {'ring KiB':>8}")
     best, med = empty_loop(args.iterations, args.repeats)
-    print(f"{'empty loop':<22} {best:>12.0f} {med:>8.0f}")
+    body = [["empty loop", f"{best:.0f}", f"{med:.0f}", ""]]
     for arms in (1, 2, 4):
-        n = 6 * arms
+        n = puma560.ROBOT.n_joints * arms
         best, med = bench(n, args.iterations, args.repeats, cfg)
         kib = rows * layout.flight_row(n).itemsize / 1024
-        print(f"{f'record, {arms} arm(s)':<22} {best:>12.0f} {med:>8.0f}  {kib:>8.0f}")
-
-
-def launcher_default_config() -> str:
-    """The repository's default config file."""
-    return os.path.join(os.path.dirname(__file__), "..", "config", "default.yaml")
+        body.append([f"record, {arms} arm(s)", f"{best:.0f}", f"{med:.0f}", f"{kib:.0f}"])
+    print(table([("", "left"), "best ns/tick", "median", "ring KiB"], body))
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ import sys
 import time
 
 from benchlib import run_ns
-from harness import KaliRun, cell_config, robots
+from harness import Goal, KaliRun, cell_config, robots, table
 
 from kali_daemons import launcher, layout
 from kali_daemons.arena import Arena
@@ -38,7 +38,7 @@ from kali_daemons.config import KaliConfig
 from kali_daemons.layout import CSR_ENABLE, CSR_NO_DISABLE
 from kali_daemons.plant.sim import PlantSim
 
-GOAL_SHARE = 0.15
+GOAL = Goal("two arms at real time", "median share", "<", 15.0, "% of one core")
 REPEATS = 5
 PLACEMENTS = [  # base x, y, yaw: facing the centre of the cell
     (-0.6, 0.0, 0.0),
@@ -121,25 +121,21 @@ def main(argv: list[str] | None = None) -> int:
         f"plant benchmark: python {sys.version.split()[0]}, {os.cpu_count()} CPUs, "
         f"substep 0.5 ms (2 MuJoCo steps per 1 ms cycle)"
     )
-    head = (
-        f"{'arms':>4} {'cpu µs/sim ms':>14} {'wall µs/sim ms':>15} {'RT factor':>10} "
-        f"{'core share':>11} {'process median (min-max)':>25} {'cycles/s':>9}  goal"
-    )
-    print(head)
-    print("-" * len(head))
+    body, goals = [], []
     for arms in args.arms:
         cpu_us, wall_us = in_process(arms, args.cycles)
         shares, cycles = as_process(arms, args.seconds)
         share = statistics.median(shares)
-        goal = ""
         if arms == 2:
-            goal = "PASS" if share < GOAL_SHARE else "FAIL"
-            goal += f" (median < {GOAL_SHARE:.0%} of a core)"
+            goals.append(GOAL.judge(100.0 * share).line())
         spread = f"{share:.1%} ({min(shares):.1%}-{max(shares):.1%})"
-        print(
-            f"{arms:>4} {cpu_us:>14.0f} {wall_us:>15.0f} {1000 / cpu_us:>9.1f}x "
-            f"{cpu_us / 1000:>10.1%} {spread:>25} {cycles / len(shares):>9.0f}  {goal}"
-        )
+        body.append([
+            arms, f"{cpu_us:.0f}", f"{wall_us:.0f}", f"{1000 / cpu_us:.1f}x",
+            f"{cpu_us / 1000:.1%}", spread, f"{cycles / len(shares):.0f}",
+        ])  # fmt: skip
+    cols = ["arms", "cpu µs/sim ms", "wall µs/sim ms", "RT factor", "core share",
+            "process median (min-max)", "cycles/s"]  # fmt: skip
+    print("\n".join([table(cols, body), *goals]))
     return 0
 
 

@@ -27,6 +27,7 @@ import os
 import shlex
 import shutil
 import signal
+import statistics
 import subprocess
 import sys
 import time
@@ -531,6 +532,21 @@ def pss_kib(pid: int) -> tuple[int, int]:
     except (OSError, ValueError, IndexError):
         return -1, -1
     return pss, rss
+
+
+# --------------------------------------------------------------------------------------------
+# In-process timing
+
+
+def time_per_op(body: Callable[[int], object], n: int, repeats: int) -> tuple[float, float]:
+    """Best and median ns per iteration of ``body(n)`` (which runs ``n`` iterations itself),
+    over ``repeats`` runs: the best is what the code costs, the median what the machine gave."""
+    per_op = []
+    for _ in range(repeats):
+        t0 = time.perf_counter_ns()
+        body(n)
+        per_op.append((time.perf_counter_ns() - t0) / n)
+    return min(per_op), statistics.median(per_op)
 
 
 # --------------------------------------------------------------------------------------------
