@@ -50,6 +50,7 @@ from harness import (
     Window,
     cell_config,
     kept_logs,
+    pick,
     table,
 )
 
@@ -232,23 +233,13 @@ def report(results: list[Result], floor_x: float, machine: dict[str, object]) ->
     return "\n".join(lines)
 
 
-def parse_scenarios(text: str) -> list[Scenario]:
-    """``--scenarios default-ff,mixed-ff`` → scenarios, in the given order."""
-    out = []
-    for name in (t.strip() for t in text.split(",")):
-        if name not in SCENARIOS:
-            raise argparse.ArgumentTypeError(f"unknown scenario {name!r}; {', '.join(SCENARIOS)}")
-        out.append(SCENARIOS[name])
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run each scenario, then print the table and the goals."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ticks", type=int, default=5000, help="ticks stepped in each window")
     ap.add_argument(
         "--scenarios",
-        type=parse_scenarios,
+        type=pick(SCENARIOS, "scenario"),
         default=list(SCENARIOS.values()),
         help=f"comma-separated subset of {','.join(SCENARIOS)} (default: all)",
     )

@@ -144,6 +144,7 @@ from harness import (
     extras_overrides,
     halt_window_ns,
     period_overrides,
+    pick,
     pss_kib,
     rows_table,
     sv_overrides,
@@ -820,16 +821,6 @@ def format_extras(results: list[RunResult]) -> list[str]:
 # Main
 
 
-def parse_runs(text: str) -> list[RunSpec]:
-    """``--runs 1ms-2sv,0.5ms-2sv`` → run specs, in the given order."""
-    out = []
-    for name in (t.strip() for t in text.split(",")):
-        if name not in RUNS:
-            raise argparse.ArgumentTypeError(f"unknown run {name!r}; runs: {', '.join(RUNS)}")
-        out.append(RUNS[name])
-    return out
-
-
 def emit(text: str) -> None:
     """Print and flush (a run's block appears when the run ends)."""
     print(text, flush=True)
@@ -841,7 +832,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=int, default=60, help="window per run (default 60)")
     ap.add_argument(
         "--runs",
-        type=parse_runs,
+        type=pick(RUNS, "run"),
         default=[RUNS[n] for n in DEFAULT_RUNS],
         help=f"comma-separated subset of {','.join(RUNS)} (default: the six PUMA runs)",
     )

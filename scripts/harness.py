@@ -19,6 +19,7 @@ A benchmark is a scenario over these pieces (benchlib.py holds the statistics un
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import math
@@ -34,7 +35,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import yaml
@@ -73,6 +74,7 @@ from kali_daemons.introspect import Introspector
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "default.yaml"
+T = TypeVar("T")
 REPORT_WIDTH = 200  # characters of a rendered table (reports are read in logs, not a terminal)
 
 # --------------------------------------------------------------------------------------------
@@ -85,41 +87,41 @@ def set_path(doc: Any, path: str, value: object) -> None:
     Keys name mapping entries, whole numbers list items, ``*`` every item of a list (or
     every value of a mapping).  A missing mapping on the way is created (a section the file
     leaves out, e.g. ``dashboard``); anything else off the tree is a BenchError naming the
-    path.  ``parse_config`` then checks the result like any config.
+    whole path.  ``parse_config`` then checks the result like any config.
     """
-    head, _, rest = path.partition(".")
+    _set(doc, path.split("."), value, path)
+
+
+def _set(doc: Any, keys: list[str], value: object, path: str) -> None:
+    """``set_path``'s walk: ``keys`` are what is left of ``path``."""
+    head, rest = keys[0], keys[1:]
+    where = f"config override {path!r}"
     if not head:
-        raise BenchError(f"config override {path!r}: empty key")
+        raise BenchError(f"{where}: empty key")
     if head == "*":
-        items = (
-            doc if isinstance(doc, list) else list(doc.values()) if isinstance(doc, dict) else None
-        )
-        if items is None or not rest:
-            raise BenchError(f"config override {path!r}: '*' needs a list or mapping below it")
+        items = list(doc.values()) if isinstance(doc, dict) else doc
+        if not isinstance(items, list) or not rest:
+            raise BenchError(f"{where}: '*' needs a list or mapping with keys below it")
         for item in items:
-            set_path(item, rest, value)
-        return
-    if isinstance(doc, list):
+            _set(item, rest, value, path)
+    elif isinstance(doc, list):
         try:
             index = int(head)
             node = doc[index]
         except (ValueError, IndexError):
-            raise BenchError(
-                f"config override {path!r}: no item {head!r} in a list of {len(doc)}"
-            ) from None
+            raise BenchError(f"{where}: no item {head!r} in a list of {len(doc)}") from None
         if rest:
-            set_path(node, rest, value)
+            _set(node, rest, value, path)
         else:
             doc[index] = value
-        return
-    if not isinstance(doc, dict):
-        raise BenchError(f"config override {path!r}: {type(doc).__name__} has no key {head!r}")
-    if not rest:
+    elif not isinstance(doc, dict):
+        raise BenchError(f"{where}: {type(doc).__name__} has no key {head!r}")
+    elif not rest:
         doc[head] = value
-        return
-    if doc.get(head) is None:
-        doc[head] = {}
-    set_path(doc[head], rest, value)
+    else:
+        if doc.get(head) is None:
+            doc[head] = {}
+        _set(doc[head], rest, value, path)
 
 
 def cell_config(
@@ -621,6 +623,10 @@ class Verdict:
 # Report rendering
 
 
+# rich's SIMPLE_HEAD (a rule under the heading), with a rule between sections as well
+RULED = box.Box("    \n    \n ── \n    \n ── \n    \n    \n    \n")
+
+
 def table(
     columns: Sequence[str | tuple[str, str]],
     rows: Iterable[Sequence[object]],
@@ -629,7 +635,7 @@ def table(
 ) -> str:
     """A table rendered with rich as plain text: ``columns`` are headings (right-aligned)
     or (heading, "left"); a row of None is a rule (e.g. before the rows for reference)."""
-    t = Table(title=title or None, caption=caption or None, box=box.SIMPLE_HEAD, pad_edge=False)
+    t = Table(title=title or None, caption=caption or None, box=RULED, pad_edge=False)
     for c in columns:
         heading, justify = (c, "right") if isinstance(c, str) else c
         t.add_column(heading, justify=justify)  # type: ignore[arg-type]
@@ -645,7 +651,8 @@ def render(renderable: object) -> str:
     """Any rich renderable as plain text (no colour, no terminal needed)."""
     buf = io.StringIO()
     Console(file=buf, width=REPORT_WIDTH, color_system=None, force_terminal=False).print(renderable)
-    return "\n".join(line.rstrip() for line in buf.getvalue().rstrip("\n").splitlines())
+    lines = [line.rstrip() for line in buf.getvalue().splitlines()]
+    return "\n".join(lines).strip("\n")  # the box's blank top and bottom lines
 
 
 def rows_table(
@@ -691,6 +698,23 @@ def dist_table(first: str, dists: Sequence[Dist], late: str = ">=period") -> str
 
 # --------------------------------------------------------------------------------------------
 # Runs
+
+
+def pick(known: dict[str, T], what: str) -> Callable[[str], list[T]]:
+    """An argparse ``type`` for ``--runs a,b``: the named entries of ``known``, in the given
+    order; an unknown name is refused with the list of known ones."""
+
+    def parse(text: str) -> list[T]:
+        out = []
+        for name in (t.strip() for t in text.split(",")):
+            if name not in known:
+                raise argparse.ArgumentTypeError(
+                    f"unknown {what} {name!r}; {what}s: {', '.join(known)}"
+                )
+            out.append(known[name])
+        return out
+
+    return parse
 
 
 def retry_warmup(
