@@ -143,10 +143,14 @@ from harness import (
     dist_table,
     extras_overrides,
     halt_window_ns,
+    interrupts,
+    kept_logs,
     period_overrides,
     pick,
     pss_kib,
+    retry_warmup,
     rows_table,
+    say,
     sv_overrides,
     table,
 )
@@ -869,32 +873,30 @@ def main(argv: list[str] | None = None) -> int:
         print("bench_servo: note: this script runs real-time; run it SCHED_OTHER", file=sys.stderr)
     tmp = Path(tempfile.mkdtemp(prefix="bench_servo."))
     results: list[RunResult] = []
-    status = 0
-    try:
+    errors = False
+
+    def attempt(spec: RunSpec) -> RunResult:
+        nonlocal errors
+        wait_quiet(args.wait_quiet, "bench_servo")
+        try:
+            return measure(spec, args.seconds, tmp, args.ct_priority)
+        except (KaliError, BenchError, OSError, subprocess.SubprocessError) as exc:
+            errors = True
+            res = RunResult(spec.name, spec.period_us, spec.n_sv, "", "", args.seconds, 0.0)
+            res.error = f"{type(exc).__name__}: {exc}"
+            return res
+
+    def in_warmup(res: RunResult) -> str | None:
+        return res.fault if res.fault and res.halted_at_s is None else None
+
+    with interrupts("bench_servo") as status, kept_logs(tmp, "bench_servo", lambda: any(
+        r.fault or r.error for r in results
+    )):  # fmt: skip
         for i, spec in enumerate(args.runs):
-            print(
-                f"bench_servo: run {i + 1}/{len(args.runs)} {spec.name} ({args.seconds} s window)",
-                file=sys.stderr,
-                flush=True,
+            say(f"bench_servo: run {i + 1}/{len(args.runs)} {spec.name} ({args.seconds} s window)")
+            res, earlier = retry_warmup(
+                lambda s=spec: attempt(s), in_warmup, WARMUP_ATTEMPTS, f"bench_servo: {spec.name}"
             )
-            earlier: list[str] = []  # halts in warm-up, before the window opened
-            for attempt in range(1, WARMUP_ATTEMPTS + 1):
-                wait_quiet(args.wait_quiet, "bench_servo")
-                try:
-                    res = measure(spec, args.seconds, tmp, args.ct_priority)
-                except (KaliError, BenchError, OSError, subprocess.SubprocessError) as exc:
-                    res = RunResult(spec.name, spec.period_us, spec.n_sv, "", "", args.seconds, 0.0)
-                    res.error = f"{type(exc).__name__}: {exc}"
-                    status = 1
-                if not (res.fault and res.halted_at_s is None) or attempt == WARMUP_ATTEMPTS:
-                    break
-                earlier.append(res.fault)
-                print(
-                    f"bench_servo: {spec.name} halted in warm-up ({res.fault}); "
-                    f"attempt {attempt + 1}/{WARMUP_ATTEMPTS}",
-                    file=sys.stderr,
-                    flush=True,
-                )
             res.notes += [f"attempt {i + 1} halted in warm-up: {f}" for i, f in enumerate(earlier)]
             results.append(res)
             emit(format_run(res) + "\n")
@@ -902,20 +904,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.json is not None:
             doc = {"runs": [to_json(r) for r in results]}
             args.json.write_text(json.dumps(doc, indent=2) + "\n")
-    except KeyboardInterrupt:
-        print("bench_servo: interrupted; the instance was stopped", file=sys.stderr)
-        status = 1
-    except BrokenPipeError:  # e.g. | head: stop quietly (the instance was already stopped)
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        print("bench_servo: output closed; the other runs skipped", file=sys.stderr)
-        status = 1
-    finally:
-        if any(r.fault or r.error for r in results):
-            print(f"bench_servo: daemon logs kept in {tmp}", file=sys.stderr)
-        else:
-            shutil.rmtree(tmp, ignore_errors=True)
-    return status
+    return max(status.code, int(errors))
 
 
 if __name__ == "__main__":

@@ -102,7 +102,18 @@ from benchlib import (
     wait_quiet,
     window_row,
 )
-from harness import DEFAULT_CONFIG, Floor, Goal, KaliRun, cell_config, rows_table
+from harness import (
+    DEFAULT_CONFIG,
+    Floor,
+    Goal,
+    KaliRun,
+    cell_config,
+    interrupts,
+    kept_logs,
+    retry_warmup,
+    rows_table,
+    say,
+)
 
 from kali_daemons import layout
 from kali_daemons.arena import Arena
@@ -879,12 +890,16 @@ def main(argv: list[str] | None = None) -> int:
     base = load_config(DEFAULT_CONFIG).clock
     dt = base.tg_period_ms / 1000.0
     ratio = Fraction(round(base.tg_period_ms * 1000), round(base.servo_period_ms * 1000))
-    status = 0
     tmp = Path(tempfile.mkdtemp(prefix="bench_tg."))
     rt: RtResult | None = None
     earlier: list[str] = []  # real-time attempts that halted before the window opened
-    try:
-        print("bench_tg: in-process cost per tick", file=sys.stderr, flush=True)
+    attempts = iter(range(1, WARMUP_ATTEMPTS + 1))
+
+    def keep() -> bool:
+        return bool(earlier) or (rt is not None and bool(rt.fault or rt.error))
+
+    with interrupts("bench_tg") as status, kept_logs(tmp, "bench_tg", keep):
+        say("bench_tg: in-process cost per tick")
         rows = [
             cost_per_tick(m, n, args.blocks, args.cold_ticks, dt, ratio)
             for m in MODES
@@ -894,27 +909,18 @@ def main(argv: list[str] | None = None) -> int:
         print(format_costs(rows, checks, dt) + "\n", flush=True)
         if not args.skip_rt:
             wait_quiet(args.wait_quiet, "bench_tg", QUIET_LOAD)
-            print(
-                f"bench_tg: real-time part ({args.seconds} s moving)", file=sys.stderr, flush=True
+            say(f"bench_tg: real-time part ({args.seconds} s moving)")
+            rt, earlier = retry_warmup(
+                lambda: measure_rt(args.seconds, args.idle_seconds, tmp, next(attempts)),
+                lambda r: r.fault if r.fault and not r.window_opened else None,
+                WARMUP_ATTEMPTS,
+                "bench_tg",
+                lambda: wait_quiet(args.wait_quiet, "bench_tg", QUIET_LOAD),
             )
-            for attempt in range(1, WARMUP_ATTEMPTS + 1):
-                rt = measure_rt(args.seconds, args.idle_seconds, tmp, attempt)
-                if not (rt.fault and not rt.window_opened) or attempt == WARMUP_ATTEMPTS:
-                    break
-                earlier.append(rt.fault)
-                print(
-                    f"bench_tg: halted before the window opened ({rt.fault}); attempt "
-                    f"{attempt + 1}/{WARMUP_ATTEMPTS}",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                wait_quiet(args.wait_quiet, "bench_tg", QUIET_LOAD)
             rt.notes += [
                 f"attempt {i + 1} halted before the window opened: {f}"
                 for i, f in enumerate(earlier)
             ]
-            if rt.error:
-                status = 1
             print(format_rt(rt) + "\n", flush=True)
         print(verdict(rt, rows), flush=True)
         if args.json is not None:
@@ -925,15 +931,7 @@ def main(argv: list[str] | None = None) -> int:
                 "verdict": verdict(rt, rows),
             }
             args.json.write_text(json.dumps(doc, indent=2) + "\n")
-    except KeyboardInterrupt:
-        print("bench_tg: interrupted; the instance was stopped", file=sys.stderr)
-        status = 1
-    finally:
-        if earlier or (rt is not None and (rt.fault or rt.error)):
-            print(f"bench_tg: daemon logs kept in {tmp}", file=sys.stderr)
-        else:
-            shutil.rmtree(tmp, ignore_errors=True)
-    return status
+    return max(status.code, int(rt is not None and rt.error is not None))
 
 
 if __name__ == "__main__":

@@ -733,14 +733,39 @@ def retry_warmup(
         if fault is None or k == attempts:
             return res, earlier
         earlier.append(fault)
-        print(
-            f"{who}: halted before the window opened ({fault}); attempt {k + 1}/{attempts}",
-            file=sys.stderr,
-            flush=True,
-        )
+        say(f"{who}: halted before the window opened ({fault}); attempt {k + 1}/{attempts}")
         if between is not None:
             between()
     raise AssertionError("unreachable")
+
+
+def say(text: str) -> None:
+    """A progress line on stderr (the report goes to stdout)."""
+    print(text, file=sys.stderr, flush=True)
+
+
+@dataclass
+class Status:
+    """What ``interrupts`` makes of the way a benchmark ended: its exit status."""
+
+    code: int = 0
+
+
+@contextlib.contextmanager
+def interrupts(who: str) -> Iterator[Status]:
+    """Ctrl-C, SIGTERM (``unwind_on_sigterm``) and a closed stdout (``| head``) end the
+    benchmark quietly with exit status 1; every ``finally`` inside has stopped its instance."""
+    status = Status()
+    try:
+        yield status
+    except KeyboardInterrupt:
+        say(f"{who}: interrupted; the instance was stopped")
+        status.code = 1
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        say(f"{who}: output closed; the other runs skipped")
+        status.code = 1
 
 
 @contextlib.contextmanager
