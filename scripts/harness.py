@@ -169,6 +169,13 @@ CELLS: dict[str, dict[str, object]] = {
 }
 
 
+def file_cell(path: Path) -> dict[str, object]:
+    """The ``robots`` of config file ``path`` as an override: its cell on another file's
+    clock and processes (a file like config/mixed.yaml writes only its robots and leaves every
+    other section to the parser's defaults, which default.yaml writes out)."""
+    return {"robots": yaml.safe_load(load_config(path).text)["robots"]}
+
+
 def period_overrides(period_us: int) -> dict[str, object]:
     """Base tick, servo period and the plant's period at ``period_us`` (fresh encoders every
     servo tick), in whole ms where it is whole."""
