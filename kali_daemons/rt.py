@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import errno
 import os
 import time
 from dataclasses import dataclass
@@ -18,7 +19,7 @@ if TYPE_CHECKING:
 
 _libc = ctypes.CDLL(None, use_errno=True)
 _PR_SET_TIMERSLACK = 29
-_MCL_CURRENT, _MCL_FUTURE = 1, 2
+_MCL_CURRENT, _MCL_FUTURE, _MCL_ONFAULT = 1, 2, 4
 _CLOCK_MONOTONIC = 1
 _TIMER_ABSTIME = 1
 
@@ -107,8 +108,15 @@ def _bind_other_threads(cpu: int) -> None:
 def prepare(cpu: int | None, lock_memory: bool = True) -> RtReport:
     """Bind to ``cpu``, set timer slack to 1 ns and lock memory, still as SCHED_OTHER.
 
-    Locking faults in the whole address space; doing it before ``go_realtime`` keeps that
-    work from starving real-time processes of another instance on the same CPU.
+    Memory is locked as it is first touched (``MCL_ONFAULT``, Linux >= 4.4): what the process
+    has touched stays resident, and its set-up (``on_configure``, warm-ups) and first cycles
+    touch what the loop uses; a page first touched later costs one minor fault, once.
+    Locking the whole address space instead faulted in every reservation nobody touches,
+    72 MB a process: OpenBLAS's 32 MB buffer per thread and its worker's 8 MB stack, which
+    numpy maps at import (the wall clock held 103 MB PSS in the default cell, 22 MB this
+    way).  A kernel refusing the flag gets the whole-space lock.  Locking before
+    ``go_realtime`` keeps that work from starving real-time processes of another instance on
+    the same CPU.
     """
     warnings: list[str] = []
     bound = -1
@@ -127,8 +135,10 @@ def prepare(cpu: int | None, lock_memory: bool = True) -> RtReport:
         warnings.append("cannot set timer slack to 1 ns")
     locked = False
     if lock_memory:
-        if _libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0:
+        if _libc.mlockall(_MCL_CURRENT | _MCL_FUTURE | _MCL_ONFAULT) == 0:
             locked = True
+        elif ctypes.get_errno() == errno.EINVAL and _libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0:
+            locked = True  # a kernel before 4.4: no MCL_ONFAULT
         else:
             warnings.append(f"mlockall refused ({os.strerror(ctypes.get_errno())})")
     return RtReport(bound, 0, slack, locked, warnings)

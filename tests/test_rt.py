@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import mmap
 import os
 import threading
 from collections.abc import Callable
@@ -38,6 +39,45 @@ def test_prepare_binds_sets_slack_and_locks_memory() -> None:
             and report.timer_slack_ns == 1
             and report.memory_locked == (os.geteuid() == 0)
         )
+        return 0 if ok else 3
+
+    assert _in_child(child) == 0
+
+
+def _mapping(size_kib: int) -> dict[str, int]:
+    """The ``Rss`` and ``Locked`` (KiB) of this process's one mapping of ``size_kib``."""
+    fields: dict[str, int] = {}
+    size = -1
+    with open("/proc/self/smaps") as f:
+        for line in f:
+            key, _, value = line.partition(":")
+            if key == "Size":
+                size = int(value.split()[0])
+            elif size == size_kib and key in ("Rss", "Locked"):
+                fields[key] = int(value.split()[0])
+    return fields
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="mlockall needs root (or CAP_IPC_LOCK)")
+def test_locking_memory_locks_what_is_touched_not_what_is_only_reserved() -> None:
+    """A reservation nobody touches (numpy maps OpenBLAS's 32 MB buffer per thread at import)
+    stays out of memory when a process locks its memory; what it touches is locked."""
+
+    def child() -> int:
+        size = (50 << 20) + (3 << 12)  # a size no other mapping of this process has
+        buf = mmap.mmap(-1, size)
+        report = rt.prepare(None, lock_memory=True)
+        reserved = _mapping(size >> 10)
+        buf[: 1 << 20] = b"x" * (1 << 20)
+        touched = _mapping(size >> 10)
+        ok = (
+            report.memory_locked
+            and reserved["Rss"] < 4096
+            and touched["Rss"] >= 1024
+            and touched["Locked"] == touched["Rss"]
+        )
+        if not ok:
+            print(f"reserved {reserved}, touched {touched}", flush=True)
         return 0 if ok else 3
 
     assert _in_child(child) == 0
