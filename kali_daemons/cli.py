@@ -222,11 +222,14 @@ def stop(ctx: click.Context) -> None:
 
 @main.command()
 @click.option("--json", "as_json", is_flag=True, help="Everything, as one JSON document.")
+@click.option(
+    "--memory", is_flag=True, help="Also each process's memory: PSS and RSS, and their sum."
+)
 @click.pass_context
 @_errors
-def status(ctx: click.Context, as_json: bool) -> None:
+def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
     """Clock, fault and per-process timing statistics (--json: also robots, servo level, TG,
-    flight recorder, for scripts)."""
+    flight recorder, for scripts; --memory: each process's PSS and RSS)."""
     with _attach(ctx) as inst:
         if as_json:
             click.echo(json.dumps(introspect.snapshot(inst), indent=2, allow_nan=False))
@@ -279,6 +282,8 @@ def status(ctx: click.Context, as_json: bool) -> None:
                 f"{r['late_p99_us']:>7.0f}us {r['late_max_us']:>7.0f}us "
                 f"{r['heartbeat_age_ms']:>5.0f}ms"
             )
+        if memory:
+            _memory_table(rows)
         misses = launcher.recent_misses(inst, 5)
         if misses:
             total = int(inst.misses["count"])
@@ -289,6 +294,26 @@ def status(ctx: click.Context, as_json: bool) -> None:
                     f"{(m['due_ns'] - m['signal_ns']) / 1e6:.0f} ms earlier still "
                     f"unacknowledged ({m['consecutive']} in a row)"
                 )
+
+
+def _memory_table(rows: list[dict[str, object]]) -> None:
+    """Each live process's PSS and RSS (``introspect.pss_kib``) and the set's sums.  PSS
+    shares a page among the processes mapping it, so its sum is what the set takes."""
+    click.echo(f"{'memory':<10} {'pid':>7} {'PSS':>9} {'RSS':>9}")
+    pss_sum = rss_sum = 0
+    for r in rows:
+        pid = int(r["pid"])  # type: ignore[call-overload]
+        try:
+            pss, rss = introspect.pss_kib(pid) if r["alive"] else (-1, -1)
+        except OSError:  # gone since, or not ours to read
+            pss = rss = -1
+        if pss < 0:
+            click.echo(f"{r['name']:<10} {r['pid']:>7} {'-':>9} {'-':>9}")
+            continue
+        pss_sum += pss
+        rss_sum += rss
+        click.echo(f"{r['name']:<10} {r['pid']:>7} {pss / 1024:>6.1f} MB {rss / 1024:>6.1f} MB")
+    click.echo(f"{'total':<10} {'':>7} {pss_sum / 1024:>6.1f} MB {rss_sum / 1024:>6.1f} MB")
 
 
 @main.command()

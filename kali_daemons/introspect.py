@@ -44,6 +44,25 @@ def plain(x: Any) -> Any:
     return x
 
 
+def pss_kib(pid: int) -> tuple[int, int]:
+    """Process ``pid``'s proportional set size and resident set size, KiB, from
+    ``/proc/PID/smaps_rollup``.  PSS divides each shared page among the processes mapping it,
+    so the PSS of a daemon set adds up to the memory the set takes; RSS counts a shared
+    library in full in every process.  ``OSError`` if the process is gone or not ours to
+    read."""
+    pss = rss = -1
+    with open(f"/proc/{pid}/smaps_rollup") as f:
+        for line in f:
+            key, _, value = line.partition(":")
+            if key == "Pss":
+                pss = int(value.split()[0])
+            elif key == "Rss":
+                rss = int(value.split()[0])
+    if pss < 0 or rss < 0:  # a kernel thread or a zombie: no mappings at all
+        raise ProcessLookupError(f"process {pid}: no memory mappings in /proc/{pid}/smaps_rollup")
+    return pss, rss
+
+
 def _name(kind: type[enum.IntEnum], value: int) -> str:
     """An enum word's name, or INVALID(value) for a word a client wrote outside the enum (a
     snapshot shows the arena as it is and never raises on it)."""

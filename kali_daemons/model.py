@@ -5,7 +5,9 @@ cell of one or more arms, each from its robot type's URDF (``kali_daemons.robots
 stand and a bar the arms can carry together.  Neither loader reads rotor inertia from URDF,
 so both set the drive's armature here; that, the motors and the world's layout are the only
 things added on top of the file.  Everything runs outside the cycle (it allocates and reads
-files).
+files).  The cell's dimensions and ``load_pinocchio`` live in ``cell.py``, without MuJoCo
+(re-exported here), so the dynamics process and the viewer do not import MuJoCo, nor the
+plant Pinocchio.
 """
 
 from __future__ import annotations
@@ -19,25 +21,23 @@ from typing import Final
 import mujoco
 import numpy as np
 import numpy.typing as npt
-import pinocchio as pin
 
+from kali_daemons.cell import (
+    BAR_MASS,
+    BAR_SIZE,
+    FLANGE_FRAME,
+    GRASP_HEIGHT,
+    GRASP_INSET,
+    STAND_SIZE,
+    bar_rest_pose,
+    load_pinocchio,
+)
 from kali_daemons.config import RobotConfig
 from kali_daemons.errors import ModelError
 from kali_daemons.robots import RobotType
 
 IntArray = npt.NDArray[np.int64]
 
-FLANGE_FRAME: Final = "flange"  # the URDF link of the flange (Pinocchio frame, MuJoCo body)
-
-# The cell (metres, kilograms).  A table-like stand at the origin, between the arms, and a
-# square bar lying on it along x; each arm grasps the end nearer to it from above.
-STAND_SIZE: Final = (0.24, 0.30, 0.565)  # x, y, height; centred on the world origin
-BAR_SIZE: Final = (0.36, 0.04, 0.04)  # length (along x), width, height
-BAR_MASS: Final = 1.5
-# A grasp site sits above a bar end: the flange (the wrist centre, as d6 = 0) stays this far
-# above the bar's axis so that the flange disc (0.035-0.045 m out) just touches the bar top.
-GRASP_HEIGHT: Final = 0.065
-GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
 # The weld's time constant in timesteps.  MuJoCo's default 0.02 s lets the held bar sag 3.8 mm
 # at the grasp pose; 8 steps (4 ms at 0.5 ms) gives 0.17 mm and stays 4x above the 2-step
 # floor below which MuJoCo's 'refsafe' would clamp it.
@@ -113,30 +113,6 @@ class World:
         model.eq_data[eq, 10] = 1.0
         model.eq_data[eq, 11] = 0.0
         data.eq_active[eq] = 1
-
-
-def load_pinocchio(robot: RobotType) -> pin.Model:
-    """An arm of type ``robot`` as a Pinocchio model, base at the origin, with its armature
-    and gravity.
-
-    ``rnea`` / ``crba`` / ``aba`` on it include the drive's rotor inertia.  The flange is the
-    frame named ``FLANGE_FRAME``.
-    """
-    urdf = robot.urdf
-    if not Path(urdf).is_file():
-        raise ModelError(f"{urdf}: no such file")
-    try:
-        model = pin.buildModelFromUrdf(str(urdf))
-    except (RuntimeError, ValueError) as exc:
-        raise ModelError(f"{urdf}: Pinocchio cannot load it: {exc}") from None
-    if model.nv != robot.n_joints or not model.existFrame(FLANGE_FRAME):
-        raise ModelError(
-            f"{urdf}: robot type {robot.name!r} expects {robot.n_joints} joints and a "
-            f"{FLANGE_FRAME!r} frame, found {model.nv} joints"
-        )
-    model.armature = np.array(robot.drive.armature, dtype=float)
-    model.gravity = pin.Motion(np.array([0.0, 0.0, -robot.gravity]), np.zeros(3))
-    return model
 
 
 def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> World:
@@ -268,13 +244,6 @@ def _grasp_pose(robot: RobotConfig) -> tuple[list[float], list[float]]:
     turned = np.empty(4)
     mujoco.mju_mulQuat(turned, np.array(_yaw_quat(robot.grasp_yaw_deg)), quat)
     return pos, [float(v) for v in turned]
-
-
-def bar_rest_pose() -> np.ndarray:
-    """The bar's pose (4×4, world) lying on the stand, as the cell is built."""
-    t = np.eye(4)
-    t[2, 3] = STAND_SIZE[2] + BAR_SIZE[2] / 2
-    return t
 
 
 def grasp_in_bar(robot: RobotConfig) -> np.ndarray:
@@ -410,8 +379,12 @@ def _add_weld(spec: mujoco.MjSpec, robot: str, bar: mujoco.MjsBody, timeconst: f
 
 
 __all__ = [
+    "BAR_MASS",
+    "BAR_SIZE",
     "FLANGE_FRAME",
+    "STAND_SIZE",
     "World",
+    "bar_rest_pose",
     "build_world",
     "load_pinocchio",
 ]

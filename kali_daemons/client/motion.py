@@ -665,7 +665,7 @@ class Kali:
         model of its type (loaded on first use)."""
         import pinocchio as pin  # here: a program that never asks pays nothing for it
 
-        from ..model import FLANGE_FRAME, load_pinocchio
+        from ..cell import FLANGE_FRAME, load_pinocchio
 
         rcfg = self.inst.config.robots[robot]
         if rcfg.model not in self._pin:  # by model: two type files may share a ROBOT.name

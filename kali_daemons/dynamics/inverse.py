@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from ..cell import load_pinocchio
 from ..layout import FfMode
-from ..model import load_pinocchio
 from ..robots import RobotType
 from ..robots.profile import FRICTION_SMOOTHING_RAD_S
 

@@ -35,6 +35,10 @@ It converges when the position error is below ``tol_m`` and the rotation error b
 ``tol_rad``, and gives up after ``max_iter`` iterations.  ``solve`` with ``out`` allocates
 nothing numpy on the success path (inside the cycle); building the solver loads nothing but
 allocates (outside the cycle).
+
+Pinocchio is imported where a model is built, not when this module is: a robot type using it
+(the Panda) is imported by every process that reads the type's facts, and the wall clock,
+SIO and the SVs never build its kinematics (issue 26: they stay without Pinocchio).
 """
 
 from __future__ import annotations
@@ -42,13 +46,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
-import pinocchio as pin
 
 from ..errors import KinematicsError
 from .profile import FloatArray
+
+if TYPE_CHECKING:
+    import pinocchio as pin
 
 DAMPING: Final = 1e-10  # λ² floor, (m or rad)²: keeps the step finite on a singularity
 MAX_STEP: Final = 0.3  # rad, the largest joint change in one iteration
@@ -178,6 +184,9 @@ class DlsIk:
         self.hi = [float(v) for v in q_max]
         self.model = model
         self.data = model.createData()
+        import pinocchio as pin  # here, not at load: see the module's last paragraph
+
+        self._forward_kinematics = pin.forwardKinematics
         frame = model.frames[model.getFrameId(tip)]
         chain = list(model.supports[frame.parentJoint])[1:]  # joint ids, base to tip
         if len(chain) != n:
@@ -222,7 +231,7 @@ class DlsIk:
         buf = self._q
         for k in range(self.n):
             buf[self._idx[k]] = q[k]
-        pin.forwardKinematics(self.model, self.data, buf)
+        self._forward_kinematics(self.model, self.data, buf)
         r = self._rot[-1]
         p = self._pos[-1]
         r00, r01, r02 = r.item(0), r.item(1), r.item(2)
@@ -606,6 +615,8 @@ class NumericalKinematics:
             if not self.urdf.is_file():
                 raise KinematicsError(f"{self.name}: {self.urdf}: no such file")
             try:
+                import pinocchio as pin  # here, not at load: see the module's last paragraph
+
                 model = pin.buildModelFromUrdf(str(self.urdf))
             except (RuntimeError, ValueError) as exc:
                 raise KinematicsError(

@@ -42,12 +42,12 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from .. import layout, rt
+from ..cell import BAR_SIZE, FLANGE_FRAME, STAND_SIZE, load_pinocchio
 from ..config import KaliConfig
 from ..daemon import Daemon
 from ..errors import DaemonError
 from ..instance import decode
 from ..layout import ProcState
-from ..model import BAR_SIZE, FLANGE_FRAME, STAND_SIZE, load_pinocchio
 from ..robots import RobotType
 from ..tg.cartesian import base_transform
 from ..wallclock.clock import time_ms

@@ -1,0 +1,66 @@
+"""The cell's dimensions and the controller's arm model, without MuJoCo (see ``model.py``).
+
+The stand, the bar and the grasp sites are the plant's world (``model.build_world``) and what
+the viewer draws; ``load_pinocchio`` is the arm model of the dynamics process, the viewer and
+programs.  Pinocchio is imported where a model is loaded, so the plant, which needs these
+dimensions, does not import it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Final
+
+import numpy as np
+
+from kali_daemons.errors import ModelError
+
+if TYPE_CHECKING:
+    import pinocchio as pin
+
+    from kali_daemons.robots import RobotType
+
+FLANGE_FRAME: Final = "flange"  # the URDF link of the flange (Pinocchio frame, MuJoCo body)
+
+# The cell (metres, kilograms).  A table-like stand at the origin, between the arms, and a
+# square bar lying on it along x; each arm grasps the end nearer to it from above.
+STAND_SIZE: Final = (0.24, 0.30, 0.565)  # x, y, height; centred on the world origin
+BAR_SIZE: Final = (0.36, 0.04, 0.04)  # length (along x), width, height
+BAR_MASS: Final = 1.5
+# A grasp site sits above a bar end: the flange (the wrist centre, as d6 = 0) stays this far
+# above the bar's axis so that the flange disc (0.035-0.045 m out) just touches the bar top.
+GRASP_HEIGHT: Final = 0.065
+GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
+
+
+def load_pinocchio(robot: RobotType) -> pin.Model:
+    """An arm of type ``robot`` as a Pinocchio model, base at the origin, with its armature
+    and gravity.
+
+    ``rnea`` / ``crba`` / ``aba`` on it include the drive's rotor inertia.  The flange is the
+    frame named ``FLANGE_FRAME``.
+    """
+    import pinocchio as pin  # here, not at load: the plant imports this module
+
+    urdf = robot.urdf
+    if not Path(urdf).is_file():
+        raise ModelError(f"{urdf}: no such file")
+    try:
+        model = pin.buildModelFromUrdf(str(urdf))
+    except (RuntimeError, ValueError) as exc:
+        raise ModelError(f"{urdf}: Pinocchio cannot load it: {exc}") from None
+    if model.nv != robot.n_joints or not model.existFrame(FLANGE_FRAME):
+        raise ModelError(
+            f"{urdf}: robot type {robot.name!r} expects {robot.n_joints} joints and a "
+            f"{FLANGE_FRAME!r} frame, found {model.nv} joints"
+        )
+    model.armature = np.array(robot.drive.armature, dtype=float)
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -robot.gravity]), np.zeros(3))
+    return model
+
+
+def bar_rest_pose() -> np.ndarray:
+    """The bar's pose (4×4, world) lying on the stand, as the cell is built."""
+    t = np.eye(4)
+    t[2, 3] = STAND_SIZE[2] + BAR_SIZE[2] / 2
+    return t
