@@ -6,7 +6,8 @@ bench_servo's ``four`` cell of two PUMAs, a UR5 and a Panda), options as config 
 (feed-forward off / full on every arm; the viewer left out, or recording the dashboard to an
 .rrd in the run's temporary directory with no web viewer and no live connection) and the
 keyword arguments ``launcher.start`` gets besides the config
-(``lockstep=True``; an executive's options are one more entry there).  Per scenario: start
+(``lockstep=True``: the lockstep executive, every daemon in one process; ``separate=True``
+too: a process per daemon, the row that says what the executive saves).  Per scenario: start
 the instance in lockstep mode, step 30 ticks, power every arm, step ``SETTLE_TICKS`` so they
 settle, queue the program (``move``: each arm swings every joint ±``SWING_RAD`` from where it
 holds and back, ``MOVES`` requests queued at ``SPEED``, enough to keep it moving through
@@ -69,6 +70,7 @@ MOVES = 4  # requests queued per arm, out and back twice (~2 s each; a client's 
 # TG's request queue is 16: four arms x 4)
 PLANT_CYCLES = 2000  # the floor's in-process plant cycles
 FF_FULL = {"robots.*.ff": "full"}
+SEPARATE = {"lockstep": True, "separate": True}  # a process per daemon, not the executive
 VIEWER_OFF = {"processes.viewer.enabled": False}
 
 
@@ -101,6 +103,7 @@ SCENARIOS = {
         Scenario("default-hold", DEFAULT_CONFIG, program="hold"),
         Scenario("default", DEFAULT_CONFIG),
         Scenario("default-ff", DEFAULT_CONFIG, FF_FULL),
+        Scenario("default-ff-separate", DEFAULT_CONFIG, FF_FULL, start=SEPARATE),
         Scenario("default-ff-rec", DEFAULT_CONFIG, FF_FULL, record=True),
         Scenario("mixed-ff", DEFAULT_CONFIG, {**file_cell(MIXED_CONFIG), **FF_FULL}),
         Scenario("four-ff", DEFAULT_CONFIG, {**CELLS["four"], **FF_FULL}),

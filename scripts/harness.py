@@ -67,7 +67,7 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
-from kali_daemons import launcher, layout
+from kali_daemons import introspect, launcher, layout
 from kali_daemons.config import KaliConfig, load_config, ms_to_ns, parse_config
 from kali_daemons.instance import Instance
 from kali_daemons.introspect import Introspector
@@ -524,23 +524,16 @@ def flight_dump(inst: Instance) -> str | None:
 
 
 def pss_kib(pid: int) -> tuple[int, int]:
-    """(PSS, RSS) of ``pid`` in KiB from /proc/PID/smaps_rollup; (-1, -1) when it is gone.
+    """(PSS, RSS) of ``pid`` in KiB (``kali_daemons.introspect.pss_kib``); (-1, -1) when it
+    is gone, so a table row says so instead of the run failing.
 
     PSS shares each page among the processes that map it, so the PSS of a set of processes
     adds up to what the set costs the machine; RSS counts a shared library in every process.
-    (The same signature as ``kali_daemons.introspect.pss_kib`` once that lands.)
     """
-    pss = rss = -1
     try:
-        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
-            key, _, rest = line.partition(":")
-            if key == "Pss":
-                pss = int(rest.split()[0])
-            elif key == "Rss":
-                rss = int(rest.split()[0])
-    except (OSError, ValueError, IndexError):
+        return introspect.pss_kib(pid)
+    except OSError:
         return -1, -1
-    return pss, rss
 
 
 # --------------------------------------------------------------------------------------------
