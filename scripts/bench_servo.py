@@ -203,6 +203,7 @@ RUNS = {
         RunSpec("0.5ms-2sv", 500, 2),
         RunSpec("mixed-1ms-2sv", 1000, 2, cell="mixed"),
         RunSpec("four-1ms-2sv", 1000, 2, cell="four"),
+        RunSpec("one-0.25ms-1sv", 250, 1, cell="one"),  # 4 kHz, one arm (issue 26 item 3)
     )
 }
 DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv", "0.5ms-2sv")

@@ -155,6 +155,7 @@ def robots(*arms: tuple[str, str, float, float, float]) -> list[dict[str, object
 # corners of a 1.8 m square, facing its centre: 6 + 6 + 6 + 7 = 25 joints.
 CELLS: dict[str, dict[str, object]] = {
     "pumas": {},
+    "one": {"robots": robots(("left", "puma560", -0.6, 0.0, 0.0))},
     "mixed": {
         "robots": robots(("left", "puma560", -0.6, 0.0, 0.0), ("right", "panda", 0.6, 0.0, 180.0))
     },
@@ -176,15 +177,22 @@ def file_cell(path: Path) -> dict[str, object]:
     return {"robots": yaml.safe_load(load_config(path).text)["robots"]}
 
 
+DEFAULT_SUBSTEP_MS = 0.5  # config/default.yaml's plant.substep_ms
+
+
 def period_overrides(period_us: int) -> dict[str, object]:
     """Base tick, servo period and the plant's period at ``period_us`` (fresh encoders every
-    servo tick), in whole ms where it is whole."""
+    servo tick), in whole ms where it is whole; MuJoCo's substep no longer than the plant's
+    period (it must divide it)."""
     ms: float = period_us // 1000 if period_us % 1000 == 0 else period_us / 1000
-    return {
+    overrides: dict[str, object] = {
         "clock.base_tick_ms": ms,
         "clock.servo_period_ms": ms,
         "processes.plant.period_ms": ms,
     }
+    if ms < DEFAULT_SUBSTEP_MS:
+        overrides["plant.substep_ms"] = ms
+    return overrides
 
 
 def sv_overrides(base: Path, n_sv: int) -> dict[str, object]:
