@@ -493,7 +493,9 @@ KEY_JOINTS = "robots.joints"  # JOINT_STATE per joint of the cell, flat (joints.
 KEY_SLOTS = "servo.slots"  # SERVO_SLOT per joint, flat: robot k joint j is slot base[k] + j
 KEY_STAGING = "servo.staging"  # SERVO_STAGING_BYTES per slot: the put/get mailbox data
 KEY_SERVO_CTRL = "servo.ctrl"
-KEY_SERVO_DATA = "servo.{slot}.{algo}"  # private data of one algorithm on one joint
+# private data of one algorithm for every joint of the cell: a block of one record per joint
+# (slot order), so an SV runs a built-in over many joints in one call (servo.vector)
+KEY_SERVO_DATA = "servo.data.{algo}"
 KEY_FIFO = "fifo.{robot}"  # TG → SIO set-points (Type 2), the robot's joint angles each
 
 
@@ -908,7 +910,7 @@ class Cell:
 
 
 # A record's dtype and count: fixed, or computed from the cell and the record's index (the
-# robot for a ``{robot}`` key, (slot, algorithm) for a ``{slot}.{algo}`` key, else None).
+# robot for a ``{robot}`` key, the algorithm for an ``{algo}`` key, else None).
 Sized = Callable[[Cell, Any], int]
 Typed = Callable[[Cell, Any], np.dtype]
 
@@ -956,8 +958,8 @@ RECORDS: tuple[Record, ...] = (
     ),
     Record(
         KEY_SERVO_DATA,
-        lambda c, i: c.algorithms[i[1]],
-        None,
+        lambda c, a: c.algorithms[a],
+        lambda c, a: c.n_joints,
         "SVs (put: mailbox)",
         "SVs",
     ),
@@ -1014,17 +1016,13 @@ class Block:
 
 def blocks(cell: Cell) -> list[Block]:
     """Every block of ``cell``'s arena, in ``RECORDS`` order: a ``{robot}`` key once per robot,
-    a ``{slot}.{algo}`` key once per joint and algorithm."""
+    an ``{algo}`` key once per servo algorithm."""
     out: list[Block] = []
     for rec in RECORDS:
         if "{robot}" in rec.key:
             at = [(rec.key.format(robot=name), k) for k, name in enumerate(cell.robots)]
-        elif "{slot}" in rec.key:
-            at = [
-                (rec.key.format(slot=s, algo=a), (s, a))
-                for s in range(cell.n_joints)
-                for a in range(len(cell.algorithms))
-            ]
+        elif "{algo}" in rec.key:
+            at = [(rec.key.format(algo=a), a) for a in range(len(cell.algorithms))]
         else:
             at = [(rec.key, None)]
         for key, index in at:
@@ -1035,12 +1033,7 @@ def blocks(cell: Cell) -> list[Block]:
 
 
 def _key_pattern(template: str) -> str:
-    return (
-        re.escape(template)
-        .replace(r"\{robot\}", r"[^.]+")
-        .replace(r"\{slot\}", r"\d+")
-        .replace(r"\{algo\}", r"\d+")
-    )
+    return re.escape(template).replace(r"\{robot\}", r"[^.]+").replace(r"\{algo\}", r"\d+")
 
 
 _LAYOUT_KEYS = re.compile("|".join(f"(?:{_key_pattern(r.key)})" for r in RECORDS))

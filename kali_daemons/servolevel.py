@@ -7,7 +7,9 @@ and clients see it.
 - ``slots``: one ``SERVO_SLOT`` per joint, flat in the same order.  SIO feeds
   them and clears ``busy``; an SV claims a slot by test-and-set of ``busy`` (3.3.5).
 - Private data: one record per (slot, algorithm) of that algorithm's dtype, so a joint keeps
-  the state of every algorithm it may switch to, and any SV can run any joint (3.3.4).
+  the state of every algorithm it may switch to, and any SV can run any joint (3.3.4).  An
+  algorithm's records for all joints are one block (``blocks[k]``, slot order), so an SV can
+  run a built-in over a robot's joints in one call; ``data[i][k]`` views slot i's record.
 - The put/get mailbox (3.4): a client never touches a running servo's data.  It writes the
   staging bytes and the operation, and the SV carries it out at the slot's next run, before
   the step.  So a servo is never skipped for an update and never sees half-written data.
@@ -90,13 +92,15 @@ class ServoLevel:
         self.ctrl = get(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
         width = layout.SERVO_STAGING_BYTES
         self.staging = get(layout.KEY_STAGING, np.dtype("u1"), n * width).reshape(n, width)
-        self.data: list[list[np.ndarray]] = []
-        for i in range(n):
-            row = []
-            for k in range(len(self.registry)):
-                key = layout.KEY_SERVO_DATA.format(slot=i, algo=k)
-                row.append(get(key, self.registry[k].dtype))
-            self.data.append(row)
+        # algorithm k's private data for every joint, one record per slot (servo.vector runs
+        # a built-in over a robot's joints in one call); data[i][k] is slot i's record of it
+        self.blocks: list[np.ndarray] = [
+            get(layout.KEY_SERVO_DATA.format(algo=k), alg.dtype, n)
+            for k, alg in enumerate(self.registry)
+        ]
+        self.data: list[list[np.ndarray]] = [
+            [block[i : i + 1].reshape(()) for block in self.blocks] for i in range(n)
+        ]
         self.structs = [[struct_view(rec) for rec in row] for row in self.data]
         self.slot_structs = (SlotStruct * n).from_buffer(self.slots)
         off = a.lookup(layout.KEY_SLOTS)[0]  # type: ignore[index]

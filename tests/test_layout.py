@@ -48,9 +48,11 @@ def test_a_mixed_cells_blocks_are_sized_by_each_arms_joints() -> None:
     assert blocks["fifo.left.ring"].count == layout.FIFO_CAPACITY * 6
     assert blocks["fifo.right.ring"].count == layout.FIFO_CAPACITY * 7
     assert blocks["flight.ring"].dtype == layout.flight_row(13)
-    servo = [k for k in blocks if re.fullmatch(r"servo\.\d+\.\d+", k)]
-    assert len(servo) == 13 * len(registry)
-    assert blocks[f"servo.12.{len(registry) - 1}"].dtype == registry[len(registry) - 1].dtype
+    # each algorithm's private data is one block, a record per joint (the SVs' units)
+    servo = [k for k in blocks if re.fullmatch(r"servo\.data\.\d+", k)]
+    assert len(servo) == len(registry)
+    last = blocks[f"servo.data.{len(registry) - 1}"]
+    assert last.dtype == registry[len(registry) - 1].dtype and last.count == 13
     # the size kalictl checks the arena against is this layout's (plugins at their largest)
     need, n_blocks, _ = arena_need(cfg)
     assert n_blocks == len(blocks) + 1
@@ -66,8 +68,8 @@ def test_a_sealed_arena_takes_no_new_layout_record(arena: Arena) -> None:
     assert arena.record("clock", layout.CLOCK).shape == ()
     with pytest.raises(ArenaError, match=r"no block 'fifo.third', a record of layout.RECORDS"):
         arena.record("fifo.third", layout.FIFO_HEADER)
-    with pytest.raises(ArenaError, match=r"no block 'servo.99.0'"):
-        arena.shmalloc("servo.99.0", 64)
+    with pytest.raises(ArenaError, match=r"no block 'servo.data.9'"):
+        arena.shmalloc("servo.data.9", 64)
     assert arena.record("my.trace", layout.CLOCK).shape == ()
     assert not layout.is_layout_key("my.trace") and layout.is_layout_key("fifo.left.ring")
 

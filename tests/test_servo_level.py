@@ -391,8 +391,10 @@ def test_the_sv_on_the_other_cpu_polls_so_no_post_wakes_that_cpu(
     signal and SIO's feed (``processes.sv.poll_us``): each tick it sleeps once, and nothing
     on CPU 0 has to wake CPU 1, where a wake-up from halt is an IPI that now and then
     paused the sender's vCPU 0.1-0.5 ms (config/default.yaml).  It wakes shortly before the
-    feed is due, not at the tick, so polling costs CPU 1 about as much again as its servos
-    (sv.0's CPU time on CPU 0), not three times as much, which starved the TG beside it.
+    feed is due, not at the tick, so polling costs CPU 1 well under the 24 % of it that
+    polling from the tick on took, which starved the TG beside it.  (This compared sv.1's
+    CPU time with sv.0's, its servos' cost, until the built-ins ran in compiled units: sv.0
+    then took ~30 µs a tick, and the same polling came out 4 times that.)
     With ``poll_us: 0`` it sleeps on both, twice a tick.  Real time: the point is what the
     kernel does."""
     if (os.cpu_count() or 1) < 2:
@@ -400,20 +402,19 @@ def test_the_sv_on_the_other_cpu_polls_so_no_post_wakes_that_cpu(
     name = kali(lockstep=False, edits={"poll_us: 200": f"poll_us: {poll_us}"})
     with powered_in_real_time(name) as (inst, _):
         pid = int(inst.procs[inst.slot_of("sv.1")]["pid"])
-        pid0 = int(inst.procs[inst.slot_of("sv.0")]["pid"])
         time.sleep(0.2)  # sv.1 learns when the feed comes (FEED_HISTORY ticks)
         tick0, sleeps0, ipis0 = int(inst.clock["tick"]), _sleeps(pid), _cpu1_wakeup_ipis()
-        cpu0 = _cpu_ns(pid), _cpu_ns(pid0)
+        cpu0 = _cpu_ns(pid)
         time.sleep(1.0)
         ticks = int(inst.clock["tick"]) - tick0
         sleeps = (_sleeps(pid) - sleeps0) / ticks
         ipis = (_cpu1_wakeup_ipis() - ipis0) / ticks
-        ratio = (_cpu_ns(pid) - cpu0[0]) / (_cpu_ns(pid0) - cpu0[1])
+        share = (_cpu_ns(pid) - cpu0) / (ticks * inst.config.clock.base_tick_ms * 1e6)
         assert inst.fault_text() is None
         if poll_us:
             assert sleeps < 1.3, f"sv.1 slept {sleeps:.2f} times a tick polling"
             assert ipis < 0.5, f"CPU 1 took {ipis:.2f} wake-up IPIs a tick"
-            assert ratio < 3.0, f"sv.1 took {ratio:.2f} times sv.0's CPU time polling"
+            assert share < 0.2, f"sv.1 took {share:.0%} of CPU 1 polling"
         else:
             assert sleeps > 1.5, f"sv.1 slept {sleeps:.2f} times a tick on its semaphores"
 

@@ -17,7 +17,8 @@ its robot type (``kali_daemons.robots``):
   over the DAC's ± full scale.  Returns whether each joint's demand had to be clamped, for
   SIO's current check.
 
-Inside the cycle: preallocated arrays only.
+Inside the cycle: preallocated arrays only, and each conversion one compiled kernel
+(``kali_daemons.kernels``: ``kali_read``, ``kali_dac``, with their numpy references).
 """
 
 from __future__ import annotations
@@ -28,11 +29,10 @@ import numpy as np
 
 from .. import layout
 from ..joints import ArmCopy, JointMap
+from ..kernels import COUNTER_BITS, COUNTER_HALF, COUNTER_MODULO, Kernel, channel_offsets
 from ..robots import RobotType
 
-COUNTER_BITS = 12
-COUNTER_MODULO = 1 << COUNTER_BITS
-COUNTER_HALF = COUNTER_MODULO // 2  # wrap threshold of figure C.3
+__all__ = ["COUNTER_BITS", "COUNTER_HALF", "COUNTER_MODULO", "DAC_MAX", "JointDriver"]
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 
 
@@ -88,10 +88,18 @@ class JointDriver:
             np.zeros(n) if index_phase is None else np.asarray(index_phase, dtype=np.float64)
         ).reshape(n)
         self._raw = np.zeros(n, dtype=np.int32)
-        self._delta = np.zeros(n, dtype=np.int32)
         self._f = np.zeros(n)
         self._encoders = ArmCopy(self.map, self._raw, encoders)  # counters → _raw
         self._codes = ArmCopy(self.map, self._f, codes)  # _f → DAC codes
+        m = self.map  # where each joint's counter and DAC code sit in the registers
+        self._encoder_regs = encoders
+        self._enc_off = channel_offsets(encoders, m.robot_of, m.joint_of)
+        self._dac_regs = codes
+        self._dac_off = channel_offsets(codes, m.robot_of, m.joint_of)
+        self._read: Kernel | None = None  # bound to the caller's arrays by ``bind``
+        self._dac: Kernel | None = None
+        self._read_q: np.ndarray | None = None
+        self._dac_arrays: tuple[np.ndarray, ...] = ()
 
     # ------------------------------------------------------------------ state
 
@@ -114,19 +122,58 @@ class JointDriver:
         self._encoders.to_flat()
         np.copyto(self.prev, self._raw)
 
+    def bind(
+        self, q: np.ndarray, torque: np.ndarray, current: np.ndarray, clamped: np.ndarray
+    ) -> None:
+        """Bind ``read`` to ``q`` and ``output`` to its three arrays, outside the cycle (a
+        call with other arrays binds those first: fine outside any cycle, in tests and
+        tools)."""
+        self._bind_read(q)
+        self._bind_dac(torque, current, clamped)
+
+    def _bind_read(self, q: np.ndarray) -> None:
+        self._read = Kernel(
+            "kali_read",
+            (self._encoder_regs,),
+            n=self.n,
+            encoders=self._encoder_regs.ctypes.data,
+            enc_off=self._enc_off,
+            acc=self.acc,
+            prev=self.prev,
+            offset=self.offset,
+            rad_per_count=self.rad_per_count,
+            q=q,
+            modulo=COUNTER_MODULO,
+            half=COUNTER_HALF,
+        )
+        self._read_q = q
+
+    def _bind_dac(self, torque: np.ndarray, current: np.ndarray, clamped: np.ndarray) -> None:
+        assert clamped.dtype == np.bool_, f"clamped is bool, not {clamped.dtype}"
+        self._dac = Kernel(
+            "kali_dac",
+            (self._dac_regs,),
+            n=self.n,
+            torque=torque,
+            gkt=self.gkt,
+            current_limit=self.current_limit,
+            codes_per_amp=self.codes_per_amp,
+            current=current,
+            clamped=clamped,
+            dacs=self._dac_regs.ctypes.data,
+            dac_off=self._dac_off,
+            zero=float(layout.DAC_ZERO),
+            top=float(DAC_MAX),
+        )
+        self._dac_arrays = (torque, current, clamped)
+
     def read(self, q: np.ndarray) -> None:
-        """Accumulate the counter readings (low 12 bits) and write joint angles (rad) into
-        ``q`` (``(n,)`` float64)."""
-        r, d = self._raw, self._delta
-        self._encoders.to_flat()
-        np.bitwise_and(r, COUNTER_MODULO - 1, out=r)
-        np.subtract(r, self.prev, out=d)
-        np.add(d, COUNTER_HALF, out=d)  # wrap the difference into -2048 .. 2047
-        np.bitwise_and(d, COUNTER_MODULO - 1, out=d)
-        np.subtract(d, COUNTER_HALF, out=d)
-        np.add(self.acc, d, out=self.acc)
-        np.copyto(self.prev, r)
-        self.angles(q)
+        """Accumulate the counter readings (low 12 bits, the difference wrapped into
+        -2048 .. 2047, figure C.3) and write joint angles (rad) into ``q`` (``(n,)``
+        float64): ``kernels.read_reference``."""
+        if q is not self._read_q:
+            self._bind_read(q)
+        self._read()  # type: ignore[misc]
 
     def angles(self, q: np.ndarray) -> None:
         """Joint angles (rad) of the accumulated counts, with the calibration offsets."""
@@ -163,25 +210,15 @@ class JointDriver:
     # ------------------------------------------------------------------ torque → DAC
 
     def output(self, torque: np.ndarray, current: np.ndarray, clamped: np.ndarray) -> None:
-        """Joint torques (N·m) → motor currents (A, clamped at the limit) → DAC codes.
+        """Joint torques (N·m) → motor currents (A, clamped at the limit) → DAC codes
+        (``kernels.dac_reference``).
 
         ``clamped`` (bool ``(n,)``) is set where the demand exceeded the current limit.
         """
-        np.divide(torque, self.gkt, out=current)
-        np.greater(np.abs(current, out=self._f), self.current_limit, out=clamped)
-        np.minimum(current, self.current_limit, out=current)
-        np.negative(self.current_limit, out=self._f)
-        np.maximum(current, self._f, out=current)
-        self.codes_of(current, self._f)
-        self._codes.to_arms()
-
-    def codes_of(self, current: np.ndarray, out: np.ndarray) -> None:
-        """Motor currents (A) → DAC codes as float64 (rounded, 0 .. 4095)."""
-        np.multiply(current, self.codes_per_amp, out=out)
-        np.add(out, layout.DAC_ZERO, out=out)
-        np.rint(out, out=out)
-        np.maximum(out, 0, out=out)
-        np.minimum(out, DAC_MAX, out=out)
+        a = self._dac_arrays
+        if not a or a[0] is not torque or a[1] is not current or a[2] is not clamped:
+            self._bind_dac(torque, current, clamped)
+        self._dac()  # type: ignore[misc]
 
     def zero(self) -> None:
         """Every joint's DAC channel to 0 V."""

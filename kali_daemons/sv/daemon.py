@@ -2,11 +2,21 @@
 
 Every SV is signalled by the wall clock with SIO (the SVs are gang-scheduled: signalled with
 SIO or not at all, ``wallclock.clock.gang_state``), then waits on its feed semaphore until
-SIO has fed the slots of that tick.  It then walks the slots and claims each fed one
-by test-and-set of its ``busy`` word; whichever SV is free takes the next joint, so a costly
-servo simply takes more of the workers.  For a claimed slot it carries out a pending mailbox
-operation (put/get/select/params, 3.4), runs the joint's algorithm and stores torque, error
-and status.  The SV that finishes the tick's last slot posts SIO's done semaphore.  Each
+SIO has fed the slots of that tick (``_await_feed``), then claims and runs its work
+(``serve``, which an in-process executive may call directly).  Work comes in two kinds:
+
+- units (``units.Unit``): per robot, the fed joints running a built-in servo (PID,
+  PD) with nothing to do before the step, claimed by test-and-set of each ``busy`` word and
+  run in one compiled call over the algorithm's block of private data;
+- single slots: every other fed slot (a plugin, a pending mailbox operation or reset, a
+  disabled servo), claimed by test-and-set of its ``busy`` word; whichever SV is free takes
+  the next joint, so a costly servo simply takes more of the workers.  For a claimed slot
+  it carries out a pending mailbox operation (put/get/select/params, 3.4), runs the
+  joint's algorithm and stores torque, error and status.
+
+Each SV goes through every robot's unit first (SV k starting k/N of the way round, so two
+SVs share two arms), then through the single slots.  Every slot run counts as done; the SV
+that finishes the tick's last slot posts SIO's done semaphore.  Each
 SV notes the tick whose feed it took (``sv_fed_tick``): SIO acknowledges that tick for it
 as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU below
 SIO's priority, would wait behind SIO's output (``ServoIO._ack_gang``).
@@ -33,6 +43,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 import posix_ipc
 
 from .. import atomic, layout, rt
@@ -41,6 +52,7 @@ from ..errors import DaemonError
 from ..layout import FaultCode, SlotOp, SlotReset
 from ..servo import Handover
 from ..servolevel import ServoLevel, apply_op, handover
+from . import units
 
 READY_TIMEOUT_S = 30.0  # how long an SV waits at start for SIO to lay out the slots
 FEED_HISTORY = 16  # ticks over which a polling SV learns when SIO's feed comes
@@ -79,6 +91,7 @@ class ServoWorker(Daemon):
         self.order = [(start + m) % n for m in range(n)]
         self.busy = self.level.slots["busy"]
         registry = self.level.registry
+        self._setup_units(count)
         self.n_algos = len(registry)
         # per slot: the algorithm its robot starts with, what an invalid index is restored to
         self.configured = [
@@ -111,6 +124,25 @@ class ServoWorker(Daemon):
         self._feed_k = 0
         self._feed_cap = self.period_ns // 2  # never wake later than half a tick in
 
+    def _setup_units(self, count: int) -> None:
+        """The robots' units in this worker's order, each bound to its slots and the
+        built-ins' blocks (``units.Unit``; the kernels' library loaded, built first if this
+        source has none yet).  Outside the cycle."""
+        lv = self.level
+        registry = lv.registry
+        spans = [lv.map.span(k) for k in range(lv.n_robots)]
+        first = (self.index * lv.n_robots) // count
+        pid_a, pd_a = registry.index("pid"), registry.index("pd")
+        self._left = np.zeros(max(lv.map.counts, default=1), np.int64)
+        pid, pd = lv.blocks[pid_a], lv.blocks[pd_a]
+        self.units = []
+        for k in ((first + m) % lv.n_robots for m in range(lv.n_robots)):
+            lo, hi = spans[k].start, spans[k].stop
+            unit = units.Unit(
+                lv.slots, pid, pd, lo, hi, pid_a, pd_a, self.me, self.index, self._left
+            )
+            self.units.append(unit)
+
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
         fed_tick = self._await_feed(tick)
@@ -132,6 +164,8 @@ class ServoWorker(Daemon):
         busy, addr, structs, me = self.busy, lv.busy_addr, lv.slot_structs, self.me
         tick_now = int(self._tick)
         ran = 0
+        for unit in self.units:
+            ran += self._serve_unit(unit, tick_now, fed)
         for i in self.order:
             if busy[i] != 0:
                 continue  # not fed, or another worker has it
@@ -140,8 +174,7 @@ class ServoWorker(Daemon):
                 continue
             self._run(i, structs[i], tick_now)
             ran += 1
-            if atomic.fetch_add32(lv.done_addr, 1) + 1 == fed:
-                self.done_sem.release()  # the tick's last servo: wake SIO
+            self._done(1, fed)
         if ran:
             exe = rt.monotonic_ns() - t0
             self._exec_last[0] = exe
@@ -149,6 +182,30 @@ class ServoWorker(Daemon):
                 self._exec_max[0] = exe
             self._servos[0] += ran
             self._exec_hist[layout.lateness_bin(exe)] += 1
+
+    def _serve_unit(self, unit: units.Unit, tick: int, fed: int) -> int:
+        """Claim and run one robot's unit (``units.Unit``), then any slot it claimed for the
+        per-slot path; the number of slots done.  Inside the cycle."""
+        ran = unit.run(tick)
+        left = unit.left()
+        if ran:
+            fault = unit.fault()
+            if fault >= 0:
+                s = self.level.slot_structs[fault]
+                name = self.level.registry[s.algo].name
+                self._servo_fault(fault, name, f"returned torque {unit.bad()!r} N·m, status 0")
+            self._done(ran, fed)
+        structs = self.level.slot_structs
+        for m in range(left):
+            i = int(self._left[m])
+            self._run(i, structs[i], tick)
+            self._done(1, fed)
+        return ran + left
+
+    def _done(self, count: int, fed: int) -> None:
+        """Count ``count`` slots done; the tick's last one posts SIO's done semaphore."""
+        if atomic.fetch_add32(self.level.done_addr, count) + count == fed:
+            self.done_sem.release()  # the tick's last servo: wake SIO
 
     def _await_feed(self, tick: int) -> int:
         """Sleep until SIO has fed ``tick`` (or a later tick); the tick fed, -1 on the timeout.

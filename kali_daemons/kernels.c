@@ -1,0 +1,486 @@
+/* The servo path's per-tick arithmetic, compiled (issue 26 item 2): see kernels.py.
+ *
+ * Every kernel takes one pointer to its argument block, laid out once at configure time
+ * (the arrays never move: arena views and preallocated arrays), so a call costs ~0.3 us.
+ * A per-joint array is a View: its first element and its stride in bytes, so arena record
+ * fields (strided) and private arrays (contiguous) are read alike.  The arithmetic is the
+ * reference numpy implementation's, operation for operation, built with -ffp-contract=off
+ * so no multiply-add is fused: the results are bit for bit numpy's. */
+
+#define _POSIX_C_SOURCE 200809L /* clock_gettime */
+
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+#include <time.h>
+
+typedef struct {
+    char *p;        /* element 0 */
+    int64_t stride; /* bytes between elements */
+} View;
+
+#define AT(type, v, i) (*(type *)((v).p + (int64_t)(i) * (v).stride))
+
+/* ---------------------------------------------------------------- encoders -> radians */
+
+typedef struct {
+    int64_t n;
+    char *encoders;  /* the boards' registers */
+    View enc_off;    /* int64: joint i's counter at encoders + enc_off[i] (uint16) */
+    View acc, prev;  /* int32: accumulated counts, last 12-bit reading */
+    View offset;     /* double: calibration offsets, rad */
+    View rad_per_count, q;
+    int64_t modulo, half; /* 4096, 2048 (figure C.3) */
+} ReadArgs;
+
+int64_t kali_read(ReadArgs *a) {
+    uint32_t mask = (uint32_t)a->modulo - 1u, half = (uint32_t)a->half;
+    for (int64_t i = 0; i < a->n; i++) {
+        uint16_t word = *(uint16_t *)(a->encoders + AT(int64_t, a->enc_off, i));
+        uint32_t raw = (uint32_t)word & mask;
+        uint32_t prev = (uint32_t)AT(int32_t, a->prev, i);
+        int32_t d = (int32_t)((raw - prev + half) & mask) - (int32_t)half;
+        int32_t acc = (int32_t)((uint32_t)AT(int32_t, a->acc, i) + (uint32_t)d);
+        AT(int32_t, a->acc, i) = acc;
+        AT(int32_t, a->prev, i) = (int32_t)raw;
+        AT(double, a->q, i) = (double)acc * AT(double, a->rad_per_count, i) + AT(double, a->offset, i);
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- velocity filter */
+
+typedef struct {
+    int64_t n;
+    View q, q_prev, qd;
+    double gain;  /* rate * a */
+    double b;     /* 1 / (1 + a) */
+} VelocityArgs;
+
+int64_t kali_velocity(VelocityArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) {
+        double q = AT(double, a->q, i);
+        double raw = (q - AT(double, a->q_prev, i)) * a->gain;
+        AT(double, a->qd, i) = (AT(double, a->qd, i) + raw) * a->b;
+        AT(double, a->q_prev, i) = q;
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- range and runaway */
+
+typedef struct {
+    int64_t n, n_robots;
+    View bounds;           /* int64, n_robots + 1: robot k's joints are bounds[k] .. bounds[k+1] */
+    View q, demand, q_min, q_max;
+    View range_check;      /* uint8: nonzero = checked */
+    View fed;              /* uint8 (bool) */
+    View safe;             /* double: client-written limits */
+    View safe_ok;          /* double: the last valid limit of each joint (updated here) */
+    double pi;
+} ChecksArgs;
+
+/* -1: no fault; i: joint i beyond its range; n + i: joint i's tracking error beyond safe.
+ * The first robot at fault, its range before its runaway, its first joint. */
+int64_t kali_checks(ChecksArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) {
+        double s = AT(double, a->safe, i);
+        if (s > 0.0 && s <= a->pi) AT(double, a->safe_ok, i) = s;
+    }
+    for (int64_t k = 0; k < a->n_robots; k++) {
+        int64_t lo = AT(int64_t, a->bounds, k), hi = AT(int64_t, a->bounds, k + 1);
+        for (int64_t i = lo; i < hi; i++) {
+            double q = AT(double, a->q, i);
+            int out = q < AT(double, a->q_min, i) || q > AT(double, a->q_max, i);
+            if (out && AT(uint8_t, a->range_check, i) && AT(uint8_t, a->fed, i)) return i;
+        }
+        for (int64_t i = lo; i < hi; i++) {
+            double err = fabs(AT(double, a->demand, i) - AT(double, a->q, i));
+            if (err > AT(double, a->safe_ok, i) && AT(uint8_t, a->fed, i)) return a->n + i;
+        }
+    }
+    return -1;
+}
+
+/* ---------------------------------------------------------------- feed the slots */
+
+typedef struct {
+    int64_t n;
+    View demand, q, qd, fed;
+    View slot_demand, slot_position, slot_velocity;
+    View slot_busy;  /* uint32: 0 = fed (an SV may claim it), else not_fed */
+    int64_t not_fed;
+    uint32_t *ctrl_fed, *ctrl_done; /* the servo control record's counts */
+} FeedArgs;
+
+/* Stores before this are issued before stores after it (x86 keeps them in order). */
+#define ORDERED() __asm__ __volatile__("" ::: "memory")
+
+/* The slots' inputs, then the count fed and done = 0, then busy: an SV still claiming
+ * from a tick it was late for counts into this tick's done (as the numpy code did).
+ * Returns the slots fed this tick. */
+int64_t kali_feed(FeedArgs *a) {
+    int64_t fed = 0;
+    for (int64_t i = 0; i < a->n; i++) {
+        AT(double, a->slot_demand, i) = AT(double, a->demand, i);
+        AT(double, a->slot_position, i) = AT(double, a->q, i);
+        AT(double, a->slot_velocity, i) = AT(double, a->qd, i);
+        fed += AT(uint8_t, a->fed, i) != 0;
+    }
+    *a->ctrl_fed = (uint32_t)fed;
+    *a->ctrl_done = 0u;
+    ORDERED();
+    for (int64_t i = 0; i < a->n; i++)
+        AT(uint32_t, a->slot_busy, i) = AT(uint8_t, a->fed, i) ? 0u : (uint32_t)a->not_fed;
+    return fed;
+}
+
+/* ---------------------------------------------------------------- torques out */
+
+typedef struct {
+    int64_t n;
+    View slot_torque, fed, servo_torque, ff, torque;
+} TorquesArgs;
+
+/* servo and feed-forward torques of the fed joints, and their sum */
+int64_t kali_torques(TorquesArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) {
+        double f = AT(uint8_t, a->fed, i) ? 1.0 : 0.0;
+        double servo = AT(double, a->slot_torque, i) * f;
+        double ff = AT(double, a->ff, i) * f;
+        AT(double, a->servo_torque, i) = servo;
+        AT(double, a->ff, i) = ff;
+        AT(double, a->torque, i) = servo + ff;
+    }
+    return 0;
+}
+
+typedef struct {
+    int64_t n;
+    View torque, gkt, current_limit, codes_per_amp;
+    View current;   /* double out, A */
+    View clamped;   /* uint8 (bool) out */
+    char *dacs;     /* the DAC boards' registers */
+    View dac_off;   /* int64: joint i's DAC code at dacs + dac_off[i] (uint16) */
+    double zero, top; /* DAC code of 0 V, highest code */
+} DacArgs;
+
+int64_t kali_dac(DacArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) {
+        double limit = AT(double, a->current_limit, i);
+        double c = AT(double, a->torque, i) / AT(double, a->gkt, i);
+        AT(uint8_t, a->clamped, i) = fabs(c) > limit;
+        if (c > limit) c = limit;
+        if (c < -limit) c = -limit;
+        AT(double, a->current, i) = c;
+        double code = rint(c * AT(double, a->codes_per_amp, i) + a->zero);
+        if (code < 0.0) code = 0.0;
+        if (code > a->top) code = a->top;
+        *(uint16_t *)(a->dacs + AT(int64_t, a->dac_off, i)) = (uint16_t)code;
+    }
+    return 0;
+}
+
+typedef struct {
+    int64_t n;
+    View torque, fed, clamped;
+    View over;          /* int64: consecutive fed ticks clamped */
+    View current_ticks; /* int64: how many halt */
+} CurrentArgs;
+
+/* -1, or the first joint clamped for its current_ticks */
+int64_t kali_current_check(CurrentArgs *a) {
+    int64_t first = -1;
+    for (int64_t i = 0; i < a->n; i++) {
+        int fed = AT(uint8_t, a->fed, i) != 0;
+        AT(double, a->torque, i) = AT(double, a->torque, i) * (fed ? 1.0 : 0.0);
+        int64_t over = AT(uint8_t, a->clamped, i) ? AT(int64_t, a->over, i) + 1 : 0;
+        over = fed ? over : 0;
+        AT(int64_t, a->over, i) = over;
+        if (first < 0 && over >= AT(int64_t, a->current_ticks, i)) first = i;
+    }
+    return first;
+}
+
+/* ---------------------------------------------------------------- publish */
+
+typedef struct {
+    View src, dst;
+    int64_t size; /* bytes per element: 4 or 8 */
+} Copy;
+
+typedef struct {
+    int64_t n, m;
+    Copy *copies;
+} CopyArgs;
+
+/* m flat arrays of n elements each into their records */
+int64_t kali_copy(CopyArgs *a) {
+    for (int64_t c = 0; c < a->m; c++) {
+        Copy *k = &a->copies[c];
+        for (int64_t i = 0; i < a->n; i++)
+            memcpy(k->dst.p + i * k->dst.stride, k->src.p + i * k->src.stride, (size_t)k->size);
+    }
+    return 0;
+}
+
+/* ================================================================ the built-in servos
+ *
+ * The PID of thesis figure 3.4 and the PD (servo/builtins.py), over many joints in one call.
+ * Each algorithm's private data for the cell is one arena block of a record per slot; the
+ * structs below mirror the records' numpy dtypes (PID_DTYPE, PD_DTYPE, layout.SERVO_SLOT,
+ * all aligned) and kali_fields() lists their fields, so that kernels.load() refuses a
+ * library whose structs differ from the dtypes.  pid_row and pd_row are pid_step and
+ * pd_step: the same operations in the same order (no contraction), so the same numbers. */
+
+typedef struct {
+    double kp, ki, kv, fe, fv, integration_band, integration_reset, bias_tau;
+    double sampling_period, inv_period, ki_t, lpfe1, lpfe2, lpfv1, lpfv2, bias_decay;
+    double error, old_position, old_velocity, integral, bias;
+    uint32_t primed;
+} PidRecord;
+
+typedef struct {
+    double kp, kv, fv, bias_tau;
+    double sampling_period, inv_period, lpfv1, lpfv2, bias_decay;
+    double error, old_position, old_velocity, bias;
+    uint32_t primed;
+} PdRecord;
+
+typedef struct {
+    uint32_t busy, op, op_algo, op_lock, ops_done, algo, enabled;
+    int32_t status;
+    double demand, position, velocity, torque, error;
+    uint32_t reset;
+    int32_t op_status;
+    int64_t ran_tick, exec_ns;
+    int32_t sv;
+    uint32_t _pad;
+} SlotRecord;
+
+typedef struct {
+    const char *name; /* NULL ends a table; that entry's offset is the struct's size */
+    int64_t offset, size;
+    char kind;        /* numpy's dtype kind: 'f', 'u', 'i' */
+} Field;
+
+#define FIELD(T, f, k) {#f, (int64_t)offsetof(T, f), (int64_t)sizeof(((T *)0)->f), k}
+#define END(T) {NULL, (int64_t)sizeof(T), 0, 0}
+
+static const Field PID_FIELDS[] = {
+    FIELD(PidRecord, kp, 'f'), FIELD(PidRecord, ki, 'f'), FIELD(PidRecord, kv, 'f'),
+    FIELD(PidRecord, fe, 'f'), FIELD(PidRecord, fv, 'f'),
+    FIELD(PidRecord, integration_band, 'f'), FIELD(PidRecord, integration_reset, 'f'),
+    FIELD(PidRecord, bias_tau, 'f'), FIELD(PidRecord, sampling_period, 'f'),
+    FIELD(PidRecord, inv_period, 'f'), FIELD(PidRecord, ki_t, 'f'),
+    FIELD(PidRecord, lpfe1, 'f'), FIELD(PidRecord, lpfe2, 'f'), FIELD(PidRecord, lpfv1, 'f'),
+    FIELD(PidRecord, lpfv2, 'f'), FIELD(PidRecord, bias_decay, 'f'),
+    FIELD(PidRecord, error, 'f'), FIELD(PidRecord, old_position, 'f'),
+    FIELD(PidRecord, old_velocity, 'f'), FIELD(PidRecord, integral, 'f'),
+    FIELD(PidRecord, bias, 'f'), FIELD(PidRecord, primed, 'u'), END(PidRecord),
+};
+
+static const Field PD_FIELDS[] = {
+    FIELD(PdRecord, kp, 'f'), FIELD(PdRecord, kv, 'f'), FIELD(PdRecord, fv, 'f'),
+    FIELD(PdRecord, bias_tau, 'f'), FIELD(PdRecord, sampling_period, 'f'),
+    FIELD(PdRecord, inv_period, 'f'), FIELD(PdRecord, lpfv1, 'f'), FIELD(PdRecord, lpfv2, 'f'),
+    FIELD(PdRecord, bias_decay, 'f'), FIELD(PdRecord, error, 'f'),
+    FIELD(PdRecord, old_position, 'f'), FIELD(PdRecord, old_velocity, 'f'),
+    FIELD(PdRecord, bias, 'f'), FIELD(PdRecord, primed, 'u'), END(PdRecord),
+};
+
+static const Field SLOT_FIELDS[] = {
+    FIELD(SlotRecord, busy, 'u'), FIELD(SlotRecord, op, 'u'), FIELD(SlotRecord, op_algo, 'u'),
+    FIELD(SlotRecord, op_lock, 'u'), FIELD(SlotRecord, ops_done, 'u'),
+    FIELD(SlotRecord, algo, 'u'), FIELD(SlotRecord, enabled, 'u'),
+    FIELD(SlotRecord, status, 'i'), FIELD(SlotRecord, demand, 'f'),
+    FIELD(SlotRecord, position, 'f'), FIELD(SlotRecord, velocity, 'f'),
+    FIELD(SlotRecord, torque, 'f'), FIELD(SlotRecord, error, 'f'),
+    FIELD(SlotRecord, reset, 'u'), FIELD(SlotRecord, op_status, 'i'),
+    FIELD(SlotRecord, ran_tick, 'i'), FIELD(SlotRecord, exec_ns, 'i'),
+    FIELD(SlotRecord, sv, 'i'), FIELD(SlotRecord, _pad, 'u'), END(SlotRecord),
+};
+
+/* The fields of record 0 (SlotRecord), 1 (PidRecord) or 2 (PdRecord); NULL for another. */
+const Field *kali_fields(int64_t record) {
+    switch (record) {
+    case 0: return SLOT_FIELDS;
+    case 1: return PID_FIELDS;
+    case 2: return PD_FIELDS;
+    default: return NULL;
+    }
+}
+
+/* pid_step on one record (written in place): the torque, the filtered error into *error. */
+static inline double pid_row(PidRecord *d, double demand, double position, double *error) {
+    if (d->primed == 0) { /* first step after init: start at rest here (_prime) */
+        d->error = demand - position;
+        d->old_position = position;
+        d->old_velocity = 0.0;
+        d->primed = 1;
+    }
+    double e = d->lpfe2 * (d->lpfe1 * (demand - position) + d->error);
+    double v_raw = (position - d->old_position) * d->inv_period;
+    double v = d->lpfv2 * (d->lpfv1 * v_raw + d->old_velocity);
+    d->error = e;
+    d->old_position = position;
+    d->old_velocity = v;
+    double integral = d->integral, band = d->integration_band;
+    if (-band <= e && e <= band) {
+        integral += d->ki_t * e;
+        double reset = d->integration_reset;
+        if (integral > reset)
+            integral = reset;
+        else if (integral < -reset)
+            integral = -reset;
+        d->integral = integral;
+    }
+    double bias = d->bias;
+    d->bias = bias * d->bias_decay;
+    *error = e;
+    return d->kp * e + integral - d->kv * v + bias;
+}
+
+/* pd_step on one record (written in place): the torque, the error into *error. */
+static inline double pd_row(PdRecord *d, double demand, double position, double *error) {
+    if (d->primed == 0) {
+        d->error = demand - position;
+        d->old_position = position;
+        d->old_velocity = 0.0;
+        d->primed = 1;
+    }
+    double e = demand - position;
+    double v_raw = (position - d->old_position) * d->inv_period;
+    double v = d->lpfv2 * (d->lpfv1 * v_raw + d->old_velocity);
+    d->error = e;
+    d->old_position = position;
+    d->old_velocity = v;
+    double bias = d->bias;
+    d->bias = bias * d->bias_decay;
+    *error = e;
+    return d->kp * e - d->kv * v + bias;
+}
+
+typedef struct {
+    int64_t n;
+    char *data;      /* the algorithm's records */
+    View rows;       /* int64: row k of the step is record rows[k] */
+    View demand, position, torque, error;
+    View status;     /* int32 */
+    int64_t ok;      /* STATUS_OK */
+} VectorArgs;
+
+/* The PID on records rows[0..n-1] of data, with demand[k] and position[k]: torques, errors
+ * and statuses out (servo.vector.pid_vector_step). */
+int64_t kali_pid_vector(VectorArgs *a) {
+    PidRecord *data = (PidRecord *)a->data;
+    for (int64_t k = 0; k < a->n; k++) {
+        double e;
+        AT(double, a->torque, k) = pid_row(&data[AT(int64_t, a->rows, k)],
+                                           AT(double, a->demand, k),
+                                           AT(double, a->position, k), &e);
+        AT(double, a->error, k) = e;
+        AT(int32_t, a->status, k) = (int32_t)a->ok;
+    }
+    return 0;
+}
+
+/* The PD, like kali_pid_vector. */
+int64_t kali_pd_vector(VectorArgs *a) {
+    PdRecord *data = (PdRecord *)a->data;
+    for (int64_t k = 0; k < a->n; k++) {
+        double e;
+        AT(double, a->torque, k) = pd_row(&data[AT(int64_t, a->rows, k)],
+                                          AT(double, a->demand, k),
+                                          AT(double, a->position, k), &e);
+        AT(double, a->error, k) = e;
+        AT(int32_t, a->status, k) = (int32_t)a->ok;
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- an SV's unit */
+
+typedef struct {
+    SlotRecord *slots;   /* the cell's slots */
+    PidRecord *pid;      /* the PID's block: a record per slot */
+    PdRecord *pd;        /* the PD's block */
+    int64_t lo, hi;      /* the robot's slots */
+    int64_t pid_a, pd_a; /* the built-ins' registry indices */
+    int64_t me;          /* the SV's busy value: its number + 1 */
+    int64_t sv;          /* its number */
+    int64_t ok;          /* STATUS_OK */
+    int64_t *left;       /* out: slots claimed for the per-slot path */
+    int64_t tick;        /* in: the tick served */
+    int64_t exec_ns;     /* in/out: this unit's last cost per slot, noted as each step's */
+    int64_t n_left;      /* out: slots put into left */
+    int64_t fault;       /* out: the first slot whose torque was not finite, or -1 */
+    double bad;          /* out: its torque */
+} UnitArgs;
+
+/* What a client writes while the SV looks: read from memory each time, never cached. */
+#define LOAD(x) __atomic_load_n(&(x), __ATOMIC_RELAXED)
+
+/* Whether a slot can run in a unit: nothing to do before its step. */
+static inline int joins(SlotRecord *s, uint32_t pid_a, uint32_t pd_a) {
+    uint32_t algo = LOAD(s->algo);
+    return LOAD(s->op) == 0 && LOAD(s->reset) == 0 && LOAD(s->enabled) != 0 &&
+           (algo == pid_a || algo == pd_a);
+}
+
+static inline int64_t now_ns(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
+}
+
+/* Claim and run the unit of slots lo..hi-1 (sv/units.py): each fed, unclaimed slot with
+ * nothing to do first is claimed by compare-and-swap of busy 0 -> me (the same sequentially
+ * consistent lock cmpxchg as atomic.CompareExchange32 through libatomic), re-checked (a
+ * client's operation may have come meanwhile: then it goes into left), and stepped.
+ * Returns the slots run; n_left, fault, bad and exec_ns are written into the block. */
+int64_t kali_serve_unit(UnitArgs *a) {
+    int64_t t0 = now_ns();
+    uint32_t pid_a = (uint32_t)a->pid_a, pd_a = (uint32_t)a->pd_a, me = (uint32_t)a->me;
+    int64_t ran = 0, n_left = 0, fault = -1;
+    double bad = 0.0;
+    for (int64_t i = a->lo; i < a->hi; i++) {
+        SlotRecord *s = &a->slots[i];
+        if (LOAD(s->busy) != 0) continue; /* not fed, or claimed already */
+        if (!joins(s, pid_a, pd_a)) continue; /* the per-slot path's */
+        uint32_t expected = 0;
+        if (!__atomic_compare_exchange_n(&s->busy, &expected, me, 0, __ATOMIC_SEQ_CST,
+                                         __ATOMIC_SEQ_CST))
+            continue;
+        if (!joins(s, pid_a, pd_a)) { /* a client's operation came meanwhile */
+            a->left[n_left++] = i;
+            continue;
+        }
+        double error, torque;
+        if (LOAD(s->algo) == pid_a)
+            torque = pid_row(&a->pid[i], s->demand, s->position, &error);
+        else
+            torque = pd_row(&a->pd[i], s->demand, s->position, &error);
+        ran++;
+        s->exec_ns = a->exec_ns;
+        if (!isfinite(torque)) {
+            s->torque = 0.0;
+            if (fault < 0) {
+                fault = i;
+                bad = torque;
+            }
+            continue;
+        }
+        s->torque = torque;
+        s->error = error;
+        s->status = (int32_t)a->ok;
+        s->ran_tick = a->tick;
+        s->sv = (int32_t)a->sv;
+    }
+    a->n_left = n_left;
+    a->fault = fault;
+    a->bad = bad;
+    if (ran) a->exec_ns = (now_ns() - t0) / ran;
+    return ran;
+}

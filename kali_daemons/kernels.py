@@ -1,0 +1,467 @@
+"""The servo path's per-tick arithmetic as compiled kernels (issue 26 item 2), and the numpy
+reference each one must equal.
+
+SIO's tick was ~50 small numpy calls (0.3-0.5 µs each before any work) plus Python loops;
+these few C loops (``kernels.c``) do the same arithmetic over every joint in one call each:
+encoders → angles (``read``), the velocity filter, range and runaway checks, feeding the
+slots, the torque sum, torques → DAC codes, the current check, publishing.  The SVs' built-in
+servos are here too: the PID and the PD over a set of joints (``servo.vector``) and an SV's
+unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in one call
+(``sv.units``); their references are the per-joint Python steps (``servo.builtins``).
+
+Why C through ctypes and not numba (measured on this VM, 12 joints): a numba call with 12
+array arguments costs 0.67 µs, a ctypes call with one pointer to an argument block laid
+out at configure 0.27 µs; and ``import numba`` alone grows a process by ~127 MB RSS
+(llvmlite's 179 MB library, all of it locked by SIO's ``mlockall``), against issue 26's
+lean daemon set.  The library is ~20 KB and needs only ``cc``.  Those kernels step the
+arena's records (slots, the built-ins' private data) in place through C structs that mirror
+their dtypes: ``load`` refuses a library whose structs differ (``check_record``).
+
+Build: ``python -m kali_daemons.kernels`` (run by ``scripts/setup.sh``) compiles
+``kernels.c`` with ``cc`` (``$CC``) into ``kernels-<hash>.so``, the hash over the source and
+the flags, so an edited source is never served by a stale library.  It lives in
+``$KALI_KERNEL_DIR`` if set, else in this package's ``__pycache__`` (an editable install, a
+clean CI checkout), else, if that is not writable, ``~/.cache/kali``.  A process that finds
+no library builds it (~0.2 s) in ``load`` — SIO at configure, never inside a cycle.
+
+Every kernel is bound once (``Kernel``): its argument block holds the arrays' addresses and
+strides, so the arrays must never move (arena views and preallocated arrays do not); the
+bound kernel keeps them alive.  A call is then ``kernel()``: no allocation.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import math
+import os
+import subprocess
+import tempfile
+from ctypes import c_double, c_int64, c_void_p
+from pathlib import Path
+
+import numpy as np
+
+from . import layout
+from .errors import DaemonError
+from .servo.builtins import PD_DTYPE, PID_DTYPE
+
+SOURCE = Path(__file__).with_name("kernels.c")
+CFLAGS = ("-O2", "-std=c99", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
+COUNTER_BITS = 12  # the HCTL-2000's counter (figure C.3)
+COUNTER_MODULO = 1 << COUNTER_BITS
+COUNTER_HALF = COUNTER_MODULO // 2  # wrap threshold of figure C.3
+
+# the code of ``kali_checks``: joint i out of range is i, its runaway n + i
+NO_FAULT = -1
+
+
+class View(ctypes.Structure):
+    """A per-joint array as C reads it: element 0 and the stride in bytes."""
+
+    _fields_ = (("p", c_void_p), ("stride", c_int64))
+
+
+def view(a: np.ndarray) -> View:
+    """``a`` (1-D, any stride) as a ``View``; the caller keeps ``a`` alive."""
+    assert a.ndim == 1, f"a kernel takes 1-D arrays, not shape {a.shape}"
+    return View(a.ctypes.data, a.strides[0])
+
+
+def _block(name: str, *fields: str | tuple[str, type]) -> type[ctypes.Structure]:
+    """A kernel's argument block, as its C struct: a bare name is a ``View``."""
+    spec = tuple((f, View) if isinstance(f, str) else f for f in fields)
+    return type(name, (ctypes.Structure,), {"_fields_": spec})
+
+
+N = ("n", c_int64)  # joints: every block's first field
+ReadArgs = _block(
+    "ReadArgs",
+    N,
+    ("encoders", c_void_p),
+    *("enc_off", "acc", "prev", "offset", "rad_per_count", "q"),
+    ("modulo", c_int64),
+    ("half", c_int64),
+)
+VelocityArgs = _block("VelocityArgs", N, "q", "q_prev", "qd", ("gain", c_double), ("b", c_double))
+ChecksArgs = _block(
+    "ChecksArgs",
+    N,
+    ("n_robots", c_int64),
+    *("bounds", "q", "demand", "q_min", "q_max", "range_check", "fed", "safe", "safe_ok"),
+    ("pi", c_double),
+)
+FeedArgs = _block(
+    "FeedArgs",
+    N,
+    *("demand", "q", "qd", "fed", "slot_demand", "slot_position", "slot_velocity", "slot_busy"),
+    ("not_fed", c_int64),
+    ("ctrl_fed", c_void_p),
+    ("ctrl_done", c_void_p),
+)
+TorquesArgs = _block("TorquesArgs", N, "slot_torque", "fed", "servo_torque", "ff", "torque")
+DacArgs = _block(
+    "DacArgs",
+    N,
+    *("torque", "gkt", "current_limit", "codes_per_amp", "current", "clamped"),
+    ("dacs", c_void_p),
+    "dac_off",
+    ("zero", c_double),
+    ("top", c_double),
+)
+CurrentArgs = _block("CurrentArgs", N, "torque", "fed", "clamped", "over", "current_ticks")
+Copy = _block("Copy", "src", "dst", ("size", c_int64))
+CopyArgs = _block("CopyArgs", N, ("m", c_int64), ("copies", ctypes.POINTER(Copy)))
+
+VectorArgs = _block(
+    "VectorArgs",
+    N,
+    ("data", c_void_p),
+    *("rows", "demand", "position", "torque", "error", "status"),
+    ("ok", c_int64),
+)
+UnitArgs = _block(
+    "UnitArgs",
+    *(("slots", c_void_p), ("pid", c_void_p), ("pd", c_void_p)),
+    *((f, c_int64) for f in ("lo", "hi", "pid_a", "pd_a", "me", "sv", "ok")),
+    ("left", c_void_p),
+    *((f, c_int64) for f in ("tick", "exec_ns", "n_left", "fault")),
+    ("bad", c_double),
+)
+
+_KERNELS = {
+    "kali_read": ReadArgs,
+    "kali_velocity": VelocityArgs,
+    "kali_checks": ChecksArgs,
+    "kali_feed": FeedArgs,
+    "kali_torques": TorquesArgs,
+    "kali_dac": DacArgs,
+    "kali_current_check": CurrentArgs,
+    "kali_copy": CopyArgs,
+    "kali_pid_vector": VectorArgs,
+    "kali_pd_vector": VectorArgs,
+    "kali_serve_unit": UnitArgs,
+}
+
+
+class Field(ctypes.Structure):
+    """One field of a record's C struct, as ``kali_fields`` lists it (``kernels.c``)."""
+
+    _fields_ = (
+        ("name", ctypes.c_char_p),  # NULL ends the table; that entry's offset is the size
+        ("offset", c_int64),
+        ("size", c_int64),
+        ("kind", ctypes.c_char),  # numpy's dtype kind
+    )
+
+
+# the records the kernels read and write in place: their number in ``kali_fields`` and the
+# dtype the C struct must mirror, field for field
+RECORDS: dict[str, tuple[int, np.dtype]] = {
+    "layout.SERVO_SLOT": (0, layout.SERVO_SLOT),
+    "servo.builtins.PID_DTYPE": (1, PID_DTYPE),
+    "servo.builtins.PD_DTYPE": (2, PD_DTYPE),
+}
+
+# --------------------------------------------------------------------------------------------
+# Build and load (outside any cycle)
+
+
+def _digest() -> str:
+    h = hashlib.sha256(SOURCE.read_bytes())
+    h.update(" ".join(CFLAGS).encode())
+    return h.hexdigest()[:16]
+
+
+def _writable(d: Path) -> bool:
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return os.access(d, os.W_OK)
+
+
+def library_path() -> Path:
+    """Where this source's library is (or goes): see the module docstring."""
+    name = f"kernels-{_digest()}.so"
+    env = os.environ.get("KALI_KERNEL_DIR")
+    if env:
+        return Path(env) / name
+    here = Path(__file__).parent / "__pycache__"
+    if _writable(here):
+        return here / name
+    return Path.home() / ".cache" / "kali" / name
+
+
+def build(path: Path | None = None) -> Path:
+    """Compile ``kernels.c`` into ``path`` (default ``library_path()``); atomic, so a
+    process loading it meanwhile sees the old file or the whole new one."""
+    path = library_path() if path is None else path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cc = os.environ.get("CC", "cc")
+    fd, tmp = tempfile.mkstemp(prefix=".kernels-", suffix=".so", dir=path.parent)
+    os.close(fd)
+    try:
+        done = subprocess.run(
+            [cc, *CFLAGS, "-o", tmp, str(SOURCE), "-lm"],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        if done.returncode != 0:
+            raise DaemonError(
+                f"kernels: '{cc}' could not compile {SOURCE} (exit {done.returncode}): "
+                f"{done.stderr.strip()[:2000]}"
+            )
+        os.replace(tmp, path)
+    except FileNotFoundError:
+        raise DaemonError(
+            f"kernels: no C compiler '{cc}' to build {SOURCE} (install gcc, or set CC)"
+        ) from None
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+_lib: ctypes.CDLL | None = None
+
+
+def load() -> ctypes.CDLL:
+    """The kernels' library, built first if this source has none yet (outside any cycle)."""
+    global _lib
+    if _lib is None:
+        path = library_path()
+        if not path.exists():
+            build(path)
+        _lib = open_library(path)
+    return _lib
+
+
+def open_library(path: Path) -> ctypes.CDLL:
+    """The library at ``path`` with its kernels typed, once its structs are found to mirror
+    the records' dtypes (``check_record``: a DaemonError otherwise).  Outside any cycle."""
+    lib = ctypes.CDLL(str(path))
+    for name in _KERNELS:
+        fn = getattr(lib, name)
+        fn.argtypes = (c_void_p,)
+        fn.restype = c_int64
+    lib.kali_fields.argtypes = (c_int64,)
+    lib.kali_fields.restype = ctypes.POINTER(Field)
+    for record, (number, dtype) in RECORDS.items():
+        check_record(lib, path, record, number, dtype)
+    return lib
+
+
+def struct_fields(lib: ctypes.CDLL, number: int) -> tuple[dict[str, tuple[int, int, str]], int]:
+    """Record ``number``'s C struct in ``lib``: {field: (offset, size, kind)} and its size."""
+    table = lib.kali_fields(number)
+    assert table, f"kernels: kali_fields knows no record {number}"
+    fields: dict[str, tuple[int, int, str]] = {}
+    k = 0
+    while table[k].name is not None:
+        f = table[k]
+        fields[f.name.decode()] = (f.offset, f.size, f.kind.decode())
+        k += 1
+    return fields, table[k].offset
+
+
+def dtype_fields(dtype: np.dtype) -> dict[str, tuple[int, int, str]]:
+    """A structured dtype's fields as ``struct_fields`` gives a C struct's."""
+    return {
+        name: (offset, sub.itemsize, sub.kind)
+        for name, (sub, offset, *_) in (dtype.fields or {}).items()
+    }
+
+
+def check_record(lib: ctypes.CDLL, path: Path, record: str, number: int, dtype: np.dtype) -> None:
+    """Refuse ``lib`` (a DaemonError naming the record and the first difference) unless
+    its struct for ``record`` has ``dtype``'s fields at the same offsets, of the same size
+    and kind, and the same size: the kernels step the arena's records in place."""
+    c_fields, c_size = struct_fields(lib, number)
+    np_fields = dtype_fields(dtype)
+    for name in [*np_fields, *(f for f in c_fields if f not in np_fields)]:
+        c, n = c_fields.get(name), np_fields.get(name)
+        if c != n:
+            raise DaemonError(
+                f"kernels: {path.name} does not match {record}: field '{name}' is "
+                f"(offset, size, kind) {c} in C, {n} in the dtype; kernels.c's struct must "
+                f"mirror the dtype (rebuild: python -m kali_daemons.kernels)"
+            )
+    if c_size != dtype.itemsize:
+        raise DaemonError(
+            f"kernels: {path.name} does not match {record}: the C struct is {c_size} B, "
+            f"the dtype {dtype.itemsize} B"
+        )
+
+
+class Kernel:
+    """One kernel bound to its arguments at configure: ``kernel()`` runs it (inside the
+    cycle: no allocation) and returns its int64 result.  Array arguments become ``View``s;
+    the kernel keeps them, and whatever ``keep`` holds (a copy table), alive."""
+
+    __slots__ = ("_args", "_fn", "_keep", "_ptr")
+
+    def __init__(self, name: str, keep: tuple[object, ...] = (), **fields: object) -> None:
+        arrays = tuple(v for v in fields.values() if isinstance(v, np.ndarray))
+        for f, value in fields.items():
+            if isinstance(value, np.ndarray):
+                fields[f] = view(value)
+        self._args = _KERNELS[name](**fields)
+        self._keep = keep + arrays
+        self._fn = getattr(load(), name)
+        self._ptr = ctypes.addressof(self._args)
+
+    def __call__(self) -> int:
+        return self._fn(self._ptr)
+
+    @property
+    def args(self) -> ctypes.Structure:
+        """The argument block: a kernel's scalar inputs and outputs are read and written
+        here between calls (``sv.units.Unit``)."""
+        return self._args
+
+
+def copies(pairs: list[tuple[np.ndarray, np.ndarray]]) -> Kernel:
+    """One kernel copying each flat ``src`` into its ``dst`` (same length and item size)."""
+    n = len(pairs[0][0])
+    table = (Copy * len(pairs))()
+    for c, (src, dst) in enumerate(pairs):
+        assert len(src) == n == len(dst) and src.itemsize == dst.itemsize in (4, 8), (src, dst)
+        table[c] = Copy(view(src), view(dst), src.itemsize)
+    arrays = tuple(a for pair in pairs for a in pair)
+    ptr = ctypes.cast(table, ctypes.POINTER(Copy))
+    return Kernel("kali_copy", (table, *arrays), n=n, m=len(pairs), copies=ptr)
+
+
+def channel_offsets(arms: np.ndarray, robot_of: np.ndarray, joint_of: np.ndarray) -> np.ndarray:
+    """Byte offsets from ``arms.ctypes.data`` (a per-arm register array, ``(arms, channels)``)
+    of each flat joint's channel: arm ``robot_of[i]``, channel ``joint_of[i]``."""
+    start = arms.ctypes.data
+    return np.array(
+        [arms[k, j : j + 1].ctypes.data - start for k, j in zip(robot_of, joint_of, strict=True)],
+        dtype=np.int64,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# The numpy references: what each kernel computes, as SIO and the driver did before them
+# (tests/test_sio_kernels.py holds the kernels to these, bit for bit).
+
+
+def read_reference(
+    raw: np.ndarray, acc: np.ndarray, prev: np.ndarray, offset: np.ndarray, rpc: np.ndarray,
+    q: np.ndarray,
+) -> None:  # fmt: skip
+    """``kali_read``: counter readings ``raw`` (int32, flat) accumulated with wrap (figure
+    C.3) into ``acc``, ``prev``; angles into ``q``."""
+    r = np.bitwise_and(raw, COUNTER_MODULO - 1).astype(np.int32)
+    d = np.subtract(r, prev)
+    np.add(d, COUNTER_HALF, out=d)
+    np.bitwise_and(d, COUNTER_MODULO - 1, out=d)
+    np.subtract(d, COUNTER_HALF, out=d)
+    np.add(acc, d, out=acc)
+    np.copyto(prev, r)
+    np.multiply(acc, rpc, out=q)
+    np.add(q, offset, out=q)
+
+
+def velocity_reference(
+    q: np.ndarray, q_prev: np.ndarray, qd: np.ndarray, gain: float, b: float
+) -> None:
+    """``kali_velocity``: backward difference through the first-order low-pass."""
+    raw = np.subtract(q, q_prev)
+    np.multiply(raw, gain, out=raw)
+    np.add(qd, raw, out=qd)
+    np.multiply(qd, b, out=qd)
+    np.copyto(q_prev, q)
+
+
+def checks_reference(
+    bounds: np.ndarray, q: np.ndarray, demand: np.ndarray, q_min: np.ndarray,
+    q_max: np.ndarray, range_check: np.ndarray, fed: np.ndarray, safe: np.ndarray,
+    safe_ok: np.ndarray,
+) -> int:  # fmt: skip
+    """``kali_checks``: NO_FAULT, i (joint i beyond its range) or n + i (its runaway)."""
+    n = len(q)
+    beyond = (q < q_min) | (q > q_max)
+    beyond &= range_check.astype(bool) & fed
+    safe_in = (safe > 0.0) & (safe <= math.pi)
+    np.copyto(safe_ok, safe, where=safe_in)
+    over = (np.abs(demand - q) > safe_ok) & fed
+    for k in range(len(bounds) - 1):
+        span = slice(int(bounds[k]), int(bounds[k + 1]))
+        if beyond[span].any():
+            return span.start + int(np.argmax(beyond[span]))
+        if over[span].any():
+            return n + span.start + int(np.argmax(over[span]))
+    return NO_FAULT
+
+
+def feed_reference(
+    demand: np.ndarray, q: np.ndarray, qd: np.ndarray, fed: np.ndarray, slots: np.ndarray,
+    not_fed: int, ctrl: np.ndarray,
+) -> int:  # fmt: skip
+    """``kali_feed``: the slots' demand, position and velocity, the count fed and done = 0
+    in ``ctrl``, then busy 0 where fed; the count."""
+    np.copyto(slots["demand"], demand)
+    np.copyto(slots["position"], q)
+    np.copyto(slots["velocity"], qd)
+    count = int(np.count_nonzero(fed))
+    ctrl["fed"] = count
+    ctrl["done"] = 0
+    busy = np.full(len(q), not_fed, dtype=np.uint32)
+    np.copyto(busy, 0, where=fed)
+    np.copyto(slots["busy"], busy)
+    return count
+
+
+def torques_reference(
+    slot_torque: np.ndarray, fed: np.ndarray, servo_torque: np.ndarray, ff: np.ndarray,
+    torque: np.ndarray,
+) -> None:  # fmt: skip
+    """``kali_torques``: servo and feed-forward torques of the fed joints, and their sum."""
+    f = fed.astype(np.float64)
+    np.multiply(slot_torque, f, out=servo_torque)
+    np.multiply(ff, f, out=ff)
+    np.add(servo_torque, ff, out=torque)
+
+
+def dac_reference(
+    torque: np.ndarray, gkt: np.ndarray, limit: np.ndarray, codes_per_amp: np.ndarray,
+    current: np.ndarray, clamped: np.ndarray, zero: float, top: float,
+) -> np.ndarray:  # fmt: skip
+    """``kali_dac``: motor currents (clamped at the limit) and the DAC codes (uint16)."""
+    np.divide(torque, gkt, out=current)
+    np.greater(np.abs(current), limit, out=clamped)
+    np.minimum(current, limit, out=current)
+    np.maximum(current, -limit, out=current)
+    codes = current * codes_per_amp
+    np.add(codes, zero, out=codes)
+    np.rint(codes, out=codes)
+    np.maximum(codes, 0, out=codes)
+    np.minimum(codes, top, out=codes)
+    return codes.astype(np.uint16)
+
+
+def current_check_reference(
+    torque: np.ndarray, fed: np.ndarray, clamped: np.ndarray, over: np.ndarray,
+    current_ticks: np.ndarray,
+) -> int:  # fmt: skip
+    """``kali_current_check``: -1, or the first joint clamped for its ``current_ticks``."""
+    np.multiply(torque, fed.astype(np.float64), out=torque)
+    np.multiply(over, clamped, out=over)
+    np.add(over, clamped, out=over)
+    np.multiply(over, fed, out=over)
+    hit = over >= current_ticks
+    return int(np.argmax(hit)) if hit.any() else -1
+
+
+def warm() -> Path:
+    """Build the library if needed and load it; its path (``python -m kali_daemons.kernels``)."""
+    load()
+    return library_path()
+
+
+if __name__ == "__main__":
+    print(f"kali kernels: {warm()}")

@@ -1,0 +1,363 @@
+"""The compiled kernels (``kali_daemons.kernels``) equal their numpy references bit for bit,
+over random inputs: counters with wrap, masks, NaN and garbage safe limits, joints beyond
+their limits, and range, runaway and current faults on the same tick (issue 26 item 2)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from kali_daemons import kernels, layout
+from kali_daemons.errors import DaemonError
+from kali_daemons.kernels import Kernel, copies
+
+SETTINGS = settings(max_examples=150, deadline=None)
+ODD_SAFE = (math.nan, -0.1, 0.0, 4.0, math.inf)  # limits a client may write: none valid
+
+
+def arms(draw: st.DrawFn) -> tuple[int, ...]:
+    """Joint counts of 1..4 arms, 1..8 joints each (one McGill board per arm)."""
+    return tuple(draw(st.lists(st.integers(1, layout.BOARD_CHANNELS), min_size=1, max_size=4)))
+
+
+def floats(draw: st.DrawFn, n: int, lo: float, hi: float) -> np.ndarray:
+    values = st.floats(lo, hi, allow_nan=False, allow_infinity=False)
+    return np.array(draw(st.lists(values, min_size=n, max_size=n)), dtype=np.float64)
+
+
+def bools(draw: st.DrawFn, n: int) -> np.ndarray:
+    return np.array(draw(st.lists(st.booleans(), min_size=n, max_size=n)), dtype=bool)
+
+
+def flat_map(counts: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    robot_of = np.repeat(np.arange(len(counts)), counts)
+    joint_of = np.concatenate([np.arange(c) for c in counts])
+    return robot_of, joint_of
+
+
+def same(a: np.ndarray, b: np.ndarray) -> None:
+    """Bit for bit (NaN payloads and signed zeros included)."""
+    assert a.dtype == b.dtype and a.shape == b.shape
+    assert a.tobytes() == b.tobytes(), f"\n{a!r}\n{b!r}"
+
+
+@st.composite
+def encoder_case(draw: st.DrawFn) -> dict[str, object]:
+    counts = arms(draw)
+    n = sum(counts)
+    ints = st.integers(-(2**31), 2**31 - 1)
+    return {
+        "counts": counts,
+        "words": np.array(draw(st.lists(st.integers(0, 0xFFFF), min_size=n, max_size=n))),
+        "acc": np.array(draw(st.lists(ints, min_size=n, max_size=n)), dtype=np.int32),
+        "prev": np.array(
+            draw(st.lists(st.one_of(st.integers(0, 4095), ints), min_size=n, max_size=n)),
+            dtype=np.int32,
+        ),
+        "offset": floats(draw, n, -4.0, 4.0),
+        "rpc": floats(draw, n, -1e-3, 1e-3),
+    }
+
+
+@SETTINGS
+@given(encoder_case())
+def test_read_equals_the_reference_with_wrap_and_32_bit_accumulation(c: dict) -> None:
+    counts, n = c["counts"], len(c["acc"])
+    robot_of, joint_of = flat_map(counts)
+    boards = np.zeros(len(counts), layout.IO_BOARD)  # the register record, strided fields
+    boards["encoder"][robot_of, joint_of] = c["words"]
+    acc, prev, q = c["acc"].copy(), c["prev"].copy(), np.zeros(n)
+    enc = boards["encoder"]
+    Kernel(
+        "kali_read",
+        (boards,),
+        n=n,
+        encoders=enc.ctypes.data,
+        enc_off=kernels.channel_offsets(enc, robot_of, joint_of),
+        acc=acc,
+        prev=prev,
+        offset=c["offset"],
+        rad_per_count=c["rpc"],
+        q=q,
+        modulo=kernels.COUNTER_MODULO,
+        half=kernels.COUNTER_HALF,
+    )()
+    ref_acc, ref_prev, ref_q = c["acc"].copy(), c["prev"].copy(), np.zeros(n)
+    raw = c["words"].astype(np.int32)
+    kernels.read_reference(raw, ref_acc, ref_prev, c["offset"], c["rpc"], ref_q)
+    same(acc, ref_acc)
+    same(prev, ref_prev)
+    same(q, ref_q)
+
+
+@SETTINGS
+@given(st.data())
+def test_velocity_equals_the_reference(data: st.DataObject) -> None:
+    n = data.draw(st.integers(1, 32))
+    q, q_prev, qd = (floats(data.draw, n, -10.0, 10.0) for _ in range(3))
+    gain, b = data.draw(st.floats(0.0, 1e4)), data.draw(st.floats(0.0, 1.0))
+    k_prev, k_qd = q_prev.copy(), qd.copy()
+    Kernel("kali_velocity", n=n, q=q, q_prev=k_prev, qd=k_qd, gain=gain, b=b)()
+    kernels.velocity_reference(q, q_prev, qd, gain, b)
+    same(k_prev, q_prev)
+    same(k_qd, qd)
+
+
+@st.composite
+def checks_case(draw: st.DrawFn) -> dict[str, object]:
+    counts = arms(draw)
+    n = sum(counts)
+    q_min = floats(draw, n, -3.0, 0.0)
+    q_max = q_min + floats(draw, n, 0.1, 5.0)
+    safe = floats(draw, n, 0.01, math.pi)
+    for i in range(n):  # garbage limits from clients (DESIGN 7)
+        if draw(st.integers(0, 4)) == 0:
+            safe[i] = draw(st.sampled_from(ODD_SAFE))
+    return {
+        "counts": counts,
+        "q": floats(draw, n, -4.0, 4.0),
+        "demand": floats(draw, n, -4.0, 4.0),
+        "q_min": q_min,
+        "q_max": q_max,
+        "range_check": np.array(draw(st.lists(st.integers(0, 3), min_size=n, max_size=n)), "u1"),
+        "fed": bools(draw, n),
+        "safe": safe,
+        "safe_ok": floats(draw, n, 0.01, math.pi),
+    }
+
+
+@SETTINGS
+@given(checks_case())
+def test_checks_name_the_same_joint_and_fault_as_the_reference(c: dict) -> None:
+    """Range before runaway within a robot, robots in order; the valid safe limits taken."""
+    counts = c["counts"]
+    n = len(c["q"])
+    bounds = np.array([0, *np.cumsum(counts)], dtype=np.int64)
+    js = np.zeros(n, layout.JOINT_STATE)  # the client-written fields are record fields
+    js["range_check"], js["safe"] = c["range_check"], c["safe"]
+    safe_ok = c["safe_ok"].copy()
+    found = Kernel(
+        "kali_checks",
+        n=n,
+        n_robots=len(counts),
+        bounds=bounds,
+        q=c["q"],
+        demand=c["demand"],
+        q_min=c["q_min"],
+        q_max=c["q_max"],
+        range_check=js["range_check"],
+        fed=c["fed"],
+        safe=js["safe"],
+        safe_ok=safe_ok,
+        pi=math.pi,
+    )()
+    ref_ok = c["safe_ok"].copy()
+    args = ("q", "demand", "q_min", "q_max", "range_check", "fed", "safe")
+    expected = kernels.checks_reference(bounds, *(c[a] for a in args), ref_ok)
+    assert found == expected
+    same(safe_ok, ref_ok)
+
+
+def test_range_and_runaway_on_the_same_tick_report_the_first_robots_range() -> None:
+    """Robot 0: joint 2 runs away, joint 4 is beyond its range; robot 1 is beyond too: the
+    halt names robot 0's joint 4 (range), as SIO's per-robot walk did."""
+    counts, n = (6, 6), 12
+    bounds = np.array([0, 6, 12], dtype=np.int64)
+    q, demand = np.zeros(n), np.zeros(n)
+    q_min, q_max = np.full(n, -1.0), np.full(n, 1.0)
+    demand[1] = 0.5  # runaway on robot 0 joint 2 (safe 0.1)
+    q[3] = 1.5  # robot 0 joint 4 beyond q_max
+    q[7] = -2.0  # robot 1 joint 2 beyond q_min
+    fed, check = np.ones(n, bool), np.ones(n, "u1")
+    safe = np.full(n, 0.1)
+    args = (q, demand, q_min, q_max, check, fed, safe)
+    kernel = Kernel(
+        "kali_checks",
+        n=n,
+        n_robots=len(counts),
+        bounds=bounds,
+        **dict(
+            zip(("q", "demand", "q_min", "q_max", "range_check", "fed", "safe"), args, strict=True)
+        ),
+        safe_ok=np.full(n, 0.1),
+        pi=math.pi,
+    )
+    assert kernel() == 3 == kernels.checks_reference(bounds, *args, np.full(n, 0.1))
+    q[3] = 0.0  # without the range fault, robot 0's runaway comes first
+    assert kernel() == n + 1 == kernels.checks_reference(bounds, *args, np.full(n, 0.1))
+    fed[:6] = False  # robot 0 not fed: robot 1's range
+    assert kernel() == 7 == kernels.checks_reference(bounds, *args, np.full(n, 0.1))
+
+
+@SETTINGS
+@given(st.data())
+def test_feed_equals_the_reference(data: st.DataObject) -> None:
+    n = data.draw(st.integers(1, 32))
+    demand, q, qd = (floats(data.draw, n, -10.0, 10.0) for _ in range(3))
+    fed = bools(data.draw, n)
+    slots, ref_slots = np.zeros(n, layout.SERVO_SLOT), np.zeros(n, layout.SERVO_SLOT)
+    slots["busy"] = ref_slots["busy"] = 7
+    ctrl, ref_ctrl = np.ones((), layout.SERVO_CTRL), np.ones((), layout.SERVO_CTRL)
+    count = Kernel(
+        "kali_feed",
+        (ctrl,),
+        n=n,
+        demand=demand,
+        q=q,
+        qd=qd,
+        fed=fed,
+        slot_demand=slots["demand"],
+        slot_position=slots["position"],
+        slot_velocity=slots["velocity"],
+        slot_busy=slots["busy"],
+        not_fed=layout.SLOT_NOT_FED,
+        ctrl_fed=ctrl["fed"].ctypes.data,
+        ctrl_done=ctrl["done"].ctypes.data,
+    )()
+    assert count == kernels.feed_reference(
+        demand, q, qd, fed, ref_slots, layout.SLOT_NOT_FED, ref_ctrl
+    )
+    same(slots, ref_slots)
+    same(ctrl, ref_ctrl)
+
+
+@st.composite
+def output_case(draw: st.DrawFn) -> dict[str, object]:
+    counts = arms(draw)
+    n = sum(counts)
+    gkt = floats(draw, n, 1.0, 30.0) * np.where(bools(draw, n), 1.0, -1.0)
+    limit = floats(draw, n, 0.5, 10.0)
+    return {
+        "counts": counts,
+        "slot_torque": floats(draw, n, -400.0, 400.0),
+        "ff": floats(draw, n, -200.0, 200.0),
+        "fed": bools(draw, n),
+        "gkt": gkt,
+        "limit": limit,
+        "codes_per_amp": floats(draw, n, 10.0, 2000.0),  # past full scale: codes clip
+        "over": np.array(draw(st.lists(st.integers(0, 50), min_size=n, max_size=n)), np.int64),
+        "ticks": np.array(draw(st.lists(st.integers(1, 50), min_size=n, max_size=n)), np.int64),
+    }
+
+
+@SETTINGS
+@given(output_case())
+def test_torques_dac_and_current_check_equal_the_reference(c: dict) -> None:
+    """Torque sum (fed joints), currents clamped, DAC codes rounded and clipped, and the
+    current counter naming the same first joint, on the boards' per-arm DAC registers."""
+    counts = c["counts"]
+    n = len(c["fed"])
+    robot_of, joint_of = flat_map(counts)
+    dacs = np.zeros(len(counts), layout.DAC_BOARD)
+    codes = dacs["code"]
+    slot = np.zeros(n, layout.SERVO_SLOT)
+    slot["torque"] = c["slot_torque"]
+    servo, ff, torque = np.zeros(n), c["ff"].copy(), np.zeros(n)
+    current, clamped, over = np.zeros(n), np.zeros(n, bool), c["over"].copy()
+    fed = c["fed"]
+    Kernel(
+        "kali_torques",
+        n=n,
+        slot_torque=slot["torque"],
+        fed=fed,
+        servo_torque=servo,
+        ff=ff,
+        torque=torque,
+    )()
+    Kernel(
+        "kali_dac",
+        (dacs,),
+        n=n,
+        torque=torque,
+        gkt=c["gkt"],
+        current_limit=c["limit"],
+        codes_per_amp=c["codes_per_amp"],
+        current=current,
+        clamped=clamped,
+        dacs=codes.ctypes.data,
+        dac_off=kernels.channel_offsets(codes, robot_of, joint_of),
+        zero=float(layout.DAC_ZERO),
+        top=4095.0,
+    )()
+    first = Kernel(
+        "kali_current_check",
+        n=n,
+        torque=torque,
+        fed=fed,
+        clamped=clamped,
+        over=over,
+        current_ticks=c["ticks"],
+    )()
+    r_servo, r_ff, r_torque = np.zeros(n), c["ff"].copy(), np.zeros(n)
+    r_current, r_clamped, r_over = np.zeros(n), np.zeros(n, bool), c["over"].copy()
+    kernels.torques_reference(c["slot_torque"], fed, r_servo, r_ff, r_torque)
+    r_codes = kernels.dac_reference(
+        r_torque, c["gkt"], c["limit"], c["codes_per_amp"], r_current, r_clamped,
+        float(layout.DAC_ZERO), 4095.0,
+    )  # fmt: skip
+    r_first = kernels.current_check_reference(r_torque, fed, r_clamped, r_over, c["ticks"])
+    for a, b in ((servo, r_servo), (ff, r_ff), (torque, r_torque), (current, r_current)):
+        same(a, b)
+    same(clamped, r_clamped)
+    same(codes[robot_of, joint_of], r_codes)
+    assert not codes[np.ones_like(codes, bool) & (np.arange(8) >= np.array(counts)[:, None])].any()
+    same(over, r_over)
+    assert first == r_first
+
+
+@SETTINGS
+@given(st.data())
+def test_copies_publish_each_array_into_its_record_field(data: st.DataObject) -> None:
+    n = data.draw(st.integers(1, 32))
+    q = floats(data.draw, n, -10.0, 10.0)
+    acc = np.array(data.draw(st.lists(st.integers(-(2**31), 2**31 - 1), min_size=n, max_size=n)))
+    acc = acc.astype(np.int32)
+    js = np.zeros(n, layout.JOINT_STATE)
+    copies([(q, js["q"]), (acc, js["acc"])])()
+    same(js["q"].copy(), q)
+    same(js["acc"].copy(), acc)
+    assert not js["qd"].any() and not js["prev"].any()
+
+
+def test_the_library_is_built_once_per_source_and_reloaded(tmp_path, monkeypatch) -> None:
+    """A fresh directory gets the library on the first build; its name carries the source's
+    hash, so an edited kernels.c never loads a stale one."""
+    monkeypatch.setenv("KALI_KERNEL_DIR", str(tmp_path))
+    path = kernels.library_path()
+    assert path.parent == tmp_path and path.name.startswith("kernels-")
+    assert not path.exists()
+    assert kernels.build() == path and path.exists()
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary left
+
+
+def test_the_librarys_structs_mirror_the_records_dtypes() -> None:
+    """The servo kernels step the arena's slot and built-in records in place: each C struct
+    has its dtype's fields, at the same offsets, of the same size and kind, and its size."""
+    lib = kernels.load()
+    for record, (number, dtype) in kernels.RECORDS.items():
+        fields, size = kernels.struct_fields(lib, number)
+        assert fields == kernels.dtype_fields(dtype), record
+        assert size == dtype.itemsize, record
+
+
+def test_a_library_whose_struct_differs_from_the_dtype_is_refused(tmp_path, monkeypatch) -> None:
+    """A kernels.c whose PD struct has two fields swapped builds, but is refused at load with
+    an error naming the record, the field and both layouts; so is a dtype that has moved."""
+    source = tmp_path / "kernels.c"
+    text = kernels.SOURCE.read_text()
+    struct = "typedef struct {\n    double kp, kv, fv, bias_tau;"
+    assert struct in text
+    source.write_text(text.replace(struct, "typedef struct {\n    double kv, kp, fv, bias_tau;"))
+    monkeypatch.setattr(kernels, "SOURCE", source)
+    path = kernels.build(tmp_path / "kernels-swapped.so")
+    with pytest.raises(DaemonError, match=r"PD_DTYPE: field 'kp' is .* \(8, 8, 'f'\) in C, "):
+        kernels.open_library(path)
+    moved = np.dtype([("busy", "<u4"), *layout.SERVO_SLOT.descr[2:]], align=True)  # no op
+    here = kernels.library_path()
+    refused = r"SERVO_SLOT: field 'op_algo' is .* \(8, 4, 'u'\) in C, \(4, 4, 'u'\) in the"
+    with pytest.raises(DaemonError, match=refused):
+        kernels.check_record(kernels.load(), here, "layout.SERVO_SLOT", 0, moved)
