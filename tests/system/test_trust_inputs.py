@@ -330,7 +330,7 @@ def test_move_timeout_is_a_clear_error(tmp_path: Path, monkeypatch: pytest.Monke
 
 
 def test_the_wall_clocks_death_leaves_a_flight_dump(kali: Callable[..., str]) -> None:
-    name = kali(lockstep=True)
+    name = kali(lockstep=True, separate=True)  # the wall clock alone is killed
     with Instance.attach(name) as inst:
         step_kali_clock(inst, POTS_TICKS)
         os.kill(int(inst.clock["pid"]), signal.SIGKILL)
@@ -388,7 +388,7 @@ def test_flight_never_shows_an_earlier_halts_dump_when_this_ones_failed(
 
 
 def test_two_instances_never_share_log_files(kali: Callable[..., str], tmp_path: Path) -> None:
-    a, b = kali(lockstep=True), kali(lockstep=True)
+    a, b = kali(lockstep=True, separate=True), kali(lockstep=True, separate=True)  # a log each
     da, db = launcher.log_dir(a), launcher.log_dir(b)
     assert da != db and da.parent == db.parent == tmp_path / "logs"
     for d in (da, db):
