@@ -100,7 +100,7 @@ def run_a_while(name: str) -> list[dict[str, object]]:
 def test_the_default_set_fits_its_memory_budget(kali: Callable[..., str]) -> None:
     """Default cell, lockstep, after a move: the wall clock's PSS <= 40 MiB, the set's
     <= 400 MiB, and ``kalictl status --memory`` shows every process and the sum."""
-    name = kali(lockstep=True)
+    name = kali(lockstep=True, separate=True)  # the daemon set as it runs in real time
     rows = run_a_while(name)
     pss = {str(r["name"]): pss_kib(int(r["pid"]))[0] for r in rows}  # type: ignore[call-overload]
     assert len(pss) == 8
@@ -124,7 +124,7 @@ def test_a_panda_brings_no_pinocchio_into_the_clock_sio_or_the_svs(
 ) -> None:
     """A mixed cell (PUMA 560 and Panda, whose kinematics are numerical on Pinocchio): the
     wall clock, SIO and the SVs map none of Pinocchio, MuJoCo or rerun while they run."""
-    name = kali(lockstep=True, base="mixed.yaml")
+    name = kali(lockstep=True, base="mixed.yaml", separate=True)  # a process each
     with Instance.attach(name) as inst:
         step_kali_clock(inst, 100)
         rows = launcher.describe(inst)
