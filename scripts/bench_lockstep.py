@@ -103,7 +103,7 @@ SCENARIOS = {
         Scenario("default-hold", DEFAULT_CONFIG, program="hold"),
         Scenario("default", DEFAULT_CONFIG),
         Scenario("default-ff", DEFAULT_CONFIG, FF_FULL),
-        Scenario("default-ff-separate", DEFAULT_CONFIG, FF_FULL, start=SEPARATE),
+        Scenario("ff-separate", DEFAULT_CONFIG, FF_FULL, start=SEPARATE),
         Scenario("default-ff-rec", DEFAULT_CONFIG, FF_FULL, record=True),
         Scenario("mixed-ff", DEFAULT_CONFIG, {**file_cell(MIXED_CONFIG), **FF_FULL}),
         Scenario("four-ff", DEFAULT_CONFIG, {**CELLS["four"], **FF_FULL}),

@@ -342,15 +342,19 @@ class WallClock(Daemon):
                         if not self._missed(k, i, tick, rt.monotonic_ns()):
                             self._died(i, tick, self._serious[k])
                     else:
-                        self._sig[i] = tick
-                        self._rel[i] = rt.monotonic_ns()
-                        self._signals[i] += 1
-                        self._sems[i].release()
+                        self._signal(i, tick)
                         posted.append(k)
                 k += 1
             if posted and not self._await_stage(posted, tick):
                 return False
         return True
+
+    def _signal(self, i: int, tick: int) -> None:
+        """Post slot ``i``'s semaphore for ``tick`` (lockstep), noting when."""
+        self._sig[i] = tick
+        self._rel[i] = rt.monotonic_ns()
+        self._signals[i] += 1
+        self._sems[i].release()
 
     def _await_stage(self, posted: list[int], tick: int) -> bool:
         """Wait until every slot of ``posted`` (indices into the slot lists) acknowledged

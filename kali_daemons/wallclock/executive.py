@@ -140,14 +140,6 @@ class LockstepExecutive(WallClock):
                 return False
         return True
 
-    def _signal(self, i: int, tick: int) -> None:
-        """Post slot ``i``'s semaphore for ``tick`` (a program's function, in its own
-        process)."""
-        self._sig[i] = tick
-        self._rel[i] = monotonic_ns()
-        self._signals[i] += 1
-        self._sems[i].release()
-
     def _run(self, i: int, daemon: Daemon, tick: int) -> bool:
         """Call hosted slot ``i``'s cycle for ``tick`` and account it as its acknowledgement;
         False if the system halted meanwhile."""
