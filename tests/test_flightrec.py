@@ -148,11 +148,18 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
             # both arms servoing: SIO slept for the servos every tick, within its latency
             assert (d["wait_ns"] > 0).all() and (d["wait_ns"] < d["latency_ns"]).all()
             # SIO's CPU time: some every tick, at most the latency (all of it, to the two
-            # clock reads' µs, on a tick it fed no servo and never slept: after the halt)
-            # the thread CPU clock is accounted apart from the monotonic one: on this VM a few
-            # rows in 2000 read up to ~9 µs more CPU than wall time (SIO at ~60 µs a tick)
+            # clock reads' µs, on a tick it fed no servo and never slept: after the halt).
+            # Not on every row: this VM's thread CPU clock is not bounded by the monotonic
+            # one (a busy loop of 20 µs wall time now and then reads up to 15 µs more CPU:
+            # steal and interrupt time reach it in lumps), so a few rows in 2000 read more
+            # CPU than wall time; most rows, and the median, are the measured fact
             assert (d["ran_ns"] > 0).all()
-            assert (d["ran_ns"] <= 1.2 * d["latency_ns"] + 2_000).all()
+            over = d["ran_ns"] > d["latency_ns"] + 2_000
+            assert over.mean() <= 0.01, (
+                f"{int(over.sum())} rows of {ROWS} with more CPU than wall time: "
+                f"{np.column_stack((d['ran_ns'][over], d['latency_ns'][over]))[:10].tolist()}"
+            )
+            assert np.median(d["ran_ns"]) <= np.median(d["latency_ns"])
             assert str(d["fault_code"]) == "RUNAWAY" and str(d["fault_process"]) == "sio"
             assert list(d["robots"]) == ["left", "right"] and d["q"].shape == (ROWS, 2, 6)
             # the last row is what SIO published in the robot records at that tick
