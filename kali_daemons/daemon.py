@@ -211,6 +211,7 @@ class Daemon:
         p["stage"] = self.stage
         p["signal_tick"] = -1
         p["ack_tick"] = -1
+        p["vouched_tick"] = -1
         if not self.inst.lockstep:
             self._ack_early = self.inst.procs["ack_tick"][self.slot : self.slot + 1]
         clocked = self.inst.lockstep or not self.self_timed_in_realtime

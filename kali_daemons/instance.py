@@ -280,6 +280,7 @@ class Instance:
             self.procs[i]["cpu"] = -1
             self.procs[i]["signal_tick"] = -1
             self.procs[i]["ack_tick"] = -1
+            self.procs[i]["vouched_tick"] = -1
             self.procs[i]["state"] = ProcState.SPAWNED
             return i
 

@@ -210,6 +210,9 @@ PROCESS = np.dtype(
         ("late_last_ns", "<i8"),  # due time to wake-up
         ("late_max_ns", "<i8"),
         ("heartbeat_ns", "<i8"),  # CLOCK_MONOTONIC, refreshed every cycle and every idle wait
+        # SIO side, an SV's slot only: the last tick SIO acknowledged for it before it had
+        # taken that tick's feed (sio/gang.py); the clock looks whether it is alive
+        ("vouched_tick", "<i8"),
         ("hist", "<u4", (HIST_BINS,)),  # wake-up lateness histogram, see lateness_bin
     ],
     align=True,

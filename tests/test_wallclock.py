@@ -253,6 +253,7 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
 
     procs = np.zeros(layout.MAX_PROCESSES, dtype=layout.PROCESS)
     procs["pid"][:3] = pids
+    procs["vouched_tick"] = -1
     misses = np.zeros((), dtype=layout.MISS_LOG)
     fault = {"active": 0}
 
@@ -265,6 +266,7 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
         procs=procs, fault=fault, clock={"mode": RunMode.RUNNING}, raise_fault=raise_fault
     )
     c._due, c._sig, c._ack = procs["next_due"], procs["signal_tick"], procs["ack_tick"]
+    c._vouched = procs["vouched_tick"]
     c._rel, c._signals, c._misses = procs["release_ns"], procs["signals"], procs["misses"]
     c._consec, c._max_consec = procs["consecutive_misses"], procs["max_consecutive_misses"]
     c._log_entries, c._log_count = misses["entries"], misses["count"].reshape(1)
@@ -309,6 +311,44 @@ def test_a_miss_is_looked_up_in_proc_only_after_the_ticks_signals(
         ("proc", 100),
         ("fault", FaultCode.PROCESS_DIED),
     ]
+
+
+def test_an_sv_sio_acknowledged_before_it_took_its_feed_is_looked_up(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """SIO acknowledged sv.0's tick though sv.0 had only taken the previous tick's feed
+    (``sio/gang.py``): the clock looks in /proc, after the tick's signals, whether it is alive,
+    and a dead one halts with PROCESS_DIED at once, as if it had missed (the fault matrix's
+    two servo periods for a dead SV)."""
+    from kali_daemons.wallclock import clock as wc
+
+    events: list[tuple[str, int]] = []
+    alive = {100, 101, 102}
+
+    def pid_alive(pid: int) -> bool:
+        events.append(("proc", pid))
+        return pid in alive
+
+    monkeypatch.setattr(wc, "pid_alive", pid_alive)
+    c = _tick_clock([100, 101, 102], alive, events)
+    c._member = [False, True, True]  # slots 1 and 2 are SVs
+    c._ack[:3] = c._sig[:3] = 4
+    c._realtime_tick(5, 5_000_000)  # nobody vouched for: no /proc read
+    assert events == [("signal", 0), ("signal", 1), ("signal", 2)]
+
+    events.clear()
+    c._ack[:3] = 5
+    c._vouched[1] = 5  # SIO acknowledged tick 5 for slot 1
+    c._realtime_tick(6, 6_000_000)
+    assert events == [("signal", 0), ("signal", 1), ("signal", 2), ("proc", 101)]
+    assert c._misses[1] == 0
+
+    events.clear()
+    alive.discard(101)  # killed before it took tick 6's feed
+    c._ack[:3] = 6
+    c._vouched[1] = 6
+    c._realtime_tick(7, 7_000_000)
+    assert events[-2:] == [("proc", 101), ("fault", FaultCode.PROCESS_DIED)]
 
 
 def test_a_self_timed_process_is_stalled_only_while_the_clock_ran(

@@ -11,7 +11,7 @@ tick.
     (an SV passes over a post left from a tick it missed).
 (c) Sleep at once until the SV finishing the last slot posts the done semaphore, so the SV
     on SIO's CPU takes its feed before the servos are done; acknowledge the tick for each
-    SV that took its feed (``_ack_gang``); take each robot's feed-forward from the dynamics
+    SV it can vouch for (``gang.py``); take each robot's feed-forward from the dynamics
     process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped)
     and add it, write the torques to the boards (motor currents, the current check), and
     drive each board's power switch and keep-alive (the McGill board's watchdog).
@@ -50,6 +50,7 @@ from ..servolevel import ServoLevel
 from ..spinlock import pid_alive
 from .calibration import ACTIVE, Calibration
 from .feedforward import RobotFeedforward
+from .gang import GangAcknowledger
 
 BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
 POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
@@ -140,11 +141,19 @@ class ServoIO(Daemon):
         self.slice_ns, self.wait_ns = int(period_s * 1e9), int(self.wait_s * 1e9)
         self.sv_slots = [inst.slot_of(name) for name in sv_names]
         ctrl["sv_fed_tick"] = -1
-        self._sv_fed_tick = ctrl["sv_fed_tick"]
-        self._sig, self._ack = inst.procs["signal_tick"], inst.procs["ack_tick"]
         # lockstep has no deadlines, and its clock counts one acknowledgement post per
         # process: there every SV acknowledges for itself
-        self._gang = [] if inst.lockstep else list(enumerate(self.sv_slots))
+        sio_cpu = cfg.process("sio").cpu
+        self._gang = GangAcknowledger(
+            ctrl["sv_fed_tick"],
+            inst.procs["signal_tick"],
+            inst.procs["ack_tick"],
+            inst.procs["vouched_tick"],
+            [] if inst.lockstep else self.sv_slots,
+            []
+            if inst.lockstep
+            else [sio_cpu is not None and cfg.process(sv).cpu == sio_cpu for sv in sv_names],
+        )
         # private, preallocated arrays: flat over all joints (robot k joint j at base[k] + j)
         self.q = np.zeros(n)
         self.q_prev = np.zeros(n)
@@ -325,11 +334,11 @@ class ServoIO(Daemon):
         else:  # the lockstep executive: the SVs run here, in this process (one call)
             self.serve(tick)
         # (c) wait for the servos at once (the SV on this CPU takes its feed now, not after
-        # SIO's next work: see _ack_gang), then feed-forward and torques out
+        # SIO's next work: see gang.py), then feed-forward and torques out
         if fed and not self._wait_done(tick, fed):
             self.fed_mask[:] = False
-        else:
-            self._ack_gang(tick)
+        else:  # every servo done: the SVs' acknowledgements before SIO's output (gang.py)
+            self._gang.acknowledge(tick)
         t_done = rt.monotonic_ns()
         for ff in self._ff:  # this tick's feed-forward (thesis 3.3.6)
             ff.update(tick)
@@ -555,29 +564,6 @@ class ServoIO(Daemon):
         )
         self.driver.zero()
         return False
-
-    def _ack_gang(self, tick: int) -> None:
-        """Acknowledge ``tick`` for every SV signalled for it that took its feed: every fed
-        servo is done, so what is left of such an SV's cycle is bookkeeping (thesis 3.3.4:
-        SIO and the SVs are one gang).
-
-        The SV that finishes the last servo posts the done semaphore, and SIO, above it on
-        the same CPU, preempts it at once: the SV's own acknowledgement waits behind SIO's
-        output.  On a tick SIO finishes just in time, the clock would count that SV late
-        though its servos were long done (three such misses in a 30-minute soak, SIO on
-        time in each).  An SV that has not taken its feed is not acknowledged: a stalled
-        or dead one still misses, and the clock names it.  So SIO sleeps on the done
-        semaphore right after the feeds: the SV on its CPU, next below it, normally takes
-        its feed then.  Not when SIO's vCPU pauses right after feeding and sv.1 on the other
-        CPU meanwhile runs every servo: the likely cause of the soaks' sv.0-only misses
-        while SIO's feed woke sv.1 from halt (an IPI, which now and then paused the sender's
-        vCPU: config/default.yaml gives the kernel trace; sv.1 now polls).  (Computing feed-forward
-        first, sv.1 on the other CPU ran every servo while sv.0 waited, and sv.0, never fed
-        in time, missed alone in two soaks with SIO on time.)  Real time only (``_gang``)."""
-        fed, sig, ack = self._sv_fed_tick, self._sig, self._ack
-        for k, slot in self._gang:
-            if fed[k] == tick and sig[slot] == tick:
-                ack[slot] = tick  # the same tick the SV itself writes when it gets the CPU
 
     def _dead_servo(self, tick: int) -> bool:
         """Halt with PROCESS_DIED if an SV holding an unfinished slot died; True if so.

@@ -19,7 +19,8 @@ SVs share two arms), then through the single slots.  Every slot run counts as do
 that finishes the tick's last slot posts SIO's done semaphore.  Each
 SV notes the tick whose feed it took (``sv_fed_tick``): SIO acknowledges that tick for it
 as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU below
-SIO's priority, would wait behind SIO's output (``ServoIO._ack_gang``).
+SIO's priority, would wait behind SIO's output (``sio/gang.py``, which also says when SIO
+vouches for the SV on its CPU that took the previous tick's feed).
 
 An SV bound to another CPU than SIO's (sv.1 by default) is woken by neither post: in real time it
 sleeps on its own CPU's timer to shortly before SIO's feed is due (learnt over the last ticks,
@@ -132,7 +133,7 @@ class ServoWorker(Daemon):
         registry = lv.registry
         spans = [lv.map.span(k) for k in range(lv.n_robots)]
         first = (self.index * lv.n_robots) // count
-        pid_a, pd_a = registry.index("pid"), registry.index("pd")
+        pid_a, pd_a = (registry.index(name) for name in units.ALGORITHMS)
         self._left = np.zeros(max(lv.map.counts, default=1), np.int64)
         pid, pd = lv.blocks[pid_a], lv.blocks[pd_a]
         self.units = []

@@ -63,6 +63,7 @@ class WallClock(Daemon):
         self.lockstep = bool(c["lockstep"])
         p = self.inst.procs
         self._sig, self._rel, self._ack = p["signal_tick"], p["release_ns"], p["ack_tick"]
+        self._vouched = p["vouched_tick"]
         self._due, self._signals = p["next_due"], p["signals"]
         self._misses, self._consec = p["misses"], p["consecutive_misses"]
         self._max_consec = p["max_consecutive_misses"]
@@ -216,7 +217,7 @@ class WallClock(Daemon):
         SIO and the SVs run as a gang (thesis 3.3.4, ``gang_state``): a tick SIO misses,
         or every SV does, none of them is signalled, and each that missed counts its miss.
         """
-        nd, sig, ack = self._due, self._sig, self._ack
+        nd, sig, ack, vouched = self._due, self._sig, self._ack, self._vouched
         lead = self._lead
         gang = GANG_RUNS
         if lead >= 0 and tick >= nd[lead]:
@@ -234,6 +235,9 @@ class WallClock(Daemon):
                 suspect[n_suspect] = k
                 n_suspect += 1
                 continue
+            if member[k] and vouched[i] == sig[i]:  # SIO acknowledged for an SV not yet fed
+                suspect[n_suspect] = k  # (sio/gang.py): is it alive?
+                n_suspect += 1
             if gang != GANG_RUNS and (i == lead or member[k]):
                 continue  # acknowledged, but its gang sits this tick out
             if self._consec[i]:
