@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from . import boards, flightrec, introspect, launcher, layout
+from . import boards, flightrec, introspect, launcher, layout, schedule
 from .client.motion import INSTANCE_ENV, Kali
 from .config import cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
@@ -466,14 +466,43 @@ def clock_step(ctx: click.Context, ticks: int) -> None:
             sys.exit(1)
 
 
+_WARN = click.option(
+    "--warn",
+    is_flag=True,
+    help="If the schedulability check predicts the servo tick will not fit, warn and go ahead.",
+)
+
+
+@main.command()
+@click.option(
+    "--margin",
+    type=click.FloatRange(0.0, 1.0, max_open=True),
+    default=schedule.DEFAULT_MARGIN,
+    show_default=True,
+    help="Headroom the servo tick must leave in its period.",
+)
+@click.pass_context
+@_errors
+def check(ctx: click.Context, margin: float) -> None:
+    """Schedulability: does the servo tick fit its period on its CPUs, as measured now?"""
+    with _attach(ctx) as inst:
+        verdict = schedule.check(inst, margin=margin)
+    click.echo(verdict.text())
+    if not verdict.fits:
+        sys.exit(1)
+
+
 @main.command()
 @click.argument("process")
 @click.argument("ms", type=click.FLOAT)
+@_WARN
 @click.pass_context
 @_errors
-def rate(ctx: click.Context, process: str, ms: float) -> None:
+def rate(ctx: click.Context, process: str, ms: float, warn: bool) -> None:
     """Set PROCESS's period to MS milliseconds, a whole number of base ticks (e.g. 1.5)."""
     with _attach(ctx) as inst:
+        change = schedule.Change(f"rate {process} {ms:g} ms", process=process, period_us=ms * 1e3)
+        schedule.guard(inst, change, warn, lambda text: click.echo(text, err=True))
         set_control_rate(inst, process, ms)
         click.echo(f"{process}: period {ms:g} ms")
 
@@ -912,11 +941,16 @@ def servo_list(ctx: click.Context) -> None:
 @click.argument("robot")
 @click.argument("joint", type=int)
 @click.argument("algorithm")
+@_WARN
 @click.pass_context
 @_errors
-def servo_select(ctx: click.Context, robot: str, joint: int, algorithm: str) -> None:
-    """Switch ROBOT's JOINT (1..n) to ALGORITHM, bumplessly, while it moves."""
+def servo_select(ctx: click.Context, robot: str, joint: int, algorithm: str, warn: bool) -> None:
+    """Switch ROBOT's JOINT (1..n) to ALGORITHM, bumplessly, while it moves (after the
+    schedulability check: refused if the servo tick would no longer fit)."""
     with _servo_client(ctx) as (inst, client):
+        if not inst.lockstep:
+            change = schedule.servo_change(client, robot, joint, algorithm)
+            schedule.guard(inst, change, warn, lambda text: click.echo(text, err=True))
         client.select(robot, joint, algorithm, wait=not inst.lockstep)
         click.echo(f"{robot} joint {joint}: {algorithm}")
 

@@ -80,6 +80,13 @@ class ServoError(KaliError):
     subsystem = "servo"
 
 
+class ScheduleError(KaliError):
+    """The schedulability check: nothing to measure yet, or a change that would not fit the
+    servo period on its CPUs (``kalictl check``)."""
+
+    subsystem = "schedule"
+
+
 class KinematicsError(KaliError):
     """Inverse kinematics: a pose out of reach, a joint out of its limits, a bad transform."""
 

@@ -33,6 +33,8 @@ from ..servo import PD, PID, struct_view
 from ..servo.builtins import PD_DTYPE, PID_DTYPE
 from ..servo.registry import STATUS_OK
 
+ALGORITHMS = (PID.name, PD.name)  # the built-ins a unit runs, in one compiled call per arm
+
 
 class Unit:
     """``kali_serve_unit`` bound at configure to robot slots ``lo..hi-1`` of ``slots`` (the
