@@ -278,6 +278,21 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
     return c
 
 
+def _clock_reading_proc(
+    monkeypatch: pytest.MonkeyPatch, alive: set[int], events: list[tuple[str, int]]
+) -> WallClock:
+    """``_tick_clock`` over pids 100-102, its /proc reads (``pid_alive``) recorded in
+    ``events`` and answered from ``alive``."""
+    from kali_daemons.wallclock import clock as wc
+
+    def pid_alive(pid: int) -> bool:
+        events.append(("proc", pid))
+        return pid in alive
+
+    monkeypatch.setattr(wc, "pid_alive", pid_alive)
+    return _tick_clock([100, 101, 102], alive, events)
+
+
 def test_a_miss_is_looked_up_in_proc_only_after_the_ticks_signals(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -285,17 +300,9 @@ def test_a_miss_is_looked_up_in_proc_only_after_the_ticks_signals(
     real time it comes after every signal of the tick and never delays one on time (the wall
     clock outranks SIO and an SV on CPU 0: a read before their signals held them all back).
     A dead serious process still halts in the same tick."""
-    from kali_daemons.wallclock import clock as wc
-
     events: list[tuple[str, int]] = []
     alive = {100, 101, 102}
-
-    def pid_alive(pid: int) -> bool:
-        events.append(("proc", pid))
-        return pid in alive
-
-    monkeypatch.setattr(wc, "pid_alive", pid_alive)
-    c = _tick_clock([100, 101, 102], alive, events)
+    c = _clock_reading_proc(monkeypatch, alive, events)
     c._ack[:3], c._sig[:3] = [3, 4, 4], [4, 4, 4]  # slot 0 did not acknowledge tick 4
     c._realtime_tick(5, 5_000_000)
     assert events == [("signal", 1), ("signal", 2), ("proc", 100)]
@@ -320,17 +327,9 @@ def test_an_sv_sio_acknowledged_before_it_took_its_feed_is_looked_up(
     (``sio/gang.py``): the clock looks in /proc, after the tick's signals, whether it is alive,
     and a dead one halts with PROCESS_DIED at once, as if it had missed (the fault matrix's
     two servo periods for a dead SV)."""
-    from kali_daemons.wallclock import clock as wc
-
     events: list[tuple[str, int]] = []
     alive = {100, 101, 102}
-
-    def pid_alive(pid: int) -> bool:
-        events.append(("proc", pid))
-        return pid in alive
-
-    monkeypatch.setattr(wc, "pid_alive", pid_alive)
-    c = _tick_clock([100, 101, 102], alive, events)
+    c = _clock_reading_proc(monkeypatch, alive, events)
     c._member = [False, True, True]  # slots 1 and 2 are SVs
     c._ack[:3] = c._sig[:3] = 4
     c._realtime_tick(5, 5_000_000)  # nobody vouched for: no /proc read
