@@ -215,6 +215,7 @@ def predict(
         f"{fig.servos_p99_us:.0f} µs (encoder read to DAC write {fig.latency_p99_us:.0f} µs)"
     ]
     servo_tasks = [t for t in tasks if t.name in fig.servo_procs]
+    process_fits = True  # a process whose period changes meets it (response-time analysis)
     if change is not None:
         lines.append(f"change: {change.what}")
         if change.servo_us:
@@ -240,12 +241,12 @@ def predict(
                 response += max(0.0, extra)
                 lines.append(f"  preempts {below[0].name}: {max(0.0, extra):+.0f} µs a tick")
             r = _response(new, tasks)
-            ok = r <= new.period_us
+            ok = process_fits = r <= new.period_us
             lines.append(
                 f"  {new.name}: {new.cost_us:.0f} µs a cycle every {new.period_us:.0f} µs, "
                 f"response {r:.0f} µs: {'fits' if ok else 'DOES NOT FIT'} its period"
             )
-    fits = response <= limit
+    fits = response <= limit and process_fits
     lines.append(
         f"servo tick {response:.0f} µs of at most {limit:.0f} µs ({100 * (1 - margin):.0f} % "
         f"of the period): {'fits' if fits else 'DOES NOT FIT'}"
@@ -257,10 +258,6 @@ def predict(
         where = f"CPU {cpu}" if cpu >= 0 else "unbound"
         lines.append(
             f"{where}: {100 * load[cpu]:.0f} % busy ({names}): {'fits' if ok else 'OVERLOADED'}"
-        )
-    if change is not None and change.process:
-        fits = fits and all(
-            _response(t, tasks) <= t.period_us for t in tasks if t.name == change.process
         )
     return Prediction(fits, response, limit, lines)
 
