@@ -47,6 +47,8 @@ DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "default.ya
 # what the system runs without when a non-serious process dies (DESIGN 7: degrade)
 TOP_INTERVAL_S = (0.05, 60.0)  # kalictl top's refresh interval
 MOVE_TIMEOUT_S = 3600.0  # kalictl move's longest wait
+MAX_PUSH_N = 5000.0  # kalictl push: the largest force per axis
+MAX_PUSH_S = 600.0  # and the longest push
 DEGRADED = {"dynamics": "feed-forward (SIO drops it as stale)", "viewer": "dashboard"}
 
 
@@ -531,6 +533,30 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
             FaultCode.ESTOP, "kalictl", f"emergency stop pressed: {', '.join(targets)}"
         )
         click.echo(f"e-stop pressed: {', '.join(targets)}; amplifiers off, system halted")
+
+
+@main.command(context_settings={"ignore_unknown_options": True})
+@click.argument("robot")
+@click.argument("fx")
+@click.argument("fy")
+@click.argument("fz")
+@click.option("--for", "seconds", default="1", show_default=True, help="seconds (simulated)")
+@click.pass_context
+@_errors
+def push(ctx: click.Context, robot: str, fx: str, fy: str, fz: str, seconds: str) -> None:
+    """Push ROBOT's tool with the force FX FY FZ (N, world frame) for --for seconds: the
+    plant applies it to the tool, as a hand or a collision would (a simulated cell only)."""
+    force = np.array(
+        [
+            _number("push", axis, v, -MAX_PUSH_N, MAX_PUSH_N, "N")
+            for axis, v in zip(("FX", "FY", "FZ"), (fx, fy, fz), strict=True)
+        ]
+    )
+    duration = _number("push", "--for", seconds, 0.0, MAX_PUSH_S, "seconds", lo_open=True)
+    with _attach(ctx) as inst:
+        k = inst.robot_index(robot)
+        inst.push(k, force, duration)
+        click.echo(f"{robot}: pushed with ({fx}, {fy}, {fz}) N for {duration:g} s")
 
 
 @main.command()

@@ -33,6 +33,9 @@ import yaml
 
 from kali_daemons import layout
 from kali_daemons.errors import ConfigError
+from kali_daemons.ftsensor import SHEETS as FT_SHEETS
+from kali_daemons.ftsensor import FtSheet
+from kali_daemons.ftsensor import sheet as ft_sheet
 from kali_daemons.joints import JointMap
 from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
 
@@ -115,6 +118,16 @@ _ROBOT_KEYS = (
     "ff",
     "index_phases_deg",
     "grasp_yaw_deg",
+    "ft",
+)
+_FT_KEYS = (
+    "sensor",
+    "tool_mass_kg",
+    "tool_com_m",
+    "tool_tip_m",
+    "cutoff_hz",
+    "contact_limit_n",
+    "stale_ms",
 )
 FF_MODES = ("off", "gravity", "full")  # layout.FfMode by name
 _FEEDFORWARD_KEYS = ("stale_ms", "ramp_ms")
@@ -204,6 +217,29 @@ class PlantConfig:
 
 
 @dataclass(frozen=True)
+class FtConfig:
+    """A robot's wrist force/torque sensor and the tool on it (issue 27, ``ftsensor.py``).
+
+    The sensor sits on the flange (its frame the flange's); the tool hangs on the sensor: its
+    mass and centre of mass (sensor frame) are what SIO subtracts as gravity, and its tool
+    point, ``tool_tip_m`` out along the sensor's z, is where the contact wrench is given.
+    """
+
+    sensor: str | None = "mini45"  # a data sheet of ftsensor.SHEETS; None: no sensor
+    tool_mass_kg: float = 0.35
+    tool_com_m: tuple[float, float, float] = (0.0, 0.0, 0.02)
+    tool_tip_m: float = 0.042
+    cutoff_hz: float = 30.0  # SIO's low-pass on the contact wrench
+    contact_limit_n: float = 150.0  # a contact force beyond this halts (FORCE)
+    stale_ms: float = 10.0  # no fresh sample this long halts (FORCE: the sensor is silent)
+
+    @property
+    def sheet(self) -> FtSheet | None:
+        """The sensor's data sheet, or None without a sensor."""
+        return None if self.sensor is None else ft_sheet(self.sensor)
+
+
+@dataclass(frozen=True)
 class RobotConfig:
     """One arm in the cell: its model and where its base sits in the world frame."""
 
@@ -221,6 +257,7 @@ class RobotConfig:
     # how its flange holds the bar: its grasp site turned this much (deg, counter-clockwise
     # seen from above) about the vertical through the grasp point (kali_daemons.model)
     grasp_yaw_deg: float = 0.0
+    ft: FtConfig = FtConfig()  # its wrist force/torque sensor and tool
 
     def __post_init__(self) -> None:
         if not self.index_phases:
@@ -1176,7 +1213,38 @@ def _robots(node: Any, base_dir: str) -> tuple[RobotConfig, ...]:
             )
             sheet = tuple(math.radians(v) for v in phases)
         grasp_yaw = _float(m.get("grasp_yaw_deg", 0.0), f"{path}.grasp_yaw_deg", -180.0, 180.0)
+        ft = _ft(m.get("ft", {}), f"{path}.ft")
         robots.append(
-            RobotConfig(name, model, (x, y, z), yaw, servo, safe, fault_ms, ff, sheet, grasp_yaw)
+            RobotConfig(
+                name, model, (x, y, z), yaw, servo, safe, fault_ms, ff, sheet, grasp_yaw, ft
+            )
         )
     return tuple(robots)
+
+
+def _ft(node: Any, path: str) -> FtConfig:
+    """A robot's ``ft`` section: its wrist sensor (``sensor: none`` for none) and tool."""
+    m = _mapping(node, path, _FT_KEYS)
+    d = FtConfig()
+    sensor_node = m.get("sensor", d.sensor)
+    if sensor_node is None or sensor_node == "none":
+        sensor = None
+    else:
+        sensor = _choice(sensor_node, f"{path}.sensor", (*FT_SHEETS, "none"))
+    com_node = m.get("tool_com_m", list(d.tool_com_m))
+    if not isinstance(com_node, list) or len(com_node) != 3:
+        _fail(f"{path}.tool_com_m", com_node, "must be a list of 3 numbers [x, y, z] in metres")
+    cx, cy, cz = (_float(v, f"{path}.tool_com_m[{j}]", -1.0, 1.0) for j, v in enumerate(com_node))
+    return FtConfig(
+        sensor=sensor,
+        tool_mass_kg=_float(
+            m.get("tool_mass_kg", d.tool_mass_kg), f"{path}.tool_mass_kg", 0.0, 50.0, False
+        ),
+        tool_com_m=(cx, cy, cz),
+        tool_tip_m=_float(m.get("tool_tip_m", d.tool_tip_m), f"{path}.tool_tip_m", 0.0, 1.0, False),
+        cutoff_hz=_float(m.get("cutoff_hz", d.cutoff_hz), f"{path}.cutoff_hz", 0.0, 1000.0),
+        contact_limit_n=_float(
+            m.get("contact_limit_n", d.contact_limit_n), f"{path}.contact_limit_n", 0.0, 10_000.0
+        ),
+        stale_ms=_float(m.get("stale_ms", d.stale_ms), f"{path}.stale_ms", 0.0, 1000.0),
+    )

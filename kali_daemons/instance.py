@@ -194,6 +194,15 @@ class Instance:
         """The I/O board registers, one record per robot (created by the plant)."""
         return self.arena.existing(layout.KEY_BOARDS, layout.IO_BOARD, len(self.config.robots))
 
+    def push(self, k: int, force: np.ndarray, seconds: float) -> None:
+        """Ask the plant to push robot ``k``'s tool with ``force`` (N, world frame, at the
+        tool's centre of mass) for ``seconds`` of simulated time (``kalictl push``; tests and
+        demos of force control).  A push replaces the one in progress."""
+        pushes = self.arena.existing(layout.KEY_PUSHES, layout.PUSH, len(self.config.robots))
+        pushes["force"][k] = force
+        pushes["duration_ns"][k] = round(seconds * 1e9)
+        pushes["seq"][k] = int(pushes["seq"][k]) + 1  # last: the plant starts the push
+
     def dacs(self) -> np.ndarray:
         """The DAC board registers, one record per robot (created by the plant)."""
         return self.arena.existing(layout.KEY_DACS, layout.DAC_BOARD, len(self.config.robots))

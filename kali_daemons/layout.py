@@ -262,6 +262,7 @@ class FaultCode(enum.IntEnum):
     OPERATOR = 10  # halted on request
     SERVO = 11  # a servo algorithm raised, returned a bad status or a non-finite torque
     POWER = 12  # a robot's amplifiers went off while it was servoing
+    FORCE = 13  # a wrist force/torque sensor saturated, beyond its range or the contact limit
 
 
 FAULT = np.dtype(
@@ -375,6 +376,7 @@ KEY_DACS = "dacs"  # DAC boards, DAC_BOARD per robot
 KEY_TRUTHS = "truths"  # plant-only truth, ARM_TRUTH per robot (never read by the controller)
 KEY_JOINT_TRUTHS = "truths.joints"  # plant-only truth, JOINT_TRUTH per joint of the cell
 KEY_WORLD_TRUTH = "truth.world"
+KEY_PUSHES = "plant.pushes"  # PUSH per robot: external pushes the operator asks the plant for
 
 # Command/status register bits (appendix C.5.1).  Note the inverted senses of the thesis.
 CSR_RED_LED_OFF = 1 << 0  # 0 = red LED on, 1 = off
@@ -438,6 +440,11 @@ IO_BOARD = np.dtype(
         ("present", "u1"),  # plant: 1 once the board answers (its registers are valid)
         ("_pad", "u1", (2,)),
         ("clamped", "<u4"),  # plant: out-of-range register values clamped, as hardware does
+        # the wrist F/T sensor's gauge ADC bank (ftsensor.py): one simultaneous sample of its
+        # six bridges per request, signed 16-bit codes over ±10 V
+        ("ft_gauge", "<i2", (6,)),  # plant: the codes of the sample ft_status names
+        ("ft_control", "<u2"),  # Kali: FT_REQUEST | seq asks for a new sample
+        ("ft_status", "<u2"),  # plant: FT_READY | FT_PRESENT | seq once that sample is in
     ],
     align=True,
 )
@@ -453,6 +460,9 @@ DAC_BOARD = np.dtype(
 ARM_TRUTH = np.dtype(
     [
         ("grasp_wrench", "<f8", (6,)),  # weld force (N) and torque (N·m) on the object, world
+        # what an ideal wrist sensor reads: the wrench the tool exerts on it, sensor frame
+        ("ft_wrench", "<f8", (6,)),
+        ("push", "<f8", (3,)),  # the external push on the tool now (N, world), kalictl push
         ("amps_on", "u1"),
         ("brakes_engaged", "u1"),
         ("grasped", "u1"),
@@ -480,6 +490,16 @@ WORLD_TRUTH = np.dtype(
         ("ticks", "<u8"),  # plant cycles
         ("object_pose", "<f8", (7,)),  # position (m) and quaternion (w, x, y, z)
         ("internal_force", "<f8"),  # N, squeeze along the line between the grasps (+ = tension)
+    ],
+    align=True,
+)
+
+PUSH = np.dtype(  # kalictl push: an external force on a robot's tool, for tests and demos
+    [
+        ("force", "<f8", (3,)),  # operator: N, world frame, applied at the tool's sensor origin
+        ("duration_ns", "<i8"),  # operator: how long, in the plant's simulated time
+        ("seq", "<u4"),  # operator: written last, incremented per push; the plant starts it
+        ("_pad", "<u4"),
     ],
     align=True,
 )
@@ -590,6 +610,42 @@ JOINT_STATE = np.dtype(  # one per joint of the cell, flat (joints.JointMap)
         ("over_ticks", "<i4"),  # SIO: consecutive ticks beyond the current limit
         ("range_check", "u1"),  # clients: 1 = joint range checked
         ("_pad", "u1", (3,)),
+    ],
+    align=True,
+)
+
+KEY_FT = "robots.ft"  # FT_STATE per robot, config order: its wrist sensor in Newtons
+
+
+class TareState(enum.IntEnum):
+    """A robot's tare, as SIO goes through it (``FT_STATE.tare_state``)."""
+
+    IDLE = 0
+    AVERAGING = 1  # summing the next samples
+    DONE = 2
+    FAILED = 3  # no sensor, or it did not answer, or the arm moved
+
+
+FT_STATE = np.dtype(  # one per robot: its wrist force/torque sensor (ftsensor.py), SIO
+    [
+        ("present", "u1"),  # SIO: 1 once the sensor answered
+        ("tare_cmd", "u1"),  # clients: 1 = tare; SIO clears it when taken
+        ("tare_state", "u1"),  # SIO: TareState
+        ("_pad", "u1", (5,)),
+        ("tare_count", "<u4"),  # SIO: tares done
+        ("stale", "<u4"),  # SIO: ticks since the last fresh sample
+        ("samples", "<u8"),  # SIO: fresh samples read
+        ("sample_tick", "<i8"),  # SIO: tick of the last fresh sample
+        # SIO: the calibrated reading less the tare bias: the wrench the tool exerts on the
+        # sensor (its weight included), sensor frame, N and N·m, unfiltered
+        ("sensor", "<f8", (6,)),
+        # SIO: the contact wrench, what the environment applies to the tool (tool gravity
+        # removed), low-pass filtered, about the tool point: tool axes, then world axes
+        ("tool", "<f8", (6,)),
+        ("world", "<f8", (6,)),
+        ("bias", "<f8", (6,)),  # SIO: the tare's bias, sensor frame (kept across SIO restarts)
+        ("rotation", "<f8", (3, 3)),  # SIO: the sensor frame in the world at the sample
+        ("contact_limit", "<f8"),  # clients: contact force beyond this halts, N (0: config's)
     ],
     align=True,
 )
@@ -948,9 +1004,11 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_TRUTHS, ARM_TRUTH, lambda c, i: len(c.robots), "plant", "tests, viewer"),
     Record(KEY_JOINT_TRUTHS, JOINT_TRUTH, lambda c, i: c.n_joints, "plant", "tests"),
     Record(KEY_WORLD_TRUTH, WORLD_TRUTH, None, "plant", "viewer, tests"),
+    Record(KEY_PUSHES, PUSH, lambda c, i: len(c.robots), "kalictl push", "the plant"),
     # the servo level
     Record(KEY_ROBOTS, ROBOT_STATE, lambda c, i: len(c.robots), "SIO (commands: clients)", "all"),
     Record(KEY_JOINTS, JOINT_STATE, lambda c, i: c.n_joints, "SIO (limits: clients)", "all"),
+    Record(KEY_FT, FT_STATE, lambda c, i: len(c.robots), "SIO (tare, limit: clients)", "all"),
     Record(KEY_SLOTS, SERVO_SLOT, lambda c, i: c.n_joints, "SIO, SVs, clients", "SIO, SVs"),
     Record(KEY_SERVO_CTRL, SERVO_CTRL, None, "SIO, SVs", "all"),
     Record(

@@ -29,6 +29,8 @@ from kali_daemons.cell import (
     GRASP_HEIGHT,
     GRASP_INSET,
     STAND_SIZE,
+    TABLE_CENTRE_XY,
+    TABLE_SIZE,
     bar_rest_pose,
     load_pinocchio,
 )
@@ -42,6 +44,10 @@ IntArray = npt.NDArray[np.int64]
 # at the grasp pose; 8 steps (4 ms at 0.5 ms) gives 0.17 mm and stays 4x above the 2-step
 # floor below which MuJoCo's 'refsafe' would clamp it.
 WELD_TIMECONST_STEPS: Final = 8
+TOOL_RADIUS_M: Final = 0.012  # the tool's pad, a sphere ending at the tool point
+# contact bits: the fixtures and the tools' pads touch each other (and nothing else of the
+# arms); the bar, the stand and the floor keep MuJoCo's default bit 1
+TOOL_CONTACT: Final = 2
 
 
 @dataclass(frozen=True)
@@ -55,8 +61,9 @@ class World:
     ``data.qfrc_applied[dof_adr[k]]``.  Arm geoms never collide (contype = conaffinity =
     0); only the bar touches the stand and the floor.
 
-    Grasping.  ``weld[k]`` is a MuJoCo weld equality between the robot's ``flange`` body
-    (body1) and the bar (body2), inactive at start.  A weld's ``eq_data`` row (MuJoCo 4) is
+    Grasping.  ``weld[k]`` is a MuJoCo weld equality between the robot's ``tool`` body (body1;
+    it sits at the flange frame, on the wrist force/torque sensor, so the sensor feels the
+    bar) and the bar (body2), inactive at start.  A weld's ``eq_data`` row (MuJoCo 4) is
     ``[anchor(3), relpos(3), relquat(4), torquescale, from_qpos0]``: with anchor 0 the weld
     holds the bar's origin at ``relpos`` and its orientation at ``relquat`` in the flange
     frame; ``from_qpos0 = 1`` would let ``mj_setConst`` overwrite relpose, so it stays 0.  To
@@ -80,6 +87,9 @@ class World:
     object_dof_adr: int  # first of its 6 dofs
     motor: tuple[IntArray, ...] = ()  # per robot: its n_joints motor actuator ids, j1..jn
     motor_act_adr: tuple[IntArray, ...] = ()  # per robot: their activations (currents) in data.act
+    tool_body: tuple[int, ...] = ()  # per robot: its tool, on the flange through the F/T sensor
+    # per robot: sensordata address of its F/T sensor's force (3) then torque (3), -1 if none
+    ft_adr: tuple[int, ...] = ()
 
     def index(self, robot: int | str) -> int:
         """The position of ``robot`` (a name, or already an index) in ``robots``."""
@@ -149,6 +159,7 @@ def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> Worl
     bar = _add_bar(spec, robots)
     for r, t in zip(robots, types, strict=True):
         _attach_arm(spec, r, t)
+        _add_tool(spec, r)
         _add_motors(spec, r.name, t)
         _add_weld(spec, r.name, bar, WELD_TIMECONST_STEPS * timestep)
 
@@ -178,6 +189,10 @@ def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> Worl
         out.setflags(write=False)
         return out
 
+    def ft_address(robot: str) -> int:
+        sid = oid(mujoco.mjtObj.mjOBJ_SENSOR, f"{robot}/ft_force")
+        return -1 if sid < 0 else int(model.sensor_adr[sid])
+
     bar_body = oid(mujoco.mjtObj.mjOBJ_BODY, "object")
     bar_joint = model.body_jntadr[bar_body]
     return World(
@@ -193,6 +208,8 @@ def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> Worl
         object_dof_adr=int(model.jnt_dofadr[bar_joint]),
         motor=tuple(motors(n) for n in names),
         motor_act_adr=tuple(motors(n, model.actuator_actadr) for n in names),
+        tool_body=tuple(oid(mujoco.mjtObj.mjOBJ_BODY, f"{n}/tool") for n in names),
+        ft_adr=tuple(ft_address(n) for n in names),
     )
 
 
@@ -206,7 +223,8 @@ def _yaw_quat(yaw_deg: float) -> list[float]:
 
 
 def _add_scenery(spec: mujoco.MjSpec) -> None:
-    """Floor, light and the stand (static, colliding)."""
+    """Floor, light, the stand and the table (static, colliding; the table with the tools'
+    pads too)."""
     world = spec.worldbody
     world.add_light(name="sun", pos=[0.0, -1.0, 3.0], dir=[0.0, 0.3, -1.0])
     world.add_geom(
@@ -222,6 +240,16 @@ def _add_scenery(spec: mujoco.MjSpec) -> None:
         size=[sx / 2, sy / 2, sz / 2],
         pos=[0.0, 0.0, sz / 2],
         rgba=[0.45, 0.33, 0.22, 1.0],
+    )
+    tx, ty, tz = TABLE_SIZE
+    world.add_geom(
+        name="table",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[tx / 2, ty / 2, tz / 2],
+        pos=[*TABLE_CENTRE_XY, tz / 2],
+        contype=1 | TOOL_CONTACT,
+        conaffinity=1 | TOOL_CONTACT,
+        rgba=[0.62, 0.6, 0.55, 1.0],
     )
 
 
@@ -328,6 +356,51 @@ def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> No
     flange.add_site(name=f"{prefix}flange", size=[0.008, 0.008, 0.008], rgba=[0.9, 0.1, 0.1, 1])
 
 
+def _add_tool(spec: mujoco.MjSpec, robot: RobotConfig) -> None:
+    """The robot's tool on its flange, through a wrist force/torque sensor (issue 27).
+
+    A child body ``<robot>/tool`` at the flange frame with the config's tool mass and centre
+    of mass (``FtConfig``), a round pad whose tip is the tool point (``tool_tip_m`` out along
+    z) and that touches only the fixtures (``TOOL_CONTACT``: not the bar it holds by the weld,
+    not the floor), and the site ``<robot>/ft`` at its origin, where MuJoCo's force and torque
+    sensors measure what passes between the flange and the tool (sensors
+    ``<robot>/ft_force``, ``<robot>/ft_torque``: the force the flange applies to the tool,
+    in the site frame).  Without a sensor in the config the tool is there, unmeasured.
+    """
+    ft = robot.ft
+    flange = spec.body(f"{robot.name}/{FLANGE_FRAME}")
+    tool = flange.add_body(name=f"{robot.name}/tool")
+    if ft.tool_mass_kg > 0.0:  # else a massless tool: its pad has no density either
+        tool.mass = ft.tool_mass_kg
+        tool.ipos = list(ft.tool_com_m)
+        inertia = ft.tool_mass_kg * TOOL_RADIUS_M**2 / 2.0
+        tool.inertia = [inertia, inertia, inertia]
+        tool.explicitinertial = True
+    tool.add_geom(
+        name=f"{robot.name}/pad",
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[TOOL_RADIUS_M, 0.0, 0.0],
+        pos=[0.0, 0.0, ft.tool_tip_m - TOOL_RADIUS_M],
+        contype=TOOL_CONTACT,
+        conaffinity=TOOL_CONTACT,
+        mass=0.0,
+        density=0.0,
+        rgba=[0.2, 0.2, 0.25, 1.0],
+    )
+    site = tool.add_site(name=f"{robot.name}/ft", size=[0.01, 0.01, 0.004], rgba=[0.1, 0.3, 0.9, 1])
+    if ft.sensor is None:
+        return
+    for kind, suffix in (
+        (mujoco.mjtSensor.mjSENS_FORCE, "force"),
+        (mujoco.mjtSensor.mjSENS_TORQUE, "torque"),
+    ):
+        sensor = spec.add_sensor()
+        sensor.name = f"{robot.name}/ft_{suffix}"
+        sensor.type = kind
+        sensor.objtype = mujoco.mjtObj.mjOBJ_SITE
+        sensor.objname = site.name
+
+
 def _add_motors(spec: mujoco.MjSpec, robot: str, rtype: RobotType) -> None:
     """One motor per joint: its amplifier's current loop as a first-order actuator.
 
@@ -370,7 +443,7 @@ def _add_weld(spec: mujoco.MjSpec, robot: str, bar: mujoco.MjsBody, timeconst: f
         name=f"{robot}/grasp",
         type=mujoco.mjtEq.mjEQ_WELD,
         objtype=mujoco.mjtObj.mjOBJ_BODY,
-        name1=f"{robot}/{FLANGE_FRAME}",
+        name1=f"{robot}/tool",
         name2="object",
         active=False,
         data=[0.0, 0.0, 0.0, *relpos, *qinv, 1.0, 0.0],

@@ -20,10 +20,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from kali_daemons.config import RobotConfig, load_config
+from kali_daemons.config import FtConfig, RobotConfig, load_config
 from kali_daemons.errors import ConfigError, ModelError
 from kali_daemons.model import (
     FLANGE_FRAME,
+    TOOL_CONTACT,
     World,
     _attach_arm,
     build_world,
@@ -72,8 +73,13 @@ def pin_model() -> pin.Model:
 
 @pytest.fixture(scope="module")
 def arm_world() -> World:
-    """One arm at the origin, no yaw: its frames are the toolbox's base frame."""
-    return build_world([RobotConfig("arm", "puma560", (0.0, 0.0, 0.0), 0.0)])
+    """One arm at the origin, no yaw: its frames are the toolbox's base frame; a massless
+    tool, as the toolbox's and Pinocchio's arms have none; no contacts."""
+    bare = FtConfig(tool_mass_kg=0.0, tool_com_m=(0.0, 0.0, 0.0))
+    world = build_world([RobotConfig("arm", "puma560", (0.0, 0.0, 0.0), 0.0, ft=bare)])
+    # the arm alone: its tool's pad, at random poses, must not land on the cell's table
+    world.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    return world
 
 
 @pytest.fixture(scope="module")
@@ -330,13 +336,18 @@ def test_cell_layout(
         assert m.eq_obj2id[weld] == cell.object_body
     # facing each other across the origin: a half turn about z maps one flange onto the other
     np.testing.assert_allclose(flanges["right"], [-1, -1, 1] * flanges["left"], atol=1e-12)
-    # only the bar, the stand and the floor make contacts
+    # only the bar, the stand, the table and the floor make contacts; of the arms, only the
+    # tools' pads, and those only with the table (issue 27)
     arm_geoms = [
         g
         for g in range(m.ngeom)
         if m.body_rootid[m.geom_bodyid[g]] != cell.object_body and m.geom_bodyid[g] != 0
     ]
-    assert arm_geoms and all(m.geom_contype[g] == 0 == m.geom_conaffinity[g] for g in arm_geoms)
+    pads = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{r.name}/pad") for r in default_robots]
+    assert all(m.geom_contype[g] == TOOL_CONTACT == m.geom_conaffinity[g] for g in pads)
+    assert all(m.geom_contype[g] == 0 == m.geom_conaffinity[g] for g in arm_geoms if g not in pads)
+    table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
+    assert m.geom_conaffinity[table] & TOOL_CONTACT and m.geom_contype[table] & 1
 
 
 def solve_ik(model: pin.Model, target: pin.SE3, q0: np.ndarray) -> np.ndarray:

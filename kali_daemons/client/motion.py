@@ -302,6 +302,9 @@ def _speed_arg(what: str, name: str, value: object) -> float:
     return float(value)
 
 
+FT_FRAMES = ("world", "tool", "sensor")  # Robot.read_wrench's frames (layout.FT_STATE fields)
+
+
 class Robot:
     """One arm of the cell, as a user program moves it."""
 
@@ -334,6 +337,44 @@ class Robot:
         welds a closing gripper to the object if the flange is within reach of its grasp."""
         close = _flag_arg(f"grip: robot '{self.name}'", "close", close)
         boards.grip(self.kali.inst.boards(), self.index, close)
+
+    def read_wrench(self, frame: str = "world") -> np.ndarray:
+        """The arm's wrist force/torque sensor in Newtons (issue 27; SIO's, this tick), a copy
+        of 6 values [Fx, Fy, Fz, Tx, Ty, Tz] (N, N·m).  ``frame``: ``"world"`` (default) or
+        ``"tool"`` give the contact wrench, what the environment applies to the tool (its own
+        weight removed, low-pass filtered), about the tool point in world or tool axes;
+        ``"sensor"`` the wrench the tool exerts on the sensor (its weight included,
+        unfiltered), sensor frame.  ServoError for an arm without a sensor."""
+        if frame not in FT_FRAMES:
+            raise ServoError(
+                f"read_wrench: robot '{self.name}': frame {frame!r:.40}; "
+                f"one of: {', '.join(FT_FRAMES)}"
+            )
+        return self._ft(f"read_wrench({frame!r})")[frame].copy()
+
+    def tare(self, timeout: float = 5.0) -> None:
+        """Zero the wrist sensor: SIO averages its next 0.1 s of readings less the tool's
+        weight and takes that as the sensor's offset.  Keep the arm still and touching
+        nothing.  Waits until done; ServoError if the system halts or ``timeout`` (s) passes."""
+        ft = self._ft("tare")
+        limit = _timeout_arg("tare", timeout)
+        deadline = time.monotonic() + (math.inf if limit is None else limit)
+        count = int(ft["tare_count"])
+        ft["tare_cmd"] = 1
+        while int(ft["tare_count"]) == count:
+            if self.kali.inst.fault["active"]:
+                raise ServoError(
+                    f"tare: robot '{self.name}': the system halted: {self.kali.inst.fault_text()}"
+                )
+            if time.monotonic() > deadline:
+                raise ServoError(f"tare: robot '{self.name}': not done within {limit:g} s")
+            self.kali.pause()
+
+    def _ft(self, what: str) -> np.ndarray:
+        """The arm's FT_STATE record (0-d); ServoError if it has no wrist sensor."""
+        if self.kali.inst.config.robots[self.index].ft.sheet is None:
+            raise ServoError(f"{what}: robot '{self.name}' has no wrist force/torque sensor")
+        return self.kali.ft[self.index : self.index + 1].reshape(())
 
     def set_tool(self, tool: np.ndarray) -> None:
         """The tool frame in the flange frame (4×4) for this program's Cartesian moves."""
@@ -565,6 +606,7 @@ class Kali:
                 layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.servo.names)
             )
             self.leases = arena.record(layout.KEY_TG_LEASES, layout.LEASE, len(self.servo.names))
+            self.ft = arena.record(layout.KEY_FT, layout.FT_STATE, len(self.servo.names))
             self.fifos = [self.servo.level.fifo(k) for k in range(len(self.servo.names))]
         except KaliError:
             self.inst.close()
@@ -751,6 +793,7 @@ class Kali:
         self.fifos = []
         self.status = None  # type: ignore[assignment]
         self.leases = None  # type: ignore[assignment]
+        self.ft = None  # type: ignore[assignment]
         self.queue = None  # type: ignore[assignment]
         self.inst.close()
 

@@ -20,6 +20,8 @@ What Kali sees is only the ``layout.IO_BOARD`` record; this class plays the hard
 - **Potentiometers** (joint j's on ADC channel j) through the TLC532A: a conversion starts
   on a rising START bit in the control register and completes with ``ADC_DONE | value`` in
   the analog register; the digital register reads the channels above 2.5 V.
+- **Wrist force/torque sensor** (issue 27): its six strain-gauge bridges on a 16-bit ADC
+  bank, sampled together on request (``FtBank``, ``kali_daemons.ftsensor``).
 
 All times are the plant's simulated time, so lockstep runs are deterministic.
 """
@@ -30,7 +32,7 @@ import math
 
 import numpy as np
 
-from .. import layout
+from .. import ftsensor, layout
 from ..config import PlantConfig
 from ..joints import ArmCopy, JointMap
 from ..layout import (
@@ -249,3 +251,54 @@ class EncoderBank:
         np.subtract(self._raw, self._ref, out=self._count)
         np.mod(self._count, COUNTER_MODULO, out=self._count)
         self._to_boards.to_arms()
+
+
+class FtBank:
+    """One arm's wrist force/torque sensor and the I/O board's gauge ADC bank behind
+    ``ft_gauge``/``ft_control``/``ft_status`` (``kali_daemons.ftsensor``): the sensor's six
+    bridges produce ``v = C⁻¹ (w + noise) + offset`` for the wrench ``w`` the tool exerts on
+    it, and a new request (``FT_REQUEST`` with a sequence number not served yet) samples them
+    all at once, at the cycle it is seen, into signed 16-bit codes clipped at the rails.
+
+    The offsets are the sensor's own (drawn once per sensor, within the sheet's
+    ``offset_v``) and walk with the sheet's thermal drift every cycle; noise and drift come
+    from a generator seeded per sensor, so a lockstep run is the same every time.
+    """
+
+    def __init__(self, regs: np.ndarray, sheet: ftsensor.FtSheet, seed: int, dt_s: float) -> None:
+        self.regs = regs  # this arm's IO_BOARD record (0-d)
+        self.sheet = sheet
+        self._rng = np.random.Generator(np.random.PCG64(seed))
+        self.offset = self._rng.uniform(-sheet.offset_v, sheet.offset_v, ftsensor.GAUGES)
+        self._drift = sheet.drift_v_per_sqrt_s * math.sqrt(dt_s)
+        self._gauges = np.ascontiguousarray(sheet.gauges)
+        self._noise_sd = np.asarray(sheet.noise, dtype=np.float64)
+        self._n = np.zeros(ftsensor.GAUGES)
+        self._w = np.zeros(ftsensor.GAUGES)
+        self._v = np.zeros(ftsensor.GAUGES)
+        self._codes = regs["ft_gauge"]
+        self._served = -1  # the last sequence number sampled
+        regs["ft_status"] = ftsensor.FT_PRESENT
+
+    def cycle(self, wrench: np.ndarray) -> None:
+        """One plant cycle: the offsets drift; a new request samples ``wrench`` (the tool on
+        the sensor, sensor frame).  Inside the cycle."""
+        rng, n = self._rng, self._n
+        rng.standard_normal(out=n)
+        n *= self._drift
+        self.offset += n
+        ctrl = int(self.regs["ft_control"])
+        seq = ctrl & ftsensor.FT_SEQ_MASK
+        if not ctrl & ftsensor.FT_REQUEST or seq == self._served:
+            return
+        self._served = seq
+        rng.standard_normal(out=n)
+        np.multiply(n, self._noise_sd, out=n)
+        np.add(n, wrench, out=self._w)
+        np.matmul(self._gauges, self._w, out=self._v)
+        np.add(self._v, self.offset, out=self._v)
+        np.divide(self._v, ftsensor.VOLTS_PER_CODE, out=self._v)
+        np.rint(self._v, out=self._v)
+        np.clip(self._v, -ftsensor.FT_RAIL - 1, ftsensor.FT_RAIL, out=self._v)
+        np.copyto(self._codes, self._v, casting="unsafe")
+        self.regs["ft_status"] = ftsensor.FT_READY | ftsensor.FT_PRESENT | seq  # last

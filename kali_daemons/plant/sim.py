@@ -22,6 +22,8 @@ joint count unused.
 
 from __future__ import annotations
 
+import zlib
+
 import mujoco
 import numpy as np
 
@@ -30,7 +32,7 @@ from ..arena import Arena
 from ..config import KaliConfig
 from ..joints import ArmCopy
 from ..model import World, build_world
-from .board import EncoderBank, IoBoardSim
+from .board import EncoderBank, FtBank, IoBoardSim
 from .motor import MotorBank
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
@@ -96,6 +98,28 @@ class PlantSim:
         self._q_arms = joints.split(self.q)  # views, bound once
         self._gripper_prev = [0] * n_arms
         self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        # the wrist sensors (issue 27): MuJoCo's force and torque at each arm's sensor site,
+        # through its board's gauge ADC bank; pushes on the tools from kalictl push
+        self._ft_true = np.zeros((n_arms, 6))
+        self._ft_src = [
+            None if a < 0 else self.data.sensordata[a : a + 6] for a in self.world.ft_adr
+        ]
+        self.ft = [
+            None
+            if r.ft.sheet is None
+            else FtBank(
+                self.regs[k : k + 1].reshape(()),
+                r.ft.sheet,
+                seed=zlib.crc32(f"{cfg.instance}/{r.name}".encode()),
+                dt_s=self.substeps * self.dt,
+            )
+            for k, r in enumerate(cfg.robots)
+        ]
+        self.pushes = arena.record(layout.KEY_PUSHES, layout.PUSH, n_arms)
+        self._push_seq = [int(s) for s in self.pushes["seq"]]
+        self._push_end = [0] * n_arms
+        self._push_on = [False] * n_arms
+        self._xfrc = [self.data.xfrc_applied[b] for b in self.world.tool_body]
         self._forces: list[np.ndarray | None] = [None] * n_arms
         self._truth_views()
         self.sim_ns = 0
@@ -133,6 +157,7 @@ class PlantSim:
         self._read_dac()
         if changed:
             self._apply_brakes()
+        self._push()
         m, d = self.model, self.data
         motors.cycle(self.volts, self.qd)
         m.actuator_actrange[self.acts] = motors.range
@@ -147,6 +172,7 @@ class PlantSim:
         self.encoders.sample(self.motor_angle)
         for board, q in zip(self.boards, self._q_arms, strict=True):
             board.convert(q)
+        self._read_ft()
         self.ticks += 1
         self._write_truth()
 
@@ -156,6 +182,35 @@ class PlantSim:
         self.data.act.take(self.act_adr, out=self.current)
         np.multiply(self.gear, self.q, out=self.motor_angle)
         np.multiply(self.motors.gkt, self.current, out=self.torque)
+
+    def _read_ft(self) -> None:
+        """Each wrist sensor's true wrench, then its board's gauge bank.  MuJoCo gives the
+        force and torque the flange applies to the tool (site frame); the sensor reads the
+        tool's on the flange, the opposite."""
+        for k, src in enumerate(self._ft_src):
+            if src is None:
+                continue
+            w = self._ft_true[k]
+            np.negative(src, out=w)
+            bank = self.ft[k]
+            if bank is not None:
+                bank.cycle(w)
+
+    def _push(self) -> None:
+        """Start, hold or end each arm's push on its tool (``kalictl push``): a new ``seq``
+        in its PUSH record starts one for its ``duration_ns`` of simulated time."""
+        p = self.pushes
+        for k, xfrc in enumerate(self._xfrc):
+            seq = int(p["seq"][k])
+            if seq != self._push_seq[k]:
+                self._push_seq[k] = seq
+                self._push_end[k] = self.sim_ns + int(p["duration_ns"][k])
+                xfrc[:3] = p["force"][k]
+                xfrc[3:] = 0.0
+                self._push_on[k] = True
+            elif self._push_on[k] and self.sim_ns >= self._push_end[k]:
+                xfrc[:] = 0.0
+                self._push_on[k] = False
 
     def _read_dac(self) -> None:
         """DAC codes (arm k's joint j on channel j) → amplifier input volts, flat; codes
@@ -229,6 +284,8 @@ class PlantSim:
             for k in range(n)
         ]
         self._truth_wrench = [self.truth["grasp_wrench"][k] for k in range(n)]
+        self._truth_ft = (self.truth["ft_wrench"], self._ft_true)
+        self._truth_push = [(self.truth["push"][k], x[:3]) for k, x in enumerate(self._xfrc)]
         w = self.world_truth
         adr = self.world.object_qpos_adr
         self._world_views = (w["sim_time_ns"], w["ticks"], w["internal_force"])
@@ -253,6 +310,9 @@ class PlantSim:
             grasped[...] = f is not None
             tripped[...] = board.tripped
             estop[...] = board.regs["estop"]
+        np.copyto(*self._truth_ft)
+        for dst, src in self._truth_push:
+            np.copyto(dst, src)
         t_ns, ticks, internal = self._world_views
         t_ns[...] = self.sim_ns
         ticks[...] = self.ticks

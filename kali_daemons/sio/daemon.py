@@ -51,6 +51,7 @@ from ..spinlock import pid_alive
 from .calibration import ACTIVE, Calibration
 from .feedforward import RobotFeedforward
 from .gang import GangAcknowledger
+from .wrench import ArmSensor, sensors_of
 
 BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
 POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
@@ -214,8 +215,24 @@ class ServoIO(Daemon):
             )
             for k in range(nr)
         ]
+        # the wrist force/torque sensors, read in Newtons every tick (issue 27, wrench.py)
+        self.ft_records = inst.arena.record(layout.KEY_FT, layout.FT_STATE, nr)
+        boards = inst.boards()
+        self._sensors = [
+            ArmSensor(
+                cfg,
+                k,
+                boards[k : k + 1].reshape(()),
+                self.ft_records[k : k + 1].reshape(()),
+                self.q[lv.map.span(k)],
+                period_s,
+            )
+            for k in sensors_of(cfg)
+        ]
         if first:
             self.hw.start()
+        for sensor in self._sensors:
+            sensor.start()
         for k in range(nr):
             if int(rs[k]["calib_state"]) in ACTIVE:  # a restarted SIO does not resume one
                 self._calib[k].fail("SIO restarted during calibration")
@@ -316,6 +333,10 @@ class ServoIO(Daemon):
             if calib.capture:  # calibrating: a counter reset by its index pulse
                 calib.catch_index()
         self._velocity()  # qd = (a·rate·(q - q_prev) + qd_prev) / (1 + a); q_prev = q
+        for sensor in self._sensors:  # gauge codes → Newtons (3.3.3); FORCE limits
+            message = sensor.step(tick)
+            if message is not None and not faulted:
+                faulted = self._halt(FaultCode.FORCE, tick, message)
         # (b) per robot: power switch, demand, pots; then the checks
         self.fed_mask[:] = False
         for k in range(lv.n_robots):

@@ -42,7 +42,14 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from .. import layout, rt
-from ..cell import BAR_SIZE, FLANGE_FRAME, STAND_SIZE, load_pinocchio
+from ..cell import (
+    BAR_SIZE,
+    FLANGE_FRAME,
+    STAND_SIZE,
+    TABLE_CENTRE_XY,
+    TABLE_SIZE,
+    load_pinocchio,
+)
 from ..config import KaliConfig
 from ..daemon import Daemon
 from ..errors import DaemonError
@@ -72,6 +79,7 @@ JOINT_COLORS = np.array(  # one per joint an arm may have (layout.MAX_JOINTS)
 )
 DEMAND_COLORS = (JOINT_COLORS // 2 + 128).astype(np.uint8)  # the same hue, paler
 STAND_COLOR = (115, 84, 56)  # as the plant's cell (model.py)
+TABLE_COLOR = (158, 153, 140)
 BAR_COLOR = (217, 89, 26)
 AXIS_COLORS = JOINT_COLORS[[0, 3, 4]]  # x y z, roll pitch yaw
 
@@ -352,6 +360,17 @@ class Viewer(Daemon):
                 half_sizes=[(sx / 2, sy / 2, sz / 2)],
                 centers=[(0.0, 0.0, sz / 2)],
                 colors=[STAND_COLOR],
+                fill_mode="solid",
+            ),
+            static=True,
+        )
+        tx, ty, tz = TABLE_SIZE
+        rec.log(
+            "world/table",
+            rr.Boxes3D(
+                half_sizes=[(tx / 2, ty / 2, tz / 2)],
+                centers=[(*TABLE_CENTRE_XY, tz / 2)],
+                colors=[TABLE_COLOR],
                 fill_mode="solid",
             ),
             static=True,

@@ -237,7 +237,7 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
     """Ctrl-C under ``kalictl run``: the program's arm stops on its path though the program
     ignores SIGINT (before: kalictl waited for the program, the arm went on); a second Ctrl-C
     kills it and nothing is left running; ``--`` passes the rest through.  The move is slow
-    (~75 simulated s): the lockstep executive runs it at several times real time, and the
+    (~250 simulated s): the lockstep executive runs it at several times real time, and the
     stop, kalictl's signal handling in wall time, must come before it ends."""
     name = kali(lockstep=True)
     with powered(name) as k:
@@ -251,7 +251,7 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
             from kali_daemons.client import Kali
             signal.signal(signal.SIGINT, signal.SIG_IGN)
             with Kali() as kali:
-                h = kali.robot("left").move_joints(np.array({far.tolist()}), speed=0.01,
+                h = kali.robot("left").move_joints(np.array({far.tolist()}), speed=0.003,
                                                    wait=False)
                 print(os.getpid(), h.seq, *sys.argv[1:], flush=True)
                 while True:  # steps the (lockstep) clock for ever, whatever happens
@@ -277,9 +277,12 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
             run.send_signal(signal.SIGINT)
             t0 = time.monotonic()
             while int(state[0]) != RequestState.STOPPED:
-                assert time.monotonic() - t0 < 30, (
-                    f"the arm was not stopped: {RequestState(int(state[0])).name}"
-                )
+                if int(state[0]) == RequestState.DONE or time.monotonic() - t0 > 30:
+                    run.kill()  # kalictl's own account of its Ctrl-C, for the message
+                    pytest.fail(
+                        f"the arm was not stopped: {RequestState(int(state[0])).name} after "
+                        f"{time.monotonic() - t0:.1f} s; kalictl said: {run.stderr.read()!r}"
+                    )
                 time.sleep(0.01)
             held = k.servo.level.arm("demand", 0).copy()
             assert start[0] < held[0] < far[0]  # stopped on its path, short of the target
