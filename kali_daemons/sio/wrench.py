@@ -142,14 +142,9 @@ class ArmSensor:
         np.matmul(self.calibration, v, out=raw)
         self.seq = (self.seq + 1) & FT_SEQ_MASK
         self._control[...] = FT_REQUEST | self.seq
-        np.subtract(raw, self._bias, out=self._sensor)
         self._samples[...] = int(self._samples) + 1
         self._sample_tick[...] = tick
-        if int(np.abs(self.codes).max()) >= ftsensor.FT_RAIL:
-            return self._saturated()
-        if (np.abs(self._sensor) > self.rated).any():
-            return self._beyond_rated()
-        # (3) the tool's weight in the sensor frame at this tick's pose
+        # (3) the tool's weight in the sensor frame at this tick's pose; a tare in progress
         self._fk()
         np.matmul(self.base, self._pose, out=self._world)
         rot = self._world[:3, :3]
@@ -157,6 +152,11 @@ class ArmSensor:
         np.matmul(self.g_world, rot, out=self._g)  # Rᵀ g
         self._gravity()
         self._tare_step()
+        np.subtract(raw, self._bias, out=self._sensor)  # with the bias a tare just set
+        if int(np.abs(self.codes).max()) >= ftsensor.FT_RAIL:
+            return self._saturated()
+        if (np.abs(self._sensor) > self.rated).any():
+            return self._beyond_rated()
         np.subtract(self._sensor, self._grav, out=self._contact)
         c = self._contact
         force = math.sqrt(float(c[0]) ** 2 + float(c[1]) ** 2 + float(c[2]) ** 2)
@@ -199,12 +199,13 @@ class ArmSensor:
             self._tare_state[...] = TareState.AVERAGING
         if not self._tare_left:
             return
-        # the offset is the reading less the weight: raw - bias_old - grav + bias_old
+        # the offset is the calibrated reading less the tool's weight
         self._sum += self._raw
         self._sum -= self._grav
         self._tare_left -= 1
         if not self._tare_left:
             np.divide(self._sum, self.tare_ticks, out=self._bias)
+            self._filt[:] = 0.0  # no contact at the tare, by definition: no filter lag after it
             self._tare_count[...] = int(self._tare_count) + 1
             self._tare_state[...] = TareState.DONE
 
