@@ -231,7 +231,9 @@ class FtConfig:
     tool_tip_m: float = 0.042
     cutoff_hz: float = 30.0  # SIO's low-pass on the contact wrench
     contact_limit_n: float = 150.0  # a contact force beyond this halts (FORCE)
-    stale_ms: float = 10.0  # no fresh sample this long halts (FORCE: the sensor is silent)
+    # no fresh sample this long halts (FORCE: the sensor is silent); above the clock's
+    # serious-miss tolerance, so that a stalled plant (the board) is named as what it is
+    stale_ms: float = 50.0
 
     @property
     def sheet(self) -> FtSheet | None:
