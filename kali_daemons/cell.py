@@ -36,11 +36,16 @@ GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
 # x ∈ [−0.2, 0.2], y ∈ [−0.45, −0.3].  Only the tools' pads and the bar touch it.
 TABLE_SIZE: Final = (0.5, 0.24, 0.40)  # x, y, height (its top)
 TABLE_CENTRE_XY: Final = (0.0, -0.38)
+TOOL_RADIUS_M: Final = 0.012  # each arm's tool: a pad, a sphere ending at the tool point
 
 
-def load_pinocchio(robot: RobotType) -> pin.Model:
+def load_pinocchio(
+    robot: RobotType, tool: tuple[float, tuple[float, float, float]] | None = None
+) -> pin.Model:
     """An arm of type ``robot`` as a Pinocchio model, base at the origin, with its armature
-    and gravity.
+    and gravity; with ``tool`` (mass in kg, centre of mass in the flange frame: the config's
+    ``FtConfig``) the tool the plant's arm carries on its wrist sensor, so the dynamics
+    process's feed-forward holds its weight too.
 
     ``rnea`` / ``crba`` / ``aba`` on it include the drive's rotor inertia.  The flange is the
     frame named ``FLANGE_FRAME``.
@@ -60,6 +65,12 @@ def load_pinocchio(robot: RobotType) -> pin.Model:
             f"{FLANGE_FRAME!r} frame, found {model.nv} joints"
         )
     model.armature = np.array(robot.drive.armature, dtype=float)
+    if tool is not None and tool[0] > 0.0:
+        mass, com = tool
+        frame = model.frames[model.getFrameId(FLANGE_FRAME)]
+        inertia = mass * TOOL_RADIUS_M**2 / 2.0  # as the plant's tool (model._add_tool)
+        body = pin.Inertia(mass, np.asarray(com, dtype=float), np.eye(3) * inertia)
+        model.appendBodyToJoint(frame.parentJoint, body, frame.placement)
     model.gravity = pin.Motion(np.array([0.0, 0.0, -robot.gravity]), np.zeros(3))
     return model
 

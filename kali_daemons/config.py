@@ -226,8 +226,11 @@ class FtConfig:
     """
 
     sensor: str | None = "mini45"  # a data sheet of ftsensor.SHEETS; None: no sensor
-    tool_mass_kg: float = 0.35
-    tool_com_m: tuple[float, float, float] = (0.0, 0.0, 0.02)
+    # a bare pad by default (the bar's grasp and every tuned gain stay as they were); a
+    # researcher's tool, gripper or payload is given here, and the plant, SIO's gravity
+    # compensation and the dynamics model all carry it
+    tool_mass_kg: float = 0.0
+    tool_com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     tool_tip_m: float = 0.042
     cutoff_hz: float = 30.0  # SIO's low-pass on the contact wrench
     contact_limit_n: float = 150.0  # a contact force beyond this halts (FORCE)

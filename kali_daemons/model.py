@@ -31,6 +31,7 @@ from kali_daemons.cell import (
     STAND_SIZE,
     TABLE_CENTRE_XY,
     TABLE_SIZE,
+    TOOL_RADIUS_M,
     bar_rest_pose,
     load_pinocchio,
 )
@@ -44,7 +45,6 @@ IntArray = npt.NDArray[np.int64]
 # at the grasp pose; 8 steps (4 ms at 0.5 ms) gives 0.17 mm and stays 4x above the 2-step
 # floor below which MuJoCo's 'refsafe' would clamp it.
 WELD_TIMECONST_STEPS: Final = 8
-TOOL_RADIUS_M: Final = 0.012  # the tool's pad, a sphere ending at the tool point
 # contact bits: the fixtures and the tools' pads touch each other (and nothing else of the
 # arms); the bar, the stand and the floor keep MuJoCo's default bit 1
 TOOL_CONTACT: Final = 2

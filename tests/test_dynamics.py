@@ -94,7 +94,7 @@ def test_a_mixed_cell_gets_rows_as_wide_as_each_arm(arena: Arena) -> None:
         for q in points:
             dyn.fifos[k].push(q)
         dyn._robot(k, FfMode.GRAVITY)
-        own = InverseDynamics(rtype)
+        own = InverseDynamics(rtype, (r.ft.tool_mass_kg, r.ft.tool_com_m))  # its tool's too
         for i, q in enumerate(points):
             row = (i + 1) % layout.FF_ROWS
             assert int(ff["key"][k, row]) == i + 1

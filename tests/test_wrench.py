@@ -33,8 +33,10 @@ def test_the_sensor_reads_the_plant_s_wrench_after_a_tare_and_each_static_load(
     """Before a tare the reading is off by the sensor's own offsets; a tare removes them, and
     then at 20 random static loads (pushes on the braked arm's tool) SIO's reading equals the
     wrench the plant's sensor carries within 5 σ of the sheet's noise, and the contact force
-    in the world equals the push."""
-    name = kali(lockstep=True)
+    in the world equals the push.  The left arm's tool weighs 0.5 kg, its centre of mass off
+    the axis: SIO removes its weight at the arm's pose."""
+    tool = "ft: {tool_mass_kg: 0.5, tool_com_m: [0.01, -0.02, 0.03]}"
+    name = kali(lockstep=True, edits={r"^(  - \{name: left.*)\}$": rf"\1, {tool}}}"})
     rng = np.random.default_rng(27)
     with Kali(name) as k:
         left = k.robot("left")

@@ -108,10 +108,13 @@ class Dynamics(Daemon):
     def load(self, cfg: KaliConfig) -> None:
         """Each robot type's model and each robot's scratch, its joint count wide (outside
         the cycle)."""
-        models: dict[str, InverseDynamics] = {}  # one per robot type
+        models: dict[tuple, InverseDynamics] = {}  # one per robot type and tool
+        self.inverse = []
         for r in cfg.robots:
-            models.setdefault(r.model, InverseDynamics(r.type))
-        self.inverse = [models[r.model] for r in cfg.robots]
+            tool = (r.ft.tool_mass_kg, r.ft.tool_com_m)
+            if (r.model, tool) not in models:
+                models[r.model, tool] = InverseDynamics(r.type, tool)
+            self.inverse.append(models[r.model, tool])
         self.n_robots = len(cfg.robots)
         self.joint_map = cfg.joints  # robot k's joint j: flat index (servo slot) base[k] + j
         self.servo_period_s = cfg.clock.servo_period_ms / 1000.0

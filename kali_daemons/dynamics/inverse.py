@@ -30,8 +30,11 @@ class InverseDynamics:
     """Feed-forward torques of one arm of type ``robot``; every array preallocated except the
     vectors Pinocchio's Python bindings return."""
 
-    def __init__(self, robot: RobotType) -> None:
-        self.model = load_pinocchio(robot)
+    def __init__(
+        self, robot: RobotType, tool: tuple[float, tuple[float, float, float]] | None = None
+    ) -> None:
+        """``tool``: the mass and centre of mass (flange frame) of the tool the arm carries."""
+        self.model = load_pinocchio(robot, tool)
         self.data = self.model.createData()
         n = robot.n_joints
         self.tau = np.zeros(n)
