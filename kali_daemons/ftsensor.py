@@ -30,10 +30,11 @@ from typing import Final
 import numpy as np
 
 from .errors import ConfigError
+from .layout import WRENCH
 
 AXES: Final = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 AXIS_UNITS: Final = ("N", "N", "N", "N·m", "N·m", "N·m")
-GAUGES: Final = 6
+GAUGES: Final = WRENCH  # one bridge per axis of the wrench
 ADC_BITS: Final = 16
 ADC_VOLTS: Final = 10.0  # ± full scale of the gauge ADC bank
 FT_RAIL: Final = (1 << (ADC_BITS - 1)) - 1  # 32767: a gauge here (or at -32768) is saturated

@@ -294,6 +294,126 @@ int64_t kali_chain_pose(ChainPoseArgs *a) {
     return 0;
 }
 
+/* ---------------------------------------------------------------- a wrist sensor in Newtons
+ *
+ * One arm's force/torque sample, from its gauge codes to the contact wrench at the tool point
+ * (sio/wrench.py; wrench.convert_reference is the reference, equal to ~1e-12: numpy's small
+ * products go through BLAS).  In order: volts and the calibration matrix (raw: the wrench the
+ * tool exerts on the sensor); the sensor frame in the world (base * flange pose at q) and the
+ * tool's weight there, [m g; c x m g]; a tare in progress sums raw - weight and, at its last
+ * sample, sets the bias and restarts the filter; the reading less the bias (sensor); the
+ * checks; the contact wrench (sensor - weight), its low-pass, and the wrench at the tool
+ * point (0, 0, tip) in tool and world axes.  Returns WRENCH_OK or the first check that
+ * failed; the message is Python's to build. */
+
+enum { WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT };
+
+typedef struct {
+    int64_t n;                          /* the chain's joints */
+    const double *origins, *axes, *q;   /* chain.Chain, the arm's angles (contiguous) */
+    const int16_t *codes;               /* the board's 6 gauge codes */
+    const double *cal;                  /* 6x6 calibration matrix, row-major, N per volt */
+    const double *base;                 /* 4x4 base pose in the world, row-major */
+    const double *g;                    /* gravity in the world, m/s^2 */
+    const double *com;                  /* the tool's centre of mass, sensor frame */
+    const double *rated;                /* the sheet's range per axis */
+    const double *limit;                /* FT_STATE.contact_limit: a client may only lower it */
+    double mass, tip, alpha, volts, limit_config;
+    int64_t rail;                       /* a code at +-rail is saturated */
+    int64_t tare_left, tare_ticks;      /* in/out: samples a tare still sums; of how many */
+    double *raw, *grav, *sensor, *filt, *tool, *world, *bias, *sum, *rotation;
+    double force, limit_used;           /* out: the contact force and the limit it met, N */
+    /* the tick's handshake and bookkeeping (kali_wrench_tick) */
+    uint16_t *status, *control;         /* the board's ft_status, ft_control */
+    uint32_t *stale, *tare_count;       /* FT_STATE fields */
+    uint64_t *samples;
+    int64_t *sample_tick;
+    uint8_t *present, *tare_cmd, *tare_state;
+    int64_t tick, seq, stale_limit;     /* in: this tick; in/out: the sequence asked for */
+    int64_t ready, request, seq_mask, averaging, done; /* ftsensor's bits, TareState's values */
+} WrenchArgs;
+
+/* The conversion alone, for the tests against convert_reference. */
+int64_t kali_wrench_convert(WrenchArgs *a) {
+    double v[6], pose[16], w[16], gs[3], c[6];
+    for (int i = 0; i < 6; i++) v[i] = a->codes[i] * a->volts;
+    for (int i = 0; i < 6; i++) {
+        double s = 0.0;
+        for (int j = 0; j < 6; j++) s += a->cal[6 * i + j] * v[j];
+        a->raw[i] = s;
+    }
+    chain_pose(a->n, a->origins, a->axes, a->q, pose);
+    for (int i = 0; i < 3; i++) /* the rotation of base * pose */
+        for (int j = 0; j < 3; j++)
+            w[4 * i + j] = a->base[4 * i] * pose[j] + a->base[4 * i + 1] * pose[4 + j] +
+                           a->base[4 * i + 2] * pose[8 + j];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) a->rotation[3 * i + j] = w[4 * i + j];
+    for (int j = 0; j < 3; j++) /* R^T g: gravity in the sensor frame */
+        gs[j] = a->g[0] * w[j] + a->g[1] * w[4 + j] + a->g[2] * w[8 + j];
+    double m = a->mass, gx = m * gs[0], gy = m * gs[1], gz = m * gs[2];
+    double cx = a->com[0], cy = a->com[1], cz = a->com[2];
+    double *grav = a->grav;
+    grav[0] = gx, grav[1] = gy, grav[2] = gz;
+    grav[3] = cy * gz - cz * gy, grav[4] = cz * gx - cx * gz, grav[5] = cx * gy - cy * gx;
+    if (a->tare_left > 0) {
+        for (int i = 0; i < 6; i++) a->sum[i] += a->raw[i] - grav[i];
+        if (--a->tare_left == 0) {
+            for (int i = 0; i < 6; i++) a->bias[i] = a->sum[i] / (double)a->tare_ticks;
+            for (int i = 0; i < 6; i++) a->filt[i] = 0.0; /* no contact at the tare */
+        }
+    }
+    for (int i = 0; i < 6; i++) a->sensor[i] = a->raw[i] - a->bias[i];
+    for (int i = 0; i < 6; i++)
+        if (a->codes[i] >= a->rail || a->codes[i] <= -a->rail) return WRENCH_SATURATED;
+    for (int i = 0; i < 6; i++)
+        if (fabs(a->sensor[i]) > a->rated[i]) return WRENCH_RATED;
+    for (int i = 0; i < 6; i++) c[i] = a->sensor[i] - grav[i];
+    a->force = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    double limit = *a->limit;
+    if (!(limit > 0.0 && limit <= a->limit_config)) limit = a->limit_config; /* NaN too */
+    a->limit_used = limit;
+    if (a->force > limit) return WRENCH_CONTACT;
+    double *f = a->filt, *t = a->tool, tip = a->tip;
+    for (int i = 0; i < 6; i++) f[i] += a->alpha * (c[i] - f[i]);
+    t[0] = f[0], t[1] = f[1], t[2] = f[2]; /* torque at (0, 0, tip): tau - p x F */
+    t[3] = f[3] + tip * f[1], t[4] = f[4] - tip * f[0], t[5] = f[5];
+    for (int i = 0; i < 3; i++) {
+        const double *r = a->rotation + 3 * i;
+        a->world[i] = r[0] * t[0] + r[1] * t[1] + r[2] * t[2];
+        a->world[3 + i] = r[0] * t[3] + r[1] * t[4] + r[2] * t[5];
+    }
+    return WRENCH_OK;
+}
+
+/* One servo tick of one arm's sensor: a sample the board has answered for is converted
+ * (kali_wrench_convert) and the next asked for at once; a tare command starts a tare; a sensor
+ * that has not answered for more than stale_limit ticks is WRENCH_SILENT. */
+int64_t kali_wrench_tick(WrenchArgs *a) {
+    uint16_t status = *a->status;
+    if (!(status & a->ready) || (int64_t)(status & a->seq_mask) != a->seq)
+        return ++*a->stale > (uint32_t)a->stale_limit ? WRENCH_SILENT : WRENCH_OK;
+    *a->stale = 0;
+    *a->present = 1;
+    if (*a->tare_cmd) { /* a tare sums the samples from this one on */
+        *a->tare_cmd = 0;
+        for (int i = 0; i < 6; i++) a->sum[i] = 0.0;
+        a->tare_left = a->tare_ticks;
+        *a->tare_state = (uint8_t)a->averaging;
+    }
+    int64_t taring = a->tare_left;
+    int64_t found = kali_wrench_convert(a);
+    a->seq = (a->seq + 1) & a->seq_mask; /* the codes are read: ask for the next sample */
+    *a->control = (uint16_t)(a->request | a->seq);
+    ++*a->samples;
+    *a->sample_tick = a->tick;
+    if (taring && !a->tare_left) {
+        ++*a->tare_count;
+        *a->tare_state = (uint8_t)a->done;
+    }
+    return found;
+}
+
 /* ================================================================ the built-in servos
  *
  * The PID of thesis figure 3.4 and the PD (servo/builtins.py), over many joints in one call.

@@ -40,6 +40,7 @@ import math
 import os
 import subprocess
 import tempfile
+from collections.abc import Callable
 from ctypes import c_double, c_int64, c_void_p
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -140,6 +141,35 @@ ChainPoseArgs = _block(
     N,
     *((f, c_void_p) for f in ("origins", "axes", "q", "out")),  # contiguous float64
 )
+WrenchArgs = _block(
+    "WrenchArgs",
+    N,
+    *(
+        (f, c_void_p)
+        for f in ("origins", "axes", "q", "codes", "cal", "base", "g", "com", "rated", "limit")
+    ),
+    *((f, c_double) for f in ("mass", "tip", "alpha", "volts", "limit_config")),
+    *((f, c_int64) for f in ("rail", "tare_left", "tare_ticks")),
+    *(
+        (f, c_void_p)
+        for f in ("raw", "grav", "sensor", "filt", "tool", "world", "bias", "sum", "rotation")
+    ),
+    *((f, c_double) for f in ("force", "limit_used")),
+    *(
+        (f, c_void_p)
+        for f in (
+            *("status", "control", "stale", "tare_count", "samples", "sample_tick"),
+            *("present", "tare_cmd", "tare_state"),
+        )
+    ),
+    *(
+        (f, c_int64)
+        for f in ("tick", "seq", "stale_limit", "ready", "request", "seq_mask", "averaging")
+    ),
+    ("done", c_int64),
+)
+# kali_wrench_tick's results (sio/wrench.py builds the message)
+WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT = range(5)
 
 _KERNELS = {
     "kali_read": ReadArgs,
@@ -154,6 +184,8 @@ _KERNELS = {
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,
     "kali_chain_pose": ChainPoseArgs,
+    "kali_wrench_tick": WrenchArgs,
+    "kali_wrench_convert": WrenchArgs,
 }
 
 
@@ -327,6 +359,12 @@ class Kernel:
 
     def __call__(self) -> int:
         return self._fn(self._ptr)
+
+    def sibling(self, name: str) -> Callable[[], int]:
+        """Another kernel of the library on this one's argument block (a part of it the
+        tests check against its reference)."""
+        fn, ptr = getattr(load(), name), self._ptr
+        return lambda: fn(ptr)
 
     @property
     def args(self) -> ctypes.Structure:

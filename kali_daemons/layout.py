@@ -425,6 +425,7 @@ DAC_ZERO = 1 << (DAC_BITS - 1)  # offset binary: 0 = -10 V, 2048 = 0 V, 4095 = +
 # their joint arrays by it; per-joint records (JOINT_STATE, JOINT_TRUTH) hold the cell's
 # joints flat instead, arm k's joint j at joints.JointMap.base[k] + j.
 MAX_JOINTS = BOARD_CHANNELS
+WRENCH = 6  # a wrench's values: force x, y, z (N), then torque x, y, z (N·m); one gauge each
 
 IO_BOARD = np.dtype(
     [
@@ -442,7 +443,7 @@ IO_BOARD = np.dtype(
         ("clamped", "<u4"),  # plant: out-of-range register values clamped, as hardware does
         # the wrist F/T sensor's gauge ADC bank (ftsensor.py): one simultaneous sample of its
         # six bridges per request, signed 16-bit codes over ±10 V
-        ("ft_gauge", "<i2", (6,)),  # plant: the codes of the sample ft_status names
+        ("ft_gauge", "<i2", (WRENCH,)),  # plant: the codes of the sample ft_status names
         ("ft_control", "<u2"),  # Kali: FT_REQUEST | seq asks for a new sample
         ("ft_status", "<u2"),  # plant: FT_READY | FT_PRESENT | seq once that sample is in
     ],
@@ -461,7 +462,7 @@ ARM_TRUTH = np.dtype(
     [
         ("grasp_wrench", "<f8", (6,)),  # weld force (N) and torque (N·m) on the object, world
         # what an ideal wrist sensor reads: the wrench the tool exerts on it, sensor frame
-        ("ft_wrench", "<f8", (6,)),
+        ("ft_wrench", "<f8", (WRENCH,)),
         ("push", "<f8", (3,)),  # the external push on the tool now (N, world), kalictl push
         ("amps_on", "u1"),
         ("brakes_engaged", "u1"),
@@ -638,12 +639,12 @@ FT_STATE = np.dtype(  # one per robot: its wrist force/torque sensor (ftsensor.p
         ("sample_tick", "<i8"),  # SIO: tick of the last fresh sample
         # SIO: the calibrated reading less the tare bias: the wrench the tool exerts on the
         # sensor (its weight included), sensor frame, N and N·m, unfiltered
-        ("sensor", "<f8", (6,)),
+        ("sensor", "<f8", (WRENCH,)),
         # SIO: the contact wrench, what the environment applies to the tool (tool gravity
         # removed), low-pass filtered, about the tool point: tool axes, then world axes
-        ("tool", "<f8", (6,)),
-        ("world", "<f8", (6,)),
-        ("bias", "<f8", (6,)),  # SIO: the tare's bias, sensor frame (kept across SIO restarts)
+        ("tool", "<f8", (WRENCH,)),
+        ("world", "<f8", (WRENCH,)),
+        ("bias", "<f8", (WRENCH,)),  # SIO: the tare's bias, sensor frame (kept across SIO restarts)
         ("rotation", "<f8", (3, 3)),  # SIO: the sensor frame in the world at the sample
         ("contact_limit", "<f8"),  # clients: contact force beyond this halts, N (0: config's)
     ],

@@ -13,8 +13,10 @@ from kali_daemons import layout
 from kali_daemons.client import Kali
 from kali_daemons.config import parse_config
 from kali_daemons.errors import ServoError
-from kali_daemons.ftsensor import MINI45
+from kali_daemons.ftsensor import FT_RAIL, MINI45
+from kali_daemons.kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED
 from kali_daemons.layout import FaultCode
+from kali_daemons.sio.wrench import ArmSensor, convert_reference
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_launcher import kalictl
 
@@ -118,3 +120,51 @@ def test_the_ft_section_is_checked() -> None:
         parse_config(base.replace("{}", "{tool_mass_kg: -1}"))
     cfg = parse_config(base.replace("{}", "{sensor: none}"))
     assert cfg.robots[0].ft.sheet is None
+
+
+def test_the_compiled_conversion_equals_its_numpy_reference() -> None:
+    """``kali_wrench`` against ``convert_reference`` on twin sensors fed the same random
+    samples, poses, biases, limits and tares, including saturated codes, loads beyond the
+    range and past the contact limit: the same result and every output within 1e-12."""
+    cfg = parse_config(
+        "version: 1\ninstance: x\nrobots:\n  - name: a\n"
+        "    ft: {tool_mass_kg: 0.7, tool_com_m: [0.01, -0.02, 0.04], contact_limit_n: 120}\n"
+    )
+    rng = np.random.default_rng(7)
+    twins = []
+    for _ in range(2):
+        regs = np.zeros((), layout.IO_BOARD)
+        state = np.zeros((), layout.FT_STATE)
+        q = np.zeros(cfg.robots[0].n_joints)
+        twins.append((ArmSensor(cfg, 0, regs, state, q, 0.001), regs, state, q))
+    (kernel, *_), (ref, *_) = twins
+    rtype = cfg.robots[0].type
+    found = set()
+    for i in range(400):
+        codes = rng.integers(-4000, 4000, 6)
+        if i % 7 == 0:
+            codes[rng.integers(6)] = rng.choice([FT_RAIL, -FT_RAIL - 1])
+        if i % 11 == 0:
+            codes[2] = 30_000  # Fz far past its range, below the rail
+        q = rng.uniform(rtype.q_min, rtype.q_max)
+        bias = rng.normal(0.0, 3.0, 6)
+        limit = rng.choice([0.0, 50.0, 500.0, np.nan])
+        tare = int(rng.integers(0, 3)) if i % 5 == 0 else 0
+        for arm, regs, state, q_arm in twins:
+            regs["ft_gauge"] = codes
+            q_arm[:] = q
+            if i == 0 or i % 13 == 0:
+                state["bias"] = bias
+            state["contact_limit"] = limit
+            if tare:
+                arm.args.tare_left = tare
+        result = (kernel.convert(), convert_reference(ref))
+        found.add(result[0])
+        assert result[0] == result[1], (i, result)
+        for f in ("sensor", "tool", "world", "bias", "rotation"):
+            np.testing.assert_allclose(twins[0][2][f], twins[1][2][f], rtol=0, atol=1e-12)
+        for a, b in ((kernel.filt, ref.filt), (kernel.raw, ref.raw), (kernel.grav, ref.grav)):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+        assert kernel.args.tare_left == ref.args.tare_left
+        assert kernel.args.force == pytest.approx(ref.args.force, abs=1e-12)
+    assert found == {WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT}

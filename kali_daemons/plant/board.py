@@ -277,8 +277,9 @@ class FtBank:
         self._w = np.zeros(ftsensor.GAUGES)
         self._v = np.zeros(ftsensor.GAUGES)
         self._codes = regs["ft_gauge"]
+        self._control, self._status = regs["ft_control"], regs["ft_status"]  # viewed once
         self._served = -1  # the last sequence number sampled
-        regs["ft_status"] = ftsensor.FT_PRESENT
+        self._status[...] = ftsensor.FT_PRESENT
 
     def cycle(self, wrench: np.ndarray) -> None:
         """One plant cycle: the offsets drift; a new request samples ``wrench`` (the tool on
@@ -287,7 +288,7 @@ class FtBank:
         rng.standard_normal(out=n)
         n *= self._drift
         self.offset += n
-        ctrl = int(self.regs["ft_control"])
+        ctrl = int(self._control)
         seq = ctrl & ftsensor.FT_SEQ_MASK
         if not ctrl & ftsensor.FT_REQUEST or seq == self._served:
             return
@@ -301,4 +302,4 @@ class FtBank:
         np.rint(self._v, out=self._v)
         np.clip(self._v, -ftsensor.FT_RAIL - 1, ftsensor.FT_RAIL, out=self._v)
         np.copyto(self._codes, self._v, casting="unsafe")
-        self.regs["ft_status"] = ftsensor.FT_READY | ftsensor.FT_PRESENT | seq  # last
+        self._status[...] = ftsensor.FT_READY | ftsensor.FT_PRESENT | seq  # last

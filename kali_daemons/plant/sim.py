@@ -116,7 +116,9 @@ class PlantSim:
             for k, r in enumerate(cfg.robots)
         ]
         self.pushes = arena.record(layout.KEY_PUSHES, layout.PUSH, n_arms)
-        self._push_seq = [int(s) for s in self.pushes["seq"]]
+        p = self.pushes  # its fields viewed once (a lookup by name builds a view)
+        self._push_fields = (p["seq"], p["duration_ns"], p["force"])
+        self._push_seq = [int(s) for s in p["seq"]]
         self._push_end = [0] * n_arms
         self._push_on = [False] * n_arms
         self._xfrc = [self.data.xfrc_applied[b] for b in self.world.tool_body]
@@ -199,13 +201,13 @@ class PlantSim:
     def _push(self) -> None:
         """Start, hold or end each arm's push on its tool (``kalictl push``): a new ``seq``
         in its PUSH record starts one for its ``duration_ns`` of simulated time."""
-        p = self.pushes
+        seqs, durations, forces = self._push_fields
         for k, xfrc in enumerate(self._xfrc):
-            seq = int(p["seq"][k])
+            seq = int(seqs[k])
             if seq != self._push_seq[k]:
                 self._push_seq[k] = seq
-                self._push_end[k] = self.sim_ns + int(p["duration_ns"][k])
-                xfrc[:3] = p["force"][k]
+                self._push_end[k] = self.sim_ns + int(durations[k])
+                xfrc[:3] = forces[k]
                 xfrc[3:] = 0.0
                 self._push_on[k] = True
             elif self._push_on[k] and self.sim_ns >= self._push_end[k]:
