@@ -56,6 +56,15 @@ def chain_of(rtype: RobotType) -> Chain:
     return _chain(Path(rtype.urdf), rtype.n_joints, rtype.name)
 
 
+def base_pose(xyz: tuple[float, float, float], yaw_deg: float) -> np.ndarray:
+    """A robot's base in the world (4×4): at ``xyz``, turned ``yaw_deg`` about z."""
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    t = np.eye(4)
+    t[:2, :2] = [[c, -s], [s, c]]
+    t[:3, 3] = xyz
+    return t
+
+
 def flange_pose(chain: Chain, q: FloatArray, out: FloatArray | None = None) -> FloatArray:
     """The flange (4×4) in the robot's base frame at joint angles ``q`` (rad):
     Π_i origins[i] · Rot(axes[i], q[i]), then · origins[n].  Into ``out`` if given.

@@ -339,7 +339,7 @@ def mem(ctx: click.Context, pattern: str | None) -> None:
     with _attach(ctx) as inst:
         if pattern is not None:
             registry = registry_for(inst.config.plugins, inst.config.base_dir)
-            cell = cell_of(inst.config, tuple(alg.dtype for alg in registry))
+            cell = cell_of(inst.config, *registry.dtypes())
             lines = introspect.record_lines(inst, cell, pattern)
             if not lines:
                 raise InstanceError(f"mem --fields {pattern!r}: no block of the layout matches")
@@ -940,40 +940,64 @@ def _joint_degrees(joints: str) -> list[float]:
 
 @main.group()
 def servo() -> None:
-    """Servo algorithms per joint: list, select, set, get (thesis 3.4)."""
+    """Servo algorithms per joint or per robot: list, select, set, get (thesis 3.4, 3.3.4)."""
 
 
 @servo.command("list")
 @click.pass_context
 @_errors
 def servo_list(ctx: click.Context) -> None:
-    """The registered algorithms and every joint's active one."""
+    """The registered algorithms, joint and robot-level, and what every robot runs."""
     with _servo_client(ctx) as (_inst, client):
-        for alg in client.level.registry:
-            click.echo(f"{alg.name:<12} {', '.join(alg.params)}")
+        registry = client.level.registry
+        for alg in registry:
+            click.echo(f"{alg.name:<16} joint  {', '.join(alg.params)}")
+        for arm in registry.arms:
+            click.echo(f"{arm.name:<16} robot  {', '.join(arm.params)}")
         click.echo("")
         for k, name in enumerate(client.names):
             r = client.level.robots[k]
+            state = PowerState(int(r["power"])).name.lower()
+            active = client.arm_active(name)
+            if active is not None:
+                click.echo(f"{name:<8} power {state:<9} robot-level: {active}")
+                continue
             joints = []
             for j in range(1, client.level.map.counts[k] + 1):
                 s = client.level.slot_structs[client.level.map.index(k, j - 1)]
                 mark = "" if s.enabled else " (off)"
                 joints.append(f"{j}:{client.active(name, j)}{mark}")
-            state = PowerState(int(r["power"])).name.lower()
             click.echo(f"{name:<8} power {state:<9} " + "  ".join(joints))
+
+
+def _joint_arg(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise ServoError(f"servo: joint {text!r}, expected a number (1..n)") from None
 
 
 @servo.command("select")
 @click.argument("robot")
-@click.argument("joint", type=int)
-@click.argument("algorithm")
+@click.argument("target")
+@click.argument("algorithm", required=False)
 @_WARN
 @click.pass_context
 @_errors
-def servo_select(ctx: click.Context, robot: str, joint: int, algorithm: str, warn: bool) -> None:
+def servo_select(
+    ctx: click.Context, robot: str, target: str, algorithm: str | None, warn: bool
+) -> None:
     """Switch ROBOT's JOINT (1..n) to ALGORITHM, bumplessly, while it moves (after the
-    schedulability check: refused if the servo tick would no longer fit)."""
+    schedulability check: refused if the servo tick would no longer fit):
+    ``kalictl servo select left 2 pd``.  Without a joint, switch the whole robot to a
+    robot-level servo, or back to its joint servos: ``kalictl servo select left impedance``,
+    ``kalictl servo select left joints``."""
     with _servo_client(ctx) as (inst, client):
+        if algorithm is None:
+            client.select_arm(robot, target, wait=not inst.lockstep)
+            click.echo(f"{robot}: {target}")
+            return
+        joint = _joint_arg(target)
         if not inst.lockstep:
             change = schedule.servo_change(client, robot, joint, algorithm)
             schedule.guard(inst, change, warn, lambda text: click.echo(text, err=True))
@@ -983,15 +1007,18 @@ def servo_select(ctx: click.Context, robot: str, joint: int, algorithm: str, war
 
 @servo.command("set")
 @click.argument("robot")
-@click.argument("joint", type=int)
 @click.argument("params", nargs=-1, required=True)
 @click.option("--servo", "algorithm", default=None, help="Algorithm (default: the active one).")
 @click.pass_context
 @_errors
 def servo_set(
-    ctx: click.Context, robot: str, joint: int, params: tuple[str, ...], algorithm: str | None
+    ctx: click.Context, robot: str, params: tuple[str, ...], algorithm: str | None
 ) -> None:
-    """Set parameters on line: kalictl servo set left 2 kp=9000 ki=20000."""
+    """Set parameters on line: ``kalictl servo set left 2 kp=9000 ki=20000`` (a joint's),
+    ``kalictl servo set left kz=500`` (the robot-level servo's)."""
+    joint = None
+    if params and "=" not in params[0]:
+        joint, params = _joint_arg(params[0]), params[1:]
     values: dict[str, float] = {}
     for item in params:
         key, sep, value = item.partition("=")
@@ -1001,21 +1028,34 @@ def servo_set(
             sep = ""
         if not sep:
             raise ServoError(f"servo set: {item!r}, expected NAME=NUMBER (e.g. kp=9000)")
+    if not values:
+        raise ServoError("servo set: no NAME=NUMBER given (e.g. kp=9000)")
+    shown = " ".join(f"{k}={v:g}" for k, v in values.items())
     with _servo_client(ctx) as (inst, client):
+        if joint is None:
+            client.set_arm_params(robot, values, algorithm, wait=not inst.lockstep)
+            click.echo(f"{robot} {algorithm or client.arm_active(robot)}: {shown}")
+            return
         client.set_params(robot, joint, values, algorithm, wait=not inst.lockstep)
-        shown = " ".join(f"{k}={v:g}" for k, v in values.items())
         click.echo(f"{robot} joint {joint} {algorithm or client.active(robot, joint)}: {shown}")
 
 
 @servo.command("get")
 @click.argument("robot")
-@click.argument("joint", type=int)
+@click.argument("joint", type=int, required=False)
 @click.option("--servo", "algorithm", default=None, help="Algorithm (default: the active one).")
 @click.pass_context
 @_errors
-def servo_get(ctx: click.Context, robot: str, joint: int, algorithm: str | None) -> None:
-    """Print the parameters of ROBOT's JOINT servo."""
+def servo_get(ctx: click.Context, robot: str, joint: int | None, algorithm: str | None) -> None:
+    """Print the parameters of ROBOT's JOINT servo, or without a joint of its robot-level
+    servo."""
     with _servo_client(ctx) as (_inst, client):
+        if joint is None:
+            params = client.get_arm_params(robot, algorithm)
+            name = algorithm or client.arm_active(robot)
+            shown = " ".join(f"{k}={v:g}" for k, v in params.items())
+            click.echo(f"{robot} {name}: {shown}")
+            return
         name = algorithm or client.active(robot, joint)
         params = client.get_params(robot, joint, name)
         shown = " ".join(f"{k}={v:g}" for k, v in params.items())

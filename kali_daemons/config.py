@@ -119,6 +119,7 @@ _ROBOT_KEYS = (
     "index_phases_deg",
     "grasp_yaw_deg",
     "ft",
+    "robot_servos",
 )
 _FT_KEYS = (
     "sensor",
@@ -263,6 +264,9 @@ class RobotConfig:
     # seen from above) about the vertical through the grasp point (kali_daemons.model)
     grasp_yaw_deg: float = 0.0
     ft: FtConfig = FtConfig()  # its wrist force/torque sensor and tool
+    # whether it may run robot-level servos (issue 27): the SVs then hold its model (they
+    # load Pinocchio for it, ~40 MB each), so the lean default leaves it off
+    robot_servos: bool = False
 
     def __post_init__(self) -> None:
         if not self.index_phases:
@@ -446,14 +450,18 @@ def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
     return out
 
 
-def cell_of(cfg: KaliConfig, algorithms: tuple[np.dtype, ...]) -> layout.Cell:
+def cell_of(
+    cfg: KaliConfig, algorithms: tuple[np.dtype, ...], arms: tuple[np.dtype, ...] = ()
+) -> layout.Cell:
     """What ``cfg``'s arena layout depends on (``layout.blocks``), with ``algorithms`` the
-    servo registry's private-data dtypes in registry order."""
+    servo registry's private-data dtypes of its joint servos and ``arms`` of its robot-level
+    servos, each in registry order."""
     return layout.Cell(
         robots=tuple(r.name for r in cfg.robots),
         joints=cfg.joints.counts,
         flight_rows=layout.flight_rows(ms_to_ns(cfg.clock.servo_period_ms)),
         algorithms=algorithms,
+        arms=arms,
         config_bytes=len(cfg.text.encode()),
         config_dir_bytes=len(cfg.base_dir.encode()),
     )
@@ -464,18 +472,19 @@ def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
     the header and directory plus every block of ``layout.blocks``, each rounded up to
     ``ALIGN``, and a directory entry for the free space after them.
 
-    A plugin's private data is counted at its largest (``MAX_DATA_BYTES`` a joint): its
-    dtype is known only once the plugin is imported, which parsing does not do.  Outside
-    anything real-time."""
+    A plugin's private data is counted at its largest (``MAX_DATA_BYTES`` a joint, and as
+    much a robot for a robot-level servo it may register): its dtype is known only once the
+    plugin is imported, which parsing does not do.  Outside anything real-time."""
     from .servo import MAX_DATA_BYTES, Registry
 
     def rounded(nbytes: int) -> int:
         return -(-nbytes // layout.ALIGN) * layout.ALIGN
 
-    algorithms = tuple(a.dtype for a in Registry()) + (np.dtype(("u1", MAX_DATA_BYTES)),) * len(
-        cfg.plugins
-    )
-    laid = layout.blocks(cell_of(cfg, algorithms))
+    builtins = Registry()
+    largest = (np.dtype(("u1", MAX_DATA_BYTES)),) * len(cfg.plugins)
+    algorithms = tuple(a.dtype for a in builtins) + largest
+    arms = tuple(a.dtype for a in builtins.arms) + largest
+    laid = layout.blocks(cell_of(cfg, algorithms, arms))
     by_key: dict[str, int] = {}
     for b in laid:  # servo.3.1 → servo.*.* : the parts a reader can act on
         part = re.sub(r"\.\d+", ".*", b.key) if b.key.startswith("servo.") else b.key
@@ -1219,9 +1228,21 @@ def _robots(node: Any, base_dir: str) -> tuple[RobotConfig, ...]:
             sheet = tuple(math.radians(v) for v in phases)
         grasp_yaw = _float(m.get("grasp_yaw_deg", 0.0), f"{path}.grasp_yaw_deg", -180.0, 180.0)
         ft = _ft(m.get("ft", {}), f"{path}.ft")
+        robot_servos = _bool(m.get("robot_servos", False), f"{path}.robot_servos")
         robots.append(
             RobotConfig(
-                name, model, (x, y, z), yaw, servo, safe, fault_ms, ff, sheet, grasp_yaw, ft
+                name,
+                model,
+                (x, y, z),
+                yaw,
+                servo,
+                safe,
+                fault_ms,
+                ff,
+                sheet,
+                grasp_yaw,
+                ft,
+                robot_servos,
             )
         )
     return tuple(robots)

@@ -112,6 +112,8 @@ typedef struct {
     View slot_busy;  /* uint32: 0 = fed (an SV may claim it), else not_fed */
     int64_t not_fed;
     uint32_t *ctrl_fed, *ctrl_done; /* the servo control record's counts */
+    View demand_vel, demand_acc, ff, slot_demand_vel, slot_demand_acc, slot_ff;
+    View mark;  /* uint32 per slot: the busy value a fed slot gets (0, or ARM_FREE/ARM_HELD) */
 } FeedArgs;
 
 /* Stores before this are issued before stores after it (x86 keeps them in order). */
@@ -119,20 +121,25 @@ typedef struct {
 
 /* The slots' inputs, then the count fed and done = 0, then busy: an SV still claiming
  * from a tick it was late for counts into this tick's done (as the numpy code did).
- * Returns the slots fed this tick. */
+ * A fed slot's busy is its mark: 0, or for a robot fed whole ARM_FREE on its first slot
+ * and ARM_HELD on the rest.  Returns the slots fed this tick. */
 int64_t kali_feed(FeedArgs *a) {
     int64_t fed = 0;
     for (int64_t i = 0; i < a->n; i++) {
         AT(double, a->slot_demand, i) = AT(double, a->demand, i);
         AT(double, a->slot_position, i) = AT(double, a->q, i);
         AT(double, a->slot_velocity, i) = AT(double, a->qd, i);
+        AT(double, a->slot_demand_vel, i) = AT(double, a->demand_vel, i);
+        AT(double, a->slot_demand_acc, i) = AT(double, a->demand_acc, i);
+        AT(double, a->slot_ff, i) = AT(double, a->ff, i);
         fed += AT(uint8_t, a->fed, i) != 0;
     }
     *a->ctrl_fed = (uint32_t)fed;
     *a->ctrl_done = 0u;
     ORDERED();
     for (int64_t i = 0; i < a->n; i++)
-        AT(uint32_t, a->slot_busy, i) = AT(uint8_t, a->fed, i) ? 0u : (uint32_t)a->not_fed;
+        AT(uint32_t, a->slot_busy, i) =
+            AT(uint8_t, a->fed, i) ? AT(uint32_t, a->mark, i) : (uint32_t)a->not_fed;
     return fed;
 }
 
@@ -440,7 +447,7 @@ typedef struct {
 typedef struct {
     uint32_t busy, op, op_algo, op_lock, ops_done, algo, enabled;
     int32_t status;
-    double demand, position, velocity, torque, error;
+    double demand, position, velocity, demand_vel, demand_acc, ff, torque, error;
     uint32_t reset;
     int32_t op_status;
     int64_t ran_tick, exec_ns;
@@ -485,7 +492,8 @@ static const Field SLOT_FIELDS[] = {
     FIELD(SlotRecord, algo, 'u'), FIELD(SlotRecord, enabled, 'u'),
     FIELD(SlotRecord, status, 'i'), FIELD(SlotRecord, demand, 'f'),
     FIELD(SlotRecord, position, 'f'), FIELD(SlotRecord, velocity, 'f'),
-    FIELD(SlotRecord, torque, 'f'), FIELD(SlotRecord, error, 'f'),
+    FIELD(SlotRecord, demand_vel, 'f'), FIELD(SlotRecord, demand_acc, 'f'),
+    FIELD(SlotRecord, ff, 'f'), FIELD(SlotRecord, torque, 'f'), FIELD(SlotRecord, error, 'f'),
     FIELD(SlotRecord, reset, 'u'), FIELD(SlotRecord, op_status, 'i'),
     FIELD(SlotRecord, ran_tick, 'i'), FIELD(SlotRecord, exec_ns, 'i'),
     FIELD(SlotRecord, sv, 'i'), FIELD(SlotRecord, _pad, 'u'), END(SlotRecord),

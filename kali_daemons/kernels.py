@@ -106,6 +106,7 @@ FeedArgs = _block(
     ("not_fed", c_int64),
     ("ctrl_fed", c_void_p),
     ("ctrl_done", c_void_p),
+    *("demand_vel", "demand_acc", "ff", "slot_demand_vel", "slot_demand_acc", "slot_ff", "mark"),
 )
 TorquesArgs = _block("TorquesArgs", N, "slot_torque", "fed", "servo_torque", "ff", "torque")
 DacArgs = _block(
@@ -476,18 +477,22 @@ def checks_reference(
 
 def feed_reference(
     demand: np.ndarray, q: np.ndarray, qd: np.ndarray, fed: np.ndarray, slots: np.ndarray,
-    not_fed: int, ctrl: np.ndarray,
+    not_fed: int, ctrl: np.ndarray, demand_vel: np.ndarray, demand_acc: np.ndarray,
+    ff: np.ndarray, mark: np.ndarray,
 ) -> int:  # fmt: skip
-    """``kali_feed``: the slots' demand, position and velocity, the count fed and done = 0
-    in ``ctrl``, then busy 0 where fed; the count."""
-    np.copyto(slots["demand"], demand)
-    np.copyto(slots["position"], q)
-    np.copyto(slots["velocity"], qd)
+    """``kali_feed``: the slots' demand (and its velocity and acceleration), position,
+    velocity and feed-forward, the count fed and done = 0 in ``ctrl``, then busy = the
+    slot's mark where fed; the count."""
+    for field, src in (
+        ("demand", demand), ("position", q), ("velocity", qd), ("demand_vel", demand_vel),
+        ("demand_acc", demand_acc), ("ff", ff),
+    ):  # fmt: skip
+        np.copyto(slots[field], src)
     count = int(np.count_nonzero(fed))
     ctrl["fed"] = count
     ctrl["done"] = 0
     busy = np.full(len(q), not_fed, dtype=np.uint32)
-    np.copyto(busy, 0, where=fed)
+    np.copyto(busy, mark, where=fed)
     np.copyto(slots["busy"], busy)
     return count
 

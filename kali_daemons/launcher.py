@@ -321,7 +321,7 @@ def _create(
     ``registry`` the servo algorithms (their private data is laid out per joint).
     """
     registry = registry_for(cfg.plugins, cfg.base_dir) if registry is None else registry
-    cell = cell_of(cfg, tuple(a.dtype for a in registry))
+    cell = cell_of(cfg, *registry.dtypes())
     arena = Arena.create(instance, cfg.arena_kib * 1024)
     try:
         arena.header["lockstep"] = int(lockstep)

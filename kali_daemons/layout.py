@@ -520,6 +520,10 @@ KEY_SERVO_CTRL = "servo.ctrl"
 # private data of one algorithm for every joint of the cell: a block of one record per joint
 # (slot order), so an SV runs a built-in over many joints in one call (servo.vector)
 KEY_SERVO_DATA = "servo.data.{algo}"
+# robot-level servos (issue 27, thesis 3.3.4's Cartesian servo mode): one algorithm's private
+# data for every robot, a record per robot (config order), and each robot's put/get mailbox
+KEY_ARM_DATA = "servo.arm.{arm}"
+KEY_ARM_STAGING = "servo.arm_staging"  # SERVO_STAGING_BYTES per robot
 KEY_FIFO = "fifo.{robot}"  # TG → SIO set-points (Type 2), the robot's joint angles each
 
 
@@ -570,6 +574,12 @@ class SlotReset(enum.IntEnum):
 
 
 SLOT_NOT_FED = 0xFFFFFFFF  # ``busy`` of a slot SIO did not feed this tick
+# A robot fed whole (it runs a robot-level servo, or has a robot-level mailbox operation):
+# its first slot's ``busy`` is ARM_FREE, claimed by test-and-set like 0, the others ARM_HELD;
+# the SV that claims the first runs the robot's servos (all its joints) as one unit.
+ARM_FREE = 0xFFFFFFFE
+ARM_HELD = 0xFFFFFFFD
+ARM_NONE = -1  # ``ROBOT_STATE.arm_algo`` of a robot that runs its joint servos
 OP_REFUSED = -1  # ``op_status`` of a mailbox operation the SV refused (see the staging bytes)
 
 ROBOT_STATE = np.dtype(
@@ -589,6 +599,18 @@ ROBOT_STATE = np.dtype(
         # SIO takes a command only while it matches and no fault is active: a halt voids it
         ("cmd_faults", "<u4"),
         ("tick", "<i8"),  # SIO: last servo tick
+        # the robot-level servo (issue 27): the active one, or ARM_NONE for joint servos,
+        # and its mailbox, as a slot's (SlotOp; the SV carries it out, op_algo -1 = joints)
+        ("arm_algo", "<i4"),  # SV
+        ("arm_op", "<u4"),  # clients, written last; the SV clears it when done
+        ("arm_op_algo", "<i4"),  # clients
+        ("arm_op_lock", "<u4"),  # clients: spinlock serialising mailbox users
+        ("arm_ops_done", "<u4"),  # SV
+        ("arm_op_status", "<i4"),  # SV: 0 or OP_REFUSED (the reason in the robot's staging)
+        ("arm_status", "<i4"),  # SV: what the robot-level servo's step returned last
+        ("_pad2", "<u4"),
+        ("arm_exec_ns", "<i8"),  # SV: duration of its last step, model update included
+        ("arm_ran_tick", "<i8"),  # SV: last tick it ran
         ("message", f"S{MESSAGE_BYTES}"),  # SIO: last calibration or power message
     ],
     align=True,
@@ -664,6 +686,11 @@ SERVO_SLOT = np.dtype(
         ("demand", "<f8"),  # SIO: position demand, rad
         ("position", "<f8"),  # SIO: measured position, rad
         ("velocity", "<f8"),  # SIO: measured velocity, rad/s (for hand-over)
+        # SIO: the demand's velocity and acceleration (the dynamics process's rows,
+        # interpolated as the demand), rad/s and rad/s², and this tick's feed-forward, N·m
+        ("demand_vel", "<f8"),
+        ("demand_acc", "<f8"),
+        ("ff", "<f8"),
         ("torque", "<f8"),  # SV: torque demand, N·m (held while the servo is not run)
         ("error", "<f8"),  # SV: the servo's tracking error, rad
         ("reset", "<u4"),  # SIO: SlotReset; the SV clears it
@@ -747,6 +774,8 @@ FEEDFORWARD = np.dtype(
         # dynamics: the demanded position the row is for, rad (the robot's n_joints used)
         ("q", "<f8", (FF_ROWS, MAX_JOINTS)),
         ("tau", "<f8", (FF_ROWS, MAX_JOINTS)),  # dynamics: feed-forward torque there, N·m
+        ("qd", "<f8", (FF_ROWS, MAX_JOINTS)),  # dynamics: the demand's velocity there, rad/s
+        ("qdd", "<f8", (FF_ROWS, MAX_JOINTS)),  # dynamics: its acceleration, rad/s²
     ],
     align=True,
 )
@@ -962,6 +991,7 @@ class Cell:
     algorithms: tuple[np.dtype, ...]  # each servo algorithm's private data, registry order
     config_bytes: int  # the config text's UTF-8 bytes
     config_dir_bytes: int  # its directory's
+    arms: tuple[np.dtype, ...] = ()  # each robot-level servo's private data, registry order
 
     @property
     def n_joints(self) -> int:
@@ -1025,6 +1055,19 @@ RECORDS: tuple[Record, ...] = (
         "SVs (put: mailbox)",
         "SVs",
     ),
+    Record(
+        KEY_ARM_STAGING,
+        *_u1(lambda c, i: len(c.robots) * SERVO_STAGING_BYTES),
+        "clients, SVs",
+        "SVs, clients",
+    ),
+    Record(
+        KEY_ARM_DATA,
+        lambda c, a: c.arms[a],
+        lambda c, a: len(c.robots),
+        "SVs (put: mailbox)",
+        "SVs",
+    ),
     Record(KEY_FEEDFORWARD, FEEDFORWARD, lambda c, i: len(c.robots), "dynamics, SIO", "SIO"),
     Record(KEY_FLIGHT, FLIGHT, None, "SIO, the wallclock (dumps)", "kalictl flight"),
     Record(
@@ -1085,6 +1128,8 @@ def blocks(cell: Cell) -> list[Block]:
             at = [(rec.key.format(robot=name), k) for k, name in enumerate(cell.robots)]
         elif "{algo}" in rec.key:
             at = [(rec.key.format(algo=a), a) for a in range(len(cell.algorithms))]
+        elif "{arm}" in rec.key:
+            at = [(rec.key.format(arm=a), a) for a in range(len(cell.arms))]
         else:
             at = [(rec.key, None)]
         for key, index in at:
@@ -1095,7 +1140,12 @@ def blocks(cell: Cell) -> list[Block]:
 
 
 def _key_pattern(template: str) -> str:
-    return re.escape(template).replace(r"\{robot\}", r"[^.]+").replace(r"\{algo\}", r"\d+")
+    return (
+        re.escape(template)
+        .replace(r"\{robot\}", r"[^.]+")
+        .replace(r"\{algo\}", r"\d+")
+        .replace(r"\{arm\}", r"\d+")
+    )
 
 
 _LAYOUT_KEYS = re.compile("|".join(f"(?:{_key_pattern(r.key)})" for r in RECORDS))

@@ -28,7 +28,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from fractions import Fraction
 from pathlib import Path
 
@@ -41,7 +41,14 @@ from .errors import KaliError, ServoError
 from .instance import Instance, decode
 from .layout import CalibState, FfMode, FfState, PowerCmd, PowerState, SlotOp
 from .robots import robot_type
-from .servo import Handover, Registry, ServoAlgorithm, registry_for, struct_view
+from .servo import (
+    ArmServoAlgorithm,
+    Handover,
+    Registry,
+    ServoAlgorithm,
+    registry_for,
+    struct_view,
+)
 from .spinlock import SpinLock
 
 FIFO_CAPACITY = layout.FIFO_CAPACITY  # TG set-points a TG → SIO FIFO holds (the layout sizes it)
@@ -50,6 +57,12 @@ FIFO_CAPACITY = layout.FIFO_CAPACITY  # TG set-points a TG → SIO FIFO holds (t
 SETPOINT_BOUND_RAD = 4.0 * math.pi
 OP_TIMEOUT_S = 2.0  # how long a client waits for the SV to carry out a mailbox operation
 SlotStruct = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)
+JOINT_SERVOS = "joints"  # what ``select_arm`` takes for "back to the joint servos"
+FORCE_SETPOINTS = ("fx", "fy", "fz")  # robot-level parameters the wrist sensor must measure
+
+
+def _no_select(a: int) -> None:
+    raise ServoError("a select is carried out by the SV at the robot's next tick")
 
 
 def flag(what: str, value: object) -> bool:
@@ -103,6 +116,23 @@ class ServoLevel:
         ]
         self.structs = [[struct_view(rec) for rec in row] for row in self.data]
         self.slot_structs = (SlotStruct * n).from_buffer(self.slots)
+        # robot-level servos (issue 27): algorithm a's record for every robot is one block,
+        # arm_data[k][a] robot k's record (0-d); each robot's mailbox staging bytes
+        nr = self.n_robots
+        self.arm_blocks: list[np.ndarray] = [
+            get(layout.KEY_ARM_DATA.format(arm=k), alg.dtype, nr)
+            for k, alg in enumerate(self.registry.arms)
+        ]
+        self.arm_data: list[list[np.ndarray]] = [
+            [block[k : k + 1].reshape(()) for block in self.arm_blocks] for k in range(nr)
+        ]
+        self.arm_staging = get(layout.KEY_ARM_STAGING, np.dtype("u1"), nr * width).reshape(
+            nr, width
+        )
+        roff = a.lookup(layout.KEY_ROBOTS)[0]  # type: ignore[index]
+        rs = layout.ROBOT_STATE
+        self.arm_op_addr = [a.address_of_field(roff, rs, "arm_op", k) for k in range(nr)]
+        self.arm_lock_addr = [a.address_of_field(roff, rs, "arm_op_lock", k) for k in range(nr)]
         off = a.lookup(layout.KEY_SLOTS)[0]  # type: ignore[index]
         self.busy_addr = [a.address_of_field(off, layout.SERVO_SLOT, "busy", i) for i in range(n)]
         self.lock_addr = [
@@ -141,6 +171,9 @@ class ServoLevel:
             self.joints["range_check"][span] = 1
             r["power"] = PowerState.OFF
             r["calib_state"] = CalibState.IDLE
+            r["arm_algo"] = layout.ARM_NONE
+            for a, arm in enumerate(self.registry.arms):
+                arm.init(self.arm_data[k][a], {}, self.servo_period_s)
             first = self.registry.index(robot.servo)
             for j in range(robot.n_joints):
                 i = self.map.index(k, j)
@@ -155,6 +188,7 @@ class ServoLevel:
     def close(self) -> None:
         """Drop the ctypes views (they pin the arena's buffer)."""
         self.structs = []
+        self.arm_data = []
         self.slot_structs = None  # type: ignore[assignment]
 
 
@@ -357,6 +391,190 @@ class ServoClient:
             )
         return registry[a].name
 
+    # ------------------------------------------------------------------ robot-level servos
+
+    def arm_algorithm(self, name: str) -> tuple[int, ServoAlgorithm | ArmServoAlgorithm]:
+        """(index, algorithm) of a robot-level servo; ServoError naming them (and saying so
+        when ``name`` is a joint servo)."""
+        registry = self.level.registry
+        if isinstance(name, str) and name in registry.arm_names():
+            idx = registry.arm_index(name)
+            return idx, registry.arms[idx]
+        if isinstance(name, str) and name in registry.names():
+            raise ServoError(
+                f"'{name}' is a joint servo: select it per joint (kalictl servo select ROBOT "
+                f"JOINT {name}); robot-level servos: {', '.join(registry.arm_names())}"
+            )
+        raise ServoError(
+            f"no robot-level algorithm {name!r:.60}; known: {', '.join(registry.arm_names())}"
+            f" (or '{JOINT_SERVOS}' for the joint servos)"
+        )
+
+    def arm_active(self, robot: str | int) -> str | None:
+        """The robot-level servo robot ``robot`` runs, or None while it runs joint servos."""
+        k = self.robot_index(robot)
+        a = int(self.level.robots["arm_algo"][k])
+        arms = self.level.registry.arms
+        return arms[a].name if 0 <= a < len(arms) else None
+
+    def select_arm(self, robot: str | int, servo: str | None, wait: bool = True) -> None:
+        """Make robot-level servo ``servo`` run the whole robot (None or ``'joints'``: back to
+        its joint servos), handed over bumplessly at the next tick (thesis 3.3.4)."""
+        k = self.robot_index(robot)
+        if servo is None or servo == JOINT_SERVOS:
+            idx = layout.ARM_NONE
+        else:
+            idx, _ = self.arm_algorithm(servo)
+            if not self.inst.config.robots[k].robot_servos:
+                raise ServoError(
+                    f"robot '{self.names[k]}' runs no robot-level servo: its config has "
+                    f"robot_servos: false (set robots[].robot_servos: true; the SVs then "
+                    f"load its model, Pinocchio, ~40 MB each)"
+                )
+        self._arm_op(k, SlotOp.SELECT, idx, None, wait)
+
+    def set_arm_params(
+        self,
+        robot: str | int,
+        params: Mapping[str, float],
+        servo: str | None = None,
+        wait: bool = True,
+    ) -> None:
+        """Change parameters of robot-level servo ``servo`` (default: the active one) on line;
+        validated here first, on a copy, so a bad value changes nothing.  A force set-point
+        (``fx``, ``fy``, ``fz``) needs a wrist sensor and must lie within its rated range."""
+        k = self.robot_index(robot)
+        name = self._arm_name(k, servo)
+        idx, alg = self.arm_algorithm(name)
+        where = f"robot '{self.names[k]}' '{name}'"
+        if not isinstance(params, Mapping):
+            raise ServoError(
+                f"{where}: parameters {params!r:.60} are not a mapping of names to values "
+                f"(e.g. {{'kz': 500}})"
+            )
+        unknown = sorted(str(p) for p in set(params) - set(alg.params))
+        if unknown:
+            raise ServoError(
+                f"'{name}' has no parameter {', '.join(unknown)}; "
+                f"parameters: {', '.join(alg.params)}"
+            )
+        trial = self.level.arm_data[k][idx].copy()
+        try:
+            alg.set_params(trial, dict(params))
+        except KaliError as exc:
+            raise ServoError(f"{where}: {exc}") from None
+        self._check_force_setpoint(k, where, params)
+        values = np.full(len(alg.params), math.nan)
+        for key, value in params.items():
+            values[alg.params.index(key)] = float(value)
+        self._arm_op(k, SlotOp.PARAMS, idx, values.tobytes(), wait)
+
+    def _check_force_setpoint(self, k: int, where: str, params: Mapping[str, float]) -> None:
+        """ServoError for a force set-point the robot's wrist sensor could not measure."""
+        sheet = self.inst.config.robots[k].ft.sheet
+        for axis, key in enumerate(FORCE_SETPOINTS):
+            if key not in params or float(params[key]) == 0.0:
+                continue
+            value = float(params[key])
+            if sheet is None:
+                raise ServoError(
+                    f"{where}: {key} = {value:g} N: robot '{self.names[k]}' has no wrist "
+                    f"sensor to hold a force with (robots[].ft.sensor)"
+                )
+            if abs(value) > sheet.rated[axis]:
+                raise ServoError(
+                    f"{where}: {key} = {value:g} N beyond the {sheet.name} sensor's rated "
+                    f"range ±{sheet.rated[axis]:g} N on that axis"
+                )
+
+    def get_arm_params(self, robot: str | int, servo: str | None = None) -> dict[str, float]:
+        """The parameters of robot-level servo ``servo`` (default: the active one)."""
+        k = self.robot_index(robot)
+        name = self._arm_name(k, servo)
+        _, alg = self.arm_algorithm(name)
+        return alg.get_params(self.get_arm(robot, name).copy())
+
+    def get_arm(self, robot: str | int, servo: str) -> np.ndarray:
+        """A consistent copy of robot ``robot``'s record of robot-level servo ``servo``."""
+        k = self.robot_index(robot)
+        idx, alg = self.arm_algorithm(servo)
+        self._arm_op(k, SlotOp.GET, idx, None, wait=True)
+        raw = self.level.arm_staging[k, : alg.dtype.itemsize].copy()
+        return raw.view(alg.dtype).reshape(())
+
+    def put_arm(self, robot: str | int, servo: str, data: np.ndarray, wait: bool = True) -> None:
+        """Replace robot ``robot``'s record of robot-level servo ``servo`` (from ``get_arm``)."""
+        k = self.robot_index(robot)
+        idx, alg = self.arm_algorithm(servo)
+        rec = np.asarray(data)
+        if rec.dtype != alg.dtype or rec.size != 1:
+            raise ServoError(
+                f"put_arm robot '{self.names[k]}' '{servo}': data of dtype {rec.dtype} and "
+                f"size {rec.size}, expected one record of {alg.dtype}"
+            )
+        self._arm_op(k, SlotOp.PUT, idx, rec.tobytes(), wait)
+
+    def _arm_name(self, k: int, servo: str | None) -> str:
+        if servo is not None:
+            return servo
+        active = self.arm_active(k)
+        if active is None:
+            raise ServoError(
+                f"robot '{self.names[k]}' runs its joint servos: name the robot-level servo "
+                f"({', '.join(self.level.registry.arm_names())})"
+            )
+        return active
+
+    def _arm_op(self, k: int, op: SlotOp, algo: int, payload: bytes | None, wait: bool) -> None:
+        """Post a robot-level mailbox operation for the SV that claims robot ``k``; with the
+        clock stopped a get/put/params is carried out here, a select waits for the next
+        tick (its hand-over needs that tick's measurement)."""
+        lv = self.level
+        r = lv.robots[k : k + 1].reshape(())
+        lock = SpinLock(lv.arm_lock_addr[k], f"robot-level servo mailbox of '{self.names[k]}'")
+        lock.acquire(OP_TIMEOUT_S)
+        try:
+            deadline = time.monotonic() + OP_TIMEOUT_S
+            while atomic.load32(lv.arm_op_addr[k]) != SlotOp.NONE:
+                if not self._clock_running():
+                    raise ServoError(
+                        f"robot '{self.names[k]}': a robot-level select waits for the next "
+                        f"servo tick, and the clock is stopped (lockstep: step it first)"
+                    )
+                if time.monotonic() > deadline:
+                    raise ServoError(
+                        f"robot '{self.names[k]}': the previous robot-level update was not "
+                        f"taken within {OP_TIMEOUT_S:g} s (are the SVs running?)"
+                    )
+                time.sleep(0.0005)
+            if payload is not None:
+                lv.arm_staging[k, : len(payload)] = np.frombuffer(payload, np.uint8)
+            r["arm_op_algo"] = algo
+            if not self._clock_running() and op != SlotOp.SELECT:
+                apply_arm_op(lv, k, int(op), _no_select)
+                self._arm_refused(k)
+                return
+            done = int(r["arm_ops_done"])
+            atomic.store32(lv.arm_op_addr[k], int(op))  # published last: the SV acts on it
+            if not wait:
+                return
+            while int(r["arm_ops_done"]) == done and self._clock_running():
+                if time.monotonic() > deadline + OP_TIMEOUT_S:
+                    raise ServoError(
+                        f"robot '{self.names[k]}': the SV did not carry out the robot-level "
+                        f"update within {OP_TIMEOUT_S:g} s (is the clock running?)"
+                    )
+                time.sleep(0.0005)
+            if int(r["arm_ops_done"]) != done:
+                self._arm_refused(k)
+        finally:
+            lock.release()
+
+    def _arm_refused(self, k: int) -> None:
+        if int(self.level.robots["arm_op_status"][k]) == layout.OP_REFUSED:
+            text = decode(self.level.arm_staging[k].tobytes())
+            raise ServoError(f"robot '{self.names[k]}': {text}")
+
     # ------------------------------------------------------------------ single words
 
     def enable_servo(self, robot: str | int, joint: int, on: bool = True) -> None:
@@ -500,13 +718,7 @@ def apply_op(level: ServoLevel, i: int, op: int) -> bool:
         why = _carry_out(level, i, op, int(s.op_algo))
     except Exception as exc:  # an algorithm's own code raised: refuse, never halt
         why = f"{_op_name(op)} refused: {type(exc).__name__}: {exc}"
-    if why:
-        text = why.encode()[: layout.SERVO_STAGING_BYTES - 1]
-        level.staging[i, : len(text)] = np.frombuffer(text, np.uint8)
-        level.staging[i, len(text)] = 0
-        s.op_status = layout.OP_REFUSED
-    else:
-        s.op_status = 0
+    s.op_status = _post_reason(level.staging[i], why)
     s.ops_done += 1
     return not why
 
@@ -576,3 +788,82 @@ def handover(level: ServoLevel, i: int, a: int) -> None:
         Handover(s.position, s.velocity, s.demand, s.error, s.torque),
     )
     s.algo = a
+
+
+def apply_arm_op(level: ServoLevel, k: int, op: int, select: Callable[[int], None]) -> bool:
+    """Carry out robot-level mailbox operation ``op`` on robot ``k`` (the SV that claimed the
+    robot, or a client while the clock is stopped); True if done, False if refused.
+
+    As ``apply_op``, for the robot's record of robot-level servo ``arm_op_algo``: GET, PUT
+    (every float finite, the algorithm's own ``set_params`` passed, on a copy) and PARAMS
+    (on a copy); SELECT calls ``select(a)`` with ``a`` a robot-level index or ``ARM_NONE``
+    for the joint servos (the SV's hand-over, which needs this tick's inputs; a client never
+    carries out a SELECT).  A refusal changes nothing; ``arm_op_status`` and the staging
+    bytes say why, and ``arm_ops_done`` counts either way.
+    """
+    r = level.robots[k : k + 1].reshape(())
+    try:
+        why = _carry_out_arm(level, k, op, int(r["arm_op_algo"]), select)
+    except Exception as exc:  # an algorithm's own code raised: refuse, never halt
+        why = f"{_op_name(op)} refused: {type(exc).__name__}: {exc}"
+    r["arm_op_status"] = _post_reason(level.arm_staging[k], why)
+    r["arm_ops_done"] = int(r["arm_ops_done"]) + 1
+    return not why
+
+
+def _post_reason(staging: np.ndarray, why: str) -> int:
+    """A mailbox's status word for ``why`` ('' = done), the reason written as UTF-8 into its
+    ``staging`` bytes when refused."""
+    if not why:
+        return 0
+    text = why.encode()[: layout.SERVO_STAGING_BYTES - 1]
+    staging[: len(text)] = np.frombuffer(text, np.uint8)
+    staging[len(text)] = 0
+    return layout.OP_REFUSED
+
+
+def _carry_out_arm(
+    level: ServoLevel, k: int, op: int, a: int, select: Callable[[int], None]
+) -> str:
+    """Apply one checked robot-level mailbox operation; '' when done, else why refused."""
+    arms = level.registry.arms
+    if op not in _OPS:
+        ops = ", ".join(f"{SlotOp(o).name} {int(o)}" for o in sorted(_OPS))
+        return f"mailbox operation {op} is not one of {ops}"
+    known = ", ".join(f"{i} {alg.name}" for i, alg in enumerate(arms))
+    if op == SlotOp.SELECT and a == layout.ARM_NONE:
+        select(a)
+        return ""
+    if not 0 <= a < len(arms):
+        return f"{SlotOp(op).name} refused: robot-level algorithm index {a}, registered {known}" + (
+            f", {layout.ARM_NONE} joint servos" if op == SlotOp.SELECT else ""
+        )
+    alg = arms[a]
+    rec = level.arm_data[k][a]
+    size = alg.dtype.itemsize
+    staging = level.arm_staging[k]
+    if op == SlotOp.SELECT:
+        select(a)
+    elif op == SlotOp.GET:
+        staging[:size] = rec.reshape(1).view(np.uint8)
+    elif op == SlotOp.PUT:
+        trial = staging[:size].copy().view(alg.dtype).reshape(())
+        for name in alg.dtype.names or ():
+            value = np.asarray(trial[name])
+            if value.dtype.kind == "f" and not np.isfinite(value).all():
+                return f"PUT '{alg.name}' refused: field {name} is {value}, must be finite"
+        try:
+            alg.set_params(trial, alg.get_params(trial))
+        except KaliError as exc:
+            return f"PUT '{alg.name}' refused: {_bare(exc)}"
+        rec[...] = trial
+    else:  # PARAMS
+        values = staging[: 8 * len(alg.params)].view(np.float64)
+        changes = {p: float(v) for p, v in zip(alg.params, values, strict=True) if v == v}
+        trial = rec.copy()
+        try:
+            alg.set_params(trial, changes)
+        except KaliError as exc:
+            return f"PARAMS '{alg.name}' refused: {_bare(exc)}"
+        rec[...] = trial
+    return ""

@@ -15,7 +15,9 @@ without them (issue 6: they must not disturb the servo figures), beside cyclicte
 each run, since the host's stalls differ from one minute to the next.  Two more run only when
 named (``--runs``): ``mixed-1ms-2sv``, a PUMA 560 facing a Panda (13 joints), and
 ``four-1ms-2sv``, two PUMAs, a UR5 and a Panda (25 joints) (issue 25: any arm, the joint count
-as data), each otherwise as ``1ms-2sv``.
+as data), and ``1ms-2sv-imp``, both arms under the Cartesian impedance servo (issue 27: each
+SV claims a whole arm, its model refreshed from Pinocchio every tick), each otherwise as
+``1ms-2sv``: run it with ``1ms-2sv`` for the joint PIDs beside it.
 
 Both arms are powered, left 2 s to settle, then kept moving: this script (SCHED_OTHER,
 unpinned) pushes one set-point per TG period (10 ms) into each robot's TG → SIO FIFO, keeping
@@ -190,6 +192,7 @@ class RunSpec:
     n_sv: int
     extras: bool = True
     cell: str = "pumas"  # CELLS: the arms (default.yaml's two PUMAs, or another cell)
+    arm_servo: str | None = None  # a robot-level servo every arm runs instead of its joints'
 
 
 RUNS = {
@@ -204,6 +207,8 @@ RUNS = {
         RunSpec("mixed-1ms-2sv", 1000, 2, cell="mixed"),
         RunSpec("four-1ms-2sv", 1000, 2, cell="four"),
         RunSpec("one-0.25ms-1sv", 250, 1, cell="one"),  # 4 kHz, one arm (issue 26 item 3)
+        # both arms under the Cartesian impedance servo (issue 27), against 1ms-2sv
+        RunSpec("1ms-2sv-imp", 1000, 2, arm_servo="impedance"),
     )
 }
 DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv", "0.5ms-2sv")
@@ -218,6 +223,7 @@ def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> Kali
         **sv_overrides(DEFAULT_CONFIG, spec.n_sv),
         **CELLS[spec.cell],
         **extras_overrides(spec.extras, record),
+        **({"robots.*.robot_servos": True} if spec.arm_servo else {}),
     }
     return cell_config(overrides, instance, DEFAULT_CONFIG, spec.name)
 
@@ -296,15 +302,26 @@ def power_on(inst: Instance, client: ServoClient) -> None:
 
 
 def warm_up(
-    inst: Instance, client: ServoClient, fifos: list[InterpolatingFifo], tg_s: float
+    inst: Instance,
+    client: ServoClient,
+    fifos: list[InterpolatingFifo],
+    tg_s: float,
+    arm_servo: str | None = None,
 ) -> Motion | None:
-    """Power the arms, let them settle, start the motion; None if the instance halted."""
+    """Power the arms, let them settle (tare their wrist sensors and hand them to
+    ``arm_servo`` if given), start the motion; None if the instance halted."""
     try:
         power_on(inst, client)
     except BenchError:
         if inst.fault["active"]:
             return None
         raise
+    if arm_servo is not None:
+        fts = inst.arena.existing(layout.KEY_FT, layout.FT_STATE, len(client.names))
+        fts["tare_cmd"][:] = 1
+        time.sleep(SETTLE_S / 2)
+        for name in client.names:
+            client.select_arm(name, arm_servo)
     time.sleep(SETTLE_S)
     motion = Motion(client, fifos, tg_s)
     lead_end = time.monotonic() + LEAD_IN_S
@@ -395,7 +412,8 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
             client = ServoClient(inst)
             fifos = [client.level.fifo(k) for k in range(len(client.names))]
             try:
-                motion = warm_up(inst, client, fifos, cfg.clock.tg_period_ms / 1000.0)
+                tg_s = cfg.clock.tg_period_ms / 1000.0
+                motion = warm_up(inst, client, fifos, tg_s, spec.arm_servo)
                 if motion is None:
                     res.fault = inst.fault_text()
                     res.problems.append(f"halted before the window opened: {res.fault}")

@@ -41,7 +41,7 @@ def test_the_version_is_a_digest_of_every_dtype(monkeypatch: pytest.MonkeyPatch)
 def test_a_mixed_cells_blocks_are_sized_by_each_arms_joints() -> None:
     cfg = parse_config(config_text("lay", MIXED), "<mixed>", str(ROOT / "config"))
     registry = registry_for(cfg.plugins, cfg.base_dir)
-    cell = cell_of(cfg, tuple(a.dtype for a in registry))
+    cell = cell_of(cfg, *registry.dtypes())
     blocks = {b.key: b for b in layout.blocks(cell)}
     assert cell.joints == (6, 7) and cell.n_joints == 13
     assert blocks["robots.joints"].count == 13 and blocks["servo.slots"].count == 13
@@ -53,9 +53,15 @@ def test_a_mixed_cells_blocks_are_sized_by_each_arms_joints() -> None:
     assert len(servo) == len(registry)
     last = blocks[f"servo.data.{len(registry) - 1}"]
     assert last.dtype == registry[len(registry) - 1].dtype and last.count == 13
-    # the size kalictl checks the arena against is this layout's (plugins at their largest)
+    # each robot-level servo's private data is one block too, a record per robot
+    arms = [k for k in blocks if re.fullmatch(r"servo\.arm\.\d+", k)]
+    assert len(arms) == len(registry.arms) >= 2
+    assert blocks["servo.arm.1"].dtype == registry.arms[1].dtype
+    assert blocks["servo.arm.1"].count == 2
+    # the size kalictl checks the arena against is this layout's (plugins at their largest,
+    # each counted as possibly registering a robot-level servo too)
     need, n_blocks, _ = arena_need(cfg)
-    assert n_blocks == len(blocks) + 1
+    assert n_blocks == len(blocks) + 1 + len(cfg.plugins)
     assert need >= layout.header_bytes() + sum(b.nbytes for b in blocks.values())
 
 
@@ -83,9 +89,7 @@ def test_kalictl_start_lays_out_every_record_and_the_daemons_only_attach(
     with Instance.attach(name) as inst:
         cfg = inst.config
         registry = registry_for(cfg.plugins, cfg.base_dir)
-        want = {
-            b.key: b.nbytes for b in layout.blocks(cell_of(cfg, tuple(a.dtype for a in registry)))
-        }
+        want = {b.key: b.nbytes for b in layout.blocks(cell_of(cfg, *registry.dtypes()))}
         have = {b.key: b.requested for b in inst.arena.blocks() if b.used}
         assert have == want
         assert int(inst.arena.header["sealed"]) == 1

@@ -197,8 +197,10 @@ def test_range_and_runaway_on_the_same_tick_report_the_first_robots_range() -> N
 @given(st.data())
 def test_feed_equals_the_reference(data: st.DataObject) -> None:
     n = data.draw(st.integers(1, 32))
-    demand, q, qd = (floats(data.draw, n, -10.0, 10.0) for _ in range(3))
+    demand, q, qd, vel, acc, ff = (floats(data.draw, n, -10.0, 10.0) for _ in range(6))
     fed = bools(data.draw, n)
+    choices = np.array([0, layout.ARM_FREE, layout.ARM_HELD], dtype=np.uint32)
+    mark = choices[data.draw(st.lists(st.integers(0, 2), min_size=n, max_size=n))]
     slots, ref_slots = np.zeros(n, layout.SERVO_SLOT), np.zeros(n, layout.SERVO_SLOT)
     slots["busy"] = ref_slots["busy"] = 7
     ctrl, ref_ctrl = np.ones((), layout.SERVO_CTRL), np.ones((), layout.SERVO_CTRL)
@@ -217,9 +219,16 @@ def test_feed_equals_the_reference(data: st.DataObject) -> None:
         not_fed=layout.SLOT_NOT_FED,
         ctrl_fed=ctrl["fed"].ctypes.data,
         ctrl_done=ctrl["done"].ctypes.data,
+        demand_vel=vel,
+        demand_acc=acc,
+        ff=ff,
+        slot_demand_vel=slots["demand_vel"],
+        slot_demand_acc=slots["demand_acc"],
+        slot_ff=slots["ff"],
+        mark=mark,
     )()
     assert count == kernels.feed_reference(
-        demand, q, qd, fed, ref_slots, layout.SLOT_NOT_FED, ref_ctrl
+        demand, q, qd, fed, ref_slots, layout.SLOT_NOT_FED, ref_ctrl, vel, acc, ff, mark
     )
     same(slots, ref_slots)
     same(ctrl, ref_ctrl)

@@ -442,6 +442,22 @@ class Robot:
         out over ``feedforward.ramp_ms``."""
         self.kali.servo.feedforward(self.name, mode)
 
+    def select_servo(self, name: str) -> None:
+        """Run this whole arm with robot-level servo ``name`` (``"computed_torque"``,
+        ``"impedance"``, a plugin's), or with ``"joints"`` its joint servos again; handed
+        over bumplessly at the next servo tick, while it moves or not (thesis 3.3.4)."""
+        self.kali.servo.select_arm(self.name, name, wait=not self.kali.inst.lockstep)
+
+    def set_servo(self, params: Mapping[str, float], servo: str | None = None) -> None:
+        """Change parameters of this arm's robot-level servo (default: the active one) on
+        line, e.g. ``set_servo({"kz": 500, "fz": 15})``; ServoError, nothing changed, for a
+        bad value."""
+        self.kali.servo.set_arm_params(self.name, params, servo, wait=not self.kali.inst.lockstep)
+
+    def servo_params(self, servo: str | None = None) -> dict[str, float]:
+        """The parameters of this arm's robot-level servo (default: the active one)."""
+        return self.kali.servo.get_arm_params(self.name, servo)
+
     def stop(self) -> None:
         """Decelerate this arm's motion to rest on its path; queued ones are cancelled."""
         self.kali._order(MotionKind.STOP, [self.index])

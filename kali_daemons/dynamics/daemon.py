@@ -10,7 +10,9 @@ for every set-point in a robot's TG → SIO FIFO (Type 2) it writes one row
     FfMode.GRAVITY:  τ_i = g(q_i)
     FfMode.FULL:     τ_i = M(q_i) q̈_i + C(q_i, q̇_i) q̇_i + g(q_i) + friction(q̇_i) + k_v q̇_i
 
-keyed by the set-point's absolute FIFO index (``layout.FEEDFORWARD``).  SIO interpolates the
+keyed by the set-point's absolute FIFO index (``layout.FEEDFORWARD``), with the demand's
+q̇_i and q̈_i beside it for the robot-level servos (issue 27), which get rows in FULL whatever
+the mode asked for.  SIO interpolates the
 rows of the segment it is on exactly as it interpolates the positions, so feed-forward and
 demand stay aligned however late this process runs; a row that is not there in time, or a
 process that has gone silent, is SIO's to detect and drop (``sio/daemon.py``).
@@ -97,6 +99,7 @@ class Dynamics(Daemon):
             rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
         self.attach(cfg, inst.arena)
         level = ServoLevel(inst)
+        self._arm_algo = level.robots["arm_algo"]
         self._algo = level.slots["algo"]
         self._enabled = level.slots["enabled"]
         # per slot, per algorithm: a view of its kv parameter, or None if it has none
@@ -135,6 +138,8 @@ class Dynamics(Daemon):
         counts = self.joint_map.counts
         self._ff_q = [self.ff["q"][k, :, :n] for k, n in enumerate(counts)]
         self._ff_tau = [self.ff["tau"][k, :, :n] for k, n in enumerate(counts)]
+        self._ff_qd = [self.ff["qd"][k, :, :n] for k, n in enumerate(counts)]
+        self._ff_qdd = [self.ff["qdd"][k, :, :n] for k, n in enumerate(counts)]
         # per robot: the first FIFO index without a row, and the mode the rows are in
         self.next_row = [fifo.indices()[0] for fifo in self.fifos]
         self.mode_seen = [FfMode.OFF] * self.n_robots
@@ -156,6 +161,8 @@ class Dynamics(Daemon):
         for k in range(self.n_robots):
             word = int(ff["mode"][k])
             mode = FfMode(word) if word in FF_MODES else self.mode_seen[k]
+            if int(self._arm_algo[k]) != layout.ARM_NONE:
+                mode = FfMode.FULL  # a robot-level servo takes the demand's q̇, q̈ from the rows
             if mode != self.mode_seen[k]:  # recompute what SIO has not used yet
                 self.mode_seen[k] = mode
                 self.next_row[k] = self.fifos[k].indices()[0] - 1
@@ -234,5 +241,7 @@ class Dynamics(Daemon):
         keys[row] = layout.FF_NO_KEY  # SIO ignores the row while it changes
         self._ff_q[k][row] = a.q_i
         self._ff_tau[k][row] = tau
+        self._ff_qd[k][row] = a.qd
+        self._ff_qdd[k][row] = a.qdd
         keys[row] = key
         ff["rows_written"][k] += 1

@@ -38,14 +38,8 @@ class InverseDynamics:
         self.data = self.model.createData()
         n = robot.n_joints
         self.tau = np.zeros(n)
-        self._s, self._c = np.zeros(n), np.zeros(n)
-        d = robot.drive
-        self._gear_w = np.abs(d.gear) / FRICTION_SMOOTHING_RAD_S
-        self._viscous, self._coulomb_pos, self._coulomb_neg = (
-            d.viscous,
-            d.coulomb_pos,
-            d.coulomb_neg,
-        )
+        self._c = np.zeros(n)
+        self.friction = DriveFriction(robot)
         # a first computation now: the first use of Pinocchio faults its pages in
         self.torque(FfMode.FULL, robot.q_home.copy(), np.ones(n), np.ones(n), np.zeros(n))
 
@@ -58,20 +52,38 @@ class InverseDynamics:
             np.copyto(self.tau, pin.computeGeneralizedGravity(self.model, self.data, q))
             return self.tau
         np.copyto(self.tau, pin.rnea(self.model, self.data, q, qd, qdd))
-        s, c = self._s, self._c
-        np.multiply(qd, self._viscous, out=c)
+        c = self._c
+        self.friction(qd, c)
         np.add(self.tau, c, out=self.tau)
-        np.multiply(qd, self._gear_w, out=s)  # motor speed / ω₀
-        np.tanh(s, out=s)
-        np.maximum(s, 0.0, out=c)
-        np.multiply(c, self._coulomb_pos, out=c)
-        np.add(self.tau, c, out=self.tau)
-        np.minimum(s, 0.0, out=c)
-        np.multiply(c, self._coulomb_neg, out=c)  # both negative: a positive product
-        np.subtract(self.tau, c, out=self.tau)
         np.multiply(qd, kv, out=c)  # velocity feed-forward: the servo damps q̇ − q̇_d
         np.add(self.tau, c, out=self.tau)
         return self.tau
+
+
+class DriveFriction:
+    """The drive's friction torque at joint velocity q̇ (N·m), as the plant models it:
+    viscous plus asymmetric Coulomb smoothed by tanh(|G| q̇ / ω₀).  Preallocated; a call
+    allocates nothing (the feed-forward and the robot-level servos' compensation)."""
+
+    def __init__(self, robot: RobotType) -> None:
+        n = robot.n_joints
+        d = robot.drive
+        self._s, self._c = np.zeros(n), np.zeros(n)
+        self._gear_w = np.abs(d.gear) / FRICTION_SMOOTHING_RAD_S
+        self._viscous, self._pos, self._neg = d.viscous, d.coulomb_pos, d.coulomb_neg
+
+    def __call__(self, qd: np.ndarray, out: np.ndarray) -> None:
+        """The friction torque at ``qd`` into ``out``."""
+        s, c = self._s, self._c
+        np.multiply(qd, self._viscous, out=out)
+        np.multiply(qd, self._gear_w, out=s)  # motor speed / ω₀
+        np.tanh(s, out=s)
+        np.maximum(s, 0.0, out=c)
+        np.multiply(c, self._pos, out=c)
+        np.add(out, c, out=out)
+        np.minimum(s, 0.0, out=c)
+        np.multiply(c, self._neg, out=c)  # both negative: a positive product
+        np.subtract(out, c, out=out)
 
 
 def central_differences(

@@ -5,6 +5,7 @@ The SV daemon builds ``registry_for(cfg.plugins, cfg.base_dir)`` once, views eac
 private data with ``struct_view`` and calls ``step`` every tick; see ``registry.py``.
 """
 
+from .arm import ArmInput, ArmServoAlgorithm
 from .builtins import PD, PID
 from .registry import (
     MAX_DATA_BYTES,
@@ -25,6 +26,8 @@ __all__ = [
     "PD",
     "PID",
     "STATUS_OK",
+    "ArmInput",
+    "ArmServoAlgorithm",
     "Handover",
     "Param",
     "Registry",

@@ -385,6 +385,10 @@ def _check_interval(algo: str, sample_interval_s: float) -> float:
 
 
 def register(registry: Registry) -> None:
-    """The built-ins, in their fixed order: pid = 0, pd = 1."""
+    """The built-ins, in their fixed order: pid = 0, pd = 1; then the robot-level ones
+    (``armbuiltins``)."""
+    from . import armbuiltins  # here: it imports the registry, which imports this module
+
     registry.register(PID)
     registry.register(PD)
+    armbuiltins.register(registry)

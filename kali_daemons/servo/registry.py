@@ -43,6 +43,7 @@ import numpy as np
 from .. import layout
 from ..errors import ConfigError
 from ..pyfile import import_file
+from .arm import ArmServoAlgorithm, check_arm_dtype, probe_arm_step
 
 STATUS_OK = 0  # what ``step`` returns when all is well
 MAX_DATA_BYTES = layout.SERVO_STAGING_BYTES  # private data must fit the put/get mailbox
@@ -220,11 +221,16 @@ class Registry:
     """Servo algorithms by index and name: built-ins first (``pid`` 0, ``pd`` 1), then
     plugins in the order loaded.  The index is what the arena's servo slots store.
 
+    Robot-level servos (``arm.ArmServoAlgorithm``) are registered alike and kept apart, with
+    indices of their own (``arms``, ``arm_index``: what ``ROBOT_STATE.arm_algo`` stores);
+    a name is unique across both kinds.
+
     Built outside the cycle (``registry_for``); afterwards read-only.
     """
 
     def __init__(self, builtins: bool = True) -> None:
         self._algos: list[ServoAlgorithm] = []
+        self.arms: list[ArmServoAlgorithm] = []  # robot-level servos, by their index
         self._by_name: dict[str, int] = {}
         self._origin: dict[str, str] = {}
         self._source = "builtins"
@@ -265,9 +271,29 @@ class Registry:
         return self._algos[self.index(name)]
 
     def origin(self, name: str) -> str:
-        """Where the algorithm called ``name`` came from: "builtins" or the plugin spec."""
-        self.index(name)
+        """Where the algorithm called ``name`` (of either kind) came from: "builtins" or the
+        plugin spec."""
+        if name not in self.arm_names():
+            self.index(name)
         return self._origin[name]
+
+    def arm_names(self) -> list[str]:
+        """Every robot-level servo's name, in index order."""
+        return [a.name for a in self.arms]
+
+    def arm_index(self, name: str) -> int:
+        """The index of the robot-level servo called ``name``; ConfigError naming them."""
+        for i, algo in enumerate(self.arms):
+            if algo.name == name:
+                return i
+        raise ConfigError(
+            f"servo: no robot-level algorithm {name!r}; known: {', '.join(self.arm_names())}"
+        )
+
+    def dtypes(self) -> tuple[tuple[np.dtype, ...], tuple[np.dtype, ...]]:
+        """The private-data dtypes of the joint servos and of the robot-level servos, each in
+        index order (what the arena is laid out with)."""
+        return tuple(a.dtype for a in self._algos), tuple(a.dtype for a in self.arms)
 
     def max_itemsize(self) -> int:
         """The largest private data record of any algorithm, bytes (sizes the arena)."""
@@ -275,16 +301,18 @@ class Registry:
 
     # ---------------------------------------------------------------- registration
 
-    def register(self, algo: ServoAlgorithm) -> int:
-        """Add ``algo`` at the next index and return that index.
+    def register(self, algo: ServoAlgorithm | ArmServoAlgorithm) -> int:
+        """Add ``algo`` at the next index of its kind and return that index.
 
         Called by a plugin's ``register(registry)``.  ConfigError, naming the plugin (or
-        builtins), the algorithm and the fault, if it is not a well-formed ServoAlgorithm.
+        builtins), the algorithm and the fault, if it is not a well-formed ServoAlgorithm or
+        ArmServoAlgorithm.
         """
         where = f"plugin {self._source!r}" if self._source != "builtins" else "builtins"
-        if not isinstance(algo, ServoAlgorithm):
+        if not isinstance(algo, ServoAlgorithm | ArmServoAlgorithm):
             raise ConfigError(
-                f"{where}: register() was given a {type(algo).__name__}, not a ServoAlgorithm"
+                f"{where}: register() was given a {type(algo).__name__}, not a "
+                f"ServoAlgorithm or an ArmServoAlgorithm"
             )
         name = algo.name
         if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
@@ -292,12 +320,14 @@ class Registry:
                 f"{where}: algorithm name {name!r} must be lower case letters, digits and '_', "
                 f"starting with a letter, at most 32 characters"
             )
-        if name in self._by_name:
+        if name in self._by_name or name in self.arm_names():
+            known = ", ".join(self.names() + self.arm_names())
             raise ConfigError(
                 f"{where}: algorithm name {name!r} is already registered by "
-                f"{self._origin[name]}; known: {', '.join(self.names())}"
+                f"{self._origin[name]}; known: {known}"
             )
-        fault = check_dtype(algo.dtype)
+        arm = isinstance(algo, ArmServoAlgorithm)
+        fault = check_arm_dtype(algo.dtype) if arm else check_dtype(algo.dtype)
         if fault is not None:
             raise ConfigError(f"{where}: algorithm {name!r}: {fault}")
         for attr in _CALLABLES:
@@ -313,6 +343,11 @@ class Registry:
             )
         if len(set(params)) != len(params):
             raise ConfigError(f"{where}: algorithm {name!r}: params {params!r} repeat a name")
+        self._origin[name] = where
+        if isinstance(algo, ArmServoAlgorithm):
+            probe_arm_step(algo, f"{where}: robot-level algorithm {name!r}")
+            self.arms.append(algo)
+            return len(self.arms) - 1
         _probe_step(algo, f"{where}: algorithm {name!r}")
         self._by_name[name] = len(self._algos)
         self._origin[name] = where
@@ -335,23 +370,23 @@ class Registry:
             )
         if not callable(register):
             raise ConfigError(f"plugin {spec!r}: register is {register!r}, not a function")
-        before = len(self._algos)
+        before, arms_before = len(self._algos), len(self.arms)
         self._source = spec
         try:
             register(self)
         except ConfigError:
-            del self._algos[before:]
+            del self._algos[before:], self.arms[arms_before:]
             self._rebuild_names()
             raise
         except Exception as exc:
-            del self._algos[before:]
+            del self._algos[before:], self.arms[arms_before:]
             self._rebuild_names()
             raise ConfigError(
                 f"plugin {spec!r}: register() raised {type(exc).__name__}: {exc}"
             ) from exc
         finally:
             self._source = "builtins"
-        added = [a.name for a in self._algos[before:]]
+        added = [a.name for a in self._algos[before:]] + [a.name for a in self.arms[arms_before:]]
         if not added:
             raise ConfigError(f"plugin {spec!r}: register() registered no algorithm")
         return added
@@ -359,7 +394,8 @@ class Registry:
     def _rebuild_names(self) -> None:
         """After dropping a failed plugin's algorithms: names and origins of the rest."""
         self._by_name = {a.name: i for i, a in enumerate(self._algos)}
-        self._origin = {n: o for n, o in self._origin.items() if n in self._by_name}
+        kept = set(self._by_name) | set(self.arm_names())
+        self._origin = {n: o for n, o in self._origin.items() if n in kept}
 
 
 PROBE_INTERVAL_S = 0.001  # the test input ``register`` steps a new algorithm with

@@ -5,16 +5,20 @@ tick.
     the robot driver, counts → radians) and estimate velocities
     (backward difference through a 25 Hz first-order low-pass, as the PID of figure 3.4).
 (b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
-    the arm is while it is not powered — check joint range and tracking error, and feed the
-    servo slots: demand, position and velocity in, then ``busy`` cleared so the SVs can
-    claim them, then the tick they are fed for, then one post per SV on its feed semaphore
-    (an SV passes over a post left from a tick it missed).
+    the arm is while it is not powered — check joint range and tracking error, take each
+    robot's feed-forward and the demand's velocity and acceleration from the dynamics
+    process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped),
+    and feed the servo slots: demand (with its velocity and acceleration), position,
+    velocity and feed-forward in, then ``busy`` cleared so the SVs can claim them (a robot
+    running a robot-level servo is fed whole, for one SV: ``sv/arm.py``), then the tick they
+    are fed for, then one post per SV on its feed semaphore (an SV passes over a post left
+    from a tick it missed).
 (c) Sleep at once until the SV finishing the last slot posts the done semaphore, so the SV
     on SIO's CPU takes its feed before the servos are done; acknowledge the tick for each
-    SV it can vouch for (``gang.py``); take each robot's feed-forward from the dynamics
-    process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped)
-    and add it, write the torques to the boards (motor currents, the current check), and
-    drive each board's power switch and keep-alive (the McGill board's watchdog).
+    SV it can vouch for (``gang.py``); add the feed-forward to the joint servos' torques (a
+    robot-level servo's torque is the whole torque), write the torques to the boards (motor
+    currents, the current check), and drive each board's power switch and keep-alive (the
+    McGill board's watchdog).
 
 Every register bit is the board module's (``kali_daemons/boards/mcgill.py``); SIO asks it
 for angles, torques out, power, pots and index pulses.
@@ -162,6 +166,14 @@ class ServoIO(Daemon):
         a = period_s * 2.0 * math.pi * VELOCITY_FILTER_HZ
         self.vel_a, self.vel_b = a, 1.0 / (1.0 + a)
         self.demand = np.zeros(n)
+        self.demand_vel = np.zeros(n)  # the demand's velocity and acceleration (feedforward.py)
+        self.demand_acc = np.zeros(n)
+        # a fed slot's busy value: 0, or ARM_FREE / ARM_HELD for a robot fed whole (sv/arm.py)
+        self.mark = np.zeros(n, dtype=np.uint32)
+        self._whole = [False] * nr
+        self._arm_algo = rs["arm_algo"]
+        self._arm_op = rs["arm_op"]
+        self._spans = [lv.map.span(k) for k in range(nr)]
         self.torque = np.zeros(n)
         self.servo_torque = np.zeros(n)
         self.current = np.zeros(n)
@@ -212,6 +224,8 @@ class ServoIO(Daemon):
                 heartbeat_limit=period_ticks(ffc.stale_ms, cfg.clock.base_tick_ms, round_up=True),
                 missing_limit=servo_ticks(ffc.stale_ms),
                 step=cfg.clock.servo_period_ms / ffc.ramp_ms,
+                vel=self.demand_vel[lv.map.span(k)],
+                acc=self.demand_acc[lv.map.span(k)],
             )
             for k in range(nr)
         ]
@@ -290,6 +304,13 @@ class ServoIO(Daemon):
             not_fed=layout.SLOT_NOT_FED,
             ctrl_fed=self._ctrl_fed.ctypes.data,
             ctrl_done=self._ctrl_done.ctypes.data,
+            demand_vel=self.demand_vel,
+            demand_acc=self.demand_acc,
+            ff=self.ff,
+            slot_demand_vel=lv.slots["demand_vel"],
+            slot_demand_acc=lv.slots["demand_acc"],
+            slot_ff=lv.slots["ff"],
+            mark=self.mark,
         )
         self._torques = Kernel(
             "kali_torques",
@@ -344,8 +365,12 @@ class ServoIO(Daemon):
         if not faulted and self._checks(tick):
             faulted = True
             self.fed_mask[:] = False
-        # feed the slots that servo this tick: demand, position, velocity, the count fed and
-        # done = 0, then busy cleared where fed (the SVs may claim now)
+        # this tick's feed-forward and the demand's velocity and acceleration (thesis 3.3.6),
+        # then feed the slots that servo this tick: demand, position, velocity, the count
+        # fed and done = 0, then busy cleared where fed (the SVs may claim now)
+        for k, ff in enumerate(self._ff):
+            ff.arm = self._arm_robot(k)
+            ff.update(tick)
         fed = self._feed()
         self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         t_fed = rt.monotonic_ns()
@@ -361,8 +386,9 @@ class ServoIO(Daemon):
         else:  # every servo done: the SVs' acknowledgements before SIO's output (gang.py)
             self._gang.acknowledge(tick)
         t_done = rt.monotonic_ns()
-        for ff in self._ff:  # this tick's feed-forward (thesis 3.3.6)
-            ff.update(tick)
+        for k in range(lv.n_robots):  # a robot-level servo's torque is the whole torque
+            if int(self._arm_algo[k]) != layout.ARM_NONE:
+                self.ff[self._spans[k]] = 0.0
         self._torques()  # servo and feed-forward torques of the fed joints, and their sum
         self.hw.write(self.torque, self.current, self.clamped)
         self._current_check(tick)
@@ -383,6 +409,20 @@ class ServoIO(Daemon):
             self._lat_max[...] = late
         self._hist[layout.lateness_bin(late)] += 1
         self.flight.record(tick, t_read, late, t_done - t_fed, c_out - c_read)  # DESIGN 7
+
+    def _arm_robot(self, k: int) -> bool:
+        """Whether robot ``k`` is fed whole this tick (a robot-level servo runs it, or a
+        robot-level mailbox operation waits), its slots' marks set to match; True if it
+        runs a robot-level servo."""
+        arm = int(self._arm_algo[k]) != layout.ARM_NONE
+        whole = arm or int(self._arm_op[k]) != 0
+        if whole != self._whole[k]:
+            self._whole[k] = whole
+            span = self._spans[k]
+            self.mark[span] = layout.ARM_HELD if whole else 0
+            if whole:
+                self.mark[span.start] = layout.ARM_FREE
+        return arm
 
     def _robot(self, k: int, tick: int, faulted: bool) -> None:
         """Power switch, pots and this tick's demand of robot ``k``."""

@@ -14,6 +14,12 @@ feed-forward on or off fades it in or out the same way, over ``feedforward.ramp_
 servos see no torque step.  A row missing for less than that (the newest set-point's row is
 written once its successor exists) is covered by its neighbour's.
 
+The same rows carry the demand's velocity and acceleration at each set-point (the dynamics
+process's central differences), interpolated alike into ``vel`` and ``acc`` for the servos:
+a robot-level servo (issue 27) needs q̇_d and q̈_d.  They are read whenever feed-forward is
+on or the robot runs a robot-level servo (``arm``: the dynamics process then computes rows
+whatever the mode), and otherwise are zero; a missing row keeps the last good values.
+
 Nothing written by another process is taken on trust (DESIGN 7): a mode word that is no
 FfMode leaves the last valid mode in force, and an interpolated torque that is not finite
 counts as a missing row (the last good torque is kept; missing long enough, it is stale).
@@ -44,11 +50,15 @@ class RobotFeedforward:
         "_mode",
         "_mode_ok",
         "_ok",
+        "_qd",
+        "_qdd",
         "_stale_count",
         "_state",
         "_tau",
         "_try",
         "_weight_rec",
+        "acc",
+        "arm",
         "fifo",
         "heartbeat_limit",
         "missing",
@@ -56,6 +66,7 @@ class RobotFeedforward:
         "out",
         "stale",
         "step",
+        "vel",
         "weight",
     )
 
@@ -68,9 +79,12 @@ class RobotFeedforward:
         heartbeat_limit: int,
         missing_limit: int,
         step: float,
+        vel: np.ndarray | None = None,
+        acc: np.ndarray | None = None,
     ) -> None:
         """``heartbeat_limit`` in wall-clock ticks and ``missing_limit`` in servo ticks are
-        the staleness limits; ``step`` is how much the weight moves per servo tick."""
+        the staleness limits; ``step`` is how much the weight moves per servo tick; ``vel``
+        and ``acc`` (as long as ``out``) receive the demand's velocity and acceleration."""
 
         def one(field: str) -> np.ndarray:
             return records[k : k + 1][field].reshape(())
@@ -82,48 +96,61 @@ class RobotFeedforward:
         n = out.shape[0]  # the robot's joints: its rows' first n columns
         self._keys = records["key"][k]
         self._tau = records["tau"][k][:, :n]
+        self._qd = records["qd"][k][:, :n]
+        self._qdd = records["qdd"][k][:, :n]
         self.fifo = fifo
         self.out = out
+        self.vel = np.zeros(n) if vel is None else vel
+        self.acc = np.zeros(n) if acc is None else acc
+        self.arm = False  # SIO: the robot runs a robot-level servo
         self.heartbeat_limit = heartbeat_limit
         self.missing_limit = missing_limit
         self.step = step
         self.weight = float(self._weight_rec)
         self.missing = 0
         self.stale = int(self._state) == FfState.STALE
-        self._last = np.zeros(n)  # the last good interpolated torque
-        self._try = np.zeros(n)  # this tick's, until it is known to be finite
-        self._ok = np.zeros(n, dtype=bool)
-        self._a = np.zeros(n)
-        self._b = np.zeros(n)
+        # rows 0, 1, 2: torque, velocity, acceleration
+        self._last = np.zeros((3, n))  # the last good interpolated values
+        self._try = np.zeros((3, n))  # this tick's, until they are known to be finite
+        self._ok = np.zeros((3, n), dtype=bool)
+        self._a = np.zeros((3, n))
+        self._b = np.zeros((3, n))
         word = int(self._mode)
         self._mode_ok = word if word in _MODES else int(FfMode.OFF)  # the last valid mode
 
     def _row(self, key: int, out: np.ndarray) -> bool:
-        """Copy the row of ``key`` into ``out``; False if it is not there (or changed while
-        being copied: the dynamics process sets its key to FF_NO_KEY while writing)."""
+        """Copy the row of ``key`` (torque, velocity, acceleration) into ``out``; False if it
+        is not there (or changed while being copied: the dynamics process sets its key to
+        FF_NO_KEY while writing)."""
         if key < 0:
             return False
         row = key % layout.FF_ROWS
         if self._keys[row] != key:
             return False
-        np.copyto(out, self._tau[row])
+        np.copyto(out[0], self._tau[row])
+        np.copyto(out[1], self._qd[row])
+        np.copyto(out[2], self._qdd[row])
         return self._keys[row] == key
 
     def update(self, tick: int) -> None:
-        """This tick's feed-forward into ``out`` (inside SIO's cycle)."""
+        """This tick's feed-forward into ``out``, the demand's velocity and acceleration into
+        ``vel`` and ``acc`` (inside SIO's cycle)."""
         mode = int(self._mode)
         if mode in _MODES:
             self._mode_ok = mode
         else:  # a client's garbage: the last valid mode stays in force
             mode = self._mode_ok
-        if mode == FfMode.OFF and self.weight == 0.0:
+        if mode == FfMode.OFF and self.weight == 0.0 and not self.arm:
             if self.stale or int(self._state) != FfState.OFF:
                 self.stale = False
                 self._state[...] = FfState.OFF
                 self.out.fill(0.0)
+                self.vel.fill(0.0)
+                self.acc.fill(0.0)
             return
         good = False
-        if mode != FfMode.OFF and tick - int(self._heartbeat) <= self.heartbeat_limit:
+        wanted = mode != FfMode.OFF or self.arm
+        if wanted and tick - int(self._heartbeat) <= self.heartbeat_limit:
             key_b = self.fifo.target_index() + 1
             has_b = self._row(key_b, self._b)
             has_a = self._row(key_b - 1, self._a)
@@ -145,7 +172,10 @@ class RobotFeedforward:
             self.missing = 0 if good else self.missing + 1
             stale = not good and self.missing > self.missing_limit
         else:
-            stale = mode != FfMode.OFF  # the dynamics process is silent
+            stale = wanted  # the dynamics process is silent
+        if stale:  # no demand velocity or acceleration rather than an old one
+            self._last[1:].fill(0.0)
+        stale = stale and mode != FfMode.OFF  # only feed-forward asked for can be stale
         if stale:
             if not self.stale:
                 self._events[...] = int(self._events) + 1
@@ -157,7 +187,9 @@ class RobotFeedforward:
         elif self.weight > want:
             self.weight = max(want, self.weight - self.step)
         self._weight_rec[...] = self.weight
-        np.multiply(self._last, self.weight, out=self.out)
+        np.multiply(self._last[0], self.weight, out=self.out)
+        np.copyto(self.vel, self._last[1])
+        np.copyto(self.acc, self._last[2])
         if stale:
             self._state[...] = FfState.STALE
         else:

@@ -33,7 +33,7 @@ import math
 import numpy as np
 
 from .. import ftsensor
-from ..chain import Chain, chain_of, flange_pose
+from ..chain import Chain, base_pose, chain_of, flange_pose
 from ..config import KaliConfig, ms_to_ns
 from ..ftsensor import (
     AXES,
@@ -48,15 +48,6 @@ from ..kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED,
 from ..layout import TareState
 
 TARE_MS = 100.0  # a tare averages this long of samples
-
-
-def base_pose(xyz: tuple[float, float, float], yaw_deg: float) -> np.ndarray:
-    """A robot's base in the world (4×4): at ``xyz``, turned ``yaw_deg`` about z."""
-    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
-    t = np.eye(4)
-    t[:2, :2] = [[c, -s], [s, c]]
-    t[:3, 3] = xyz
-    return t
 
 
 class ArmSensor:
@@ -250,4 +241,4 @@ def sensors_of(cfg: KaliConfig) -> list[int]:
     return [k for k, r in enumerate(cfg.robots) if r.ft.sheet is not None]
 
 
-__all__ = ["TARE_MS", "ArmSensor", "base_pose", "convert_reference", "sensors_of"]
+__all__ = ["TARE_MS", "ArmSensor", "convert_reference", "sensors_of"]

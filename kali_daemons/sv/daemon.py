@@ -3,7 +3,12 @@
 Every SV is signalled by the wall clock with SIO (the SVs are gang-scheduled: signalled with
 SIO or not at all, ``wallclock.clock.gang_state``), then waits on its feed semaphore until
 SIO has fed the slots of that tick (``_await_feed``), then claims and runs its work
-(``serve``, which an in-process executive may call directly).  Work comes in two kinds:
+(``serve``, which an in-process executive may call directly).  Work comes in three kinds:
+
+- robots fed whole (``arm.ArmRunner``): a robot that runs a robot-level servo (issue 27,
+  thesis 3.3.4's Cartesian servo mode) or has a robot-level mailbox operation pending, claimed
+  by test-and-set of its first slot's ``busy`` (ARM_FREE → the SV's number) and run as one
+  unit: the model at this tick's angles and one step for every joint;
 
 - units (``units.Unit``): per robot, the fed joints running a built-in servo (PID,
   PD) with nothing to do before the step, claimed by test-and-set of each ``busy`` word and
@@ -14,9 +19,9 @@ SIO has fed the slots of that tick (``_await_feed``), then claims and runs its w
   it carries out a pending mailbox operation (put/get/select/params, 3.4), runs the
   joint's algorithm and stores torque, error and status.
 
-Each SV goes through every robot's unit first (SV k starting k/N of the way round, so two
-SVs share two arms), then through the single slots.  Every slot run counts as done; the SV
-that finishes the tick's last slot posts SIO's done semaphore.  Each
+Each SV goes through the robots fed whole, then every robot's unit (SV k starting k/N of
+the way round, so two SVs share two arms), then through the single slots.  Every slot run
+counts as done; the SV that finishes the tick's last slot posts SIO's done semaphore.  Each
 SV notes the tick whose feed it took (``sv_fed_tick``): SIO acknowledges that tick for it
 as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU below
 SIO's priority, would wait behind SIO's output (``sio/gang.py``, which also says when SIO
@@ -53,7 +58,7 @@ from ..errors import DaemonError
 from ..layout import FaultCode, SlotOp, SlotReset
 from ..servo import Handover
 from ..servolevel import ServoLevel, apply_op, handover
-from . import units
+from . import arm, units
 
 READY_TIMEOUT_S = 30.0  # how long an SV waits at start for SIO to lay out the slots
 FEED_HISTORY = 16  # ticks over which a polling SV learns when SIO's feed comes
@@ -143,6 +148,12 @@ class ServoWorker(Daemon):
                 lv.slots, pid, pd, lo, hi, pid_a, pd_a, self.me, self.index, self._left
             )
             self.units.append(unit)
+        # each robot as one unit when SIO feeds it whole (a robot-level servo: arm.py)
+        self.arms = [
+            arm.ArmRunner(self, k) for k in ((first + m) % lv.n_robots for m in range(lv.n_robots))
+        ]
+        self._arm_addr = [lv.busy_addr[a.lo] for a in self.arms]
+        self._arm_busy = [lv.slots["busy"][a.lo : a.lo + 1] for a in self.arms]
 
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
@@ -165,6 +176,13 @@ class ServoWorker(Daemon):
         busy, addr, structs, me = self.busy, lv.busy_addr, lv.slot_structs, self.me
         tick_now = int(self._tick)
         ran = 0
+        for m, runner in enumerate(self.arms):  # robots fed whole: one SV runs each
+            if self._arm_busy[m][0] == layout.ARM_FREE:
+                ok, _ = cas(self._arm_addr[m], layout.ARM_FREE, me)
+                if ok:
+                    runner.run(tick_now)
+                    ran += runner.n
+                    self._done(runner.n, fed)
         for unit in self.units:
             ran += self._serve_unit(unit, tick_now, fed)
         for i in self.order:

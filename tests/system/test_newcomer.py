@@ -131,7 +131,9 @@ def test_the_readmes_servo_plugin_steps_work(
     try:
         assert r.returncode == 0, r.stdout + r.stderr
         listing = kalictl("-i", name, "servo", "list")
-        assert re.search(r"^mine\s+bandwidth_hz, inertia$", listing.stdout, re.M), listing.stdout
+        assert re.search(r"^mine\s+joint\s+bandwidth_hz, inertia$", listing.stdout, re.M), (
+            listing.stdout
+        )
         with Instance.attach(name) as inst:
             step_kali_clock(inst, 30)
             assert kalictl("-i", name, "enable").returncode == 0

@@ -1,0 +1,360 @@
+"""The built-in robot-level servos (issue 27 item 3; ``arm.py`` for the interface).
+
+**computed_torque** (thesis 2.2.3: τ = H(q) u + h(q, q̇)).  Each tick, with e = q_d − q:
+
+    u = q̈_d + 2 ζ ω_n (q̇_d − q̇) + ω_n² e + ω_i ω_n² ∫e
+    τ = M(q) u + h(q, q̇) + friction(q̇_d) + bias
+
+the arm's own model linearising it into n decoupled second-order errors of natural frequency
+``wn`` and damping ratio ``zeta``, the same on every joint (a rotor's inertia included);
+the integral (``wi``, each joint's ∫e limited to ``ilimit``) takes up what the model misses,
+the joints' stiction first.
+
+**impedance** (a Cartesian impedance about the tool point, per tool axis; 3.3.4's damping
+and impedance control on an end-effector force sensor).  With x, R the tool point and its
+rotation at q, x_d, R_d at q_d, the pose error e = (x_d − x, log(R_d Rᵀ)) and twist error
+ė = J (q̇_d − q̇), both turned into tool axes (Rᵀ), each tool axis i gets
+
+    F_i = k_i e_i + d_i ė_i + f_i        (f: the force set-point, tool axes)
+    τ = Jᵀ R F + M(q) q̈_d + h(q, q̇) + friction(q̇_d) + k_q (q̇_d − q̇) + bias
+
+so a steady force F on the tool displaces it by F / k on each axis; ``kx`` ... ``krz``
+and ``dx`` ... ``drz`` are set on line (``kalictl servo set ROBOT kz=500``).  ``fz`` presses
+along the tool's z axis (moving in contact); a set-point beyond the wrist sensor's rated
+range is refused by the client (``servolevel.ServoClient``).
+
+A geared arm's joints stick (the PUMA's Coulomb friction holds 25 N·m on joint 1, a 50 N
+push at half a metre), so with a wrist sensor the law closes a force loop too: the sensed
+wrench w (what the environment applies) should balance the spring, k e + f + w = 0, and the
+imbalance is fed back, ``kf`` times it plus its integral (gain ``kfi``, limited to ``imax``),
+added to F.  At rest the imbalance is zero and so are both terms: the displacement is F / k
+however much the joints stick, and a force set-point is held as the sensor measures it.
+
+Both take a robot over bumplessly: at the switch the difference between the torque the
+motors had and this law's first torque becomes a ``bias`` that decays with time constant
+``handover_s``.  Their error (each slot's ``error``) is q_d − q, as the joint servos'.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from .. import layout
+from .arm import ArmInput, ArmServoAlgorithm
+from .registry import Param, Registry, defaults, resolve_params
+
+N = layout.MAX_JOINTS  # the per-joint arrays of a record are this long; a robot uses n
+AXES = ("x", "y", "z", "rx", "ry", "rz")  # tool axes: the wrench's and a twist's order
+
+HANDOVER = Param(
+    "handover_s", 0.05, "s", "time constant of the bumpless hand-over bias", positive=True,
+    maximum=3600.0,
+)  # fmt: skip
+FRICTION = Param("friction", 1.0, "flag", "1: compensate the drive's friction at q̇_d", maximum=1.0)
+
+# ------------------------------------------------------------------------------ shared
+
+
+def _common_init(d: Any, values: dict[str, float], dt: float) -> None:
+    d["dt"] = dt
+    d["bias"] = 0.0
+    _derive(d, values)
+
+
+def _derive(d: Any, values: Mapping[str, float]) -> None:
+    """The parameters every robot-level built-in has: the hand-over's decay per tick."""
+    d["handover_s"] = values["handover_s"]
+    d["friction"] = values["friction"]
+    d["decay"] = math.exp(-float(d["dt"]) / values["handover_s"])
+
+
+def _bias_out(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
+    """Add the hand-over bias to ``tau`` and let it decay a tick."""
+    bias = d["bias"][: inp.n]
+    np.add(tau, bias, out=tau)
+    np.multiply(bias, float(d["decay"]), out=bias)
+
+
+def _handover(core: Any) -> Any:
+    """A hand-over for the law ``core(d, inp, tau)``: the bias that makes its first torque
+    the one the motors had."""
+
+    def handover(d: Any, inp: ArmInput, tau_prev: np.ndarray) -> None:
+        first = inp.work[3]
+        core(d, inp, first)
+        np.subtract(tau_prev, first, out=d["bias"][: inp.n])
+
+    return handover
+
+
+def _model_terms(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
+    """Add h(q, q̇) and, if asked for, the friction at q̇_d to ``tau``."""
+    np.add(tau, inp.h, out=tau)
+    if d["friction"]:
+        f = inp.work[2]
+        inp.friction(inp.qd_d, f)
+        np.add(tau, f, out=tau)
+
+
+# ------------------------------------------------------------------------------ computed torque
+
+CT_PARAMS: tuple[Param, ...] = (
+    Param("wn", 80.0, "rad/s", "natural frequency of every joint's error", positive=True,
+          maximum=2000.0),
+    Param("zeta", 1.0, "", "damping ratio of every joint's error", maximum=10.0),
+    Param("wi", 10.0, "rad/s", "integral action: ω_i ω_n² ∫e (0: none)", maximum=2000.0),
+    Param("ilimit", 0.01, "rad·s", "limit of each joint's ∫e", maximum=10.0),
+    FRICTION,
+    HANDOVER,
+)  # fmt: skip
+
+CT_DTYPE = np.dtype(
+    [
+        ("wn", "<f8"),
+        ("zeta", "<f8"),
+        ("friction", "<f8"),
+        ("handover_s", "<f8"),
+        ("kp", "<f8"),  # ω_n², 1/s²
+        ("kd", "<f8"),  # 2 ζ ω_n, 1/s
+        ("wi", "<f8"),
+        ("ilimit", "<f8"),
+        ("ki", "<f8"),  # ω_i ω_n², 1/s³
+        ("dt", "<f8"),
+        ("decay", "<f8"),
+        ("bias", "<f8", (N,)),
+        ("integral", "<f8", (N,)),  # ∫e per joint, rad·s
+    ],
+    align=True,
+)
+
+
+def _ct_set(d: Any, values: Mapping[str, float]) -> None:
+    v = resolve_params("computed_torque", CT_PARAMS, values, _ct_get(d))
+    d["wn"], d["zeta"] = v["wn"], v["zeta"]
+    d["kp"], d["kd"] = v["wn"] ** 2, 2.0 * v["zeta"] * v["wn"]
+    d["wi"], d["ilimit"], d["ki"] = v["wi"], v["ilimit"], v["wi"] * v["wn"] ** 2
+    np.clip(d["integral"], -v["ilimit"], v["ilimit"], out=d["integral"])
+    _derive(d, v)
+
+
+def _ct_get(d: Any) -> dict[str, float]:
+    return {p.name: float(d[p.name]) for p in CT_PARAMS}
+
+
+def _ct_init(d: Any, init: Mapping[str, float], dt: float) -> None:
+    v = resolve_params("computed_torque", CT_PARAMS, init, defaults(CT_PARAMS))
+    _common_init(d, v, dt)
+    d["integral"] = 0.0
+    _ct_set(d, v)
+
+
+def _ct_core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
+    w = inp.work
+    e, u = w[0], w[1]
+    np.subtract(inp.q_d, inp.q, out=e)
+    np.multiply(e, float(d["kp"]), out=u)
+    np.subtract(inp.qd_d, inp.qd, out=e)
+    np.multiply(e, float(d["kd"]), out=e)
+    np.add(u, e, out=u)
+    np.add(u, inp.qdd_d, out=u)
+    np.multiply(d["integral"][: inp.n], float(d["ki"]), out=e)
+    np.add(u, e, out=u)
+    np.matmul(inp.M, u, out=tau)
+    _model_terms(d, inp, tau)
+
+
+def _ct_step(d: Any, inp: ArmInput, tau: np.ndarray) -> int:
+    _ct_core(d, inp, tau)
+    _bias_out(d, inp, tau)
+    integral, e = d["integral"][: inp.n], inp.work[0]
+    np.subtract(inp.q_d, inp.q, out=e)
+    np.multiply(e, float(d["dt"]), out=e)
+    np.add(integral, e, out=integral)
+    limit = float(d["ilimit"])
+    np.clip(integral, -limit, limit, out=integral)
+    return 0
+
+
+COMPUTED_TORQUE = ArmServoAlgorithm(
+    name="computed_torque",
+    dtype=CT_DTYPE,
+    params=tuple(p.name for p in CT_PARAMS),
+    init=_ct_init,
+    step=_ct_step,
+    handover=_handover(_ct_core),
+    set_params=_ct_set,
+    get_params=_ct_get,
+    doc="τ = M(q)(q̈_d + 2ζω_n ė + ω_n² e) + h(q, q̇): computed torque (thesis 2.2.3)",
+)
+
+# ------------------------------------------------------------------------------ impedance
+
+STIFFNESS_MAX = 1e6  # N/m (N·m/rad): a rigid fixture's; beyond it, a typo
+DAMPING_MAX = 1e5
+FORCE_MAX = 1e4  # N (N·m): the client refuses a set-point beyond the sensor's rating first
+MOMENT_ARM_M = 0.1  # the integral's moment limit is its force limit times this
+
+IMPEDANCE_PARAMS: tuple[Param, ...] = (
+    *(Param(f"k{a}", 2000.0, "N/m", f"stiffness along tool {a}", maximum=STIFFNESS_MAX)
+      for a in AXES[:3]),
+    *(Param(f"k{a}", 150.0, "N·m/rad", f"stiffness about tool {a[1]}", maximum=STIFFNESS_MAX)
+      for a in AXES[3:]),
+    *(Param(f"d{a}", 300.0, "N·s/m", f"damping along tool {a}", maximum=DAMPING_MAX)
+      for a in AXES[:3]),
+    *(Param(f"d{a}", 10.0, "N·m·s/rad", f"damping about tool {a[1]}", maximum=DAMPING_MAX)
+      for a in AXES[3:]),
+    *(Param(f"f{a}", 0.0, "N", f"force set-point along tool {a}", minimum=-FORCE_MAX,
+            maximum=FORCE_MAX) for a in AXES[:3]),
+    Param("kf", 1.0, "", "force feedback gain on the impedance's imbalance", maximum=50.0),
+    Param("kfi", 10.0, "1/s", "its integral gain", maximum=1e4),
+    Param("imax", 60.0, "N", "limit of the integral (moments: times 0.1 m)", maximum=FORCE_MAX),
+    Param("kq", 1.0, "N·m·s/rad", "joint damping of q̇ − q̇_d", maximum=DAMPING_MAX),
+    FRICTION,
+    HANDOVER,
+)  # fmt: skip
+
+IMPEDANCE_DTYPE = np.dtype(
+    [
+        ("k", "<f8", (layout.WRENCH,)),  # tool axes: N/m, then N·m/rad
+        ("d", "<f8", (layout.WRENCH,)),
+        ("f", "<f8", (layout.WRENCH,)),  # force set-point, tool axes (moments 0)
+        ("integral", "<f8", (layout.WRENCH,)),  # the force feedback's integral, tool axes
+        ("limit", "<f8", (layout.WRENCH,)),  # its limit per axis
+        ("kf", "<f8"),
+        ("kfi", "<f8"),
+        ("imax", "<f8"),
+        ("kq", "<f8"),
+        ("friction", "<f8"),
+        ("handover_s", "<f8"),
+        ("dt", "<f8"),
+        ("decay", "<f8"),
+        ("bias", "<f8", (N,)),
+    ],
+    align=True,
+)
+_ARRAYS = {f"{f}{a}": (f, i) for f in "kd" for i, a in enumerate(AXES)}
+_ARRAYS.update({f"f{a}": ("f", i) for i, a in enumerate(AXES[:3])})
+_SCALARS = ("kf", "kfi", "imax", "kq")
+
+
+def _imp_get(d: Any) -> dict[str, float]:
+    out = {}
+    for p in IMPEDANCE_PARAMS:
+        field, i = _ARRAYS.get(p.name, (p.name, None))
+        out[p.name] = float(d[field] if i is None else d[field][i])
+    return out
+
+
+def _imp_set(d: Any, values: Mapping[str, float]) -> None:
+    v = resolve_params("impedance", IMPEDANCE_PARAMS, values, _imp_get(d))
+    for name, (field, i) in _ARRAYS.items():
+        d[field][i] = v[name]
+    for name in _SCALARS:
+        d[name] = v[name]
+    d["limit"][:3] = v["imax"]
+    d["limit"][3:] = v["imax"] * MOMENT_ARM_M
+    np.clip(d["integral"], -d["limit"], d["limit"], out=d["integral"])
+    _derive(d, v)
+
+
+def _imp_init(d: Any, init: Mapping[str, float], dt: float) -> None:
+    v = resolve_params("impedance", IMPEDANCE_PARAMS, init, defaults(IMPEDANCE_PARAMS))
+    _common_init(d, v, dt)
+    d["integral"] = 0.0
+    _imp_set(d, v)
+
+
+def rotation_error(r_d: np.ndarray, r: np.ndarray, out: np.ndarray, scratch: np.ndarray) -> None:
+    """log(R_d Rᵀ) as a rotation vector (world axes) into ``out`` (3,); ``scratch`` (3, 3)."""
+    np.matmul(r_d, r.T, out=scratch)
+    e = scratch
+    out[0] = 0.5 * (e[2, 1] - e[1, 2])
+    out[1] = 0.5 * (e[0, 2] - e[2, 0])
+    out[2] = 0.5 * (e[1, 0] - e[0, 1])
+    c = max(-1.0, min(1.0, 0.5 * (e[0, 0] + e[1, 1] + e[2, 2] - 1.0)))
+    angle = math.acos(c)
+    s = math.sin(angle)
+    if s > 1e-9:
+        np.multiply(out, angle / s, out=out)
+
+
+_ROT_SCRATCH = np.zeros((3, 3))  # rotation_error's, in the SV's one thread
+_HALVES = (slice(0, 3), slice(3, 6))
+
+
+def _to_tool(v: np.ndarray, rot: np.ndarray, scratch: np.ndarray) -> None:
+    """A world wrench or twist ``v`` (6,) into tool axes, in place: Rᵀ on each half."""
+    for half in _HALVES:
+        np.matmul(v[half], rot, out=scratch[half])  # Rᵀ v as a row vector: v R
+    np.copyto(v, scratch)
+
+
+def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
+    """The law, with the imbalance k e + f + w (tool axes) left in ``inp.work6[3]``."""
+    w, w6 = inp.work, inp.work6
+    e, edot, f, imbalance = w6[0], w6[1], w6[2], w6[3]
+    rot = inp.pose[:3, :3]
+    np.subtract(inp.pose_d[:3, 3], inp.pose[:3, 3], out=e[:3])
+    rotation_error(inp.pose_d[:3, :3], rot, e[3:], _ROT_SCRATCH)
+    dq = w[0]
+    np.subtract(inp.qd_d, inp.qd, out=dq)
+    np.matmul(inp.J, dq, out=edot)
+    _to_tool(e, rot, f)
+    _to_tool(edot, rot, f)
+    np.multiply(e, d["k"], out=f)  # the spring and the set-point: what the arm should exert
+    np.add(f, d["f"], out=f)
+    if inp.has_sensor:  # what it does exert is -w: feed the difference back (stiction)
+        np.copyto(imbalance, inp.wrench)
+        _to_tool(imbalance, rot, e)
+        np.add(imbalance, f, out=imbalance)
+        np.multiply(imbalance, float(d["kf"]), out=e)
+        np.add(f, e, out=f)
+        np.add(f, d["integral"], out=f)
+    else:
+        imbalance.fill(0.0)
+    np.multiply(edot, d["d"], out=e)
+    np.add(f, e, out=f)
+    for half in _HALVES:
+        np.matmul(rot, f[half], out=e[half])
+    np.matmul(e, inp.J, out=tau)  # Jᵀ F
+    np.matmul(inp.M, inp.qdd_d, out=w[1])
+    np.add(tau, w[1], out=tau)
+    np.multiply(dq, float(d["kq"]), out=dq)
+    np.add(tau, dq, out=tau)
+    _model_terms(d, inp, tau)
+
+
+def _imp_step(d: Any, inp: ArmInput, tau: np.ndarray) -> int:
+    _imp_core(d, inp, tau)
+    _bias_out(d, inp, tau)
+    integral = d["integral"]
+    imbalance = inp.work6[3]
+    np.multiply(imbalance, float(d["kfi"]) * float(d["dt"]), out=imbalance)
+    np.add(integral, imbalance, out=integral)
+    np.clip(integral, -d["limit"], d["limit"], out=integral)
+    return 0
+
+
+IMPEDANCE = ArmServoAlgorithm(
+    name="impedance",
+    dtype=IMPEDANCE_DTYPE,
+    params=tuple(p.name for p in IMPEDANCE_PARAMS),
+    init=_imp_init,
+    step=_imp_step,
+    handover=_handover(_imp_core),
+    set_params=_imp_set,
+    get_params=_imp_get,
+    doc="Cartesian impedance about the tool point: stiffness, damping, force per tool axis",
+)
+
+ARM_SPECS = {COMPUTED_TORQUE.name: CT_PARAMS, IMPEDANCE.name: IMPEDANCE_PARAMS}
+
+
+def register(registry: Registry) -> None:
+    """The robot-level built-ins, in their fixed order: computed_torque = 0, impedance = 1."""
+    registry.register(COMPUTED_TORQUE)
+    registry.register(IMPEDANCE)

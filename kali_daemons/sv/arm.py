@@ -1,0 +1,191 @@
+"""An SV's robot-level unit (issue 27 item 3, thesis 3.3.4's Cartesian servo mode): one
+robot fed whole, claimed and run by one SV.
+
+SIO feeds a robot whole while it runs a robot-level servo or has a robot-level mailbox
+operation pending: its first slot's ``busy`` is ``ARM_FREE``, the others ``ARM_HELD``
+(``kernels.c kali_feed``), so neither the compiled units nor the per-slot path claim any of
+its joints.  The SV that wins the first slot's test-and-set (ARM_FREE → its number) runs the
+robot (``ArmRunner.run``):
+
+1. this tick's inputs from the robot's slots (demand, its velocity and acceleration, the
+   measurement, the feed-forward) and its wrist sensor's world wrench;
+2. the robot's mailbox operation, if any (``servolevel.apply_arm_op``): a SELECT switches
+   the robot between its joint servos and a robot-level servo, bumplessly both ways — into a
+   robot-level servo from the torque the motors had last tick (``handover``), back into the
+   joint servos from that torque less the feed-forward SIO adds again from this tick;
+3. with joint servos, each joint's servo as the per-slot path runs it; with a robot-level
+   servo, the model at this tick's angles (``servo.armmodel``) and one ``step`` for every
+   joint's torque.  A slot's reset hands the servo over too: at power on as if holding the
+   arm's weight, after calibration from the running torque.  A disabled joint gets no
+   torque.  A step that raises, returns a nonzero status or a non-finite torque halts with a
+   SERVO fault naming the robot and the algorithm.
+
+Each joint's slot then holds its torque, error (q_d − q), status, tick and SV, as a joint
+servo leaves them, so SIO, the flight recorder and the dashboard see no difference.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .. import atomic, layout, rt
+from ..errors import ServoError
+from ..layout import SlotOp, SlotReset
+from ..servo.arm import ArmInput
+from ..servolevel import apply_arm_op, handover
+
+_NO_MODEL = (
+    "robot '{robot}' runs no robot-level servo: its config has robot_servos: false "
+    "(set robots[].robot_servos: true; the SVs then load its model)"
+)
+
+if TYPE_CHECKING:
+    from ..servo.armmodel import ArmModel
+    from .daemon import ServoWorker
+
+
+class ArmRunner:
+    """Robot ``k`` as one unit of SV ``worker``'s work; bound at configure."""
+
+    def __init__(self, worker: ServoWorker, k: int) -> None:
+        lv = worker.level
+        cfg = worker.inst.config
+        self.worker, self.level, self.k = worker, lv, k
+        span = lv.map.span(k)
+        self.lo, self.hi, self.n = span.start, span.stop, span.stop - span.start
+        robot = cfg.robots[k]
+        self.name = robot.name
+        self.robot = lv.robots[k : k + 1].reshape(())
+        self.inp = ArmInput(self.n, lv.servo_period_s, robot.name)
+        # its model only where the config lets it run robot-level servos (Pinocchio's cost)
+        self.model: ArmModel | None = None
+        if robot.robot_servos:
+            from ..servo.armmodel import ArmModel  # here: it loads Pinocchio (test_imports)
+
+            self.model = ArmModel(robot, self.inp)
+        self.tau = np.zeros(self.n)
+        self.tau_prev = np.zeros(self.n)
+        slots = lv.slots[span]
+        inp = self.inp
+        self._in = [
+            (inp.q_d, slots["demand"]),
+            (inp.qd_d, slots["demand_vel"]),
+            (inp.qdd_d, slots["demand_acc"]),
+            (inp.q, slots["position"]),
+            (inp.qd, slots["velocity"]),
+            (inp.tau_ff, slots["ff"]),
+        ]
+        self._torque, self._error = slots["torque"], slots["error"]
+        self._status, self._ran, self._sv = slots["status"], slots["ran_tick"], slots["sv"]
+        self._exec, self._reset, self._enabled = slots["exec_ns"], slots["reset"], slots["enabled"]
+        self._applied = lv.joints["torque"][span]  # what the motors got last tick (SIO)
+        self._off = np.zeros(self.n, dtype=bool)
+        inp.has_sensor = robot.ft.sheet is not None
+        fts = worker.inst.arena.existing(layout.KEY_FT, layout.FT_STATE, lv.n_robots)
+        self._wrench = fts["world"][k]
+        self._op_addr = lv.arm_op_addr[k]
+        self._arms = lv.registry.arms
+        self._data = lv.arm_data[k]
+        self._algo = self.robot["arm_algo"]
+        self._select = self.select  # bound once: the mailbox's callback
+
+    def run(self, tick: int) -> None:
+        """Run the robot for ``tick`` (inside the cycle)."""
+        inp = self.inp
+        for dst, src in self._in:
+            np.copyto(dst, src)
+        if inp.has_sensor:
+            np.copyto(inp.wrench, self._wrench)
+        model = self.model
+        op = atomic.load32(self._op_addr)
+        if op != SlotOp.NONE:
+            if model is not None:
+                model.update()  # a hand-over needs the model at this tick's angles
+            apply_arm_op(self.level, self.k, op, self._select)
+            atomic.store32(self._op_addr, SlotOp.NONE)
+        a = int(self._algo)
+        if a != layout.ARM_NONE and (model is None or not 0 <= a < len(self._arms)):
+            if model is not None:
+                model.update()
+            self.select(layout.ARM_NONE)  # not an SV's write: back to the joint servos
+            a = layout.ARM_NONE
+        if a == layout.ARM_NONE:
+            structs, run = self.level.slot_structs, self.worker._run
+            for i in range(self.lo, self.hi):
+                run(i, structs[i], tick)
+            return
+        self._step(a, tick)
+
+    def _step(self, a: int, tick: int) -> None:
+        """One step of robot-level servo ``a`` over every joint (inside the cycle)."""
+        t0 = rt.monotonic_ns()
+        inp, alg, data = self.inp, self._arms[a], self._data[a]
+        assert self.model is not None  # run() selects the joint servos without one
+        self.model.update()
+        if self._reset.any():
+            self._take_reset(a)
+        try:
+            status = alg.step(data, inp, self.tau)
+        except Exception as exc:  # the user's servo: halt and say which
+            self._fault(alg.name, f"raised {type(exc).__name__}: {exc}")
+            return
+        tau = self.tau
+        if status != 0 or not np.isfinite(tau).all():
+            self._fault(alg.name, f"returned torques {tau!r}, status {status!r}")
+            return
+        np.equal(self._enabled, 0, out=self._off)
+        tau[self._off] = 0.0
+        self._torque[:] = tau
+        np.subtract(inp.q_d, inp.q, out=self._error)
+        self._status[:] = status
+        self._ran[:] = tick
+        self._sv[:] = self.worker.index
+        exe = rt.monotonic_ns() - t0
+        self._exec[:] = exe // self.n
+        self.robot["arm_status"] = status
+        self.robot["arm_exec_ns"] = exe
+        self.robot["arm_ran_tick"] = tick
+
+    def _take_reset(self, a: int) -> None:
+        """The slots' resets under a robot-level servo: at power on it takes the arm over as
+        holding its weight at rest, after calibration (new coordinates, same motion) from
+        the torque the motors had."""
+        shift = bool((self._reset == SlotReset.SHIFT).any())
+        prev = self._applied if shift else self.inp.g
+        np.copyto(self.tau_prev, prev)
+        self._arms[a].handover(self._data[a], self.inp, self.tau_prev)
+        if not shift:
+            self._torque[:] = 0.0
+        self._reset[:] = SlotReset.NONE
+
+    def select(self, a: int) -> None:
+        """Switch the robot to robot-level servo ``a`` or, ``ARM_NONE``, to its joint servos,
+        bumplessly (the mailbox's SELECT; the model is at this tick's angles)."""
+        now = int(self._algo)
+        if a == now:
+            return
+        if a != layout.ARM_NONE and self.model is None:
+            raise ServoError(_NO_MODEL.format(robot=self.name))
+        np.copyto(self.tau_prev, self._applied)
+        if a == layout.ARM_NONE:
+            # the joint servos continue from what the motors had, less the feed-forward SIO
+            # adds to them again from this tick
+            lv = self.level
+            np.subtract(self.tau_prev, self.inp.tau_ff, out=self._torque)
+            for i in range(self.lo, self.hi):
+                s = lv.slot_structs[i]
+                if s.algo < len(lv.registry):
+                    handover(lv, i, int(s.algo))
+        else:
+            self._arms[a].handover(self._data[a], self.inp, self.tau_prev)
+        self._algo[...] = a
+
+    def _fault(self, algo: str, what: str) -> None:
+        self._torque[:] = 0.0
+        self.worker.inst.raise_fault(
+            layout.FaultCode.SERVO,
+            self.worker.name,
+            f"robot-level servo '{algo}' on robot '{self.name}' {what}",
+        )

@@ -1,0 +1,240 @@
+"""Robot-level servos (issue 27 item 3), end to end in lockstep: the Cartesian impedance under
+a push, computed torque against the PID with full feed-forward on the standard jtraj move,
+bumpless switches between joint and robot-level servos on a moving arm, and bad input
+refused with nothing changed; plus the registry's checks of a robot-level plugin."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import roboticstoolbox as rtb
+
+from kali_daemons import layout
+from kali_daemons.chain import base_pose, chain_of, flange_pose
+from kali_daemons.client import Kali
+from kali_daemons.errors import ConfigError, ServoError
+from kali_daemons.instance import Instance
+from kali_daemons.servo import Registry
+from kali_daemons.servo.arm import ArmInput, ArmServoAlgorithm
+from kali_daemons.servo.armbuiltins import IMPEDANCE, rotation_error
+from kali_daemons.servolevel import ServoClient
+from kali_daemons.wallclock import step_kali_clock
+from tests.test_dynamics import LEFT, MOVE_S, _run
+from tests.test_launcher import kalictl
+
+PUSH_N = 20.0
+STIFFNESS = (1500.0, 2000.0, 2500.0)  # N/m along the tool's x, y, z
+LEFT_ROBOT_SERVOS = {r"^(  - \{name: left.*)\}$": r"\1, robot_servos: true}"}
+
+
+def tool_point(k: Kali, r: int) -> tuple[np.ndarray, np.ndarray]:
+    """Robot ``r``'s tool point and tool rotation in the world from the plant's true joint
+    angles (never read by the controller)."""
+    cfg = k.inst.config
+    truth = k.inst.arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, cfg.joints.total)
+    robot = cfg.robots[r]
+    q = truth["q"][cfg.joints.span(r)].copy()
+    pose = base_pose(robot.base_xyz, robot.base_yaw_deg) @ flange_pose(chain_of(robot.type), q)
+    return pose[:3, 3] + pose[:3, 2] * robot.ft.tool_tip_m, pose[:3, :3]
+
+
+def test_a_push_displaces_the_impedance_servo_s_tool_by_force_over_stiffness(
+    kali: Callable[..., str],
+) -> None:
+    """Under the Cartesian impedance, with a different stiffness along each tool axis, a
+    20 N push along each world axis displaces the tool point by the compliance R K⁻¹ Rᵀ F
+    within 10 % along the push, however much the PUMA's joints stick; released, it returns.
+    Selected at rest, the arm does not move."""
+    name = kali(lockstep=True, edits=LEFT_ROBOT_SERVOS)
+    with Kali(name) as k:
+        k.ready()
+        left = k.robot("left")
+        step_kali_clock(k.inst, 300)
+        left.tare()
+        x0, rot = tool_point(k, 0)
+        left.select_servo("impedance")
+        with pytest.raises(ServoError, match="waits for the next servo tick"):
+            left.set_servo({"kx": 1000.0}, "impedance")
+        step_kali_clock(k.inst, 1)
+        kx, ky, kz = STIFFNESS
+        left.set_servo({"kx": kx, "ky": ky, "kz": kz}, "impedance")
+        step_kali_clock(k.inst, 500)
+        assert k.servo.arm_active("left") == "impedance"
+        x1, _ = tool_point(k, 0)
+        assert np.linalg.norm(x1 - x0) < 1e-4, "a bumpless switch at rest moves nothing"
+        compliance = rot @ np.diag([1 / kx, 1 / ky, 1 / kz]) @ rot.T
+        for axis in range(3):
+            force = np.zeros(3)
+            force[axis] = PUSH_N
+            k.inst.push(0, force, 2.0)
+            step_kali_clock(k.inst, 1900)
+            moved = tool_point(k, 0)[0] - x1
+            want = compliance @ force
+            assert abs(moved[axis] - want[axis]) < 0.1 * abs(want[axis]), (axis, moved, want)
+            step_kali_clock(k.inst, 2000)  # released: back where it was
+            back = tool_point(k, 0)[0] - x1
+            assert np.linalg.norm(back) < 0.002, (axis, back)
+        assert k.inst.fault_text() is None
+
+
+def test_computed_torque_tracks_as_well_as_the_pid_and_switches_bumplessly(
+    kali: Callable[..., str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The standard jtraj move (qz → qn in 2.5 s, as test_dynamics): the computed-torque
+    servo's RMS tracking error is no worse than the PID's with full feed-forward.  Then, on
+    the moving arm, a switch from the computed torque to the joint servos and back makes no
+    torque step larger than the move's own from one tick to the next."""
+    name = kali(lockstep=True, edits=LEFT_ROBOT_SERVOS)
+    with Instance.attach(name) as inst, Kali(name) as program:
+        client = ServoClient(inst)
+        program.ready(["left"])
+        home = program.robot("left").move_joints(np.zeros(6), speed=0.5, wait=False)
+        while not home.done:
+            step_kali_clock(inst, 50)
+        step_kali_clock(inst, 1000)
+        puma = rtb.models.DH.Puma560()
+        period_s = inst.config.clock.tg_period_ms / 1000.0
+        t = np.linspace(0.0, MOVE_S, round(MOVE_S / period_s) + 1)
+        q0 = client.level.joints["demand"][LEFT].copy()
+        there = rtb.jtraj(puma.qz, puma.qn, t).q + q0
+        back = there[::-1].copy()
+        assert kalictl("-i", name, "ff", "on", "left").returncode == 0
+        step_kali_clock(inst, 1000)
+        pid = np.sqrt((_run(inst, client, there) ** 2).mean(axis=0))
+        _run(inst, client, back)
+        r = kalictl("-i", name, "servo", "select", "left", "computed_torque")
+        assert r.returncode == 0 and "left: computed_torque" in r.stdout, r.stderr
+        step_kali_clock(inst, 500)
+        ct = np.sqrt((_run(inst, client, there) ** 2).mean(axis=0))
+        _run(inst, client, back)
+        # the bumpless switches, each way, in the middle of the move
+        fifo = client.level.fifo(0)
+        for row in there[1:]:
+            fifo.push(row)
+        torques = []
+        for i in range(1200):
+            if i in (400, 800):
+                client.select_arm("left", "joints" if i == 400 else "computed_torque", False)
+            step_kali_clock(inst, 1)
+            torques.append(client.level.joints["torque"][LEFT].copy())
+            if i == 400:
+                assert client.arm_active("left") is None
+        assert client.arm_active("left") == "computed_torque"
+        assert inst.fault_text() is None
+        client.close()
+    steps = np.abs(np.diff(np.array(torques), axis=0))
+    at_switch = np.maximum(steps[398:403].max(axis=0), steps[798:803].max(axis=0))
+    elsewhere = np.r_[steps[:390], steps[410:790], steps[810:]].max(axis=0)
+    with capsys.disabled():
+        print(f"\njtraj qz → qn in {MOVE_S:g} s, RMS tracking error (deg), left arm:")
+        print("joint              " + "".join(f"{j:>9}" for j in range(1, 7)))
+        print("PID + full ff      " + "".join(f"{v:9.4f}" for v in np.degrees(pid)))
+        print("computed torque    " + "".join(f"{v:9.4f}" for v in np.degrees(ct)))
+        print("torque step at the switches (N·m) " + " ".join(f"{v:.2f}" for v in at_switch))
+        print("largest elsewhere in the move     " + " ".join(f"{v:.2f}" for v in elsewhere))
+    assert np.sqrt((ct**2).mean()) <= np.sqrt((pid**2).mean())
+    assert np.all(at_switch <= elsewhere + 0.05), (at_switch, elsewhere)
+
+
+def test_bad_robot_level_input_is_refused_and_changes_nothing(kali: Callable[..., str]) -> None:
+    no_sensor = {r"^(  - \{name: right.*)\}$": r"\1, ft: {sensor: none}}"}
+    name = kali(lockstep=True, edits={**LEFT_ROBOT_SERVOS, **no_sensor})
+    with Kali(name) as k:
+        left, right = k.robot("left"), k.robot("right")
+        before = left.servo_params("impedance")
+        bad = [
+            ({"kx": float("nan")}, "must be finite"),
+            ({"kz": -100.0}, "kz = -100 N/m must be >= 0"),
+            ({"fz": 1000.0}, "beyond the mini45 sensor's rated range ±580 N"),
+            ({"stiffness": 1.0}, "has no parameter stiffness"),
+        ]
+        for params, says in bad:
+            with pytest.raises(ServoError, match=says):
+                left.set_servo(params, "impedance")
+        assert left.servo_params("impedance") == before
+        with pytest.raises(ServoError, match="robot 'right' has no wrist sensor"):
+            right.set_servo({"fz": 10.0}, "impedance")
+        with pytest.raises(ServoError, match="robot 'right' runs no robot-level servo"):
+            right.select_servo("impedance")  # its config leaves robot_servos off
+        with pytest.raises(ServoError, match="'pid' is a joint servo"):
+            left.select_servo("pid")
+        with pytest.raises(ServoError, match="runs its joint servos: name the robot-level"):
+            left.servo_params()
+        with pytest.raises(ServoError, match="no algorithm 'impedance'"):
+            k.servo.select("left", 2, "impedance")
+        # a record put with a NaN field is refused by the SV (here: the clock is stopped)
+        record = k.servo.get_arm("left", "impedance")
+        record["kf"] = np.nan
+        with pytest.raises(ServoError, match="field kf is nan, must be finite"):
+            k.servo.put_arm("left", "impedance", record)
+        assert left.servo_params("impedance") == before
+        # kalictl: set and get the robot-level servo's parameters, list shows them
+        r = kalictl("-i", name, "servo", "set", "left", "kz=900", "--servo", "impedance")
+        assert r.returncode == 0, r.stderr
+        r = kalictl("-i", name, "servo", "get", "left", "--servo", "impedance")
+        assert r.returncode == 0 and "kz=900" in r.stdout, r.stderr
+        r = kalictl("-i", name, "servo", "set", "left", "kz=-1", "--servo", "impedance")
+        assert r.returncode != 0 and "must be >= 0" in r.stderr
+        r = kalictl("-i", name, "servo", "list")
+        assert "impedance        robot" in r.stdout and "computed_torque" in r.stdout
+
+
+def _algo(name: str, **changes: object) -> ArmServoAlgorithm:
+    """A robot-level plugin as a researcher would write one: joint damping only."""
+    dtype = np.dtype([("kd", "<f8"), ("seen", "<f8", (8,))], align=True)
+
+    def step(d: np.ndarray, inp: ArmInput, tau: np.ndarray) -> int:
+        np.multiply(inp.qd, -float(d["kd"]), out=tau)
+        np.add(tau, inp.g, out=tau)
+        return 0
+
+    fields: dict[str, object] = {
+        "name": name,
+        "dtype": dtype,
+        "params": ("kd",),
+        "init": lambda d, init, dt: d.__setitem__("kd", init.get("kd", 5.0)),
+        "step": step,
+        "handover": lambda d, inp, tau: None,
+        "set_params": lambda d, v: d.__setitem__("kd", v.get("kd", float(d["kd"]))),
+        "get_params": lambda d: {"kd": float(d["kd"])},
+    }
+    fields.update(changes)
+    return ArmServoAlgorithm(**fields)  # type: ignore[arg-type]
+
+
+def test_the_registry_takes_a_robot_level_plugin_and_checks_it(tmp_path: Path) -> None:
+    registry = Registry()
+    assert registry.arm_names() == ["computed_torque", "impedance"]
+    assert registry.register(_algo("damper")) == 2
+    assert registry.arm_index("damper") == 2 and registry.origin("damper") == "builtins"
+    with pytest.raises(ConfigError, match="'pid' is already registered"):
+        registry.register(_algo("pid"))
+    bad_dtype = np.dtype([("m", "<f8", (3, 3))], align=True)
+    with pytest.raises(ConfigError, match="arrays must be 1-D"):
+        registry.register(_algo("matrix", dtype=bad_dtype))
+    with pytest.raises(ConfigError, match="must return an integer status"):
+        registry.register(_algo("noreturn", step=lambda d, inp, tau: None))
+    plugin = tmp_path / "damper.py"
+    plugin.write_text(
+        "from tests.test_armservo import _algo\n"
+        "def register(registry):\n    registry.register(_algo('damper2'))\n"
+    )
+    assert registry.load_plugin(str(plugin)) == ["damper2"]
+
+
+def test_the_rotation_error_is_the_rotation_vector_between_the_frames() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = rng.uniform(0.0, 3.0)
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        turn = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+        r = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        out = np.zeros(3)
+        rotation_error(turn @ r, r, out, np.zeros((3, 3)))
+        np.testing.assert_allclose(out, axis * angle, atol=1e-9)
+    assert IMPEDANCE.params[:3] == ("kx", "ky", "kz")
