@@ -265,7 +265,7 @@ class RobotConfig:
     grasp_yaw_deg: float = 0.0
     ft: FtConfig = FtConfig()  # its wrist force/torque sensor and tool
     # whether it may run robot-level servos (issue 27): the SVs then hold its model (they
-    # load Pinocchio for it, ~40 MB each), so the lean default leaves it off
+    # load Pinocchio for it, ~20 MB more PSS each), so the lean default leaves it off
     robot_servos: bool = False
 
     def __post_init__(self) -> None:

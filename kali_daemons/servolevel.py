@@ -75,6 +75,20 @@ def flag(what: str, value: object) -> bool:
     raise ServoError(f"{what}: {value!r:.60} is not a flag (True/False, 1/0)")
 
 
+def check_names(where: str, name: str, known: tuple[str, ...], params: Mapping[str, float]) -> None:
+    """ServoError unless ``params`` is a mapping of algorithm ``name``'s parameters."""
+    if not isinstance(params, Mapping):
+        raise ServoError(
+            f"{where}: parameters {params!r:.60} are not a mapping of names to values "
+            f"(e.g. {{'{known[0] if known else 'kp'}': 1.0}})"
+        )
+    unknown = sorted(str(p) for p in set(params) - set(known))
+    if unknown:
+        raise ServoError(
+            f"'{name}' has no parameter {', '.join(unknown)}; parameters: {', '.join(known)}"
+        )
+
+
 def init_data_for(model: str, algo: ServoAlgorithm, joint: int) -> dict[str, float]:
     """The parameters a joint's private data starts with: the robot type's tuned gains for
     the built-ins, the algorithm's own defaults for plugins."""
@@ -348,17 +362,7 @@ class ServoClient:
         i = self.slot(robot, joint)
         name = self.active(robot, joint) if servo is None else servo
         idx, alg = self.algorithm(name)
-        if not isinstance(params, Mapping):
-            raise ServoError(
-                f"{self._where(i)} '{name}': parameters {params!r:.60} are not a mapping of "
-                f"names to values (e.g. {{'kp': 9000}})"
-            )
-        unknown = sorted(str(k) for k in set(params) - set(alg.params))
-        if unknown:
-            raise ServoError(
-                f"'{name}' has no parameter {', '.join(unknown)}; "
-                f"parameters: {', '.join(alg.params)}"
-            )
+        check_names(f"{self._where(i)} '{name}'", name, alg.params, params)
         trial = self.level.data[i][idx].copy()
         try:
             alg.set_params(struct_view(trial), dict(params))
@@ -429,7 +433,7 @@ class ServoClient:
                 raise ServoError(
                     f"robot '{self.names[k]}' runs no robot-level servo: its config has "
                     f"robot_servos: false (set robots[].robot_servos: true; the SVs then "
-                    f"load its model, Pinocchio, ~40 MB each)"
+                    f"load its model, Pinocchio, ~20 MB each)"
                 )
         self._arm_op(k, SlotOp.SELECT, idx, None, wait)
 
@@ -447,17 +451,7 @@ class ServoClient:
         name = self._arm_name(k, servo)
         idx, alg = self.arm_algorithm(name)
         where = f"robot '{self.names[k]}' '{name}'"
-        if not isinstance(params, Mapping):
-            raise ServoError(
-                f"{where}: parameters {params!r:.60} are not a mapping of names to values "
-                f"(e.g. {{'kz': 500}})"
-            )
-        unknown = sorted(str(p) for p in set(params) - set(alg.params))
-        if unknown:
-            raise ServoError(
-                f"'{name}' has no parameter {', '.join(unknown)}; "
-                f"parameters: {', '.join(alg.params)}"
-            )
+        check_names(where, name, alg.params, params)
         trial = self.level.arm_data[k][idx].copy()
         try:
             alg.set_params(trial, dict(params))

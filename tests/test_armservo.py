@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import roboticstoolbox as rtb
 
 from kali_daemons import layout
 from kali_daemons.chain import base_pose, chain_of, flange_pose
@@ -22,7 +21,7 @@ from kali_daemons.servo.arm import ArmInput, ArmServoAlgorithm
 from kali_daemons.servo.armbuiltins import IMPEDANCE, rotation_error
 from kali_daemons.servolevel import ServoClient
 from kali_daemons.wallclock import step_kali_clock
-from tests.test_dynamics import LEFT, MOVE_S, _run
+from tests.test_dynamics import LEFT, MOVE_S, _run, standard_move
 from tests.test_launcher import kalictl
 
 PUSH_N = 20.0
@@ -91,16 +90,7 @@ def test_computed_torque_tracks_as_well_as_the_pid_and_switches_bumplessly(
     with Instance.attach(name) as inst, Kali(name) as program:
         client = ServoClient(inst)
         program.ready(["left"])
-        home = program.robot("left").move_joints(np.zeros(6), speed=0.5, wait=False)
-        while not home.done:
-            step_kali_clock(inst, 50)
-        step_kali_clock(inst, 1000)
-        puma = rtb.models.DH.Puma560()
-        period_s = inst.config.clock.tg_period_ms / 1000.0
-        t = np.linspace(0.0, MOVE_S, round(MOVE_S / period_s) + 1)
-        q0 = client.level.joints["demand"][LEFT].copy()
-        there = rtb.jtraj(puma.qz, puma.qn, t).q + q0
-        back = there[::-1].copy()
+        there, back = standard_move(inst, client, program)
         assert kalictl("-i", name, "ff", "on", "left").returncode == 0
         step_kali_clock(inst, 1000)
         pid = np.sqrt((_run(inst, client, there) ** 2).mean(axis=0))

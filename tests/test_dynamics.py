@@ -126,6 +126,23 @@ def _run(inst: Instance, client: ServoClient, traj: np.ndarray) -> np.ndarray:
     return np.array(errors)
 
 
+def standard_move(
+    inst: Instance, client: ServoClient, program: Kali
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bring the powered left arm to qz, and return the standard move's set-points at the TG
+    rate, there (jtraj qz → qn in ``MOVE_S``, offset by qz as this arm measures it) and back."""
+    home = program.robot("left").move_joints(np.zeros(6), speed=0.5, wait=False)
+    while not home.done:
+        step_kali_clock(inst, 50)
+    step_kali_clock(inst, 1000)
+    puma = rtb.models.DH.Puma560()
+    period_s = inst.config.clock.tg_period_ms / 1000.0
+    t = np.linspace(0.0, MOVE_S, round(MOVE_S / period_s) + 1)
+    q0 = client.level.joints["demand"][LEFT].copy()
+    there = rtb.jtraj(puma.qz, puma.qn, t).q + q0
+    return there, there[::-1].copy()
+
+
 def test_full_feedforward_lowers_the_tracking_error_of_the_standard_jtraj_move(
     kali: Callable[..., str], capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -136,16 +153,7 @@ def test_full_feedforward_lowers_the_tracking_error_of_the_standard_jtraj_move(
         client.power("left", True)
         step_kali_clock(inst, 300)
         assert client.power_state("left") == PowerState.ON
-        home = program.robot("left").move_joints(np.zeros(6), speed=0.5, wait=False)
-        while not home.done:
-            step_kali_clock(inst, 50)
-        step_kali_clock(inst, 1000)
-        puma = rtb.models.DH.Puma560()
-        period_s = inst.config.clock.tg_period_ms / 1000.0
-        t = np.linspace(0.0, MOVE_S, round(MOVE_S / period_s) + 1)
-        q0 = client.level.joints["demand"][LEFT].copy()  # qz as this arm measures it
-        there = rtb.jtraj(puma.qz, puma.qn, t).q + q0
-        back = there[::-1].copy()
+        there, back = standard_move(inst, client, program)
         rms = {}
         for mode in ("off", "on"):
             r = kalictl("-i", name, "ff", mode, "left")

@@ -188,7 +188,7 @@ COMPUTED_TORQUE = ArmServoAlgorithm(
     handover=_handover(_ct_core),
     set_params=_ct_set,
     get_params=_ct_get,
-    doc="τ = M(q)(q̈_d + 2ζω_n ė + ω_n² e) + h(q, q̇): computed torque (thesis 2.2.3)",
+    doc="τ = M(q)(q̈_d + 2ζω_n ė + ω_n² e + ω_iω_n² ∫e) + h(q, q̇): computed torque (2.2.3)",
 )
 
 # ------------------------------------------------------------------------------ impedance
