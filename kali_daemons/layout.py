@@ -460,7 +460,7 @@ DAC_BOARD = np.dtype(
 
 ARM_TRUTH = np.dtype(
     [
-        ("grasp_wrench", "<f8", (6,)),  # weld force (N) and torque (N·m) on the object, world
+        ("grasp_wrench", "<f8", (WRENCH,)),  # weld force (N) and torque (N·m) on the object, world
         # what an ideal wrist sensor reads: the wrench the tool exerts on it, sensor frame
         ("ft_wrench", "<f8", (WRENCH,)),
         ("push", "<f8", (3,)),  # the external push on the tool now (N, world), kalictl push

@@ -197,7 +197,8 @@ def test_range_and_runaway_on_the_same_tick_report_the_first_robots_range() -> N
 @given(st.data())
 def test_feed_equals_the_reference(data: st.DataObject) -> None:
     n = data.draw(st.integers(1, 32))
-    demand, q, qd, vel, acc, ff = (floats(data.draw, n, -10.0, 10.0) for _ in range(6))
+    names = ("demand", "q", "qd", "vel", "acc", "ff")
+    demand, q, qd, vel, acc, ff = (floats(data.draw, n, -10.0, 10.0) for _ in names)
     fed = bools(data.draw, n)
     choices = np.array([0, layout.ARM_FREE, layout.ARM_HELD], dtype=np.uint32)
     mark = choices[data.draw(st.lists(st.integers(0, 2), min_size=n, max_size=n))]

@@ -54,10 +54,11 @@ class ArmInput:
     C(q, q̇) q̇ + g(q) and ``g`` gravity, both at the measurement, with the rotor inertias.
     ``M`` (n, n) the joint-space mass matrix.  ``J`` (6, n) the tool point's geometric
     Jacobian, world axes (linear rows first).  ``pose`` and ``pose_d`` (4, 4) the tool point
-    in the world at ``q`` and at ``q_d``.  ``wrench`` (6,) the contact wrench the environment
-    applies at the tool point, world axes (N, N·m; SIO's, tared and gravity-compensated;
-    zeros when the robot has no sensor, ``has_sensor`` False).  ``friction(qd, out)``: the
-    drive's friction torque at joint velocity ``qd``.  ``dt`` the servo period, s.
+    in the world at ``q`` and at ``q_d``.  ``wrench`` (``layout.WRENCH``) the contact wrench
+    the environment applies at the tool point, world axes (N, N·m; SIO's, tared and
+    gravity-compensated; zeros when the robot has no sensor, ``has_sensor`` False).
+    ``friction(qd, out)``: the drive's friction torque at joint velocity ``qd``.  ``dt`` the
+    servo period, s.
     ``work`` (4, n) and ``work6`` (4, 6) are scratch an algorithm may use within a call.
     """
 

@@ -287,7 +287,8 @@ _HALVES = (slice(0, 3), slice(3, 6))
 
 
 def _to_tool(v: np.ndarray, rot: np.ndarray, scratch: np.ndarray) -> None:
-    """A world wrench or twist ``v`` (6,) into tool axes, in place: Rᵀ on each half."""
+    """A world wrench or twist ``v`` (``layout.WRENCH`` values) into tool axes, in place:
+    Rᵀ on each half."""
     for half in _HALVES:
         np.matmul(v[half], rot, out=scratch[half])  # Rᵀ v as a row vector: v R
     np.copyto(v, scratch)
@@ -350,8 +351,6 @@ IMPEDANCE = ArmServoAlgorithm(
     get_params=_imp_get,
     doc="Cartesian impedance about the tool point: stiffness, damping, force per tool axis",
 )
-
-ARM_SPECS = {COMPUTED_TORQUE.name: CT_PARAMS, IMPEDANCE.name: IMPEDANCE_PARAMS}
 
 
 def register(registry: Registry) -> None:

@@ -47,6 +47,9 @@ class RobotFeedforward:
         "_heartbeat",
         "_keys",
         "_last",
+        "_last_acc",
+        "_last_tau",
+        "_last_vel",
         "_mode",
         "_mode_ok",
         "_ok",
@@ -111,6 +114,7 @@ class RobotFeedforward:
         self.stale = int(self._state) == FfState.STALE
         # rows 0, 1, 2: torque, velocity, acceleration
         self._last = np.zeros((3, n))  # the last good interpolated values
+        self._last_tau, self._last_vel, self._last_acc = self._last  # row views, bound once
         self._try = np.zeros((3, n))  # this tick's, until they are known to be finite
         self._ok = np.zeros((3, n), dtype=bool)
         self._a = np.zeros((3, n))
@@ -174,7 +178,8 @@ class RobotFeedforward:
         else:
             stale = wanted  # the dynamics process is silent
         if stale:  # no demand velocity or acceleration rather than an old one
-            self._last[1:].fill(0.0)
+            self._last_vel.fill(0.0)
+            self._last_acc.fill(0.0)
         stale = stale and mode != FfMode.OFF  # only feed-forward asked for can be stale
         if stale:
             if not self.stale:
@@ -187,9 +192,9 @@ class RobotFeedforward:
         elif self.weight > want:
             self.weight = max(want, self.weight - self.step)
         self._weight_rec[...] = self.weight
-        np.multiply(self._last[0], self.weight, out=self.out)
-        np.copyto(self.vel, self._last[1])
-        np.copyto(self.acc, self._last[2])
+        np.multiply(self._last_tau, self.weight, out=self.out)
+        np.copyto(self.vel, self._last_vel)
+        np.copyto(self.acc, self._last_acc)
         if stale:
             self._state[...] = FfState.STALE
         else:

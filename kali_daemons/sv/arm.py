@@ -136,7 +136,7 @@ class ArmRunner:
             self._fault(alg.name, f"returned torques {tau!r}, status {status!r}")
             return
         np.equal(self._enabled, 0, out=self._off)
-        tau[self._off] = 0.0
+        np.copyto(tau, 0.0, where=self._off)  # a disabled joint gets no torque
         self._torque[:] = tau
         np.subtract(inp.q_d, inp.q, out=self._error)
         self._status[:] = status
