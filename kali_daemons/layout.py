@@ -669,9 +669,27 @@ FT_STATE = np.dtype(  # one per robot: its wrist force/torque sensor (ftsensor.p
         ("bias", "<f8", (WRENCH,)),  # SIO: the tare's bias, sensor frame (kept across SIO restarts)
         ("rotation", "<f8", (3, 3)),  # SIO: the sensor frame in the world at the sample
         ("contact_limit", "<f8"),  # clients: contact force beyond this halts, N (0: config's)
+        # a guarded move (issue 27 item 4): the TG arms this arm's guard for a request, SIO
+        # trips it when the contact force reaches guard_n and holds the arm where it is then
+        ("guard_state", "<u4"),  # GuardState; TG: IDLE→ARMED, back by CAS; SIO: ARMED→TRIPPED
+        ("guard_seq", "<u8"),  # TG: the guarded request
+        ("guard_n", "<f8"),  # TG: the contact force that trips it (N, unfiltered magnitude)
+        ("guard_tick", "<i8"),  # SIO: the tick it tripped
+        ("guard_force", "<f8"),  # SIO: the contact force that tripped it, N
+        ("guard_q", "<f8", (MAX_JOINTS,)),  # SIO: the measured joints then, where it holds
+        ("guard_wrench", "<f8", (WRENCH,)),  # SIO: the contact wrench then, world axes
     ],
     align=True,
 )
+
+
+class GuardState(enum.IntEnum):
+    """A robot's guard, between the TG and SIO (``FT_STATE.guard_state``)."""
+
+    IDLE = 0
+    ARMED = 1  # the TG's guarded motion runs: SIO watches the contact force
+    TRIPPED = 2  # SIO saw it reach guard_n: it holds the arm until the TG sets IDLE
+
 
 SERVO_SLOT = np.dtype(
     [
@@ -823,6 +841,7 @@ class RequestState(enum.IntEnum):
     ABORTED = 6
     HALTED = 7  # the system halted: the message is the fault
     LOST = 8  # client only, never written: the status record now holds a later request
+    CONTACT = 9  # a guarded motion touched: held where its guard tripped (contact_* say where)
 
 
 TERMINAL_STATES = (
@@ -832,6 +851,7 @@ TERMINAL_STATES = (
     RequestState.ABORTED,
     RequestState.HALTED,
     RequestState.LOST,
+    RequestState.CONTACT,
 )
 
 # A PATH request's configuration per robot: CONFIG_GIVEN set means the low bits are the
@@ -859,6 +879,7 @@ MOTION_REQUEST = np.dtype(
         ("speed", "<f8"),  # PATH: m/s
         ("angular_speed", "<f8"),  # PATH: rad/s
         ("transition_s", "<f8"),  # PATH: blend time at each via point
+        ("guard_n", "<f8"),  # JOINTS, PATH: stop at this contact force on any arm, N (0: none)
     ],
     align=True,
 )
@@ -870,11 +891,15 @@ REQUEST_STATUS = np.dtype(
         # the owning client, once it has seen the final state (or dropped its handle); the TG
         # reuses a record only when it is read or its client_pid is dead
         ("read", "u1"),
-        ("_pad", "u1", (2,)),
+        ("contact_robot", "u1"),  # TG, CONTACT: the robot whose guard tripped (config index)
+        ("_pad", "u1"),
         ("client_pid", "<i4"),  # TG: the request's client_pid
         ("duration_s", "<f8"),  # planned duration once running
         ("progress", "<f8"),  # path time / duration, 0..1
         ("message", f"S{MESSAGE_BYTES}"),  # why refused, stopped or halted
+        ("contact_xyz", "<f8", (3,)),  # TG, CONTACT: that robot's tool point then, world, m
+        ("contact_force", "<f8"),  # TG, CONTACT: the contact force that tripped it, N
+        ("contact_wrench", "<f8", (WRENCH,)),  # TG, CONTACT: its contact wrench then, world
     ],
     align=True,
 )

@@ -8,6 +8,7 @@ from collections.abc import Callable
 
 import pytest
 
+from kali_daemons.cell import TABLE_SIZE
 from kali_daemons.robots.puma560 import PID_DEFAULTS
 
 from .conftest import ROOT
@@ -60,3 +61,12 @@ def test_run_says_when_the_instance_or_program_is_missing(kali: Callable[..., st
     assert r.returncode != 0 and "nosuchinstance" in r.stderr
     r = kalictl("-i", "nosuchinstance", "run", str(ROOT / "scripts" / "nothere.py"))
     assert r.returncode != 0 and "nothere.py" in r.stderr
+
+
+def test_guarded_example_finds_the_table(kali: Callable[..., str]) -> None:
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "run", "scripts/example_guarded.py")
+    assert r.returncode == 0, r.stdout + r.stderr
+    m = re.search(r"contact at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m: the table is", r.stdout)
+    assert m, r.stdout
+    assert float(m.group(3)) == pytest.approx(TABLE_SIZE[2], abs=0.002), r.stdout

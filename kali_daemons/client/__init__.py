@@ -18,7 +18,7 @@ from ..wallclock import (
     step_kali_clock,
     stop_kali_clock,
 )
-from .motion import Kali, MotionFailedError, MotionHandle, MotionSystem, Robot, pose
+from .motion import Contact, Kali, MotionFailedError, MotionHandle, MotionSystem, Robot, pose
 
 
 def attach(instance: str = "default") -> Instance:
@@ -27,6 +27,7 @@ def attach(instance: str = "default") -> Instance:
 
 
 __all__ = [
+    "Contact",
     "Instance",
     "Kali",
     "MotionFailedError",

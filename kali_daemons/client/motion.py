@@ -40,6 +40,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from types import TracebackType
 
 import numpy as np
@@ -53,7 +54,7 @@ from ..robots import Kinematics, RobotType
 from ..servolevel import ServoClient
 from ..spinlock import pid_alive
 from ..tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
-from ..tg.profiles import MotionError, check_joint_target
+from ..tg.profiles import MotionError, check_guard, check_joint_target
 from ..wallclock import control as _control
 from ..wallclock import step_kali_clock
 
@@ -93,6 +94,19 @@ def program_name() -> bytes:
     return name.encode()[: layout.PROGRAM_BYTES]
 
 
+@dataclass(frozen=True)
+class Contact:
+    """Where a guarded move touched: the robot whose wrist sensor felt the guard's force,
+    its tool point then (world, m), the contact force that tripped the guard (N, the
+    sample's magnitude) and the contact wrench then (world axes, N and N·m, low-passed
+    as ``Robot.read_wrench``: it lags the sample)."""
+
+    robot: str
+    position: np.ndarray
+    force: float
+    wrench: np.ndarray
+
+
 class MotionHandle:
     """One request: ``done``, ``state``, ``wait(timeout)``, ``cancel()``."""
 
@@ -103,6 +117,7 @@ class MotionHandle:
         # the fault count when it was put (None: now); a fault counted after it halts it
         self.epoch = int(kali.inst.fault["count"]) if epoch is None else epoch
         self._final: tuple[RequestState, str] | None = None  # the TG's last word, once read
+        self._contact: Contact | None = None  # where a guarded move touched, once read
         self._released = False  # the TG was told it may reuse the status record
 
     def _read(self) -> tuple[RequestState, str]:
@@ -118,6 +133,14 @@ class MotionHandle:
             raw = int(rec["state"])
             message = decode(rec["message"])  # the TG writes the message before the state
             if raw in _ENDED and int(rec["seq"]) == self.seq:
+                if raw == RequestState.CONTACT:  # read before the record is released
+                    k = int(rec["contact_robot"])
+                    self._contact = Contact(
+                        self.kali.names[k],
+                        rec["contact_xyz"].copy(),
+                        float(rec["contact_force"]),
+                        rec["contact_wrench"].copy(),
+                    )
                 self._final = (RequestState(raw), message)
                 self._release()
                 return self._final
@@ -181,13 +204,20 @@ class MotionHandle:
         return self._read()[1]
 
     @property
+    def contact(self) -> Contact | None:
+        """Where a guarded move touched (it ended CONTACT), else None."""
+        self._read()
+        return self._contact
+
+    @property
     def done(self) -> bool:
         """True once the request is over, however it ended."""
         return self.state in TERMINAL_STATES
 
     def wait(self, timeout: float | None = None) -> None:
-        """Block until the motion has arrived; MotionFailedError if it ended any other way (refused,
-        stopped, aborted, halted: the message says why), TimeoutError after ``timeout`` s."""
+        """Block until the motion has arrived, or a guarded one touched (``contact`` says
+        where); MotionFailedError if it ended any other way (refused, stopped, aborted,
+        halted: the message says why), TimeoutError after ``timeout`` s."""
         timeout = _timeout_arg(f"wait: request {self.seq}", timeout)
         deadline = None if timeout is None else time.monotonic() + timeout
         inst = self.kali.inst
@@ -212,7 +242,7 @@ class MotionHandle:
             self.kali.pause()
         if state == RequestState.LOST:
             raise RequestLostError(f"request {self.seq} lost: {self.message}")
-        if state != RequestState.DONE:
+        if state not in (RequestState.DONE, RequestState.CONTACT):
             raise MotionFailedError(f"request {self.seq} {state.name.lower()}: {self.message}")
 
     def cancel(self) -> None:
@@ -305,6 +335,22 @@ def _speed_arg(what: str, name: str, value: object) -> float:
 FT_FRAMES = ("world", "tool", "sensor")  # Robot.read_wrench's frames (layout.FT_STATE fields)
 
 
+def _guard_arg(what: str, guard: object, kali: Kali, robots: list[int]) -> float:
+    """A guarded move's contact force (N; None: unguarded, 0.0), checked as the TG will
+    (``check_guard``): every arm with a wrist sensor, the force below its contact limit."""
+    if guard is None:
+        return 0.0
+    if isinstance(guard, bool) or not isinstance(guard, int | float):
+        raise MotionError(f"{what}: guard {guard!r:.60}, must be a force in N")
+    cfg = kali.inst.config
+    limits = [None if r.ft.sheet is None else r.ft.contact_limit_n for r in cfg.robots]
+    try:
+        check_guard(float(guard), robots, kali.names, limits)
+    except MotionError as exc:
+        raise MotionError(f"{what}: {str(exc).removeprefix('motion: ')}") from None
+    return float(guard)
+
+
 class Robot:
     """One arm of the cell, as a user program moves it."""
 
@@ -376,6 +422,20 @@ class Robot:
             raise ServoError(f"{what}: robot '{self.name}' has no wrist force/torque sensor")
         return self.kali.ft[self.index : self.index + 1].reshape(())
 
+    def joints_at(self, target: np.ndarray, config: object | str) -> np.ndarray:
+        """The joint angles putting the tool at ``target`` (world pose) in configuration
+        ``config`` (e.g. ``"run"``: its robot type's ``kinematics.configs``), for a
+        ``move_joints`` into a configuration a straight line cannot change to; MotionError
+        if out of reach or limits."""
+        what = f"joints_at: robot '{self.name}'"
+        kin = self.type.kinematics
+        flags = _config_arg(what, config, kin)
+        t6 = inverse(self.base) @ _pose_arg(what, target) @ inverse(self.tool)
+        try:
+            return kin.ikine(t6, flags)
+        except KinematicsError as exc:
+            raise MotionError(f"{what}: {str(exc).removeprefix('kinematics: ')}") from None
+
     def set_tool(self, tool: np.ndarray) -> None:
         """The tool frame in the flange frame (4×4) for this program's Cartesian moves."""
         self.tool = _pose_arg(f"set_tool: robot '{self.name}'", tool)
@@ -388,11 +448,16 @@ class Robot:
         config: object | str | None = None,
         wait: bool = True,
         timeout: float | None = None,
+        guard: float | None = None,
     ) -> MotionHandle:
         """A straight line of the tool to ``target`` (world), at ``speed`` m/s and
         ``angular_speed`` rad/s at most, keeping the arm's configuration (``config``, e.g.
-        'ruf', must be the one it is in if given).  Blocks unless ``wait`` is False."""
-        return self.move_path([target], speed, angular_speed, 0.0, config, wait, timeout)
+        'ruf', must be the one it is in if given).  Blocks unless ``wait`` is False.
+
+        ``guard`` (N) makes it a guarded move: once the wrist sensor's contact force reaches
+        it, SIO holds the arm where it is that servo tick and the motion ends CONTACT
+        (``handle.contact`` says where; ``wait`` returns).  Tare the sensor first."""
+        return self.move_path([target], speed, angular_speed, 0.0, config, wait, timeout, guard)
 
     def move_path(
         self,
@@ -403,21 +468,29 @@ class Robot:
         config: object | str | None = None,
         wait: bool = True,
         timeout: float | None = None,
+        guard: float | None = None,
     ) -> MotionHandle:
         """Straight lines of the tool through ``targets`` (world poses), blended over
         ``transition_s`` at each via point (Paul's method; the path starts and ends at
         rest).  See ``move_line``."""
         system = MotionSystem(self.kali, [self], [inverse(self.tool)])
         configs = [config]
-        return system.move_path(targets, speed, angular_speed, transition_s, configs, wait, timeout)
+        return system.move_path(
+            targets, speed, angular_speed, transition_s, configs, wait, timeout, guard
+        )
 
     def move_joints(
-        self, q: np.ndarray, speed: float = 0.5, wait: bool = True, timeout: float | None = None
+        self,
+        q: np.ndarray,
+        speed: float = 0.5,
+        wait: bool = True,
+        timeout: float | None = None,
+        guard: float | None = None,
     ) -> MotionHandle:
         """A smooth joint move to ``q`` (rad, one value per joint of the arm's type:
         ``n_joints``), every joint arriving together, at ``speed`` (0, 1] of the joint speed
         and acceleration limits.  Blocks until there unless ``wait`` is False; returns the
-        request's handle either way."""
+        request's handle either way.  ``guard``: see ``move_line``."""
         what = f"move_joints: robot '{self.name}'"
         target = _joints(self.name, q, self.type)
         if not (
@@ -429,8 +502,13 @@ class Robot:
             raise MotionError(f"{what}: speed {speed!r:.60}, must be in (0, 1]")
         wait = _flag_arg(what, "wait", wait)
         timeout = _timeout_arg(what, timeout)
+        guard_n = _guard_arg(what, guard, self.kali, [self.index])
         handle = self.kali._request(
-            MotionKind.JOINTS, [self.index], joints=[target], speed_scale=float(speed)
+            MotionKind.JOINTS,
+            [self.index],
+            joints=[target],
+            speed_scale=float(speed),
+            guard_n=guard_n,
         )
         if wait:
             handle.wait(timeout)
@@ -494,9 +572,10 @@ class MotionSystem:
         configs: Sequence[object | str | None] | None = None,
         wait: bool = True,
         timeout: float | None = None,
+        guard: float | None = None,
     ) -> MotionHandle:
         """The object in a straight line to ``target`` (world); see ``Robot.move_line``."""
-        return self.move_path([target], speed, angular_speed, 0.0, configs, wait, timeout)
+        return self.move_path([target], speed, angular_speed, 0.0, configs, wait, timeout, guard)
 
     def move_path(
         self,
@@ -507,10 +586,13 @@ class MotionSystem:
         configs: Sequence[object | str | None] | None = None,
         wait: bool = True,
         timeout: float | None = None,
+        guard: float | None = None,
     ) -> MotionHandle:
         """The object along straight lines through ``targets``, blended over
         ``transition_s``; ``configs`` one per arm (None: each keeps its own).  Checked
-        whole before it is queued when the arms are idle (MotionError says where and why)."""
+        whole before it is queued when the arms are idle (MotionError says where and why).
+        ``guard`` (N): a contact force that stops it on any of its arms, which then all
+        hold (``Robot.move_line``)."""
         what = f"move_path: {', '.join(repr(n) for n in self.names)}"
         if isinstance(targets, np.ndarray) and targets.shape == (4, 4):
             raise MotionError(f"{what}: targets is one pose; pass a list ([pose])")
@@ -530,6 +612,7 @@ class MotionSystem:
         )
         wait = _flag_arg(what, "wait", wait)
         timeout = _timeout_arg(what, timeout)
+        guard_n = _guard_arg(what, guard, self.kali, self.indices)
         if len(configs) != len(self.robots):
             raise MotionError(f"{what}: {len(configs)} configs for {len(self.robots)} arms")
         flags = [
@@ -566,6 +649,7 @@ class MotionSystem:
             speed=speed,
             angular_speed=angular_speed,
             transition_s=transition_s,
+            guard_n=guard_n,
         )
         if wait:
             handle.wait(timeout)

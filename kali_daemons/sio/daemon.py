@@ -5,7 +5,9 @@ tick.
     the robot driver, counts → radians) and estimate velocities
     (backward difference through a 25 Hz first-order low-pass, as the PID of figure 3.4).
 (b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
-    the arm is while it is not powered — check joint range and tracking error, take each
+    the arm is while it is not powered, or where it was when a guarded move's contact force
+    reached its guard (the wrist sensor's sample of this tick, unfiltered: ``wrench.py``;
+    the TG then ends the motion) — check joint range and tracking error, take each
     robot's feed-forward and the demand's velocity and acceleration from the dynamics
     process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped),
     and feed the servo slots: demand (with its velocity and acceleration), position,
@@ -49,7 +51,7 @@ from ..daemon import Daemon
 from ..errors import DaemonError
 from ..flightrec import FlightRecorder
 from ..kernels import NO_FAULT, Kernel, copies
-from ..layout import FaultCode, FfMode, PowerCmd, PowerState, SlotReset
+from ..layout import FaultCode, FfMode, GuardState, PowerCmd, PowerState, SlotReset
 from ..servolevel import ServoLevel
 from ..spinlock import pid_alive
 from .calibration import ACTIVE, Calibration
@@ -243,6 +245,10 @@ class ServoIO(Daemon):
             )
             for k in sensors_of(cfg)
         ]
+        self._guard_state = self.ft_records["guard_state"]
+        self._guard_q = [
+            self.ft_records["guard_q"][k, :n] for k, n in enumerate(lv.map.counts)
+        ]  # views, bound once
         if first:
             self.hw.start()
         for sensor in self._sensors:
@@ -358,6 +364,8 @@ class ServoIO(Daemon):
             message = sensor.step(tick)
             if message is not None and not faulted:
                 faulted = self._halt(FaultCode.FORCE, tick, message)
+            elif sensor.guard_reached():  # a guarded move touched: its arms hold from now
+                self._trip_guards(sensor, tick)
         # (b) per robot: power switch, demand, pots; then the checks
         self.fed_mask[:] = False
         for k in range(lv.n_robots):
@@ -409,6 +417,16 @@ class ServoIO(Daemon):
             self._lat_max[...] = late
         self._hist[layout.lateness_bin(late)] += 1
         self.flight.record(tick, t_read, late, t_done - t_fed, c_out - c_read)  # DESIGN 7
+
+    def _trip_guards(self, sensor: ArmSensor, tick: int) -> None:
+        """``sensor``'s guard is reached: trip it, and every other guard of the same request
+        (a motion system's arms hold together, so none drags the object on).  Outside the
+        common path: once per guarded move."""
+        seq = int(sensor.state["guard_seq"])
+        sensor.trip(tick)
+        for other in self._sensors:
+            if other is not sensor and int(other.state["guard_seq"]) == seq:
+                other.trip(tick)
 
     def _arm_robot(self, k: int) -> bool:
         """Whether robot ``k`` is fed whole this tick (a robot-level servo runs it, or a
@@ -496,6 +514,10 @@ class ServoIO(Daemon):
         if state == PowerState.ON and int(r.calib_state) in ACTIVE:
             calib.step()  # calibration drives the demand; motion requests wait
             self.fifos[k].reset(demand)
+        elif int(self._guard_state[k]) == GuardState.TRIPPED:
+            hold = self._guard_q[k]  # where the arm was when it touched, until the TG ends
+            self.fifos[k].reset(hold)  # the motion: set-points it pushed meanwhile dropped
+            np.copyto(demand, hold)
         else:
             self.fifos[k].pop_into(demand)
         if hw.amps_on(k):

@@ -32,7 +32,7 @@ import math
 
 import numpy as np
 
-from .. import ftsensor
+from .. import atomic, ftsensor
 from ..chain import Chain, base_pose, chain_of, flange_pose
 from ..config import KaliConfig, ms_to_ns
 from ..ftsensor import (
@@ -45,7 +45,7 @@ from ..ftsensor import (
     gravity_wrench,
 )
 from ..kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED, Kernel
-from ..layout import TareState
+from ..layout import GuardState, TareState
 
 TARE_MS = 100.0  # a tare averages this long of samples
 
@@ -162,6 +162,11 @@ class ArmSensor:
         # the kernel's scalars: tick, seq, tare_left, force, limit_used
         self.args = self._tick.args
         self.convert = self._tick.sibling("kali_wrench_convert")  # (2)-(4) alone, for tests
+        # a guarded move's watch: the TG arms it, ``trip`` trips it (SIO then holds the arm)
+        self._guard_state = state["guard_state"]
+        self._guard_n = state["guard_n"]
+        self._guard_addr = self._guard_state.ctypes.data
+        self._cas = atomic.CompareExchange32()
 
     def start(self) -> None:
         """Ask for the first sample (at SIO's configure)."""
@@ -174,6 +179,26 @@ class ArmSensor:
         self.args.tick = tick
         found = self._tick()
         return None if found == WRENCH_OK else self._message(found)
+
+    def guard_reached(self) -> bool:
+        """In the cycle: this arm's guard is armed and this tick's contact force (the
+        sample's, unfiltered: the filter would add its lag to the stop) has reached it."""
+        return int(self._guard_state) == GuardState.ARMED and self.args.force >= float(
+            self._guard_n
+        )
+
+    def trip(self, tick: int) -> bool:
+        """Trip this arm's guard if it is armed, noting the tick, the force, the joints and
+        the contact wrench first (the TG reads them once it sees TRIPPED), then one
+        compare-and-swap (the TG may be disarming it); True if it tripped.  Outside the
+        common path: once per guarded move."""
+        st = self.state
+        st["guard_tick"] = tick
+        st["guard_force"] = self.args.force
+        st["guard_q"][: self.q.size] = self.q
+        st["guard_wrench"] = self.world
+        swapped, _ = self._cas(self._guard_addr, GuardState.ARMED, GuardState.TRIPPED)
+        return swapped
 
     def _message(self, found: int) -> str:
         """The halt's message for ``kali_wrench``'s result (outside the common path)."""

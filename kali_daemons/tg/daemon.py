@@ -54,18 +54,26 @@ from fractions import Fraction
 
 import numpy as np
 
-from .. import layout
+from .. import atomic, layout
+from ..chain import chain_of, flange_pose
 from ..channels import InterpolatingFifo, RequestQueue
 from ..config import MAX_PERIOD_MS, ms_to_ns
 from ..daemon import Daemon
 from ..errors import KinematicsError
 from ..instance import decode
-from ..layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
+from ..layout import CalibState, FaultCode, GuardState, MotionKind, PowerState, RequestState
 from ..robots import RobotType
 from ..servolevel import FIFO_CAPACITY
 from ..spinlock import pid_alive
 from .cartesian import CartesianMotion, base_transform, decode_config
-from .profiles import MAX_MOTION_S, JointMotion, MotionError, StopRamp, check_joint_target
+from .profiles import (
+    MAX_MOTION_S,
+    JointMotion,
+    MotionError,
+    StopRamp,
+    check_guard,
+    check_joint_target,
+)
 
 MAX_REQUESTS_PER_TICK = 8  # requests taken from the queue per tick (the rest wait a tick)
 STOP_TIME_S = 0.3  # a stop ramps the path speed to zero over this long
@@ -101,22 +109,26 @@ def check_request(
     names: list[str],
     types: list[RobotType],
     calibrated: np.ndarray | None = None,
+    contact_limits: Sequence[float | None] = (),
 ) -> tuple[MotionKind, list[int]]:
     """(kind, robot indices) of request ``req`` (one ``layout.MOTION_REQUEST``), after
     checking everything that does not need the arms' start; MotionError with the reason.
 
     ``names`` are the cell's robots and ``types`` their robot types; ``calibrated`` (per robot,
-    None: not known yet) is needed by a PATH.  Checks the kind, the robots (``request_robots``), for
-    JOINTS the speed scale in (0, 1], each target finite and within the joint range and the row's
-    columns past the robot's joint count 0, for PATH the segment count, finite speeds, targets and
-    grasps and valid configuration bytes.  Pure: the TG calls it on every request it takes, tests
-    call it on random bytes.
+    None: not known yet) is needed by a PATH; ``contact_limits`` (per robot, None without a
+    wrist sensor) by a guard.  Checks the kind, the robots (``request_robots``), a guard
+    (``check_guard``), for JOINTS the speed scale in (0, 1], each target finite and within the
+    joint range and the row's columns past the robot's joint count 0, for PATH the segment
+    count, finite speeds, targets and grasps and valid configuration bytes.  Pure: the TG
+    calls it on every request it takes, tests call it on random bytes.
     """
     kind = int(req["kind"])
     if kind not in _KINDS:
         allowed = ", ".join(f"{k.value} ({k.name})" for k in MotionKind)
         raise MotionError(f"motion kind {kind} is not one this TG carries out; kinds: {allowed}")
     robots = request_robots(req, len(names))
+    if kind in (MotionKind.JOINTS, MotionKind.PATH):
+        check_guard(float(req["guard_n"]), robots, names, contact_limits)
     if kind == MotionKind.JOINTS:
         scale = float(req["speed_scale"])
         if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
@@ -249,6 +261,7 @@ class Motion:
     checking: bool = False  # a Cartesian path still being checked: the arms hold
     ending: RequestState | None = None  # the last set-point is pushed: DONE/STOPPED when
     ending_message: str = ""  # SIO has taken it (the demand is there), not before
+    guard: float = 0.0  # N: the contact force that stops it on any of its arms (0: none)
     tau: float = 0.0
     stop: StopRamp | None = None
     stop_t: float = 0.0
@@ -318,6 +331,15 @@ class TrajectoryGenerator(Daemon):
         self.bases = [base_transform(r.base_xyz, r.base_yaw_deg) for r in cfg.robots]
         self.request = np.zeros(1, dtype=layout.MOTION_REQUEST)
         self.types = [r.type for r in cfg.robots]
+        # guarded moves: each arm's wrist-sensor record, where SIO trips the TG's guard
+        self.contact_limits = [
+            None if r.ft.sheet is None else r.ft.contact_limit_n for r in cfg.robots
+        ]
+        self.ft = arena.record(layout.KEY_FT, layout.FT_STATE, self.n_robots)
+        self._guard_state = self.ft["guard_state"]
+        self._cas = atomic.CompareExchange32()
+        self._chains = [chain_of(t) for t in self.types]  # where a guarded move touched
+        self._tips = [r.ft.tool_tip_m for r in cfg.robots]
         self.motions: list[Motion] = []
         self.waiting: list[tuple[int, np.void]] = []  # accepted, robots still busy
         self._faults_seen = int(inst.fault["count"])
@@ -379,7 +401,9 @@ class TrajectoryGenerator(Daemon):
         self._start_waiting()
         for m in list(self.motions):
             why = self._unpowered(m.robots)
-            if why:  # SIO holds an unpowered arm where it is: the motion cannot go on
+            if m.guard and self._tripped(m) >= 0:  # SIO holds its arms where they touched
+                self._end_motion(m, RequestState.CONTACT)
+            elif why:  # SIO holds an unpowered arm where it is: the motion cannot go on
                 self._end_motion(m, RequestState.ABORTED, why)
             elif m.checking:
                 self._check(m)
@@ -434,6 +458,7 @@ class TrajectoryGenerator(Daemon):
             for k in m.robots:
                 self.tg_robots["busy_seq"][k] = 0
         self.motions.clear()
+        self._guard_state[:] = GuardState.IDLE  # SIO powers the arms off: nothing to hold
         for seq, _ in self.waiting:
             self._say(seq, RequestState.HALTED, text)
         self.waiting.clear()
@@ -518,7 +543,9 @@ class TrajectoryGenerator(Daemon):
             self._say(seq, RequestState.HALTED, self._halt_text())
             return
         try:
-            kind, robots = check_request(req, self.names, self.types, calibrated)
+            kind, robots = check_request(
+                req, self.names, self.types, calibrated, self.contact_limits
+            )
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return
@@ -593,7 +620,7 @@ class TrajectoryGenerator(Daemon):
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return
         out, rows = joint_rows([self.joint_map.counts[k] for k in robots])
-        m = Motion(seq, robots, profile, out=out, rows=rows)
+        m = Motion(seq, robots, profile, guard=float(req["guard_n"]), out=out, rows=rows)
         for k in robots:
             self.tg_robots["busy_seq"][k] = seq
         self.motions.append(m)
@@ -605,6 +632,12 @@ class TrajectoryGenerator(Daemon):
         rec["duration_s"] = m.profile.duration
         rec["progress"] = 0.0
         self._say(m.seq, RequestState.RUNNING)
+        if m.guard:  # SIO watches each arm's contact force from its next tick
+            for k in m.robots:
+                ft = self.ft[k]
+                ft["guard_seq"] = m.seq
+                ft["guard_n"] = m.guard
+                ft["guard_state"] = GuardState.ARMED  # last
         for _ in range(LEAD - 1):  # run ahead of SIO by LEAD set-points
             self._advance(m)
 
@@ -619,7 +652,7 @@ class TrajectoryGenerator(Daemon):
         except Exception as exc:  # a request never halts the cell
             self._say(seq, RequestState.REFUSED, refusal(exc))
             return
-        m = Motion(seq, robots, plan, checking=True)
+        m = Motion(seq, robots, plan, checking=True, guard=float(req["guard_n"]))
         for k in robots:
             self.tg_robots["busy_seq"][k] = seq
         self._say(seq, RequestState.QUEUED, "checking the path")
@@ -720,7 +753,55 @@ class TrajectoryGenerator(Daemon):
         self._end_motion(m, RequestState.HALTED, text)
         self.inst.raise_fault(FaultCode.SINGULARITY, self.name, text)
 
+    def _tripped(self, m: Motion) -> int:
+        """The first of guarded motion ``m``'s robots whose guard SIO has tripped, else -1.
+        In the cycle: one word per arm."""
+        for k in m.robots:
+            if int(self._guard_state[k]) == GuardState.TRIPPED:
+                return k
+        return -1
+
+    def _contact(self, m: Motion, k: int) -> str:
+        """Guarded motion ``m`` touched on robot ``k``: SIO holds its arms where they were
+        then.  Write where into its status record (the tool point from the joints SIO
+        noted, the contact wrench) and return the message.  Once per guarded move (it
+        allocates)."""
+        ft = self.ft[k]
+        n = self.joint_map.counts[k]
+        tool = self.bases[k] @ flange_pose(self._chains[k], ft["guard_q"][:n].copy())
+        xyz = tool[:3, 3] + tool[:3, 2] * self._tips[k]
+        rec = self.status[m.seq % layout.STATUS_RING]
+        rec["contact_robot"] = k
+        rec["contact_xyz"] = xyz
+        rec["contact_force"] = ft["guard_force"]
+        rec["contact_wrench"] = ft["guard_wrench"]
+        x, y, z = (float(v) for v in xyz)
+        return (
+            f"contact: robot '{self.names[k]}' felt {float(ft['guard_force']):.1f} N "
+            f"(guard {m.guard:g} N) with its tool at ({x:.4f}, {y:.4f}, {z:.4f}) m, "
+            f"{m.tau:.2f} s into the motion; held there"
+        )
+
+    def _disarm(self, m: Motion) -> int:
+        """Guarded motion ``m`` ends: its arms' guards go idle, each armed one by a
+        compare-and-swap (SIO may be tripping it); returns the first arm SIO had tripped
+        (its hold ends too), else -1."""
+        tripped = -1
+        for k in m.robots:
+            addr = self._guard_state[k : k + 1].ctypes.data
+            swapped, seen = self._cas(addr, GuardState.ARMED, GuardState.IDLE)
+            if not swapped and seen == GuardState.TRIPPED:
+                tripped = k if tripped < 0 else tripped
+                self._guard_state[k] = GuardState.IDLE
+        return tripped
+
     def _end_motion(self, m: Motion, state: RequestState, message: str = "") -> None:
+        """End motion ``m`` with ``state``; a guarded one that touched, even as it arrived
+        or stopped, ends as CONTACT saying where."""
+        if m.guard and not m.checking:
+            k = self._disarm(m)
+            if k >= 0 and state in (RequestState.DONE, RequestState.STOPPED, RequestState.CONTACT):
+                state, message = RequestState.CONTACT, self._contact(m, k)
         self.motions.remove(m)
         for k in m.robots:
             self.tg_robots["busy_seq"][k] = 0

@@ -670,3 +670,24 @@ def check_joint_target(robot: str, q: np.ndarray, rtype: RobotType) -> None:
                 f"robot '{robot}' joint {j + 1}: target {shown}° outside its "
                 f"range {math.degrees(lo):.1f}° .. {math.degrees(hi):.1f}°; nothing moved"
             )
+
+
+def check_guard(guard: float, robots: list[int], names: list[str], limits: Sequence) -> None:
+    """MotionError unless ``guard`` (N; 0: none) can guard a motion of ``robots``: finite,
+    not negative, every arm with a wrist sensor (``limits[k]``: its contact limit, None
+    without a sensor) and below its contact limit, which would halt first."""
+    if not (math.isfinite(guard) and guard >= 0.0):
+        raise MotionError(f"guard {guard} N, must be a finite force >= 0 (0: none)")
+    if guard == 0.0:
+        return
+    for k in robots:
+        limit = limits[k] if k < len(limits) else None
+        if limit is None:
+            raise MotionError(
+                f"robot '{names[k]}' has no wrist force/torque sensor: a guarded move needs one"
+            )
+        if guard >= limit:
+            raise MotionError(
+                f"guard {guard:g} N on robot '{names[k]}' is not below its contact limit "
+                f"{limit:g} N, which halts first"
+            )
