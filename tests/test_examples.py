@@ -15,20 +15,25 @@ from .conftest import ROOT
 from .test_launcher import kalictl
 
 
-def test_square_example_draws_its_square(kali: Callable[..., str]) -> None:
+def run_example(kali: Callable[..., str], script: str) -> str:
+    """Run ``scripts/SCRIPT`` with ``kalictl run`` against a new lockstep instance; its
+    output, once it exited 0."""
     name = kali(lockstep=True)
-    r = kalictl("-i", name, "run", "scripts/example_square.py")
+    r = kalictl("-i", name, "run", f"scripts/{script}")
     assert r.returncode == 0, r.stdout + r.stderr
-    m = re.search(r"square of 10 cm done; the tool is ([\d.]+) mm from its start", r.stdout)
-    assert m and float(m.group(1)) < 3.0, r.stdout  # the servo still settling
+    return r.stdout
+
+
+def test_square_example_draws_its_square(kali: Callable[..., str]) -> None:
+    out = run_example(kali, "example_square.py")
+    m = re.search(r"square of 10 cm done; the tool is ([\d.]+) mm from its start", out)
+    assert m and float(m.group(1)) < 3.0, out  # the servo still settling
 
 
 def test_carry_example_puts_the_bar_back(kali: Callable[..., str]) -> None:
-    name = kali(lockstep=True)
-    r = kalictl("-i", name, "run", "scripts/example_carry.py")
-    assert r.returncode == 0, r.stdout + r.stderr
-    m = re.search(r"put back at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m", r.stdout)
-    assert m, r.stdout
+    out = run_example(kali, "example_carry.py")
+    m = re.search(r"put back at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m", out)
+    assert m, out
     assert [float(v) for v in m.groups()] == pytest.approx([0.0, 0.0, 0.585], abs=0.003)
 
 
@@ -64,9 +69,7 @@ def test_run_says_when_the_instance_or_program_is_missing(kali: Callable[..., st
 
 
 def test_guarded_example_finds_the_table(kali: Callable[..., str]) -> None:
-    name = kali(lockstep=True)
-    r = kalictl("-i", name, "run", "scripts/example_guarded.py")
-    assert r.returncode == 0, r.stdout + r.stderr
-    m = re.search(r"contact at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m: the table is", r.stdout)
-    assert m, r.stdout
-    assert float(m.group(3)) == pytest.approx(TABLE_SIZE[2], abs=0.002), r.stdout
+    out = run_example(kali, "example_guarded.py")
+    m = re.search(r"contact at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m: the table is", out)
+    assert m, out
+    assert float(m.group(3)) == pytest.approx(TABLE_SIZE[2], abs=0.002), out
