@@ -325,12 +325,7 @@ class ServoClient:
         """
         i = self.slot(robot, joint)
         idx, alg = self.algorithm(servo)
-        rec = np.asarray(data)
-        if rec.dtype != alg.dtype or rec.size != 1:
-            raise ServoError(
-                f"put_servo {self._where(i)} '{servo}': data of dtype {rec.dtype} and "
-                f"size {rec.size}, expected one record of {alg.dtype}"
-            )
+        rec = _one_record(f"put_servo {self._where(i)} '{servo}'", data, alg.dtype)
         self._op(i, SlotOp.PUT, idx, rec.tobytes(), wait)
 
     def get_servo(self, robot: str | int, joint: int, servo: str) -> np.ndarray:
@@ -500,12 +495,7 @@ class ServoClient:
         """Replace robot ``robot``'s record of robot-level servo ``servo`` (from ``get_arm``)."""
         k = self.robot_index(robot)
         idx, alg = self.arm_algorithm(servo)
-        rec = np.asarray(data)
-        if rec.dtype != alg.dtype or rec.size != 1:
-            raise ServoError(
-                f"put_arm robot '{self.names[k]}' '{servo}': data of dtype {rec.dtype} and "
-                f"size {rec.size}, expected one record of {alg.dtype}"
-            )
+        rec = _one_record(f"put_arm robot '{self.names[k]}' '{servo}'", data, alg.dtype)
         self._arm_op(k, SlotOp.PUT, idx, rec.tobytes(), wait)
 
     def _arm_name(self, k: int, servo: str | None) -> str:
@@ -861,3 +851,13 @@ def _carry_out_arm(
             return f"PARAMS '{alg.name}' refused: {_bare(exc)}"
         rec[...] = trial
     return ""
+
+
+def _one_record(what: str, data: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """``data`` as one record of ``dtype`` (a put's), else ServoError saying ``what``."""
+    rec = np.asarray(data)
+    if rec.dtype != dtype or rec.size != 1:
+        raise ServoError(
+            f"{what}: data of dtype {rec.dtype} and size {rec.size}, expected one record of {dtype}"
+        )
+    return rec

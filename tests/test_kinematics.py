@@ -107,7 +107,7 @@ def geometric_flags(robot: Any, q: np.ndarray) -> tuple[bool, bool, bool, float,
 
     Returns (right, up, flip, ρ, height of the elbow above the line shoulder-wrist).
     """
-    frames = [robot.A([0, i], q).A for i in range(6)]  # DH frames 1..6 in the base
+    frames = [robot.A([0, i], q).A for i in range(robot.n)]  # DH frames 1..n in the base
     s = frames[0][:3, 3]  # shoulder, on joint 2's axis
     z0, z1 = np.array([0.0, 0.0, 1.0]), frames[0][:3, 2]
     x1 = np.cross(z0, z1)  # horizontal, in the arm plane

@@ -37,6 +37,8 @@ from kali_daemons.servo import (
 
 from .conftest import make_config
 
+N = puma560.ROBOT.n_joints  # the loop servos one PUMA
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = "scripts/servo_plugin_example.py"
 T = 0.001  # s, the servo interval of every test here (1 kHz)
@@ -68,7 +70,7 @@ class ServoLoop:
         self,
         arena: Arena,
         registry: Registry,
-        algos: Sequence[str] = ("pid",) * 6,
+        algos: Sequence[str] = ("pid",) * N,
         pose: np.ndarray | None = None,
     ) -> None:
         self.sim = sim = PlantSim(CFG, arena)
@@ -78,18 +80,18 @@ class ServoLoop:
         self.driver = JointDriver([puma560.ROBOT], sim.regs["encoder"], sim.dac["code"])
         self.driver.start()
         self.driver.offset[:] = sim.joint_truth["q"][CFG.joints.span(0)]  # starts calibrated
-        self.q = np.zeros(6)
+        self.q = np.zeros(N)
         self.q_prev = self.driver.offset.copy()
         self.demand = self.driver.offset.copy()
-        self.torque = np.zeros(6)
-        self.error = np.zeros(6)
-        self.current = np.zeros(6)
-        self.clamped = np.zeros(6, dtype=bool)
+        self.torque = np.zeros(N)
+        self.error = np.zeros(N)
+        self.current = np.zeros(N)
+        self.clamped = np.zeros(N, dtype=bool)
         self.data = [
             [struct_view(arena.record(f"servo.{j}.{a.name}", a.dtype)) for a in registry]
-            for j in range(6)
+            for j in range(N)
         ]
-        for j in range(6):
+        for j in range(N):
             for i, algo in enumerate(registry):
                 gains = GAINS[algo.name][j] if algo.name in GAINS else {}
                 algo.init(self.data[j][i], gains, T)
@@ -118,7 +120,7 @@ class ServoLoop:
             self.registry[index].handover(self.data[j][index], h)
             self.active[j] = index
         self._pending.clear()
-        for j in range(6):
+        for j in range(N):
             i = self.active[j]
             tau, err, status = self.registry[i].step(self.data[j][i], demand[j], q[j])
             assert status == 0
@@ -142,7 +144,7 @@ class ServoLoop:
     def counts_off(self) -> np.ndarray:
         """Each joint's distance from its demand, in encoder counts (as the encoder reads)."""
         return np.array(
-            [self.driver.acc[j] - self.driver.counts_of(j, float(self.demand[j])) for j in range(6)]
+            [self.driver.acc[j] - self.driver.counts_of(j, float(self.demand[j])) for j in range(N)]
         )
 
     def history(self, start: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -596,7 +598,7 @@ def test_default_pid_holds_every_joint_within_one_count_at_rest(
 ) -> None:
     loop = ServoLoop(arena, registry_for([]), pose=np.array(pose))
     loop.run(SETTLE_TICKS)
-    worst = np.zeros(6, dtype=np.int64)
+    worst = np.zeros(N, dtype=np.int64)
     for _ in range(HOLD_TICKS):
         loop.tick()
         worst = np.maximum(worst, np.abs(loop.counts_off()))
@@ -608,7 +610,7 @@ def test_default_pid_holds_every_joint_within_one_count_at_rest(
 
 def test_default_pid_steps_every_joint_with_bounded_overshoot(loop: ServoLoop) -> None:
     loop.run(SETTLE_TICKS)
-    results = [step_response(loop, j, STEP, STEP_TICKS, SETTLE_BAND) for j in range(6)]
+    results = [step_response(loop, j, STEP, STEP_TICKS, SETTLE_BAND) for j in range(N)]
     for j, r in enumerate(results):
         where = f"joint {j + 1}: {r}"
         assert r.overshoot < MAX_OVERSHOOT, where
@@ -623,7 +625,7 @@ def test_switching_pid_and_pd_on_moving_joints_is_bumpless(loop: ServoLoop) -> N
     def ramp(t: int) -> None:
         loop.demand[:] = d0 + RAMP * t * T
         if t in SWITCHES:
-            for j in range(6):
+            for j in range(N):
                 loop.select(j, SWITCHES[t])
 
     loop.run(max(SWITCHES) + 200, ramp)

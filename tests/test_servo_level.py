@@ -123,7 +123,7 @@ def test_a_step_and_a_ramp_settle_with_bounded_overshoot(kali: Callable[..., str
     name = kali(lockstep=True)
     with servoing(name) as (inst, client):
         r = ByArm(client.level)
-        for j in range(6):
+        for j in range(client.level.map.counts[0]):
             delta = 0.02
             q0 = float(r["q"][0, j])
             _ramp(client, 0, j, delta, 1)  # a step: one set-point 0.02 rad away

@@ -523,9 +523,9 @@ class CartesianPath:
 
     def sample(self, tau: float, t_out: np.ndarray, v_out: np.ndarray | None = None) -> None:
         """Write the pose at path time ``tau`` into ``t_out`` (4, 4) and, if given, the nominal
-        velocity dT/dτ into ``v_out`` (6,) = (linear m/s, angular rad/s, both in the base
-        frame); the start pose before 0, the last pose at rest from ``duration`` on (inside
-        the cycle: float64 outputs, no arrays allocated)."""
+        velocity dT/dτ into ``v_out`` (a twist: linear m/s, then angular rad/s, both in the
+        base frame); the start pose before 0, the last pose at rest from ``duration`` on
+        (inside the cycle: float64 outputs, no arrays allocated)."""
         if tau >= self.duration:
             np.copyto(t_out, self._end)
             if v_out is not None:

@@ -176,6 +176,9 @@ def test_a_fault_writer_stopped_half_way_still_halts_and_is_named(
         assert inst.fault_text() is None
 
 
+RACERS = 6  # processes raising a fault at the same instant
+
+
 def test_many_processes_raising_at_once_record_one_fault_and_count_all(
     kali: Callable[..., str],
 ) -> None:
@@ -197,7 +200,7 @@ def test_many_processes_raising_at_once_record_one_fault_and_count_all(
             text=True,
             cwd=ROOT,
         )
-        for k in range(6)
+        for k in range(RACERS)
     ]
     won = [int(p.communicate(timeout=60)[0]) for p in racers]
     assert sum(won) == 1
