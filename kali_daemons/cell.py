@@ -37,6 +37,12 @@ GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
 TABLE_SIZE: Final = (0.5, 0.24, 0.40)  # x, y, height (its top)
 TABLE_CENTRE_XY: Final = (0.0, -0.38)
 TOOL_RADIUS_M: Final = 0.012  # each arm's tool: a pad, a sphere ending at the tool point
+# The pad is a felt polishing pad, not steel: sliding friction 0.3 on the table, and soft
+# (MuJoCo's contact time constant, s, and damping ratio): about 20 N/mm, critically damped,
+# pressed by a PUMA at the table.  A rigid sphere on the rigid table chattered (lifting off
+# 30 % of the time at 90 Hz, 0-37 N) whenever a soft impedance slid it, whatever the gains.
+PAD_FRICTION: Final = 0.3
+PAD_SOLREF: Final = (0.1, 1.0)
 
 
 def load_pinocchio(

@@ -15,10 +15,10 @@ from .conftest import ROOT
 from .test_launcher import kalictl
 
 
-def run_example(kali: Callable[..., str], script: str) -> str:
-    """Run ``scripts/SCRIPT`` with ``kalictl run`` against a new lockstep instance; its
-    output, once it exited 0."""
-    name = kali(lockstep=True)
+def run_example(kali: Callable[..., str], script: str, base: str = "default.yaml") -> str:
+    """Run ``scripts/SCRIPT`` with ``kalictl run`` against a new lockstep instance (of the
+    config ``config/BASE``); its output, once it exited 0."""
+    name = kali(lockstep=True, base=base)
     r = kalictl("-i", name, "run", f"scripts/{script}")
     assert r.returncode == 0, r.stdout + r.stderr
     return r.stdout
@@ -73,3 +73,14 @@ def test_guarded_example_finds_the_table(kali: Callable[..., str]) -> None:
     m = re.search(r"contact at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m: the table is", out)
     assert m, out
     assert float(m.group(3)) == pytest.approx(TABLE_SIZE[2], abs=0.002), out
+
+
+def test_polish_example_slides_pressing_15_n(kali: Callable[..., str]) -> None:
+    """Its wrist sensor's (filtered) normal force along the 10 cm stroke: 15 N on average,
+    within 15 ± 3 N throughout (tests/test_contact.py checks the plant's truth)."""
+    out = run_example(kali, "example_polish.py", base="force.yaml")
+    m = re.search(r"normal force ([\d.]+) N mean, ([\d.]+) \.\. ([\d.]+) N", out)
+    assert m, out
+    mean, low, high = (float(v) for v in m.groups())
+    assert mean == pytest.approx(15.0, abs=0.5), out
+    assert 12.0 <= low <= high <= 18.0, out

@@ -12,7 +12,10 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
+from kali_daemons.client import Kali
+from kali_daemons.errors import MotionError
 from kali_daemons.layout import RequestState
 from kali_daemons.wallclock import step_kali_clock
 
@@ -98,3 +101,17 @@ def test_control_runs_the_programs_function_on_the_wall_clock(kali: Callable[...
         gaps = np.diff(ticks).tolist()  # every 10 ms of the wall clock, on multiples of 10
         assert gaps[1:] == [10] * 3 and 0 < gaps[0] <= 10 and ticks[-1] % 10 == 0, ticks
         assert k.inst.fault_text() is None
+
+
+def test_sleep_lets_simulated_time_pass_in_lockstep(kali: Callable[..., str]) -> None:
+    """``Kali.sleep`` steps a lockstep instance's clock by the time asked for (nothing else
+    steps it there); a time that is not one is refused, the clock untouched."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        before = int(k.inst.clock["tick"])
+        k.sleep(0.25)
+        assert int(k.inst.clock["tick"]) - before == 250  # the default 1 ms tick
+        for bad in (-1.0, math.nan, math.inf, "1", True):
+            with pytest.raises(MotionError, match="sleep: "):
+                k.sleep(bad)  # type: ignore[arg-type]
+        assert int(k.inst.clock["tick"]) - before == 250

@@ -727,6 +727,20 @@ class Kali:
         else:
             time.sleep(POLL_S)
 
+    def sleep(self, seconds: float) -> None:
+        """Let ``seconds`` pass: a sleep, or in a lockstep instance its clock stepped that long
+        (nothing else steps it), so a program that waits for something to settle runs there
+        unchanged.  MotionError for a time that is not finite and >= 0."""
+        if isinstance(seconds, bool) or not isinstance(seconds, int | float):
+            raise MotionError(f"sleep: {seconds!r:.60} is not a time in s")
+        if not (math.isfinite(seconds) and seconds >= 0.0):
+            raise MotionError(f"sleep: {seconds} s, must be a finite time >= 0")
+        if self.inst.lockstep:
+            tick_ms = self.inst.config.clock.base_tick_ms
+            step_kali_clock(self.inst, round(seconds * 1000.0 / tick_ms))
+        else:
+            time.sleep(seconds)
+
     def ready(self, names: Sequence[str] | None = None, timeout: float = 30.0) -> None:
         """Power the robots ``names`` (default: all) and calibrate those not calibrated yet,
         waiting until they are; ServoError with the reason otherwise (thesis 3.5.1)."""
