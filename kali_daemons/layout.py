@@ -490,7 +490,7 @@ WORLD_TRUTH = np.dtype(
         ("sim_time_ns", "<i8"),  # simulated time since the plant started
         ("ticks", "<u8"),  # plant cycles
         ("object_pose", "<f8", (7,)),  # position (m) and quaternion (w, x, y, z)
-        ("internal_force", "<f8"),  # N, squeeze along the line between the grasps (+ = tension)
+        ("internal_force", "<f8"),  # N, along the line between the grasps: + squeeze, − tension
     ],
     align=True,
 )

@@ -504,3 +504,25 @@ def test_two_arms_grasp_the_bar_and_carry_real_internal_forces(plant: PlantSim) 
     plant.boards[0].regs["gripper"] = 0  # letting go releases the weld
     run_ms(plant, 2)
     assert not int(plant.truth[0]["grasped"]) and int(plant.truth[1]["grasped"])
+
+
+def test_internal_force_is_positive_for_a_squeeze(plant: PlantSim) -> None:
+    """WORLD_TRUTH.internal_force's sign: the left arm hanging on the bar (amplifiers on at
+    zero, brakes open) that the braked right arm holds, a push on the left tool towards the
+    right arm (+x) squeezes the bar, one away from it stretches it."""
+    for k in range(2):
+        plant.place_arm(k, GRASP_Q)
+    for board in plant.boards:
+        board.regs["gripper"] = 1
+    run_ms(plant, 5)
+    enable(plant, 0)
+    run_ms(plant, 60)
+    rest = float(plant.world_truth["internal_force"])
+    seen = {}
+    for sign in (+1, -1):
+        plant.pushes["force"][0] = [sign * 80.0, 0.0, 0.0]
+        plant.pushes["duration_ns"][0] = 200_000_000
+        plant.pushes["seq"][0] += 1
+        run_ms(plant, 100)
+        seen[sign] = float(plant.world_truth["internal_force"]) - rest
+    assert seen[+1] > 5.0 and seen[-1] < -5.0, seen

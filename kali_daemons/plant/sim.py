@@ -322,7 +322,8 @@ class PlantSim:
         np.copyto(*self._object_pose)
 
     def _internal_force(self, forces: list[np.ndarray | None]) -> float:
-        """Squeeze (−) or tension (+) along the line between two grasps, N; 0 unless both hold."""
+        """Squeeze (+) or tension (−) along the line between two grasps, N (each weld's force is
+        the bar's on the tool); 0 unless both hold."""
         held = [k for k, f in enumerate(forces) if f is not None]
         if len(held) < 2:
             return 0.0
