@@ -37,12 +37,14 @@ with Kali() as kali:
     on = arm.read_pose()
     end = pose(on[:3, 3] + [STROKE, 0.0, 0.0], DOWN)
     stroke = arm.move_line(end, speed=0.02, wait=False)
-    normal = []
+    along, normal = [], []
     while not stroke.done:
+        along.append(arm.read_pose()[0, 3])
         normal.append(-arm.read_wrench("tool")[2])  # the table pushes back along the tool's -z
         kali.pause()
     stroke.wait()
-    f = np.array(normal)
+    x = np.array(along)  # from its first millimetre to its last: breaking away, stopping aside
+    f = np.array(normal)[(x > x[0] + 0.001) & (x < x[-1] - 0.001)]
     print(f"slid {STROKE * 100:g} cm pressing {FORCE:g} N: normal force {f.mean():.1f} N mean, "
           f"{f.min():.1f} .. {f.max():.1f} N")  # fmt: skip
     arm.set_servo({"fz": 0.0})
