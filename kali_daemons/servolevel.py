@@ -59,6 +59,8 @@ OP_TIMEOUT_S = 2.0  # how long a client waits for the SV to carry out a mailbox 
 SlotStruct = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)
 JOINT_SERVOS = "joints"  # what ``select_arm`` takes for "back to the joint servos"
 FORCE_SETPOINTS = ("fx", "fy", "fz")  # robot-level parameters the wrist sensor must measure
+SQUEEZE_SETPOINT = "fi"  # and a squeeze, along any line: within the smallest force range
+SQUEEZE_PARTNER = "partner"  # the arm sharing the squeeze: its config index + 1
 
 
 def _no_select(a: int) -> None:
@@ -453,15 +455,34 @@ class ServoClient:
         except KaliError as exc:
             raise ServoError(f"{where}: {exc}") from None
         self._check_force_setpoint(k, where, params)
+        self._check_partner(k, where, params)
         values = np.full(len(alg.params), math.nan)
         for key, value in params.items():
             values[alg.params.index(key)] = float(value)
         self._arm_op(k, SlotOp.PARAMS, idx, values.tobytes(), wait)
 
+    def _check_partner(self, k: int, where: str, params: Mapping[str, float]) -> None:
+        """ServoError for a squeeze partner that is not another robot of the cell with a
+        wrist sensor: the servo reads the partner's wrench by that index every tick."""
+        partner = int(params.get(SQUEEZE_PARTNER, 0))
+        if not partner:
+            return
+        other = partner - 1
+        if other == k or other >= len(self.names):
+            raise ServoError(
+                f"{where}: {SQUEEZE_PARTNER} = {partner}: not another robot of the cell "
+                f"(1..{len(self.names)}, not robot '{self.names[k]}' itself, {k + 1})"
+            )
+        if self.inst.config.robots[other].ft.sheet is None:
+            raise ServoError(
+                f"{where}: {SQUEEZE_PARTNER} = {partner}: robot '{self.names[other]}' has no "
+                f"wrist sensor to share a squeeze with (robots[].ft.sensor)"
+            )
+
     def _check_force_setpoint(self, k: int, where: str, params: Mapping[str, float]) -> None:
         """ServoError for a force set-point the robot's wrist sensor could not measure."""
         sheet = self.inst.config.robots[k].ft.sheet
-        for axis, key in enumerate(FORCE_SETPOINTS):
+        for axis, key in enumerate((*FORCE_SETPOINTS, SQUEEZE_SETPOINT)):
             if key not in params or float(params[key]) == 0.0:
                 continue
             value = float(params[key])
@@ -470,10 +491,11 @@ class ServoClient:
                     f"{where}: {key} = {value:g} N: robot '{self.names[k]}' has no wrist "
                     f"sensor to hold a force with (robots[].ft.sensor)"
                 )
-            if abs(value) > sheet.rated[axis]:
+            rated = min(sheet.rated[:3]) if key == SQUEEZE_SETPOINT else sheet.rated[axis]
+            if abs(value) > rated:
                 raise ServoError(
                     f"{where}: {key} = {value:g} N beyond the {sheet.name} sensor's rated "
-                    f"range ±{sheet.rated[axis]:g} N on that axis"
+                    f"range ±{rated:g} N on that axis"
                 )
 
     def get_arm_params(self, robot: str | int, servo: str | None = None) -> dict[str, float]:

@@ -84,3 +84,17 @@ def test_polish_example_slides_pressing_15_n(kali: Callable[..., str]) -> None:
     mean, low, high = (float(v) for v in m.groups())
     assert mean == pytest.approx(15.0, abs=0.5), out
     assert 12.0 <= low <= high <= 18.0, out
+
+
+def test_squeeze_example_carries_the_bar_squeezing_20_n(kali: Callable[..., str]) -> None:
+    """Its wrist sensors' squeeze from the lift to the set-down: 20 N on average, within
+    20 ± 6 N (tests/test_squeeze.py checks the plant's truth), and the bar back on the stand."""
+    out = run_example(kali, "example_squeeze.py", base="force.yaml")
+    m = re.search(r"squeeze ([\d.]+) N mean, ([\d.]+) \.\. ([\d.]+) N", out)
+    assert m, out
+    mean, low, high = (float(v) for v in m.groups())
+    assert mean == pytest.approx(20.0, abs=0.5), out
+    assert 14.0 <= low <= high <= 26.0, out
+    m = re.search(r"put back at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m", out)
+    assert m, out
+    assert [float(v) for v in m.groups()] == pytest.approx([0.0, 0.0, 0.585], abs=0.003)

@@ -655,6 +655,59 @@ class MotionSystem:
             handle.wait(timeout)
         return handle
 
+    def set_internal_force(self, newtons: float, timeout: float = 5.0) -> None:
+        """Squeeze the held object with ``newtons`` along the line between the two arms' tool
+        points (0: no squeeze), regulated from their wrist sensors.
+
+        Each arm runs the Cartesian impedance servo (selected, bumplessly, if it runs its
+        joint servos; its config needs ``robot_servos: true``) told its partner, the squeeze
+        ``fi`` and the line towards the partner in its tool axes (fixed while they hold the
+        object): each pushes along the line by ``fi`` plus the squeeze error both compute
+        alike from both wrist sensors, times ``kpi`` and integrated (``kii``), so the
+        corrections are equal and opposite, squeezing without moving the object.  The squeeze
+        then holds through lift, carry and set-down instead of following the two arms' servo
+        errors; 0 ends it.  Tare both sensors first, in free air (``Robot.tare``): a
+        sensor's offset goes straight into the squeeze.  ServoError for a bad force, an arm
+        that cannot run the servo or a sensor never tared."""
+        what = f"set_internal_force: {', '.join(repr(n) for n in self.names)}"
+        if len(self.robots) != 2:
+            raise MotionError(f"{what}: a squeeze needs two arms, not {len(self.robots)}")
+        if isinstance(newtons, bool) or not isinstance(newtons, int | float):
+            raise ServoError(f"{what}: {newtons!r:.60} is not a force in N")
+        if not (math.isfinite(newtons) and newtons >= 0.0):
+            raise ServoError(f"{what}: {newtons} N, must be a finite force >= 0")
+        if newtons:
+            for r in self.robots:
+                if int(r._ft(what)["tare_count"]) == 0:
+                    raise ServoError(
+                        f"{what}: robot '{r.name}''s wrist sensor was never tared: its "
+                        f"offset would go into the squeeze (robot.tare() in free air first)"
+                    )
+        poses = [r.base @ r.read_t6() for r in self.robots]
+        tips = [p[:3, 3] + p[:3, 2] * self.kali.inst.config.robots[r.index].ft.tool_tip_m
+                for p, r in zip(poses, self.robots, strict=True)]  # fmt: skip
+        line = tips[1] - tips[0]
+        length = float(np.linalg.norm(line))
+        if length < 1e-3:
+            raise MotionError(f"{what}: the two tool points are {length * 1000:.2f} mm apart")
+        line /= length
+        servo = self.kali.servo
+        for r in self.robots:
+            if servo.arm_active(r.name) != "impedance":
+                r.select_servo("impedance")
+        limit = _timeout_arg(what, timeout)
+        deadline = time.monotonic() + (math.inf if limit is None else limit)
+        while any(servo.arm_active(r.name) != "impedance" for r in self.robots):
+            if time.monotonic() > deadline:
+                raise ServoError(f"{what}: the impedance servo not running within {limit:g} s")
+            self.kali.pause()
+        pairs = zip((1.0, -1.0), poses, self.robots, self.robots[::-1], strict=True)
+        for sign, pose_k, r, other in pairs:
+            toward = pose_k[:3, :3].T @ (sign * line)  # towards the other, its tool axes
+            params = {f"u{a}": float(v) for a, v in zip("xyz", toward, strict=True)}
+            params.update(partner=float(other.index + 1) if newtons else 0.0, fi=float(newtons))
+            r.set_servo(params)
+
     def stop(self) -> None:
         """Decelerate the motion system to rest on its path."""
         self.kali._order(MotionKind.STOP, self.indices)

@@ -57,8 +57,10 @@ class ArmInput:
     in the world at ``q`` and at ``q_d``.  ``wrench`` (``layout.WRENCH``) the contact wrench
     the environment applies at the tool point, world axes (N, N·m; SIO's, tared and
     gravity-compensated; zeros when the robot has no sensor, ``has_sensor`` False).
-    ``friction(qd, out)``: the drive's friction torque at joint velocity ``qd``.  ``dt`` the
-    servo period, s.
+    ``wrenches`` (robots, ``layout.WRENCH``) every robot's contact wrench the same way, in
+    config order (SIO's records, read-only: an arm sharing an object with another, as in a
+    squeeze, sees both).  ``friction(qd, out)``: the drive's friction torque at joint velocity
+    ``qd``.  ``dt`` the servo period, s.
     ``work`` (4, n) and ``work6`` (4, 6) are scratch an algorithm may use within a call.
     """
 
@@ -83,6 +85,7 @@ class ArmInput:
         "work",
         "work6",
         "wrench",
+        "wrenches",
     )
 
     def __init__(self, n: int, dt: float, robot: str = "") -> None:
@@ -93,6 +96,7 @@ class ArmInput:
         self.J = np.zeros((layout.WRENCH, n))
         self.pose, self.pose_d = np.eye(4), np.eye(4)
         self.wrench = np.zeros(layout.WRENCH)
+        self.wrenches = np.zeros((1, layout.WRENCH))  # the SV binds SIO's records
         self.has_sensor = False
         self.work = np.zeros((4, n))
         self.work6 = np.zeros((4, layout.WRENCH))

@@ -85,6 +85,8 @@ class ArmRunner:
         inp.has_sensor = robot.ft.sheet is not None
         fts = worker.inst.arena.existing(layout.KEY_FT, layout.FT_STATE, lv.n_robots)
         self._wrench = fts["world"][k]
+        inp.wrenches = fts["world"]  # every robot's, read in place (a squeeze's partner)
+        inp.wrenches.setflags(write=False)
         self._op_addr = lv.arm_op_addr[k]
         self._arms = lv.registry.arms
         self._data = lv.arm_data[k]
