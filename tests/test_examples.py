@@ -24,6 +24,21 @@ def run_example(kali: Callable[..., str], script: str, base: str = "default.yaml
     return r.stdout
 
 
+def force_report(what: str, out: str) -> tuple[float, float, float]:
+    """The mean, least and most force of an example's ``WHAT M N mean, L .. H N`` line."""
+    m = re.search(rf"{what} ([\d.]+) N mean, ([\d.]+) \.\. ([\d.]+) N", out)
+    assert m, out
+    mean, low, high = (float(v) for v in m.groups())
+    return mean, low, high
+
+
+def assert_bar_put_back(out: str) -> None:
+    """An example's ``put back at (x, y, z) m`` line: the bar where it started, on the stand."""
+    m = re.search(r"put back at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m", out)
+    assert m, out
+    assert [float(v) for v in m.groups()] == pytest.approx([0.0, 0.0, 0.585], abs=0.003)
+
+
 def test_square_example_draws_its_square(kali: Callable[..., str]) -> None:
     out = run_example(kali, "example_square.py")
     m = re.search(r"square of 10 cm done; the tool is ([\d.]+) mm from its start", out)
@@ -31,10 +46,7 @@ def test_square_example_draws_its_square(kali: Callable[..., str]) -> None:
 
 
 def test_carry_example_puts_the_bar_back(kali: Callable[..., str]) -> None:
-    out = run_example(kali, "example_carry.py")
-    m = re.search(r"put back at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m", out)
-    assert m, out
-    assert [float(v) for v in m.groups()] == pytest.approx([0.0, 0.0, 0.585], abs=0.003)
+    assert_bar_put_back(run_example(kali, "example_carry.py"))
 
 
 def test_pid_tuning_example_prints_its_table(kali: Callable[..., str]) -> None:
@@ -79,9 +91,7 @@ def test_polish_example_slides_pressing_15_n(kali: Callable[..., str]) -> None:
     """Its wrist sensor's (filtered) normal force along the 10 cm stroke: 15 N on average,
     within 15 ± 3 N throughout (tests/test_contact.py checks the plant's truth)."""
     out = run_example(kali, "example_polish.py", base="force.yaml")
-    m = re.search(r"normal force ([\d.]+) N mean, ([\d.]+) \.\. ([\d.]+) N", out)
-    assert m, out
-    mean, low, high = (float(v) for v in m.groups())
+    mean, low, high = force_report("normal force", out)
     assert mean == pytest.approx(15.0, abs=0.5), out
     assert 12.0 <= low <= high <= 18.0, out
 
@@ -90,11 +100,7 @@ def test_squeeze_example_carries_the_bar_squeezing_20_n(kali: Callable[..., str]
     """Its wrist sensors' squeeze from the lift to the set-down: 20 N on average, within
     20 ± 6 N (tests/test_squeeze.py checks the plant's truth), and the bar back on the stand."""
     out = run_example(kali, "example_squeeze.py", base="force.yaml")
-    m = re.search(r"squeeze ([\d.]+) N mean, ([\d.]+) \.\. ([\d.]+) N", out)
-    assert m, out
-    mean, low, high = (float(v) for v in m.groups())
+    mean, low, high = force_report("squeeze", out)
     assert mean == pytest.approx(20.0, abs=0.5), out
     assert 14.0 <= low <= high <= 26.0, out
-    m = re.search(r"put back at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m", out)
-    assert m, out
-    assert [float(v) for v in m.groups()] == pytest.approx([0.0, 0.0, 0.585], abs=0.003)
+    assert_bar_put_back(out)
