@@ -1,11 +1,12 @@
 """The flight recorder: the last seconds of every servo tick, dumped to a file on every halt.
 
 SIO writes one row per servo tick into a ring in the arena (``layout.KEY_FLIGHT_RING``):
-positions, demands, the servo, feed-forward and sent torques, motor currents, and its own
-timing.  When the system halts (DESIGN 7) the wall clock, once it has stopped, copies the ring
-in chronological order to ``flight-<instance>-<time>-tick<T>.npz`` in the instance's log
-directory, once per fault, and names the file in the ring's header, so ``kalictl status``
-shows it and ``kalictl flight`` summarises what led to the halt.
+positions, demands, the servo, feed-forward and sent torques, motor currents, each arm's
+wrist wrench, and its own timing.  When the system halts (DESIGN 7) the wall clock, once it
+has stopped, copies the ring in chronological order to
+``flight-<instance>-<time>-tick<T>.npz`` in the instance's log directory, once per fault, and
+names the file in the ring's header, so ``kalictl status`` shows it and ``kalictl flight``
+summarises what led to the halt.
 
 - ``FlightRecorder``: the writer, inside SIO's cycle (preallocated views, ~1 µs a tick).
 - ``FlightDumper``: the wall clock's side, outside any cycle (the clock is stopped).
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from . import layout
+from .arena import Arena
 from .config import ms_to_ns
 from .errors import ArenaError, ArenaFullError, InstanceError, KaliError
 from .instance import FaultInfo, Instance, decode
@@ -29,10 +31,11 @@ from .launcher import log_dir
 from .layout import ProcState
 from .spinlock import pid_alive
 
-# of the dump files; 2 added ``n_joints`` (arms of different joint counts, NaN-padded); a
-# format 1 dump (every arm 6 joints) still loads
-FORMAT_VERSION = 2
-READABLE_FORMATS = (1, 2)
+# of the dump files; 2 added ``n_joints`` (arms of different joint counts, NaN-padded), 3
+# ``wrench`` (each arm's wrist sensor, NaN for an arm without one); formats 1 (every arm 6
+# joints) and 2 still load
+FORMAT_VERSION = 3
+READABLE_FORMATS = (1, 2, 3)
 log = logging.getLogger("kali.flight")
 SIO_IDLE_TIMEOUT_S = 1.0  # how long the dumper waits for SIO to finish a tick in progress
 
@@ -40,6 +43,13 @@ SIO_IDLE_TIMEOUT_S = 1.0  # how long the dumper waits for SIO to finish a tick i
 def _one(rec: np.ndarray, field: str) -> np.ndarray:
     """A writable one-element view of a 0-d record's field (kept for the cycle)."""
     return rec[field].reshape(1)
+
+
+def attach_ring(arena: Arena, header: np.ndarray) -> np.ndarray:
+    """The ring of the flight recorder whose header is ``header``, shaped as SIO laid it out
+    (its rows, joints and robots); for readers outside SIO."""
+    shape = layout.flight_row(int(header["n_joints"]), int(header["n_robots"]))
+    return arena.existing(layout.KEY_FLIGHT_RING, shape, int(header["rows"]))
 
 
 class FlightRecorder:
@@ -55,7 +65,8 @@ class FlightRecorder:
         cfg = inst.config
         period_ns = ms_to_ns(cfg.clock.servo_period_ms)
         rows = layout.flight_rows(period_ns)
-        row = layout.flight_row(n_joints)
+        n_robots = len(cfg.robots)
+        row = layout.flight_row(n_joints, n_robots)
         a = inst.arena
         if create:
             try:
@@ -72,13 +83,16 @@ class FlightRecorder:
             h = self.header
             if int(h["rows"]) == 0:
                 h["rows"], h["n_joints"], h["servo_period_ns"] = rows, n_joints, period_ns
+                h["n_robots"] = n_robots
         else:
             self.header = a.existing(layout.KEY_FLIGHT, layout.FLIGHT)
             self.ring = a.existing(layout.KEY_FLIGHT_RING, row, rows)
-        if int(self.header["rows"]) != rows or int(self.header["n_joints"]) != n_joints:
+        h = self.header
+        held = (int(h["rows"]), int(h["n_joints"]), int(h["n_robots"]))
+        if held != (rows, n_joints, n_robots):
             raise ArenaError(
-                f"flight recorder: ring holds {int(self.header['rows'])} rows of "
-                f"{int(self.header['n_joints'])} joints, this process expects {rows} of {n_joints}"
+                f"flight recorder: ring holds {held[0]} rows of {held[1]} joints and {held[2]} "
+                f"robots, this process expects {rows} of {n_joints} and {n_robots}"
             )
         self.n_joints = n_joints
         self._rows = rows
@@ -89,7 +103,9 @@ class FlightRecorder:
         self._lat, self._late, self._wait = r["latency_ns"], r["late_ns"], r["wait_ns"]
         self._ran = r["ran_ns"]
         self._dst = tuple(r[f] for f in layout.FLIGHT_FIELDS)
+        self._wrench = r["wrench"]
         self._src: tuple[np.ndarray, ...] = ()
+        self._src_wrench = np.zeros((n_robots, layout.WRENCH))
         self._release = (
             inst.procs["release_ns"][slot : slot + 1] if slot >= 0 else np.zeros(1, np.int64)
         )
@@ -102,15 +118,24 @@ class FlightRecorder:
         ff_torque: np.ndarray,
         torque: np.ndarray,
         current: np.ndarray,
+        wrench: np.ndarray | None = None,
     ) -> None:
         """Outside the cycle: the arrays (flat over all joints, ``joints.JointMap`` order)
-        every row copies; they must stay the same objects, updated in place."""
+        every row copies, and ``wrench`` (robots × 6, e.g. ``FT_STATE['tool']``; None: no
+        sensors, zeros recorded); they must stay the same objects, updated in place."""
         src = (q, demand, servo_torque, ff_torque, torque, current)
         for name, a in zip(layout.FLIGHT_FIELDS, src, strict=True):
             if a.shape != (self.n_joints,):
                 raise ArenaError(
                     f"flight recorder: {name} has shape {a.shape}, expected ({self.n_joints},)"
                 )
+        if wrench is not None:
+            if wrench.shape != self._src_wrench.shape:
+                raise ArenaError(
+                    f"flight recorder: wrench has shape {wrench.shape}, expected "
+                    f"{self._src_wrench.shape}"
+                )
+            self._src_wrench = wrench
         self._src = src
 
     def record(self, tick: int, t_read_ns: int, latency_ns: int, wait_ns: int, ran_ns: int) -> None:
@@ -142,6 +167,7 @@ class FlightRecorder:
         ff[r] = sff
         torque[r] = storque
         current[r] = scurrent
+        self._wrench[r] = self._src_wrench
         self._n = n + 1
         self._count[0] = n + 1
 
@@ -192,10 +218,9 @@ class FlightDumper:
         if a.lookup(layout.KEY_FLIGHT) is None or a.lookup(layout.KEY_FLIGHT_RING) is None:
             return False
         header = a.existing(layout.KEY_FLIGHT, layout.FLIGHT)
-        rows, n = int(header["rows"]), int(header["n_joints"])
-        if rows == 0:
+        if int(header["rows"]) == 0:
             return False  # SIO is laying it out
-        self.ring = a.existing(layout.KEY_FLIGHT_RING, layout.flight_row(n), rows)
+        self.ring = attach_ring(a, header)
         self.header = header
         return True
 
@@ -310,6 +335,9 @@ def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Pa
         arrays[f] = np.ascontiguousarray(data[f])
     for f in layout.FLIGHT_FIELDS:
         arrays[f] = by_robot(np.ascontiguousarray(data[f]).reshape(len(data), jm.total))
+    wrench = np.array(data["wrench"], dtype=np.float64)  # (ticks, robots, 6)
+    wrench[:, [r.ft.sheet is None for r in cfg.robots]] = np.nan
+    arrays["wrench"] = wrench
     directory.mkdir(parents=True, exist_ok=True)
     base = dump_name(inst.name, fault)
     path = directory / base
@@ -453,6 +481,8 @@ def _check_shapes(d: dict[str, np.ndarray], not_dump: str) -> None:
     for f in ("t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"):
         if f in d:
             want[f] = (n,)
+    if "wrench" in d:
+        want["wrench"] = (n, nr, layout.WRENCH)
     numeric = [
         f for f in want if f not in ("robots", "fault_code", "fault_process", "fault_message")
     ]
@@ -467,7 +497,8 @@ def _check_shapes(d: dict[str, np.ndarray], not_dump: str) -> None:
 
 def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
     """Lines for ``kalictl flight``: the fault, the ticks covered, each robot's worst tracking
-    error, torque and current over the whole window, and tick by tick up to the fault."""
+    error, torque, current and (an arm with a wrist sensor) contact force over the whole
+    window, and tick by tick up to the fault."""
     ticks = d["tick"]
     fault_tick = int(d["fault_tick"])
     period_ms = int(d["servo_period_ns"]) / 1e6
@@ -495,6 +526,15 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
     torque, current = d["torque"], d["current"]
     load_pct = 100 * np.abs(current) / d["current_limit"]
     names = [str(n) for n in d["robots"]]
+    # the contact force's magnitude, (ticks, robots): NaN for an arm without a sensor and in
+    # a dump older than format 3
+    wrench = d.get("wrench")
+    force = (
+        np.full(load_pct.shape[:2], np.nan)
+        if wrench is None
+        else np.sqrt(np.sum(wrench[..., :3] ** 2, axis=-1))
+    )
+    sensed = [bool(np.isfinite(force[:, k]).all()) for k in range(len(names))]
 
     def worst(a: np.ndarray) -> tuple[float, int, int]:
         """Signed value, row and joint of the largest |a| in (ticks, J), NaN (no such joint)
@@ -509,21 +549,28 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
         e, er, ej = worst(err[:, k])
         t, tr, tj = worst(torque[:, k])
         c, cr, cj = worst(load_pct[:, k])
-        lines.append(
+        line = (
             f"  {name:<8} error {e:+.1f} counts (j{ej + 1}, {int(ticks[er])})  "
             f"torque {t:+.2f} N·m (j{tj + 1}, {int(ticks[tr])})  "
             f"current {c:.0f} % of limit (j{cj + 1}, {int(ticks[cr])})"
         )
+        if sensed[k]:
+            f, fr, _ = worst(force[:, k : k + 1])
+            line += f"  contact force {f:.1f} N ({int(ticks[fr])})"
+        lines.append(line)
     end = int(np.searchsorted(ticks, fault_tick, side="right"))  # rows up to the fault
     first = max(0, end - last)
     shown = range(first, len(ticks))
     lines.append(
         f"ticks {int(ticks[first])}..{int(ticks[-1])}, worst joint per robot: "
         "tracking error (counts), torque (N·m), current (A)"
+        + (", contact force (N)" if any(sensed) else "")
     )
     lines.append(
         f"  {'tick':>9} {'late µs':>7} {'lat µs':>6} {'servos':>6} {'ran':>5}  "
-        + "  ".join(f"{name:<30}" for name in names).rstrip()
+        + "  ".join(
+            f"{name:<{37 if s else 30}}" for name, s in zip(names, sensed, strict=True)
+        ).rstrip()
     )
     for row in shown:
         cells = []
@@ -531,7 +578,8 @@ def summary(d: dict[str, np.ndarray], last: int = 10) -> list[str]:
             e, _, ej = worst(err[row : row + 1, k])
             t, _, tj = worst(torque[row : row + 1, k])
             c, _, cj = worst(current[row : row + 1, k])
-            cells.append(f"{e:+7.1f} j{ej + 1} {t:+7.2f} j{tj + 1} {c:+6.2f} j{cj + 1}")
+            cell = f"{e:+7.1f} j{ej + 1} {t:+7.2f} j{tj + 1} {c:+6.2f} j{cj + 1}"
+            cells.append(f"{cell} {force[row, k]:5.1f}N" if sensed[k] else cell)
         tick = int(ticks[row])
         mark = "  <- fault" if tick == fault_tick else ("  (after)" if tick > fault_tick else "")
         lines.append(

@@ -947,7 +947,7 @@ LEASE = np.dtype(
 # instance's log directory once per fault, after it has stopped (``flightrec.py``).
 
 KEY_FLIGHT = "flight"  # FLIGHT header
-KEY_FLIGHT_RING = "flight.ring"  # flight_row(n_joints) × FLIGHT header ``rows``
+KEY_FLIGHT_RING = "flight.ring"  # flight_row(n_joints, n_robots) × FLIGHT header ``rows``
 FLIGHT_SECONDS = 2.0  # servo time the ring holds
 FLIGHT_PATH_BYTES = 256
 FLIGHT_FIELDS = ("q", "demand", "servo_torque", "ff_torque", "torque", "current")
@@ -958,8 +958,9 @@ def flight_rows(servo_period_ns: int) -> int:
     return max(2, -(-int(FLIGHT_SECONDS * 1e9) // servo_period_ns))
 
 
-def flight_row(n_joints: int) -> np.dtype:
-    """One servo tick in the ring: SIO's flat per-joint arrays (joints.JointMap order)."""
+def flight_row(n_joints: int, n_robots: int) -> np.dtype:
+    """One servo tick in the ring: SIO's flat per-joint arrays (joints.JointMap order) and
+    each robot's wrist wrench (issue 27 item 2; zeros for an arm without a sensor)."""
     n = (n_joints,)
     return np.dtype(
         [
@@ -975,6 +976,8 @@ def flight_row(n_joints: int) -> np.dtype:
             ("ff_torque", "<f8", n),  # feed-forward added, N·m
             ("torque", "<f8", n),  # torque sent (after the current clamp), N·m
             ("current", "<f8", n),  # motor current commanded, A
+            # the contact wrench at the tool point, tool axes (FT_STATE.tool), N and N·m
+            ("wrench", "<f8", (n_robots, WRENCH)),
         ],
         align=True,
     )
@@ -987,7 +990,7 @@ FLIGHT = np.dtype(
         ("servo_period_ns", "<i8"),  # SIO
         ("count", "<u8"),  # SIO: rows written since start; row i is at i % rows
         ("dumps", "<u4"),  # wall clock: dump files written
-        ("_pad", "<u4"),
+        ("n_robots", "<u4"),  # SIO: wrenches per row
         ("dumped_fault_ns", "<i8"),  # wall clock: FAULT time_ns of the fault last dumped
         ("dump_tick", "<i8"),  # wall clock: fault tick of the last dump
         ("dump_path", f"S{FLIGHT_PATH_BYTES}"),  # wall clock: the last dump file
@@ -1097,7 +1100,7 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_FLIGHT, FLIGHT, None, "SIO, the wallclock (dumps)", "kalictl flight"),
     Record(
         KEY_FLIGHT_RING,
-        lambda c, i: flight_row(c.n_joints),
+        lambda c, i: flight_row(c.n_joints, len(c.robots)),
         lambda c, i: c.flight_rows,
         "SIO",
         "the wallclock",
@@ -1190,7 +1193,7 @@ def _digest() -> int:
         for name, value in sorted(globals().items())
         if isinstance(value, np.dtype)
     ]
-    shapes.append(("flight_row", flight_row(1).descr))
+    shapes.append(("flight_row", flight_row(1, 1).descr))
     shapes.append(("queue_entry", queue_entry(MOTION_REQUEST).descr))
     text = repr((shapes, ALIGN, MAX_BLOCKS, MAX_PROCESSES)).encode()
     return int.from_bytes(hashlib.blake2b(text, digest_size=4).digest(), "little")

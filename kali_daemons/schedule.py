@@ -36,7 +36,7 @@ import numpy as np
 
 from . import layout
 from .errors import ScheduleError
-from .flightrec import read_ring
+from .flightrec import attach_ring, read_ring
 from .instance import Instance, decode
 from .servo import Handover, ServoAlgorithm, struct_view
 from .servolevel import ServoClient
@@ -132,8 +132,7 @@ def measure(inst: Instance, window_s: float = WINDOW_S) -> Figures:
     if a.lookup(layout.KEY_FLIGHT) is None or a.lookup(layout.KEY_FLIGHT_RING) is None:
         raise ScheduleError("check: SIO has not laid out its flight recorder yet")
     header = a.existing(layout.KEY_FLIGHT, layout.FLIGHT)
-    rows, n = int(header["rows"]), int(header["n_joints"])
-    ring = a.existing(layout.KEY_FLIGHT_RING, layout.flight_row(n), rows)
+    ring = attach_ring(a, header)
     data = read_ring(header, ring)
     del ring
     servoing = data[data["wait_ns"] > 0]  # ticks that fed a servo

@@ -17,6 +17,7 @@ is scheduling noise); at a 1 kHz servo rate 1000 ns is 0.1 % of the period.  Run
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
 import os
 import time
@@ -42,15 +43,18 @@ class Shim:
     procs: np.ndarray
 
 
-def bench(n_joints: int, iterations: int, repeats: int, cfg: KaliConfig) -> tuple[float, float]:
-    """Best and median ns per ``record`` for ``n_joints`` joints."""
+def bench(arms: int, iterations: int, repeats: int, cfg: KaliConfig) -> tuple[float, float]:
+    """Best and median ns per ``record`` for ``arms`` arms of the config's first robot, each
+    with its wrist wrench."""
+    cfg = dataclasses.replace(cfg, robots=(cfg.robots[0],) * arms)
+    n_joints = cfg.joints.total
     name = f"benchfr{os.getpid()}"
     arena = Arena.create(name, 16 << 20)
     try:
         procs = arena.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
         rec = FlightRecorder(Shim(arena, cfg, procs), n_joints, create=True, slot=3)  # type: ignore[arg-type]
         src = [np.random.default_rng(k).random(n_joints) for k in range(len(layout.FLIGHT_FIELDS))]
-        rec.bind(*src)
+        rec.bind(*src, wrench=np.random.default_rng(9).random((arms, layout.WRENCH)))
 
         def loop(n: int, record: Callable[..., None] = rec.record) -> None:
             t0 = time.perf_counter_ns()
@@ -94,8 +98,8 @@ def main() -> None:
     body = [["empty loop", f"{best:.0f}", f"{med:.0f}", ""]]
     for arms in (1, 2, 4):
         n = puma560.ROBOT.n_joints * arms
-        best, med = bench(n, args.iterations, args.repeats, cfg)
-        kib = rows * layout.flight_row(n).itemsize / 1024
+        best, med = bench(arms, args.iterations, args.repeats, cfg)
+        kib = rows * layout.flight_row(n, arms).itemsize / 1024
         body.append([f"record, {arms} arm(s)", f"{best:.0f}", f"{med:.0f}", f"{kib:.0f}"])
     print(table([("", "left"), "best ns/tick", "median", "ring KiB"], body))
 

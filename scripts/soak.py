@@ -145,7 +145,7 @@ from harness import Floor, KaliRun, cell_config, flight_dump, halt_window_ns
 from kali_daemons import launcher, layout
 from kali_daemons.config import KaliConfig
 from kali_daemons.errors import KaliError
-from kali_daemons.flightrec import read_ring
+from kali_daemons.flightrec import attach_ring, read_ring
 from kali_daemons.instance import Instance
 
 REPO = Path(__file__).resolve().parent.parent
@@ -566,8 +566,7 @@ class SioTail:
     def __init__(self, inst: Instance, tail: MissTail, serious: set[str]) -> None:
         a = inst.arena
         self.header = a.existing(layout.KEY_FLIGHT, layout.FLIGHT)
-        rows, n = int(self.header["rows"]), int(self.header["n_joints"])
-        self.ring = a.existing(layout.KEY_FLIGHT_RING, layout.flight_row(n), rows)
+        self.ring = attach_ring(a, self.header)
         self.tail = tail
         self.serious = serious
         self.read = len(tail.rows)

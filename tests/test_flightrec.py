@@ -18,6 +18,7 @@ import pytest
 
 from kali_daemons import flightrec, launcher, layout
 from kali_daemons.arena import Arena
+from kali_daemons.client import Kali
 from kali_daemons.config import KaliConfig
 from kali_daemons.errors import ArenaFullError, InstanceError
 from kali_daemons.instance import Instance
@@ -43,17 +44,20 @@ class Shim:
 
 
 def recorder(arena: Arena, n: int = 12) -> tuple[flightrec.FlightRecorder, list[np.ndarray]]:
+    """A recorder of the default cell's two arms, bound to the joint arrays and, last in the
+    list, the two arms' wrenches."""
     procs = arena.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
     rec = flightrec.FlightRecorder(Shim(arena, make_config("ring"), procs), n, create=True, slot=2)
     src = [np.zeros(n) for _ in layout.FLIGHT_FIELDS]
-    rec.bind(*src)
-    return rec, src
+    wrench = np.zeros((2, layout.WRENCH))
+    rec.bind(*src, wrench=wrench)
+    return rec, [*src, wrench]
 
 
 def write(rec: flightrec.FlightRecorder, src: list[np.ndarray], ticks: range) -> None:
     for t in ticks:
         for k, a in enumerate(src):
-            a[:] = t + k / 10
+            a[...] = t + k / 10
         rec.record(t, 1_000 * t, 7, 3, 2)
 
 
@@ -79,6 +83,8 @@ def test_the_ring_wraps_and_reads_back_oldest_first(arena: Arena) -> None:
     assert (np.diff(data["tick"]) == 1).all() and data["tick"][-1] == ROWS + 776
     for k, f in enumerate(layout.FLIGHT_FIELDS):
         assert np.array_equal(data[f][:, 3], data["tick"] + k / 10), f
+    assert data["wrench"].shape == (ROWS, 2, layout.WRENCH)  # each arm's, after the joints'
+    assert np.array_equal(data["wrench"][:, 1, 4], data["tick"] + len(layout.FLIGHT_FIELDS) / 10)
     assert (data["t_ns"] == 1_000 * data["tick"]).all() and (data["latency_ns"] == 7).all()
     assert (data["wait_ns"] == 3).all() and (data["ran_ns"] == 2).all()
     # a writer that may be inside a row: the row it may be overwriting is left out
@@ -211,6 +217,50 @@ def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_pat
             client.close()
     out = kalictl("-i", name, "flight", str(path), "--ticks", "3")
     assert out.returncode == 0 and out.stdout.count("\n") < 20, out.stderr
+
+
+def test_a_force_halt_s_dump_holds_the_wrench_that_led_to_it(kali: Callable[..., str]) -> None:
+    """Issue 27 item 2: the dump of a contact-limit halt holds the sensed arm's contact wrench
+    tick by tick (tool axes, filtered, as SIO published it): its offsets before the tare,
+    nothing after it, then pushes of 50 and 100 N held on the braked arm, until one of 200 N
+    halts it (that one at once: the limit is on the unfiltered force, which the fault message
+    names); an arm without a sensor has NaN; ``kalictl flight`` names the sensed arm's peak
+    contact force and prints it tick by tick."""
+    name = kali(lockstep=True, edits={r"^(  - \{name: right.*)\}$": r"\1, ft: {sensor: none}}"})
+    with Kali(name) as k:
+        step_kali_clock(k.inst, 100)
+        k.robot("left").tare()
+        tared_tick = int(k.inst.clock["tick"])
+        step_kali_clock(k.inst, 50)
+        held = {}
+        for newtons in (50.0, 100.0):
+            held[newtons] = int(k.inst.clock["tick"])
+            k.inst.push(0, np.array([0.0, newtons, 0.0]), 0.15)
+            step_kali_clock(k.inst, 150)
+        k.inst.push(0, np.array([0.0, 200.0, 0.0]), 0.2)  # past the 150 N contact limit
+        step_kali_clock(k.inst, 50)
+        info = k.inst.read_fault()
+        assert info.code == "FORCE" and "contact force" in info.message, info
+        path = Path(wait_dumps(k.inst, 1)["last_dump"])
+        published = k.ft[0]["tool"].copy()
+    d = flightrec.load(path)
+    ticks, wrench = d["tick"], d["wrench"]
+    assert wrench.shape == (len(ticks), 2, layout.WRENCH)
+    assert np.isnan(wrench[:, 1]).all()  # the right arm has no sensor
+    assert np.array_equal(wrench[-1, 0], published)  # the last row is SIO's last reading
+    force = np.linalg.norm(wrench[:, 0, :3], axis=1)
+    assert force[ticks < tared_tick][:10].min() > 0.3  # the sensor's offsets before the tare
+    assert force[(ticks >= tared_tick) & (ticks < held[50.0])].max() < 0.3  # tared, no contact
+    for newtons, tick in held.items():  # each push, settled through the 30 Hz filter
+        settled = force[(ticks >= tick + 50) & (ticks < tick + 140)]
+        assert np.abs(settled - newtons).max() < 0.03 * newtons, (newtons, settled)
+    out = kalictl("flight", str(path), "--ticks", "3")
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    left = next(line for line in lines if line.startswith("  left "))
+    right = next(line for line in lines if line.startswith("  right "))
+    assert f"contact force {force.max():.1f} N" in left and "contact force" not in right
+    assert "contact force (N)" in out.stdout and f"{force[-1]:5.1f}N" in out.stdout
 
 
 def test_flight_names_what_is_missing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

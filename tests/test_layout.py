@@ -47,7 +47,7 @@ def test_a_mixed_cells_blocks_are_sized_by_each_arms_joints() -> None:
     assert blocks["robots.joints"].count == 13 and blocks["servo.slots"].count == 13
     assert blocks["fifo.left.ring"].count == layout.FIFO_CAPACITY * 6
     assert blocks["fifo.right.ring"].count == layout.FIFO_CAPACITY * 7
-    assert blocks["flight.ring"].dtype == layout.flight_row(13)
+    assert blocks["flight.ring"].dtype == layout.flight_row(13, 2)
     # each algorithm's private data is one block, a record per joint (the SVs' units)
     servo = [k for k in blocks if re.fullmatch(r"servo\.data\.\d+", k)]
     assert len(servo) == len(registry)

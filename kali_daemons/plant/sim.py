@@ -110,7 +110,9 @@ class PlantSim:
             else FtBank(
                 self.regs[k : k + 1].reshape(()),
                 r.ft.sheet,
-                seed=zlib.crc32(f"{cfg.instance}/{r.name}".encode()),
+                # per robot, not per instance: the same program gives the same readings
+                # under any instance name (lockstep is bit for bit, issue 24)
+                seed=zlib.crc32(f"ft/{r.name}".encode()),
                 dt_s=self.substeps * self.dt,
             )
             for k, r in enumerate(cfg.robots)

@@ -261,7 +261,15 @@ class ServoIO(Daemon):
         for k in range(nr):
             self.fifos[k].reset(self.q[lv.map.span(k)])
         self.flight = FlightRecorder(inst, n, create=True, slot=self.slot)  # DESIGN 7
-        self.flight.bind(self.q, self.demand, self.servo_torque, self.ff, self.torque, self.current)
+        self.flight.bind(
+            self.q,
+            self.demand,
+            self.servo_torque,
+            self.ff,
+            self.torque,
+            self.current,
+            self.ft_records["tool"],
+        )
         self._bind_kernels()
         ctrl["ready"] = 1
 

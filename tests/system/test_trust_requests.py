@@ -305,7 +305,7 @@ def _burn(seconds: float) -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", loop]) for _ in range(os.cpu_count() or 1)]
 
 
-COMPARED = ("tick", "q", "demand", "servo_torque", "ff_torque", "torque", "current")
+COMPARED = ("tick", "q", "demand", "servo_torque", "ff_torque", "torque", "current", "wrench")
 
 
 def _cartesian_run(start: Callable[..., str], load: bool) -> np.ndarray:
@@ -324,15 +324,10 @@ def _cartesian_run(start: Callable[..., str], load: bool) -> np.ndarray:
             left.move_path(path, speed=0.1, transition_s=0.2, wait=False)
             step_kali_clock(k.inst, 2500)
             assert k.inst.fault_text() is None
-            rows = flightrec.read_ring(
-                k.inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT),
-                k.inst.arena.existing(
-                    layout.KEY_FLIGHT_RING,
-                    layout.flight_row(6 * len(k.names)),
-                    layout.flight_rows(1_000_000),
-                ),
-                writer_idle=True,
-            )
+            header = k.inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+            ring = flightrec.attach_ring(k.inst.arena, header)
+            assert len(ring) == layout.flight_rows(1_000_000)
+            rows = flightrec.read_ring(header, ring, writer_idle=True)
             return repack_fields(rows[list(COMPARED)])  # without the fields left out
     finally:
         for b in burners:
