@@ -1,6 +1,8 @@
 """The viewer (issue 6, thesis 3.3.7): the live rerun dashboard.
 
-A lockstep instance records its dashboard to a file, which is read back; a headless chromium
+A lockstep instance records its dashboard to a file, which is read back (the arms, joints,
+timing and faults; a push on a tool in the wrist sensor's series and the contact arrow, issue
+27); a headless chromium
 opens the web viewer of another and its screenshot must show the arms and the plots; a
 real-time instance keeps drawing after a halt, and its viewer dying halts nothing and leaves
 no process or port behind.
@@ -25,11 +27,13 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import rerun as rr
 
 from kali_daemons import launcher, layout
 from kali_daemons.arena import Arena
+from kali_daemons.client import Kali
 from kali_daemons.config import DashboardConfig
 from kali_daemons.errors import ConfigError
 from kali_daemons.instance import Instance
@@ -37,9 +41,10 @@ from kali_daemons.joints import per_joint
 from kali_daemons.layout import FaultCode, RunMode
 from kali_daemons.servolevel import ServoClient
 from kali_daemons.tg.cartesian import base_transform
-from kali_daemons.viewer.daemon import Viewer
+from kali_daemons.viewer.daemon import CONTACT_M_PER_N, Viewer, blueprint
 from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
 from kali_daemons.wallclock import start_kali_clock, step_kali_clock
+from kali_daemons.wallclock.clock import time_ms
 
 from .conftest import make_config
 from .test_launcher import kalictl
@@ -47,6 +52,7 @@ from .test_servo_level import power_all
 from .test_tg import MIXED
 
 DASHBOARD = r"^dashboard:\n(?:  .*\n?)*"  # the section in config/default.yaml
+NO_SENSOR_LEFT = {r"^(  - \{name: left.*)\}$": r"\1, ft: {sensor: none}}"}
 
 
 def dashboard(**fields: object) -> dict[str, str]:
@@ -183,12 +189,124 @@ def test_recording_has_the_arms_joints_timing_and_faults_at_25_hz(
     assert ("INFO", "process 'sio': ACTIVE") in texts["/events/processes"]
 
 
+def components(path: Path) -> dict[tuple[str, str], list[tuple[float | None, np.ndarray]]]:
+    """Every logged component of a recording: per entity and column (``Scalars:scalars``,
+    ``Arrows3D:vectors`` ...) its rows as (kali_time in s, None if static; value)."""
+    from rerun.chunk import RrdReader
+
+    found: dict[tuple[str, str], list[tuple[float | None, np.ndarray]]] = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        times: list = [None] * batch.num_rows
+        if "kali_time" in chunk.timeline_names:
+            times = [t.total_seconds() for t in batch.column("kali_time").to_pylist()]
+        for column in batch.schema.names:
+            if ":" not in column or column == "kali_time":
+                continue
+            rows = found.setdefault((chunk.entity_path, column), [])
+            for t, v in zip(times, batch.column(column).to_pylist(), strict=True):
+                if v is not None:
+                    rows.append((t, v if isinstance(v[0], str) else np.array(v, dtype=float)))
+    return found
+
+
+def test_the_dashboard_shows_a_push_on_a_tool_in_its_wrench_series_and_contact_arrow(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """The right arm (braked) is pushed for 0.6 s: its force series (tool axes) has the push's
+    size, the arrow (base coordinates under the base's transform) starts at the tool point
+    and turned into world axes is the push at 1 cm per newton, and the torque about the tool
+    point is that of a force at the sensor; before and after, ~0.  The left arm has no
+    sensor: no wrench series, no arrow, no plot."""
+    rrd = tmp_path / "wrench.rrd"
+    name = kali(
+        lockstep=True,
+        edits=dashboard(web="off", connect=None, record=str(rrd)) | NO_SENSOR_LEFT,
+    )
+    push = np.array([20.0, -15.0, 25.0])  # N, world axes: 35.4 N
+    with Kali(name) as k:
+        step_kali_clock(k.inst, 200)
+        k.robot("right").tare()
+        step_kali_clock(k.inst, 200)
+        t_push = time_ms(k.inst.clock) / 1000.0
+        k.inst.push(1, push, 0.6)
+        step_kali_clock(k.inst, 900)
+        assert not int(k.inst.fault["active"]), k.inst.fault_text()
+        cfg = k.inst.config
+    launcher.stop(name)
+    logged = components(rrd)
+
+    def series(entity: str, column: str = "Scalars:scalars") -> dict[float, np.ndarray]:
+        return {round(t, 3): v for t, v in logged.get((entity, column), []) if t is not None}
+
+    assert logged[("/robots/right/wrench/force", "SeriesLines:names")] == [
+        (None, ["fx", "fy", "fz"])
+    ]
+    assert logged[("/robots/right/wrench/torque", "SeriesLines:names")] == [
+        (None, ["tx", "ty", "tz"])
+    ]
+    for entity in (
+        "/robots/left/wrench/force",
+        "/robots/left/wrench/torque",
+        "/world/left/contact",
+    ):
+        assert not [c for e, c in logged if e == entity], entity
+    frames = len(series("/robots/right/q"))
+    assert frames > 30 and len(series("/robots/left/q")) == frames  # drawn all the same
+    force, torque = series("/robots/right/wrench/force"), series("/robots/right/wrench/torque")
+    origins = series("/world/right/contact", "Arrows3D:origins")
+    vectors = series("/world/right/contact", "Arrows3D:vectors")
+    position, rpy = series("/robots/right/flange/position"), series("/robots/right/flange/rpy")
+    assert (
+        len(force) > frames - 5
+        and force.keys() == torque.keys() == vectors.keys() == origins.keys()
+    )
+
+    right = cfg.robots[1]
+    base = base_transform(right.base_xyz, right.base_yaw_deg)
+    tip = right.ft.tool_tip_m
+    pushed = [t for t in force if t_push + 0.2 <= t <= t_push + 0.55]
+    still = [t for t in force if t_push - 0.15 <= t <= t_push or t >= t_push + 0.75]
+    assert len(pushed) >= 8 and len(still) >= 6, (pushed, still)
+    for t in force:
+        flange = pin.rpy.rpyToMatrix(np.radians(rpy[t]))  # the flange's (tool's) axes in the world
+        # the arrow starts at the tool point: tool_tip_m out along the flange's z
+        start = base[:3, :3] @ origins[t][0] + base[:3, 3]
+        np.testing.assert_allclose(start, position[t] + tip * flange[:, 2], atol=1e-6)
+        contact = base[:3, :3] @ vectors[t][0] / CONTACT_M_PER_N  # world axes, N
+        # the tool-axes series and the world-axes arrow are the same force (SIO turns it with
+        # the angles it read that tick, the viewer's frame with the angles of its own moment)
+        assert np.linalg.norm(flange @ force[t] - contact) < 0.02 * np.linalg.norm(contact) + 0.1
+        if t in pushed:
+            # uncalibrated: SIO's sensor frame is right to a degree or so (test_wrench)
+            assert np.linalg.norm(contact - push) < 0.05 * np.linalg.norm(push) + 0.3, (t, contact)
+            fx, fy, _ = force[t]
+            # a force at the sensor, tip_m behind the tool point: about that point r × f
+            np.testing.assert_allclose(torque[t], [tip * fy, -tip * fx, 0.0], atol=0.05)
+        elif t in still:
+            assert np.linalg.norm(force[t]) < 1.0 and np.linalg.norm(torque[t]) < 0.1, t
+
+    plots = {
+        v.name: v.contents
+        for v in blueprint(["left", "right"], [False, True])
+        .root_container.contents[1]
+        .contents[0]
+        .contents
+    }
+    assert plots["right: contact force, torque (N, N·m)"] == [
+        "robots/right/wrench/force",
+        "robots/right/wrench/torque",
+    ]
+    assert not [p for p in plots if p.startswith("left: contact")]
+
+
 def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     arena: Arena, tmp_path: Path
 ) -> None:
     """A PUMA 560 (6 joints) and a Panda (7): the viewer's frame, over records laid out by
     hand (no processes), plots each arm's joints j1..jN from the per-joint records and
-    draws each arm with its own type's shapes at those angles."""
+    draws each arm with its own type's shapes at those angles; the Panda's wrench and contact
+    arrow at its tool point, none for the PUMA, whose sensor has not answered yet."""
     cfg = make_config("mixed", MIXED)
     jm = cfg.joints
     robots = arena.record(layout.KEY_ROBOTS, layout.ROBOT_STATE, 2)
@@ -199,6 +317,10 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     joints["torque"] = np.arange(jm.total)
     arena.record(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
     arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+    ft = arena.record(layout.KEY_FT, layout.FT_STATE, 2)
+    ft["present"] = [0, 1]
+    ft["tool"] = [[9.0] * 6, [1.0, 2.0, 3.0, 0.1, 0.2, 0.3]]
+    ft["world"] = [[9.0] * 6, [10.0, 0.0, -5.0, 0.0, 0.0, 0.0]]
     viewer = Viewer(cfg.instance, "viewer")
     viewer.inst = SimpleNamespace(  # type: ignore[assignment]
         config=cfg,
@@ -218,7 +340,7 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     viewer._frame()
     rec.flush(timeout_sec=5.0)
     rec.disconnect()
-    del robots, joints
+    del robots, joints, ft
 
     from rerun.chunk import RrdReader
 
@@ -230,6 +352,9 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
             scalars[chunk.entity_path] = batch.column("Scalars:scalars").to_pylist()[0]
         if "SeriesLines:names" in batch.schema.names:
             series[chunk.entity_path] = batch.column("SeriesLines:names").to_pylist()[0]
+        for column in ("Arrows3D:origins", "Arrows3D:vectors"):
+            if column in batch.schema.names and "kali_time" in chunk.timeline_names:
+                scalars[column] = batch.column(column).to_pylist()[0][0]
     assert series["/robots/left/q"] == [f"j{j}" for j in range(1, 7)]
     assert series["/robots/right/q"] == [f"j{j}" for j in range(1, 8)]
     assert series["/robots/right/ff_torque"] == [f"j{j} ff" for j in range(1, 8)]
@@ -240,6 +365,18 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     assert scalars["/robots/right/torque"] == list(range(6, 13))
     flange = base_transform((0.6, 0.0, 0.0), 180.0) @ right.kinematics.fkine(right.q_home)
     np.testing.assert_allclose(scalars["/robots/right/flange/position"], flange[:3, 3], atol=1e-9)
+    assert "/robots/left/wrench/force" not in scalars  # not present: not shown
+    assert scalars["/robots/right/wrench/force"] == [1.0, 2.0, 3.0]
+    assert scalars["/robots/right/wrench/torque"] == [0.1, 0.2, 0.3]
+    # the arrow is under world/right, the base's frame: yawed 180° at x = 0.6
+    base = base_transform((0.6, 0.0, 0.0), 180.0)
+    tool_point = flange @ [0.0, 0.0, cfg.robots[1].ft.tool_tip_m, 1.0]
+    # (rerun keeps an arrow's coordinates as float32)
+    np.testing.assert_allclose(base @ [*scalars["Arrows3D:origins"], 1.0], tool_point, atol=1e-6)
+    arrow = base[:3, :3] @ scalars["Arrows3D:vectors"]
+    np.testing.assert_allclose(
+        arrow, [10.0 * CONTACT_M_PER_N, 0.0, -5.0 * CONTACT_M_PER_N], atol=1e-8
+    )
 
 
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # what rerun --save writes

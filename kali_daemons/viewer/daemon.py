@@ -14,7 +14,11 @@ clock's running time, so a lockstep run has 25 frames per simulated second):
 - ``robots/<robot>/...``: per joint the angle, demand, tracking error (demand − angle; all in
   degrees), torque and feed-forward torque (N·m) and motor current (A), one entity with a
   series per joint of the arm's type (j1 .. jN, from ``layout.JOINT_STATE``); the flange's
-  position (m) and roll/pitch/yaw (degrees) in the world.
+  position (m) and roll/pitch/yaw (degrees) in the world; for an arm with a wrist sensor
+  (issue 27), once SIO has heard from it, the contact wrench on the tool about the tool point
+  in tool axes (``layout.FT_STATE.tool``: force in N, torque in N·m) and, in 3D, an arrow
+  from the tool point along the contact force (``world``), ``CONTACT_M_PER_N`` long per
+  newton.
 - ``timing/...``: per process its last execution time, wake-up lateness and missed deadlines
   from the process table; SIO's sensor-to-DAC latency.
 - ``events/...``: faults (ERROR), the robots' power and calibration messages (INFO) and process
@@ -81,7 +85,13 @@ DEMAND_COLORS = (JOINT_COLORS // 2 + 128).astype(np.uint8)  # the same hue, pale
 STAND_COLOR = (115, 84, 56)  # as the plant's cell (model.py)
 TABLE_COLOR = (158, 153, 140)
 BAR_COLOR = (217, 89, 26)
-AXIS_COLORS = JOINT_COLORS[[0, 3, 4]]  # x y z, roll pitch yaw
+AXIS_COLORS = JOINT_COLORS[[0, 3, 4]]  # x y z, roll pitch yaw; fx fy fz
+PALE_AXIS_COLORS = DEMAND_COLORS[[0, 3, 4]]  # tx ty tz: beside the force in one plot
+# the contact arrow: 1 cm per newton, so the 150 N contact limit (FtConfig) is 1.5 m long
+# and the sensor's noise after a tare (a few tenths of a newton) a few millimetres
+CONTACT_M_PER_N = 0.01
+CONTACT_COLOR = (230, 0, 180)  # magenta: apart from the arms', the series' and the cell's colours
+CONTACT_RADIUS_M = 0.006
 
 
 def joint_names(n_joints: int) -> list[str]:
@@ -144,6 +154,9 @@ class RobotPaths:
     current: str
     flange_position: str
     flange_rpy: str
+    wrench_force: str
+    wrench_torque: str
+    contact: str
     events: str
 
     @classmethod
@@ -164,13 +177,24 @@ class RobotPaths:
             current=f"{r}/current",
             flange_position=f"{r}/flange/position",
             flange_rpy=f"{r}/flange/rpy",
+            wrench_force=f"{r}/wrench/force",
+            wrench_torque=f"{r}/wrench/torque",
+            contact=f"{base}/contact",
             events=f"events/{robot}",
         )
 
 
-def blueprint(robots: list[str]) -> rrb.Blueprint:
+def has_sensor(cfg: KaliConfig) -> list[bool]:
+    """Per robot (config order): whether it has a wrist force/torque sensor (as SIO's
+    ``sensors_of``)."""
+    return [r.ft.sheet is not None for r in cfg.robots]
+
+
+def blueprint(robots: list[str], sensed: list[bool] | None = None) -> rrb.Blueprint:
     """The dashboard's layout: arms in 3D above the event log; per robot and quantity a time
-    series of the last ``PLOT_WINDOW_S`` seconds; process timing and flanges below."""
+    series of the last ``PLOT_WINDOW_S`` seconds (the contact wrench only for the robots
+    ``sensed`` says have a wrist sensor: a last row of the grid); process timing and flanges
+    below."""
     window = rrb.VisibleTimeRange(
         TIMELINE,
         start=rrb.TimeRangeBoundary.cursor_relative(seconds=-PLOT_WINDOW_S),
@@ -196,6 +220,11 @@ def blueprint(robots: list[str]) -> rrb.Blueprint:
     ):
         for r, p in zip(robots, paths, strict=True):
             plots.append(series(f"{r}: {title}", *(getattr(p, f) for f in fields)))
+    for r, p, s in zip(robots, paths, sensed or [False] * len(robots), strict=True):
+        if s:
+            plots.append(
+                series(f"{r}: contact force, torque (N, N·m)", p.wrench_force, p.wrench_torque)
+            )
     bottom = rrb.Horizontal(
         series("execution time (µs)", "timing/exec_us"),
         series("wake-up lateness, SIO sensor→DAC (µs)", "timing/late_us", "timing/sio_latency_us"),
@@ -268,6 +297,10 @@ class Viewer(Daemon):
             arm.place(r.type.q_home.copy())  # the first use of Pinocchio faults pages in
         self.joint_map = cfg.joints
         self.spans = [self.joint_map.span(k) for k in range(len(self.names))]
+        self.sensed = has_sensor(cfg)
+        # the tool point, where SIO gives the contact wrench: tool_tip_m out along the flange's z
+        self.tips = [np.array([0.0, 0.0, r.ft.tool_tip_m]) for r in cfg.robots]
+        self.base_rot_t = [b.rotation.T.copy() for b in self.bases]  # world axes → base axes
 
     def attach(self) -> None:
         """SIO's, the plant's and the instance's records, once they are laid out."""
@@ -278,6 +311,13 @@ class Viewer(Daemon):
         self.joints = arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, self.joint_map.total)
         self.ctrl = arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
         self.world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        # the wrist sensors (kalictl start lays a record out for every robot, sensor or not)
+        self.ft = (
+            arena.existing(layout.KEY_FT, layout.FT_STATE, n)
+            if any(self.sensed) and arena.lookup(layout.KEY_FT) is not None
+            else None
+        )
+        self._ft = np.zeros(n, dtype=layout.FT_STATE)  # each frame's snapshot of it
         self.clock, self.procs, self.fault = inst.clock, inst.procs, inst.fault
         self._proc_names: list[str] = []  # every process seen, in order: the timing series
         self._proc_slot = np.zeros(0, dtype=np.int64)  # its slot now, -1 when it has left
@@ -342,7 +382,7 @@ class Viewer(Daemon):
             rec = rr.RecordingStream(
                 "kali", recording_id=f"{self.inst.name}-{int(self.inst.arena.header['created_ns'])}"
             )
-            rec.set_sinks(*sinks, default_blueprint=blueprint(self.names))
+            rec.set_sinks(*sinks, default_blueprint=blueprint(self.names, self.sensed))
             rec.send_recording_name(f"Kali '{self.inst.name}'")
             self.rec = rec
             self._log_static()
@@ -380,8 +420,8 @@ class Viewer(Daemon):
             rr.Boxes3D(half_sizes=[np.array(BAR_SIZE) / 2], colors=[BAR_COLOR], fill_mode="solid"),
             static=True,
         )
-        for p, base, arm, n in zip(
-            self.paths, self.bases, self.arms, self.joint_map.counts, strict=True
+        for p, base, arm, n, sensed in zip(
+            self.paths, self.bases, self.arms, self.joint_map.counts, self.sensed, strict=True
         ):
             rec.log(
                 p.base,
@@ -416,6 +456,17 @@ class Viewer(Daemon):
                 (p.flange_rpy, ["roll", "pitch", "yaw"], AXIS_COLORS),
             ):
                 rec.log(path, rr.SeriesLines(names=names, colors=colors), static=True)
+            if sensed:
+                for path, names, colors in (
+                    (p.wrench_force, ["fx", "fy", "fz"], AXIS_COLORS),
+                    (p.wrench_torque, ["tx", "ty", "tz"], PALE_AXIS_COLORS),
+                ):
+                    rec.log(path, rr.SeriesLines(names=names, colors=colors), static=True)
+                rec.log(
+                    p.contact,
+                    rr.Arrows3D.from_fields(colors=[CONTACT_COLOR], radii=[CONTACT_RADIUS_M]),
+                    static=True,
+                )
         rec.log("timing/sio_latency_us", rr.SeriesLines(names=["SIO sensor→DAC"]), static=True)
 
     # ------------------------------------------------------------------ the cycle
@@ -448,6 +499,9 @@ class Viewer(Daemon):
         demand_deg = np.degrees(joints["demand"])
         error_deg = demand_deg - q_deg
         torque, ff, current = joints["torque"], joints["ff_torque"], joints["current"]
+        ft = self._ft
+        if self.ft is not None:
+            ft[:] = self.ft  # Type 4, like the joints; never a sensor's reading when absent
         for k, p in enumerate(self.paths):
             arm = self.arms[k]
             if not robots["pots_read"][k]:
@@ -479,6 +533,19 @@ class Viewer(Daemon):
             world = self.bases[k] * flange
             rec.log(p.flange_position, rr.Scalars(world.translation))
             rec.log(p.flange_rpy, rr.Scalars(np.degrees(pin.rpy.matrixToRpy(world.rotation))))
+            if self.sensed[k] and ft[k]["present"]:
+                tool = ft[k]["tool"]  # about the tool point, tool axes
+                rec.log(p.wrench_force, rr.Scalars(tool[:3]))
+                rec.log(p.wrench_torque, rr.Scalars(tool[3:]))
+                # p.contact sits under the base's transform: the tool point and the world-axes
+                # force are given in the base's coordinates
+                force = self.base_rot_t[k] @ ft[k]["world"][:3]
+                rec.log(
+                    p.contact,
+                    rr.Arrows3D.from_fields(
+                        origins=[flange.act(self.tips[k])], vectors=[force * CONTACT_M_PER_N]
+                    ),
+                )
         pose = self.world["object_pose"]
         if pose[3:] @ pose[3:] > 0.5:  # a unit quaternion once the plant has written it
             w, x, y, z = pose[3:]
