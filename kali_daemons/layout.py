@@ -593,7 +593,9 @@ ROBOT_STATE = np.dtype(
         ("calib_cmd", "u1"),  # clients: 1 = calibrate; SIO clears it when taken
         ("calib_state", "u1"),  # SIO: CalibState
         ("calib_found", "u1"),  # SIO: bit j = joint j's index pulse found
-        ("_pad", "u1", (1,)),
+        # SV: 1 while a robot-level servo guides the arm by hand (ArmServoAlgorithm.guides):
+        # SIO's demand follows the measured arm, the TG refuses to move it
+        ("guided", "u1"),
         ("enable_ticks", "<i4"),  # SIO: ticks into the enable sequence
         # clients: the fault count (low 32 bits) seen when power_cmd / calib_cmd was written;
         # SIO takes a command only while it matches and no fault is active: a halt voids it

@@ -188,6 +188,7 @@ class ServoLevel:
             r["power"] = PowerState.OFF
             r["calib_state"] = CalibState.IDLE
             r["arm_algo"] = layout.ARM_NONE
+            r["guided"] = 0
             for a, arm in enumerate(self.registry.arms):
                 arm.init(self.arm_data[k][a], {}, self.servo_period_s)
             first = self.registry.index(robot.servo)

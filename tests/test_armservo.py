@@ -197,9 +197,9 @@ def _algo(name: str, **changes: object) -> ArmServoAlgorithm:
 
 def test_the_registry_takes_a_robot_level_plugin_and_checks_it(tmp_path: Path) -> None:
     registry = Registry()
-    assert registry.arm_names() == ["computed_torque", "impedance"]
-    assert registry.register(_algo("damper")) == 2
-    assert registry.arm_index("damper") == 2 and registry.origin("damper") == "builtins"
+    assert registry.arm_names() == ["computed_torque", "impedance", "admittance", "guiding"]
+    assert registry.register(_algo("damper")) == 4
+    assert registry.arm_index("damper") == 4 and registry.origin("damper") == "builtins"
     with pytest.raises(ConfigError, match="'pid' is already registered"):
         registry.register(_algo("pid"))
     bad_dtype = np.dtype([("m", "<f8", (3, 3))], align=True)

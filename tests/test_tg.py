@@ -233,7 +233,7 @@ class _Waiting:
         self._check_until = check_until
         self.started: list[int] = []
 
-    def _unpowered(self, robots: list[int]) -> str:
+    def _cannot_move(self, robots: list[int]) -> str:
         return ""
 
     def _start(self, seq: int, req: np.void, robots: list[int]) -> None:

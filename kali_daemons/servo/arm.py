@@ -120,6 +120,9 @@ class ArmServoAlgorithm:
     set_params: Callable[[Any, Mapping[str, float]], None]
     get_params: Callable[[Any], dict[str, float]]
     doc: str = ""
+    # True: the algorithm guides the arm by hand (``admittance.GUIDING``): while it runs,
+    # SIO's demand follows the measured arm and the TG moves it not (``ROBOT_STATE.guided``)
+    guides: bool = False
 
 
 def check_arm_dtype(dtype: Any) -> str | None:

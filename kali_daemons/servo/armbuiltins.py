@@ -329,7 +329,7 @@ _ROT_SCRATCH = np.zeros((3, 3))  # rotation_error's, in the SV's one thread
 _HALVES = (slice(0, 3), slice(3, 6))
 
 
-def _to_tool(v: np.ndarray, rot: np.ndarray, scratch: np.ndarray) -> None:
+def to_tool(v: np.ndarray, rot: np.ndarray, scratch: np.ndarray) -> None:
     """A world wrench or twist ``v`` (``layout.WRENCH`` values) into tool axes, in place:
     Rᵀ on each half."""
     for half in _HALVES:
@@ -347,8 +347,8 @@ def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
     dq = w[0]
     np.subtract(inp.qd_d, inp.qd, out=dq)
     np.matmul(inp.J, dq, out=edot)
-    _to_tool(e, rot, f)
-    _to_tool(edot, rot, f)
+    to_tool(e, rot, f)
+    to_tool(edot, rot, f)
     np.multiply(e, d["k"], out=f)  # the spring and the set-point: what the arm should exert
     np.add(f, d["f"], out=f)
     if _squeezing(d, inp):  # a squeeze (the module's docstring)
@@ -363,7 +363,7 @@ def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
         np.add(f[:3], line, out=f[:3])
     if inp.has_sensor:  # what it does exert is -w: feed the difference back (stiction)
         np.copyto(imbalance, inp.wrench)
-        _to_tool(imbalance, rot, e)
+        to_tool(imbalance, rot, e)
         np.add(imbalance, f, out=imbalance)
         np.multiply(imbalance, float(d["kf"]), out=e)
         np.add(f, e, out=f)
@@ -420,6 +420,7 @@ IMPEDANCE = ArmServoAlgorithm(
 
 
 def register(registry: Registry) -> None:
-    """The robot-level built-ins, in their fixed order: computed_torque = 0, impedance = 1."""
+    """This module's robot-level built-ins, in their fixed order: computed_torque = 0,
+    impedance = 1 (``admittance.py``'s follow them)."""
     registry.register(COMPUTED_TORQUE)
     registry.register(IMPEDANCE)

@@ -386,9 +386,12 @@ def _check_interval(algo: str, sample_interval_s: float) -> float:
 
 def register(registry: Registry) -> None:
     """The built-ins, in their fixed order: pid = 0, pd = 1; then the robot-level ones
-    (``armbuiltins``)."""
-    from . import armbuiltins  # here: it imports the registry, which imports this module
+    (``armbuiltins``: computed_torque = 0, impedance = 1; ``admittance``: admittance = 2,
+    guiding = 3)."""
+    from . import admittance, armbuiltins  # here: they import the registry, which imports this
 
     registry.register(PID)
     registry.register(PD)
     armbuiltins.register(registry)
+    registry.register(admittance.ADMITTANCE)
+    registry.register(admittance.GUIDING)

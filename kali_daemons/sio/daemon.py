@@ -526,6 +526,9 @@ class ServoIO(Daemon):
             hold = self._guard_q[k]  # where the arm was when it touched, until the TG ends
             self.fifos[k].reset(hold)  # the motion: set-points it pushed meanwhile dropped
             np.copyto(demand, hold)
+        elif int(r.guided):  # guided by hand: the demand follows the arm (admittance.py),
+            self.fifos[k].reset(q)  # so another servo selected next holds it where it is
+            np.copyto(demand, q)
         else:
             self.fifos[k].pop_into(demand)
         if hw.amps_on(k):
@@ -711,6 +714,7 @@ class _RobotViews:
         "demand",
         "enable_ticks",
         "fed",
+        "guided",
         "message",
         "pots_read",
         "power",
@@ -735,6 +739,7 @@ class _RobotViews:
             "calib_state",
             "calib_found",
             "calibrated",
+            "guided",
             "cmd_faults",
         ):
             setattr(self, field, one(robots, field))

@@ -91,6 +91,7 @@ class ArmRunner:
         self._arms = lv.registry.arms
         self._data = lv.arm_data[k]
         self._algo = self.robot["arm_algo"]
+        self._guided = self.robot["guided"]
         self._select = self.select  # bound once: the mailbox's callback
 
     def run(self, tick: int) -> None:
@@ -182,6 +183,7 @@ class ArmRunner:
                     handover(lv, i, int(s.algo))
         else:
             self._arms[a].handover(self._data[a], self.inp, self.tau_prev)
+        self._guided[...] = a != layout.ARM_NONE and self._arms[a].guides
         self._algo[...] = a
 
     def _fault(self, algo: str, what: str) -> None:

@@ -400,10 +400,10 @@ class TrajectoryGenerator(Daemon):
             self._take(seq, self.request[0].copy())
         self._start_waiting()
         for m in list(self.motions):
-            why = self._unpowered(m.robots)
+            why = self._cannot_move(m.robots)
             if m.guard and self._tripped(m) >= 0:  # SIO holds its arms where they touched
                 self._end_motion(m, RequestState.CONTACT)
-            elif why:  # SIO holds an unpowered arm where it is: the motion cannot go on
+            elif why:  # SIO holds the arm or its demand follows it: the motion cannot go on
                 self._end_motion(m, RequestState.ABORTED, why)
             elif m.checking:
                 self._check(m)
@@ -585,7 +585,7 @@ class TrajectoryGenerator(Daemon):
                 still.append((seq, req))
                 busy |= set(robots)  # keep the order: later requests wait behind this one
                 continue
-            why = self._unpowered(robots)
+            why = self._cannot_move(robots)
             if why:
                 self._say(seq, RequestState.REFUSED, why)
                 continue
@@ -601,12 +601,19 @@ class TrajectoryGenerator(Daemon):
             return self._work >= LOCKSTEP_CHECK_SAMPLES
         return time.monotonic_ns() > self._check_until
 
-    def _unpowered(self, robots: list[int]) -> str:
+    def _cannot_move(self, robots: list[int]) -> str:
+        """Why SIO will not move one of ``robots`` now (unpowered, calibrating, guided by
+        hand: it holds the arm or lets its demand follow it), or ''."""
         for k in robots:
             if int(self.robots["power"][k]) != PowerState.ON:
                 return f"robot '{self.names[k]}' is not powered (kalictl enable {self.names[k]})"
             if int(self.robots["calib_state"][k]) in CALIBRATING:
                 return f"robot '{self.names[k]}' is calibrating"
+            if int(self.robots["guided"][k]):
+                return (
+                    f"robot '{self.names[k]}' is guided by hand (the guiding servo); select "
+                    f"another to move it (kalictl servo select {self.names[k]} joints)"
+                )
         return ""
 
     def _start(self, seq: int, req: np.void, robots: list[int]) -> None:
