@@ -560,6 +560,25 @@ def push(ctx: click.Context, robot: str, fx: str, fy: str, fz: str, seconds: str
 
 
 @main.command()
+@click.argument("robots", nargs=-1, required=True)
+@click.pass_context
+@_errors
+def tare(ctx: click.Context, robots: tuple[str, ...]) -> None:
+    """Zero the wrist sensors of ROBOTS: SIO averages the next 0.1 s of each reading less the
+    tool's weight and takes that as the sensor's offset.  Keep the arms still, touching
+    nothing.  Needed before a servo moved by the sensor (admittance, guiding) is selected."""
+    with Kali(_instance_name(ctx)) as kali:
+        for name in robots:
+            if name not in kali.names:
+                raise ServoError(f"tare: no robot {name!r:.40}; robots: {', '.join(kali.names)}")
+        for name in robots:
+            arm = kali.robot(name)
+            arm.tare()
+            force = np.linalg.norm(arm.read_wrench("sensor")[:3])
+            click.echo(f"{name}: tared; the sensor reads {force:.2f} N (the tool's weight)")
+
+
+@main.command()
 @click.pass_context
 @_errors
 def reset(ctx: click.Context) -> None:

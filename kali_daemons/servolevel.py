@@ -426,7 +426,9 @@ class ServoClient:
         if servo is None or servo == JOINT_SERVOS:
             idx = layout.ARM_NONE
         else:
-            idx, _ = self.arm_algorithm(servo)
+            idx, alg = self.arm_algorithm(servo)
+            if isinstance(alg, ArmServoAlgorithm) and alg.senses:
+                self._check_tared(k, alg.name)
             if not self.inst.config.robots[k].robot_servos:
                 raise ServoError(
                     f"robot '{self.names[k]}' runs no robot-level servo: its config has "
@@ -461,6 +463,22 @@ class ServoClient:
         for key, value in params.items():
             values[alg.params.index(key)] = float(value)
         self._arm_op(k, SlotOp.PARAMS, idx, values.tobytes(), wait)
+
+    def _check_tared(self, k: int, servo: str) -> None:
+        """ServoError unless robot ``k`` has a wrist sensor that has been tared: servo
+        ``servo`` moves the arm by it, so a sensor's offsets would move the arm."""
+        name = self.names[k]
+        if self.inst.config.robots[k].ft.sheet is None:
+            raise ServoError(
+                f"robot '{name}' '{servo}': the arm has no wrist sensor to be moved by "
+                f"(robots[].ft.sensor)"
+            )
+        ft = self.inst.arena.existing(layout.KEY_FT, layout.FT_STATE, len(self.names))
+        if int(ft["tare_count"][k]) == 0:
+            raise ServoError(
+                f"robot '{name}' '{servo}': its wrist sensor was never tared, and its offsets "
+                f"would move the arm: tare it at rest, touching nothing (Robot.tare)"
+            )
 
     def _check_partner(self, k: int, where: str, params: Mapping[str, float]) -> None:
         """ServoError for a squeeze partner that is not another robot of the cell with a

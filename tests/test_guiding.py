@@ -122,9 +122,16 @@ def test_an_admittance_yields_to_a_push_by_its_compliance_and_returns(
 def test_bad_admittance_parameters_are_refused_and_change_nothing(
     kali: Callable[..., str],
 ) -> None:
-    name = kali(lockstep=True, edits=LEFT_ROBOT_SERVOS)
+    no_sensor = {r"^(  - \{name: right.*)\}$": r"\1, robot_servos: true, ft: {sensor: none}}"}
+    name = kali(lockstep=True, edits={**LEFT_ROBOT_SERVOS, **no_sensor})
     with Kali(name) as k:
-        left = k.robot("left")
+        left, right = k.robot("left"), k.robot("right")
+        for servo in ("admittance", "guiding"):  # moved by a sensor: it must be there, tared
+            with pytest.raises(ServoError, match="sensor was never tared, and its offsets"):
+                left.select_servo(servo)
+            with pytest.raises(ServoError, match=r"right' '.*': the arm has no wrist sensor"):
+                right.select_servo(servo)
+        assert k.servo.arm_active("left") is None
         for servo in ("admittance", "guiding"):
             before = left.servo_params(servo)
             for params, says in (
@@ -139,3 +146,8 @@ def test_bad_admittance_parameters_are_refused_and_change_nothing(
             left.set_servo({"kx": 100.0}, "guiding")  # a guided arm has no spring
         r = kalictl("-i", name, "servo", "list")
         assert "admittance" in r.stdout and "guiding" in r.stdout, r.stdout
+        r = kalictl("-i", name, "tare", "left", "nobody")
+        assert r.returncode != 0 and "tare: no robot 'nobody'" in r.stderr, r.stderr
+        r = kalictl("-i", name, "tare", "left")  # in lockstep it steps the clock
+        assert r.returncode == 0 and "left: tared; the sensor reads 0." in r.stdout, r
+        left.select_servo("guiding")  # tared now: taken (it runs once the arm is powered)

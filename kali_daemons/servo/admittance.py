@@ -7,8 +7,9 @@ sensor instead (admittance control, the impedance servo's dual; thesis 3.3.4's e
 force sensor).  A virtual mass-damper(-spring) per tool axis is pushed by the sensed contact
 wrench; its motion is the reference a stiff joint-space law tracks.  Each tick, with F the
 contact wrench in tool axes, its force and its moment each shortened along itself by a dead
-band (``band``, ``bandm``: the sensor's noise and offset drift must not creep the arm), v the reference's twist relative to its base (tool axes, capped at ``vmax``
-and ``wmax``) and δ the reference's joint offset from its base:
+band (``band``, ``bandm``: the sensor's noise and offset drift must not creep the arm), v
+the reference's twist relative to its base (tool axes, capped at ``vmax`` and ``wmax``) and δ
+the reference's joint offset from its base:
 
     m v̇ = F − d v − k x,   x = Rᵀ J δ           (per tool axis)
     δ̇ = J⁺ R v                                  (damped least squares, ``lam``)
@@ -315,6 +316,7 @@ def _algorithm(guides: bool) -> ArmServoAlgorithm:
         get_params=_getter(guides),
         doc=doc,
         guides=guides,
+        senses=True,
     )
 
 

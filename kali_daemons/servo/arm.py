@@ -123,6 +123,9 @@ class ArmServoAlgorithm:
     # True: the algorithm guides the arm by hand (``admittance.GUIDING``): while it runs,
     # SIO's demand follows the measured arm and the TG moves it not (``ROBOT_STATE.guided``)
     guides: bool = False
+    # True: the wrist sensor moves the arm (``admittance``): selecting it is refused on an arm
+    # without a sensor or whose sensor was never tared (its offsets would move the arm)
+    senses: bool = False
 
 
 def check_arm_dtype(dtype: Any) -> str | None:
