@@ -41,6 +41,16 @@ def guided_arm(k: Kali, servo: str) -> np.ndarray:
     return x1
 
 
+def moves_from_where_it_is(k: Kali, degrees: list[float]) -> None:
+    """A joint move of the left arm by ``degrees`` from where it is ends there."""
+    left = k.robot("left")
+    there = left.read_joints() + np.radians(degrees)
+    handle = left.move_joints(there, wait=False)
+    step_kali_clock(k.inst, 2000)
+    assert handle.state == RequestState.DONE, handle.message
+    assert np.abs(left.read_joints() - there).max() < np.radians(0.05)
+
+
 def test_a_guided_arm_goes_where_it_is_pushed_stays_and_the_tg_keeps_off(
     kali: Callable[..., str],
 ) -> None:
@@ -82,11 +92,7 @@ def test_a_guided_arm_goes_where_it_is_pushed_stays_and_the_tg_keeps_off(
         step_kali_clock(k.inst, 500)
         x4, _ = tool_point(k, 0)
         assert np.linalg.norm(x4 - x1) < 5e-4, (x4, x1)
-        there = left.read_joints() + np.radians([0, 5, 0, 0, 0, 0])
-        handle = left.move_joints(there, wait=False)
-        step_kali_clock(k.inst, 2000)
-        assert handle.state == RequestState.DONE, handle.message
-        assert np.abs(left.read_joints() - there).max() < np.radians(0.05)
+        moves_from_where_it_is(k, [0, 5, 0, 0, 0, 0])
         assert k.inst.fault_text() is None
 
 
@@ -111,11 +117,7 @@ def test_an_admittance_yields_to_a_push_by_its_compliance_and_returns(
             step_kali_clock(k.inst, 1500)  # released: back where it was
             assert np.linalg.norm(tool_point(k, 0)[0] - x1) < 1e-3
         # a TG motion runs under it as under any servo
-        there = left.read_joints() + np.radians([5, 0, 0, 0, 0, 0])
-        handle = left.move_joints(there, wait=False)
-        step_kali_clock(k.inst, 2000)
-        assert handle.state == RequestState.DONE, handle.message
-        assert np.abs(left.read_joints() - there).max() < np.radians(0.05)
+        moves_from_where_it_is(k, [5, 0, 0, 0, 0, 0])
         assert k.inst.fault_text() is None
 
 

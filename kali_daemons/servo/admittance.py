@@ -47,7 +47,7 @@ import numpy as np
 from .. import layout
 from ..errors import ConfigError
 from .arm import ArmInput, ArmServoAlgorithm
-from .armbuiltins import AXES, FRICTION, HANDOVER, STIFFNESS_MAX, N, to_tool
+from .armbuiltins import AXES, CT_PARAMS, STIFFNESS_MAX, N, to_tool
 from .registry import Param, defaults, resolve_params
 
 W = layout.WRENCH
@@ -68,13 +68,7 @@ ADMITTANCE_PARAMS: tuple[Param, ...] = (
           maximum=5.0),
     Param("lam", 0.02, "m", "damping of the least squares near a singularity", positive=True,
           maximum=1.0),
-    Param("wn", 80.0, "rad/s", "natural frequency of every joint's tracking error",
-          positive=True, maximum=2000.0),
-    Param("zeta", 1.0, "", "its damping ratio", maximum=10.0),
-    Param("wi", 10.0, "rad/s", "integral action on it (0: none)", maximum=2000.0),
-    Param("ilimit", 0.01, "rad·s", "limit of each joint's integral", maximum=10.0),
-    FRICTION,
-    HANDOVER,
+    *CT_PARAMS,  # the computed-torque law tracking the reference: wn, zeta, wi, ilimit, ...
 )  # fmt: skip
 STIFFNESS_PARAMS: tuple[Param, ...] = (
     *(Param(f"k{a}", 2000.0, "N/m", f"stiffness along tool {a} (0: yields freely)",
