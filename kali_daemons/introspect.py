@@ -173,6 +173,7 @@ class Introspector:
                     "calibrated": bool(r["calibrated"]),
                     "calibration": CalibState(int(r["calib_state"])).name,
                     "pots_read": bool(r["pots_read"]),
+                    "guided": bool(r["guided"]),  # by hand: the TG will not move it
                     "n_joints": self.joints.counts[k],
                     "q_rad": j["q"],
                     "qd_rad_s": j["qd"],

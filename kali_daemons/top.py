@@ -240,7 +240,7 @@ def robots(cur: Sample, wide: bool) -> Table | Text:
         ff = r["feedforward"]
         ff_cell = "-" if ff is None else f"{ff['mode'] or '?'}/{ff['state'] or '?'}".lower()
         b = busy.get(r["name"])
-        req = "idle"
+        req = "guided" if r.get("guided") else "idle"  # by hand: the TG will not move it
         if b is not None and b["busy_seq"]:
             req = f"#{b['busy_seq']}"
             if "state" in b:

@@ -8,17 +8,21 @@ dead band; released, it returns.  Bad parameters are refused and change nothing.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 
 import numpy as np
 import pytest
 
+from kali_daemons import top
 from kali_daemons.client import Kali
 from kali_daemons.errors import MotionError, ServoError
+from kali_daemons.introspect import Introspector
 from kali_daemons.layout import RequestState
 from kali_daemons.servo.admittance import ADMITTANCE_PARAMS
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_armservo import LEFT_ROBOT_SERVOS, tool_point
+from tests.test_introspect import render
 from tests.test_launcher import kalictl
 
 DEFAULT = {p.name: p.default for p in ADMITTANCE_PARAMS}
@@ -85,6 +89,12 @@ def test_a_guided_arm_goes_where_it_is_pushed_stays_and_the_tg_keeps_off(
             err = np.abs(left.read_joints() - k.servo.level.arm("demand", 0))
             assert err.max() < 1e-3, err
             x1 = x3
+        spy = Introspector(k.inst)  # top says so in the TG's column
+        try:
+            frame = top.frame(top.take(spy), top.take(spy), 0.1, 120)
+        finally:
+            spy.close()
+        assert re.search(r"left\s.*\sguided", render(frame, 120)), render(frame, 120)
         with pytest.raises(MotionError, match=r"robot .left. is guided by hand .* servo select"):
             left.move_joints(left.read_joints() + 0.05)
         # another servo holds it where it was left, and moves start from there
