@@ -32,8 +32,8 @@ it was left.  SIO's joint-range check still halts an arm pushed past its range.
 Both take the arm over bumplessly: the reference starts where the arm is, at rest, and the
 difference between the torque the motors had and the law's first torque decays as a bias
 with time constant ``handover_s`` (as the other robot-level built-ins).  The damped least
-squares solve allocates one 6-vector a tick (``np.linalg.solve``), like the frame Jacobian
-``armmodel`` accepts.
+squares solve allocates its 6 × 2 result a tick (one ``np.linalg.solve`` for the twist and
+its rate), like the frame Jacobian ``armmodel`` accepts.
 """
 
 from __future__ import annotations
@@ -112,10 +112,11 @@ ADMITTANCE_DTYPE = np.dtype(
 _ARRAYS = {f"{f}{a}": (f, i) for f in "kd" for i, a in enumerate(AXES)}
 _SCALARS = ("mass", "inertia", "vmax", "wmax", "band", "bandm", "wn", "zeta", "wi", "ilimit")
 
-# scratch of the SV's one thread: J Jᵀ + λ² I, the reference's twist and acceleration (world)
+# scratch of the SV's one thread: J Jᵀ + λ² I; the reference's twist and acceleration (world
+# axes), the two right-hand sides of one solve
 _A = np.zeros((W, W))
-_TWIST = np.zeros(W)
-_ACC = np.zeros(W)
+_RHS = np.zeros((W, 2))
+_TWIST, _ACC = _RHS[:, 0], _RHS[:, 1]
 
 
 def _specs(guides: bool) -> tuple[Param, ...]:
@@ -179,11 +180,14 @@ def _initer(guides: bool) -> Any:
     return init
 
 
-def _solve(inp: ArmInput, d: Any, twist: np.ndarray, out: np.ndarray) -> None:
-    """``out`` = J⁺ ``twist`` (world axes) by damped least squares: Jᵀ (J Jᵀ + λ² I)⁻¹."""
+def _solve(inp: ArmInput, d: Any, rate: np.ndarray, acc: np.ndarray) -> None:
+    """J⁺ of ``_TWIST`` into ``rate`` and of ``_ACC`` into ``acc`` (joint space) by damped
+    least squares, Jᵀ (J Jᵀ + λ² I)⁻¹, both in one solve (its result the one allocation)."""
     np.matmul(inp.J, inp.J.T, out=_A)
     _A.flat[:: W + 1] += float(d["lam2"])
-    np.matmul(np.linalg.solve(_A, twist), inp.J, out=out)  # the one allocation (module doc)
+    y = np.linalg.solve(_A, _RHS)
+    np.matmul(y[:, 0], inp.J, out=rate)
+    np.matmul(y[:, 1], inp.J, out=acc)
 
 
 def _to_world(v: np.ndarray, rot: np.ndarray, out: np.ndarray) -> None:
@@ -222,9 +226,8 @@ def _core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
     # the reference in joint space: e = q_r − q, q̇_r, and u (q̈_r first)
     e, qd_r, rate, u = w[0], w[1], w[2], w[3]
     _to_world(d["v"], rot, _TWIST)
-    _solve(inp, d, _TWIST, rate)  # δ̇ = J⁺ R v
     _to_world(acc, rot, _ACC)
-    _solve(inp, d, _ACC, u)  # J⁺ R v̇
+    _solve(inp, d, rate, u)  # δ̇ = J⁺ R v, and J⁺ R v̇
     if guiding:
         np.add(d["anchor"][:n], offset, out=e)
         np.copyto(qd_r, rate)
