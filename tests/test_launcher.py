@@ -124,12 +124,17 @@ def test_start_refuses_a_running_instance(kali: Callable[..., str]) -> None:
 
 
 def test_two_instances_run_side_by_side(kali: Callable[..., str]) -> None:
-    a, b = kali(lockstep=False), kali(lockstep=False)
+    # the servo level only: two whole default cells with feed-forward and dashboard took more
+    # than a slower CI machine's two cores, and one halted on a missed deadline meanwhile
+    off = r"\1enabled: false, "
+    lean = {r"^(  dynamics: +\{)": off, r"^(  viewer: +\{)": off}
+    a, b = kali(lockstep=False, edits=lean), kali(lockstep=False, edits=lean)
     with Instance.attach(a) as ia, Instance.attach(b) as ib:
         ta, tb = int(ia.clock["tick"]), int(ib.clock["tick"])
         time.sleep(0.3)
-        assert int(ia.clock["tick"]) > ta + 100 and int(ib.clock["tick"]) > tb + 100
-        assert ia.fault_text() is None and ib.fault_text() is None
+        faults = (ia.fault_text(), ib.fault_text())
+        assert int(ia.clock["tick"]) > ta + 100 and int(ib.clock["tick"]) > tb + 100, faults
+        assert faults == (None, None)
     launcher.stop(a)
     assert leftovers(a) == ([], [])
     with Instance.attach(b) as ib:  # stopping one leaves the other running

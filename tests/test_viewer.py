@@ -46,7 +46,7 @@ from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
 from kali_daemons.wallclock import start_kali_clock, step_kali_clock
 from kali_daemons.wallclock.clock import time_ms
 
-from .conftest import make_config
+from .conftest import make_config, wait_for
 from .test_launcher import kalictl
 from .test_servo_level import power_all
 from .test_tg import MIXED
@@ -638,14 +638,14 @@ def test_realtime_viewer_draws_through_a_halt_and_its_death_halts_nothing(
         rec = inst.arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
         viewer = inst.procs[inst.find_slot("viewer")]
         assert not viewer["periodic"]  # self-timed in real time, like the plant
-        time.sleep(0.3)
-        assert int(rec["frames"]) >= 3
+        # frames as the viewer can draw them: a CI run's busy machine drew 1 in 0.3 s
+        frames = rec["frames"]  # a live view (``rec`` itself is dropped before the stop)
+        wait_for(lambda f=frames: int(f) >= 3, timeout=10, what="three frames drawn")
         inst.raise_fault(FaultCode.OPERATOR, "test", "halt")
-        time.sleep(0.1)
-        assert int(inst.clock["mode"]) == RunMode.STOPPED
-        frames, tick = int(rec["frames"]), int(inst.clock["tick"])
-        time.sleep(0.4)
-        assert int(rec["frames"]) >= frames + 5  # still drawing: the arms fall, brakes bite
+        wait_for(lambda: int(inst.clock["mode"]) == RunMode.STOPPED, what="the clock stopped")
+        drawn, tick = int(frames), int(inst.clock["tick"])
+        # still drawing: the arms fall, brakes bite
+        wait_for(lambda f=frames: int(f) >= drawn + 5, timeout=10, what="drawing halted")
         assert int(inst.clock["tick"]) == tick
         inst.clear_fault()
         start_kali_clock(inst)
@@ -656,4 +656,4 @@ def test_realtime_viewer_draws_through_a_halt_and_its_death_halts_nothing(
         assert not alive(web_pid)  # the web server died with it
         # nothing halted for it (a host stall may halt a serious process meanwhile: not ours)
         assert int(inst.fault["count"]) == count or "viewer" not in inst.fault_text(last=True)
-        del rec, viewer
+        del rec, viewer, frames

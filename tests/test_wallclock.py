@@ -377,6 +377,45 @@ def test_a_self_timed_process_is_stalled_only_while_the_clock_ran(
     assert events == [("fault", FaultCode.DEADLINE)]
 
 
+def test_a_standing_clock_is_seen_only_through_two_waits_of_a_process_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A clocked process halts naming the wall clock when its own timed-out waits saw the
+    tick stand still while the clock ran: at least two of them, adding up to the tolerance.
+    One wait is never enough, whatever its length: a stall of the whole machine ends it
+    late, before the clock (on another CPU) has ticked again.  A CI run once halted at start
+    that way: dynamics (250 ms waits) saw tick 0 across one wait."""
+    from kali_daemons import daemon as dm
+
+    monkeypatch.setattr(dm, "pid_alive", lambda pid: True)
+    faults: list[str] = []
+    clock = {"pid": 4242, "tick": 0, "mode": RunMode.STOPPED, "serious_miss_tolerance_ms": 20}
+    fault = {"active": 0}
+
+    def raise_fault(code: FaultCode, process: str, message: str, tick: int) -> bool:
+        faults.append(message)
+        fault["active"] = 1
+        return True
+
+    for wait_s, halts_after in ((dm.IDLE_WAIT_S, 2), (dm.CLOCK_WATCH_S, 2)):
+        faults.clear()
+        fault["active"], clock["mode"], clock["tick"] = 0, RunMode.STOPPED, 0
+        d = object.__new__(dm.Daemon)
+        d.name = "dynamics"
+        d.inst = SimpleNamespace(  # type: ignore[assignment]
+            clock=clock, fault=fault, lockstep=False, raise_fault=raise_fault
+        )
+        d._idle_wait_s, d._clock_tick, d._clock_waits = wait_s, -1, 0
+        d._watch_clock()  # before start: the clock stands, as it should
+        clock["mode"] = RunMode.RUNNING
+        for _ in range(halts_after - 1):
+            d._watch_clock()  # the machine stopped through this wait: not yet
+            assert faults == [], wait_s
+        d._watch_clock()
+        assert len(faults) == 1, wait_s
+        assert f"waited {halts_after * wait_s * 1e3:g} ms more" in faults[0]
+
+
 @contextmanager
 def on_time() -> Iterator[None]:
     """This test process at SCHED_FIFO 95, above every Kali process, where permitted: a
