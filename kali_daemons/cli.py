@@ -26,7 +26,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from . import boards, flightrec, introspect, launcher, layout, schedule
+from . import boards, flightrec, introspect, launcher, layout, schedule, shadow
 from .client.motion import INSTANCE_ENV, Kali
 from .config import cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
@@ -996,13 +996,23 @@ def _joint_arg(text: str) -> int:
         raise ServoError(f"servo: joint {text!r}, expected a number (1..n)") from None
 
 
-@servo.command("select")
-@click.argument("robot")
-@click.argument("target")
-@click.argument("algorithm", required=False)
-@_WARN
-@click.pass_context
-@_errors
+def _servo_target_command(name: str) -> Callable[[Callable], Callable]:
+    """A ``servo`` subcommand taking ROBOT TARGET [ALGORITHM] and ``--warn`` (select and
+    shadow: TARGET is a joint with ALGORITHM, or a robot-level servo's name without)."""
+
+    def wrap(fn: Callable) -> Callable:
+        fn = _errors(fn)
+        fn = click.pass_context(fn)
+        fn = _WARN(fn)
+        fn = click.argument("algorithm", required=False)(fn)
+        fn = click.argument("target")(fn)
+        fn = click.argument("robot")(fn)
+        return servo.command(name)(fn)
+
+    return wrap
+
+
+@_servo_target_command("select")
 def servo_select(
     ctx: click.Context, robot: str, target: str, algorithm: str | None, warn: bool
 ) -> None:
@@ -1022,6 +1032,50 @@ def servo_select(
             schedule.guard(inst, change, warn, lambda text: click.echo(text, err=True))
         client.select(robot, joint, algorithm, wait=not inst.lockstep)
         click.echo(f"{robot} joint {joint}: {algorithm}")
+
+
+@_servo_target_command("shadow")
+def servo_shadow(
+    ctx: click.Context, robot: str, target: str, algorithm: str | None, warn: bool
+) -> None:
+    """Run ALGORITHM in shadow on ROBOT's JOINT beside its active servo: stepped every tick on
+    the same inputs, its torque compared, never applied (``kalictl servo compare``); ``off``
+    ends the trial, and selecting it afterwards goes on from its own state:
+    ``kalictl servo shadow left 2 pd``, ``kalictl servo shadow left 2 off``.  Without a
+    joint, a robot-level servo beside the robot's servos: ``kalictl servo shadow left
+    computed_torque``, ``kalictl servo shadow left off``."""
+    with _servo_client(ctx) as (inst, client):
+        wait = not inst.lockstep
+        if algorithm is None:
+            client.shadow_arm(robot, None if target == "off" else target, wait=wait)
+            click.echo(f"{robot}: shadow {target}")
+            return
+        joint = _joint_arg(target)
+        if algorithm == "off":
+            client.shadow(robot, joint, None, wait=wait)
+        else:
+            if not inst.lockstep:
+                change = schedule.shadow_change(client, robot, joint, algorithm)
+                schedule.guard(inst, change, warn, lambda text: click.echo(text, err=True))
+            client.shadow(robot, joint, algorithm, wait=wait)
+        click.echo(f"{robot} joint {joint}: shadow {algorithm}")
+
+
+@servo.command("compare")
+@click.argument("robot", required=False)
+@click.pass_context
+@_errors
+def servo_compare(ctx: click.Context, robot: str | None) -> None:
+    """Print every shadow trial's figures: (shadow − active) torque, as the motors would get
+    them, RMS and peak over the ticks compared, per joint (of ROBOT, or all)."""
+    with _servo_client(ctx) as (_inst, client):
+        rows = client.trials(robot)
+        if not rows:
+            click.echo("no shadow trial has run (kalictl servo shadow ROBOT [JOINT] NAME)")
+            return
+        click.echo(shadow.HEADER)
+        for row in rows:
+            click.echo(row.text())
 
 
 @servo.command("set")

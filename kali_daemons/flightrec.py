@@ -32,10 +32,11 @@ from .layout import ProcState
 from .spinlock import pid_alive
 
 # of the dump files; 2 added ``n_joints`` (arms of different joint counts, NaN-padded), 3
-# ``wrench`` (each arm's wrist sensor, NaN for an arm without one); formats 1 (every arm 6
-# joints) and 2 still load
-FORMAT_VERSION = 3
-READABLE_FORMATS = (1, 2, 3)
+# ``wrench`` (each arm's wrist sensor, NaN for an arm without one), 4 ``shadow_torque`` (a
+# shadow trial's torque, never applied: NaN where none ran); formats 1 (every arm 6 joints),
+# 2 and 3 still load
+FORMAT_VERSION = 4
+READABLE_FORMATS = (1, 2, 3, 4)
 log = logging.getLogger("kali.flight")
 SIO_IDLE_TIMEOUT_S = 1.0  # how long the dumper waits for SIO to finish a tick in progress
 
@@ -118,12 +119,13 @@ class FlightRecorder:
         ff_torque: np.ndarray,
         torque: np.ndarray,
         current: np.ndarray,
+        shadow_torque: np.ndarray,
         wrench: np.ndarray | None = None,
     ) -> None:
         """Outside the cycle: the arrays (flat over all joints, ``joints.JointMap`` order)
         every row copies, and ``wrench`` (robots × 6, e.g. ``FT_STATE['tool']``; None: no
         sensors, zeros recorded); they must stay the same objects, updated in place."""
-        src = (q, demand, servo_torque, ff_torque, torque, current)
+        src = (q, demand, servo_torque, ff_torque, torque, current, shadow_torque)
         for name, a in zip(layout.FLIGHT_FIELDS, src, strict=True):
             if a.shape != (self.n_joints,):
                 raise ArenaError(
@@ -159,14 +161,15 @@ class FlightRecorder:
         self._late[r] = t_read_ns - self._release[0]
         self._wait[r] = wait_ns
         self._ran[r] = ran_ns
-        q, demand, servo, ff, torque, current = self._dst
-        sq, sdemand, sservo, sff, storque, scurrent = self._src
+        q, demand, servo, ff, torque, current, shadow = self._dst
+        sq, sdemand, sservo, sff, storque, scurrent, sshadow = self._src
         q[r] = sq
         demand[r] = sdemand
         servo[r] = sservo
         ff[r] = sff
         torque[r] = storque
         current[r] = scurrent
+        shadow[r] = sshadow
         self._wrench[r] = self._src_wrench
         self._n = n + 1
         self._count[0] = n + 1

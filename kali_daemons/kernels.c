@@ -452,7 +452,11 @@ typedef struct {
     int32_t op_status;
     int64_t ran_tick, exec_ns;
     int32_t sv;
-    uint32_t _pad;
+    int32_t shadow;
+    uint32_t shadow_state, _pad;
+    double shadow_torque;
+    uint64_t shadow_n;
+    double shadow_sq, shadow_peak;
 } SlotRecord;
 
 typedef struct {
@@ -496,7 +500,10 @@ static const Field SLOT_FIELDS[] = {
     FIELD(SlotRecord, ff, 'f'), FIELD(SlotRecord, torque, 'f'), FIELD(SlotRecord, error, 'f'),
     FIELD(SlotRecord, reset, 'u'), FIELD(SlotRecord, op_status, 'i'),
     FIELD(SlotRecord, ran_tick, 'i'), FIELD(SlotRecord, exec_ns, 'i'),
-    FIELD(SlotRecord, sv, 'i'), FIELD(SlotRecord, _pad, 'u'), END(SlotRecord),
+    FIELD(SlotRecord, sv, 'i'), FIELD(SlotRecord, shadow, 'i'),
+    FIELD(SlotRecord, shadow_state, 'u'), FIELD(SlotRecord, _pad, 'u'),
+    FIELD(SlotRecord, shadow_torque, 'f'), FIELD(SlotRecord, shadow_n, 'u'),
+    FIELD(SlotRecord, shadow_sq, 'f'), FIELD(SlotRecord, shadow_peak, 'f'), END(SlotRecord),
 };
 
 /* The fields of record 0 (SlotRecord), 1 (PidRecord) or 2 (PdRecord); NULL for another. */
@@ -616,14 +623,17 @@ typedef struct {
     double bad;          /* out: its torque */
 } UnitArgs;
 
+#define SHADOW_RUNNING 1u /* layout.ShadowState.RUNNING */
+
 /* What a client writes while the SV looks: read from memory each time, never cached. */
 #define LOAD(x) __atomic_load_n(&(x), __ATOMIC_RELAXED)
 
-/* Whether a slot can run in a unit: nothing to do before its step. */
+/* Whether a slot can run in a unit: nothing to do before or after its step (a shadow
+ * trial's step follows the active one's on the per-slot path). */
 static inline int joins(SlotRecord *s, uint32_t pid_a, uint32_t pd_a) {
     uint32_t algo = LOAD(s->algo);
     return LOAD(s->op) == 0 && LOAD(s->reset) == 0 && LOAD(s->enabled) != 0 &&
-           (algo == pid_a || algo == pd_a);
+           LOAD(s->shadow_state) != SHADOW_RUNNING && (algo == pid_a || algo == pd_a);
 }
 
 static inline int64_t now_ns(void) {

@@ -563,6 +563,25 @@ class SlotOp(enum.IntEnum):
     GET = 2  # copy the private data of ``op_algo`` into the staging bytes
     SELECT = 3  # make ``op_algo`` the joint's servo, handing over its state (bumpless)
     PARAMS = 4  # set parameters of ``op_algo`` from float64 staging values (NaN = unchanged)
+    # run ``op_algo`` in shadow beside the active servo (SHADOW_OFF: stop the one running):
+    # stepped on the same inputs each tick, its torque compared, never applied
+    SHADOW = 5
+
+
+SHADOW_OFF = 0xFFFFFFFF  # ``op_algo`` of a SHADOW operation that ends the running trial
+NO_SHADOW = -1  # ``SERVO_SLOT.shadow`` and ``ROBOT_STATE.arm_shadow`` before any trial
+
+
+class ShadowState(enum.IntEnum):
+    """A shadow trial (issue 27 item 6), as the SV runs it: its algorithm and figures stay
+    readable after it ends, until the next trial on the joint or robot starts."""
+
+    NONE = 0  # no trial has run
+    RUNNING = 1  # stepped every tick beside the active servo, compared, never applied
+    STOPPED = 2  # ended by a client (kalictl servo shadow ... off)
+    SELECTED = 3  # it became the active servo, going on from its own state
+    RAISED = 4  # its step raised: the trial ended, the arm ran on
+    FAILED = 5  # its step returned a nonzero status or a non-finite torque (shadow_torque)
 
 
 class SlotReset(enum.IntEnum):
@@ -610,7 +629,13 @@ ROBOT_STATE = np.dtype(
         ("arm_ops_done", "<u4"),  # SV
         ("arm_op_status", "<i4"),  # SV: 0 or OP_REFUSED (the reason in the robot's staging)
         ("arm_status", "<i4"),  # SV: what the robot-level servo's step returned last
-        ("_pad2", "<u4"),
+        # SV: the robot-level servo of the robot's last shadow trial (NO_SHADOW: none) and
+        # its ShadowState; its torques and figures go to the slots' shadow fields
+        ("arm_shadow", "<i4"),
+        ("arm_shadow_state", "<u4"),
+        # SV (atomic add): shadow trials running on the robot, joint and robot-level; SIO
+        # feeds a robot with any whole, for one SV (sv/arm.py)
+        ("shadows", "<u4"),
         ("arm_exec_ns", "<i8"),  # SV: duration of its last step, model update included
         ("arm_ran_tick", "<i8"),  # SV: last tick it ran
         ("message", f"S{MESSAGE_BYTES}"),  # SIO: last calibration or power message
@@ -720,7 +745,18 @@ SERVO_SLOT = np.dtype(
         ("ran_tick", "<i8"),  # SV: last tick the servo ran
         ("exec_ns", "<i8"),  # SV: duration of the last step
         ("sv", "<i4"),  # SV: which worker ran it last
+        # a shadow trial (issue 27 item 6), SV: joint servo ``shadow`` (NO_SHADOW: none yet)
+        # stepped after the active one on the same inputs, its torque never applied; its
+        # ShadowState, its torque, and of (shadow − active) as the motor would get them (a
+        # joint servo's plus the feed-forward) the ticks compared, the sum of squares and the
+        # largest magnitude.  A robot-level trial writes its joints' torques and figures here.
+        ("shadow", "<i4"),
+        ("shadow_state", "<u4"),
         ("_pad", "<u4"),
+        ("shadow_torque", "<f8"),
+        ("shadow_n", "<u8"),
+        ("shadow_sq", "<f8"),
+        ("shadow_peak", "<f8"),
     ],
     align=True,
 )
@@ -952,7 +988,7 @@ KEY_FLIGHT = "flight"  # FLIGHT header
 KEY_FLIGHT_RING = "flight.ring"  # flight_row(n_joints, n_robots) × FLIGHT header ``rows``
 FLIGHT_SECONDS = 2.0  # servo time the ring holds
 FLIGHT_PATH_BYTES = 256
-FLIGHT_FIELDS = ("q", "demand", "servo_torque", "ff_torque", "torque", "current")
+FLIGHT_FIELDS = ("q", "demand", "servo_torque", "ff_torque", "torque", "current", "shadow_torque")
 
 
 def flight_rows(servo_period_ns: int) -> int:
@@ -978,6 +1014,10 @@ def flight_row(n_joints: int, n_robots: int) -> np.dtype:
             ("ff_torque", "<f8", n),  # feed-forward added, N·m
             ("torque", "<f8", n),  # torque sent (after the current clamp), N·m
             ("current", "<f8", n),  # motor current commanded, A
+            # a shadow trial's torque, never applied (SERVO_SLOT.shadow_torque; NaN: none ran),
+            # N·m; single precision (its figures are the SV's, in double): a 2 kHz ring of 13
+            # joints then still fits the default 4 MiB arena
+            ("shadow_torque", "<f4", n),
             # the contact wrench at the tool point, tool axes (FT_STATE.tool), N and N·m
             ("wrench", "<f8", (n_robots, WRENCH)),
         ],

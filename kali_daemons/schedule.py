@@ -280,6 +280,25 @@ def servo_change(client: ServoClient, robot: str, joint: int, name: str) -> Chan
     return Change(f"select '{name}' on {robot} joint {joint} (was '{current.name}')", delta)
 
 
+def shadow_change(client: ServoClient, robot: str, joint: int, name: str) -> Change:
+    """The change of a shadow trial of servo ``name`` on ``robot``'s ``joint``: its step's
+    cost, and the robot's joints leaving the SVs' compiled unit for the per-slot path (SIO
+    feeds a robot in trial whole: ``kali_daemons.shadow``), each built-in then a Python
+    step."""
+    level = client.level
+    registry = level.registry
+    i = client.slot(robot, joint)
+    idx, new = client.algorithm(name)
+    period_s = level.cfg.clock.servo_period_ms / 1000.0
+    delta = step_cost_us(new, period_s, level.data[i][idx])
+    span = level.map.span(client.robot_index(robot))
+    for m in range(span.start, span.stop):
+        a = int(level.slot_structs[m].algo)
+        if 0 <= a < len(registry) and registry[a].name in units.ALGORITHMS:
+            delta += step_cost_us(registry[a], period_s, level.data[m][a])
+    return Change(f"shadow '{name}' on {robot} joint {joint}", delta)
+
+
 def check(
     inst: Instance, change: Change | None = None, margin: float = DEFAULT_MARGIN
 ) -> Prediction:

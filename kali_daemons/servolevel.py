@@ -28,18 +28,19 @@ from __future__ import annotations
 import ctypes
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from fractions import Fraction
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
-from . import atomic, layout
+from . import atomic, layout, shadow
 from .channels import InterpolatingFifo
 from .config import ms_to_ns
 from .errors import KaliError, ServoError
 from .instance import Instance, decode
-from .layout import CalibState, FfMode, FfState, PowerCmd, PowerState, SlotOp
+from .layout import CalibState, FfMode, FfState, PowerCmd, PowerState, ShadowState, SlotOp
 from .robots import robot_type
 from .servo import (
     ArmServoAlgorithm,
@@ -63,8 +64,25 @@ SQUEEZE_SETPOINT = "fi"  # and a squeeze, along any line: within the smallest fo
 SQUEEZE_PARTNER = "partner"  # the arm sharing the squeeze: its config index + 1
 
 
-def _no_select(a: int) -> None:
-    raise ServoError("a select is carried out by the SV at the robot's next tick")
+class ArmHands(Protocol):
+    """What carrying out a robot's SELECT or SHADOW needs: this tick's inputs, which only
+    the SV that claimed the robot has (``sv.arm.ArmRunner``)."""
+
+    def select(self, a: int) -> None:
+        """Switch the robot to robot-level servo ``a`` (ARM_NONE: its joint servos)."""
+
+    def trial(self, a: int) -> str:
+        """Start a shadow trial of robot-level servo ``a``; '' or why it was refused."""
+
+
+class _NoHands:
+    """A client's: it carries out neither (``_arm_op`` leaves both to the SV)."""
+
+    def select(self, a: int) -> None:
+        raise ServoError("a select is carried out by the SV at the robot's next tick")
+
+    def trial(self, a: int) -> str:
+        raise ServoError("a shadow trial is started by the SV at the robot's next tick")
 
 
 def flag(what: str, value: object) -> bool:
@@ -155,6 +173,7 @@ class ServoLevel:
             a.address_of_field(off, layout.SERVO_SLOT, "op_lock", i) for i in range(n)
         ]
         self.op_addr = [a.address_of_field(off, layout.SERVO_SLOT, "op", i) for i in range(n)]
+        self.shadows_addr = [a.address_of_field(roff, rs, "shadows", k) for k in range(nr)]
         coff = a.lookup(layout.KEY_SERVO_CTRL)[0]  # type: ignore[index]
         self.done_addr = a.address_of_field(coff, layout.SERVO_CTRL, "done")
         self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
@@ -188,6 +207,7 @@ class ServoLevel:
             r["power"] = PowerState.OFF
             r["calib_state"] = CalibState.IDLE
             r["arm_algo"] = layout.ARM_NONE
+            r["arm_shadow"] = layout.NO_SHADOW
             r["guided"] = 0
             for a, arm in enumerate(self.registry.arms):
                 arm.init(self.arm_data[k][a], {}, self.servo_period_s)
@@ -197,6 +217,8 @@ class ServoLevel:
                 s = self.slot_structs[i]
                 s.busy = layout.SLOT_NOT_FED
                 s.algo = first
+                s.shadow = layout.NO_SHADOW
+                s.shadow_torque = math.nan  # no trial (the flight recorder's column)
                 s.enabled = 1
                 for a, alg in enumerate(self.registry):
                     init = init_data_for(robot.model, alg, j)
@@ -379,6 +401,33 @@ class ServoClient:
         _, alg = self.algorithm(name)
         rec = self.get_servo(robot, joint, name)
         return alg.get_params(struct_view(rec.copy()))
+
+    def shadow(self, robot: str | int, joint: int, servo: str | None, wait: bool = True) -> None:
+        """Run joint servo ``servo`` in shadow beside the joint's active servo (None: end the
+        trial running): stepped every tick on the same inputs from the running servo's
+        state, its torque compared, never applied (``kali_daemons.shadow``; ``trials``
+        reads the figures).  Selecting it afterwards goes on from its own state."""
+        i = self.slot(robot, joint)
+        idx = layout.SHADOW_OFF if servo is None else self.algorithm(servo)[0]
+        self._op(i, SlotOp.SHADOW, idx, None, wait)
+
+    def shadow_arm(self, robot: str | int, servo: str | None, wait: bool = True) -> None:
+        """Run robot-level servo ``servo`` in shadow beside the robot's active servos (None:
+        end the trial running), as ``shadow`` for a joint; it needs the robot's model
+        (``robot_servos: true``) and, if it moves by the wrist sensor, a tared one."""
+        k = self.robot_index(robot)
+        if servo is None:
+            self._arm_op(k, SlotOp.SHADOW, layout.ARM_NONE, None, wait)
+            return
+        idx, alg = self.arm_algorithm(servo)
+        if isinstance(alg, ArmServoAlgorithm) and alg.senses:
+            self._check_tared(k, alg.name)
+        self._arm_op(k, SlotOp.SHADOW, idx, None, wait)
+
+    def trials(self, robot: str | int | None = None) -> list[shadow.Trial]:
+        """Every joint's figures from its last shadow trial (of ``robot``, or all)."""
+        k = None if robot is None else self.robot_index(robot)
+        return shadow.trials(self.level, k)
 
     def active(self, robot: str | int, joint: int) -> str:
         """Name of the joint's active servo algorithm; ServoError if the slot holds an index
@@ -575,8 +624,8 @@ class ServoClient:
             if payload is not None:
                 lv.arm_staging[k, : len(payload)] = np.frombuffer(payload, np.uint8)
             r["arm_op_algo"] = algo
-            if not self._clock_running() and op != SlotOp.SELECT:
-                apply_arm_op(lv, k, int(op), _no_select)
+            if not self._clock_running() and op not in (SlotOp.SELECT, SlotOp.SHADOW):
+                apply_arm_op(lv, k, int(op), _NoHands())
                 self._arm_refused(k)
                 return
             done = int(r["arm_ops_done"])
@@ -721,7 +770,7 @@ class ServoClient:
 
 FF_MODES = frozenset(int(m) for m in FfMode)
 FF_STATES = frozenset(int(m) for m in FfState)
-_OPS = frozenset((SlotOp.PUT, SlotOp.GET, SlotOp.SELECT, SlotOp.PARAMS))
+_OPS = frozenset((SlotOp.PUT, SlotOp.GET, SlotOp.SELECT, SlotOp.PARAMS, SlotOp.SHADOW))
 
 
 def apply_op(level: ServoLevel, i: int, op: int) -> bool:
@@ -758,15 +807,25 @@ def _carry_out(level: ServoLevel, i: int, op: int, a: int) -> str:
     if op not in _OPS:
         ops = ", ".join(f"{SlotOp(o).name} {int(o)}" for o in sorted(_OPS))
         return f"mailbox operation {op} is not one of {ops}"
+    if op == SlotOp.SHADOW and a == layout.SHADOW_OFF:
+        shadow.end_joint(level, i, ShadowState.STOPPED)
+        return ""
     if not 0 <= a < len(registry):
         return (
             f"{SlotOp(op).name} refused: algorithm index {a}, registered 0..{len(registry) - 1} "
             f"({', '.join(registry.names())})"
+            + (f", {layout.SHADOW_OFF} off" if op == SlotOp.SHADOW else "")
         )
     alg = registry[a]
     size = alg.dtype.itemsize
+    s = level.slot_structs[i]
     if op == SlotOp.GET:
         ctypes.memmove(level.staging[i].ctypes.data, ctypes.addressof(level.structs[i][a]), size)
+    elif op == SlotOp.SHADOW:
+        return shadow.start_joint(level, i, a)
+    elif op == SlotOp.SELECT and s.shadow_state == ShadowState.RUNNING and s.shadow == a:
+        s.algo = a  # it ran on the joint's inputs all along: it goes on from its own state
+        shadow.end_joint(level, i, ShadowState.SELECTED)
     elif op == SlotOp.SELECT:
         handover(level, i, a)
     elif op == SlotOp.PUT:
@@ -815,20 +874,21 @@ def handover(level: ServoLevel, i: int, a: int) -> None:
     s.algo = a
 
 
-def apply_arm_op(level: ServoLevel, k: int, op: int, select: Callable[[int], None]) -> bool:
+def apply_arm_op(level: ServoLevel, k: int, op: int, hands: ArmHands) -> bool:
     """Carry out robot-level mailbox operation ``op`` on robot ``k`` (the SV that claimed the
     robot, or a client while the clock is stopped); True if done, False if refused.
 
     As ``apply_op``, for the robot's record of robot-level servo ``arm_op_algo``: GET, PUT
     (every float finite, the algorithm's own ``set_params`` passed, on a copy) and PARAMS
-    (on a copy); SELECT calls ``select(a)`` with ``a`` a robot-level index or ``ARM_NONE``
-    for the joint servos (the SV's hand-over, which needs this tick's inputs; a client never
-    carries out a SELECT).  A refusal changes nothing; ``arm_op_status`` and the staging
+    (on a copy); SELECT calls ``hands.select(a)`` with ``a`` a robot-level index or
+    ``ARM_NONE`` for the joint servos, SHADOW ``hands.trial(a)`` (``ARM_NONE``: the running
+    trial ends) — the SV's hand-overs, which need this tick's inputs; a client never carries
+    out either.  A refusal changes nothing; ``arm_op_status`` and the staging
     bytes say why, and ``arm_ops_done`` counts either way.
     """
     r = level.robots[k : k + 1].reshape(())
     try:
-        why = _carry_out_arm(level, k, op, int(r["arm_op_algo"]), select)
+        why = _carry_out_arm(level, k, op, int(r["arm_op_algo"]), hands)
     except Exception as exc:  # an algorithm's own code raised: refuse, never halt
         why = f"{_op_name(op)} refused: {type(exc).__name__}: {exc}"
     r["arm_op_status"] = _post_reason(level.arm_staging[k], why)
@@ -847,9 +907,7 @@ def _post_reason(staging: np.ndarray, why: str) -> int:
     return layout.OP_REFUSED
 
 
-def _carry_out_arm(
-    level: ServoLevel, k: int, op: int, a: int, select: Callable[[int], None]
-) -> str:
+def _carry_out_arm(level: ServoLevel, k: int, op: int, a: int, hands: ArmHands) -> str:
     """Apply one checked robot-level mailbox operation; '' when done, else why refused."""
     arms = level.registry.arms
     if op not in _OPS:
@@ -857,18 +915,25 @@ def _carry_out_arm(
         return f"mailbox operation {op} is not one of {ops}"
     known = ", ".join(f"{i} {alg.name}" for i, alg in enumerate(arms))
     if op == SlotOp.SELECT and a == layout.ARM_NONE:
-        select(a)
+        hands.select(a)
+        return ""
+    if op == SlotOp.SHADOW and a == layout.ARM_NONE:
+        shadow.end_arm(level, k, ShadowState.STOPPED)
         return ""
     if not 0 <= a < len(arms):
-        return f"{SlotOp(op).name} refused: robot-level algorithm index {a}, registered {known}" + (
-            f", {layout.ARM_NONE} joint servos" if op == SlotOp.SELECT else ""
+        return (
+            f"{SlotOp(op).name} refused: robot-level algorithm index {a}, registered {known}"
+            + (f", {layout.ARM_NONE} joint servos" if op == SlotOp.SELECT else "")
+            + (f", {layout.ARM_NONE} off" if op == SlotOp.SHADOW else "")
         )
     alg = arms[a]
     rec = level.arm_data[k][a]
     size = alg.dtype.itemsize
     staging = level.arm_staging[k]
+    if op == SlotOp.SHADOW:
+        return hands.trial(a)
     if op == SlotOp.SELECT:
-        select(a)
+        hands.select(a)
     elif op == SlotOp.GET:
         staging[:size] = rec.reshape(1).view(np.uint8)
     elif op == SlotOp.PUT:

@@ -16,8 +16,10 @@ each run, since the host's stalls differ from one minute to the next.  Two more 
 named (``--runs``): ``mixed-1ms-2sv``, a PUMA 560 facing a Panda (13 joints), and
 ``four-1ms-2sv``, two PUMAs, a UR5 and a Panda (25 joints) (issue 25: any arm, the joint count
 as data), and ``1ms-2sv-imp``, both arms under the Cartesian impedance servo (issue 27: each
-SV claims a whole arm, its model refreshed from Pinocchio every tick), each otherwise as
-``1ms-2sv``: run it with ``1ms-2sv`` for the joint PIDs beside it.
+SV claims a whole arm, its model refreshed from Pinocchio every tick), and ``1ms-2sv-shadow``,
+the joint PIDs with computed torque in shadow trial on both arms (issue 27 item 6: each arm
+fed whole, its PIDs stepped in Python, then the shadow with its model), each otherwise as
+``1ms-2sv``: run them with ``1ms-2sv`` for the joint PIDs alone beside them.
 
 Both arms are powered, left 2 s to settle, then kept moving: this script (SCHED_OTHER,
 unpinned) pushes one set-point per TG period (10 ms) into each robot's TG → SIO FIFO, keeping
@@ -193,6 +195,7 @@ class RunSpec:
     extras: bool = True
     cell: str = "pumas"  # CELLS: the arms (default.yaml's two PUMAs, or another cell)
     arm_servo: str | None = None  # a robot-level servo every arm runs instead of its joints'
+    shadow: str | None = None  # a robot-level servo every arm runs in shadow beside its joints'
 
 
 RUNS = {
@@ -209,6 +212,8 @@ RUNS = {
         RunSpec("one-0.25ms-1sv", 250, 1, cell="one"),  # 4 kHz, one arm (issue 26 item 3)
         # both arms under the Cartesian impedance servo (issue 27), against 1ms-2sv
         RunSpec("1ms-2sv-imp", 1000, 2, arm_servo="impedance"),
+        # the joint PIDs with computed torque in shadow trial on both arms (issue 27 item 6)
+        RunSpec("1ms-2sv-shadow", 1000, 2, shadow="computed_torque"),
     )
 }
 DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv", "0.5ms-2sv")
@@ -223,7 +228,7 @@ def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> Kali
         **sv_overrides(DEFAULT_CONFIG, spec.n_sv),
         **CELLS[spec.cell],
         **extras_overrides(spec.extras, record),
-        **({"robots.*.robot_servos": True} if spec.arm_servo else {}),
+        **({"robots.*.robot_servos": True} if spec.arm_servo or spec.shadow else {}),
     }
     return cell_config(overrides, instance, DEFAULT_CONFIG, spec.name)
 
@@ -307,9 +312,11 @@ def warm_up(
     fifos: list[InterpolatingFifo],
     tg_s: float,
     arm_servo: str | None = None,
+    shadow: str | None = None,
 ) -> Motion | None:
     """Power the arms, let them settle (tare their wrist sensors and hand them to
-    ``arm_servo`` if given), start the motion; None if the instance halted."""
+    ``arm_servo`` if given, start a trial of ``shadow`` beside their servos if given), start
+    the motion; None if the instance halted."""
     try:
         power_on(inst, client)
     except BenchError:
@@ -322,6 +329,8 @@ def warm_up(
         time.sleep(SETTLE_S / 2)
         for name in client.names:
             client.select_arm(name, arm_servo)
+    for name in client.names if shadow is not None else ():
+        client.shadow_arm(name, shadow)
     time.sleep(SETTLE_S)
     motion = Motion(client, fifos, tg_s)
     lead_end = time.monotonic() + LEAD_IN_S
@@ -413,7 +422,7 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
             fifos = [client.level.fifo(k) for k in range(len(client.names))]
             try:
                 tg_s = cfg.clock.tg_period_ms / 1000.0
-                motion = warm_up(inst, client, fifos, tg_s, spec.arm_servo)
+                motion = warm_up(inst, client, fifos, tg_s, spec.arm_servo, spec.shadow)
                 if motion is None:
                     res.fault = inst.fault_text()
                     res.problems.append(f"halted before the window opened: {res.fault}")

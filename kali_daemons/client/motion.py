@@ -52,6 +52,7 @@ from ..instance import Instance, decode
 from ..layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
 from ..robots import Kinematics, RobotType
 from ..servolevel import ServoClient
+from ..shadow import Trial
 from ..spinlock import pid_alive
 from ..tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
 from ..tg.profiles import MotionError, check_guard, check_joint_target
@@ -531,6 +532,22 @@ class Robot:
         line, e.g. ``set_servo({"kz": 500, "fz": 15})``; ServoError, nothing changed, for a
         bad value."""
         self.kali.servo.set_arm_params(self.name, params, servo, wait=not self.kali.inst.lockstep)
+
+    def shadow_servo(self, name: str | None, joint: int | None = None) -> None:
+        """Run servo ``name`` in shadow beside this arm's active servos — a robot-level one,
+        or with ``joint`` (1..n) that joint's: stepped every tick on the same inputs, its
+        torque compared and never applied; None ends the trial.  ``trials()`` reads the
+        figures; selecting it afterwards goes on from its own state (issue 27 item 6)."""
+        wait = not self.kali.inst.lockstep
+        if joint is None:
+            self.kali.servo.shadow_arm(self.name, name, wait=wait)
+        else:
+            self.kali.servo.shadow(self.name, joint, name, wait=wait)
+
+    def trials(self) -> list[Trial]:
+        """This arm's joints' figures from their last shadow trial: (shadow − active)
+        torque RMS and peak, N·m, over the ticks compared."""
+        return self.kali.servo.trials(self.name)
 
     def servo_params(self, servo: str | None = None) -> dict[str, float]:
         """The parameters of this arm's robot-level servo (default: the active one)."""

@@ -175,6 +175,7 @@ class ServoIO(Daemon):
         self._whole = [False] * nr
         self._arm_algo = rs["arm_algo"]
         self._arm_op = rs["arm_op"]
+        self._shadows = rs["shadows"]
         self._spans = [lv.map.span(k) for k in range(nr)]
         self.torque = np.zeros(n)
         self.servo_torque = np.zeros(n)
@@ -268,6 +269,7 @@ class ServoIO(Daemon):
             self.ff,
             self.torque,
             self.current,
+            lv.slots["shadow_torque"],  # the SVs' (kali_daemons.shadow), done by the record
             self.ft_records["tool"],
         )
         self._bind_kernels()
@@ -437,11 +439,11 @@ class ServoIO(Daemon):
                 other.trip(tick)
 
     def _arm_robot(self, k: int) -> bool:
-        """Whether robot ``k`` is fed whole this tick (a robot-level servo runs it, or a
-        robot-level mailbox operation waits), its slots' marks set to match; True if it
-        runs a robot-level servo."""
+        """Whether robot ``k`` is fed whole this tick (a robot-level servo runs it, a
+        robot-level mailbox operation waits, or a shadow trial runs: ``kali_daemons.shadow``),
+        its slots' marks set to match; True if it runs a robot-level servo."""
         arm = int(self._arm_algo[k]) != layout.ARM_NONE
-        whole = arm or int(self._arm_op[k]) != 0
+        whole = arm or int(self._arm_op[k]) != 0 or int(self._shadows[k]) != 0
         if whole != self._whole[k]:
             self._whole[k] = whole
             span = self._spans[k]

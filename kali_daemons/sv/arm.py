@@ -30,11 +30,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import atomic, layout, rt
+from .. import atomic, layout, rt, shadow
 from ..errors import ServoError
-from ..layout import SlotOp, SlotReset
+from ..layout import ShadowState, SlotOp, SlotReset
 from ..servo.arm import ArmInput
-from ..servolevel import apply_arm_op, handover
+from ..servolevel import apply_arm_op, apply_op, handover
 
 _NO_MODEL = (
     "robot '{robot}' runs no robot-level servo: its config has robot_servos: false "
@@ -92,7 +92,16 @@ class ArmRunner:
         self._data = lv.arm_data[k]
         self._algo = self.robot["arm_algo"]
         self._guided = self.robot["guided"]
-        self._select = self.select  # bound once: the mailbox's callback
+        # shadow trials (kali_daemons.shadow): a robot-level one's torques, (shadow − active)
+        # and its square, and the slots' figures it records into
+        self._ops = slots["op"]
+        self._shadows = self.robot["shadows"]
+        self._trial = self.robot["arm_shadow"]
+        self._trial_state = self.robot["arm_shadow_state"]
+        self.tau_shadow = np.zeros(self.n)
+        self._diff = np.zeros(self.n)
+        self._diff2 = np.zeros(self.n)
+        self._figures = shadow.figures(slots)
 
     def run(self, tick: int) -> None:
         """Run the robot for ``tick`` (inside the cycle)."""
@@ -106,7 +115,7 @@ class ArmRunner:
         if op != SlotOp.NONE:
             if model is not None:
                 model.update()  # a hand-over needs the model at this tick's angles
-            apply_arm_op(self.level, self.k, op, self._select)
+            apply_arm_op(self.level, self.k, op, self)
             atomic.store32(self._op_addr, SlotOp.NONE)
         a = int(self._algo)
         if a != layout.ARM_NONE and (model is None or not 0 <= a < len(self._arms)):
@@ -114,15 +123,32 @@ class ArmRunner:
                 model.update()
             self.select(layout.ARM_NONE)  # not an SV's write: back to the joint servos
             a = layout.ARM_NONE
+        structs = self.level.slot_structs
         if a == layout.ARM_NONE:
-            structs, run = self.level.slot_structs, self.worker._run
+            run = self.worker._run  # each joint's mailbox, servo and shadow trial
             for i in range(self.lo, self.hi):
                 run(i, structs[i], tick)
-            return
-        self._step(a, tick)
+        else:
+            if self._ops.any():  # a joint's mailbox (its servo is not running meanwhile)
+                for i in range(self.lo, self.hi):
+                    if structs[i].op != SlotOp.NONE:
+                        apply_op(self.level, i, int(structs[i].op))
+                        atomic.store32(self.level.op_addr[i], SlotOp.NONE)
+            if not self._step(a, tick):
+                return
+        trial = int(self._trial_state) == ShadowState.RUNNING
+        if a != layout.ARM_NONE and int(self._shadows) > trial:  # joint trials
+            step = self.worker.shadow_step
+            for i in range(self.lo, self.hi):
+                s = structs[i]
+                if s.shadow_state == ShadowState.RUNNING:
+                    step(i, s, s.ff)  # a joint servo's torque would get the feed-forward
+        if trial:
+            self._shadow_step(a)
 
-    def _step(self, a: int, tick: int) -> None:
-        """One step of robot-level servo ``a`` over every joint (inside the cycle)."""
+    def _step(self, a: int, tick: int) -> bool:
+        """One step of robot-level servo ``a`` over every joint; False if it halted (inside
+        the cycle)."""
         t0 = rt.monotonic_ns()
         inp, alg, data = self.inp, self._arms[a], self._data[a]
         assert self.model is not None  # run() selects the joint servos without one
@@ -133,11 +159,11 @@ class ArmRunner:
             status = alg.step(data, inp, self.tau)
         except Exception as exc:  # the user's servo: halt and say which
             self._fault(alg.name, f"raised {type(exc).__name__}: {exc}")
-            return
+            return False
         tau = self.tau
         if status != 0 or not np.isfinite(tau).all():
             self._fault(alg.name, f"returned torques {tau!r}, status {status!r}")
-            return
+            return False
         np.equal(self._enabled, 0, out=self._off)
         np.copyto(tau, 0.0, where=self._off)  # a disabled joint gets no torque
         self._torque[:] = tau
@@ -150,6 +176,58 @@ class ArmRunner:
         self.robot["arm_status"] = status
         self.robot["arm_exec_ns"] = exe
         self.robot["arm_ran_tick"] = tick
+        return True
+
+    def _shadow_step(self, a: int) -> None:
+        """Step the robot-level servo in shadow trial on this tick's inputs (the model at
+        this tick's angles) and record (shadow − active) per joint, the active joint
+        servos' torques with the feed-forward SIO adds to them.  A shadow that raises or
+        returns a bad status or a non-finite torque ends its trial, never halts (inside
+        the cycle)."""
+        b = int(self._trial)
+        if self.model is None or not 0 <= b < len(self._arms) or b == a:
+            shadow.end_arm(self.level, self.k, ShadowState.STOPPED)  # not an SV's write
+            return
+        if a == layout.ARM_NONE:
+            self.model.update()  # the active step did not
+        tau = self.tau_shadow
+        torque, count, sq, peak = self._figures
+        try:
+            status = self._arms[b].step(self._data[b], self.inp, tau)
+        except Exception:
+            shadow.end_arm(self.level, self.k, ShadowState.RAISED)
+            return
+        if status != 0 or not np.isfinite(tau).all():
+            torque[:] = tau
+            shadow.end_arm(self.level, self.k, ShadowState.FAILED)
+            return
+        d = self._diff
+        np.subtract(tau, self._torque, out=d)
+        if a == layout.ARM_NONE:
+            np.subtract(d, self.inp.tau_ff, out=d)
+        torque[:] = tau
+        count += 1
+        np.multiply(d, d, out=self._diff2)
+        sq += self._diff2
+        np.abs(d, out=d)
+        np.maximum(peak, d, out=peak)
+
+    def trial(self, b: int) -> str:
+        """Start a shadow trial of robot-level servo ``b`` (the mailbox's SHADOW; the model
+        at this tick's angles): level with the torque the motors had last tick, as a select
+        would hand over; '' or why it was refused."""
+        if self.model is None:
+            return "SHADOW refused: " + _NO_MODEL.format(robot=self.name)
+        why = shadow.start_arm(self.level, self.k, b)
+        if why:
+            return why
+        np.copyto(self.tau_prev, self._applied)
+        try:
+            self._arms[b].handover(self._data[b], self.inp, self.tau_prev)
+        except Exception:
+            shadow.end_arm(self.level, self.k, ShadowState.STOPPED)
+            raise
+        return ""
 
     def _take_reset(self, a: int) -> None:
         """The slots' resets under a robot-level servo: at power on it takes the arm over as
@@ -172,7 +250,11 @@ class ArmRunner:
         if a != layout.ARM_NONE and self.model is None:
             raise ServoError(_NO_MODEL.format(robot=self.name))
         np.copyto(self.tau_prev, self._applied)
-        if a == layout.ARM_NONE:
+        running = int(self._trial_state) == ShadowState.RUNNING
+        if a != layout.ARM_NONE and running and a == int(self._trial):
+            # it ran on the robot's inputs all along: it goes on from its own state
+            shadow.end_arm(self.level, self.k, ShadowState.SELECTED)
+        elif a == layout.ARM_NONE:
             # the joint servos continue from what the motors had, less the feed-forward SIO
             # adds to them again from this tick
             lv = self.level

@@ -52,10 +52,10 @@ from typing import Any
 import numpy as np
 import posix_ipc
 
-from .. import atomic, layout, rt
+from .. import atomic, layout, rt, shadow
 from ..daemon import Daemon
 from ..errors import DaemonError
-from ..layout import FaultCode, SlotOp, SlotReset
+from ..layout import FaultCode, ShadowState, SlotOp, SlotReset
 from ..servo import Handover
 from ..servolevel import ServoLevel, apply_op, handover
 from . import arm, units
@@ -321,6 +321,31 @@ class ServoWorker(Daemon):
         s.status = status
         s.ran_tick = tick
         s.sv = self.index
+        if s.shadow_state == ShadowState.RUNNING:
+            self.shadow_step(i, s, 0.0)
+
+    def shadow_step(self, i: int, s: Any, ff: float) -> None:
+        """Step slot ``i``'s shadow trial (``kali_daemons.shadow``) on the inputs its active
+        servo just had and compare: (shadow + ``ff``) − the slot's torque, ``ff`` being the
+        feed-forward SIO adds to a joint servo's torque and not to the active one's (0.0
+        under a joint servo, whose torque gets it too).  A shadow that raises or returns a
+        bad status or a non-finite torque ends its trial, never halts: nothing applied it.
+        Inside the cycle."""
+        lv = self.level
+        b = s.shadow
+        if not 0 <= b < self.n_algos or b == s.algo:  # not an SV's write: end it
+            shadow.end_joint(lv, i, ShadowState.STOPPED)
+            return
+        try:
+            torque, _, status = lv.registry[b].step(lv.structs[i][b], s.demand, s.position)
+        except Exception:
+            shadow.end_joint(lv, i, ShadowState.RAISED)
+            return
+        if status != 0 or not math.isfinite(torque):
+            s.shadow_torque = torque
+            shadow.end_joint(lv, i, ShadowState.FAILED)
+            return
+        shadow.record(s, torque, torque + ff - s.torque)
 
     def _servo_fault(self, i: int, algo: str, what: str) -> None:
         s = self.level.slot_structs[i]

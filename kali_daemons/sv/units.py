@@ -3,7 +3,8 @@ run in one compiled call (issue 26; thesis 3.3.5 for the claiming).
 
 A ``Unit`` is ``kernels.c``'s ``kali_serve_unit`` bound to one robot's slots ``lo..hi-1``.
 A slot joins the unit when it is fed and unclaimed (``busy`` 0), has no mailbox operation,
-no reset, is enabled and its active algorithm is the PID or the PD; it is claimed by the
+no reset, no shadow trial running (``SERVO_SLOT.shadow_state``), is enabled and its active algorithm
+is the PID or the PD; it is claimed by the
 same test-and-set of ``busy`` (0 → the SV's number) as the per-slot path, here
 ``__atomic_compare_exchange_n`` (the ``lock cmpxchg`` that ``atomic.CompareExchange32``
 reaches through libatomic), and then re-checked: should a client have posted an operation
@@ -14,8 +15,8 @@ are written as the per-slot path writes them.  A non-finite torque zeroes the sl
 leaves ``ran_tick`` and is reported (the first such slot and its torque) for the SV to halt,
 naming the joint and algorithm; the rest of the unit runs on, as the per-slot path does.
 
-Everything else (plugins, a pending operation or reset, a disabled servo, an algorithm
-index outside the registry) is left unclaimed for the per-slot path.  Whoever gets to a
+Everything else (plugins, a pending operation or reset, a shadow trial, a disabled servo,
+an algorithm index outside the registry) is left unclaimed for the per-slot path.  Whoever gets to a
 slot first runs it; as the row functions equal the Python steps, which path ran a joint
 does not change its numbers.  ``serve_unit_reference`` is the same walk in Python over the
 per-joint steps, which ``tests/test_servo_vector.py`` holds the kernel to.
@@ -124,7 +125,11 @@ def serve_unit_reference(
 
     def joins(s: np.void) -> bool:
         nothing_first = s["op"] == 0 and s["reset"] == 0 and s["enabled"] != 0
-        return bool(nothing_first and s["algo"] in (pid_a, pd_a))
+        return bool(
+            nothing_first
+            and s["shadow_state"] != layout.ShadowState.RUNNING
+            and s["algo"] in (pid_a, pd_a)
+        )
 
     for i in range(lo, hi):
         s = slots[i]
