@@ -31,7 +31,15 @@ from .client.motion import INSTANCE_ENV, Kali
 from .config import cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
 from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode
-from .layout import KEY_BOARDS, CalibState, FaultCode, PowerState, ProcState, RunMode
+from .layout import (
+    KEY_BOARDS,
+    CalibState,
+    FaultCode,
+    PowerState,
+    ProcState,
+    RunMode,
+    ShadowState,
+)
 from .servo import registry_for
 from .servolevel import ServoClient, ServoError
 from .wallclock import (
@@ -966,7 +974,8 @@ def servo() -> None:
 @click.pass_context
 @_errors
 def servo_list(ctx: click.Context) -> None:
-    """The registered algorithms, joint and robot-level, and what every robot runs."""
+    """The registered algorithms, joint and robot-level, what every robot runs, and the
+    servos in shadow trial beside them."""
     with _servo_client(ctx) as (_inst, client):
         registry = client.level.registry
         for alg in registry:
@@ -980,13 +989,20 @@ def servo_list(ctx: click.Context) -> None:
             active = client.arm_active(name)
             if active is not None:
                 click.echo(f"{name:<8} power {state:<9} robot-level: {active}")
-                continue
-            joints = []
-            for j in range(1, client.level.map.counts[k] + 1):
-                s = client.level.slot_structs[client.level.map.index(k, j - 1)]
-                mark = "" if s.enabled else " (off)"
-                joints.append(f"{j}:{client.active(name, j)}{mark}")
-            click.echo(f"{name:<8} power {state:<9} " + "  ".join(joints))
+            else:
+                joints = []
+                for j in range(1, client.level.map.counts[k] + 1):
+                    s = client.level.slot_structs[client.level.map.index(k, j - 1)]
+                    mark = "" if s.enabled else " (off)"
+                    joints.append(f"{j}:{client.active(name, j)}{mark}")
+                click.echo(f"{name:<8} power {state:<9} " + "  ".join(joints))
+            running = [t for t in client.trials(name) if t.state == ShadowState.RUNNING]
+            if running and running[0].level == "robot":
+                click.echo(f"{'':<8} in shadow: {running[0].shadow} (robot-level)")
+            elif running:
+                click.echo(
+                    f"{'':<8} in shadow: " + "  ".join(f"{t.joint}:{t.shadow}" for t in running)
+                )
 
 
 def _joint_arg(text: str) -> int:

@@ -21,9 +21,16 @@ from typing import Any
 
 import numpy as np
 
-from . import launcher, layout
+from . import launcher, layout, shadow
 from .instance import Instance, decode
-from .layout import CalibState, FfMode, FfState, PowerState, RequestState, RunMode
+from .layout import (
+    CalibState,
+    FfMode,
+    FfState,
+    PowerState,
+    RequestState,
+    RunMode,
+)
 from .wallclock.clock import time_ms
 
 FF_SCALARS = ("weight", "stale_ticks", "stale_events", "heartbeat_tick", "rows_written")
@@ -160,6 +167,7 @@ class Introspector:
         if rs is None or js is None:
             return None
         ff = self._view(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, nr)
+        slots = self._view(layout.KEY_SLOTS, layout.SERVO_SLOT, self.joints.total)
         out = []
         for k, name in enumerate(self.names):
             r = rs[k].copy()  # one consistent-enough copy of a Type 4 record
@@ -188,9 +196,52 @@ class Introspector:
                     "current_limit_a": self.drives[k].max_current,
                     "message": decode(r["message"]),
                     "feedforward": None if ff is None else self._ff(ff[k]),
+                    "servo": None
+                    if slots is None
+                    else self._servos(name, r, slots[self.joints.span(k)]),
                 }
             )
         return out
+
+    def _names(self) -> tuple[list[str], list[str]]:
+        """The joint servos' and the robot-level servos' names, each in registry order
+        (SIO's ``servo.names``; empty before SIO laid it out)."""
+        found = self.inst.arena.lookup(layout.KEY_SERVO_NAMES)
+        if found is None:
+            return [], []
+        raw = self._view(
+            layout.KEY_SERVO_NAMES, layout.SERVO_NAME, found[1] // layout.SERVO_NAME.itemsize
+        )
+        if raw is None:
+            return [], []
+        recs = raw.copy()
+        joint = [decode(bytes(r["name"])) for r in recs if not r["robot_level"]]
+        robot = [decode(bytes(r["name"])) for r in recs if r["robot_level"]]
+        return joint, robot
+
+    def _servos(self, robot: str, r: np.void, slots: np.ndarray) -> dict[str, Any]:
+        """What servos a robot runs, by name: its robot-level servo (None: its joint
+        servos) and each joint's, and its shadow trials (``kali_daemons.shadow``)."""
+        joint, arm = self._names()
+        s = slots.copy()
+        a = int(r["arm_algo"])
+        rows = shadow.robot_trials(robot, r, s, joint, arm)
+        return {
+            "robot": None if a == layout.ARM_NONE else shadow.name_of(arm, a),
+            "joints": [shadow.name_of(joint, int(x)) for x in s["algo"]],
+            "trials": [
+                {
+                    "joint": t.joint,
+                    "level": t.level,
+                    "shadow": t.shadow,
+                    "state": t.state.name,
+                    "ticks": t.ticks,
+                    "rms_nm": t.rms,
+                    "peak_nm": t.peak,
+                }
+                for t in rows
+            ],
+        }
 
     @staticmethod
     def _ff(rec: np.void) -> dict[str, Any]:

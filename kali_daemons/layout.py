@@ -517,6 +517,10 @@ KEY_JOINTS = "robots.joints"  # JOINT_STATE per joint of the cell, flat (joints.
 KEY_SLOTS = "servo.slots"  # SERVO_SLOT per joint, flat: robot k joint j is slot base[k] + j
 KEY_STAGING = "servo.staging"  # SERVO_STAGING_BYTES per slot: the put/get mailbox data
 KEY_SERVO_CTRL = "servo.ctrl"
+# the servo algorithms' names, registry order: the joint servos, then the robot-level ones
+# (SIO, at first start), for readers that do not load the plugins (kalictl status, top)
+KEY_SERVO_NAMES = "servo.names"
+SERVO_NAME = np.dtype([("name", "S31"), ("robot_level", "u1")])  # 1: a robot-level servo
 # private data of one algorithm for every joint of the cell: a block of one record per joint
 # (slot order), so an SV runs a built-in over many joints in one call (servo.vector)
 KEY_SERVO_DATA = "servo.data.{algo}"
@@ -1112,6 +1116,13 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_FT, FT_STATE, lambda c, i: len(c.robots), "SIO (tare, limit: clients)", "all"),
     Record(KEY_SLOTS, SERVO_SLOT, lambda c, i: c.n_joints, "SIO, SVs, clients", "SIO, SVs"),
     Record(KEY_SERVO_CTRL, SERVO_CTRL, None, "SIO, SVs", "all"),
+    Record(
+        KEY_SERVO_NAMES,
+        SERVO_NAME,
+        lambda c, i: len(c.algorithms) + len(c.arms),
+        "SIO",
+        "kalictl status, top",
+    ),
     Record(
         KEY_STAGING,
         *_u1(lambda c, i: c.n_joints * SERVO_STAGING_BYTES),

@@ -137,6 +137,11 @@ class ServoLevel:
         self.joints = get(layout.KEY_JOINTS, layout.JOINT_STATE, n)
         self.slots = get(layout.KEY_SLOTS, layout.SERVO_SLOT, n)
         self.ctrl = get(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+        self.servo_names = get(
+            layout.KEY_SERVO_NAMES,
+            layout.SERVO_NAME,
+            len(self.registry) + len(self.registry.arms),
+        )
         width = layout.SERVO_STAGING_BYTES
         self.staging = get(layout.KEY_STAGING, np.dtype("u1"), n * width).reshape(n, width)
         # algorithm k's private data for every joint, one record per slot (servo.vector runs
@@ -197,6 +202,10 @@ class ServoLevel:
 
     def initialise(self) -> None:
         """First start (SIO): every joint's servo, data, tolerances and checks from the config."""
+        named = [(n, 0) for n in self.registry.names()]
+        named += [(n, 1) for n in self.registry.arm_names()]
+        for rec, (name, robot_level) in zip(self.servo_names, named, strict=True):
+            rec["name"], rec["robot_level"] = name.encode()[:31], robot_level
         for k, robot in enumerate(self.cfg.robots):
             r = self.robots[k]
             span = self.map.span(k)

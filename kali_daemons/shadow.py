@@ -173,37 +173,42 @@ HEADER = (
 
 def trials(level: ServoLevel, robot: int | None = None) -> list[Trial]:
     """The figures of every joint (of ``robot``, or all) that has run a trial."""
-    registry = level.registry
+    joint, arm = level.registry.names(), level.registry.arm_names()
     out: list[Trial] = []
     for k in range(level.n_robots) if robot is None else (robot,):
-        r = level.robots[k]
-        arm_active = int(r["arm_algo"])
-        arm_shadow = int(r["arm_shadow"])
-        arm_state = ShadowState(int(r["arm_shadow_state"]))
-        span = level.map.span(k)
-        for j, i in enumerate(range(span.start, span.stop)):
-            s = level.slots[i]
-            if 0 <= arm_active < len(registry.arms):
-                active = registry.arms[arm_active].name
-            else:
-                active = _name(registry, int(s["algo"]))
-            if int(s["shadow"]) >= 0:
-                kind, shadow = "joint", _name(registry, int(s["shadow"]))
-                state = ShadowState(int(s["shadow_state"]))
-            elif arm_state != ShadowState.NONE and 0 <= arm_shadow < len(registry.arms):
-                kind, shadow, state = "robot", registry.arms[arm_shadow].name, arm_state
-            else:
-                continue
-            n = int(s["shadow_n"])
-            rms = math.sqrt(float(s["shadow_sq"]) / n) if n else math.nan
-            peak, torque = float(s["shadow_peak"]), float(s["shadow_torque"])
-            row = Trial(level.names[k], j + 1, kind, active, shadow, state, n, rms, peak, torque)
-            out.append(row)
+        slots = level.slots[level.map.span(k)]
+        out += robot_trials(level.names[k], level.robots[k], slots, joint, arm)
     return out
 
 
-def _name(registry: Any, a: int) -> str:
-    return registry[a].name if 0 <= a < len(registry) else f"#{a}"
+def robot_trials(
+    robot: str, r: np.void, slots: np.ndarray, joint: list[str], arm: list[str]
+) -> list[Trial]:
+    """One robot's trials from its ROBOT_STATE ``r`` and its ``slots``, the algorithms
+    named by ``joint`` and ``arm`` (registry order): for readers without the registry
+    (``kalictl status`` reads the names SIO wrote, ``layout.KEY_SERVO_NAMES``)."""
+    out: list[Trial] = []
+    arm_active, arm_shadow = int(r["arm_algo"]), int(r["arm_shadow"])
+    arm_state = ShadowState(int(r["arm_shadow_state"]))
+    for j, s in enumerate(slots):
+        active = name_of(arm, arm_active) if arm_active >= 0 else name_of(joint, int(s["algo"]))
+        if int(s["shadow"]) >= 0:
+            kind, shadow = "joint", name_of(joint, int(s["shadow"]))
+            state = ShadowState(int(s["shadow_state"]))
+        elif arm_state != ShadowState.NONE:
+            kind, shadow, state = "robot", name_of(arm, arm_shadow), arm_state
+        else:
+            continue
+        n = int(s["shadow_n"])
+        rms = math.sqrt(float(s["shadow_sq"]) / n) if n else math.nan
+        peak, torque = float(s["shadow_peak"]), float(s["shadow_torque"])
+        out.append(Trial(robot, j + 1, kind, active, shadow, state, n, rms, peak, torque))
+    return out
+
+
+def name_of(names: list[str], a: int) -> str:
+    """Algorithm ``a`` of ``names``, or ``#a`` for an index outside them."""
+    return names[a] if 0 <= a < len(names) else f"#{a}"
 
 
 def figures(slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

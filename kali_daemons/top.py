@@ -217,6 +217,7 @@ def robots(cur: Sample, wide: bool) -> Table | Text:
         ("|current|", "right"),
         ("limit", "right"),
         ("ff", "left"),
+        ("servo", "left"),
         ("TG", "left"),
     ]
     if wide:
@@ -253,6 +254,7 @@ def robots(cur: Sample, wide: bool) -> Table | Text:
             f"{cur_a[jc]:.2f} A j{jc + 1}",
             Text(f"{frac:.0%}", style="bold red" if frac >= 1 else ""),
             ff_cell,
+            servo_cell(r.get("servo")),
             req,
         ]
         if wide:
@@ -261,6 +263,18 @@ def robots(cur: Sample, wide: bool) -> Table | Text:
             cells.append(r["message"])
         t.add_row(*cells)
     return t
+
+
+def servo_cell(servo: dict[str, Any] | None) -> str:
+    """What a robot runs: its robot-level servo or its joint servos' names, and the servos
+    in shadow trial beside them (``kalictl servo compare`` has their figures)."""
+    if servo is None:
+        return "-"
+    cell = servo["robot"] or "/".join(dict.fromkeys(servo["joints"]))
+    running = [t["shadow"] for t in servo["trials"] if t["state"] == "RUNNING"]
+    if running:
+        cell += f" (shadow {'/'.join(dict.fromkeys(running))})"
+    return cell
 
 
 def servo_lines(prev: Sample | None, cur: Sample) -> Text:

@@ -9,19 +9,22 @@ that raises ends its trial and halts nothing; bad requests are refused naming wh
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from kali_daemons import flightrec, layout
+from kali_daemons import flightrec, layout, top
 from kali_daemons.client import Kali
 from kali_daemons.errors import ServoError
+from kali_daemons.introspect import Introspector
 from kali_daemons.layout import RequestState, ShadowState
 from kali_daemons.servo import PD, struct_view
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_armservo import LEFT_ROBOT_SERVOS
+from tests.test_introspect import render
 from tests.test_launcher import kalictl
 
 FAULTY = Path(__file__).parent / "system" / "faulty_servo.py"
@@ -73,6 +76,18 @@ def test_a_joint_servo_in_shadow_sees_the_active_inputs_and_is_never_applied(
         rows = flightrec.read_ring(header, flightrec.attach_ring(k.inst.arena, header), True)
         assert rows["shadow_torque"][-1][i] == torque
         assert np.isnan(np.delete(rows["shadow_torque"][-1], i)).all()
+        # kalictl status --json and top name the servos, and the one in shadow
+        spy = Introspector(k.inst)
+        try:
+            servo = spy.snapshot()["robots"][0]["servo"]
+            frame = render(top.frame(top.take(spy), top.take(spy), 0.1, 140), 140)
+        finally:
+            spy.close()
+        assert servo["robot"] is None and servo["joints"] == ["pid"] * 6
+        (trial,) = servo["trials"]
+        assert (trial["joint"], trial["shadow"], trial["state"]) == (2, "pd", "RUNNING")
+        assert trial["ticks"] == 151 and math.isclose(trial["rms_nm"], math.sqrt(sq / 151))
+        assert re.search(r"left\s.*\spid \(shadow pd\)", frame), frame
         (row,) = [t for t in k.robot("left").trials() if t.joint == 2]
         assert (row.active, row.shadow, row.state, row.ticks) == (
             "pid",
@@ -118,7 +133,10 @@ def test_a_robot_level_servo_in_shadow_then_selected_while_moving(
         step_kali_clock(k.inst, 100)
         out = kalictl("-i", name, "servo", "shadow", "left", "computed_torque")
         assert out.returncode == 0, out.stderr
-        step_kali_clock(k.inst, 400)
+        step_kali_clock(k.inst, 1)
+        out = kalictl("-i", name, "servo", "list")
+        assert "in shadow: computed_torque (robot-level)" in out.stdout, out.stdout
+        step_kali_clock(k.inst, 399)
         assert (joints["servo_torque"] == slots["torque"]).all()  # never applied
         rows = left.trials()
         assert [t.joint for t in rows] == [1, 2, 3, 4, 5, 6]
