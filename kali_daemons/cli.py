@@ -292,6 +292,15 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 f"{r['late_p99_us']:>7.0f}us {r['late_max_us']:>7.0f}us "
                 f"{r['heartbeat_age_ms']:>5.0f}ms"
             )
+        spy = introspect.Introspector(inst)
+        t = spy.tg_longest()
+        spy.close()
+        if t is not None:
+            click.echo(
+                f"tg longest tick {t['tick']}: {t['wall_us']:.0f} us ({t['cpu_us']:.0f} us CPU): "
+                f"{t['requests']} requests taken in {t['requests_us']:.0f} us, starting waiting "
+                f"ones {t['starting_us']:.0f} us, {t['motions']} motions {t['motions_us']:.0f} us"
+            )
         if memory:
             _memory_table(rows)
         misses = launcher.recent_misses(inst, 5)

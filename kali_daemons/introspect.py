@@ -310,7 +310,30 @@ class Introspector:
             robots.append(entry)
         queued = None if queue is None else int(queue["tail"]) - int(queue["head"])
         discarded = None if queue is None else int(queue["discarded"])
-        return {"queued": queued, "discarded": discarded, "robots": robots}
+        return {
+            "queued": queued,
+            "discarded": discarded,
+            "robots": robots,
+            "longest_tick": self.tg_longest(),
+        }
+
+    def tg_longest(self) -> dict[str, Any] | None:
+        """The TG's longest tick since start and its parts, µs (``TG_STATE.longest_*``);
+        None before its first tick."""
+        state = self._view(layout.KEY_TG_STATE, layout.TG_STATE)
+        s = None if state is None else state.copy()
+        if s is None or int(s["longest_ns"]) <= 0:
+            return None
+        return {
+            "tick": int(s["longest_tick"]),
+            "wall_us": int(s["longest_ns"]) / 1e3,
+            "cpu_us": int(s["longest_cpu_ns"]) / 1e3,
+            "requests_us": int(s["longest_take_ns"]) / 1e3,
+            "starting_us": int(s["longest_start_ns"]) / 1e3,
+            "motions_us": int(s["longest_motions_ns"]) / 1e3,
+            "requests": int(s["longest_requests"]),
+            "motions": int(s["longest_motions"]),
+        }
 
     def _misses(self) -> dict[str, Any]:
         return {

@@ -963,6 +963,18 @@ TG_STATE = np.dtype(
         # live client): admission is bounded, the queue pushes back on producers
         ("record_waits", "<u8"),
         ("unreported", "<u8"),  # TG: requests with no record to answer in (a forged queue)
+        # TG: its longest tick since start, wall time from its start to its end, and what
+        # went into it: taking requests, starting waiting ones (planning paths), the motions
+        # (their checks and set-points), its CPU time, and the requests it took then; a
+        # serious miss of the TG (DEADLINE) can then be put down to its own work or not
+        ("longest_tick", "<i8"),
+        ("longest_ns", "<i8"),
+        ("longest_take_ns", "<i8"),
+        ("longest_start_ns", "<i8"),
+        ("longest_motions_ns", "<i8"),
+        ("longest_cpu_ns", "<i8"),
+        ("longest_requests", "<u4"),
+        ("longest_motions", "<u4"),
     ],
     align=True,
 )

@@ -147,6 +147,7 @@ from kali_daemons.config import KaliConfig
 from kali_daemons.errors import KaliError
 from kali_daemons.flightrec import attach_ring, read_ring
 from kali_daemons.instance import Instance
+from kali_daemons.introspect import Introspector
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "default.yaml"
@@ -650,6 +651,7 @@ class SoakResult:
     halted_in_warmup: bool = False
     halt_stalls: str | None = None
     flight_dump: str | None = None
+    tg_longest: dict[str, float] | None = None  # the TG's longest tick and its parts, µs
     left_behind: list[str] = field(default_factory=list)
     stopped_cleanly: bool = False  # the stop ran and its check was done
     problems: list[str] = field(default_factory=list)  # each one fails the soak
@@ -799,6 +801,9 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
                 res.halted_at_s = (int(inst.fault["time_ns"]) - real_offset - t0) / 1e9
                 res.flight_dump = flight_dump(inst)
         res.window_s = (s1.t_ns - t0) / 1e9
+        spy = Introspector(inst)
+        res.tg_longest = spy.tg_longest()
+        spy.close()
         if hostiles is not None:
             res.hostiles_died = hostiles.died()
             res.hostiles = hostiles.finish()
@@ -1037,6 +1042,14 @@ def format_report(r: SoakResult) -> str:
         lines += wrap(f"  flight recorder: {r.flight_dump or 'no dump'}; logs in {r.log_dir}")
     else:
         lines.append("halt: none")
+    if r.tg_longest:
+        t = r.tg_longest
+        lines += wrap(
+            f"TG's longest tick: {t['wall_us']:.0f} µs at tick {t['tick']:.0f} "
+            f"({t['cpu_us']:.0f} µs CPU): {t['requests']:.0f} requests taken in "
+            f"{t['requests_us']:.0f} µs, starting waiting ones {t['starting_us']:.0f} µs, "
+            f"{t['motions']:.0f} motions {t['motions_us']:.0f} µs"
+        )
     left = ", ".join(r.left_behind) if r.left_behind else "nothing"
     lines += wrap(f"left behind after the stop: {left} (processes, /dev/shm objects)")
     for n in r.notes:

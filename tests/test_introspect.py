@@ -79,6 +79,11 @@ def test_status_json_has_everything_as_plain_json(kali: Callable[..., str]) -> N
     tg = {e["robot"]: e for e in s["tg"]["robots"]}
     assert tg["left"]["busy_seq"] > 0 and tg["left"]["state"] == "RUNNING"
     assert tg["right"]["busy_seq"] == 0
+    # the TG's longest tick so far, in parts: the move's request was taken and planned in one
+    longest = s["tg"]["longest_tick"]
+    assert 0 <= longest["tick"] < 380 and longest["requests"] <= 8
+    parts = longest["requests_us"] + longest["starting_us"] + longest["motions_us"]
+    assert 0 < parts <= longest["wall_us"] and longest["cpu_us"] > 0
     assert s["misses"] == {"total": 0, "recent": []}
     assert s["flight"]["rows"] == 2000 and s["flight"]["recorded"] == 380
     assert s["flight"]["last_dump"] is None and s["flight"]["dumps"] == 0
@@ -89,7 +94,9 @@ def test_status_json_has_everything_as_plain_json(kali: Callable[..., str]) -> N
     s = strict_json(kalictl("-i", name, "status", "--json").stdout)
     assert s["fault"]["active"] and s["fault"]["code"] == "OPERATOR"
     assert s["fault"]["text"] == "OPERATOR in test at tick 380: halted for the test"
-    assert "fault: OPERATOR in test" in kalictl("-i", name, "status").stdout
+    text = kalictl("-i", name, "status").stdout
+    assert "fault: OPERATOR in test" in text
+    assert re.search(r"tg longest tick \d+: \d+ us \(\d+ us CPU\): \d+ requests taken", text), text
 
 
 def render(frame: object, width: int) -> str:

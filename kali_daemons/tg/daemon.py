@@ -54,7 +54,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from .. import atomic, layout
+from .. import atomic, layout, rt
 from ..chain import chain_of, flange_pose
 from ..channels import InterpolatingFifo, RequestQueue
 from ..config import MAX_PERIOD_MS, ms_to_ns
@@ -301,6 +301,7 @@ class TrajectoryGenerator(Daemon):
         )
         self.tg_robots = arena.record(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, self.n_robots)
         self.state = arena.record(layout.KEY_TG_STATE, layout.TG_STATE)
+        self._longest = self.state["longest_ns"].reshape(1)
         self.leases = arena.record(layout.KEY_TG_LEASES, layout.LEASE, self.n_robots)
         self._lease_pid = self.leases["pid"]
         self.lockstep = inst.lockstep
@@ -370,8 +371,10 @@ class TrajectoryGenerator(Daemon):
     # ------------------------------------------------------------------ the tick
 
     def cycle(self, tick: int) -> None:
-        """Halts first, then new requests, then every running motion's next set-point."""
-        self._check_until = time.monotonic_ns() + self.check_ns  # the whole tick's check share
+        """Halts first, then new requests, then every running motion's next set-point; the
+        tick's parts timed, and kept if it is the longest yet (``TG_STATE.longest_*``)."""
+        t0, c0 = rt.monotonic_ns(), rt.thread_time_ns()
+        self._check_until = t0 + self.check_ns  # the whole tick's check share
         self._work = 0
         self._now = tick
         self._follow_rate()
@@ -383,6 +386,7 @@ class TrajectoryGenerator(Daemon):
         if int(self.inst.fault["active"]) or count != self._faults_seen:
             self._faults_seen = count
             self._halt_all()
+        taken = 0
         for _ in range(MAX_REQUESTS_PER_TICK):
             nxt = self.queue.next_seq()
             if nxt is None:
@@ -398,7 +402,10 @@ class TrajectoryGenerator(Daemon):
                 continue
             self.state["taken_seq"] = seq
             self._take(seq, self.request[0].copy())
+            taken += 1
+        t1 = rt.monotonic_ns()
         self._start_waiting()
+        t2 = rt.monotonic_ns()
         for m in list(self.motions):
             why = self._cannot_move(m.robots)
             if m.guard and self._tripped(m) >= 0:  # SIO holds its arms where they touched
@@ -415,6 +422,24 @@ class TrajectoryGenerator(Daemon):
             else:
                 self._advance(m)
         self._tick[...] = tick
+        t3 = rt.monotonic_ns()
+        if t3 - t0 > self._longest[0]:
+            self._note_longest(tick, (t0, t1, t2, t3), rt.thread_time_ns() - c0, taken)
+
+    def _note_longest(
+        self, tick: int, t: tuple[int, int, int, int], cpu_ns: int, taken: int
+    ) -> None:
+        """Keep tick ``tick`` as the TG's longest: its parts from its times ``t`` (start,
+        requests taken, waiting ones started, motions done).  Inside the cycle, rarely."""
+        s = self.state
+        s["longest_tick"] = tick
+        s["longest_take_ns"] = t[1] - t[0]
+        s["longest_start_ns"] = t[2] - t[1]
+        s["longest_motions_ns"] = t[3] - t[2]
+        s["longest_cpu_ns"] = cpu_ns
+        s["longest_requests"] = taken
+        s["longest_motions"] = len(self.motions)
+        self._longest[0] = t[3] - t[0]  # last: a reader sees the parts of this one or before
 
     def _follow_rate(self) -> None:
         """Follow this TG's own period, changed on line by ``kalictl rate``: τ's step, the
