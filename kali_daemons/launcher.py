@@ -481,9 +481,17 @@ def _start(
     return StartReport(name, pids, stale, time.monotonic() - t_start, logs)
 
 
+# Every daemon computes on its one thread.  numpy's OpenBLAS otherwise starts a worker thread
+# per further CPU at import, SCHED_OTHER on the daemon's CPU, and a BLAS call it shares waits
+# for it while SCHED_FIFO work holds that CPU (a priority inversion): in a soak the TG took
+# 34 ms of wall time for 1.2 ms of CPU in one tick and halted the cell (DEADLINE).
+SINGLE_THREADED = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
 def _spawn(module: str, instance: str, name: str, log_path: Path) -> subprocess.Popen:
     """Start ``python -m kali_daemons.<module>`` as process ``name`` of ``instance``, in
-    its own session, its output in ``log_path``."""
+    its own session, its output in ``log_path``, its numeric libraries single-threaded
+    (``SINGLE_THREADED``)."""
     with open(log_path, "wb") as log:  # the child holds its own descriptor
         return subprocess.Popen(
             [
@@ -500,6 +508,7 @@ def _spawn(module: str, instance: str, name: str, log_path: Path) -> subprocess.
             stderr=subprocess.STDOUT,
             start_new_session=True,
             close_fds=True,
+            env={**os.environ, **SINGLE_THREADED},
         )
 
 

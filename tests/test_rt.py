@@ -12,6 +12,7 @@ import posix_ipc
 import pytest
 
 from kali_daemons import daemon, rt
+from kali_daemons.instance import Instance
 
 PR_GET_TIMERSLACK = 30
 
@@ -181,3 +182,16 @@ def test_start_up_work_runs_before_a_daemon_goes_real_time(kali: Callable[..., s
         return 0 if code == 0 and seen == expected else 3
 
     assert _in_child(child) == 0
+
+
+def test_no_realtime_daemon_waits_on_a_worker_thread_below_it(kali: Callable[..., str]) -> None:
+    """Every process of the servo path runs one thread.  numpy's OpenBLAS starts a worker
+    thread at import (one per further CPU), SCHED_OTHER on the daemon's CPU; a BLAS call it
+    shares waits on it while SCHED_FIFO work holds that CPU (priority inversion): a soak's
+    TG once took 34 ms of wall time for 1.2 ms of CPU in one tick and halted (DEADLINE)."""
+    name = kali(lockstep=False)
+    with Instance.attach(name) as inst:
+        for proc in ("wallclock", "plant", "tg", "sio", "sv.0", "sv.1", "dynamics"):
+            pid = int(inst.procs[inst.slot_of(proc)]["pid"])
+            threads = os.listdir(f"/proc/{pid}/task")
+            assert threads == [str(pid)], f"{proc} (pid {pid}) runs threads {threads}"
