@@ -315,6 +315,20 @@ class Introspector:
             "discarded": discarded,
             "robots": robots,
             "longest_tick": self.tg_longest(),
+            "now": self.tg_now(),
+        }
+
+    def tg_now(self) -> dict[str, Any] | None:
+        """Where the TG is in its tick (``TG_STATE.phase``): the phase, for how long (µs, by
+        this process's clock) and the request it works on; None between ticks."""
+        state = self._view(layout.KEY_TG_STATE, layout.TG_STATE)
+        s = None if state is None else state.copy()
+        if s is None or int(s["phase"]) == layout.TgPhase.IDLE:
+            return None
+        return {
+            "phase": _name(layout.TgPhase, int(s["phase"])),
+            "for_us": (time.monotonic_ns() - int(s["phase_ns"])) / 1e3,
+            "seq": int(s["phase_seq"]),
         }
 
     def tg_longest(self) -> dict[str, Any] | None:

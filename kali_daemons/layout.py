@@ -975,9 +975,26 @@ TG_STATE = np.dtype(
         ("longest_cpu_ns", "<i8"),
         ("longest_requests", "<u4"),
         ("longest_motions", "<u4"),
+        # TG: where it is now (TgPhase), since when (CLOCK_MONOTONIC ns) and about which
+        # request: a reader at a halt sees a tick that never ended, which ``longest_*`` cannot
+        ("phase", "<u4"),
+        ("phase_seq", "<u4"),  # the request (low 32 bits of its seq) being worked on
+        ("phase_ns", "<i8"),
     ],
     align=True,
 )
+
+
+class TgPhase(enum.IntEnum):
+    """What the TG is doing (``TG_STATE.phase``)."""
+
+    IDLE = 0  # between ticks
+    REQUESTS = 1  # taking requests from the queue
+    STARTING = 2  # starting waiting ones (planning a path)
+    CHECKING = 3  # checking a path before it moves
+    ADVANCING = 4  # a motion's next set-point
+    ENDING = 5  # a motion's end
+
 
 # A motion system's arms belong to one program at a time (like ros2_control's claimed command
 # interfaces): the TG gives an arm to the first live program that requests it and refuses the

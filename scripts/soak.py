@@ -652,6 +652,7 @@ class SoakResult:
     halt_stalls: str | None = None
     flight_dump: str | None = None
     tg_longest: dict[str, float] | None = None  # the TG's longest tick and its parts, µs
+    tg_at_halt: dict[str, object] | None = None  # where the TG was in its tick at the halt
     left_behind: list[str] = field(default_factory=list)
     stopped_cleanly: bool = False  # the stop ran and its check was done
     problems: list[str] = field(default_factory=list)  # each one fails the soak
@@ -778,6 +779,9 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
             if it.returncode != 0:
                 (tmp / f"demo.{index}.stderr").replace(tmp / f"failed.{index}.stderr")
             if it.halted:
+                spy = Introspector(inst)
+                res.tg_at_halt = spy.tg_now()  # first: a tick that never ended is there now
+                spy.close()
                 s1 = snapshot(inst, names)
                 res.fault = inst.fault_text()
                 t_fault = int(inst.fault["time_ns"]) - real_offset
@@ -1042,6 +1046,12 @@ def format_report(r: SoakResult) -> str:
         lines += wrap(f"  flight recorder: {r.flight_dump or 'no dump'}; logs in {r.log_dir}")
     else:
         lines.append("halt: none")
+    if r.fault:
+        t = r.tg_at_halt
+        where = "between ticks"
+        if t:
+            where = f"{t['phase']} for {float(t['for_us']):.0f} µs (request {t['seq']})"
+        lines += wrap(f"TG at the halt: {where}")
     if r.tg_longest:
         t = r.tg_longest
         lines += wrap(

@@ -61,7 +61,15 @@ from ..config import MAX_PERIOD_MS, ms_to_ns
 from ..daemon import Daemon
 from ..errors import KinematicsError
 from ..instance import decode
-from ..layout import CalibState, FaultCode, GuardState, MotionKind, PowerState, RequestState
+from ..layout import (
+    CalibState,
+    FaultCode,
+    GuardState,
+    MotionKind,
+    PowerState,
+    RequestState,
+    TgPhase,
+)
 from ..robots import RobotType
 from ..servolevel import FIFO_CAPACITY
 from ..spinlock import pid_alive
@@ -302,6 +310,9 @@ class TrajectoryGenerator(Daemon):
         self.tg_robots = arena.record(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, self.n_robots)
         self.state = arena.record(layout.KEY_TG_STATE, layout.TG_STATE)
         self._longest = self.state["longest_ns"].reshape(1)
+        self._phase = self.state["phase"].reshape(1)
+        self._phase_seq = self.state["phase_seq"].reshape(1)
+        self._phase_ns = self.state["phase_ns"].reshape(1)
         self.leases = arena.record(layout.KEY_TG_LEASES, layout.LEASE, self.n_robots)
         self._lease_pid = self.leases["pid"]
         self.lockstep = inst.lockstep
@@ -374,6 +385,7 @@ class TrajectoryGenerator(Daemon):
         """Halts first, then new requests, then every running motion's next set-point; the
         tick's parts timed, and kept if it is the longest yet (``TG_STATE.longest_*``)."""
         t0, c0 = rt.monotonic_ns(), rt.thread_time_ns()
+        self._at(TgPhase.REQUESTS, 0, t0)
         self._check_until = t0 + self.check_ns  # the whole tick's check share
         self._work = 0
         self._now = tick
@@ -401,30 +413,45 @@ class TrajectoryGenerator(Daemon):
                 self.state["unreported"] += 1
                 continue
             self.state["taken_seq"] = seq
+            self._phase_seq[0] = seq & 0xFFFFFFFF
             self._take(seq, self.request[0].copy())
             taken += 1
         t1 = rt.monotonic_ns()
+        self._at(TgPhase.STARTING, 0, t1)
         self._start_waiting()
         t2 = rt.monotonic_ns()
         for m in list(self.motions):
             why = self._cannot_move(m.robots)
             if m.guard and self._tripped(m) >= 0:  # SIO holds its arms where they touched
+                self._at(TgPhase.ENDING, m.seq, rt.monotonic_ns())
                 self._end_motion(m, RequestState.CONTACT)
             elif why:  # SIO holds the arm or its demand follows it: the motion cannot go on
+                self._at(TgPhase.ENDING, m.seq, rt.monotonic_ns())
                 self._end_motion(m, RequestState.ABORTED, why)
             elif m.checking:
+                self._at(TgPhase.CHECKING, m.seq, rt.monotonic_ns())
                 self._check(m)
                 if not m.checking and m in self.motions:
+                    self._at(TgPhase.ADVANCING, m.seq, rt.monotonic_ns())
                     self._advance(m)  # started: its first tick's set-point, as any motion's
             elif m.ending is not None:
                 if not any(self.fifos[k].pending() for k in m.robots):
+                    self._at(TgPhase.ENDING, m.seq, rt.monotonic_ns())
                     self._end_motion(m, m.ending, m.ending_message)
             else:
+                self._at(TgPhase.ADVANCING, m.seq, rt.monotonic_ns())
                 self._advance(m)
         self._tick[...] = tick
         t3 = rt.monotonic_ns()
+        self._at(TgPhase.IDLE, 0, t3)
         if t3 - t0 > self._longest[0]:
             self._note_longest(tick, (t0, t1, t2, t3), rt.thread_time_ns() - c0, taken)
+
+    def _at(self, phase: TgPhase, seq: int, now_ns: int) -> None:
+        """Say where the TG is (``TG_STATE.phase``), for a reader at a halt; in the cycle."""
+        self._phase_ns[0] = now_ns
+        self._phase_seq[0] = seq & 0xFFFFFFFF
+        self._phase[0] = phase  # last: its time and request are there before it
 
     def _note_longest(
         self, tick: int, t: tuple[int, int, int, int], cpu_ns: int, taken: int
