@@ -99,6 +99,7 @@ class Introspector:
         self.joints = cfg.joints
         self.sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
         self._views: dict[str, np.ndarray] = {}
+        self._servo_names: tuple[list[str], list[str]] | None = None  # _names, once written
 
     def _view(self, key: str, dtype: np.dtype, count: int | None = None) -> np.ndarray | None:
         v = self._views.get(key)
@@ -205,7 +206,9 @@ class Introspector:
 
     def _names(self) -> tuple[list[str], list[str]]:
         """The joint servos' and the robot-level servos' names, each in registry order
-        (SIO's ``servo.names``; empty before SIO laid it out)."""
+        (SIO's ``servo.names``, written once at its first start: read once; empty before)."""
+        if self._servo_names is not None:
+            return self._servo_names
         found = self.inst.arena.lookup(layout.KEY_SERVO_NAMES)
         if found is None:
             return [], []
@@ -217,6 +220,8 @@ class Introspector:
         recs = raw.copy()
         joint = [decode(bytes(r["name"])) for r in recs if not r["robot_level"]]
         robot = [decode(bytes(r["name"])) for r in recs if r["robot_level"]]
+        if joint:  # SIO has written them
+            self._servo_names = (joint, robot)
         return joint, robot
 
     def _servos(self, robot: str, r: np.void, slots: np.ndarray) -> dict[str, Any]:

@@ -209,9 +209,3 @@ def robot_trials(
 def name_of(names: list[str], a: int) -> str:
     """Algorithm ``a`` of ``names``, or ``#a`` for an index outside them."""
     return names[a] if 0 <= a < len(names) else f"#{a}"
-
-
-def figures(slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A robot's slots' (shadow_torque, shadow_n, shadow_sq, shadow_peak): live views for
-    ``sv.arm.ArmRunner`` to record a robot-level trial with a few array operations."""
-    return slots["shadow_torque"], slots["shadow_n"], slots["shadow_sq"], slots["shadow_peak"]

@@ -101,7 +101,12 @@ class ArmRunner:
         self.tau_shadow = np.zeros(self.n)
         self._diff = np.zeros(self.n)
         self._diff2 = np.zeros(self.n)
-        self._figures = shadow.figures(slots)
+        self._figures = (
+            slots["shadow_torque"],
+            slots["shadow_n"],
+            slots["shadow_sq"],
+            slots["shadow_peak"],
+        )
 
     def run(self, tick: int) -> None:
         """Run the robot for ``tick`` (inside the cycle)."""
