@@ -95,10 +95,12 @@ _TOP_KEYS = (
     "robots",
     "plant",
     "plugins",
+    "tg_functions",
     "feedforward",
     "dashboard",
 )
-_PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms")
+_PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms", "conveyor_m_s")
+MAX_CONVEYOR_M_S = 0.5  # a faster belt is a units mistake
 _CLOCK_KEYS = (
     "base_tick_ms",
     "servo_period_ms",
@@ -215,6 +217,9 @@ class PlantConfig:
     watchdog_ms: float = 20.0  # I/O board safety timeout (appendix C.4)
     enable_hold_ms: float = 15.0  # enable bit must stay high this long (power switch relay)
     brake_delay_ms: float = 50.0  # brake solenoids engage/release this long after the amps
+    # the stand's top is a conveyor belt carrying the bar at this velocity (world x, y; m/s)
+    # while the first arm's I/O board drives its motor (``boards.run_conveyor``); 0: no belt
+    conveyor_m_s: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -322,6 +327,7 @@ class KaliConfig:
     text: str
     plant: PlantConfig = PlantConfig()
     plugins: tuple[str, ...] = ()  # servo plugin files (relative to base_dir) or module names
+    tg_functions: tuple[str, ...] = ()  # TG function plugins, likewise (tg.functions)
     feedforward: FeedforwardConfig = FeedforwardConfig()
     dashboard: DashboardConfig = DashboardConfig()
     base_dir: str = "."  # directory relative plugin paths are taken from
@@ -888,6 +894,10 @@ def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
         _identifier(p, f"plugins[{i}]", _PLUGIN_RE)
         for i, p in enumerate(_list(doc.get("plugins", []), "plugins", 0, MAX_PLUGINS))
     )
+    tg_functions = tuple(
+        _identifier(p, f"tg_functions[{i}]", _PLUGIN_RE)
+        for i, p in enumerate(_list(doc.get("tg_functions", []), "tg_functions", 0, MAX_PLUGINS))
+    )
     return KaliConfig(
         version=CONFIG_VERSION,
         instance=instance,
@@ -900,6 +910,7 @@ def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
         text=text,
         plant=plant,
         plugins=plugins,
+        tg_functions=tg_functions,
         feedforward=_feedforward(doc.get("feedforward", {})),
         dashboard=_dashboard(doc.get("dashboard", {})),
         base_dir=base_dir,
@@ -989,7 +1000,19 @@ def _plant(node: Any, period_ms: float, servo_ms: float) -> PlantConfig:
         brake_delay_ms=_float(
             m.get("brake_delay_ms", d.brake_delay_ms), "plant.brake_delay_ms", 0.0, 1000.0
         ),
+        conveyor_m_s=_conveyor(m.get("conveyor_m_s", list(d.conveyor_m_s))),
     )
+
+
+def _conveyor(node: Any) -> tuple[float, float]:
+    """``plant.conveyor_m_s``: the belt's velocity [vx, vy], at most MAX_CONVEYOR_M_S."""
+    path = "plant.conveyor_m_s"
+    if not isinstance(node, list) or len(node) != 2:
+        _fail(path, node, "must be a list of 2 numbers [vx, vy] in m/s (the belt is level)")
+    v = tuple(_finite(x, f"{path}[{j}]") for j, x in enumerate(node))
+    if math.hypot(*v) > MAX_CONVEYOR_M_S:
+        _fail(path, node, f"a belt faster than {MAX_CONVEYOR_M_S:g} m/s is a units mistake")
+    return v  # type: ignore[return-value]
 
 
 def _clock(node: Any) -> ClockConfig:

@@ -19,6 +19,8 @@ import logging
 import os
 import signal
 import sys
+import threading
+import time
 import traceback
 from collections.abc import Callable
 from typing import ClassVar
@@ -34,6 +36,7 @@ from .layout import FaultCode, ProcState, RunMode
 from .spinlock import pid_alive
 
 IDLE_WAIT_S = 0.25  # longest semaphore wait before a heartbeat and a shutdown check
+SETTLE_POLL_S = 0.001  # a leaving function's wait for the clock to see it leave
 CLOCK_WATCH_S = 0.01  # serious, real time: no signal this long → is the wall clock alive?
 
 
@@ -50,6 +53,9 @@ class Daemon:
     # not: it runs flat out as long as there are ticks to step, which at SCHED_FIFO would
     # starve the programs it waits for and meet the kernel's real-time throttling
     realtime: ClassVar[bool] = True
+    # take the slot kalictl start claimed under this name, if any; False: always claim one,
+    # so a name already taken is refused (a program's function must never take a daemon's)
+    takes_named_slot: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -133,7 +139,8 @@ class Daemon:
         self._leave = True
 
     def main(self) -> int:
-        """Run the whole lifecycle; returns the process exit code."""
+        """Run the whole lifecycle as this process's main thread (it takes SIGTERM and
+        SIGINT, which only a main thread may); returns the process exit code."""
         signal.signal(signal.SIGTERM, lambda *_: self.leave())
         signal.signal(signal.SIGINT, lambda *_: self.leave())
         try:
@@ -168,7 +175,7 @@ class Daemon:
         pcfg = None
         if self.name in {p.name for p in cfg.processes}:
             pcfg = cfg.process(self.name)
-        self.slot = self.inst.find_slot(self.name)
+        self.slot = self.inst.find_slot(self.name) if self.takes_named_slot else -1
         if self.slot < 0:
             self.slot = self.inst.claim_slot(self.name, os.getpid())
             self._claimed = True
@@ -193,7 +200,7 @@ class Daemon:
         cpu = ov["cpu"] if ov["cpu"] is not None else (pcfg.cpu if pcfg else None)
         prio = ov["priority"] if ov["priority"] is not None else (pcfg.priority if pcfg else 0)
         realtime = self.realtime and not self._hosted
-        self._rt = rt.prepare(cpu if realtime else None, self._lock_memory and realtime)
+        self._rt = self._prepare_os(cpu if realtime else None, self._lock_memory and realtime)
         self._priority = prio if realtime else 0
         p = self.inst.procs[self.slot]
         p["pid"] = os.getpid()
@@ -203,6 +210,11 @@ class Daemon:
         self._set_state(ProcState.INACTIVE)
         self.on_configure()
         self._register()
+
+    def _prepare_os(self, cpu: int | None, lock_memory: bool) -> rt.RtReport:
+        """Outside the cycle, in ``_configure``: bind the process to ``cpu`` and lock its
+        memory (``rt.prepare``), still SCHED_OTHER."""
+        return rt.prepare(cpu, lock_memory)
 
     def _go_realtime(self) -> None:
         """SCHED_FIFO at the configured priority, once start-up is over: ``on_configure``,
@@ -245,6 +257,11 @@ class Daemon:
     def _finish(self) -> None:
         if not self._hosted:  # the executive's scheduling is its own
             rt.leave_realtime()
+        self._release_slot()
+
+    def _release_slot(self) -> None:
+        """Outside the cycle: ``on_shutdown``, then leave the process table (freeing a slot
+        this daemon claimed) and close the Instance it attached."""
         if self.slot < 0:
             return
         try:
@@ -308,13 +325,13 @@ class Daemon:
                 heart[i] = now()
                 if header["shutdown"]:
                     break
-                self._watch_clock()
+                self._on_idle()
                 continue
             except posix_ipc.SignalError:
                 continue
             woke = now()
             signalled = True
-            if header["shutdown"]:
+            if header["shutdown"] or self._leave:  # the post may be ``leave``'s wake-up
                 break
             tick = int(sig[i])
             self.cycle(tick)
@@ -322,6 +339,10 @@ class Daemon:
             stats.record(tick, int(rel[i]) + after, woke, now())
             if ack_sem is not None:
                 ack_sem.release()
+
+    def _on_idle(self) -> None:
+        """Outside the cycle: no signal for ``_idle_wait_s``; look at the wall clock."""
+        self._watch_clock()
 
     def _watch_clock(self) -> None:
         """Halt naming the wall clock if it is gone or stands still (DESIGN 7): nobody else
@@ -443,19 +464,212 @@ class _CycleStats:
         self._ack[0] = tick
 
 
+# The process table's spinlock holds a pid, so two threads of one program taking it at once
+# would find it "already held by this process": a program's functions take it in turn.
+_TABLE_GUARD = threading.Lock()
+RETURNED_FALSE = "the function returned False"
+RELEASED_ELSEWHERE = "released by another process (wallclock.release)"
+
+
 class FunctionDaemon(Daemon):
-    """A plain function run periodically on the wall clock: ``control`` of thesis 3.6.2."""
+    """A plain function run periodically on the wall clock: ``control`` of thesis 3.6.2.
+
+    Run two ways.  ``main``: the calling process's main thread becomes the periodic process
+    until the function is released (``wallclock.control``, blocking, as in the thesis); any
+    exception halts the system.  ``start_thread``: a thread of the calling program runs it
+    while the program goes on (``client.Kali.control``); the slot carries the program's pid,
+    so the clock watches the program, and the function shares the program's objects (a
+    shared transform the program holds, owned by its pid).  A thread takes only what is its
+    own: its CPU and priority (on Linux ``sched_setaffinity`` and ``sched_setscheduler`` of
+    pid 0 act on the calling thread) and its timer slack; locking memory, freezing the heap
+    and signal handlers are the whole program's, and stay the program's business.  A
+    non-serious function run in a thread that raises is released with its error; a serious
+    one halts the system.
+    """
 
     kind = "function"
+    takes_named_slot = False
 
     def __init__(self, instance: str, name: str, func: Callable[[int], object], **kw) -> None:
         super().__init__(instance, name, **kw)
         self._func = func
+        self.ticks = np.zeros(1, dtype=np.int64)  # calls so far; a view: no allocation a call
+        self.reason = ""  # why it ended: a release message, its return or its error
+        self.error: str | None = None  # what it raised, as text
+        self.thread: threading.Thread | None = None  # the thread running it (start_thread)
+        self._thread_cpu: int | None = None  # the CPU that thread binds itself to
+        self._wake: posix_ipc.Semaphore | None = None  # its slot's semaphore, while it runs
+        self._wake_lock = threading.Lock()  # release posts _wake only while it is open
 
     def cycle(self, tick: int) -> None:
-        """Call the user's function with the tick; it returning False releases it."""
+        """Inside the cycle: call the user's function with the tick; it returning False
+        releases it."""
+        self.ticks[0] += 1
         if self._func(tick) is False:
-            self.leave()
+            self.release(RETURNED_FALSE)
+
+    def release(self, reason: str) -> None:
+        """From any thread: end the loop after the current cycle (thesis ``release``); the
+        first reason given is kept.  A thread waiting for its signal is woken for it."""
+        if not self.reason:
+            self.reason = reason
+        self.leave()
+        if threading.current_thread() is not self.thread:
+            with self._wake_lock:
+                if self._wake is not None:
+                    self._wake.release()
+
+    def start_thread(self) -> None:
+        """Outside the cycle, in the calling thread: configure (claim the slot, register;
+        anything wrong raises here and leaves nothing), then run the loop in a new daemon
+        thread of this process.  Returns once the slot is ACTIVE, so the clock signals it
+        from its next tick on (or once the thread has already ended: ``error`` says why)."""
+        started = threading.Event()
+        self.thread = threading.Thread(
+            target=self._thread_main, args=(started,), name=f"kali {self.name}", daemon=True
+        )
+        try:
+            with _TABLE_GUARD:
+                self._configure()
+            self.on_activate()
+        except BaseException:
+            if self.slot >= 0:
+                self._finish()
+            elif hasattr(self, "inst"):  # attached, but no slot claimed: close it
+                self.inst.close()
+            raise
+        self._wake = self.inst.slot_semaphore(self.slot)
+        self.thread.start()
+        started.wait()
+
+    def _thread_main(self, started: threading.Event) -> None:
+        """The thread's life: its own CPU and priority, ACTIVE, the loop, then leave."""
+        try:
+            self._bind_thread()
+            self._go_realtime()  # sched_setscheduler(0): this thread only
+            self._set_state(ProcState.ACTIVE)
+            self.inst.bump_registry()  # after ACTIVE: the clock only signals active slots
+            started.set()
+            self._loop()
+            self.on_deactivate()
+        except Exception as exc:
+            self._raised(exc)
+        finally:
+            try:
+                self._finish()
+            finally:
+                started.set()
+
+    def _raised(self, exc: Exception) -> None:
+        """Outside the cycle, in the thread: the function raised ``exc``.  Serious: halt the
+        system naming it (DAEMON_ERROR), as a failing Kali process does.  Else only this
+        function is released, its error kept and logged; the system runs on."""
+        text = f"{type(exc).__name__}: {exc}"
+        self.error = text
+        if not self.reason:
+            self.reason = text
+        if self.serious:
+            self._fail(exc)
+            return
+        self.log.error("%s released: it raised %s\n%s", self.name, text, traceback.format_exc())
+        self._set_state(ProcState.ERROR)
+
+    def _prepare_os(self, cpu: int | None, lock_memory: bool) -> rt.RtReport:
+        """As every daemon's in ``main``; in a thread nothing yet: ``_configure`` runs in the
+        program's thread, whose CPU and memory are the program's.  The thread binds itself
+        (``_bind_thread``)."""
+        if self.thread is None:
+            return super()._prepare_os(cpu, lock_memory)
+        self._thread_cpu = cpu
+        return rt.RtReport(-1, 0, 0, False, [])
+
+    def _bind_thread(self) -> None:
+        """In the thread, outside the cycle: timer slack 1 ns and, given a CPU, bind to it;
+        on Linux both act on the calling thread alone (``rt.prepare`` would also bind every
+        other thread of the program, and lock the whole program's memory)."""
+        report = rt.prepare(None, lock_memory=False)  # timer slack only: per thread
+        cpu = self._thread_cpu
+        if cpu is not None:
+            try:
+                os.sched_setaffinity(0, {cpu})
+                report.cpu = cpu
+            except OSError as exc:
+                report.warnings.append(f"cannot bind to CPU {cpu}: {exc.strerror}")
+        self._rt = report
+        self.inst.procs[self.slot]["cpu"] = report.cpu
+
+    def _on_idle(self) -> None:
+        """Outside the cycle: a slot another process released (``wallclock.release``) is
+        signalled no more: leave instead of waiting for ever."""
+        if not self.inst.procs[self.slot]["periodic"]:
+            self.release(RELEASED_ELSEWHERE)
+            return
+        super()._on_idle()
+
+    def on_configure(self) -> None:
+        """Outside the cycle: take any post an earlier holder of this slot left on its
+        semaphore (a signal it never took), so the first wake-up is the clock's."""
+        drain(self.inst.slot_semaphore(self.slot))
+
+    def _finish(self) -> None:
+        """Outside the cycle: leave the clock (``_unregister``), then the process table."""
+        if self.thread is None or threading.current_thread() is self.thread:
+            rt.leave_realtime()  # never the program's thread: its scheduling is its own
+        with self._wake_lock:
+            self._wake = None
+        if self.slot >= 0:
+            self._unregister()
+        with _TABLE_GUARD:
+            self._release_slot()
+
+    def _unregister(self) -> None:
+        """Outside the cycle: stop the clock signalling this slot, then acknowledge whatever
+        it signalled before it saw that, until it can signal no more: the clock rescans its
+        slots at the start of each tick, so once it has begun the tick after next, or stands
+        (stopped, halted, shut down).  A process that leaves may leave that to its exit (the
+        clock finds its pid dead); a thread's pid lives on, and a signal it never took would
+        hold a lockstep tick until the timeout (a serious one: LOCKSTEP_TIMEOUT)."""
+        inst, i = self.inst, self.slot
+        c, procs, header = inst.clock, inst.procs, inst.arena.header
+        procs[i]["periodic"] = 0
+        inst.bump_registry()
+        since = int(c["tick"])
+        sig, ack = procs["signal_tick"][i : i + 1], procs["ack_tick"][i : i + 1]
+        sem = inst.slot_semaphore(i)
+        ack_sem = inst.ack_semaphore() if inst.lockstep else None
+        limit_s = int(c["lockstep_timeout_ms"]) / 1000.0 + 1.0
+        deadline = time.monotonic() + limit_s
+        while True:
+            seen = int(sig[0])
+            if seen > int(ack[0]):  # signalled, and it will not run: acknowledged unrun
+                ack[0] = seen
+                if ack_sem is not None:
+                    ack_sem.release()
+            stands = int(c["mode"]) == RunMode.STOPPED or inst.fault["active"] or header["shutdown"]
+            if (stands or int(c["tick"]) > since + 1) and int(sig[0]) == seen:
+                break
+            if time.monotonic() > deadline:
+                self.log.warning(
+                    "%s: the wall clock stayed in tick %d for %g s after the release",
+                    self.name,
+                    int(c["tick"]),
+                    limit_s,
+                )
+                break
+            try:
+                sem.acquire(SETTLE_POLL_S)
+            except posix_ipc.BusyError:
+                pass
+        drain(sem)
+
+
+def drain(sem: posix_ipc.Semaphore) -> None:
+    """Outside the cycle: take every post ``sem`` holds, without waiting."""
+    try:
+        while True:
+            sem.acquire(0)
+    except posix_ipc.BusyError:
+        pass
 
 
 def freeze_heap() -> None:

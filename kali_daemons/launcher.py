@@ -37,6 +37,7 @@ from .instance import Instance, all_semaphore_names, check_instance_name, decode
 from .layout import ProcState, RunMode
 from .servo import Registry, registry_for
 from .spinlock import holder_text, pid_alive
+from .tg.functions import registry_for as functions_for
 from .wallclock import start_kali_clock
 
 STOP_GRACE_S = 3.0
@@ -378,6 +379,7 @@ def _check_servos(cfg: KaliConfig) -> Registry:
             registry.index(robot.servo)
         except ConfigError as exc:
             raise ConfigError(f"{cfg.source}: robot '{robot.name}' servo: {exc}") from None
+    functions_for(cfg.tg_functions, cfg.base_dir)  # TG function plugins: loaded here too
     return registry
 
 

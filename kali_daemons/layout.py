@@ -439,7 +439,8 @@ IO_BOARD = np.dtype(
         ("adc_analog", "<u2"),  # plant: TLC532A analog register, ADC_DONE | value
         ("gripper", "u1"),  # Kali: 1 = close the gripper (weld to the object if in reach)
         ("present", "u1"),  # plant: 1 once the board answers (its registers are valid)
-        ("_pad", "u1", (2,)),
+        ("conveyor", "u1"),  # Kali: 1 = run the conveyor belt's motor (the first arm's board)
+        ("_pad", "u1"),
         ("clamped", "<u4"),  # plant: out-of-range register values clamped, as hardware does
         # the wrist F/T sensor's gauge ADC bank (ftsensor.py): one simultaneous sample of its
         # six bridges per request, signed 16-bit codes over ±10 V
@@ -855,11 +856,17 @@ KEY_MOTION_STATUS = "tg.status"
 KEY_TG_ROBOTS = "tg.robots"
 KEY_TG_STATE = "tg.state"
 KEY_TG_LEASES = "tg.leases"
+KEY_TG_FRAMES = "tg.frames"
+KEY_TG_FUNCTIONS = "tg.functions"
 PROGRAM_BYTES = 24  # a client's program name in its requests and leases
 
 # A request's ``flags``.
 REQUEST_FORCE = 1 << 0  # take the arms over from the program that owns them (kalictl --force)
 REQUEST_UNWATCHED = 1 << 1  # nobody reads the outcome: its status record is free once it ends
+# start only once the motion before it on its arms has ended at rest; without it, a JOINTS or
+# PATH request queued behind one of the same kind on the same arms continues it without a stop
+# (thesis 3.1: the transition between one request's last segment and the next one's first)
+REQUEST_STOP_BETWEEN = 1 << 2
 
 
 class MotionKind(enum.IntEnum):
@@ -869,6 +876,13 @@ class MotionKind(enum.IntEnum):
     PATH = 2  # straight lines of the control frame through ``poses``, blended
     STOP = 3  # decelerate the motions of ``robots`` to rest on their paths
     ABORT = 4  # drop the motions of ``robots`` at once (the arms hold where the set-point is)
+    # follow the control frame's target, the product of the transforms ``loop`` names
+    # (fixed ones in ``poses``, shared ones in ``tg.frames``), evaluated every TG tick,
+    # within the speed and acceleration limits, until stopped (or ``track_s`` has passed)
+    TRACK = 5
+    # follow the joint targets a program streams into the shared record ``loop[0]`` (one
+    # robot), within ``speed_scale`` of its joint speed and acceleration limits, until stopped
+    TRACK_JOINTS = 6
 
 
 class RequestState(enum.IntEnum):
@@ -901,6 +915,75 @@ TERMINAL_STATES = (
 # must be in; 0 means "the one it is in".
 CONFIG_GIVEN = 1 << 7
 
+# Position equations (thesis 3.2.3, RCCL): a TRACK request's target is the product of up to
+# MAX_LOOP transforms, each fixed (one of the request's ``poses``) or shared (a record of
+# ``tg.frames`` that programs write while the motion runs).
+MAX_LOOP = 8
+MAX_FRAMES = 16  # shared transforms in one cell
+FRAME_NAME_BYTES = 32
+
+
+class FrameKind(enum.IntEnum):
+    """What a factor of a TRACK request's loop is (``MOTION_REQUEST.loop[i, 0]``)."""
+
+    FIXED = 1  # ``poses[index]`` of the request
+    SHARED = 2  # ``tg.frames[index]``, read every TG tick
+    FUNCTION = 3  # ``tg.functions[index]``, evaluated by the TG every tick
+
+
+# A shared transform (thesis 3.2.3 "objects and functions", Type 4 record): one program
+# writes it, whole or not at all (a seqlock: ``seq`` odd while it writes, even when whole),
+# whenever it likes; the TG reads it every tick without waiting.  A motion tracking it stops
+# on its path once it is older than ``lifetime_s`` (libfranka's and MoveIt Servo's
+# stale-command rule), or holds a value that is not finite or not a rigid motion.
+SHARED_FRAME = np.dtype(
+    [
+        ("seq", "<u4"),  # writer: odd while it writes the rest, even when whole
+        ("owner_pid", "<i4"),  # the program writing it (0: free); claimed by compare-and-swap
+        ("name", f"S{FRAME_NAME_BYTES}"),  # the owner's name for it
+        ("stamp_tick", "<i8"),  # wall clock tick of the last write (simulated in lockstep)
+        ("lifetime_s", "<f8"),  # older than this it is stale (0: never)
+        ("writes", "<u8"),  # writes since claimed (0: nothing to read yet)
+        ("pose", "<f8", (4, 4)),  # the transform (a pose stream's target), world or parent
+        ("joints", "<f8", (MAX_JOINTS,)),  # a joint stream's targets, rad
+    ],
+    align=True,
+)
+
+# A TG function in use (thesis 3.2.3 "functions"; ``tg.functions``): a transform the TG
+# computes every tick by a registered function (``tg.functions``: built-ins and the config's
+# ``tg_functions`` plugins) from the time, the sensors and its private data, here.  A program
+# claims a slot, sets its parameters (``seq`` odd while it writes them, the TG skips the slot
+# then) and names it in a TRACK loop.
+MAX_FUNCTIONS = 16
+FUNCTION_DATA_BYTES = 256
+TG_FUNCTION = np.dtype(
+    [
+        ("seq", "<u4"),  # the program: odd while it changes the parameters
+        ("owner_pid", "<i4"),  # the program using it (0: free); claimed by compare-and-swap
+        ("name", f"S{FRAME_NAME_BYTES}"),  # the program's name for it
+        ("algo", "<u2"),  # 1 + the function's index in the TG's registry (0: none)
+        ("status", "u1"),  # TG: FunctionStatus
+        ("_pad", "u1"),
+        ("evaluations", "<u4"),  # TG: times evaluated
+        ("start_tick", "<i8"),  # its time t counts from this wall clock tick
+        ("last_ns", "<i8"),  # TG: how long its last evaluation took
+        ("worst_ns", "<i8"),  # TG: its longest evaluation
+        ("data", "u1", (FUNCTION_DATA_BYTES,)),  # its private data (its own dtype)
+    ],
+    align=True,
+)
+
+
+class FunctionStatus(enum.IntEnum):
+    """What became of a TG function (``TG_FUNCTION.status``), written by the TG."""
+
+    IDLE = 0
+    RUNNING = 1
+    RAISED = 2  # it raised: every motion using it was held
+    TOO_LONG = 3  # an evaluation outlasted its budget: every motion using it was held
+
+
 MOTION_REQUEST = np.dtype(
     [
         ("kind", "u1"),  # MotionKind
@@ -921,7 +1004,17 @@ MOTION_REQUEST = np.dtype(
         ("speed", "<f8"),  # PATH: m/s
         ("angular_speed", "<f8"),  # PATH: rad/s
         ("transition_s", "<f8"),  # PATH: blend time at each via point
+        ("durations", "<f8", (MAX_SEGMENTS,)),  # PATH: each segment's time, s (0: by speed)
         ("guard_n", "<f8"),  # JOINTS, PATH: stop at this contact force on any arm, N (0: none)
+        ("n_loop", "u1"),  # TRACK: factors in ``loop``; TRACK_JOINTS: 1
+        ("loop", "u1", (MAX_LOOP, 2)),  # TRACK: factor i is (FrameKind, index)
+        ("accel", "<f8"),  # TRACK: m/s², the control frame's linear acceleration limit
+        ("angular_accel", "<f8"),  # TRACK: rad/s²
+        ("track_s", "<f8"),  # TRACK, TRACK_JOINTS: ends (at rest) after this long; 0: stop()
+        # motions started together (``Kali.together``): ``group_size`` requests of one
+        # program share ``group`` (its pid << 32 | a count; 0: none) and start on one TG tick
+        ("group", "<u8"),
+        ("group_size", "u1"),
     ],
     align=True,
 )
@@ -942,6 +1035,8 @@ REQUEST_STATUS = np.dtype(
         ("contact_xyz", "<f8", (3,)),  # TG, CONTACT: that robot's tool point then, world, m
         ("contact_force", "<f8"),  # TG, CONTACT: the contact force that tripped it, N
         ("contact_wrench", "<f8", (WRENCH,)),  # TG, CONTACT: its contact wrench then, world
+        # TG, TRACK*: ticks its target moved faster than the limits allow (rate-limited)
+        ("limited", "<u8"),
     ],
     align=True,
 )
@@ -1211,6 +1306,8 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_TG_ROBOTS, TG_ROBOT, lambda c, i: len(c.robots), "TG", "clients, viewer"),
     Record(KEY_TG_STATE, TG_STATE, None, "TG", "kalictl status"),
     Record(KEY_TG_LEASES, LEASE, lambda c, i: len(c.robots), "TG", "clients, kalictl"),
+    Record(KEY_TG_FRAMES, SHARED_FRAME, MAX_FRAMES, "clients (each its own)", "TG"),
+    Record(KEY_TG_FUNCTIONS, TG_FUNCTION, MAX_FUNCTIONS, "clients (params), TG (state)", "TG"),
 )
 
 

@@ -15,6 +15,10 @@ Two measurements:
      pose and its grasp, IK for both).  4 pairs are 8 arms: more than a cell has (at most 4
      robots), but in process it is only computation, and the bases repeat bench_plant's 4
      PLACEMENTS.
+   - ``track`` (issue 28): one arm per system whose tool follows a position equation of one
+     shared transform (read under its seqlock each tick) and one TG function (the built-in
+     ``sine``, 1 cm at 0.5 Hz along the tool's z, evaluated each tick), within the tracking
+     limits, with IK, the singularity check and the joint speed check every tick.
 
    Every arm starts at ``puma560.QN`` (configuration 'ruf'); a Cartesian system's object
    goes round a closed square of ``SIDE_M`` sides in the world y-z plane at ``SPEED_M_S``
@@ -119,21 +123,28 @@ from kali_daemons import layout
 from kali_daemons.arena import Arena
 from kali_daemons.channels import InterpolatingFifo
 from kali_daemons.client import Kali
-from kali_daemons.client.motion import MotionHandle, MotionSystem
+from kali_daemons.client.motion import TRACK_LIMITS, MotionHandle, MotionSystem
 from kali_daemons.config import KaliConfig, load_config
 from kali_daemons.errors import KaliError
 from kali_daemons.instance import Instance
-from kali_daemons.layout import RequestState
+from kali_daemons.layout import FrameKind, RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.servolevel import FIFO_CAPACITY
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows
+from kali_daemons.tg.functions import FunctionRegistry, FunctionSlots, Sensors, data_of, set_params
 from kali_daemons.tg.profiles import JointMotion
+from kali_daemons.tg.tracking import SharedFrames, Tracking, TrackingMotion, write_frame
 
 SYSTEMS = (1, 2, 4)
-MODES = ("joint", "cart 1 arm", "cart pair")
-ARMS_PER_SYSTEM = {"joint": 1, "cart 1 arm": 1, "cart pair": 2}
+TICK_NS = 1_000_000  # the in-process TG's wall clock tick (1 ms: config/default.yaml)
+MODES = ("joint", "cart 1 arm", "cart pair", "track")
+ARMS_PER_SYSTEM = {"joint": 1, "cart 1 arm": 1, "cart pair": 2, "track": 1}
+# track: the tool follows a loop of one shared transform (written once, never stale) and one
+# TG function (``sine``: 1 cm at 0.5 Hz along the tool's z), evaluated every tick (issue 28)
+TRACK_AMPLITUDE_M = 0.01
+TRACK_HZ = 0.5
 GOAL_HZ = 100
 GOAL = Goal(  # issue 5: two cooperating arms at 100 Hz in under 10 % of one core
     f"two cooperating arms at {GOAL_HZ} Hz", "median TG share", "<", 10.0, "% of one core",
@@ -200,9 +211,13 @@ class TgStandIn:
     set-point and progress records and TG period.  ``advance`` is the TG's own method."""
 
     advance = TrajectoryGenerator._advance
+    _track = TrajectoryGenerator._track
+    _next_tau = TrajectoryGenerator._next_tau
 
     def __init__(self, arena: Arena, n_arms: int, dt: float, ratio: Fraction) -> None:
         self.dt = dt
+        self._now = 0  # wall clock tick: a tracking motion's time (its TG function's t)
+        self.ticks = round(dt * 1e9 / TICK_NS)  # wall clock ticks per TG tick
         self.fifos = [
             InterpolatingFifo(
                 arena, layout.KEY_FIFO.format(robot=f"arm{k}"), N, FIFO_CAPACITY, ratio
@@ -215,6 +230,7 @@ class TgStandIn:
         )
         self._setpoint_of = [self.tg_robots["setpoint"][k, :N] for k in range(n_arms)]
         self._progress = self.status["progress"]
+        self._limited = self.status["limited"]
         self._tick = self.tg_robots["tick"]
         self._out = np.empty(N)
 
@@ -231,8 +247,33 @@ class TgStandIn:
         raise BenchError(f"motion {m.seq}: no joint solution at τ = {m.tau:.2f} s: {why}")
 
 
-def make_motions(mode: str, systems: int, dt: float) -> list[Motion]:
-    """``systems`` motion systems of ``mode``, on arms 0, 1, ... (bases from PLACEMENTS)."""
+def tracking(arena: Arena, s: int, base: np.ndarray, q0: np.ndarray, dt: float) -> Tracking:
+    """A tracking motion of one arm whose tool follows shared transform ``s`` (its start
+    pose) times TG function ``s`` (``sine``), both set up here as a program would."""
+    me = os.getpid()
+    frames = arena.record(layout.KEY_TG_FRAMES, layout.SHARED_FRAME, layout.MAX_FRAMES)
+    frames["owner_pid"][s] = me
+    write_frame(frames[s : s + 1].reshape(()), 0, base @ kinematics.fkine(q0), None)
+    slots = arena.record(layout.KEY_TG_FUNCTIONS, layout.TG_FUNCTION, layout.MAX_FUNCTIONS)
+    registry = FunctionRegistry()
+    sine = registry.index("sine")
+    slot = slots[s : s + 1].reshape(())
+    slot["owner_pid"], slot["algo"] = me, sine + 1
+    set_params(registry[sine], data_of(slot, registry[sine]),
+               {"amplitude": TRACK_AMPLITUDE_M, "frequency_hz": TRACK_HZ}, fresh=True)  # fmt: skip
+    functions = FunctionSlots(slots, registry, Sensors([], [], []), TICK_NS)
+    motion = TrackingMotion(
+        [f"arm{s}"], [puma560.ROBOT], [base], [np.eye(4)], [q0], [None],
+        [(FrameKind.SHARED, s), (FrameKind.FUNCTION, s)], SharedFrames(frames, TICK_NS),
+        TRACK_LIMITS, dt, functions=functions,
+    )  # fmt: skip
+    motion.start(0)
+    return motion
+
+
+def make_motions(mode: str, systems: int, dt: float, arena: Arena | None = None) -> list[Motion]:
+    """``systems`` motion systems of ``mode``, on arms 0, 1, ... (bases from PLACEMENTS);
+    ``track`` needs the ``arena`` its shared transforms and TG functions live in."""
     q0 = np.array(puma560.QN)
     motions = []
     arm = 0
@@ -240,9 +281,14 @@ def make_motions(mode: str, systems: int, dt: float) -> list[Motion]:
         n = ARMS_PER_SYSTEM[mode]
         robots = list(range(arm, arm + n))
         arm += n
-        if mode == "joint":
+        if mode == "track":
+            assert arena is not None
+            profile: JointMotion | CartesianMotion | Tracking = tracking(
+                arena, s, base_of(robots[0]), q0, dt
+            )
+        elif mode == "joint":
             target = q0 + np.radians(JOINT_MOVE_DEG)
-            profile: JointMotion | CartesianMotion = JointMotion(
+            profile = JointMotion(
                 q0,
                 target,
                 np.array(puma560.QD_MAX) * JOINT_SPEED,
@@ -266,7 +312,8 @@ def make_motions(mode: str, systems: int, dt: float) -> list[Motion]:
                 dt,
             )
         out, rows = joint_rows([N] * n)
-        motions.append(Motion(s + 1, robots, profile, out=out, rows=rows))
+        tracks = mode == "track"
+        motions.append(Motion(s + 1, robots, profile, out=out, rows=rows, tracking=tracks))
     return motions
 
 
@@ -321,11 +368,11 @@ def cost_per_tick(
 ) -> CostRow:
     """Time ``blocks`` blocks of BLOCK_TICKS TG ticks of ``systems`` systems of ``mode``, then
     ``cold_ticks`` single ticks each after evicting the caches."""
-    motions = make_motions(mode, systems, dt)
-    n_arms = sum(len(m.robots) for m in motions)
     name = f"benchtg{os.getpid()}"
     arena = Arena.create(name, 4 << 20)
     try:
+        motions = make_motions(mode, systems, dt, arena)
+        n_arms = sum(len(m.robots) for m in motions)
         tg = TgStandIn(arena, n_arms, dt, ratio)
         try:
             tg.advance(motions[0])  # the stand-in has all _advance uses, or say what is missing
@@ -340,6 +387,7 @@ def cost_per_tick(
             tg.drain()
             c0, w0 = time.thread_time_ns(), time.perf_counter_ns()
             for _ in range(BLOCK_TICKS):
+                tg._now += tg.ticks
                 for m in motions:
                     tg.advance(m)
             c1, w1 = time.thread_time_ns(), time.perf_counter_ns()
@@ -352,6 +400,7 @@ def cost_per_tick(
             tg.drain()
             evict.fill(float(i))  # every cache level now holds this buffer, not the TG
             c0 = time.thread_time_ns()
+            tg._now += tg.ticks
             for m in motions:
                 tg.advance(m)
             cold.append((time.thread_time_ns() - c0) / 1e3)

@@ -18,6 +18,7 @@ from kali_daemons.config import (
     PROCESS_NAMES,
     ClockConfig,
     KaliConfig,
+    PlantConfig,
     ProcessConfig,
     RobotConfig,
     load_config,
@@ -97,6 +98,8 @@ def test_default_file_loads_to_expected_objects() -> None:
         source=str(DEFAULT_PATH),
         text=DEFAULT_TEXT,
         plugins=("../scripts/servo_plugin_example.py",),
+        tg_functions=("../scripts/tg_function_example.py",),
+        plant=PlantConfig(conveyor_m_s=(0.0, 0.02)),
         base_dir=str(DEFAULT_PATH.parent),
     )
     assert isinstance(cfg.startup_timeout_s, float)  # the YAML says 60: int accepted as float
@@ -118,9 +121,13 @@ def test_default_file_loads_on_this_machine(monkeypatch: pytest.MonkeyPatch) -> 
 def test_optional_sections_default_to_the_default_file() -> None:
     minimal = parse_config("version: 1\ninstance: default\n")
     full = parse_config(DEFAULT_TEXT)
-    # the default file names the example servo plugin; without the section there are none
+    # the default file names the example plugins and gives the stand a belt; without the
+    # sections there are none
     assert full.plugins == ("../scripts/servo_plugin_example.py",) and minimal.plugins == ()
-    assert dataclasses.replace(minimal, text="") == dataclasses.replace(full, text="", plugins=())
+    assert full.tg_functions == ("../scripts/tg_function_example.py",)
+    assert minimal.tg_functions == () and minimal.plant.conveyor_m_s == (0.0, 0.0)
+    bare = dataclasses.replace(full, text="", plugins=(), tg_functions=(), plant=PlantConfig())
+    assert dataclasses.replace(minimal, text="") == bare
 
 
 def test_process_entries_default_per_kind() -> None:
@@ -863,3 +870,13 @@ def test_dynamics_and_viewer_may_be_left_out() -> None:
     assert [p.name for p in cfg.processes] == ["wallclock", "plant", "tg", "sio", "sv.0", "sv.1"]
     with pytest.raises(ConfigError, match=r"processes\.tg\.enabled: unknown key"):
         make_config("opt", {r"^(  tg: +\{)": r"\1enabled: false, "})
+
+
+def test_the_conveyor_and_tg_function_plugins_are_checked() -> None:
+    assert "plant.conveyor_m_s" in error_of(
+        edit(("conveyor_m_s: [0.0, 0.02]", "conveyor_m_s: [0.0, 2.0]"))
+    )
+    assert "2 numbers [vx, vy]" in error_of(
+        edit(("conveyor_m_s: [0.0, 0.02]", "conveyor_m_s: [0.0, 0.02, 0.0]"))
+    )
+    assert "tg_functions" in error_of(edit(("tg_functions: [", "tg_functions: [[], ")))

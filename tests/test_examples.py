@@ -104,3 +104,40 @@ def test_squeeze_example_carries_the_bar_squeezing_20_n(kali: Callable[..., str]
     assert mean == pytest.approx(20.0, abs=0.5), out
     assert 14.0 <= low <= high <= 26.0, out
     assert_bar_put_back(out)
+
+
+def test_conveyor_example_catches_the_bar_on_the_move(kali: Callable[..., str]) -> None:
+    """It tracks the bar's grasp site on the moving belt (its own measure, from the measured
+    joints, within 2 mm; tests/test_tracking.py checks the plant's truth), picks the bar up
+    and sets it down further along the belt."""
+    out = run_example(kali, "example_conveyor.py")
+    m = re.search(r"tracked the moving grasp site within ([\d.]+) mm", out)
+    assert m and float(m.group(1)) < 2.0, out
+    m = re.search(r"set down at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m", out)
+    assert m, out
+
+
+def test_teleop_example_follows_the_hand_and_stops_with_it(kali: Callable[..., str]) -> None:
+    """The hand controller (its own process, on the wall clock) streams a figure of eight of
+    ±3 cm; the tool follows it; the device stops and the stale stream stops the arm."""
+    out = run_example(kali, "example_teleop.py")
+    m = re.search(r"followed the hand up to ([\d.]+) mm from the start", out)
+    assert m and 25.0 < float(m.group(1)) < 40.0, out
+    assert re.search(r"so did the arm: stopped on its path: shared transform 'hand' was not "
+                     r"written for 0\.1[01]\d s \(its lifetime is 0\.1 s\)", out), out  # fmt: skip
+
+
+@pytest.mark.parametrize("base", ["default.yaml", "force.yaml"])
+def test_sensor_path_example_bends_its_line_and_follows_the_table(
+    kali: Callable[..., str], base: str
+) -> None:
+    """A periodic function of the program reads the measured joints and the wrist sensor and
+    writes the shared transform that bends the TG's line into a ±10 mm sine over the table
+    and holds 10 N on it (on average: under the joint PIDs the 20 N/mm pad bounces)."""
+    out = run_example(kali, "example_sensor_path.py", base=base)
+    m = re.search(r"measured across it ([-\d.]+) \.\. ([-\d.]+) mm", out)
+    assert m, out
+    assert float(m.group(1)) == pytest.approx(-10.0, abs=2.0), out
+    assert float(m.group(2)) == pytest.approx(10.0, abs=2.0), out
+    mean, _, _ = force_report("normal force", out)
+    assert mean == pytest.approx(10.0, abs=1.0), out

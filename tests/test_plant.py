@@ -526,3 +526,26 @@ def test_internal_force_is_positive_for_a_squeeze(plant: PlantSim) -> None:
         run_ms(plant, 100)
         seen[sign] = float(plant.world_truth["internal_force"]) - rest
     assert seen[+1] > 5.0 and seen[-1] < -5.0, seen
+
+
+def test_the_conveyor_carries_the_bar_at_its_speed_while_its_motor_runs(arena: Arena) -> None:
+    """The stand's top as a belt (``plant.conveyor_m_s``, issue 28): the first board's
+    conveyor line runs it; the bar's x, y then go at exactly the belt's velocity (its z and
+    attitude as physics has them), and stay when the line drops."""
+    cfg = make_config("belt", {r"^  conveyor_m_s: .*$": "  conveyor_m_s: [0.0, 0.02]"})
+    assert cfg.plant.conveyor_m_s == (0.0, 0.02)
+    sim = PlantSim(cfg, arena)
+    bar = sim.world_truth["object_pose"]
+    run_ms(sim, 50)  # settled on the stand
+    start = bar[:3].copy()
+    run_ms(sim, 200)  # the motor is off: nothing moves (it settles a few µm)
+    assert np.allclose(bar[:3], start, atol=5e-5)
+    start = bar[:3].copy()
+    sim.regs["conveyor"][0] = 1
+    run_ms(sim, 1000)
+    moved = bar[:3] - start
+    assert moved[1] == pytest.approx(0.02, abs=2e-5)  # 1 s at 2 cm/s
+    assert abs(moved[0]) < 1e-5 and abs(moved[2]) < 1e-4
+    sim.regs["conveyor"][0] = 0
+    run_ms(sim, 300)
+    assert float(bar[1] - start[1]) == pytest.approx(0.02, abs=5e-4)  # it stops (friction)

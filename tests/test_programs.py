@@ -1,6 +1,8 @@
 """Robot programs as separate processes (issue 5): a program that dies mid-motion leaves the
-motion running and the queue whole; ``Kali.control`` runs a program's function on the wall
-clock.  Lockstep instances; the test steps the clock while the program runs."""
+motion running and the queue whole; ``client.control`` makes a program itself a periodic
+function on the wall clock, blocking (``Kali.control``, which runs one in a thread while the
+program goes on: ``test_control.py``).  Lockstep instances; the test steps the clock while
+the program runs."""
 
 from __future__ import annotations
 
@@ -75,15 +77,16 @@ def test_control_runs_the_programs_function_on_the_wall_clock(kali: Callable[...
     with powered(name) as k:
         prog = program(
             """
-            import gc
-            from kali_daemons.client import Kali
+            import gc, os
+            from kali_daemons import client
             ticks, frozen = [], []
             def every_10ms(tick):
                 ticks.append(tick)
                 frozen.append(gc.get_freeze_count())
                 return len(ticks) < 5  # False releases it
-            with Kali() as kali:
-                status = kali.control(every_10ms, period_ms=10)
+            status = client.control(
+                os.environ["KALI_INSTANCE"], every_10ms, name="every_10ms", period_ms=10
+            )  # blocks: this process is the periodic function until it is released
             print(status, min(frozen), *ticks, flush=True)
             """,
             name,
@@ -95,6 +98,7 @@ def test_control_runs_the_programs_function_on_the_wall_clock(kali: Callable[...
         assert prog.returncode == 0, err
         status, frozen, *ticks = [int(v) for v in out.split()]
         assert status == 0 and len(ticks) == 5
+        assert "every_10ms" not in k.inst.process_names()
         # the start-up heap (numpy, the arena's views, ...) is frozen before the loop, so no
         # collection inside it walks those objects (daemon.freeze_heap)
         assert frozen > 10_000, frozen

@@ -224,6 +224,7 @@ class _Waiting:
     _start_waiting = TrajectoryGenerator._start_waiting
     _robots_of = TrajectoryGenerator._robots_of
     _spent = TrajectoryGenerator._spent
+    _blend_into = TrajectoryGenerator._blend_into
 
     def __init__(self, check_until: int) -> None:
         self.n_robots = 2

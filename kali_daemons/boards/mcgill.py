@@ -267,6 +267,12 @@ def estops_pressed(boards: np.ndarray) -> list[bool]:
     return [bool(b) for b in boards["estop"]]
 
 
+def run_conveyor(boards: np.ndarray, run: bool) -> None:
+    """Start (or stop) the conveyor belt: its motor's line on the first arm's board (the
+    simulated cell's ``plant.conveyor_m_s``)."""
+    boards["conveyor"][0] = 1 if run else 0
+
+
 def grip(boards: np.ndarray, k: int, close: bool) -> None:
     """Close (or open) arm ``k``'s gripper."""
     boards["gripper"][k] = 1 if close else 0

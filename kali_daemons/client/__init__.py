@@ -4,8 +4,10 @@
     with client.attach("default") as kali:
         print(kali.clock["tick"])
 
-``control`` runs one of the program's functions periodically on the wall clock.  ``Kali``
-moves the arms through the trajectory generator (``motion.py``).
+``Kali`` moves the arms through the trajectory generator (``motion.py``) and runs the
+program's functions periodically on the wall clock while it goes on (``Kali.control``, a
+``Control`` each: ``periodic.py``).  ``control`` (thesis 3.6.2) makes the calling process
+itself the periodic function, blocking until it is released.
 """
 
 from ..instance import Instance
@@ -19,6 +21,7 @@ from ..wallclock import (
     stop_kali_clock,
 )
 from .motion import Contact, Kali, MotionFailedError, MotionHandle, MotionSystem, Robot, pose
+from .periodic import Control
 
 
 def attach(instance: str = "default") -> Instance:
@@ -28,6 +31,7 @@ def attach(instance: str = "default") -> Instance:
 
 __all__ = [
     "Contact",
+    "Control",
     "Instance",
     "Kali",
     "MotionFailedError",

@@ -47,7 +47,7 @@ import numpy as np
 
 from .. import boards, layout
 from ..channels import RequestQueue
-from ..errors import KaliError, KinematicsError, ServoError
+from ..errors import KaliError, KinematicsError, QueueFullError, ServoError
 from ..instance import Instance, decode
 from ..layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
 from ..robots import Kinematics, RobotType
@@ -55,12 +55,19 @@ from ..servolevel import ServoClient
 from ..shadow import Trial
 from ..spinlock import pid_alive
 from ..tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
+from ..tg.functions import FunctionRegistry
+from ..tg.functions import registry_for as functions_for
 from ..tg.profiles import MotionError, check_guard, check_joint_target
-from ..wallclock import control as _control
 from ..wallclock import step_kali_clock
+from . import periodic, streams
+from .periodic import Control
+from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
+from .together import Together
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
 _ENDED = frozenset(int(s) for s in TERMINAL_STATES if s != RequestState.LOST)
+# a tracking motion's limits unless the program gives its own: m/s, rad/s, m/s², rad/s²
+TRACK_LIMITS = (0.25, 1.0, 1.0, 4.0)
 LOCKSTEP_STEP = 10  # ticks a waiting program steps a lockstep instance's clock at a time
 DEFAULT_INSTANCE = "default"
 INSTANCE_ENV = "KALI_INSTANCE"  # set by `kalictl -i NAME run PROGRAM`
@@ -127,6 +134,8 @@ class MotionHandle:
         while halted; the process raising the fault does not know the requests)."""
         if self._final is not None:
             return self._final
+        if self.seq == 0:  # made in a together() block that has not ended
+            return RequestState.QUEUED, "not sent yet: its together() block has not ended"
         rec = self.kali.status[self.seq % layout.STATUS_RING]
         have = int(rec["seq"])
         state = RequestState.QUEUED  # still in the queue, or taken and not yet written
@@ -178,7 +187,7 @@ class MotionHandle:
     def _release(self) -> None:
         """Tell the TG this program is done with the status record (once, and only while the
         record still holds this request: the TG cannot have reused it before)."""
-        if self._released:
+        if self._released or self.seq == 0:
             return
         self._released = True
         status = self.kali.status
@@ -211,6 +220,13 @@ class MotionHandle:
         return self._contact
 
     @property
+    def limited(self) -> int:
+        """A tracking motion's ticks so far whose target moved faster than its limits allow
+        (rate-limited); 0 for other motions."""
+        rec = self.kali.status[self.seq % layout.STATUS_RING]
+        return int(rec["limited"]) if int(rec["seq"]) == self.seq else 0
+
+    @property
     def done(self) -> bool:
         """True once the request is over, however it ended."""
         return self.state in TERMINAL_STATES
@@ -220,6 +236,8 @@ class MotionHandle:
         where); MotionFailedError if it ended any other way (refused, stopped, aborted,
         halted: the message says why), TimeoutError after ``timeout`` s."""
         timeout = _timeout_arg(f"wait: request {self.seq}", timeout)
+        if self.seq == 0:
+            raise MotionError("wait: the request is sent when its together() block ends")
         deadline = None if timeout is None else time.monotonic() + timeout
         inst = self.kali.inst
         while (state := self.state) not in TERMINAL_STATES:  # one read: judged as it was seen
@@ -336,6 +354,29 @@ def _speed_arg(what: str, name: str, value: object) -> float:
 FT_FRAMES = ("world", "tool", "sensor")  # Robot.read_wrench's frames (layout.FT_STATE fields)
 
 
+def _durations_arg(what: str, durations: object, n: int) -> list[float]:
+    """``durations`` (None, or one per segment: s > 0, or None for "by the speeds") as
+    floats, 0 meaning by the speeds; MotionError naming the bad one."""
+    if durations is None:
+        return [0.0] * n
+    items = _list_arg(what, "durations", durations)
+    if len(items) != n:
+        raise MotionError(f"{what}: {len(items)} durations for {n} segments")
+    out = []
+    for i, d in enumerate(items):
+        if d is None:
+            out.append(0.0)
+            continue
+        if (
+            isinstance(d, bool)
+            or not isinstance(d, int | float)
+            or not (math.isfinite(d) and d > 0.0)
+        ):
+            raise MotionError(f"{what}: durations[{i}] is {d!r:.40}; a time in s > 0, or None")
+        out.append(float(d))
+    return out
+
+
 def _guard_arg(what: str, guard: object, kali: Kali, robots: list[int]) -> float:
     """A guarded move's contact force (N; None: unguarded, 0.0), checked as the TG will
     (``check_guard``): every arm with a wrist sensor, the force below its contact limit."""
@@ -450,15 +491,20 @@ class Robot:
         wait: bool = True,
         timeout: float | None = None,
         guard: float | None = None,
+        duration: float | None = None,
+        blend: bool = True,
     ) -> MotionHandle:
         """A straight line of the tool to ``target`` (world), at ``speed`` m/s and
-        ``angular_speed`` rad/s at most, keeping the arm's configuration (``config``, e.g.
-        'ruf', must be the one it is in if given).  Blocks unless ``wait`` is False.
+        ``angular_speed`` rad/s at most, or taking ``duration`` s (thesis 2.2.1: the time
+        for the movement), keeping the arm's configuration (``config``, e.g. 'ruf', must be
+        the one it is in if given).  Blocks unless ``wait`` is False.
 
         ``guard`` (N) makes it a guarded move: once the wrist sensor's contact force reaches
         it, SIO holds the arm where it is that servo tick and the motion ends CONTACT
         (``handle.contact`` says where; ``wait`` returns).  Tare the sensor first."""
-        return self.move_path([target], speed, angular_speed, 0.0, config, wait, timeout, guard)
+        return self.move_path(
+            [target], speed, angular_speed, 0.0, config, wait, timeout, guard, [duration], blend
+        )
 
     def move_path(
         self,
@@ -470,15 +516,19 @@ class Robot:
         wait: bool = True,
         timeout: float | None = None,
         guard: float | None = None,
+        durations: Sequence[float | None] | None = None,
+        blend: bool = True,
     ) -> MotionHandle:
         """Straight lines of the tool through ``targets`` (world poses), blended over
         ``transition_s`` at each via point (Paul's method; the path starts and ends at
-        rest).  See ``move_line``."""
+        rest); ``durations`` gives segments a time instead of the speeds (None: by them).
+        See ``move_line``."""
         system = MotionSystem(self.kali, [self], [inverse(self.tool)])
         configs = [config]
         return system.move_path(
-            targets, speed, angular_speed, transition_s, configs, wait, timeout, guard
-        )
+            targets, speed, angular_speed, transition_s, configs, wait, timeout, guard, durations,
+            blend,
+        )  # fmt: skip
 
     def move_joints(
         self,
@@ -487,11 +537,15 @@ class Robot:
         wait: bool = True,
         timeout: float | None = None,
         guard: float | None = None,
+        blend: bool = True,
     ) -> MotionHandle:
         """A smooth joint move to ``q`` (rad, one value per joint of the arm's type:
         ``n_joints``), every joint arriving together, at ``speed`` (0, 1] of the joint speed
         and acceleration limits.  Blocks until there unless ``wait`` is False; returns the
-        request's handle either way.  ``guard``: see ``move_line``."""
+        request's handle either way.  ``guard``: see ``move_line``.  Queued behind another
+        joint move of this arm (``wait=False``), it continues that one without a stop, the
+        two summed over the overlap of its deceleration and this one's acceleration, unless
+        ``blend`` is False (thesis 3.1)."""
         what = f"move_joints: robot '{self.name}'"
         target = _joints(self.name, q, self.type)
         if not (
@@ -507,13 +561,65 @@ class Robot:
         handle = self.kali._request(
             MotionKind.JOINTS,
             [self.index],
+            flags=0 if _flag_arg(what, "blend", blend) else layout.REQUEST_STOP_BETWEEN,
             joints=[target],
             speed_scale=float(speed),
             guard_n=guard_n,
         )
-        if wait:
+        if wait and self.kali.grouping is None:  # in a together() block nothing is sent yet
             handle.wait(timeout)
         return handle
+
+    def track(
+        self,
+        loop: Sequence[SharedTransform | TgFunctionHandle | np.ndarray],
+        speed: float = TRACK_LIMITS[0],
+        angular_speed: float = TRACK_LIMITS[1],
+        accel: float = TRACK_LIMITS[2],
+        angular_accel: float = TRACK_LIMITS[3],
+        duration: float | None = None,
+        config: object | str | None = None,
+    ) -> MotionHandle:
+        """Let the tool follow the product of ``loop`` (a position equation, thesis 3.2.3:
+        fixed 4×4 poses and ``SharedTransform``s, e.g. ``[conveyor, part, grasp]``), read
+        every TG tick, within ``speed`` (m/s), ``angular_speed`` (rad/s), ``accel`` (m/s²)
+        and ``angular_accel`` (rad/s²), for ``duration`` s (None: until ``stop``).  Returns
+        the handle at once; it ends STOPPED, with the reason, when a shared transform goes
+        stale or bad or the target leaves the arm's reach (``MotionSystem.track``)."""
+        system = MotionSystem(self.kali, [self], [inverse(self.tool)])
+        return system.track(loop, speed, angular_speed, accel, angular_accel, duration, [config])
+
+    def stream(
+        self,
+        lifetime: float = streams.DEFAULT_LIFETIME_S,
+        speed: float = TRACK_LIMITS[0],
+        angular_speed: float = TRACK_LIMITS[1],
+        accel: float = TRACK_LIMITS[2],
+        angular_accel: float = TRACK_LIMITS[3],
+    ) -> Stream:
+        """Start following a stream of tool poses this program sends (``Stream.send``) at
+        any rate, within the limits (see ``track``); not sent for ``lifetime`` s, the arm
+        decelerates to rest and the motion ends.  The stream starts where the tool is."""
+        tool = self.base @ self.type.kinematics.fkine(self.kali.start_point(self.index))
+        frame = self.kali.shared_transform(
+            f"stream.{self.name}.{os.getpid()}", tool @ self.tool, lifetime
+        )
+        try:
+            handle = self.track([frame], speed, angular_speed, accel, angular_accel)
+        except BaseException:
+            frame.close()
+            raise
+        return Stream(self, frame, handle)
+
+    def stream_joints(
+        self,
+        lifetime: float = streams.DEFAULT_LIFETIME_S,
+        speed: float = 0.5,
+        duration: float | None = None,
+    ) -> JointStream:
+        """Start following a stream of joint targets (``JointStream.send(q)``), each joint
+        within ``speed`` (0, 1] of its speed and acceleration limits; see ``stream``."""
+        return streams.start_joint_stream(self, lifetime, speed, duration)
 
     def feedforward(self, mode: str) -> None:
         """This arm's feed-forward from the dynamics process (thesis 3.3.6): ``"full"`` (the
@@ -590,9 +696,13 @@ class MotionSystem:
         wait: bool = True,
         timeout: float | None = None,
         guard: float | None = None,
+        duration: float | None = None,
+        blend: bool = True,
     ) -> MotionHandle:
         """The object in a straight line to ``target`` (world); see ``Robot.move_line``."""
-        return self.move_path([target], speed, angular_speed, 0.0, configs, wait, timeout, guard)
+        return self.move_path(
+            [target], speed, angular_speed, 0.0, configs, wait, timeout, guard, [duration], blend
+        )
 
     def move_path(
         self,
@@ -604,9 +714,20 @@ class MotionSystem:
         wait: bool = True,
         timeout: float | None = None,
         guard: float | None = None,
+        durations: Sequence[float | None] | None = None,
+        blend: bool = True,
     ) -> MotionHandle:
         """The object along straight lines through ``targets``, blended over
-        ``transition_s``; ``configs`` one per arm (None: each keeps its own).  Checked
+        ``transition_s``; ``configs`` one per arm (None: each keeps its own); ``durations``
+        one per segment (s, None: by the speeds), the time for the movement (2.2.1).
+        Queued behind another path of this motion system (``wait=False``), with both
+        transitions > 0, it continues that one without a stop: the transition of 3.1 between
+        its last segment and this one's first (the two summed over the window, which is
+        Paul's transition at the junction); ``blend=False`` stops between them.  The window
+        is checked before it is taken; failing, it stops between them instead.  Any number of
+        targets: past ``layout.MAX_SEGMENTS`` the path goes as several requests, each
+        continuing the one before so, put as the queue takes them; the handle is the last
+        one's (a stop, or a part that does not arrive, cancels the rest).  Checked
         whole before it is queued when the arms are idle (MotionError says where and why).
         ``guard`` (N): a contact force that stops it on any of its arms, which then all
         hold (``Robot.move_line``)."""
@@ -614,14 +735,13 @@ class MotionSystem:
         if isinstance(targets, np.ndarray) and targets.shape == (4, 4):
             raise MotionError(f"{what}: targets is one pose; pass a list ([pose])")
         targets = _list_arg(what, "targets", targets)
-        if not 1 <= len(targets) <= layout.MAX_SEGMENTS:
-            raise MotionError(
-                f"{what}: {len(targets)} targets; 1 to {layout.MAX_SEGMENTS} per request"
-            )
+        if not targets:
+            raise MotionError(f"{what}: no targets; give at least one pose")
         targets = [_pose_arg(f"{what}: targets[{i}]", t) for i, t in enumerate(targets)]
         speed = _speed_arg(what, "speed", speed)
         angular_speed = _speed_arg(what, "angular_speed", angular_speed)
         transition_s = _speed_arg(what, "transition_s", transition_s)
+        times = _durations_arg(what, durations, len(targets))
         configs = (
             _list_arg(what, "configs", configs)
             if configs is not None
@@ -651,26 +771,78 @@ class MotionSystem:
                 angular_speed,
                 transition_s,
                 self.kali.tg_dt,
+                times,
             ).check_all()
-        poses = np.zeros((layout.MAX_SEGMENTS, 4, 4))
-        poses[: len(targets)] = targets
-        handle = self.kali._request(
-            MotionKind.PATH,
-            self.indices,
-            n_segments=len(targets),
-            poses=poses,
-            grasps=np.array(self.grasps),
-            config=[
-                encode_config(c, r.type.kinematics) for c, r in zip(flags, self.robots, strict=True)
-            ],
-            speed=speed,
-            angular_speed=angular_speed,
-            transition_s=transition_s,
-            guard_n=guard_n,
-        )
-        if wait:
+        blend = _flag_arg(what, "blend", blend)
+        if len(targets) > layout.MAX_SEGMENTS and (guard_n or self.kali.grouping is not None):
+            raise MotionError(
+                f"{what}: {len(targets)} targets; a guarded path or one in a together() block "
+                f"takes at most {layout.MAX_SEGMENTS}"
+            )
+        codes = [
+            encode_config(c, r.type.kinematics) for c, r in zip(flags, self.robots, strict=True)
+        ]
+        # a long path goes as requests of MAX_SEGMENTS targets, each continuing the one before
+        # without a stop (the TG blends them: Paul's transition at each junction, so the arm
+        # runs one path); they are put as the queue takes them
+        deadline = time.monotonic() + (math.inf if timeout is None else timeout)
+        for first in range(0, len(targets), layout.MAX_SEGMENTS):
+            part = targets[first : first + layout.MAX_SEGMENTS]
+            poses = np.zeros((layout.MAX_SEGMENTS, 4, 4))
+            poses[: len(part)] = part
+            part_times = times[first : first + layout.MAX_SEGMENTS]
+            fields = {
+                "flags": 0 if blend or first else layout.REQUEST_STOP_BETWEEN,
+                "n_segments": len(part),
+                "poses": poses,
+                "grasps": np.array(self.grasps),
+                "config": codes,
+                "speed": speed,
+                "angular_speed": angular_speed,
+                "transition_s": transition_s,
+                "guard_n": guard_n,
+                "durations": np.pad(part_times, (0, layout.MAX_SEGMENTS - len(part_times))),
+            }
+            while True:
+                try:
+                    handle = self.kali._request(MotionKind.PATH, self.indices, **fields)
+                    break
+                except QueueFullError:  # the TG takes the earlier parts as they run
+                    if time.monotonic() > deadline:
+                        raise
+                    self.kali.pause()
+        if wait and self.kali.grouping is None:  # in a together() block nothing is sent yet
             handle.wait(timeout)
         return handle
+
+    def track(
+        self,
+        loop: Sequence[SharedTransform | TgFunctionHandle | np.ndarray],
+        speed: float = TRACK_LIMITS[0],
+        angular_speed: float = TRACK_LIMITS[1],
+        accel: float = TRACK_LIMITS[2],
+        angular_accel: float = TRACK_LIMITS[3],
+        duration: float | None = None,
+        configs: Sequence[object | str | None] | None = None,
+    ) -> MotionHandle:
+        """Let the object's control frame follow the product of ``loop`` (fixed poses and
+        shared transforms), read every TG tick, within the limits, for ``duration`` s (None:
+        until stopped); ``configs`` one per arm (None: each keeps its own).  The TG refuses
+        it if the loop does not close (a shared transform nobody writes, a target out of
+        reach) and stops it on its path when a shared transform is not written within its
+        lifetime or holds garbage; a target out of reach later holds the arms where they
+        are.  Returns the handle at once."""
+        what = f"track: {', '.join(repr(n) for n in self.names)}"
+        n = len(self.robots)
+        configs = [None] * n if configs is None else _list_arg(what, "configs", configs)
+        if len(configs) != n:
+            raise MotionError(f"{what}: {len(configs)} configs for {n} arms")
+        if duration is not None and (
+            isinstance(duration, bool) or not isinstance(duration, int | float)
+        ):
+            raise MotionError(f"{what}: duration {duration!r:.40} is not a time in s")
+        limits = (speed, angular_speed, accel, angular_accel)
+        return streams.track(self, loop, limits, duration, configs)
 
     def set_internal_force(self, newtons: float, timeout: float = 5.0) -> None:
         """Squeeze the held object with ``newtons`` along the line between the two arms' tool
@@ -777,13 +949,22 @@ class Kali:
             )
             self.leases = arena.record(layout.KEY_TG_LEASES, layout.LEASE, len(self.servo.names))
             self.ft = arena.record(layout.KEY_FT, layout.FT_STATE, len(self.servo.names))
+            self.frames = arena.record(layout.KEY_TG_FRAMES, layout.SHARED_FRAME, layout.MAX_FRAMES)
+            self.functions = arena.record(
+                layout.KEY_TG_FUNCTIONS, layout.TG_FUNCTION, layout.MAX_FUNCTIONS
+            )
             self.fifos = [self.servo.level.fifo(k) for k in range(len(self.servo.names))]
         except KaliError:
             self.inst.close()
             raise
         self.names = self.servo.names
+        self.held_frames: dict[int, SharedTransform] = {}  # the shared transforms it writes
+        self.held_functions: dict[int, TgFunctionHandle] = {}  # the TG functions it set up
+        self._functions: FunctionRegistry | None = None  # loaded on first use
+        self.grouping: Together | None = None  # a together() block being written
         self.tg_dt = self.inst.config.clock.tg_period_ms / 1000.0
         self._pin: dict[str, tuple] = {}  # per robot type: Pinocchio model, data, flange frame
+        self.controls: list[Control] = []  # the periodic functions it started (control)
 
     def robot(self, name: str) -> Robot:
         """The arm called ``name``; ServoError naming the robots otherwise."""
@@ -876,15 +1057,92 @@ class Kali:
                 raise MotionError(f"motion_system: {len(grasps)} grasps for {len(robots)} arms")
         return MotionSystem(self, robots, list(grasps))
 
+    def run_conveyor(self, run: bool = True) -> None:
+        """Start (or stop) the cell's conveyor belt: its motor line on the first arm's I/O
+        board (the simulated cell's ``plant.conveyor_m_s``)."""
+        boards.run_conveyor(self.inst.boards(), _flag_arg("run_conveyor", "run", run))
+
+    def together(self) -> Together:
+        """A block whose motion requests start together, on one TG tick (thesis 3.1):
+        ``with kali.together() as g: a.move_line(...); b.move_joints(...)``, then
+        ``g.wait()`` (all) or ``g.wait(any=True)`` (the first over).  Moves inside the block
+        do not wait; they are sent when it ends."""
+        return Together(self)
+
+    def shared_transform(
+        self,
+        name: str,
+        pose: np.ndarray | None = None,
+        lifetime: float = streams.DEFAULT_LIFETIME_S,
+    ) -> SharedTransform:
+        """A shared transform ``name`` this program writes (``set``) for tracking motions
+        to read every TG tick (thesis 3.2.3), first set to ``pose`` if given; a motion
+        tracking it stops on its path once it is older than ``lifetime`` s (0: never
+        stale).  MotionError if a live program holds ``name`` or all records are held."""
+        frame = streams.claim(self, name, lifetime)
+        if pose is not None:
+            try:
+                frame.set(pose)
+            except BaseException:
+                frame.close()
+                raise
+        return frame
+
+    def find_transform(self, name: str) -> SharedTransform:
+        """The shared transform ``name`` another running program writes (a hand controller,
+        a sensor process), to name in a ``track`` loop; MotionError if none is written."""
+        return streams.find(self, name)
+
+    def tg_function(
+        self, function: str, name: str | None = None, **params: float
+    ) -> TgFunctionHandle:
+        """Set up TG function ``function`` (``conveyor``, ``line``, ``sine`` or a config
+        plugin's ``tg_functions``) with ``params`` (the rest at their defaults), its time t
+        from now; name the handle in a ``track`` loop and the TG evaluates it there every
+        tick (thesis 3.2.3).  ``name``: this program's label for it (messages name it)."""
+        return streams.set_up_function(self, function, name, params)
+
+    def function_registry(self) -> FunctionRegistry:
+        """The TG functions this instance knows: the built-ins and the config's plugins
+        (loaded on first use, as the TG loaded them)."""
+        if self._functions is None:
+            cfg = self.inst.config
+            self._functions = functions_for(cfg.tg_functions, cfg.base_dir)
+        return self._functions
+
     def control(
-        self, func: Callable[[int], object], serious: bool = False, period_ms: float = 10.0
-    ) -> int:
-        """Run ``func(tick)`` every ``period_ms`` on the wall clock in this process until it
-        returns False (thesis 3.6.2 ``control``); a serious one that raises halts the system.
-        Blocks; returns 0, or 1 if ``func`` raised."""
-        return _control(
-            self.inst.name, func, name=f"prog.{os.getpid()}", serious=serious, period_ms=period_ms
-        )
+        self,
+        func: Callable[[int], object],
+        period_ms: float = 10.0,
+        serious: bool = False,
+        name: str | None = None,
+        *,
+        cpu: int | None = None,
+        priority: int = 0,
+    ) -> Control:
+        """Run ``func(tick)`` every ``period_ms`` on the wall clock while this program goes
+        on (thesis 3.6.2 ``control``), in a thread of this program (``periodic``): returns
+        its handle at once, registered (the clock signals it from its next tick; in lockstep
+        the clock steps, as the program waits, only with it acknowledged).  It ends on
+        ``release(message)``, when it returns False, when it raises (a serious one halts the
+        system naming it; another is released, ``error`` saying why) and at ``close``.
+        ``name``: its process-table name (default ``prog.<pid>.<n>``); ``cpu`` and
+        ``priority`` (SCHED_FIFO, 0: none) are the thread's own.  ClockError for a bad
+        argument (a period not a whole number of base ticks, a name taken)."""
+        control = periodic.start(self, func, period_ms, serious, name, cpu, priority)
+        self.controls = [c for c in self.controls if c.running] + [control]
+        return control
+
+    def release_controls(self, message: str = "") -> None:
+        """Release every function this program's ``control`` started that still runs, each
+        with ``message`` (``Control.release``).  Never raises (``close`` calls it): one
+        still inside its call is logged, and ends when that call returns."""
+        for control in self.controls:
+            try:
+                control.release(message)
+            except KaliError as exc:  # a ClockError
+                periodic.log.warning("%s", exc)
+        self.controls = []
 
     def flange_pose(self, q: np.ndarray, robot: int = 0) -> np.ndarray:
         """T6 (flange in the base frame) of robot ``robot``'s joints ``q``, by Pinocchio's
@@ -967,11 +1225,24 @@ class Kali:
                 req[name][: len(robots)] = value
             else:
                 req[name] = value
+        if self.grouping is not None:  # sent with its group when the block ends
+            handle = MotionHandle(self, 0, robots, epoch)
+            self.grouping.add(req, handle)
+            return handle
         seq = self.queue.put(req)
         return MotionHandle(self, seq, robots, epoch)
 
     def close(self) -> None:
-        """Detach (the motions already requested go on)."""
+        """Detach (the motions already requested go on; those tracking this program's
+        shared transforms stop once their lifetime passes); its periodic functions are
+        released first."""
+        self.release_controls()
+        for frame in list(self.held_frames.values()):
+            frame.close()
+        for function in list(self.held_functions.values()):
+            function.close()
+        self.frames = None  # type: ignore[assignment]
+        self.functions = None  # type: ignore[assignment]
         self.servo.close()
         self.tg_robots = None  # type: ignore[assignment]
         self.fifos = []

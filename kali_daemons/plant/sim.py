@@ -6,7 +6,8 @@ in-process and the plant daemon calls ``cycle`` from its loop.  One cycle:
 1. every board applies its command/status register and e-stop (power switch, watchdog,
    brakes) at the plant's simulated time;
 2. the DAC codes become amplifier input volts (codes above 4095 are clamped and counted);
-3. the gripper registers close or open the welds to the object;
+3. the gripper registers close or open the welds to the object, and the conveyor belt (the
+   stand's top, ``plant.conveyor_m_s``) carries the bar while the first board runs it;
 4. the motor model sets each motor's current command and range (``motor.py``), and MuJoCo
    runs ``substeps`` steps, integrating the 500 Hz current loops with the arm dynamics;
 5. the encoders count the new motor angles (once per cycle is enough: at the motors' top
@@ -37,6 +38,7 @@ from .motor import MotorBank
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
+BELT_LIFT_M = 0.005  # the belt carries the bar only while it lies on it (not lifted by this)
 
 
 class PlantSim:
@@ -125,6 +127,17 @@ class PlantSim:
         self._push_on = [False] * n_arms
         self._xfrc = [self.data.xfrc_applied[b] for b in self.world.tool_body]
         self._forces: list[np.ndarray | None] = [None] * n_arms
+        # the conveyor belt: it drives the bar's x, y from where it was when it started
+        vx, vy = cfg.plant.conveyor_m_s
+        self._belt_v = (vx, vy) if (vx or vy) else None
+        self._belt_from: tuple[float, float] | None = None  # the bar's x, y at its start
+        self._belt_cycles = 0
+        adr, dof = self.world.object_qpos_adr, self.world.object_dof_adr
+        self._bar_q = self.data.qpos[adr : adr + 3]
+        self._bar_v = self.data.qvel[dof : dof + 6]
+        self._bar_rest_z = float(self._bar_q[2])
+        self._period_s = self.substeps * self.dt
+        self._belt_bit = self.regs["conveyor"][0:1]  # the first board's belt motor line
         self._truth_views()
         self.sim_ns = 0
         self.ticks = 0
@@ -158,6 +171,8 @@ class PlantSim:
                 self.braked[sl] = braked
                 changed = True
             self._gripper(k)
+        if self._belt_v is not None:
+            self._conveyor()
         self._read_dac()
         if changed:
             self._apply_brakes()
@@ -249,6 +264,27 @@ class PlantSim:
             self.world.activate_weld(self.data, k)
         elif not g:
             self.data.eq_active[eq] = 0
+
+    def _conveyor(self) -> None:
+        """Carry the bar on the belt: while the first board runs the belt's motor and the bar
+        lies on it (held by no gripper, not lifted), its x, y go at the belt's velocity from
+        where they were when the belt started, exactly (set before each step, with that
+        velocity: the stand's friction does not drag it back).  Floats only."""
+        held = any(self.data.eq_active[eq] for eq in self.world.weld)
+        lifted = float(self._bar_q[2]) > self._bar_rest_z + BELT_LIFT_M
+        if not self._belt_bit[0] or held or lifted:
+            self._belt_from = None
+            return
+        if self._belt_from is None:
+            self._belt_from = (float(self._bar_q[0]), float(self._bar_q[1]))
+            self._belt_cycles = 0
+        vx, vy = self._belt_v  # type: ignore[misc]
+        t = self._belt_cycles * self._period_s
+        self._bar_q[0] = self._belt_from[0] + vx * t
+        self._bar_q[1] = self._belt_from[1] + vy * t
+        self._bar_v[0], self._bar_v[1] = vx, vy
+        self._bar_v[3:] = 0.0
+        self._belt_cycles += 1
 
     def flange_to_grasp(self, k: int) -> float:
         """Distance (m) from arm ``k``'s flange to its grasp site on the object."""

@@ -361,7 +361,7 @@ class Registry:
         the current directory) or a dotted module name.  The module must define
         ``register(registry)``.  Every fault is a ConfigError naming the plugin.
         """
-        module = _import_plugin(spec, base_dir)
+        module = import_plugin(spec, base_dir)
         register = getattr(module, "register", None)
         if register is None:
             raise ConfigError(
@@ -455,7 +455,7 @@ def _is_path(spec: str) -> bool:
     return spec.endswith(".py") or "/" in spec
 
 
-def _import_plugin(spec: str, base_dir: Path | None) -> Any:
+def import_plugin(spec: str, base_dir: Path | None) -> Any:
     """Import a plugin file or module; ConfigError for a missing file or a failed import."""
     if not _is_path(spec):
         if not all(part.isidentifier() for part in spec.split(".")):

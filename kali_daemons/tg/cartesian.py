@@ -108,6 +108,33 @@ def _xyz(p: np.ndarray) -> str:
     return "(" + ", ".join(f"{float(v):.3f}" for v in p) + ") m"
 
 
+def held_object(
+    names: Sequence[str],
+    kins: Sequence[Kinematics],
+    bases: Sequence[np.ndarray],
+    grasps: list[np.ndarray],
+    starts: Sequence[np.ndarray],
+) -> np.ndarray:
+    """The object's pose in the world as the arms of one motion system hold it at joints
+    ``starts`` (arm 0's view: B_0 · T6 · G_0⁻¹); MotionError if another arm's view differs by
+    more than ``GRASP_TOL_M`` / ``GRASP_TOL_RAD``.  ``grasps[k]`` of the other arms is then
+    replaced by the grasp each really has, so no arm jumps when the motion starts, whatever
+    the (tolerated) disagreement: a squeeze it would cause stays a squeeze."""
+    start = bases[0] @ kins[0].fkine(starts[0]) @ inverse(grasps[0])
+    for k in range(1, len(names)):
+        other = bases[k] @ kins[k].fkine(starts[k]) @ inverse(grasps[k])
+        gap = float(np.linalg.norm(other[:3, 3] - start[:3, 3]))
+        turn = _rotation_angle(start[:3, :3].T @ other[:3, :3])
+        if gap > GRASP_TOL_M or turn > GRASP_TOL_RAD:
+            raise MotionError(
+                f"robots '{names[0]}' and '{names[k]}' do not hold the object where their "
+                f"grasps say: their object poses differ by {gap * 1000:.1f} mm and "
+                f"{_deg(turn)} (allowed {GRASP_TOL_M * 1000:g} mm, {_deg(GRASP_TOL_RAD)})"
+            )
+        grasps[k] = inverse(start) @ bases[k] @ kins[k].fkine(starts[k])
+    return start
+
+
 class CartesianMotion:
     """One Cartesian request of one motion system: planned, checked, then sampled per tick.
 
@@ -133,6 +160,7 @@ class CartesianMotion:
         angular_speed: float,
         transition_s: float,
         dt: float,
+        durations: Sequence[float] | None = None,
     ) -> None:
         self.names = list(names)
         n = len(self.names)
@@ -147,6 +175,7 @@ class CartesianMotion:
                 f"cartesian motion: {n} arms, but {len(grasps)} grasps, {len(bases)} bases and "
                 f"{len(configs)} configurations"
             )
+        self.request_grasp = np.array(grasps[0], dtype=np.float64)  # the first arm's, as given
         self._grasps = [
             rigid_pose("cartesian motion", f"grasp of robot '{self.names[k]}'", g)
             for k, g in enumerate(grasps)
@@ -176,22 +205,10 @@ class CartesianMotion:
                     f"into '{want}' first)"
                 )
             self.configs.append(have)
-        start = self.object_pose(0, starts[0])
-        for k in range(1, n):
-            other = self.object_pose(k, starts[k])
-            gap = float(np.linalg.norm(other[:3, 3] - start[:3, 3]))
-            turn = _rotation_angle(start[:3, :3].T @ other[:3, :3])
-            if gap > GRASP_TOL_M or turn > GRASP_TOL_RAD:
-                raise MotionError(
-                    f"robots '{self.names[0]}' and '{self.names[k]}' do not hold the object "
-                    f"where their grasps say: their object poses differ by {gap * 1000:.1f} mm "
-                    f"and {_deg(turn)} (allowed {GRASP_TOL_M * 1000:g} mm, "
-                    f"{_deg(GRASP_TOL_RAD)})"
-                )
-            # hold the object as the arm really does: no jump at the start, whatever the
-            # (tolerated) disagreement; a squeeze it would cause stays a squeeze
-            self._grasps[k] = inverse(start) @ self._bases[k] @ self._kin[k].fkine(starts[k])
-        self.path = CartesianPath(start, list(targets), speed, angular_speed, transition_s)
+        start = held_object(self.names, self._kin, self._bases, self._grasps, starts)
+        self.path = CartesianPath(
+            start, list(targets), speed, angular_speed, transition_s, durations=durations
+        )
         for i in range(1, len(self.path.poses)):  # each target first: the plainest refusal
             np.copyto(self._obj, self.path.poses[i])
             for k in range(n):
@@ -218,11 +235,6 @@ class CartesianMotion:
 
     # ------------------------------------------------------------------ frames
 
-    def object_pose(self, k: int, q: np.ndarray) -> np.ndarray:
-        """Where arm ``k`` at joints ``q`` holds the object: B_k · T6(q) · G_k⁻¹ (world)."""
-        t6 = self._kin[k].fkine(np.asarray(q, dtype=np.float64))
-        return self._bases[k] @ t6 @ inverse(self._grasps[k])
-
     def _t6_of(self, k: int) -> np.ndarray:
         """T6 of arm ``k`` for the object pose in ``_obj`` (into scratch; no allocation)."""
         np.matmul(self._to_base[k], self._obj, out=self._tmp)
@@ -248,7 +260,7 @@ class CartesianMotion:
             tau = min(self.checked * self.dt, self.duration)
             self.path.sample(tau, self._obj)
             for k in range(self.n):
-                self._check_sample(k, tau)
+                self._check_sample(k, tau, self._check_q[k])
         return self.checked >= self.n_samples
 
     def check_all(self) -> None:
@@ -262,9 +274,10 @@ class CartesianMotion:
             f"{where}: robot '{self.names[k]}' {what}"
         )
 
-    def _check_sample(self, k: int, tau: float) -> None:
+    def _check_sample(self, k: int, tau: float, prev: np.ndarray) -> None:
+        """Check arm ``k``'s solution for the object pose in ``_obj`` against ``prev``, its
+        solution a TG period before (updated); MotionError naming what fails."""
         t6 = self._t6_of(k)
-        prev = self._check_q[k]
         try:
             q = self._kin[k].ikine(t6, self.configs[k], q_ref=prev, out=self._q[k])
         except KinematicsError as exc:
@@ -288,6 +301,33 @@ class CartesianMotion:
                 k, tau, f"would change configuration from '{self.configs[k]}' to '{have}'"
             )
         prev[:] = q
+
+    def end_q(self) -> list[np.ndarray]:
+        """Each arm's joints at the path's end (a copy): where a motion blended after this
+        one starts.  Known once the whole path is checked (the check walks to the end)."""
+        assert self.checked >= self.n_samples, "end_q before the check reached the end"
+        return [q.copy() for q in self._check_q]
+
+    def check_poses(self, poses: Sequence[np.ndarray], q_start: Sequence[np.ndarray]) -> None:
+        """Check the object poses ``poses`` one TG period apart as the path's own samples are
+        checked (reach, singularities, joint speeds, configuration), the arms starting at
+        ``q_start``; MotionError naming the first that fails.  Outside the cycle (a blend's
+        window, before the blend is taken)."""
+        prev = [np.array(q, dtype=np.float64) for q in q_start]
+        for i, pose in enumerate(poses):
+            np.copyto(self._obj, pose)
+            for k in range(self.n):
+                self._check_sample(k, (i + 1) * self.dt, prev[k])
+
+    def solve(self, obj: np.ndarray) -> list[np.ndarray]:
+        """Every arm's joints holding the object at ``obj``, each near its last set-point
+        (``q_ref``, overwritten and returned).  ``KinematicsError`` if an arm has none.
+        Inside the cycle: nothing allocated unless it fails."""
+        np.copyto(self._obj, obj)
+        rows = self.q_ref
+        for k in range(self.n):
+            self._kin[k].ikine(self._t6_of(k), self.configs[k], q_ref=rows[k], out=rows[k])
+        return rows
 
     # ------------------------------------------------------------------ run time
 

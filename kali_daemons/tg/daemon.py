@@ -74,6 +74,7 @@ from ..robots import RobotType
 from ..servolevel import FIFO_CAPACITY
 from ..spinlock import pid_alive
 from .cartesian import CartesianMotion, base_transform, decode_config
+from .functions import FUNCTION_SHARE, FunctionSlots, Sensors, registry_for
 from .profiles import (
     MAX_MOTION_S,
     JointMotion,
@@ -82,9 +83,18 @@ from .profiles import (
     check_guard,
     check_joint_target,
 )
+from .tracking import (
+    SharedFrames,
+    Tracking,
+    check_limits,
+    check_loop,
+    check_track_time,
+    plan_tracking,
+)
 
 MAX_REQUESTS_PER_TICK = 8  # requests taken from the queue per tick (the rest wait a tick)
 STOP_TIME_S = 0.3  # a stop ramps the path speed to zero over this long
+DEAD_GROUPS = 64  # refused groups remembered, so their late members are refused too
 LEAD = 2  # set-points kept in each FIFO ahead of SIO
 CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
 CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before they start
@@ -94,6 +104,8 @@ CHECK_CHUNK = 8  # path samples checked between looks at the time
 LOCKSTEP_CHECK_SAMPLES = 64
 PLAN_SAMPLES = 32
 _KINDS = frozenset(int(k) for k in MotionKind)
+_TRACKING = (MotionKind.TRACK, MotionKind.TRACK_JOINTS)
+MOVES = (MotionKind.JOINTS, MotionKind.PATH, *_TRACKING)  # kinds that move arms (and own them)
 _ENDED = frozenset(int(s) for s in layout.TERMINAL_STATES)
 
 
@@ -161,18 +173,48 @@ def check_request(
             if not math.isfinite(value):
                 raise MotionError(f"path {field_name} is {value}, must be finite")
         for i in range(n_seg):
+            d = float(req["durations"][i])
+            if not (math.isfinite(d) and 0.0 <= d <= MAX_MOTION_S):
+                raise MotionError(f"path durations[{i}] is {d} s; 0 (by speed) to {MAX_MOTION_S:g}")
+        for i in range(n_seg):
             if not np.isfinite(req["poses"][i]).all():
                 raise MotionError(f"path targets[{i}] is not finite")
-        for i, k in enumerate(robots):
-            decode_config(int(req["config"][i]), types[k].kinematics)
-            if not np.isfinite(req["grasps"][i]).all():
-                raise MotionError(f"grasp of robot '{names[k]}' is not finite")
-            if calibrated is not None and not int(calibrated[k]):
-                raise MotionError(
-                    f"robot '{names[k]}' is not calibrated; Cartesian motion needs its true "
-                    f"joint angles (kalictl calibrate {names[k]})"
-                )
+        _check_arms(req, robots, names, types, calibrated)
+    elif kind == MotionKind.TRACK:
+        check_limits(req)
+        check_loop(req)
+        _check_arms(req, robots, names, types, calibrated)
+    elif kind == MotionKind.TRACK_JOINTS:
+        scale = float(req["speed_scale"])
+        if not (math.isfinite(scale) and 0.0 < scale <= 1.0):
+            raise MotionError(f"speed_scale {scale}, must be in (0, 1]")
+        check_track_time(float(req["track_s"]))
+        kind_0, index = (int(v) for v in req["loop"][0])
+        if len(robots) != 1 or int(req["n_loop"]) != 1 or kind_0 != layout.FrameKind.SHARED:
+            raise MotionError("a joint stream is one robot following one shared record")
+        if index >= layout.MAX_FRAMES:
+            raise MotionError(f"shared record {index}; 0..{layout.MAX_FRAMES - 1}")
     return MotionKind(kind), robots
+
+
+def _check_arms(
+    req: np.void,
+    robots: list[int],
+    names: list[str],
+    types: list[RobotType],
+    calibrated: np.ndarray | None,
+) -> None:
+    """A Cartesian request's arms (PATH, TRACK): each one's configuration byte valid, its
+    grasp finite, and (when known) calibrated; MotionError naming the robot."""
+    for i, k in enumerate(robots):
+        decode_config(int(req["config"][i]), types[k].kinematics)
+        if not np.isfinite(req["grasps"][i]).all():
+            raise MotionError(f"grasp of robot '{names[k]}' is not finite")
+        if calibrated is not None and not int(calibrated[k]):
+            raise MotionError(
+                f"robot '{names[k]}' is not calibrated; Cartesian motion needs its true "
+                f"joint angles (kalictl calibrate {names[k]})"
+            )
 
 
 def _bounded(what: str, duration: float) -> None:
@@ -226,6 +268,7 @@ def plan_path(
         float(req["angular_speed"]),
         float(req["transition_s"]),
         dt,
+        [float(d) for d in req["durations"][: int(req["n_segments"])]],
     )
 
 
@@ -265,7 +308,7 @@ class Motion:
 
     seq: int
     robots: list[int]
-    profile: JointMotion | CartesianMotion
+    profile: JointMotion | CartesianMotion | Tracking
     checking: bool = False  # a Cartesian path still being checked: the arms hold
     ending: RequestState | None = None  # the last set-point is pushed: DONE/STOPPED when
     ending_message: str = ""  # SIO has taken it (the demand is there), not before
@@ -275,6 +318,16 @@ class Motion:
     stop_t: float = 0.0
     out: np.ndarray = field(default_factory=lambda: np.zeros(0))
     rows: list[np.ndarray] = field(default_factory=list)
+    group: int = 0  # started together with the other motions of this group (0: none)
+    group_wait: bool = False  # planned (and checked): waits for the rest of its group
+    # continuous motion (3.1): the next request on the same arms, planned from this one's end
+    # and started ``overlap`` s before it, the two summed meanwhile (``_blend``)
+    successor: Motion | None = None
+    predecessor: Motion | None = None  # of a successor: the motion it continues
+    overlap: float = 0.0
+    blending: bool = False  # a successor whose window has begun: it runs, summed
+    stepped: int = -1  # the tick its set-point was last computed (once a tick)
+    tracking: bool = False  # a TRACK or TRACK_JOINTS motion (``profile`` a ``Tracking``)
 
 
 def joint_rows(widths: Sequence[int]) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -352,8 +405,23 @@ class TrajectoryGenerator(Daemon):
         self._cas = atomic.CompareExchange32()
         self._chains = [chain_of(t) for t in self.types]  # where a guarded move touched
         self._tips = [r.ft.tool_tip_m for r in cfg.robots]
+        self.frames = SharedFrames(
+            arena.record(layout.KEY_TG_FRAMES, layout.SHARED_FRAME, layout.MAX_FRAMES),
+            self._base_ns,
+        )
+        self.functions = FunctionSlots(
+            arena.record(layout.KEY_TG_FUNCTIONS, layout.TG_FUNCTION, layout.MAX_FUNCTIONS),
+            registry_for(cfg.tg_functions, cfg.base_dir),
+            Sensors(self.names, [], []),  # SIO's records once it has laid them out
+            self._base_ns,
+        )
+        self._limited = self.status["limited"]
+        # a blend's scratch: each path's pose, the sum, two rotations
+        self._blend_poses = (np.eye(4), np.eye(4), np.eye(4), np.eye(3), np.eye(3))
         self.motions: list[Motion] = []
         self.waiting: list[tuple[int, np.void]] = []  # accepted, robots still busy
+        self._groups: dict[int, tuple[int, set[int]]] = {}  # group -> (size, its robots)
+        self._dead_groups: dict[int, str] = {}  # refused groups (the latest DEAD_GROUPS)
         self._faults_seen = int(inst.fault["count"])
         self._warm_up()
 
@@ -419,6 +487,8 @@ class TrajectoryGenerator(Daemon):
         t1 = rt.monotonic_ns()
         self._at(TgPhase.STARTING, 0, t1)
         self._start_waiting()
+        if self._groups:
+            self._release_groups()
         t2 = rt.monotonic_ns()
         for m in list(self.motions):
             why = self._cannot_move(m.robots)
@@ -428,17 +498,21 @@ class TrajectoryGenerator(Daemon):
             elif why:  # SIO holds the arm or its demand follows it: the motion cannot go on
                 self._at(TgPhase.ENDING, m.seq, rt.monotonic_ns())
                 self._end_motion(m, RequestState.ABORTED, why)
+            elif m.group_wait and not m.checking:
+                pass  # planned: it starts with its group (_release_groups)
+            elif m.predecessor is not None and not m.checking:
+                pass  # a successor: its predecessor blends into it, or it runs once that ends
             elif m.checking:
                 self._at(TgPhase.CHECKING, m.seq, rt.monotonic_ns())
                 self._check(m)
-                if not m.checking and m in self.motions:
+                if not (m.checking or m.group_wait or m.predecessor) and m in self.motions:
                     self._at(TgPhase.ADVANCING, m.seq, rt.monotonic_ns())
                     self._advance(m)  # started: its first tick's set-point, as any motion's
             elif m.ending is not None:
                 if not any(self.fifos[k].pending() for k in m.robots):
                     self._at(TgPhase.ENDING, m.seq, rt.monotonic_ns())
                     self._end_motion(m, m.ending, m.ending_message)
-            else:
+            elif m.stepped != tick:
                 self._at(TgPhase.ADVANCING, m.seq, rt.monotonic_ns())
                 self._advance(m)
         self._tick[...] = tick
@@ -486,6 +560,7 @@ class TrajectoryGenerator(Daemon):
             return
         self.dt = period_ns / 1e9
         self.check_ns = int(CHECK_SHARE * period_ns)
+        self.functions.budget_ns = int(FUNCTION_SHARE * period_ns)
         ratio = Fraction(period_ns, self._servo_ns)
         for fifo in self.fifos:
             fifo.set_ratio(ratio)
@@ -498,6 +573,9 @@ class TrajectoryGenerator(Daemon):
             return None
         joints = arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, self.joint_map.total)
         self._demand_of = self.joint_map.split(joints["demand"])
+        self.functions.sensors = Sensors(
+            self.names, self.joint_map.split(joints["q"]), list(self.ft["world"])
+        )
         return arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
 
     def _halt_all(self) -> None:
@@ -510,6 +588,7 @@ class TrajectoryGenerator(Daemon):
             for k in m.robots:
                 self.tg_robots["busy_seq"][k] = 0
         self.motions.clear()
+        self._groups.clear()
         self._guard_state[:] = GuardState.IDLE  # SIO powers the arms off: nothing to hold
         for seq, _ in self.waiting:
             self._say(seq, RequestState.HALTED, text)
@@ -548,7 +627,7 @@ class TrajectoryGenerator(Daemon):
         is still refused on an arm another program owns)."""
         pid = int(req["client_pid"])
         force = bool(int(req["flags"]) & layout.REQUEST_FORCE)
-        moves = int(req["kind"]) in (MotionKind.JOINTS, MotionKind.PATH)
+        moves = int(req["kind"]) in MOVES
         taken = []
         for k in robots:
             held = int(self._lease_pid[k])
@@ -599,12 +678,18 @@ class TrajectoryGenerator(Daemon):
                 req, self.names, self.types, calibrated, self.contact_limits
             )
         except Exception as exc:  # a request never halts the cell
-            self._say(seq, RequestState.REFUSED, refusal(exc))
+            self._refuse(seq, req, refusal(exc))
             return
         owner = self._claim(robots, req)
         if owner:
-            self._say(seq, RequestState.REFUSED, owner)
+            self._refuse(seq, req, owner)
             return
+        g = int(req["group"])
+        if g:
+            why = self._dead_groups.get(g) or self._join_group(g, req, robots)
+            if why:
+                self._refuse(seq, req, why)
+                return
         if kind in (MotionKind.STOP, MotionKind.ABORT):
             self._stop(robots, abort=kind == MotionKind.ABORT)
             self._say(seq, RequestState.DONE, kind.name.lower())
@@ -628,22 +713,137 @@ class TrajectoryGenerator(Daemon):
         ``example_carry.py``, plus a slice of checks each, took the TG 6 ms of CPU and 19 ms
         on its shared CPU, nearly the serious tolerance); the rest wait a tick in order."""
         busy = {k for m in self.motions for k in m.robots}
+        queued: set[int] = set()  # robots an earlier waiting request waits for
         still = []
         for seq, req in self.waiting:
             robots = self._robots_of(req)
+            if int(req["group"]) and not self._group_here(req):  # its partners are not in yet
+                still.append((seq, req))
+                busy |= set(robots)
+                queued |= set(robots)
+                continue
+            before = self._blend_into(req, robots) if not queued & set(robots) else None
+            if before is not None and not (int(req["kind"]) == MotionKind.PATH and self._spent()):
+                self._plan_successor(seq, req, robots, before)
+                queued |= set(robots)  # later requests wait behind it
+                continue
             if busy & set(robots) or (
                 int(req["kind"]) == MotionKind.PATH and self._spent()
             ):  # robots busy, or this tick's share of planning and checks is spent
                 still.append((seq, req))
                 busy |= set(robots)  # keep the order: later requests wait behind this one
+                queued |= set(robots)
                 continue
             why = self._cannot_move(robots)
             if why:
-                self._say(seq, RequestState.REFUSED, why)
+                self._refuse(seq, req, why)
                 continue
             self._start(seq, req, robots)
             busy |= set(robots)
         self.waiting = still
+
+    def _blend_into(self, req: np.void, robots: list[int]) -> Motion | None:
+        """The motion request ``req`` may continue without a stop (thesis 3.1: the
+        transition between one request's last segment and the next one's first), or None.
+
+        It may when one motion moves exactly its robots, of the same kind (joint moves, or
+        paths of one motion system: the same first grasp), running (not checking, stopping,
+        ending, grouped or already followed), both unguarded, the path's transition windows
+        both > 0, and the request does not ask to stop first (REQUEST_STOP_BETWEEN)."""
+        kind = int(req["kind"])
+        if int(req["flags"]) & layout.REQUEST_STOP_BETWEEN or int(req["group"]):
+            return None
+        if kind not in (MotionKind.JOINTS, MotionKind.PATH) or float(req["guard_n"]):
+            return None
+        movers = [m for m in self.motions if set(m.robots) & set(robots)]
+        if len(movers) != 1:
+            return None
+        m = movers[0]
+        if m.robots != robots or m.checking or m.group_wait or m.guard or m.predecessor:
+            return None
+        if m.successor is not None or m.stop is not None or m.ending is not None:
+            return None
+        p = m.profile
+        if kind == MotionKind.JOINTS:
+            return m if isinstance(p, JointMotion) else None
+        if not isinstance(p, CartesianMotion):
+            return None
+        same_grasp = np.allclose(p.request_grasp, req["grasps"][0], atol=1e-12)
+        windows = p.path.transition_s > 0.0 and float(req["transition_s"]) > 0.0
+        return m if same_grasp and windows else None
+
+    def _plan_successor(self, seq: int, req: np.void, robots: list[int], a: Motion) -> None:
+        """Plan request ``req`` from where motion ``a`` ends, to follow it without a stop
+        (``_blend``); a path is checked from there first, while ``a`` runs.  Refused with the
+        reason as any request would be."""
+        try:
+            if isinstance(a.profile, JointMotion):
+                start = a.profile.target.copy()
+                profile: JointMotion | CartesianMotion = plan_joints(req, robots, start, self.types)
+                overlap = min(a.profile.law.accel_time, profile.law.accel_time)
+            else:
+                assert isinstance(a.profile, CartesianMotion)
+                self._work += PLAN_SAMPLES
+                profile = plan_path(
+                    req, robots, self.names, self.types, self.bases, a.profile.end_q(), self.dt
+                )
+                overlap = min(a.profile.path.transition_s, profile.path.transition_s)
+        except Exception as exc:  # a request never halts the cell
+            self._refuse(seq, req, refusal(exc))
+            return
+        out, rows = joint_rows([self.joint_map.counts[k] for k in robots])
+        b = Motion(seq, robots, profile, out=out, rows=rows)
+        b.checking = isinstance(profile, CartesianMotion)
+        b.predecessor, b.overlap = a, overlap
+        a.successor = b
+        self.motions.append(b)
+        self._say(seq, RequestState.QUEUED, f"to follow request {a.seq} without a stop")
+
+    def _group_here(self, req: np.void) -> bool:
+        """True when every request of ``req``'s group has been taken (waiting or planned)."""
+        g = int(req["group"])
+        have = sum(1 for _, r in self.waiting if int(r["group"]) == g)
+        have += sum(1 for m in self.motions if m.group == g)
+        return have >= int(req["group_size"])
+
+    def _release_groups(self) -> None:
+        """Run together every group whose motions are all planned and checked: each gets
+        its first set-point this tick (thesis 3.1: synchronisation of motion systems)."""
+        waiting = [m for m in self.motions if m.group_wait]
+        for g in {m.group for m in waiting}:
+            members = [m for m in self.motions if m.group == g]
+            ready = [m for m in members if m.group_wait and not m.checking]
+            if len(ready) == len(members) == self._groups[g][0]:
+                for m in members:
+                    m.group_wait = False
+                    self._run(m)
+                del self._groups[g]
+
+    def _join_group(self, g: int, req: np.void, robots: list[int]) -> str:
+        """Count request ``req`` into group ``g``; why it cannot be one of it, or ''."""
+        size = int(req["group_size"])
+        have, arms = self._groups.setdefault(g, (size, set()))
+        if size != have or not 2 <= size <= layout.MAX_ROBOTS:
+            return f"group of {size} requests; its first said {have}, and 2 to {layout.MAX_ROBOTS}"
+        if arms & set(robots):
+            names = ", ".join(f"'{self.names[k]}'" for k in sorted(arms & set(robots)))
+            return f"robot {names} is moved by two requests of one group (kali.together)"
+        arms |= set(robots)
+        return ""
+
+    def _refuse_group(self, g: int, seq: int, why: str) -> None:
+        """A request of group ``g`` was refused: the rest of it is cancelled, unstarted,
+        and its members still to come are refused when taken (``_dead_groups``)."""
+        text = f"cancelled: request {seq} of its group (kali.together) was refused: {why}"
+        for m in [m for m in self.motions if m.group == g and m.seq != seq]:
+            self._end_motion(m, RequestState.REFUSED, text)
+        for s, r in [(s, r) for s, r in self.waiting if int(r["group"]) == g and s != seq]:
+            self.waiting.remove((s, r))
+            self._say(s, RequestState.REFUSED, text)
+        self._groups.pop(g, None)
+        self._dead_groups[g] = text
+        while len(self._dead_groups) > DEAD_GROUPS:
+            del self._dead_groups[next(iter(self._dead_groups))]
 
     def _spent(self) -> bool:
         """True once this tick's share of path checks and planning is used up: wall time in
@@ -672,23 +872,61 @@ class TrajectoryGenerator(Daemon):
         if int(req["kind"]) == MotionKind.PATH:
             self._plan_path(seq, req, robots)
             return
+        if int(req["kind"]) in _TRACKING:
+            self._plan_tracking(seq, req, robots)
+            return
         start = np.concatenate([self._start_point(k) for k in robots])
         try:
             profile = plan_joints(req, robots, start, self.types)
         except Exception as exc:  # a request never halts the cell
-            self._say(seq, RequestState.REFUSED, refusal(exc))
+            self._refuse(seq, req, refusal(exc))
             return
         out, rows = joint_rows([self.joint_map.counts[k] for k in robots])
         m = Motion(seq, robots, profile, guard=float(req["guard_n"]), out=out, rows=rows)
-        for k in robots:
-            self.tg_robots["busy_seq"][k] = seq
+        self._begin(m, req)
+
+    def _plan_tracking(self, seq: int, req: np.void, robots: list[int]) -> None:
+        """Start a TRACK or TRACK_JOINTS request from where its arms are, its loop checked
+        to close now; refused with the reason otherwise."""
+        try:
+            if int(req["kind"]) == MotionKind.TRACK:
+                for k in robots:
+                    self._require_calibrated(k)
+            start = [self._start_point(k) for k in robots]
+            plan = plan_tracking(
+                req, robots, self.names, self.types, self.bases, start, self.frames, self.dt,
+                self._now, self.functions,
+            )  # fmt: skip
+        except Exception as exc:  # a request never halts the cell
+            self._refuse(seq, req, refusal(exc))
+            return
+        self._begin(Motion(seq, robots, plan, tracking=True), req)
+
+    def _begin(self, m: Motion, req: np.void, checking: bool = False) -> None:
+        """Motion ``m`` of request ``req`` is planned: its arms are busy with it from now;
+        it runs this tick, or (one of a group) once the whole group is planned and checked,
+        or (``checking``, a path) once its check is through."""
+        m.group = int(req["group"])
+        m.group_wait = m.group != 0
+        m.checking = checking
+        for k in m.robots:
+            self.tg_robots["busy_seq"][k] = m.seq
         self.motions.append(m)
-        self._run(m)
+        if not (checking or m.group_wait):
+            self._run(m)
+
+    def _refuse(self, seq: int, req: np.void, why: str) -> None:
+        """Refuse request ``seq``; one of a group takes the rest of its group with it."""
+        self._say(seq, RequestState.REFUSED, why)
+        g = int(req["group"])
+        if g:
+            self._refuse_group(g, seq, why)
 
     def _run(self, m: Motion) -> None:
         """Motion ``m`` is planned (and checked): it runs from this tick."""
         rec = self.status[m.seq % layout.STATUS_RING]
-        rec["duration_s"] = m.profile.duration
+        rec["limited"] = 0
+        rec["duration_s"] = m.profile.duration if math.isfinite(m.profile.duration) else 0.0
         rec["progress"] = 0.0
         self._say(m.seq, RequestState.RUNNING)
         if m.guard:  # SIO watches each arm's contact force from its next tick
@@ -698,7 +936,11 @@ class TrajectoryGenerator(Daemon):
                 ft["guard_n"] = m.guard
                 ft["guard_state"] = GuardState.ARMED  # last
         for _ in range(LEAD - 1):  # run ahead of SIO by LEAD set-points
-            self._advance(m)
+            if isinstance(m.profile, Tracking):  # from rest: where the arms are (its target
+                for i, k in enumerate(m.robots):  # is read once a tick, its speed kept)
+                    self.fifos[k].push(m.profile.q_ref[i])
+            else:
+                self._advance(m)
 
     def _plan_path(self, seq: int, req: np.void, robots: list[int]) -> None:
         """Plan a Cartesian request from where its arms are; its check starts this tick."""
@@ -709,13 +951,11 @@ class TrajectoryGenerator(Daemon):
             self._work += PLAN_SAMPLES
             plan = plan_path(req, robots, self.names, self.types, self.bases, start, self.dt)
         except Exception as exc:  # a request never halts the cell
-            self._say(seq, RequestState.REFUSED, refusal(exc))
+            self._refuse(seq, req, refusal(exc))
             return
-        m = Motion(seq, robots, plan, checking=True, guard=float(req["guard_n"]))
-        for k in robots:
-            self.tg_robots["busy_seq"][k] = seq
         self._say(seq, RequestState.QUEUED, "checking the path")
-        self.motions.append(m)  # the cycle checks its first slice this tick
+        m = Motion(seq, robots, plan, guard=float(req["guard_n"]))
+        self._begin(m, req, checking=True)  # the cycle checks its first slice this tick
 
     def _check(self, m: Motion) -> None:
         """Walk a slice of ``m``'s path; run or refuse it at the end.
@@ -735,9 +975,12 @@ class TrajectoryGenerator(Daemon):
                     return
         except Exception as exc:  # nothing has moved: refuse, never halt
             self._end_motion(m, RequestState.REFUSED, refusal(exc))
+            if m.group:
+                self._refuse_group(m.group, m.seq, refusal(exc))
             return
         m.checking = False
-        self._run(m)
+        if not (m.group_wait or m.predecessor is not None):  # a successor waits for its turn
+            self._run(m)
 
     def _start_point(self, k: int) -> np.ndarray:
         """Where robot ``k``'s next motion starts: its last set-point while the FIFO still
@@ -748,20 +991,28 @@ class TrajectoryGenerator(Daemon):
 
     def _stop(self, robots: list[int], abort: bool) -> None:
         for m in list(self.motions):
-            if not set(m.robots) & set(robots):
-                continue
-            if m.checking:  # nothing has moved yet
+            if m not in self.motions or not set(m.robots) & set(robots):
+                continue  # (ended with a group cancelled below)
+            if m.checking or m.group_wait or (m.predecessor and not m.blending):  # not moved
                 state = RequestState.ABORTED if abort else RequestState.STOPPED
-                self._end_motion(m, state, "cancelled while its path was checked")
+                self._end_motion(m, state, "cancelled before it started")
+                if m.group:  # its group cannot start together any more
+                    self._refuse_group(m.group, m.seq, "it was cancelled before it started")
             elif abort:
                 self._end_motion(m, RequestState.ABORTED, "aborted")
+            elif isinstance(m.profile, Tracking):
+                m.profile.stop("stopped on request")
             elif m.stop is None and m.ending is None:  # not once it is arriving
                 m.stop = StopRamp(m.tau, STOP_TIME_S)
                 m.stop_t = 0.0
         for seq, req in list(self.waiting):
+            if not any(s == seq for s, _ in self.waiting):
+                continue  # cancelled with its group
             if set(self._robots_of(req)) & set(robots):
                 self.waiting.remove((seq, req))
                 self._say(seq, RequestState.ABORTED if abort else RequestState.STOPPED, "cancelled")
+                if int(req["group"]):
+                    self._refuse_group(int(req["group"]), seq, "it was cancelled")
 
     # ------------------------------------------------------------------ running motions
 
@@ -775,11 +1026,14 @@ class TrajectoryGenerator(Daemon):
             if self.fifos[k].pending() >= FIFO_CAPACITY - 1:
                 return
         p = m.profile
-        if m.stop is not None:
-            m.stop_t += self.dt
-            m.tau = min(m.stop.tau(m.stop_t), p.duration)
-        else:
-            m.tau = min(m.tau + self.dt, p.duration)
+        if m.tracking:  # (a flag: isinstance of an ABC costs the joint motions ~0.3 µs)
+            self._track(m, p)  # type: ignore[arg-type]
+            return
+        b = m.successor
+        if b is not None and (b.blending or self._blend_due(m, b)):
+            self._blend(m, b)
+            return
+        self._next_tau(m)
         if isinstance(p, CartesianMotion):
             try:
                 rows = p.sample(m.tau)
@@ -800,6 +1054,142 @@ class TrajectoryGenerator(Daemon):
             m.ending, m.ending_message = RequestState.STOPPED, "stopped on the path"
         elif m.stop is None and m.tau >= p.duration:
             m.ending = RequestState.DONE
+
+    def _next_tau(self, m: Motion) -> None:
+        """Motion ``m``'s path time one tick on: dt, or σ·dt while it stops (in the cycle)."""
+        if m.stop is not None:
+            m.stop_t += self.dt
+            m.tau = min(m.stop.tau(m.stop_t), m.profile.duration)
+        else:
+            m.tau = min(m.tau + self.dt, m.profile.duration)
+
+    def _blend_due(self, a: Motion, b: Motion) -> bool:
+        """True when successor ``b`` of ``a`` starts this tick: it is planned and checked,
+        ``a`` runs on (no stop) and the next tick of ``a`` is inside the last ``overlap`` s
+        of it, and the window's summed set-points pass the checks (else ``b`` starts after
+        ``a`` at rest: ``_end_motion``).  In the cycle; the check allocates, once a blend."""
+        if b.checking or b.overlap <= 0.0 or a.stop is not None:
+            return False
+        if a.tau + self.dt <= a.profile.duration - b.overlap + 1e-9:
+            return False
+        why = self._blend_fault(a, b)
+        if why:
+            b.overlap = 0.0  # not blended: it starts at rest once a has arrived
+            self._say(b.seq, RequestState.QUEUED, f"after request {a.seq} at rest: {why}")
+            return False
+        b.blending = True
+        rec = self.status[b.seq % layout.STATUS_RING]
+        rec["duration_s"] = b.profile.duration
+        rec["progress"] = 0.0
+        self._say(b.seq, RequestState.RUNNING)
+        if isinstance(b.profile, CartesianMotion):
+            assert isinstance(a.profile, CartesianMotion)
+            for qb, qa in zip(b.profile.q_ref, a.profile.q_ref, strict=True):
+                np.copyto(qb, qa)  # IK near where the arms are
+        return True
+
+    def _blend_fault(self, a: Motion, b: Motion) -> str:
+        """Why the summed set-points of ``a``'s last ``b.overlap`` s and ``b``'s first would
+        not do (a joint too fast; for paths, also out of reach or near a singularity), or ''.
+        Outside the cycle's usual work: once, as the blend begins (it allocates)."""
+        ta, tb = a.tau, 0.0
+        samples = []
+        while ta < a.profile.duration:
+            ta, tb = min(ta + self.dt, a.profile.duration), tb + self.dt
+            samples.append(self._summed(a, b, ta, tb).copy())
+        try:
+            if isinstance(b.profile, CartesianMotion):
+                assert isinstance(a.profile, CartesianMotion)
+                b.profile.check_poses(samples, a.profile.q_ref)
+            else:
+                limits = np.concatenate([self.types[k].qd_max for k in b.robots])
+                prev = np.concatenate([self._setpoint_of[k] for k in a.robots])
+                for q in samples:
+                    fast = np.abs(q - prev) / self.dt > limits * (1.0 + 1e-9)
+                    if fast.any():
+                        j = int(np.flatnonzero(fast)[0])
+                        return f"joint {j + 1} of the blend would go faster than its limit"
+                    prev = q
+        except MotionError as exc:
+            return str(exc)
+        return ""
+
+    def _summed(self, a: Motion, b: Motion, ta: float, tb: float) -> np.ndarray:
+        """The blend's set-point at path times ``ta`` of ``a`` and ``tb`` of ``b``: joint
+        moves summed less their junction (``b.out``), paths' object poses composed so
+        (``_blend_obj``: p_a + p_b − p_j, R_a · R_jᵀ · R_b, Paul's transition at the
+        junction when the windows match).  In the cycle."""
+        if isinstance(b.profile, JointMotion):
+            assert isinstance(a.profile, JointMotion)
+            a.profile.sample(ta, a.out)
+            b.profile.sample(tb, b.out)
+            np.add(b.out, a.out, out=b.out)
+            np.subtract(b.out, a.profile.target, out=b.out)
+            return b.out
+        assert isinstance(a.profile, CartesianMotion) and isinstance(b.profile, CartesianMotion)
+        oa, ob, obj, tmp, rot = self._blend_poses
+        a.profile.path.sample(ta, oa)
+        b.profile.path.sample(tb, ob)
+        junction = b.profile.path.poses[0]
+        np.matmul(oa[:3, :3], junction[:3, :3].T, out=tmp)
+        np.matmul(tmp, ob[:3, :3], out=rot)
+        obj[:3, :3] = rot
+        np.add(oa[:3, 3], ob[:3, 3], out=obj[:3, 3])
+        np.subtract(obj[:3, 3], junction[:3, 3], out=obj[:3, 3])
+        return obj
+
+    def _blend(self, a: Motion, b: Motion) -> None:
+        """One tick of ``a`` ending and ``b`` beginning at once (thesis 3.1: the transition
+        between one request's last segment and the next one's first): the summed set-point.
+        ``a`` ends DONE as its path time reaches its end, and ``b`` goes on alone; stopped
+        meanwhile, both decelerate on their paths and end STOPPED together.  In the cycle."""
+        self._next_tau(a)
+        self._next_tau(b)
+        b.stepped = self._now  # the loop does not step it again this tick once a has ended
+        out = self._summed(a, b, a.tau, b.tau)
+        if isinstance(b.profile, CartesianMotion):
+            try:
+                rows = b.profile.solve(out)
+            except KinematicsError as exc:  # its window was checked: stop and halt (2.2.1)
+                self._kinematics_halt(b, b.profile, str(exc))
+                return
+        else:
+            rows = b.rows
+        for i, k in enumerate(b.robots):
+            self.fifos[k].push(rows[i])
+            np.copyto(self._setpoint_of[k], rows[i])
+        self._progress[a.seq % layout.STATUS_RING] = a.tau / a.profile.duration
+        self._progress[b.seq % layout.STATUS_RING] = b.tau / b.profile.duration
+        if a.tau >= a.profile.duration:  # a has arrived: b goes on alone from here
+            a.successor, b.predecessor, b.blending = None, None, False
+            self._end_motion(a, RequestState.DONE)
+            for k in b.robots:
+                self.tg_robots["busy_seq"][k] = b.seq
+            if isinstance(a.profile, JointMotion):  # b's own samples from the next tick
+                b.profile.sample(b.tau, b.out)
+        elif a.stop is not None and a.stop.sigma(a.stop_t) == 0.0:
+            assert b.stop is not None
+            a.successor, b.predecessor, b.blending = None, None, False
+            self._end_motion(a, RequestState.STOPPED, "stopped on the path")
+            b.ending, b.ending_message = RequestState.STOPPED, "stopped on the path"
+
+    def _track(self, m: Motion, p: Tracking) -> None:
+        """One tick of tracking motion ``m``: its arms' next set-points, or its end."""
+        rows = p.step(self._now)
+        self._limited[m.seq % layout.STATUS_RING] = p.limited
+        if rows is None:  # held at the last set-points: nothing more to push
+            m.ending = RequestState.ABORTED if p.aborted else RequestState.STOPPED
+            m.ending_message = p.why
+            return
+        for i, k in enumerate(m.robots):
+            self.fifos[k].push(rows[i])
+            np.copyto(self._setpoint_of[k], rows[i])
+        self._progress[m.seq % layout.STATUS_RING] = min(1.0, p.t / p.duration)
+        if p.done:
+            if p.why:
+                m.ending, m.ending_message = RequestState.STOPPED, f"stopped on its path: {p.why}"
+            else:
+                m.ending = RequestState.DONE
 
     def _kinematics_halt(self, m: Motion, plan: CartesianMotion, why: str) -> None:
         """No joint solution at run time: the arms hold at their last set-points and the
@@ -865,3 +1255,17 @@ class TrajectoryGenerator(Daemon):
         for k in m.robots:
             self.tg_robots["busy_seq"][k] = 0
         self._say(m.seq, state, message)
+        if m.predecessor is not None:  # a successor ended before it began
+            m.predecessor.successor = None
+            m.predecessor = None
+        b = m.successor
+        if b is not None:  # planned from m's end: it runs from there if m arrived
+            m.successor, b.predecessor = None, None
+            if state != RequestState.DONE:
+                why = f"cancelled: request {m.seq}, which it was to follow, did not arrive"
+                self._end_motion(b, RequestState.STOPPED, why)
+                return
+            for k in b.robots:
+                self.tg_robots["busy_seq"][k] = b.seq
+            if not b.checking:  # else it runs once its check is through (_check)
+                self._run(b)

@@ -353,7 +353,9 @@ class CartesianPath:
     position moves along the line at a constant velocity and its orientation turns about one
     fixed axis: R(s) = R_{k−1} · Rot(a, s·θ), with (a, θ) the angle-axis of R_{k−1}ᵀ R_k.  The
     segment lasts T_k = max(L_k / speed, θ_k / angular_speed), so neither speed is exceeded
-    and the limiting one is met exactly during cruise.
+    and the limiting one is met exactly during cruise, or the time given for it (thesis 2.2.1:
+    "the time for the movement"): ``durations[k]`` > 0, refused if that would be faster than
+    ``MAX_LINEAR_SPEED_M_S`` / ``MAX_ANGULAR_SPEED_RAD_S``.
 
     Transitions (thesis 2.2.1, [Paul81]; R. P. Paul, "Manipulator Cartesian path control",
     IEEE Trans. SMC-9(11), 1979): the piecewise-constant-velocity path passes via point k at
@@ -392,6 +394,7 @@ class CartesianPath:
         angular_speed: float,
         transition_s: float,
         blend: Blend = "paul",
+        durations: Sequence[float] | None = None,
     ) -> None:
         what = "cartesian path"
         self.speed = _float(what, "speed", speed, "m/s")
@@ -424,6 +427,15 @@ class CartesianPath:
         poses = [rigid_pose(what, "start", start)]
         poses += [rigid_pose(what, f"targets[{i}]", t) for i, t in enumerate(targets)]
         self.poses = np.array(poses)
+        given = [0.0] * len(targets) if durations is None else list(durations)
+        if len(given) != len(targets):
+            raise MotionError(f"{what}: {len(given)} durations for {len(targets)} targets")
+        self.durations = [_float(what, f"durations[{i}]", d, "s") for i, d in enumerate(given)]
+        for i, d in enumerate(self.durations):
+            if not 0.0 <= d <= MAX_MOTION_S:
+                raise MotionError(
+                    f"{what}: durations[{i}] is {d} s; 0 (by the speeds) to {MAX_MOTION_S:g} s"
+                )
         self._plan_segments()
         self._precompute_pieces()
         self._end = self.poses[-1].copy()
@@ -451,6 +463,15 @@ class CartesianPath:
             if length < MIN_SEGMENT_LENGTH and angle < MIN_SEGMENT_LENGTH:
                 raise MotionError(f"{what}: {label} has zero length: targets[{k}] repeats it")
             t_k = max(length / self.speed, angle / self.angular_speed)
+            given = self.durations[k]
+            if given > 0.0:  # the time for the movement: its speeds follow
+                t_k = given
+                if length / t_k > MAX_LINEAR_SPEED_M_S or angle / t_k > MAX_ANGULAR_SPEED_RAD_S:
+                    raise MotionError(
+                        f"{what}: {label} in {t_k:g} s would go {length / t_k:.3g} m/s and "
+                        f"{angle / t_k:.3g} rad/s; at most {MAX_LINEAR_SPEED_M_S:g} m/s and "
+                        f"{MAX_ANGULAR_SPEED_RAD_S:g} rad/s"
+                    )
             if t_k < tb:
                 raise MotionError(
                     f"{what}: {label} lasts {t_k:.4g} s ({length:.4g} m at {self.speed:g} m/s, "

@@ -1,9 +1,11 @@
 """The wall clock functions of thesis 3.6.2, callable from any process of an instance.
 
-``control`` makes a function a periodic process; ``set_control_rate`` changes a process's
-period; ``start_kali_clock``/``stop_kali_clock``/``set_kali_clock`` run, halt and set the
-clock; ``step_kali_clock`` advances a lockstep instance by a number of ticks (single-stepping,
-which the thesis names as a use of ``set_control_rate``); ``release`` ends a periodic function.
+``control`` makes a function a periodic process, blocking: the calling process becomes it
+(``client.Kali.control`` runs one in a thread of a program that goes on instead);
+``set_control_rate`` changes a process's period; ``start_kali_clock``/``stop_kali_clock``/
+``set_kali_clock`` run, halt and set the clock; ``step_kali_clock`` advances a lockstep
+instance by a number of ticks (single-stepping, which the thesis names as a use of
+``set_control_rate``); ``release`` ends a periodic function from another process.
 """
 
 from __future__ import annotations
@@ -75,6 +77,27 @@ def step_kali_clock(inst: Instance, ticks: int, wait: bool = True, timeout: floa
     return int(inst.clock["tick"])
 
 
+def check_period(inst: Instance, what: str, period_ms: object) -> int:
+    """``period_ms`` in base ticks: a whole multiple of the base tick (which may be a
+    fraction of a ms: 1.5 with a 0.5 ms tick is 3 ticks) up to MAX_PERIOD_MS; ClockError
+    starting with ``what`` otherwise."""
+    base_ms = ns_to_ms(int(inst.clock["base_tick_ns"]))
+    try:
+        if isinstance(period_ms, bool) or not isinstance(period_ms, int | float):
+            raise ValueError(period_ms)
+        ticks = period_ticks(period_ms, base_ms)
+    except ValueError:
+        raise ClockError(
+            f"{what}: {period_ms!r:.60} ms must be a whole multiple of the {base_ms} ms base tick"
+        ) from None
+    if ticks * int(inst.clock["base_tick_ns"]) > ms_to_ns(MAX_PERIOD_MS):
+        raise ClockError(
+            f"{what}: period {period_ms:g} ms is longer than {MAX_PERIOD_MS} ms, "
+            f"the longest a Kali process may have"
+        )
+    return ticks
+
+
 def set_control_rate(inst: Instance, process: str, period_ms: float) -> None:
     """Change the period of ``process`` to ``period_ms`` (a whole multiple of the base tick,
     which may be a fraction of a ms: 1.5 with a 0.5 ms tick is 3 ticks).
@@ -83,21 +106,7 @@ def set_control_rate(inst: Instance, process: str, period_ms: float) -> None:
     set-point (the FIFO ratio, thesis 2.2.2, is >= 1).  The TG follows its new period from
     its next tick, and its FIFOs from the next set-point it pushes.
     """
-    base_ms = ns_to_ms(int(inst.clock["base_tick_ns"]))
-    try:
-        if isinstance(period_ms, bool) or not isinstance(period_ms, int | float):
-            raise ValueError(period_ms)
-        ticks = period_ticks(period_ms, base_ms)
-    except ValueError:
-        raise ClockError(
-            f"rate of '{process}': {period_ms!r:.60} ms must be a whole multiple of the "
-            f"{base_ms} ms base tick"
-        ) from None
-    if ticks * int(inst.clock["base_tick_ns"]) > ms_to_ns(MAX_PERIOD_MS):
-        raise ClockError(
-            f"rate of '{process}': period {period_ms:g} ms is longer than {MAX_PERIOD_MS} ms, "
-            f"the longest a Kali process may have"
-        )
+    ticks = check_period(inst, f"rate of '{process}'", period_ms)
     i = inst.slot_of(process)
     if not inst.procs[i]["periodic"]:
         raise ClockError(f"process '{process}' is not driven by the wall clock")
@@ -133,9 +142,12 @@ def control(
 ) -> int:
     """Run ``func(tick)`` as a periodic process of ``instance`` until it is released.
 
-    Blocks the calling process (it becomes the periodic process, as in the thesis); the
-    function returning ``False`` releases it, as does ``kalictl stop``.  Returns the exit
-    status (0, or 1 if the function raised: the system then halts with the reason).
+    Blocks the calling process, which must call it from its main thread (it becomes the
+    periodic process, as in the thesis, and takes SIGTERM and SIGINT to leave); the function
+    returning ``False`` releases it, as do ``release`` from another process and ``kalictl
+    stop``.  Returns the exit status (0, or 1 if the function raised: the system then halts
+    with the reason, serious or not).  A program that goes on meanwhile uses
+    ``client.Kali.control``, which runs the function in a thread.
     """
     daemon = FunctionDaemon(
         instance,
@@ -152,10 +164,11 @@ def control(
 
 
 def release(inst: Instance, process: str) -> None:
-    """Stop the wall clock from signalling ``process`` (thesis ``release``): a function a
-    program registered with ``control``.  Kali's own daemons are refused (ClockError): a
-    released SIO would leave the arms unservoed with nothing noticing; ``kalictl stop`` ends
-    them."""
+    """Stop the wall clock from signalling ``process`` (thesis ``release``, from another
+    process): a function a program registered with ``control``, which then ends within
+    ``daemon.IDLE_WAIT_S``.  (A program ends its own with ``Control.release(message)``.)
+    Kali's own daemons are refused (ClockError): a released SIO would leave the arms
+    unservoed with nothing noticing; ``kalictl stop`` ends them."""
     daemons = [p.name for p in inst.config.processes]
     if process in daemons:
         raise ClockError(

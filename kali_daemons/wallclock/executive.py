@@ -10,13 +10,14 @@ by stage, exactly where it would have posted its semaphore and waited for its
 acknowledgement.  The SVs run inside SIO's cycle, where SIO would post their feeds
 (``ServoIO.serve``), as the gang they are (thesis 3.3.4).
 
-Everything else is the wall clock's: its commands (start, stop, step, set), its process
-table (each hosted daemon keeps its slot, with the executive's pid), its statistics and its
-halts.  Programs attach and wait exactly as with separate processes, and a periodic function
-a program registers with ``control`` is still its own process, signalled by semaphore in its
-stage.  A hosted daemon that raises fails as its own process would (DAEMON_ERROR naming it,
-state ERROR, left out from then on).  ``kalictl start --lockstep --separate-processes`` keeps
-one process per daemon, for the tests that kill one of them.
+Everything else is the wall clock's: its commands (start, stop, step, set), its process table
+(each hosted daemon keeps its slot, with the executive's pid), its statistics and its halts.
+Programs attach and wait exactly as with separate processes, and a periodic function a program
+registers with ``control`` is a thread of it (``Kali.control``) or a process of its own
+(``client.control``), signalled by semaphore in its stage. A hosted daemon that raises fails as
+its own process would (DAEMON_ERROR naming it, state ERROR, left out from then on). ``kalictl
+start --lockstep --separate-processes`` keeps one process per daemon, for the tests that kill
+one of them.
 """
 
 from __future__ import annotations
