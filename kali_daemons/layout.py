@@ -1005,6 +1005,8 @@ MOTION_REQUEST = np.dtype(
         ("angular_speed", "<f8"),  # PATH: rad/s
         ("transition_s", "<f8"),  # PATH: blend time at each via point
         ("durations", "<f8", (MAX_SEGMENTS,)),  # PATH: each segment's time, s (0: by speed)
+        ("arcs", "u1", (MAX_SEGMENTS,)),  # PATH: 1 = segment i is an arc through arc_via[i]
+        ("arc_via", "<f8", (MAX_SEGMENTS, 3)),  # PATH: a point each arc passes, world, m
         ("guard_n", "<f8"),  # JOINTS, PATH: stop at this contact force on any arm, N (0: none)
         ("n_loop", "u1"),  # TRACK: factors in ``loop``; TRACK_JOINTS: 1
         ("loop", "u1", (MAX_LOOP, 2)),  # TRACK: factor i is (FrameKind, index)

@@ -366,6 +366,15 @@ def test_motion_systems_started_together_start_on_one_tg_tick(kali: Callable[...
         assert first is joints  # 10° at half speed is over before a 2 s line
         group.wait(timeout=60)
         assert line.state == joints.state == RequestState.DONE
+        # the functional form: the moves as functions, held back and sent as one group
+        group = k.together(
+            lambda: left.move_line(start, speed=0.05),
+            lambda: right.move_joints(right.read_joints() - turn(right, 10)),
+        )
+        group.wait(timeout=60)
+        assert [h.state for h in group.handles] == [RequestState.DONE] * 2
+        with pytest.raises(MotionError, match=r"moves\[0\] is .*give functions"):
+            k.together(left.read_joints())
 
 
 def _shift(x: float, y: float, z: float) -> np.ndarray:
@@ -621,3 +630,49 @@ def test_a_stop_during_a_blend_stops_both_on_their_paths(kali: Callable[..., str
         steps = [float(np.abs(b - a)[0]) for a, b in itertools.pairwise(points)]
         assert all(b <= a + 1e-6 for a, b in itertools.pairwise(steps))  # slowing down
         assert steps[-1] < 1e-12
+
+
+def test_a_circular_arc_keeps_to_its_circle_and_blends_with_lines(
+    kali: Callable[..., str],
+) -> None:
+    """An arc segment (through a given point) runs on its circle at its speed; in a path with
+    lines it is entered and left without a stop; a point on the chord is refused, naming the
+    segment."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        start = ready_left(k)
+        left = k.robot("left")
+        kin = left.type.kinematics
+        r = 0.03
+        p0 = start[:3, 3]
+        centre = p0 + np.array([0.0, r, 0.0])
+        via = centre + r * np.array([math.sin(math.pi / 4), -math.cos(math.pi / 4), 0.0])
+        end = start.copy()
+        end[:3, 3] = centre + np.array([r, 0.0, 0.0])  # a quarter circle in the x-y plane
+        h = left.move_arc(via, end, speed=0.02, wait=False)
+        points = setpoints_until_done(k, [h])
+        assert h.state == RequestState.DONE
+        xyz = [(left.base @ kin.fkine(q))[:3, 3] for q in points]
+        xyz = [p for p in xyz if np.abs(p - p0).max() < 0.1]  # not the record before any motion
+        on = [abs(np.linalg.norm(p - centre) - r) for p in xyz]
+        assert max(on) < 1e-9
+        assert np.allclose(xyz[-1], end[:3, 3], atol=1e-9)
+        speeds = [np.linalg.norm(b - a) / DT for a, b in itertools.pairwise(xyz)]
+        assert max(speeds) == pytest.approx(0.02, rel=1e-3)  # the speed along the arc
+        # a line, the arc back, a line: no stop on the way
+        back = start @ _shift(0.0, 0.0, 0.0)
+        line_end = end @ _shift(0.0, 0.0, 0.0)
+        line_end[:3, 3] += np.array([0.0, 0.02, 0.0])
+        far = centre + np.array([0.0, 2 * r, 0.0])  # the arc back bulges out past it
+        h = left.move_path(
+            [line_end, back], speed=0.02, transition_s=0.2, arcs=[None, far], wait=False
+        )
+        points = setpoints_until_done(k, [h])
+        assert h.state == RequestState.DONE
+        xyz = [(left.base @ kin.fkine(q))[:3, 3] for q in points]
+        speeds = [np.linalg.norm(b - a) / DT for a, b in itertools.pairwise(xyz)]
+        moving = [i for i, v in enumerate(speeds) if v > 1e-6]
+        ramp = round(0.2 / DT)  # the start and end windows
+        assert min(speeds[moving[0] + ramp : moving[-1] - ramp]) > 0.005  # never at rest
+        with pytest.raises(MotionError, match=r"segment 1 .* is an arc through .* on the line"):
+            left.move_arc((p0 + end[:3, 3]) / 2, end)

@@ -354,6 +354,26 @@ def _speed_arg(what: str, name: str, value: object) -> float:
 FT_FRAMES = ("world", "tool", "sensor")  # Robot.read_wrench's frames (layout.FT_STATE fields)
 
 
+def _arcs_arg(what: str, arcs: object, n: int) -> list[np.ndarray | None]:
+    """``arcs`` (None, or one per segment: a point [x, y, z] the arc passes, or None for a
+    line) checked; MotionError naming the bad one."""
+    if arcs is None:
+        return [None] * n
+    items = _list_arg(what, "arcs", arcs)
+    if len(items) != n:
+        raise MotionError(f"{what}: {len(items)} arcs for {n} segments")
+    out: list[np.ndarray | None] = []
+    for i, v in enumerate(items):
+        if v is None:
+            out.append(None)
+            continue
+        point = _real_array(f"{what}: arcs[{i}]", v, "a point [x, y, z]")
+        if point.shape != (3,):
+            raise MotionError(f"{what}: arcs[{i}] has shape {point.shape}, not a point (3,)")
+        out.append(point)
+    return out
+
+
 def _durations_arg(what: str, durations: object, n: int) -> list[float]:
     """``durations`` (None, or one per segment: s > 0, or None for "by the speeds") as
     floats, 0 meaning by the speeds; MotionError naming the bad one."""
@@ -506,6 +526,24 @@ class Robot:
             [target], speed, angular_speed, 0.0, config, wait, timeout, guard, [duration], blend
         )
 
+    def move_arc(
+        self,
+        via: Sequence[float],
+        target: np.ndarray,
+        speed: float = 0.1,
+        angular_speed: float = 0.5,
+        wait: bool = True,
+        timeout: float | None = None,
+        duration: float | None = None,
+    ) -> MotionHandle:
+        """A circular arc of the tool to ``target`` (world) through the point ``via`` (world,
+        m), at ``speed`` along it (or taking ``duration`` s), its orientation turning as a
+        line's; refused if ``via`` is on the line between the ends.  See ``move_line``."""
+        return self.move_path(
+            [target], speed, angular_speed, 0.0, None, wait, timeout, None, [duration],
+            arcs=[via],
+        )  # fmt: skip
+
     def move_path(
         self,
         targets: Sequence[np.ndarray],
@@ -518,16 +556,18 @@ class Robot:
         guard: float | None = None,
         durations: Sequence[float | None] | None = None,
         blend: bool = True,
+        arcs: Sequence[Sequence[float] | None] | None = None,
     ) -> MotionHandle:
         """Straight lines of the tool through ``targets`` (world poses), blended over
         ``transition_s`` at each via point (Paul's method; the path starts and ends at
-        rest); ``durations`` gives segments a time instead of the speeds (None: by them).
+        rest); ``durations`` gives segments a time instead of the speeds (None: by them);
+        ``arcs`` makes segments circular arcs through the points given (None: a line).
         See ``move_line``."""
         system = MotionSystem(self.kali, [self], [inverse(self.tool)])
         configs = [config]
         return system.move_path(
             targets, speed, angular_speed, transition_s, configs, wait, timeout, guard, durations,
-            blend,
+            blend, arcs,
         )  # fmt: skip
 
     def move_joints(
@@ -716,6 +756,7 @@ class MotionSystem:
         guard: float | None = None,
         durations: Sequence[float | None] | None = None,
         blend: bool = True,
+        arcs: Sequence[Sequence[float] | None] | None = None,
     ) -> MotionHandle:
         """The object along straight lines through ``targets``, blended over
         ``transition_s``; ``configs`` one per arm (None: each keeps its own); ``durations``
@@ -742,6 +783,7 @@ class MotionSystem:
         angular_speed = _speed_arg(what, "angular_speed", angular_speed)
         transition_s = _speed_arg(what, "transition_s", transition_s)
         times = _durations_arg(what, durations, len(targets))
+        vias = _arcs_arg(what, arcs, len(targets))
         configs = (
             _list_arg(what, "configs", configs)
             if configs is not None
@@ -772,6 +814,7 @@ class MotionSystem:
                 transition_s,
                 self.kali.tg_dt,
                 times,
+                vias,
             ).check_all()
         blend = _flag_arg(what, "blend", blend)
         if len(targets) > layout.MAX_SEGMENTS and (guard_n or self.kali.grouping is not None):
@@ -791,6 +834,12 @@ class MotionSystem:
             poses = np.zeros((layout.MAX_SEGMENTS, 4, 4))
             poses[: len(part)] = part
             part_times = times[first : first + layout.MAX_SEGMENTS]
+            part_vias = vias[first : first + layout.MAX_SEGMENTS]
+            arc_flags = np.zeros(layout.MAX_SEGMENTS, dtype=np.uint8)
+            arc_via = np.zeros((layout.MAX_SEGMENTS, 3))
+            for i, v in enumerate(part_vias):
+                if v is not None:
+                    arc_flags[i], arc_via[i] = 1, v
             fields = {
                 "flags": 0 if blend or first else layout.REQUEST_STOP_BETWEEN,
                 "n_segments": len(part),
@@ -802,6 +851,8 @@ class MotionSystem:
                 "transition_s": transition_s,
                 "guard_n": guard_n,
                 "durations": np.pad(part_times, (0, layout.MAX_SEGMENTS - len(part_times))),
+                "arcs": arc_flags,
+                "arc_via": arc_via,
             }
             while True:
                 try:
@@ -1062,12 +1113,27 @@ class Kali:
         board (the simulated cell's ``plant.conveyor_m_s``)."""
         boards.run_conveyor(self.inst.boards(), _flag_arg("run_conveyor", "run", run))
 
-    def together(self) -> Together:
-        """A block whose motion requests start together, on one TG tick (thesis 3.1):
-        ``with kali.together() as g: a.move_line(...); b.move_joints(...)``, then
-        ``g.wait()`` (all) or ``g.wait(any=True)`` (the first over).  Moves inside the block
-        do not wait; they are sent when it ends."""
-        return Together(self)
+    def together(self, *moves: Callable[[], object]) -> Together:
+        """Motion requests that start together, on one TG tick (thesis 3.1): a block,
+        ``with kali.together() as g: a.move_line(...); b.move_joints(...)``, or the moves as
+        functions, ``g = kali.together(lambda: a.move_line(...), lambda: b.move_joints(...))``
+        (Python runs a call's arguments first, so a move given as a plain call would be sent
+        before ``together`` could hold it back); then ``g.wait()`` (all) or
+        ``g.wait(any=True)`` (the first over).  Moves in the group do not wait; they are
+        sent when the block ends, or at once for the functional form."""
+        group = Together(self)
+        if not moves:
+            return group
+        for i, move in enumerate(moves):
+            if not callable(move):
+                raise MotionError(
+                    f"together: moves[{i}] is {move!r:.60}; give functions (lambda: a.move_"
+                    f"line(...)), or use the block form (with kali.together() as g: ...)"
+                )
+        with group:
+            for move in moves:
+                move()
+        return group
 
     def shared_transform(
         self,

@@ -161,6 +161,7 @@ class CartesianMotion:
         transition_s: float,
         dt: float,
         durations: Sequence[float] | None = None,
+        arcs: Sequence[Sequence[float] | None] | None = None,
     ) -> None:
         self.names = list(names)
         n = len(self.names)
@@ -207,7 +208,13 @@ class CartesianMotion:
             self.configs.append(have)
         start = held_object(self.names, self._kin, self._bases, self._grasps, starts)
         self.path = CartesianPath(
-            start, list(targets), speed, angular_speed, transition_s, durations=durations
+            start,
+            list(targets),
+            speed,
+            angular_speed,
+            transition_s,
+            durations=durations,
+            arcs=arcs,
         )
         for i in range(1, len(self.path.poses)):  # each target first: the plainest refusal
             np.copyto(self._obj, self.path.poses[i])

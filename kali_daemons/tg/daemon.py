@@ -173,6 +173,8 @@ def check_request(
             if not math.isfinite(value):
                 raise MotionError(f"path {field_name} is {value}, must be finite")
         for i in range(n_seg):
+            if int(req["arcs"][i]) not in (0, 1) or not np.isfinite(req["arc_via"][i]).all():
+                raise MotionError(f"path arcs[{i}] is not 0/1 with a finite point")
             d = float(req["durations"][i])
             if not (math.isfinite(d) and 0.0 <= d <= MAX_MOTION_S):
                 raise MotionError(f"path durations[{i}] is {d} s; 0 (by speed) to {MAX_MOTION_S:g}")
@@ -269,6 +271,10 @@ def plan_path(
         float(req["transition_s"]),
         dt,
         [float(d) for d in req["durations"][: int(req["n_segments"])]],
+        [
+            req["arc_via"][i].copy() if int(req["arcs"][i]) else None
+            for i in range(int(req["n_segments"]))
+        ],
     )
 
 

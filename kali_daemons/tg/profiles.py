@@ -379,6 +379,16 @@ class CartesianPath:
     (c/2 + ¼)·|ω_in|·|ω_out| (the second term from turning about two axes at once).  Speeds
     in the window are convex combinations, so never above ``speed`` / ``angular_speed``.
 
+    A segment may be a circular arc instead (``arcs[k]``: a point it passes through, the
+    circle being the one through its two ends and that point; thesis 3.1 speaks of straight
+    lines, RCCL-style controllers have added arcs since): its position goes round at constant
+    speed, its orientation turns as a line's.  Paths with an arc are sampled by the general
+    form of Paul's transition: over the window at via k the incoming segment runs on with its
+    speed falling as 1 − w(λ) and the outgoing one starts with its speed rising as w(λ), each
+    on its own curve, and the pose is their sum about via k (p_in + p_out − p_k,
+    R_in · R_kᵀ · R_out); for lines that is exactly the formula above (the fast path, kept for
+    paths of lines only).
+
     The path starts and ends at rest: pose 0 and the last pose are treated as via points with
     a resting segment before / after, so it accelerates over the first τ_b and decelerates over
     the last; each segment must therefore last at least τ_b (its two half-windows may not
@@ -395,6 +405,7 @@ class CartesianPath:
         transition_s: float,
         blend: Blend = "paul",
         durations: Sequence[float] | None = None,
+        arcs: Sequence[Sequence[float] | None] | None = None,
     ) -> None:
         what = "cartesian path"
         self.speed = _float(what, "speed", speed, "m/s")
@@ -436,8 +447,18 @@ class CartesianPath:
                 raise MotionError(
                     f"{what}: durations[{i}] is {d} s; 0 (by the speeds) to {MAX_MOTION_S:g} s"
                 )
+        vias = [None] * len(targets) if arcs is None else list(arcs)
+        if len(vias) != len(targets):
+            raise MotionError(f"{what}: {len(vias)} arcs for {len(targets)} targets")
+        self.arcs = [
+            None if v is None else _array(what, f"arcs[{i}]", v, (3,)) for i, v in enumerate(vias)
+        ]
+        self._circles: list[tuple[np.ndarray, float, np.ndarray, np.ndarray, float] | None] = []
         self._plan_segments()
         self._precompute_pieces()
+        self._generic = any(a is not None for a in self.arcs)
+        if self._generic:
+            self._prepare_generic()
         self._end = self.poses[-1].copy()
         self._coef = np.zeros(11)
         self._coef[0] = 1.0
@@ -460,6 +481,10 @@ class CartesianPath:
             length = float(np.linalg.norm(p1 - p0))
             angle, axis = angle_axis(self.poses[k, :3, :3].T @ self.poses[k + 1, :3, :3])
             label = f"segment {k + 1} ({'start' if k == 0 else f'targets[{k - 1}]'} → targets[{k}])"
+            circle = None if self.arcs[k] is None else _circle(what, label, p0, self.arcs[k], p1)
+            self._circles.append(circle)
+            if circle is not None:
+                length = circle[1] * circle[4]  # r · sweep
             if length < MIN_SEGMENT_LENGTH and angle < MIN_SEGMENT_LENGTH:
                 raise MotionError(f"{what}: {label} has zero length: targets[{k}] repeats it")
             t_k = max(length / self.speed, angle / self.angular_speed)
@@ -537,6 +562,77 @@ class CartesianPath:
             else:
                 self.blend_accel[k] = self.blend_angular_accel[k] = math.inf
 
+    def _prepare_generic(self) -> None:
+        """Scratch and per-segment terms of the general sampler (a path with an arc):
+        R_k·K and R_k·K² of each segment's turn, so a segment's rotation is three products
+        (construction)."""
+        n = len(self.poses) - 1
+        self._turns = []
+        for k in range(n):
+            angle, axis = angle_axis(self.poses[k, :3, :3].T @ self.poses[k + 1, :3, :3])
+            kk = _skew(axis)
+            r = self.poses[k, :3, :3]
+            self._turns.append((r.copy(), r @ kk, r @ kk @ kk, float(angle)))
+        self._in, self._out = np.eye(4), np.eye(4)
+        self._r3 = np.empty((3, 3))
+        self._r3b = np.empty((3, 3))
+        self._probe = (np.eye(4), np.eye(4))  # the finite-difference velocity's two samples
+
+    def _segment_pose(self, j: int, u: float, out: np.ndarray) -> None:
+        """Segment ``j`` (0-based, pose j → j+1) at local time ``u`` in [0, T_j], into
+        ``out`` (4×4): on its line or arc, turned ``u/T_j`` of its way (in the cycle)."""
+        s = u / float(self.segment_times[j])
+        r, rk, rkk, angle = self._turns[j]
+        x = angle * s
+        np.multiply(rk, math.sin(x), out=self._r3)
+        np.add(self._r3, r, out=self._r3)
+        np.multiply(rkk, 1.0 - math.cos(x), out=self._r3b)
+        np.add(self._r3, self._r3b, out=out[:3, :3])
+        circle = self._circles[j]
+        if circle is None:
+            p0, p1 = self.poses[j, :3, 3], self.poses[j + 1, :3, 3]
+            for i in range(3):
+                out[i, 3] = p0[i] + (p1[i] - p0[i]) * s
+        else:
+            centre, radius, e1, e2, sweep = circle
+            phi = sweep * s
+            c, sn = radius * math.cos(phi), radius * math.sin(phi)
+            for i in range(3):
+                out[i, 3] = centre[i] + c * e1[i] + sn * e2[i]
+
+    def _sample_generic(self, tau: float, t_out: np.ndarray) -> None:
+        """The pose at path time ``tau`` of a path with an arc (see the class docstring):
+        a segment alone in its cruise, the sum of two about the via point in a window."""
+        if tau >= self.duration:
+            np.copyto(t_out, self._end)
+            return
+        tau = max(tau, 0.0)
+        k = bisect_right(self._starts, tau) - 1
+        u = tau - self._starts[k]
+        tb = self.transition_s
+        n = len(self.poses) - 1
+        if u >= tb:  # cruising on segment k
+            self._segment_pose(k, u - 0.5 * tb, t_out)
+            return
+        lam = u / tb
+        big_w = lam * lam * lam * (1.0 - 0.5 * lam) if self._paul else 0.5 * lam * lam
+        via = self.poses[k]
+        if k == 0:
+            np.copyto(self._in, via)  # at rest before the start
+        else:
+            t_in = float(self.segment_times[k - 1]) - 0.5 * tb + tb * (lam - big_w)
+            self._segment_pose(k - 1, t_in, self._in)
+        if k == n:
+            np.copyto(self._out, via)  # at rest after the end
+        else:
+            self._segment_pose(k, tb * big_w, self._out)
+        np.matmul(self._in[:3, :3], via[:3, :3].T, out=self._r3)
+        np.matmul(self._r3, self._out[:3, :3], out=self._r3b)
+        t_out[:3, :3] = self._r3b
+        for i in range(3):
+            t_out[i, 3] = self._in[i, 3] + self._out[i, 3] - via[i, 3]
+        t_out[3] = (0.0, 0.0, 0.0, 1.0)
+
     def blend_window(self, k: int) -> tuple[float, float]:
         """Path-time interval of the transition at pose ``k`` (0 = start, n = last target)."""
         t = float(self.via_times[k])
@@ -546,7 +642,14 @@ class CartesianPath:
         """Write the pose at path time ``tau`` into ``t_out`` (4, 4) and, if given, the nominal
         velocity dT/dτ into ``v_out`` (a twist: linear m/s, then angular rad/s, both in the
         base frame); the start pose before 0, the last pose at rest from ``duration`` on
-        (inside the cycle: float64 outputs, no arrays allocated)."""
+        (inside the cycle: float64 outputs, no arrays allocated; with an arc the velocity
+        comes from a central difference, which allocates).  A path with an arc is sampled by
+        ``_sample_generic``."""
+        if self._generic:
+            self._sample_generic(tau, t_out)
+            if v_out is not None:
+                self._difference(tau, v_out)
+            return
         if tau >= self.duration:
             np.copyto(t_out, self._end)
             if v_out is not None:
@@ -595,6 +698,51 @@ class CartesianPath:
             cv[2] = w * s1
             cv[3] = w * c1
             np.matmul(self._velocity_terms[k], cv, out=v_out)
+
+    def _difference(self, tau: float, v_out: np.ndarray) -> None:
+        """dT/dτ at ``tau`` by central difference (a path with an arc): linear, then ω from
+        Ṙ Rᵀ, base frame."""
+        h = 1e-6
+        a, b = self._probe
+        self._sample_generic(tau - h, a)
+        self._sample_generic(tau + h, b)
+        v_out[:3] = (b[:3, 3] - a[:3, 3]) / (2 * h)
+        w = (b[:3, :3] - a[:3, :3]) / (2 * h) @ (0.5 * (a[:3, :3] + b[:3, :3])).T
+        v_out[3:] = (
+            0.5 * (w[2, 1] - w[1, 2]),
+            0.5 * (w[0, 2] - w[2, 0]),
+            0.5 * (w[1, 0] - w[0, 1]),
+        )
+
+
+def _circle(
+    what: str, label: str, p0: np.ndarray, via: np.ndarray, p1: np.ndarray
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, float]:
+    """The arc from ``p0`` through ``via`` to ``p1``: (centre, radius, e1, e2, sweep), the
+    point at angle φ being centre + r(cos φ e1 + sin φ e2), φ from 0 to sweep; MotionError
+    naming the segment if the three points are (nearly) on one line or repeat."""
+    a, b = via - p0, p1 - p0
+    w = np.cross(a, b)
+    ww = float(w @ w)
+    scale = float(np.linalg.norm(a) * np.linalg.norm(b))
+    if scale < MIN_SEGMENT_LENGTH**2 or math.sqrt(ww) < 1e-6 * scale:
+        raise MotionError(
+            f"{what}: {label} is an arc through {np.round(via, 4).tolist()}, but that point is "
+            f"on the line between its ends (or repeats one): no circle passes through them"
+        )
+    centre = p0 + np.cross(float(a @ a) * b - float(b @ b) * a, w) / (2.0 * ww)
+    radius = float(np.linalg.norm(p0 - centre))
+    e1 = (p0 - centre) / radius
+    e2 = np.cross(w / math.sqrt(ww), e1)  # the way round that meets via before p1
+
+    def angle(p: np.ndarray) -> float:
+        d = p - centre
+        return math.atan2(float(d @ e2), float(d @ e1)) % (2.0 * math.pi)
+
+    sweep = angle(p1)
+    if angle(via) > sweep:  # via lies the other way round
+        e2, sweep = -e2, 2.0 * math.pi - sweep
+    return centre, radius, e1, e2, sweep
 
 
 # ---------------------------------------------------------------------------------------------
