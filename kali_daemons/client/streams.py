@@ -186,7 +186,7 @@ class TgFunctionHandle:
             set_params(self.function, self._data, params, fresh)
         except ConfigError as exc:
             self._slot["data"] = np.frombuffer(saved, dtype=np.uint8)
-            raise MotionError(str(exc)) from None
+            raise MotionError(str(exc).removeprefix(f"{exc.subsystem}: ")) from None
         finally:
             atomic.store32(addr, ((seq + 1) | 1) + 1)
 
@@ -224,7 +224,7 @@ def set_up_function(
     try:
         fn = registry[registry.index(function)]
     except ConfigError as exc:
-        raise MotionError(str(exc)) from None
+        raise MotionError(str(exc).removeprefix(f"{exc.subsystem}: ")) from None
     label = name if name is not None else f"{function}.{os.getpid()}.{len(kali.held_functions)}"
     i = claim_slot(kali.functions, label, "tg function")
     slot = kali.functions[i : i + 1].reshape(())

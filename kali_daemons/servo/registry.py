@@ -113,12 +113,17 @@ class Param(NamedTuple):
 
 
 def resolve_params(
-    algo: str, specs: Sequence[Param], values: Mapping[str, float], base: Mapping[str, float]
+    algo: str,
+    specs: Sequence[Param],
+    values: Mapping[str, float],
+    base: Mapping[str, float],
+    kind: str = "servo",
 ) -> dict[str, float]:
     """``base`` (every parameter) updated with ``values``, checked against ``specs``.
 
-    Outside the cycle.  ConfigError names the algorithm, the parameter, the value and the
-    bound, or the unknown key with the known ones.
+    Outside the cycle.  ConfigError names the ``kind`` of algorithm ("servo", "tg
+    function"), the algorithm, the parameter, the value and the bound, or the unknown key
+    with the known ones.
     """
     known = {p.name: p for p in specs}
     out = dict(base)
@@ -126,24 +131,24 @@ def resolve_params(
         spec = known.get(key)
         if spec is None:
             raise ConfigError(
-                f"servo {algo}: unknown parameter {key!r}; parameters: {', '.join(known)}"
+                f"{kind} {algo}: unknown parameter {key!r}; parameters: {', '.join(known)}"
             )
         try:
             value = float(raw)
         except (TypeError, ValueError):
             raise ConfigError(
-                f"servo {algo}: parameter {key} = {raw!r} is not a number ({spec.unit})"
+                f"{kind} {algo}: parameter {key} = {raw!r} is not a number ({spec.unit})"
             ) from None
         if not math.isfinite(value):
-            raise ConfigError(f"servo {algo}: parameter {key} = {value} must be finite")
+            raise ConfigError(f"{kind} {algo}: parameter {key} = {value} must be finite")
         if value < spec.minimum or (spec.positive and value == spec.minimum):
             bound = f"> {spec.minimum:g}" if spec.positive else f">= {spec.minimum:g}"
             raise ConfigError(
-                f"servo {algo}: parameter {key} = {value:g} {spec.unit} must be {bound}"
+                f"{kind} {algo}: parameter {key} = {value:g} {spec.unit} must be {bound}"
             )
         if value > spec.maximum:
             raise ConfigError(
-                f"servo {algo}: parameter {key} = {value:g} {spec.unit} must be "
+                f"{kind} {algo}: parameter {key} = {value:g} {spec.unit} must be "
                 f"<= {spec.maximum:g} (the algorithm's declared bound)"
             )
         out[key] = value

@@ -254,7 +254,7 @@ def set_params(fn: TgFunction, data: Any, values: Mapping[str, float], fresh: bo
     checking them against the declared bounds, then ``derive``; ConfigError, nothing
     changed, for a bad value.  Outside the cycle."""
     base = defaults(fn.params) if fresh else get_params(fn, data)
-    resolved = resolve_params(f"tg function '{fn.name}'", fn.params, values, base)
+    resolved = resolve_params(f"'{fn.name}'", fn.params, values, base, kind="tg function")
     for name, value in resolved.items():
         setattr(data, name, value)
     fn.derive(data)
