@@ -841,13 +841,16 @@ def run(ctx: click.Context, program: Path, args: tuple[str, ...]) -> None:
     ``Kali()`` in the program connects to it ($KALI_INSTANCE).  Ctrl-C first stops the arms
     the program owns on their paths, through the TG's queue (taking them over, so the program
     cannot start them again), then sends it SIGINT; a second Ctrl-C kills it and whatever it
-    started.  The exit status is the program's (128 + N when signal N ended it).
+    started.  The exit status is the program's (128 + N when signal N ended it).  Its numeric
+    libraries compute on one thread (OPENBLAS_NUM_THREADS=1 ..., unless it sets them).
     """
     name = _instance_name(ctx)
     if args[:1] == ("--",):
         args = args[1:]
     kali = Kali(name, force=True)  # the instance must be up: say so before the program starts
-    env = {**os.environ, INSTANCE_ENV: name}
+    # numpy's BLAS on one thread, as the daemons' (a program's own setting stands): a periodic
+    # function the program runs in a thread must not wait on a BLAS worker below it
+    env = {**launcher.SINGLE_THREADED, **os.environ, INSTANCE_ENV: name}
     try:
         proc = subprocess.Popen([sys.executable, str(program), *args], env=env)
         try:

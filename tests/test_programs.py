@@ -12,6 +12,7 @@ import sys
 import textwrap
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -119,3 +120,26 @@ def test_sleep_lets_simulated_time_pass_in_lockstep(kali: Callable[..., str]) ->
             with pytest.raises(MotionError, match="sleep: "):
                 k.sleep(bad)  # type: ignore[arg-type]
         assert int(k.inst.clock["tick"]) - before == 250
+
+
+def test_a_program_computes_on_one_thread_unless_it_asks_for_more(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """``kalictl run`` starts the program with numpy's BLAS single-threaded, as the daemons
+    (launcher.SINGLE_THREADED): a periodic function the program runs in a thread
+    (``Kali.control``, SCHED_FIFO when asked) must not wait on an OpenBLAS worker thread
+    below it on its CPU, the priority inversion that once halted the TG.  A program's own
+    setting stands."""
+    from .test_launcher import kalictl
+
+    name = kali(lockstep=True)
+    script = tmp_path / "threads.py"
+    script.write_text(
+        "import os\nimport numpy\n"
+        "print(os.environ.get('OPENBLAS_NUM_THREADS'), len(os.listdir('/proc/self/task')))\n"
+    )
+    r = kalictl("-i", name, "run", str(script))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["1", "1"], r.stdout
+    r = kalictl("-i", name, "run", str(script), env={"OPENBLAS_NUM_THREADS": "2"})
+    assert r.stdout.split()[0] == "2", r.stdout
