@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 from collections.abc import Mapping
 from fractions import Fraction
@@ -131,7 +132,10 @@ class RequestQueue:
         self._seqs = self._slots["seq"]
         payloads = self._slots["payload"]
         self._cells = [payloads[i : i + 1].reshape(()) for i in range(cap)]  # 0-d views
-        self._staging = np.zeros((), dtype=self.payload)  # validated copy of a put's values
+        # a put's validated copy, one per producing thread (a program and its periodic
+        # function, Kali.control, may both put through one object)
+        self._local = threading.local()
+        self._local.staging = np.zeros((), dtype=self.payload)
         # the consumer's own head: the arena's copy is published for producers, never read
         # back, so a write to it from outside cannot make the consumer replay old entries
         self._next = atomic.load64(self._head_addr)
@@ -139,15 +143,24 @@ class RequestQueue:
 
     # ---------------------------------------------------------------- producers
 
-    def _stage(self, values: Mapping[str, object] | np.void | np.ndarray) -> None:
+    def _staging(self) -> np.ndarray:
+        """The calling thread's staging record (made on its first put)."""
+        staging = getattr(self._local, "staging", None)
+        if staging is None:
+            staging = self._local.staging = np.zeros((), dtype=self.payload)
+        return staging
+
+    def _stage(self, values: Mapping[str, object] | np.void | np.ndarray) -> np.ndarray:
+        """Validate ``values`` into the calling thread's staging record, and return it."""
+        staging = self._staging()
         if isinstance(values, np.void | np.ndarray):
             if values.dtype != self.payload or values.size != 1:
                 raise ChannelError(
                     f"queue '{self.key}': entry of dtype {values.dtype} shape "
                     f"{np.shape(values)}, expected one record of {self.payload}"
                 )
-            self._staging[...] = values.reshape(()) if isinstance(values, np.ndarray) else values
-            return
+            staging[...] = values.reshape(()) if isinstance(values, np.ndarray) else values
+            return staging
         if not isinstance(values, Mapping):
             raise ChannelError(
                 f"queue '{self.key}': entry must be a dict or a {self.payload} record, "
@@ -164,7 +177,7 @@ class RequestQueue:
                 raise ChannelError(f"queue '{self.key}': field {name!r} missing")
             value = values[name]
             try:
-                self._staging[name] = value
+                staging[name] = value
             except (ValueError, TypeError) as exc:
                 ftype = self.payload.fields[name][0]
                 want = ftype.base if ftype.shape else ftype
@@ -172,6 +185,7 @@ class RequestQueue:
                     f"queue '{self.key}': field {name!r} takes {want} of shape {ftype.shape}, "
                     f"got {type(value).__name__} of shape {np.shape(value)} ({exc})"
                 ) from exc
+        return staging
 
     def put(self, values: Mapping[str, object] | np.void | np.ndarray) -> int:
         """Append one entry and return its sequence number; QueueFullError when full.
@@ -179,14 +193,14 @@ class RequestQueue:
         Validates first (unknown or missing fields, wrong shapes → ChannelError, nothing
         written), then writes under the producers' lock.  Allocation-light, meant for
         asynchronous producers; may wait on the lock, so not for the synchronous consumer.
-        One object per thread: the validated entry is staged in a per-object buffer.
+        Threads may share the object: each stages its entry in its own buffer.
         """
-        self._stage(values)
+        staged = self._stage(values)
         full = None
         with self._lock:
             tail = int(self._h["tail"])  # only lock holders write it
             head = atomic.load64(self._head_addr)
-            mine = self._held(head, tail)
+            mine = self._held(head, tail, staged)
             if tail - head >= self._capacity:
                 self._h["rejected"] += 1
                 full = (tail - head, int(self._seqs[head % self._capacity]))
@@ -195,7 +209,7 @@ class RequestQueue:
             else:
                 slot = tail % self._capacity
                 seq = tail + 1  # from the place, never from next_seq: see the class doc
-                np.copyto(self._cells[slot], self._staging)
+                np.copyto(self._cells[slot], staged)
                 self._seqs[slot] = seq
                 self._h["next_seq"] = seq + 1
                 atomic.store64(self._tail_addr, tail + 1)  # publish after the slot is written
@@ -212,14 +226,14 @@ class RequestQueue:
             )
         return seq
 
-    def _held(self, head: int, tail: int) -> object | None:
-        """With a share: the staged entry's producer if it already holds its share of the
-        unread entries [head, tail), else None.  Under the producers' lock."""
+    def _held(self, head: int, tail: int, staged: np.ndarray) -> object | None:
+        """With a share: the ``staged`` entry's producer if it already holds its share of
+        the unread entries [head, tail), else None.  Under the producers' lock."""
         if self._share is None or tail <= head:
             return None
         field, n = self._share
         places = np.arange(head, tail) % self._capacity
-        who = self._staging[field]
+        who = staged[field]
         if np.count_nonzero(self._slots["payload"][field][places] == who) < n:
             return None
         return who.item()

@@ -464,8 +464,8 @@ class _CycleStats:
         self._ack[0] = tick
 
 
-# The process table's spinlock holds a pid, so two threads of one program taking it at once
-# would find it "already held by this process": a program's functions take it in turn.
+# A program's functions claim and free their process-table slots one at a time (the table's
+# spinlock excludes threads too; this keeps a program's own threads from spinning on it).
 _TABLE_GUARD = threading.Lock()
 RETURNED_FALSE = "the function returned False"
 RELEASED_ELSEWHERE = "released by another process (wallclock.release)"

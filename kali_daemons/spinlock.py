@@ -1,14 +1,17 @@
 """Test-and-set spinlocks on arena words (thesis 3.6.1, appendix A).
 
-The lock word holds the holder's pid (0 when free), set by one atomic compare-exchange, so a
-lock held by a process that died can be recognised and taken over.  Waiting spins a bounded
-number of times and then sleeps with a growing back-off: on two cores, a SCHED_FIFO waiter that
-spun without bound would starve a holder sharing its CPU (DESIGN section 10).
+The lock word holds the holder's thread id (0 when free; a process's main thread has its
+pid), set by one atomic compare-exchange, so a lock held by a process or thread that died can
+be recognised and taken over, and two threads of one program exclude each other.  Waiting
+spins a bounded number of times and then sleeps with a growing back-off: on two cores, a
+SCHED_FIFO waiter that spun without bound would starve a holder sharing its CPU (DESIGN
+section 10).
 """
 
 from __future__ import annotations
 
 import os
+import threading
 import time
 
 from . import atomic
@@ -72,53 +75,73 @@ def holder_text(pid: int) -> str:
 class SpinLock:
     """A spinlock on the 32-bit arena word at absolute address ``addr``.
 
-    ``acquire``/``release`` are safe inside a cycle on the uncontended path (one
-    compare-exchange, no allocation); contention falls back to sleeping.
+    The word holds the id of the thread that took it (Linux's thread id: a process's main
+    thread has its pid), so two threads of one program exclude each other like two programs
+    (a program and its periodic function, ``Kali.control``), and a lock whose thread died is
+    recovered even while its process lives.  ``acquire``/``release`` are safe inside a cycle
+    on the uncontended path (one compare-exchange, no allocation); contention falls back to
+    sleeping.  One object may be shared by threads: each call uses the calling thread's id.
     """
 
-    __slots__ = ("_addr", "_cas", "_pid", "name", "recoveries")
+    __slots__ = ("_addr", "_local", "name", "recoveries")
 
     def __init__(self, addr: int, name: str) -> None:
         self._addr = addr
-        self._cas = atomic.CompareExchange32()
-        self._pid = os.getpid()
+        # per thread: its compare-exchange (whose ``expected`` cell no two threads may share)
+        # and its id as it last took the lock (``release`` needs no system call for it)
+        self._local = threading.local()
+        self._local.cas = atomic.CompareExchange32()
         self.name = name
         self.recoveries = 0  # locks taken over from dead holders by this object
 
+    def _cas_of_thread(self) -> atomic.CompareExchange32:
+        """The calling thread's compare-exchange, made on its first use of this lock (for
+        the thread that made the lock: at once, outside any cycle)."""
+        cas = getattr(self._local, "cas", None)
+        if cas is None:
+            cas = self._local.cas = atomic.CompareExchange32()
+        return cas
+
     @property
     def holder(self) -> int:
-        """Pid holding the lock, 0 if free."""
+        """The thread id holding the lock (a process's pid for its main thread), 0 if free."""
         return atomic.load32(self._addr)
 
     def try_acquire(self) -> bool:
         """Take the lock if it is free; never waits."""
-        self._pid = os.getpid()
-        ok, _ = self._cas(self._addr, 0, self._pid)
+        me = threading.get_native_id()
+        ok, _ = self._cas_of_thread()(self._addr, 0, me)
+        if ok:
+            self._local.me = me
         return ok
 
     def acquire(self, timeout: float = 5.0) -> None:
         """Take the lock, recovering it from a dead holder; raise LockError after ``timeout`` s."""
-        self._pid = os.getpid()  # a forked child must not take the lock in its parent's name
-        ok, seen = self._cas(self._addr, 0, self._pid)
+        me = threading.get_native_id()  # a forked child's own: never its parent's
+        cas = self._cas_of_thread()
+        ok, seen = cas(self._addr, 0, me)
         if ok:
+            self._local.me = me
             return
-        if seen == self._pid:
-            raise LockError(f"lock '{self.name}' is already held by this process (pid {seen})")
+        if seen == me:
+            raise LockError(f"lock '{self.name}' is already held by this thread (id {seen})")
         tries = 0
         backoff = FIRST_BACKOFF_S
         deadline = time.monotonic() + timeout
         while True:
             if seen == 0:
-                ok, seen = self._cas(self._addr, 0, self._pid)
+                ok, seen = cas(self._addr, 0, me)
                 if ok:
+                    self._local.me = me
                     return
             tries += 1
             if tries < SPIN_TRIES:
                 seen = atomic.load32(self._addr)
                 continue
             if seen and not pid_alive(seen):
-                ok, seen = self._cas(self._addr, seen, self._pid)
+                ok, seen = cas(self._addr, seen, me)
                 if ok:
+                    self._local.me = me
                     self.recoveries += 1
                     return
                 continue
@@ -131,12 +154,12 @@ class SpinLock:
             seen = atomic.load32(self._addr)
 
     def release(self) -> None:
-        """Free the lock; raise LockError if this process does not hold it."""
-        ok, seen = self._cas(self._addr, self._pid, 0)
+        """Free the lock; raise LockError if this thread does not hold it."""
+        loc = self._local
+        me = getattr(loc, "me", 0) or threading.get_native_id()  # as it took the lock
+        ok, seen = self._cas_of_thread()(self._addr, me, 0)
         if not ok:
-            raise LockError(
-                f"lock '{self.name}' released by pid {self._pid} but held by pid {seen}"
-            )
+            raise LockError(f"lock '{self.name}' released by pid {me} but held by pid {seen}")
 
     def __enter__(self) -> SpinLock:
         self.acquire()

@@ -628,3 +628,32 @@ def test_record_is_a_plain_shared_view(arena: Arena) -> None:
 def test_instance_segment_name_is_ours(instance: tuple[str, Arena]) -> None:
     name, _ = instance
     assert os.path.exists("/dev/shm" + segment_name(name))
+
+
+def test_threads_sharing_a_queue_object_put_whole_entries(arena: Arena) -> None:
+    """A program and its periodic function (a thread, ``Kali.control``) put through one
+    queue object: each stages its entry in its own buffer, under a lock that excludes
+    threads, so every entry arrives whole and in each thread's order."""
+    import threading
+
+    q = RequestQueue(arena, "q", PAYLOAD, 4096)
+    errors: list[BaseException] = []
+
+    def producer(p: int) -> None:
+        try:
+            for i in range(1000):
+                q.put({"producer": p, "i": i})
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=producer, args=(p,)) for p in (1, 2, 3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors[0]
+    out = np.zeros((), dtype=PAYLOAD)
+    seen: dict[int, list[int]] = {1: [], 2: [], 3: []}
+    while q.get_into(out) is not None:
+        seen[int(out["producer"])].append(int(out["i"]))
+    assert all(v == list(range(1000)) for v in seen.values())

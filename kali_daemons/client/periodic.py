@@ -15,10 +15,8 @@ function's too.  It shares the program's GIL as well: in real time a long comput
 program that holds the GIL delays the function by up to ``sys.getswitchinterval()`` (5 ms),
 or for as long as one C call holds it.
 
-The function and the program must not take the same arena spinlock at once (a request
-queue's, for instance: the function queueing motion requests while the program does): the
-lock word holds a pid, and a thread meeting its own pid there is refused with LockError.
-Writing a shared transform, reading the arms and the servo level take none.
+The function and the program may take the same arena spinlock (a request queue's: both
+queueing motion requests): its word holds the taking thread's id, so they take it in turn.
 
 A program's functions end with it: ``Kali.close`` releases those it started, and so does the
 interpreter's exit for any left (``atexit``); a program killed outright leaves its slot to
