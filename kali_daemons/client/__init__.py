@@ -4,9 +4,11 @@
     with client.attach("default") as kali:
         print(kali.clock["tick"])
 
-``Kali`` moves the arms through the trajectory generator (``motion.py``) and runs the
-program's functions periodically on the wall clock while it goes on (``Kali.control``, a
-``Control`` each: ``periodic.py``).  ``control`` (thesis 3.6.2) makes the calling process
+``Kali`` moves the arms through the trajectory generator (``motion.py``): motions that change
+while they run through shared transforms, TG functions and streams (``streams.py``), motion
+systems started together (``together.py``); and it runs the program's functions
+periodically on the wall clock while it goes on (``Kali.control``, a ``Control`` each:
+``periodic.py``).  ``control`` (thesis 3.6.2) makes the calling process
 itself the periodic function, blocking until it is released.
 """
 
@@ -22,6 +24,8 @@ from ..wallclock import (
 )
 from .motion import Contact, Kali, MotionFailedError, MotionHandle, MotionSystem, Robot, pose
 from .periodic import Control
+from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
+from .together import Together
 
 
 def attach(instance: str = "default") -> Instance:
@@ -33,11 +37,16 @@ __all__ = [
     "Contact",
     "Control",
     "Instance",
+    "JointStream",
     "Kali",
     "MotionFailedError",
     "MotionHandle",
     "MotionSystem",
     "Robot",
+    "SharedTransform",
+    "Stream",
+    "TgFunctionHandle",
+    "Together",
     "attach",
     "control",
     "pose",
