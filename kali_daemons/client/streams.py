@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from .motion import Kali, MotionHandle, MotionSystem, Robot
 
 DEFAULT_LIFETIME_S = 0.1  # a stream not written for this long stops its arm
+TWIST = 6  # a twist's values: linear x, y, z (m/s), then angular x, y, z (rad/s)
 
 
 class SharedTransform:
@@ -341,8 +342,10 @@ class Stream:
         from .motion import _real_array
 
         t = _real_array(f"stream of '{self.robot.name}': twist", twist, "6 numbers")
-        if t.shape != (6,):
-            raise MotionError(f"stream of '{self.robot.name}': twist has shape {t.shape}, not (6,)")
+        if t.shape != (TWIST,):
+            raise MotionError(
+                f"stream of '{self.robot.name}': twist has shape {t.shape}, not ({TWIST},)"
+            )
         inst = self.robot.kali.inst
         now = int(inst.clock["tick"])
         tick_s = inst.config.clock.base_tick_ms / 1000.0

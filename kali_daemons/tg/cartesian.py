@@ -135,6 +135,59 @@ def held_object(
     return start
 
 
+class Arms:
+    """The arms of one motion system as a Cartesian motion (a path, ``CartesianMotion``, or a
+    tracking one, ``tracking.TrackingMotion``) drives them, checked (construction):
+    ``kin``, ``qd_max``, ``bases`` (B_k), ``to_base`` (B_k⁻¹), ``grasps`` (G_k, rigid),
+    ``starts`` (each arm's joints, its type's count) and ``configs`` (each arm's own, which a
+    request naming another is refused for: ``keeps`` says why, with ``{want}``).  MotionError
+    for lists that do not match or a start of the wrong length."""
+
+    def __init__(
+        self,
+        what: str,
+        names: Sequence[str],
+        types: Sequence[RobotType],
+        bases: Sequence[np.ndarray],
+        grasps: Sequence[np.ndarray],
+        q_start: np.ndarray | Sequence[np.ndarray],
+        configs: Sequence[object | None],
+        keeps: str,
+    ) -> None:
+        n = len(names)
+        if not len(grasps) == len(bases) == len(configs) == len(types) == n:
+            raise MotionError(
+                f"{what}: {n} arms, but {len(grasps)} grasps, {len(bases)} bases and "
+                f"{len(configs)} configurations"
+            )
+        if len(q_start) != n:
+            raise MotionError(f"{what}: {n} arms, but {len(q_start)} start rows")
+        self.kin = [t.kinematics for t in types]
+        self.qd_max = [tuple(float(v) for v in t.qd_max) for t in types]
+        self.bases = [np.asarray(b, dtype=np.float64) for b in bases]
+        self.to_base = [inverse(b) for b in self.bases]
+        self.grasps = [
+            rigid_pose(what, f"grasp of robot '{names[k]}'", g) for k, g in enumerate(grasps)
+        ]
+        self.starts = [np.array(q, dtype=np.float64).reshape(-1) for q in q_start]
+        for k, (q, t) in enumerate(zip(self.starts, types, strict=True)):
+            if q.shape != (t.n_joints,):
+                raise MotionError(
+                    f"{what}: robot '{names[k]}' ({t.name}, {t.n_joints} joints) starts at "
+                    f"{q.size} joint angles"
+                )
+        self.configs: list[object] = []
+        for k in range(n):
+            have = self.kin[k].config_of(self.starts[k])
+            want = configs[k]
+            if want is not None and want != have:
+                raise MotionError(
+                    f"robot '{names[k]}' is in configuration '{have}', the request asks for "
+                    f"'{want}': {keeps.format(want=want)}"
+                )
+            self.configs.append(have)
+
+
 class CartesianMotion:
     """One Cartesian request of one motion system: planned, checked, then sampled per tick.
 
@@ -167,45 +220,19 @@ class CartesianMotion:
         n = len(self.names)
         self.n = n
         self.dt = float(dt)
-        self._kin = [t.kinematics for t in types]
-        self._qd_max = [tuple(float(v) for v in t.qd_max) for t in types]
-        self._bases = [np.asarray(b, dtype=np.float64) for b in bases]
-        self._to_base = [inverse(b) for b in self._bases]
-        if not len(grasps) == len(bases) == len(configs) == len(types) == n:
-            raise MotionError(
-                f"cartesian motion: {n} arms, but {len(grasps)} grasps, {len(bases)} bases and "
-                f"{len(configs)} configurations"
-            )
+        arms = Arms(
+            "cartesian motion", names, types, bases, grasps, q_start, configs,
+            "a straight line cannot change configuration (move_joints into '{want}' first)",
+        )  # fmt: skip
+        self._kin, self._qd_max, self.configs = arms.kin, arms.qd_max, arms.configs
+        self._bases, self._to_base, self._grasps = arms.bases, arms.to_base, arms.grasps
+        starts = arms.starts
         self.request_grasp = np.array(grasps[0], dtype=np.float64)  # the first arm's, as given
-        self._grasps = [
-            rigid_pose("cartesian motion", f"grasp of robot '{self.names[k]}'", g)
-            for k, g in enumerate(grasps)
-        ]
-        if len(q_start) != n:
-            raise MotionError(f"cartesian motion: {n} arms, but {len(q_start)} start rows")
-        starts = [np.array(q, dtype=np.float64).reshape(-1) for q in q_start]
-        for k, (q, t) in enumerate(zip(starts, types, strict=True)):
-            if q.shape != (t.n_joints,):
-                raise MotionError(
-                    f"cartesian motion: robot '{self.names[k]}' ({t.name}, {t.n_joints} "
-                    f"joints) starts at {q.size} joint angles"
-                )
         # scratch, so sampling allocates nothing
         self._obj = np.empty((4, 4))
         self._tmp = np.empty((4, 4))
         self._t6 = np.empty((4, 4))
         self._q = [np.empty(t.n_joints) for t in types]  # per arm: the check's solution
-        self.configs: list[object] = []
-        for k in range(n):
-            have = self._kin[k].config_of(starts[k])
-            want = configs[k]
-            if want is not None and want != have:
-                raise MotionError(
-                    f"robot '{self.names[k]}' is in configuration '{have}', the request asks "
-                    f"for '{want}': a straight line cannot change configuration (move_joints "
-                    f"into '{want}' first)"
-                )
-            self.configs.append(have)
         start = held_object(self.names, self._kin, self._bases, self._grasps, starts)
         self.path = CartesianPath(
             start,

@@ -54,7 +54,7 @@ from ..instance import decode
 from ..layout import FrameKind
 from ..robots import RobotType
 from ..spinlock import pid_alive
-from .cartesian import decode_config, held_object, inverse
+from .cartesian import Arms, decode_config, held_object
 from .functions import FunctionSlots, TgFunction
 from .profiles import (
     MAX_ANGULAR_SPEED_RAD_S,
@@ -249,7 +249,7 @@ def pose_fault(t: np.ndarray) -> str:
     rigid motion), or ''.  In the cycle: floats, no arrays."""
     if not math.isfinite(float(t.sum())):
         return "is not finite"
-    if float(np.abs(t[:3, 3]).max()) > MAX_POSE_M:
+    if max(abs(float(t[0, 3])), abs(float(t[1, 3])), abs(float(t[2, 3]))) > MAX_POSE_M:
         return f"is more than {MAX_POSE_M:g} m from its frame's origin"
     worst = 0.0
     for i in range(3):
@@ -382,24 +382,13 @@ class TrackingMotion(Tracking):
         super().__init__(dt, track_s)
         self.names = list(names)
         self.n = len(self.names)
-        self._kin = [t.kinematics for t in types]
-        self._qd_max = [tuple(float(v) for v in t.qd_max) for t in types]
-        self._bases = [np.asarray(b, dtype=np.float64) for b in bases]
-        self._to_base = [inverse(b) for b in self._bases]
-        self._grasps = [
-            rigid_pose("tracking", f"grasp of robot '{name}'", g)
-            for name, g in zip(names, grasps, strict=True)
-        ]
-        starts = [np.array(q, dtype=np.float64).reshape(-1) for q in q_start]
-        self.configs: list[object] = []
-        for k in range(self.n):
-            have = self._kin[k].config_of(starts[k])
-            if configs[k] is not None and configs[k] != have:
-                raise MotionError(
-                    f"robot '{self.names[k]}' is in configuration '{have}', the request asks "
-                    f"for '{configs[k]}': tracking cannot change configuration"
-                )
-            self.configs.append(have)
+        arms = Arms(
+            "tracking", names, types, bases, grasps, q_start, configs,
+            "tracking cannot change configuration",
+        )  # fmt: skip
+        self._kin, self._qd_max, self.configs = arms.kin, arms.qd_max, arms.configs
+        self._bases, self._to_base, self._grasps = arms.bases, arms.to_base, arms.grasps
+        starts = arms.starts
         self.frames = frames
         self.v_max, self.w_max, self.a_max, self.alpha_max = (float(x) for x in limits)
         # the loop: a value per factor (fixed ones copied, shared ones read each tick)
