@@ -270,9 +270,11 @@ class PlantSim:
         lies on it (held by no gripper, not lifted), its x, y go at the belt's velocity from
         where they were when the belt started, exactly (set before each step, with that
         velocity: the stand's friction does not drag it back).  Floats only."""
+        if not self._belt_bit[0]:  # the belt's motor off: the usual case, one load
+            self._belt_from = None
+            return
         held = any(self.data.eq_active[eq] for eq in self.world.weld)
-        lifted = float(self._bar_q[2]) > self._bar_rest_z + BELT_LIFT_M
-        if not self._belt_bit[0] or held or lifted:
+        if held or float(self._bar_q[2]) > self._bar_rest_z + BELT_LIFT_M:  # not on the belt
             self._belt_from = None
             return
         if self._belt_from is None:
