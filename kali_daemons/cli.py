@@ -27,7 +27,9 @@ import click
 import numpy as np
 
 from . import boards, flightrec, introspect, launcher, layout, schedule, shadow
+from .client import remote
 from .client.motion import INSTANCE_ENV, Kali
+from .client.remote import REMOTE_ENV
 from .config import cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
 from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode
@@ -57,7 +59,12 @@ TOP_INTERVAL_S = (0.05, 60.0)  # kalictl top's refresh interval
 MOVE_TIMEOUT_S = 3600.0  # kalictl move's longest wait
 MAX_PUSH_N = 5000.0  # kalictl push: the largest force per axis
 MAX_PUSH_S = 600.0  # and the longest push
-DEGRADED = {"dynamics": "feed-forward (SIO drops it as stale)", "viewer": "dashboard"}
+STALL_S = 2.0  # a non-serious process this long without a heartbeat is reported stalled
+DEGRADED = {
+    "dynamics": "feed-forward (SIO drops it as stale)",
+    "viewer": "dashboard",
+    "bridge": "remote access (Zenoh bridge)",
+}
 
 
 def _errors(fn: Callable) -> Callable:
@@ -260,12 +267,19 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 f"(nothing on the safety path waits for it)"
             )
         rows = launcher.describe(inst)
+        clock_pid = next((r["pid"] for r in rows if r["name"] == "wallclock"), 0)
         for r in rows:
+            lost = DEGRADED.get(str(r["name"]))
             if r["state"] == ProcState.DIED.name:
-                lost = DEGRADED.get(str(r["name"]))
                 click.echo(
                     f"degraded: {r['name']} (pid {r['pid']}) died; not serious, so the rest "
                     f"runs on without it" + (f": no {lost}" if lost else "")
+                )
+            elif _stalled(r, clock_pid):
+                click.echo(
+                    f"degraded: {r['name']} (pid {r['pid']}) stalled: no heartbeat for "
+                    f"{r['heartbeat_age_ms'] / 1000:.1f} s; not serious, so the rest runs on"
+                    + (f": {lost} stalled" if lost else "")
                 )
         dump = introspect.Introspector(inst).flight()
         if dump is not None and dump["last_dump"]:
@@ -313,6 +327,19 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                     f"{(m['due_ns'] - m['signal_ns']) / 1e6:.0f} ms earlier still "
                     f"unacknowledged ({m['consecutive']} in a row)"
                 )
+
+
+def _stalled(row: dict[str, object], clock_pid: object) -> bool:
+    """A non-serious process alive but silent for over STALL_S (stopped, or hung): its
+    heartbeat is refreshed every cycle and every idle wait.  A daemon the lockstep executive
+    hosts (the wall clock's pid) has no heartbeat of its own."""
+    return (
+        not row["serious"]
+        and bool(row["alive"])
+        and row["state"] == ProcState.ACTIVE.name
+        and row["pid"] != clock_pid
+        and float(row["heartbeat_age_ms"]) > STALL_S * 1000  # type: ignore[arg-type]
+    )
 
 
 def _memory_table(rows: list[dict[str, object]]) -> None:
@@ -832,9 +859,16 @@ def _kill_tree(proc: subprocess.Popen) -> int:
 @main.command(context_settings={"ignore_unknown_options": True, "allow_interspersed_args": False})
 @click.argument("program", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.argument("args", nargs=-1, type=click.UNPROCESSED)
+@click.option(
+    "--remote",
+    "endpoint",
+    metavar="ENDPOINT",
+    help="run here, on an instance of another machine, through its Zenoh bridge "
+    "(e.g. tcp/HOST:7447; $KALI_REMOTE_USER/$KALI_REMOTE_PASSWORD if it asks)",
+)
 @click.pass_context
 @_errors
-def run(ctx: click.Context, program: Path, args: tuple[str, ...]) -> None:
+def run(ctx: click.Context, program: Path, args: tuple[str, ...], endpoint: str | None) -> None:
     """Run the robot program PROGRAM (a Python file) attached to this instance; everything
     after PROGRAM (after a ``--``, if one follows it) goes to the program unchanged.
 
@@ -847,6 +881,9 @@ def run(ctx: click.Context, program: Path, args: tuple[str, ...]) -> None:
     name = _instance_name(ctx)
     if args[:1] == ("--",):
         args = args[1:]
+    if endpoint is not None:
+        sys.exit(_run_remote(endpoint, name, program, args))
+    os.environ.pop(REMOTE_ENV, None)  # this instance, here: the program's Kali() too
     kali = Kali(name, force=True)  # the instance must be up: say so before the program starts
     # numpy's BLAS on one thread, as the daemons' (a program's own setting stands): a periodic
     # function the program runs in a thread must not wait on a BLAS worker below it
@@ -860,6 +897,26 @@ def run(ctx: click.Context, program: Path, args: tuple[str, ...]) -> None:
     finally:
         kali.close()
     sys.exit(status if status >= 0 else 128 - status)  # a signal's death as a shell says it
+
+
+def _run_remote(endpoint: str, name: str, program: Path, args: tuple[str, ...]) -> int:
+    """``kalictl run --remote``: the program runs here, its ``Kali()`` connects to instance
+    ``name`` through the bridge at ``endpoint`` ($KALI_REMOTE).  Ctrl-C sends it SIGINT: its
+    ``with Kali()`` block stops its arms on their paths as it ends; a second Ctrl-C kills it,
+    and the bridge ends its session as a dead program's.  Its exit status, as ``run``'s."""
+    remote.reach(endpoint, name).close()  # it must answer: say so before the program starts
+    env = {**launcher.SINGLE_THREADED, **os.environ, INSTANCE_ENV: name, REMOTE_ENV: endpoint}
+    proc = subprocess.Popen([sys.executable, str(program), *args], env=env)
+    try:
+        status = proc.wait()
+    except KeyboardInterrupt:
+        try:
+            click.echo(f"run: {program} interrupted; its arms stop as it leaves", err=True)
+            status = proc.wait()
+        except KeyboardInterrupt:
+            status = _kill_tree(proc)
+            click.echo(f"run: {program} killed (second Ctrl-C)", err=True)
+    return status if status >= 0 else 128 - status
 
 
 def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:

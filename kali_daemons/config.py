@@ -98,6 +98,7 @@ _TOP_KEYS = (
     "tg_functions",
     "feedforward",
     "dashboard",
+    "bridge",
 )
 _PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms", "conveyor_m_s")
 MAX_CONVEYOR_M_S = 0.5  # a faster belt is a units mistake
@@ -139,8 +140,30 @@ DASHBOARD_WEB = ("auto", "on", "off")  # when the viewer serves the web viewer
 # a rerun gRPC address: scheme, host (group 2) and port (group 3)
 GRPC_URL_RE = re.compile(r"rerun(\+https?)?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})/proxy")
 MAX_RECORD_PATH = 200
+_BRIDGE_KEYS = (
+    "enabled",
+    "listen",
+    "cpu",
+    "telemetry_hz",
+    "timing_hz",
+    "users_file",
+    "operators",
+    "readers",
+    "tls",
+    "max_requests_per_s",
+    "max_sessions",
+    "event_history",
+)
+_TLS_KEYS = ("certificate", "private_key", "root_ca")
+# a Zenoh endpoint the bridge listens on: protocol, host (group 2), port (group 3)
+ENDPOINT_RE = re.compile(r"(tcp|tls|udp|quic)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})")
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
+MAX_LISTEN = 4
+MAX_BRIDGE_USERS = 64
+BRIDGE_STAGE = 5  # after the viewer: it reads what the tick wrote
 DEFAULT_SAFE_RAD = 0.15  # tracking-error tolerance before a runaway halt
 DEFAULT_CURRENT_FAULT_MS = 100.0  # demand beyond the current limit this long halts
+_USER_RE = re.compile(r"[A-Za-z0-9_.@-]{1,64}")
 _SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
 _PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
 MAX_PLUGINS = 16
@@ -313,6 +336,48 @@ class DashboardConfig:
 
 
 @dataclass(frozen=True)
+class TlsConfig:
+    """The bridge's TLS files (absolute paths): its certificate and key, and the CA whose
+    client certificates it accepts (a client's common name is its user name for the roles)."""
+
+    certificate: str
+    private_key: str
+    root_ca: str | None = None
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """The Zenoh bridge (issue 29, ``kali_daemons/bridge``): where it listens, how often it
+    publishes and who may do what.  Off by default; on, ``kalictl start`` starts process
+    ``bridge`` (non-serious, SCHED_OTHER, on ``cpu``).
+
+    Without ``users_file`` or client-certificate TLS nobody is authenticated, so the bridge
+    may listen on loopback only and every session there may command (as a local user can).
+    With them, ``operators`` may command and ``readers`` only read (telemetry, events,
+    status); anyone else is refused by Zenoh's access control."""
+
+    enabled: bool = False
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    cpu: int | None = 1
+    telemetry_hz: float = 100.0  # each robot's state, decimated from the servo rate
+    timing_hz: float = 1.0  # per-process timing statistics
+    users_file: str | None = None  # Zenoh's user:password dictionary, absolute
+    operators: tuple[str, ...] = ()
+    readers: tuple[str, ...] = ()
+    tls: TlsConfig | None = None
+    max_requests_per_s: int = 1000  # beyond it a request is refused unread: the CPU is bounded
+    max_sessions: int = 8  # remote programs at once
+    event_history: int = 256  # events a late subscriber is sent
+
+    @property
+    def authenticated(self) -> bool:
+        """Whether sessions are told apart (user names or client certificates)."""
+        return self.users_file is not None or (
+            self.tls is not None and self.tls.root_ca is not None
+        )
+
+
+@dataclass(frozen=True)
 class KaliConfig:
     """A whole, validated configuration plus the text it came from."""
 
@@ -330,6 +395,7 @@ class KaliConfig:
     tg_functions: tuple[str, ...] = ()  # TG function plugins, likewise (tg.functions)
     feedforward: FeedforwardConfig = FeedforwardConfig()
     dashboard: DashboardConfig = DashboardConfig()
+    bridge: BridgeConfig = BridgeConfig()
     base_dir: str = "."  # directory relative plugin paths are taken from
 
     @functools.cached_property
@@ -888,6 +954,9 @@ def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
         except _InvalidError as exc:
             raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
     robots = _robots(doc.get("robots", _DEFAULT_ROBOTS), base_dir)
+    bridge = _bridge(doc.get("bridge", {}), base_dir)
+    if bridge.enabled:  # not in ``processes``: its section holds everything about it
+        processes = (*processes, bridge_process(bridge, clock))
     plant_period = next(p.period_ms for p in processes if p.kind == "plant")
     plant = _plant(doc.get("plant", {}), plant_period, clock.servo_period_ms)
     plugins = tuple(
@@ -913,8 +982,115 @@ def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
         tg_functions=tg_functions,
         feedforward=_feedforward(doc.get("feedforward", {})),
         dashboard=_dashboard(doc.get("dashboard", {})),
+        bridge=bridge,
         base_dir=base_dir,
     )
+
+
+def _bridge(node: Any, base_dir: str) -> BridgeConfig:
+    """The ``bridge`` section (issue 29): listening endpoints, rates, users and roles, TLS."""
+    m = _mapping(node, "bridge", _BRIDGE_KEYS)
+    d = BridgeConfig()
+    enabled = _bool(m.get("enabled", d.enabled), "bridge.enabled")
+    listen_node = m.get("listen", list(d.listen))
+    if isinstance(listen_node, str):
+        listen_node = [listen_node]
+    listen = []
+    for i, e in enumerate(_list(listen_node, "bridge.listen", 1, MAX_LISTEN)):
+        found = ENDPOINT_RE.fullmatch(e) if isinstance(e, str) else None
+        if found is None or not 0 < int(found.group(3)) < 65536:
+            _fail(f"bridge.listen[{i}]", e, "must be a Zenoh endpoint like tcp/127.0.0.1:7447")
+        listen.append(e)
+    tls = None
+    if m.get("tls") is not None:
+        t = _mapping(m["tls"], "bridge.tls", _TLS_KEYS)
+        files = {}
+        for key in _TLS_KEYS:
+            if t.get(key) is None:
+                if key == "root_ca":
+                    continue
+                raise _InvalidError(f"bridge.tls.{key}: missing; a PEM file path")
+            files[key] = _file(t[key], f"bridge.tls.{key}", base_dir)
+        tls = TlsConfig(**files)
+    users_file = m.get("users_file")
+    if users_file is not None:
+        users_file = _file(users_file, "bridge.users_file", base_dir)
+    roles = {}
+    for key in ("operators", "readers"):
+        names = _list(m.get(key, []), f"bridge.{key}", 0, MAX_BRIDGE_USERS)
+        roles[key] = tuple(
+            _identifier(n, f"bridge.{key}[{i}]", _USER_RE) for i, n in enumerate(names)
+        )
+    both = set(roles["operators"]) & set(roles["readers"])
+    if both:
+        _fail("bridge.readers", sorted(both)[0], "is an operator too; give each user one role")
+    cfg = BridgeConfig(
+        enabled=enabled,
+        listen=tuple(listen),
+        cpu=_cpu(m.get("cpu", d.cpu), "bridge.cpu"),
+        telemetry_hz=_float(
+            m.get("telemetry_hz", d.telemetry_hz), "bridge.telemetry_hz", 0.0, 1000.0
+        ),
+        timing_hz=_float(m.get("timing_hz", d.timing_hz), "bridge.timing_hz", 0.0, 100.0),
+        users_file=users_file,
+        operators=roles["operators"],
+        readers=roles["readers"],
+        tls=tls,
+        max_requests_per_s=_int(
+            m.get("max_requests_per_s", d.max_requests_per_s),
+            "bridge.max_requests_per_s",
+            1,
+            100_000,
+        ),
+        max_sessions=_int(m.get("max_sessions", d.max_sessions), "bridge.max_sessions", 1, 64),
+        event_history=_int(
+            m.get("event_history", d.event_history), "bridge.event_history", 1, 10_000
+        ),
+    )
+    if cfg.authenticated and not (cfg.operators or cfg.readers):
+        _fail(
+            "bridge.operators",
+            [],
+            "name at least one user (or certificate name) who may "
+            "connect: with authentication on, a user in no role is refused",
+        )
+    if not cfg.authenticated:
+        if cfg.operators or cfg.readers:
+            _fail(
+                "bridge.operators",
+                list(cfg.operators or cfg.readers),
+                "roles need authentication: set bridge.users_file (or bridge.tls with a root_ca)",
+            )
+        for i, e in enumerate(listen):
+            host = ENDPOINT_RE.fullmatch(e).group(2)  # type: ignore[union-attr]
+            if host not in LOOPBACK_HOSTS:
+                _fail(
+                    f"bridge.listen[{i}]",
+                    e,
+                    "is not loopback: listening beyond this machine "
+                    "needs authentication (bridge.users_file, or bridge.tls with a root_ca)",
+                )
+    if any(e.startswith("tls/") for e in listen) and tls is None:
+        _fail("bridge.listen", list(listen), "a tls/ endpoint needs bridge.tls")
+    return cfg
+
+
+def _file(value: Any, path: str, base_dir: str) -> str:
+    """A file the config names (relative to its directory), returned absolute; it must exist."""
+    if not isinstance(value, str) or not 0 < len(value) <= MAX_RECORD_PATH or "\0" in value:
+        _fail(path, value, f"must be a file path of 1..{MAX_RECORD_PATH} characters")
+    full = os.path.realpath(os.path.join(base_dir, os.path.expanduser(value)))
+    if not os.path.isfile(full):
+        _fail(path, value, f"no such file ({full})")
+    return full
+
+
+def bridge_process(bridge: BridgeConfig, clock: ClockConfig) -> ProcessConfig:
+    """The bridge's process entry: its period one telemetry sample, in whole base ticks."""
+    tick = clock.base_tick_ms
+    ticks = period_ticks(1000.0 / bridge.telemetry_hz, tick, round_up=True)
+    period = ns_to_ms(ticks * ms_to_ns(tick))
+    return ProcessConfig("bridge", "bridge", bridge.cpu, 0, period, False, BRIDGE_STAGE)
 
 
 def _dashboard(node: Any) -> DashboardConfig:

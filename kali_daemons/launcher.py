@@ -40,6 +40,10 @@ from .spinlock import holder_text, pid_alive
 from .tg.functions import registry_for as functions_for
 from .wallclock import start_kali_clock
 
+# kinds that run as their own process in lockstep too, never hosted by the executive: a
+# bridge that dies (or is killed) must leave the cell running, lockstep or not
+OWN_PROCESS = frozenset({"wallclock", "bridge"})
+
 STOP_GRACE_S = 3.0
 KILL_GRACE_S = 2.0
 LIFECYCLE_WAIT_S = 60.0  # longest ``stop`` waits for a start or stop of the instance to end
@@ -461,15 +465,17 @@ def _start(
     try:
         for p in cfg.processes:
             inst.claim_slot(p.name, 0)
-            if executive and p.kind != "wallclock":
+            hosted = executive and p.kind not in OWN_PROCESS
+            if hosted:
                 continue  # hosted by the executive: it is the wall clock's process
-            module = "wallclock.executive" if executive else p.kind
+            module = "wallclock.executive" if executive and p.kind == "wallclock" else p.kind
             logs_of[p.name] = logs / f"{p.name}.log"
             children[p.name] = _spawn(module, name, p.name, logs_of[p.name])
         if executive:  # one process: every slot is the executive's
             clock = next(p.name for p in cfg.processes if p.kind == "wallclock")
             for p in cfg.processes:
-                children[p.name], logs_of[p.name] = children[clock], logs_of[clock]
+                if p.kind not in OWN_PROCESS:
+                    children[p.name], logs_of[p.name] = children[clock], logs_of[clock]
         for p in cfg.processes:
             inst.procs[inst.find_slot(p.name)]["pid"] = pids[p.name] = children[p.name].pid
         _wait_ready(inst, cfg, children, logs_of)

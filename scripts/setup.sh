@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up everything Kali needs on a fresh Debian machine with Python 3.11:
 #   - Debian packages: libatomic1 (the arena's test-and-set), rt-tests (cyclictest, for the
-#     timing benchmarks' floor), chromium (the dashboard test opens the web viewer headless);
+#     timing benchmarks' floor), chromium (the dashboard test opens the web viewer headless),
+#     openssl (the bridge's TLS test makes its certificates);
 #   - a C compiler (gcc) for the servo path's kernels (kali_daemons/kernels.c);
 #   - a virtual environment in .venv with the kali_daemons package and its test extras;
 #   - the kernels' library, built into kali_daemons/__pycache__ (python -m kali_daemons.kernels;
@@ -15,6 +16,7 @@ ldconfig -p 2>/dev/null | grep -q 'libatomic\.so\.1' || missing+=(libatomic1)
 command -v cyclictest >/dev/null 2>&1 || missing+=(rt-tests)
 command -v chromium >/dev/null 2>&1 || missing+=(chromium)
 command -v cc >/dev/null 2>&1 || missing+=(gcc)
+command -v openssl >/dev/null 2>&1 || missing+=(openssl)
 if [ ${#missing[@]} -gt 0 ]; then
   echo "setup: installing Debian packages: ${missing[*]}"
   sudo_cmd=()

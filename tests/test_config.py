@@ -880,3 +880,62 @@ def test_the_conveyor_and_tg_function_plugins_are_checked() -> None:
         edit(("conveyor_m_s: [0.0, 0.02]", "conveyor_m_s: [0.0, 0.02, 0.0]"))
     )
     assert "tg_functions" in error_of(edit(("tg_functions: [", "tg_functions: [[], ")))
+
+
+# --------------------------------------------------------------------------------------------
+# The bridge section (issue 29)
+
+
+def bridge_text(section: str) -> str:
+    return replace_section("bridge", section)
+
+
+def test_the_bridge_is_off_by_default_and_a_process_of_its_own_when_on() -> None:
+    assert "bridge" not in [p.name for p in parse_config(DEFAULT_TEXT).processes]
+    cfg = parse_config(bridge_text("bridge: {enabled: true, telemetry_hz: 30}\n"))
+    bridge = cfg.process("bridge")
+    # 1/30 s rounded up to whole 1 ms ticks; non-serious, SCHED_OTHER, after the viewer
+    assert (bridge.kind, bridge.period_ms, bridge.serious, bridge.priority) == (
+        "bridge",
+        34,
+        False,
+        0,
+    )
+    assert bridge.stage > cfg.process("viewer").stage and bridge.cpu == 1
+    assert cfg.bridge.listen == ("tcp/127.0.0.1:7447",) and not cfg.bridge.authenticated
+
+
+@pytest.mark.parametrize(
+    ("section", "expected"),
+    [
+        (
+            "bridge: {enabled: true, listen: [tcp/0.0.0.0:7447]}\n",
+            "bridge.listen[0] = 'tcp/0.0.0.0:7447': is not loopback: listening beyond this "
+            "machine needs authentication",
+        ),
+        ("bridge: {listen: [http://x]}\n", "must be a Zenoh endpoint like tcp/127.0.0.1:7447"),
+        ("bridge: {listen: [tcp/127.0.0.1:99999]}\n", "must be a Zenoh endpoint"),
+        ("bridge: {readers: [bob]}\n", "roles need authentication: set bridge.users_file"),
+        ("bridge: {users_file: nowhere.txt, operators: [a]}\n", "bridge.users_file = "),
+        ("bridge: {telemetry_hz: 0}\n", "bridge.telemetry_hz = 0"),
+        ("bridge: {max_sessions: 0}\n", "bridge.max_sessions = 0"),
+        ("bridge: {listen: [tls/127.0.0.1:7448]}\n", "a tls/ endpoint needs bridge.tls"),
+        ("bridge: {tls: {certificate: a.pem}}\n", "bridge.tls.certificate = 'a.pem': "),
+        ("bridge: {port: 7447}\n", "bridge.port: unknown key"),
+    ],
+)
+def test_a_bad_bridge_section_is_refused_naming_the_field(section: str, expected: str) -> None:
+    assert expected in error_of(bridge_text(section))
+
+
+def test_bridge_users_and_roles(tmp_path: Path) -> None:
+    users = tmp_path / "users.txt"
+    users.write_text("op:x\nviewer:y\n")
+    section = f"bridge: {{listen: [tcp/0.0.0.0:7447], users_file: {users}, operators: [op]}}\n"
+    cfg = parse_config(bridge_text(section))
+    assert cfg.bridge.authenticated and cfg.bridge.operators == ("op",)
+    assert cfg.bridge.users_file == str(users)
+    both = section.replace("operators: [op]", "operators: [op], readers: [op]")
+    assert "is an operator too" in error_of(bridge_text(both))
+    nobody = section.replace(", operators: [op]", "")
+    assert "name at least one user" in error_of(bridge_text(nobody))

@@ -42,6 +42,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import TracebackType
+from typing import Any
 
 import numpy as np
 
@@ -59,8 +60,9 @@ from ..tg.functions import FunctionRegistry
 from ..tg.functions import registry_for as functions_for
 from ..tg.profiles import MotionError, check_guard, check_joint_target
 from ..wallclock import step_kali_clock
-from . import periodic, streams
+from . import periodic, remote, streams
 from .periodic import Control
+from .remote import RemoteKali
 from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
 from .together import Together
 
@@ -972,7 +974,22 @@ def _joints(robot: str, q: np.ndarray, rtype: RobotType) -> np.ndarray:
 
 
 class Kali:
-    """A user program's connection to a running instance (attach by name)."""
+    """A user program's connection to a running instance (attach by name), or, with
+    $KALI_REMOTE set (``kalictl run --remote``) or through ``Kali.connect``, to one on another
+    machine through its Zenoh bridge (``remote.RemoteKali``: the same API)."""
+
+    def __new__(cls, instance: str | None = None, force: bool = False) -> Kali:
+        endpoint = os.environ.get(remote.REMOTE_ENV)
+        if cls is Kali and endpoint:
+            return remote.connect(endpoint, instance, force=force)  # type: ignore[return-value]
+        return super().__new__(cls)
+
+    @staticmethod
+    def connect(endpoint: str, instance: str | None = None, **options: Any) -> RemoteKali:
+        """Attach to ``instance`` on another machine through its bridge at Zenoh
+        ``endpoint`` (``tcp/HOST:7447``); ``options``: force, user, password, root_ca,
+        certificate, private_key (``remote.connect``)."""
+        return remote.connect(endpoint, instance, **options)
 
     def __init__(self, instance: str | None = None, force: bool = False) -> None:
         """Attach to ``instance`` (default: $KALI_INSTANCE, set by ``kalictl run``, else
@@ -1256,6 +1273,11 @@ class Kali:
         if fault_since(self.inst, int(self.inst.fault["count"])) is None:
             flags = layout.REQUEST_UNWATCHED | (layout.REQUEST_FORCE if force else 0)
             self._request(kind, robots, flags=flags)
+
+    def stop_own(self) -> None:
+        """Stop the arms this program owns on their paths (a remote program's ``with`` block
+        does as it ends on Ctrl-C)."""
+        self.stop_robots(self.owned_by(os.getpid()))
 
     def stop_robots(self, robots: Sequence[int], force: bool = False) -> None:
         """Stop ``robots`` (indices) on their paths; ``force`` takes them over from the

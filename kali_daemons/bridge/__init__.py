@@ -1,0 +1,1 @@
+"""The Zenoh bridge (issue 29): remote programs, telemetry and supervision."""

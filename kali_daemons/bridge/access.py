@@ -1,0 +1,200 @@
+"""Who may do what on the bridge (issue 29): the Zenoh configs of the bridge and of its clients.
+
+The bridge's session is a Zenoh **router** that remote programs connect to as **clients**; it
+alone publishes under ``kali/INST/**`` and answers the queries there.  Zenoh's access control
+runs on the router, on each remote session's transport: *ingress* rules filter what a remote
+session sends (its puts, queries, subscriber and liveliness declarations), *egress* rules what
+the router sends it (samples, replies, liveliness tokens).  The bridge's own session is local to
+the router, so no rule applies to it.  The default is deny, and the rules only allow:
+
+- **readers**: subscribing to ``kali/INST/**``, liveliness subscriptions and queries there,
+  queries on ``kali/INST/status`` and ``kali/INST/config``; and receiving the samples, replies
+  and liveliness tokens under ``kali/INST/**``;
+- **operators**: all that, plus queries on ``kali/INST/verb/*`` and ``kali/INST/session/**``
+  (the commands) and liveliness tokens under ``kali/INST/clients/*`` (a remote program's
+  presence, whose loss the bridge notices);
+- nobody: a put or delete (no rule allows one), so no remote session can forge telemetry or
+  events for the others; a key outside ``kali/INST``; a key expression broader than a rule's,
+  such as a query on ``kali/INST/**`` (a rule must include the whole key expression that a
+  message carries).
+
+The advanced publisher of ``kali/INST/events`` (``zenoh.ext``) keeps its history behind a
+queryable and a liveliness token under ``kali/INST/events/@adv/pub/ZID/...``; ``@adv`` is a
+verbatim chunk that ``**`` never matches, so those keys have rules of their own
+(``kali/INST/**/@adv/**``).
+
+Without authentication (``BridgeConfig.authenticated`` false: loopback only) every session is an
+operator.  With it, roles name users of the usrpwd dictionary (``transport/auth/usrpwd``) or
+common names of client certificates (TLS with a root CA: mutual TLS); a session that is neither
+can do nothing, and one without valid credentials cannot even open.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import zenoh
+
+from ..config import BridgeConfig
+
+MODE = "router"  # remote programs connect to the bridge as clients
+
+# Zenoh's ACL message names (zenoh_config::AclMessage)
+SUBSCRIBE = "declare_subscriber"
+PUT = "put"
+DELETE = "delete"
+QUERY = "query"
+REPLY = "reply"
+TOKEN = "liveliness_token"
+LIVELINESS_SUBSCRIBE = "declare_liveliness_subscriber"
+LIVELINESS_QUERY = "liveliness_query"
+
+READ_RULES = ("subscribe", "samples", "liveliness", "tokens", "read-queries", "replies")
+COMMAND_RULES = ("command-queries", "client-tokens")
+
+
+def prefix(instance: str) -> str:
+    """The key every key of Kali instance ``instance`` starts with: ``kali/INSTANCE``."""
+    return f"kali/{instance}"
+
+
+def access_rules(instance: str) -> list[dict[str, Any]]:
+    """Zenoh ACL rules (all ``allow``) for the key space of ``instance``; the ids of
+    ``READ_RULES`` and ``COMMAND_RULES`` name them in the policies."""
+    p = prefix(instance)
+    everything = [f"{p}/**", f"{p}/**/@adv/**"]  # @adv: the advanced publishers' own keys
+
+    def rule(rid: str, flow: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
+        return {
+            "id": rid,
+            "permission": "allow",
+            "flows": [flow],
+            "messages": messages,
+            "key_exprs": keys,
+        }
+
+    return [
+        rule("subscribe", "ingress", [SUBSCRIBE], everything),
+        rule("samples", "egress", [PUT, DELETE], everything),
+        rule("liveliness", "ingress", [LIVELINESS_SUBSCRIBE, LIVELINESS_QUERY], everything),
+        rule("tokens", "egress", [TOKEN], everything),
+        rule("read-queries", "ingress", [QUERY], [f"{p}/status", f"{p}/config", everything[1]]),
+        rule("replies", "egress", [REPLY], everything),
+        rule("command-queries", "ingress", [QUERY], [f"{p}/verb/*", f"{p}/session/**"]),
+        rule("client-tokens", "ingress", [TOKEN], [f"{p}/clients/*"]),
+    ]
+
+
+def _subjects(cfg: BridgeConfig, role: str, names: tuple[str, ...]) -> list[dict[str, Any]]:
+    """The ACL subjects of one role: its names as usrpwd user names and, separately, as
+    client-certificate common names (two subjects, so either identity alone gets the role:
+    one subject holding both lists would require both, and cross-match them)."""
+    if not names:  # an empty list would match nobody; leaving it out would match everybody
+        return []
+    subjects = []
+    if cfg.users_file is not None:
+        subjects.append({"id": f"{role}-by-user", "usernames": list(names)})
+    if cfg.tls is not None and cfg.tls.root_ca is not None:
+        subjects.append({"id": f"{role}-by-certificate", "cert_common_names": list(names)})
+    return subjects
+
+
+def access_control(cfg: BridgeConfig, instance: str) -> dict[str, Any]:
+    """The ``access_control`` section of the bridge's Zenoh config (see the module doc)."""
+    if cfg.authenticated:
+        operators = _subjects(cfg, "operators", cfg.operators)
+        readers = _subjects(cfg, "readers", cfg.readers)
+    else:  # loopback only: whoever gets here is a local user, who may command
+        operators, readers = [{"id": "everyone"}], []
+    policies = []
+    if operators:
+        policies.append(
+            {
+                "id": "operators",
+                "rules": [*READ_RULES, *COMMAND_RULES],
+                "subjects": [s["id"] for s in operators],
+            }
+        )
+    if readers:
+        policies.append(
+            {"id": "readers", "rules": list(READ_RULES), "subjects": [s["id"] for s in readers]}
+        )
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": access_rules(instance),
+        "subjects": operators + readers,  # none: Zenoh then denies everything
+        "policies": policies,
+    }
+
+
+def _insert(config: zenoh.Config, key: str, value: Any) -> None:
+    """Set ``key`` of ``config`` to ``value``, given as JSON (a subset of JSON5)."""
+    config.insert_json5(key, json.dumps(value))
+
+
+def _no_scouting(config: zenoh.Config) -> None:
+    """No multicast or gossip scouting: a session talks to the endpoints it is given only.
+    No shared-memory transport either: its /dev/shm files would outlive a session killed
+    with SIGKILL (a run leaves nothing in /dev/shm), and the bridge's messages are small."""
+    _insert(config, "scouting/multicast/enabled", False)
+    _insert(config, "scouting/gossip/enabled", False)
+    _insert(config, "transport/shared_memory/enabled", False)
+
+
+def bridge_config(cfg: BridgeConfig, instance: str) -> zenoh.Config:
+    """The bridge's own Zenoh session: a router listening on ``cfg.listen`` and connecting to
+    nothing, with timestamps (an advanced publisher's cache needs the session's clock), TLS,
+    usrpwd authentication and the access control of ``access_control``."""
+    config = zenoh.Config()
+    _insert(config, "mode", MODE)
+    _insert(config, "listen/endpoints", list(cfg.listen))
+    _insert(config, "connect/endpoints", [])
+    _no_scouting(config)
+    # a router's open otherwise waits scouting/delay (500 ms) for peers it cannot find
+    _insert(config, "scouting/delay", 0)
+    _insert(config, "timestamping/enabled", True)
+    if cfg.tls is not None:
+        _insert(config, "transport/link/tls/listen_certificate", cfg.tls.certificate)
+        _insert(config, "transport/link/tls/listen_private_key", cfg.tls.private_key)
+        if cfg.tls.root_ca is not None:  # client certificates required, signed by this CA
+            _insert(config, "transport/link/tls/root_ca_certificate", cfg.tls.root_ca)
+            _insert(config, "transport/link/tls/enable_mtls", True)
+    if cfg.users_file is not None:
+        _insert(config, "transport/auth/usrpwd/dictionary_file", cfg.users_file)
+    _insert(config, "access_control", access_control(cfg, instance))
+    return config
+
+
+def client_config(
+    endpoint: str,
+    user: str | None = None,
+    password: str | None = None,
+    root_ca: str | None = None,
+    certificate: str | None = None,
+    private_key: str | None = None,
+) -> zenoh.Config:
+    """A remote program's Zenoh session: a client of the bridge at ``endpoint`` only.
+
+    ``user``/``password`` log in with usrpwd; ``root_ca`` is the CA that signed the bridge's
+    certificate (a ``tls/`` endpoint); ``certificate``/``private_key`` are the client's own for
+    mutual TLS, whose common name is its user name."""
+    if (user is None) != (password is None):
+        raise ValueError("client_config: give both user and password, or neither")
+    if (certificate is None) != (private_key is None):
+        raise ValueError("client_config: give both certificate and private_key, or neither")
+    config = zenoh.Config()
+    _insert(config, "mode", "client")
+    _insert(config, "connect/endpoints", [endpoint])
+    _no_scouting(config)
+    if user is not None:
+        _insert(config, "transport/auth/usrpwd/user", user)
+        _insert(config, "transport/auth/usrpwd/password", password)
+    if root_ca is not None:
+        _insert(config, "transport/link/tls/root_ca_certificate", root_ca)
+    if certificate is not None:
+        _insert(config, "transport/link/tls/connect_certificate", certificate)
+        _insert(config, "transport/link/tls/connect_private_key", private_key)
+        _insert(config, "transport/link/tls/enable_mtls", True)
+    return config

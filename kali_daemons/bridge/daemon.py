@@ -1,0 +1,321 @@
+"""The Zenoh bridge (issue 29, DESIGN 11): remote programs, telemetry and supervision.
+
+Every deadline stays on the controller's machine; the bridge only carries what people around
+the cell need, over Zenoh (the engine ROS 2's ``rmw_zenoh`` and ros2_control's remote I/O
+use), under ``kali/<instance>/…`` (``protocol.Keys``):
+
+- each robot's state (``telemetry.Telemetry``) every cycle — one cycle per telemetry sample,
+  ``bridge.telemetry_hz`` — with Drop congestion control: a slow subscriber loses samples,
+  never slows the bridge; per-process timing at ``bridge.timing_hz``;
+- events (``telemetry.Watch``: faults, power, calibration, messages, processes, requests),
+  reliable, numbered, through an advanced publisher whose cache gives a late subscriber the
+  last ``bridge.event_history``; each request's state also on ``motion/SEQ`` for a program
+  waiting on it;
+- the liveliness token ``kali/<instance>/alive``;
+- queryables: status (``kalictl status --json``'s document), config (the text, for a remote
+  program's robot types), kalictl's verbs (``sessions.run_verb``) and remote programs'
+  sessions (``sessions.Sessions``); verbs and status are the helper process's work
+  (``session.Helper``), so their Python never delays the telemetry.
+
+It is non-serious, SCHED_OTHER and unlocked, on its own CPU share (``bridge.cpu``), reads the
+arena as a Type 4 reader and never takes a lock the servo level waits for: a bridge that dies
+or stalls leaves the cell running (``kalictl status``: degraded).  In real time it keeps its
+own clock, as the viewer does, so it goes on reporting after a halt stops the wall clock; in
+lockstep the wall clock steps it.  Requests arrive on Zenoh's threads, are counted against
+``bridge.max_requests_per_s`` and handed to the bridge's own threads (one per session, one for
+verbs, one for the rest): a Zenoh callback never waits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+import zenoh.ext
+
+from .. import launcher
+from ..daemon import Daemon
+from ..errors import DaemonError
+from ..wallclock.clock import time_ms
+from . import access, protocol
+from .protocol import BridgeError, Keys
+from .sessions import Gate, Sessions, check_verb
+from .telemetry import Telemetry, Watch
+
+JSON = zenoh.Encoding.APPLICATION_JSON
+STOP = object()  # a work queue's last item
+
+
+class Bridge(Daemon):
+    """The bridge process: non-serious, priority 0, on ``bridge.cpu``."""
+
+    kind = "bridge"
+    self_timed_in_realtime = True  # reports on after a halt has stopped the wall clock
+
+    def __init__(self, instance: str, name: str, **kw: object) -> None:
+        kw.setdefault("lock_memory", False)  # not real-time: Zenoh's buffers need no locking
+        super().__init__(instance, name, **kw)  # type: ignore[arg-type]
+        self.session: zenoh.Session | None = None
+        self.threads: list[threading.Thread] = []
+        self.queues: list[queue.Queue] = []
+        self.n_events = 0
+        self.errors = 0
+
+    # ------------------------------------------------------------------ set-up
+
+    def on_configure(self) -> None:
+        inst = self.inst
+        cfg = inst.config.bridge
+        self.keys = keys = Keys(inst.name)
+        self.telemetry = Telemetry(inst)
+        self.watch = Watch(inst)
+        self.every_timing = max(1, round(cfg.telemetry_hz / cfg.timing_hz))
+        self.cycles = 0
+        try:
+            self.session = zenoh.open(access.bridge_config(cfg, inst.name))
+        except zenoh.ZError as exc:
+            raise DaemonError(
+                f"{self.name}: cannot listen on {', '.join(cfg.listen)}: {exc}"
+            ) from None
+        s = self.session
+        self.state_pubs = [
+            s.declare_publisher(
+                keys.state(name), encoding=JSON, congestion_control=zenoh.CongestionControl.DROP
+            )
+            for name in self.telemetry.names
+        ]
+        self.timing_pub = s.declare_publisher(
+            keys.timing, encoding=JSON, congestion_control=zenoh.CongestionControl.DROP
+        )
+        self.event_pub = zenoh.ext.declare_advanced_publisher(
+            s,
+            keys.events,
+            encoding=JSON,
+            cache=zenoh.ext.CacheConfig(max_samples=cfg.event_history),
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5),
+            publisher_detection=True,
+        )
+        log_dir = str(launcher.log_dir(inst.name))
+        self.sessions = Sessions(inst.name, cfg.max_sessions, cfg.cpu, log_dir)
+        self.gate = Gate(cfg.max_requests_per_s)
+        self.admin = self._worker("bridge-admin")
+        self.admin.put(self.sessions.start_helper)  # ready before the first verb
+        self.verbs = self._worker("bridge-verbs")
+        self.session_queues: dict[str, queue.Queue] = {}
+        self.queryables = [
+            s.declare_queryable(keys.status, self._gated(self.admin, self._status)),
+            s.declare_queryable(keys.config, self._gated(self.admin, self._config)),
+            s.declare_queryable(keys.verbs, self._gated(self.verbs, self._verb)),
+            s.declare_queryable(keys.session_open, self._gated(self.admin, self._open)),
+            s.declare_queryable(keys.session_close, self._gated(self.admin, self._close)),
+            s.declare_queryable(keys.session_calls, self._on_call),
+        ]
+        self.clients = s.liveliness().declare_subscriber(keys.clients, self._on_client)
+        self.token = s.liveliness().declare_token(keys.alive)
+
+    def _worker(self, name: str) -> queue.Queue:
+        """A thread of the bridge's own taking work (callables) from a queue, in order."""
+        q: queue.Queue = queue.Queue()
+
+        def run() -> None:
+            while (job := q.get()) is not STOP:
+                try:
+                    job()
+                except Exception:  # a reply that cannot be sent: the asker has gone
+                    self.log.exception("%s: a request failed", name)
+
+        t = threading.Thread(target=run, name=name, daemon=True)
+        t.start()
+        self.threads = [*(t for t in self.threads if t.is_alive()), t]
+        self.queues.append(q)
+        return q
+
+    # ------------------------------------------------------------------ requests
+
+    def _gated(
+        self, work: queue.Queue, handler: Callable[[zenoh.Query], Any]
+    ) -> Callable[[zenoh.Query], None]:
+        """A queryable's callback: counted against the rate, then ``handler(query)`` on the
+        ``work`` thread, its value the JSON reply (a KaliError: the error reply)."""
+
+        def on_query(query: zenoh.Query) -> None:
+            if not self.gate.admit():
+                self._refuse(query, self._flood_message())
+                return
+            work.put(lambda: self._answer(query, handler))
+
+        return on_query
+
+    def _flood_message(self) -> str:
+        return (
+            f"more than {self.inst.config.bridge.max_requests_per_s} requests a "
+            f"second (bridge.max_requests_per_s); refused unread"
+        )
+
+    def _answer(self, query: zenoh.Query, handler: Callable[[zenoh.Query], Any]) -> None:
+        try:
+            value = handler(query)
+            payload = value if isinstance(value, bytes) else protocol.dumps({"value": value})
+        except Exception as exc:  # KaliError: its words; anything else named for what it is
+            payload = protocol.dumps(protocol.error_reply(exc))
+        with contextlib.suppress(zenoh.ZError):
+            query.reply(query.key_expr, payload, encoding=JSON)
+        query.drop()
+
+    def _refuse(self, query: zenoh.Query, message: str) -> None:
+        with contextlib.suppress(zenoh.ZError):
+            query.reply(
+                query.key_expr,
+                protocol.dumps(protocol.error_reply(BridgeError(message))),
+                encoding=JSON,
+            )
+        query.drop()
+
+    @staticmethod
+    def _payload(query: zenoh.Query, what: str) -> Any:
+        data = query.payload.to_bytes() if query.payload is not None else b"{}"
+        return protocol.loads(data, what)
+
+    def _status(self, query: zenoh.Query) -> dict[str, Any]:
+        answer = protocol.loads(self.sessions.ask_helper({"status": True}), "status")
+        protocol.raise_reply(answer)
+        doc = answer["value"]
+        doc["bridge"] = {
+            "sessions": self.sessions.describe(),
+            "events": self.n_events,
+            "refused": self.gate.refused,
+            "errors": self.errors,
+        }
+        return doc
+
+    def _config(self, query: zenoh.Query) -> dict[str, Any]:
+        cfg = self.inst.config
+        return {
+            "instance": self.inst.name,
+            "text": cfg.text,
+            "source": cfg.source,
+            "base_dir": cfg.base_dir,
+            "lockstep": bool(self.inst.lockstep),
+        }
+
+    def _verb(self, query: zenoh.Query) -> dict[str, Any]:
+        verb = str(query.key_expr).rsplit("/", 1)[-1]
+        request = self._payload(query, verb)
+        args = request.get("args", []) if isinstance(request, dict) else request
+        check_verb(verb, args)  # refused here, unread by the helper
+        return self.sessions.ask_helper({"verb": verb, "args": args})
+
+    def _open(self, query: zenoh.Query) -> Any:
+        request = self._payload(query, "session/open")
+        sid = request.get("sid") if isinstance(request, dict) else None
+        if isinstance(sid, str) and not self._client_alive(sid):
+            raise BridgeError(
+                f"session {sid[:8]}: no liveliness token {self.keys.client(sid)}; "
+                f"declare it before opening the session"
+            )
+        kali = self.sessions.open(request)
+        sid = request["sid"]
+        self.session_queues[sid] = self._worker(f"bridge-session-{sid[:8]}")
+        if not self._client_alive(sid):  # it left while its worker started
+            self._end_session(sid)
+            raise BridgeError(f"session {sid[:8]}: the program left while it opened")
+        return kali
+
+    def _client_alive(self, sid: str) -> bool:
+        """Whether the program of session ``sid`` holds its liveliness token: how the bridge
+        learns that it left."""
+        replies = self.session.liveliness().get(self.keys.client(sid), timeout=2.0)
+        return any(r.ok is not None for r in replies)
+
+    def _close(self, query: zenoh.Query) -> bool:
+        sid = str(query.key_expr).split("/")[-2]
+        return self._end_session(sid)
+
+    def _end_session(self, sid: str) -> bool:
+        q = self.session_queues.pop(sid, None)
+        if q is not None:
+            q.put(STOP)
+            self.queues.remove(q)
+        return self.sessions.close(sid)
+
+    def _on_call(self, query: zenoh.Query) -> None:
+        """A remote program's call: on its session's own thread, in the order sent."""
+        if not self.gate.admit():
+            self._refuse(query, self._flood_message())
+            return
+        sid = str(query.key_expr).split("/")[-2]
+        q = self.session_queues.get(sid)
+        if q is None:
+            self._refuse(query, f"no session {sid[:8]}; open one first")
+            return
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        q.put(lambda: self._answer(query, lambda _: self.sessions.call(sid, payload)))
+
+    def _on_client(self, sample: zenoh.Sample) -> None:
+        """A remote program's token went: it died or left; end its session as a local
+        program's death would (its worker killed)."""
+        if sample.kind == zenoh.SampleKind.DELETE:
+            sid = str(sample.key_expr).rsplit("/", 1)[-1]
+            if sid in self.session_queues:
+                self.admin.put(lambda: self._end_session(sid))
+
+    # ------------------------------------------------------------------ the cycle
+
+    def cycle(self, tick: int) -> None:
+        """Inside the cycle, not real-time (it allocates; Zenoh does): one telemetry sample
+        per robot, the timing every ``every_timing`` cycles, the events found.  A failure is
+        counted and logged once; the bridge never halts the system."""
+        try:
+            self._publish()
+        except Exception:
+            self.errors += 1
+            if self.errors == 1:
+                self.log.exception("bridge: publishing failed (later failures only counted)")
+
+    def _publish(self) -> None:
+        if self.session is None:
+            return
+        for k, pub in enumerate(self.state_pubs):
+            pub.put(protocol.dumps(self.telemetry.sample(k)))
+        if self.cycles % self.every_timing == 0:
+            self.timing_pub.put(protocol.dumps(self.telemetry.timing()))
+        self.cycles += 1
+        for event in self.watch.changes():
+            self.n_events += 1
+            event = {
+                "n": self.n_events,
+                "tick": int(self.inst.clock["tick"]),
+                "time_ms": time_ms(self.inst.clock),
+                **event,
+            }
+            data = protocol.dumps(event)
+            self.event_pub.put(data)
+            if event["kind"] == "motion":
+                self.session.put(self.keys.motion(event["seq"]), data, encoding=JSON)
+
+    # ------------------------------------------------------------------ shutdown
+
+    def on_deactivate(self) -> None:
+        """Last events as the instance stops (in lockstep a halt stops the clock first)."""
+        self.cycle(-1)
+
+    def on_shutdown(self) -> None:
+        """End every session (their workers), the threads and the Zenoh session."""
+        sessions = getattr(self, "sessions", None)
+        if sessions is not None:
+            sessions.close_all()
+        for q in self.queues:
+            q.put(STOP)
+        for t in self.threads:
+            t.join(timeout=2.0)
+        session, self.session = self.session, None
+        if session is not None:
+            with contextlib.suppress(zenoh.ZError):
+                session.close()
+
+
+__all__ = ["Bridge"]

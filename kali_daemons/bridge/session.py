@@ -1,0 +1,190 @@
+"""A remote program's stand-in on the controller's machine (issue 29).
+
+    python -m kali_daemons.bridge.session --instance NAME --sid SID --program NAME [--force]
+    python -m kali_daemons.bridge.session --instance NAME --helper
+
+The bridge starts one per remote program's session.  It is a local client program like any
+other: it attaches a ``Kali`` (its pid owns the arms the remote program moves, its name is the
+remote program's), then carries out that program's calls, one JSON line each on its standard
+input, answering one line each on the descriptor it was given as standard output (a line is
+``{"id": N, "target": OBJ, "method": M, "args": [...], "kwargs": {...}, "drop": [...]}``;
+the answer ``{"id": N, "value": V, "attrs": {...}}`` or ``{"id": N, "error": {...}}``).
+Only ``protocol.METHODS`` can be called, on the objects of this session, so a remote request
+meets every check a local client's does and is refused with the same message.
+
+When the remote program disappears (its liveliness token goes), the bridge kills this
+process: the cell treats the program as a local one that died — its motions run out, its
+arms' leases lapse, the status records it never read are freed.
+
+With ``--helper`` it is the bridge's helper instead (``Helper``): kalictl's verbs and the
+status document, answered the same way, one line each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+from typing import Any
+
+from .. import introspect
+from ..client.motion import Kali
+from ..instance import Instance
+from ..layout import PROGRAM_BYTES
+from . import protocol
+from .protocol import ATTRIBUTES, METHODS, PROPERTIES, BridgeError
+from .sessions import run_verb
+
+log = logging.getLogger("kali.bridge.session")
+
+
+class Session:
+    """The objects of one remote program's session (0: its ``Kali``) and its calls."""
+
+    def __init__(self, kali: Kali) -> None:
+        self.objects: dict[int, object] = {0: kali}
+        self.ids: dict[int, int] = {id(kali): 0}  # id(object) -> its number
+        self.next_id = 1
+
+    def register(self, obj: object) -> dict[str, Any]:
+        """``obj``'s tagged reference, numbered the first time it crosses."""
+        oid = self.ids.get(id(obj))
+        if oid is None:
+            oid, self.next_id = self.next_id, self.next_id + 1
+            self.objects[oid] = obj
+            self.ids[id(obj)] = oid
+        return {"__obj__": oid, "class": type(obj).__name__, "attrs": self.attrs(obj)}
+
+    def attrs(self, obj: object) -> dict[str, Any]:
+        """The plain attributes a proxy of ``obj`` holds (``protocol.ATTRIBUTES``)."""
+        names = ATTRIBUTES.get(type(obj).__name__, ())
+        return {n: protocol.encode(getattr(obj, n), self.register) for n in names}
+
+    def resolve(self, oid: int, cls: str, attrs: dict[str, Any] | None = None) -> object:
+        """The object numbered ``oid`` of this session, which must be a ``cls`` (the
+        attributes a reference carries are the proxy's, not taken)."""
+        obj = self.objects.get(oid)
+        if obj is None or type(obj).__name__ != cls:
+            raise BridgeError(f"no {cls} {oid} in this session")
+        return obj
+
+    def drop(self, oids: list[Any]) -> None:
+        """Forget objects the remote program no longer holds (a handle dropped releases its
+        status record, as a local one's)."""
+        for oid in oids:
+            if isinstance(oid, int) and oid != 0:
+                obj = self.objects.pop(oid, None)
+                if obj is not None:
+                    self.ids.pop(id(obj), None)
+
+    def call(self, request: Any) -> dict[str, Any]:
+        """Carry out one call; its value or its exception as a reply."""
+        if not isinstance(request, dict):
+            raise BridgeError("a call must be a JSON object")
+        self.drop(request.get("drop") or [])
+        target = request.get("target", 0)
+        if isinstance(target, bool) or not isinstance(target, int):
+            raise BridgeError(f"target {target!r:.40} is not an object number")
+        obj = self.objects.get(target)
+        if obj is None:
+            raise BridgeError(f"no object {target} in this session")
+        cls = type(obj).__name__
+        method = request.get("method")
+        args = protocol.decode(request.get("args") or [], self.resolve)
+        kwargs = protocol.decode(request.get("kwargs") or {}, self.resolve)
+        if not isinstance(args, list) or not isinstance(kwargs, dict):
+            raise BridgeError("args must be a list and kwargs a mapping")
+        if method in PROPERTIES.get(cls, ()):
+            value = getattr(obj, method)
+        elif method in METHODS.get(cls, ()):
+            value = getattr(obj, method)(*args, **kwargs)
+        else:
+            allowed = ", ".join(sorted(METHODS.get(cls, set()) | PROPERTIES.get(cls, set())))
+            raise BridgeError(
+                f"{cls}.{method!s:.40} cannot be called from another machine; "
+                f"a remote {cls} has: {allowed}"
+            )
+        return {"value": protocol.encode(value, self.register), "attrs": self.attrs(obj)}
+
+
+class Helper:
+    """The bridge's helper process: kalictl's verbs (``sessions.run_verb``) and the status
+    document, off the bridge's own process, where their Python would hold the interpreter
+    lock for tens of milliseconds and delay the telemetry behind them."""
+
+    def __init__(self, instance: str) -> None:
+        self.instance = instance
+        self.inst = Instance.attach(instance)
+
+    def call(self, request: Any) -> dict[str, Any]:
+        if not isinstance(request, dict):
+            raise BridgeError("a helper request must be a JSON object")
+        if request.get("status"):
+            doc = introspect.snapshot(self.inst)
+            return {"value": json.loads(json.dumps(doc, default=str))}
+        return {"value": run_verb(self.instance, str(request.get("verb")), request.get("args"))}
+
+
+def serve(session: Session | Helper, lines: Any, out: Any) -> None:
+    """Answer every call line of ``lines`` on ``out`` until the input ends."""
+    for line in lines:
+        reply: dict[str, Any]
+        rid = None
+        try:
+            request = protocol.loads(line, "call")
+            rid = request.get("id") if isinstance(request, dict) else None
+            reply = session.call(request)
+        except Exception as exc:  # every refusal goes back to the remote program
+            reply = protocol.error_reply(exc)
+        reply["id"] = rid
+        try:
+            out.write(protocol.dumps(reply) + b"\n")
+        except ValueError as exc:  # a value JSON cannot hold
+            out.write(protocol.dumps({"id": rid, **protocol.error_reply(exc)}) + b"\n")
+        out.flush()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="kali_daemons.bridge.session")
+    parser.add_argument("--instance", required=True)
+    parser.add_argument("--helper", action="store_true", help="verbs and status, no program")
+    parser.add_argument("--sid", default="")
+    parser.add_argument("--program", default="remote")
+    parser.add_argument("--force", action="store_true")
+    parser.add_argument("--nice", type=int, default=0)
+    parser.add_argument("--cpu", type=int, default=None)
+    a = parser.parse_args(argv)
+    os.nice(a.nice)  # below the bridge, on its CPU: a remote program never slows the cell
+    if a.cpu is not None:
+        os.sched_setaffinity(0, {a.cpu})
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # close the Kali on the way out
+    out = os.fdopen(os.dup(1), "wb")  # the answers; print() in the client code goes to stderr
+    os.dup2(2, 1)
+    if a.helper:
+        helper = Helper(a.instance)
+        try:
+            out.write(protocol.dumps({"id": None, "value": None}) + b"\n")
+            out.flush()
+            serve(helper, sys.stdin.buffer, out)
+        finally:
+            helper.inst.close()
+        return 0
+    kali = Kali(a.instance, force=a.force)
+    label = f"{a.program} (remote {a.sid[:8]})"
+    kali.program = label.encode()[:PROGRAM_BYTES]
+    session = Session(kali)
+    try:
+        out.write(protocol.dumps({"id": None, "value": session.register(kali)}) + b"\n")
+        out.flush()
+        serve(session, sys.stdin.buffer, out)
+    finally:
+        kali.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,315 @@
+"""Remote programs' sessions and kalictl's verbs, as the bridge carries them out (issue 29).
+
+A session is a worker process (``session.py``) standing in for one remote program: the bridge
+starts it when the program opens the session, hands it the program's calls one at a time and
+returns its answers, and kills it when the program's liveliness token goes (it died, or its
+machine left the network), so the cell treats that program as a local one that died.  A
+worker runs SCHED_OTHER at a lower priority than the bridge, on the bridge's CPU.
+
+Verbs are kalictl's own commands, run one at a time by the bridge's helper process (a worker
+with ``--helper``), so a remote ``enable`` or ``servo set`` meets kalictl's checks and
+answers with kalictl's words, and its Python never holds the bridge's interpreter lock.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import subprocess
+import sys
+import threading
+import time
+from typing import Any
+
+from .. import launcher
+from ..client.remote import REMOTE_ENV
+from ..errors import KaliError
+from . import protocol
+from .protocol import BridgeError
+
+SID_RE = re.compile(r"[0-9a-f]{16,32}")
+PROGRAM_RE = re.compile(r"[^\x00-\x1f]{1,64}")
+START_TIMEOUT_S = 30.0  # a worker attaches its Kali within this
+WORKER_NICE = 5  # below the bridge: a busy remote program does not slow telemetry
+# kalictl verbs a remote operator may run: each verb's allowed first arguments (None: any)
+VERBS: dict[str, frozenset[str] | None] = {
+    "enable": None,
+    "disable": None,
+    "estop": None,
+    "reset": None,
+    "calibrate": None,
+    "ff": None,
+    "rate": None,
+    "status": frozenset({"--json"}),
+    "servo": frozenset({"list", "select", "set", "get", "compare"}),
+}
+MAX_VERB_ARGS = 16
+MAX_ARG_CHARS = 200
+
+
+class Worker:
+    """One session's worker process and the lock its calls take turns on."""
+
+    def __init__(self, sid: str, program: str, proc: subprocess.Popen, kali: Any) -> None:
+        self.sid = sid
+        self.program = program
+        self.proc = proc
+        self.kali = kali  # the reference to its Kali, as the remote program gets it
+        self.lock = threading.Lock()
+        self.next_id = 0
+
+    def call(self, request: dict[str, Any]) -> bytes:
+        """Send one call, return the worker's answer line (BridgeError if it has died)."""
+        with self.lock:
+            self.next_id += 1
+            request["id"] = self.next_id
+            try:
+                assert self.proc.stdin is not None and self.proc.stdout is not None
+                self.proc.stdin.write(protocol.dumps(request) + b"\n")
+                self.proc.stdin.flush()
+                line = self.proc.stdout.readline()
+            except (BrokenPipeError, ValueError, OSError):
+                line = b""
+            if not line:
+                raise BridgeError(f"session {self.sid[:8]} ({self.program}) has ended")
+            return line.rstrip(b"\n")
+
+    def stop(self) -> None:
+        """End the worker: SIGTERM (it closes its Kali), SIGKILL after a second; reaped."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(1.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        for f in (self.proc.stdin, self.proc.stdout):
+            if f is not None:
+                with contextlib.suppress(OSError):
+                    f.close()
+
+
+class Sessions:
+    """The open sessions of one instance, at most ``limit``."""
+
+    def __init__(self, instance: str, limit: int, cpu: int | None, log_dir: str) -> None:
+        self.instance = instance
+        self.limit = limit
+        self.cpu = cpu
+        self.log_dir = log_dir
+        self.workers: dict[str, Worker] = {}
+        self.lock = threading.Lock()
+        self.helper: Worker | None = None  # verbs and status (ask_helper)
+        self.helper_lock = threading.Lock()
+        self.closed = False
+
+    def open(self, request: Any) -> dict[str, Any]:
+        """Start a session for ``{"sid", "program", "force"}``; its Kali's reference."""
+        if not isinstance(request, dict):
+            raise BridgeError("session/open takes {sid, program, force}")
+        sid, program = request.get("sid"), request.get("program", "remote")
+        force = request.get("force", False)
+        if not isinstance(sid, str) or SID_RE.fullmatch(sid) is None:
+            raise BridgeError(f"session id {sid!r:.40} is not 16..32 hex digits")
+        if not isinstance(program, str) or PROGRAM_RE.fullmatch(program) is None:
+            raise BridgeError(f"program name {program!r:.70} (1..64 printable characters)")
+        if not isinstance(force, bool):
+            raise BridgeError(f"force {force!r:.20} is not true or false")
+        with self.lock:
+            if self.closed:
+                raise BridgeError(f"instance '{self.instance}' is stopping")
+            if sid in self.workers:
+                raise BridgeError(f"session {sid[:8]} is open already")
+            if len(self.workers) >= self.limit:
+                raise BridgeError(
+                    f"{len(self.workers)} remote programs are connected, the "
+                    f"config's bridge.max_sessions; refused"
+                )
+            self.workers[sid] = None  # type: ignore[assignment]  # reserved while it starts
+        try:
+            worker = self._start(sid, program, force)
+        except BaseException:
+            with self.lock:
+                self.workers.pop(sid, None)
+            raise
+        with self.lock:
+            self.workers[sid] = worker
+        return worker.kali
+
+    def _start(self, sid: str, program: str, force: bool) -> Worker:
+        options = ["--sid", sid, "--program", program, *(["--force"] if force else [])]
+        return self._spawn(sid, program, options, f"bridge.session.{sid[:8]}.log")
+
+    def _spawn(self, sid: str, program: str, options: list[str], log_name: str) -> Worker:
+        """Start a worker process (``session.py``) with ``options`` and wait for its first
+        line: a program's Kali reference, or the helper's ready."""
+        args = [
+            sys.executable, "-m", "kali_daemons.bridge.session", "--instance", self.instance,
+            "--nice", str(WORKER_NICE), *(["--cpu", str(self.cpu)] if self.cpu is not None else []),
+            *options,
+        ]  # fmt: skip
+        log_path = os.path.join(self.log_dir, log_name)
+        with open(log_path, "wb") as log:
+            proc = subprocess.Popen(
+                args,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                close_fds=True,
+                env={
+                    **{k: v for k, v in os.environ.items() if k != REMOTE_ENV},
+                    **launcher.SINGLE_THREADED,
+                },  # its Kali is a local one, whatever the bridge's environment says
+                start_new_session=True,  # kalictl stop finds it by its instance argument
+            )
+        worker = Worker(sid, program, proc, None)
+        assert proc.stdout is not None
+        ready = threading.Event()
+        first: list[bytes] = []
+
+        def read_first() -> None:
+            first.append(proc.stdout.readline())  # type: ignore[union-attr]
+            ready.set()
+
+        threading.Thread(target=read_first, daemon=True).start()
+        if not ready.wait(START_TIMEOUT_S) or not first[0]:
+            worker.stop()
+            raise BridgeError(f"the worker for {program} did not start: {_tail(log_path)}")
+        reply = protocol.loads(first[0], "worker start")
+        protocol.raise_reply(reply)
+        worker.kali = reply["value"]
+        return worker
+
+    def start_helper(self) -> Worker:
+        """The helper process (verbs and status), started now if it is not running (the
+        bridge starts it at once; it is started again if it has died)."""
+        with self.helper_lock:
+            if self.closed:
+                raise BridgeError(f"instance '{self.instance}' is stopping")
+            if self.helper is None or self.helper.proc.poll() is not None:
+                if self.helper is not None:
+                    self.helper.stop()
+                self.helper = self._spawn("helper", "verbs", ["--helper"], "bridge.helper.log")
+            return self.helper
+
+    def ask_helper(self, request: dict[str, Any]) -> bytes:
+        """The helper's answer line to ``request`` (a verb, or the status)."""
+        return self.start_helper().call(request)
+
+    def call(self, sid: str, payload: bytes) -> bytes:
+        """Forward one call of session ``sid``; the worker's answer."""
+        worker = self.workers.get(sid)
+        if worker is None:
+            raise BridgeError(f"no session {sid[:8]}; open one first")
+        request = protocol.loads(payload, "call")
+        if not isinstance(request, dict):
+            raise BridgeError("a call must be a JSON object")
+        return worker.call(request)
+
+    def close(self, sid: str) -> bool:
+        """End session ``sid`` (its program left); False if there was none."""
+        with self.lock:
+            if self.workers.get(sid, 0) is None:
+                return False  # still starting: open() finds its program gone and ends it
+            worker = self.workers.pop(sid, None)
+        if worker is None:
+            return False
+        worker.stop()
+        return True
+
+    def close_all(self) -> None:
+        with self.lock, self.helper_lock:
+            self.closed = True
+            workers = [w for w in self.workers.values() if w is not None]
+            if self.helper is not None:
+                workers.append(self.helper)
+            self.workers.clear()
+        for w in workers:
+            w.stop()
+
+    def describe(self) -> list[dict[str, Any]]:
+        """The open sessions: id, program, worker pid."""
+        with self.lock:
+            return [
+                {"sid": w.sid[:8], "program": w.program, "pid": w.proc.pid}
+                for w in self.workers.values()
+                if w is not None
+            ]
+
+
+def _tail(path: str, lines: int = 5) -> str:
+    try:
+        with open(path, errors="replace") as f:
+            return " | ".join(f.read().strip().splitlines()[-lines:]) or "no output"
+    except OSError:
+        return "no log"
+
+
+_verb_lock = threading.Lock()
+
+
+def check_verb(verb: str, args: Any) -> None:
+    """BridgeError unless ``kalictl VERB ARGS...`` is one a remote operator may run."""
+    if verb not in VERBS:
+        raise BridgeError(f"unknown verb {verb!r:.40}; verbs: {', '.join(sorted(VERBS))}")
+    if not isinstance(args, list) or len(args) > MAX_VERB_ARGS:
+        raise BridgeError(f"{verb}: args must be a list of at most {MAX_VERB_ARGS} strings")
+    for i, a in enumerate(args):
+        if not isinstance(a, str) or not 0 < len(a) <= MAX_ARG_CHARS or "\0" in a:
+            raise BridgeError(f"{verb}: args[{i}] {a!r:.40} is not a short string")
+    first = VERBS[verb]
+    if first is not None and args and args[0] not in first:
+        raise BridgeError(
+            f"{verb} {args[0]!r:.40} is not open to remote programs; "
+            f"{verb}: {', '.join(sorted(first))}"
+        )
+
+
+def run_verb(instance: str, verb: str, args: Any) -> dict[str, Any]:
+    """Run ``kalictl -i INSTANCE VERB ARGS...`` in this process (one at a time; the bridge's
+    helper does): ``{"ok", "output"}`` with what kalictl printed, its error line when it
+    refused."""
+    check_verb(verb, args)
+    from ..cli import main  # here: the daemons never need click
+
+    out, err = io.StringIO(), io.StringIO()
+    with _verb_lock, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main.main(
+                args=["-i", instance, verb, *args], prog_name="kalictl", standalone_mode=False
+            )
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 1
+        except KaliError as exc:
+            err.write(f"kalictl: {exc}\n")
+            code = 1
+        except Exception as exc:  # click's usage errors and the like
+            err.write(f"kalictl: {verb}: {exc}\n")
+            code = 2
+    return {"ok": code == 0, "code": code, "output": out.getvalue(), "error": err.getvalue()}
+
+
+class Gate:
+    """At most ``rate`` requests a second (a token bucket of one second's): beyond it a
+    request is refused before anything reads it, so a flood costs the bridge little CPU."""
+
+    def __init__(self, rate: int) -> None:
+        self.rate = float(rate)
+        self.tokens = float(rate)
+        self.last = time.monotonic()
+        self.refused = 0
+        self.lock = threading.Lock()
+
+    def admit(self) -> bool:
+        with self.lock:
+            now = time.monotonic()
+            self.tokens = min(self.rate, self.tokens + (now - self.last) * self.rate)
+            self.last = now
+            if self.tokens >= 1.0:
+                self.tokens -= 1.0
+                return True
+            self.refused += 1
+            return False

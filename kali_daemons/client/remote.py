@@ -1,0 +1,460 @@
+"""A robot program on another machine, through the instance's Zenoh bridge (issue 29).
+
+    from kali_daemons.client import Kali
+    with Kali.connect("tcp/cell-pc:7447", "default") as kali:   # or Kali() under
+        kali.ready(["left"])                                      # kalictl run --remote
+        left = kali.robot("left")
+        left.move_joints(q, speed=0.3)
+
+``connect`` returns a ``RemoteKali``: the same robots, motion systems, moves, waits and reads
+as a local ``Kali``, so a program runs unchanged from a workstation.  Each call goes to the
+program's session on the controller's machine (``bridge/session.py``), where a local client
+carries it out with every check a local program meets; a refusal comes back as the same
+exception with the same message.  Poses and joint angles cross as arrays; robots, motion
+systems and request handles are proxies of the session's objects, holding their plain
+attributes (``name``, ``index``, ``base``, ``tool``, ``seq`` …).  A wait in real time follows
+the request's state on ``kali/INSTANCE/motion/SEQ`` as the bridge publishes it; in lockstep
+the session steps the clock as a local program's wait does.
+
+What a program runs periodically (``control``), streams and tracking loops stay on the
+controller's machine: their deadlines are the TG's and the wall clock's, not the network's.
+The program's liveliness token tells the bridge it lives: when it dies or its machine goes,
+the bridge ends its session as a local program's death would.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+import secrets
+import threading
+import time
+import weakref
+from collections.abc import Callable, Sequence
+from types import TracebackType
+from typing import Any
+
+import zenoh
+import zenoh.handlers
+
+from ..config import KaliConfig, parse_config
+from ..errors import KaliError
+from ..layout import TERMINAL_STATES
+from ..robots import RobotType
+
+REMOTE_ENV = "KALI_REMOTE"  # set by `kalictl run --remote ENDPOINT`: Kali() connects there
+USER_ENV = "KALI_REMOTE_USER"
+PASSWORD_ENV = "KALI_REMOTE_PASSWORD"
+TLS_ENV = ("KALI_REMOTE_CA", "KALI_REMOTE_CERT", "KALI_REMOTE_KEY")
+CONNECT_TIMEOUT_S = 10.0  # to find the bridge and open the session
+ALIVE_GRACE_S = 2.0  # an instance's token not seen within this: no such instance there
+CALL_TIMEOUT_S = 30.0  # an answer beyond a call's own timeout, if it has one
+POLL_S = 0.05  # how often a waiting call looks whether the bridge is still there
+NO_DEADLINE_S = 7 * 24 * 3600.0  # a call without a timeout: until answered or the bridge goes
+
+
+def connect(
+    endpoint: str, instance: str | None = None, *, force: bool = False, **credentials: str
+) -> RemoteKali:
+    """Connect to instance ``instance`` (default: $KALI_INSTANCE, else 'default') through the
+    bridge at Zenoh ``endpoint`` (e.g. ``tcp/HOST:7447``) and open this program's session;
+    ``credentials`` (user, password, root_ca, certificate, private_key) as the bridge's
+    config asks, by default from $KALI_REMOTE_USER, $KALI_REMOTE_PASSWORD and
+    $KALI_REMOTE_CA/CERT/KEY.  BridgeError if nothing answers or the session is refused."""
+    return RemoteKali(reach(endpoint, instance, **credentials), force)
+
+
+def reach(
+    endpoint: str,
+    instance: str | None = None,
+    *,
+    user: str | None = None,
+    password: str | None = None,
+    root_ca: str | None = None,
+    certificate: str | None = None,
+    private_key: str | None = None,
+) -> Connection:
+    """A Zenoh session with the bridge of ``instance`` at ``endpoint``, its liveliness seen
+    (no program session yet: ``kalictl run --remote`` checks the instance answers with it)."""
+    from ..bridge.access import client_config
+    from ..bridge.protocol import BridgeError
+    from .motion import DEFAULT_INSTANCE, INSTANCE_ENV
+
+    name = os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE) if instance is None else instance
+    env = [os.environ.get(v) for v in TLS_ENV]
+    try:
+        config = client_config(
+            endpoint,
+            user=user if user is not None else os.environ.get(USER_ENV),
+            password=password if password is not None else os.environ.get(PASSWORD_ENV),
+            root_ca=root_ca or env[0],
+            certificate=certificate or env[1],
+            private_key=private_key or env[2],
+        )
+    except (ValueError, zenoh.ZError) as exc:  # half the credentials, a bad endpoint
+        raise BridgeError(f"cannot connect to {endpoint}: {exc}") from None
+    return Connection(endpoint, name, config)
+
+
+class Connection:
+    """One remote program's Zenoh session with a bridge: its session id and token, its calls."""
+
+    def __init__(self, endpoint: str, instance: str, config: zenoh.Config) -> None:
+        from ..bridge.protocol import BridgeError, Keys
+
+        self.endpoint = endpoint
+        self.instance = instance
+        self.keys = Keys(instance)
+        try:
+            self.session = zenoh.open(config)
+        except zenoh.ZError as exc:
+            raise BridgeError(f"cannot connect to {endpoint}: {exc}") from None
+        self.sid = secrets.token_hex(8)
+        self.proxies: weakref.WeakValueDictionary[int, Proxy] = weakref.WeakValueDictionary()
+        self.dropped: list[int] = []  # handles this program let go: the session forgets them
+        self.lock = threading.Lock()
+        self.bridge_alive = threading.Event()
+        self.closed = False
+        self.opened = False  # a program's session is open on the bridge
+        self.kali: RemoteKali | None = None
+        try:
+            self.watch = self.session.liveliness().declare_subscriber(
+                self.keys.alive, self._on_alive, history=True
+            )
+            found = self.session.liveliness().get(self.keys.alive, timeout=CONNECT_TIMEOUT_S)
+            if any(r.ok is not None for r in found):  # the router answers at once
+                self.bridge_alive.set()
+            # a session just opened may see the token only as its subscriber's history
+            if not self.bridge_alive.wait(ALIVE_GRACE_S):
+                raise BridgeError(
+                    f"no Kali instance '{instance}' answers at {endpoint} (no "
+                    f"liveliness token {self.keys.alive} within {ALIVE_GRACE_S:g} s: is its "
+                    f"bridge enabled, and may this user read it?)"
+                )
+            self.token = self.session.liveliness().declare_token(self.keys.client(self.sid))
+        except BaseException:
+            self.session.close()
+            raise
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.bridge_alive.set()
+        else:
+            self.bridge_alive.clear()
+
+    def get(self, key: str, value: Any, timeout: float = CALL_TIMEOUT_S) -> Any:
+        """Ask ``key`` with JSON ``value``; the reply's value, or its exception raised."""
+        from ..bridge import protocol
+
+        return self._ask(key, protocol.dumps(value), timeout, key).get("value")
+
+    def _ask(self, key: str, payload: bytes, timeout: float, what: str) -> dict[str, Any]:
+        """One query and its one answer (a mapping); the exception it carries raised, a
+        BridgeError if none comes within ``timeout`` s or the bridge goes meanwhile."""
+        from ..bridge import protocol
+        from ..bridge.protocol import BridgeError
+
+        if self.closed:
+            raise BridgeError(f"the connection to {self.endpoint} is closed")
+        replies: list[zenoh.Reply] = []
+        over = threading.Event()  # the query is finished: answered, refused or timed out
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            replies.append(reply)
+            over.set()
+
+        handler = zenoh.handlers.Callback(on_reply, over.set)
+        self.session.get(key, handler, payload=payload, timeout=timeout)
+        while not over.wait(POLL_S):
+            if not self.bridge_alive.is_set():
+                raise BridgeError(
+                    f"instance '{self.instance}' at {self.endpoint} went away during {what}"
+                )
+        if not replies:
+            raise BridgeError(
+                f"no answer to {what} from instance '{self.instance}' at {self.endpoint}: "
+                f"this user may not ask it (bridge.operators / bridge.readers), or the "
+                f"answer took longer than {timeout:g} s"
+            )
+        reply = replies[0]
+        if reply.ok is None:
+            text = reply.err.payload.to_bytes().decode(errors="replace")
+            raise BridgeError(f"{what}: {text}")
+        answer = protocol.loads(reply.ok.payload.to_bytes(), what)
+        if not isinstance(answer, dict):
+            raise BridgeError(f"{what}: a malformed answer")
+        protocol.raise_reply(answer)
+        return answer
+
+    def call(
+        self, oid: int, method: str, args: Sequence[Any], kwargs: dict[str, Any]
+    ) -> tuple[Any, dict[str, Any]]:
+        """Call ``method`` of the session's object ``oid``: (value, its attributes now)."""
+        from ..bridge import protocol
+
+        timeout = kwargs.get("timeout")
+        limit = (
+            min(NO_DEADLINE_S, max(0.0, float(timeout)) + CALL_TIMEOUT_S)
+            if isinstance(timeout, int | float) and not isinstance(timeout, bool)
+            else NO_DEADLINE_S
+        )
+        with self.lock:
+            dropped, self.dropped = self.dropped, []
+        request = {
+            "target": oid,
+            "method": method,
+            "args": protocol.encode(list(args), _reference),
+            "kwargs": protocol.encode(kwargs, _reference),
+            "drop": dropped,
+        }
+        answer = self._ask(self.keys.call(self.sid), protocol.dumps(request), limit, method)
+        value = protocol.decode(answer.get("value"), self.proxy)
+        attrs = protocol.decode(answer.get("attrs") or {}, self.proxy)
+        return value, attrs
+
+    def proxy(self, oid: int, cls: str, attrs: dict[str, Any] | None = None) -> Proxy:
+        """The proxy of the session's object ``oid`` (one per object), attributes updated."""
+        p = self.proxies.get(oid)
+        if p is None:
+            p = PROXIES.get(cls, Proxy)(self, oid, cls)
+            self.proxies[oid] = p
+        if attrs:
+            p._attrs.update(attrs)
+        return p
+
+    def forget(self, oid: int) -> None:
+        with self.lock:
+            self.dropped.append(oid)
+
+    def close(self) -> None:
+        """End the session (the bridge ends its worker) and the Zenoh session."""
+        if self.closed:
+            return
+        try:
+            if self.opened and self.bridge_alive.is_set():
+                self.get(self.keys.close(self.sid), {}, timeout=5.0)
+        except Exception:  # the token going ends it anyway
+            pass
+        self.closed = True
+        self.session.close()
+
+
+def _reference(obj: object) -> dict[str, Any]:
+    """A proxy given back as an argument: the session's object it stands for."""
+    if isinstance(obj, Proxy):
+        return {"__obj__": obj._oid, "class": obj._cls}
+    from ..bridge.protocol import BridgeError
+
+    raise BridgeError(f"a {type(obj).__name__} cannot cross the bridge")
+
+
+class Proxy:
+    """A session object on the controller's machine: its attributes, its methods as calls."""
+
+    def __init__(self, conn: Connection, oid: int, cls: str) -> None:
+        self._conn = conn
+        self._oid = oid
+        self._cls = cls
+        self._attrs: dict[str, Any] = {}
+
+    def __getattr__(self, name: str) -> Any:
+        from ..bridge.protocol import METHODS, PROPERTIES
+
+        if name.startswith("__"):
+            raise AttributeError(name)
+        attrs = self.__dict__.get("_attrs", {})
+        if name in attrs:
+            return attrs[name]
+        if name in PROPERTIES.get(self._cls, ()):
+            return self._call(name)
+        if name in METHODS.get(self._cls, ()):
+            return functools.partial(self._call, name)
+        from ..bridge.protocol import BridgeError
+
+        raise BridgeError(
+            f"a remote {self._cls} has no {name!r}: periodic functions, streams, tracking "
+            f"and live views of shared memory stay on the controller's machine; remote: "
+            f"{', '.join(sorted(METHODS.get(self._cls, set()) | set(attrs)))}"
+        )
+
+    def _call(self, method: str, *args: Any, **kwargs: Any) -> Any:
+        value, attrs = self._conn.call(self._oid, method, args, kwargs)
+        self._attrs.update(attrs)
+        return value
+
+    def __del__(self) -> None:
+        try:
+            if self._oid and not self._conn.closed:
+                self._conn.forget(self._oid)
+        except Exception:
+            pass
+
+    def __repr__(self) -> str:
+        return f"<remote {self._cls} {self._oid} of {self._conn.instance}@{self._conn.endpoint}>"
+
+
+class RemoteRobot(Proxy):
+    """A robot: ``type`` (its robot type, from the instance's config) beside the calls."""
+
+    @property
+    def type(self) -> RobotType:
+        kali = self._conn.kali
+        assert kali is not None
+        return kali.inst.config.robots[self.index].type
+
+
+class RemoteHandle(Proxy):
+    """A request's handle; ``wait`` follows its state as the bridge publishes it."""
+
+    def wait(self, timeout: float | None = None) -> None:
+        """As ``MotionHandle.wait``: returns once it arrived (or touched), raises the same
+        MotionFailedError / TimeoutError otherwise."""
+        kali = self._conn.kali
+        assert kali is not None
+        if kali.inst.lockstep:  # the session steps the clock, as a local program's wait
+            self._call("wait", timeout=timeout)
+            return
+        changed = threading.Event()
+        sub = self._conn.session.declare_subscriber(
+            self._conn.keys.motion(self.seq), lambda _sample: changed.set()
+        )
+        deadline = None if timeout is None else time.monotonic() + timeout
+        try:
+            while True:
+                changed.clear()
+                if self.state in TERMINAL_STATES:
+                    self._call("wait", timeout=0.0)  # its outcome, in the local words
+                    return
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    raise TimeoutError(
+                        f"motion: request {self.seq} not done within {timeout:g} s "
+                        f"({self.state.name.lower()})"
+                    )
+                # a state the bridge publishes wakes it; a halt or a lost record it cannot see
+                # (the session reads them) within a second
+                changed.wait(1.0 if left is None else min(1.0, left))
+        finally:
+            sub.undeclare()
+
+
+class RemoteTogether(Proxy):
+    """A ``with kali.together()`` block held on the session."""
+
+    def __enter__(self) -> RemoteTogether:
+        self._call("__enter__")
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        failed = exc_type is not None
+        self._call("__exit__", True if failed else None, None, None)  # it reads the type only
+
+    def wait(self, timeout: float | None = None, any: bool = False) -> Any:
+        return self._call("wait", timeout=timeout, any=any)
+
+
+class RemoteInstance:
+    """What a program reads of ``kali.inst`` remotely: name, config, lockstep."""
+
+    def __init__(self, name: str, config: KaliConfig, lockstep: bool) -> None:
+        self.name = name
+        self.config = config
+        self.lockstep = lockstep
+
+
+class RemoteKali(Proxy):
+    """A remote program's ``Kali`` (``connect``)."""
+
+    def __init__(self, conn: Connection, force: bool = False) -> None:
+        from ..bridge import protocol
+        from ..bridge.protocol import BridgeError
+        from .motion import program_name
+
+        super().__init__(conn, 0, "Kali")
+        conn.kali = self
+        try:
+            cfg = conn.get(conn.keys.config, {}, timeout=CONNECT_TIMEOUT_S)
+            try:
+                config = parse_config(cfg["text"], f"{cfg['source']} (remote)", cfg["base_dir"])
+            except Exception as exc:
+                raise BridgeError(
+                    f"instance '{conn.instance}''s config does not parse on this machine: {exc}"
+                ) from None
+            self.inst = RemoteInstance(cfg["instance"], config, bool(cfg["lockstep"]))
+            program = program_name().decode(errors="replace")
+            ref = conn.get(
+                conn.keys.session_open,
+                {"sid": conn.sid, "program": program, "force": bool(force)},
+                timeout=CONNECT_TIMEOUT_S + 30.0,
+            )
+        except BaseException:
+            conn.close()
+            raise
+        conn.opened = True
+        conn.proxies[0] = self
+        self._attrs.update(protocol.decode(ref.get("attrs", {}), conn.proxy))
+
+    def together(self, *moves: Callable[[], object]) -> RemoteTogether:
+        """As ``Kali.together``: the block form, or the moves as functions."""
+        group = self._call("together")
+        if moves:
+            with group:
+                for move in moves:
+                    move()
+        return group
+
+    def control(self, *args: Any, **kwargs: Any) -> None:
+        from ..bridge.protocol import BridgeError
+
+        raise BridgeError(
+            "control: a periodic function runs on the controller's machine (its deadline is "
+            "the wall clock's); run this program there with kalictl run"
+        )
+
+    def verb(self, verb: str, *args: str) -> str:
+        """Run kalictl verb ``verb`` (enable, disable, estop, reset, calibrate, servo, ff,
+        rate, status) on the instance; what kalictl printed.  BridgeError with kalictl's own
+        error line if it refused."""
+        from ..bridge.protocol import BridgeError
+
+        result = self._conn.get(
+            self._conn.keys.verb(verb), {"args": list(args)}, CALL_TIMEOUT_S + 60
+        )
+        if not result["ok"]:
+            raise BridgeError(result["error"].strip() or f"kalictl {verb} failed")
+        return result["output"]
+
+    def status(self) -> dict[str, Any]:
+        """``kalictl status --json``'s document, and the bridge's sessions."""
+        return self._conn.get(self._conn.keys.status, {})
+
+    def close(self) -> None:
+        self._conn.close()
+
+    def __enter__(self) -> RemoteKali:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Close; on Ctrl-C (``kalictl run --remote``) stop this program's arms first."""
+        if exc_type is KeyboardInterrupt and not self._conn.closed:
+            with contextlib.suppress(KaliError):
+                self.stop_own()
+        self.close()
+
+
+PROXIES: dict[str, type[Proxy]] = {
+    "Robot": RemoteRobot,
+    "MotionHandle": RemoteHandle,
+    "Together": RemoteTogether,
+}
