@@ -20,7 +20,7 @@ from kali_daemons.robots.puma560 import kinematics
 LIFT = 0.08  # m
 SHIFT = 0.06  # m, sideways while lifted
 SQUEEZE = 20.0  # N
-SET_DOWN = 0.01  # m/s over the last centimetre onto the stand
+SET_DOWN = 0.005  # m/s over the last centimetre onto the stand: gently, the squeeze held
 
 
 def squeeze(arms: list) -> float:

@@ -20,19 +20,18 @@ from tests.test_tg_carry import LIFT_M, bar_position, go_to_grasps
 from tests.test_tg_cartesian import calibrated
 
 SQUEEZE_N = 20.0
-# The issue asks 20 ± 5 N through lift, carry and set-down; not met yet.  The squeeze gain kpi
-# is 2: at 5 the air stays within 20 ± 3.5 N in lockstep, but real time (a tick more of lag
-# in the loop, with the sensors' 30 Hz low-pass) oscillates until a sensor saturates.  In the
-# air, every tick within this:
-AIR_TOLERANCE_N = 6.0
-# As the stand takes the bar's weight the squeeze steps up by 3-8 N within 25 ms and the loop
-# takes it back in 200 ms, and the first millisecond of rigid contact rattles the welds'
-# forces by up to 4 N from one 1 ms tick to the next, faster than any wrist-sensor loop.
-# Judged as the bar feels it, over 5 ms, within this; single ticks within the next.
-SET_DOWN_TOLERANCE_N = 9.0
+# The issue asks 20 ± 5 N through lift, carry and set-down.  In the air every tick is within
+# it.  As the stand gives the bar's weight to the arms or takes it back the squeeze steps by
+# a few newtons within 25 ms (the arms' springs let go of the sag their rotation held), and
+# the first millisecond of rigid contact rattles the welds' forces by up to 4 N from one 1 ms
+# tick to the next, faster than any wrist-sensor loop can see through its 30 Hz low-pass: from
+# the lift to 0.5 s after the set-down the squeeze is judged as the bar feels it, over 5 ms,
+# within 20 ± 5 N too; single ticks within the next.
+AIR_TOLERANCE_N = 5.0
+SET_DOWN_TOLERANCE_N = 5.0
 WINDOW_TICKS = 5
-TICK_TOLERANCE_N = 10.0
-SET_DOWN_SPEED = 0.01  # m/s: the last centimetre onto the stand
+TICK_TOLERANCE_N = 6.0
+SET_DOWN_SPEED = 0.005  # m/s: the last centimetre onto the stand, gently (5 mm/s)
 
 
 def carry_with_a_squeeze(k: Kali) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,10 +75,10 @@ def carry_with_a_squeeze(k: Kali) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_the_squeeze_holds_through_lift_carry_and_set_down(
     kali: Callable[..., str], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """20 N asked: the true squeeze stays 20 ± 6 N every tick while the bar is in the air,
+    """20 N asked: the true squeeze stays 20 ± 5 N every tick while the bar is in the air,
     where the two arms on their servos' errors alone squeeze 19-66 N (tests/test_tg_carry),
-    and 20 ± 9 N (5 ms means) through the set-down; the bar went up 8 cm (less its sag on
-    the impedance's springs) and came back where it was."""
+    and 20 ± 5 N (5 ms means) from the lift to after the set-down; the bar went up 8 cm
+    (less its sag on the impedance's springs) and came back where it was."""
     name = kali(lockstep=True, base="force.yaml")
     with calibrated(name, ("left", "right")) as k:
         seen, height, start = carry_with_a_squeeze(k)
