@@ -108,8 +108,9 @@ class Connection:
         self.keys = Keys(instance)
         try:
             self.session = zenoh.open(config)
-        except zenoh.ZError as exc:
-            raise BridgeError(f"cannot connect to {endpoint}: {exc}") from None
+        except zenoh.ZError as exc:  # its words, without the Rust source it came from
+            reason = str(exc).split("!  at /")[0].split(" at /")[0].rstrip("!. ")
+            raise BridgeError(f"cannot connect to {endpoint}: {reason}") from None
         self.sid = secrets.token_hex(8)
         self.proxies: weakref.WeakValueDictionary[int, Proxy] = weakref.WeakValueDictionary()
         self.dropped: list[int] = []  # handles this program let go: the session forgets them
