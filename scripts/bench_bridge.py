@@ -122,6 +122,7 @@ from harness import (
     KaliRun,
     Verdict,
     Window,
+    add_run_options,
     cell_config,
     extras_overrides,
     interrupts,
@@ -887,17 +888,7 @@ def main(argv: list[str] | None = None) -> int:
         default=list(RUNS.values()),
         help=f"comma-separated subset of {','.join(RUNS)} (default: all, in that order)",
     )
-    ap.add_argument(
-        "--wait-quiet",
-        type=float,
-        default=0.0,
-        metavar="S",
-        help="before each run, wait up to S seconds for other Kali instances (a test suite's) "
-        "to stop; they make the numbers meaningless (default 0: do not wait, just report them)",
-    )
-    ap.add_argument(
-        "--json", type=Path, default=None, metavar="PATH", help="also write the numbers to PATH"
-    )
+    add_run_options(ap)
     args = ap.parse_args(argv)
     if args.seconds < 5:
         ap.error("--seconds must be >= 5")

@@ -142,6 +142,7 @@ from harness import (
     KaliRun,
     Verdict,
     Window,
+    add_run_options,
     cell_config,
     dist,
     dist_table,
@@ -877,17 +878,7 @@ def main(argv: list[str] | None = None) -> int:
         "below Kali's 84-90, so Kali's own load shows in the floor; 95 measures the machine "
         "alone)",
     )
-    ap.add_argument(
-        "--wait-quiet",
-        type=float,
-        default=0.0,
-        metavar="S",
-        help="before each run, wait up to S seconds for other Kali instances (a test suite's) "
-        "to stop; they make the numbers meaningless (default 0: do not wait, just report them)",
-    )
-    ap.add_argument(
-        "--json", type=Path, default=None, metavar="PATH", help="also write the numbers to PATH"
-    )
+    add_run_options(ap)
     args = ap.parse_args(argv)
     if args.seconds < 1:
         ap.error("--seconds must be >= 1")

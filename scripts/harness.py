@@ -747,6 +747,21 @@ def retry_warmup(
     raise AssertionError("unreachable")
 
 
+def add_run_options(ap: argparse.ArgumentParser) -> None:
+    """``--wait-quiet S`` and ``--json PATH``, as every benchmark of runs takes them."""
+    ap.add_argument(
+        "--wait-quiet",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="before each run, wait up to S seconds for other Kali instances (a test suite's) "
+        "to stop; they make the numbers meaningless (default 0: do not wait, just report them)",
+    )
+    ap.add_argument(
+        "--json", type=Path, default=None, metavar="PATH", help="also write the numbers to PATH"
+    )
+
+
 def say(text: str) -> None:
     """A progress line on stderr (the report goes to stdout)."""
     print(text, file=sys.stderr, flush=True)

@@ -494,7 +494,8 @@ def test_a_reader_cannot_command(
         reader.close()
     with Kali.connect(endpoint, name, user="op", password="secret1") as remote:
         remote.ready(["left"])
-        assert remote.robot("left").read_joints().shape == (6,)
+        arm = remote.robot("left")
+        assert arm.read_joints().shape == (arm.n_joints,)
 
 
 def test_ctrl_c_in_a_remote_program_stops_its_arms_on_their_paths(
