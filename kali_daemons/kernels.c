@@ -506,12 +506,33 @@ static const Field SLOT_FIELDS[] = {
     FIELD(SlotRecord, shadow_sq, 'f'), FIELD(SlotRecord, shadow_peak, 'f'), END(SlotRecord),
 };
 
-/* The fields of record 0 (SlotRecord), 1 (PidRecord) or 2 (PdRecord); NULL for another. */
+/* the impedance servo's record (servo.armbuiltins.IMPEDANCE_DTYPE; kali_impedance) */
+typedef struct {
+    double k[6], d[6], f[6], integral[6], limit[6];
+    double partner, fi, u[3], kpi, kii, squeeze, gi, kf, kfi, imax, kq, friction;
+    double handover_s, dt, decay;
+    double bias[8]; /* layout.MAX_JOINTS */
+} ImpRecord;
+
+static const Field IMP_FIELDS[] = {
+    FIELD(ImpRecord, k, 'V'), FIELD(ImpRecord, d, 'V'), FIELD(ImpRecord, f, 'V'),
+    FIELD(ImpRecord, integral, 'V'), FIELD(ImpRecord, limit, 'V'),
+    FIELD(ImpRecord, partner, 'f'), FIELD(ImpRecord, fi, 'f'), FIELD(ImpRecord, u, 'V'),
+    FIELD(ImpRecord, kpi, 'f'), FIELD(ImpRecord, kii, 'f'), FIELD(ImpRecord, squeeze, 'f'),
+    FIELD(ImpRecord, gi, 'f'), FIELD(ImpRecord, kf, 'f'), FIELD(ImpRecord, kfi, 'f'),
+    FIELD(ImpRecord, imax, 'f'), FIELD(ImpRecord, kq, 'f'), FIELD(ImpRecord, friction, 'f'),
+    FIELD(ImpRecord, handover_s, 'f'), FIELD(ImpRecord, dt, 'f'), FIELD(ImpRecord, decay, 'f'),
+    FIELD(ImpRecord, bias, 'V'), END(ImpRecord),
+};
+
+/* The fields of record 0 (SlotRecord), 1 (PidRecord), 2 (PdRecord) or 3 (ImpRecord); NULL
+ * for another. */
 const Field *kali_fields(int64_t record) {
     switch (record) {
     case 0: return SLOT_FIELDS;
     case 1: return PID_FIELDS;
     case 2: return PD_FIELDS;
+    case 3: return IMP_FIELDS;
     default: return NULL;
     }
 }
@@ -690,4 +711,128 @@ int64_t kali_serve_unit(UnitArgs *a) {
     a->bad = bad;
     if (ran) a->exec_ns = (now_ns() - t0) / ran;
     return ran;
+}
+
+/* ---------------------------------------------------------------- the impedance servo
+ *
+ * One step of the built-in robot-level Cartesian impedance servo (servo/armbuiltins.py: the
+ * module docstring gives the law; _imp_step is the reference, equal to ~1e-12: numpy's small
+ * products go through BLAS).  In order: the pose error in world axes (translation, then the
+ * rotation vector of R_d R^T), the joint velocity error and the twist error J dq; both into
+ * tool axes; F = k e + f, plus the squeeze along the line to the partner; with a sensor the
+ * force feedback kf (R^T w + F) and its integral; damping d edot; tau = J^T R F + M qdd_d +
+ * kq dq + h + friction(qd_d) + bias; then the bias decays and the integrals advance.  The
+ * record is the arena's, stepped in place; the inputs are the SV's ArmInput, contiguous. */
+
+typedef struct {
+    int64_t n;                        /* the arm's joints */
+    ImpRecord *d;                     /* the robot's record (arena) */
+    const double *q_d, *qd_d, *qdd_d; /* n each: the demand */
+    const double *q, *qd, *h;         /* n each: the measurement, C(q, qd) qd + g(q) */
+    const double *M, *J;              /* n x n, 6 x n, row-major */
+    const double *pose, *pose_d;      /* 4x4 row-major: the tool point at q, at q_d */
+    const double *wrench;             /* 6: this arm's contact wrench, world axes */
+    const char *wrenches;             /* robots x 6 doubles, rows wrench_stride bytes apart */
+    int64_t wrench_stride, robots, has_sensor;
+    const double *viscous, *gear_w, *coulomb_pos, *coulomb_neg; /* n each: DriveFriction's */
+    double *tau;                      /* n: out */
+} ImpedanceArgs;
+
+/* v (6: two halves of 3) into tool axes in place: each half times R as a row vector. */
+static inline void to_tool(double *v, const double *r) {
+    for (int h = 0; h < 6; h += 3) {
+        double a = v[h], b = v[h + 1], c = v[h + 2];
+        for (int j = 0; j < 3; j++) v[h + j] = a * r[j] + b * r[4 + j] + c * r[8 + j];
+    }
+}
+
+int64_t kali_impedance(ImpedanceArgs *a) {
+    ImpRecord *d = a->d;
+    int64_t n = a->n;
+    const double *p = a->pose, *pd = a->pose_d; /* R is p[0..2, 0..2]: row stride 4 */
+    double e[6], edot[6], f[6], imb[6], dq[8];
+    /* the pose error: translation, then log(R_d R^T) as a rotation vector */
+    for (int i = 0; i < 3; i++) e[i] = pd[4 * i + 3] - p[4 * i + 3];
+    double s[9];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            s[3 * i + j] = pd[4 * i] * p[4 * j] + pd[4 * i + 1] * p[4 * j + 1] +
+                           pd[4 * i + 2] * p[4 * j + 2];
+    e[3] = 0.5 * (s[7] - s[5]);
+    e[4] = 0.5 * (s[2] - s[6]);
+    e[5] = 0.5 * (s[3] - s[1]);
+    double c = 0.5 * (s[0] + s[4] + s[8] - 1.0);
+    c = c < -1.0 ? -1.0 : (c > 1.0 ? 1.0 : c);
+    double angle = acos(c), sn = sin(angle);
+    if (sn > 1e-9)
+        for (int i = 3; i < 6; i++) e[i] *= angle / sn;
+    for (int64_t j = 0; j < n; j++) dq[j] = a->qd_d[j] - a->qd[j];
+    for (int i = 0; i < 6; i++) {
+        double sum = 0.0;
+        for (int64_t j = 0; j < n; j++) sum += a->J[i * n + j] * dq[j];
+        edot[i] = sum;
+    }
+    to_tool(e, p);
+    to_tool(edot, p);
+    for (int i = 0; i < 6; i++) f[i] = e[i] * d->k[i] + d->f[i];
+    int64_t partner = (int64_t)d->partner;
+    int squeezing = partner > 0 && a->has_sensor && partner <= a->robots;
+    if (squeezing) { /* push along the line to the partner (world: R u) */
+        double line[3];
+        for (int i = 0; i < 3; i++)
+            line[i] = p[4 * i] * d->u[0] + p[4 * i + 1] * d->u[1] + p[4 * i + 2] * d->u[2];
+        const double *other = (const double *)(a->wrenches + (partner - 1) * a->wrench_stride);
+        double o = other[0] * line[0] + other[1] * line[1] + other[2] * line[2];
+        double m = a->wrench[0] * line[0] + a->wrench[1] * line[1] + a->wrench[2] * line[2];
+        double squeeze = 0.5 * (o - m);
+        d->squeeze = squeeze;
+        double push = d->fi + d->gi + d->kpi * (d->fi - squeeze);
+        for (int i = 0; i < 3; i++) f[i] += d->u[i] * push;
+    }
+    if (a->has_sensor) { /* the imbalance R^T w + F fed back, with its integral */
+        for (int i = 0; i < 6; i++) imb[i] = a->wrench[i];
+        to_tool(imb, p);
+        for (int i = 0; i < 6; i++) {
+            imb[i] += f[i];
+            f[i] += imb[i] * d->kf;
+            f[i] += d->integral[i];
+        }
+    } else {
+        for (int i = 0; i < 6; i++) imb[i] = 0.0;
+    }
+    for (int i = 0; i < 6; i++) f[i] += edot[i] * d->d[i];
+    double w[6]; /* R F, world axes */
+    for (int h = 0; h < 6; h += 3)
+        for (int i = 0; i < 3; i++)
+            w[h + i] = p[4 * i] * f[h] + p[4 * i + 1] * f[h + 1] + p[4 * i + 2] * f[h + 2];
+    double kq = d->kq;
+    for (int64_t j = 0; j < n; j++) {
+        double t = 0.0, mq = 0.0;
+        for (int i = 0; i < 6; i++) t += w[i] * a->J[i * n + j];
+        for (int64_t k = 0; k < n; k++) mq += a->M[j * n + k] * a->qdd_d[k];
+        t += mq;
+        t += dq[j] * kq;
+        t += a->h[j];
+        if (d->friction != 0.0) { /* DriveFriction at qd_d */
+            double v = a->qd_d[j];
+            double fr = v * a->viscous[j];
+            double th = tanh(v * a->gear_w[j]);
+            fr += (th > 0.0 ? th : 0.0) * a->coulomb_pos[j];
+            fr -= (th < 0.0 ? th : 0.0) * a->coulomb_neg[j];
+            t += fr;
+        }
+        t += d->bias[j];
+        d->bias[j] *= d->decay;
+        a->tau[j] = t;
+    }
+    double gain = d->kfi * d->dt;
+    for (int i = 0; i < 6; i++) {
+        double x = d->integral[i] + imb[i] * gain, lim = d->limit[i];
+        d->integral[i] = x < -lim ? -lim : (x > lim ? lim : x);
+    }
+    if (squeezing) {
+        double gi = d->gi + d->kii * d->dt * (d->fi - d->squeeze), imax = d->imax;
+        d->gi = gi < -imax ? -imax : (gi > imax ? imax : gi);
+    }
+    return 0;
 }

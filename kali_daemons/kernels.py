@@ -11,6 +11,9 @@ unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in on
 The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
 is here for a wrist force/torque sensor read each tick; its reference is
 ``chain.flange_pose``.
+The built-in Cartesian impedance servo (issue 27's robot-level servo, one arm a call:
+``kali_impedance``, bound by ``impedance``) is here too; its reference is
+``servo.armbuiltins._imp_step``.
 
 Why C through ctypes and not numba (measured on this VM, 12 joints): a numba call with 12
 array arguments costs 0.67 µs, a ctypes call with one pointer to an argument block laid
@@ -43,16 +46,18 @@ import tempfile
 from collections.abc import Callable
 from ctypes import c_double, c_int64, c_void_p
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from . import layout
 from .errors import DaemonError
+from .servo.armbuiltins import IMPEDANCE_DTYPE
 from .servo.builtins import PD_DTYPE, PID_DTYPE
 
 if TYPE_CHECKING:
     from .chain import Chain
+    from .servo.arm import ArmInput
 
 SOURCE = Path(__file__).with_name("kernels.c")
 CFLAGS = ("-O2", "-std=c99", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
@@ -169,6 +174,14 @@ WrenchArgs = _block(
     ),
     ("done", c_int64),
 )
+ImpedanceArgs = _block(
+    "ImpedanceArgs",
+    N,
+    *((f, c_void_p) for f in ("d", "q_d", "qd_d", "qdd_d", "q", "qd", "h", "M", "J")),
+    *((f, c_void_p) for f in ("pose", "pose_d", "wrench", "wrenches")),
+    *((f, c_int64) for f in ("wrench_stride", "robots", "has_sensor")),
+    *((f, c_void_p) for f in ("viscous", "gear_w", "coulomb_pos", "coulomb_neg", "tau")),
+)
 # kali_wrench_tick's results (sio/wrench.py builds the message)
 WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT = range(5)
 
@@ -187,6 +200,7 @@ _KERNELS = {
     "kali_chain_pose": ChainPoseArgs,
     "kali_wrench_tick": WrenchArgs,
     "kali_wrench_convert": WrenchArgs,
+    "kali_impedance": ImpedanceArgs,
 }
 
 
@@ -207,6 +221,7 @@ RECORDS: dict[str, tuple[int, np.dtype]] = {
     "layout.SERVO_SLOT": (0, layout.SERVO_SLOT),
     "servo.builtins.PID_DTYPE": (1, PID_DTYPE),
     "servo.builtins.PD_DTYPE": (2, PD_DTYPE),
+    "servo.armbuiltins.IMPEDANCE_DTYPE": (3, IMPEDANCE_DTYPE),
 }
 
 # --------------------------------------------------------------------------------------------
@@ -408,6 +423,43 @@ def chain_pose(chain: Chain, q: np.ndarray, out: np.ndarray) -> Kernel:
         axes=chain.axes.ctypes.data,
         q=q.ctypes.data,
         out=out.ctypes.data,
+    )
+
+
+def impedance(record: Any, inp: ArmInput, tau: np.ndarray) -> Kernel:
+    """``kali_impedance`` bound to one robot's impedance record (``IMPEDANCE_DTYPE``, 0-d,
+    the arena's), its ``ArmInput`` and its torque out (``inp.n`` float64): each call is one
+    ``servo.armbuiltins._imp_step`` on what the SV put in ``inp``, returning its status.
+    The drive's friction comes from ``inp.friction`` (``DriveFriction.coefficients``; none
+    without a model).  Outside the cycle."""
+    n = inp.n
+    arrays: dict[str, np.ndarray] = {
+        "q_d": inp.q_d, "qd_d": inp.qd_d, "qdd_d": inp.qdd_d, "q": inp.q, "qd": inp.qd,
+        "h": inp.h, "M": inp.M, "J": inp.J, "pose": inp.pose, "pose_d": inp.pose_d,
+        "wrench": inp.wrench, "tau": tau,
+    }  # fmt: skip
+    coefficients = getattr(inp.friction, "coefficients", None)
+    friction = coefficients() if coefficients is not None else (np.zeros(n),) * 4
+    for name, a in zip(("viscous", "gear_w", "coulomb_pos", "coulomb_neg"), friction, strict=True):
+        arrays[name] = np.ascontiguousarray(a, dtype=np.float64)
+    for name, a in arrays.items():
+        assert a.dtype == np.float64 and a.flags.c_contiguous, (
+            f"kernels: impedance {name} must be contiguous float64, not {a.dtype} {a.shape}"
+        )
+    wrenches = inp.wrenches
+    assert record.dtype == IMPEDANCE_DTYPE and record.shape == (), record.dtype
+    assert wrenches.dtype == np.float64 and wrenches.shape[1:] == (layout.WRENCH,)
+    assert wrenches.strides[1] == 8, "kernels: a wrench's six values are contiguous"
+    return Kernel(
+        "kali_impedance",
+        (record, wrenches, *arrays.values()),
+        n=n,
+        d=record.ctypes.data,
+        wrenches=wrenches.ctypes.data,
+        wrench_stride=wrenches.strides[0],
+        robots=len(wrenches),
+        has_sensor=int(inp.has_sensor),
+        **{name: a.ctypes.data for name, a in arrays.items()},
     )
 
 

@@ -228,3 +228,78 @@ def test_the_rotation_error_is_the_rotation_vector_between_the_frames() -> None:
         rotation_error(turn @ r, r, out, np.zeros((3, 3)))
         np.testing.assert_allclose(out, axis * angle, atol=1e-9)
     assert IMPEDANCE.params[:3] == ("kx", "ky", "kz")
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    """A random rotation matrix (QR of a Gaussian matrix, signs fixed)."""
+    qm, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    qm = qm * np.sign(np.diag(r))
+    if np.linalg.det(qm) < 0:
+        qm[:, 0] = -qm[:, 0]
+    return qm
+
+
+def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    a = axis / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+
+
+@pytest.mark.parametrize("type_name", ["puma560", "panda"])
+@pytest.mark.parametrize("seed", range(12))
+def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed: int) -> None:
+    """``kernels.impedance`` (the SV's step of the built-in) equals ``_imp_step`` to 1e-12
+    over random states, parameters and rotation errors (none, small, near π), with and
+    without a sensor, a squeeze, friction compensation, and over ticks (bias, integrals)."""
+    from kali_daemons.dynamics.inverse import DriveFriction
+    from kali_daemons.robots import robot_type
+    from kali_daemons.servo.armbuiltins import IMPEDANCE_DTYPE, _imp_init, _imp_set, _imp_step
+
+    rng = np.random.default_rng(seed)
+    rtype = robot_type(type_name)
+    n = rtype.n_joints
+    inp = ArmInput(n, 0.001, "r")
+    inp.friction = DriveFriction(rtype)
+    inp.has_sensor = seed % 4 != 3
+    # two robots' wrenches as SIO's records hold them: strided rows
+    records = np.zeros(2, dtype=[("tick", "<i8"), ("world", "<f8", (layout.WRENCH,))])
+    inp.wrenches = records["world"]
+    record = np.zeros((), IMPEDANCE_DTYPE)
+    _imp_init(record, {}, 0.001)
+    u = rng.normal(size=3)
+    u /= np.linalg.norm(u)
+    params = {f"k{a}": rng.uniform(0, 3000) for a in ("x", "y", "z", "rx", "ry", "rz")}
+    params |= {f"d{a}": rng.uniform(0, 300) for a in ("x", "y", "z", "rx", "ry", "rz")}
+    params |= {"fx": rng.uniform(-20, 20), "fz": rng.uniform(-20, 20), "kq": rng.uniform(0, 3)}
+    params |= {"friction": float(seed % 2), "kf": rng.uniform(0, 3), "kfi": rng.uniform(0, 50)}
+    params |= {"imax": rng.uniform(1, 60), "handover_s": rng.uniform(0.01, 1)}
+    if seed % 3 != 0:  # a squeeze with robot 2 (this is robot 1)
+        params |= {"partner": 2.0, "fi": rng.uniform(0, 40), "ux": u[0], "uy": u[1], "uz": u[2]}
+    _imp_set(record, params)
+    record["bias"][:n] = rng.normal(0, 5, n)
+    record["integral"] = rng.normal(0, 2, layout.WRENCH)
+    reference = record.copy()
+    tau, tau_ref = np.zeros(n), np.zeros(n)
+    step = IMPEDANCE.bind(record, inp, tau)  # type: ignore[misc]
+    # none (the law's zero-angle branch), small, and within 0.1 rad of π (closer, acos is so
+    # ill-conditioned that BLAS's summation order shows: 1e-9 at 1e-6 rad from π)
+    angles = (0.0, rng.uniform(1e-6, 0.3), np.pi - rng.uniform(0.01, 0.1))
+    for tick in range(6):
+        for name in ("q_d", "qd_d", "qdd_d", "q", "qd", "h"):
+            getattr(inp, name)[:] = rng.normal(0, 2, n)
+        a = rng.normal(size=(n, n))
+        inp.M[:] = a @ a.T + n * np.eye(n)
+        inp.J[:] = rng.normal(0, 0.5, (layout.WRENCH, n))
+        rot = _rotation(rng)
+        inp.pose[:3, :3], inp.pose[:3, 3] = rot, rng.normal(0, 0.5, 3)
+        turn = _axis_angle(rng.normal(size=3), angles[tick % 3])
+        inp.pose_d[:3, :3], inp.pose_d[:3, 3] = turn @ rot, inp.pose[:3, 3] + rng.normal(0, 0.01, 3)
+        records["world"] = rng.normal(0, 30, (2, layout.WRENCH))
+        inp.wrench[:] = records["world"][0]
+        assert step() == 0
+        assert _imp_step(reference, inp, tau_ref) == 0
+        np.testing.assert_allclose(tau, tau_ref, rtol=1e-12, atol=1e-9)
+        for field in IMPEDANCE_DTYPE.names:
+            np.testing.assert_allclose(
+                record[field], reference[field], rtol=1e-12, atol=1e-10, err_msg=field
+            )

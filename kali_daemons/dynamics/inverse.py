@@ -72,6 +72,11 @@ class DriveFriction:
         self._gear_w = np.abs(d.gear) / FRICTION_SMOOTHING_RAD_S
         self._viscous, self._pos, self._neg = d.viscous, d.coulomb_pos, d.coulomb_neg
 
+    def coefficients(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per joint: viscous (N·m·s/rad), |gear| / ω₀ (s/rad), Coulomb up and down (N·m):
+        what a compiled law needs to compute this friction (``kernels.impedance``)."""
+        return self._viscous, self._gear_w, self._pos, self._neg
+
     def __call__(self, qd: np.ndarray, out: np.ndarray) -> None:
         """The friction torque at ``qd`` into ``out``."""
         s, c = self._s, self._c

@@ -126,6 +126,10 @@ class ArmServoAlgorithm:
     # True: the wrist sensor moves the arm (``admittance``): selecting it is refused on an arm
     # without a sensor or whose sensor was never tared (its offsets would move the arm)
     senses: bool = False
+    # a compiled ``step``: ``bind(data, inp, tau)`` at configure returns a call that steps
+    # that robot's record on what is then in ``inp`` into ``tau`` and returns the status,
+    # equal to ``step`` (a built-in's, ``kernels.impedance``); None: the SV calls ``step``
+    bind: Callable[[Any, ArmInput, np.ndarray], Callable[[], int]] | None = None
 
 
 def check_arm_dtype(dtype: Any) -> str | None:

@@ -15,10 +15,11 @@ robot (``ArmRunner.run``):
    joint servos from that torque less the feed-forward SIO adds again from this tick;
 3. with joint servos, each joint's servo as the per-slot path runs it; with a robot-level
    servo, the model at this tick's angles (``servo.armmodel``) and one ``step`` for every
-   joint's torque.  A slot's reset hands the servo over too: at power on as if holding the
-   arm's weight, after calibration from the running torque.  A disabled joint gets no
-   torque.  A step that raises, returns a nonzero status or a non-finite torque halts with a
-   SERVO fault naming the robot and the algorithm.
+   joint's torque (a built-in's compiled, ``ArmServoAlgorithm.bind``: the impedance servo's
+   is ``kernels.impedance``).  A slot's reset hands the servo over too: at power on as if
+   holding the arm's weight, after calibration from the running torque.  A disabled joint
+   gets no torque.  A step that raises, returns a nonzero status or a non-finite torque halts
+   with a SERVO fault naming the robot and the algorithm.
 
 Each joint's slot then holds its torque, error (q_d − q), status, tick and SV, as a joint
 servo leaves them, so SIO, the flight recorder and the dashboard see no difference.
@@ -90,6 +91,12 @@ class ArmRunner:
         self._op_addr = lv.arm_op_addr[k]
         self._arms = lv.registry.arms
         self._data = lv.arm_data[k]
+        # each algorithm's compiled step, bound to this robot's record, inputs and torque
+        # (a built-in's: ``ArmServoAlgorithm.bind``); None: its Python ``step``
+        self._bound = [
+            None if alg.bind is None or self.model is None else alg.bind(data, inp, self.tau)
+            for alg, data in zip(self._arms, self._data, strict=True)
+        ]
         self._algo = self.robot["arm_algo"]
         self._guided = self.robot["guided"]
         # shadow trials (kali_daemons.shadow): a robot-level one's torques, (shadow − active)
@@ -160,8 +167,9 @@ class ArmRunner:
         self.model.update()
         if self._reset.any():
             self._take_reset(a)
+        bound = self._bound[a]
         try:
-            status = alg.step(data, inp, self.tau)
+            status = alg.step(data, inp, self.tau) if bound is None else bound()
         except Exception as exc:  # the user's servo: halt and say which
             self._fault(alg.name, f"raised {type(exc).__name__}: {exc}")
             return False
