@@ -31,6 +31,9 @@ with Kali() as kali:
     touch = arm.move_line(pose([START[0], START[1], 0.3], DOWN), speed=0.01, guard=5.0)
     if touch.contact is None:
         raise SystemExit("no table under the tool")
+    # the servo's parameters outlive the program: keep what it had, to give back at the end
+    # (another program on this cell gets the impedance servo as it knows it)
+    found = arm.servo_params("impedance")
     arm.set_servo(POLISH, "impedance")
     arm.select_servo("impedance")  # bumpless, from the joint servos' torque: now pressing
     kali.sleep(1.5)
@@ -49,4 +52,5 @@ with Kali() as kali:
           f"{f.min():.1f} .. {f.max():.1f} N")  # fmt: skip
     arm.set_servo({"fz": 0.0})
     arm.move_line(pose(end[:3, 3] + [0.0, 0.0, 0.03], DOWN), speed=0.05)  # lift off
+    arm.set_servo({name: found[name] for name in POLISH})
     arm.select_servo("joints")

@@ -9,16 +9,20 @@ from collections.abc import Callable
 import pytest
 
 from kali_daemons.cell import TABLE_SIZE
+from kali_daemons.client import Kali
 from kali_daemons.robots.puma560 import PID_DEFAULTS
+from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ROOT
 from .test_launcher import kalictl
 
 
-def run_example(kali: Callable[..., str], script: str, base: str = "default.yaml") -> str:
-    """Run ``scripts/SCRIPT`` with ``kalictl run`` against a new lockstep instance (of the
-    config ``config/BASE``); its output, once it exited 0."""
-    name = kali(lockstep=True, base=base)
+def run_example(
+    kali: Callable[..., str], script: str, base: str = "default.yaml", name: str = ""
+) -> str:
+    """Run ``scripts/SCRIPT`` with ``kalictl run`` against instance ``name`` or a new
+    lockstep instance (of the config ``config/BASE``); its output, once it exited 0."""
+    name = name or kali(lockstep=True, base=base)
     r = kalictl("-i", name, "run", f"scripts/{script}")
     assert r.returncode == 0, r.stdout + r.stderr
     return r.stdout
@@ -89,11 +93,20 @@ def test_guarded_example_finds_the_table(kali: Callable[..., str]) -> None:
 
 def test_polish_example_slides_pressing_15_n(kali: Callable[..., str]) -> None:
     """Its wrist sensor's (filtered) normal force along the 10 cm stroke: 15 N on average,
-    within 15 ± 3 N throughout (tests/test_contact.py checks the plant's truth)."""
-    out = run_example(kali, "example_polish.py", base="force.yaml")
+    within 15 ± 3 N throughout (tests/test_contact.py checks the plant's truth).  It leaves
+    the arm's impedance servo as it found it: its parameters stay in the instance, and the
+    squeeze example run next on the same cell, with polish's force feedback gain 5, saturated a
+    wrist sensor (FORCE halt) while it squeezed the bar."""
+    name = kali(lockstep=True, base="force.yaml")
+    with Kali(name) as k:
+        before = k.robot("left").servo_params("impedance")
+    out = run_example(kali, "example_polish.py", name=name)
     mean, low, high = force_report("normal force", out)
     assert mean == pytest.approx(15.0, abs=0.5), out
     assert 12.0 <= low <= high <= 18.0, out
+    with Kali(name) as k:
+        step_kali_clock(k.inst, 2)  # its last select (back to the joint servos) is taken
+        assert k.robot("left").servo_params("impedance") == before
 
 
 def test_squeeze_example_carries_the_bar_squeezing_20_n(kali: Callable[..., str]) -> None:
