@@ -7,6 +7,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -479,7 +480,19 @@ def test_kalictl_estop_presses_the_button_and_halts(kali: Callable[..., str]) ->
 GRASP_Q = np.radians([19.939, 58.398, -210.022, 0.0, -28.376, 19.939])
 
 
+def weld_rows(plant: PlantSim, k: int) -> np.ndarray:
+    """Arm ``k``'s weld force and torque found the long way: its rows searched by type and
+    equality id among all of MuJoCo's constraint rows (empty when it does not hold)."""
+    d = plant.data
+    rows = np.flatnonzero(
+        (d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+        & (d.efc_id[: d.nefc] == plant.world.weld[k])
+    )
+    return d.efc_force[rows]
+
+
 def test_two_arms_grasp_the_bar_and_carry_real_internal_forces(plant: PlantSim) -> None:
+    """The welds carry the bar, and the truth's grasp wrenches are each weld's own rows."""
     for k in range(2):
         plant.place_arm(k, GRASP_Q)
         assert plant.flange_to_grasp(k) < 0.005
@@ -497,13 +510,17 @@ def test_two_arms_grasp_the_bar_and_carry_real_internal_forces(plant: PlantSim) 
         plant.dac[0]["code"][1] = layout.DAC_ZERO + sign * 300
         run_ms(plant, 100)
         pushes[sign] = float(plant.world_truth["internal_force"])
-        for t in plant.truth:
+        for k, t in enumerate(plant.truth):
             assert np.linalg.norm(t["grasp_wrench"][:3]) > 1.0  # both welds carry load
+            np.testing.assert_array_equal(t["grasp_wrench"], weld_rows(plant, k))
     assert abs(pushes[+1] - pushes[-1]) > 10.0, pushes  # the squeeze follows the motor
     assert abs(float(plant.world_truth["object_pose"][2]) - z0) < 0.02  # the bar is held
     plant.boards[0].regs["gripper"] = 0  # letting go releases the weld
     run_ms(plant, 2)
     assert not int(plant.truth[0]["grasped"]) and int(plant.truth[1]["grasped"])
+    assert weld_rows(plant, 0).size == 0 and not plant.truth[0]["grasp_wrench"].any()
+    np.testing.assert_array_equal(plant.truth[1]["grasp_wrench"], weld_rows(plant, 1))
+    assert float(plant.world_truth["internal_force"]) == 0.0  # one grasp: no squeeze
 
 
 def test_internal_force_is_positive_for_a_squeeze(plant: PlantSim) -> None:

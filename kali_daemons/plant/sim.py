@@ -39,6 +39,7 @@ from .motor import MotorBank
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
 BELT_LIFT_M = 0.005  # the belt carries the bar only while it lies on it (not lifted by this)
+WELD_ROWS = 6  # a weld's constraint rows: force, then torque
 
 
 class PlantSim:
@@ -126,7 +127,14 @@ class PlantSim:
         self._push_end = [0] * n_arms
         self._push_on = [False] * n_arms
         self._xfrc = [self.data.xfrc_applied[b] for b in self.world.tool_body]
-        self._forces: list[np.ndarray | None] = [None] * n_arms
+        # each grasp's weld force and torque (world frame) and whether it holds (_weld_forces):
+        # the cell's only equality constraints are the welds, one per arm in arm order
+        welds = list(self.world.weld)
+        assert m.neq == n_arms and welds == sorted(welds), "one weld per arm, in arm order"
+        assert all(int(t) == mujoco.mjtEq.mjEQ_WELD for t in m.eq_type), "welds only"
+        self._eq_active = self.data.eq_active  # a view of MjData's fixed-size array
+        self._held = np.zeros(n_arms, dtype=bool)
+        self._weld = np.zeros((n_arms, WELD_ROWS))
         # the conveyor belt: it drives the bar's x, y from where it was when it started
         vx, vy = cfg.plant.conveyor_m_s
         self._belt_v = (vx, vy) if (vx or vy) else None
@@ -294,19 +302,23 @@ class PlantSim:
         diff = d.site_xpos[self.world.flange_site[k]] - d.site_xpos[self.world.grasp_site[k]]
         return float(np.linalg.norm(diff))
 
-    def _weld_force(self, k: int) -> np.ndarray | None:
-        """The weld's constraint force and torque (world frame), or None when not grasping."""
+    def _weld_forces(self) -> None:
+        """Each arm's weld force and torque (world frame) into ``_weld[k]`` and whether it
+        grasps into ``_held[k]``.  MuJoCo lays the active equality constraints' rows out
+        first, ``ne`` of them, in the equalities' order, six per weld; the welds are the
+        cell's only equalities, one per arm in arm order (asserted at build), so arm ``k``'s
+        rows follow those of the arms before it that hold.  (Searching every row by type and
+        id took 37 µs an arm a cycle: the plant's largest cost while it carried the bar.)"""
         d = self.data
-        eq = self.world.weld[k]
-        if not d.eq_active[eq]:
-            return None
-        rows = np.flatnonzero(
-            (d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
-            & (d.efc_id[: d.nefc] == eq)
-        )
-        out = np.zeros(6)
-        out[: rows.size] = d.efc_force[rows][:6]
-        return out
+        force = d.efc_force
+        row = 0
+        for k in range(len(self._held)):
+            held = bool(self._eq_active[k])
+            self._held[k] = held
+            if held:
+                self._weld[k] = force[row : row + WELD_ROWS]
+                row += WELD_ROWS
+        assert row == d.ne, "the equality rows are the welds' (build_world)"
 
     # ------------------------------------------------------------------ truth
 
@@ -338,18 +350,18 @@ class PlantSim:
         and arm."""
         for dst, src in self._truth_copies:
             np.copyto(dst, src)
-        forces = self._forces
+        self._weld_forces()
         for k, board in enumerate(self.boards):
-            f = forces[k] = self._weld_force(k)
+            held = bool(self._held[k])
             wrench = self._truth_wrench[k]
-            if f is None:
-                wrench[:] = 0.0
+            if held:
+                np.copyto(wrench, self._weld[k])
             else:
-                np.copyto(wrench, f)
+                wrench[:] = 0.0
             amps, brakes, grasped, tripped, estop = self._truth_flags[k]
             amps[...] = board.amps_on
             brakes[...] = not board.brakes_released
-            grasped[...] = f is not None
+            grasped[...] = held
             tripped[...] = board.tripped
             estop[...] = board.regs["estop"]
         np.copyto(*self._truth_ft)
@@ -358,21 +370,26 @@ class PlantSim:
         t_ns, ticks, internal = self._world_views
         t_ns[...] = self.sim_ns
         ticks[...] = self.ticks
-        internal[...] = self._internal_force(forces)
+        internal[...] = self._internal_force()
         np.copyto(*self._object_pose)
 
-    def _internal_force(self, forces: list[np.ndarray | None]) -> float:
-        """Squeeze (+) or tension (−) along the line between two grasps, N (each weld's force is
-        the bar's on the tool); 0 unless both hold."""
-        held = [k for k, f in enumerate(forces) if f is not None]
-        if len(held) < 2:
+    def _internal_force(self) -> float:
+        """Squeeze (+) or tension (−) along the line between the first two grasps, N (each
+        weld's force is the bar's on the tool); 0 unless two hold."""
+        a = b = -1
+        for k, held in enumerate(self._held):
+            if held and a < 0:
+                a = k
+            elif held:
+                b = k
+                break
+        if b < 0:
             return 0.0
-        a, b = held[0], held[1]
         d = self.data
         u = d.site_xpos[self.world.grasp_site[b]] - d.site_xpos[self.world.grasp_site[a]]
         norm = float(np.linalg.norm(u))
         if norm == 0.0:
             return 0.0
         u /= norm
-        fa, fb = forces[a], forces[b]
-        return float(0.5 * (fb[:3] @ u - fa[:3] @ u))  # type: ignore[index]
+        fa, fb = self._weld[a], self._weld[b]
+        return float(0.5 * (fb[:3] @ u - fa[:3] @ u))
