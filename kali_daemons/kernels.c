@@ -506,6 +506,20 @@ static const Field SLOT_FIELDS[] = {
     FIELD(SlotRecord, shadow_sq, 'f'), FIELD(SlotRecord, shadow_peak, 'f'), END(SlotRecord),
 };
 
+/* the computed torque servo's record (servo.armbuiltins.CT_DTYPE; kali_computed_torque) */
+typedef struct {
+    double wn, zeta, friction, handover_s, kp, kd, wi, ilimit, ki, dt, decay;
+    double bias[8], integral[8]; /* layout.MAX_JOINTS */
+} CtRecord;
+
+static const Field CT_FIELDS[] = {
+    FIELD(CtRecord, wn, 'f'), FIELD(CtRecord, zeta, 'f'), FIELD(CtRecord, friction, 'f'),
+    FIELD(CtRecord, handover_s, 'f'), FIELD(CtRecord, kp, 'f'), FIELD(CtRecord, kd, 'f'),
+    FIELD(CtRecord, wi, 'f'), FIELD(CtRecord, ilimit, 'f'), FIELD(CtRecord, ki, 'f'),
+    FIELD(CtRecord, dt, 'f'), FIELD(CtRecord, decay, 'f'), FIELD(CtRecord, bias, 'V'),
+    FIELD(CtRecord, integral, 'V'), END(CtRecord),
+};
+
 /* the impedance servo's record (servo.armbuiltins.IMPEDANCE_DTYPE; kali_impedance) */
 typedef struct {
     double k[6], d[6], f[6], integral[6], limit[6];
@@ -525,14 +539,15 @@ static const Field IMP_FIELDS[] = {
     FIELD(ImpRecord, bias, 'V'), END(ImpRecord),
 };
 
-/* The fields of record 0 (SlotRecord), 1 (PidRecord), 2 (PdRecord) or 3 (ImpRecord); NULL
- * for another. */
+/* The fields of record 0 (SlotRecord), 1 (PidRecord), 2 (PdRecord), 3 (ImpRecord) or 4
+ * (CtRecord); NULL for another. */
 const Field *kali_fields(int64_t record) {
     switch (record) {
     case 0: return SLOT_FIELDS;
     case 1: return PID_FIELDS;
     case 2: return PD_FIELDS;
     case 3: return IMP_FIELDS;
+    case 4: return CT_FIELDS;
     default: return NULL;
     }
 }
@@ -713,20 +728,16 @@ int64_t kali_serve_unit(UnitArgs *a) {
     return ran;
 }
 
-/* ---------------------------------------------------------------- the impedance servo
+/* ---------------------------------------------------------------- robot-level built-ins
  *
- * One step of the built-in robot-level Cartesian impedance servo (servo/armbuiltins.py: the
- * module docstring gives the law; _imp_step is the reference, equal to ~1e-12: numpy's small
- * products go through BLAS).  In order: the pose error in world axes (translation, then the
- * rotation vector of R_d R^T), the joint velocity error and the twist error J dq; both into
- * tool axes; F = k e + f, plus the squeeze along the line to the partner; with a sensor the
- * force feedback kf (R^T w + F) and its integral; damping d edot; tau = J^T R F + M qdd_d +
- * kq dq + h + friction(qd_d) + bias; then the bias decays and the integrals advance.  The
- * record is the arena's, stepped in place; the inputs are the SV's ArmInput, contiguous. */
+ * One step of a built-in robot-level servo (servo/armbuiltins.py: its module docstring gives
+ * the laws) on one arm, its record the arena's, stepped in place; the inputs the SV's
+ * ArmInput, contiguous.  Each equals its Python step to ~1e-12 (numpy's small products go
+ * through BLAS, which sums in an order of its own). */
 
 typedef struct {
     int64_t n;                        /* the arm's joints */
-    ImpRecord *d;                     /* the robot's record (arena) */
+    void *d;                          /* the robot's record of the algorithm (arena) */
     const double *q_d, *qd_d, *qdd_d; /* n each: the demand */
     const double *q, *qd, *h;         /* n each: the measurement, C(q, qd) qd + g(q) */
     const double *M, *J;              /* n x n, 6 x n, row-major */
@@ -736,7 +747,45 @@ typedef struct {
     int64_t wrench_stride, robots, has_sensor;
     const double *viscous, *gear_w, *coulomb_pos, *coulomb_neg; /* n each: DriveFriction's */
     double *tau;                      /* n: out */
-} ImpedanceArgs;
+} ArmArgs;
+
+/* The drive's friction torque of joint j at velocity v (dynamics.inverse.DriveFriction:
+ * viscous plus asymmetric Coulomb smoothed by tanh), term for term as numpy computes it. */
+static inline double drive_friction(const ArmArgs *a, int64_t j, double v) {
+    double fr = v * a->viscous[j];
+    double th = tanh(v * a->gear_w[j]);
+    fr += (th > 0.0 ? th : 0.0) * a->coulomb_pos[j];
+    fr -= (th < 0.0 ? th : 0.0) * a->coulomb_neg[j];
+    return fr;
+}
+
+static inline double clamp(double x, double lim) { return x < -lim ? -lim : (x > lim ? lim : x); }
+
+/* computed torque (thesis 2.2.3): tau = M (qdd_d + kd de + kp e + ki int e) + h
+ * + friction(qd_d) + bias; then the bias decays and each joint's integral advances */
+int64_t kali_computed_torque(ArmArgs *a) {
+    CtRecord *d = (CtRecord *)a->d;
+    int64_t n = a->n;
+    double u[8];
+    for (int64_t j = 0; j < n; j++) {
+        double x = (a->q_d[j] - a->q[j]) * d->kp;
+        x += (a->qd_d[j] - a->qd[j]) * d->kd;
+        x += a->qdd_d[j];
+        x += d->integral[j] * d->ki;
+        u[j] = x;
+    }
+    for (int64_t j = 0; j < n; j++) {
+        double t = 0.0;
+        for (int64_t k = 0; k < n; k++) t += a->M[j * n + k] * u[k];
+        t += a->h[j];
+        if (d->friction != 0.0) t += drive_friction(a, j, a->qd_d[j]);
+        t += d->bias[j];
+        d->bias[j] *= d->decay;
+        a->tau[j] = t;
+        d->integral[j] = clamp(d->integral[j] + (a->q_d[j] - a->q[j]) * d->dt, d->ilimit);
+    }
+    return 0;
+}
 
 /* v (6: two halves of 3) into tool axes in place: each half times R as a row vector. */
 static inline void to_tool(double *v, const double *r) {
@@ -746,8 +795,14 @@ static inline void to_tool(double *v, const double *r) {
     }
 }
 
-int64_t kali_impedance(ImpedanceArgs *a) {
-    ImpRecord *d = a->d;
+/* Cartesian impedance about the tool point: the pose error in world axes (translation,
+ * then the rotation vector of R_d R^T), the joint velocity error and the twist error J dq;
+ * both into tool axes; F = k e + f, plus the squeeze along the line to the partner; with a
+ * sensor the force feedback kf (R^T w + F) and its integral; damping d edot; tau = J^T R F +
+ * M qdd_d + kq dq + h + friction(qd_d) + bias; then the bias decays and the integrals
+ * advance. */
+int64_t kali_impedance(ArmArgs *a) {
+    ImpRecord *d = (ImpRecord *)a->d;
     int64_t n = a->n;
     const double *p = a->pose, *pd = a->pose_d; /* R is p[0..2, 0..2]: row stride 4 */
     double e[6], edot[6], f[6], imb[6], dq[8];
@@ -813,26 +868,13 @@ int64_t kali_impedance(ImpedanceArgs *a) {
         t += mq;
         t += dq[j] * kq;
         t += a->h[j];
-        if (d->friction != 0.0) { /* DriveFriction at qd_d */
-            double v = a->qd_d[j];
-            double fr = v * a->viscous[j];
-            double th = tanh(v * a->gear_w[j]);
-            fr += (th > 0.0 ? th : 0.0) * a->coulomb_pos[j];
-            fr -= (th < 0.0 ? th : 0.0) * a->coulomb_neg[j];
-            t += fr;
-        }
+        if (d->friction != 0.0) t += drive_friction(a, j, a->qd_d[j]);
         t += d->bias[j];
         d->bias[j] *= d->decay;
         a->tau[j] = t;
     }
     double gain = d->kfi * d->dt;
-    for (int i = 0; i < 6; i++) {
-        double x = d->integral[i] + imb[i] * gain, lim = d->limit[i];
-        d->integral[i] = x < -lim ? -lim : (x > lim ? lim : x);
-    }
-    if (squeezing) {
-        double gi = d->gi + d->kii * d->dt * (d->fi - d->squeeze), imax = d->imax;
-        d->gi = gi < -imax ? -imax : (gi > imax ? imax : gi);
-    }
+    for (int i = 0; i < 6; i++) d->integral[i] = clamp(d->integral[i] + imb[i] * gain, d->limit[i]);
+    if (squeezing) d->gi = clamp(d->gi + d->kii * d->dt * (d->fi - d->squeeze), d->imax);
     return 0;
 }

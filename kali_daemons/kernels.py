@@ -11,9 +11,9 @@ unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in on
 The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
 is here for a wrist force/torque sensor read each tick; its reference is
 ``chain.flange_pose``.
-The built-in Cartesian impedance servo (issue 27's robot-level servo, one arm a call:
-``kali_impedance``, bound by ``impedance``) is here too; its reference is
-``servo.armbuiltins._imp_step``.
+The robot-level built-ins (issue 27: computed torque and the Cartesian impedance, one arm a
+call: ``kali_computed_torque``, ``kali_impedance``, bound by ``arm_step``) are here too; their
+references are ``servo.armbuiltins._ct_step`` and ``_imp_step``.
 
 Why C through ctypes and not numba (measured on this VM, 12 joints): a numba call with 12
 array arguments costs 0.67 µs, a ctypes call with one pointer to an argument block laid
@@ -52,7 +52,7 @@ import numpy as np
 
 from . import layout
 from .errors import DaemonError
-from .servo.armbuiltins import IMPEDANCE_DTYPE
+from .servo.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
 from .servo.builtins import PD_DTYPE, PID_DTYPE
 
 if TYPE_CHECKING:
@@ -174,8 +174,8 @@ WrenchArgs = _block(
     ),
     ("done", c_int64),
 )
-ImpedanceArgs = _block(
-    "ImpedanceArgs",
+ArmArgs = _block(
+    "ArmArgs",
     N,
     *((f, c_void_p) for f in ("d", "q_d", "qd_d", "qdd_d", "q", "qd", "h", "M", "J")),
     *((f, c_void_p) for f in ("pose", "pose_d", "wrench", "wrenches")),
@@ -200,7 +200,8 @@ _KERNELS = {
     "kali_chain_pose": ChainPoseArgs,
     "kali_wrench_tick": WrenchArgs,
     "kali_wrench_convert": WrenchArgs,
-    "kali_impedance": ImpedanceArgs,
+    "kali_impedance": ArmArgs,
+    "kali_computed_torque": ArmArgs,
 }
 
 
@@ -222,6 +223,7 @@ RECORDS: dict[str, tuple[int, np.dtype]] = {
     "servo.builtins.PID_DTYPE": (1, PID_DTYPE),
     "servo.builtins.PD_DTYPE": (2, PD_DTYPE),
     "servo.armbuiltins.IMPEDANCE_DTYPE": (3, IMPEDANCE_DTYPE),
+    "servo.armbuiltins.CT_DTYPE": (4, CT_DTYPE),
 }
 
 # --------------------------------------------------------------------------------------------
@@ -426,12 +428,21 @@ def chain_pose(chain: Chain, q: np.ndarray, out: np.ndarray) -> Kernel:
     )
 
 
-def impedance(record: Any, inp: ArmInput, tau: np.ndarray) -> Kernel:
-    """``kali_impedance`` bound to one robot's impedance record (``IMPEDANCE_DTYPE``, 0-d,
-    the arena's), its ``ArmInput`` and its torque out (``inp.n`` float64): each call is one
-    ``servo.armbuiltins._imp_step`` on what the SV put in ``inp``, returning its status.
-    The drive's friction comes from ``inp.friction`` (``DriveFriction.coefficients``; none
-    without a model).  Outside the cycle."""
+# each robot-level built-in's kernel and the dtype of the record it steps
+ARM_KERNELS: dict[str, tuple[str, np.dtype]] = {
+    "impedance": ("kali_impedance", IMPEDANCE_DTYPE),
+    "computed_torque": ("kali_computed_torque", CT_DTYPE),
+}
+
+
+def arm_step(algorithm: str, record: Any, inp: ArmInput, tau: np.ndarray) -> Kernel:
+    """Robot-level built-in ``algorithm``'s kernel (``ARM_KERNELS``) bound to one robot's
+    record of it (0-d, the arena's), its ``ArmInput`` and its torque out (``inp.n``
+    float64): each call is one step of the algorithm's Python ``step``
+    (``servo.armbuiltins``) on what the SV put in ``inp``, returning its status.  The drive's
+    friction comes from ``inp.friction`` (``DriveFriction.coefficients``; none without a
+    model).  Outside the cycle."""
+    name, dtype = ARM_KERNELS[algorithm]
     n = inp.n
     arrays: dict[str, np.ndarray] = {
         "q_d": inp.q_d, "qd_d": inp.qd_d, "qdd_d": inp.qdd_d, "q": inp.q, "qd": inp.qd,
@@ -440,18 +451,19 @@ def impedance(record: Any, inp: ArmInput, tau: np.ndarray) -> Kernel:
     }  # fmt: skip
     coefficients = getattr(inp.friction, "coefficients", None)
     friction = coefficients() if coefficients is not None else (np.zeros(n),) * 4
-    for name, a in zip(("viscous", "gear_w", "coulomb_pos", "coulomb_neg"), friction, strict=True):
-        arrays[name] = np.ascontiguousarray(a, dtype=np.float64)
-    for name, a in arrays.items():
+    for field, a in zip(("viscous", "gear_w", "coulomb_pos", "coulomb_neg"), friction, strict=True):
+        arrays[field] = np.ascontiguousarray(a, dtype=np.float64)
+    for field, a in arrays.items():
         assert a.dtype == np.float64 and a.flags.c_contiguous, (
-            f"kernels: impedance {name} must be contiguous float64, not {a.dtype} {a.shape}"
+            f"kernels: {algorithm} {field} must be contiguous float64, not {a.dtype} {a.shape}"
         )
+    assert n <= layout.MAX_JOINTS, f"kernels: {algorithm} steps at most {layout.MAX_JOINTS} joints"
     wrenches = inp.wrenches
-    assert record.dtype == IMPEDANCE_DTYPE and record.shape == (), record.dtype
+    assert record.dtype == dtype and record.shape == (), record.dtype
     assert wrenches.dtype == np.float64 and wrenches.shape[1:] == (layout.WRENCH,)
     assert wrenches.strides[1] == 8, "kernels: a wrench's six values are contiguous"
     return Kernel(
-        "kali_impedance",
+        name,
         (record, wrenches, *arrays.values()),
         n=n,
         d=record.ctypes.data,
@@ -459,7 +471,7 @@ def impedance(record: Any, inp: ArmInput, tau: np.ndarray) -> Kernel:
         wrench_stride=wrenches.strides[0],
         robots=len(wrenches),
         has_sensor=int(inp.has_sensor),
-        **{name: a.ctypes.data for name, a in arrays.items()},
+        **{field: a.ctypes.data for field, a in arrays.items()},
     )
 
 

@@ -281,6 +281,7 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
     reference = record.copy()
     tau, tau_ref = np.zeros(n), np.zeros(n)
     step = IMPEDANCE.bind(record, inp, tau)  # type: ignore[misc]
+    assert step is not None
     # none (the law's zero-angle branch), small, and within 0.1 rad of π (closer, acos is so
     # ill-conditioned that BLAS's summation order shows: 1e-9 at 1e-6 rad from π)
     angles = (0.0, rng.uniform(1e-6, 0.3), np.pi - rng.uniform(0.01, 0.1))
@@ -303,3 +304,46 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
             np.testing.assert_allclose(
                 record[field], reference[field], rtol=1e-12, atol=1e-10, err_msg=field
             )
+
+
+@pytest.mark.parametrize("type_name", ["puma560", "panda"])
+@pytest.mark.parametrize("seed", range(6))
+def test_the_compiled_computed_torque_step_equals_the_python_step(
+    type_name: str, seed: int
+) -> None:
+    """``kernels.arm_step("computed_torque", ...)`` equals ``_ct_step`` to 1e-12 over random
+    states and parameters, with and without friction compensation, over ticks (bias, each
+    joint's integral, its limit reached)."""
+    from kali_daemons.dynamics.inverse import DriveFriction
+    from kali_daemons.robots import robot_type
+    from kali_daemons.servo.armbuiltins import COMPUTED_TORQUE, CT_DTYPE, _ct_init, _ct_step
+
+    rng = np.random.default_rng(100 + seed)
+    rtype = robot_type(type_name)
+    n = rtype.n_joints
+    inp = ArmInput(n, 0.001, "r")
+    inp.friction = DriveFriction(rtype)
+    record = np.zeros((), CT_DTYPE)
+    params = {"wn": rng.uniform(10, 200), "zeta": rng.uniform(0.2, 2), "wi": rng.uniform(0, 50)}
+    params |= {"ilimit": rng.uniform(1e-4, 1e-3), "friction": float(seed % 2)}
+    params |= {"handover_s": rng.uniform(0.01, 1)}
+    _ct_init(record, params, 0.001)
+    record["bias"][:n] = rng.normal(0, 5, n)
+    record["integral"][:n] = rng.uniform(-params["ilimit"], params["ilimit"], n)
+    reference = record.copy()
+    tau, tau_ref = np.zeros(n), np.zeros(n)
+    step = COMPUTED_TORQUE.bind(record, inp, tau)  # type: ignore[misc]
+    assert step is not None
+    for _ in range(8):
+        for name in ("q_d", "qd_d", "qdd_d", "q", "qd", "h"):
+            getattr(inp, name)[:] = rng.normal(0, 2, n)
+        a = rng.normal(size=(n, n))
+        inp.M[:] = a @ a.T + n * np.eye(n)
+        assert step() == 0
+        assert _ct_step(reference, inp, tau_ref) == 0
+        np.testing.assert_allclose(tau, tau_ref, rtol=1e-12, atol=1e-9)
+        for field in CT_DTYPE.names:
+            np.testing.assert_allclose(
+                record[field], reference[field], rtol=1e-12, atol=1e-12, err_msg=field
+            )
+    assert np.abs(record["integral"][:n]).max() == pytest.approx(params["ilimit"])  # clipped

@@ -108,6 +108,20 @@ def _handover(core: Any) -> Any:
     return handover
 
 
+def _compiled(name: str) -> Any:
+    """``ArmServoAlgorithm.bind`` for built-in ``name``: its step compiled
+    (``kernels.arm_step``).  In Python each step was ~15-45 µs of small numpy calls a tick
+    warm, ~130 µs in real time beside the plant for the impedance, and two arms' of it with
+    the plant's filled the second CPU until the TG starved."""
+
+    def bind(d: Any, inp: ArmInput, tau: np.ndarray) -> Any:
+        from .. import kernels  # here: kernels imports this module's dtypes
+
+        return kernels.arm_step(name, d, inp, tau)
+
+    return bind
+
+
 def _model_terms(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
     """Add h(q, q̇) and, if asked for, the friction at q̇_d to ``tau``."""
     np.add(tau, inp.h, out=tau)
@@ -206,6 +220,7 @@ COMPUTED_TORQUE = ArmServoAlgorithm(
     set_params=_ct_set,
     get_params=_ct_get,
     doc="τ = M(q)(q̈_d + 2ζω_n ė + ω_n² e + ω_iω_n² ∫e) + h(q, q̇): computed torque (2.2.3)",
+    bind=_compiled("computed_torque"),
 )
 
 # ------------------------------------------------------------------------------ impedance
@@ -409,15 +424,6 @@ def _imp_step(d: Any, inp: ArmInput, tau: np.ndarray) -> int:
     return 0
 
 
-def _imp_bind(d: Any, inp: ArmInput, tau: np.ndarray) -> Any:
-    """``_imp_step`` compiled (``kernels.impedance``): a Python step was ~45 µs of ~60 small
-    numpy calls a tick, ~130 µs in real time beside the plant, and two arms' of it with
-    the plant's filled the second CPU until the TG starved."""
-    from .. import kernels  # here: kernels imports this module's dtype
-
-    return kernels.impedance(d, inp, tau)
-
-
 IMPEDANCE = ArmServoAlgorithm(
     name="impedance",
     dtype=IMPEDANCE_DTYPE,
@@ -428,7 +434,7 @@ IMPEDANCE = ArmServoAlgorithm(
     set_params=_imp_set,
     get_params=_imp_get,
     doc="Cartesian impedance about the tool point: stiffness, damping, force per tool axis",
-    bind=_imp_bind,
+    bind=_compiled("impedance"),
 )
 
 

@@ -15,11 +15,11 @@ robot (``ArmRunner.run``):
    joint servos from that torque less the feed-forward SIO adds again from this tick;
 3. with joint servos, each joint's servo as the per-slot path runs it; with a robot-level
    servo, the model at this tick's angles (``servo.armmodel``) and one ``step`` for every
-   joint's torque (a built-in's compiled, ``ArmServoAlgorithm.bind``: the impedance servo's
-   is ``kernels.impedance``).  A slot's reset hands the servo over too: at power on as if
-   holding the arm's weight, after calibration from the running torque.  A disabled joint
-   gets no torque.  A step that raises, returns a nonzero status or a non-finite torque halts
-   with a SERVO fault naming the robot and the algorithm.
+   joint's torque (a built-in's compiled, ``ArmServoAlgorithm.bind``: ``kernels.arm_step``).
+   A slot's reset hands the servo over too: at power on as if holding the arm's weight,
+   after calibration from the running torque.  A disabled joint gets no torque.  A step
+   that raises, returns a nonzero status or a non-finite torque halts with a SERVO fault
+   naming the robot and the algorithm.
 
 Each joint's slot then holds its torque, error (q_d − q), status, tick and SV, as a joint
 servo leaves them, so SIO, the flight recorder and the dashboard see no difference.
