@@ -52,6 +52,29 @@ def test_as_measured_the_tick_fits_and_says_why() -> None:
     assert "SIO 120 µs + servos 90 µs" in v.text() and "CPU 1: 45 % busy" in v.text()
 
 
+def test_a_cpu_full_in_its_busiest_slice_is_said_though_its_mean_fits() -> None:
+    """The mean hides a burst: a CPU 62 % busy on average, full for the 20 ms the serious
+    tolerance allows, starved the TG of a force cell (issue 27); the check says both."""
+    fig = _figures()
+    fig.cpu_peak, fig.peak_ms = {0: 0.31, 1: 0.99}, 20.0
+    text = predict(fig).text()
+    assert "CPU 0: 22 % busy (wallclock, sio, sv.0), 31 % in its busiest 20 ms: fits" in text
+    assert "CPU 1: 45 % busy (plant, sv.1, tg, viewer), 99 % in its busiest 20 ms (full: " in text
+
+
+def test_cpu_loads_are_the_mean_and_the_busiest_interval() -> None:
+    """Process 0 on CPU 0 uses 5 of 20 ms then 20 of 20 ms; process 1 (CPU 1) 2 ms each."""
+    ms = 1_000_000
+    samples = [
+        (0, {0: 0, 1: 0}),
+        (20 * ms, {0: 5 * ms, 1: 2 * ms}),
+        (40 * ms, {0: 25 * ms, 1: 4 * ms}),
+    ]
+    mean, peak = schedule.cpu_loads(samples, {0: 0, 1: 1})
+    assert mean == pytest.approx({0: 25 / 40, 1: 0.1})
+    assert peak == pytest.approx({0: 1.0, 1: 0.1})
+
+
 def test_a_costly_servo_step_does_not_fit() -> None:
     v = predict(_figures(), Change("select 'x' on left joint 2", servo_us=650.0))
     assert not v.fits and v.response_us == 860.0
