@@ -255,6 +255,13 @@ def predict(
         f"{fig.ticks} ticks: SIO {fig.sio_own_p99_us:.0f} µs + servos "
         f"{fig.servos_p99_us:.0f} µs (encoder read to DAC write {fig.latency_p99_us:.0f} µs)"
     ]
+    peak = dict(fig.cpu_peak)  # a change adds its load to every slice, the busiest too
+
+    def add(cpu: int, share: float) -> None:
+        load[cpu] = load.get(cpu, 0.0) + share
+        if cpu in peak:
+            peak[cpu] += share
+
     servo_tasks = [t for t in tasks if t.name in fig.servo_procs]
     process_fits = True  # a process whose period changes meets it (response-time analysis)
     if change is not None:
@@ -263,7 +270,7 @@ def predict(
             response += change.servo_us
             sv_cpus = {t.cpu for t in servo_tasks if t.name.startswith("sv")}
             busiest = max(sv_cpus, key=lambda c: load.get(c, 0.0), default=-1)
-            load[busiest] = load.get(busiest, 0.0) + change.servo_us / fig.period_us
+            add(busiest, change.servo_us / fig.period_us)
             lines.append(f"  servos {change.servo_us:+.1f} µs a tick (one SV runs the step)")
         if change.process:
             old = next((t for t in tasks if t.name == change.process), None)
@@ -271,9 +278,7 @@ def predict(
                 raise ScheduleError(f"check: no clocked process {change.process!r}")
             new = Task(old.name, old.cpu, old.priority, change.period_us, old.cost_us)
             tasks[tasks.index(old)] = new
-            load[old.cpu] = load.get(old.cpu, 0.0) + old.cost_us * (
-                1.0 / new.period_us - 1.0 / old.period_us
-            )
+            add(old.cpu, old.cost_us * (1.0 / new.period_us - 1.0 / old.period_us))
             below = [t for t in servo_tasks if t.cpu == old.cpu and t.priority < old.priority]
             if below:  # it preempts the servo tick on that CPU
                 extra = (
@@ -298,8 +303,8 @@ def predict(
         fits = fits and ok
         where = f"CPU {cpu}" if cpu >= 0 else "unbound"
         busiest = ""
-        if cpu in fig.cpu_peak:  # full for a serious tolerance: the lowest there starve
-            top = fig.cpu_peak[cpu]
+        if cpu in peak:  # full for a serious tolerance: the lowest there starve
+            top = peak[cpu]
             full = " (full: a process below the others there waits it out)" if top >= 0.95 else ""
             busiest = f", {100 * top:.0f} % in its busiest {fig.peak_ms:g} ms{full}"
         lines.append(

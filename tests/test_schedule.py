@@ -60,6 +60,9 @@ def test_a_cpu_full_in_its_busiest_slice_is_said_though_its_mean_fits() -> None:
     text = predict(fig).text()
     assert "CPU 0: 22 % busy (wallclock, sio, sv.0), 31 % in its busiest 20 ms: fits" in text
     assert "CPU 1: 45 % busy (plant, sv.1, tg, viewer), 99 % in its busiest 20 ms (full: " in text
+    # a change's load is in every slice: the busiest too
+    text = predict(fig, Change("costly", servo_us=100.0)).text()
+    assert "CPU 1: 55 % busy (plant, sv.1, tg, viewer), 109 % in its busiest 20 ms (full: " in text
 
 
 def test_cpu_loads_are_the_mean_and_the_busiest_interval() -> None:
