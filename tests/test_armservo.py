@@ -230,6 +230,33 @@ def test_the_rotation_error_is_the_rotation_vector_between_the_frames() -> None:
     assert IMPEDANCE.params[:3] == ("kx", "ky", "kz")
 
 
+def _random_state(inp: ArmInput, rng: np.random.Generator) -> None:
+    """Random demand, measurement and h into ``inp``, and a positive-definite mass matrix."""
+    n = inp.n
+    for name in ("q_d", "qd_d", "qdd_d", "q", "qd", "h"):
+        getattr(inp, name)[:] = rng.normal(0, 2, n)
+    a = rng.normal(size=(n, n))
+    inp.M[:] = a @ a.T + n * np.eye(n)
+
+
+def _assert_same_step(
+    step: Callable[[], int],
+    python_step: Callable[[np.ndarray, ArmInput, np.ndarray], int],
+    records: tuple[np.ndarray, np.ndarray],
+    inp: ArmInput,
+    taus: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """One compiled ``step`` (bound to ``records[0]``, ``inp``, ``taus[0]``) and one
+    ``python_step`` on ``records[1]``, from equal records: equal torques and records."""
+    assert step() == 0
+    assert python_step(records[1], inp, taus[1]) == 0
+    np.testing.assert_allclose(taus[0], taus[1], rtol=1e-12, atol=1e-9)
+    for field in records[0].dtype.names:
+        np.testing.assert_allclose(
+            records[0][field], records[1][field], rtol=1e-12, atol=1e-10, err_msg=field
+        )
+
+
 def _rotation(rng: np.random.Generator) -> np.ndarray:
     """A random rotation matrix (QR of a Gaussian matrix, signs fixed)."""
     qm, r = np.linalg.qr(rng.normal(size=(3, 3)))
@@ -286,10 +313,7 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
     # ill-conditioned that BLAS's summation order shows: 1e-9 at 1e-6 rad from π)
     angles = (0.0, rng.uniform(1e-6, 0.3), np.pi - rng.uniform(0.01, 0.1))
     for tick in range(6):
-        for name in ("q_d", "qd_d", "qdd_d", "q", "qd", "h"):
-            getattr(inp, name)[:] = rng.normal(0, 2, n)
-        a = rng.normal(size=(n, n))
-        inp.M[:] = a @ a.T + n * np.eye(n)
+        _random_state(inp, rng)
         inp.J[:] = rng.normal(0, 0.5, (layout.WRENCH, n))
         rot = _rotation(rng)
         inp.pose[:3, :3], inp.pose[:3, 3] = rot, rng.normal(0, 0.5, 3)
@@ -297,13 +321,7 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
         inp.pose_d[:3, :3], inp.pose_d[:3, 3] = turn @ rot, inp.pose[:3, 3] + rng.normal(0, 0.01, 3)
         records["world"] = rng.normal(0, 30, (2, layout.WRENCH))
         inp.wrench[:] = records["world"][0]
-        assert step() == 0
-        assert _imp_step(reference, inp, tau_ref) == 0
-        np.testing.assert_allclose(tau, tau_ref, rtol=1e-12, atol=1e-9)
-        for field in IMPEDANCE_DTYPE.names:
-            np.testing.assert_allclose(
-                record[field], reference[field], rtol=1e-12, atol=1e-10, err_msg=field
-            )
+        _assert_same_step(step, _imp_step, (record, reference), inp, (tau, tau_ref))
 
 
 @pytest.mark.parametrize("type_name", ["puma560", "panda"])
@@ -335,15 +353,6 @@ def test_the_compiled_computed_torque_step_equals_the_python_step(
     step = COMPUTED_TORQUE.bind(record, inp, tau)  # type: ignore[misc]
     assert step is not None
     for _ in range(8):
-        for name in ("q_d", "qd_d", "qdd_d", "q", "qd", "h"):
-            getattr(inp, name)[:] = rng.normal(0, 2, n)
-        a = rng.normal(size=(n, n))
-        inp.M[:] = a @ a.T + n * np.eye(n)
-        assert step() == 0
-        assert _ct_step(reference, inp, tau_ref) == 0
-        np.testing.assert_allclose(tau, tau_ref, rtol=1e-12, atol=1e-9)
-        for field in CT_DTYPE.names:
-            np.testing.assert_allclose(
-                record[field], reference[field], rtol=1e-12, atol=1e-12, err_msg=field
-            )
+        _random_state(inp, rng)
+        _assert_same_step(step, _ct_step, (record, reference), inp, (tau, tau_ref))
     assert np.abs(record["integral"][:n]).max() == pytest.approx(params["ilimit"])  # clipped
