@@ -275,9 +275,10 @@ def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
 @pytest.mark.parametrize("type_name", ["puma560", "panda"])
 @pytest.mark.parametrize("seed", range(12))
 def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed: int) -> None:
-    """``kernels.impedance`` (the SV's step of the built-in) equals ``_imp_step`` to 1e-12
-    over random states, parameters and rotation errors (none, small, near π), with and
-    without a sensor, a squeeze, friction compensation, and over ticks (bias, integrals)."""
+    """``kernels.arm_step("impedance", ...)`` (the SV's step of the built-in) equals
+    ``_imp_step`` to 1e-12 over random states, parameters and rotation errors (none, small,
+    near π), with and without a sensor, a squeeze, friction compensation, and over ticks
+    (bias, integrals)."""
     from kali_daemons.dynamics.inverse import DriveFriction
     from kali_daemons.robots import robot_type
     from kali_daemons.servo.armbuiltins import IMPEDANCE_DTYPE, _imp_init, _imp_set, _imp_step

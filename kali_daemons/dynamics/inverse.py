@@ -74,7 +74,7 @@ class DriveFriction:
 
     def coefficients(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per joint: viscous (N·m·s/rad), |gear| / ω₀ (s/rad), Coulomb up and down (N·m):
-        what a compiled law needs to compute this friction (``kernels.impedance``)."""
+        what a compiled law needs to compute this friction (``kernels.arm_step``)."""
         return self._viscous, self._gear_w, self._pos, self._neg
 
     def __call__(self, qd: np.ndarray, out: np.ndarray) -> None:

@@ -128,7 +128,7 @@ class ArmServoAlgorithm:
     senses: bool = False
     # a compiled ``step``: ``bind(data, inp, tau)`` at configure returns a call that steps
     # that robot's record on what is then in ``inp`` into ``tau`` and returns the status,
-    # equal to ``step`` (a built-in's, ``kernels.impedance``); None: the SV calls ``step``
+    # equal to ``step`` (the built-ins': ``kernels.arm_step``); None: the SV calls ``step``
     bind: Callable[[Any, ArmInput, np.ndarray], Callable[[], int]] | None = None
 
 

@@ -54,7 +54,7 @@ motors had and this law's first torque becomes a ``bias`` that decays with time 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -108,13 +108,13 @@ def _handover(core: Any) -> Any:
     return handover
 
 
-def _compiled(name: str) -> Any:
+def _compiled(name: str) -> Callable[[Any, ArmInput, np.ndarray], Callable[[], int]]:
     """``ArmServoAlgorithm.bind`` for built-in ``name``: its step compiled
     (``kernels.arm_step``).  In Python each step was ~15-45 µs of small numpy calls a tick
     warm, ~130 µs in real time beside the plant for the impedance, and two arms' of it with
     the plant's filled the second CPU until the TG starved."""
 
-    def bind(d: Any, inp: ArmInput, tau: np.ndarray) -> Any:
+    def bind(d: Any, inp: ArmInput, tau: np.ndarray) -> Callable[[], int]:
         from .. import kernels  # here: kernels imports this module's dtypes
 
         return kernels.arm_step(name, d, inp, tau)
