@@ -67,6 +67,12 @@ DEGRADED = {
 }
 
 
+def _us(value: float) -> str:
+    """A lateness percentile for the status table, 9 wide: '-' when nothing was measured
+    (``launcher.percentile`` of an empty histogram is NaN)."""
+    return f"{'-':>9}" if math.isnan(value) else f"{value:>7.0f}us"
+
+
 def _errors(fn: Callable) -> Callable:
     """Turn a KaliError into one line on stderr and exit status 1."""
 
@@ -302,8 +308,8 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 f"{r['name']:<10} {r['pid']:>7} {state:<9} {r['cpu']:>3} {r['priority']:>4} "
                 f"{period:>7} {'yes' if r['serious'] else 'no':>3} {r['signals']:>9} "
                 f"{r['acks']:>9} {r['misses']:>6} {r['exec_last_us']:>6.0f}us "
-                f"{r['exec_max_us']:>7.0f}us {r['late_p50_us']:>7.0f}us "
-                f"{r['late_p99_us']:>7.0f}us {r['late_max_us']:>7.0f}us "
+                f"{r['exec_max_us']:>7.0f}us {_us(r['late_p50_us'])} "
+                f"{_us(r['late_p99_us'])} {r['late_max_us']:>7.0f}us "
                 f"{r['heartbeat_age_ms']:>5.0f}ms"
             )
         spy = introspect.Introspector(inst)

@@ -69,6 +69,19 @@ def test_start_status_mem_stop_from_the_command_line(tmp_path: Path) -> None:
     assert r.returncode == 1 and f"no instance '{name}'" in r.stderr
 
 
+def test_status_before_any_tick_shows_no_lateness_rather_than_nan(
+    kali: Callable[..., str],
+) -> None:
+    """A lockstep instance not stepped yet has no lateness to show: its percentiles say '-'
+    (they printed 'nanus')."""
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "status")
+    assert r.returncode == 0, r.stderr
+    assert "nan" not in r.stdout, r.stdout
+    row = next(line for line in r.stdout.splitlines() if line.startswith("sio "))
+    assert row.split()[-4:-2] == ["-", "-"], row  # late p50, late p99
+
+
 def test_segment_and_semaphores_are_owner_only(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True)
     objs = launcher.shm_objects(name)
