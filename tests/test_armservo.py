@@ -26,6 +26,8 @@ from tests.test_launcher import kalictl
 
 PUSH_N = 20.0
 STIFFNESS = (1500.0, 2000.0, 2500.0)  # N/m along the tool's x, y, z
+STATE_TICKS = 6  # ticks a compiled step is compared over (its bias and integrals evolve)
+CT_CASES = 6  # random computed torque cases per robot type
 LEFT_ROBOT_SERVOS = {r"^(  - \{name: left.*)\}$": r"\1, robot_servos: true}"}
 
 
@@ -313,7 +315,7 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
     # none (the law's zero-angle branch), small, and within 0.1 rad of π (closer, acos is so
     # ill-conditioned that BLAS's summation order shows: 1e-9 at 1e-6 rad from π)
     angles = (0.0, rng.uniform(1e-6, 0.3), np.pi - rng.uniform(0.01, 0.1))
-    for tick in range(6):
+    for tick in range(STATE_TICKS):
         _random_state(inp, rng)
         inp.J[:] = rng.normal(0, 0.5, (layout.WRENCH, n))
         rot = _rotation(rng)
@@ -326,7 +328,7 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
 
 
 @pytest.mark.parametrize("type_name", ["puma560", "panda"])
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", range(CT_CASES))
 def test_the_compiled_computed_torque_step_equals_the_python_step(
     type_name: str, seed: int
 ) -> None:
