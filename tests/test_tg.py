@@ -25,6 +25,7 @@ from kali_daemons.joints import per_joint
 from kali_daemons.layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.servolevel import FIFO_CAPACITY
+from kali_daemons.tg import daemon as tgd
 from kali_daemons.tg.cartesian import base_transform, inverse
 from kali_daemons.tg.daemon import TrajectoryGenerator, check_request, write_status
 from kali_daemons.tg.profiles import MotionError
@@ -347,6 +348,37 @@ def bare_arena() -> Iterator[Arena]:
     yield a
     a.close()
     launcher.stop(name)
+
+
+def _outcomes(tg: TrajectoryGenerator, seqs: list[int]) -> list[bool]:
+    """Which of ``seqs`` the TG has taken and answered (its status record is the request's)."""
+    return [int(tg.status[s % layout.STATUS_RING]["seq"]) == s for s in seqs]
+
+
+@pytest.mark.parametrize("mode", ["real time", "lockstep"])
+def test_requests_are_taken_only_while_the_tick_s_share_lasts(
+    bare_arena: Arena, monkeypatch: pytest.MonkeyPatch, mode: str
+) -> None:
+    """Taking a request (its checks, its claim, its status) costs the TG's CPU as planning
+    does: in a soak, eight flooded requests took one tick 16 ms of wall time on the TG's
+    shared CPU (3 ms of CPU).  Requests are taken only while the tick's share lasts (wall
+    time in real time, in lockstep REQUEST_WORK each of LOCKSTEP_CHECK_SAMPLES, so a run
+    there stays bit for bit), at least one a tick; the rest wait in the queue, in order."""
+    cell = BareTg(make_config("share"), bare_arena)
+    tg = cell.tg
+    if mode == "real time":
+        tg.lockstep = False
+        monkeypatch.setattr(tgd, "CHECK_SHARE", 0.0)  # the share spent as the tick begins
+        per_tick = 1
+    else:
+        per_tick = 3  # a share of three requests' work: it binds before MAX_REQUESTS_PER_TICK
+        monkeypatch.setattr(tgd, "LOCKSTEP_CHECK_SAMPLES", per_tick * tgd.REQUEST_WORK)
+    seqs = [cell.put(MotionKind.STOP, [0]) for _ in range(2 * per_tick + 1)]
+    for tick in range(3):
+        tg.cycle(tick)
+        taken = min(len(seqs), (tick + 1) * per_tick)
+        assert _outcomes(tg, seqs) == [True] * taken + [False] * (len(seqs) - taken)
+    assert all(int(tg.status[s % layout.STATUS_RING]["state"]) == RequestState.DONE for s in seqs)
 
 
 def test_a_mixed_cell_moves_each_arm_over_its_own_joints(bare_arena: Arena) -> None:

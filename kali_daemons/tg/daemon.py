@@ -99,10 +99,13 @@ LEAD = 2  # set-points kept in each FIFO ahead of SIO
 CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
 CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before they start
 CHECK_CHUNK = 8  # path samples checked between looks at the time
-# Lockstep: the tick's share of checks and planning counted in path samples, not wall time
-# (about what a 10 ms tick's share checks on this VM); planning a path counts as PLAN_SAMPLES.
+# The tick's share (CHECK_SHARE of its period) is spent taking requests, planning paths and
+# checking them, in that order; in lockstep it is counted in path samples, not wall time (about
+# what a 10 ms tick's share checks on this VM): planning a path counts as PLAN_SAMPLES, taking a
+# request as REQUEST_WORK.
 LOCKSTEP_CHECK_SAMPLES = 64
 PLAN_SAMPLES = 32
+REQUEST_WORK = 1  # a request taken (checks, claim, status: 30-40 µs warm, as one two-arm sample)
 _KINDS = frozenset(int(k) for k in MotionKind)
 _TRACKING = (MotionKind.TRACK, MotionKind.TRACK_JOINTS)
 MOVES = (MotionKind.JOINTS, MotionKind.PATH, *_TRACKING)  # kinds that move arms (and own them)
@@ -460,10 +463,10 @@ class TrajectoryGenerator(Daemon):
         tick's parts timed, and kept if it is the longest yet (``TG_STATE.longest_*``)."""
         t0, c0 = rt.monotonic_ns(), rt.thread_time_ns()
         self._at(TgPhase.REQUESTS, 0, t0)
-        self._check_until = t0 + self.check_ns  # the whole tick's check share
+        self._follow_rate()  # first: a changed period's share is this tick's
+        self._check_until = t0 + self.check_ns  # the whole tick's share (_spent)
         self._work = 0
         self._now = tick
-        self._follow_rate()
         if self.robots is None:
             self.robots = self._attach_robots()
             if self.robots is None:
@@ -474,6 +477,8 @@ class TrajectoryGenerator(Daemon):
             self._halt_all()
         taken = 0
         for _ in range(MAX_REQUESTS_PER_TICK):
+            if taken and self._spent():  # the rest wait in the queue: at least one a tick
+                break
             nxt = self.queue.next_seq()
             if nxt is None:
                 break
@@ -489,6 +494,7 @@ class TrajectoryGenerator(Daemon):
             self.state["taken_seq"] = seq
             self._phase_seq[0] = seq & 0xFFFFFFFF
             self._take(seq, self.request[0].copy())
+            self._work += REQUEST_WORK
             taken += 1
         t1 = rt.monotonic_ns()
         self._at(TgPhase.STARTING, 0, t1)
