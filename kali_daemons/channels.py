@@ -602,6 +602,12 @@ class InterpolatingFifo:
         done = int(self._seg_done)
         return done / ticks if 0 < done < ticks else 1.0
 
+    def segment_addresses(self) -> tuple[int, int, int]:
+        """The addresses of what ``target_index`` and ``progress`` read (the header's
+        ``head``, u64, and ``seg_ticks``, ``seg_done``, u32), for a compiled reader on the
+        consumer's side (``RobotFeedforward.compiled``)."""
+        return self._head_addr, self._seg_ticks.ctypes.data, self._seg_done.ctypes.data
+
     # ---------------------------------------------------------------- observers (dynamics)
 
     def indices(self) -> tuple[int, int]:

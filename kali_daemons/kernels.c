@@ -210,6 +210,125 @@ int64_t kali_current_check(CurrentArgs *a) {
     return first;
 }
 
+/* ---------------------------------------------------------------- feed-forward
+ *
+ * One robot's feed-forward as SIO applies it each servo tick (sio/feedforward.py, whose
+ * RobotFeedforward.update is the reference, step for step): the dynamics process's rows of
+ * the segment the FIFO interpolates (A = set-point b - 1, B = set-point b, a row's key 1 +
+ * its index) by the same fraction as the demand; stale rows dropped, the weight ramped. */
+
+typedef struct {
+    int64_t n, rows, row_len;       /* joints; FF_ROWS; MAX_JOINTS (a row's values) */
+    const uint64_t *keys;           /* the record's key[FF_ROWS] */
+    const double *tau, *qd, *qdd;   /* its rows: row r at r * row_len */
+    const uint8_t *mode;            /* its words: the mode a client wants */
+    uint8_t *state;                 /* FfState */
+    const int64_t *heartbeat;       /* the dynamics process's last tick */
+    uint64_t *stale_ticks;
+    uint32_t *stale_events;
+    double *weight_rec;
+    const uint64_t *head;           /* the FIFO's header: the next set-point to take */
+    const uint32_t *seg_ticks, *seg_done;
+    View out, vel, acc;             /* double: the robot's joints of SIO's arrays */
+    double *last;                   /* 3 x n: the last good torque, velocity, acceleration */
+    int64_t heartbeat_limit, missing_limit, mode_max;
+    double step;                    /* weight per servo tick */
+    int64_t tick, arm;              /* this tick's, from SIO */
+    int64_t mode_ok, missing, stale; /* the state between ticks */
+    double weight;
+} FfArgs;
+
+#define FF_MAX_JOINTS 64 /* n <= layout.MAX_JOINTS <= this (asserted at binding) */
+
+/* row of key into out (3 x n); 0 if it is not there or changed while being copied (the
+ * dynamics process sets its key to FF_NO_KEY while writing) */
+static int ff_row(const FfArgs *a, uint64_t key, double *out) {
+    uint64_t row = key % (uint64_t)a->rows;
+    if (__atomic_load_n(&a->keys[row], __ATOMIC_ACQUIRE) != key) return 0;
+    int64_t n = a->n, at = (int64_t)row * a->row_len;
+    memcpy(out, a->tau + at, (size_t)n * sizeof(double));
+    memcpy(out + n, a->qd + at, (size_t)n * sizeof(double));
+    memcpy(out + 2 * n, a->qdd + at, (size_t)n * sizeof(double));
+    __atomic_thread_fence(__ATOMIC_ACQUIRE);
+    return __atomic_load_n(&a->keys[row], __ATOMIC_RELAXED) == key;
+}
+
+int64_t kali_feedforward(FfArgs *a) {
+    enum { OFF = 0, ON = 1, STALE = 2 };
+    int64_t n = a->n, m = 3 * n;
+    int64_t mode = *a->mode;
+    if (mode <= a->mode_max) a->mode_ok = mode;
+    else mode = a->mode_ok; /* a client's garbage: the last valid mode stays in force */
+    if (mode == OFF && a->weight == 0.0 && !a->arm) {
+        if (a->stale || *a->state != OFF) {
+            a->stale = 0;
+            *a->state = OFF;
+            for (int64_t i = 0; i < n; i++) {
+                AT(double, a->out, i) = 0.0;
+                AT(double, a->vel, i) = 0.0;
+                AT(double, a->acc, i) = 0.0;
+            }
+        }
+        return 0;
+    }
+    int stale;
+    int wanted = mode != OFF || a->arm;
+    int64_t hb = *a->heartbeat, age; /* any word: a difference past int64 is far off */
+    if (__builtin_sub_overflow(a->tick, hb, &age)) age = hb < 0 ? INT64_MAX : INT64_MIN;
+    if (wanted && age <= a->heartbeat_limit) {
+        double ra[3 * FF_MAX_JOINTS], rb[3 * FF_MAX_JOINTS], t[3 * FF_MAX_JOINTS];
+        /* B: the set-point the FIFO moves to (key = its index + 1 = head); A: the one before
+         * (none before the first set-point: key 0 - 1) */
+        uint64_t key_b = __atomic_load_n(a->head, __ATOMIC_ACQUIRE);
+        int has_b = ff_row(a, key_b, rb);
+        int has_a = key_b > 0 && ff_row(a, key_b - 1, ra);
+        if (has_a && has_b) { /* A + (B - A) * progress, as the demand */
+            uint32_t ticks = *a->seg_ticks, done = *a->seg_done;
+            double p = (0 < done && done < ticks) ? (double)done / (double)ticks : 1.0;
+            for (int64_t i = 0; i < m; i++) t[i] = (rb[i] - ra[i]) * p + ra[i];
+        } else if (has_b) {
+            memcpy(t, rb, (size_t)m * sizeof(double));
+        } else if (has_a) {
+            memcpy(t, ra, (size_t)m * sizeof(double));
+        }
+        int good = has_a || has_b;
+        if (good) {
+            for (int64_t i = 0; i < m; i++) good = good && isfinite(t[i]);
+            if (good) memcpy(a->last, t, (size_t)m * sizeof(double));
+        }
+        a->missing = good ? 0 : a->missing + 1;
+        stale = !good && a->missing > a->missing_limit;
+    } else {
+        stale = wanted; /* the dynamics process is silent */
+    }
+    if (stale) /* no demand velocity or acceleration rather than an old one */
+        for (int64_t i = n; i < m; i++) a->last[i] = 0.0;
+    stale = stale && mode != OFF; /* only feed-forward asked for can be stale */
+    if (stale) {
+        if (!a->stale) *a->stale_events += 1u;
+        *a->stale_ticks += 1u;
+    }
+    a->stale = stale;
+    double want = (mode != OFF && !stale) ? 1.0 : 0.0;
+    double w = a->weight;
+    if (w < want) {
+        double up = w + a->step;
+        w = want < up ? want : up;
+    } else if (w > want) {
+        double down = w - a->step;
+        w = want > down ? want : down;
+    }
+    a->weight = w;
+    *a->weight_rec = w;
+    for (int64_t i = 0; i < n; i++) {
+        AT(double, a->out, i) = a->last[i] * w;
+        AT(double, a->vel, i) = a->last[n + i];
+        AT(double, a->acc, i) = a->last[2 * n + i];
+    }
+    *a->state = stale ? STALE : (mode != OFF ? ON : OFF);
+    return 0;
+}
+
 /* ---------------------------------------------------------------- publish */
 
 typedef struct {

@@ -8,6 +8,9 @@ slots, the torque sum, torques → DAC codes, the current check, publishing.  Th
 servos are here too: the PID and the PD over a set of joints (``servo.vector``) and an SV's
 unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in one call
 (``sv.units``); their references are the per-joint Python steps (``servo.builtins``).
+A robot's feed-forward as SIO applies it (``kali_feedforward``, bound by
+``sio.feedforward.RobotFeedforward.compiled``) is here too; its reference is that class's
+``update``.
 The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
 is here for a wrist force/torque sensor read each tick; its reference is
 ``chain.flange_pose``.
@@ -182,6 +185,20 @@ ArmArgs = _block(
     *((f, c_int64) for f in ("wrench_stride", "robots", "has_sensor")),
     *((f, c_void_p) for f in ("viscous", "gear_w", "coulomb_pos", "coulomb_neg", "tau")),
 )
+FfArgs = _block(
+    "FfArgs",
+    N,
+    *((f, c_int64) for f in ("rows", "row_len")),
+    *((f, c_void_p) for f in ("keys", "tau", "qd", "qdd", "mode", "state", "heartbeat")),
+    *((f, c_void_p) for f in ("stale_ticks", "stale_events", "weight_rec")),
+    *((f, c_void_p) for f in ("head", "seg_ticks", "seg_done")),
+    *("out", "vel", "acc"),
+    ("last", c_void_p),
+    *((f, c_int64) for f in ("heartbeat_limit", "missing_limit", "mode_max")),
+    ("step", c_double),
+    *((f, c_int64) for f in ("tick", "arm", "mode_ok", "missing", "stale")),
+    ("weight", c_double),
+)
 # kali_wrench_tick's results (sio/wrench.py builds the message)
 WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT = range(5)
 
@@ -194,6 +211,7 @@ _KERNELS = {
     "kali_dac": DacArgs,
     "kali_current_check": CurrentArgs,
     "kali_copy": CopyArgs,
+    "kali_feedforward": FfArgs,
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,

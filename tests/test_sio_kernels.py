@@ -5,15 +5,23 @@ their limits, and range, runaway and current faults on the same tick (issue 26 i
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from fractions import Fraction
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kali_daemons import kernels, layout
+from kali_daemons import atomic, kernels, launcher, layout
+from kali_daemons.arena import Arena
+from kali_daemons.channels import InterpolatingFifo
 from kali_daemons.errors import DaemonError
 from kali_daemons.kernels import Kernel, copies
+from kali_daemons.layout import FfState
+from kali_daemons.sio.feedforward import RobotFeedforward
+
+from .conftest import unique_name
 
 SETTINGS = settings(max_examples=150, deadline=None)
 ODD_SAFE = (math.nan, -0.1, 0.0, 4.0, math.inf)  # limits a client may write: none valid
@@ -371,3 +379,98 @@ def test_a_library_whose_struct_differs_from_the_dtype_is_refused(tmp_path, monk
     refused = r"SERVO_SLOT: field 'op_algo' is .* \(8, 4, 'u'\) in C, \(4, 4, 'u'\) in the"
     with pytest.raises(DaemonError, match=refused):
         kernels.check_record(kernels.load(), here, "layout.SERVO_SLOT", 0, moved)
+
+
+# ---------------------------------------------------------------------------- feed-forward
+
+
+@pytest.fixture(scope="module")
+def ff_fifo() -> Iterator[InterpolatingFifo]:
+    """A robot's FIFO (six joints) in a small arena: the test sets its header as SIO's pops
+    would leave it (head, the segment's ticks and those done)."""
+    name = unique_name("ff")
+    a = Arena.create(name, 1 << 20)
+    yield InterpolatingFifo(a, layout.KEY_FIFO.format(robot="r"), 6, 16, Fraction(10))
+    a.close()
+    launcher.stop(name)
+
+
+@st.composite
+def ff_tick(draw: st.DrawFn, n: int) -> dict[str, object]:
+    """One servo tick's inputs: the mode word (a client's garbage too), a robot-level servo
+    or not, the dynamics process's heartbeat (fresh, old, garbage), the FIFO's segment and
+    the rows of A and B present, missing, being written (FF_NO_KEY) or holding NaN."""
+    values = st.floats(-50, 50, allow_nan=False, allow_infinity=False)
+    rows = {}
+    for which in ("a", "b"):
+        cells = draw(st.lists(values, min_size=3 * n, max_size=3 * n))
+        row = np.array(cells).reshape(3, n)
+        if draw(st.integers(0, 9)) == 0:
+            row[draw(st.integers(0, 2)), draw(st.integers(0, n - 1))] = draw(
+                st.sampled_from([math.nan, math.inf, -math.inf])
+            )
+        rows[which] = (row, draw(st.sampled_from(["there", "there", "there", "gone", "busy"])))
+    ticks = draw(st.integers(0, 12))
+    return {
+        "mode": draw(st.sampled_from([0, 1, 2, 2, 2, 3, 255])),
+        "arm": draw(st.booleans()),
+        "age": draw(st.sampled_from([0, 1, 5, 50, 51, -3, 2**62, -(2**62)])),
+        "head": draw(st.sampled_from([0, 1, 2, 511, 512, 1000, 2**63 + 5])),
+        "seg": (ticks, draw(st.integers(0, ticks + 1))),
+        "rows": rows,
+    }
+
+
+@SETTINGS
+@given(st.data())
+def test_feedforward_equals_the_reference_tick_for_tick(
+    ff_fifo: InterpolatingFifo, data: st.DataObject
+) -> None:
+    """``kali_feedforward`` (``RobotFeedforward.compiled``) gives what ``update`` gives, bit
+    for bit, tick after tick from the same start: the torque, velocity and acceleration out,
+    the state, weight (its ramp), stale counts and the missing count, through garbage mode
+    words, stale and garbage heartbeats, missing, half-written and NaN rows."""
+    n = 6
+    records = np.zeros(2, dtype=layout.FEEDFORWARD)
+    start = data.draw(
+        st.sampled_from(
+            [
+                (0, 0.0, FfState.OFF),
+                (2, 1.0, FfState.ON),
+                (1, 0.3, FfState.STALE),
+                (7, 0.0, FfState.OFF),
+            ]
+        )
+    )
+    records["mode"], records["weight"], records["state"] = start
+    outs = np.zeros((2, 3, n))
+    limits = {"heartbeat_limit": 50, "missing_limit": 3, "step": 0.2}
+    ref = RobotFeedforward(
+        records, 0, ff_fifo, outs[0, 0], vel=outs[0, 1], acc=outs[0, 2], **limits
+    )
+    ker = RobotFeedforward(
+        records, 1, ff_fifo, outs[1, 0], vel=outs[1, 1], acc=outs[1, 2], **limits
+    ).compiled()
+    for tick in range(100, 100 + data.draw(st.integers(1, 12))):
+        t = data.draw(ff_tick(n))
+        atomic.store64(ff_fifo.segment_addresses()[0], t["head"])
+        ff_fifo._seg_ticks[...], ff_fifo._seg_done[...] = t["seg"]
+        records["mode"] = t["mode"]
+        records["heartbeat_tick"] = tick - t["age"]
+        records["key"] = layout.FF_NO_KEY
+        for which, key in (("a", t["head"] - 1), ("b", t["head"])):
+            row, how = t["rows"][which]
+            if key < 0 or how == "gone":
+                continue
+            r = key % layout.FF_ROWS
+            for field, values in zip(("tau", "qd", "qdd"), row, strict=True):
+                records[field][:, r, :n] = values
+            records["key"][:, r] = key if how == "there" else layout.FF_NO_KEY
+        ref.arm = ker.arm = t["arm"]
+        with np.errstate(invalid="ignore"):  # inf - inf in a garbage row: NaN, as in SIO
+            ref.update(tick)
+        ker.step(tick)
+        same(outs[1], outs[0])
+        for field in ("state", "weight", "stale_ticks", "stale_events"):
+            assert records[field][1] == records[field][0], field
+        assert (ker.weight, ker.missing, ker.stale) == (ref.weight, ref.missing, ref.stale)

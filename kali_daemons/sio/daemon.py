@@ -218,7 +218,7 @@ class ServoIO(Daemon):
         self._r = [_RobotViews(self, k) for k in range(nr)]
         self._calib = [Calibration(self, k) for k in range(nr)]
         ffc = cfg.feedforward
-        self._ff = [
+        self._ff_reference = [  # their kernels run in the cycle (_bind_kernels: self._ff)
             RobotFeedforward(
                 self.ff_records,
                 k,
@@ -346,6 +346,7 @@ class ServoIO(Daemon):
             over=self.over,
             current_ticks=self.current_ticks,
         )
+        self._ff = [ff.compiled() for ff in self._ff_reference]  # kali_feedforward
         d = self.driver  # the joint records: SIO's arrays, then the driver's state (store)
         self._publish = copies(
             [(src, dst) for dst, src in self._pub]
@@ -388,7 +389,7 @@ class ServoIO(Daemon):
         # fed and done = 0, then busy cleared where fed (the SVs may claim now)
         for k, ff in enumerate(self._ff):
             ff.arm = self._arm_robot(k)
-            ff.update(tick)
+            ff.step(tick)
         fed = self._feed()
         self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         t_fed = rt.monotonic_ns()

@@ -23,6 +23,10 @@ whatever the mode), and otherwise are zero; a missing row keeps the last good va
 Nothing written by another process is taken on trust (DESIGN 7): a mode word that is no
 FfMode leaves the last valid mode in force, and an interpolated torque that is not finite
 counts as a missing row (the last good torque is kept; missing long enough, it is stale).
+
+SIO runs it compiled (``RobotFeedforward.compiled``: ``kernels.c``'s ``kali_feedforward``,
+one call a robot, ~50 µs of SIO's tick in Python for two arms); ``update`` is the reference
+the kernel equals bit for bit (tests/test_sio_kernels.py).
 """
 
 from __future__ import annotations
@@ -122,6 +126,13 @@ class RobotFeedforward:
         word = int(self._mode)
         self._mode_ok = word if word in _MODES else int(FfMode.OFF)  # the last valid mode
 
+    def compiled(self) -> FfKernel:
+        """This robot's feed-forward as ``kernels.c``'s ``kali_feedforward``, bound to the
+        same record, FIFO and arrays and starting from this object's state: from then on
+        each tick is ``kernel.arm = ...; kernel.step(tick)``, and this object's ``update``
+        (the reference) must not be called.  Outside the cycle."""
+        return FfKernel(self)
+
     def _row(self, key: int, out: np.ndarray) -> bool:
         """Copy the row of ``key`` (torque, velocity, acceleration) into ``out``; False if it
         is not there (or changed while being copied: the dynamics process sets its key to
@@ -199,3 +210,74 @@ class RobotFeedforward:
             self._state[...] = FfState.STALE
         else:
             self._state[...] = FfState.ON if mode != FfMode.OFF else FfState.OFF
+
+
+class FfKernel:
+    """A robot's feed-forward compiled (``RobotFeedforward.compiled``): ``step(tick)`` is
+    one ``update`` of its reference, with ``arm`` as SIO sets it; no allocation."""
+
+    __slots__ = ("_args", "_kernel", "ff")
+
+    def __init__(self, ff: RobotFeedforward) -> None:
+        from ..kernels import Kernel  # the library: SIO's, not every importer's
+
+        n = ff.out.shape[0]
+        assert n <= layout.MAX_JOINTS and ff._last.flags.c_contiguous
+        assert sorted(_MODES) == list(range(len(_MODES)))  # the kernel's validity: <= max
+        head, seg_ticks, seg_done = ff.fifo.segment_addresses()
+        words = (
+            ("keys", ff._keys), ("tau", ff._tau), ("qd", ff._qd), ("qdd", ff._qdd),
+            ("mode", ff._mode), ("state", ff._state), ("heartbeat", ff._heartbeat),
+            ("stale_ticks", ff._stale_count), ("stale_events", ff._events),
+            ("weight_rec", ff._weight_rec), ("last", ff._last),
+        )  # fmt: skip
+        self.ff = ff  # keeps its record views and arrays alive
+        self._kernel = Kernel(
+            "kali_feedforward",
+            n=n,
+            rows=layout.FF_ROWS,
+            row_len=ff._tau.strides[0] // 8,
+            head=head,
+            seg_ticks=seg_ticks,
+            seg_done=seg_done,
+            out=ff.out,
+            vel=ff.vel,
+            acc=ff.acc,
+            heartbeat_limit=ff.heartbeat_limit,
+            missing_limit=ff.missing_limit,
+            mode_max=max(_MODES),
+            step=ff.step,
+            arm=int(ff.arm),
+            mode_ok=ff._mode_ok,
+            missing=ff.missing,
+            stale=int(ff.stale),
+            weight=ff.weight,
+            **{name: a.ctypes.data for name, a in words},
+        )
+        self._args = self._kernel.args
+
+    @property
+    def arm(self) -> bool:
+        """The robot runs a robot-level servo (SIO sets it each tick)."""
+        return bool(self._args.arm)
+
+    @arm.setter
+    def arm(self, value: bool) -> None:
+        self._args.arm = value
+
+    @property
+    def weight(self) -> float:
+        return float(self._args.weight)
+
+    @property
+    def missing(self) -> int:
+        return int(self._args.missing)
+
+    @property
+    def stale(self) -> bool:
+        return bool(self._args.stale)
+
+    def step(self, tick: int) -> None:
+        """This tick's feed-forward (``RobotFeedforward.update``); inside SIO's cycle."""
+        self._args.tick = tick
+        self._kernel()
