@@ -31,7 +31,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from fractions import Fraction
 
 import numpy as np
@@ -421,6 +421,7 @@ class InterpolatingFifo:
             raise ChannelError(f"fifo '{key}': bound {bound!r}, must be a number > 0 or None")
         self._bound = math.inf if bound is None else float(bound)
         self._rejected = h["rejected"]
+        self._compiled = False  # popped by kali_fifo_pop (compiled_pop), not pop_into
 
     def _init_geometry(self, cap_addr: int, cap: int, width: int, r: Fraction) -> None:
         ok, seen = atomic.CompareExchange32()(cap_addr, 0, _INITIALISING)
@@ -524,6 +525,7 @@ class InterpolatingFifo:
         keyed by their index) stay where they belong.  A ratio stamp below 1 or with a zero
         term is refused the same way and the segment keeps the ratio in force.
         """
+        assert not self._compiled, f"fifo '{self.key}' is popped by its kernel (compiled_pop)"
         done = int(self._seg_done)
         ticks = int(self._seg_ticks)
         if done >= ticks:  # the segment is over: take the next set-point, if any
@@ -576,6 +578,53 @@ class InterpolatingFifo:
             np.add(self._start, s, out=self._cur)
         np.copyto(out, self._cur)
         return True
+
+    def compiled_pop(self, out: np.ndarray) -> Callable[[], int]:
+        """``pop_into(out)`` compiled (``kernels.c``'s ``kali_fifo_pop``): each call of the
+        returned kernel writes this servo tick's demand into ``out`` (float64, ``width``,
+        never moving) and returns 1 or 0 as ``pop_into`` returns True or False.  The
+        consumer's ratio moves into the kernel, so from here on this FIFO is popped only by
+        it (``pop_into`` refuses).  Consumer, outside the cycle."""
+        from .kernels import Kernel  # the library: the consumer's, not every importer's
+
+        assert out.dtype == np.float64 and out.shape == (self.width,), (out.dtype, out.shape)
+        h = self._h
+        ring = self._rows[0]
+        assert all(
+            r.ctypes.data == ring.ctypes.data + i * 8 * self.width for i, r in enumerate(self._rows)
+        )
+        self._compiled = True
+        return Kernel(
+            "kali_fifo_pop",
+            (h, self._rows, self._stamps, self._cur, self._start, self._target),
+            n=self.width,
+            head=self._head_addr,
+            tail=self._tail_addr,
+            ring=ring.ctypes.data,
+            stamps=self._stamps.ctypes.data,
+            capacity=self._capacity,
+            bound=self._bound,
+            **{
+                f: a.ctypes.data
+                for f, a in (
+                    ("cur", self._cur),
+                    ("start", self._start),
+                    ("target", self._target),
+                    ("seg_ticks", self._seg_ticks),
+                    ("seg_done", self._seg_done),
+                    ("primed", self._primed),
+                    ("rejected", self._rejected),
+                    ("ratio_num", h["ratio_num"]),
+                    ("ratio_den", h["ratio_den"]),
+                    ("underruns", self._underruns),
+                    ("phase_acc", self._acc),
+                )
+            },
+            out=out,
+            num=self._num,
+            den=self._den,
+            stamp=self._stamp,
+        )
 
     def _switch(self, stamp: int) -> None:
         """Interpolate from now on with the ratio word ``stamp`` (consumer; in the cycle);

@@ -8,7 +8,9 @@ slots, the torque sum, torques → DAC codes, the current check, publishing.  Th
 servos are here too: the PID and the PD over a set of joints (``servo.vector``) and an SV's
 unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in one call
 (``sv.units``); their references are the per-joint Python steps (``servo.builtins``).
-A robot's feed-forward as SIO applies it (``kali_feedforward``, bound by
+A robot's demand from its FIFO (``kali_fifo_pop``, bound by
+``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
+feed-forward as SIO applies it (``kali_feedforward``, bound by
 ``sio.feedforward.RobotFeedforward.compiled``) is here too; its reference is that class's
 ``update``.
 The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
@@ -185,6 +187,18 @@ ArmArgs = _block(
     *((f, c_int64) for f in ("wrench_stride", "robots", "has_sensor")),
     *((f, c_void_p) for f in ("viscous", "gear_w", "coulomb_pos", "coulomb_neg", "tau")),
 )
+FifoPopArgs = _block(
+    "FifoPopArgs",
+    N,
+    *((f, c_void_p) for f in ("head", "tail", "ring", "stamps")),
+    ("capacity", c_int64),
+    ("bound", c_double),
+    *((f, c_void_p) for f in ("cur", "start", "target", "seg_ticks", "seg_done", "primed")),
+    *((f, c_void_p) for f in ("rejected", "ratio_num", "ratio_den", "underruns", "phase_acc")),
+    "out",
+    *((f, c_int64) for f in ("num", "den")),
+    ("stamp", ctypes.c_uint64),
+)
 FfArgs = _block(
     "FfArgs",
     N,
@@ -212,6 +226,7 @@ _KERNELS = {
     "kali_current_check": CurrentArgs,
     "kali_copy": CopyArgs,
     "kali_feedforward": FfArgs,
+    "kali_fifo_pop": FifoPopArgs,
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,

@@ -4,6 +4,7 @@ their limits, and range, runaway and current faults on the same tick (issue 26 i
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Iterator
 from fractions import Fraction
@@ -15,7 +16,7 @@ from hypothesis import strategies as st
 
 from kali_daemons import atomic, kernels, launcher, layout
 from kali_daemons.arena import Arena
-from kali_daemons.channels import InterpolatingFifo
+from kali_daemons.channels import ChannelError, InterpolatingFifo
 from kali_daemons.errors import DaemonError
 from kali_daemons.kernels import Kernel, copies
 from kali_daemons.layout import FfState
@@ -474,3 +475,103 @@ def test_feedforward_equals_the_reference_tick_for_tick(
         for field in ("state", "weight", "stale_ticks", "stale_events"):
             assert records[field][1] == records[field][0], field
         assert (ker.weight, ker.missing, ker.stale) == (ref.weight, ref.missing, ref.stale)
+
+
+# ---------------------------------------------------------------------------- the demand
+
+
+@contextlib.contextmanager
+def small_arena() -> Iterator[Arena]:
+    """A fresh 1 MiB arena, unlinked afterwards (one per example: a directory holds 256
+    blocks, a FIFO takes four)."""
+    name = unique_name("pop")
+    a = Arena.create(name, 1 << 20)
+    try:
+        yield a
+    finally:
+        a.close()
+        launcher.stop(name)
+
+
+@st.composite
+def fifo_ops(draw: st.DrawFn, width: int) -> list[tuple[str, object]]:
+    """What the TG (pushes, ratio changes), a client's garbage (a stamp no ``set_ratio``
+    writes) and SIO (pops, resets) do to a FIFO, in some order: set-points within, at and
+    beyond the bound, NaN among them; pops past the end (underruns)."""
+    value = st.one_of(
+        st.floats(-5, 5, allow_nan=False), st.sampled_from([10.0, -10.0, 11.0, math.nan, math.inf])
+    )
+    row = st.lists(value, min_size=width, max_size=width).map(np.array)
+    ops = st.one_of(
+        st.tuples(st.just("push"), row),
+        st.tuples(st.just("pop"), st.integers(1, 12)),
+        st.tuples(st.just("ratio"), st.sampled_from([(10, 1), (5, 2), (1, 1), (7, 3)])),
+        st.tuples(st.just("stamp"), st.sampled_from([0, 3, 2 | 5 << 32, 7 | 2 << 32])),
+        st.tuples(st.just("reset"), st.floats(-1, 1).map(lambda x: np.full(width, x))),
+    )
+    return draw(st.lists(ops, min_size=1, max_size=40))
+
+
+@SETTINGS
+@given(st.data())
+def test_the_compiled_pop_equals_pop_into_tick_for_tick(data: st.DataObject) -> None:
+    """``kali_fifo_pop`` (``InterpolatingFifo.compiled_pop``) gives what ``pop_into`` gives,
+    bit for bit, pop after pop from the same pushes: the demand, the return, the header
+    (head, segment, accumulator, ratio, rejected and underrun counts) and the A/B/output
+    state, through fractional ratios changed on line, garbage stamps and set-points refused
+    for NaN or beyond the bound."""
+    width = data.draw(st.integers(1, layout.MAX_JOINTS))
+    ops = data.draw(fifo_ops(width))
+    with small_arena() as arena:
+        _pop_alike(arena, width, ops)
+
+
+def _pop_alike(arena: Arena, width: int, ops: list[tuple[str, object]]) -> None:
+    """Apply ``ops`` to two FIFOs, popping one by ``pop_into`` and one by its kernel, and
+    compare them after every pop."""
+    ref, com = (
+        InterpolatingFifo(arena, f"fifo.{w}", width, 8, Fraction(10), bound=10.0)
+        for w in ("ref", "com")
+    )
+    out = np.zeros((2, width))
+    pop = com.compiled_pop(out[1])
+    for op, arg in ops:
+        for f in (ref, com):
+            if op == "push":
+                with contextlib.suppress(ChannelError):  # full, or not finite: refused
+                    f.push(arg)
+            elif op == "ratio":
+                f.set_ratio(arg)
+            elif op == "stamp":  # on the newest set-point, as garbage would land
+                tail = atomic.load64(f._tail_addr)
+                if tail:
+                    f._stamps[(tail - 1) % 8] = arg
+            elif op == "reset":
+                f.reset(arg)
+        if op != "pop":
+            continue
+        for _ in range(arg):
+            got = (ref.pop_into(out[0]), pop())
+            assert got[1] == int(got[0])
+            same(out[1], out[0])
+            assert com._h.tobytes() == ref._h.tobytes()
+            for a, b in (
+                (com._cur, ref._cur),
+                (com._start, ref._start),
+                (com._target, ref._target),
+            ):
+                same(a, b)
+    with pytest.raises(AssertionError, match="popped by its kernel"):
+        com.pop_into(out[1])
+
+
+def test_a_ratio_change_mid_fraction_restarts_both_accumulators_alike() -> None:
+    """A ratio taken while a fractional one has accumulated part of a tick (5/2: segments of
+    2, 3, 2, ... ticks) drops that part in both (channels.py's rule), then 7/3 runs on."""
+    ops: list[tuple[str, object]] = [("ratio", (5, 2))]
+    ops += [("push", np.full(6, float(i))) for i in range(4)]
+    ops += [("pop", 6), ("ratio", (7, 3))]
+    ops += [("push", np.full(6, float(i))) for i in range(4, 8)]
+    ops += [("pop", 12), ("pop", 12)]
+    with small_arena() as arena:
+        _pop_alike(arena, 6, ops)

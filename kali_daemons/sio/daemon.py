@@ -347,6 +347,8 @@ class ServoIO(Daemon):
             current_ticks=self.current_ticks,
         )
         self._ff = [ff.compiled() for ff in self._ff_reference]  # kali_feedforward
+        # each robot's demand from its FIFO (kali_fifo_pop): _robot's common path
+        self._pops = [f.compiled_pop(r.demand) for f, r in zip(self.fifos, self._r, strict=True)]
         d = self.driver  # the joint records: SIO's arrays, then the driver's state (store)
         self._publish = copies(
             [(src, dst) for dst, src in self._pub]
@@ -533,7 +535,7 @@ class ServoIO(Daemon):
             self.fifos[k].reset(q)  # so another servo selected next holds it where it is
             np.copyto(demand, q)
         else:
-            self.fifos[k].pop_into(demand)
+            self._pops[k]()  # this tick's demand (channels.InterpolatingFifo.pop_into)
         if hw.amps_on(k):
             r.fed[:] = True
 
