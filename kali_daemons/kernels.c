@@ -210,6 +210,53 @@ int64_t kali_current_check(CurrentArgs *a) {
     return first;
 }
 
+/* ---------------------------------------------------------------- the plant's drives
+ *
+ * The plant's amplifiers and motors each cycle (plant/motor.py: drive_reference, the
+ * MotorBank's cycle and the plant's writes into MuJoCo): the current the loop drives to,
+ * the range the bus voltage leaves it at the motor's speed ([0, 0] with the amplifier off),
+ * the asymmetric Coulomb remainder; then MuJoCo's actuator ranges, controls, activations
+ * (the currents, cut into the range at once) and applied joint forces.  numpy's minimum
+ * and maximum propagate NaN: so do np_min and np_max.  tanh is libm's: numpy's differs in
+ * the last bit for some values, so this equals its reference to ~1e-15, not bit for bit. */
+
+typedef struct {
+    int64_t n;
+    const double *volts, *qd, *enabled, *current;
+    const double *gear, *kt_r, *vbus_r, *i_max, *gain, *w_scale, *g_extra_pos, *g_extra_neg;
+    double *ctrl, *range, *friction;          /* the bank's: range is n x 2 (low, high) */
+    const int64_t *acts, *act_adr, *dofs;     /* joint i's actuator, activation, dof */
+    double *mj_actrange, *mj_ctrl, *mj_act, *mj_qfrc; /* MuJoCo's arrays (actrange nu x 2) */
+} MotorArgs;
+
+static inline double np_max(double a, double b) { return (a >= b || a != a) ? a : b; }
+static inline double np_min(double a, double b) { return (a <= b || a != a) ? a : b; }
+
+int64_t kali_motors(MotorArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) {
+        double b = a->qd[i] * a->gear[i] * a->kt_r[i]; /* back-EMF / R */
+        double hi = np_min(a->vbus_r[i] - b, a->i_max[i]);
+        double lo = np_max(-(a->vbus_r[i] + b), -a->i_max[i]);
+        hi = np_max(hi, lo);
+        lo = lo * a->enabled[i]; /* an amplifier that is off: [0, 0] */
+        hi = hi * a->enabled[i];
+        double c = np_min(np_max(a->volts[i] * a->gain[i], lo), hi);
+        double t = tanh(a->qd[i] * a->w_scale[i]);
+        double f = np_min(t, 0.0) * a->g_extra_neg[i] - np_max(t, 0.0) * a->g_extra_pos[i];
+        a->ctrl[i] = c;
+        a->range[2 * i] = lo;
+        a->range[2 * i + 1] = hi;
+        a->friction[i] = f;
+        int64_t u = a->acts[i];
+        a->mj_actrange[2 * u] = lo;
+        a->mj_actrange[2 * u + 1] = hi;
+        a->mj_ctrl[u] = c;
+        a->mj_act[a->act_adr[i]] = np_min(np_max(a->current[i], lo), hi);
+        a->mj_qfrc[a->dofs[i]] = f;
+    }
+    return 0;
+}
+
 /* ---------------------------------------------------------------- the demand
  *
  * SIO's end of a robot's Type 2 FIFO (channels.py, thesis 2.2.2): this servo tick's

@@ -8,6 +8,9 @@ slots, the torque sum, torques → DAC codes, the current check, publishing.  Th
 servos are here too: the PID and the PD over a set of joints (``servo.vector``) and an SV's
 unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in one call
 (``sv.units``); their references are the per-joint Python steps (``servo.builtins``).
+The plant's amplifiers and motors and its writes into MuJoCo (``kali_motors``, bound by
+``plant.motor.MotorBank.compiled``; its reference is ``plant.motor.drive_reference``) are
+here for the plant's cycle.
 A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 ``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
 feed-forward as SIO applies it (``kali_feedforward``, bound by
@@ -187,6 +190,14 @@ ArmArgs = _block(
     *((f, c_int64) for f in ("wrench_stride", "robots", "has_sensor")),
     *((f, c_void_p) for f in ("viscous", "gear_w", "coulomb_pos", "coulomb_neg", "tau")),
 )
+MotorArgs = _block(
+    "MotorArgs",
+    N,
+    *((f, c_void_p) for f in ("volts", "qd", "enabled", "current", "gear", "kt_r", "vbus_r")),
+    *((f, c_void_p) for f in ("i_max", "gain", "w_scale", "g_extra_pos", "g_extra_neg")),
+    *((f, c_void_p) for f in ("ctrl", "range", "friction", "acts", "act_adr", "dofs")),
+    *((f, c_void_p) for f in ("mj_actrange", "mj_ctrl", "mj_act", "mj_qfrc")),
+)
 FifoPopArgs = _block(
     "FifoPopArgs",
     N,
@@ -227,6 +238,7 @@ _KERNELS = {
     "kali_copy": CopyArgs,
     "kali_feedforward": FfArgs,
     "kali_fifo_pop": FifoPopArgs,
+    "kali_motors": MotorArgs,
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,

@@ -29,8 +29,9 @@ from kali_daemons.layout import (
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
+from kali_daemons.model import build_world
 from kali_daemons.plant.board import EncoderBank, IoBoardSim, adc_code, pot_volts
-from kali_daemons.plant.motor import MotorBank
+from kali_daemons.plant.motor import Drive, MotorBank, drive_reference
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.robots import puma560
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
@@ -566,3 +567,52 @@ def test_the_conveyor_carries_the_bar_at_its_speed_while_its_motor_runs(arena: A
     sim.regs["conveyor"][0] = 0
     run_ms(sim, 300)
     assert float(bar[1] - start[1]) == pytest.approx(0.02, abs=5e-4)  # it stops (friction)
+
+
+@pytest.mark.parametrize("cell", ["default", "mixed"])
+def test_the_compiled_drive_equals_the_reference(cell: str) -> None:
+    """``kali_motors`` (``MotorBank.compiled``) gives what ``drive_reference`` gives, to
+    1e-15 (libm's tanh against numpy's): the bank's control, range and friction and MuJoCo's
+    actuator ranges, controls, activations and applied forces, in the plant's own index maps,
+    over random DAC volts (beyond the amplifier's reach too), speeds, currents and amplifiers
+    on and off; what the maps do not name is left alone."""
+    cfg = CFG if cell == "default" else MIXED
+    world = build_world(cfg.robots)
+    m = world.model
+    n_arms = len(cfg.robots)
+    index = [
+        np.concatenate([getattr(world, f)[k] for k in range(n_arms)])
+        for f in ("motor", "motor_act_adr", "dof_adr")
+    ]
+    rng = np.random.default_rng(27)
+    banks = [MotorBank([r.type for r in cfg.robots]) for _ in range(2)]
+    n = banks[0].n
+    outs = [
+        Drive(
+            *index,
+            rng.normal(size=(m.nu, 2)),
+            rng.normal(size=m.nu),
+            rng.normal(size=m.na),
+            rng.normal(size=m.nv),
+        )
+        for _ in range(2)
+    ]
+    outs[1] = outs[1]._replace(**{f: getattr(outs[0], f).copy() for f in Drive._fields[3:]})
+    volts, qd, current = np.zeros(n), np.zeros(n), np.zeros(n)
+    kernel = banks[1].compiled(volts, qd, current, outs[1])
+    for _ in range(200):
+        volts[:] = rng.uniform(-12.0, 12.0, n)
+        qd[:] = rng.normal(0.0, 2.0, n) * rng.choice([0.0, 0.01, 1.0, 5.0], n)
+        current[:] = rng.normal(0.0, 3.0, n)
+        for bank in banks:
+            bank.enabled[:] = rng.integers(0, 2, n) if bank is banks[0] else banks[0].enabled
+        drive_reference(banks[0], volts, qd, current, outs[0])
+        kernel()
+        for f in ("ctrl", "range", "friction"):
+            np.testing.assert_allclose(
+                getattr(banks[1], f), getattr(banks[0], f), rtol=1e-15, atol=1e-15
+            )
+        for f in Drive._fields[3:]:
+            np.testing.assert_allclose(
+                getattr(outs[1], f), getattr(outs[0], f), rtol=1e-15, atol=1e-15
+            )

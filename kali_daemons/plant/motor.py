@@ -21,14 +21,24 @@ MuJoCo as ``dof_frictionloss`` and ``dof_damping``, which it treats as constrain
 implicitly, so stiction holds exactly and stays stable at the plant's step; this model adds
 the asymmetric remainder as a torque, regularised by tanh(ω_m / ω₀).  The brakes raise the
 frictionloss to their holding torque.
+
+The plant runs a cycle of it compiled (``MotorBank.compiled``: ``kernels.c``'s
+``kali_motors``, the bank's arithmetic and MuJoCo's inputs in one call instead of ~25 numpy
+calls and four fancy-indexed writes); ``drive_reference`` is what it equals (to ~1e-15:
+libm's tanh, not numpy's).
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from ..robots import RobotType
 from ..robots.profile import FRICTION_SMOOTHING_RAD_S
+
+if TYPE_CHECKING:
+    from ..kernels import Kernel
 
 
 class MotorBank:
@@ -102,6 +112,39 @@ class MotorBank:
         np.multiply(a, self._g_extra_neg, out=a)
         np.subtract(a, b, out=self.friction)
 
+    def compiled(self, volts: np.ndarray, qd: np.ndarray, current: np.ndarray, mj: Drive) -> Kernel:
+        """``drive_reference`` compiled (``kernels.c``'s ``kali_motors``), bound to the DAC
+        ``volts``, joint speeds ``qd`` and motor ``current`` (flat, float64, never moving) and
+        to MuJoCo's arrays ``mj``: each call is one cycle of it.  Outside the cycle."""
+        from ..kernels import Kernel  # the library: the plant's, not every importer's
+
+        flat = {
+            "volts": volts, "qd": qd, "enabled": self.enabled, "current": current,
+            "gear": self.gear, "kt_r": self._kt_r, "vbus_r": self._vbus_r, "i_max": self.i_max,
+            "gain": self.gain, "w_scale": self._w_scale, "g_extra_pos": self._g_extra_pos,
+            "g_extra_neg": self._g_extra_neg, "ctrl": self.ctrl, "range": self.range,
+            "friction": self.friction, "mj_actrange": mj.actrange, "mj_ctrl": mj.ctrl,
+            "mj_act": mj.act, "mj_qfrc": mj.qfrc,
+        }  # fmt: skip
+        for name, a in flat.items():
+            assert a.dtype == np.float64 and a.flags.c_contiguous, f"motors: {name} {a.dtype}"
+        for name in ("volts", "qd", "enabled", "current", "ctrl", "friction"):
+            assert flat[name].shape == (self.n,), f"motors: {name} {flat[name].shape}"
+        index = {
+            name: np.ascontiguousarray(getattr(mj, name), dtype=np.int64)
+            for name in ("acts", "act_adr", "dofs")
+        }
+        assert mj.actrange.shape[1:] == (2,) and mj.act.ndim == mj.ctrl.ndim == mj.qfrc.ndim == 1
+        assert int(index["acts"].max()) < len(mj.ctrl) == len(mj.actrange)
+        assert int(index["act_adr"].max()) < len(mj.act) and int(index["dofs"].max()) < len(mj.qfrc)
+        arrays = {**flat, **index}
+        return Kernel(
+            "kali_motors",
+            tuple(arrays.values()),
+            n=self.n,
+            **{name: a.ctypes.data for name, a in arrays.items()},
+        )
+
     def joint_frictionloss(self, braked: np.ndarray, out: np.ndarray) -> None:
         """MuJoCo frictionloss per joint: the brake's holding torque where ``braked`` (bool).
 
@@ -109,3 +152,31 @@ class MotorBank:
         """
         np.copyto(out, self.frictionloss)
         np.copyto(out, self.brake, where=braked)
+
+
+class Drive(NamedTuple):
+    """Where the motors' cycle goes in MuJoCo: each joint's actuator (``acts``), its
+    activation (``act_adr``: the motor current) and its dof (``dofs``), flat; and the model's
+    ``actuator_actrange`` and the data's ``ctrl``, ``act`` and ``qfrc_applied``."""
+
+    acts: np.ndarray
+    act_adr: np.ndarray
+    dofs: np.ndarray
+    actrange: np.ndarray
+    ctrl: np.ndarray
+    act: np.ndarray
+    qfrc: np.ndarray
+
+
+def drive_reference(
+    bank: MotorBank, volts: np.ndarray, qd: np.ndarray, current: np.ndarray, mj: Drive
+) -> None:
+    """One plant cycle of the amplifiers and motors (``MotorBank.cycle``) and what MuJoCo
+    gets from them: each actuator's current range and control, each activation (the motor
+    current) cut into its range at once (a disabled amplifier cuts its current), each dof's
+    asymmetric Coulomb remainder.  ``kali_motors``' reference (the tests'); it allocates."""
+    bank.cycle(volts, qd)
+    mj.actrange[mj.acts] = bank.range
+    mj.ctrl[mj.acts] = bank.ctrl
+    mj.act[mj.act_adr] = np.minimum(np.maximum(current, bank.range[:, 0]), bank.range[:, 1])
+    mj.qfrc[mj.dofs] = bank.friction

@@ -34,7 +34,7 @@ from ..config import KaliConfig
 from ..joints import ArmCopy
 from ..model import World, build_world
 from .board import EncoderBank, FtBank, IoBoardSim
-from .motor import MotorBank
+from .motor import Drive, MotorBank
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
@@ -67,7 +67,6 @@ class PlantSim:
         self.acts = np.concatenate([self.world.motor[k] for k in range(n_arms)])
         self.act_adr = np.concatenate([self.world.motor_act_adr[k] for k in range(n_arms)])
         self.current = np.zeros(self.motors.n)
-        self._act = np.zeros(self.motors.n)
         m.dof_damping[self.dofs] = self.motors.damping
         # Stiff friction constraints: MuJoCo's defaults let an engaged brake creep ~8 mrad/s
         # under gravity; a 4-step time constant and impedance 0.9999 hold to < 1 µrad/s.
@@ -84,6 +83,10 @@ class PlantSim:
         self.motor_angle = np.zeros(self.motors.n)
         self.volts = np.zeros(self.motors.n)
         self.torque = np.zeros(self.motors.n)
+        self.drive = Drive(
+            self.acts, self.act_adr, self.dofs, m.actuator_actrange, d.ctrl, d.act, d.qfrc_applied
+        )
+        self._drive = self.motors.compiled(self.volts, self.qd, self.current, self.drive)
         self._read_joints()
         self.regs = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, n_arms)
         self.dac = arena.record(layout.KEY_DACS, layout.DAC_BOARD, n_arms)
@@ -185,15 +188,8 @@ class PlantSim:
         if changed:
             self._apply_brakes()
         self._push()
-        m, d = self.model, self.data
-        motors.cycle(self.volts, self.qd)
-        m.actuator_actrange[self.acts] = motors.range
-        d.ctrl[self.acts] = motors.ctrl
-        np.maximum(self.current, motors.range[:, 0], out=self._act)
-        np.minimum(self._act, motors.range[:, 1], out=self._act)
-        d.act[self.act_adr] = self._act  # a disabled amplifier cuts its current at once
-        d.qfrc_applied[self.dofs] = motors.friction
-        mujoco.mj_step(m, d, self.substeps)
+        self._drive()  # motors.cycle and MuJoCo's inputs from it (motor.drive_reference)
+        mujoco.mj_step(self.model, self.data, self.substeps)
         self.sim_ns += self.substeps * self.dt_ns
         self._read_joints()
         self.encoders.sample(self.motor_angle)
