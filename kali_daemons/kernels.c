@@ -257,6 +257,56 @@ int64_t kali_motors(MotorArgs *a) {
     return 0;
 }
 
+/* ---------------------------------------------------------------- the plant's encoders
+ *
+ * The HCTL-2000 counters of every board each plant cycle (plant/board.py: EncoderBank.sample,
+ * the reference, bit for bit): each joint's motor angle in quadrature counts, the index
+ * pulse captured where the motor passed it (the counter's reference moved there and the
+ * channel's bit set in its board's index register, unless CSR_INDEX_OFF), the count modulo
+ * 4096 into the board's counter register.  Returns the indexes captured. */
+
+typedef struct {
+    int64_t n;
+    const double *angle, *cpr, *phase;    /* motor angle, counts per rad, index phase */
+    int64_t *ref, *count;                 /* the bank's: the count's zero, the count */
+    double *rev;                          /* the bank's: revolution of the last index */
+    const int64_t *robot_of, *joint_of;
+    char *encoders;                       /* the boards' counter registers (uint16) */
+    const int64_t *enc_off;               /* joint i's at encoders + enc_off[i] */
+    View csr, index;                      /* uint8 per board */
+    int64_t index_off, modulo;            /* CSR_INDEX_OFF; 4096 */
+    double two_pi;
+} EncoderArgs;
+
+/* numpy's float -> int64 cast of a whole number: the minimum for NaN and out of range */
+static inline int64_t to_int64(double f) {
+    return (f >= -9223372036854775808.0 && f < 9223372036854775808.0) ? (int64_t)f : INT64_MIN;
+}
+
+int64_t kali_encoders(EncoderArgs *a) {
+    int64_t captured = 0;
+    for (int64_t i = 0; i < a->n; i++) {
+        int64_t raw = to_int64(floor(a->angle[i] * a->cpr[i]));
+        double rev = floor((a->angle[i] - a->phase[i]) / a->two_pi);
+        double was = a->rev[i];
+        if (rev != was) { /* rare: a few times per motor revolution */
+            int64_t k = a->robot_of[i];
+            if (!(AT(uint8_t, a->csr, k) & a->index_off)) {
+                double passed = was > rev ? was : rev; /* the revolution whose index was passed */
+                a->ref[i] = to_int64(floor((a->phase[i] + a->two_pi * passed) * a->cpr[i]));
+                AT(uint8_t, a->index, k) |= (uint8_t)(1u << a->joint_of[i]);
+                captured++;
+            }
+        }
+        a->rev[i] = rev;
+        int64_t c = (int64_t)((uint64_t)raw - (uint64_t)a->ref[i]) % a->modulo; /* wraps as numpy */
+        if (c < 0) c += a->modulo;
+        a->count[i] = c;
+        *(uint16_t *)(a->encoders + a->enc_off[i]) = (uint16_t)c;
+    }
+    return captured;
+}
+
 /* ---------------------------------------------------------------- the demand
  *
  * SIO's end of a robot's Type 2 FIFO (channels.py, thesis 2.2.2): this servo tick's

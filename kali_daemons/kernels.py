@@ -10,7 +10,8 @@ unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in on
 (``sv.units``); their references are the per-joint Python steps (``servo.builtins``).
 The plant's amplifiers and motors and its writes into MuJoCo (``kali_motors``, bound by
 ``plant.motor.MotorBank.compiled``; its reference is ``plant.motor.drive_reference``) are
-here for the plant's cycle.
+here for the plant's cycle, and so are its encoder counters (``kali_encoders``, bound by
+``plant.board.EncoderBank.compiled``; its reference is ``EncoderBank.sample``).
 A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 ``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
 feed-forward as SIO applies it (``kali_feedforward``, bound by
@@ -198,6 +199,15 @@ MotorArgs = _block(
     *((f, c_void_p) for f in ("ctrl", "range", "friction", "acts", "act_adr", "dofs")),
     *((f, c_void_p) for f in ("mj_actrange", "mj_ctrl", "mj_act", "mj_qfrc")),
 )
+EncoderArgs = _block(
+    "EncoderArgs",
+    N,
+    *((f, c_void_p) for f in ("angle", "cpr", "phase", "ref", "count", "rev")),
+    *((f, c_void_p) for f in ("robot_of", "joint_of", "encoders", "enc_off")),
+    *("csr", "index"),
+    *((f, c_int64) for f in ("index_off", "modulo")),
+    ("two_pi", c_double),
+)
 FifoPopArgs = _block(
     "FifoPopArgs",
     N,
@@ -239,6 +249,7 @@ _KERNELS = {
     "kali_feedforward": FfArgs,
     "kali_fifo_pop": FifoPopArgs,
     "kali_motors": MotorArgs,
+    "kali_encoders": EncoderArgs,
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,

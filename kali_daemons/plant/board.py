@@ -29,6 +29,7 @@ All times are the plant's simulated time, so lockstep runs are deterministic.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -51,6 +52,9 @@ from ..layout import (
     POWER_WATCHDOG_TRIPPED,
 )
 from ..robots import RobotType
+
+if TYPE_CHECKING:
+    from ..kernels import Kernel
 
 TWO_PI = 2.0 * math.pi
 COUNTER_MODULO = 4096
@@ -226,9 +230,42 @@ class EncoderBank:
         self.regs["encoder"][k] = 0
         self._index[k] = 0
 
+    def compiled(self, motor_angle: np.ndarray) -> Kernel:
+        """``sample(motor_angle)`` compiled (``kernels.c``'s ``kali_encoders``): each call of
+        the kernel counts the angles now in ``motor_angle`` (flat float64, never moving) and
+        returns the indexes captured.  Outside the cycle."""
+        from ..kernels import Kernel, channel_offsets  # the library: the plant's
+
+        j = self.joints
+        enc = self.regs["encoder"]
+        robot_of = np.ascontiguousarray(j.robot_of, dtype=np.int64)
+        joint_of = np.ascontiguousarray(j.joint_of, dtype=np.int64)
+        offsets = channel_offsets(enc, robot_of, joint_of)
+        arrays = {
+            "angle": motor_angle, "cpr": self._counts_per_rad, "phase": self.phase,
+            "ref": self._ref, "count": self._count, "rev": self._rev, "robot_of": robot_of,
+            "joint_of": joint_of, "enc_off": offsets,
+        }  # fmt: skip
+        for name, a in arrays.items():
+            assert a.shape == (j.total,) and a.flags.c_contiguous, f"encoders: {name} {a.shape}"
+            assert a.dtype in (np.float64, np.int64), f"encoders: {name} {a.dtype}"
+        return Kernel(
+            "kali_encoders",
+            (self.regs, *arrays.values()),
+            n=j.total,
+            encoders=enc.ctypes.data,
+            csr=self._csr,
+            index=self._index,
+            index_off=CSR_INDEX_OFF,
+            modulo=COUNTER_MODULO,
+            two_pi=TWO_PI,
+            **{name: a.ctypes.data for name, a in arrays.items()},
+        )
+
     def sample(self, motor_angle: np.ndarray) -> None:
         """Count the motor angles of every joint (flat) into the counter registers; capture
-        indexes.  Inside the cycle."""
+        indexes (``kali_encoders``' reference: the plant runs ``compiled``).  Inside the
+        cycle."""
         f, rev = self._f, self._g
         np.multiply(motor_angle, self._counts_per_rad, out=f)
         np.floor(f, out=f)

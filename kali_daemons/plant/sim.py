@@ -99,6 +99,7 @@ class PlantSim:
         # each arm is built to its calibration sheet (thesis 3.5.1): the robot's config says it
         phases = np.concatenate([r.index_phases for r in cfg.robots])
         self.encoders = EncoderBank(self.regs, types, phases, self.motor_angle, joints)
+        self._count = self.encoders.compiled(self.motor_angle)
         self._codes_to_volts = ArmCopy(joints, self.volts, self.dac["code"])
         self._spans = [joints.span(k) for k in range(n_arms)]  # each arm's joints, flat
         self._q_arms = joints.split(self.q)  # views, bound once
@@ -192,7 +193,7 @@ class PlantSim:
         mujoco.mj_step(self.model, self.data, self.substeps)
         self.sim_ns += self.substeps * self.dt_ns
         self._read_joints()
-        self.encoders.sample(self.motor_angle)
+        self._count()  # the encoders (EncoderBank.sample, compiled)
         for board, q in zip(self.boards, self._q_arms, strict=True):
             board.convert(q)
         self._read_ft()
