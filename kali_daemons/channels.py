@@ -593,8 +593,7 @@ class InterpolatingFifo:
         assert all(
             r.ctypes.data == ring.ctypes.data + i * 8 * self.width for i, r in enumerate(self._rows)
         )
-        self._compiled = True
-        return Kernel(
+        kernel = Kernel(
             "kali_fifo_pop",
             (h, self._rows, self._stamps, self._cur, self._start, self._target),
             n=self.width,
@@ -625,6 +624,8 @@ class InterpolatingFifo:
             den=self._den,
             stamp=self._stamp,
         )
+        self._compiled = True  # once bound: a binding that failed leaves pop_into to it
+        return kernel
 
     def _switch(self, stamp: int) -> None:
         """Interpolate from now on with the ratio word ``stamp`` (consumer; in the cycle);

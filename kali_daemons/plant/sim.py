@@ -83,10 +83,10 @@ class PlantSim:
         self.motor_angle = np.zeros(self.motors.n)
         self.volts = np.zeros(self.motors.n)
         self.torque = np.zeros(self.motors.n)
-        self.drive = Drive(
+        drive = Drive(
             self.acts, self.act_adr, self.dofs, m.actuator_actrange, d.ctrl, d.act, d.qfrc_applied
         )
-        self._drive = self.motors.compiled(self.volts, self.qd, self.current, self.drive)
+        self._drive = self.motors.compiled(self.volts, self.qd, self.current, drive)
         self._read_joints()
         self.regs = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, n_arms)
         self.dac = arena.record(layout.KEY_DACS, layout.DAC_BOARD, n_arms)
