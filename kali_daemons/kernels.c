@@ -307,6 +307,191 @@ int64_t kali_encoders(EncoderArgs *a) {
     return captured;
 }
 
+/* ---------------------------------------------------------------- the plant's I/O boards
+ *
+ * Every arm's I/O board each plant cycle (plant/board.py: IoBoardSim.update and .convert,
+ * the references): the power switch, watchdog and brakes from the command/status register
+ * and the e-stop at the plant's time, then the motors' enable and the brakes per joint; after
+ * MuJoCo's step, the pot ADC's conversions and digital register.  A board's state is its row
+ * of `state` (IoBoardSim.state: the same array the reference steps).  kali_boards_truth puts
+ * the boards' flags into the arms' truth records. */
+
+enum { B_AMPS, B_BRAKES, B_TRIPPED, B_SWITCH, B_SINCE, B_RETRIGGER, B_PREV_CSR, B_PREV_ADC, B_STATE };
+
+typedef struct {
+    int64_t n_arms;
+    View csr, estop, power, index, adc_control, adc_analog, adc_digital, clamped; /* registers */
+    View amps_on, brakes_engaged, watchdog_tripped, truth_estop;                  /* truth */
+    int64_t *state;                   /* n_arms x B_STATE */
+    const int64_t *base, *count;      /* arm k's joints: flat base[k] .. base[k] + count[k] */
+    double *enabled;                  /* per joint: the motor bank's enable (1.0 / 0.0) */
+    uint8_t *braked;                  /* per joint: the brakes hold */
+    const double *q, *lo, *hi, *mid;  /* per joint: angle, the pots' span, 2.5 V */
+    int64_t now_ns, hold_ns, watchdog_ns, brake_ns, never;
+    int64_t timeout_on, retrigger, no_disable, enable, index_off;   /* CSR bits */
+    int64_t p_amps, p_brakes, p_tripped, p_estop;                   /* POWER bits */
+    int64_t adc_start, channel_mask, adc_done, value_mask, channels, self_test;
+    double pot_v_min, pot_v_max, adc_volts, adc_top;
+} BoardArgs;
+
+static void set_amps(int64_t *s, int64_t on, int64_t now) {
+    if (on != s[B_AMPS]) {
+        s[B_AMPS] = on;
+        s[B_SWITCH] = now;
+    }
+}
+
+/* IoBoardSim.update for every board, then the joints' enable and brakes; 1 if a brake
+ * changed (the plant then sets MuJoCo's friction). */
+int64_t kali_boards_update(BoardArgs *a) {
+    int64_t now = a->now_ns, changed = 0;
+    for (int64_t k = 0; k < a->n_arms; k++) {
+        int64_t *s = a->state + k * B_STATE;
+        int64_t csr = AT(uint8_t, a->csr, k), prev = s[B_PREV_CSR];
+        s[B_PREV_CSR] = csr;
+        int64_t estop = AT(uint8_t, a->estop, k) != 0;
+        int64_t fell = (prev & a->retrigger) && !(csr & a->retrigger);
+        if (csr & a->timeout_on) {
+            if (!(prev & a->timeout_on)) s[B_RETRIGGER] = now; /* the timer starts */
+            if (fell) {
+                s[B_RETRIGGER] = now;
+                s[B_TRIPPED] = 0;
+            } else if (now - s[B_RETRIGGER] > a->watchdog_ns) {
+                s[B_TRIPPED] = 1;
+            }
+        } else if (s[B_TRIPPED] && fell) {
+            s[B_TRIPPED] = 0;
+        }
+        int64_t disabled = !(csr & a->no_disable) || estop || s[B_TRIPPED];
+        if (csr & a->enable) {
+            if (s[B_SINCE] == a->never || !(prev & a->enable)) s[B_SINCE] = now;
+        } else {
+            s[B_SINCE] = a->never;
+        }
+        if (disabled) {
+            s[B_SINCE] = a->never;
+            set_amps(s, 0, now);
+        } else if (s[B_SINCE] != a->never && now - s[B_SINCE] >= a->hold_ns) {
+            set_amps(s, 1, now);
+        }
+        if (s[B_BRAKES] != s[B_AMPS] && now - s[B_SWITCH] >= a->brake_ns) s[B_BRAKES] = s[B_AMPS];
+        if ((csr & a->index_off) && AT(uint8_t, a->index, k)) AT(uint8_t, a->index, k) = 0;
+        AT(uint8_t, a->power, k) = (uint8_t)((s[B_AMPS] ? a->p_amps : 0) |
+                                             (s[B_BRAKES] ? a->p_brakes : 0) |
+                                             (s[B_TRIPPED] ? a->p_tripped : 0) |
+                                             (estop ? a->p_estop : 0));
+        double on = s[B_AMPS] ? 1.0 : 0.0;
+        uint8_t braked = !s[B_BRAKES];
+        int64_t lo = a->base[k], hi = lo + a->count[k];
+        for (int64_t i = lo; i < hi; i++) a->enabled[i] = on;
+        if (hi > lo && a->braked[lo] != braked) {
+            for (int64_t i = lo; i < hi; i++) a->braked[i] = braked;
+            changed = 1;
+        }
+    }
+    return changed;
+}
+
+/* board.adc_code(board.pot_volts(q, lo, hi)): Python's round is half to even, as nearbyint */
+static int64_t pot_code(const BoardArgs *a, double q, double lo, double hi) {
+    double v = a->pot_v_min + (a->pot_v_max - a->pot_v_min) * (q - lo) / (hi - lo);
+    v = v > 0.0 ? v : 0.0;
+    v = v < a->adc_volts ? v : a->adc_volts;
+    double code = nearbyint(v / a->adc_volts * a->adc_top);
+    code = code > 0.0 ? code : 0.0;
+    return (int64_t)(code < a->adc_top ? code : a->adc_top);
+}
+
+/* IoBoardSim.convert for every board at the angles now in q */
+int64_t kali_boards_convert(BoardArgs *a) {
+    for (int64_t k = 0; k < a->n_arms; k++) {
+        int64_t *s = a->state + k * B_STATE;
+        int64_t ctrl = AT(uint16_t, a->adc_control, k), start = (ctrl & a->adc_start) != 0;
+        int64_t base = a->base[k], n = a->count[k];
+        if (start && !s[B_PREV_ADC]) {
+            int64_t ch = ctrl & a->channel_mask, code = 0; /* unconnected inputs read 0 */
+            if (ch >= a->channels) {
+                AT(uint32_t, a->clamped, k) += 1u;
+                ch = a->channels - 1;
+            }
+            if (ch < n) {
+                code = pot_code(a, a->q[base + ch], a->lo[base + ch], a->hi[base + ch]);
+            } else if (ch == a->self_test) {
+                double v = a->adc_volts / 2.0;
+                code = (int64_t)nearbyint(v / a->adc_volts * a->adc_top);
+            }
+            AT(uint16_t, a->adc_analog, k) = (uint16_t)(a->adc_done | code);
+        } else if (!start && s[B_PREV_ADC]) {
+            AT(uint16_t, a->adc_analog, k) &= (uint16_t)a->value_mask;
+        }
+        s[B_PREV_ADC] = start;
+        int64_t digital = 0; /* the channels above 2.5 V */
+        for (int64_t j = 0; j < n; j++)
+            if (a->q[base + j] > a->mid[base + j]) digital |= (int64_t)1 << j;
+        AT(uint16_t, a->adc_digital, k) = (uint16_t)digital;
+    }
+    return 0;
+}
+
+int64_t kali_boards_truth(BoardArgs *a) {
+    for (int64_t k = 0; k < a->n_arms; k++) {
+        const int64_t *s = a->state + k * B_STATE;
+        AT(uint8_t, a->amps_on, k) = (uint8_t)(s[B_AMPS] != 0);
+        AT(uint8_t, a->brakes_engaged, k) = (uint8_t)(s[B_BRAKES] == 0);
+        AT(uint8_t, a->watchdog_tripped, k) = (uint8_t)(s[B_TRIPPED] != 0);
+        AT(uint8_t, a->truth_estop, k) = AT(uint8_t, a->estop, k);
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- the wrist sensors' gauges
+ *
+ * One arm's wrist sensor and gauge ADC bank each plant cycle (plant/board.py: FtBank.cycle,
+ * the reference, step for step): its offsets walk by the sheet's drift; a new request
+ * samples the six bridges, v = C^-1 (w + noise) + offset, into signed 16-bit codes clipped at
+ * the rails.  The normal draws are numpy's, drawn ahead into `normals` (a Generator fills an
+ * array one element after another from its stream: the block holds the very numbers the
+ * reference draws six at a time); the kernel takes them in order and returns 1 once fewer
+ * than a cycle's most (12) are left, for FtBank to draw more outside the kernel. */
+
+typedef struct {
+    const double *normals;
+    int64_t size, at;                 /* the block's length, the next draw */
+    double *offset;                   /* six volts: the bank's (FtBank.offset) */
+    double drift;                     /* a cycle's random-walk step, volts */
+    const double *gauges, *noise_sd;  /* C^-1 (6 x 6), the wrench's noise per axis */
+    const double *wrench;             /* the tool on the sensor, sensor frame */
+    int16_t *codes;
+    const uint16_t *control;
+    uint16_t *status;
+    int64_t served, seq_mask, request, ready; /* ready: FT_READY | FT_PRESENT */
+    double volts_per_code, rail;
+} FtArgs;
+
+int64_t kali_ft_bank(FtArgs *a) {
+    const double *r = a->normals + a->at;
+    for (int i = 0; i < 6; i++) a->offset[i] += r[i] * a->drift;
+    a->at += 6;
+    int64_t ctrl = __atomic_load_n(a->control, __ATOMIC_ACQUIRE);
+    int64_t seq = ctrl & a->seq_mask;
+    if ((ctrl & a->request) && seq != a->served) {
+        a->served = seq;
+        r = a->normals + a->at;
+        a->at += 6;
+        double w[6];
+        for (int i = 0; i < 6; i++) w[i] = r[i] * a->noise_sd[i] + a->wrench[i];
+        for (int i = 0; i < 6; i++) {
+            double v = 0.0;
+            for (int j = 0; j < 6; j++) v += a->gauges[i * 6 + j] * w[j];
+            v = nearbyint((v + a->offset[i]) / a->volts_per_code);
+            v = v < -a->rail - 1.0 ? -a->rail - 1.0 : (v > a->rail ? a->rail : v);
+            a->codes[i] = v == v ? (int16_t)v : 0;
+        }
+        __atomic_store_n(a->status, (uint16_t)(a->ready | seq), __ATOMIC_RELEASE); /* last */
+    }
+    return a->size - a->at < 12;
+}
+
 /* ---------------------------------------------------------------- the demand
  *
  * SIO's end of a robot's Type 2 FIFO (channels.py, thesis 2.2.2): this servo tick's

@@ -11,7 +11,11 @@ unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in on
 The plant's amplifiers and motors and its writes into MuJoCo (``kali_motors``, bound by
 ``plant.motor.MotorBank.compiled``; its reference is ``plant.motor.drive_reference``) are
 here for the plant's cycle, and so are its encoder counters (``kali_encoders``, bound by
-``plant.board.EncoderBank.compiled``; its reference is ``EncoderBank.sample``).
+``plant.board.EncoderBank.compiled``; its reference is ``EncoderBank.sample``), its I/O
+boards (``kali_boards_update``, ``kali_boards_convert``, bound by ``plant.board.boards_kernel``;
+their references are ``IoBoardSim.update`` and ``.convert``) and its wrist sensors' gauge
+banks (``kali_ft_bank``, bound by ``plant.board.FtBank.compiled``; its reference is
+``FtBank.cycle``).
 A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 ``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
 feed-forward as SIO applies it (``kali_feedforward``, bound by
@@ -208,6 +212,30 @@ EncoderArgs = _block(
     *((f, c_int64) for f in ("index_off", "modulo")),
     ("two_pi", c_double),
 )
+BoardArgs = _block(
+    "BoardArgs",
+    ("n_arms", c_int64),
+    *("csr", "estop", "power", "index", "adc_control", "adc_analog", "adc_digital", "clamped"),
+    *("amps_on", "brakes_engaged", "watchdog_tripped", "truth_estop"),
+    *((f, c_void_p) for f in ("state", "base", "count", "enabled", "braked")),
+    *((f, c_void_p) for f in ("q", "lo", "hi", "mid")),
+    *((f, c_int64) for f in ("now_ns", "hold_ns", "watchdog_ns", "brake_ns", "never")),
+    *((f, c_int64) for f in ("timeout_on", "retrigger", "no_disable", "enable", "index_off")),
+    *((f, c_int64) for f in ("p_amps", "p_brakes", "p_tripped", "p_estop")),
+    *((f, c_int64) for f in ("adc_start", "channel_mask", "adc_done", "value_mask")),
+    *((f, c_int64) for f in ("channels", "self_test")),
+    *((f, c_double) for f in ("pot_v_min", "pot_v_max", "adc_volts", "adc_top")),
+)
+FtArgs = _block(
+    "FtArgs",
+    ("normals", c_void_p),
+    *((f, c_int64) for f in ("size", "at")),
+    ("offset", c_void_p),
+    ("drift", c_double),
+    *((f, c_void_p) for f in ("gauges", "noise_sd", "wrench", "codes", "control", "status")),
+    *((f, c_int64) for f in ("served", "seq_mask", "request", "ready")),
+    *((f, c_double) for f in ("volts_per_code", "rail")),
+)
 FifoPopArgs = _block(
     "FifoPopArgs",
     N,
@@ -250,6 +278,10 @@ _KERNELS = {
     "kali_fifo_pop": FifoPopArgs,
     "kali_motors": MotorArgs,
     "kali_encoders": EncoderArgs,
+    "kali_boards_update": BoardArgs,
+    "kali_boards_convert": BoardArgs,
+    "kali_boards_truth": BoardArgs,
+    "kali_ft_bank": FtArgs,
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,

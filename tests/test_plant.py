@@ -26,11 +26,19 @@ from kali_daemons.layout import (
     CSR_TIMEOUT_ON,
     POWER_AMPS_ON,
     POWER_BRAKES_RELEASED,
+    POWER_BUZZER,
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
 from kali_daemons.model import build_world
-from kali_daemons.plant.board import EncoderBank, IoBoardSim, adc_code, pot_volts
+from kali_daemons.plant.board import (
+    BOARD_STATE,
+    EncoderBank,
+    IoBoardSim,
+    adc_code,
+    boards_kernel,
+    pot_volts,
+)
 from kali_daemons.plant.motor import Drive, MotorBank, drive_reference
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.robots import puma560
@@ -654,3 +662,76 @@ def test_the_compiled_encoders_equal_the_reference(cell: str) -> None:
         assert captured >= int(np.count_nonzero(regs[1]["index"] != before))
         total += captured
     assert total > 0  # indexes were captured along the way
+
+
+@pytest.mark.parametrize("cell", ["default", "mixed"])
+def test_the_compiled_boards_equal_the_reference(cell: str) -> None:
+    """``kali_boards_update`` and ``kali_boards_convert`` (``boards_kernel``) do what each
+    board's ``IoBoardSim.update`` and ``.convert`` do, bit for bit: registers, the boards'
+    state, the motors' enable and the brakes per joint, and the truth's flags, while random
+    command/status words (enable, no-disable, timeout mode, retrigger, index-off), e-stops,
+    ADC starts on every channel (past the last too) and index registers come and go over
+    plant time that runs past the enable hold, the watchdog and the brake delay."""
+    cfg = CFG if cell == "default" else MIXED
+    joints, types = cfg.joints, [r.type for r in cfg.robots]
+    n, arms = joints.total, joints.n_robots
+    rng = np.random.default_rng(27)
+    regs = [np.zeros(arms, dtype=layout.IO_BOARD) for _ in range(2)]
+    truth = [np.zeros(arms, dtype=layout.ARM_TRUTH) for _ in range(2)]
+    states = [np.zeros((arms, BOARD_STATE), np.int64) for _ in range(2)]
+    boards = [
+        [IoBoardSim(r[k : k + 1].reshape(()), cfg.plant, types[k], s[k]) for k in range(arms)]
+        for r, s in zip(regs, states, strict=True)
+    ]
+    q = np.zeros(n)
+    enabled, braked = np.zeros(n), np.ones(n, dtype=bool)
+    kernel = boards_kernel(boards[1], regs[1], truth[1], joints, q, enabled, braked)
+    convert = kernel.sibling("kali_boards_convert")
+    board_truth = kernel.sibling("kali_boards_truth")
+    lo = np.concatenate([t.q_min for t in types])
+    hi = np.concatenate([t.q_max for t in types])
+    csr_bits = [CSR_ENABLE, CSR_NO_DISABLE, CSR_TIMEOUT_ON, CSR_RETRIGGER, CSR_INDEX_OFF]
+    now, changes, seen = 0, 0, set()
+    for step in range(3000):
+        now += int(rng.integers(0, 3)) * 1_000_000  # 0-2 ms: holds and delays pass
+        if rng.random() < 0.3:  # the watchdog's pulse, now and then
+            for r in regs:
+                r["csr"] ^= CSR_RETRIGGER
+        if rng.random() < 0.02:
+            csr = np.zeros(arms, np.uint8)
+            for bit in csr_bits:
+                csr |= (rng.random(arms) < 0.6).astype(np.uint8) * np.uint8(bit)
+            estop = (rng.random(arms) < 0.1).astype(np.uint8)
+            adc = rng.integers(0, 16, arms) | (rng.random(arms) < 0.5) * ADC_START
+            index = rng.integers(0, 64, arms)
+            for r in regs:
+                r["csr"], r["estop"], r["adc_control"], r["index"] = csr, estop, adc, index
+        q[:] = rng.uniform(lo - 0.2, hi + 0.2)  # past the pots' ends too
+        ref_enabled, ref_braked = np.zeros(n), np.zeros(n, dtype=bool)
+        ref_changed = False
+        for k, b in enumerate(boards[0]):
+            b.update(now)
+            span = joints.span(k)
+            ref_enabled[span] = 1.0 if b.amps_on else 0.0
+            ref_braked[span] = not b.brakes_released
+            ref_changed |= bool(braked[span.start] != (not b.brakes_released))
+        kernel.args.now_ns = now
+        changed = kernel()
+        assert changed == ref_changed, step
+        changes += changed
+        for k, b in enumerate(boards[0]):
+            b.convert(q[joints.span(k)])
+        convert()
+        board_truth()
+        assert regs[1].tobytes() == regs[0].tobytes(), step
+        assert states[1].tobytes() == states[0].tobytes(), step
+        assert enabled.tobytes() == ref_enabled.tobytes() and (braked == ref_braked).all()
+        for k, b in enumerate(boards[0]):
+            t = truth[1][k]
+            flags = (t["amps_on"], t["brakes_engaged"], t["watchdog_tripped"], t["estop"])
+            assert flags == (b.amps_on, not b.brakes_released, b.tripped, regs[0][k]["estop"])
+        seen.update(int(p) for p in regs[0]["power"])
+    assert changes > 10  # brakes came and went
+    assert {POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED | POWER_BUZZER} <= {
+        p & bit for p in seen for bit in (POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED | POWER_BUZZER)
+    }

@@ -13,7 +13,7 @@ from kali_daemons import layout
 from kali_daemons.client import Kali
 from kali_daemons.config import parse_config
 from kali_daemons.errors import ServoError
-from kali_daemons.ftsensor import FT_RAIL, MINI45
+from kali_daemons.ftsensor import FT_RAIL, FT_REQUEST, FT_SEQ_MASK, MINI45
 from kali_daemons.kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED
 from kali_daemons.layout import FaultCode
 from kali_daemons.plant.board import FtBank
@@ -200,3 +200,36 @@ def test_the_sheet_s_error_grows_as_the_plant_s_offsets_drift() -> None:
     drift = np.sqrt(MINI45.error_sd(seconds) ** 2 - MINI45.error_sd(0.0) ** 2)
     ratio = change.std(axis=0) / drift
     assert np.all(np.abs(ratio - 1.0) < 0.15), ratio
+
+
+def test_the_compiled_gauge_bank_equals_the_reference() -> None:
+    """``kali_ft_bank`` (``FtBank.compiled``) does what ``FtBank.cycle`` does, bit for bit,
+    drawing the same normals from the same generator: the offsets' walk every cycle, and on
+    each new request (a sequence number not served yet, sometimes repeated, sometimes with the
+    request bit low) the codes, clipped at the rails for wrenches past the range, and the
+    status; over enough cycles that the kernel's block of draws is refilled many times, with
+    six draws left over and with none."""
+    regs = [np.zeros((), layout.IO_BOARD) for _ in range(2)]
+    banks = [FtBank(r, MINI45, seed=24, dt_s=0.001) for r in regs]
+    wrench = [np.zeros(layout.WRENCH) for _ in range(2)]
+    step = banks[1].compiled(wrench[1])
+    rng = np.random.default_rng(26)
+    rated = np.asarray(MINI45.rated)
+    seq, requests, saturated = 0, 0, 0
+    for cycle in range(5000):
+        if rng.random() < 0.5:
+            if rng.random() < 0.8:
+                seq = (seq + 1) & FT_SEQ_MASK  # else the same one again: not served twice
+            request = FT_REQUEST if rng.random() < 0.9 else 0
+            for r in regs:
+                r["ft_control"] = request | seq
+        w = rng.normal(0.0, 0.5, layout.WRENCH) * rated * (3.0 if rng.random() < 0.1 else 1.0)
+        wrench[0][:], wrench[1][:] = w, w
+        before = int(regs[0]["ft_status"])
+        banks[0].cycle(wrench[0])
+        step()
+        requests += int(regs[0]["ft_status"]) != before
+        saturated += bool(np.isin(regs[0]["ft_gauge"], (FT_RAIL, -FT_RAIL - 1)).any())
+        assert regs[1].tobytes() == regs[0].tobytes(), cycle
+        assert banks[1].offset.tobytes() == banks[0].offset.tobytes(), cycle
+    assert requests > 1000 and saturated > 10

@@ -29,6 +29,7 @@ All times are the plant's simulated time, so lockstep runs are deterministic.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -58,102 +59,132 @@ if TYPE_CHECKING:
 
 TWO_PI = 2.0 * math.pi
 COUNTER_MODULO = 4096
+RANDOM_BLOCK = 6 * 512  # a gauge bank's normals drawn ahead for its kernel (FtBank.compiled)
 POT_V_MIN, POT_V_MAX = 0.25, 4.75  # pot voltage at the joint limits (0-5 V ADC range)
 ADC_CHANNELS = 11  # TLC532A inputs; channel 10 is its self-test reference (V/2)
 ADC_SELF_TEST = 10
 
 
+ADC_VOLTS, ADC_TOP = 5.0, 255  # the TLC532A: 8 bits over 0-5 V
+
+# an I/O board's state, a row of int64 (IoBoardSim.state; kernels.c's B_* in this order)
+AMPS, BRAKES, TRIPPED, SWITCH_NS, ENABLE_SINCE, RETRIGGER_NS, PREV_CSR, PREV_ADC = range(8)
+BOARD_STATE = 8
+NEVER = np.iinfo(np.int64).min  # ENABLE_SINCE while the enable bit is not held
+
+
 def pot_volts(q: float, lo: float, hi: float) -> float:
     """The potentiometer voltage of a joint at angle ``q`` (linear over the joint range)."""
     v = POT_V_MIN + (POT_V_MAX - POT_V_MIN) * (q - lo) / (hi - lo)
-    return min(max(v, 0.0), 5.0)
+    return min(max(v, 0.0), ADC_VOLTS)
 
 
 def adc_code(volts: float) -> int:
     """8-bit TLC532A conversion of 0-5 V (±1/2 LSB)."""
-    return min(max(round(volts / 5.0 * 255.0), 0), 255)
+    return min(max(round(volts / ADC_VOLTS * ADC_TOP), 0), ADC_TOP)
 
 
 class IoBoardSim:
     """One arm's I/O board: power, watchdog and pot ADC; ``update`` and ``convert`` once per
     plant cycle.  Joint j's pot is ADC channel j, for the arm's ``n_joints`` joints; the other
     inputs are unconnected.  The encoders of every board are counted together by
-    ``EncoderBank``."""
+    ``EncoderBank``.
 
-    def __init__(self, regs: np.ndarray, cfg: PlantConfig, robot: RobotType) -> None:
+    Its state is one int64 row (``state``, fields ``AMPS`` .. ``PREV_ADC``): the plant's
+    boards share one array of them, which ``boards_kernel`` steps compiled; ``update`` and
+    ``convert`` are that kernel's reference, on the same row.
+    """
+
+    def __init__(
+        self,
+        regs: np.ndarray,
+        cfg: PlantConfig,
+        robot: RobotType,
+        state: np.ndarray | None = None,
+    ) -> None:
         self.regs = regs
         self.n_joints = n = robot.n_joints
         self.hold_ns = int(cfg.enable_hold_ms * 1e6)
         self.watchdog_ns = int(cfg.watchdog_ms * 1e6)
         self.brake_ns = int(cfg.brake_delay_ms * 1e6)
         self.lo, self.hi = robot.q_min, robot.q_max  # the pots span the joint range
-        self._mid = self.lo + (self.hi - self.lo) * (2.5 - POT_V_MIN) / (POT_V_MAX - POT_V_MIN)
+        self.mid = self.lo + (self.hi - self.lo) * (2.5 - POT_V_MIN) / (POT_V_MAX - POT_V_MIN)
         self._above = np.zeros(n, dtype=bool)
         self._bits = 1 << np.arange(n)
-        self.amps_on = False
-        self.brakes_released = False
-        self.tripped = False
-        self._switch_ns = 0  # when the amplifiers last changed state
-        self._enable_since: int | None = None
-        self._retrigger_ns = 0
-        self._prev_csr = int(regs["csr"])
-        self._prev_adc = 0
+        self.state = np.zeros(BOARD_STATE, np.int64) if state is None else state
+        self.state[:] = 0
+        self.state[ENABLE_SINCE] = NEVER
+        self.state[PREV_CSR] = int(regs["csr"])
+
+    @property
+    def amps_on(self) -> bool:
+        return bool(self.state[AMPS])
+
+    @property
+    def brakes_released(self) -> bool:
+        return bool(self.state[BRAKES])
+
+    @property
+    def tripped(self) -> bool:
+        return bool(self.state[TRIPPED])
 
     # ------------------------------------------------------------------ power and watchdog
 
     def update(self, now_ns: int) -> None:
         """Apply the command/status register and e-stop at plant time ``now_ns``."""
-        r = self.regs
+        r, s = self.regs, self.state
         csr = int(r["csr"])
-        prev, self._prev_csr = self._prev_csr, csr
+        prev = int(s[PREV_CSR])
+        s[PREV_CSR] = csr
         estop = bool(r["estop"])
         if csr & CSR_TIMEOUT_ON:
             if not prev & CSR_TIMEOUT_ON:
-                self._retrigger_ns = now_ns  # the timer starts when the mode is switched on
+                s[RETRIGGER_NS] = now_ns  # the timer starts when the mode is switched on
             if prev & CSR_RETRIGGER and not csr & CSR_RETRIGGER:
-                self._retrigger_ns = now_ns
-                self.tripped = False
-            elif now_ns - self._retrigger_ns > self.watchdog_ns:
-                self.tripped = True
-        elif self.tripped and prev & CSR_RETRIGGER and not csr & CSR_RETRIGGER:
-            self.tripped = False
-        disabled = not csr & CSR_NO_DISABLE or estop or self.tripped
+                s[RETRIGGER_NS] = now_ns
+                s[TRIPPED] = 0
+            elif now_ns - s[RETRIGGER_NS] > self.watchdog_ns:
+                s[TRIPPED] = 1
+        elif s[TRIPPED] and prev & CSR_RETRIGGER and not csr & CSR_RETRIGGER:
+            s[TRIPPED] = 0
+        disabled = not csr & CSR_NO_DISABLE or estop or s[TRIPPED]
         if csr & CSR_ENABLE:
-            if self._enable_since is None or not prev & CSR_ENABLE:
-                self._enable_since = now_ns
+            if s[ENABLE_SINCE] == NEVER or not prev & CSR_ENABLE:
+                s[ENABLE_SINCE] = now_ns
         else:
-            self._enable_since = None
+            s[ENABLE_SINCE] = NEVER
         if disabled:
-            self._enable_since = None
+            s[ENABLE_SINCE] = NEVER
             self._set_amps(False, now_ns)
-        elif self._enable_since is not None and now_ns - self._enable_since >= self.hold_ns:
+        elif s[ENABLE_SINCE] != NEVER and now_ns - s[ENABLE_SINCE] >= self.hold_ns:
             self._set_amps(True, now_ns)
-        if self.brakes_released != self.amps_on and now_ns - self._switch_ns >= self.brake_ns:
-            self.brakes_released = self.amps_on
+        if s[BRAKES] != s[AMPS] and now_ns - s[SWITCH_NS] >= self.brake_ns:
+            s[BRAKES] = s[AMPS]
         if csr & CSR_INDEX_OFF and r["index"]:
             r["index"] = 0  # disabling index capture clears the register
         power = (
-            (POWER_AMPS_ON if self.amps_on else 0)
-            | (POWER_BRAKES_RELEASED if self.brakes_released else 0)
-            | (POWER_WATCHDOG_TRIPPED | POWER_BUZZER if self.tripped else 0)
+            (POWER_AMPS_ON if s[AMPS] else 0)
+            | (POWER_BRAKES_RELEASED if s[BRAKES] else 0)
+            | (POWER_WATCHDOG_TRIPPED | POWER_BUZZER if s[TRIPPED] else 0)
             | (POWER_ESTOP if estop else 0)
         )
         r["power"] = power
 
     def _set_amps(self, on: bool, now_ns: int) -> None:
-        if on != self.amps_on:
-            self.amps_on = on
-            self._switch_ns = now_ns
+        s = self.state
+        if on != bool(s[AMPS]):
+            s[AMPS] = on
+            s[SWITCH_NS] = now_ns
 
     # ------------------------------------------------------------------ potentiometers
 
     def convert(self, q: np.ndarray) -> None:
         """Serve the TLC532A for the arm's joint angles ``q`` (``n_joints``): a rising START
         converts the selected channel.  Inside the cycle."""
-        r = self.regs
+        r, s = self.regs, self.state
         ctrl = int(r["adc_control"])
         start = bool(ctrl & ADC_START)
-        if start and not self._prev_adc:
+        if start and not s[PREV_ADC]:
             ch = ctrl & ADC_CHANNEL_MASK
             if ch >= ADC_CHANNELS:
                 r["clamped"] += 1
@@ -161,16 +192,84 @@ class IoBoardSim:
             if ch < self.n_joints:
                 code = adc_code(pot_volts(float(q[ch]), float(self.lo[ch]), float(self.hi[ch])))
             elif ch == ADC_SELF_TEST:
-                code = adc_code(2.5)
+                code = adc_code(ADC_VOLTS / 2)
             else:
                 code = 0  # unconnected inputs
             r["adc_analog"] = ADC_DONE | code
-        elif not start and self._prev_adc:
+        elif not start and s[PREV_ADC]:
             r["adc_analog"] = int(r["adc_analog"]) & layout.ADC_VALUE_MASK
-        self._prev_adc = int(start)
+        s[PREV_ADC] = int(start)
         # digital register: the channels above 2.5 V, i.e. past the middle of their range
-        np.greater(q, self._mid, out=self._above)
+        np.greater(q, self.mid, out=self._above)
         r["adc_digital"] = int(self._above @ self._bits)
+
+
+def boards_kernel(
+    boards: list[IoBoardSim],
+    regs: np.ndarray,
+    truth: np.ndarray,
+    joints: JointMap,
+    q: np.ndarray,
+    enabled: np.ndarray,
+    braked: np.ndarray,
+) -> Kernel:
+    """Every board's ``update`` and ``convert`` compiled (``kernels.c``'s
+    ``kali_boards_update``; ``.sibling("kali_boards_convert")`` and
+    ``.sibling("kali_boards_truth")`` on the same block).  ``boards``: one per record of
+    ``regs`` (IO_BOARD) and ``truth`` (ARM_TRUTH), their ``state`` rows of one C-ordered array;
+    ``q``, ``enabled`` (float64: the motors' 1.0 / 0.0) and ``braked`` (bool) flat per joint of
+    ``joints``.  Set ``args.now_ns`` before each update; it returns 1 when a brake changed.
+    Outside the cycle."""
+    from ..kernels import Kernel  # the library: the plant's
+
+    state = boards[0].state.base
+    assert state is not None and state.shape == (len(boards), BOARD_STATE), "one state array"
+    assert all(b.state.base is state for b in boards) and state.flags.c_contiguous
+    assert joints.counts == tuple(b.n_joints for b in boards) and len(regs) == len(boards)
+    cfg = boards[0]
+    base = np.ascontiguousarray(joints.base, dtype=np.int64)
+    count = np.ascontiguousarray(joints.counts, dtype=np.int64)
+    lo, hi, mid = (np.concatenate([getattr(b, f) for b in boards]) for f in ("lo", "hi", "mid"))
+    arrays = {
+        "state": state, "base": base, "count": count, "enabled": enabled, "braked": braked,
+        "q": q, "lo": lo, "hi": hi, "mid": mid,
+    }  # fmt: skip
+    for name, a in arrays.items():
+        assert a.flags.c_contiguous and a.dtype in (np.float64, np.int64, np.bool_), name
+    return Kernel(
+        "kali_boards_update",
+        (regs, truth, *arrays.values()),
+        n_arms=len(boards),
+        **{f: regs[f] for f in ("csr", "estop", "power", "index", "adc_control")},
+        **{f: regs[f] for f in ("adc_analog", "adc_digital", "clamped")},
+        **{f: truth[f] for f in ("amps_on", "brakes_engaged", "watchdog_tripped")},
+        truth_estop=truth["estop"],
+        **{name: a.ctypes.data for name, a in arrays.items()},
+        now_ns=0,
+        hold_ns=cfg.hold_ns,
+        watchdog_ns=cfg.watchdog_ns,
+        brake_ns=cfg.brake_ns,
+        never=NEVER,
+        timeout_on=CSR_TIMEOUT_ON,
+        retrigger=CSR_RETRIGGER,
+        no_disable=CSR_NO_DISABLE,
+        enable=CSR_ENABLE,
+        index_off=CSR_INDEX_OFF,
+        p_amps=POWER_AMPS_ON,
+        p_brakes=POWER_BRAKES_RELEASED,
+        p_tripped=POWER_WATCHDOG_TRIPPED | POWER_BUZZER,
+        p_estop=POWER_ESTOP,
+        adc_start=ADC_START,
+        channel_mask=ADC_CHANNEL_MASK,
+        adc_done=ADC_DONE,
+        value_mask=layout.ADC_VALUE_MASK,
+        channels=ADC_CHANNELS,
+        self_test=ADC_SELF_TEST,
+        pot_v_min=POT_V_MIN,
+        pot_v_max=POT_V_MAX,
+        adc_volts=ADC_VOLTS,
+        adc_top=float(ADC_TOP),
+    )
 
 
 class EncoderBank:
@@ -317,10 +416,12 @@ class FtBank:
         self._control, self._status = regs["ft_control"], regs["ft_status"]  # viewed once
         self._served = -1  # the last sequence number sampled
         self._status[...] = ftsensor.FT_PRESENT
+        self._normals = np.zeros(0)  # drawn ahead for the kernel (compiled)
 
     def cycle(self, wrench: np.ndarray) -> None:
         """One plant cycle: the offsets drift; a new request samples ``wrench`` (the tool on
-        the sensor, sensor frame).  Inside the cycle."""
+        the sensor, sensor frame).  Inside the cycle.  The reference of ``compiled``."""
+        assert not len(self._normals), "this bank's generator is drawn ahead for its kernel"
         rng, n = self._rng, self._n
         rng.standard_normal(out=n)
         n *= self._drift
@@ -340,3 +441,53 @@ class FtBank:
         np.clip(self._v, -ftsensor.FT_RAIL - 1, ftsensor.FT_RAIL, out=self._v)
         np.copyto(self._codes, self._v, casting="unsafe")
         self._status[...] = ftsensor.FT_READY | ftsensor.FT_PRESENT | seq  # last
+
+    def compiled(self, wrench: np.ndarray) -> Callable[[], None]:
+        """``cycle(wrench)`` compiled (``kernels.c``'s ``kali_ft_bank``): each call of the
+        result is one cycle on the wrench now in ``wrench`` (six float64, contiguous, never
+        moving).  The generator's normals are drawn ``RANDOM_BLOCK`` ahead (the same numbers in
+        the same order as ``cycle`` draws them) and more are drawn, outside the kernel, when
+        it says it is near the end: a few µs once every few hundred cycles.  From here on the
+        bank is stepped only this way.  Outside the cycle."""
+        from ..kernels import Kernel  # the library: the plant's
+
+        assert wrench.shape == (ftsensor.GAUGES,) and wrench.flags.c_contiguous
+        assert wrench.dtype == np.float64
+        block = self._normals = np.empty(RANDOM_BLOCK)
+        self._rng.standard_normal(out=block)
+        g = ftsensor.GAUGES
+        head, rest, tail = block[:g], block[g:], block[-g:]
+        arrays = (block, self.offset, self._gauges, self._noise_sd, wrench)
+        kernel = Kernel(
+            "kali_ft_bank",
+            (self.regs, *arrays),
+            normals=block.ctypes.data,
+            size=RANDOM_BLOCK,
+            at=0,
+            offset=self.offset.ctypes.data,
+            drift=self._drift,
+            gauges=self._gauges.ctypes.data,
+            noise_sd=self._noise_sd.ctypes.data,
+            wrench=wrench.ctypes.data,
+            codes=self._codes.ctypes.data,
+            control=self._control.ctypes.data,
+            status=self._status.ctypes.data,
+            served=self._served,
+            seq_mask=ftsensor.FT_SEQ_MASK,
+            request=ftsensor.FT_REQUEST,
+            ready=ftsensor.FT_READY | ftsensor.FT_PRESENT,
+            volts_per_code=ftsensor.VOLTS_PER_CODE,
+            rail=float(ftsensor.FT_RAIL),
+        )
+        args, rng = kernel.args, self._rng
+
+        def step() -> None:
+            if kernel():  # near the block's end: the draws left to the front, then more
+                if args.at < RANDOM_BLOCK:  # six left (draws are taken six at a time)
+                    np.copyto(head, tail)
+                    rng.standard_normal(out=rest)
+                else:
+                    rng.standard_normal(out=block)
+                args.at = 0
+
+        return step

@@ -33,7 +33,7 @@ from ..arena import Arena
 from ..config import KaliConfig
 from ..joints import ArmCopy
 from ..model import World, build_world
-from .board import EncoderBank, FtBank, IoBoardSim
+from .board import BOARD_STATE, EncoderBank, FtBank, IoBoardSim, boards_kernel
 from .motor import Drive, MotorBank
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
@@ -93,16 +93,23 @@ class PlantSim:
         self.dac["code"] = layout.DAC_ZERO
         self.truth = arena.record(layout.KEY_TRUTHS, layout.ARM_TRUTH, n_arms)
         self.joint_truth = arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, joints.total)
+        self._board_state = np.zeros((n_arms, BOARD_STATE), np.int64)  # the boards' rows
         self.boards = [
-            IoBoardSim(self.regs[k : k + 1].reshape(()), pc, types[k]) for k in range(n_arms)
+            IoBoardSim(self.regs[k : k + 1].reshape(()), pc, types[k], self._board_state[k])
+            for k in range(n_arms)
         ]
+        self._boards = boards_kernel(  # every board's update (its convert, truth: siblings)
+            self.boards, self.regs, self.truth, joints, self.q, self.motors.enabled, self.braked
+        )
+        self._boards_args = self._boards.args
+        self._convert = self._boards.sibling("kali_boards_convert")
+        self._boards_truth = self._boards.sibling("kali_boards_truth")
         # each arm is built to its calibration sheet (thesis 3.5.1): the robot's config says it
         phases = np.concatenate([r.index_phases for r in cfg.robots])
         self.encoders = EncoderBank(self.regs, types, phases, self.motor_angle, joints)
         self._count = self.encoders.compiled(self.motor_angle)
         self._codes_to_volts = ArmCopy(joints, self.volts, self.dac["code"])
         self._spans = [joints.span(k) for k in range(n_arms)]  # each arm's joints, flat
-        self._q_arms = joints.split(self.q)  # views, bound once
         self._gripper_prev = [0] * n_arms
         self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
         # the wrist sensors (issue 27): MuJoCo's force and torque at each arm's sensor site,
@@ -124,6 +131,11 @@ class PlantSim:
             )
             for k, r in enumerate(cfg.robots)
         ]
+        # each sensor's bank compiled, on its arm's true wrench (FtBank.cycle its reference)
+        self._ft_steps = [
+            bank.compiled(self._ft_true[k]) for k, bank in enumerate(self.ft) if bank is not None
+        ]
+        self._ft_arms = [k for k, src in enumerate(self._ft_src) if src is not None]
         self.pushes = arena.record(layout.KEY_PUSHES, layout.PUSH, n_arms)
         p = self.pushes  # its fields viewed once (a lookup by name builds a view)
         self._push_fields = (p["seq"], p["duration_ns"], p["force"])
@@ -172,16 +184,9 @@ class PlantSim:
 
     def cycle(self) -> None:
         """Advance the plant one period; inside the cycle (no allocation beyond numpy views)."""
-        motors = self.motors
-        changed = False
-        for k, board in enumerate(self.boards):
-            board.update(self.sim_ns)
-            sl = self._spans[k]
-            motors.enabled[sl] = 1.0 if board.amps_on else 0.0
-            braked = not board.brakes_released
-            if self.braked[sl.start] != braked:
-                self.braked[sl] = braked
-                changed = True
+        self._boards_args.now_ns = self.sim_ns
+        changed = self._boards()  # IoBoardSim.update of each, the motors' enable, the brakes
+        for k in range(len(self.boards)):
             self._gripper(k)
         if self._belt_v is not None:
             self._conveyor()
@@ -194,8 +199,7 @@ class PlantSim:
         self.sim_ns += self.substeps * self.dt_ns
         self._read_joints()
         self._count()  # the encoders (EncoderBank.sample, compiled)
-        for board, q in zip(self.boards, self._q_arms, strict=True):
-            board.convert(q)
+        self._convert()  # the pot ADCs (IoBoardSim.convert of each, compiled)
         self._read_ft()
         self.ticks += 1
         self._write_truth()
@@ -211,14 +215,10 @@ class PlantSim:
         """Each wrist sensor's true wrench, then its board's gauge bank.  MuJoCo gives the
         force and torque the flange applies to the tool (site frame); the sensor reads the
         tool's on the flange, the opposite."""
-        for k, src in enumerate(self._ft_src):
-            if src is None:
-                continue
-            w = self._ft_true[k]
-            np.negative(src, out=w)
-            bank = self.ft[k]
-            if bank is not None:
-                bank.cycle(w)
+        for k in self._ft_arms:
+            np.negative(self._ft_src[k], out=self._ft_true[k])
+        for step in self._ft_steps:
+            step()  # FtBank.cycle, compiled
 
     def _push(self) -> None:
         """Start, hold or end each arm's push on its tool (``kalictl push``): a new ``seq``
@@ -327,13 +327,7 @@ class PlantSim:
         self._truth_copies = [
             (self.joint_truth[f], src) for f, src in zip(fields, sources, strict=True)
         ]
-        self._truth_flags = [
-            tuple(
-                self.truth[k : k + 1][f].reshape(())
-                for f in ("amps_on", "brakes_engaged", "grasped", "watchdog_tripped", "estop")
-            )
-            for k in range(n)
-        ]
+        self._truth_grasped = [self.truth[k : k + 1]["grasped"].reshape(()) for k in range(n)]
         self._truth_wrench = [self.truth["grasp_wrench"][k] for k in range(n)]
         self._truth_ft = (self.truth["ft_wrench"], self._ft_true)
         self._truth_push = [(self.truth["push"][k], x[:3]) for k, x in enumerate(self._xfrc)]
@@ -348,19 +342,15 @@ class PlantSim:
         for dst, src in self._truth_copies:
             np.copyto(dst, src)
         self._weld_forces()
-        for k, board in enumerate(self.boards):
+        self._boards_truth()  # amplifiers, brakes, watchdog, e-stop
+        for k in range(len(self.boards)):
             held = bool(self._held[k])
             wrench = self._truth_wrench[k]
             if held:
                 np.copyto(wrench, self._weld[k])
             else:
                 wrench[:] = 0.0
-            amps, brakes, grasped, tripped, estop = self._truth_flags[k]
-            amps[...] = board.amps_on
-            brakes[...] = not board.brakes_released
-            grasped[...] = held
-            tripped[...] = board.tripped
-            estop[...] = board.regs["estop"]
+            self._truth_grasped[k][...] = held
         np.copyto(*self._truth_ft)
         for dst, src in self._truth_push:
             np.copyto(dst, src)
