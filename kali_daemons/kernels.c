@@ -444,6 +444,50 @@ int64_t kali_boards_truth(BoardArgs *a) {
     return 0;
 }
 
+/* ---------------------------------------------------------------- the plant's joints and DACs
+ *
+ * plant/sim.py's PlantSim._read_dac and ._read_joints (the references, operation for
+ * operation): the DAC boards' codes to amplifier volts (a code past 12 bits clamped and
+ * counted on its arm's board), and after MuJoCo's step the joints' angles, velocities and
+ * motor currents gathered from MuJoCo's arrays, the motor angles and joint torques. */
+
+typedef struct {
+    int64_t n;
+    const double *qpos, *qvel, *act;              /* MuJoCo's */
+    const int64_t *qpos_idx, *dofs, *act_adr;     /* joint i's entries in them */
+    const double *gear, *gkt;
+    double *q, *qd, *current, *motor_angle, *torque;
+    char *dacs;                                   /* the DAC boards' records */
+    const int64_t *dac_off, *robot_of;            /* joint i's code at dacs + dac_off[i] */
+    View clamped;                                 /* uint32 per arm */
+    double *volts;
+    double top, zero, scale;                      /* 4095, the code of 0 V, volts per code */
+} PlantIoArgs;
+
+int64_t kali_plant_dac(PlantIoArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) {
+        double v = (double)*(uint16_t *)(a->dacs + a->dac_off[i]);
+        if (v > a->top) { /* rare: a bad register value */
+            AT(uint32_t, a->clamped, a->robot_of[i]) += 1u;
+            v = a->top;
+        }
+        a->volts[i] = (v - a->zero) * a->scale;
+    }
+    return 0;
+}
+
+int64_t kali_plant_joints(PlantIoArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) {
+        double q = a->qpos[a->qpos_idx[i]], current = a->act[a->act_adr[i]];
+        a->q[i] = q;
+        a->qd[i] = a->qvel[a->dofs[i]];
+        a->current[i] = current;
+        a->motor_angle[i] = a->gear[i] * q;
+        a->torque[i] = a->gkt[i] * current;
+    }
+    return 0;
+}
+
 /* ---------------------------------------------------------------- the wrist sensors' gauges
  *
  * One arm's wrist sensor and gauge ADC bank each plant cycle (plant/board.py: FtBank.cycle,

@@ -15,7 +15,9 @@ here for the plant's cycle, and so are its encoder counters (``kali_encoders``, 
 boards (``kali_boards_update``, ``kali_boards_convert``, bound by ``plant.board.boards_kernel``;
 their references are ``IoBoardSim.update`` and ``.convert``) and its wrist sensors' gauge
 banks (``kali_ft_bank``, bound by ``plant.board.FtBank.compiled``; its reference is
-``FtBank.cycle``).
+``FtBank.cycle``), and its reading of the DAC boards and of MuJoCo's joints
+(``kali_plant_dac``, ``kali_plant_joints``, bound by ``plant.sim.PlantSim``; their references
+are its ``_read_dac`` and ``_read_joints``).
 A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 ``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
 feed-forward as SIO applies it (``kali_feedforward``, bound by
@@ -226,6 +228,16 @@ BoardArgs = _block(
     *((f, c_int64) for f in ("channels", "self_test")),
     *((f, c_double) for f in ("pot_v_min", "pot_v_max", "adc_volts", "adc_top")),
 )
+PlantIoArgs = _block(
+    "PlantIoArgs",
+    N,
+    *((f, c_void_p) for f in ("qpos", "qvel", "act", "qpos_idx", "dofs", "act_adr")),
+    *((f, c_void_p) for f in ("gear", "gkt", "q", "qd", "current", "motor_angle", "torque")),
+    *((f, c_void_p) for f in ("dacs", "dac_off", "robot_of")),
+    "clamped",
+    ("volts", c_void_p),
+    *((f, c_double) for f in ("top", "zero", "scale")),
+)
 FtArgs = _block(
     "FtArgs",
     ("normals", c_void_p),
@@ -282,6 +294,8 @@ _KERNELS = {
     "kali_boards_convert": BoardArgs,
     "kali_boards_truth": BoardArgs,
     "kali_ft_bank": FtArgs,
+    "kali_plant_dac": PlantIoArgs,
+    "kali_plant_joints": PlantIoArgs,
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,

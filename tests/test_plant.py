@@ -735,3 +735,36 @@ def test_the_compiled_boards_equal_the_reference(cell: str) -> None:
     assert {POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED | POWER_BUZZER} <= {
         p & bit for p in seen for bit in (POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED | POWER_BUZZER)
     }
+
+
+@pytest.mark.parametrize("cell", ["default", "mixed"])
+def test_the_compiled_joint_and_dac_reads_equal_the_reference(cell: str, arena: Arena) -> None:
+    """``kali_plant_joints`` and ``kali_plant_dac`` (bound by ``PlantSim``) do what its
+    ``_read_joints`` and ``_read_dac`` do, bit for bit: angles, velocities, currents, motor
+    angles and torques gathered from random MuJoCo states, and volts from random DAC codes,
+    codes past 12 bits clamped and counted on their arm's board alike."""
+    sim = PlantSim(CFG if cell == "default" else MIXED, arena)
+    rng = np.random.default_rng(28)
+    d, dac = sim.data, sim.dac
+    outs = (sim.q, sim.qd, sim.current, sim.motor_angle, sim.torque, sim.volts)
+    clamps = 0
+    for step in range(200):
+        d.qpos[:] = rng.uniform(-4.0, 4.0, len(d.qpos))
+        d.qvel[:] = rng.normal(0.0, 3.0, len(d.qvel))
+        d.act[:] = rng.normal(0.0, 5.0, len(d.act))
+        top = 65535 if step % 4 == 0 else 4095  # a quarter of the ticks with bad codes
+        dac["code"] = rng.integers(0, top + 1, dac["code"].shape)
+        before = dac["clamped"].copy()
+        sim._read_joints()
+        sim._read_dac()
+        want = [a.copy() for a in outs]
+        counted = dac["clamped"].copy()
+        for a in outs:
+            a[:] = np.nan
+        sim._joints_in()
+        sim._dac_in()
+        for a, b in zip(outs, want, strict=True):
+            assert a.tobytes() == b.tobytes(), step
+        assert (dac["clamped"] - counted == counted - before).all(), step
+        clamps += int((counted - before).sum())
+    assert clamps > 0

@@ -24,6 +24,7 @@ joint count unused.
 from __future__ import annotations
 
 import zlib
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -35,6 +36,9 @@ from ..joints import ArmCopy
 from ..model import World, build_world
 from .board import BOARD_STATE, EncoderBank, FtBank, IoBoardSim, boards_kernel
 from .motor import Drive, MotorBank
+
+if TYPE_CHECKING:
+    from ..kernels import Kernel
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
@@ -110,6 +114,8 @@ class PlantSim:
         self._count = self.encoders.compiled(self.motor_angle)
         self._codes_to_volts = ArmCopy(joints, self.volts, self.dac["code"])
         self._spans = [joints.span(k) for k in range(n_arms)]  # each arm's joints, flat
+        self._joints_in = self._io_kernel()  # _read_joints compiled; _read_dac a sibling
+        self._dac_in = self._joints_in.sibling("kali_plant_dac")
         self._gripper_prev = [0] * n_arms
         self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
         # the wrist sensors (issue 27): MuJoCo's force and torque at each arm's sensor site,
@@ -190,21 +196,56 @@ class PlantSim:
             self._gripper(k)
         if self._belt_v is not None:
             self._conveyor()
-        self._read_dac()
+        self._dac_in()  # the DAC codes to volts (_read_dac, compiled)
         if changed:
             self._apply_brakes()
         self._push()
         self._drive()  # motors.cycle and MuJoCo's inputs from it (motor.drive_reference)
         mujoco.mj_step(self.model, self.data, self.substeps)
         self.sim_ns += self.substeps * self.dt_ns
-        self._read_joints()
+        self._joints_in()  # angles, velocities, currents (_read_joints, compiled)
         self._count()  # the encoders (EncoderBank.sample, compiled)
         self._convert()  # the pot ADCs (IoBoardSim.convert of each, compiled)
         self._read_ft()
         self.ticks += 1
         self._write_truth()
 
+    def _io_kernel(self) -> Kernel:
+        """``_read_joints`` compiled (``kernels.c``'s ``kali_plant_joints``), on a block
+        ``kali_plant_dac`` (``_read_dac`` compiled) shares: MuJoCo's arrays, the DAC boards'
+        records and the plant's arrays, none of which ever moves.  Outside the cycle."""
+        from ..kernels import Kernel, channel_offsets  # the library: the plant's
+
+        j, d, codes = self.joints, self.data, self.dac["code"]
+        robot_of = np.ascontiguousarray(j.robot_of, dtype=np.int64)
+        joint_of = np.ascontiguousarray(j.joint_of, dtype=np.int64)
+        arrays = {
+            "qpos": d.qpos, "qvel": d.qvel, "act": d.act,
+            "qpos_idx": np.ascontiguousarray(self.qpos_idx, dtype=np.int64),
+            "dofs": np.ascontiguousarray(self.dofs, dtype=np.int64),
+            "act_adr": np.ascontiguousarray(self.act_adr, dtype=np.int64),
+            "gear": self.gear, "gkt": self.motors.gkt, "q": self.q, "qd": self.qd,
+            "current": self.current, "motor_angle": self.motor_angle, "torque": self.torque,
+            "dac_off": channel_offsets(codes, robot_of, joint_of), "robot_of": robot_of,
+            "volts": self.volts,
+        }  # fmt: skip
+        for name, a in arrays.items():
+            assert a.flags.c_contiguous and a.dtype in (np.float64, np.int64), f"plant: {name}"
+        return Kernel(
+            "kali_plant_joints",
+            (self.dac, *arrays.values()),
+            n=j.total,
+            dacs=codes.ctypes.data,
+            clamped=self.dac["clamped"],
+            top=float(DAC_MAX),
+            zero=float(layout.DAC_ZERO),
+            scale=10.0 / layout.DAC_ZERO,
+            **{name: a.ctypes.data for name, a in arrays.items()},
+        )
+
     def _read_joints(self) -> None:
+        """Angles, velocities and motor currents from MuJoCo; motor angles, joint torques
+        (the reference of ``kali_plant_joints``)."""
         self.data.qpos.take(self.qpos_idx, out=self.q)
         self.data.qvel.take(self.dofs, out=self.qd)
         self.data.act.take(self.act_adr, out=self.current)
@@ -238,7 +279,8 @@ class PlantSim:
 
     def _read_dac(self) -> None:
         """DAC codes (arm k's joint j on channel j) → amplifier input volts, flat; codes
-        above 12 bits are clamped and counted on their board."""
+        above 12 bits are clamped and counted on their board (the reference of
+        ``kali_plant_dac``)."""
         out = self.volts
         self._codes_to_volts.to_flat()
         if out.max() > DAC_MAX:  # rare: a bad register value
@@ -321,12 +363,14 @@ class PlantSim:
 
     def _truth_views(self) -> None:
         """View every truth field once (a field lookup by name builds a new view each time)."""
+        from ..kernels import copies  # the library: the plant's
+
         n = len(self.boards)
         sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)
         fields = ("q", "qd", "current", "torque", "motor_angle")
-        self._truth_copies = [
-            (self.joint_truth[f], src) for f, src in zip(fields, sources, strict=True)
-        ]
+        self._truth_copies = copies(  # one kernel
+            [(src, self.joint_truth[f]) for f, src in zip(fields, sources, strict=True)]
+        )
         self._truth_grasped = [self.truth[k : k + 1]["grasped"].reshape(()) for k in range(n)]
         self._truth_wrench = [self.truth["grasp_wrench"][k] for k in range(n)]
         self._truth_ft = (self.truth["ft_wrench"], self._ft_true)
@@ -339,8 +383,7 @@ class PlantSim:
     def _write_truth(self) -> None:
         """The plant-only records (outside the controller's view): true state of every joint
         and arm."""
-        for dst, src in self._truth_copies:
-            np.copyto(dst, src)
+        self._truth_copies()
         self._weld_forces()
         self._boards_truth()  # amplifiers, brakes, watchdog, e-stop
         for k in range(len(self.boards)):
