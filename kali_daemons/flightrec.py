@@ -8,13 +8,14 @@ has stopped, copies the ring in chronological order to
 names the file in the ring's header, so ``kalictl status`` shows it and ``kalictl flight``
 summarises what led to the halt.
 
-- ``FlightRecorder``: the writer, inside SIO's cycle (preallocated views, ~1 µs a tick).
+- ``FlightRecorder``: the writer, inside SIO's cycle (one compiled call a tick, ``record``).
 - ``FlightDumper``: the wall clock's side, outside any cycle (the clock is stopped).
 - ``read_ring``, ``load``, ``summary``, ``latest_dump``: readers for kalictl and tests.
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import os
 import time
@@ -39,6 +40,11 @@ FORMAT_VERSION = 4
 READABLE_FORMATS = (1, 2, 3, 4)
 log = logging.getLogger("kali.flight")
 SIO_IDLE_TIMEOUT_S = 1.0  # how long the dumper waits for SIO to finish a tick in progress
+# kali_flight_row's offsets (FlightArgs ``off_<name>``) of the row's timing and last fields
+OFFSETS = (
+    ("tick", "tick"), ("t", "t_ns"), ("lat", "latency_ns"), ("late", "late_ns"),
+    ("wait", "wait_ns"), ("ran", "ran_ns"), ("shadow", "shadow_torque"), ("wrench", "wrench"),
+)  # fmt: skip
 
 
 def _one(rec: np.ndarray, field: str) -> np.ndarray:
@@ -97,7 +103,6 @@ class FlightRecorder:
             )
         self.n_joints = n_joints
         self._rows = rows
-        self._n = int(self.header["count"])
         self._count = _one(self.header, "count")
         r = self.ring
         self._tick, self._t = r["tick"], r["t_ns"]
@@ -139,9 +144,56 @@ class FlightRecorder:
                 )
             self._src_wrench = wrench
         self._src = src
+        self._bind_kernel()
+
+    def _bind_kernel(self) -> None:
+        """``record_reference`` compiled (``kernels.c``'s ``kali_flight_row``), bound to the
+        ring and the sources ``bind`` named; it carries on the ring's count.  Outside the
+        cycle."""
+        from .kernels import Kernel, View, view
+
+        fields = self.ring.dtype.fields
+        assert fields is not None
+        cols = layout.FLIGHT_FIELDS[:-1]  # the float64 ones; shadow_torque is single
+        for name, a in zip(layout.FLIGHT_FIELDS, self._src, strict=True):
+            assert a.dtype == np.float64, f"flight recorder: {name} is {a.dtype}, not float64"
+            assert fields[name][0].base == (np.float32 if name == "shadow_torque" else np.float64)
+        table = (View * len(cols))(*(view(a) for a in self._src[: len(cols)]))
+        offsets = np.array([fields[f][1] for f in cols], dtype=np.int64)
+        w = self._src_wrench
+        assert w.dtype == np.float64 and w.ndim == 2
+        self._kernel = Kernel(
+            "kali_flight_row",
+            (table, offsets, w, self.ring, self._src, self._release, self._count),
+            n=self.n_joints,
+            n_robots=w.shape[0],
+            rows=self._rows,
+            ring=self.ring.ctypes.data,
+            row_size=self.ring.dtype.itemsize,
+            **{f"off_{k}": fields[f][1] for k, f in OFFSETS},
+            off_cols=offsets.ctypes.data,
+            cols=ctypes.cast(table, ctypes.POINTER(View)),
+            n_cols=len(cols),
+            shadow=self._src[-1],
+            wrench=w.ctypes.data,
+            wrench_row=w.strides[0],
+            wrench_col=w.strides[1],
+            release=self._release.ctypes.data,
+            count=self._count.ctypes.data,
+        )
+        self._args = self._kernel.args
 
     def record(self, tick: int, t_read_ns: int, latency_ns: int, wait_ns: int, ran_ns: int) -> None:
-        """Inside the cycle (no allocation, no I/O, no logging): one servo tick's row.
+        """Inside the cycle (no allocation, no I/O, no logging): one servo tick's row, as
+        ``record_reference`` writes it (compiled: ``bind`` first)."""
+        a = self._args
+        a.tick, a.t_read, a.latency, a.wait, a.ran = tick, t_read_ns, latency_ns, wait_ns, ran_ns
+        self._kernel()
+
+    def record_reference(
+        self, tick: int, t_read_ns: int, latency_ns: int, wait_ns: int, ran_ns: int
+    ) -> None:
+        """One servo tick's row, in numpy: what ``record`` does (its kernel's reference).
         ``wait_ns`` is the part of ``latency_ns`` SIO slept for the servos (the SVs' share,
         on every CPU), so a slow tick tells whether SIO or the servos were slow; ``ran_ns``
         the CPU time SIO's thread had from the read to the write (``rt.thread_time_ns``: its
@@ -153,7 +205,7 @@ class FlightRecorder:
         The row count is published last, so a reader copying the ring knows which rows may
         be torn (``read_ring``).
         """
-        n = self._n
+        n = int(self._count[0])
         r = n % self._rows
         self._tick[r] = tick
         self._t[r] = t_read_ns
@@ -171,7 +223,6 @@ class FlightRecorder:
         current[r] = scurrent
         shadow[r] = sshadow
         self._wrench[r] = self._src_wrench
-        self._n = n + 1
         self._count[0] = n + 1
 
 

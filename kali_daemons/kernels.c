@@ -307,6 +307,51 @@ int64_t kali_encoders(EncoderArgs *a) {
     return captured;
 }
 
+/* ---------------------------------------------------------------- the flight recorder's row
+ *
+ * flightrec.py's FlightRecorder.record_reference, field for field: one servo tick's row of
+ * the ring (its timing, the six per-joint columns, the shadow torque in single precision,
+ * each robot's wrench), then the header's count, published last. */
+
+typedef struct {
+    int64_t n, n_robots, rows;
+    char *ring;
+    int64_t row_size;
+    int64_t off_tick, off_t, off_lat, off_late, off_wait, off_ran, off_shadow, off_wrench;
+    const int64_t *off_cols;          /* the float64 columns' offsets in a row */
+    const View *cols;                 /* their sources, n each */
+    int64_t n_cols;
+    View shadow;                      /* float64, n */
+    const char *wrench;               /* n_robots x 6 float64 */
+    int64_t wrench_row, wrench_col;   /* its strides, bytes */
+    const int64_t *release;           /* SIO's slot's release_ns */
+    uint64_t *count;                  /* rows written: the header's, this writer's alone */
+    int64_t tick, t_read, latency, wait, ran;
+} FlightArgs;
+
+int64_t kali_flight_row(FlightArgs *a) {
+    uint64_t next = *a->count;
+    char *row = a->ring + (int64_t)(next % (uint64_t)a->rows) * a->row_size;
+    *(int64_t *)(row + a->off_tick) = a->tick;
+    *(int64_t *)(row + a->off_t) = a->t_read;
+    *(int64_t *)(row + a->off_lat) = a->latency;
+    *(int64_t *)(row + a->off_late) = a->t_read - *a->release;
+    *(int64_t *)(row + a->off_wait) = a->wait;
+    *(int64_t *)(row + a->off_ran) = a->ran;
+    for (int64_t c = 0; c < a->n_cols; c++) {
+        double *dst = (double *)(row + a->off_cols[c]);
+        for (int64_t i = 0; i < a->n; i++) dst[i] = AT(double, a->cols[c], i);
+    }
+    float *shadow = (float *)(row + a->off_shadow);
+    for (int64_t i = 0; i < a->n; i++) shadow[i] = (float)AT(double, a->shadow, i);
+    double *w = (double *)(row + a->off_wrench);
+    for (int64_t k = 0; k < a->n_robots; k++)
+        for (int64_t j = 0; j < 6; j++)
+            w[k * 6 + j] = *(const double *)(a->wrench + k * a->wrench_row + j * a->wrench_col);
+    __atomic_store_n(a->count, next + 1u, __ATOMIC_RELEASE); /* last */
+    return 0;
+}
+
 /* ---------------------------------------------------------------- the plant's I/O boards
  *
  * Every arm's I/O board each plant cycle (plant/board.py: IoBoardSim.update and .convert,

@@ -23,6 +23,9 @@ A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 feed-forward as SIO applies it (``kali_feedforward``, bound by
 ``sio.feedforward.RobotFeedforward.compiled``) is here too; its reference is that class's
 ``update``.
+SIO's row of the flight recorder (``kali_flight_row``, bound by
+``flightrec.FlightRecorder.bind``; its reference is ``FlightRecorder.record_reference``) is
+here too.
 The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
 is here for a wrist force/torque sensor read each tick; its reference is
 ``chain.flange_pose``.
@@ -228,6 +231,22 @@ BoardArgs = _block(
     *((f, c_int64) for f in ("channels", "self_test")),
     *((f, c_double) for f in ("pot_v_min", "pot_v_max", "adc_volts", "adc_top")),
 )
+FlightArgs = _block(
+    "FlightArgs",
+    *((f, c_int64) for f in ("n", "n_robots", "rows")),
+    ("ring", c_void_p),
+    ("row_size", c_int64),
+    *((f, c_int64) for f in ("off_tick", "off_t", "off_lat", "off_late", "off_wait", "off_ran")),
+    *((f, c_int64) for f in ("off_shadow", "off_wrench")),
+    ("off_cols", c_void_p),
+    ("cols", ctypes.POINTER(View)),
+    ("n_cols", c_int64),
+    "shadow",
+    ("wrench", c_void_p),
+    *((f, c_int64) for f in ("wrench_row", "wrench_col")),
+    *((f, c_void_p) for f in ("release", "count")),
+    *((f, c_int64) for f in ("tick", "t_read", "latency", "wait", "ran")),
+)
 PlantIoArgs = _block(
     "PlantIoArgs",
     N,
@@ -294,6 +313,7 @@ _KERNELS = {
     "kali_boards_convert": BoardArgs,
     "kali_boards_truth": BoardArgs,
     "kali_ft_bank": FtArgs,
+    "kali_flight_row": FlightArgs,
     "kali_plant_dac": PlantIoArgs,
     "kali_plant_joints": PlantIoArgs,
     "kali_pid_vector": VectorArgs,

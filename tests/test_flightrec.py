@@ -281,3 +281,41 @@ def test_flight_names_what_is_missing(tmp_path: Path, monkeypatch: pytest.Monkey
     assert "pickle" not in out.stderr
     with pytest.raises(InstanceError, match=r"cannot read .*: No such file or directory"):
         flightrec.load(tmp_path / "gone.npz")
+
+
+def test_the_compiled_row_equals_the_reference(arena: Arena) -> None:
+    """``record`` (``kali_flight_row``) writes what ``record_reference`` writes, byte for
+    byte, through the ring's wrap: the timing (the wake-up lateness from SIO's slot's
+    release), every joint column, the shadow torque rounded to single precision (NaN where
+    none ran), each arm's wrench from a source strided both ways, and the header's count
+    after it."""
+    rng = np.random.default_rng(7)
+    name = unique_name("fr")
+    other = Arena.create(name, 2 << 20)
+    try:
+        recs = []
+        for a in (arena, other):
+            procs = a.record(layout.KEY_PROCESSES, layout.PROCESS, layout.MAX_PROCESSES)
+            rec = flightrec.FlightRecorder(Shim(a, make_config("ring"), procs), 12, True, slot=2)
+            recs.append((rec, procs))
+        src = [np.zeros(12) for _ in layout.FLIGHT_FIELDS]
+        wrench = np.zeros((2, 2 * layout.WRENCH))[:, ::2]  # strided both ways
+        for rec, _ in recs:
+            rec.bind(*src, wrench=wrench)
+        for t in range(ROWS + 300):
+            for a in src:
+                a[:] = rng.normal(0.0, 50.0, 12)
+            src[-1][rng.random(12) < 0.3] = np.nan
+            wrench[...] = rng.normal(0.0, 20.0, (2, layout.WRENCH))
+            release = t * 1000 - int(rng.integers(0, 500))
+            for _, procs in recs:
+                procs["release_ns"][2] = release
+            args = (t, 1_000 * t + 17, int(rng.integers(0, 10**6)), 3 * t, 5 * t)
+            recs[0][0].record_reference(*args)
+            recs[1][0].record(*args)
+            assert recs[1][0].ring.tobytes() == recs[0][0].ring.tobytes(), t
+            assert recs[1][0].header.tobytes() == recs[0][0].header.tobytes(), t
+        del recs, rec
+    finally:
+        other.close()
+        launcher.stop(name)
