@@ -433,13 +433,20 @@ class Daemon:
 class _CycleStats:
     """Writes one slot's process-side statistics; inside the cycle, no allocation.
 
-    Each field is viewed once, here: indexing a structured record by field name builds a new
-    view every time, which at 1 kHz is most of what the bookkeeping would cost.
+    ``record`` is one compiled call (``kernels.c``'s ``kali_cycle_stats``: every process
+    makes it every cycle); ``record_reference`` is what it does, in numpy.  Each field is
+    viewed once, here: indexing a structured record by field name builds a new view every
+    time, which at 1 kHz is most of what the bookkeeping would cost.
     """
 
-    __slots__ = ("_ack", "_acks", "_exec", "_exec_max", "_heart", "_hist", "_late", "_late_max")
+    __slots__ = (
+        "_ack", "_acks", "_args", "_exec", "_exec_max", "_heart", "_hist", "_kernel", "_late",
+        "_late_max",
+    )  # fmt: skip
 
     def __init__(self, procs: np.ndarray, slot: int) -> None:
+        from .kernels import Kernel
+
         def one(field: str) -> np.ndarray:
             return procs[field][slot : slot + 1]
 
@@ -447,9 +454,29 @@ class _CycleStats:
         self._exec, self._exec_max = one("exec_last_ns"), one("exec_max_ns")
         self._hist = procs["hist"][slot]
         self._heart, self._acks, self._ack = one("heartbeat_ns"), one("acks"), one("ack_tick")
+        assert self._hist.flags.c_contiguous and self._hist.dtype == np.uint32
+        views = {
+            "late": self._late, "late_max": self._late_max, "exec": self._exec,
+            "exec_max": self._exec_max, "heart": self._heart, "ack": self._ack,
+            "acks": self._acks, "hist": self._hist,
+        }  # fmt: skip
+        self._kernel = Kernel(
+            "kali_cycle_stats",
+            (procs, *views.values()),
+            **{name: v.ctypes.data for name, v in views.items()},
+            linear_us=layout.HIST_LINEAR_US,
+            log_bins=layout.HIST_LOG_BINS,
+        )
+        self._args = self._kernel.args
 
     def record(self, tick: int, release_ns: int, woke_ns: int, done_ns: int) -> None:
         """Account one cycle, then acknowledge ``tick`` (the last store the clock reads)."""
+        a = self._args
+        a.tick, a.release, a.woke, a.done = tick, release_ns, woke_ns, done_ns
+        self._kernel()
+
+    def record_reference(self, tick: int, release_ns: int, woke_ns: int, done_ns: int) -> None:
+        """What ``record`` does, in numpy (its kernel's reference)."""
         late = woke_ns - release_ns
         exe = done_ns - woke_ns
         self._late[0] = late

@@ -307,6 +307,42 @@ int64_t kali_encoders(EncoderArgs *a) {
     return captured;
 }
 
+/* ---------------------------------------------------------------- a cycle's statistics
+ *
+ * daemon.py's _CycleStats.record_reference, field for field: one cycle of a process-table
+ * slot accounted (lateness and execution time, their maxima, the lateness histogram's bin
+ * as layout.lateness_bin gives it, the heartbeat), then its acknowledgement, last: the
+ * store the clock reads. */
+
+typedef struct {
+    int64_t *late, *late_max, *exec, *exec_max, *heart, *ack;
+    uint64_t *acks;
+    uint32_t *hist;
+    int64_t linear_us, log_bins;        /* layout.HIST_LINEAR_US, HIST_LOG_BINS */
+    int64_t tick, release, woke, done;
+} StatsArgs;
+
+int64_t kali_cycle_stats(StatsArgs *a) {
+    int64_t late = a->woke - a->release, exe = a->done - a->woke;
+    *a->late = late;
+    if (late > *a->late_max) *a->late_max = late;
+    *a->exec = exe;
+    if (exe > *a->exec_max) *a->exec_max = exe;
+    int64_t us = late >= 0 ? late / 1000 : -((-late + 999) / 1000); /* Python's floor // */
+    int64_t bin;
+    if (us < a->linear_us) {
+        bin = us > 0 ? us : 0;
+    } else {
+        int64_t b = (int64_t)(log2((double)us / (double)a->linear_us) * 8.0);
+        bin = a->linear_us + (b < a->log_bins - 1 ? b : a->log_bins - 1);
+    }
+    a->hist[bin] += 1u;
+    *a->heart = a->done;
+    *a->acks += 1u;
+    __atomic_store_n(a->ack, a->tick, __ATOMIC_RELEASE); /* last */
+    return 0;
+}
+
 /* ---------------------------------------------------------------- the flight recorder's row
  *
  * flightrec.py's FlightRecorder.record_reference, field for field: one servo tick's row of

@@ -23,6 +23,8 @@ A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 feed-forward as SIO applies it (``kali_feedforward``, bound by
 ``sio.feedforward.RobotFeedforward.compiled``) is here too; its reference is that class's
 ``update``.
+Every process's account of a cycle in its process-table slot (``kali_cycle_stats``, bound by
+``daemon._CycleStats``; its reference is ``_CycleStats.record_reference``) is here, and so is
 SIO's row of the flight recorder (``kali_flight_row``, bound by
 ``flightrec.FlightRecorder.bind``; its reference is ``FlightRecorder.record_reference``) is
 here too.
@@ -231,6 +233,12 @@ BoardArgs = _block(
     *((f, c_int64) for f in ("channels", "self_test")),
     *((f, c_double) for f in ("pot_v_min", "pot_v_max", "adc_volts", "adc_top")),
 )
+StatsArgs = _block(
+    "StatsArgs",
+    *((f, c_void_p) for f in ("late", "late_max", "exec", "exec_max", "heart", "ack", "acks")),
+    ("hist", c_void_p),
+    *((f, c_int64) for f in ("linear_us", "log_bins", "tick", "release", "woke", "done")),
+)
 FlightArgs = _block(
     "FlightArgs",
     *((f, c_int64) for f in ("n", "n_robots", "rows")),
@@ -314,6 +322,7 @@ _KERNELS = {
     "kali_boards_truth": BoardArgs,
     "kali_ft_bank": FtArgs,
     "kali_flight_row": FlightArgs,
+    "kali_cycle_stats": StatsArgs,
     "kali_plant_dac": PlantIoArgs,
     "kali_plant_joints": PlantIoArgs,
     "kali_pid_vector": VectorArgs,

@@ -591,3 +591,30 @@ def test_a_program_stepping_the_clock_hears_that_the_instance_was_stopped(
         with pytest.raises(ClockError, match=f"instance '{name}' was stopped"):
             step_kali_clock(inst, 10)
         assert time.monotonic() - t0 < 1.0
+
+
+def test_the_compiled_cycle_account_equals_the_reference() -> None:
+    """``_CycleStats.record`` (``kali_cycle_stats``) accounts a cycle as
+    ``record_reference`` does, byte for byte: lateness and execution time and their maxima,
+    the histogram's bin over its linear and logarithmic ranges (early wake-ups in bin 0,
+    hours late in the last), heartbeat, count and acknowledged tick."""
+    from kali_daemons.daemon import _CycleStats
+
+    procs = [np.zeros(4, layout.PROCESS) for _ in range(2)]
+    stats = [_CycleStats(p, 2) for p in procs]
+    rng = np.random.default_rng(5)
+    for tick in range(20_000):
+        scale = 10 ** int(rng.integers(2, 13))  # 100 ns to 1000 s late
+        release = int(rng.integers(0, 10**15))
+        woke = release + int(rng.integers(-scale // 10, scale))
+        done = woke + int(rng.integers(0, scale))
+        stats[0].record_reference(tick, release, woke, done)
+        stats[1].record(tick, release, woke, done)
+        assert procs[1].tobytes() == procs[0].tobytes(), tick
+    for more in (1, 0, 1):  # a new maximum by one nanosecond, then equal to it
+        late, exe = int(procs[0]["late_max_ns"][2]) + more, int(procs[0]["exec_max_ns"][2]) + more
+        stats[0].record_reference(tick, 0, late, late + exe)
+        stats[1].record(tick, 0, late, late + exe)
+        assert procs[1].tobytes() == procs[0].tobytes(), more
+    hist = procs[0]["hist"][2]
+    assert hist[0] > 0 and hist[layout.HIST_LINEAR_US + 10] > 0 and hist[-1] > 0
