@@ -163,9 +163,6 @@ MOVE_SPEED = 0.5
 MOVE_TIMEOUT_S = 10.0
 MARGIN_S = 1.0  # a request phase stops this long before the window's end
 ARM = "left"  # the arm the remote program works
-# default.yaml's arena_kib (4096) is short of what the four-arm cell needs (4222 KiB, with or
-# without the bridge: bench_servo's four-1ms-2sv meets the same ConfigError)
-CELL_ARENA: dict[str, dict[str, object]] = {"four": {"arena_kib": 6144}}
 
 
 @dataclass(frozen=True)
@@ -245,7 +242,6 @@ def config_for(spec: Spec, instance: str, endpoint: str, tmp: Path) -> KaliConfi
         **sv_overrides(DEFAULT_CONFIG, N_SV),
         **CELLS[spec.cell],
         **extras_overrides(True, tmp / f"{instance}.rrd"),
-        **CELL_ARENA.get(spec.cell, {}),
         "bridge.enabled": spec.bridge,
     }
     if spec.bridge:
@@ -821,7 +817,7 @@ def report(results: list[Result], argv: list[str], port: int) -> str:
         f"config: bench_servo's 1ms-2sv (config/default.yaml, 1 ms servo, 2 SVs, full "
         f"feed-forward, dashboard) + bridge on tcp/127.0.0.1:{port}, telemetry_hz "
         f"{TELEMETRY_HZ:g}, SCHED_OTHER on CPU 1; the four-arm cell with arena_kib "
-        f"{CELL_ARENA['four']['arena_kib']} (default.yaml's 4096 is short of its 4222 KiB)",
+        f"{CELLS['four']['arena_kib']} (default.yaml's 4096 is short of its 4222 KiB)",
         f"floor: {ct}",
         "",
     ]

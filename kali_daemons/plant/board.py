@@ -226,7 +226,11 @@ def boards_kernel(
     assert state is not None and state.shape == (len(boards), BOARD_STATE), "one state array"
     assert all(b.state.base is state for b in boards) and state.flags.c_contiguous
     assert joints.counts == tuple(b.n_joints for b in boards) and len(regs) == len(boards)
-    cfg = boards[0]
+    first = boards[0]  # the timings are the plant config's, every board's alike
+    assert all(
+        (b.hold_ns, b.watchdog_ns, b.brake_ns) == (first.hold_ns, first.watchdog_ns, first.brake_ns)
+        for b in boards
+    )
     base = np.ascontiguousarray(joints.base, dtype=np.int64)
     count = np.ascontiguousarray(joints.counts, dtype=np.int64)
     lo, hi, mid = (np.concatenate([getattr(b, f) for b in boards]) for f in ("lo", "hi", "mid"))
@@ -246,9 +250,9 @@ def boards_kernel(
         truth_estop=truth["estop"],
         **{name: a.ctypes.data for name, a in arrays.items()},
         now_ns=0,
-        hold_ns=cfg.hold_ns,
-        watchdog_ns=cfg.watchdog_ns,
-        brake_ns=cfg.brake_ns,
+        hold_ns=first.hold_ns,
+        watchdog_ns=first.watchdog_ns,
+        brake_ns=first.brake_ns,
         never=NEVER,
         timeout_on=CSR_TIMEOUT_ON,
         retrigger=CSR_RETRIGGER,
