@@ -23,7 +23,7 @@ from benchlib import (
     stalls_before,
     unexplained_misses,
 )
-from soak import SIO_BEFORE, sio_story
+from soak import SIO_BEFORE, judge_memory_until, sio_story
 
 SPIKES = """\
 # some header cyclictest may print
@@ -174,3 +174,24 @@ def test_the_soak_tells_sio_s_own_work_from_the_servos_around_a_miss() -> None:
         "N-2 woke 81 took 235 (servos 90, ran 140); N-1 woke 278 took 941 (servos 120, "
         "ran 150); N not served; N+1 woke 79 took 289 (servos 95, ran 190)"
     )
+
+
+def test_after_a_halt_the_soak_judges_memory_up_to_the_halt() -> None:
+    """A halt makes the wall clock write the flight recorder's dump, ~3 MB of RSS once (seen
+    with ``kalictl estop`` on an idle instance): the soak judges every process's memory over
+    the samples before the halt, the last sampling instant before it as the end, so that step
+    is not called a leak, a process that grew before it still is, and one whose samples
+    stopped before that instant is GONE."""
+    samples = {
+        "wallclock": [(0.0, 40_000), (30.0, 40_010), (60.0, 40_020), (75.0, 43_100)],
+        "sio": [(0.0, 40_000), (30.0, 42_000), (60.0, 44_000), (75.0, 44_000)],
+        "sv.1": [(0.0, 40_000), (30.0, 40_000)],
+    }
+    pids = {"wallclock": 1, "sio": 2, "sv.1": 3}
+    whole = {m.name: m.verdict for m in judge_memory_until(samples, pids, {}, 75.0, None)}
+    assert whole == {"wallclock": "GROWS", "sio": "GROWS", "sv.1": "GONE"}
+    halted = judge_memory_until(samples, pids, {}, 75.0, 70.0)
+    assert {m.name: m.verdict for m in halted} == {
+        "wallclock": "flat", "sio": "GROWS", "sv.1": "GONE",
+    }  # fmt: skip
+    assert {m.name: m.end_kib for m in halted}["wallclock"] == 40_020
