@@ -700,6 +700,51 @@ int64_t kali_fifo_pop(FifoPopArgs *a) {
     return 1;
 }
 
+/* ---------------------------------------------------------------- the robots' common path
+ *
+ * SIO's per-robot step where nothing is happening to the robot (sio/daemon.py's
+ * ServoIO._robot is the reference; this is its last branch): its pots read, powered ON with
+ * its amplifiers on, no power or calibration command pending, no halt this tick, not
+ * calibrating, no tripped guard, not guided by hand.  Such a robot's demand is this tick's
+ * from its FIFO (kali_fifo_pop) and its joints are fed.  Every other robot is left as it is
+ * for _robot: its bit is set in the result.  The fed mask is cleared first, every joint. */
+
+typedef struct {
+    int64_t n, n_robots;
+    View bounds;                     /* int64, n_robots + 1: robot k's joints bounds[k] .. */
+    View fed;                        /* uint8 (bool), every joint */
+    View pots_read, power, power_cmd, calib_cmd, calib_state, guided; /* uint8, per robot */
+    View guard_state;                /* uint32, per robot */
+    View amps;                       /* uint8, per robot: the board register with ... */
+    int64_t amps_bit;                /* ... this bit set while its amplifiers are on */
+    int64_t on, tripped;             /* PowerState.ON, GuardState.TRIPPED */
+    int64_t calib_active;            /* bit s set: calibration state s is under way */
+    FifoPopArgs **pops;              /* robot k's kali_fifo_pop block */
+    int64_t faulted;                 /* this tick's, set by SIO before each call */
+} RobotsArgs;
+
+int64_t kali_sio_robots(RobotsArgs *a) {
+    for (int64_t i = 0; i < a->n; i++) AT(uint8_t, a->fed, i) = 0;
+    int64_t others = 0;
+    for (int64_t k = 0; k < a->n_robots; k++) {
+        uint8_t calib = AT(uint8_t, a->calib_state, k);
+        int common = !a->faulted && AT(uint8_t, a->pots_read, k)
+                     && AT(uint8_t, a->power, k) == a->on && !AT(uint8_t, a->power_cmd, k)
+                     && !AT(uint8_t, a->calib_cmd, k) && (AT(uint8_t, a->amps, k) & a->amps_bit)
+                     && !(calib < 64 && (a->calib_active >> calib) & 1)
+                     && AT(uint32_t, a->guard_state, k) != (uint32_t)a->tripped
+                     && !AT(uint8_t, a->guided, k);
+        if (!common) {
+            others |= (int64_t)1 << k;
+            continue;
+        }
+        kali_fifo_pop(a->pops[k]);
+        int64_t hi = AT(int64_t, a->bounds, k + 1);
+        for (int64_t i = AT(int64_t, a->bounds, k); i < hi; i++) AT(uint8_t, a->fed, i) = 1;
+    }
+    return others;
+}
+
 /* ---------------------------------------------------------------- feed-forward
  *
  * One robot's feed-forward as SIO applies it each servo tick (sio/feedforward.py, whose

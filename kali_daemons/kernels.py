@@ -22,12 +22,14 @@ A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 ``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
 feed-forward as SIO applies it (``kali_feedforward``, bound by
 ``sio.feedforward.RobotFeedforward.compiled``) is here too; its reference is that class's
-``update``.
+``update``; and so is SIO's step of every robot where nothing but its motion is happening
+to it: the demand popped, the joints fed (``kali_sio_robots``, bound by
+``sio.daemon.ServoIO._bind_kernels``; its reference is ``ServoIO._robot``, which any other
+robot still takes).
 Every process's account of a cycle in its process-table slot (``kali_cycle_stats``, bound by
 ``daemon._CycleStats``; its reference is ``_CycleStats.record_reference``) is here, and so is
 SIO's row of the flight recorder (``kali_flight_row``, bound by
-``flightrec.FlightRecorder.bind``; its reference is ``FlightRecorder.record_reference``) is
-here too.
+``flightrec.FlightRecorder.bind``; its reference is ``FlightRecorder.record_reference``).
 The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
 is here for a wrist force/torque sensor read each tick; its reference is
 ``chain.flange_pose``.
@@ -287,6 +289,16 @@ FifoPopArgs = _block(
     *((f, c_int64) for f in ("num", "den")),
     ("stamp", ctypes.c_uint64),
 )
+RobotsArgs = _block(
+    "RobotsArgs",
+    N,
+    ("n_robots", c_int64),
+    *("bounds", "fed", "pots_read", "power", "power_cmd", "calib_cmd", "calib_state", "guided"),
+    *("guard_state", "amps"),
+    *((f, c_int64) for f in ("amps_bit", "on", "tripped", "calib_active")),
+    ("pops", c_void_p),
+    ("faulted", c_int64),
+)
 FfArgs = _block(
     "FfArgs",
     N,
@@ -315,6 +327,7 @@ _KERNELS = {
     "kali_copy": CopyArgs,
     "kali_feedforward": FfArgs,
     "kali_fifo_pop": FifoPopArgs,
+    "kali_sio_robots": RobotsArgs,
     "kali_motors": MotorArgs,
     "kali_encoders": EncoderArgs,
     "kali_boards_update": BoardArgs,

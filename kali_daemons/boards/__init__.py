@@ -51,6 +51,10 @@ class Hardware(Protocol):
     def amps_on(self, k: int) -> bool:
         """Whether arm ``k``'s amplifiers are on."""
 
+    def amps_register(self) -> tuple[np.ndarray, int]:
+        """The register (uint8, one per arm, a 1-D view) and the bit of it that ``amps_on``
+        reads: SIO's compiled common path (``kali_sio_robots``) tests it in place."""
+
     def powered(self, k: int) -> bool:
         """Whether arm ``k`` can servo: amplifiers on, brakes released."""
 

@@ -143,6 +143,7 @@ class McGillBoards:
     ) -> None:
         self.driver = JointDriver(types, boards["encoder"], dacs["code"], index_phase=index_phase)
         self._arms = [_Arm(boards, dacs, k, t.n_joints) for k, t in enumerate(types)]
+        self._power = boards["power"]  # every arm's power register (amps_register)
         self.hold_ticks = hold_ticks
         self.retrigger_ticks = retrigger_ticks
         self.ticks = 0  # servo ticks whose registers were written (end_tick)
@@ -178,6 +179,10 @@ class McGillBoards:
     def amps_on(self, k: int) -> bool:
         """Whether arm ``k``'s amplifiers are on, as its board reports."""
         return bool(int(self._arms[k].power) & POWER_AMPS_ON)
+
+    def amps_register(self) -> tuple[np.ndarray, int]:
+        """The arms' power registers and the bit ``amps_on`` reads (``Hardware``)."""
+        return self._power, POWER_AMPS_ON
 
     def powered(self, k: int) -> bool:
         """Whether arm ``k`` is ready to servo: amplifiers on and brakes released."""

@@ -37,6 +37,7 @@ pulses (3.5.1, ``calibration.py``), stepped here while the robot is powered.
 
 from __future__ import annotations
 
+import ctypes
 import math
 from collections.abc import Callable
 
@@ -349,6 +350,29 @@ class ServoIO(Daemon):
         self._ff = [ff.compiled() for ff in self._ff_reference]  # kali_feedforward
         # each robot's demand from its FIFO (kali_fifo_pop): _robot's common path
         self._pops = [f.compiled_pop(r.demand) for f, r in zip(self.fifos, self._r, strict=True)]
+        # every robot's step where nothing but its motion happens to it: the demand popped,
+        # its joints fed, the fed mask cleared first; any other robot is _robot's
+        rs = lv.robots
+        amps, amps_bit = self.hw.amps_register()
+        pops = (ctypes.c_void_p * lv.n_robots)(*(ctypes.addressof(p.args) for p in self._pops))
+        self._robots = Kernel(
+            "kali_sio_robots",
+            (pops, self._pops),
+            n=n,
+            n_robots=lv.n_robots,
+            bounds=np.array([*lv.map.base, n], dtype=np.int64),
+            fed=self.fed_mask,
+            **{f: rs[f] for f in ("pots_read", "power", "power_cmd", "calib_cmd", "calib_state")},
+            guided=rs["guided"],
+            guard_state=self._guard_state,
+            amps=amps,
+            amps_bit=amps_bit,
+            on=PowerState.ON,
+            tripped=GuardState.TRIPPED,
+            calib_active=sum(1 << state for state in ACTIVE),
+            pops=ctypes.addressof(pops),
+        )
+        self._robots_args = self._robots.args
         d = self.driver  # the joint records: SIO's arrays, then the driver's state (store)
         self._publish = copies(
             [(src, dst) for dst, src in self._pub]
@@ -379,10 +403,14 @@ class ServoIO(Daemon):
                 faulted = self._halt(FaultCode.FORCE, tick, message)
             elif sensor.guard_reached():  # a guarded move touched: its arms hold from now
                 self._trip_guards(sensor, tick)
-        # (b) per robot: power switch, demand, pots; then the checks
-        self.fed_mask[:] = False
-        for k in range(lv.n_robots):
-            self._robot(k, tick, faulted)
+        # (b) per robot: power switch, demand, pots (the fed mask cleared first; a robot where
+        # nothing but its motion happens is compiled, any other is _robot's); then the checks
+        self._robots_args.faulted = faulted
+        others = self._robots()
+        if others:
+            for k in range(lv.n_robots):
+                if others >> k & 1:
+                    self._robot(k, tick, faulted)
         if not faulted and self._checks(tick):
             faulted = True
             self.fed_mask[:] = False
@@ -456,7 +484,9 @@ class ServoIO(Daemon):
         return arm
 
     def _robot(self, k: int, tick: int, faulted: bool) -> None:
-        """Power switch, pots and this tick's demand of robot ``k``."""
+        """Power switch, pots and this tick's demand of robot ``k``: every case of it, the
+        reference of ``kali_sio_robots``, which does its last branch (the pop) for a robot in
+        the common case and leaves every other robot to this."""
         r = self._r[k]
         q, demand = r.q, r.demand
         if not int(r.pots_read):
@@ -631,8 +661,9 @@ class ServoIO(Daemon):
                     deadline = now - self.slice_ns + self.wait_ns
                 if self._dead_servo(tick) or now >= deadline:
                     break
-        # drain a post that raced with the last check
-        while True:
+        # drain a post that raced with the last check (looked at first: a failed acquire
+        # raises, which costs more than the post; only SIO takes from this semaphore)
+        while self.done_sem.value:
             try:
                 self.done_sem.acquire(0)
             except posix_ipc.BusyError:
