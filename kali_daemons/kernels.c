@@ -569,6 +569,77 @@ int64_t kali_plant_joints(PlantIoArgs *a) {
     return 0;
 }
 
+/* ---------------------------------------------------------------- the plant's truth
+ *
+ * The arms' and the world's truth after each plant cycle (plant/sim.py's
+ * PlantSim._write_truth_reference, step for step; the joints' truth and the boards' flags are
+ * kali_copy's and kali_boards_truth's): whether each arm grasps (its weld active), the weld's
+ * force and torque on the object, each wrist sensor's true wrench, each push on a tool, the
+ * simulated time and cycles, the object's pose and the squeeze between the first two grasps.
+ * A weld's rows are in MuJoCo's constraint arrays, which move as contacts come and go: while
+ * one is active the kernel returns 1 before writing anything, the plant copies the rows
+ * (_weld_forces) and calls it again with welds_read set. */
+
+typedef struct {
+    int64_t n;                     /* arms */
+    const uint8_t *eq_active;      /* MuJoCo's: weld k is arm k's */
+    uint8_t *held;                 /* n, bool */
+    const double *weld;            /* n x 6: the rows _weld_forces copied */
+    View grasped;                  /* uint8, per arm record */
+    View grasp_wrench, ft_wrench, push; /* each record's field (6, 6, 3 doubles) */
+    const double *ft_true;         /* n x 6 */
+    const double *xfrc;            /* MuJoCo's xfrc_applied, 6 a body */
+    const int64_t *tool_body;      /* n */
+    const double *site_xpos;       /* 3 a site */
+    const int64_t *grasp_site;     /* n */
+    const double *object_qpos;     /* 7 */
+    int64_t *sim_time_ns;
+    uint64_t *ticks;
+    double *object_pose;           /* 7 */
+    double *internal_force;
+    int64_t sim_ns, cycles, welds_read;
+} PlantTruthArgs;
+
+#define ROW(v, k) ((double *)((v).p + (int64_t)(k) * (v).stride))
+
+static double internal_force(const PlantTruthArgs *a) {
+    int64_t first = -1, second = -1;
+    for (int64_t k = 0; k < a->n; k++) {
+        if (a->held[k] && first < 0) first = k;
+        else if (a->held[k]) { second = k; break; }
+    }
+    if (second < 0) return 0.0;
+    const double *pa = a->site_xpos + 3 * a->grasp_site[first];
+    const double *pb = a->site_xpos + 3 * a->grasp_site[second];
+    double u0 = pb[0] - pa[0], u1 = pb[1] - pa[1], u2 = pb[2] - pa[2];
+    double norm = sqrt(u0 * u0 + u1 * u1 + u2 * u2);
+    if (norm == 0.0) return 0.0;
+    u0 /= norm, u1 /= norm, u2 /= norm;
+    const double *fa = a->weld + 6 * first, *fb = a->weld + 6 * second;
+    return 0.5 * ((fb[0] * u0 + fb[1] * u1 + fb[2] * u2) - (fa[0] * u0 + fa[1] * u1 + fa[2] * u2));
+}
+
+int64_t kali_plant_truth(PlantTruthArgs *a) {
+    int any = 0;
+    for (int64_t k = 0; k < a->n; k++) any |= a->held[k] = a->eq_active[k] != 0;
+    if (any && !a->welds_read) return 1;
+    a->welds_read = 0;
+    for (int64_t k = 0; k < a->n; k++) {
+        double *wrench = ROW(a->grasp_wrench, k), *ft = ROW(a->ft_wrench, k);
+        double *push = ROW(a->push, k);
+        const double *xfrc = a->xfrc + 6 * a->tool_body[k];
+        for (int c = 0; c < 6; c++) wrench[c] = a->held[k] ? a->weld[6 * k + c] : 0.0;
+        AT(uint8_t, a->grasped, k) = a->held[k];
+        for (int c = 0; c < 6; c++) ft[c] = a->ft_true[6 * k + c];
+        for (int c = 0; c < 3; c++) push[c] = xfrc[c];
+    }
+    *a->sim_time_ns = a->sim_ns;
+    *a->ticks = (uint64_t)a->cycles;
+    *a->internal_force = internal_force(a);
+    memcpy(a->object_pose, a->object_qpos, 7 * sizeof(double));
+    return 0;
+}
+
 /* ---------------------------------------------------------------- the wrist sensors' gauges
  *
  * One arm's wrist sensor and gauge ADC bank each plant cycle (plant/board.py: FtBank.cycle,

@@ -17,7 +17,9 @@ their references are ``IoBoardSim.update`` and ``.convert``) and its wrist senso
 banks (``kali_ft_bank``, bound by ``plant.board.FtBank.compiled``; its reference is
 ``FtBank.cycle``), and its reading of the DAC boards and of MuJoCo's joints
 (``kali_plant_dac``, ``kali_plant_joints``, bound by ``plant.sim.PlantSim``; their references
-are its ``_read_dac`` and ``_read_joints``).
+are its ``_read_dac`` and ``_read_joints``), and its truth records after each cycle
+(``kali_plant_truth``, bound by ``PlantSim._truth_views``; its reference is
+``PlantSim._write_truth_reference``).
 A robot's demand from its FIFO (``kali_fifo_pop``, bound by
 ``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
 feed-forward as SIO applies it (``kali_feedforward``, bound by
@@ -277,6 +279,16 @@ FtArgs = _block(
     *((f, c_int64) for f in ("served", "seq_mask", "request", "ready")),
     *((f, c_double) for f in ("volts_per_code", "rail")),
 )
+PlantTruthArgs = _block(
+    "PlantTruthArgs",
+    N,
+    *((f, c_void_p) for f in ("eq_active", "held", "weld")),
+    *("grasped", "grasp_wrench", "ft_wrench", "push"),
+    *((f, c_void_p) for f in ("ft_true", "xfrc", "tool_body", "site_xpos", "grasp_site")),
+    *((f, c_void_p) for f in ("object_qpos", "sim_time_ns", "ticks", "object_pose")),
+    ("internal_force", c_void_p),
+    *((f, c_int64) for f in ("sim_ns", "cycles", "welds_read")),
+)
 FifoPopArgs = _block(
     "FifoPopArgs",
     N,
@@ -338,6 +350,7 @@ _KERNELS = {
     "kali_cycle_stats": StatsArgs,
     "kali_plant_dac": PlantIoArgs,
     "kali_plant_joints": PlantIoArgs,
+    "kali_plant_truth": PlantTruthArgs,
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,

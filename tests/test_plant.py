@@ -768,3 +768,42 @@ def test_the_compiled_joint_and_dac_reads_equal_the_reference(cell: str, arena: 
         assert (dac["clamped"] - counted == counted - before).all(), step
         clamps += int((counted - before).sum())
     assert clamps > 0
+
+
+@pytest.mark.parametrize("cell", ["default", "mixed"])
+def test_the_compiled_truth_equals_the_reference(cell: str, arena: Arena) -> None:
+    """``kali_plant_truth`` (with the joints' copies and the boards' flags: ``_write_truth``)
+    writes what ``_write_truth_reference`` writes, bit for bit: grasps held and let go in
+    every combination (their weld rows from MuJoCo's constraint forces), the grasp sites
+    apart and on one point (no squeeze line), random sensor wrenches, pushes, times and
+    poses."""
+    sim = PlantSim(CFG if cell == "default" else MIXED, arena)
+    rng = np.random.default_rng(1128)
+    m, d = sim.model, sim.data
+    records = (sim.truth, sim.world_truth, sim.joint_truth)
+    held_seen, squeezes = set(), 0
+    for step in range(300):
+        d.qpos[:] += rng.normal(0.0, 0.05, len(d.qpos))
+        d.eq_active[:] = rng.random(m.neq) < 0.5
+        mujoco.mj_forward(m, d)  # the constraint rows of the welds now active, positions
+        if step % 10 == 0 and m.neq > 1:  # both grasp sites on one point: no line
+            g = sim.world.grasp_site
+            d.site_xpos[g[1]] = d.site_xpos[g[0]]
+        d.xfrc_applied[:] = rng.normal(0.0, 20.0, d.xfrc_applied.shape)
+        sim._ft_true[:] = rng.normal(0.0, 30.0, sim._ft_true.shape)
+        sim.sim_ns, sim.ticks = int(rng.integers(0, 2**62)), int(rng.integers(0, 2**62))
+        sim._write_truth_reference()
+        want = [r.tobytes() for r in records]
+        for r in records:  # garbage in every field, so the kernels must write each one
+            for f in r.dtype.names:
+                if not f.startswith("_"):
+                    r[f] = np.nan if r[f].dtype.kind == "f" else 0xA5
+        sim._held[:] = ~sim._held
+        sim._weld[:] = np.nan  # read afresh from MuJoCo by the kernel's path too
+        sim._write_truth()
+        for r, w in zip(records, want, strict=True):
+            assert r.tobytes() == w, step
+        held_seen.add(tuple(bool(h) for h in sim._held))
+        squeezes += float(sim.world_truth["internal_force"]) != 0.0
+    assert len(held_seen) == 2 ** len(sim._held)  # every combination of grasps
+    assert squeezes > 20

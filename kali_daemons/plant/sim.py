@@ -23,6 +23,7 @@ joint count unused.
 
 from __future__ import annotations
 
+import math
 import zlib
 from typing import TYPE_CHECKING
 
@@ -363,7 +364,7 @@ class PlantSim:
 
     def _truth_views(self) -> None:
         """View every truth field once (a field lookup by name builds a new view each time)."""
-        from ..kernels import copies  # the library: the plant's
+        from ..kernels import Kernel, copies  # the library: the plant's
 
         n = len(self.boards)
         sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)
@@ -379,10 +380,56 @@ class PlantSim:
         adr = self.world.object_qpos_adr
         self._world_views = (w["sim_time_ns"], w["ticks"], w["internal_force"])
         self._object_pose = (w["object_pose"], self.data.qpos[adr : adr + 7])
+        # the rest of the truth in one kernel (_write_truth_reference is what it equals), on
+        # MuJoCo's fixed-size arrays (MjData allocates them once) and the records
+        d, world = self.data, self.world
+        ints = {
+            "tool_body": np.array(world.tool_body, dtype=np.int64),
+            "grasp_site": np.array(world.grasp_site, dtype=np.int64),
+        }
+        fixed = {
+            "eq_active": d.eq_active,
+            "held": self._held,
+            "weld": self._weld,
+            "ft_true": self._ft_true,
+            "xfrc": d.xfrc_applied,
+            "site_xpos": d.site_xpos,
+            "object_qpos": self._object_pose[1],
+            "sim_time_ns": w["sim_time_ns"],
+            "ticks": w["ticks"],
+            "object_pose": w["object_pose"],
+            "internal_force": w["internal_force"],
+            **ints,
+        }
+        for name, a in fixed.items():
+            assert a.flags.c_contiguous, f"plant: {name} must be contiguous for its kernel"
+        t = self.truth
+        self._truth = Kernel(
+            "kali_plant_truth",
+            (t, w, d, *fixed.values()),
+            n=n,
+            grasped=t["grasped"],
+            grasp_wrench=t["grasp_wrench"][:, 0],
+            ft_wrench=t["ft_wrench"][:, 0],
+            push=t["push"][:, 0],
+            **{name: a.ctypes.data for name, a in fixed.items()},
+        )
+        self._truth_args = self._truth.args
 
     def _write_truth(self) -> None:
         """The plant-only records (outside the controller's view): true state of every joint
-        and arm."""
+        and arm, in three kernels (``_write_truth_reference`` is what they equal)."""
+        self._truth_copies()
+        self._boards_truth()  # amplifiers, brakes, watchdog, e-stop
+        args = self._truth_args
+        args.sim_ns, args.cycles = self.sim_ns, self.ticks
+        if self._truth():  # a weld holds: its rows from MuJoCo's constraint forces first
+            self._weld_forces()
+            args.welds_read = 1
+            self._truth()
+
+    def _write_truth_reference(self) -> None:
+        """``_write_truth`` in Python and numpy, step for step (its kernel's reference)."""
         self._truth_copies()
         self._weld_forces()
         self._boards_truth()  # amplifiers, brakes, watchdog, e-stop
@@ -415,11 +462,13 @@ class PlantSim:
                 break
         if b < 0:
             return 0.0
-        d = self.data
-        u = d.site_xpos[self.world.grasp_site[b]] - d.site_xpos[self.world.grasp_site[a]]
-        norm = float(np.linalg.norm(u))
+        xpos = self.data.site_xpos  # in scalars: the order of every operation is the kernel's
+        pa, pb = xpos[self.world.grasp_site[a]], xpos[self.world.grasp_site[b]]
+        u0, u1, u2 = (float(pb[c] - pa[c]) for c in range(3))
+        norm = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
         if norm == 0.0:
             return 0.0
-        u /= norm
-        fa, fb = self._weld[a], self._weld[b]
-        return float(0.5 * (fb[:3] @ u - fa[:3] @ u))
+        u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
+        fa0, fa1, fa2 = (float(f) for f in self._weld[a, :3])
+        fb0, fb1, fb2 = (float(f) for f in self._weld[b, :3])
+        return 0.5 * ((fb0 * u0 + fb1 * u1 + fb2 * u2) - (fa0 * u0 + fa1 * u1 + fa2 * u2))
