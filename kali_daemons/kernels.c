@@ -1453,6 +1453,48 @@ int64_t kali_serve_unit(UnitArgs *a) {
     return ran;
 }
 
+/* ---------------------------------------------------------------- a robot-level servo's torques out
+ *
+ * The SV's last step for a robot under a robot-level servo (sv/arm.py's
+ * ArmRunner._finish_reference, step for step): a disabled joint gets no torque; every
+ * joint's slot then holds its torque, its tracking error q_d - q, status 0, the tick and the
+ * SV, as a joint servo leaves them, and the step's duration since t0 (each slot its share);
+ * the robot's record the same.  A torque that is not finite writes nothing: 1 (the SV halts,
+ * naming the algorithm). */
+
+typedef struct {
+    int64_t n;
+    double *tau;                /* n, contiguous: the step's torques */
+    const double *q_d, *q;      /* the ArmInput's, contiguous */
+    View enabled;               /* uint32: the slots' (clients': 0 = no torque) */
+    View torque, error;         /* double: the slots' */
+    View status, sv;            /* int32 */
+    View ran, exec;             /* int64 */
+    int32_t *arm_status;        /* the robot's record */
+    int64_t *arm_exec_ns, *arm_ran_tick;
+    int64_t tick, sv_index, t0;
+} ArmFinishArgs;
+
+int64_t kali_arm_finish(ArmFinishArgs *a) {
+    int64_t n = a->n;
+    for (int64_t i = 0; i < n; i++)
+        if (!isfinite(a->tau[i])) return 1;
+    for (int64_t i = 0; i < n; i++) {
+        if (AT(uint32_t, a->enabled, i) == 0) a->tau[i] = 0.0;
+        AT(double, a->torque, i) = a->tau[i];
+        AT(double, a->error, i) = a->q_d[i] - a->q[i];
+        AT(int32_t, a->status, i) = 0;
+        AT(int64_t, a->ran, i) = a->tick;
+        AT(int32_t, a->sv, i) = (int32_t)a->sv_index;
+    }
+    int64_t exe = now_ns() - a->t0;
+    for (int64_t i = 0; i < n; i++) AT(int64_t, a->exec, i) = exe / n;
+    *a->arm_status = 0;
+    *a->arm_exec_ns = exe;
+    *a->arm_ran_tick = a->tick;
+    return 0;
+}
+
 /* ---------------------------------------------------------------- robot-level built-ins
  *
  * One step of a built-in robot-level servo (servo/armbuiltins.py: its module docstring gives

@@ -37,7 +37,9 @@ is here for a wrist force/torque sensor read each tick; its reference is
 ``chain.flange_pose``.
 The robot-level built-ins (issue 27: computed torque and the Cartesian impedance, one arm a
 call: ``kali_computed_torque``, ``kali_impedance``, bound by ``arm_step``) are here too; their
-references are ``servo.armbuiltins._ct_step`` and ``_imp_step``.
+references are ``servo.armbuiltins._ct_step`` and ``_imp_step``; and so is what the SV does
+with the torques of any robot-level step (``kali_arm_finish``, bound by ``sv.arm.ArmRunner``;
+its reference is ``ArmRunner._finish_reference``).
 
 Why C through ctypes and not numba (measured on this VM, 12 joints): a numba call with 12
 array arguments costs 0.67 µs, a ctypes call with one pointer to an argument block laid
@@ -198,6 +200,14 @@ WrenchArgs = _block(
     ),
     ("done", c_int64),
 )
+ArmFinishArgs = _block(
+    "ArmFinishArgs",
+    N,
+    *((f, c_void_p) for f in ("tau", "q_d", "q")),
+    *("enabled", "torque", "error", "status", "sv", "ran", "exec"),
+    *((f, c_void_p) for f in ("arm_status", "arm_exec_ns", "arm_ran_tick")),
+    *((f, c_int64) for f in ("tick", "sv_index", "t0")),
+)
 ArmArgs = _block(
     "ArmArgs",
     N,
@@ -354,6 +364,7 @@ _KERNELS = {
     "kali_pid_vector": VectorArgs,
     "kali_pd_vector": VectorArgs,
     "kali_serve_unit": UnitArgs,
+    "kali_arm_finish": ArmFinishArgs,
     "kali_chain_pose": ChainPoseArgs,
     "kali_wrench_tick": WrenchArgs,
     "kali_wrench_convert": WrenchArgs,

@@ -126,3 +126,49 @@ def kali(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[.
     for name in started:
         launcher.stop(name)
         assert leftovers(name) == ([], []), f"instance {name} left something behind"
+
+
+class HostedCell:
+    """Daemons configured in the test's own process on one lockstep instance's arena, as the
+    lockstep executive hosts them (``Daemon.host``), for a test that drives their cycle
+    logic directly: ``HostedCell(edits, ("plant", "sio", "sv.0"))``, the daemons by name in
+    start-up order (the plant makes the boards SIO waits for, SIO the servo level the SVs
+    wait for).  ``close`` releases them and removes the instance."""
+
+    def __init__(
+        self,
+        names: tuple[str, ...],
+        edits: dict[str, str] | None = None,
+        base: str = "default.yaml",
+    ) -> None:
+        from kali_daemons.instance import Instance
+        from kali_daemons.wallclock.executive import HOSTED_ORDER
+
+        classes = {kind: (mod, cls) for kind, mod, cls in HOSTED_ORDER}
+        self.name = unique_name("host")
+        cfg = make_config(self.name, edits, base)
+        launcher._create(cfg, self.name, lockstep=True).close()
+        self.inst = Instance.attach(self.name)
+        self.daemons: dict[str, object] = {}
+        try:
+            for p in cfg.processes:
+                self.inst.claim_slot(p.name, 0)
+            for name in names:
+                mod, cls = classes[cfg.process(name).kind]
+                module = __import__(f"kali_daemons.{mod}", fromlist=[cls])
+                daemon = getattr(module, cls)(self.name, name)
+                daemon.host(self.inst)
+                self.daemons[name] = daemon
+        except BaseException:
+            self.close()
+            raise
+
+    def __getitem__(self, name: str) -> object:
+        return self.daemons[name]
+
+    def close(self) -> None:
+        for daemon in reversed(list(self.daemons.values())):
+            daemon._finish()  # type: ignore[attr-defined]
+        self.inst.close()
+        launcher.stop(self.name)
+        assert leftovers(self.name) == ([], []), f"instance {self.name} left something behind"

@@ -19,45 +19,33 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from kali_daemons import launcher
 from kali_daemons.errors import ChannelError
-from kali_daemons.instance import Instance
 from kali_daemons.layout import POWER_AMPS_ON as AMPS_ON
 from kali_daemons.layout import CalibState, GuardState, PowerCmd, PowerState
-from kali_daemons.plant.daemon import Plant
 from kali_daemons.servolevel import ServoLevel
 from kali_daemons.sio.daemon import ServoIO
 
-from .conftest import make_config, unique_name
+from .conftest import HostedCell
 
 CASES = 400
 
 
 class Hosted:
-    """A plant and SIO configured in this process on one instance's arena."""
+    """A plant and SIO hosted in this process (``HostedCell``), with the TG's end of the
+    FIFOs and the whole arena as bytes."""
 
     def __init__(self) -> None:
-        self.name = unique_name("rk")
-        cfg = make_config(self.name)
-        launcher._create(cfg, self.name, lockstep=True).close()
-        self.inst = Instance.attach(self.name)
-        for p in cfg.processes:
-            self.inst.claim_slot(p.name, 0)
-        self.plant = Plant(self.name, "plant")
-        self.plant.host(self.inst)
-        self.sio = ServoIO(self.name, "sio")
-        self.sio.host(self.inst)
+        self.cell = HostedCell(("plant", "sio"))
+        self.inst = self.cell.inst
+        self.sio: ServoIO = self.cell["sio"]  # type: ignore[assignment]
         self.level = ServoLevel(self.inst)  # the producer's side of the FIFOs: the TG's
         self.fifos = [self.level.fifo(k) for k in range(self.level.n_robots)]
         self.memory = np.frombuffer(self.inst.arena._mm, dtype=np.uint8)  # the whole arena
 
     def close(self) -> None:
-        for daemon in (self.sio, self.plant):
-            daemon._finish()
         del self.memory
         self.level.close()
-        self.inst.close()
-        launcher.stop(self.name)
+        self.cell.close()
 
     def state(self) -> tuple[bytes, ...]:
         """Everything ``_robot`` may write: the arena, SIO's arrays, the pops' own state."""

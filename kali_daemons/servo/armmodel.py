@@ -3,7 +3,8 @@ arm's mass matrix, nonlinear effects and gravity (Pinocchio, on the model the dy
 process's feed-forward uses: rotor inertias and the configured tool included,
 ``cell.load_pinocchio``), the tool point's Jacobian, and the tool point's pose at the
 measured and the demanded angles (``kernels.chain_pose``, the compiled chain the wrist sensor
-uses too), all in world axes through the robot's base pose.
+uses too, with the base pose and the tool tip folded into its ends), all in world axes
+through the robot's base pose.
 
 The tool point is ``ft.tool_tip_m`` along the flange's z axis: where SIO expresses the contact
 wrench (``sio/wrench.py``), so a stiffness and a sensed force are about the same point.
@@ -14,6 +15,8 @@ floats), accepted inside the SV's cycle as the dynamics process accepts its own.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
@@ -45,19 +48,20 @@ class ArmModel:
         self.inp = inp
         inp.friction = DriveFriction(rtype)
         base = base_pose(robot.base_xyz, robot.base_yaw_deg)
-        self._base = base
         self._rot = np.zeros((6, 6))  # the base's rotation for both halves of a twist
         self._rot[:3, :3] = self._rot[3:, 3:] = base[:3, :3]
-        self._tip = np.eye(4)
-        self._tip[2, 3] = ft.tool_tip_m
-        self._flange = np.zeros((4, 4))
-        self._flange_d = np.zeros((4, 4))
-        self._scratch = np.zeros((4, 4))
-        self._q = np.zeros(inp.n)  # contiguous copies the kernels read
-        self._q_d = np.zeros(inp.n)
+        tip = np.eye(4)
+        tip[2, 3] = ft.tool_tip_m
+        # the tool point in the world is base · flange · tip: the chain with the base folded
+        # into its first transform and the tip into its last, so one kernel call gives it
         chain = chain_of(rtype)
-        self._pose = chain_pose(chain, self._q, self._flange)
-        self._pose_d = chain_pose(chain, self._q_d, self._flange_d)
+        origins = chain.origins.copy()
+        origins[0] = base @ origins[0]
+        origins[-1] = origins[-1] @ tip
+        origins.setflags(write=False)
+        self.tool_chain = replace(chain, origins=origins)
+        self._pose = chain_pose(self.tool_chain, inp.q, inp.pose)
+        self._pose_d = chain_pose(self.tool_chain, inp.q_d, inp.pose_d)
         self.update()  # a first computation now: Pinocchio's first use faults its pages in
 
     def update(self) -> None:
@@ -69,14 +73,5 @@ class ArmModel:
         np.copyto(inp.g, pin.computeGeneralizedGravity(model, data, q))
         jac = pin.computeFrameJacobian(model, data, q, self.frame, pin.LOCAL_WORLD_ALIGNED)
         np.matmul(self._rot, jac, out=inp.J)
-        np.copyto(self._q, q)
-        np.copyto(self._q_d, inp.q_d)
-        self._pose()
+        self._pose()  # the tool point at q and at q_d (kali_chain_pose on tool_chain)
         self._pose_d()
-        self._world(self._flange, inp.pose)
-        self._world(self._flange_d, inp.pose_d)
-
-    def _world(self, flange: np.ndarray, out: np.ndarray) -> None:
-        """base · flange · tip into ``out``."""
-        np.matmul(self._base, flange, out=self._scratch)
-        np.matmul(self._scratch, self._tip, out=out)

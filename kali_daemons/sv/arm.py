@@ -33,6 +33,7 @@ import numpy as np
 
 from .. import atomic, layout, rt, shadow
 from ..errors import ServoError
+from ..kernels import Kernel, copies
 from ..layout import ShadowState, SlotOp, SlotReset
 from ..servo.arm import ArmInput
 from ..servolevel import apply_arm_op, apply_op, handover
@@ -70,14 +71,6 @@ class ArmRunner:
         self.tau_prev = np.zeros(self.n)
         slots = lv.slots[span]
         inp = self.inp
-        self._in = [
-            (inp.q_d, slots["demand"]),
-            (inp.qd_d, slots["demand_vel"]),
-            (inp.qdd_d, slots["demand_acc"]),
-            (inp.q, slots["position"]),
-            (inp.qd, slots["velocity"]),
-            (inp.tau_ff, slots["ff"]),
-        ]
         self._torque, self._error = slots["torque"], slots["error"]
         self._status, self._ran, self._sv = slots["status"], slots["ran_tick"], slots["sv"]
         self._exec, self._reset, self._enabled = slots["exec_ns"], slots["reset"], slots["enabled"]
@@ -88,6 +81,18 @@ class ArmRunner:
         self._wrench = fts["world"][k]
         inp.wrenches = fts["world"]  # every robot's, read in place (a squeeze's partner)
         inp.wrenches.setflags(write=False)
+        # this tick's inputs from the slots (and the wrist sensor), in one copy kernel each
+        self._gather = copies(
+            [
+                (slots["demand"], inp.q_d),
+                (slots["demand_vel"], inp.qd_d),
+                (slots["demand_acc"], inp.qdd_d),
+                (slots["position"], inp.q),
+                (slots["velocity"], inp.qd),
+                (slots["ff"], inp.tau_ff),
+            ]
+        )
+        self._gather_wrench = copies([(self._wrench, inp.wrench)]) if inp.has_sensor else None
         self._op_addr = lv.arm_op_addr[k]
         self._arms = lv.registry.arms
         self._data = lv.arm_data[k]
@@ -99,6 +104,28 @@ class ArmRunner:
         ]
         self._algo = self.robot["arm_algo"]
         self._guided = self.robot["guided"]
+        # the torques of a robot-level step out to the slots (_finish_reference is what it
+        # does); the robot's record fields it writes, viewed once
+        record = ("arm_status", "arm_exec_ns", "arm_ran_tick")
+        self._arm_fields = tuple(self.robot[f] for f in record)
+        self._finish = Kernel(
+            "kali_arm_finish",
+            (self.tau, inp.q_d, inp.q, *self._arm_fields),
+            n=self.n,
+            tau=self.tau.ctypes.data,
+            q_d=inp.q_d.ctypes.data,
+            q=inp.q.ctypes.data,
+            enabled=self._enabled,
+            torque=self._torque,
+            error=self._error,
+            status=self._status,
+            sv=self._sv,
+            ran=self._ran,
+            exec=self._exec,
+            sv_index=worker.index,
+            **{f: a.ctypes.data for f, a in zip(record, self._arm_fields, strict=True)},
+        )
+        self._finish_args = self._finish.args
         # shadow trials (kali_daemons.shadow): a robot-level one's torques, (shadow − active)
         # and its square, and the slots' figures it records into
         self._ops = slots["op"]
@@ -117,11 +144,9 @@ class ArmRunner:
 
     def run(self, tick: int) -> None:
         """Run the robot for ``tick`` (inside the cycle)."""
-        inp = self.inp
-        for dst, src in self._in:
-            np.copyto(dst, src)
-        if inp.has_sensor:
-            np.copyto(inp.wrench, self._wrench)
+        self._gather()
+        if self._gather_wrench is not None:
+            self._gather_wrench()
         model = self.model
         op = atomic.load32(self._op_addr)
         if op != SlotOp.NONE:
@@ -173,22 +198,34 @@ class ArmRunner:
         except Exception as exc:  # the user's servo: halt and say which
             self._fault(alg.name, f"raised {type(exc).__name__}: {exc}")
             return False
-        tau = self.tau
-        if status != 0 or not np.isfinite(tau).all():
-            self._fault(alg.name, f"returned torques {tau!r}, status {status!r}")
+        if status != 0:
+            self._fault(alg.name, f"returned torques {self.tau!r}, status {status!r}")
+            return False
+        args = self._finish_args
+        args.tick, args.t0 = tick, t0
+        if self._finish():  # a torque not finite: nothing written (kali_arm_finish)
+            self._fault(alg.name, f"returned torques {self.tau!r}, status {status!r}")
+            return False
+        return True
+
+    def _finish_reference(self, tick: int, t0: int) -> bool:
+        """What ``kali_arm_finish`` does after a step that returned 0 (its reference): False,
+        writing nothing, if a torque is not finite; else a disabled joint gets no torque and
+        every slot, and the robot's record, holds what a joint servo leaves there."""
+        tau, inp = self.tau, self.inp
+        if not np.isfinite(tau).all():
             return False
         np.equal(self._enabled, 0, out=self._off)
         np.copyto(tau, 0.0, where=self._off)  # a disabled joint gets no torque
         self._torque[:] = tau
         np.subtract(inp.q_d, inp.q, out=self._error)
-        self._status[:] = status
+        self._status[:] = 0
         self._ran[:] = tick
         self._sv[:] = self.worker.index
         exe = rt.monotonic_ns() - t0
         self._exec[:] = exe // self.n
-        self.robot["arm_status"] = status
-        self.robot["arm_exec_ns"] = exe
-        self.robot["arm_ran_tick"] = tick
+        status, exec_ns, ran_tick = self._arm_fields
+        status[...], exec_ns[...], ran_tick[...] = 0, exe, tick
         return True
 
     def _shadow_step(self, a: int) -> None:
