@@ -292,14 +292,20 @@ def cyclictest_command(
     priority: int = CT_PRIORITY,
     spike_nodes: int = SPIKE_NODES,
 ) -> list[str]:
-    """The cyclictest command line (``--laptop``: never touch /dev/cpu_dma_latency).
+    """The cyclictest command line (``--laptop``: never touch /dev/cpu_dma_latency), every
+    thread waking every ``period_us`` (``-d 0``: by default thread n adds n x 500 µs).
 
     With a ``histfile``, the histogram of every wake-up's lateness (``parse_histfile``).
     With ``spike_us`` > 0, every wake-up later than that is logged with its time
     (``parse_spikes``), the first ``spike_nodes`` of them (``spikes_unlogged``).
     """
     cmd = ["cyclictest", "--laptop", "-m", "-p", str(priority), "-i", str(period_us)]
-    cmd += ["-t", str(threads)]
+    cmd += [
+        "-t",
+        str(threads),
+        "-d",
+        "0",
+    ]  # every thread at the period (the default adds 500 µs a thread)
     if threads > 1:
         cmd.append("-a")  # thread N on CPU N
     cmd += ["-q", "-D", f"{seconds}s"]

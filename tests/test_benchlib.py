@@ -3,6 +3,7 @@ when a Kali miss counts as "also seen by cyclictest" (issue 7's soak goal rests 
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import time
@@ -145,6 +146,18 @@ def test_the_stall_detector_command_has_no_histogram() -> None:
     assert "--spike=200" in cmd and "--spike-nodes=1000" in cmd
     floor = cyclictest_command(10, 2, Path("/tmp/h"), 1000, 0)
     assert "-h" in floor and not any(a.startswith("--spike") for a in floor)
+
+
+def test_every_cyclictest_thread_wakes_at_the_period_asked() -> None:
+    """cyclictest's thread n wakes every interval + n x distance (500 µs unless ``-d`` says
+    otherwise): without ``-d 0`` the floor sampled the second CPU every 1.5 ms and the stall
+    detector every 750 µs, not 1 ms and 250 µs.  Every thread at the period asked for."""
+    cmd = cyclictest_command(1, 2, None, 1000, 0)
+    i = cmd.index("-p")
+    del cmd[i : i + 2]  # SCHED_OTHER: as any user
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=30, check=True).stdout
+    intervals = re.findall(r"^T:\s*(\d+) .*? I:\s*(\d+)", out, re.M)
+    assert intervals == [("0", "1000"), ("1", "1000")], out
 
 
 def test_cyclictest_logs_its_spikes_in_clock_monotonic(tmp_path: Path) -> None:
