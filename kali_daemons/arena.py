@@ -19,6 +19,7 @@ resource tracker ever unlinks it behind the owner's back (Python 3.11's
 
 from __future__ import annotations
 
+import glob
 import mmap
 import os
 import pwd
@@ -36,6 +37,13 @@ from .spinlock import SpinLock, holder_text
 SEGMENT_PREFIX = "/kali."
 DIR_READ_WAIT_S = 0.5  # longest a reader waits for a directory change to finish
 SEM_BYTES = 32  # sizeof(sem_t) on Linux: the size of a real POSIX semaphore's file
+
+
+def instances_present() -> list[str]:
+    """The names of the instances whose segments are in /dev/shm (anyone's), sorted: what a
+    refusal to attach can offer instead."""
+    prefix = "/dev/shm" + SEGMENT_PREFIX
+    return sorted(path.removeprefix(prefix) for path in glob.glob(glob.escape(prefix) + "*"))
 
 
 def segment_name(instance: str) -> str:
@@ -130,8 +138,14 @@ class Arena:
         try:
             shm = posix_ipc.SharedMemory(name)
         except posix_ipc.ExistentialError as exc:
+            others = instances_present()
+            running = (
+                f"; instances running: {', '.join(others)} (kalictl -i NAME, or KALI_INSTANCE=NAME)"
+                if others
+                else ""
+            )
             raise ArenaError(
-                f"no instance '{instance}': {name} does not exist (is it started?)"
+                f"no instance '{instance}': {name} does not exist (is it started?){running}"
             ) from exc
         except posix_ipc.PermissionsError:
             raise ArenaError(

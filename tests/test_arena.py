@@ -48,6 +48,18 @@ def test_attach_to_missing_instance_says_so() -> None:
         Arena.attach(unique_name("nosuch"))
 
 
+def test_attach_to_missing_instance_names_those_running(arena: Arena) -> None:
+    """A program or ``kalictl`` without ``-i`` after ``kalictl start -c config/force.yaml``
+    (instance 'force') looks for 'default': the refusal names the instances there are and
+    how to pick one."""
+    running = arena.name.removeprefix("/kali.")
+    with pytest.raises(ArenaError) as err:
+        Arena.attach(unique_name("nosuch"))
+    message = str(err.value)
+    assert "instances running: " in message and running in message.split("running: ")[1]
+    assert "kalictl -i NAME" in message and "KALI_INSTANCE" in message
+
+
 def test_segment_is_owner_only(arena: Arena) -> None:
     mode = os.stat("/dev/shm" + arena.name).st_mode
     assert stat.S_IMODE(mode) == 0o600
