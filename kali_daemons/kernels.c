@@ -601,6 +601,7 @@ typedef struct {
 } PlantTruthArgs;
 
 #define ROW(v, k) ((double *)((v).p + (int64_t)(k) * (v).stride))
+#define WRENCH 6 /* layout.WRENCH: force and torque, a weld's constraint rows too */
 
 static double internal_force(const PlantTruthArgs *a) {
     int64_t first = -1, second = -1;
@@ -615,7 +616,7 @@ static double internal_force(const PlantTruthArgs *a) {
     double norm = sqrt(u0 * u0 + u1 * u1 + u2 * u2);
     if (norm == 0.0) return 0.0;
     u0 /= norm, u1 /= norm, u2 /= norm;
-    const double *fa = a->weld + 6 * first, *fb = a->weld + 6 * second;
+    const double *fa = a->weld + WRENCH * first, *fb = a->weld + WRENCH * second;
     return 0.5 * ((fb[0] * u0 + fb[1] * u1 + fb[2] * u2) - (fa[0] * u0 + fa[1] * u1 + fa[2] * u2));
 }
 
@@ -627,10 +628,10 @@ int64_t kali_plant_truth(PlantTruthArgs *a) {
     for (int64_t k = 0; k < a->n; k++) {
         double *wrench = ROW(a->grasp_wrench, k), *ft = ROW(a->ft_wrench, k);
         double *push = ROW(a->push, k);
-        const double *xfrc = a->xfrc + 6 * a->tool_body[k];
-        for (int c = 0; c < 6; c++) wrench[c] = a->held[k] ? a->weld[6 * k + c] : 0.0;
+        const double *xfrc = a->xfrc + 6 * a->tool_body[k]; /* MuJoCo's 6 a body */
+        for (int c = 0; c < WRENCH; c++) wrench[c] = a->held[k] ? a->weld[WRENCH * k + c] : 0.0;
         AT(uint8_t, a->grasped, k) = a->held[k];
-        for (int c = 0; c < 6; c++) ft[c] = a->ft_true[6 * k + c];
+        for (int c = 0; c < WRENCH; c++) ft[c] = a->ft_true[WRENCH * k + c];
         for (int c = 0; c < 3; c++) push[c] = xfrc[c];
     }
     *a->sim_time_ns = a->sim_ns;

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import os
 import re
 import time
@@ -155,7 +156,7 @@ class HostedCell:
                 self.inst.claim_slot(p.name, 0)
             for name in names:
                 mod, cls = classes[cfg.process(name).kind]
-                module = __import__(f"kali_daemons.{mod}", fromlist=[cls])
+                module = importlib.import_module(f"kali_daemons.{mod}")
                 daemon = getattr(module, cls)(self.name, name)
                 daemon.host(self.inst)
                 self.daemons[name] = daemon

@@ -383,10 +383,7 @@ class PlantSim:
         # the rest of the truth in one kernel (_write_truth_reference is what it equals), on
         # MuJoCo's fixed-size arrays (MjData allocates them once) and the records
         d, world = self.data, self.world
-        ints = {
-            "tool_body": np.array(world.tool_body, dtype=np.int64),
-            "grasp_site": np.array(world.grasp_site, dtype=np.int64),
-        }
+        assert self._weld.shape[1] == self._ft_true.shape[1] == layout.WRENCH  # the C's WRENCH
         fixed = {
             "eq_active": d.eq_active,
             "held": self._held,
@@ -399,7 +396,8 @@ class PlantSim:
             "ticks": w["ticks"],
             "object_pose": w["object_pose"],
             "internal_force": w["internal_force"],
-            **ints,
+            "tool_body": np.array(world.tool_body, dtype=np.int64),
+            "grasp_site": np.array(world.grasp_site, dtype=np.int64),
         }
         for name, a in fixed.items():
             assert a.flags.c_contiguous, f"plant: {name} must be contiguous for its kernel"
