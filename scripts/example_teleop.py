@@ -49,5 +49,10 @@ with Kali() as kali:
         print(f"followed the hand up to {farthest * 1000:.1f} mm from the start")
         print(f"the device stopped, and so did the arm: {follow.message}")
         print(f"rate-limited ticks: {follow.limited}")
-    finally:
-        device.wait(timeout=30)
+    finally:  # in lockstep the device runs only while the clock steps: pause until it ends
+        deadline = time.monotonic() + 30.0
+        while device.poll() is None and time.monotonic() < deadline:
+            kali.pause()
+        if device.poll() is None:
+            device.kill()
+        device.wait()

@@ -3,7 +3,8 @@
     python scripts/hand_controller.py [--seconds S] [--name hand]
 
 It attaches to the instance ($KALI_INSTANCE, as ``kalictl run`` sets it), holds a shared
-transform (``--name``, default ``hand``) and writes into it, every 20 ms on the wall clock
+transform (``--name``, default ``hand``) from the first tick the clock runs it, and writes into
+it every 20 ms on the wall clock
 (``client.control``: this process is the periodic function, so a lockstep run waits for it),
 the offset an operator's hand would give: a slow figure of eight in the tool's x-y plane, a
 small nod about its z, starting and ending at rest.  After ``--seconds`` it stops writing and
@@ -48,11 +49,17 @@ def main() -> int:
     parser.add_argument("--name", default="hand")
     args = parser.parse_args()
     with Kali() as kali:
-        hand = kali.shared_transform(args.name, np.eye(4), lifetime=LIFETIME_S)
         tick_s = kali.inst.config.clock.base_tick_ms / 1000.0
-        start = int(kali.inst.clock["tick"])
+        stream: list = []  # the transform and the tick the device started on, at its first run
 
         def write(tick: int) -> bool:
+            if not stream:  # held from the first tick the clock runs the device: a program
+                # that finds the transform finds it streaming, never while the device is
+                # still registering (the stream would go stale under its follower)
+                stream.extend(
+                    (kali.shared_transform(args.name, np.eye(4), lifetime=LIFETIME_S), tick)
+                )
+            hand, start = stream
             t = (tick - start) * tick_s
             hand.set(offset(t, args.seconds))
             return t < args.seconds  # False: the device stops (released)

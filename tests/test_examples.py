@@ -3,17 +3,22 @@ PROGRAM``, here against a lockstep instance (a waiting program steps its clock).
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 from collections.abc import Callable
 
 import pytest
 
 from kali_daemons.cell import TABLE_SIZE
 from kali_daemons.client import Kali
+from kali_daemons.errors import MotionError
+from kali_daemons.layout import ProcState
 from kali_daemons.robots.puma560 import PID_DEFAULTS
 from kali_daemons.wallclock import step_kali_clock
 
-from .conftest import ROOT
+from .conftest import ROOT, wait_for
 from .test_launcher import kalictl
 
 
@@ -154,3 +159,42 @@ def test_sensor_path_example_bends_its_line_and_follows_the_table(
     assert float(m.group(2)) == pytest.approx(10.0, abs=2.0), out
     mean, _, _ = force_report("normal force", out)
     assert mean == pytest.approx(10.0, abs=1.0), out
+
+
+def test_the_hand_controller_s_transform_appears_only_once_it_streams(
+    kali: Callable[..., str],
+) -> None:
+    """A program finds the hand controller's transform and follows it at once: found before
+    the device's periodic function ran, the stream went stale while the device was still
+    registering with the clock (in a loaded CI run: "followed the hand up to 0.2 mm", then
+    the program waited for the device, which lockstep never signalled: a timeout).  In
+    lockstep with the clock stopped the device has not run, so its transform is not there
+    yet; two periods of steps and it is, and the device ends on time."""
+    name = kali(lockstep=True)
+    device = subprocess.Popen(
+        [sys.executable, str(ROOT / "scripts" / "hand_controller.py"), "--seconds", "0.5"],
+        env={**os.environ, "KALI_INSTANCE": name},
+    )
+    try:
+        with Kali(name) as k:
+            procs = k.inst.procs
+
+            def registered() -> bool:
+                return any(
+                    bytes(p["name"]).startswith(b"hand.")
+                    and int(p["periodic"])
+                    and int(p["state"]) == ProcState.ACTIVE
+                    for p in procs
+                )
+
+            wait_for(registered, 30.0, "the hand controller registers with the clock")
+            with pytest.raises(MotionError, match="hand"):
+                k.find_transform("hand")
+            step_kali_clock(k.inst, 40)  # two periods of the device: it has run
+            k.find_transform("hand")
+            step_kali_clock(k.inst, 600)  # past its 0.5 s: it stops and exits
+            assert device.wait(timeout=30) == 0
+    finally:
+        if device.poll() is None:
+            device.kill()
+            device.wait()
