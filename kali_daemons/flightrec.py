@@ -183,6 +183,12 @@ class FlightRecorder:
         )
         self._args = self._kernel.args
 
+    @property
+    def kernel_args(self) -> ctypes.Structure:
+        """The row kernel's argument block (``bind`` first), for a kernel that writes the row
+        itself (SIO's compiled tick sets its tick and times there)."""
+        return self._args
+
     def record(self, tick: int, t_read_ns: int, latency_ns: int, wait_ns: int, ran_ns: int) -> None:
         """Inside the cycle (no allocation, no I/O, no logging): one servo tick's row, as
         ``record_reference`` writes it (compiled: ``bind`` first)."""

@@ -10,6 +10,7 @@
 #define _POSIX_C_SOURCE 200809L /* clock_gettime */
 
 #include <math.h>
+#include <semaphore.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
@@ -322,21 +323,21 @@ typedef struct {
     int64_t tick, release, woke, done;
 } StatsArgs;
 
+/* layout.lateness_bin: a lateness's histogram bin */
+static int64_t lateness_bin(int64_t ns, int64_t linear_us, int64_t log_bins) {
+    int64_t us = ns >= 0 ? ns / 1000 : -((-ns + 999) / 1000); /* Python's floor // */
+    if (us < linear_us) return us > 0 ? us : 0;
+    int64_t b = (int64_t)(log2((double)us / (double)linear_us) * 8.0);
+    return linear_us + (b < log_bins - 1 ? b : log_bins - 1);
+}
+
 int64_t kali_cycle_stats(StatsArgs *a) {
     int64_t late = a->woke - a->release, exe = a->done - a->woke;
     *a->late = late;
     if (late > *a->late_max) *a->late_max = late;
     *a->exec = exe;
     if (exe > *a->exec_max) *a->exec_max = exe;
-    int64_t us = late >= 0 ? late / 1000 : -((-late + 999) / 1000); /* Python's floor // */
-    int64_t bin;
-    if (us < a->linear_us) {
-        bin = us > 0 ? us : 0;
-    } else {
-        int64_t b = (int64_t)(log2((double)us / (double)a->linear_us) * 8.0);
-        bin = a->linear_us + (b < a->log_bins - 1 ? b : a->log_bins - 1);
-    }
-    a->hist[bin] += 1u;
+    a->hist[lateness_bin(late, a->linear_us, a->log_bins)] += 1u;
     *a->heart = a->done;
     *a->acks += 1u;
     __atomic_store_n(a->ack, a->tick, __ATOMIC_RELEASE); /* last */
@@ -1645,4 +1646,370 @@ int64_t kali_impedance(ArmArgs *a) {
     for (int i = 0; i < 6; i++) d->integral[i] = clamp(d->integral[i] + imb[i] * gain, d->limit[i]);
     if (squeezing) d->gi = clamp(d->gi + d->kii * d->dt * (d->fi - d->squeeze), d->imax);
     return 0;
+}
+
+/* ================================================================ SIO's tick
+ *
+ * The McGill boards' command registers for a tick (boards/mcgill.py: McGillBoards.control for
+ * every arm, then end_tick, the reference).  The state between ticks (ticks, bit, prev_bit)
+ * lives here, and the reference steps the same fields.
+ * Returns 1 when this tick's writes were a retrigger (the level fell, C.4). */
+
+typedef struct {
+    int64_t n_arms;
+    View csr, power_reg;               /* uint8, per arm: the registers */
+    View power, enable_ticks;          /* per robot: uint8 PowerState, int32 */
+    View capture;                      /* uint8, per arm: index capture on (calibration) */
+    char *codes;                       /* the DAC records' codes: arm k's row at k * codes_row */
+    int64_t codes_row;
+    View n_joints;                     /* int64, per arm */
+    const uint32_t *fault_active;      /* halted: the fault word, read here */
+    int64_t base_csr, green_red, no_disable, enable, index_off, amps_on;
+    int64_t on, enabling, off, hold_ticks, dac_zero, retrigger, retrigger_ticks;
+    int64_t ticks, bit, prev_bit;      /* end_tick's state */
+} McgillArgs;
+
+static inline int64_t retrigger_level(const McgillArgs *a, int64_t tick) {
+    return (tick / a->retrigger_ticks) % 2 == 0 ? a->retrigger : 0;
+}
+
+int64_t kali_mcgill_control(McgillArgs *a) {
+    int halted = __atomic_load_n(a->fault_active, __ATOMIC_ACQUIRE) != 0;
+    for (int64_t k = 0; k < a->n_arms; k++) {
+        int64_t power = AT(uint8_t, a->power, k);
+        int64_t csr = a->base_csr | a->bit;
+        if (power == a->on && !halted) csr |= a->green_red;
+        if (halted) csr &= ~a->no_disable;
+        else if (power == a->enabling && AT(int32_t, a->enable_ticks, k) <= a->hold_ticks)
+            csr |= a->enable;
+        if (AT(uint8_t, a->capture, k)) csr &= ~a->index_off; /* the pulse resets the counter */
+        if (power == a->off) {
+            uint16_t *codes = (uint16_t *)(a->codes + k * a->codes_row);
+            for (int64_t j = 0; j < AT(int64_t, a->n_joints, k); j++) codes[j] = (uint16_t)a->dac_zero;
+            if (AT(uint8_t, a->power_reg, k) & a->amps_on) csr &= ~a->no_disable;
+        }
+        AT(uint8_t, a->csr, k) = (uint8_t)csr;
+    }
+    int64_t fell = a->prev_bit && !a->bit;
+    a->ticks += 1;
+    a->prev_bit = a->bit;
+    a->bit = retrigger_level(a, a->ticks + 1);
+    return fell;
+}
+
+/* SIO's tick in two passes (sio/daemon.py: ServoIO._tick_reference is what they do, step for
+ * step; the kernels they call are the ones SIO binds).  kali_sio_front reads the encoders,
+ * steps the velocity filter and the wrist sensors, steps every robot, checks the joints,
+ * takes the feed-forward and feeds the slots, then posts the SVs' feed semaphores;
+ * kali_sio_back, once the servos are done, acknowledges for the gang, sums the torques,
+ * writes the DACs, checks the currents, drives the boards, publishes and records the tick.
+ * Where the Python reference does something the common tick does not (an index pulse to catch
+ * while calibrating, a sensor's halt or its
+ * guard reached, a robot kali_sio_robots leaves, a joint beyond its range or runaway, a
+ * current beyond its limit) a pass returns that event, with `stage` where it goes on: SIO
+ * does that part in Python and calls the pass again.  The board-specific steps (the encoders,
+ * the DACs, the command registers) are the boards' kernels, called through their pointers. */
+
+typedef int64_t (*KernelFn)(void *);
+
+enum { SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT };
+enum { ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_BACK, ST_OUT };
+
+typedef struct {
+    int64_t n, n_robots;
+    KernelFn read_fn, dac_fn, control_fn;   /* the boards' */
+    void *read_args, *dac_args, *control_args;
+    const uint8_t *capture;                 /* per robot: index capture on */
+    VelocityArgs *velocity;
+    WrenchArgs **sensors;
+    const uint32_t **guard_state;           /* per sensor: its arm's guard ... */
+    const double **guard_n;                 /* ... and the force that trips it */
+    int64_t n_sensors, guard_armed;
+    RobotsArgs *robots;
+    ChecksArgs *checks;
+    FfArgs **ff;                            /* per robot */
+    FeedArgs *feed;
+    TorquesArgs *torques;
+    CurrentArgs *current;
+    CopyArgs *publish;
+    FlightArgs *flight;
+    const uint32_t *fault_active;
+    const uint64_t *fault_count;
+    View arm_algo, arm_op, shadows;         /* per robot: int32, uint32, uint32 */
+    View bounds;                            /* int64, n_robots + 1 */
+    uint8_t *whole;                         /* per robot: fed whole last tick */
+    View mark, ff_out;                      /* per joint: uint32, double */
+    int64_t arm_none, arm_free, arm_held;
+    sem_t **feeds;
+    int64_t n_feeds;
+    int64_t *ctrl_tick;
+    View robots_tick;                       /* int64, per robot */
+    const int64_t *sv_fed_tick;             /* the gang (sio/gang.py): per SV */
+    View signal_tick, ack_tick, vouched_tick; /* int64, per process slot */
+    const int64_t *gang_sv, *gang_slot, *gang_lag;
+    int64_t n_gang;
+    int64_t *ack_early;                     /* SIO's slot's ack_tick, or NULL */
+    const int64_t *clock_tick;
+    int64_t *lat_last, *lat_max;
+    uint32_t *hist;
+    int64_t linear_us, log_bins;
+    /* per tick: from SIO, between the passes, to SIO */
+    int64_t tick, post, ok;                 /* ok: the servos were done (_wait_done) */
+    int64_t stage, faulted, faults_seen, at, result, fed;
+    int64_t t_read, c_read, t_fed, t_done, t_out, c_out, retrigger_tick;
+} SioArgs;
+
+static inline int64_t thread_cpu_ns(void) { /* rt.thread_time_ns */
+    struct timespec t;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
+}
+
+int64_t kali_sio_front(SioArgs *a) {
+    switch (a->stage) {
+    case ST_READ: {
+        a->t_read = now_ns();
+        a->c_read = thread_cpu_ns();
+        a->faulted = *a->fault_active != 0;
+        int64_t count = (int64_t)*a->fault_count;
+        if (count != a->faults_seen) { /* a halt since the last tick, maybe already cleared */
+            a->faults_seen = count;
+            a->faulted = 1;
+        }
+        a->read_fn(a->read_args);
+        a->stage = ST_VELOCITY;
+        for (int64_t k = 0; k < a->n_robots; k++)
+            if (a->capture[k]) return SIO_CAPTURE; /* calibrating: a counter reset by its pulse */
+    } /* fall through */
+    case ST_VELOCITY:
+        kali_velocity(a->velocity);
+        a->at = 0;
+        a->stage = ST_SENSORS;
+        /* fall through */
+    case ST_SENSORS:
+        while (a->at < a->n_sensors) {
+            int64_t s = a->at++;
+            WrenchArgs *w = a->sensors[s];
+            w->tick = a->tick;
+            int64_t found = kali_wrench_tick(w);
+            if (found != WRENCH_OK
+                || (*a->guard_state[s] == (uint32_t)a->guard_armed && w->force >= *a->guard_n[s])) {
+                a->result = found;
+                return SIO_SENSOR; /* sensor at - 1 */
+            }
+        }
+        a->stage = ST_ROBOTS;
+        /* fall through */
+    case ST_ROBOTS:
+        a->robots->faulted = a->faulted;
+        a->stage = ST_CHECKS;
+        a->result = kali_sio_robots(a->robots);
+        if (a->result) return SIO_ROBOTS;
+        /* fall through */
+    case ST_CHECKS:
+        a->stage = ST_FEED;
+        if (!a->faulted) {
+            a->result = kali_checks(a->checks);
+            if (a->result != -1) return SIO_CHECK; /* NO_FAULT */
+        }
+        /* fall through */
+    case ST_FEED:
+        for (int64_t k = 0; k < a->n_robots; k++) { /* ServoIO._arm_robot */
+            int arm = AT(int32_t, a->arm_algo, k) != (int32_t)a->arm_none;
+            int whole = arm || AT(uint32_t, a->arm_op, k) != 0 || AT(uint32_t, a->shadows, k) != 0;
+            if (whole != a->whole[k]) {
+                a->whole[k] = (uint8_t)whole;
+                int64_t lo = AT(int64_t, a->bounds, k), hi = AT(int64_t, a->bounds, k + 1);
+                for (int64_t i = lo; i < hi; i++)
+                    AT(uint32_t, a->mark, i) = whole ? (uint32_t)a->arm_held : 0u;
+                if (whole && hi > lo) AT(uint32_t, a->mark, lo) = (uint32_t)a->arm_free;
+            }
+            a->ff[k]->arm = arm;
+            a->ff[k]->tick = a->tick;
+            kali_feedforward(a->ff[k]);
+        }
+        a->fed = kali_feed(a->feed);
+        __atomic_store_n(a->ctrl_tick, a->tick, __ATOMIC_RELEASE); /* last: its slots are out */
+        a->t_fed = now_ns();
+        if (a->post)
+            for (int64_t s = 0; s < a->n_feeds; s++) sem_post(a->feeds[s]);
+        a->stage = ST_BACK;
+        return SIO_FED;
+    }
+    return SIO_FED;
+}
+
+int64_t kali_sio_back(SioArgs *a) {
+    switch (a->stage) {
+    case ST_BACK:
+        if (a->ok) /* every servo done: the SVs' acknowledgements before SIO's (gang.py) */
+            for (int64_t g = 0; g < a->n_gang; g++) {
+                int64_t slot = a->gang_slot[g];
+                if (AT(int64_t, a->signal_tick, slot) != a->tick) continue;
+                int64_t took = a->sv_fed_tick[a->gang_sv[g]];
+                if (took == a->tick) {
+                    AT(int64_t, a->ack_tick, slot) = a->tick;
+                } else if (took >= a->tick - a->gang_lag[g]) {
+                    AT(int64_t, a->vouched_tick, slot) = a->tick; /* first: see gang.py */
+                    ORDERED();
+                    AT(int64_t, a->ack_tick, slot) = a->tick;
+                }
+            }
+        a->t_done = now_ns();
+        for (int64_t k = 0; k < a->n_robots; k++) /* a robot-level servo's is the whole torque */
+            if (AT(int32_t, a->arm_algo, k) != (int32_t)a->arm_none) {
+                int64_t hi = AT(int64_t, a->bounds, k + 1);
+                for (int64_t i = AT(int64_t, a->bounds, k); i < hi; i++) AT(double, a->ff_out, i) = 0.0;
+            }
+        kali_torques(a->torques);
+        a->dac_fn(a->dac_args);
+        a->stage = ST_OUT;
+        a->result = kali_current_check(a->current);
+        if (a->result >= 0) return SIO_CURRENT;
+        /* fall through */
+    case ST_OUT: {
+        a->t_out = now_ns();
+        a->c_out = thread_cpu_ns();
+        if (a->control_fn(a->control_args)) a->retrigger_tick = *a->clock_tick;
+        if (a->ack_early) *a->ack_early = a->tick; /* the I/O is done: bookkeeping follows */
+        kali_copy(a->publish);
+        for (int64_t k = 0; k < a->n_robots; k++) AT(int64_t, a->robots_tick, k) = a->tick;
+        int64_t late = a->t_out - a->t_read;
+        *a->lat_last = late;
+        if (late > *a->lat_max) *a->lat_max = late;
+        a->hist[lateness_bin(late, a->linear_us, a->log_bins)] += 1u;
+        FlightArgs *f = a->flight;
+        f->tick = a->tick;
+        f->t_read = a->t_read;
+        f->latency = late;
+        f->wait = a->t_done - a->t_fed;
+        f->ran = a->c_out - a->c_read;
+        kali_flight_row(f);
+        a->stage = ST_READ;
+        return SIO_DONE;
+    }
+    }
+    return SIO_DONE;
+}
+
+/* ---------------------------------------------------------------- an SV's serve
+ *
+ * sv/daemon.py: ServoWorker._serve_reference, step for step: note the tick whose feed this SV
+ * took, then claim and run the robots fed whole, every robot's unit (kali_serve_unit), then
+ * the single slots, counting each done (the tick's last posts SIO's done semaphore), and the
+ * SV's execution-time record.  What runs Python (a robot fed whole: its model and its
+ * robot-level servo; a unit's non-finite torque, which halts; the slots a unit left and every
+ * single slot: a plugin, a mailbox operation, a reset, a disabled servo) is handed back as an
+ * event, the claimed robot or slot in `at`; SIO's serve calls the kernel again, with `count`
+ * the slots that Python ran, and it goes on. */
+
+enum { SV_DONE, SV_ARM, SV_FAULT, SV_LEFT, SV_SLOT };
+enum { SV_START, SV_ARMS, SV_UNITS, SV_UNIT_DONE, SV_UNIT_LEFT, SV_SLOTS, SV_END };
+
+typedef struct {
+    int64_t n, n_arms, n_units;
+    SlotRecord *slots;
+    int64_t *fed_tick_out;            /* ctrl sv_fed_tick[this SV] */
+    const uint32_t *ctrl_fed;
+    uint32_t *ctrl_done;
+    const int64_t *ctrl_tick;
+    const int64_t *arm_lo;            /* per robot fed whole, in this SV's order: first slot */
+    UnitArgs **units;                 /* in this SV's order */
+    const int64_t *order;             /* the single slots, in this SV's order */
+    sem_t *done_sem;
+    int64_t me, arm_free;
+    int64_t *exec_last, *exec_max;
+    uint64_t *servos;
+    uint32_t *exec_hist;
+    int64_t linear_us, log_bins;
+    /* per call: from the SV, between calls, to it */
+    int64_t fed_tick, count;
+    int64_t stage, at, unit, tick_now, fed, ran, t0;
+} ServeArgs;
+
+static void sv_done(ServeArgs *a, int64_t count) {
+    uint32_t before = __atomic_fetch_add(a->ctrl_done, (uint32_t)count, __ATOMIC_SEQ_CST);
+    if ((int64_t)(before + (uint32_t)count) == a->fed) sem_post(a->done_sem); /* the last */
+}
+
+int64_t kali_sv_serve(ServeArgs *a) {
+    if (a->stage == SV_START) {
+        *a->fed_tick_out = a->fed_tick; /* before any slot: SIO may acknowledge for it now */
+        a->t0 = now_ns();
+        a->fed = (int64_t)__atomic_load_n(a->ctrl_fed, __ATOMIC_ACQUIRE);
+        if (a->fed == 0) {
+            a->stage = SV_END;
+            return SV_DONE;
+        }
+        a->tick_now = __atomic_load_n(a->ctrl_tick, __ATOMIC_ACQUIRE);
+        a->ran = a->count = a->at = 0;
+        a->stage = SV_ARMS;
+    }
+    if (a->stage == SV_ARMS) { /* robots fed whole: one SV runs each, in Python */
+        if (a->count) { /* the robot Python just ran */
+            a->ran += a->count;
+            sv_done(a, a->count);
+            a->count = 0;
+        }
+        while (a->at < a->n_arms) {
+            uint32_t *busy = &a->slots[a->arm_lo[a->at++]].busy;
+            uint32_t expected = (uint32_t)a->arm_free;
+            if (LOAD(*busy) == expected
+                && __atomic_compare_exchange_n(busy, &expected, (uint32_t)a->me, 0,
+                                               __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST))
+                return SV_ARM; /* robot at - 1 */
+        }
+        a->unit = 0;
+        a->stage = SV_UNITS;
+    }
+    while (a->stage == SV_UNITS || a->stage == SV_UNIT_DONE || a->stage == SV_UNIT_LEFT) {
+        if (a->unit >= a->n_units) {
+            a->at = 0;
+            a->stage = SV_SLOTS;
+            break;
+        }
+        UnitArgs *u = a->units[a->unit];
+        if (a->stage == SV_UNITS) {
+            u->tick = a->tick_now;
+            a->count = kali_serve_unit(u);
+            a->stage = SV_UNIT_DONE;
+            if (a->count && u->fault >= 0) return SV_FAULT; /* Python halts: slot u->fault */
+        }
+        if (a->stage == SV_UNIT_DONE) {
+            if (a->count) {
+                a->ran += a->count;
+                sv_done(a, a->count);
+            }
+            a->count = 0;
+            a->stage = SV_UNIT_LEFT;
+            if (u->n_left) return SV_LEFT; /* Python runs them, each counted done there */
+        }
+        a->ran += u->n_left; /* SV_UNIT_LEFT */
+        a->unit++;
+        a->stage = SV_UNITS;
+    }
+    if (a->stage == SV_SLOTS) { /* every other fed slot, in Python */
+        if (a->count) { /* the slot Python just ran */
+            a->ran += a->count;
+            sv_done(a, a->count);
+            a->count = 0;
+        }
+        while (a->at < a->n) {
+            uint32_t *busy = &a->slots[a->order[a->at++]].busy;
+            uint32_t expected = 0;
+            if (LOAD(*busy) != 0) continue; /* not fed, or another worker has it */
+            if (__atomic_compare_exchange_n(busy, &expected, (uint32_t)a->me, 0, __ATOMIC_SEQ_CST,
+                                            __ATOMIC_SEQ_CST))
+                return SV_SLOT; /* slot order[at - 1] */
+        }
+        if (a->ran) {
+            int64_t exe = now_ns() - a->t0;
+            *a->exec_last = exe;
+            if (exe > *a->exec_max) *a->exec_max = exe;
+            *a->servos += (uint64_t)a->ran;
+            a->exec_hist[lateness_bin(exe, a->linear_us, a->log_bins)] += 1u;
+        }
+        a->stage = SV_END;
+    }
+    return SV_DONE;
 }

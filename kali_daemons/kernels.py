@@ -27,7 +27,15 @@ feed-forward as SIO applies it (``kali_feedforward``, bound by
 ``update``; and so is SIO's step of every robot where nothing but its motion is happening
 to it: the demand popped, the joints fed (``kali_sio_robots``, bound by
 ``sio.daemon.ServoIO._bind_kernels``; its reference is ``ServoIO._robot``, which any other
-robot still takes).
+robot still takes).  SIO's whole tick runs as two passes (``kali_sio_front``: read, sensors,
+robots, checks, feed-forward, feed, the feeds posted; ``kali_sio_back``: the gang's
+acknowledgements, torques, DACs, the current check, the boards' registers, publishing, the
+flight row), bound by ``ServoIO._bind_tick``; their reference is ``ServoIO._tick_reference``,
+which also does every event the passes hand back.  The McGill boards' command registers are
+written by ``kali_mcgill_control`` (bound by ``McGillBoards.control_kernel``; its reference
+is ``McGillBoards.control`` with ``end_tick``).  An SV's serve (the robots fed whole, the
+units, the single slots, each counted done) is ``kali_sv_serve``, bound by
+``sv.daemon.ServoWorker._bind_serve``; its reference is ``ServoWorker._serve_reference``.
 Every process's account of a cycle in its process-table slot (``kali_cycle_stats``, bound by
 ``daemon._CycleStats``; its reference is ``_CycleStats.record_reference``) is here, and so is
 SIO's row of the flight recorder (``kali_flight_row``, bound by
@@ -335,6 +343,62 @@ FfArgs = _block(
     *((f, c_int64) for f in ("tick", "arm", "mode_ok", "missing", "stale")),
     ("weight", c_double),
 )
+McgillArgs = _block(
+    "McgillArgs",
+    ("n_arms", c_int64),
+    *("csr", "power_reg", "power", "enable_ticks", "capture"),
+    ("codes", c_void_p),
+    ("codes_row", c_int64),
+    "n_joints",
+    ("fault_active", c_void_p),
+    *((f, c_int64) for f in ("base_csr", "green_red", "no_disable", "enable", "index_off")),
+    ("amps_on", c_int64),
+    *((f, c_int64) for f in ("on", "enabling", "off", "hold_ticks", "dac_zero", "retrigger")),
+    *((f, c_int64) for f in ("retrigger_ticks", "ticks", "bit", "prev_bit")),
+)
+SioArgs = _block(
+    "SioArgs",
+    N,
+    ("n_robots", c_int64),
+    *((f, c_void_p) for f in ("read_fn", "dac_fn", "control_fn")),
+    *((f, c_void_p) for f in ("read_args", "dac_args", "control_args")),
+    *((f, c_void_p) for f in ("capture", "velocity", "sensors", "guard_state", "guard_n")),
+    *((f, c_int64) for f in ("n_sensors", "guard_armed")),
+    *((f, c_void_p) for f in ("robots", "checks", "ff", "feed", "torques", "current")),
+    *((f, c_void_p) for f in ("publish", "flight", "fault_active", "fault_count")),
+    *("arm_algo", "arm_op", "shadows", "bounds"),
+    ("whole", c_void_p),
+    *("mark", "ff_out"),
+    *((f, c_int64) for f in ("arm_none", "arm_free", "arm_held")),
+    ("feeds", c_void_p),
+    ("n_feeds", c_int64),
+    ("ctrl_tick", c_void_p),
+    "robots_tick",
+    ("sv_fed_tick", c_void_p),
+    *("signal_tick", "ack_tick", "vouched_tick"),
+    *((f, c_void_p) for f in ("gang_sv", "gang_slot", "gang_lag")),
+    ("n_gang", c_int64),
+    *((f, c_void_p) for f in ("ack_early", "clock_tick", "lat_last", "lat_max", "hist")),
+    *((f, c_int64) for f in ("linear_us", "log_bins", "tick", "post", "ok", "stage")),
+    *((f, c_int64) for f in ("faulted", "faults_seen", "at", "result", "fed", "t_read")),
+    *((f, c_int64) for f in ("c_read", "t_fed", "t_done", "t_out", "c_out", "retrigger_tick")),
+)
+# kali_sio_front's and kali_sio_back's results: the tick's events, and its stages
+SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT = range(7)
+ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_BACK, ST_OUT = range(8)
+ServeArgs = _block(
+    "ServeArgs",
+    *((f, c_int64) for f in ("n", "n_arms", "n_units")),
+    *((f, c_void_p) for f in ("slots", "fed_tick_out", "ctrl_fed", "ctrl_done", "ctrl_tick")),
+    *((f, c_void_p) for f in ("arm_lo", "units", "order", "done_sem")),
+    *((f, c_int64) for f in ("me", "arm_free")),
+    *((f, c_void_p) for f in ("exec_last", "exec_max", "servos", "exec_hist")),
+    *((f, c_int64) for f in ("linear_us", "log_bins", "fed_tick", "count", "stage", "at")),
+    *((f, c_int64) for f in ("unit", "tick_now", "fed", "ran", "t0")),
+)
+# kali_sv_serve's results: what it hands back to the SV's Python
+SV_DONE, SV_ARM, SV_FAULT, SV_LEFT, SV_SLOT = range(5)
+SV_START = 0  # its first stage
 # kali_wrench_tick's results (sio/wrench.py builds the message)
 WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT = range(5)
 
@@ -350,6 +414,10 @@ _KERNELS = {
     "kali_feedforward": FfArgs,
     "kali_fifo_pop": FifoPopArgs,
     "kali_sio_robots": RobotsArgs,
+    "kali_sio_front": SioArgs,
+    "kali_sio_back": SioArgs,
+    "kali_mcgill_control": McgillArgs,
+    "kali_sv_serve": ServeArgs,
     "kali_motors": MotorArgs,
     "kali_encoders": EncoderArgs,
     "kali_boards_update": BoardArgs,
@@ -545,6 +613,12 @@ class Kernel:
 
     def __call__(self) -> int:
         return self._fn(self._ptr)
+
+    @property
+    def address(self) -> tuple[int, int]:
+        """The kernel's C function and its argument block, as addresses, for a kernel that
+        calls it (``kali_sio_front`` calls the boards' kernels through them)."""
+        return ctypes.cast(self._fn, c_void_p).value or 0, self._ptr
 
     def sibling(self, name: str) -> Callable[[], int]:
         """Another kernel of the library on this one's argument block (a part of it the

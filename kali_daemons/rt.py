@@ -85,6 +85,30 @@ def poll_semaphore(sem: posix_ipc.Semaphore, deadline_ns: int) -> bool:
     return True
 
 
+_sem_open = _libc.sem_open
+_sem_open.argtypes = [ctypes.c_char_p, ctypes.c_int]
+_sem_open.restype = ctypes.c_void_p
+_sem_close = _libc.sem_close
+_sem_close.argtypes = [ctypes.c_void_p]
+
+
+def semaphore_address(sem: posix_ipc.Semaphore) -> int:
+    """Outside the cycle: the C library's ``sem_t`` of the named semaphore ``sem`` has open,
+    for a kernel that posts it (SIO's compiled tick posts the SVs' feeds).  The C library maps
+    a name once per process and counts its opens, so this is the same semaphore ``sem`` posts;
+    ``close_semaphore_address`` gives this open back."""
+    ptr = _sem_open(sem.name.encode(), 0)
+    if not ptr:
+        err = ctypes.get_errno()
+        raise OSError(err, f"sem_open {sem.name}: {os.strerror(err)}")
+    return ptr
+
+
+def close_semaphore_address(ptr: int) -> None:
+    """Outside the cycle: close an open ``semaphore_address`` made."""
+    _sem_close(ptr)
+
+
 @dataclass
 class RtReport:
     """What was applied to this process, for the process table and ``kalictl status``."""

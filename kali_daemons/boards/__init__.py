@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..kernels import Kernel
 from ..layout import PowerState
 from .driver import JointDriver
 from .mcgill import (
@@ -69,6 +70,20 @@ class Hardware(Protocol):
     def end_tick(self) -> bool:
         """After every arm's ``control``: the tick's keep-alive; True when it reached the
         board (the watchdog was retriggered)."""
+
+    def tick_kernels(
+        self,
+        power: np.ndarray,
+        enable_ticks: np.ndarray,
+        capture: np.ndarray,
+        fault_active: np.ndarray,
+    ) -> tuple[Kernel, Kernel, Kernel]:
+        """After ``driver.bind``: ``read``, ``write`` and every arm's ``control`` then
+        ``end_tick`` as bound kernels, for SIO's compiled tick (``kali_sio_front``,
+        ``kali_sio_back``), which calls them through their addresses; ``power`` and
+        ``enable_ticks`` are the robots' records' fields, ``capture`` SIO's flags (uint8 per
+        arm: index capture on), ``fault_active`` the fault word.  The control kernel returns
+        1 where ``end_tick`` returns True."""
 
     def pots(self, k: int) -> PotReader:
         """Arm ``k``'s absolute joint sensors, read one joint per step."""

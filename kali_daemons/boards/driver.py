@@ -167,6 +167,12 @@ class JointDriver:
         )
         self._dac_arrays = (torque, current, clamped)
 
+    def kernels(self) -> tuple[Kernel, Kernel]:
+        """The read and DAC kernels ``bind`` bound (``read`` and ``output`` on those arrays),
+        for a kernel that calls them (SIO's compiled tick)."""
+        assert self._dac_arrays, "driver: bind before asking for its kernels"
+        return self._read, self._dac  # type: ignore[return-value]
+
     def read(self, q: np.ndarray) -> None:
         """Accumulate the counter readings (low 12 bits, the difference wrapped into
         -2048 .. 2047, figure C.3) and write joint angles (rad) into ``q`` (``(n,)``

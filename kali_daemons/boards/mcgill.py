@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from .. import layout
+from ..kernels import Kernel, McgillArgs
 from ..layout import (
     ADC_DONE,
     ADC_START,
@@ -146,9 +147,15 @@ class McGillBoards:
         self._power = boards["power"]  # every arm's power register (amps_register)
         self.hold_ticks = hold_ticks
         self.retrigger_ticks = retrigger_ticks
-        self.ticks = 0  # servo ticks whose registers were written (end_tick)
-        self._bit = retrigger_bit(1, retrigger_ticks)  # the retrigger level of this tick
-        self._prev_bit = retrigger_bit(0, retrigger_ticks)
+        self._boards, self._dacs, self._types = boards, dacs, types
+        # end_tick's state: the servo ticks whose registers were written, the retrigger level
+        # of this tick and of the last; in the control kernel's block once it is bound
+        # (tick_kernels), so the kernel and this reference step the same fields
+        self._state = McgillArgs(
+            ticks=0,
+            bit=retrigger_bit(1, retrigger_ticks),
+            prev_bit=retrigger_bit(0, retrigger_ticks),
+        )
 
     # ------------------------------------------------------------------ set-up
 
@@ -201,7 +208,7 @@ class McGillBoards:
         the amplifiers on), this tick's retrigger level, index capture and the LEDs; DACs at
         0 V while the arm is off."""
         arm = self._arms[k]
-        csr = BASE_CSR | self._bit
+        csr = BASE_CSR | self._state.bit
         if power == PowerState.ON and not halted:
             csr |= CSR_GREEN_LED_ON | CSR_RED_LED_OFF
         if halted:
@@ -219,10 +226,71 @@ class McGillBoards:
     def end_tick(self) -> bool:
         """After every arm's ``control``: True when this tick's writes were a retrigger
         (the level fell, C.4)."""
-        fell = bool(self._prev_bit) and not self._bit
-        self.ticks += 1
-        self._prev_bit, self._bit = self._bit, retrigger_bit(self.ticks + 1, self.retrigger_ticks)
+        st = self._state
+        fell = bool(st.prev_bit) and not st.bit
+        st.ticks += 1
+        st.prev_bit, st.bit = st.bit, retrigger_bit(st.ticks + 1, self.retrigger_ticks)
         return fell
+
+    @property
+    def ticks(self) -> int:
+        """Servo ticks whose registers were written (``end_tick``)."""
+        return int(self._state.ticks)
+
+    def tick_kernels(
+        self,
+        power: np.ndarray,
+        enable_ticks: np.ndarray,
+        capture: np.ndarray,
+        fault_active: np.ndarray,
+    ) -> tuple[Kernel, Kernel, Kernel]:
+        """``Hardware.tick_kernels``: the driver's read and DAC kernels, and ``control``
+        for every arm then ``end_tick`` compiled (``kali_mcgill_control``).  From now on
+        ``control`` and ``end_tick`` step the control kernel's state."""
+        read, dac = self.driver.kernels()
+        return read, dac, self._control_kernel(power, enable_ticks, capture, fault_active)
+
+    def _control_kernel(
+        self,
+        power: np.ndarray,
+        enable_ticks: np.ndarray,
+        capture: np.ndarray,
+        fault_active: np.ndarray,
+    ) -> Kernel:
+        st = self._state
+        codes = self._dacs["code"]
+        kernel = Kernel(
+            "kali_mcgill_control",
+            (self._boards, self._dacs, capture, fault_active),
+            n_arms=len(self._arms),
+            csr=self._boards["csr"],
+            power_reg=self._power,
+            power=power,
+            enable_ticks=enable_ticks,
+            capture=capture,
+            codes=codes.ctypes.data,
+            codes_row=codes.strides[0],
+            n_joints=np.array([t.n_joints for t in self._types], dtype=np.int64),
+            fault_active=fault_active.ctypes.data,
+            base_csr=BASE_CSR,
+            green_red=CSR_GREEN_LED_ON | CSR_RED_LED_OFF,
+            no_disable=CSR_NO_DISABLE,
+            enable=CSR_ENABLE,
+            index_off=CSR_INDEX_OFF,
+            amps_on=POWER_AMPS_ON,
+            on=PowerState.ON,
+            enabling=PowerState.ENABLING,
+            off=PowerState.OFF,
+            hold_ticks=self.hold_ticks,
+            dac_zero=layout.DAC_ZERO,
+            retrigger=CSR_RETRIGGER,
+            retrigger_ticks=self.retrigger_ticks,
+            ticks=st.ticks,
+            bit=st.bit,
+            prev_bit=st.prev_bit,
+        )
+        self._state = kernel.args
+        return kernel
 
     # ------------------------------------------------------------------ calibration (3.5.1)
 

@@ -47,6 +47,16 @@ ACTIVE = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
 class Calibration:
     """Robot ``k``'s calibration state machine, stepped by SIO while the robot is powered."""
 
+    @property
+    def capture(self) -> bool:
+        """Index capture on: SIO writes the board's CSR bit 4 low, and catches each pulse
+        right after reading the encoders (``catch_index``)."""
+        return bool(self._capture[0])
+
+    @capture.setter
+    def capture(self, on: bool) -> None:
+        self._capture[0] = on
+
     def __init__(self, sio: ServoIO, k: int) -> None:
         self.sio = sio
         self.k = k
@@ -56,7 +66,8 @@ class Calibration:
         n = self.n = span.stop - span.start
         self.all_found = (1 << n) - 1  # calib_found once every joint's pulse is found
         self.driver = sio.driver
-        self.capture = False  # SIO writes CSR bit 4 low while True
+        self._capture = sio._capture[k : k + 1]  # SIO's flag: CSR bit 4 low while on
+        self.capture = False
         self.hw = sio.hw
         self.pots = sio.hw.pots(k)
         rate = sio.rate

@@ -31,6 +31,8 @@ the kernel equals bit for bit (tests/test_sio_kernels.py).
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from .. import layout
@@ -255,6 +257,11 @@ class FfKernel:
             **{name: a.ctypes.data for name, a in words},
         )
         self._args = self._kernel.args
+
+    @property
+    def args(self) -> ctypes.Structure:
+        """The kernel's argument block (SIO's compiled tick steps it: ``kali_sio_front``)."""
+        return self._args
 
     @property
     def arm(self) -> bool:

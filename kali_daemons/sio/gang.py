@@ -66,6 +66,11 @@ class GangAcknowledger:
             for k, (slot, same) in enumerate(zip(sv_slots, on_sio_cpu, strict=True))
         ]
 
+    def members(self) -> list[tuple[int, int, int]]:
+        """(SV number, its slot, how many ticks old its last feed may be) for every SV it may
+        vouch for: what SIO's compiled tick (``kali_sio_back``) steps as ``acknowledge``."""
+        return list(self._gang)
+
     def acknowledge(self, tick: int) -> None:
         """Inside the cycle: every servo of ``tick`` is done; acknowledge it for each SV
         signalled for it that took its feed, or, on SIO's CPU, the previous tick's."""

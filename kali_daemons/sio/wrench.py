@@ -173,12 +173,11 @@ class ArmSensor:
         self.args.seq = (int(self._status) + 1) & FT_SEQ_MASK
         self._control[...] = FT_REQUEST | self.args.seq
 
-    def step(self, tick: int) -> str | None:
-        """One servo tick (``kali_wrench_tick``: the handshake, a tare, the conversion); a
-        halt's message (outside the common path) or None."""
+    def tick(self, tick: int) -> int:
+        """One servo tick (``kali_wrench_tick``: the handshake, a tare, the conversion):
+        ``WRENCH_OK``, or what is wrong (``message`` says it; outside the common path)."""
         self.args.tick = tick
-        found = self._tick()
-        return None if found == WRENCH_OK else self._message(found)
+        return self._tick()
 
     def guard_reached(self) -> bool:
         """In the cycle: this arm's guard is armed and this tick's contact force (the
@@ -200,8 +199,8 @@ class ArmSensor:
         swapped, _ = self._cas(self._guard_addr, GuardState.ARMED, GuardState.TRIPPED)
         return swapped
 
-    def _message(self, found: int) -> str:
-        """The halt's message for ``kali_wrench``'s result (outside the common path)."""
+    def message(self, found: int) -> str:
+        """The halt's message for ``kali_wrench_tick``'s result (outside the common path)."""
         if found == WRENCH_SATURATED:
             g = int(np.argmax(np.abs(self.codes.astype(np.int64))))
             return (

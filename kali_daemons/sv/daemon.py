@@ -34,6 +34,11 @@ sleeps on its own CPU's timer to shortly before SIO's feed is due (learnt over t
 showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms: config/default.yaml).
 Every other wait sleeps (two cores: never spin a CPU without bound, DESIGN 10).
 
+``serve`` is compiled (``kali_sv_serve``: the claims, the units, the done count and post,
+the execution-time record); a robot fed whole, a unit's non-finite torque and every single
+slot it hands back to Python (``_serve_event``).  ``_serve_reference`` is the same in Python,
+its test's reference.
+
 A servo that raises, returns a bad status or a non-finite torque halts the system with a
 SERVO fault naming robot, joint and algorithm.
 
@@ -46,6 +51,7 @@ torque, before the step.
 
 from __future__ import annotations
 
+import ctypes
 import math
 from typing import Any
 
@@ -55,6 +61,7 @@ import posix_ipc
 from .. import atomic, layout, rt, shadow
 from ..daemon import Daemon
 from ..errors import DaemonError
+from ..kernels import SV_ARM, SV_DONE, SV_FAULT, SV_LEFT, SV_SLOT, SV_START, Kernel
 from ..layout import FaultCode, ShadowState, SlotOp, SlotReset
 from ..servo import Handover
 from ..servolevel import ServoLevel, apply_op, handover
@@ -129,6 +136,7 @@ class ServoWorker(Daemon):
         self._feed_seen = [0] * FEED_HISTORY
         self._feed_k = 0
         self._feed_cap = self.period_ns // 2  # never wake later than half a tick in
+        self._bind_serve()
 
     def _setup_units(self, count: int) -> None:
         """The robots' units in this worker's order, each bound to its slots and the
@@ -155,6 +163,48 @@ class ServoWorker(Daemon):
         self._arm_addr = [lv.busy_addr[a.lo] for a in self.arms]
         self._arm_busy = [lv.slots["busy"][a.lo : a.lo + 1] for a in self.arms]
 
+    def _bind_serve(self) -> None:
+        """``serve`` compiled (``kali_sv_serve``; ``_serve_reference`` is what it does), on the
+        units and the order above; outside the cycle."""
+        lv, c = self.level, self.level.ctrl
+        units = (ctypes.c_void_p * max(1, len(self.units)))(
+            *(ctypes.addressof(u._args) for u in self.units)
+        )
+        self._arm_lo = np.array([a.lo for a in self.arms], dtype=np.int64)
+        self._order = np.array(self.order, dtype=np.int64)
+        self._done_address = rt.semaphore_address(self.done_sem)
+        self._serve_kernel = Kernel(
+            "kali_sv_serve",
+            (units, self.units, self._arm_lo, self._order, lv.slots, c),
+            n=lv.n,
+            n_arms=len(self.arms),
+            n_units=len(self.units),
+            slots=lv.slots.ctypes.data,
+            fed_tick_out=self._fed_tick.ctypes.data,
+            ctrl_fed=self._fed.ctypes.data,
+            ctrl_done=lv.done_addr,
+            ctrl_tick=self._tick.ctypes.data,
+            arm_lo=self._arm_lo.ctypes.data,
+            units=ctypes.addressof(units),
+            order=self._order.ctypes.data,
+            done_sem=self._done_address,
+            me=self.me,
+            arm_free=layout.ARM_FREE,
+            exec_last=self._exec_last.ctypes.data,
+            exec_max=self._exec_max.ctypes.data,
+            servos=self._servos.ctypes.data,
+            exec_hist=self._exec_hist.ctypes.data,
+            linear_us=layout.HIST_LINEAR_US,
+            log_bins=layout.HIST_LOG_BINS,
+        )
+        self._serve_args = self._serve_kernel.args
+
+    def on_shutdown(self) -> None:
+        """Give back the compiled serve's open of the done semaphore."""
+        if getattr(self, "_done_address", 0):
+            rt.close_semaphore_address(self._done_address)
+            self._done_address = 0
+
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left."""
         fed_tick = self._await_feed(tick)
@@ -165,7 +215,44 @@ class ServoWorker(Daemon):
     def serve(self, fed_tick: int) -> None:
         """Inside the cycle: claim and run fed slots of SIO's tick ``fed_tick`` until none is
         left.  Called by ``cycle`` once the feed came, and in the lockstep executive by SIO
-        itself where it would post the feeds (``ServoIO.serve``)."""
+        itself where it would post the feeds (``ServoIO.serve``).  Compiled
+        (``kali_sv_serve``): what runs Python, it hands back here (``_serve_event``)."""
+        a = self._serve_args
+        a.fed_tick = fed_tick
+        a.stage = SV_START
+        while (event := self._serve_kernel()) != SV_DONE:
+            self._serve_event(event)
+
+    def _serve_event(self, event: int) -> None:
+        """What ``kali_sv_serve`` hands back: a robot fed whole it claimed (its model and
+        robot-level servo), a unit's non-finite torque (a halt), the slots a unit left and
+        a single slot it claimed (a plugin, a mailbox operation, a reset, a disabled servo)."""
+        a = self._serve_args
+        if event == SV_ARM:
+            runner = self.arms[a.at - 1]
+            runner.run(a.tick_now)
+            a.count = runner.n
+        elif event == SV_FAULT:
+            unit = self.units[a.unit]
+            fault = unit.fault()
+            name = self.level.registry[self.level.slot_structs[fault].algo].name
+            self._servo_fault(fault, name, f"returned torque {unit.bad()!r} N·m, status 0")
+        elif event == SV_LEFT:
+            structs = self.level.slot_structs
+            for m in range(self.units[a.unit].left()):
+                i = int(self._left[m])
+                self._run(i, structs[i], a.tick_now)
+                self._done(1, a.fed)
+        elif event == SV_SLOT:
+            i = int(self._order[a.at - 1])
+            self._run(i, self.level.slot_structs[i], a.tick_now)
+            a.count = 1
+        else:
+            raise DaemonError(f"{self.name}: the compiled serve returned event {event}")
+
+    def _serve_reference(self, fed_tick: int) -> None:
+        """``serve`` in Python, step for step what ``kali_sv_serve`` does (its test's
+        reference)."""
         self._fed_tick[0] = fed_tick  # before any slot: SIO may acknowledge for it now
         lv = self.level
         t0 = rt.monotonic_ns()
