@@ -1743,6 +1743,7 @@ typedef struct {
     sem_t **feeds;
     int64_t n_feeds;
     int64_t *ctrl_tick;
+    int64_t *fed_ns, *served_ns;            /* SIO's feed time and feed-to-done, last tick */
     View robots_tick;                       /* int64, per robot */
     const int64_t *sv_fed_tick;             /* the gang (sio/gang.py): per SV */
     View signal_tick, ack_tick, vouched_tick; /* int64, per process slot */
@@ -1829,8 +1830,9 @@ int64_t kali_sio_front(SioArgs *a) {
             kali_feedforward(a->ff[k]);
         }
         a->fed = kali_feed(a->feed);
-        __atomic_store_n(a->ctrl_tick, a->tick, __ATOMIC_RELEASE); /* last: its slots are out */
         a->t_fed = now_ns();
+        *a->fed_ns = a->t_fed;
+        __atomic_store_n(a->ctrl_tick, a->tick, __ATOMIC_RELEASE); /* last: its slots are out */
         if (a->post)
             for (int64_t s = 0; s < a->n_feeds; s++) sem_post(a->feeds[s]);
         a->stage = ST_BACK;
@@ -1856,6 +1858,7 @@ int64_t kali_sio_back(SioArgs *a) {
                 }
             }
         a->t_done = now_ns();
+        *a->served_ns = a->t_done - a->t_fed;
         for (int64_t k = 0; k < a->n_robots; k++) /* a robot-level servo's is the whole torque */
             if (AT(int32_t, a->arm_algo, k) != (int32_t)a->arm_none) {
                 int64_t hi = AT(int64_t, a->bounds, k + 1);

@@ -372,7 +372,7 @@ SioArgs = _block(
     *((f, c_int64) for f in ("arm_none", "arm_free", "arm_held")),
     ("feeds", c_void_p),
     ("n_feeds", c_int64),
-    ("ctrl_tick", c_void_p),
+    *((f, c_void_p) for f in ("ctrl_tick", "fed_ns", "served_ns")),
     "robots_tick",
     ("sv_fed_tick", c_void_p),
     *("signal_tick", "ack_tick", "vouched_tick"),

@@ -697,3 +697,46 @@ def test_sio_interpolates_the_fifo_by_the_thesis_formula_at_a_non_integer_ratio(
             del rs
         finally:
             client.close()
+
+
+def test_a_polling_sv_wakes_before_the_feed_only_where_the_servos_are_worth_sharing() -> None:
+    """An SV on another CPU than SIO's polls for its tick from a time it learns
+    (``ServoWorker._learn_feed``): where the servos took more than ``SHARE_NS`` from SIO's feed
+    in one of the last 16 ticks, ``FEED_MARGIN_NS`` before the earliest feed of them, so it
+    claims servos beside the SV on SIO's CPU; otherwise once that SV has run them all (the
+    latest feed plus ``SHARE_NS``), to acknowledge only: the built-ins of 12 joints take it
+    ~5 µs, and polling for them took sv.1 ~0.1 ms of CPU a tick.  Never later than half a
+    period.  The learning alone, on an SV hosted in this process, fed the times SIO
+    publishes."""
+    from kali_daemons.sv.daemon import FEED_HISTORY, FEED_MARGIN_NS, SHARE_NS
+
+    from .conftest import HostedCell
+
+    cell = HostedCell(("plant", "sio", "sv.0", "sv.1"))
+    try:
+        sv = cell["sv.1"]
+        ctrl, procs = sv.level.ctrl, cell.inst.procs  # type: ignore[attr-defined]
+        release = 5_000_000_000
+        procs["release_ns"][sv.slot] = release  # type: ignore[attr-defined]
+        rng = np.random.default_rng(26)
+
+        def tick(served: int) -> int:
+            feed = int(rng.integers(60_000, 90_000))
+            ctrl["fed_ns"], ctrl["served_ns"] = release + feed, served
+            sv._learn_feed()  # type: ignore[attr-defined]
+            return feed
+
+        feeds = [tick(20_000) for _ in range(FEED_HISTORY)]
+        assert sv.poll_after_ns == max(feeds) + SHARE_NS  # type: ignore[attr-defined]
+        feeds = [*feeds[1:], tick(SHARE_NS + 1)]  # one tick worth sharing
+        assert sv.poll_after_ns == min(feeds) - FEED_MARGIN_NS  # type: ignore[attr-defined]
+        for _ in range(FEED_HISTORY - 1):
+            feeds = [*feeds[1:], tick(20_000)]
+            assert sv.poll_after_ns == min(feeds) - FEED_MARGIN_NS  # type: ignore[attr-defined]
+        feeds = [*feeds[1:], tick(20_000)]  # 16 light ticks since: acknowledge only
+        assert sv.poll_after_ns == max(feeds) + SHARE_NS  # type: ignore[attr-defined]
+        ctrl["fed_ns"], ctrl["served_ns"] = release + sv.period_ns, 0  # type: ignore[attr-defined]
+        sv._learn_feed()  # type: ignore[attr-defined]
+        assert sv.poll_after_ns == sv.period_ns // 2  # type: ignore[attr-defined]
+    finally:
+        cell.close()

@@ -53,6 +53,8 @@ TIMES = {
         "sv_exec_last_ns",
         "sv_exec_max_ns",
         "sv_exec_hist",
+        "fed_ns",
+        "served_ns",
     ),
     layout.KEY_SLOTS: ("exec_ns",),
     layout.KEY_FLIGHT_RING: ("t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"),

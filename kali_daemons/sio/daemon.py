@@ -473,6 +473,8 @@ class ServoIO(Daemon):
             feeds=ctypes.addressof(feeds),
             n_feeds=len(self.feeds),
             ctrl_tick=self._ctrl_tick.ctypes.data,
+            fed_ns=ctrl["fed_ns"].ctypes.data,
+            served_ns=ctrl["served_ns"].ctypes.data,
             robots_tick=self._robots_tick,
             sv_fed_tick=ctrl["sv_fed_tick"].ctypes.data,
             signal_tick=procs["signal_tick"],
@@ -614,8 +616,9 @@ class ServoIO(Daemon):
             ff.arm = self._arm_robot(k)
             ff.step(tick)
         fed = self._feed()
-        self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         t_fed = rt.monotonic_ns()
+        lv.ctrl["fed_ns"] = t_fed  # when: the polling SVs learn from it (sv/daemon.py)
+        self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         if self.serve is None:
             for sem in self.feeds:
                 sem.release()
@@ -628,6 +631,7 @@ class ServoIO(Daemon):
         else:  # every servo done: the SVs' acknowledgements before SIO's output (gang.py)
             self._gang.acknowledge(tick)
         t_done = rt.monotonic_ns()
+        lv.ctrl["served_ns"] = t_done - t_fed
         for k in range(lv.n_robots):  # a robot-level servo's torque is the whole torque
             if int(self._arm_algo[k]) != layout.ARM_NONE:
                 self.ff[self._spans[k]] = 0.0

@@ -28,7 +28,8 @@ SIO's priority, would wait behind SIO's output (``sio/gang.py``, which also says
 vouches for the SV on its CPU that took the previous tick's feed).
 
 An SV bound to another CPU than SIO's (sv.1 by default) is woken by neither post: in real time it
-sleeps on its own CPU's timer to shortly before SIO's feed is due (learnt over the last ticks,
+sleeps on its own CPU's timer to shortly before SIO's feed is due where the servos are worth
+sharing, else to when the SV on SIO's CPU has run them all (learnt over the last ticks,
 ``_learn_feed``), then polls for the clock's signal and SIO's feed, at most
 ``processes.sv.poll_us`` each, so no post has to wake a halted vCPU (a kernel trace
 showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms: config/default.yaml).
@@ -70,6 +71,9 @@ from . import arm, units
 READY_TIMEOUT_S = 30.0  # how long an SV waits at start for SIO to lay out the slots
 FEED_HISTORY = 16  # ticks over which a polling SV learns when SIO's feed comes
 FEED_MARGIN_NS = 50_000  # it wakes this much before the earliest of them (a timer's lateness)
+# A polling SV shares the servos only where they took long enough in one of those ticks
+# (SIO's feed to every servo done, its ``served_ns``); below, it wakes once they are done
+SHARE_NS = 80_000
 
 
 class ServoWorker(Daemon):
@@ -131,9 +135,13 @@ class ServoWorker(Daemon):
         if not lockstep and me.cpu is not None and me.cpu != sio.cpu:
             # poll at most half a servo period (a short servo period, a long poll_us)
             self.poll_ns = min(me.poll_us * 1000, self.period_ns // 2)
-        # when SIO's feed came in the last ticks, in ns after the tick's due time (_learn_feed)
+        # when SIO's feed came in the last ticks, in ns after the tick's due time, and how long
+        # the servos took from it (_learn_feed)
         self._release = inst.procs["release_ns"][self.slot : self.slot + 1]
+        self._fed_ns = c["fed_ns"]
+        self._served_ns = c["served_ns"]
         self._feed_seen = [0] * FEED_HISTORY
+        self._served = [0] * FEED_HISTORY
         self._feed_k = 0
         self._feed_cap = self.period_ns // 2  # never wake later than half a tick in
         self._bind_serve()
@@ -332,11 +340,6 @@ class ServoWorker(Daemon):
         now = rt.monotonic_ns()
         end, poll_end = now + int(wait_s * 1e9), now + self.poll_ns
         feed = self.feed
-        if self.poll_ns:
-            there = feed.value > 0
-            if not there:
-                rt.poll_semaphore(feed, poll_end)
-            self._learn_feed(there)
         while True:
             if self.poll_ns:
                 rt.poll_semaphore(feed, poll_end)
@@ -346,28 +349,39 @@ class ServoWorker(Daemon):
                 return -1
             fed = int(self._tick)
             if fed >= tick:
+                if self.poll_ns:
+                    self._learn_feed()
                 return fed
             wait_s = (end - rt.monotonic_ns()) / 1e9  # a stale post: wait on for this tick's
             if wait_s <= 0:
                 return -1
 
-    def _learn_feed(self, there: bool) -> None:
-        """A polling SV: note when SIO's feed came this tick, after the tick's due time, and
-        wake from now on ``FEED_MARGIN_NS`` before the earliest of the last ``FEED_HISTORY``
-        (``poll_after_ns``): the clock's signal is there by then, and the feed is close.
+    def _learn_feed(self) -> None:
+        """A polling SV, once it has this tick's feed: note when SIO fed it (``fed_ns``),
+        after the tick's due time, and how long the servos took from the feed last tick
+        (``served_ns``), and choose when to wake from now on (``poll_after_ns``).
 
-        SIO feeds once it has read the boards and checked the arms, ~0.15 ms into a tick on
-        this VM, and an SV polling from the due time on burnt that on CPU 1 every tick (sv.1
-        took 24 % of CPU 1, sv.0 7 % of CPU 0 for the same servos), the TG's share of CPU 1
-        with it (a path's planning tick then took the TG up to 30 ms, past the serious
-        tolerance).  A feed already there when the poll starts counts ``FEED_MARGIN_NS``
-        earlier than seen, so a feed that comes sooner than it used to moves the wake-up
-        earlier tick by tick."""
-        seen = self._feed_seen
-        at = rt.monotonic_ns() - int(self._release[0])
-        seen[self._feed_k] = at - FEED_MARGIN_NS if there else at
-        self._feed_k = (self._feed_k + 1) % FEED_HISTORY
-        self.poll_after_ns = max(0, min(min(seen) - FEED_MARGIN_NS, self._feed_cap))
+        Where the servos took more than ``SHARE_NS`` in one of the last ``FEED_HISTORY``
+        ticks, they are worth sharing: wake ``FEED_MARGIN_NS`` before the earliest feed of
+        those ticks, so the clock's signal is there and the feed close, and claim servos
+        beside the SV on SIO's CPU.  Otherwise that SV runs them all within ``SHARE_NS`` of the
+        feed on its own (the built-in servos of 12 joints, compiled: ~5 µs): wake once it
+        has, after the latest feed of those ticks plus ``SHARE_NS``, and only acknowledge.
+
+        Polling from the due time on, an SV burnt ~0.15 ms a tick on CPU 1 (sv.1 took 24 % of
+        CPU 1, sv.0 7 % of CPU 0 for the same servos), the TG's share of CPU 1 with it (a
+        path's planning tick then took the TG up to 30 ms, past the serious tolerance); waking
+        before the earliest feed, ~0.1 ms a tick for servos sv.0 runs in a few µs, and SIO,
+        woken across vCPUs by sv.1's done post, ~30 µs more than woken by sv.0."""
+        k = self._feed_k
+        self._feed_seen[k] = int(self._fed_ns) - int(self._release[0])
+        self._served[k] = int(self._served_ns)
+        self._feed_k = (k + 1) % FEED_HISTORY
+        if max(self._served) > SHARE_NS:
+            after = min(self._feed_seen) - FEED_MARGIN_NS
+        else:
+            after = max(self._feed_seen) + SHARE_NS
+        self.poll_after_ns = max(0, min(after, self._feed_cap))
 
     def _run(self, i: int, s: Any, tick: int) -> None:
         """Run slot ``i``'s servo once (mailbox first, then a reset, then the step)."""
