@@ -9,6 +9,7 @@
 
 #define _POSIX_C_SOURCE 200809L /* clock_gettime */
 
+#include <errno.h>
 #include <math.h>
 #include <semaphore.h>
 #include <stddef.h>
@@ -1712,8 +1713,8 @@ int64_t kali_mcgill_control(McgillArgs *a) {
 
 typedef int64_t (*KernelFn)(void *);
 
-enum { SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT };
-enum { ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_BACK, ST_OUT };
+enum { SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT, SIO_WAIT };
+enum { ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_WAIT, ST_BACK, ST_OUT };
 
 typedef struct {
     int64_t n, n_robots;
@@ -1742,6 +1743,9 @@ typedef struct {
     int64_t arm_none, arm_free, arm_held;
     sem_t **feeds;
     int64_t n_feeds;
+    sem_t *done_sem;                        /* the SVs' last post: every servo done */
+    uint32_t *ctrl_done;
+    int64_t slice_ns;                       /* how long one wait for it lasts (a period) */
     int64_t *ctrl_tick;
     int64_t *fed_ns, *served_ns;            /* SIO's feed time and feed-to-done, last tick */
     View robots_tick;                       /* int64, per robot */
@@ -1835,7 +1839,7 @@ int64_t kali_sio_front(SioArgs *a) {
         __atomic_store_n(a->ctrl_tick, a->tick, __ATOMIC_RELEASE); /* last: its slots are out */
         if (a->post)
             for (int64_t s = 0; s < a->n_feeds; s++) sem_post(a->feeds[s]);
-        a->stage = ST_BACK;
+        a->stage = ST_WAIT;
         return SIO_FED;
     }
     return SIO_FED;
@@ -1893,6 +1897,34 @@ int64_t kali_sio_back(SioArgs *a) {
     }
     }
     return SIO_DONE;
+}
+
+/* The whole tick in one call: the front pass, then (where SIO posted the feeds) the sleep on
+ * the done semaphore for one servo period at most, the done semaphore drained, then the back
+ * pass.  SIO_FED is returned only where it did not post (the lockstep executive runs the
+ * SVs in SIO's process, then calls again); SIO_WAIT when the servos were not done within a
+ * period (ServoIO._wait_done goes on waiting in slices and judges, in Python). */
+int64_t kali_sio_tick(SioArgs *a) {
+    if (a->stage < ST_WAIT) {
+        int64_t event = kali_sio_front(a);
+        if (event != SIO_FED || !a->post) return event;
+    }
+    if (a->stage == ST_WAIT) {
+        if (a->fed) {
+            struct timespec until;
+            clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
+            int64_t ns = until.tv_nsec + a->slice_ns;
+            until.tv_sec += (time_t)(ns / 1000000000);
+            until.tv_nsec = (long)(ns % 1000000000);
+            while ((int64_t)__atomic_load_n(a->ctrl_done, __ATOMIC_ACQUIRE) < a->fed)
+                if (sem_timedwait(a->done_sem, &until) != 0 && errno != EINTR) return SIO_WAIT;
+        }
+        while (sem_trywait(a->done_sem) == 0) /* a post that raced with the last look */
+            ;
+        a->ok = 1;
+        a->stage = ST_BACK;
+    }
+    return kali_sio_back(a);
 }
 
 /* ---------------------------------------------------------------- an SV's serve

@@ -27,10 +27,11 @@ feed-forward as SIO applies it (``kali_feedforward``, bound by
 ``update``; and so is SIO's step of every robot where nothing but its motion is happening
 to it: the demand popped, the joints fed (``kali_sio_robots``, bound by
 ``sio.daemon.ServoIO._bind_kernels``; its reference is ``ServoIO._robot``, which any other
-robot still takes).  SIO's whole tick runs as two passes (``kali_sio_front``: read, sensors,
-robots, checks, feed-forward, feed, the feeds posted; ``kali_sio_back``: the gang's
-acknowledgements, torques, DACs, the current check, the boards' registers, publishing, the
-flight row), bound by ``ServoIO._bind_tick``; their reference is ``ServoIO._tick_reference``,
+robot still takes).  SIO's whole tick is one call (``kali_sio_tick``) of two passes
+(``kali_sio_front``: read, sensors, robots, checks, feed-forward, feed, the feeds posted;
+then the sleep until the servos are done; ``kali_sio_back``: the gang's acknowledgements,
+torques, DACs, the current check, the boards' registers, publishing, the flight row), bound
+by ``ServoIO._bind_tick``; their reference is ``ServoIO._tick_reference``,
 which also does every event the passes hand back.  The McGill boards' command registers are
 written by ``kali_mcgill_control`` (bound by ``McGillBoards.control_kernel``; its reference
 is ``McGillBoards.control`` with ``end_tick``).  An SV's serve (the robots fed whole, the
@@ -372,6 +373,8 @@ SioArgs = _block(
     *((f, c_int64) for f in ("arm_none", "arm_free", "arm_held")),
     ("feeds", c_void_p),
     ("n_feeds", c_int64),
+    *((f, c_void_p) for f in ("done_sem", "ctrl_done")),
+    ("slice_ns", c_int64),
     *((f, c_void_p) for f in ("ctrl_tick", "fed_ns", "served_ns")),
     "robots_tick",
     ("sv_fed_tick", c_void_p),
@@ -384,8 +387,8 @@ SioArgs = _block(
     *((f, c_int64) for f in ("c_read", "t_fed", "t_done", "t_out", "c_out", "retrigger_tick")),
 )
 # kali_sio_front's and kali_sio_back's results: the tick's events, and its stages
-SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT = range(7)
-ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_BACK, ST_OUT = range(8)
+SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT, SIO_WAIT = range(8)
+ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_WAIT, ST_BACK, ST_OUT = range(9)
 ServeArgs = _block(
     "ServeArgs",
     *((f, c_int64) for f in ("n", "n_arms", "n_units")),
@@ -416,6 +419,7 @@ _KERNELS = {
     "kali_sio_robots": RobotsArgs,
     "kali_sio_front": SioArgs,
     "kali_sio_back": SioArgs,
+    "kali_sio_tick": SioArgs,
     "kali_mcgill_control": McgillArgs,
     "kali_sv_serve": ServeArgs,
     "kali_motors": MotorArgs,

@@ -1,4 +1,4 @@
-"""SIO's tick compiled (``kali_sio_front``, ``kali_sio_back``) and an SV's serve compiled
+"""SIO's tick compiled (``kali_sio_tick``) and an SV's serve compiled
 (``kali_sv_serve``, issue 26 item 2) do what their Python references,
 ``ServoIO._tick_reference`` and ``ServoWorker._serve_reference``, do, tick after tick,
 through every event the kernels hand back to Python.
@@ -283,7 +283,7 @@ class Story:
 def test_the_compiled_tick_equals_the_reference(twins: tuple[Copy, Copy]) -> None:
     compiled, reference = twins
     story = Story(2626)
-    front, back = compiled.sio._front, compiled.sio._back
+    step = compiled.sio._step
     handed: list[int] = []
 
     def counted(fn: Callable[[], int]) -> Callable[[], int]:
@@ -293,7 +293,7 @@ def test_the_compiled_tick_equals_the_reference(twins: tuple[Copy, Copy]) -> Non
 
         return call
 
-    compiled.sio._front, compiled.sio._back = counted(front), counted(back)
+    compiled.sio._step = counted(step)
     served: list[int] = []
     for sv in compiled.svs:
         kernel = sv._serve_kernel  # type: ignore[attr-defined]

@@ -25,14 +25,16 @@ tick.
 Every register bit is the board module's (``kali_daemons/boards/mcgill.py``); SIO asks it
 for angles, torques out, power, pots and index pulses.
 
-The tick is two compiled passes (``kali_sio_front``: (a) and (b) up to the feeds posted;
-``kali_sio_back``: (c) after the wait), the boards' own kernels called through their
-addresses: SIO's tick was ~30 µs of Python on a hot cache and ~80 µs of CPU in real time,
-most of it the interpreter between ~20 kernel calls; now ~5 µs.  What the common tick does
-not do (an index pulse to catch, a sensor's halt or reached guard, a robot that is powering,
-calibrating, held, guided or told something, a range or runaway fault, a current fault) a
-pass hands back, SIO does it in Python and the pass goes on.  ``_tick_reference`` is the
-whole tick in Python, step for step: the passes' test reference (``tests/test_sio_tick.py``).
+The tick is one compiled call (``kali_sio_tick``) of two passes (``kali_sio_front``: (a) and (b)
+up to the feeds posted; the sleep on the done semaphore; ``kali_sio_back``: (c)), the boards'
+own kernels called through their addresses: SIO's tick was ~30 µs of Python on a hot cache and
+~80 µs of CPU in real time, most of it the interpreter between ~20 kernel calls; now ~5 µs.
+What the common tick does not do (an index pulse to catch, a sensor's halt or reached guard, a
+robot that is powering, calibrating, held, guided or told something, a range or runaway fault, a
+current fault) a call hands back, SIO does it in Python and the call goes on (and where the
+servos are not done within a period, ``_wait_done`` waits on and judges, as before).
+``_tick_reference`` is the whole tick in Python, step for step: the call's test reference
+(``tests/test_sio_tick.py``).
 
 Range, runaway (tracking error beyond ``safe``), a current demand beyond the motor's limit for
 ``current_fault_ms``, amplifiers dropping out, and servo slots not done within the serious
@@ -69,6 +71,8 @@ from ..kernels import (
     SIO_FED,
     SIO_ROBOTS,
     SIO_SENSOR,
+    SIO_WAIT,
+    ST_BACK,
     ST_READ,
     WRENCH_OK,
     Kernel,
@@ -400,9 +404,10 @@ class ServoIO(Daemon):
         self._bind_tick()
 
     def _bind_tick(self) -> None:
-        """SIO's tick as two compiled passes over the kernels above (``kali_sio_front``,
-        ``kali_sio_back``; ``_tick_reference`` is what they do), the boards' kernels called
-        through their addresses.  Their block also holds what SIO keeps between ticks: the
+        """SIO's tick as one compiled call over the kernels above (``kali_sio_tick``: the passes
+        ``kali_sio_front`` and ``kali_sio_back`` with the wait between them;
+        ``_tick_reference`` is what it does), the boards' kernels called through their
+        addresses.  Their block also holds what SIO keeps between ticks: the
         fault count seen and the tick of the last retrigger."""
         lv, n, nr = self.level, self.level.n, self.level.n_robots
         rs, procs, ctrl = lv.robots, self.inst.procs, lv.ctrl
@@ -422,6 +427,7 @@ class ServoIO(Daemon):
         before = getattr(self, "_tick_args", None)  # bound again (a test): carry on from it
         self.on_shutdown()
         self._feed_addresses = [rt.semaphore_address(sem) for sem in self.feeds]
+        self._done_address = rt.semaphore_address(self.done_sem)
         feeds = (ctypes.c_void_p * max(1, len(self.feeds)))(*self._feed_addresses)
         gang = np.array(self._gang.members(), dtype=np.int64).reshape(-1, 3)
         gang_sv, gang_slot, gang_lag = (np.ascontiguousarray(gang[:, c]) for c in range(3))
@@ -433,7 +439,7 @@ class ServoIO(Daemon):
         keep += (self._robots, self._check, self._feed, self._torques, self._current)
         keep += (self._publish, self.flight)
         self._tick_kernel = Kernel(
-            "kali_sio_front",
+            "kali_sio_tick",
             keep,
             n=n,
             n_robots=nr,
@@ -472,6 +478,9 @@ class ServoIO(Daemon):
             arm_held=layout.ARM_HELD,
             feeds=ctypes.addressof(feeds),
             n_feeds=len(self.feeds),
+            done_sem=self._done_address,
+            ctrl_done=self._ctrl_done.ctypes.data,
+            slice_ns=self.slice_ns,
             ctrl_tick=self._ctrl_tick.ctypes.data,
             fed_ns=ctrl["fed_ns"].ctypes.data,
             served_ns=ctrl["served_ns"].ctypes.data,
@@ -494,11 +503,8 @@ class ServoIO(Daemon):
             faults_seen=int(self._fault_count) if before is None else before.faults_seen,
             retrigger_tick=-1 if before is None else before.retrigger_tick,
         )
-        self._tick_args = a = self._tick_kernel.args
-        self._front = self._tick_kernel
-        self._back = self._tick_kernel.sibling("kali_sio_back")
-        # one SV after another in the lockstep executive (serve), posted to otherwise
-        a.post = 1
+        self._tick_args = self._tick_kernel.args
+        self._step = self._tick_kernel.sibling("kali_sio_tick")
 
     @property
     def retrigger_tick(self) -> int:
@@ -513,31 +519,34 @@ class ServoIO(Daemon):
         self._tick_args.ack_early = early.ctypes.data if early is not None else None
 
     def on_shutdown(self) -> None:
-        """Give back the compiled tick's opens of the feed semaphores."""
+        """Give back the compiled tick's opens of the feed and done semaphores."""
         for address in getattr(self, "_feed_addresses", ()):
             rt.close_semaphore_address(address)
-        self._feed_addresses = []
+        if getattr(self, "_done_address", 0):
+            rt.close_semaphore_address(self._done_address)
+        self._feed_addresses, self._done_address = [], 0
 
     # ------------------------------------------------------------------ the tick
 
     def cycle(self, tick: int) -> None:
-        """Inside the cycle: (a) sensors, (b) checks and feed, (c) torques out, as two compiled
-        passes (``kali_sio_front`` up to the feeds posted, ``kali_sio_back`` once the servos
-        are done; ``_tick_reference`` is what they do).  What a pass hands back, SIO does here
-        in Python (``_event``) and the pass goes on."""
+        """Inside the cycle: (a) sensors, (b) checks and feed, (c) torques out, as one compiled
+        call (``kali_sio_tick``: the front pass up to the feeds posted, the sleep until the
+        servos are done, the back pass; ``_tick_reference`` is what it does).  What it hands
+        back, SIO does here in Python (``_event``) and the call goes on."""
         a = self._tick_args
         a.tick = tick
         a.stage = ST_READ  # whatever a tick that raised out of its Python left
-        while (event := self._front()) != SIO_FED:
-            self._event(event, tick)
-        if self.serve is not None:  # the lockstep executive: the SVs run here, in this process
-            self.serve(tick)
-        fed = a.fed
-        a.ok = ok = not fed or self._wait_done(tick, fed)  # at once: see gang.py
-        if not ok:
-            self.fed_mask[:] = False
-        while (event := self._back()) != SIO_DONE:
-            self._event(event, tick)
+        a.post = self.serve is None
+        while (event := self._step()) != SIO_DONE:
+            if event == SIO_FED:  # not posted: the lockstep executive runs the SVs here
+                self.serve(tick)  # type: ignore[misc]
+            elif event == SIO_WAIT:  # not done within a period: wait on in slices, judge
+                a.ok = ok = self._wait_done(tick, a.fed, timed_out=True)
+                if not ok:
+                    self.fed_mask[:] = False
+                a.stage = ST_BACK
+            else:
+                self._event(event, tick)
 
     def _event(self, event: int, tick: int) -> None:
         """What the common tick does not do, handed back by a compiled pass (outside the
@@ -578,8 +587,8 @@ class ServoIO(Daemon):
         return faulted
 
     def _tick_reference(self, tick: int) -> None:
-        """SIO's tick in Python, step for step what ``kali_sio_front`` and ``kali_sio_back``
-        do (their tests' reference), and the tick while index capture is under way."""
+        """SIO's tick in Python, step for step what ``kali_sio_tick`` does: its test's
+        reference."""
         lv = self.level
         a = self._tick_args
         t_read = rt.monotonic_ns()
@@ -839,25 +848,31 @@ class ServoIO(Daemon):
         self.driver.zero()
         return True
 
-    def _wait_done(self, tick: int, fed: int) -> bool:
+    def _wait_done(self, tick: int, fed: int, timed_out: bool = False) -> bool:
         """Sleep until every fed slot ran; False after halting, naming the culprit.
 
         The common path is one semaphore wait.  Past a servo period the wait goes on in
         slices, and after each an SV that died holding a slot halts the system at once
         (PROCESS_DIED); past ``wait_s`` a servo still unfinished halts it (DEADLINE), naming
-        the SV that holds it and the algorithm, or the joints no SV claimed.
+        the SV that holds it and the algorithm, or the joints no SV claimed.  ``timed_out``:
+        the compiled tick's wait of one period has just timed out (its first slice).
         """
         done = self._ctrl_done
         deadline = 0
-        while int(done) < fed:
+
+        def sliced() -> bool:  # a slice timed out: whether to stop waiting
+            nonlocal deadline
+            now = rt.monotonic_ns()
+            if not deadline:  # measured from the wait's start: slices overrun a little
+                deadline = now - self.slice_ns + self.wait_ns
+            return self._dead_servo(tick) or now >= deadline
+
+        stop = timed_out and sliced()
+        while not stop and int(done) < fed:
             try:
                 self.done_sem.acquire(self.slice_s)
             except posix_ipc.BusyError:
-                now = rt.monotonic_ns()
-                if not deadline:  # measured from the wait's start: slices overrun a little
-                    deadline = now - self.slice_ns + self.wait_ns
-                if self._dead_servo(tick) or now >= deadline:
-                    break
+                stop = sliced()
         # drain a post that raced with the last check (looked at first: a failed acquire
         # raises, which costs more than the post; only SIO takes from this semaphore)
         while self.done_sem.value:
