@@ -318,15 +318,17 @@ class Instance:
         and opens the record in one step; the winner alone writes the rest and then makes the
         count even.  So no process holding anything, stopped or dead, can keep a halt from
         being recorded, and no reader sees the fault word set beside an earlier fault's
-        fields.  The wall clock stops itself when it sees the fault word set.  Returns True if
-        this call recorded the fault, False if one was already active (still counted).
+        fields.  The fault count goes up once the record is written (the loser's at once), so
+        whoever sees a halt counted (SIO and the TG each tick) reads its record whole.  The
+        wall clock stops itself when it sees the fault word set.  Returns True if this call
+        recorded the fault, False if one was already active (still counted).
         """
         self.power_off_all()
-        atomic.fetch_add64(self._fault_count, 1)
         pid = os.getpid()
         state = atomic.load64(self._fault_state)
         while True:
             if state & _WORD:
+                atomic.fetch_add64(self._fault_count, 1)  # counted too
                 return False  # an uncleared fault is active: it stands
             # win and open the record in one step: the word becomes this pid and the sequence
             # count odd (a writer that died half-way left it odd already: step past it)
@@ -342,6 +344,7 @@ class Instance:
         f["process"] = process.encode()[: layout.NAME_BYTES - 1]
         f["message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
         atomic.fetch_add64(self._fault_state, 1 << 32)  # even: written (whether reset or not)
+        atomic.fetch_add64(self._fault_count, 1)  # last: a halt counted is a halt written
         self.command_semaphore().release()  # a stopped-but-waiting clock notices at once
         if self.lockstep:
             self.ack_semaphore().release()  # a clock waiting for lockstep acks notices too

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from types import FrameType
 
 import pytest
@@ -33,9 +33,17 @@ def inst() -> Iterator[Instance]:
     launcher.stop(name)
 
 
-def _step_writer(inst: Instance, code: FaultCode, process: str, message: str) -> list[tuple]:
+def _step_writer(
+    inst: Instance,
+    code: FaultCode,
+    process: str,
+    message: str,
+    read: Callable[[], object] | None = None,
+) -> list:
     """Raise a fault in a thread that pauses before every line of ``raise_fault``; at each
-    pause this thread reads the record.  The reads, in order: (line, FaultInfo)."""
+    pause this thread reads the record (``read``, else ``read_fault``).  The reads, in
+    order."""
+    read = read or inst.read_fault
     go, paused = threading.Semaphore(0), threading.Semaphore(0)
     target = Instance.raise_fault.__code__
 
@@ -62,10 +70,10 @@ def _step_writer(inst: Instance, code: FaultCode, process: str, message: str) ->
         paused.acquire()
         if not t.is_alive():
             break
-        reads.append(inst.read_fault())
+        reads.append(read())
         go.release()
     t.join()
-    reads.append(inst.read_fault())
+    reads.append(read())
     return reads
 
 
@@ -113,3 +121,21 @@ def test_a_reset_while_the_winner_writes_leaves_a_whole_record_and_no_fault(
     info = inst.read_fault()
     assert (info.active, info.code, info.message) == (False, "SERVO", "half-way")
     assert inst.fault_text() is None
+
+
+def test_a_halt_counted_is_a_halt_written(inst: Instance, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fault count says a halt happened (SIO and the TG look at it each tick, and
+    ``fault_text(last=True)`` reads the record once it is nonzero): at any step of the first
+    fault's writer, a reader sees no halt, or that halt's whole record, or UNFINISHED — never
+    the record as it was before any fault (``NONE in  at tick 0``, which a program was told
+    once in the fault matrix: the count went up before the record was won and written)."""
+    monkeypatch.setattr(instance_module, "FAULT_READ_WAIT_S", 0.005)
+    texts = _step_writer(
+        inst, FaultCode.DEADLINE, "sio", "too slow", lambda: inst.fault_text(last=True)
+    )
+    assert len(texts) > 5  # the writer was stepped through
+    seen = [t for t in texts if t is not None]
+    assert seen, texts
+    for text in seen:
+        assert text.startswith(("DEADLINE in sio", "UNFINISHED")), texts
+    assert texts[-1] == "DEADLINE in sio at tick 0: too slow"
