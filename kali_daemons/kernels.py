@@ -386,7 +386,7 @@ SioArgs = _block(
     *((f, c_int64) for f in ("faulted", "faults_seen", "at", "result", "fed", "t_read")),
     *((f, c_int64) for f in ("c_read", "t_fed", "t_done", "t_out", "c_out", "retrigger_tick")),
 )
-# kali_sio_front's and kali_sio_back's results: the tick's events, and its stages
+# kali_sio_tick's results (the tick's events) and its stages
 SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT, SIO_WAIT = range(8)
 ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_WAIT, ST_BACK, ST_OUT = range(9)
 ServeArgs = _block(
@@ -417,8 +417,6 @@ _KERNELS = {
     "kali_feedforward": FfArgs,
     "kali_fifo_pop": FifoPopArgs,
     "kali_sio_robots": RobotsArgs,
-    "kali_sio_front": SioArgs,
-    "kali_sio_back": SioArgs,
     "kali_sio_tick": SioArgs,
     "kali_mcgill_control": McgillArgs,
     "kali_sv_serve": ServeArgs,

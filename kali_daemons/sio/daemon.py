@@ -425,7 +425,7 @@ class ServoIO(Daemon):
         )
         ffs = (ctypes.c_void_p * nr)(*(ctypes.addressof(f.args) for f in self._ff))
         before = getattr(self, "_tick_args", None)  # bound again (a test): carry on from it
-        self.on_shutdown()
+        self._close_semaphore_addresses()
         self._feed_addresses = [rt.semaphore_address(sem) for sem in self.feeds]
         self._done_address = rt.semaphore_address(self.done_sem)
         feeds = (ctypes.c_void_p * max(1, len(self.feeds)))(*self._feed_addresses)
@@ -504,7 +504,7 @@ class ServoIO(Daemon):
             retrigger_tick=-1 if before is None else before.retrigger_tick,
         )
         self._tick_args = self._tick_kernel.args
-        self._step = self._tick_kernel.sibling("kali_sio_tick")
+        self._step = self._tick_kernel
 
     @property
     def retrigger_tick(self) -> int:
@@ -519,6 +519,10 @@ class ServoIO(Daemon):
         self._tick_args.ack_early = early.ctypes.data if early is not None else None
 
     def on_shutdown(self) -> None:
+        """Outside the cycle: release what on_configure took."""
+        self._close_semaphore_addresses()
+
+    def _close_semaphore_addresses(self) -> None:
         """Give back the compiled tick's opens of the feed and done semaphores."""
         for address in getattr(self, "_feed_addresses", ()):
             rt.close_semaphore_address(address)

@@ -176,7 +176,7 @@ class ServoWorker(Daemon):
         units and the order above; outside the cycle."""
         lv, c = self.level, self.level.ctrl
         units = (ctypes.c_void_p * max(1, len(self.units)))(
-            *(ctypes.addressof(u._args) for u in self.units)
+            *(ctypes.addressof(u.args) for u in self.units)
         )
         self._arm_lo = np.array([a.lo for a in self.arms], dtype=np.int64)
         self._order = np.array(self.order, dtype=np.int64)

@@ -24,6 +24,7 @@ per-joint steps, which ``tests/test_servo_vector.py`` holds the kernel to.
 
 from __future__ import annotations
 
+import ctypes
 import math
 
 import numpy as np
@@ -85,6 +86,11 @@ class Unit:
             fault=-1,
         )
         self._args = self._kernel.args
+
+    @property
+    def args(self) -> ctypes.Structure:
+        """The kernel's argument block (an SV's compiled serve steps it: ``kali_sv_serve``)."""
+        return self._args
 
     def run(self, tick: int) -> int:
         """Claim and run the unit for ``tick``; the slots run.  Inside the cycle."""
