@@ -14,6 +14,7 @@ sleeps to its own absolute deadlines instead; in lockstep mode every daemon is c
 from __future__ import annotations
 
 import argparse
+import ctypes
 import gc
 import logging
 import os
@@ -32,6 +33,7 @@ from . import layout, rt
 from .config import period_ticks
 from .errors import DaemonError
 from .instance import Instance
+from .kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
 from .layout import FaultCode, ProcState, RunMode
 from .spinlock import pid_alive
 
@@ -95,8 +97,14 @@ class Daemon:
         # clock's signal before sleeping on it, so the signal wakes no halted vCPU (an SV on
         # the other CPU, ``processes.sv.poll_us``); 0: sleep on the semaphore
         self.poll_ns = 0
-        # polling: wake this long after the due tick (when its work can start: an SV's feed)
-        self.poll_after_ns = 0
+        # polling: wake this long after the due tick (when its work can start: an SV's feed);
+        # an array, so a compiled cycle can write it (an SV's ``kali_sv_serve`` learns it)
+        self._poll_after = np.zeros(1, np.int64)
+
+    @property
+    def poll_after_ns(self) -> int:
+        """Polling: how long after the due tick this process wakes (``poll_ns``)."""
+        return int(self._poll_after[0])
 
     # ------------------------------------------------------------------ hooks
 
@@ -293,52 +301,41 @@ class Daemon:
         or ``poll_after_ns`` after it, and poll for the post there, then take it: the clock's
         post finds no waiter and wakes nobody across vCPUs.  A signal later than the poll, or
         none (the clock stopped, the gang sat the tick out), is waited for as without it.
+        The wait is one compiled call (``ClockWait``).
         """
         inst, i = self.inst, self.slot
-        procs, header = inst.procs, inst.arena.header
-        sig, rel, heart = procs["signal_tick"], procs["release_ns"], procs["heartbeat_ns"]
-        sem = inst.slot_semaphore(i)
+        header, heart = inst.arena.header, inst.procs["heartbeat_ns"]
         ack_sem = inst.ack_semaphore() if inst.lockstep else None
-        stats = _CycleStats(procs, i)
+        stats = _CycleStats(inst.procs, i)
         now = rt.monotonic_ns
         # a serious process in real time notices a dead wall clock within half the boards'
         # 20 ms watchdog (which cuts the amplifiers anyway); looking costs nothing until then
         self._idle_wait_s = CLOCK_WATCH_S if self.serious and not inst.lockstep else IDLE_WAIT_S
         self._clock_tick, self._clock_waits = -1, 0  # _watch_clock's view of a standing clock
-        poll_ns = 0 if inst.lockstep else self.poll_ns
-        period_ns = self.period_ns
-        sleeper = rt.AbsoluteSleeper()
-        signalled = False
-        while not self._leave:
-            after = self.poll_after_ns if poll_ns and signalled else 0
-            if poll_ns and signalled:
-                due = int(rel[i]) + period_ns + after
-                t = now()
-                if t < due:
-                    sleeper.until(due)
-                    t = due
-                rt.poll_semaphore(sem, t + poll_ns)
-            try:
-                sem.acquire(self._idle_wait_s)
-            except posix_ipc.BusyError:
-                signalled = False
-                heart[i] = now()
-                if header["shutdown"]:
+        waiter = ClockWait(
+            inst, i, self.period_ns, 0 if inst.lockstep else self.poll_ns, self._idle_wait_s,
+            self._poll_after, stats, ack_sem,
+        )  # fmt: skip
+        wait, w = waiter.wait, waiter.args
+        try:
+            while not self._leave:
+                event = wait()  # which first accounts and acknowledges the cycle before
+                if event == WAIT_SIGNAL:
+                    if self._leave:  # the post may be ``leave``'s wake-up: no cycle runs
+                        w.cycled = 0
+                        break
+                    self.cycle(w.tick)
+                elif event == WAIT_IDLE:
+                    heart[i] = now()
+                    if header["shutdown"]:
+                        break
+                    self._on_idle()
+                elif event == WAIT_SHUTDOWN:
                     break
-                self._on_idle()
-                continue
-            except posix_ipc.SignalError:
-                continue
-            woke = now()
-            signalled = True
-            if header["shutdown"] or self._leave:  # the post may be ``leave``'s wake-up
-                break
-            tick = int(sig[i])
-            self.cycle(tick)
-            # lateness from when it meant to wake: the tick's release, or after it (polling)
-            stats.record(tick, int(rel[i]) + after, woke, now())
-            if ack_sem is not None:
-                ack_sem.release()
+                # WAIT_INTR: a signal's handler has run (it may have set _leave); wait on
+            waiter.settle()  # the last cycle's account, where leaving ended the loop after it
+        finally:
+            waiter.close()
 
     def _on_idle(self) -> None:
         """Outside the cycle: no signal for ``_idle_wait_s``; look at the wall clock."""
@@ -430,6 +427,118 @@ class Daemon:
             tick += 1
 
 
+class ClockWait:
+    """A clocked process's wait for the wall clock's signal on its slot's semaphore (thesis
+    3.6.2), polling where ``poll_ns`` asks (``Daemon._clock_driven_loop``).
+
+    ``wait`` is one compiled call (``kernels.c``'s ``kali_clock_wait``, on the C library's
+    own opens of the semaphores: ``rt.semaphore_address``); ``wait_reference`` is what it
+    does, in Python.  Each first accounts the cycle the last signal ran and acknowledges it
+    (``settle``: ``stats``, then, in lockstep, ``ack_sem``), so a tick costs the loop one
+    call; then it waits and returns a ``WAIT_*`` event, leaving in ``args`` the tick
+    signalled (``tick``), when the post was taken (``woke``) and when the process meant to
+    wake (``since``: the signal's release, or ``poll_after`` after it), and whether the clock
+    keeps signalling (``signalled``: the next wait polls).  Outside the cycle: ``close``.
+    """
+
+    __slots__ = (
+        "_ack", "_acks", "_address", "_after", "_header", "_kernel", "_rel", "_sem", "_settle",
+        "_sig", "_stats", "args",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        inst: Instance,
+        slot: int,
+        period_ns: int,
+        poll_ns: int,
+        idle_s: float,
+        after: np.ndarray,
+        stats: _CycleStats,
+        ack_sem: posix_ipc.Semaphore | None = None,
+    ) -> None:
+        from .kernels import Kernel
+
+        procs = inst.procs
+        self._sem = inst.slot_semaphore(slot)
+        self._rel = procs["release_ns"][slot : slot + 1]
+        self._sig = procs["signal_tick"][slot : slot + 1]
+        self._header, self._after = inst.arena.header, after
+        shutdown = self._header["shutdown"]
+        assert after.dtype == np.int64 and after.shape == (1,), after
+        self._stats, self._ack = stats, ack_sem
+        self._address = rt.semaphore_address(self._sem)
+        self._acks = rt.semaphore_address(ack_sem) if ack_sem is not None else 0
+        self._kernel = Kernel(
+            "kali_clock_wait",
+            (self._rel, self._sig, after, shutdown, stats),
+            stats=ctypes.addressof(stats.args),
+            ack_sem=self._acks,
+            sem=self._address,
+            release=self._rel.ctypes.data,
+            signal_tick=self._sig.ctypes.data,
+            after=after.ctypes.data,
+            shutdown=shutdown.ctypes.data,
+            period_ns=period_ns,
+            poll_ns=poll_ns,
+            idle_ns=int(idle_s * 1e9),
+        )
+        self.args = self._kernel.args
+        self._settle = self._kernel.sibling("kali_clock_settle")
+
+    def wait(self) -> int:
+        """Inside the cycle: account the last cycle, wait for the next signal (compiled)."""
+        return self._kernel()
+
+    def settle(self) -> None:
+        """Account and acknowledge the cycle the last signal ran, if not yet (compiled)."""
+        self._settle()
+
+    def settle_reference(self) -> None:
+        """What ``settle`` does, in Python."""
+        a = self.args
+        if a.cycled:
+            self._stats.record_reference(a.tick, a.since, a.woke, rt.monotonic_ns())
+            if self._ack is not None:
+                self._ack.release()
+            a.cycled = 0
+
+    def wait_reference(self) -> int:
+        """What ``wait`` does, in Python (its test's reference)."""
+        self.settle_reference()
+        a, sem, now = self.args, self._sem, rt.monotonic_ns
+        after = 0
+        if a.poll_ns and a.signalled:
+            after = int(self._after[0])
+            due = int(self._rel[0]) + a.period_ns + after
+            t = now()
+            if t < due:
+                rt.AbsoluteSleeper().until(due)
+                t = due
+            rt.poll_semaphore(sem, t + a.poll_ns)
+        try:
+            sem.acquire(a.idle_ns / 1e9)
+        except posix_ipc.BusyError:
+            a.signalled = 0
+            return WAIT_IDLE
+        except posix_ipc.SignalError:
+            return WAIT_INTR
+        a.woke, a.signalled = now(), 1
+        if self._header["shutdown"]:
+            return WAIT_SHUTDOWN
+        a.tick = int(self._sig[0])
+        a.since = int(self._rel[0]) + after
+        a.cycled = 1
+        return WAIT_SIGNAL
+
+    def close(self) -> None:
+        """Give back the C library's opens of the semaphores (outside the cycle)."""
+        for address in (self._address, self._acks):
+            if address:
+                rt.close_semaphore_address(address)
+        self._address = self._acks = 0
+
+
 class _CycleStats:
     """Writes one slot's process-side statistics; inside the cycle, no allocation.
 
@@ -468,6 +577,11 @@ class _CycleStats:
             log_bins=layout.HIST_LOG_BINS,
         )
         self._args = self._kernel.args
+
+    @property
+    def args(self) -> ctypes.Structure:
+        """The kernel's argument block (``ClockWait`` accounts a cycle through it)."""
+        return self._args
 
     def record(self, tick: int, release_ns: int, woke_ns: int, done_ns: int) -> None:
         """Account one cycle, then acknowledge ``tick`` (the last store the clock reads)."""

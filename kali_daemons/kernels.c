@@ -1939,7 +1939,7 @@ int64_t kali_sio_tick(SioArgs *a) {
  * the slots that Python ran, and it goes on. */
 
 enum { SV_DONE, SV_ARM, SV_FAULT, SV_LEFT, SV_SLOT };
-enum { SV_START, SV_ARMS, SV_UNITS, SV_UNIT_DONE, SV_UNIT_LEFT, SV_SLOTS, SV_END };
+enum { SV_START, SV_ARMS, SV_UNITS, SV_UNIT_DONE, SV_UNIT_LEFT, SV_SLOTS, SV_END, SV_FEED };
 
 typedef struct {
     int64_t n, n_arms, n_units;
@@ -1957,9 +1957,19 @@ typedef struct {
     uint64_t *servos;
     uint32_t *exec_hist;
     int64_t linear_us, log_bins;
+    /* the feed (stage SV_FEED, ServoWorker._await_feed and _learn_feed) */
+    sem_t *feed_sem;
+    int64_t poll_ns, feed_wait_ns;      /* poll the feed this long first; wait at most this */
+    int64_t learn;                      /* a polling SV learns when to wake from each feed */
+    const int64_t *fed_ns, *served_ns;  /* ctrl: when SIO fed, how long the servos took */
+    const int64_t *release;             /* procs release_ns[this SV's slot] */
+    int64_t *feed_seen, *served;        /* the last `history` ticks' */
+    int64_t history, feed_k, margin_ns, share_ns, cap_ns;
+    int64_t *poll_after;                /* the base loop's: from when after the due tick to poll */
     /* per call: from the SV, between calls, to it */
     int64_t fed_tick, count;
     int64_t stage, at, unit, tick_now, fed, ran, t0;
+    int64_t wanted;                     /* SV_FEED: the tick signalled (a feed of it or later) */
 } ServeArgs;
 
 static void sv_done(ServeArgs *a, int64_t count) {
@@ -1967,7 +1977,65 @@ static void sv_done(ServeArgs *a, int64_t count) {
     if ((int64_t)(before + (uint32_t)count) == a->fed) sem_post(a->done_sem); /* the last */
 }
 
+/* ServoWorker._learn_feed: note when SIO fed this tick and how long the servos took from a
+ * feed, and choose when to wake: before the earliest feed where they are worth sharing, else
+ * once the SV on SIO's CPU has run them all; never later than the cap. */
+static void sv_learn(ServeArgs *a) {
+    int64_t k = a->feed_k;
+    a->feed_seen[k] = LOAD(*a->fed_ns) - LOAD(*a->release);
+    a->served[k] = LOAD(*a->served_ns);
+    a->feed_k = (k + 1) % a->history;
+    int64_t lo = a->feed_seen[0], hi = a->feed_seen[0], busiest = a->served[0];
+    for (int64_t m = 1; m < a->history; m++) {
+        if (a->feed_seen[m] < lo) lo = a->feed_seen[m];
+        if (a->feed_seen[m] > hi) hi = a->feed_seen[m];
+        if (a->served[m] > busiest) busiest = a->served[m];
+    }
+    int64_t after = busiest > a->share_ns ? lo - a->margin_ns : hi + a->share_ns;
+    if (after > a->cap_ns) after = a->cap_ns;
+    *a->poll_after = after > 0 ? after : 0;
+}
+
+/* ServoWorker._await_feed: poll the feed semaphore's value for poll_ns (an SV on another CPU
+ * than SIO's: SIO's post then wakes nobody), then take a post, at most feed_wait_ns in all; a
+ * post of an older tick than SIO's fed one (left by a tick this SV missed) is passed over.
+ * 1: fed (fed_tick), 0: no feed in time. */
+static int sv_await_feed(ServeArgs *a) {
+    int64_t t = now_ns(), end = t + a->feed_wait_ns, poll_end = t + a->poll_ns;
+    for (;;) {
+        int v = 0;
+        if (a->poll_ns)
+            while (sem_getvalue(a->feed_sem, &v) == 0 && v == 0 && now_ns() < poll_end)
+                ;
+        struct timespec until;
+        clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
+        int64_t ns = until.tv_nsec + (end - now_ns());
+        if (ns < 0) ns = 0;
+        until.tv_sec += (time_t)(ns / 1000000000);
+        until.tv_nsec = (long)(ns % 1000000000);
+        int got;
+        while ((got = sem_timedwait(a->feed_sem, &until)) != 0 && errno == EINTR)
+            ;
+        if (got != 0) return 0;
+        int64_t fed = __atomic_load_n(a->ctrl_tick, __ATOMIC_ACQUIRE);
+        if (fed >= a->wanted) {
+            if (a->learn) sv_learn(a);
+            a->fed_tick = fed;
+            return 1;
+        }
+        if (end - now_ns() <= 0) return 0; /* a stale post, and no time left for this tick's */
+    }
+}
+
 int64_t kali_sv_serve(ServeArgs *a) {
+    if (a->stage == SV_FEED) {
+        if (!sv_await_feed(a)) {
+            a->fed_tick = -1; /* SIO did not feed this tick: nothing to run */
+            a->stage = SV_END;
+            return SV_DONE;
+        }
+        a->stage = SV_START;
+    }
     if (a->stage == SV_START) {
         *a->fed_tick_out = a->fed_tick; /* before any slot: SIO may acknowledge for it now */
         a->t0 = now_ns();
@@ -2047,4 +2115,80 @@ int64_t kali_sv_serve(ServeArgs *a) {
         a->stage = SV_END;
     }
     return SV_DONE;
+}
+
+/* ---------------------------------------------------------------- a clocked process's wait
+ *
+ * daemon.ClockWait.wait_reference, step for step: the base loop's wait for the wall clock's
+ * signal (thesis 3.6.2).  Polling (an SV on another CPU than SIO's, real time), while the
+ * clock keeps signalling: sleep on this CPU's timer to the next due tick plus *after, poll
+ * the semaphore's value there for poll_ns, then take the post.  WAIT_IDLE when no signal came
+ * within idle_ns, WAIT_INTR when a signal handler interrupted the wait (Python runs it and
+ * calls again), WAIT_SHUTDOWN when the post came with the arena's shutdown flag.  Each call
+ * first accounts and acknowledges the cycle the last signal ran (kali_clock_settle). */
+
+enum { WAIT_SIGNAL, WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN };
+
+typedef struct {
+    StatsArgs *stats;            /* the slot's account of a cycle (daemon._CycleStats) */
+    sem_t *ack_sem;              /* lockstep: the clock's acknowledgement post, else NULL */
+    sem_t *sem;                  /* this slot's: the wall clock posts it */
+    const int64_t *release;      /* procs release_ns[slot]: when the clock meant the signal */
+    const int64_t *signal_tick;  /* procs signal_tick[slot] */
+    const int64_t *after;        /* the daemon's poll_after (an SV learns it) */
+    const uint32_t *shutdown;    /* the arena header's */
+    int64_t period_ns, poll_ns, idle_ns;
+    int64_t signalled;           /* between calls: the last call took a signal */
+    int64_t cycled;              /* between calls: its cycle has run, not yet accounted */
+    int64_t tick, woke, since;   /* out: the tick signalled, when taken, when meant to wake */
+} WaitArgs;
+
+/* The cycle of the last signal has run: account it and acknowledge (kali_cycle_stats), then,
+ * in lockstep, post the clock's acknowledgement. */
+int64_t kali_clock_settle(WaitArgs *a) {
+    if (!a->cycled) return 0;
+    StatsArgs *st = a->stats;
+    st->tick = a->tick;
+    st->release = a->since;
+    st->woke = a->woke;
+    st->done = now_ns();
+    kali_cycle_stats(st);
+    if (a->ack_sem) sem_post(a->ack_sem);
+    a->cycled = 0;
+    return 0;
+}
+
+int64_t kali_clock_wait(WaitArgs *a) {
+    kali_clock_settle(a);
+    int64_t after = 0;
+    if (a->poll_ns && a->signalled) {
+        after = LOAD(*a->after);
+        int64_t due = LOAD(*a->release) + a->period_ns + after, t = now_ns();
+        if (t < due) {
+            struct timespec at = {(time_t)(due / 1000000000), (long)(due % 1000000000)};
+            while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &at, NULL) == EINTR)
+                ;
+            t = due;
+        }
+        int v = 0;
+        while (sem_getvalue(a->sem, &v) == 0 && v == 0 && now_ns() < t + a->poll_ns)
+            ;
+    }
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
+    int64_t ns = until.tv_nsec + a->idle_ns;
+    until.tv_sec += (time_t)(ns / 1000000000);
+    until.tv_nsec = (long)(ns % 1000000000);
+    if (sem_timedwait(a->sem, &until) != 0) {
+        if (errno == EINTR) return WAIT_INTR;
+        a->signalled = 0;
+        return WAIT_IDLE;
+    }
+    a->woke = now_ns();
+    a->signalled = 1;
+    if (LOAD(*a->shutdown)) return WAIT_SHUTDOWN;
+    a->tick = __atomic_load_n(a->signal_tick, __ATOMIC_ACQUIRE);
+    a->since = LOAD(*a->release) + after; /* lateness from when it meant to wake */
+    a->cycled = 1; /* the caller runs the cycle; the next call (or settle) accounts it */
+    return WAIT_SIGNAL;
 }

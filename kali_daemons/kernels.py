@@ -40,7 +40,12 @@ units, the single slots, each counted done) is ``kali_sv_serve``, bound by
 Every process's account of a cycle in its process-table slot (``kali_cycle_stats``, bound by
 ``daemon._CycleStats``; its reference is ``_CycleStats.record_reference``) is here, and so is
 SIO's row of the flight recorder (``kali_flight_row``, bound by
-``flightrec.FlightRecorder.bind``; its reference is ``FlightRecorder.record_reference``).
+``flightrec.FlightRecorder.bind``; its reference is ``FlightRecorder.record_reference``), and
+so is every clocked process's wait for the wall clock's signal, which first accounts the
+cycle before it (``kali_clock_wait``, ``kali_clock_settle``, bound by ``daemon.ClockWait``;
+their reference is ``ClockWait.wait_reference``).  An SV's wait for SIO's
+feed and what it learns from it are the first stage of its serve (``SV_FEED``; their
+references are ``ServoWorker._await_feed`` and ``_learn_feed``).
 The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
 is here for a wrist force/torque sensor read each tick; its reference is
 ``chain.flange_pose``.
@@ -396,12 +401,28 @@ ServeArgs = _block(
     *((f, c_void_p) for f in ("arm_lo", "units", "order", "done_sem")),
     *((f, c_int64) for f in ("me", "arm_free")),
     *((f, c_void_p) for f in ("exec_last", "exec_max", "servos", "exec_hist")),
-    *((f, c_int64) for f in ("linear_us", "log_bins", "fed_tick", "count", "stage", "at")),
-    *((f, c_int64) for f in ("unit", "tick_now", "fed", "ran", "t0")),
+    *((f, c_int64) for f in ("linear_us", "log_bins")),
+    ("feed_sem", c_void_p),
+    *((f, c_int64) for f in ("poll_ns", "feed_wait_ns", "learn")),
+    *((f, c_void_p) for f in ("fed_ns", "served_ns", "release", "feed_seen", "served")),
+    *((f, c_int64) for f in ("history", "feed_k", "margin_ns", "share_ns", "cap_ns")),
+    ("poll_after", c_void_p),
+    *((f, c_int64) for f in ("fed_tick", "count", "stage", "at")),
+    *((f, c_int64) for f in ("unit", "tick_now", "fed", "ran", "t0", "wanted")),
 )
 # kali_sv_serve's results: what it hands back to the SV's Python
 SV_DONE, SV_ARM, SV_FAULT, SV_LEFT, SV_SLOT = range(5)
-SV_START = 0  # its first stage
+SV_START = 0  # its stage for a feed taken (the lockstep executive's serve)
+SV_FEED = 7  # its stage for a tick signalled: the feed awaited first (an SV's cycle)
+WaitArgs = _block(
+    "WaitArgs",
+    *((f, c_void_p) for f in ("stats", "ack_sem", "sem", "release", "signal_tick", "after")),
+    ("shutdown", c_void_p),
+    *((f, c_int64) for f in ("period_ns", "poll_ns", "idle_ns", "signalled", "cycled", "tick")),
+    *((f, c_int64) for f in ("woke", "since")),
+)
+# kali_clock_wait's results
+WAIT_SIGNAL, WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN = range(4)
 # kali_wrench_tick's results (sio/wrench.py builds the message)
 WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT = range(5)
 
@@ -428,6 +449,8 @@ _KERNELS = {
     "kali_ft_bank": FtArgs,
     "kali_flight_row": FlightArgs,
     "kali_cycle_stats": StatsArgs,
+    "kali_clock_wait": WaitArgs,
+    "kali_clock_settle": WaitArgs,
     "kali_plant_dac": PlantIoArgs,
     "kali_plant_joints": PlantIoArgs,
     "kali_plant_truth": PlantTruthArgs,

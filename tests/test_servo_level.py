@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from fractions import Fraction
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -742,5 +743,62 @@ def test_a_polling_sv_wakes_before_the_feed_only_where_the_servos_are_worth_shar
         ctrl["fed_ns"], ctrl["served_ns"] = release + sv.period_ns, 0  # type: ignore[attr-defined]
         sv._learn_feed()  # type: ignore[attr-defined]
         assert sv.poll_after_ns == sv.period_ns // 2  # type: ignore[attr-defined]
+    finally:
+        cell.close()
+
+
+def test_the_compiled_feed_wait_and_learning_equal_the_reference() -> None:
+    """An SV's cycle waits for SIO's feed and, polling, learns when to wake, in C
+    (``kali_sv_serve`` from its stage ``SV_FEED``): over random feeds, the servos light or
+    worth sharing, the same history, place in it and wake-up as ``_learn_feed``; and, as
+    ``_await_feed`` does, a post older than the tick wanted is passed over and a cycle that
+    gets no feed within its wait runs nothing.  On an SV hosted in this process."""
+    from kali_daemons.sv.daemon import SHARE_NS
+
+    from .conftest import HostedCell
+
+    cell = HostedCell(("plant", "sio", "sv.0", "sv.1"))
+    try:
+        sv = cast(Any, cell["sv.1"])
+        a, ctrl, feed = sv._serve_args, sv.level.ctrl, sv.feed
+        a.learn = 1  # as a polling SV (hosted, it sleeps on the feed)
+        release = 5_000_000_000
+        cell.inst.procs["release_ns"][sv.slot] = release
+        ctrl["fed"] = 0  # no slot fed: the serve ends once the feed is taken
+        rng = np.random.default_rng(261)
+        for t in range(1, 400):
+            ctrl["tick"] = t
+            late = rng.random() < 0.05  # SIO itself late: the wake-up is capped
+            ctrl["fed_ns"] = release + int(
+                rng.integers(400_000, 900_000) if late else rng.integers(40_000, 120_000)
+            )
+            heavy = rng.random() < 0.05
+            ctrl["served_ns"] = int(
+                rng.integers(SHARE_NS, 300_000) if heavy else rng.integers(0, SHARE_NS)
+            )
+            before = (sv._feed_seen.copy(), sv._served.copy(), int(a.feed_k))
+            sv._learn_feed()
+            expected = (
+                sv._feed_seen.tolist(),
+                sv._served.tolist(),
+                int(a.feed_k),
+                sv.poll_after_ns,
+            )
+            sv._feed_seen[:], sv._served[:], a.feed_k = before
+            sv._poll_after[0] = -1
+            feed.release()
+            sv.cycle(t)
+            got = (sv._feed_seen.tolist(), sv._served.tolist(), int(a.feed_k), sv.poll_after_ns)
+            assert got == expected, t
+            assert (int(a.fed_tick), int(sv._fed_tick[0]), feed.value) == (t, t, 0)
+        a.feed_wait_ns, sv.feed_timeout_s = 20_000_000, 0.02
+        for run in (sv.cycle, sv.cycle_reference):
+            sv._fed_tick[0] = 0
+            feed.release()  # SIO's post of tick 399, taken while 400 is wanted
+            t0 = time.monotonic()
+            run(400)
+            assert time.monotonic() - t0 >= 0.02, "gave up before its wait was over"
+            assert (feed.value, int(sv._fed_tick[0])) == (0, 0), "ran a stale tick"
+        assert a.fed_tick == -1
     finally:
         cell.close()

@@ -618,3 +618,86 @@ def test_the_compiled_cycle_account_equals_the_reference() -> None:
         assert procs[1].tobytes() == procs[0].tobytes(), more
     hist = procs[0]["hist"][2]
     assert hist[0] > 0 and hist[layout.HIST_LINEAR_US + 10] > 0 and hist[-1] > 0
+
+
+def test_the_compiled_clock_wait_equals_the_reference() -> None:
+    """``ClockWait.wait`` (``kali_clock_wait``, which first settles the cycle before:
+    ``kali_clock_settle``) does what ``wait_reference`` does, on a slot of a real instance:
+    no post within the idle wait (IDLE, and the next wait does not poll); a signal (its
+    tick, lateness counted from its release); the cycle accounted and acknowledged, the
+    clock's lockstep post given, at the next call or at ``settle``; polling while signalled,
+    asleep to the next due tick plus ``poll_after`` though the post is there; the post that
+    comes with the arena's shutdown flag (SHUTDOWN); a signal handler interrupting the wait
+    (INTR, and the handler has run)."""
+    from kali_daemons.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
+
+    from .conftest import HostedCell
+
+    cell = HostedCell(())
+    handled: list[int] = []
+    old = signal.signal(signal.SIGALRM, lambda *_: handled.append(1))
+    try:
+        traces = [_clock_wait_trace(cell.inst, compiled, handled) for compiled in (True, False)]
+        assert traces[0] == traces[1]
+        events = [t[0] for t in traces[0]]
+        assert events == [WAIT_IDLE, WAIT_SIGNAL, "settled", WAIT_SIGNAL, WAIT_SHUTDOWN, WAIT_INTR]
+        assert traces[0][2] == ("settled", 7, 1)  # acknowledged, the clock's post given
+        assert traces[0][4][3:] == (8, 1, 1)  # tick 8 settled by the next wait
+    finally:
+        signal.signal(signal.SIGALRM, old)
+        cell.close()
+
+
+def _clock_wait_trace(inst: Instance, compiled: bool, handled: list[int]) -> list[tuple]:
+    """One run of the story above through ``ClockWait.wait`` or ``wait_reference``: per
+    call, the event, the waiter's flags, the slot's acknowledged tick, its accounts and the
+    clock's posts given."""
+    from kali_daemons.daemon import ClockWait, _CycleStats
+    from kali_daemons.kernels import WAIT_IDLE, WAIT_SIGNAL
+
+    procs, slot, header = inst.procs, inst.slot_of("tg"), inst.arena.header
+    sem, ack = inst.slot_semaphore(slot), inst.ack_semaphore()
+    period, after = 1_000_000, np.zeros(1, np.int64)
+    procs["ack_tick"][slot] = -1
+    w = ClockWait(inst, slot, period, 200_000, 0.005, after, _CycleStats(procs, slot), ack)
+    wait = w.wait if compiled else w.wait_reference
+    a, trace = w.args, []
+
+    def step(post: bool, tick: int, release: int, after_ns: int = 0, due: int = 0) -> int:
+        procs["signal_tick"][slot], procs["release_ns"][slot] = tick, release
+        acks = int(procs["acks"][slot])
+        if post:
+            sem.release()
+        t0 = rt.monotonic_ns()
+        event = wait()
+        posted = 0
+        while ack.value:
+            ack.acquire(0)
+            posted += 1
+        accounts = int(procs["acks"][slot]) - acks
+        trace.append((event, a.signalled, a.cycled, int(procs["ack_tick"][slot]), accounts, posted))
+        if event == WAIT_SIGNAL:
+            assert (a.tick, a.since) == (tick, release + after_ns)
+            assert a.woke >= due, "woke before the due tick"
+        return t0
+
+    t0 = step(False, 6, 0)  # nothing posted: idle
+    assert trace[-1][0] == WAIT_IDLE and rt.monotonic_ns() - t0 >= 5_000_000
+    step(True, 7, rt.monotonic_ns())  # signalled, not polling yet
+    w.settle() if compiled else w.settle_reference()
+    trace.append(("settled", int(procs["ack_tick"][slot]), ack.value))
+    ack.acquire(0)
+    after[0] = 300_000
+    release = rt.monotonic_ns()
+    step(True, 8, release, 300_000, release + period + 300_000)  # polling: asleep till then
+    header["shutdown"] = 1
+    step(True, 9, release)  # the cycle of tick 8 accounted first
+    header["shutdown"] = 0
+    after[0] = 0
+    signal.setitimer(signal.ITIMER_REAL, 0.002)
+    step(False, 9, rt.monotonic_ns() - period)
+    while not handled:  # the handler runs once the call is back in Python
+        time.sleep(0.001)
+    handled.clear()
+    w.close()
+    return trace
