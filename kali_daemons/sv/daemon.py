@@ -237,11 +237,8 @@ class ServoWorker(Daemon):
         """Inside the cycle: wait for the feed, then claim and run slots until none is left.
         Compiled: ``kali_sv_serve`` from its stage ``SV_FEED`` (``_await_feed``; SIO did not
         feed ``tick`` in time, halted or itself late: nothing to run), then as ``serve``."""
-        a = self._serve_args
-        a.wanted = tick
-        a.stage = SV_FEED
-        while (event := self._serve_kernel()) != SV_DONE:
-            self._serve_event(event)
+        self._serve_args.wanted = tick
+        self._serve_from(SV_FEED)
 
     def cycle_reference(self, tick: int) -> None:
         """What ``cycle`` does, with the feed awaited in Python (``_await_feed``)."""
@@ -251,12 +248,15 @@ class ServoWorker(Daemon):
 
     def serve(self, fed_tick: int) -> None:
         """Inside the cycle: claim and run fed slots of SIO's tick ``fed_tick`` until none is
-        left.  Called by ``cycle`` once the feed came, and in the lockstep executive by SIO
-        itself where it would post the feeds (``ServoIO.serve``).  Compiled
-        (``kali_sv_serve``): what runs Python, it hands back here (``_serve_event``)."""
-        a = self._serve_args
-        a.fed_tick = fed_tick
-        a.stage = SV_START
+        left.  Called in the lockstep executive by SIO itself where it would post the feeds
+        (``ServoIO.serve``); ``cycle`` does the same once its feed came."""
+        self._serve_args.fed_tick = fed_tick
+        self._serve_from(SV_START)
+
+    def _serve_from(self, stage: int) -> None:
+        """``kali_sv_serve`` from ``stage`` until it is done; what runs Python, it hands back
+        here (``_serve_event``)."""
+        self._serve_args.stage = stage
         while (event := self._serve_kernel()) != SV_DONE:
             self._serve_event(event)
 
