@@ -950,7 +950,9 @@ def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:
 @main.command()
 @click.argument("robot")
 @click.option(
-    "--joints", required=True, help="the six joint angles to go to, degrees: 0,45,-180,0,45,0"
+    "--joints",
+    required=True,
+    help="the arm's joint angles to go to, one per joint, degrees: 0,45,-180,0,45,0 (a PUMA)",
 )
 @click.option(
     "--speed",
