@@ -533,9 +533,8 @@ class ClockWait:
 
     def close(self) -> None:
         """Give back the C library's opens of the semaphores (outside the cycle)."""
-        for address in (self._address, self._acks):
-            if address:
-                rt.close_semaphore_address(address)
+        rt.close_semaphore_address(self._address)
+        rt.close_semaphore_address(self._acks)
         self._address = self._acks = 0
 
 

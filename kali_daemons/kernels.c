@@ -1406,6 +1406,23 @@ static inline int64_t now_ns(void) {
     return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
 }
 
+/* sem_timedwait's deadline (CLOCK_REALTIME) ns from now */
+static struct timespec realtime_in(int64_t ns) {
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until);
+    ns = (ns > 0 ? ns : 0) + until.tv_nsec;
+    until.tv_sec += (time_t)(ns / 1000000000);
+    until.tv_nsec = (long)(ns % 1000000000);
+    return until;
+}
+
+/* rt.poll_semaphore: read (never take) sem's value until it is posted or deadline passes */
+static void poll_posted(sem_t *sem, int64_t deadline) {
+    int v = 0;
+    while (sem_getvalue(sem, &v) == 0 && v == 0 && now_ns() < deadline)
+        ;
+}
+
 /* Claim and run the unit of slots lo..hi-1 (sv/units.py): each fed, unclaimed slot with
  * nothing to do first is claimed by compare-and-swap of busy 0 -> me (the same sequentially
  * consistent lock cmpxchg as atomic.CompareExchange32 through libatomic), re-checked (a
@@ -1911,11 +1928,7 @@ int64_t kali_sio_tick(SioArgs *a) {
     }
     if (a->stage == ST_WAIT) {
         if (a->fed) {
-            struct timespec until;
-            clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
-            int64_t ns = until.tv_nsec + a->slice_ns;
-            until.tv_sec += (time_t)(ns / 1000000000);
-            until.tv_nsec = (long)(ns % 1000000000);
+            struct timespec until = realtime_in(a->slice_ns);
             while ((int64_t)__atomic_load_n(a->ctrl_done, __ATOMIC_ACQUIRE) < a->fed)
                 if (sem_timedwait(a->done_sem, &until) != 0 && errno != EINTR) return SIO_WAIT;
         }
@@ -2003,16 +2016,8 @@ static void sv_learn(ServeArgs *a) {
 static int sv_await_feed(ServeArgs *a) {
     int64_t t = now_ns(), end = t + a->feed_wait_ns, poll_end = t + a->poll_ns;
     for (;;) {
-        int v = 0;
-        if (a->poll_ns)
-            while (sem_getvalue(a->feed_sem, &v) == 0 && v == 0 && now_ns() < poll_end)
-                ;
-        struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
-        int64_t ns = until.tv_nsec + (end - now_ns());
-        if (ns < 0) ns = 0;
-        until.tv_sec += (time_t)(ns / 1000000000);
-        until.tv_nsec = (long)(ns % 1000000000);
+        if (a->poll_ns) poll_posted(a->feed_sem, poll_end);
+        struct timespec until = realtime_in(end - now_ns());
         int got;
         while ((got = sem_timedwait(a->feed_sem, &until)) != 0 && errno == EINTR)
             ;
@@ -2170,15 +2175,9 @@ int64_t kali_clock_wait(WaitArgs *a) {
                 ;
             t = due;
         }
-        int v = 0;
-        while (sem_getvalue(a->sem, &v) == 0 && v == 0 && now_ns() < t + a->poll_ns)
-            ;
+        poll_posted(a->sem, t + a->poll_ns);
     }
-    struct timespec until;
-    clock_gettime(CLOCK_REALTIME, &until); /* sem_timedwait's clock */
-    int64_t ns = until.tv_nsec + a->idle_ns;
-    until.tv_sec += (time_t)(ns / 1000000000);
-    until.tv_nsec = (long)(ns % 1000000000);
+    struct timespec until = realtime_in(a->idle_ns);
     if (sem_timedwait(a->sem, &until) != 0) {
         if (errno == EINTR) return WAIT_INTR;
         a->signalled = 0;

@@ -105,8 +105,9 @@ def semaphore_address(sem: posix_ipc.Semaphore) -> int:
 
 
 def close_semaphore_address(ptr: int) -> None:
-    """Outside the cycle: close an open ``semaphore_address`` made."""
-    _sem_close(ptr)
+    """Outside the cycle: close an open ``semaphore_address`` made (0, none: nothing)."""
+    if ptr:
+        _sem_close(ptr)
 
 
 @dataclass

@@ -524,10 +524,8 @@ class ServoIO(Daemon):
 
     def _close_semaphore_addresses(self) -> None:
         """Give back the compiled tick's opens of the feed and done semaphores."""
-        for address in getattr(self, "_feed_addresses", ()):
+        for address in (*getattr(self, "_feed_addresses", ()), getattr(self, "_done_address", 0)):
             rt.close_semaphore_address(address)
-        if getattr(self, "_done_address", 0):
-            rt.close_semaphore_address(self._done_address)
         self._feed_addresses, self._done_address = [], 0
 
     # ------------------------------------------------------------------ the tick

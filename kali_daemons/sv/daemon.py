@@ -40,7 +40,7 @@ from it, the claims, the units, the done count and post, the execution-time reco
 fed whole, a unit's non-finite torque and every single slot it hands back to Python
 (``_serve_event``).  ``_await_feed``, ``_learn_feed`` and ``_serve_reference`` are the same
 in Python, its tests' references.  With the base loop's compiled wait (``daemon.ClockWait``)
-an SV's tick runs three compiled calls and a few lines of Python: a wake-up of an idle vCPU
+an SV's tick is two compiled calls and a few lines of Python: a wake-up of an idle vCPU
 costs ~23 µs of CPU on this VM even in C (cyclictest's own), and sv.1, waking every tick on
 CPU 1, paid ~35 µs more for the interpreter.
 
@@ -228,10 +228,9 @@ class ServoWorker(Daemon):
 
     def on_shutdown(self) -> None:
         """Give back the compiled serve's opens of the done and feed semaphores."""
-        for name in ("_done_address", "_feed_address"):
-            if getattr(self, name, 0):
-                rt.close_semaphore_address(getattr(self, name))
-                setattr(self, name, 0)
+        rt.close_semaphore_address(getattr(self, "_done_address", 0))
+        rt.close_semaphore_address(getattr(self, "_feed_address", 0))
+        self._done_address = self._feed_address = 0
 
     def cycle(self, tick: int) -> None:
         """Inside the cycle: wait for the feed, then claim and run slots until none is left.
