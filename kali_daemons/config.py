@@ -47,6 +47,7 @@ MAX_SV_WORKERS = 8
 MAX_ROBOTS = 4
 MAX_STAGE = 15
 MAX_POLL_US = 500  # an SV's poll for its signal and feed (processes.sv.poll_us)
+DEFAULT_REST_MS = 4  # processes.sv.rest_ms left out: rounded up to whole servo periods
 MAX_PRIORITY = 99
 MAX_PERIOD_MS = 60_000  # one minute; anything longer is a typo, not a control period
 MIN_BASE_TICK_MS = 0.1  # 10 kHz; the wall clock cannot keep a shorter tick
@@ -78,7 +79,7 @@ _PROCESS_KEYS = {
     "plant": ("cpu", "priority", "period_ms", "serious", "stage"),
     "tg": ("cpu", "priority", "serious", "stage"),
     "sio": ("cpu", "priority", "serious", "stage"),
-    "sv": ("count", "cpus", "priority", "serious", "stage", "poll_us"),
+    "sv": ("count", "cpus", "priority", "serious", "stage", "poll_us", "rest_ms"),
     "dynamics": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
     "viewer": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
 }
@@ -230,6 +231,9 @@ class ProcessConfig:
     # tick and polls this long for the clock's signal, then for SIO's feed, before it sleeps
     # on them (``Daemon.poll_ns``); 0: it always sleeps
     poll_us: int = 0
+    # sv only: such a polling worker, while the worker on SIO's CPU runs every servo on its
+    # own, is signalled only every this many ms (it rests: sv/daemon.py); 0: every tick
+    rest_ms: float = 0
 
 
 @dataclass(frozen=True)
@@ -1313,14 +1317,15 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
     else:
         period = _default_period(kind, clock)
 
-    def make(name: str, cpu: int | None, poll_us: int = 0) -> ProcessConfig:
-        return ProcessConfig(name, kind, cpu, priority, period, serious, stage, poll_us)
+    def make(name: str, cpu: int | None, poll_us: int = 0, rest: float = 0) -> ProcessConfig:
+        return ProcessConfig(name, kind, cpu, priority, period, serious, stage, poll_us, rest)
 
     if kind != "sv":
         return [make(kind, _cpu(m.get("cpu"), f"{path}.cpu"))]
     poll = _int(
         m.get("poll_us", _DEFAULT_PROCESSES["sv"]["poll_us"]), f"{path}.poll_us", 0, MAX_POLL_US
     )
+    rest = _rest(m["rest_ms"], f"{path}.rest_ms", clock) if "rest_ms" in m else _rest_of(clock)
     count = _int(m.get("count", 2), f"{path}.count", 1, MAX_SV_WORKERS)
     if "cpus" in m:
         cpus_node = m["cpus"]
@@ -1337,7 +1342,32 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
         cpus = [_cpu(c, f"{path}.cpus[{i}]") for i, c in enumerate(cpus_node)]
     else:
         cpus = [None] * count
-    return [make(f"sv.{i}", cpu, poll) for i, cpu in enumerate(cpus)]
+    return [make(f"sv.{i}", cpu, poll, rest) for i, cpu in enumerate(cpus)]
+
+
+def _rest_of(clock: ClockConfig) -> float:
+    """An SV's rest period left out of the config: ``DEFAULT_REST_MS`` rounded up to whole
+    servo periods, or 0 (never rest) beyond the serious tolerance."""
+    servo_ns = ms_to_ns(clock.servo_period_ms)
+    rest_ns = -(-ms_to_ns(DEFAULT_REST_MS) // servo_ns) * servo_ns
+    return ns_to_ms(rest_ns) if rest_ns <= ms_to_ns(clock.serious_miss_tolerance_ms) else 0
+
+
+def _rest(value: Any, path: str, clock: ClockConfig) -> float:
+    """An SV's rest period (``processes.sv.rest_ms``): 0, or a whole number of servo periods
+    up to the serious tolerance (a resting SV that dies is found within two of them)."""
+    if value == 0 and not isinstance(value, bool):
+        return 0
+    servo, most = clock.servo_period_ms, clock.serious_miss_tolerance_ms
+    rest = _period(value, path, clock.base_tick_ms, servo, "clock.servo_period_ms")
+    if ms_to_ns(rest) % ms_to_ns(servo) or rest > most:
+        _fail(
+            path,
+            value,
+            f"must be 0 or a whole multiple of clock.servo_period_ms ({servo}) "
+            f"up to clock.serious_miss_tolerance_ms ({most})",
+        )
+    return rest
 
 
 def _model(value: Any, path: str, base_dir: str) -> tuple[str, RobotType]:

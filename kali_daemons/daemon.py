@@ -100,6 +100,7 @@ class Daemon:
         # polling: wake this long after the due tick (when its work can start: an SV's feed);
         # an array, so a compiled cycle can write it (an SV's ``kali_sv_serve`` learns it)
         self._poll_after = np.zeros(1, np.int64)
+        self._clock_wait: ClockWait | None = None  # the base loop's, while it runs
 
     @property
     def poll_after_ns(self) -> int:
@@ -313,9 +314,10 @@ class Daemon:
         self._idle_wait_s = CLOCK_WATCH_S if self.serious and not inst.lockstep else IDLE_WAIT_S
         self._clock_tick, self._clock_waits = -1, 0  # _watch_clock's view of a standing clock
         waiter = ClockWait(
-            inst, i, self.period_ns, 0 if inst.lockstep else self.poll_ns, self._idle_wait_s,
+            inst, i, self.period_ticks, 0 if inst.lockstep else self.poll_ns, self._idle_wait_s,
             self._poll_after, stats, ack_sem,
         )  # fmt: skip
+        self._clock_wait = waiter
         wait, w = waiter.wait, waiter.args
         try:
             while not self._leave:
@@ -335,7 +337,21 @@ class Daemon:
                 # WAIT_INTR: a signal's handler has run (it may have set _leave); wait on
             waiter.settle()  # the last cycle's account, where leaving ended the loop after it
         finally:
+            self._clock_wait = None
             waiter.close()
+
+    def _set_period(self, ticks: int) -> None:
+        """Inside the cycle: be signalled every ``ticks`` base ticks (a polling SV with
+        nothing to share rests: ``sv/daemon.py``).  The process record and the registry's
+        generation tell the clock, which re-reads them between two of its ticks; until then
+        it signals at the old period, and a polling wait sleeps to the earlier of its next
+        due tick at the new period and the clock's own (``next_wake``).  No allocation
+        beyond the record's view; rare (a change of load)."""
+        self.period_ticks = ticks
+        self.inst.procs[self.slot]["period_ticks"] = ticks
+        self.inst.bump_registry()
+        if self._clock_wait is not None:
+            self._clock_wait.args.period_ticks = ticks
 
     def _on_idle(self) -> None:
         """Outside the cycle: no signal for ``_idle_wait_s``; look at the wall clock."""
@@ -442,15 +458,15 @@ class ClockWait:
     """
 
     __slots__ = (
-        "_ack", "_acks", "_address", "_after", "_header", "_kernel", "_rel", "_sem", "_settle",
-        "_sig", "_stats", "args",
+        "_ack", "_acks", "_address", "_after", "_due", "_header", "_kernel", "_rel", "_sem",
+        "_settle", "_sig", "_stats", "args",
     )  # fmt: skip
 
     def __init__(
         self,
         inst: Instance,
         slot: int,
-        period_ns: int,
+        period_ticks: int,
         poll_ns: int,
         idle_s: float,
         after: np.ndarray,
@@ -463,6 +479,7 @@ class ClockWait:
         self._sem = inst.slot_semaphore(slot)
         self._rel = procs["release_ns"][slot : slot + 1]
         self._sig = procs["signal_tick"][slot : slot + 1]
+        self._due = procs["next_due"][slot : slot + 1]
         self._header, self._after = inst.arena.header, after
         shutdown = self._header["shutdown"]
         assert after.dtype == np.int64 and after.shape == (1,), after
@@ -471,7 +488,7 @@ class ClockWait:
         self._acks = rt.semaphore_address(ack_sem) if ack_sem is not None else 0
         self._kernel = Kernel(
             "kali_clock_wait",
-            (self._rel, self._sig, after, shutdown, stats),
+            (self._rel, self._sig, self._due, after, shutdown, stats),
             stats=ctypes.addressof(stats.args),
             ack_sem=self._acks,
             sem=self._address,
@@ -479,7 +496,9 @@ class ClockWait:
             signal_tick=self._sig.ctypes.data,
             after=after.ctypes.data,
             shutdown=shutdown.ctypes.data,
-            period_ns=period_ns,
+            next_due=self._due.ctypes.data,
+            base_ns=int(inst.clock["base_tick_ns"]),
+            period_ticks=period_ticks,
             poll_ns=poll_ns,
             idle_ns=int(idle_s * 1e9),
         )
@@ -510,7 +529,8 @@ class ClockWait:
         after = 0
         if a.poll_ns and a.signalled:
             after = int(self._after[0])
-            due = int(self._rel[0]) + a.period_ns + after
+            nxt = next_wake(a.tick, a.period_ticks, int(self._due[0]))
+            due = int(self._rel[0]) + (nxt - a.tick) * a.base_ns + after
             t = now()
             if t < due:
                 rt.AbsoluteSleeper().until(due)
@@ -801,6 +821,20 @@ class FunctionDaemon(Daemon):
             except posix_ipc.BusyError:
                 pass
         drain(sem)
+
+
+def next_wake(tick: int, period: int, clock_due: int) -> int:
+    """The tick a polling process signalled for ``tick`` sleeps to: the wall clock's next due
+    tick for it (``clock_due``, the process record's) where that is within one ``period``
+    ahead, else the next multiple of the period (the clock's rule).  A process that changed
+    its own period (``Daemon._set_period``) is signalled at the old one until the clock
+    re-reads the table, which keeps a due tick within the new period and moves a later one
+    (a shorter period) to the new period's next multiple after its own tick: so the wake is
+    never after the next signal, and early only once, after a change to a shorter period
+    the clock had not yet read.  Kept equal to ``kali_clock_wait``'s."""
+    if tick < clock_due <= tick + period:
+        return clock_due
+    return (tick // period + 1) * period
 
 
 def drain(sem: posix_ipc.Semaphore) -> None:

@@ -1764,7 +1764,8 @@ typedef struct {
     uint32_t *ctrl_done;
     int64_t slice_ns;                       /* how long one wait for it lasts (a period) */
     int64_t *ctrl_tick;
-    int64_t *fed_ns, *served_ns;            /* SIO's feed time and feed-to-done, last tick */
+    int64_t *fed_ns;                        /* when SIO fed its last tick */
+    int64_t *served_max;                    /* per SV: the longest feed-to-done since it learnt */
     View robots_tick;                       /* int64, per robot */
     const int64_t *sv_fed_tick;             /* the gang (sio/gang.py): per SV */
     View signal_tick, ack_tick, vouched_tick; /* int64, per process slot */
@@ -1879,7 +1880,9 @@ int64_t kali_sio_back(SioArgs *a) {
                 }
             }
         a->t_done = now_ns();
-        *a->served_ns = a->t_done - a->t_fed;
+        for (int64_t s = 0; s < a->n_feeds; s++) /* each SV takes its own in sv_learn */
+            if (a->t_done - a->t_fed > LOAD(a->served_max[s]))
+                __atomic_store_n(&a->served_max[s], a->t_done - a->t_fed, __ATOMIC_RELAXED);
         for (int64_t k = 0; k < a->n_robots; k++) /* a robot-level servo's is the whole torque */
             if (AT(int32_t, a->arm_algo, k) != (int32_t)a->arm_none) {
                 int64_t hi = AT(int64_t, a->bounds, k + 1);
@@ -1974,10 +1977,14 @@ typedef struct {
     sem_t *feed_sem;
     int64_t poll_ns, feed_wait_ns;      /* poll the feed this long first; wait at most this */
     int64_t learn;                      /* a polling SV learns when to wake from each feed */
-    const int64_t *fed_ns, *served_ns;  /* ctrl: when SIO fed, how long the servos took */
+    const int64_t *fed_ns;              /* ctrl: when SIO fed */
+    int64_t *served_max;                /* ctrl: the longest the servos took since it learnt */
     const int64_t *release;             /* procs release_ns[this SV's slot] */
-    int64_t *feed_seen, *served;        /* the last `history` ticks' */
-    int64_t history, feed_k, margin_ns, share_ns, cap_ns;
+    int64_t *feed_seen, *served;        /* the last `history` learnt */
+    int64_t history, feed_k, margin_ns, share_ns, share_looks, cap_ns;
+    int64_t sharing;                    /* between calls: the last look found them worth it */
+    int64_t servo_ticks, rest_ticks;    /* its period in ticks: sharing, with nothing to share */
+    int64_t want_ticks;                 /* out: the one it learnt (the SV applies it) */
     int64_t *poll_after;                /* the base loop's: from when after the due tick to poll */
     /* per call: from the SV, between calls, to it */
     int64_t fed_tick, count;
@@ -1990,45 +1997,53 @@ static void sv_done(ServeArgs *a, int64_t count) {
     if ((int64_t)(before + (uint32_t)count) == a->fed) sem_post(a->done_sem); /* the last */
 }
 
-/* ServoWorker._learn_feed: note when SIO fed this tick and how long the servos took from a
- * feed, and choose when to wake: before the earliest feed where they are worth sharing, else
- * once the SV on SIO's CPU has run them all; never later than the cap. */
+/* ServoWorker._learn_feed: note when SIO fed this tick and the longest the servos took from
+ * a feed since the last time, and choose when to wake: before the earliest feed where they
+ * are worth sharing (over share_ns in share_looks of the last history; while shared, over
+ * half that), else once the SV on SIO's CPU has run them all, never later than the cap; and
+ * how often: every tick where they are worth sharing, else every rest_ticks. */
 static void sv_learn(ServeArgs *a) {
     int64_t k = a->feed_k;
     a->feed_seen[k] = LOAD(*a->fed_ns) - LOAD(*a->release);
-    a->served[k] = LOAD(*a->served_ns);
+    a->served[k] = __atomic_exchange_n(a->served_max, 0, __ATOMIC_RELAXED);
     a->feed_k = (k + 1) % a->history;
-    int64_t lo = a->feed_seen[0], hi = a->feed_seen[0], busiest = a->served[0];
-    for (int64_t m = 1; m < a->history; m++) {
+    int64_t lo = a->feed_seen[0], hi = a->feed_seen[0], heavy = 0;
+    int64_t limit = a->sharing ? a->share_ns / 2 : a->share_ns; /* shared, they take ~half */
+    for (int64_t m = 0; m < a->history; m++) {
         if (a->feed_seen[m] < lo) lo = a->feed_seen[m];
         if (a->feed_seen[m] > hi) hi = a->feed_seen[m];
-        if (a->served[m] > busiest) busiest = a->served[m];
+        heavy += a->served[m] > limit;
     }
-    int64_t after = busiest > a->share_ns ? lo - a->margin_ns : hi + a->share_ns;
+    int64_t share = a->sharing = heavy >= a->share_looks;
+    int64_t after = share ? lo - a->margin_ns : hi + a->share_ns;
     if (after > a->cap_ns) after = a->cap_ns;
     *a->poll_after = after > 0 ? after : 0;
+    a->want_ticks = share ? a->servo_ticks : a->rest_ticks;
 }
 
-/* ServoWorker._await_feed: poll the feed semaphore's value for poll_ns (an SV on another CPU
- * than SIO's: SIO's post then wakes nobody), then take a post, at most feed_wait_ns in all; a
- * post of an older tick than SIO's fed one (left by a tick this SV missed) is passed over.
- * 1: fed (fed_tick), 0: no feed in time. */
+/* ServoWorker._await_feed: SIO's fed tick says whether the tick wanted is fed; its posts
+ * only wake.  Take every post there is, then read the fed tick (SIO writes it before it
+ * posts, so a post taken here is of that tick or an older one: left by ticks this SV missed
+ * or rested through); not yet fed: poll the value for poll_ns (an SV on another CPU than
+ * SIO's: SIO's post then wakes nobody), sleep for a post, and look again, at most
+ * feed_wait_ns in all.  1: fed (fed_tick), 0: no feed in time. */
 static int sv_await_feed(ServeArgs *a) {
     int64_t t = now_ns(), end = t + a->feed_wait_ns, poll_end = t + a->poll_ns;
     for (;;) {
-        if (a->poll_ns) poll_posted(a->feed_sem, poll_end);
-        struct timespec until = realtime_in(end - now_ns());
-        int got;
-        while ((got = sem_timedwait(a->feed_sem, &until)) != 0 && errno == EINTR)
+        while (sem_trywait(a->feed_sem) == 0)
             ;
-        if (got != 0) return 0;
         int64_t fed = __atomic_load_n(a->ctrl_tick, __ATOMIC_ACQUIRE);
         if (fed >= a->wanted) {
             if (a->learn) sv_learn(a);
             a->fed_tick = fed;
             return 1;
         }
-        if (end - now_ns() <= 0) return 0; /* a stale post, and no time left for this tick's */
+        if (a->poll_ns) poll_posted(a->feed_sem, poll_end);
+        struct timespec until = realtime_in(end - now_ns());
+        int got;
+        while ((got = sem_timedwait(a->feed_sem, &until)) != 0 && errno == EINTR)
+            ;
+        if (got != 0) return 0; /* else: the fed tick again, with any other post */
     }
 }
 
@@ -2126,9 +2141,10 @@ int64_t kali_sv_serve(ServeArgs *a) {
  *
  * daemon.ClockWait.wait_reference, step for step: the base loop's wait for the wall clock's
  * signal (thesis 3.6.2).  Polling (an SV on another CPU than SIO's, real time), while the
- * clock keeps signalling: sleep on this CPU's timer to the next due tick plus *after, poll
- * the semaphore's value there for poll_ns, then take the post.  WAIT_IDLE when no signal came
- * within idle_ns, WAIT_INTR when a signal handler interrupted the wait (Python runs it and
+ * clock keeps signalling: sleep on this CPU's timer to the next due tick (the clock's own
+ * within a period, else this period's next: daemon.next_wake) plus *after, poll the
+ * semaphore's value there for poll_ns, then take the post.  WAIT_IDLE when no signal came within idle_ns,
+ * WAIT_INTR when a signal handler interrupted the wait (Python runs it and
  * calls again), WAIT_SHUTDOWN when the post came with the arena's shutdown flag.  Each call
  * first accounts and acknowledges the cycle the last signal ran (kali_clock_settle). */
 
@@ -2142,7 +2158,9 @@ typedef struct {
     const int64_t *signal_tick;  /* procs signal_tick[slot] */
     const int64_t *after;        /* the daemon's poll_after (an SV learns it) */
     const uint32_t *shutdown;    /* the arena header's */
-    int64_t period_ns, poll_ns, idle_ns;
+    const int64_t *next_due;     /* procs next_due[slot]: the clock's next due tick for it */
+    int64_t base_ns, period_ticks;  /* the clock's tick and this process's period in ticks */
+    int64_t poll_ns, idle_ns;
     int64_t signalled;           /* between calls: the last call took a signal */
     int64_t cycled;              /* between calls: its cycle has run, not yet accounted */
     int64_t tick, woke, since;   /* out: the tick signalled, when taken, when meant to wake */
@@ -2168,7 +2186,10 @@ int64_t kali_clock_wait(WaitArgs *a) {
     int64_t after = 0;
     if (a->poll_ns && a->signalled) {
         after = LOAD(*a->after);
-        int64_t due = LOAD(*a->release) + a->period_ns + after, t = now_ns();
+        int64_t next = LOAD(*a->next_due); /* daemon.next_wake */
+        if (next <= a->tick || next > a->tick + a->period_ticks)
+            next = (a->tick / a->period_ticks + 1) * a->period_ticks;
+        int64_t due = LOAD(*a->release) + (next - a->tick) * a->base_ns + after, t = now_ns();
         if (t < due) {
             struct timespec at = {(time_t)(due / 1000000000), (long)(due % 1000000000)};
             while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &at, NULL) == EINTR)

@@ -380,7 +380,7 @@ SioArgs = _block(
     ("n_feeds", c_int64),
     *((f, c_void_p) for f in ("done_sem", "ctrl_done")),
     ("slice_ns", c_int64),
-    *((f, c_void_p) for f in ("ctrl_tick", "fed_ns", "served_ns")),
+    *((f, c_void_p) for f in ("ctrl_tick", "fed_ns", "served_max")),
     "robots_tick",
     ("sv_fed_tick", c_void_p),
     *("signal_tick", "ack_tick", "vouched_tick"),
@@ -404,8 +404,10 @@ ServeArgs = _block(
     *((f, c_int64) for f in ("linear_us", "log_bins")),
     ("feed_sem", c_void_p),
     *((f, c_int64) for f in ("poll_ns", "feed_wait_ns", "learn")),
-    *((f, c_void_p) for f in ("fed_ns", "served_ns", "release", "feed_seen", "served")),
-    *((f, c_int64) for f in ("history", "feed_k", "margin_ns", "share_ns", "cap_ns")),
+    *((f, c_void_p) for f in ("fed_ns", "served_max", "release", "feed_seen", "served")),
+    *((f, c_int64) for f in ("history", "feed_k", "margin_ns", "share_ns", "share_looks")),
+    ("cap_ns", c_int64),
+    *((f, c_int64) for f in ("sharing", "servo_ticks", "rest_ticks", "want_ticks")),
     ("poll_after", c_void_p),
     *((f, c_int64) for f in ("fed_tick", "count", "stage", "at")),
     *((f, c_int64) for f in ("unit", "tick_now", "fed", "ran", "t0", "wanted")),
@@ -417,8 +419,9 @@ SV_FEED = 7  # its stage for a tick signalled: the feed awaited first (an SV's c
 WaitArgs = _block(
     "WaitArgs",
     *((f, c_void_p) for f in ("stats", "ack_sem", "sem", "release", "signal_tick", "after")),
-    ("shutdown", c_void_p),
-    *((f, c_int64) for f in ("period_ns", "poll_ns", "idle_ns", "signalled", "cycled", "tick")),
+    *((f, c_void_p) for f in ("shutdown", "next_due")),
+    *((f, c_int64) for f in ("base_ns", "period_ticks", "poll_ns", "idle_ns")),
+    *((f, c_int64) for f in ("signalled", "cycled", "tick")),
     *((f, c_int64) for f in ("woke", "since")),
 )
 # kali_clock_wait's results

@@ -784,7 +784,8 @@ SERVO_CTRL = np.dtype(
         ("sv_exec_hist", "<u4", (MAX_SV, HIST_BINS)),  # SV k: feed-to-done time histogram
         ("sv_fed_tick", "<i8", (MAX_SV,)),  # SV k: the tick whose feed it took last (-1: none)
         ("fed_ns", "<i8"),  # SIO: CLOCK_MONOTONIC when it fed its last tick (polling SVs learn)
-        ("served_ns", "<i8"),  # SIO: its last tick's feed to every servo done
+        # SIO: the longest feed to every servo done since SV k last learnt it (sv/daemon.py)
+        ("sv_served_max_ns", "<i8", (MAX_SV,)),
     ],
     align=True,
 )

@@ -123,6 +123,7 @@ class ProcSnap:
     pid: int
     exec_last_ns: int
     exec_max_ns: int
+    period_ticks: int  # base ticks between its signals (an SV resting: more than SIO's)
 
 
 @dataclass
@@ -155,6 +156,7 @@ def snapshot(inst: Instance, names: list[str]) -> KaliSnap:
             pid=int(p["pid"]),
             exec_last_ns=int(p["exec_last_ns"]),
             exec_max_ns=int(p["exec_max_ns"]),
+            period_ticks=int(p["period_ticks"]),
         )
     c = inst.clock
     return KaliSnap(

@@ -70,8 +70,8 @@ EXPECTED_PROCESSES = (
     ProcessConfig("plant", "plant", 1, 83, 1, True, 0),
     ProcessConfig("tg", "tg", 1, 80, 10, True, 1),
     ProcessConfig("sio", "sio", 0, 85, 1, True, 2),
-    ProcessConfig("sv.0", "sv", 0, 84, 1, True, 2, 200),
-    ProcessConfig("sv.1", "sv", 1, 84, 1, True, 2, 200),
+    ProcessConfig("sv.0", "sv", 0, 84, 1, True, 2, 200, 4),
+    ProcessConfig("sv.1", "sv", 1, 84, 1, True, 2, 200, 4),
     ProcessConfig("dynamics", "dynamics", 1, 40, 10, False, 3),
     ProcessConfig("viewer", "viewer", 1, 0, 40, False, 4),
 )
@@ -326,6 +326,22 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "sv-poll-negative",
         [("poll_us: 200", "poll_us: -1")],
         "processes.sv.poll_us = -1: must be an integer >= 0 and <= 500",
+    ),
+    (
+        "sv-rest-not-a-tick-multiple",
+        [("poll_us: 200}", "poll_us: 200, rest_ms: 2.5}")],
+        "processes.sv.rest_ms = 2.5: must be a multiple of clock.base_tick_ms (1)",
+    ),
+    (
+        "sv-rest-too-long",
+        [("poll_us: 200}", "poll_us: 200, rest_ms: 21}")],
+        "processes.sv.rest_ms = 21: must be 0 or a whole multiple of clock.servo_period_ms "
+        "(1) up to clock.serious_miss_tolerance_ms (20)",
+    ),
+    (
+        "sv-rest-negative",
+        [("poll_us: 200}", "poll_us: 200, rest_ms: -4}")],
+        "processes.sv.rest_ms = -4: must be a number > 0 and <= 60000",
     ),
     (
         "poll-on-sio",
@@ -664,6 +680,29 @@ def test_sv_poll_applies_to_every_worker_and_defaults_to_the_default_files() -> 
     assert polls(edit(("poll_us: 200", "poll_us: 0"))) == {}
     three = edit(("count: 2, cpus: [0, 1]", "count: 3, cpus: [0, 1, 1]"), ("_us: 200", "_us: 7"))
     assert polls(three) == {"sv.0": 7, "sv.1": 7, "sv.2": 7}
+
+
+def test_sv_rest_is_a_whole_number_of_servo_periods_and_defaults_to_the_default_files() -> None:
+    """``processes.sv.rest_ms``: 0 (never rest), or servo periods up to the serious tolerance;
+    left out, 4 ms rounded up to whole servo periods, or never where that is beyond it."""
+
+    def rests(text: str) -> dict[str, float]:
+        return {p.name: p.rest_ms for p in parse_config(text, SOURCE).processes if p.kind == "sv"}
+
+    def rest(value: str) -> tuple[str, str]:
+        return ("poll_us: 200}", f"poll_us: 200, rest_ms: {value}}}")
+
+    def servo(period_ms: str) -> tuple[str, str]:
+        return ("servo_period_ms: 1 ", f"servo_period_ms: {period_ms} ")
+
+    assert rests(DEFAULT_TEXT) == {"sv.0": 4, "sv.1": 4}
+    assert rests(edit(rest("0"))) == {"sv.0": 0, "sv.1": 0}
+    assert rests(edit(rest("20"))) == {"sv.0": 20, "sv.1": 20}
+    assert rests(edit(servo("3"))) == {"sv.0": 6, "sv.1": 6}  # left out: rounded up
+    tolerance = ("serious_miss_tolerance_ms: 20 ", "serious_miss_tolerance_ms: 3 ")
+    assert rests(edit(tolerance)) == {"sv.0": 0, "sv.1": 0}  # beyond the tolerance: never
+    message = error_of(edit(servo("2"), rest("3")))
+    assert "processes.sv.rest_ms = 3: must be 0 or a whole multiple" in message
 
 
 # --------------------------------------------------------------------------------------------

@@ -54,7 +54,7 @@ TIMES = {
         "sv_exec_max_ns",
         "sv_exec_hist",
         "fed_ns",
-        "served_ns",
+        "sv_served_max_ns",
     ),
     layout.KEY_SLOTS: ("exec_ns",),
     layout.KEY_FLIGHT_RING: ("t_ns", "latency_ns", "late_ns", "wait_ns", "ran_ns"),

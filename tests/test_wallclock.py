@@ -224,12 +224,15 @@ def test_killed_serious_daemon_halts_naming_it(kali: Callable[..., str]) -> None
 
 
 def test_gang_state_signals_sio_and_the_svs_together_or_not_at_all() -> None:
-    """SIO (slot 3) and two SVs (4, 5): each acknowledged up to ``ack``, signalled ``sig``."""
+    """SIO (slot 3) and two SVs (4, 5): each acknowledged up to ``ack``, signalled ``sig``,
+    at tick 11, where every one is due unless an SV rests."""
     sig = np.full(8, 10, dtype=np.int64)
+    due = np.full(8, 11, dtype=np.int64)
 
-    def state(sio: int, sv0: int, sv1: int) -> int:
+    def state(sio: int, sv0: int, sv1: int, sv1_due: int = 11) -> int:
         ack = np.array([10, 10, 10, sio, sv0, sv1, 10, 10], dtype=np.int64)
-        return gang_state(3, [4, 5], ack, sig)
+        due[5] = sv1_due
+        return gang_state(3, [4, 5], ack, sig, due, 11)
 
     assert state(10, 10, 10) == GANG_RUNS
     assert state(10, 9, 10) == GANG_RUNS  # sv.0 misses alone; sv.1 takes its share
@@ -237,7 +240,10 @@ def test_gang_state_signals_sio_and_the_svs_together_or_not_at_all() -> None:
     assert state(9, 10, 10) == GANG_SIO_LATE  # the SVs would wait for a feed a tick late
     assert state(9, 9, 9) == GANG_SIO_LATE
     assert state(10, 9, 9) == GANG_SVS_LATE  # SIO would feed slots no SV was signalled for
-    assert gang_state(3, [], np.full(8, 10), sig) == GANG_RUNS
+    assert gang_state(3, [], np.full(8, 10), sig, due, 11) == GANG_RUNS
+    # sv.1 resting (due at 14): it cannot take sv.0's share this tick
+    assert state(10, 10, 10, sv1_due=14) == GANG_RUNS
+    assert state(10, 9, 10, sv1_due=14) == GANG_SVS_LATE
 
 
 def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]]) -> WallClock:
@@ -276,6 +282,67 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
     c._suspect = [0] * layout.MAX_PROCESSES
     c.base_ns, c.tolerance_ns = 1_000_000, 20_000_000
     return c
+
+
+@pytest.mark.parametrize("old", [1, 2, 4, 5])
+@pytest.mark.parametrize("new", [1, 2, 3, 4, 8])
+def test_a_process_changing_its_own_period_never_sleeps_past_its_signal(old: int, new: int) -> None:
+    """A polling SV that rests or stops resting (``Daemon._set_period``, in its cycle)
+    sleeps to its next signal on its own timer (``next_wake``: the next multiple of its
+    period, or the clock's own due tick for it where earlier), and must never sleep past
+    it: it would miss.  The wall clock re-reads the process table at the top of its loop,
+    right after a tick's signals, so the change is seen before the next tick or, when the SV
+    writes it later, before the one after: both orders, for a change at every signalled
+    tick of a run, through the clock's real re-read and tick logic.  It wakes exactly at its
+    signal except, once per change to a shorter period, early: where it sleeps on the
+    semaphore instead, a wake-up across vCPUs."""
+    from kali_daemons.daemon import Daemon, next_wake
+
+    events: list[tuple[str, int]] = []
+    c = _tick_clock([100, 101, 102], {100, 101, 102}, events)
+    procs = c.inst.procs
+    procs["periodic"][0], procs["state"][0], procs["name"][0] = 1, ProcState.ACTIVE, b"sv.1"
+    c.inst.clock = {"mode": RunMode.RUNNING, "registry_gen": 0, "tick": 0}  # type: ignore[misc]
+    c.slot, c._gang_lead, c._gang_names = 7, "sio", {"sv.1"}
+    c.max_period_ticks, c._good_period = 1000, np.ones(layout.MAX_PROCESSES, np.int64)
+
+    def bump() -> None:
+        c.inst.clock["registry_gen"] += 1
+
+    for changed_at in range(0, 12 * old, old):
+        for seen_at_once in (True, False):
+            procs["period_ticks"][0], procs["next_due"][0] = old, 0
+            procs["signal_tick"][0], procs["ack_tick"][0] = -1, -1
+            c._gen = -1
+            events.clear()
+            sv = object.__new__(Daemon)
+            sv.inst = SimpleNamespace(procs=procs, bump_registry=bump)  # type: ignore[assignment]
+            sv.slot, sv.period_ticks, sv._clock_wait = 0, old, None
+            wakes, signals, pending = [], [], False
+            for tick in range(changed_at + 8 * max(old, new)):
+                c._rescan()  # the top of the clock's loop: the ticks before are signalled
+                if pending:  # the SV wrote after that re-read
+                    sv._set_period(new)
+                    wakes[-1] = next_wake(signals[-1], new, int(procs["next_due"][0]))
+                    pending = False
+                c.inst.clock["tick"] = tick
+                c._realtime_tick(tick, tick * 1_000_000)
+                if ("signal", 0) not in events:
+                    continue
+                events.clear()
+                signals.append(tick)
+                procs["ack_tick"][0] = tick  # its cycle ran
+                if tick == changed_at and seen_at_once:
+                    sv._set_period(new)
+                pending = tick == changed_at and not seen_at_once
+                wakes.append(next_wake(tick, sv.period_ticks, int(procs["next_due"][0])))
+            assert changed_at in signals, (changed_at, signals)
+            case = (old, new, changed_at, seen_at_once, signals, wakes)
+            early = [w for w, s in zip(wakes, signals[1:], strict=False) if w != s]
+            assert all(w <= s for w, s in zip(wakes, signals[1:], strict=False)), case
+            assert len(early) <= (1 if new < old else 0), case
+            assert procs["period_ticks"][0] == sv.period_ticks == new
+            assert signals[-1] - signals[-2] == new, case
 
 
 def _clock_reading_proc(
@@ -428,13 +495,18 @@ def on_time() -> Iterator[None]:
         rt.leave_realtime()
 
 
-def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -> None:
+@pytest.mark.parametrize(("rest", "bites"), [("0", 100), ("4", 30)], ids=["every-tick", "resting"])
+def test_sio_and_the_svs_ride_out_stalls_of_both_svs(
+    kali: Callable[..., str], rest: str, bites: int
+) -> None:
     """Both SVs stalled together for a few ms, many times, at random phases: the servo level
-    rides it out, no halt, SIO runs on.  (The narrow race in which SIO acknowledges just
-    before a tick neither SV has, GANG_SVS_LATE, is too rare to provoke here: the test above
-    checks the decision, the soak the race; it once halted a soak with SIO waiting 18 ms for
-    slots no SV had been signalled to run.)"""
-    name = kali(lockstep=False)
+    rides it out, no halt, SIO runs on; with sv.1 signalled every tick, and resting (every
+    4: it misses less, and SIO vouches for sv.0 where it took the last tick's feed, so the
+    stalls' own check is lower).  (The narrow race in which SIO acknowledges just before a
+    tick neither SV has, GANG_SVS_LATE, is too rare to provoke here: the test above checks
+    the decision, the soak the race; it once halted a soak with SIO waiting 18 ms for slots
+    no SV had been signalled to run.)"""
+    name = kali(lockstep=False, edits={"poll_us: 200}": f"poll_us: 200, rest_ms: {rest}}}"})
     rng = np.random.default_rng(11)
     with Instance.attach(name) as inst:
         pids = [int(inst.procs[inst.slot_of(n)]["pid"]) for n in ("sv.0", "sv.1")]
@@ -450,7 +522,7 @@ def test_sio_and_the_svs_ride_out_stalls_of_both_svs(kali: Callable[..., str]) -
                 time.sleep(rng.uniform(0.002, 0.008))
                 assert inst.fault_text() is None
         svs = sum(int(inst.procs[inst.slot_of(n)]["misses"]) for n in ("sv.0", "sv.1"))
-        assert svs >= 100, f"the SVs missed only {svs} ticks: the stalls did not bite"
+        assert svs >= bites, f"the SVs missed only {svs} ticks: the stalls did not bite"
         acks = int(sio["acks"])
         wait_for(lambda: int(sio["acks"]) > acks + 50, 2.0, "SIO runs on")
         assert inst.fault_text() is None, f"{int(sio['misses']) - misses0} SIO misses"
@@ -626,9 +698,10 @@ def test_the_compiled_clock_wait_equals_the_reference() -> None:
     no post within the idle wait (IDLE, and the next wait does not poll); a signal (its
     tick, lateness counted from its release); the cycle accounted and acknowledged, the
     clock's lockstep post given, at the next call or at ``settle``; polling while signalled,
-    asleep to the next due tick plus ``poll_after`` though the post is there; the post that
-    comes with the arena's shutdown flag (SHUTDOWN); a signal handler interrupting the wait
-    (INTR, and the handler has run)."""
+    asleep to the next due tick plus ``poll_after`` though the post is there (at a longer
+    period, an SV resting, and the clock's own where earlier); the post
+    that comes with the arena's shutdown flag (SHUTDOWN); a signal handler interrupting the
+    wait (INTR, and the handler has run)."""
     from kali_daemons.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
 
     from .conftest import HostedCell
@@ -640,7 +713,10 @@ def test_the_compiled_clock_wait_equals_the_reference() -> None:
         traces = [_clock_wait_trace(cell.inst, compiled, handled) for compiled in (True, False)]
         assert traces[0] == traces[1]
         events = [t[0] for t in traces[0]]
-        assert events == [WAIT_IDLE, WAIT_SIGNAL, "settled", WAIT_SIGNAL, WAIT_SHUTDOWN, WAIT_INTR]
+        assert events == [
+            WAIT_IDLE, WAIT_SIGNAL, "settled", WAIT_SIGNAL, WAIT_SIGNAL, WAIT_SIGNAL,
+            WAIT_SHUTDOWN, WAIT_INTR,
+        ]  # fmt: skip
         assert traces[0][2] == ("settled", 7, 1)  # acknowledged, the clock's post given
         assert traces[0][4][3:] == (8, 1, 1)  # tick 8 settled by the next wait
     finally:
@@ -658,8 +734,8 @@ def _clock_wait_trace(inst: Instance, compiled: bool, handled: list[int]) -> lis
     procs, slot, header = inst.procs, inst.slot_of("tg"), inst.arena.header
     sem, ack = inst.slot_semaphore(slot), inst.ack_semaphore()
     period, after = 1_000_000, np.zeros(1, np.int64)
-    procs["ack_tick"][slot] = -1
-    w = ClockWait(inst, slot, period, 200_000, 0.005, after, _CycleStats(procs, slot), ack)
+    procs["ack_tick"][slot], procs["next_due"][slot] = -1, 0
+    w = ClockWait(inst, slot, 1, 200_000, 0.005, after, _CycleStats(procs, slot), ack)
     wait = w.wait if compiled else w.wait_reference
     a, trace = w.args, []
 
@@ -690,6 +766,15 @@ def _clock_wait_trace(inst: Instance, compiled: bool, handled: list[int]) -> lis
     after[0] = 300_000
     release = rt.monotonic_ns()
     step(True, 8, release, 300_000, release + period + 300_000)  # polling: asleep till then
+    a.period_ticks = 4  # resting: the next due tick after 8 is 12
+    release = rt.monotonic_ns()
+    step(True, 12, release, 300_000, release + 4 * period + 300_000)
+    a.period_ticks = 20  # a change of rate: the clock still signals at 4, next at 14
+    procs["next_due"][slot] = 14
+    release = rt.monotonic_ns()
+    step(True, 14, release, 300_000, release + 2 * period + 300_000)
+    assert a.woke - release < 6 * period, "slept to the rule's tick 20, not the clock's 14"
+    a.period_ticks = 1
     header["shutdown"] = 1
     step(True, 9, release)  # the cycle of tick 8 accounted first
     header["shutdown"] = 0

@@ -483,7 +483,7 @@ class ServoIO(Daemon):
             slice_ns=self.slice_ns,
             ctrl_tick=self._ctrl_tick.ctypes.data,
             fed_ns=ctrl["fed_ns"].ctypes.data,
-            served_ns=ctrl["served_ns"].ctypes.data,
+            served_max=ctrl["sv_served_max_ns"].ctypes.data,
             robots_tick=self._robots_tick,
             sv_fed_tick=ctrl["sv_fed_tick"].ctypes.data,
             signal_tick=procs["signal_tick"],
@@ -642,7 +642,8 @@ class ServoIO(Daemon):
         else:  # every servo done: the SVs' acknowledgements before SIO's output (gang.py)
             self._gang.acknowledge(tick)
         t_done = rt.monotonic_ns()
-        lv.ctrl["served_ns"] = t_done - t_fed
+        served = lv.ctrl["sv_served_max_ns"][: len(self.feeds)]  # each SV takes its own
+        np.maximum(served, t_done - t_fed, out=served)
         for k in range(lv.n_robots):  # a robot-level servo's torque is the whole torque
             if int(self._arm_algo[k]) != layout.ARM_NONE:
                 self.ff[self._spans[k]] = 0.0

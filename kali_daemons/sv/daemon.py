@@ -33,7 +33,10 @@ sharing, else to when the SV on SIO's CPU has run them all (learnt over the last
 ``_learn_feed``), then polls for the clock's signal and SIO's feed, at most
 ``processes.sv.poll_us`` each, so no post has to wake a halted vCPU (a kernel trace
 showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms: config/default.yaml).
-Every other wait sleeps (two cores: never spin a CPU without bound, DESIGN 10).
+While an SV on SIO's CPU runs every servo on its own, such an SV rests: it has the clock
+signal it only every ``processes.sv.rest_ms`` (``Daemon._set_period``), and is back to every
+tick once the servos are worth sharing again.  Every other wait sleeps (two cores: never
+spin a CPU without bound, DESIGN 10).
 
 ``cycle`` is compiled (``kali_sv_serve``: the wait for the feed and what a polling SV learns
 from it, the claims, the units, the done count and post, the execution-time record); a robot
@@ -64,7 +67,8 @@ import numpy as np
 import posix_ipc
 
 from .. import atomic, layout, rt, shadow
-from ..daemon import Daemon
+from ..config import period_ticks
+from ..daemon import Daemon, drain
 from ..errors import DaemonError
 from ..kernels import SV_ARM, SV_DONE, SV_FAULT, SV_FEED, SV_LEFT, SV_SLOT, SV_START, Kernel
 from ..layout import FaultCode, ShadowState, SlotOp, SlotReset
@@ -75,9 +79,13 @@ from . import arm, units
 READY_TIMEOUT_S = 30.0  # how long an SV waits at start for SIO to lay out the slots
 FEED_HISTORY = 16  # ticks over which a polling SV learns when SIO's feed comes
 FEED_MARGIN_NS = 50_000  # it wakes this much before the earliest of them (a timer's lateness)
-# A polling SV shares the servos only where they took long enough in one of those ticks
-# (SIO's feed to every servo done, its ``served_ns``); below, it wakes once they are done
+# A polling SV shares the servos only where they took long enough in some of those ticks
+# (SIO's feed to every servo done, ``sv_served_max_ns``); else it wakes once they are done,
+# and rests (``processes.sv.rest_ms``).  A single long tick (the host, an interrupt) is past
+# before sharing could help: sharing on one made sv.1 flip to every tick and back ~5 times a
+# second once it rested
 SHARE_NS = 80_000
+SHARE_LOOKS = 4
 
 
 class ServoWorker(Daemon):
@@ -139,11 +147,16 @@ class ServoWorker(Daemon):
         if not lockstep and me.cpu is not None and me.cpu != sio.cpu:
             # poll at most half a servo period (a short servo period, a long poll_us)
             self.poll_ns = min(me.poll_us * 1000, self.period_ns // 2)
+        # a polling SV rests while an SV on SIO's CPU, which never does, runs every servo
+        self.servo_ticks = self.rest_ticks = self.period_ticks
+        sv_cpus = [p.cpu for p in inst.config.processes if p.kind == "sv"]
+        if self.poll_ns and me.rest_ms and sio.cpu in sv_cpus:
+            self.rest_ticks = period_ticks(me.rest_ms, inst.config.clock.base_tick_ms)
         # when SIO's feed came in the last ticks, in ns after the tick's due time, and how long
         # the servos took from it (_learn_feed)
         self._release = inst.procs["release_ns"][self.slot : self.slot + 1]
         self._fed_ns = c["fed_ns"]
-        self._served_ns = c["served_ns"]
+        self._served_max = c["sv_served_max_ns"][self.index : self.index + 1]
         self._feed_seen = np.zeros(FEED_HISTORY, np.int64)
         self._served = np.zeros(FEED_HISTORY, np.int64)
         self._feed_cap = self.period_ns // 2  # never wake later than half a tick in
@@ -185,7 +198,7 @@ class ServoWorker(Daemon):
         self._order = np.array(self.order, dtype=np.int64)
         self._done_address = rt.semaphore_address(self.done_sem)
         self._feed_address = rt.semaphore_address(self.feed)
-        keep = (self._fed_ns, self._served_ns, self._release, self._feed_seen, self._served)
+        keep = (self._fed_ns, self._served_max, self._release, self._feed_seen, self._served)
         self._serve_kernel = Kernel(
             "kali_sv_serve",
             (units, self.units, self._arm_lo, self._order, lv.slots, c, *keep, self._poll_after),
@@ -206,14 +219,18 @@ class ServoWorker(Daemon):
             feed_wait_ns=int(self.feed_timeout_s * 1e9),
             learn=1 if self.poll_ns else 0,
             fed_ns=self._fed_ns.ctypes.data,
-            served_ns=self._served_ns.ctypes.data,
+            served_max=self._served_max.ctypes.data,
             release=self._release.ctypes.data,
             feed_seen=self._feed_seen.ctypes.data,
             served=self._served.ctypes.data,
             history=FEED_HISTORY,
             margin_ns=FEED_MARGIN_NS,
             share_ns=SHARE_NS,
+            share_looks=SHARE_LOOKS,
             cap_ns=self._feed_cap,
+            servo_ticks=self.servo_ticks,
+            rest_ticks=self.rest_ticks,
+            want_ticks=self.servo_ticks,
             poll_after=self._poll_after.ctypes.data,
             me=self.me,
             arm_free=layout.ARM_FREE,
@@ -236,14 +253,19 @@ class ServoWorker(Daemon):
         """Inside the cycle: wait for the feed, then claim and run slots until none is left.
         Compiled: ``kali_sv_serve`` from its stage ``SV_FEED`` (``_await_feed``; SIO did not
         feed ``tick`` in time, halted or itself late: nothing to run), then as ``serve``."""
-        self._serve_args.wanted = tick
+        a = self._serve_args
+        a.wanted = tick
         self._serve_from(SV_FEED)
+        if a.want_ticks != self.period_ticks:  # to rest, or back from it (_learn_feed)
+            self._set_period(a.want_ticks)
 
     def cycle_reference(self, tick: int) -> None:
         """What ``cycle`` does, with the feed awaited in Python (``_await_feed``)."""
         fed_tick = self._await_feed(tick)
         if fed_tick >= 0:
             self.serve(fed_tick)
+        if self._serve_args.want_ticks != self.period_ticks:
+            self._set_period(self._serve_args.want_ticks)
 
     def serve(self, fed_tick: int) -> None:
         """Inside the cycle: claim and run fed slots of SIO's tick ``fed_tick`` until none is
@@ -353,68 +375,83 @@ class ServoWorker(Daemon):
         """Sleep until SIO has fed ``tick`` (or a later tick); the tick fed, -1 on the timeout.
         The reference of ``kali_sv_serve``'s stage ``SV_FEED`` (``cycle``).
 
-        An SV on another CPU than SIO's first polls the feed for ``poll_ns`` (it is awake
-        anyway, having woken on its timer shortly before the feed is due and polled for the
-        clock's signal: ``Daemon._clock_driven_loop``, ``_learn_feed``), so SIO's post
-        wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and
-        after now and then one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's
-        CPU time counting on: ``config/default.yaml`` gives the kernel trace.
+        SIO's fed tick (``ctrl.tick``, written before it posts) says whether ``tick`` is fed;
+        its posts on the feed semaphore only wake.  SIO posts every SV's each tick it runs, so
+        ticks this SV missed or rested through leave posts behind: each look takes every post
+        there is first, then reads the fed tick.  (A post taken as this tick's would find the
+        last tick's slots all claimed and leave this SV's share to the others.)
 
-        SIO posts every SV's feed semaphore each tick it runs, so a tick this SV missed
-        leaves a post behind.  Taken as this tick's, it would find the previous tick's slots
-        all claimed and return at once, leaving its share to the others while SIO is still
-        feeding; so a post for an older tick than SIO's fed one is passed over.
+        Not fed yet, an SV on another CPU than SIO's first polls the feed for ``poll_ns`` (it
+        is awake anyway, having woken on its timer shortly before the feed is due and polled
+        for the clock's signal: ``Daemon._clock_driven_loop``, ``_learn_feed``), so SIO's post
+        wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and after now and then
+        one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's CPU time counting
+        on: ``config/default.yaml`` gives the kernel trace.
         """
-        wait_s = self.feed_timeout_s
         now = rt.monotonic_ns()
-        end, poll_end = now + int(wait_s * 1e9), now + self.poll_ns
+        end, poll_end = now + int(self.feed_timeout_s * 1e9), now + self.poll_ns
         feed = self.feed
         while True:
-            if self.poll_ns:
-                rt.poll_semaphore(feed, poll_end)
-            try:
-                feed.acquire(max(0.0, wait_s))
-            except posix_ipc.BusyError:
-                return -1
-            except posix_ipc.SignalError:  # a handler ran: wait on for what is left
-                wait_s = (end - rt.monotonic_ns()) / 1e9
-                continue
+            drain(feed)
             fed = int(self._tick)
             if fed >= tick:
                 if self.poll_ns:
                     self._learn_feed()
                 return fed
-            wait_s = (end - rt.monotonic_ns()) / 1e9  # a stale post: wait on for this tick's
-            if wait_s <= 0:
-                return -1
+            if self.poll_ns:
+                rt.poll_semaphore(feed, poll_end)
+            while True:
+                try:
+                    feed.acquire(max(0.0, (end - rt.monotonic_ns()) / 1e9))
+                    break  # then the fed tick again, with any other post
+                except posix_ipc.BusyError:
+                    return -1
+                except posix_ipc.SignalError:  # a handler ran: wait on for what is left
+                    continue
 
     def _learn_feed(self) -> None:
         """A polling SV, once it has this tick's feed: note when SIO fed it (``fed_ns``),
-        after the tick's due time, and how long the servos took from the feed last tick
-        (``served_ns``), and choose when to wake from now on (``poll_after_ns``).
+        after the tick's due time, and the longest the servos took from a feed since it last
+        looked (``sv_served_max_ns``, which SIO raises each tick and this takes), and choose
+        when to wake from now on (``poll_after_ns``) and how often (``want_ticks``).
 
-        Where the servos took more than ``SHARE_NS`` in one of the last ``FEED_HISTORY``
-        ticks, they are worth sharing: wake ``FEED_MARGIN_NS`` before the earliest feed of
-        those ticks, so the clock's signal is there and the feed close, and claim servos
-        beside the SV on SIO's CPU.  Otherwise that SV runs them all within ``SHARE_NS`` of the
-        feed on its own (the built-in servos of 12 joints, compiled: ~5 µs): wake once it
-        has, after the latest feed of those ticks plus ``SHARE_NS``, and only acknowledge.
+        Where the servos took more than ``SHARE_NS`` in ``SHARE_LOOKS`` of the last
+        ``FEED_HISTORY`` looks (while shared, more than half that: shared, they take about
+        half as long), they are worth sharing: wake ``FEED_MARGIN_NS`` before the earliest
+        feed of those looks, so the clock's signal is there and the feed close, and claim
+        servos beside the SV on SIO's CPU.  Otherwise that SV runs them all within
+        ``SHARE_NS`` of the feed on its own (the built-in servos of 12 joints, compiled:
+        ~5 µs): wake once it has, after the latest feed of those looks plus ``SHARE_NS``,
+        and only acknowledge.
 
         Polling from the due time on, an SV burnt ~0.15 ms a tick on CPU 1 (sv.1 took 24 % of
         CPU 1, sv.0 7 % of CPU 0 for the same servos), the TG's share of CPU 1 with it (a
         path's planning tick then took the TG up to 30 ms, past the serious tolerance); waking
         before the earliest feed, ~0.1 ms a tick for servos sv.0 runs in a few µs, and SIO,
-        woken across vCPUs by sv.1's done post, ~30 µs more than woken by sv.0."""
+        woken across vCPUs by sv.1's done post, ~30 µs more than woken by sv.0.
+
+        With nothing to share it rests: signalled every ``rest_ticks`` (``processes.sv.
+        rest_ms``), not every tick, until the servos are worth sharing again (each look
+        sees the longest tick since the last, ``sv_served_max_ns``).  Waking on an idle vCPU
+        costs ~23 µs of CPU here even in C, and sv.1 paid ~32 µs a tick to acknowledge
+        servos sv.0 had run; the clock looks at a resting SV every rest period, so one that
+        dies is found within two of them, and a stalled one within the serious tolerance and
+        two of them."""
         a = self._serve_args  # the history's place is the compiled serve's (its feed_k)
         k = a.feed_k
         self._feed_seen[k] = int(self._fed_ns) - int(self._release[0])
-        self._served[k] = int(self._served_ns)
+        self._served[k] = int(self._served_max[0])
+        self._served_max[0] = 0
         a.feed_k = (k + 1) % FEED_HISTORY
-        if int(self._served.max()) > SHARE_NS:
+        limit = SHARE_NS // 2 if a.sharing else SHARE_NS  # shared, they take ~half
+        share = int((self._served > limit).sum()) >= SHARE_LOOKS
+        a.sharing = int(share)
+        if share:
             after = int(self._feed_seen.min()) - FEED_MARGIN_NS
         else:
             after = int(self._feed_seen.max()) + SHARE_NS
         self._poll_after[0] = max(0, min(after, self._feed_cap))
+        a.want_ticks = self.servo_ticks if share else self.rest_ticks
 
     def _run(self, i: int, s: Any, tick: int) -> None:
         """Run slot ``i``'s servo once (mailbox first, then a reset, then the step)."""

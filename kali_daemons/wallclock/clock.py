@@ -221,7 +221,7 @@ class WallClock(Daemon):
         lead = self._lead
         gang = GANG_RUNS
         if lead >= 0 and tick >= nd[lead]:
-            gang = gang_state(lead, self._members, ack, sig)
+            gang = gang_state(lead, self._members, ack, sig, nd, tick)
         member, suspect = self._member, self._suspect
         n_suspect = 0
         for k, i in enumerate(self._slots):
@@ -494,7 +494,9 @@ class WallClock(Daemon):
             pass
 
 
-def gang_state(lead: int, members: list[int], ack: np.ndarray, sig: np.ndarray) -> int:
+def gang_state(
+    lead: int, members: list[int], ack: np.ndarray, sig: np.ndarray, due: np.ndarray, tick: int
+) -> int:
     """Whether SIO (slot ``lead``) and its SVs (slots ``members``) are signalled this tick.
 
     They are one gang (thesis 3.3.4): SIO feeds the slots, the SVs run them, SIO waits.
@@ -502,13 +504,15 @@ def gang_state(lead: int, members: list[int], ack: np.ndarray, sig: np.ndarray) 
     waiting for a feed that comes only with SIO's next tick: they would miss that tick too,
     after whatever delayed SIO was over (GANG_SIO_LATE).  If no SV has acknowledged, SIO
     signalled alone would feed slots nobody is signalled to run and wait for them until it
-    halts (GANG_SVS_LATE).  Else the gang runs; an SV that is late misses on its own, and
-    the others take its share.  Read once per tick, before anyone is signalled.
+    halts (GANG_SVS_LATE); an SV resting (``due`` after ``tick``: a polling SV with nothing
+    to share, ``sv/daemon.py``) is not signalled this tick either.  Else the gang runs; an SV
+    that is late misses on its own, and the others take its share.  Read once per tick,
+    before anyone is signalled.
     """
     if ack[lead] < sig[lead]:
         return GANG_SIO_LATE
     for m in members:
-        if ack[m] >= sig[m]:
+        if ack[m] >= sig[m] and tick >= due[m]:
             return GANG_RUNS
     return GANG_SVS_LATE if members else GANG_RUNS
 
