@@ -312,6 +312,13 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 f"{_us(r['late_p99_us'])} {r['late_max_us']:>7.0f}us "
                 f"{r['heartbeat_age_ms']:>5.0f}ms"
             )
+        servo_ms = next((r["period_ms"] for r in rows if r["name"] == "sio"), None)
+        for r in rows:  # a polling SV with nothing to share (sv/daemon.py)
+            if r["name"].startswith("sv.") and servo_ms and r["period_ms"] > servo_ms:
+                click.echo(
+                    f"{r['name']} rests: signalled every {r['period_ms']:g} ms while the SV on "
+                    f"SIO's CPU runs every servo alone (processes.sv.rest_ms)"
+                )
         spy = introspect.Introspector(inst)
         t = spy.tg_longest()
         spy.close()

@@ -838,7 +838,8 @@ def next_wake(tick: int, period: int, clock_due: int) -> int:
 
 
 def drain(sem: posix_ipc.Semaphore) -> None:
-    """Outside the cycle: take every post ``sem`` holds, without waiting."""
+    """Take every post ``sem`` holds, without waiting (outside the cycle, or in a cycle's
+    Python reference: ``ServoWorker._await_feed``)."""
     try:
         while True:
             sem.acquire(0)

@@ -438,7 +438,8 @@ def test_the_sv_on_the_other_cpu_rests_while_sv0_runs_every_servo_alone(
     rest_ms`` (4 ticks).  Slow servos on four joints (the test plugin's, 50 µs a step:
     the example plugin on all 12, a few µs a step, sits at the limit) make the servos worth
     sharing: sv.1 is back at every tick and runs its share; the built-ins again, and it
-    rests again.  Real time: the point is when the clock signals it."""
+    rests again; ``kalictl status`` says when it rests.  Real time: the point is when the
+    clock signals it."""
     if (os.cpu_count() or 1) < 2:
         pytest.skip("sv.1 is bound to CPU 1; this machine has one CPU")
     faulty = ROOT / "tests" / "system" / "faulty_servo.py"
@@ -459,6 +460,8 @@ def test_the_sv_on_the_other_cpu_rests_while_sv0_runs_every_servo_alone(
 
         wait_for(lambda: period() == 4, what="sv.1 resting")
         assert 0.2 <= signalled_per_tick(0.5) <= 0.3
+        status = kalictl("status", env={"KALI_INSTANCE": name}).stdout
+        assert "sv.1 rests: signalled every 4 ms while the SV on SIO's CPU" in status, status
         for robot, j in joints:
             client.set_params(robot, j, {"fail": 3.0, "slow_ms": 0.05}, servo="faulty")
             client.select(robot, j, "faulty", wait=False)
@@ -834,13 +837,26 @@ def test_the_compiled_feed_wait_and_learning_equal_the_reference() -> None:
         cell.inst.procs["release_ns"][sv.slot] = release
         ctrl["fed"] = 0  # no slot fed: the serve ends once the feed is taken
         rng = np.random.default_rng(261)
+        periods: set[int] = set()
+
+        def learnt() -> tuple:
+            return (
+                sv._feed_seen.tolist(),
+                sv._served.tolist(),
+                int(a.feed_k),
+                sv.poll_after_ns,
+                int(a.want_ticks),
+                int(served[1]),
+                int(a.sharing),
+            )
+
         for t in range(1, 400):
             ctrl["tick"] = t
             late = rng.random() < 0.05  # SIO itself late: the wake-up is capped
             ctrl["fed_ns"] = release + int(
                 rng.integers(400_000, 900_000) if late else rng.integers(40_000, 120_000)
             )
-            heavy = rng.random() < 0.05
+            heavy = rng.random() < 0.3  # runs of them: sharing, resting, and back
             served[1] = int(rng.integers(SHARE_NS, 300_000) if heavy else rng.integers(0, SHARE_NS))
             before = (
                 sv._feed_seen.copy(),
@@ -850,32 +866,17 @@ def test_the_compiled_feed_wait_and_learning_equal_the_reference() -> None:
                 a.sharing,
             )
             sv._learn_feed()
-            expected = (
-                sv._feed_seen.tolist(),
-                sv._served.tolist(),
-                int(a.feed_k),
-                sv.poll_after_ns,
-                int(a.want_ticks),
-                int(served[1]),
-                int(a.sharing),
-            )
+            expected = learnt()
             sv._feed_seen[:], sv._served[:], a.feed_k, served[1], a.sharing = before
             sv._poll_after[0], a.want_ticks = -1, -1
             for _ in range(int(rng.integers(1, 4))):  # with posts of ticks it rested through
                 feed.release()
             sv.cycle(t)
-            got = (
-                sv._feed_seen.tolist(),
-                sv._served.tolist(),
-                int(a.feed_k),
-                sv.poll_after_ns,
-                int(a.want_ticks),
-                int(served[1]),
-                int(a.sharing),
-            )
-            assert got == expected, t
+            assert learnt() == expected, t
+            periods.add(sv.period_ticks)
             assert (int(a.fed_tick), int(sv._fed_tick[0]), feed.value) == (t, t, 0)
             assert sv.period_ticks == a.want_ticks == cell.inst.procs["period_ticks"][sv.slot]
+        assert periods == {1, 4}, "it shared and rested"
         a.feed_wait_ns, sv.feed_timeout_s = 20_000_000, 0.02
         for run in (sv.cycle, sv.cycle_reference):
             sv._fed_tick[0] = 0

@@ -699,7 +699,7 @@ def test_the_compiled_clock_wait_equals_the_reference() -> None:
     tick, lateness counted from its release); the cycle accounted and acknowledged, the
     clock's lockstep post given, at the next call or at ``settle``; polling while signalled,
     asleep to the next due tick plus ``poll_after`` though the post is there (at a longer
-    period, an SV resting, and the clock's own where earlier); the post
+    period, an SV resting, and the clock's own due tick where within a period); the post
     that comes with the arena's shutdown flag (SHUTDOWN); a signal handler interrupting the
     wait (INTR, and the handler has run)."""
     from kali_daemons.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
@@ -715,7 +715,7 @@ def test_the_compiled_clock_wait_equals_the_reference() -> None:
         events = [t[0] for t in traces[0]]
         assert events == [
             WAIT_IDLE, WAIT_SIGNAL, "settled", WAIT_SIGNAL, WAIT_SIGNAL, WAIT_SIGNAL,
-            WAIT_SHUTDOWN, WAIT_INTR,
+            WAIT_SIGNAL, WAIT_SHUTDOWN, WAIT_INTR,
         ]  # fmt: skip
         assert traces[0][2] == ("settled", 7, 1)  # acknowledged, the clock's post given
         assert traces[0][4][3:] == (8, 1, 1)  # tick 8 settled by the next wait
@@ -774,6 +774,11 @@ def _clock_wait_trace(inst: Instance, compiled: bool, handled: list[int]) -> lis
     release = rt.monotonic_ns()
     step(True, 14, release, 300_000, release + 2 * period + 300_000)
     assert a.woke - release < 6 * period, "slept to the rule's tick 20, not the clock's 14"
+    a.period_ticks = 4  # the clock's due tick a whole period ahead: 18, not the rule's 16
+    procs["next_due"][slot] = 18
+    release = rt.monotonic_ns()
+    step(True, 18, release, 300_000, release + 4 * period + 300_000)
+    procs["next_due"][slot] = 0
     a.period_ticks = 1
     header["shutdown"] = 1
     step(True, 9, release)  # the cycle of tick 8 accounted first
