@@ -96,6 +96,7 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -181,6 +182,13 @@ SENSITIVITY_US = (50, 100, 200, 1_000_000)  # lost-time limits the report compar
 LEAD_US = 500
 SIO_BEFORE = 2  # SIO's ticks before a missed one whose timing the report gives
 STDERR_LINES = 6  # of a failed iteration's stderr, kept and printed
+# A serious clocked process signalled this long ago and not acknowledged while the wall clock
+# ticked on: where its threads are is read (/proc); soak 4 halted on a TG that had not run
+# for 27 ms with nothing lost on its CPU
+STUCK_MS = 5
+STUCK_POLL_S = 0.002  # how often the process table is looked at for one
+STUCK_KEEP = 40  # records kept
+STACK_FRAMES = 8  # of each thread's kernel stack
 WIDTH = 100  # report columns (the cyclictest command and the machine line may be longer)
 
 # "Flat" memory, per process, over the window: growth (end - start) <= the allowance AND the
@@ -674,6 +682,7 @@ class SoakResult:
     flight_dump: str | None = None
     tg_longest: dict[str, float] | None = None  # the TG's longest tick and its parts, µs
     tg_at_halt: dict[str, object] | None = None  # where the TG was in its tick at the halt
+    stuck: list[dict[str, object]] = field(default_factory=list)  # StuckWatch.records
     left_behind: list[str] = field(default_factory=list)
     stopped_cleanly: bool = False  # the stop ran and its check was done
     problems: list[str] = field(default_factory=list)  # each one fails the soak
@@ -711,6 +720,88 @@ def run_iteration(
     return it
 
 
+def thread_places(pid: int) -> list[str]:
+    """Each thread of process ``pid``: its id, scheduler state, wchan and the top of its
+    kernel stack (/proc; the stack needs root), one line each; [] if it is gone."""
+    out = []
+    try:
+        tids = sorted(os.listdir(f"/proc/{pid}/task"), key=int)
+    except OSError:
+        return out
+    for tid in tids:
+        base = Path(f"/proc/{pid}/task/{tid}")
+        try:
+            state = (base / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            wchan = (base / "wchan").read_text().strip() or "-"
+            try:
+                frames = (base / "stack").read_text().splitlines()[:STACK_FRAMES]
+            except OSError:
+                frames = []
+        except OSError:
+            continue
+        stack = " < ".join(f.split()[-1] for f in frames if f.strip())
+        out.append(f"{tid} {state} wchan {wchan}: {stack or '(no stack)'}")
+    return out
+
+
+class StuckWatch:
+    """Where a serious clocked process is while it sits signalled and unacknowledged and the
+    wall clock ticks on (``STUCK_MS``): a thread looks at the process table every
+    ``STUCK_POLL_S`` and, once per signal, reads each of that process's threads' state,
+    wchan and kernel stack (``thread_places``).  A stall of the whole machine stops the clock
+    too, so it is not recorded.  ``records``: up to ``STUCK_KEEP``."""
+
+    def __init__(self, inst: Instance, names: list[str]) -> None:
+        procs = inst.procs
+        self.procs, self.clock = procs, inst.clock
+        self.slots = [
+            (n, inst.slot_of(n), int(procs["pid"][inst.slot_of(n)]))
+            for n in names
+            if int(procs["periodic"][inst.slot_of(n)]) and int(procs["serious"][inst.slot_of(n)])
+        ]
+        base_ns = int(inst.clock["base_tick_ns"])
+        self.after_ns = STUCK_MS * 1_000_000
+        self.after_ticks = max(1, self.after_ns // base_ns)
+        self.records: list[dict[str, object]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="stuck-watch", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(1.0)
+
+    def look(self) -> None:
+        """One look at the process table (what the thread does every ``STUCK_POLL_S``)."""
+        procs = self.procs
+        now = time.monotonic_ns()
+        tick = int(self.clock["tick"])
+        for name, slot, pid in self.slots:
+            sig = int(procs["signal_tick"][slot])
+            if int(procs["ack_tick"][slot]) >= sig or self._seen.get(name) == sig:
+                continue
+            late_ns = now - int(procs["release_ns"][slot])
+            if late_ns < self.after_ns or tick - sig < self.after_ticks:
+                continue
+            self._seen[name] = sig
+            self.records.append(
+                {
+                    "process": name,
+                    "tick": sig,
+                    "late_ms": round(late_ns / 1e6, 2),
+                    "clock_ticks": tick - sig,
+                    "threads": thread_places(pid),
+                }
+            )
+
+    def _run(self) -> None:
+        self._seen: dict[str, int] = {}
+        while not self._stop.wait(STUCK_POLL_S) and len(self.records) < STUCK_KEEP:
+            self.look()
+
+
 def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     """Start the instance, warm up, run the demo in a loop through the window beside
     cyclictest, stop everything; fills ``res`` (also when interrupted)."""
@@ -740,6 +831,7 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
     demo: Demo | None = None
     hostiles: Hostiles | None = None
     rss: RssLog | None = None
+    stuck: StuckWatch | None = None
     real_offset = time.time_ns() - time.monotonic_ns()
     try:
         run.start()
@@ -766,6 +858,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         ct_end = time.monotonic_ns() + ct_seconds * 1_000_000_000
         tail = MissTail(inst)
         sio = SioTail(inst, tail, {p.name for p in cfg.processes if p.serious})
+        stuck = StuckWatch(inst, names)
+        stuck.start()
         s0 = snapshot(inst, names)
         t0 = s0.t_ns
         stat0 = cpu_times()
@@ -829,6 +923,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         spy = Introspector(inst)
         res.tg_longest = spy.tg_longest()
         spy.close()
+        stuck.stop()
+        res.stuck = stuck.records
         if hostiles is not None:
             res.hostiles_died = hostiles.died()
             res.hostiles = hostiles.finish()
@@ -858,6 +954,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         analyse(res, cfg, s0, s1, hist, logged, stalls, lost, t0, real_offset)
     finally:
         with signals_held():
+            if stuck is not None:
+                stuck.stop()
             if demo is not None:
                 demo.stop()
             if hostiles is not None:
@@ -1080,6 +1178,18 @@ def format_report(r: SoakResult) -> str:
             f"{t['requests_us']:.0f} µs, starting waiting ones {t['starting_us']:.0f} µs, "
             f"{t['motions']:.0f} motions {t['motions_us']:.0f} µs"
         )
+    if r.stuck:
+        lines += wrap(
+            f"stuck: {len(r.stuck)} times a serious process sat signalled and unacknowledged "
+            f"{STUCK_MS} ms while the clock ticked on; where its threads were:"
+        )
+        for rec in r.stuck[:10]:
+            lines += wrap(
+                f"  {rec['process']} signalled at tick {rec['tick']}, {rec['late_ms']} ms ago "
+                f"({rec['clock_ticks']} clock ticks)"
+            )
+            for t in rec["threads"]:  # type: ignore[attr-defined]
+                lines += wrap(f"    {t}")
     left = ", ".join(r.left_behind) if r.left_behind else "nothing"
     lines += wrap(f"left behind after the stop: {left} (processes, /dev/shm objects)")
     for n in r.notes:

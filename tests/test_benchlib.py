@@ -3,6 +3,7 @@ when a Kali miss counts as "also seen by cyclictest" (issue 7's soak goal rests 
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -208,3 +209,44 @@ def test_after_a_halt_the_soak_judges_memory_up_to_the_halt() -> None:
         "wallclock": "flat", "sio": "GROWS", "sv.1": "GONE",
     }  # fmt: skip
     assert {m.name: m.end_kib for m in halted}["wallclock"] == 40_020
+
+
+def test_the_soak_reads_where_a_stuck_serious_process_is() -> None:
+    """A serious clocked process signalled ``STUCK_MS`` ago, unacknowledged, while the clock
+    ticked on: the soak's ``StuckWatch`` records, once per signal, each of its threads' state,
+    wchan and kernel stack (here this test's own process stands in for it); a stall of the
+    whole machine (the clock stood too) is not recorded, nor one acknowledged."""
+    from types import SimpleNamespace
+
+    from soak import STUCK_MS, StuckWatch
+
+    from kali_daemons import layout
+
+    procs = np.zeros(layout.MAX_PROCESSES, dtype=layout.PROCESS)
+    procs["periodic"][3], procs["serious"][3], procs["pid"][3] = 1, 1, os.getpid()
+    procs["periodic"][4], procs["pid"][4] = 1, os.getpid()  # not serious: never looked at
+    clock = {"tick": 0, "base_tick_ns": 1_000_000}
+    inst = SimpleNamespace(procs=procs, clock=clock, slot_of={"tg": 3, "viewer": 4}.get)
+    watch = StuckWatch(inst, ["tg", "viewer"])  # type: ignore[arg-type]
+    watch._seen = {}
+    procs["signal_tick"][3:5], procs["ack_tick"][3:5] = 100, 99
+    procs["release_ns"][3:5] = time.monotonic_ns() - 2 * STUCK_MS * 1_000_000
+    clock["tick"] = 100 + STUCK_MS - 1  # the clock stood with it: the machine stalled
+    watch.look()
+    assert watch.records == []
+    clock["tick"] = 100 + 2 * STUCK_MS
+    watch.look()
+    watch.look()  # the same signal: once
+    assert len(watch.records) == 1, watch.records
+    rec = watch.records[0]
+    assert (rec["process"], rec["tick"], rec["clock_ticks"]) == ("tg", 100, 2 * STUCK_MS)
+    assert float(rec["late_ms"]) >= 2 * STUCK_MS  # type: ignore[arg-type]
+    main = rec["threads"][0]  # type: ignore[index]
+    assert main.startswith(f"{os.getpid()} R wchan "), main
+    procs["ack_tick"][3] = 100  # acknowledged, then signalled again and stuck
+    procs["signal_tick"][3] = 120
+    watch.look()
+    assert len(watch.records) == 1
+    clock["tick"] = 120 + STUCK_MS
+    watch.look()
+    assert [r["tick"] for r in watch.records] == [100, 120]
