@@ -720,9 +720,29 @@ def run_iteration(
     return it
 
 
+def waits_on(pid: int, tid: str) -> str:
+    """What thread ``tid`` of ``pid`` waits on in a futex call: the mapping holding the futex
+    word (a semaphore's /dev/shm file, or anonymous memory: a lock of the program's own),
+    from /proc/<tid>/syscall and /proc/<pid>/maps; '' when it is in no futex call."""
+    try:
+        fields = Path(f"/proc/{pid}/task/{tid}/syscall").read_text().split()
+        if not fields or fields[0] != "202":  # x86-64 futex
+            return ""
+        addr = int(fields[1], 16)
+        for line in Path(f"/proc/{pid}/maps").read_text().splitlines():
+            parts = line.split()
+            lo, hi = (int(x, 16) for x in parts[0].split("-"))
+            if lo <= addr < hi:
+                return f"futex at {addr:#x} in {parts[5] if len(parts) > 5 else '[anon]'}"
+    except (OSError, ValueError, IndexError):
+        return ""
+    return f"futex at {addr:#x}, unmapped"
+
+
 def thread_places(pid: int) -> list[str]:
-    """Each thread of process ``pid``: its id, scheduler state, wchan and the top of its
-    kernel stack (/proc; the stack needs root), one line each; [] if it is gone."""
+    """Each thread of process ``pid``: its id, scheduler state, wchan, the futex it waits
+    on and the top of its kernel stack (/proc; the stack needs root), one line each; [] if
+    it is gone."""
     out = []
     try:
         tids = sorted(os.listdir(f"/proc/{pid}/task"), key=int)
@@ -740,7 +760,8 @@ def thread_places(pid: int) -> list[str]:
         except OSError:
             continue
         stack = " < ".join(f.split()[-1] for f in frames if f.strip())
-        out.append(f"{tid} {state} wchan {wchan}: {stack or '(no stack)'}")
+        on = waits_on(pid, tid)
+        out.append(f"{tid} {state} wchan {wchan}{f' ({on})' if on else ''}: {stack or '-'}")
     return out
 
 
@@ -751,8 +772,11 @@ class StuckWatch:
     wchan and kernel stack (``thread_places``).  A stall of the whole machine stops the clock
     too, so it is not recorded.  ``records``: up to ``STUCK_KEEP``."""
 
-    def __init__(self, inst: Instance, names: list[str]) -> None:
+    def __init__(
+        self, inst: Instance, names: list[str], phase: Callable[[], object] | None = None
+    ) -> None:
         procs = inst.procs
+        self.phase = phase  # the TG's place in its tick (Introspector.tg_now), or None
         self.procs, self.clock = procs, inst.clock
         self.slots = [
             (n, inst.slot_of(n), int(procs["pid"][inst.slot_of(n)]))
@@ -792,6 +816,7 @@ class StuckWatch:
                     "tick": sig,
                     "late_ms": round(late_ns / 1e6, 2),
                     "clock_ticks": tick - sig,
+                    "tg_phase": self.phase() if self.phase is not None else None,
                     "threads": thread_places(pid),
                 }
             )
@@ -858,7 +883,8 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         ct_end = time.monotonic_ns() + ct_seconds * 1_000_000_000
         tail = MissTail(inst)
         sio = SioTail(inst, tail, {p.name for p in cfg.processes if p.serious})
-        stuck = StuckWatch(inst, names)
+        stuck_spy = Introspector(inst)
+        stuck = StuckWatch(inst, names, stuck_spy.tg_now)
         stuck.start()
         s0 = snapshot(inst, names)
         t0 = s0.t_ns
@@ -924,6 +950,7 @@ def soak(res: SoakResult, cfg: KaliConfig, tmp: Path) -> None:
         res.tg_longest = spy.tg_longest()
         spy.close()
         stuck.stop()
+        stuck_spy.close()
         res.stuck = stuck.records
         if hostiles is not None:
             res.hostiles_died = hostiles.died()
@@ -1186,7 +1213,7 @@ def format_report(r: SoakResult) -> str:
         for rec in r.stuck[:10]:
             lines += wrap(
                 f"  {rec['process']} signalled at tick {rec['tick']}, {rec['late_ms']} ms ago "
-                f"({rec['clock_ticks']} clock ticks)"
+                f"({rec['clock_ticks']} clock ticks); the TG: {rec['tg_phase'] or 'between ticks'}"
             )
             for t in rec["threads"]:  # type: ignore[attr-defined]
                 lines += wrap(f"    {t}")
