@@ -165,7 +165,7 @@ from harness import (
 
 from kali_daemons import layout
 from kali_daemons.channels import InterpolatingFifo
-from kali_daemons.config import KaliConfig
+from kali_daemons.config import KaliConfig, period_ticks
 from kali_daemons.errors import KaliError
 from kali_daemons.instance import Instance
 from kali_daemons.layout import PowerState
@@ -526,7 +526,7 @@ def analyse(
     res.seconds = (k1.t_ns - k0.t_ns) / 1e9
     ct = ct_row("cyclictest", ct_res, "0,1", period, res.ct_priority)  # Floor.row's
     base_ms = cfg.clock.base_tick_ms
-    servo_ticks = round(cfg.clock.servo_period_ms / base_ms)
+    servo_ticks = period_ticks(cfg.clock.servo_period_ms, base_ms)
     rests = {  # a polling SV with nothing to share is signalled every rest_ms (sv/daemon.py)
         n: k1.procs[n].period_ticks / servo_ticks
         for n in servo_names

@@ -778,15 +778,17 @@ class StuckWatch:
         procs = inst.procs
         self.phase = phase  # the TG's place in its tick (Introspector.tg_now), or None
         self.procs, self.clock = procs, inst.clock
+        slots = [(n, inst.slot_of(n)) for n in names]
         self.slots = [
-            (n, inst.slot_of(n), int(procs["pid"][inst.slot_of(n)]))
-            for n in names
-            if int(procs["periodic"][inst.slot_of(n)]) and int(procs["serious"][inst.slot_of(n)])
+            (n, i, int(procs["pid"][i]))
+            for n, i in slots
+            if int(procs["periodic"][i]) and int(procs["serious"][i])
         ]
         base_ns = int(inst.clock["base_tick_ns"])
         self.after_ns = STUCK_MS * 1_000_000
         self.after_ticks = max(1, self.after_ns // base_ns)
         self.records: list[dict[str, object]] = []
+        self._seen: dict[str, int] = {}  # per process: the signal already recorded
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="stuck-watch", daemon=True)
 
@@ -822,7 +824,6 @@ class StuckWatch:
             )
 
     def _run(self) -> None:
-        self._seen: dict[str, int] = {}
         while not self._stop.wait(STUCK_POLL_S) and len(self.records) < STUCK_KEEP:
             self.look()
 

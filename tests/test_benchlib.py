@@ -228,7 +228,6 @@ def test_the_soak_reads_where_a_stuck_serious_process_is() -> None:
     clock = {"tick": 0, "base_tick_ns": 1_000_000}
     inst = SimpleNamespace(procs=procs, clock=clock, slot_of={"tg": 3, "viewer": 4}.get)
     watch = StuckWatch(inst, ["tg", "viewer"])  # type: ignore[arg-type]
-    watch._seen = {}
     procs["signal_tick"][3:5], procs["ack_tick"][3:5] = 100, 99
     procs["release_ns"][3:5] = time.monotonic_ns() - 2 * STUCK_MS * 1_000_000
     clock["tick"] = 100 + STUCK_MS - 1  # the clock stood with it: the machine stalled

@@ -253,19 +253,23 @@ class ServoWorker(Daemon):
         """Inside the cycle: wait for the feed, then claim and run slots until none is left.
         Compiled: ``kali_sv_serve`` from its stage ``SV_FEED`` (``_await_feed``; SIO did not
         feed ``tick`` in time, halted or itself late: nothing to run), then as ``serve``."""
-        a = self._serve_args
-        a.wanted = tick
+        self._serve_args.wanted = tick
         self._serve_from(SV_FEED)
-        if a.want_ticks != self.period_ticks:  # to rest, or back from it (_learn_feed)
-            self._set_period(a.want_ticks)
+        self._follow_learnt_period()
 
     def cycle_reference(self, tick: int) -> None:
         """What ``cycle`` does, with the feed awaited in Python (``_await_feed``)."""
         fed_tick = self._await_feed(tick)
         if fed_tick >= 0:
             self.serve(fed_tick)
-        if self._serve_args.want_ticks != self.period_ticks:
-            self._set_period(self._serve_args.want_ticks)
+        self._follow_learnt_period()
+
+    def _follow_learnt_period(self) -> None:
+        """Inside the cycle: to rest, or back from it, where the feed's learning chose
+        another period (``_learn_feed``'s ``want_ticks``); one field read otherwise."""
+        want = self._serve_args.want_ticks
+        if want != self.period_ticks:
+            self._set_period(want)
 
     def serve(self, fed_tick: int) -> None:
         """Inside the cycle: claim and run fed slots of SIO's tick ``fed_tick`` until none is
