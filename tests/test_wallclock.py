@@ -281,6 +281,7 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
     c._lead, c._members, c._member = -1, [], [False] * 3
     c._suspect = [0] * layout.MAX_PROCESSES
     c.base_ns, c.tolerance_ns = 1_000_000, 20_000_000
+    c._skipped, c._sig_skipped = 0, [0] * layout.MAX_PROCESSES
     return c
 
 
@@ -442,6 +443,62 @@ def test_a_self_timed_process_is_stalled_only_while_the_clock_ran(
     c._watch_next[0] = 0
     c._watch(1_079_000_000)  # 21 ms since the clock woke, and the plant never ran: stalled
     assert events == [("fault", FaultCode.DEADLINE)]
+
+
+def test_ticks_the_clock_skipped_while_the_machine_stalled_do_not_count_against_a_process(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Issue 24's soak: the host gave both vCPUs 3 ms of 20, in pieces, for 50 ms, and a TG
+    (10 ms) signalled at the clock's first tick after a skip halted for 3 misses (30 ms)
+    though the clock itself had ticked only now and then (here at 150, 160, 170 and 190:
+    at 170 it had skipped 24 of the 27 ticks).  Only the ticks the clock delivered count:
+    no halt through the stall, and a TG that then still does not answer halts once 20 ms of
+    delivered ticks have passed, the message saying how much more the stall took."""
+    from kali_daemons.wallclock import clock as wc
+
+    events: list[tuple[str, int]] = []
+    messages: list[str] = []
+    monkeypatch.setattr(wc, "pid_alive", lambda pid: True)
+    c = _tick_clock([100, 101, 102], {100, 101, 102}, events)
+    c.inst.procs["name"][0] = b"tg"
+    c._period = [10, 1, 1]
+
+    def raise_fault(code: FaultCode, process: str, message: str, tick: int) -> None:
+        events.append(("fault", int(code)))
+        messages.append(message)
+        c.inst.fault["active"] = 1
+
+    c.inst.raise_fault = raise_fault
+    c._sig[0], c._ack[0], c._due[0] = 143, 142, 150  # the TG's tick 143: not answered
+
+    def deliver(tick: int, skipped: int = 0) -> None:
+        c._skipped += skipped  # as the loop counts an overrun's skipped ticks first
+        c._ack[1:3] = c._sig[1:3]  # the 1 ms slots answer every tick
+        c._realtime_tick(tick, tick * 1_000_000)
+
+    for tick, skipped in [(150, 6), (160, 9), (170, 9), (190, 19)]:
+        deliver(tick, skipped)
+    assert ("fault", FaultCode.DEADLINE) not in events
+    assert int(c._consec[0]) == 4 and int(c._misses[0]) == 4
+    for tick in range(191, 211):  # the machine runs again; the TG still does not answer
+        deliver(tick)
+        if events[-1][0] == "fault":
+            break
+    assert events[-1] == ("fault", FaultCode.DEADLINE) and tick == 210
+    assert "missed 6 consecutive deadlines at period 10 ms (24 ms unacknowledged" in messages[0]
+    assert "43 ms more while the clock itself stalled, not counted" in messages[0]
+
+    # without overruns the rule is the old one: consecutive misses times the period
+    events.clear()
+    c.inst.fault["active"] = 0
+    c._consec[0] = 0
+    c._sig[0], c._ack[0], c._due[0] = 300, 299, 310
+    c._sig_skipped[0] = c._skipped
+    for tick in (310, 320, 330):
+        deliver(tick)
+    assert events.count(("fault", FaultCode.DEADLINE)) == 1 and int(c._consec[0]) == 3
+    last = messages[-1]
+    assert "3 consecutive deadlines at period 10 ms (30 ms unacknowledged, tolerance 20 ms)" in last
 
 
 def test_a_standing_clock_is_seen_only_through_two_waits_of_a_process_own(
