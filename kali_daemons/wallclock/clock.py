@@ -103,8 +103,8 @@ class WallClock(Daemon):
         # process is judged only on the rest (_missed, _watch).  Real time only.
         self._lost_ns = 0  # the clock's stalls, summed
         self._sig_lost = [0] * layout.MAX_PROCESSES  # _lost_ns at each slot's last signal
-        # the last wake-ups (time, _lost_ns after it), a ring: the lateness since a
-        # self-timed process's heartbeat (_lost_since), 4 tolerances and more long
+        # the last wake-ups (time, _lost_ns after it), a ring: the stalls since a self-timed
+        # process's heartbeat (_lost_since), 4 tolerances and more long
         ring = 4 * (self.tolerance_ns // self.base_ns) + 64
         self._wake_ns, self._wake_lost = [0] * ring, [0] * ring
         self._wakes = 0
@@ -306,18 +306,13 @@ class WallClock(Daemon):
                 return True
             name = decode(self.inst.procs[i]["name"])
             period_ms = self._period[k] * self.base_ns / 1e6
-            beside = (
-                f"; {lost_ns / 1e6:.1f} ms more while the clock itself ran late, not counted"
-                if lost_ns >= self.base_ns
-                else ""
-            )
             self.inst.raise_fault(
                 FaultCode.DEADLINE,
                 name,
                 f"serious process '{name}' missed {n} consecutive deadlines at period "
                 f"{period_ms:g} ms ({overdue_ns / 1e6:.1f} ms unacknowledged, tolerance "
-                f"{self.tolerance_ns / 1e6:g} ms{beside}); last acknowledged tick "
-                f"{int(self._ack[i])}, signalled tick {int(self._sig[i])}",
+                f"{self.tolerance_ns / 1e6:g} ms{self._not_counted(lost_ns)}); last "
+                f"acknowledged tick {int(self._ack[i])}, signalled tick {int(self._sig[i])}",
                 tick=tick,
             )
             self.inst.clock["mode"] = RunMode.STOPPED
@@ -332,7 +327,7 @@ class WallClock(Daemon):
         delay SIO, which runs below the clock on its CPU only once the clock sleeps); a live
         but stalled one is looked up again only a watch interval later.
 
-        Stalled counts the time since its heartbeat less the clock's lateness meanwhile, as
+        Stalled counts the time since its heartbeat less the clock's stalls meanwhile, as
         ``_missed`` does: when the whole machine stops (the host took both CPUs for 58 ms in
         a CI run, and gave them 3 ms of 20 in pieces under a tick in a soak), the clock stops
         or lags too, so a self-timed process must not halt the system for that time."""
@@ -357,16 +352,17 @@ class WallClock(Daemon):
                 f"serious process '{name}' (pid {int(p['pid'])}, self-timed every "
                 f"{int(p['period_ticks']) * self.base_ns / 1e6:g} ms) has not run for "
                 f"{(age - lost) / 1e6:.1f} ms (tolerance {self.tolerance_ns / 1e6:g} ms"
-                + (
-                    f"; {lost / 1e6:.1f} ms more while the clock itself ran late, not counted"
-                    if lost >= self.base_ns
-                    else ""
-                )
-                + "): alive but stalled",
+                f"{self._not_counted(lost)}): alive but stalled",
                 tick=tick,
             )
             self.inst.clock["mode"] = RunMode.STOPPED
             return
+
+    def _not_counted(self, lost_ns: int) -> str:
+        """A fault message's note of the clock's stalls left out of a process's time."""
+        if lost_ns < self.base_ns:
+            return ""
+        return f"; {lost_ns / 1e6:.1f} ms more while the clock itself ran late, not counted"
 
     def _count_lost(self, woke: int, late: int) -> None:
         """Account a real-time wake-up at ``woke``, ``late`` ns after its deadline (a stall
