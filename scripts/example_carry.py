@@ -39,6 +39,8 @@ with Kali() as kali:
     ]
     for m in moves:
         m.wait(timeout=30)
+    for arm in arms:  # there, not on the way (DONE: the last set-point is demanded)
+        arm.settle()
     for arm in arms:
         arm.grip(True)
     # 3. the bar as one motion system: up, across, back, down

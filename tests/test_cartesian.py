@@ -152,6 +152,55 @@ def test_arms_that_do_not_hold_the_object_where_their_grasps_say_are_refused() -
         )  # fmt: skip
 
 
+def test_arms_starting_at_rest_hold_the_object_where_they_are_measured() -> None:
+    """Issue 24: two arms gripped a bar while one sagged off its set-point; demands that kept
+    the set-points' geometry kept the two servos fighting through the bar until a wrist
+    torque halted the system.  Given where arms at rest really are, the other arm's grasp is
+    taken from that: arm 0's first set-point stays, the other's moves to the measured
+    geometry, and the path keeps it.  A measured disagreement beyond the tolerance is
+    refused as such."""
+    q_left = np.array(puma560.QN)
+    q_right = q_left.copy()
+    q_right[0] += 0.3
+    g_left = np.eye(4)
+    obj = world_pose(LEFT, q_left)
+    g_right = inverse(obj) @ world_pose(LEFT, q_right)  # the set-points agree exactly
+    sagged = q_right.copy()
+    sagged[1] -= 0.002  # 2 mrad in the shoulder: 1.1 mm at the flange
+    target = translated(obj, (0.0, 0.0, 0.05))
+
+    def plan(measured: list[np.ndarray] | None) -> CartesianMotion:
+        p = CartesianMotion(
+            ["left", "right"], [PUMA, PUMA], [LEFT, LEFT], [g_left, g_right],
+            [q_left, q_right], [None, None], [target], 0.1, 0.5, 0.0, DT, measured=measured,
+        )  # fmt: skip
+        p.check_all()
+        return p
+
+    def right_in_left(q_l: np.ndarray, q_r: np.ndarray) -> np.ndarray:
+        return inverse(world_pose(LEFT, q_l)) @ world_pose(LEFT, q_r)
+
+    kept = plan(None)  # moving: the set-points' geometry, as before
+    first = kept.sample(DT)
+    np.testing.assert_allclose(right_in_left(*first), right_in_left(q_left, q_right), atol=1e-9)
+    at_rest = plan([q_left, sagged])
+    first = at_rest.sample(DT)
+    np.testing.assert_allclose(world_pose(LEFT, first[0]), world_pose(LEFT, kept.sample(DT)[0]))
+    measured = right_in_left(q_left, sagged)
+    np.testing.assert_allclose(right_in_left(*first), measured, atol=1e-9)
+    end = at_rest.sample(at_rest.duration)
+    np.testing.assert_allclose(world_pose(LEFT, end[0]), target, atol=1e-9)
+    np.testing.assert_allclose(right_in_left(*end), measured, atol=1e-9)
+    far = q_right.copy()
+    far[1] -= 0.006  # 3.2 mm: beyond GRASP_TOL_M
+    with pytest.raises(
+        MotionError, match=r"as measured at rest, their object poses differ by 3\.2 mm"
+    ):
+        plan([q_left, far])
+    with pytest.raises(MotionError, match=r"robot 'right' \(puma560, 6 joints\) is measured at 5"):
+        plan([q_left, sagged[:5]])
+
+
 def test_check_refuses_with_segment_arm_and_reason() -> None:
     q0 = np.array(puma560.QN)
     start = world_pose(LEFT, q0)

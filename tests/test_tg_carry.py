@@ -11,8 +11,10 @@ import pytest
 
 from kali_daemons import layout, model
 from kali_daemons.client import Kali
+from kali_daemons.client.motion import Robot
 from kali_daemons.layout import RequestState
 from kali_daemons.robots.puma560 import kinematics
+from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_tg_cartesian import calibrated
 
@@ -101,3 +103,88 @@ def test_two_arms_carry_the_bar_with_a_bounded_internal_force(
         assert worst < INTERNAL_FORCE_MAX_N[ff], f"internal force {worst:.1f} N while carrying"
         assert k.inst.fault_text() is None
         del truths, world
+
+
+def test_arms_settled_and_gripped_on_a_late_feed_forward_row_carry_the_bar_unsqueezed(
+    kali: Callable[..., str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 24's soak halted on a wrist torque (Ty −10 N·m) carrying the bar: the dynamics
+    process ran 50 ms late as the descent onto the bar ended, one arm sagged 4 mrad on the
+    descent's feed-forward row, the program gripped at DONE, and the two servos then fought
+    through the bar: its demands kept the set-points' geometry, not the one the welds froze.
+    Here the dynamics process runs every 50 ms (its rows late at every move's end, as then):
+    gripped at DONE, the arms pressed the bar 150 N into the wrists (FORCE) before the carry
+    had started, whatever its grasps; settled first (``Robot.settle``) and with the carry's
+    grasps taken from where the arms are, the squeeze stays as with the feed-forward on time
+    (settled, but with the set-points' geometry, it reached 77 N)."""
+    name = kali(
+        lockstep=True,
+        edits={
+            r"^(  - \{name: .*)\}$": r"\1, ff: full}",
+            r"(dynamics: .*period_ms: )10,": r"\g<1>50,",
+            r"stale_ms: 50 ": "stale_ms: 120 ",
+        },
+    )
+    with calibrated(name, ("left", "right")) as k:
+        world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
+        rest = model.bar_rest_pose()
+        grasps = [model.grasp_in_bar(r) for r in k.inst.config.robots]
+        arms = [k.robot(n) for n in ("left", "right")]
+        handles = []
+        for arm, g in zip(arms, grasps, strict=True):
+            above = rest @ g
+            above[2, 3] += 0.05
+            q = kinematics.ikine(np.linalg.inv(arm.base) @ above, "run", q_ref=arm.read_joints())
+            handles.append(arm.move_joints(q, speed=0.5, wait=False))
+        for h in handles:
+            h.wait(timeout=30)
+        handles = [
+            arm.move_line(rest @ g, speed=0.05, wait=False)
+            for arm, g in zip(arms, grasps, strict=True)
+        ]
+        for h in handles:
+            h.wait(timeout=30)
+
+        def off(arm: Robot) -> float:  # the flange's distance from its demand, m
+            demand = k.servo.level.joints["demand"][arm.span]
+            there = k.flange_pose(demand, arm.index)
+            return float(np.linalg.norm(arm.read_t6()[:3, 3] - there[:3, 3]))
+
+        at_done = max(off(arm) for arm in arms)
+        assert at_done > 2e-4, f"{at_done * 1000:.2f} mm off at DONE: the feed-forward was on time"
+        for arm in arms:
+            arm.settle()
+            assert off(arm) <= 2e-4
+        for arm in arms:
+            arm.grip(True)
+        bar = k.motion_system(["left", "right"], grasps)
+        here = bar.read_pose()
+        up = here.copy()
+        up[2, 3] += LIFT_M
+        over = up.copy()
+        over[1, 3] += 0.06
+        h = bar.move_path([up, over, up, here], speed=0.08, transition_s=0.2, wait=False)
+        worst = 0.0
+        for _ in range(1000):
+            step_kali_clock(k.inst, 10)
+            worst = max(worst, abs(float(world["internal_force"][0])))
+            if h.done:
+                break
+        assert h.state == RequestState.DONE, h.message
+        with capsys.disabled():
+            print(
+                f"\ncarrying gripped on a late feed-forward row: internal force up to {worst:.1f} N"
+            )
+        assert worst < INTERNAL_FORCE_MAX_N["full"], f"internal force {worst:.1f} N while carrying"
+        assert k.inst.fault_text() is None
+        for arm in arms:
+            arm.grip(False)
+        with pytest.raises(
+            MotionError,
+            match=r"settle: robot 'left': its flange is .* mm and .* "
+            r"mrad from its demand after 0.1 s \(within 0 mm and 1 mrad for 50 ms",
+        ):
+            arms[0].settle(within_m=0.0, timeout=0.1)
+        with pytest.raises(MotionError, match=r"settle: robot 'left': hold_s -1, must be"):
+            arms[0].settle(hold_s=-1)
+        del world

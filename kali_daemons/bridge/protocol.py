@@ -112,6 +112,7 @@ METHODS: dict[str, frozenset[str]] = {
             "read_t6",
             "read_pose",
             "grip",
+            "settle",
             "read_wrench",
             "tare",
             "joints_at",

@@ -71,6 +71,10 @@ _ENDED = frozenset(int(s) for s in TERMINAL_STATES if s != RequestState.LOST)
 # a tracking motion's limits unless the program gives its own: m/s, rad/s, m/s², rad/s²
 TRACK_LIMITS = (0.25, 1.0, 1.0, 4.0)
 LOCKSTEP_STEP = 10  # ticks a waiting program steps a lockstep instance's clock at a time
+# Robot.settle: the flange within this of where its demand puts it, this long without a break
+SETTLE_M = 2e-4
+SETTLE_RAD = 1e-3
+SETTLE_HOLD_S = 0.05
 DEFAULT_INSTANCE = "default"
 INSTANCE_ENV = "KALI_INSTANCE"  # set by `kalictl -i NAME run PROGRAM`
 
@@ -441,6 +445,56 @@ class Robot:
     def read_pose(self) -> np.ndarray:
         """The tool's pose in the world from the measured joints: B · T6 · Tool."""
         return self.base @ self.read_t6() @ self.tool
+
+    def settle(
+        self,
+        within_m: float = SETTLE_M,
+        within_rad: float = SETTLE_RAD,
+        hold_s: float = SETTLE_HOLD_S,
+        timeout: float = 5.0,
+    ) -> None:
+        """Wait until the arm is where it is told to be: its flange (from the measured joints)
+        within ``within_m`` and ``within_rad`` of the flange at SIO's demand, without a break,
+        for ``hold_s`` of the clock's time (a *fine point*, as VAL's FINE or RAPID's ``fine``).
+
+        A motion is DONE once its last set-point is demanded; the arm closes its servo error
+        after that, for some ms, longer while a feed-forward row is late.  Wait for it before
+        what needs the arm there: a gripper closed on the way welds the object where the arm
+        happens to be, and the arms' servos then fight through it until their next motion
+        (issue 24: a soak halted on a wrist torque so).  MotionError, naming the offset, if
+        not settled within ``timeout`` s of the clock's time; MotionFailedError at a halt."""
+        what = f"settle: robot '{self.name}'"
+        limit = _timeout_arg(what, timeout)
+        for name, v in (("within_m", within_m), ("within_rad", within_rad), ("hold_s", hold_s)):
+            if isinstance(v, bool) or not isinstance(v, int | float) or not v >= 0:
+                raise MotionError(f"{what}: {name} {v!r:.60}, must be a number >= 0")
+        inst = self.kali.inst
+        tick_s = inst.config.clock.base_tick_ms / 1000.0
+        start = int(inst.clock["tick"])
+        since, off_m, off_rad = start, math.inf, math.inf
+        while True:
+            if inst.fault["active"]:
+                raise MotionFailedError(f"{what}: the system halted: {inst.fault_text()}")
+            if inst.shutting_down:
+                raise MotionFailedError(f"{what}: instance '{inst.name}' was stopped")
+            now = int(inst.clock["tick"])
+            demand = self.kali.servo.level.joints["demand"][self.span].copy()
+            there = self.kali.flange_pose(demand, self.index)
+            here = self.read_t6()
+            off_m = float(np.linalg.norm(here[:3, 3] - there[:3, 3]))
+            cos = (float(np.trace(there[:3, :3].T @ here[:3, :3])) - 1.0) / 2.0
+            off_rad = math.acos(min(1.0, max(-1.0, cos)))
+            if off_m > within_m or off_rad > within_rad:
+                since = now
+            elif (now - since) * tick_s >= hold_s:
+                return
+            if limit is not None and (now - start) * tick_s > limit:
+                raise MotionError(
+                    f"{what}: its flange is {off_m * 1000:.2f} mm and {off_rad * 1000:.2f} "
+                    f"mrad from its demand after {limit:g} s (within {within_m * 1000:g} mm "
+                    f"and {within_rad * 1000:g} mrad for {hold_s * 1000:g} ms asked)"
+                )
+            self.kali.pause()
 
     def grip(self, close: bool = True) -> None:
         """Close (or open) the gripper: its output bit on the robot's I/O board.  The plant

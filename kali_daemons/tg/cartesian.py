@@ -7,8 +7,8 @@ of the object's control frame in the world frame (a ``profiles.CartesianPath``);
 its base at B_k in the world and its flange held at G_k in the object's frame (the *grasp*,
 tool transforms folded in by the client: a lone arm with tool Tool has G = Tool⁻¹, so O is
 the tool's pose; the arms must agree on O at the start within ``GRASP_TOL_M`` /
-``GRASP_TOL_RAD``, and each arm's grasp is then taken as it really holds the object, so no
-arm jumps when the motion starts), has
+``GRASP_TOL_RAD``, and each arm's grasp is then taken as it really holds the object: from its
+set-points while the arms move, from their measured joints when they start at rest), has
 
     T6_k(τ) = B_k⁻¹ · O(τ) · G_k
 
@@ -114,24 +114,40 @@ def held_object(
     bases: Sequence[np.ndarray],
     grasps: list[np.ndarray],
     starts: Sequence[np.ndarray],
+    measured: Sequence[np.ndarray] | None = None,
 ) -> np.ndarray:
     """The object's pose in the world as the arms of one motion system hold it at joints
     ``starts`` (arm 0's view: B_0 · T6 · G_0⁻¹); MotionError if another arm's view differs by
     more than ``GRASP_TOL_M`` / ``GRASP_TOL_RAD``.  ``grasps[k]`` of the other arms is then
-    replaced by the grasp each really has, so no arm jumps when the motion starts, whatever
-    the (tolerated) disagreement: a squeeze it would cause stays a squeeze."""
+    replaced by the grasp each really has, so a motion keeps the arms as they hold the object,
+    whatever the (tolerated) disagreement.
+
+    ``measured`` (each arm's measured joints; None while the arms move) is where arms at rest
+    really are: the disagreement is judged and the grasps taken from it, not from the
+    set-points.  Arms that hold one rigid object are where the object lets them be, and their
+    set-points are off that by each arm's servo error; demands that kept the set-points'
+    geometry would keep the arms' servos fighting through the object, their integrators
+    winding it into a squeeze for as long as the motion lasts (an issue 24 soak halted on it,
+    an arm sagging 4 mrad on a late feed-forward row when the grippers closed; a lockstep
+    carry gripped by settled arms on late rows squeezed the bar with 77 N so, 19 N with the
+    grasps measured).  Taken from where the arms are, the other arms' first set-points move
+    by that difference, towards the geometry the object holds them in, and arm 0's stays
+    where it is."""
+    views = starts if measured is None else measured
     start = bases[0] @ kins[0].fkine(starts[0]) @ inverse(grasps[0])
+    held = bases[0] @ kins[0].fkine(views[0]) @ inverse(grasps[0])
     for k in range(1, len(names)):
-        other = bases[k] @ kins[k].fkine(starts[k]) @ inverse(grasps[k])
-        gap = float(np.linalg.norm(other[:3, 3] - start[:3, 3]))
-        turn = _rotation_angle(start[:3, :3].T @ other[:3, :3])
+        other = bases[k] @ kins[k].fkine(views[k]) @ inverse(grasps[k])
+        gap = float(np.linalg.norm(other[:3, 3] - held[:3, 3]))
+        turn = _rotation_angle(held[:3, :3].T @ other[:3, :3])
         if gap > GRASP_TOL_M or turn > GRASP_TOL_RAD:
+            how = "" if measured is None else "as measured at rest, "
             raise MotionError(
                 f"robots '{names[0]}' and '{names[k]}' do not hold the object where their "
-                f"grasps say: their object poses differ by {gap * 1000:.1f} mm and "
+                f"grasps say: {how}their object poses differ by {gap * 1000:.1f} mm and "
                 f"{_deg(turn)} (allowed {GRASP_TOL_M * 1000:g} mm, {_deg(GRASP_TOL_RAD)})"
             )
-        grasps[k] = inverse(start) @ bases[k] @ kins[k].fkine(starts[k])
+        grasps[k] = inverse(held) @ bases[k] @ kins[k].fkine(views[k])
     return start
 
 
@@ -139,9 +155,10 @@ class Arms:
     """The arms of one motion system as a Cartesian motion (a path, ``CartesianMotion``, or a
     tracking one, ``tracking.TrackingMotion``) drives them, checked (construction):
     ``kin``, ``qd_max``, ``bases`` (B_k), ``to_base`` (B_k⁻¹), ``grasps`` (G_k, rigid),
-    ``starts`` (each arm's joints, its type's count) and ``configs`` (each arm's own, which a
-    request naming another is refused for: ``keeps`` says why, with ``{want}``).  MotionError
-    for lists that do not match or a start of the wrong length."""
+    ``starts`` (each arm's joints, its type's count), ``measured`` (where arms starting at
+    rest really are, as many; None: moving) and ``configs`` (each arm's own, which a request
+    naming another is refused for: ``keeps`` says why, with ``{want}``).  MotionError for
+    lists that do not match or a start of the wrong length."""
 
     def __init__(
         self,
@@ -153,6 +170,7 @@ class Arms:
         q_start: np.ndarray | Sequence[np.ndarray],
         configs: Sequence[object | None],
         keeps: str,
+        measured: Sequence[np.ndarray] | None = None,
     ) -> None:
         n = len(names)
         if not len(grasps) == len(bases) == len(configs) == len(types) == n:
@@ -162,6 +180,8 @@ class Arms:
             )
         if len(q_start) != n:
             raise MotionError(f"{what}: {n} arms, but {len(q_start)} start rows")
+        if measured is not None and len(measured) != n:
+            raise MotionError(f"{what}: {n} arms, but {len(measured)} measured rows")
         self.kin = [t.kinematics for t in types]
         self.qd_max = [tuple(float(v) for v in t.qd_max) for t in types]
         self.bases = [np.asarray(b, dtype=np.float64) for b in bases]
@@ -170,12 +190,18 @@ class Arms:
             rigid_pose(what, f"grasp of robot '{names[k]}'", g) for k, g in enumerate(grasps)
         ]
         self.starts = [np.array(q, dtype=np.float64).reshape(-1) for q in q_start]
-        for k, (q, t) in enumerate(zip(self.starts, types, strict=True)):
-            if q.shape != (t.n_joints,):
-                raise MotionError(
-                    f"{what}: robot '{names[k]}' ({t.name}, {t.n_joints} joints) starts at "
-                    f"{q.size} joint angles"
-                )
+        self.measured = (
+            None
+            if measured is None
+            else [np.array(q, dtype=np.float64).reshape(-1) for q in measured]
+        )
+        for rows, at in ((self.starts, "starts"), (self.measured or [], "is measured")):
+            for k, (q, t) in enumerate(zip(rows, types[: len(rows)], strict=True)):
+                if q.shape != (t.n_joints,):
+                    raise MotionError(
+                        f"{what}: robot '{names[k]}' ({t.name}, {t.n_joints} joints) {at} "
+                        f"at {q.size} joint angles"
+                    )
         self.configs: list[object] = []
         for k in range(n):
             have = self.kin[k].config_of(self.starts[k])
@@ -193,11 +219,12 @@ class CartesianMotion:
 
     ``names`` are the arms' names (messages), ``types`` their robot types, ``bases`` their B_k and
     ``grasps`` their G_k, ``q_start`` where each arm starts (one row per arm, as many angles as its
-    type has joints: a list, or a 2-D array when the arms have the same count), ``configs`` the
-    configuration each must keep (None: the one it starts in), ``targets`` the object's poses in
-    the world, ``dt`` the TG period (s).  Raises ``MotionError`` when the request cannot even be
-    planned: a start of the wrong length, arms that do not agree on where the object is, a
-    configuration other than the arm's, a bad path.
+    type has joints: a list, or a 2-D array when the arms have the same count), ``measured``
+    where arms starting at rest really are (their grasps are taken from it: ``held_object``;
+    None: from ``q_start``), ``configs`` the configuration each must keep (None: the one it
+    starts in), ``targets`` the object's poses in the world, ``dt`` the TG period (s).  Raises
+    ``MotionError`` when the request cannot even be planned: a start of the wrong length, arms
+    that do not agree on where the object is, a configuration other than the arm's, a bad path.
     """
 
     def __init__(
@@ -215,6 +242,7 @@ class CartesianMotion:
         dt: float,
         durations: Sequence[float] | None = None,
         arcs: Sequence[Sequence[float] | None] | None = None,
+        measured: Sequence[np.ndarray] | None = None,
     ) -> None:
         self.names = list(names)
         n = len(self.names)
@@ -223,6 +251,7 @@ class CartesianMotion:
         arms = Arms(
             "cartesian motion", names, types, bases, grasps, q_start, configs,
             "a straight line cannot change configuration (move_joints into '{want}' first)",
+            measured,
         )  # fmt: skip
         self._kin, self._qd_max, self.configs = arms.kin, arms.qd_max, arms.configs
         self._bases, self._to_base, self._grasps = arms.bases, arms.to_base, arms.grasps
@@ -233,7 +262,7 @@ class CartesianMotion:
         self._tmp = np.empty((4, 4))
         self._t6 = np.empty((4, 4))
         self._q = [np.empty(t.n_joints) for t in types]  # per arm: the check's solution
-        start = held_object(self.names, self._kin, self._bases, self._grasps, starts)
+        start = held_object(self.names, self._kin, self._bases, self._grasps, starts, arms.measured)
         self.path = CartesianPath(
             start,
             list(targets),

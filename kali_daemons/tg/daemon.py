@@ -255,11 +255,13 @@ def plan_path(
     bases: list[np.ndarray],
     start: Sequence[np.ndarray],
     dt: float,
+    measured: Sequence[np.ndarray] | None = None,
 ) -> CartesianMotion:
     """The Cartesian motion a checked PATH request asks for, its arms starting at ``start``
-    (one row per robot, its type's joint count long), sampled every ``dt`` s; MotionError if it
-    cannot be planned or would outlast ``MAX_MOTION_S`` (the whole-path check is
-    ``CartesianMotion.check_some``, run afterwards)."""
+    (one row per robot, its type's joint count long; ``measured``: where they are, when they
+    start at rest), sampled every ``dt`` s; MotionError if it cannot be planned or would
+    outlast ``MAX_MOTION_S`` (the whole-path check is ``CartesianMotion.check_some``, run
+    afterwards)."""
     n = len(robots)
     return CartesianMotion(
         [names[k] for k in robots],
@@ -278,6 +280,7 @@ def plan_path(
             req["arc_via"][i].copy() if int(req["arcs"][i]) else None
             for i in range(int(req["n_segments"]))
         ],
+        measured,
     )
 
 
@@ -385,6 +388,7 @@ class TrajectoryGenerator(Daemon):
         setpoints = self.tg_robots["setpoint"]
         self._setpoint_of = [setpoints[k, :n] for k, n in enumerate(self.joint_map.counts)]
         self._demand_of: list[np.ndarray] = []  # SIO's demands per robot, once attached
+        self._q_of: list[np.ndarray] = []  # SIO's measured joints per robot, once attached
         self._progress = self.status["progress"]
         self._tick = self.tg_robots["tick"]
         ratio = Fraction(ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms))
@@ -585,9 +589,8 @@ class TrajectoryGenerator(Daemon):
             return None
         joints = arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, self.joint_map.total)
         self._demand_of = self.joint_map.split(joints["demand"])
-        self.functions.sensors = Sensors(
-            self.names, self.joint_map.split(joints["q"]), list(self.ft["world"])
-        )
+        self._q_of = self.joint_map.split(joints["q"])
+        self.functions.sensors = Sensors(self.names, self._q_of, list(self.ft["world"]))
         return arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
 
     def _halt_all(self) -> None:
@@ -907,7 +910,7 @@ class TrajectoryGenerator(Daemon):
             start = [self._start_point(k) for k in robots]
             plan = plan_tracking(
                 req, robots, self.names, self.types, self.bases, start, self.frames, self.dt,
-                self._now, self.functions,
+                self._now, self.functions, self._measured_at_rest(robots),
             )  # fmt: skip
         except Exception as exc:  # a request never halts the cell
             self._refuse(seq, req, refusal(exc))
@@ -961,7 +964,10 @@ class TrajectoryGenerator(Daemon):
                 self._require_calibrated(k)
             start = [self._start_point(k) for k in robots]
             self._work += PLAN_SAMPLES
-            plan = plan_path(req, robots, self.names, self.types, self.bases, start, self.dt)
+            plan = plan_path(
+                req, robots, self.names, self.types, self.bases, start, self.dt,
+                self._measured_at_rest(robots),
+            )  # fmt: skip
         except Exception as exc:  # a request never halts the cell
             self._refuse(seq, req, refusal(exc))
             return
@@ -1000,6 +1006,19 @@ class TrajectoryGenerator(Daemon):
         if self.fifos[k].pending():
             return self._setpoint_of[k].copy()
         return self._demand_of[k].copy()
+
+    def _measured_at_rest(self, robots: list[int]) -> list[np.ndarray] | None:
+        """Where the arms of a motion system starting at rest are (SIO's measured joints): a
+        held object's grasps are taken from where the arms really hold it
+        (``cartesian.held_object``).  None if one still has set-points to run (a moving arm's
+        measured joints lag them) or runs a robot-level servo: joint servos close their
+        errors, so arms on them that stand off their set-points are held there by the
+        object, but an impedance servo's arm stands off by its springs' deflection on purpose,
+        its squeeze regulated from the wrist sensors (``set_internal_force``)."""
+        for k in robots:
+            if self.fifos[k].pending() or int(self.robots["arm_algo"][k]) != layout.ARM_NONE:
+                return None
+        return [self._q_of[k].copy() for k in robots]
 
     def _stop(self, robots: list[int], abort: bool) -> None:
         for m in list(self.motions):

@@ -360,8 +360,8 @@ class Tracking(ABC):
 class TrackingMotion(Tracking):
     """A TRACK request of one motion system: its control frame O follows the loop's product.
 
-    ``names``, ``types``, ``bases``, ``grasps``, ``configs`` and ``q_start`` as for
-    ``cartesian.CartesianMotion``; ``loop`` the factors as (FrameKind, index or 4×4 pose);
+    ``names``, ``types``, ``bases``, ``grasps``, ``configs``, ``q_start`` and ``measured`` as
+    for ``cartesian.CartesianMotion``; ``loop`` the factors as (FrameKind, index or 4×4 pose);
     ``frames`` the shared records; limits in m/s, rad/s, m/s², rad/s²."""
 
     def __init__(
@@ -378,13 +378,14 @@ class TrackingMotion(Tracking):
         dt: float,
         track_s: float = 0.0,
         functions: FunctionSlots | None = None,
+        measured: Sequence[np.ndarray] | None = None,
     ) -> None:
         super().__init__(dt, track_s)
         self.names = list(names)
         self.n = len(self.names)
         arms = Arms(
             "tracking", names, types, bases, grasps, q_start, configs,
-            "tracking cannot change configuration",
+            "tracking cannot change configuration", measured,
         )  # fmt: skip
         self._kin, self._qd_max, self.configs = arms.kin, arms.qd_max, arms.configs
         self._bases, self._to_base, self._grasps = arms.bases, arms.to_base, arms.grasps
@@ -418,7 +419,9 @@ class TrackingMotion(Tracking):
         self._rot = np.empty((3, 3))
         self._t6 = np.empty((4, 4))
         self._tmp = np.empty((4, 4))
-        self.cmd = held_object(self.names, self._kin, self._bases, self._grasps, starts)
+        self.cmd = held_object(
+            self.names, self._kin, self._bases, self._grasps, starts, arms.measured
+        )
         self._v = [0.0, 0.0, 0.0]  # commanded linear velocity, world, m/s
         self._w = [0.0, 0.0, 0.0]  # commanded angular velocity, world, rad/s
         self.q_ref = [q.copy() for q in starts]  # each arm's last set-point
@@ -694,9 +697,11 @@ def plan_tracking(
     dt: float,
     now_tick: int,
     functions: FunctionSlots | None = None,
+    measured: Sequence[np.ndarray] | None = None,
 ) -> Tracking:
-    """The tracking motion a checked TRACK or TRACK_JOINTS request asks for, from ``start``,
-    its loop checked to close now; MotionError with the reason."""
+    """The tracking motion a checked TRACK or TRACK_JOINTS request asks for, from ``start``
+    (``measured``: where the arms are, when they start at rest), its loop checked to close now;
+    MotionError with the reason."""
     if int(req["kind"]) == layout.MotionKind.TRACK_JOINTS:
         k = robots[0]
         motion: Tracking = JointTracking(
@@ -728,6 +733,7 @@ def plan_tracking(
             dt,
             float(req["track_s"]),
             functions,
+            measured,
         )
     motion.start(now_tick)
     return motion
