@@ -362,7 +362,8 @@ class InterpolatingFifo:
     drops the fraction of a servo tick (< 1) a fractional ratio had accumulated.
 
     Blocks: ``key`` (``layout.FIFO_HEADER``), ``key + ".ring"`` (float64 ``(capacity, width)``),
-    ``key + ".ratios"`` (u64 ``capacity``: each set-point's ratio word, see ``_pack``) and
+    ``key + ".ratios"`` (u64 ``capacity``: each set-point's ratio word, see ``_pack``),
+    ``key + ".rests"`` (u8 ``capacity``: 1 where a motion stops, its last set-point) and
     ``key + ".state"`` (float64 ``(3, width)``: current output, segment start A, target B).
     All interpolation state is in the arena, so a restarted consumer resumes where it was.
     """
@@ -405,6 +406,7 @@ class InterpolatingFifo:
         ring = arena.record(key + ".ring", np.dtype("<f8"), cap * width).reshape(cap, width)
         self._rows = [ring[i] for i in range(cap)]
         self._stamps = arena.record(key + ".ratios", np.dtype("<u8"), cap)
+        self._rests = arena.record(key + ".rests", np.dtype("u1"), cap)
         state = arena.record(key + ".state", np.dtype("<f8"), 3 * width).reshape(3, width)
         self._cur, self._start, self._target = state[0], state[1], state[2]
         # Consumer-only header fields as 0-d views, and private scratch (never shared).
@@ -467,9 +469,10 @@ class InterpolatingFifo:
 
     # ---------------------------------------------------------------- the producer (TG)
 
-    def push(self, setpoint: np.ndarray) -> None:
-        """Append one set-point of ``width`` values, stamped with the ratio in force;
-        ChannelError when full or not finite.
+    def push(self, setpoint: np.ndarray, rest: bool = False) -> None:
+        """Append one set-point of ``width`` values, stamped with the ratio in force and
+        ``rest`` (its motion stops there: the last one; ``rests_at``); ChannelError when full
+        or not finite.
 
         Single producer.  Safe in a cycle when given a numeric ndarray (a list is converted).
         """
@@ -484,7 +487,8 @@ class InterpolatingFifo:
         slot = tail % self._capacity
         np.copyto(self._rows[slot], x)
         self._stamps[slot] = atomic.load64(self._push_addr)
-        atomic.store64(self._tail_addr, tail + 1)  # publish after the row and stamp
+        self._rests[slot] = rest
+        atomic.store64(self._tail_addr, tail + 1)  # publish after the row and stamps
 
     def set_ratio(self, ratio: Fraction | tuple[int, int] | int) -> None:
         """Interpolate the set-points pushed from now on with ``ratio`` (servo rate / TG
@@ -680,6 +684,11 @@ class InterpolatingFifo:
         the servo ticks of the segment that ends at it; meaningful while it is in the ring."""
         word = int(self._stamps[index % self._capacity])
         return (word & 0xFFFFFFFF) / (word >> 32) if word >> 32 else 1.0
+
+    def rests_at(self, index: int) -> bool:
+        """True if set-point ``index`` was pushed as the last of its motion (the demand stops
+        there); meaningful while it is in the ring."""
+        return bool(self._rests[index % self._capacity])
 
     def held(self, out: np.ndarray) -> None:
         """Copy the segment's target B, where the output ends or holds, into ``out``."""

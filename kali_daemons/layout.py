@@ -1297,6 +1297,8 @@ RECORDS: tuple[Record, ...] = (
         "SIO, dynamics",
     ),
     Record(KEY_FIFO + ".ratios", np.dtype("<u8"), FIFO_CAPACITY, "TG", "SIO, dynamics"),
+    # each set-point's 1 if its motion stops there (its last), for the dynamics process
+    Record(KEY_FIFO + ".rests", np.dtype("u1"), FIFO_CAPACITY, "TG", "dynamics"),
     Record(KEY_FIFO + ".state", np.dtype("<f8"), lambda c, k: 3 * c.joints[k], "SIO", "SIO"),
     # motion requests (channels.RequestQueue) and the TG's records
     Record(KEY_MOTION_QUEUE, QUEUE_HEADER, None, "clients (tail), TG (head)", "clients, TG"),

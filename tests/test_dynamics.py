@@ -107,6 +107,47 @@ def test_a_mixed_cell_gets_rows_as_wide_as_each_arm(arena: Arena) -> None:
     del ff
 
 
+def test_a_motions_last_set_point_gets_its_resting_row_as_soon_as_it_is_pushed(
+    arena: Arena,
+) -> None:
+    """Issue 24: a set-point's full row needs its successor (central differences), and a
+    motion's last one got its row only once SIO had drained the FIFO and this process ran
+    again: until then SIO held the arm on the row before, a moving one (Coulomb friction,
+    deceleration), 53 ms in a soak, an arm sagging 4 mrad as the grippers closed.  The TG now
+    marks the last set-point (``push(q, rest=True)``): its row, the arm at rest there, is
+    written with the others; an unmarked newest set-point still waits for its successor."""
+    cfg = make_config("rests", None)
+    arena.record(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, 2)  # as SIO lays it out
+    dyn = Dynamics(cfg.instance, "dynamics")
+    dyn.load(cfg)
+    dyn.attach(cfg, arena)
+    dyn._algo = np.zeros(12, dtype=np.uint32)
+    dyn._enabled = np.ones(12, dtype=np.uint8)
+    dyn._kv_views = [[np.array([2.0])] for _ in range(12)]
+    ff = dyn.ff
+    rtype = cfg.robots[0].type
+    points = [rtype.q_home + 0.01 * i for i in range(3)]
+    for k in (0, 1):
+        for i, q in enumerate(points):
+            dyn.fifos[k].push(q, rest=k == 0 and i == 2)
+        dyn._servo_gains(k)
+        dyn._robot(k, FfMode.FULL)
+    assert [bool(dyn.fifos[0].rests_at(i)) for i in range(3)] == [False, False, True]
+    assert [int(ff["key"][0, i + 1]) for i in range(3)] == [1, 2, 3]
+    assert [int(ff["key"][1, i + 1]) for i in range(2)] == [1, 2]
+    assert int(ff["key"][1, 3]) != 3, "unmarked: its row waits for its successor"
+    n = rtype.n_joints
+    np.testing.assert_array_equal(ff["qd"][0, 3, :n], 0.0)
+    np.testing.assert_array_equal(ff["qdd"][0, 3, :n], 0.0)
+    assert np.abs(ff["qd"][0, 2, :n]).min() > 0.5  # the row before moves (1 rad/s here)
+    r = cfg.robots[0]
+    own = InverseDynamics(rtype, (r.ft.tool_mass_kg, r.ft.tool_com_m))
+    zero = np.zeros(n)
+    rest = own.torque(FfMode.FULL, points[2], zero, zero, np.full(n, 2.0))
+    np.testing.assert_allclose(ff["tau"][0, 3, :n], rest, atol=1e-12)
+    del ff
+
+
 def _run(inst: Instance, client: ServoClient, traj: np.ndarray) -> np.ndarray:
     """Push ``traj`` (TG-rate set-points) into left's FIFO as the commanded path, step the
     clock through it and return the tracking error (demand − q) every SAMPLE_TICKS."""

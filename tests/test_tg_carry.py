@@ -143,6 +143,10 @@ def test_arms_settled_and_gripped_on_a_late_feed_forward_row_carry_the_bar_unsqu
             there = k.flange_pose(demand, arm.index)
             return float(np.linalg.norm(arm.read_t6()[:3, 3] - there[:3, 3]))
 
+        for arm in arms:  # the TG marked each descent's last set-point: it stops there
+            fifo = k.servo.level.fifo(arm.index)
+            tail = fifo.indices()[1]
+            assert fifo.rests_at(tail - 1) and not fifo.rests_at(tail - 2)
         at_done = max(off(arm) for arm in arms)
         assert at_done > 2e-4, f"{at_done * 1000:.2f} mm off at DONE: the feed-forward was on time"
         for arm in arms:

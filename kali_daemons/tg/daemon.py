@@ -1065,6 +1065,9 @@ class TrajectoryGenerator(Daemon):
             self._blend(m, b)
             return
         self._next_tau(m)
+        # the motion's last set-point, where it stops: marked, so the dynamics process
+        # writes its resting row at once, not once SIO has drained the FIFO (issue 24)
+        last = m.tau >= p.duration or (m.stop is not None and m.stop.sigma(m.stop_t) == 0.0)
         if isinstance(p, CartesianMotion):
             try:
                 rows = p.sample(m.tau)
@@ -1072,18 +1075,18 @@ class TrajectoryGenerator(Daemon):
                 self._kinematics_halt(m, p, str(exc))
                 return
             for i, k in enumerate(m.robots):
-                self.fifos[k].push(rows[i])
+                self.fifos[k].push(rows[i], last)
                 np.copyto(self._setpoint_of[k], rows[i])
         else:
             p.sample(m.tau, m.out)
             for i, k in enumerate(m.robots):
                 q = m.rows[i]
-                self.fifos[k].push(q)
+                self.fifos[k].push(q, last)
                 np.copyto(self._setpoint_of[k], q)
         self._progress[m.seq % layout.STATUS_RING] = m.tau / p.duration
-        if m.stop is not None and (m.stop.sigma(m.stop_t) == 0.0 or m.tau >= p.duration):
+        if last and m.stop is not None:
             m.ending, m.ending_message = RequestState.STOPPED, "stopped on the path"
-        elif m.stop is None and m.tau >= p.duration:
+        elif last:
             m.ending = RequestState.DONE
 
     def _next_tau(self, m: Motion) -> None:
