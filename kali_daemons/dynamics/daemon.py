@@ -207,15 +207,12 @@ class Dynamics(Daemon):
             if not np.isfinite(a.q_i).all():
                 self.next_row[k] = i + 1
                 continue  # garbage SIO refuses as well: no row
-            if mode == FfMode.GRAVITY:
-                a.qd.fill(0.0)
-                a.qdd.fill(0.0)
-            elif (i + 1 >= tail or not fifo.read(i + 1, a.q_next)) and fifo.rests_at(i):
-                a.qd.fill(0.0)  # a motion's last: the arm rests there (SIO's demand reaches
-                a.qdd.fill(0.0)  # it over the segment, from the row before)
-            else:
-                if i + 1 >= tail or not fifo.read(i + 1, a.q_next):
+            if mode == FfMode.GRAVITY or not (i + 1 < tail and fifo.read(i + 1, a.q_next)):
+                if mode != FfMode.GRAVITY and not fifo.rests_at(i):
                     break  # its successor is not pushed yet: next cycle
+                a.qd.fill(0.0)  # gravity only, or a motion's last: the arm rests there (SIO's
+                a.qdd.fill(0.0)  # demand reaches it over the segment, from the row before)
+            else:
                 self._previous(k, i)
                 t_in = fifo.ratio_of(i) * self.servo_period_s  # segment ending at i
                 t_out = fifo.ratio_of(i + 1) * self.servo_period_s  # segment leaving i
