@@ -121,9 +121,10 @@ def test_a_motions_last_set_point_gets_its_resting_row_as_soon_as_it_is_pushed(
     dyn = Dynamics(cfg.instance, "dynamics")
     dyn.load(cfg)
     dyn.attach(cfg, arena)
-    dyn._algo = np.zeros(12, dtype=np.uint32)
-    dyn._enabled = np.ones(12, dtype=np.uint8)
-    dyn._kv_views = [[np.array([2.0])] for _ in range(12)]
+    joints = cfg.joints.total
+    dyn._algo = np.zeros(joints, dtype=np.uint32)
+    dyn._enabled = np.ones(joints, dtype=np.uint8)
+    dyn._kv_views = [[np.array([2.0])] for _ in range(joints)]
     ff = dyn.ff
     rtype = cfg.robots[0].type
     points = [rtype.q_home + 0.01 * i for i in range(3)]

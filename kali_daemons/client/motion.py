@@ -55,7 +55,13 @@ from ..robots import Kinematics, RobotType
 from ..servolevel import ServoClient
 from ..shadow import Trial
 from ..spinlock import pid_alive
-from ..tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
+from ..tg.cartesian import (
+    CartesianMotion,
+    base_transform,
+    encode_config,
+    inverse,
+    rotation_angle,
+)
 from ..tg.functions import FunctionRegistry
 from ..tg.functions import registry_for as functions_for
 from ..tg.profiles import MotionError, check_guard, check_joint_target
@@ -482,8 +488,7 @@ class Robot:
             there = self.kali.flange_pose(demand, self.index)
             here = self.read_t6()
             off_m = float(np.linalg.norm(here[:3, 3] - there[:3, 3]))
-            cos = (float(np.trace(there[:3, :3].T @ here[:3, :3])) - 1.0) / 2.0
-            off_rad = math.acos(min(1.0, max(-1.0, cos)))
+            off_rad = rotation_angle(there[:3, :3].T @ here[:3, :3])
             if off_m > within_m or off_rad > within_rad:
                 since = now
             elif (now - since) * tick_s >= hold_s:

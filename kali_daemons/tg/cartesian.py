@@ -91,7 +91,9 @@ def inverse(t: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rotation_angle(r: np.ndarray) -> float:
+def rotation_angle(r: np.ndarray) -> float:
+    """The angle (rad) of rotation matrix ``r``: how far apart two orientations A, B are
+    for r = Aᵀ B."""
     return math.acos(max(-1.0, min(1.0, 0.5 * (float(np.trace(r)) - 1.0))))
 
 
@@ -135,11 +137,11 @@ def held_object(
     where it is."""
     views = starts if measured is None else measured
     start = bases[0] @ kins[0].fkine(starts[0]) @ inverse(grasps[0])
-    held = bases[0] @ kins[0].fkine(views[0]) @ inverse(grasps[0])
+    held = start if measured is None else bases[0] @ kins[0].fkine(views[0]) @ inverse(grasps[0])
     for k in range(1, len(names)):
         other = bases[k] @ kins[k].fkine(views[k]) @ inverse(grasps[k])
         gap = float(np.linalg.norm(other[:3, 3] - held[:3, 3]))
-        turn = _rotation_angle(held[:3, :3].T @ other[:3, :3])
+        turn = rotation_angle(held[:3, :3].T @ other[:3, :3])
         if gap > GRASP_TOL_M or turn > GRASP_TOL_RAD:
             how = "" if measured is None else "as measured at rest, "
             raise MotionError(
