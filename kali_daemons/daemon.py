@@ -342,14 +342,14 @@ class Daemon:
 
     def _set_period(self, ticks: int) -> None:
         """Inside the cycle: be signalled every ``ticks`` base ticks (a polling SV with
-        nothing to share rests: ``sv/daemon.py``).  The process record and the registry's
-        generation tell the clock, which re-reads them between two of its ticks; until then
-        it signals at the old period, and a polling wait sleeps to the earlier of its next
-        due tick at the new period and the clock's own (``next_wake``).  No allocation
-        beyond the record's view; rare (a change of load)."""
+        nothing to share rests: ``sv/daemon.py``).  The process record and the clock's
+        ``rates_gen`` tell the clock, which re-reads its slots' periods between two of its
+        ticks; until then it signals at the old period, and a polling wait sleeps to the
+        earlier of its next due tick at the new period and the clock's own (``next_wake``).
+        No allocation beyond the record's view; a few times a minute (a change of load)."""
         self.period_ticks = ticks
         self.inst.procs[self.slot]["period_ticks"] = ticks
-        self.inst.bump_registry()
+        self.inst.bump_rates()
         if self._clock_wait is not None:
             self._clock_wait.args.period_ticks = ticks
 

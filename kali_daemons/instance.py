@@ -133,6 +133,7 @@ class Instance:
         self._fault_count = arena.address_of_field(fault_off, layout.FAULT, "count")
         self._fault_cas = atomic.CompareExchange64()
         self.registry_gen_addr = arena.address_of_field(clock_off, layout.CLOCK, "registry_gen")
+        self.rates_gen_addr = arena.address_of_field(clock_off, layout.CLOCK, "rates_gen")
 
     @classmethod
     def attach(cls, name: str) -> Instance:
@@ -301,8 +302,14 @@ class Instance:
         self.bump_registry()
 
     def bump_registry(self) -> None:
-        """Tell the wall clock the set of periodic slots or their rates changed."""
+        """Tell the wall clock the set of periodic or self-timed slots changed (it reads the
+        process table again)."""
         atomic.fetch_add32(self.registry_gen_addr, 1)
+
+    def bump_rates(self) -> None:
+        """Tell the wall clock a slot's ``period_ticks`` changed, after writing it (it
+        re-reads only its slots' periods: ``WallClock._rescan``)."""
+        atomic.fetch_add32(self.rates_gen_addr, 1)
 
     # ---------------------------------------------------------------- faults (DESIGN 7)
 

@@ -117,7 +117,8 @@ CLOCK = np.dtype(
         ("lockstep_timeout_ms", "<u4"),  # lockstep: longest wait for one acknowledgement
         ("busy_wait_ns", "<i8"),  # spin this long before each tick instead of sleeping
         ("step_target", "<i8"),  # lockstep STEPPING: stop when tick reaches this
-        ("registry_gen", "<u4"),  # bumped on register/release/rate change; clock rescans
+        ("registry_gen", "<u4"),  # bumped on register/release; the clock reads the table
+        ("rates_gen", "<u4"),  # bumped on a rate change; the clock re-reads its slots' periods
         ("table_lock", "<u4"),  # spinlock word guarding process-table slot claims
         ("overruns", "<u8"),  # times the clock itself woke more than one tick late
         ("skipped_ticks", "<u8"),  # ticks jumped over after overruns (no catch-up burst)

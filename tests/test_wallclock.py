@@ -276,10 +276,7 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
     c.inst = SimpleNamespace(  # type: ignore[assignment]
         procs=procs, fault=fault, clock={"mode": RunMode.RUNNING}, raise_fault=raise_fault
     )
-    c._due, c._sig, c._ack = procs["next_due"], procs["signal_tick"], procs["ack_tick"]
-    c._vouched = procs["vouched_tick"]
-    c._rel, c._signals, c._misses = procs["release_ns"], procs["signals"], procs["misses"]
-    c._consec, c._max_consec = procs["consecutive_misses"], procs["max_consecutive_misses"]
+    c._view_table(procs)
     c._log_entries, c._log_count = misses["entries"], misses["count"].reshape(1)
     c._sems = [Sem(i) for i in range(layout.MAX_PROCESSES)]  # type: ignore[misc]
     c._slots, c._serious, c._period = [0, 1, 2], [True] * 3, [1] * 3
@@ -311,12 +308,13 @@ def test_a_process_changing_its_own_period_never_sleeps_past_its_signal(old: int
     c = _tick_clock([100, 101, 102], {100, 101, 102}, events)
     procs = c.inst.procs
     procs["periodic"][0], procs["state"][0], procs["name"][0] = 1, ProcState.ACTIVE, b"sv.1"
-    c.inst.clock = {"mode": RunMode.RUNNING, "registry_gen": 0, "tick": 0}  # type: ignore[misc]
+    c.inst.clock = np.zeros((), layout.CLOCK)  # type: ignore[misc]
+    c.inst.clock["mode"] = RunMode.RUNNING
     c.slot, c._gang_lead, c._gang_names = 7, "sio", {"sv.1"}
     c.max_period_ticks, c._good_period = 1000, np.ones(layout.MAX_PROCESSES, np.int64)
 
     def bump() -> None:
-        c.inst.clock["registry_gen"] += 1
+        c.inst.clock["rates_gen"] += 1
 
     for changed_at in range(0, 12 * old, old):
         for seen_at_once in (True, False):
@@ -325,7 +323,7 @@ def test_a_process_changing_its_own_period_never_sleeps_past_its_signal(old: int
             c._gen = -1
             events.clear()
             sv = object.__new__(Daemon)
-            sv.inst = SimpleNamespace(procs=procs, bump_registry=bump)  # type: ignore[assignment]
+            sv.inst = SimpleNamespace(procs=procs, bump_rates=bump)  # type: ignore[assignment]
             sv.slot, sv.period_ticks, sv._clock_wait = 0, old, None
             wakes, signals, pending = [], [], False
             for tick in range(changed_at + 8 * max(old, new)):
@@ -352,6 +350,68 @@ def test_a_process_changing_its_own_period_never_sleeps_past_its_signal(old: int
             assert len(early) <= (1 if new < old else 0), case
             assert procs["period_ticks"][0] == sv.period_ticks == new
             assert signals[-1] - signals[-2] == new, case
+
+
+def test_a_rate_change_is_taken_up_in_place_without_reading_the_table_again() -> None:
+    """An SV resting or back from it (``Daemon._set_period``: a few times a minute in a
+    carry) and ``set_control_rate`` bump the clock record's ``rates_gen``, not the
+    registry's generation, and the clock then re-reads only the periods of the slots it
+    has, in place.  It used to read the whole table again, in Python over its 32 records, at
+    the top of its loop: after a tick's signals but before it sleeps, on SIO's CPU and above
+    SIO.  That cost it 0.3-1.4 ms now and then, and a kernel trace of issue 24's soak found
+    the clock running that long in each of the 31 misses the soak had not put down to the
+    machine: SIO, signalled, waited for the clock and missed the next tick.  A process
+    registering or leaving still has the whole table read (the registry's generation)."""
+    from kali_daemons.daemon import Daemon
+
+    c = _tick_clock([100, 101, 102], {100, 101, 102}, [])
+    procs = c.inst.procs
+    procs["periodic"][:3], procs["state"][:3], procs["period_ticks"][:3] = 1, ProcState.ACTIVE, 1
+    procs["name"][:3], procs["stage"][:3] = [b"sio", b"sv.0", b"sv.1"], [2, 2, 1]
+    procs["serious"][:3] = 1
+    clock = np.zeros((), layout.CLOCK)
+    c.inst.clock = clock  # type: ignore[misc]
+    c.slot, c._gang_lead, c._gang_names = 7, "sio", {"sv.0", "sv.1"}
+    c.max_period_ticks, c._good_period = 1000, np.ones(layout.MAX_PROCESSES, np.int64)
+    c._gen = -1
+    c._rescan()
+    slots, period = c._slots, c._period
+    assert (slots, c._lead, c._members, c._member) == ([2, 0, 1], 0, [2, 1], [True, False, True])
+    assert period == [1, 1, 1] and c._serious == [True] * 3
+
+    def bump_rates() -> None:
+        clock["rates_gen"] += 1
+
+    sv = object.__new__(Daemon)
+    sv.inst = SimpleNamespace(procs=procs, bump_rates=bump_rates)  # type: ignore[assignment]
+    sv.slot, sv.period_ticks, sv._clock_wait = 2, 1, None
+    clock["tick"], procs["next_due"][2] = 5, 6
+    sv._set_period(4)  # the SV rests
+    assert clock["registry_gen"] == 0 and clock["rates_gen"] == 1
+    c._rescan()
+    assert c._slots is slots and c._period is period and period == [4, 1, 1]
+    assert procs["next_due"][2] == 6  # within the new period: kept
+    procs["period_ticks"][2] = 0  # garbage in the table: the last valid period stays
+    bump_rates()
+    c._rescan()
+    assert c._slots is slots and period == [4, 1, 1]
+    clock["tick"], procs["next_due"][2] = 9, 12
+    sv._set_period(1)  # back from rest
+    c._rescan()
+    assert period == [1, 1, 1]
+    assert procs["next_due"][2] == 10  # re-aligned to the new period: never past its signal
+
+    procs["periodic"][3], procs["state"][3], procs["period_ticks"][3] = 1, ProcState.ACTIVE, 10
+    procs["name"][3], procs["stage"][3] = b"tg", 0
+    clock["registry_gen"] += 1  # a process registered: the whole table
+    c._rescan()
+    assert (c._slots, c._period, c._lead, c._members) == ([3, 2, 0, 1], [10, 1, 1, 1], 0, [2, 1])
+    assert c._serious == [False, True, True, True] and c._stages == [0, 1, 2, 2]
+    procs["pid"][4], procs["state"][4], procs["period_ticks"][4] = 104, ProcState.ACTIVE, 40
+    procs["pid"][7], procs["state"][7] = os.getpid(), ProcState.ACTIVE  # the clock itself
+    clock["registry_gen"] += 1  # a self-timed process (the viewer): watched by heartbeat
+    c._rescan()
+    assert (c._watched, c._watch_ns, c._slots) == ([4], [80_000_000], [3, 2, 0, 1])
 
 
 def _clock_reading_proc(
@@ -450,7 +510,6 @@ def test_a_self_timed_process_is_stalled_only_while_the_clock_ran(
     procs = c.inst.procs
     procs[3]["pid"], procs[3]["serious"], procs[3]["period_ticks"] = 103, 1, 1
     procs[3]["name"] = b"plant"
-    c._heart = procs["heartbeat_ns"]
     c._watched, c._watch_ns, c._watch_next = [3], [2_000_000], [0]
     ms = 1_000_000
 

@@ -126,7 +126,7 @@ def set_control_rate(inst: Instance, process: str, period_ms: float) -> None:
             f"{servo_ms:g} ms; the TG must run at most as fast as the servos (FIFO ratio >= 1)"
         )
     inst.procs[i]["period_ticks"] = ticks
-    inst.bump_registry()
+    inst.bump_rates()
 
 
 def control(

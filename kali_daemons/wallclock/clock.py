@@ -67,19 +67,14 @@ class WallClock(Daemon):
         self.tolerance_ns = int(c["serious_miss_tolerance_ms"]) * 1_000_000
         self.lockstep_timeout_s = int(c["lockstep_timeout_ms"]) / 1000.0
         self.lockstep = bool(c["lockstep"])
-        p = self.inst.procs
-        self._sig, self._rel, self._ack = p["signal_tick"], p["release_ns"], p["ack_tick"]
-        self._vouched = p["vouched_tick"]
-        self._due, self._signals = p["next_due"], p["signals"]
-        self._misses, self._consec = p["misses"], p["consecutive_misses"]
-        self._max_consec = p["max_consecutive_misses"]
+        self._view_table(self.inst.procs)
         log = self.inst.misses
         self._log_entries = log["entries"]
         self._log_count = log["count"].reshape(1)  # a writable one-element view
         self._sems = [self.inst.slot_semaphore(i) for i in range(layout.MAX_PROCESSES)]
         self._cmd_sem = self.inst.command_semaphore()
         self._ack_sem = self.inst.ack_semaphore()
-        self._gen = -1
+        self._gen = self._rates_gen = -1
         self._slots: list[int] = []  # periodic slots in (stage, slot) order
         self._serious: list[bool] = []
         self._period: list[int] = []
@@ -87,7 +82,6 @@ class WallClock(Daemon):
         self._watched: list[int] = []  # self-timed slots (real time): watched by heartbeat
         self._watch_ns: list[int] = []  # heartbeat age that makes the clock look them up
         self._watch_next: list[int] = []  # earliest next look-up of a stale, live one
-        self._heart = p["heartbeat_ns"]
         self._flight = FlightDumper(self.inst)  # dumps the flight recorder after a halt
         self.max_period_ticks = max(1, ms_to_ns(MAX_PERIOD_MS) // self.base_ns)
         self._good_period = np.ones(layout.MAX_PROCESSES, dtype=np.int64)
@@ -119,49 +113,82 @@ class WallClock(Daemon):
 
     # ------------------------------------------------------------------ registry
 
+    def _view_table(self, p: np.ndarray) -> None:
+        """View each field of the process table the clock reads or writes once (indexing a
+        structured array by field name builds a new view every time)."""
+        self._sig, self._rel, self._ack = p["signal_tick"], p["release_ns"], p["ack_tick"]
+        self._vouched = p["vouched_tick"]
+        self._due, self._signals = p["next_due"], p["signals"]
+        self._misses, self._consec = p["misses"], p["consecutive_misses"]
+        self._max_consec = p["max_consecutive_misses"]
+        self._heart = p["heartbeat_ns"]
+        self._periodic, self._state, self._stage = p["periodic"], p["state"], p["stage"]
+        self._serious_of, self._pid, self._names = p["serious"], p["pid"], p["name"]
+        self._period_of = p["period_ticks"]
+
     def _rescan(self) -> None:
-        """Rebuild the list of periodic slots when registrations or rates changed."""
-        gen = int(self.inst.clock["registry_gen"])
-        if gen == self._gen:
-            return
-        self._gen = gen
-        p = self.inst.procs
-        live = [
-            i
-            for i in range(layout.MAX_PROCESSES)
-            if p[i]["periodic"] and p[i]["state"] == layout.ProcState.ACTIVE
-        ]
-        live.sort(key=lambda i: (int(p[i]["stage"]), i))
-        self._slots = live
-        self._serious = [bool(p[i]["serious"]) for i in live]
-        self._period = [self._valid_period(i) for i in live]
-        self._stages = [int(p[i]["stage"]) for i in live]
-        names = [decode(p[i]["name"]) for i in live]
-        self._lead = next((i for i, n in zip(live, names, strict=True) if n == self._gang_lead), -1)
-        self._member = [self._lead >= 0 and n in self._gang_names for n in names]
-        self._members = [i for i, m in zip(live, self._member, strict=True) if m]
-        tick = int(self.inst.clock["tick"])
-        for i, per in zip(live, self._period, strict=True):
-            if self._due[i] > tick + per:  # due under a (garbage) longer period: re-align
-                self._due[i] = (tick // per + 1) * per
-        self._watched = [
-            i
-            for i in range(layout.MAX_PROCESSES)
-            if i != self.slot
-            and not p[i]["periodic"]
-            and p[i]["state"] == layout.ProcState.ACTIVE
-            and int(p[i]["pid"]) > 0
-        ]
-        self._watch_ns = [
-            2 * max(1, int(p[i]["period_ticks"])) * self.base_ns for i in self._watched
-        ]
+        """Take up what changed in the process table; at the top of the loop, so after a
+        tick's signals but before the clock sleeps, on SIO's CPU above SIO: what it does
+        here delays SIO's tick.  A rate change (an SV resting or back from it, a few times
+        a minute; ``set_control_rate``) re-reads only the periods of the slots the clock
+        has, in place (``_read_rates``); a process registering or leaving has the whole
+        table read (``_read_table``).  Reading the table for every rate change, in Python
+        over its 32 records, cost the clock 0.3-1.4 ms now and then, each time one tick of
+        SIO's (issue 24's soak, traced)."""
+        c = self.inst.clock
+        gen, rates = int(c["registry_gen"]), int(c["rates_gen"])
+        if gen != self._gen:
+            self._gen, self._rates_gen = gen, rates
+            self._read_table()
+        elif rates != self._rates_gen:
+            self._rates_gen = rates
+            self._read_rates()
+
+    def _read_table(self) -> None:
+        """Read the periodic slots in (stage, slot) order, whether each is serious, SIO and
+        its gang of SVs among them, and the self-timed slots to watch (real time), from the
+        whole table at once (numpy); then their periods (``_read_rates``)."""
+        active = self._state == ProcState.ACTIVE
+        periodic = self._periodic != 0
+        live = np.flatnonzero(periodic & active)
+        live = live[np.argsort(self._stage[live], kind="stable")]
+        names = self._names[live]
+        lead = live[names == self._gang_lead.encode()] if self._gang_lead else live[:0]
+        member = np.isin(names, [n.encode() for n in self._gang_names]) & (len(lead) > 0)
+        self._slots = live.tolist()
+        self._serious = (self._serious_of[live] != 0).tolist()
+        self._stages = self._stage[live].tolist()
+        self._lead = int(lead[0]) if len(lead) else -1
+        self._member = member.tolist()
+        self._members = live[member].tolist()
+        self._period = [1] * len(live)
+        watched = ~periodic & active & (self._pid > 0)
+        watched[self.slot] = False
+        self._watched = np.flatnonzero(watched).tolist()
+        self._watch_ns = [0] * len(self._watched)
         self._watch_next = [0] * len(self._watched)
+        self._read_rates()
+
+    def _read_rates(self) -> None:
+        """Re-read the periods of the clock's slots in place, no list built: each periodic
+        slot's (``_valid_period``; a tick due under a longer period re-aligned to the new
+        one, so no process is signalled later than its period says), and the heartbeat age
+        that has the clock look a self-timed one up (two of its periods)."""
+        tick = int(self.inst.clock["tick"])
+        due, period = self._due, self._period
+        for k, i in enumerate(self._slots):
+            per = self._valid_period(i)
+            period[k] = per
+            if due[i] > tick + per:
+                due[i] = (tick // per + 1) * per
+        for k, i in enumerate(self._watched):
+            self._watch_ns[k] = 2 * max(1, int(self._period_of[i])) * self.base_ns
 
     def _valid_period(self, i: int) -> int:
         """Slot ``i``'s period in ticks: the one in its record if ``set_control_rate`` would
         allow it (1 tick .. MAX_PERIOD_MS), else the last valid one (DESIGN 7: the process
         table is written by other processes)."""
-        per = int(self.inst.procs[i]["period_ticks"])
+        per = int(self._period_of[i])
         if 1 <= per <= self.max_period_ticks:
             self._good_period[i] = per
         return int(self._good_period[i])
