@@ -258,7 +258,7 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
             click.echo(json.dumps(introspect.snapshot(inst), indent=2, allow_nan=False))
             return
         c = inst.clock
-        mode = RunMode(int(c["mode"])).name.lower()
+        mode = introspect.clock_mode(inst)
         click.echo(
             f"instance '{inst.name}'  {'lockstep' if c['lockstep'] else 'real time'}  "
             f"clock {mode}  tick {int(c['tick'])}  time {time_ms(c):.0f} ms  "
@@ -395,7 +395,7 @@ def mem(ctx: click.Context, pattern: str | None) -> None:
     """
     with _attach(ctx) as inst:
         if pattern is not None:
-            registry = registry_for(inst.config.plugins, inst.config.base_dir)
+            registry = registry_for(inst.config.plugins, inst.config.base_dir, inst.config.files)
             cell = cell_of(inst.config, *registry.dtypes())
             lines = introspect.record_lines(inst, cell, pattern)
             if not lines:
@@ -576,9 +576,8 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
 
     The board cuts the amplifiers at once, the brakes follow, and the system halts.
     """
-    with _attach(ctx) as inst:
-        names = [r.name for r in inst.config.robots]
-        targets = [robot] if robot else names
+    with _attach(ctx) as inst:  # the arena alone: no config parsed, no user code run
+        targets = [robot] if robot else list(inst.cell.names)
         records = inst.boards()
         for name in targets:
             boards.press_estop(records, inst.robot_index(name), not release)
@@ -646,7 +645,7 @@ def reset(ctx: click.Context) -> None:
     with _attach(ctx) as inst:
         boards_laid_out = inst.arena.lookup(KEY_BOARDS) is not None  # not before the plant
         buttons = boards.estops_pressed(inst.boards()) if boards_laid_out else []
-        pressed = [r.name for r, b in zip(inst.config.robots, buttons, strict=False) if b]
+        pressed = [n for n, b in zip(inst.cell.names, buttons, strict=False) if b]
         if pressed:
             raise InstanceError(
                 f"reset: the e-stop of robot '{pressed[0]}' is still pressed"
@@ -680,36 +679,45 @@ def _robots(client: ServoClient, robot: str | None) -> list[str]:
 
 
 def _power(ctx: click.Context, robot: str | None, on: bool, timeout_s: float) -> None:
-    with _servo_client(ctx) as (inst, client):
-        names = _robots(client, robot)
+    """``enable``/``disable``: the arena alone (no config parsed, no user code run)."""
+    with _attach(ctx) as inst:
+        names = [inst.cell.names[inst.robot_index(robot)]] if robot else list(inst.cell.names)
         for name in names:
-            client.power(name, on)
+            inst.command_power(inst.robot_index(name), on)
         if inst.lockstep:
             click.echo(
                 f"{'enable' if on else 'disable'} requested: {', '.join(names)} "
                 "(lockstep: step the clock)"
             )
             return
-        _wait_power(inst, client, names, on, timeout_s)
+        _wait_power(inst, names, on, timeout_s)
 
 
-def _wait_power(
-    inst: Instance, client: ServoClient, names: list[str], on: bool, timeout_s: float
-) -> None:
+def _wait_power(inst: Instance, names: list[str], on: bool, timeout_s: float) -> None:
     """Wait until SIO reports every robot in ``names`` powered on (off); ServoError if not."""
     want = PowerState.ON if on else PowerState.OFF
+    robots = inst.robot_states()
+    index = [inst.robot_index(n) for n in names]
     deadline = time.monotonic() + timeout_s
-    while any(client.power_state(n) != want for n in names):
+    while any(int(robots["power"][k]) != want for k in index):
         if time.monotonic() > deadline or inst.fault["active"]:
             states = ", ".join(
-                f"{n}: {client.power_state(n).name} "
-                f"({decode(client.level.robots[client.robot_index(n)]['message'])})"
-                for n in names
+                f"{n}: {_power_name(int(robots['power'][k]))} "
+                f"({decode(robots['message'][k])})"
+                for n, k in zip(names, index, strict=True)
             )
             why = inst.fault_text() or f"not {want.name} within {timeout_s:g} s"
             raise ServoError(f"power: {why}; {states}")
         time.sleep(0.01)
     click.echo(f"power {want.name.lower()}: {', '.join(names)}")
+
+
+def _power_name(word: int) -> str:
+    """A power word's name (the arena is not trusted: any other value is shown as it is)."""
+    try:
+        return PowerState(word).name
+    except ValueError:
+        return f"INVALID({word})"
 
 
 @main.command()
@@ -795,7 +803,7 @@ def calibrate(ctx: click.Context, robot: str | None, timeout: float) -> None:
         if off:
             for n in off:
                 client.power(n, True)
-            _wait_power(inst, client, off, True, 2.0)
+            _wait_power(inst, off, True, 2.0)
         for n in names:
             client.calibrate(n)
         _follow_calibration(inst, client, names, timeout)

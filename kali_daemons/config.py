@@ -26,6 +26,7 @@ import re
 import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NoReturn
 
 import numpy as np
@@ -37,6 +38,7 @@ from kali_daemons.ftsensor import SHEETS as FT_SHEETS
 from kali_daemons.ftsensor import FtSheet
 from kali_daemons.ftsensor import sheet as ft_sheet
 from kali_daemons.joints import JointMap
+from kali_daemons.pyfile import mirror
 from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
 
 CONFIG_VERSION = 1
@@ -401,6 +403,9 @@ class KaliConfig:
     dashboard: DashboardConfig = DashboardConfig()
     bridge: BridgeConfig = BridgeConfig()
     base_dir: str = "."  # directory relative plugin paths are taken from
+    # where a running instance keeps the copies of its user files it loads instead of the
+    # originals (``kali_daemons.snapshot``; '' for none: a config read from its file)
+    files: str = ""
 
     @functools.cached_property
     def joints(self) -> JointMap:
@@ -432,11 +437,14 @@ class KaliConfig:
 # Public entry points
 
 
-def parse_config(text: str, source: str = "<string>", base_dir: str | None = None) -> KaliConfig:
+def parse_config(
+    text: str, source: str = "<string>", base_dir: str | None = None, files: str = ""
+) -> KaliConfig:
     """Parse and fully validate YAML ``text``; ``source`` names it in every error message.
 
     ``base_dir`` is where relative plugin and robot type file paths are found (default: the
-    current directory).
+    current directory); ``files``, when given, where a running instance keeps its copies of
+    them (``kali_daemons.snapshot``), which are loaded instead.
     """
     if not isinstance(text, str):
         raise ConfigError(f"{source}: config text must be a str, not {type(text).__name__}")
@@ -453,7 +461,7 @@ def parse_config(text: str, source: str = "<string>", base_dir: str | None = Non
         raise ConfigError(f"{source}: YAML does not parse: {exc}") from None
     base = os.path.abspath(base_dir or ".")
     try:
-        cfg = _build(doc, source, text, base)
+        cfg = _build(doc, source, text, base, files)
     except _InvalidError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     check_arena(cfg)
@@ -540,6 +548,7 @@ def cell_of(
         arms=arms,
         config_bytes=len(cfg.text.encode()),
         config_dir_bytes=len(cfg.base_dir.encode()),
+        config_files_bytes=len(cfg.files.encode()),
     )
 
 
@@ -929,9 +938,9 @@ def _period(
 # Section builders
 
 
-def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
+def _build(doc: Any, source: str, text: str, base_dir: str, files: str) -> KaliConfig:
     """Turn the parsed YAML document into a KaliConfig, or raise _InvalidError; relative
-    paths are taken from ``base_dir`` (absolute)."""
+    paths are taken from ``base_dir`` (absolute), user files read from ``files`` if given."""
     if not isinstance(doc, dict):
         empty = " (the file is empty)" if doc is None else ""
         _fail("the top level", doc, f"must be a mapping{empty}, not {_kind_of(doc)}")
@@ -957,7 +966,7 @@ def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
             processes = _processes(_DEFAULT_PROCESSES, clock)
         except _InvalidError as exc:
             raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
-    robots = _robots(doc.get("robots", _DEFAULT_ROBOTS), base_dir)
+    robots = _robots(doc.get("robots", _DEFAULT_ROBOTS), base_dir, files)
     bridge = _bridge(doc.get("bridge", {}), base_dir)
     if bridge.enabled:  # not in ``processes``: its section holds everything about it
         processes = (*processes, bridge_process(bridge, clock))
@@ -988,6 +997,7 @@ def _build(doc: Any, source: str, text: str, base_dir: str) -> KaliConfig:
         dashboard=_dashboard(doc.get("dashboard", {})),
         bridge=bridge,
         base_dir=base_dir,
+        files=files,
     )
 
 
@@ -1370,10 +1380,11 @@ def _rest(value: Any, path: str, clock: ClockConfig) -> float:
     return rest
 
 
-def _model(value: Any, path: str, base_dir: str) -> tuple[str, RobotType]:
+def _model(value: Any, path: str, base_dir: str, files: str) -> tuple[str, RobotType]:
     """A robot's ``model``: a shipped type's name, or a ``.py`` file defining ``ROBOT``
-    (relative to ``base_dir``), returned absolute with its type, loaded and checked
-    (``kali_daemons.robots.typefile``) so that a bad file stops ``kalictl start``."""
+    (relative to ``base_dir``; its copy under ``files`` when given, ``pyfile.mirror``),
+    returned absolute with its type, loaded and checked (``kali_daemons.robots.typefile``)
+    so that a bad file stops ``kalictl start``."""
     names = tuple(known_types())
     if isinstance(value, str) and value in names:
         return value, robot_type(value)
@@ -1381,6 +1392,8 @@ def _model(value: Any, path: str, base_dir: str) -> tuple[str, RobotType]:
         _fail(path, value, f"must be one of: {', '.join(names)}, or a .py file defining ROBOT")
     given = os.path.expanduser(value)
     resolved = os.path.realpath(os.path.join(base_dir, given))
+    if files:
+        resolved = str(mirror(files, Path(resolved)))
     try:
         return resolved, robot_type(resolved)
     except ConfigError as exc:
@@ -1391,7 +1404,7 @@ def _model(value: Any, path: str, base_dir: str) -> tuple[str, RobotType]:
         raise _InvalidError(f"{path} = {_show(value, 200)}: {text}{relative}") from None
 
 
-def _robots(node: Any, base_dir: str) -> tuple[RobotConfig, ...]:
+def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
     """The ``robots`` list: 1..MAX_ROBOTS arms with unique names; a ``model`` that is a file
     path is taken from ``base_dir`` when relative and stored absolute."""
     entries = _list(node, "robots", 1, MAX_ROBOTS)
@@ -1412,7 +1425,7 @@ def _robots(node: Any, base_dir: str) -> tuple[RobotConfig, ...]:
                 f"duplicate; robot names must be unique (also robots[{first_index[name]}])",
             )
         first_index[name] = i
-        model, rtype = _model(m.get("model", DEFAULT_MODEL), f"{path}.model", base_dir)
+        model, rtype = _model(m.get("model", DEFAULT_MODEL), f"{path}.model", base_dir, files)
         xyz_node = m.get("base_xyz", [0.0, 0.0, 0.0])
         if not isinstance(xyz_node, list) or len(xyz_node) != 3:
             _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")

@@ -23,7 +23,8 @@ from . import atomic, boards, layout
 from .arena import Arena, foreign_object, owner_text, segment_name, shm_path, user_text
 from .config import KaliConfig, parse_config
 from .errors import ClockError, InstanceError
-from .layout import FaultCode, ProcState
+from .joints import JointMap
+from .layout import FaultCode, PowerCmd, ProcState
 from .spinlock import SpinLock, holder_text
 
 _WORD = 0xFFFFFFFF  # the fault word: the low half of the fault record's 64-bit state word
@@ -107,6 +108,51 @@ def decode(raw: bytes | np.bytes_) -> str:
     return bytes(raw).split(b"\0", 1)[0].decode("utf-8", "replace")
 
 
+@dataclass(frozen=True)
+class Cell:
+    """The cell as ``kalictl start`` wrote it into the arena (``layout.CELL``): what the
+    safety path and the status tools need, without parsing the config or running user code.
+    Per robot in config order: name, robot type name, each joint's encoder resolution (rad a
+    count) and motor current limit (A)."""
+
+    names: tuple[str, ...]
+    models: tuple[str, ...]
+    joints: JointMap
+    rad_per_count: tuple[np.ndarray, ...]
+    max_current: tuple[np.ndarray, ...]
+    n_svs: int
+
+    @property
+    def n_robots(self) -> int:
+        return len(self.names)
+
+    @staticmethod
+    def read(rec: np.ndarray, instance: str) -> Cell:
+        """The cell from its record; InstanceError if it holds what no start writes (the
+        arena is not trusted: a bad count must not become an index)."""
+        n = int(rec["n_robots"])
+        robots = rec["robots"][: max(0, min(n, layout.MAX_ROBOTS))].copy()
+        counts = tuple(int(c) for c in robots["n_joints"])
+        if not 1 <= n <= layout.MAX_ROBOTS or not all(
+            1 <= c <= layout.MAX_JOINTS for c in counts
+        ):
+            raise InstanceError(
+                f"instance '{instance}': its cell record holds {n} robots of {list(counts)} "
+                f"joints, not 1..{layout.MAX_ROBOTS} robots of 1..{layout.MAX_JOINTS} joints "
+                f"(written outside kalictl start)"
+            )
+        names = tuple(decode(r) for r in robots["name"])
+        per_joint = list(zip(robots, counts, strict=True))
+        return Cell(
+            names=names,
+            models=tuple(decode(r) for r in robots["model"]),
+            joints=JointMap(names, counts),
+            rad_per_count=tuple(r["rad_per_count"][:c] for r, c in per_joint),
+            max_current=tuple(r["max_current"][:c] for r, c in per_joint),
+            n_svs=max(0, min(int(rec["n_svs"]), layout.MAX_SV)),
+        )
+
+
 class Instance:
     """An attached instance: views of the clock, process table and fault record."""
 
@@ -118,6 +164,7 @@ class Instance:
         self.fault = arena.existing(layout.KEY_FAULT, layout.FAULT)
         self.misses = arena.existing(layout.KEY_MISSES, layout.MISS_LOG)
         self._config: KaliConfig | None = None
+        self._cell: Cell | None = None
         self._sems: dict[str, posix_ipc.Semaphore] = {}
         self._boards: np.ndarray | None = None  # cached once the plant has made them
         clock_off = arena.lookup(layout.KEY_CLOCK)[0]  # type: ignore[index]
@@ -157,12 +204,24 @@ class Instance:
 
     @property
     def config(self) -> KaliConfig:
-        """The configuration the instance was started with (stored in the arena)."""
+        """The configuration the instance was started with (its text is in the arena), its
+        user files loaded from the copies taken at start (``kali_daemons.snapshot``): this
+        runs the robot types' and plugins' code, so the safety path never asks for it
+        (``cell`` holds what that needs)."""
         if self._config is None:
             text = self._text(layout.KEY_CONFIG)
             base = self._text(layout.KEY_CONFIG_DIR)
-            self._config = parse_config(text, f"{self.arena.name}:config", base or None)
+            files = self._text(layout.KEY_CONFIG_FILES)
+            self._config = parse_config(text, f"{self.arena.name}:config", base or None, files)
         return self._config
+
+    @property
+    def cell(self) -> Cell:
+        """The arms as ``kalictl start`` found them (``layout.CELL``), from the arena alone:
+        no config to parse, no user code to run."""
+        if self._cell is None:
+            self._cell = Cell.read(self.arena.existing(layout.KEY_CELL, layout.CELL), self.name)
+        return self._cell
 
     def _text(self, key: str) -> str:
         found = self.arena.lookup(key)
@@ -184,29 +243,49 @@ class Instance:
 
     def robot_index(self, robot: str) -> int:
         """Index of ``robot`` in the config (and in every per-robot array); InstanceError."""
-        names = [r.name for r in self.config.robots]
+        names = self.cell.names
         if robot not in names:
             raise InstanceError(
-                f"no robot '{robot}' in instance '{self.name}' (robots: {', '.join(names)})"
+                f"no robot {robot!r:.40} in instance '{self.name}' (robots: {', '.join(names)})"
             )
         return names.index(robot)
 
     def boards(self) -> np.ndarray:
         """The I/O board registers, one record per robot (created by the plant)."""
-        return self.arena.existing(layout.KEY_BOARDS, layout.IO_BOARD, len(self.config.robots))
+        return self.arena.existing(layout.KEY_BOARDS, layout.IO_BOARD, self.cell.n_robots)
+
+    def robot_states(self) -> np.ndarray:
+        """SIO's record of each robot (``layout.ROBOT_STATE``), config order."""
+        return self.arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.cell.n_robots)
+
+    def command_power(self, k: int, on: bool) -> None:
+        """Ask SIO to power robot ``k``'s amplifiers on (off): the command word stamped with
+        the faults raised so far, read before the fault check, so a halt after the check
+        voids it (SIO takes a command only while the stamp is the count and no fault is
+        active; LinuxCNC: a halt forgets every pending command).  InstanceError for an
+        enable while a fault is active."""
+        stamp = int(self.fault["count"]) & 0xFFFFFFFF
+        if on and self.fault["active"]:
+            raise InstanceError(
+                f"cannot enable '{self.cell.names[k]}' while a fault is active "
+                f"({self.fault_text()}); kalictl reset first"
+            )
+        robots = self.robot_states()
+        robots["cmd_faults"][k] = stamp
+        robots["power_cmd"][k] = PowerCmd.ENABLE if on else PowerCmd.DISABLE
 
     def push(self, k: int, force: np.ndarray, seconds: float) -> None:
         """Ask the plant to push robot ``k``'s tool with ``force`` (N, world frame, at the
         tool's centre of mass) for ``seconds`` of simulated time (``kalictl push``; tests and
         demos of force control).  A push replaces the one in progress."""
-        pushes = self.arena.existing(layout.KEY_PUSHES, layout.PUSH, len(self.config.robots))
+        pushes = self.arena.existing(layout.KEY_PUSHES, layout.PUSH, self.cell.n_robots)
         pushes["force"][k] = force
         pushes["duration_ns"][k] = round(seconds * 1e9)
         pushes["seq"][k] = int(pushes["seq"][k]) + 1  # last: the plant starts the push
 
     def dacs(self) -> np.ndarray:
         """The DAC board registers, one record per robot (created by the plant)."""
-        return self.arena.existing(layout.KEY_DACS, layout.DAC_BOARD, len(self.config.robots))
+        return self.arena.existing(layout.KEY_DACS, layout.DAC_BOARD, self.cell.n_robots)
 
     def semaphore(self, posix_name: str) -> posix_ipc.Semaphore:
         """Open (once) one of the instance's semaphores."""
@@ -367,8 +446,18 @@ class Instance:
         boards.cut_all(self._boards)
 
     def clear_fault(self) -> bool:
-        """Clear the active fault (kalictl reset); False if none was active."""
+        """Clear the active fault (kalictl reset); False if none was active.
+
+        Every power and calibration command still pending is voided first: one written
+        during the halt carries the halt's own fault count, and SIO, stopped with the clock,
+        has not seen it; a halt forgets every pending command, so nothing powers on at reset
+        by itself."""
         state = atomic.load64(self._fault_state)
+        if state & _WORD and self.arena.lookup(layout.KEY_ROBOTS) is not None:
+            robots = self.robot_states()
+            robots["power_cmd"] = PowerCmd.NONE
+            robots["calib_cmd"] = 0
+            del robots
         while state & _WORD:  # clear the word, keep the sequence count (a writer may be busy)
             cleared, state = self._fault_cas(self._fault_state, state, state & ~_WORD)
             if cleared:
@@ -446,13 +535,13 @@ class Instance:
             )
         slots = a.lookup(layout.KEY_SLOTS)
         if slots is not None:
-            joints = self.config.joints
-            for k, robot in enumerate(self.config.robots):
-                for j in range(robot.n_joints):
+            joints = self.cell.joints
+            for k, robot in enumerate(joints.names):
+                for j in range(joints.counts[k]):
                     i = joints.index(k, j)
                     if (i + 1) * layout.SERVO_SLOT.itemsize <= slots[1]:
                         addr = a.address_of_field(slots[0], layout.SERVO_SLOT, "op_lock", i)
-                        words.append((f"servo mailbox {robot.name} joint {j + 1}", addr))
+                        words.append((f"servo mailbox {robot} joint {j + 1}", addr))
         return words
 
     def held_locks(self, hold_s: float = LOCK_STUCK_S) -> list[HeldLock]:

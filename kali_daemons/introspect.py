@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from . import launcher, layout, shadow
+from . import boards, launcher, layout, shadow
 from .instance import Instance, decode
 from .layout import (
     CalibState,
@@ -31,6 +31,7 @@ from .layout import (
     RequestState,
     RunMode,
 )
+from .spinlock import pid_alive
 from .wallclock.clock import time_ms
 
 FF_SCALARS = ("weight", "stale_ticks", "stale_events", "heartbeat_tick", "rows_written")
@@ -84,6 +85,16 @@ def percentiles_us(hist: np.ndarray, qs: tuple[float, ...] = (0.5, 0.99, 0.999))
     return [launcher.percentile(hist, q) for q in qs]
 
 
+def clock_mode(inst: Instance) -> str:
+    """The wall clock's mode as status says it: running, stopped, stepping ... as its record
+    has it, or ``dead`` once its process is gone (the record keeps its last word)."""
+    slot = inst.find_slot("wallclock")
+    pid = int(inst.procs[slot]["pid"]) if slot >= 0 else 0
+    if pid > 0 and not pid_alive(pid):
+        return "dead"
+    return _name(RunMode, int(inst.clock["mode"])).lower()
+
+
 class Introspector:
     """Views of one attached instance, taken once and reused by every ``snapshot``.
 
@@ -93,11 +104,11 @@ class Introspector:
 
     def __init__(self, inst: Instance) -> None:
         self.inst = inst
-        cfg = inst.config
-        self.names = [r.name for r in cfg.robots]
-        self.drives = [r.type.drive for r in cfg.robots]
-        self.joints = cfg.joints
-        self.sv_names = [p.name for p in cfg.processes if p.kind == "sv"]
+        cell = inst.cell  # the arena alone: status never parses the config or runs user code
+        self.names = list(cell.names)
+        self.cell = cell
+        self.joints = cell.joints
+        self.sv_names = [f"sv.{k}" for k in range(cell.n_svs)]
         self._views: dict[str, np.ndarray] = {}
         self._servo_names: tuple[list[str], list[str]] | None = None  # _names, once written
 
@@ -126,7 +137,7 @@ class Introspector:
     def _clock(self) -> dict[str, Any]:
         c = self.inst.clock
         return {
-            "mode": RunMode(int(c["mode"])).name.lower(),
+            "mode": clock_mode(self.inst),
             "tick": int(c["tick"]),
             "time_ms": time_ms(c),
             "base_tick_ms": int(c["base_tick_ns"]) / 1e6,
@@ -169,16 +180,23 @@ class Introspector:
             return None
         ff = self._view(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, nr)
         slots = self._view(layout.KEY_SLOTS, layout.SERVO_SLOT, self.joints.total)
+        board = self._view(layout.KEY_BOARDS, layout.IO_BOARD, nr)
+        cut = [False] * nr if board is None else boards.amplifiers_cut(board.copy())
         out = []
         for k, name in enumerate(self.names):
             r = rs[k].copy()  # one consistent-enough copy of a Type 4 record
             j = js[self.joints.span(k)].copy()  # and of the arm's joints
             err = j["demand"] - j["q"]
+            sio_power = _name(PowerState, int(r["power"]))
             out.append(
                 {
                     "name": name,
                     "tick": int(r["tick"]),
-                    "power": PowerState(int(r["power"])).name,
+                    # what drives the motors: OFF once the board cuts them (an e-stop, a halt)
+                    # even before SIO, stopped with the clock or stalled, has seen it
+                    "power": "OFF" if cut[k] else sio_power,
+                    "power_sio": sio_power,  # SIO's last word
+                    "amplifiers_cut": cut[k],
                     "calibrated": bool(r["calibrated"]),
                     "calibration": CalibState(int(r["calib_state"])).name,
                     "pots_read": bool(r["pots_read"]),
@@ -188,13 +206,13 @@ class Introspector:
                     "qd_rad_s": j["qd"],
                     "demand_rad": j["demand"],
                     "error_rad": err,
-                    "error_counts": err / self.drives[k].rad_per_count,
+                    "error_counts": err / self.cell.rad_per_count[k],
                     "safe_rad": j["safe"],
                     "servo_torque_nm": j["servo_torque"],
                     "ff_torque_nm": j["ff_torque"],
                     "torque_nm": j["torque"],
                     "current_a": j["current"],
-                    "current_limit_a": self.drives[k].max_current,
+                    "current_limit_a": self.cell.max_current[k],
                     "message": decode(r["message"]),
                     "feedforward": None if ff is None else self._ff(ff[k]),
                     "servo": None

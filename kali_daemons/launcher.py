@@ -16,6 +16,7 @@ from __future__ import annotations
 import fcntl
 import glob
 import os
+import shutil
 import signal
 import stat
 import subprocess
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import posix_ipc
 
-from . import layout
+from . import layout, snapshot
 from .arena import Arena, foreign_object, segment_name, shm_path, unlink_segment, user_text
 from .config import KaliConfig, cell_of, ms_to_ns, ns_to_ms
 from .errors import ArenaError, ConfigError, InstanceError
@@ -83,6 +84,41 @@ def _private_dir(path: Path, what: str, env: str) -> Path:
             f"may write it; chmod go-w it or set {env}"
         )
     return path
+
+
+def instance_dir(instance: str) -> Path:
+    """The instance's own directory, ``<runtime dir>/<instance>``: the copies of the user
+    files it runs on (``files/``, ``kali_daemons.snapshot``), made by ``kalictl start`` and
+    removed by ``kalictl stop``."""
+    return runtime_dir() / instance
+
+
+INSTANCE_MARK = "instance"  # a file in an instance's directory holding its name
+
+
+def _make_instance_dir(instance: str) -> Path:
+    """A new, empty, private ``instance_dir`` (a left-over one removed first), marked as the
+    instance's so that ``_remove_instance_dir`` never removes a directory it did not make."""
+    path = instance_dir(instance)
+    _remove_instance_dir(path, instance)
+    _private_dir(runtime_dir(), "runtime directory", "KALI_RUNTIME_DIR")
+    path.mkdir(mode=0o700)
+    (path / INSTANCE_MARK).write_text(f"{instance}\n")
+    return path
+
+
+def _remove_instance_dir(path: Path, instance: str) -> bool:
+    """Remove an instance's directory if it is one (a real directory of this user holding
+    the instance's mark); True if it was removed.  Anything else at the path is left."""
+    try:
+        st = os.lstat(path)
+        mark = (path / INSTANCE_MARK).read_text()
+    except OSError:
+        return False
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.geteuid() or mark != f"{instance}\n":
+        return False
+    shutil.rmtree(path, ignore_errors=True)
+    return not path.exists()
 
 
 def runtime_dir() -> Path:
@@ -259,8 +295,12 @@ def _stop(instance: str) -> StopReport:
         arena = Arena.attach(instance)
     except ArenaError:
         arena = None
+    dirs = [instance_dir(instance)]
     if arena is not None:
         arena.header["shutdown"] = 1
+        files = _arena_text(arena, layout.KEY_CONFIG_FILES)
+        if files:  # started with another runtime directory (its files/ is in the arena)
+            dirs.append(Path(files).parent)
         arena.close()
     for name in all_semaphore_names(instance):  # wake every waiter so it sees shutdown
         if foreign_object(shm_path(name, semaphore=True), semaphore=True, any_owner=True):
@@ -293,7 +333,19 @@ def _stop(instance: str) -> StopReport:
         except FileNotFoundError:
             pass
     report.removed = sorted(before)
+    for path in dirs:
+        if _remove_instance_dir(path, instance):
+            report.removed.append(str(path))
     return report
+
+
+def _arena_text(arena: Arena, key: str) -> str:
+    """A text record of the arena ('' if there is none or it is not text)."""
+    found = arena.lookup(key)
+    if found is None:
+        return ""
+    raw = bytes(arena.view(found[0], np.dtype("u1"), found[1]))
+    return raw.split(b"\0", 1)[0].decode("utf-8", "replace")
 
 
 def _signal(pid: int, sig: int) -> None:
@@ -325,7 +377,7 @@ def _create(
     ``record`` is the viewer's recording file ('' for none), in its dashboard record;
     ``registry`` the servo algorithms (their private data is laid out per joint).
     """
-    registry = registry_for(cfg.plugins, cfg.base_dir) if registry is None else registry
+    registry = registry_for(cfg.plugins, cfg.base_dir, cfg.files) if registry is None else registry
     cell = cell_of(cfg, *registry.dtypes())
     arena = Arena.create(instance, cfg.arena_kib * 1024)
     try:
@@ -345,13 +397,16 @@ def _create(
         arena.record(layout.KEY_FAULT, layout.FAULT)
         arena.record(layout.KEY_MISSES, layout.MISS_LOG)
         arena.record(layout.KEY_DASHBOARD, layout.DASHBOARD)["record"] = record.encode()
-        text = cfg.text.encode()
-        raw = arena.record(layout.KEY_CONFIG, np.dtype("u1"), len(text) + 1)
-        raw[: len(text)] = np.frombuffer(text, np.uint8)
-        base = cfg.base_dir.encode()
-        raw = arena.record(layout.KEY_CONFIG_DIR, np.dtype("u1"), len(base) + 1)
-        raw[: len(base)] = np.frombuffer(base, np.uint8)
-        del raw
+        for key, value in (
+            (layout.KEY_CONFIG, cfg.text),
+            (layout.KEY_CONFIG_DIR, cfg.base_dir),
+            (layout.KEY_CONFIG_FILES, cfg.files),
+        ):
+            text = value.encode()
+            raw = arena.record(key, np.dtype("u1"), len(text) + 1)
+            raw[: len(text)] = np.frombuffer(text, np.uint8)
+            del raw
+        _write_cell(arena.record(layout.KEY_CELL, layout.CELL), cfg)
         arena.header["sealed"] = 1
         for name in all_semaphore_names(instance):
             posix_ipc.Semaphore(name, posix_ipc.O_CREX, mode=0o600, initial_value=0).close()
@@ -360,6 +415,21 @@ def _create(
         _stop(instance)
         raise
     return arena
+
+
+def _write_cell(rec: np.ndarray, cfg: KaliConfig) -> None:
+    """The cell's record (``layout.CELL``) from ``cfg``: what the safety path reads."""
+    rec["n_robots"] = len(cfg.robots)
+    rec["n_svs"] = sum(1 for p in cfg.processes if p.kind == "sv")
+    for k, r in enumerate(cfg.robots):
+        out = rec["robots"][k]
+        n = r.n_joints
+        out["name"] = r.name.encode()
+        out["model"] = r.type.name.encode()[: layout.TYPE_NAME_BYTES]
+        out["n_joints"] = n
+        out["first_joint"] = cfg.joints.base[k]
+        out["rad_per_count"][:n] = r.type.drive.rad_per_count
+        out["max_current"][:n] = r.type.drive.max_current
 
 
 @dataclass
@@ -377,13 +447,13 @@ def _check_servos(cfg: KaliConfig) -> Registry:
     """Load the servo plugins and look up every robot's servo before anything starts, so a
     bad plugin or algorithm name is a ConfigError here, not a daemon failing at start-up;
     the registry (the arena lays out each algorithm's private data)."""
-    registry = registry_for(cfg.plugins, cfg.base_dir)
+    registry = registry_for(cfg.plugins, cfg.base_dir, cfg.files)
     for robot in cfg.robots:
         try:
             registry.index(robot.servo)
         except ConfigError as exc:
             raise ConfigError(f"{cfg.source}: robot '{robot.name}' servo: {exc}") from None
-    functions_for(cfg.tg_functions, cfg.base_dir)  # TG function plugins: loaded here too
+    functions_for(cfg.tg_functions, cfg.base_dir, cfg.files)  # TG function plugins: loaded here too
     return registry
 
 
@@ -455,6 +525,12 @@ def _start(
         stale = shm_objects(name)
         _stop(name)
     logs = private_log_dir(log_dir(name))
+    try:  # the user files it runs on: copied once, loaded from the copies from here on
+        cfg = snapshot.take(cfg, _make_instance_dir(name) / "files")
+        registry = _check_servos(cfg)
+    except BaseException:
+        _remove_instance_dir(instance_dir(name), name)
+        raise
     arena = _create(cfg, name, lockstep, record_path, registry)
     arena.close()
     inst = Instance.attach(name)

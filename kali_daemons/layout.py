@@ -41,6 +41,10 @@ KEY_PROCESSES = "processes"
 KEY_FAULT = "fault"
 KEY_CONFIG = "config"
 KEY_CONFIG_DIR = "config.dir"  # where relative plugin paths are found
+# the instance's copies of the user files it loaded (robot type files, plugins), taken once
+# at ``kalictl start`` (``kali_daemons.snapshot``): every later load reads them
+KEY_CONFIG_FILES = "config.files"
+KEY_CELL = "cell"  # CELL: the arms as started, for the paths that must not load user code
 KEY_MISSES = "clock.misses"
 
 # --------------------------------------------------------------------------------------------
@@ -852,6 +856,31 @@ FEEDFORWARD = np.dtype(
 
 MAX_ROBOTS = 4  # arms in one cell (config.MAX_ROBOTS)
 MAX_SEGMENTS = 16  # straight-line segments in one Cartesian path request
+# The cell as ``kalictl start`` found it (writer: kalictl start; readers: every tool), so the
+# safety path (estop, status, stop, reset, enable/disable) needs nothing but the arena: no
+# config file, no import of a robot type's or a plugin's code.
+ROBOT_NAME_BYTES = 16  # config: [a-z][a-z0-9_]{0,15}
+TYPE_NAME_BYTES = 32  # a robot type's name, for messages (cut if longer)
+CELL_ROBOT = np.dtype(
+    [
+        ("name", f"S{ROBOT_NAME_BYTES}"),
+        ("model", f"S{TYPE_NAME_BYTES}"),  # its robot type's name
+        ("n_joints", "<u4"),
+        ("first_joint", "<u4"),  # flat index of its joint 1 (joints.JointMap)
+        ("rad_per_count", "<f8", (MAX_JOINTS,)),  # an encoder count at the joint, rad
+        ("max_current", "<f8", (MAX_JOINTS,)),  # the motors' current limits, A
+    ],
+    align=True,
+)
+CELL = np.dtype(
+    [
+        ("n_robots", "<u4"),
+        ("n_svs", "<u4"),  # servo workers sv.0 .. sv.<n_svs - 1>
+        ("robots", CELL_ROBOT, (MAX_ROBOTS,)),
+    ],
+    align=True,
+)
+
 MOTION_QUEUE_CAPACITY = 64  # requests waiting for the TG
 MOTION_QUEUE_SHARE = 16  # of them, unread entries one program (client_pid) may hold
 STATUS_RING = 256  # request statuses kept; request seq s lives at s % STATUS_RING
@@ -1196,6 +1225,7 @@ class Cell:
     config_bytes: int  # the config text's UTF-8 bytes
     config_dir_bytes: int  # its directory's
     arms: tuple[np.dtype, ...] = ()  # each robot-level servo's private data, registry order
+    config_files_bytes: int = 0  # the path of the instance's copies of its user files
 
     @property
     def n_joints(self) -> int:
@@ -1233,6 +1263,8 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_DASHBOARD, DASHBOARD, None, "viewer (record: kalictl start)", "kalictl view"),
     Record(KEY_CONFIG, *_u1(lambda c, i: c.config_bytes + 1), "kalictl start", "all"),
     Record(KEY_CONFIG_DIR, *_u1(lambda c, i: c.config_dir_bytes + 1), "kalictl start", "all"),
+    Record(KEY_CONFIG_FILES, *_u1(lambda c, i: c.config_files_bytes + 1), "kalictl start", "all"),
+    Record(KEY_CELL, CELL, None, "kalictl start", "kalictl, introspection"),
     # the hardware (the plant simulates it)
     Record(KEY_BOARDS, IO_BOARD, lambda c, i: len(c.robots), "SIO and the plant", "SIO"),
     Record(KEY_DACS, DAC_BOARD, lambda c, i: len(c.robots), "SIO", "the plant"),

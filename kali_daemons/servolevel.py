@@ -38,9 +38,9 @@ import numpy as np
 from . import atomic, layout, shadow
 from .channels import InterpolatingFifo
 from .config import ms_to_ns
-from .errors import KaliError, ServoError
+from .errors import InstanceError, KaliError, ServoError
 from .instance import Instance, decode
-from .layout import CalibState, FfMode, FfState, PowerCmd, PowerState, ShadowState, SlotOp
+from .layout import CalibState, FfMode, FfState, PowerState, ShadowState, SlotOp
 from .robots import robot_type
 from .servo import (
     ArmServoAlgorithm,
@@ -130,7 +130,7 @@ class ServoLevel:
         self.n_robots = len(self.names)
         self.map = cfg.joints  # the flat joint numbering
         n = self.n = self.map.total
-        self.registry: Registry = registry_for(cfg.plugins, Path(cfg.base_dir))
+        self.registry: Registry = registry_for(cfg.plugins, Path(cfg.base_dir), cfg.files)
         a = inst.arena
         get = a.record if create else a.existing
         self.robots = get(layout.KEY_ROBOTS, layout.ROBOT_STATE, self.n_robots)
@@ -688,14 +688,10 @@ class ServoClient:
         """Ask SIO to enable (or disable) a robot's amplifiers; see ``wait_power``."""
         k = self.robot_index(robot)
         on = flag(f"power of robot '{self.names[k]}'", on)
-        stamp = self._faults()  # before the check: a halt after it changes the count
-        if on and self.inst.fault["active"]:
-            raise ServoError(
-                f"cannot enable '{self.names[k]}' while a fault is active "
-                f"({self.inst.fault_text()}); kalictl reset first"
-            )
-        self.level.robots["cmd_faults"][k] = stamp
-        self.level.robots["power_cmd"][k] = PowerCmd.ENABLE if on else PowerCmd.DISABLE
+        try:
+            self.inst.command_power(k, on)
+        except InstanceError as exc:
+            raise ServoError(str(exc)) from None
 
     def _faults(self) -> int:
         """The stamp of a command: the faults raised so far (low 32 bits), read before the

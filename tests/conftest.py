@@ -86,8 +86,12 @@ def wait_for(
 
 
 def leftovers(instance: str) -> tuple[list[str], list[int]]:
-    """/dev/shm objects and live daemon pids of ``instance``."""
-    return launcher.shm_objects(instance), launcher.instance_pids(instance)
+    """/dev/shm objects (and the instance's directory of user file copies) and live daemon
+    pids of ``instance``."""
+    own = launcher.instance_dir(instance)
+    return launcher.shm_objects(instance) + ([str(own)] if own.exists() else []), (
+        launcher.instance_pids(instance)
+    )
 
 
 @pytest.fixture

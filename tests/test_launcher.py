@@ -24,7 +24,9 @@ from .conftest import ROOT, leftovers, make_config, unique_name
 PROCESSES = ["wallclock", "plant", "tg", "sio", "sv.0", "sv.1", "dynamics", "viewer"]
 
 
-def kalictl(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+def kalictl(
+    *args: str, env: dict[str, str] | None = None, timeout: float = 120
+) -> subprocess.CompletedProcess:
     """Run the real command line, as a user would."""
     return subprocess.run(
         [sys.executable, "-m", "kali_daemons", *args],
@@ -32,7 +34,7 @@ def kalictl(*args: str, env: dict[str, str] | None = None) -> subprocess.Complet
         text=True,
         cwd=ROOT,
         env={**os.environ, **(env or {})},
-        timeout=120,
+        timeout=timeout,
     )
 
 

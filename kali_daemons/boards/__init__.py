@@ -6,7 +6,8 @@ write.  It reaches the boards only through ``Hardware``, the analogue of ros2_co
 ``SystemInterface`` (``read``/``write``) with the power and calibration steps a robot with
 relative encoders needs (thesis 3.5.1).  Every register bit lives in ``mcgill``; a different
 board is a module that implements the same interface and the same out-of-cycle functions
-(``cut_all``, ``press_estop``, ``estops_pressed``, ``grip``, ``run_conveyor``).
+(``cut_all``, ``press_estop``, ``estops_pressed``, ``amplifiers_cut``, ``grip``,
+``run_conveyor``).
 
 Joint arrays are flat over the cell's joints (``joints.JointMap``); ``k`` is an arm's index in
 config order, ``j`` a joint of it (0-based), ``i`` a flat joint index.
@@ -24,6 +25,7 @@ from .driver import JointDriver
 from .mcgill import (
     McGillBoards,
     PotReader,
+    amplifiers_cut,
     cut_all,
     estops_pressed,
     grip,
@@ -100,6 +102,7 @@ __all__ = [
     "JointDriver",
     "McGillBoards",
     "PotReader",
+    "amplifiers_cut",
     "cut_all",
     "estops_pressed",
     "grip",

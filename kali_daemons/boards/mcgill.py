@@ -335,6 +335,14 @@ def press_estop(boards: np.ndarray, k: int, pressed: bool) -> None:
     boards["estop"][k] = 1 if pressed else 0
 
 
+def amplifiers_cut(boards: np.ndarray) -> list[bool]:
+    """Each arm's amplifiers off or being cut, whatever SIO has seen yet: the board reports
+    them off, its disable bit is low (a halt, ``cut_all``) or its e-stop is pressed."""
+    off = (boards["power"] & POWER_AMPS_ON) == 0
+    disabled = (boards["csr"] & CSR_NO_DISABLE) == 0
+    return [bool(v) for v in off | disabled | (boards["estop"] != 0)]
+
+
 def estops_pressed(boards: np.ndarray) -> list[bool]:
     """Each arm's e-stop button: True while pressed."""
     return [bool(b) for b in boards["estop"]]

@@ -1249,7 +1249,7 @@ class Kali:
         (loaded on first use, as the TG loaded them)."""
         if self._functions is None:
             cfg = self.inst.config
-            self._functions = functions_for(cfg.tg_functions, cfg.base_dir)
+            self._functions = functions_for(cfg.tg_functions, cfg.base_dir, cfg.files)
         return self._functions
 
     def control(

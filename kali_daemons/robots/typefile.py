@@ -27,7 +27,7 @@ from typing import Final
 import numpy as np
 
 from ..errors import ConfigError, KaliError
-from ..pyfile import import_file
+from ..pyfile import guarded, import_file
 from .profile import RobotType
 
 FLANGE_LINK: Final = "flange"
@@ -43,10 +43,17 @@ def is_type_file(model: str) -> bool:
 
 def load_type_file(path: Path) -> RobotType:
     """The ``ROBOT`` of the module file at ``path`` (absolute), checked as the module says;
-    ``ConfigError`` naming the file, what is wrong and the rule."""
+    ``ConfigError`` naming the file, what is wrong and the rule.  Its code runs guarded
+    (``pyfile.guarded``): a file that exits or does not load in time is refused too."""
     where = f"robot type file {path}"
     if not path.is_file():
         raise ConfigError(f"{where}: no such file")
+    with guarded(where, path):
+        return _load(path, where)
+
+
+def _load(path: Path, where: str) -> RobotType:
+    """``load_type_file`` of an existing file, inside its guard."""
     try:
         module = import_file(path, "kali_robot_type")
     except KaliError as exc:  # a RobotType or kinematics refusing its fields: says which

@@ -42,7 +42,7 @@ import numpy as np
 
 from .. import layout
 from ..errors import ConfigError
-from ..pyfile import import_file
+from ..pyfile import guarded, import_file, mirror
 from .arm import ArmServoAlgorithm, check_arm_dtype, probe_arm_step
 
 STATUS_OK = 0  # what ``step`` returns when all is well
@@ -359,14 +359,21 @@ class Registry:
         self._algos.append(algo)
         return self._by_name[name]
 
-    def load_plugin(self, spec: str, base_dir: Path | None = None) -> list[str]:
+    def load_plugin(self, spec: str, base_dir: Path | None = None, files: str = "") -> list[str]:
         """Load the plugin ``spec`` and return the names it registered.
 
         ``spec`` is a file path (``.py``, or containing '/'; relative to ``base_dir``, default
-        the current directory) or a dotted module name.  The module must define
-        ``register(registry)``.  Every fault is a ConfigError naming the plugin.
+        the current directory; read from the instance's copies under ``files`` when given,
+        ``snapshot.mirror``) or a dotted module name.  The module must define
+        ``register(registry)``.  Every fault is a ConfigError naming the plugin; its code
+        runs guarded (``pyfile.guarded``: no exit, bounded time).
         """
-        module = import_plugin(spec, base_dir)
+        path = plugin_file(spec, base_dir, files)
+        with guarded(f"plugin {spec!r}", path):
+            return self._load_plugin(spec, import_plugin(spec, path))
+
+    def _load_plugin(self, spec: str, module: Any) -> list[str]:
+        """``load_plugin`` once the plugin is imported, inside its guard."""
         register = getattr(module, "register", None)
         if register is None:
             raise ConfigError(
@@ -389,6 +396,10 @@ class Registry:
             raise ConfigError(
                 f"plugin {spec!r}: register() raised {type(exc).__name__}: {exc}"
             ) from exc
+        except BaseException:  # an exit or its time out (pyfile.guarded): none of it stays
+            del self._algos[before:], self.arms[arms_before:]
+            self._rebuild_names()
+            raise
         finally:
             self._source = "builtins"
         added = [a.name for a in self._algos[before:]] + [a.name for a in self.arms[arms_before:]]
@@ -460,19 +471,16 @@ def _is_path(spec: str) -> bool:
     return spec.endswith(".py") or "/" in spec
 
 
-def import_plugin(spec: str, base_dir: Path | None) -> Any:
-    """Import a plugin file or module; ConfigError for a missing file or a failed import."""
+def plugin_file(spec: str, base_dir: Path | None, files: str = "") -> Path | None:
+    """The file a plugin ``spec`` names, absolute and resolved (None for a module name);
+    under the instance's copies ``files`` (``snapshot.mirror``) when given.  ConfigError for
+    a missing file or a spec that is neither."""
     if not _is_path(spec):
         if not all(part.isidentifier() for part in spec.split(".")):
             raise ConfigError(
                 f"plugin {spec!r}: neither a file path (ending in .py) nor a dotted module name"
             )
-        try:
-            return importlib.import_module(spec)
-        except Exception as exc:
-            raise ConfigError(
-                f"plugin {spec!r}: import failed: {type(exc).__name__}: {exc}"
-            ) from exc
+        return None
     path = Path(spec)
     relative = ""
     if not path.is_absolute():
@@ -481,8 +489,23 @@ def import_plugin(spec: str, base_dir: Path | None) -> Any:
         what = "the config file's directory" if base_dir else "the current directory"
         relative = f" (a relative path is taken from {what}, {base})"
     path = path.resolve()
+    if files:
+        path = mirror(files, path)
     if not path.is_file():
         raise ConfigError(f"plugin {spec!r}: file {path} does not exist{relative}")
+    return path
+
+
+def import_plugin(spec: str, path: Path | None) -> Any:
+    """Import a plugin, the module ``spec`` or the file ``path`` (``plugin_file``);
+    ConfigError for a failed import."""
+    if path is None:
+        try:
+            return importlib.import_module(spec)
+        except Exception as exc:
+            raise ConfigError(
+                f"plugin {spec!r}: import failed: {type(exc).__name__}: {exc}"
+            ) from exc
     try:
         module = import_file(path, "kali_servo_plugin")
     except Exception as exc:
@@ -494,10 +517,13 @@ def import_plugin(spec: str, base_dir: Path | None) -> Any:
     return module
 
 
-def registry_for(plugins: Sequence[str], base_dir: Path | str | None = None) -> Registry:
-    """The built-ins plus ``plugins`` (the config's ``plugins`` list), in order."""
+def registry_for(
+    plugins: Sequence[str], base_dir: Path | str | None = None, files: str = ""
+) -> Registry:
+    """The built-ins plus ``plugins`` (the config's ``plugins`` list), in order; read from
+    the instance's copies under ``files`` when given (``KaliConfig.files``)."""
     registry = Registry()
     base = None if base_dir is None else Path(base_dir)
     for spec in plugins:
-        registry.load_plugin(spec, base)
+        registry.load_plugin(spec, base, files)
     return registry

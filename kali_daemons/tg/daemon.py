@@ -424,7 +424,7 @@ class TrajectoryGenerator(Daemon):
         )
         self.functions = FunctionSlots(
             arena.record(layout.KEY_TG_FUNCTIONS, layout.TG_FUNCTION, layout.MAX_FUNCTIONS),
-            registry_for(cfg.tg_functions, cfg.base_dir),
+            registry_for(cfg.tg_functions, cfg.base_dir, cfg.files),
             Sensors(self.names, [], []),  # SIO's records once it has laid them out
             self._base_ns,
         )

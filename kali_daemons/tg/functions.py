@@ -39,11 +39,13 @@ from .. import atomic, layout, rt
 from ..errors import ConfigError
 from ..instance import decode
 from ..layout import FunctionStatus
+from ..pyfile import guarded
 from ..servo.registry import (
     Param,
     check_dtype,
     defaults,
     import_plugin,
+    plugin_file,
     resolve_params,
     struct_type,
 )
@@ -210,9 +212,16 @@ class FunctionRegistry:
             raise ConfigError(f"{what}: evaluate and derive must be functions")
         self._functions.append(fn)
 
-    def load_plugin(self, spec: str, base_dir: Path | None) -> None:
-        """Load plugin ``spec`` (a file or module defining ``register(registry)``)."""
-        module = import_plugin(spec, base_dir)
+    def load_plugin(self, spec: str, base_dir: Path | None, files: str = "") -> None:
+        """Load plugin ``spec`` (a file or module defining ``register(registry)``; a file
+        from the instance's copies under ``files`` when given), its code guarded
+        (``pyfile.guarded``)."""
+        path = plugin_file(spec, base_dir, files)
+        with guarded(f"tg function plugin {spec!r}", path):
+            self._load_plugin(spec, import_plugin(spec, path))
+
+    def _load_plugin(self, spec: str, module: Any) -> None:
+        """``load_plugin`` once the plugin is imported, inside its guard."""
         register = getattr(module, "register", None)
         if not callable(register):
             raise ConfigError(f"tg function plugin {spec!r}: defines no register(registry)")
@@ -228,15 +237,21 @@ class FunctionRegistry:
             raise ConfigError(
                 f"tg function plugin {spec!r}: register() raised {type(exc).__name__}: {exc}"
             ) from exc
+        except BaseException:  # an exit or its time out (pyfile.guarded): none of it stays
+            del self._functions[before:]
+            raise
         finally:
             self._source = "builtins"
 
 
-def registry_for(plugins: Sequence[str], base_dir: Path | str | None) -> FunctionRegistry:
-    """The built-ins plus the config's ``tg_functions`` plugins, in order."""
+def registry_for(
+    plugins: Sequence[str], base_dir: Path | str | None, files: str = ""
+) -> FunctionRegistry:
+    """The built-ins plus the config's ``tg_functions`` plugins, in order; files read from
+    the instance's copies under ``files`` when given (``KaliConfig.files``)."""
     registry = FunctionRegistry()
     for spec in plugins:
-        registry.load_plugin(spec, None if base_dir is None else Path(base_dir))
+        registry.load_plugin(spec, None if base_dir is None else Path(base_dir), files)
     return registry
 
 
