@@ -287,6 +287,11 @@ class RequestQueue:
             return None
         return int(self._seqs[head % self._capacity])
 
+    def put_seq(self) -> int:
+        """The seq the next entry accepted will get (every entry put before has a lower
+        one).  Any process; never locks."""
+        return atomic.load64(self._tail_addr) + 1
+
     def __len__(self) -> int:
         """Entries unread (a snapshot).  Safe in a cycle."""
         head = atomic.load64(self._head_addr)

@@ -60,6 +60,7 @@ MOVE_TIMEOUT_S = 3600.0  # kalictl move's longest wait
 MAX_PUSH_N = 5000.0  # kalictl push: the largest force per axis
 MAX_PUSH_S = 600.0  # and the longest push
 STALL_S = 2.0  # a non-serious process this long without a heartbeat is reported stalled
+STOP_CONFIRM_S = 5.0  # kalictl run's Ctrl-C: longest it waits to see the program's arms stop
 DEGRADED = {
     "dynamics": "feed-forward (SIO drops it as stale)",
     "viewer": "dashboard",
@@ -321,6 +322,8 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 )
         spy = introspect.Introspector(inst)
         t = spy.tg_longest()
+        for line in _request_lines(spy.requests(), int(inst.clock["tick"])):
+            click.echo(line)
         spy.close()
         if t is not None:
             click.echo(
@@ -340,6 +343,39 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                     f"{(m['due_ns'] - m['signal_ns']) / 1e6:.0f} ms earlier still "
                     f"unacknowledged ({m['consecutive']} in a row)"
                 )
+
+
+def _request_lines(req: dict[str, object] | None, tick: int) -> list[str]:
+    """``kalictl status``'s lines on the TG's requests, only when something holds them up:
+    a request waiting for a status record (and who holds the records), the queue at least
+    half full (and whose entries), a program at its share of unread outcomes."""
+    if req is None:
+        return []
+    programs: list[dict] = req["programs"]  # type: ignore[assignment]
+    queue: dict = req["queue"]  # type: ignore[assignment]
+    lines = []
+    if req["blocked_seq"]:
+        who = ", ".join(
+            f"{p['program']} {p['live']} queued or running" for p in programs if p["live"]
+        )
+        lines.append(
+            f"requests: blocked for {tick - int(req['blocked_tick']):d} ticks: request "
+            f"{req['blocked_seq']} waits for a status record, every one holds a request "
+            f"queued or running ({who or 'none'}); stops still go first"
+        )
+    if queue["entries"] * 2 >= queue["capacity"]:
+        who = ", ".join(f"{p['program']} {p['in_queue']}" for p in programs if p["in_queue"])
+        lines.append(
+            f"requests: queue holds {queue['entries']} of {queue['capacity']} entries "
+            f"({who}; {queue['share']} each at most)"
+        )
+    for p in programs:
+        if p["unread"] >= layout.STATUS_SHARE:
+            lines.append(
+                f"requests: {p['program']} keeps {p['unread']} outcomes unread: its oldest "
+                f"give way to its new requests (their handles read LOST)"
+            )
+    return lines
 
 
 def _stalled(row: dict[str, object], clock_pid: object) -> bool:
@@ -940,6 +976,26 @@ def _run_remote(endpoint: str, name: str, program: Path, args: tuple[str, ...]) 
     return status if status >= 0 else 128 - status
 
 
+def _stopped_text(kali: Kali, owned: list[int], seq: int) -> str:
+    """Wait until the stop ``seq`` of arms ``owned`` is carried out and they are at rest
+    (``Kali.stopped``; in lockstep stepping the clock), STOP_CONFIRM_S at most, and say what
+    is true then: stopped, halted, or not confirmed (never "stopped" before they are)."""
+    arms = ", ".join(kali.names[k] for k in owned)
+    if not owned:
+        return "it owned no arm"
+    deadline = time.monotonic() + STOP_CONFIRM_S
+    while not kali.stopped(owned, seq) and time.monotonic() < deadline:
+        kali.pause()
+    if kali.inst.fault["active"]:
+        return f"arms halted ({kali.inst.fault_text()}): {arms}"
+    if kali.stopped(owned, seq):
+        return f"arms stopped on their paths: {arms}"
+    return (
+        f"a stop of {arms} was asked, and not confirmed within {STOP_CONFIRM_S:g} s "
+        f"(kalictl status says what the TG is doing); kalictl estop halts them"
+    )
+
+
 def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:
     """Ctrl-C under ``kalictl run``: stop the program's arms, then signal it; a second
     Ctrl-C kills it.  The program's exit status (negative: the signal that ended it)."""
@@ -947,9 +1003,8 @@ def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:
         owned = sorted(
             {k for pid in [proc.pid, *_descendants(proc.pid)] for k in kali.owned_by(pid)}
         )
-        kali.stop_robots(owned, force=True)  # before the signal: it may ignore it
-        arms = ", ".join(kali.names[k] for k in owned) or "none moving"
-        click.echo(f"run: {program} interrupted; arms stopped on their paths: {arms}", err=True)
+        seq = kali.stop_robots(owned, force=True)  # before the signal: it may ignore it
+        click.echo(f"run: {program} interrupted; {_stopped_text(kali, owned, seq)}", err=True)
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
         return proc.wait()

@@ -31,7 +31,8 @@ from .layout import (
     RequestState,
     RunMode,
 )
-from .spinlock import pid_alive
+from .spinlock import holder_text, pid_alive
+from .tg import records
 from .wallclock.clock import time_ms
 
 FF_SCALARS = ("weight", "stale_ticks", "stale_events", "heartbeat_tick", "rows_written")
@@ -324,21 +325,69 @@ class Introspector:
         for k, name in enumerate(self.names):
             seq = int(tg["busy_seq"][k])
             entry: dict[str, Any] = {"robot": name, "busy_seq": seq, "tick": int(tg["tick"][k])}
-            if seq and status is not None:
-                s = status[seq % layout.STATUS_RING]
-                if int(s["seq"]) == seq:
-                    entry["state"] = RequestState(int(s["state"])).name
-                    entry["progress"] = float(s["progress"])
-                    entry["duration_s"] = float(s["duration_s"])
+            i = -1 if status is None or not seq else records.find(status, seq)
+            if i >= 0:
+                s = status[i]  # type: ignore[index]
+                entry["state"] = _name(RequestState, int(s["state"]))
+                entry["progress"] = float(s["progress"])
+                entry["duration_s"] = float(s["duration_s"])
             robots.append(entry)
         queued = None if queue is None else int(queue["tail"]) - int(queue["head"])
         discarded = None if queue is None else int(queue["discarded"])
         return {
             "queued": queued,
             "discarded": discarded,
+            "requests": self.requests(),
             "robots": robots,
             "longest_tick": self.tg_longest(),
             "now": self.tg_now(),
+        }
+
+    def requests(self) -> dict[str, Any] | None:
+        """Who holds the TG's request queue and status records: per program (pid, with its
+        name from /proc) its entries unread in the queue, its requests queued or running and
+        its unread outcomes; the request waiting for a record (``blocked_seq``: every record
+        holds a live request) and since which tick; None before the TG laid them out."""
+        status = self._view(layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING)
+        state = self._view(layout.KEY_TG_STATE, layout.TG_STATE)
+        head = self._view(layout.KEY_MOTION_QUEUE, layout.QUEUE_HEADER)
+        slots = self._view(
+            layout.KEY_MOTION_QUEUE + ".slots",
+            layout.queue_entry(layout.MOTION_REQUEST),
+            layout.MOTION_QUEUE_CAPACITY,
+        )
+        if status is None or state is None or head is None or slots is None:
+            return None
+        n = layout.MOTION_QUEUE_CAPACITY
+        h, t = int(head["head"]), int(head["tail"])
+        places = np.arange(h, t) % n if 0 <= t - h <= n else np.zeros(0, dtype=np.int64)
+        in_queue = slots["payload"]["client_pid"][places]
+        held = records.holders(status.copy())
+        pids = sorted(set(held) | {int(p) for p in in_queue})
+        programs = [
+            {
+                "pid": p,
+                "program": holder_text(p),
+                "in_queue": int(np.count_nonzero(in_queue == p)),
+                "live": held.get(p, (0, 0))[0],
+                "unread": held.get(p, (0, 0))[1],
+            }
+            for p in pids
+        ]
+        s = state.copy()
+        return {
+            "queue": {"entries": len(places), "capacity": n, "share": layout.MOTION_QUEUE_SHARE},
+            "records": {
+                "capacity": layout.STATUS_RING,
+                "unread_share": layout.STATUS_SHARE,
+                "live_share": layout.LIVE_SHARE,
+            },
+            "blocked_seq": int(s["blocked_seq"]) or None,
+            "blocked_tick": int(s["blocked_tick"]) if int(s["blocked_seq"]) else None,
+            "evicted": int(s["evicted"]),
+            "stops_taken": int(s["stops_taken"]),
+            "stops_refused": int(s["stops_refused"]),
+            "programs": programs,
         }
 
     def tg_now(self) -> dict[str, Any] | None:

@@ -883,8 +883,15 @@ CELL = np.dtype(
 
 MOTION_QUEUE_CAPACITY = 64  # requests waiting for the TG
 MOTION_QUEUE_SHARE = 16  # of them, unread entries one program (client_pid) may hold
-STATUS_RING = 256  # request statuses kept; request seq s lives at s % STATUS_RING
+# Stops and aborts have a lane of their own the TG empties first every tick (``tg.stops``):
+# they never wait behind other requests.
+STOP_QUEUE_CAPACITY = 32
+STOP_QUEUE_SHARE = 4
+STATUS_RING = 512  # request status records (tg.records: the TG gives each request one)
+STATUS_SHARE = 64  # unread outcomes one program keeps: beyond, its oldest gives way (LOST)
+LIVE_SHARE = 64  # requests one program may have queued or running in the TG: more refused
 KEY_MOTION_QUEUE = "tg.requests"
+KEY_STOP_QUEUE = "tg.stops"
 KEY_MOTION_STATUS = "tg.status"
 KEY_TG_ROBOTS = "tg.robots"
 KEY_TG_STATE = "tg.state"
@@ -1050,6 +1057,9 @@ MOTION_REQUEST = np.dtype(
         # program share ``group`` (its pid << 32 | a count; 0: none) and start on one TG tick
         ("group", "<u8"),
         ("group_size", "u1"),
+        # STOP, ABORT in the stop lane: its robots' requests put in the request queue before
+        # this seq are cancelled too (they would otherwise start after the stop jumped them)
+        ("before_seq", "<u8"),
     ],
     align=True,
 )
@@ -1058,8 +1068,8 @@ REQUEST_STATUS = np.dtype(
     [
         ("seq", "<u8"),  # the request this record is about (0: none yet)
         ("state", "u1"),  # RequestState
-        # the owning client, once it has seen the final state (or dropped its handle); the TG
-        # reuses a record only when it is read or its client_pid is dead
+        # the owning client, once it has seen the final state (or dropped its handle): the TG
+        # may give the record to another request (tg/records.py says when before that)
         ("read", "u1"),
         ("contact_robot", "u1"),  # TG, CONTACT: the robot whose guard tripped (config index)
         ("_pad", "u1"),
@@ -1082,6 +1092,7 @@ TG_ROBOT = np.dtype(
         ("setpoint", "<f8", (MAX_JOINTS,)),  # TG: the last joint set-point pushed, rad
         ("t6", "<f8", (4, 4)),  # TG: T6 of that set-point, base frame
         ("tick", "<i8"),  # TG: last TG tick
+        ("stop_seq", "<u8"),  # TG: the last stop-lane request carried out on this robot
     ],
     align=True,
 )
@@ -1110,6 +1121,13 @@ TG_STATE = np.dtype(
         ("phase", "<u4"),
         ("phase_seq", "<u4"),  # the request (low 32 bits of its seq) being worked on
         ("phase_ns", "<i8"),
+        # TG: the request taken from the queue that waits for a status record because every
+        # record holds a request queued or running (0: none), and since which tick
+        ("blocked_seq", "<u8"),
+        ("blocked_tick", "<i8"),
+        ("evicted", "<u8"),  # TG: unread outcomes that gave way (their handles read LOST)
+        ("stops_taken", "<u8"),  # TG: stop-lane requests carried out
+        ("stops_refused", "<u8"),  # TG: stop-lane requests refused (an arm owned by another)
     ],
     align=True,
 )
@@ -1339,6 +1357,14 @@ RECORDS: tuple[Record, ...] = (
         KEY_MOTION_QUEUE + ".slots",
         queue_entry(MOTION_REQUEST),
         MOTION_QUEUE_CAPACITY,
+        "clients",
+        "TG",
+    ),
+    Record(KEY_STOP_QUEUE, QUEUE_HEADER, None, "clients (tail), TG (head)", "clients, TG"),
+    Record(
+        KEY_STOP_QUEUE + ".slots",
+        queue_entry(MOTION_REQUEST),
+        STOP_QUEUE_CAPACITY,
         "clients",
         "TG",
     ),

@@ -131,6 +131,7 @@ from kali_daemons.layout import FrameKind, RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.servolevel import FIFO_CAPACITY
+from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows
 from kali_daemons.tg.functions import FunctionRegistry, FunctionSlots, Sensors, data_of, set_params
@@ -652,7 +653,7 @@ def cooperating_pair(kali: Kali) -> tuple[MotionSystem, list[np.ndarray]]:
 
 def inst_status_duration(kali: Kali, h: MotionHandle) -> float:
     """The planned duration of running request ``h`` (its status record)."""
-    rec = kali.status[h.seq % layout.STATUS_RING]
+    rec = kali.status[records.find(kali.status, h.seq)]
     return float(rec["duration_s"])
 
 

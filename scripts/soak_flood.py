@@ -23,13 +23,14 @@ import signal
 import sys
 import time
 
+from kali_daemons import layout
 from kali_daemons.client import Kali, MotionFailedError
 from kali_daemons.client.motion import MotionHandle, RequestLostError
 from kali_daemons.errors import QueueFullError
 from kali_daemons.layout import MotionKind, RequestState
 
 ROBOTS = ("left", "right")  # the arms the soak's demo moves
-OUTSTANDING = 256  # requests in flight at most (the TG's status ring holds 256)
+OUTSTANDING = layout.STATUS_SHARE  # requests in flight: the unread outcomes a program keeps
 WAIT_S = 30.0  # longest one outcome may take (a TG tick is 10 ms)
 FULL_PAUSE_S = 0.002  # after a refused put, before the next
 

@@ -237,6 +237,13 @@ def test_check_refuses_with_segment_arm_and_reason() -> None:
         one_arm(q0, [a], config=kinematics.Config.from_string("luf"))
 
 
+class _OneRecord:
+    """The TG's ``records`` for a checker of one motion at a time: its record is 0."""
+
+    def index(self, seq: int) -> int:
+        return 0
+
+
 class _Checker:
     """The TG's ``_check`` over one motion, with ``_run`` recorded instead of run."""
 
@@ -249,6 +256,7 @@ class _Checker:
         self.lockstep = lockstep
         self._work = 0
         self._progress = np.zeros(layout.STATUS_RING)
+        self.records = _OneRecord()
         self.ran: list[Motion] = []
 
     def _run(self, m: Motion) -> None:

@@ -20,6 +20,7 @@ import pytest
 from kali_daemons.client import Kali
 from kali_daemons.errors import MotionError
 from kali_daemons.layout import RequestState
+from kali_daemons.tg import records
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ROOT
@@ -62,9 +63,9 @@ def test_a_program_killed_mid_motion_leaves_the_motion_and_the_queue_working(
         seq = int(out.split()[0])
         for _ in range(300):
             step_kali_clock(k.inst, 10)
-            if int(k.status["state"][seq % len(k.status)]) == RequestState.DONE:
+            if int(k.status["state"][records.find(k.status, seq)]) == RequestState.DONE:
                 break
-        assert int(k.status["state"][seq % len(k.status)]) == RequestState.DONE
+        assert int(k.status["state"][records.find(k.status, seq)]) == RequestState.DONE
         np.testing.assert_allclose(k.servo.level.arm("demand", 0), target, atol=1e-12)
         back = k.robot("left").move_joints(start, wait=False)  # the queue still works
         back.wait(timeout=60)  # (lockstep: waiting steps the clock)

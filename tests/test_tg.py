@@ -26,6 +26,7 @@ from kali_daemons.layout import CalibState, FaultCode, MotionKind, PowerState, R
 from kali_daemons.robots import puma560
 from kali_daemons.servolevel import FIFO_CAPACITY
 from kali_daemons.tg import daemon as tgd
+from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import base_transform, inverse
 from kali_daemons.tg.daemon import TrajectoryGenerator, check_request, write_status
 from kali_daemons.tg.profiles import MotionError
@@ -74,7 +75,7 @@ def test_move_joints_arrives_smoothly_and_together(kali: Callable[..., str]) -> 
         assert (jumps <= puma560.QDD_MAX * 0.010 * 1.001 + 1e-6).all(), jumps
         progress = (d - start) / (target - start)
         assert np.abs(progress - progress[:, :1]).max() < 1e-9  # every joint together
-        duration = float(k.status["duration_s"][h.seq % layout.STATUS_RING])
+        duration = float(k.status["duration_s"][records.find(k.status, h.seq)])
         assert 0.5 < duration < 2.0
         step_kali_clock(k.inst, 1000)
         assert np.abs(rs["q"][LEFT] - target).max() < math.radians(0.05)
@@ -151,7 +152,7 @@ def test_bad_requests_are_refused_and_nothing_moves(kali: Callable[..., str]) ->
             (seq_nan, "joint 1: target nan"),
             (seq_kind, "motion kind 99"),
         ):
-            rec = st[seq % layout.STATUS_RING]
+            rec = st[records.find(st, seq)]
             assert int(rec["seq"]) == seq and int(rec["state"]) == RequestState.REFUSED
             assert why in bytes(rec["message"]).decode(), bytes(rec["message"])
         step_kali_clock(k.inst, 100)
@@ -181,7 +182,7 @@ def test_a_halt_wakes_the_waiting_program_with_the_fault(kali: Callable[..., str
 
 
 def test_a_status_record_taken_over_never_shows_its_new_seq_with_the_old_state() -> None:
-    """The TG reuses status record seq % STATUS_RING while clients poll it (seq, then state):
+    """The TG gives a status record to a new request while clients poll it (seq, then state):
     a client must never see its seq with the DONE of the request that had the record before.
     Writer and reader threads switch every few bytecodes, between any two stores."""
     status = np.zeros(1, dtype=layout.REQUEST_STATUS)
@@ -334,7 +335,7 @@ class BareTg:
                 for fifo, q in zip(self.sio, self.demand, strict=True):
                     fifo.pop_into(q)
             self.tick += 1
-            rec = self.tg.status[seq % layout.STATUS_RING]
+            rec = self.tg.status[records.find(self.tg.status, seq)]
             if int(rec["seq"]) == seq and int(rec["state"]) in layout.TERMINAL_STATES:
                 return RequestState(int(rec["state"])), bytes(rec["message"]).decode()
         raise AssertionError(f"request {seq} not over within {max_ticks} TG ticks")
@@ -352,7 +353,7 @@ def bare_arena() -> Iterator[Arena]:
 
 def _outcomes(tg: TrajectoryGenerator, seqs: list[int]) -> list[bool]:
     """Which of ``seqs`` the TG has taken and answered (its status record is the request's)."""
-    return [int(tg.status[s % layout.STATUS_RING]["seq"]) == s for s in seqs]
+    return [records.find(tg.status, s) >= 0 for s in seqs]
 
 
 @pytest.mark.parametrize("mode", ["real time", "lockstep"])
@@ -378,7 +379,9 @@ def test_requests_are_taken_only_while_the_tick_s_share_lasts(
         tg.cycle(tick)
         taken = min(len(seqs), (tick + 1) * per_tick)
         assert _outcomes(tg, seqs) == [True] * taken + [False] * (len(seqs) - taken)
-    assert all(int(tg.status[s % layout.STATUS_RING]["state"]) == RequestState.DONE for s in seqs)
+    assert all(
+        int(tg.status[records.find(tg.status, s)]["state"]) == RequestState.DONE for s in seqs
+    )
 
 
 def test_a_mixed_cell_moves_each_arm_over_its_own_joints(bare_arena: Arena) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -18,9 +19,11 @@ from kali_daemons.errors import ServoError
 from kali_daemons.layout import CalibState, MotionKind, PowerState, RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
+from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
 from kali_daemons.tg.daemon import LEAD, Motion, TrajectoryGenerator
 from kali_daemons.tg.profiles import MotionError
+from kali_daemons.tg.records import StatusRecords
 from kali_daemons.wallclock import step_kali_clock
 
 SQUARE_TOL_M = 0.002  # the measured tool path stays this close to the commanded lines
@@ -272,6 +275,7 @@ class _TgMethods:
             k.tg_robots["setpoint"][i, : r.n_joints] for i, r in enumerate(k.inst.config.robots)
         ]
         self._progress = k.status["progress"]
+        self.records = StatusRecords(k.status)
         self.motions: list[Motion] = []
 
 
@@ -291,12 +295,13 @@ def test_no_joint_solution_at_run_time_stops_the_motion_and_halts(
         # the arm's base "moves" after the check (nothing outside the TG can do this)
         plan._to_base[0] = inverse(base_transform((-3.0, 0.0, 0.0), 0.0))
         tg = _TgMethods(k)
+        tg.records.allocate(77, os.getpid())
         m = Motion(77, [0], plan)
         tg.motions.append(m)
         k.tg_robots["busy_seq"][0] = 77
         tg._advance(m)
         assert tg.motions == [] and int(k.tg_robots["busy_seq"][0]) == 0
-        rec = k.status[77 % layout.STATUS_RING]
+        rec = k.status[records.find(k.status, 77)]
         assert int(rec["state"]) == RequestState.HALTED
         text = k.inst.fault_text()
         assert text is not None and "SINGULARITY" in text, text

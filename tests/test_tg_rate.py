@@ -11,11 +11,11 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from kali_daemons import layout
 from kali_daemons.client import Kali, set_control_rate
 from kali_daemons.errors import ClockError
 from kali_daemons.layout import RequestState
 from kali_daemons.robots import puma560
+from kali_daemons.tg import records
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_launcher import kalictl
@@ -46,7 +46,7 @@ def move_with_rate_change(
         underruns.append(fifo.underruns)
         if not first and not np.array_equal(demands[-1], start):
             first = len(demands) - 1
-        duration = float(k.status["duration_s"][h.seq % layout.STATUS_RING])
+        duration = float(k.status["duration_s"][records.find(k.status, h.seq)])
         if (
             first
             and not changed

@@ -55,6 +55,7 @@ from ..robots import Kinematics, RobotType
 from ..servolevel import ServoClient
 from ..shadow import Trial
 from ..spinlock import pid_alive
+from ..tg import records
 from ..tg.cartesian import (
     CartesianMotion,
     base_transform,
@@ -77,6 +78,7 @@ _ENDED = frozenset(int(s) for s in TERMINAL_STATES if s != RequestState.LOST)
 # a tracking motion's limits unless the program gives its own: m/s, rad/s, m/s², rad/s²
 TRACK_LIMITS = (0.25, 1.0, 1.0, 4.0)
 LOCKSTEP_STEP = 10  # ticks a waiting program steps a lockstep instance's clock at a time
+STOP_LANE_WAIT_S = 1.0  # longest a stop waits for room in the TG's stop lane (emptied every tick)
 # Robot.settle: the flange within this of where its demand puts it, this long without a break
 SETTLE_M = 2e-4
 SETTLE_RAD = 1e-3
@@ -139,6 +141,18 @@ class MotionHandle:
         self._final: tuple[RequestState, str] | None = None  # the TG's last word, once read
         self._contact: Contact | None = None  # where a guarded move touched, once read
         self._released = False  # the TG was told it may reuse the status record
+        self._rec = -1  # its status record, once found (the TG gives it one: tg/records.py)
+
+    def _record(self) -> np.void | None:
+        """This request's status record, or None: not taken by the TG yet, or given to
+        another request since."""
+        status = self.kali.status
+        if self._rec < 0:
+            self._rec = records.find(status, self.seq)
+            if self._rec < 0:
+                return None
+        rec = status[self._rec]
+        return rec if int(rec["seq"]) == self.seq else None
 
     def _read(self) -> tuple[RequestState, str]:
         """(state, message) as the TG wrote them, or HALTED with the fault when one has been
@@ -148,10 +162,9 @@ class MotionHandle:
             return self._final
         if self.seq == 0:  # made in a together() block that has not ended
             return RequestState.QUEUED, "not sent yet: its together() block has not ended"
-        rec = self.kali.status[self.seq % layout.STATUS_RING]
-        have = int(rec["seq"])
+        rec = self._record()
         state = RequestState.QUEUED  # still in the queue, or taken and not yet written
-        if have == self.seq:
+        if rec is not None:
             raw = int(rec["state"])
             message = decode(rec["message"])  # the TG writes the message before the state
             if raw in _ENDED and int(rec["seq"]) == self.seq:
@@ -168,12 +181,13 @@ class MotionHandle:
                 return self._final
             if raw in (RequestState.QUEUED, RequestState.RUNNING):
                 state = RequestState(raw)
-        elif have > self.seq:
+        elif self._rec >= 0 or self.seq <= int(self.kali.tg_state["taken_seq"]):
             self._final = (
                 RequestState.LOST,
-                f"its status record {self.seq % layout.STATUS_RING} now holds request {have} "
-                f"(written outside the protocol, or by a TG that did not keep it); the outcome "
-                f"is unknown",
+                f"its outcome was not kept: the TG gave its status record to another request "
+                f"(a program keeps at most {layout.STATUS_SHARE} outcomes unread, and when "
+                f"every record is needed the oldest unread ones give way); read outcomes "
+                f"(handle.state, wait) or drop the handles",
             )
             return self._final
         fault = fault_since(self.kali.inst, self.epoch)
@@ -181,31 +195,15 @@ class MotionHandle:
             return RequestState.HALTED, f"halted: {fault}"
         return state, ""
 
-    def _own_blocker(self) -> int:
-        """The seq of this program's own ended, unread request whose status record this one
-        waits for in the queue (the TG takes it only once that one is read), else 0: a wait
-        that would never end."""
-        rec = self.kali.status[self.seq % layout.STATUS_RING]
-        have = int(rec["seq"])
-        if (
-            0 < have < self.seq
-            and int(rec["client_pid"]) == os.getpid()
-            and int(rec["state"]) in _ENDED
-            and not int(rec["read"])
-        ):
-            return have
-        return 0
-
     def _release(self) -> None:
         """Tell the TG this program is done with the status record (once, and only while the
         record still holds this request: the TG cannot have reused it before)."""
         if self._released or self.seq == 0:
             return
         self._released = True
-        status = self.kali.status
-        if status is not None:
-            rec = status[self.seq % layout.STATUS_RING]
-            if int(rec["seq"]) == self.seq:
+        if self.kali.status is not None:
+            rec = self._record()
+            if rec is not None:
                 rec["read"] = 1
 
     def __del__(self) -> None:
@@ -235,8 +233,8 @@ class MotionHandle:
     def limited(self) -> int:
         """A tracking motion's ticks so far whose target moved faster than its limits allow
         (rate-limited); 0 for other motions."""
-        rec = self.kali.status[self.seq % layout.STATUS_RING]
-        return int(rec["limited"]) if int(rec["seq"]) == self.seq else 0
+        rec = self._record()
+        return 0 if rec is None else int(rec["limited"])
 
     @property
     def done(self) -> bool:
@@ -262,13 +260,6 @@ class MotionHandle:
                 raise TimeoutError(
                     f"motion: request {self.seq} not done within {timeout:g} s "
                     f"({state.name.lower()})"
-                )
-            blocker = self._own_blocker()
-            if blocker:
-                raise MotionFailedError(
-                    f"request {self.seq} can never start: its status record still holds "
-                    f"this program's request {blocker}, ended and never read; read it "
-                    f"(handle.state or wait) or drop its handle first"
                 )
             self.kali.pause()
         if state == RequestState.LOST:
@@ -760,13 +751,15 @@ class Robot:
         """The parameters of this arm's robot-level servo (default: the active one)."""
         return self.kali.servo.get_arm_params(self.name, servo)
 
-    def stop(self) -> None:
-        """Decelerate this arm's motion to rest on its path; queued ones are cancelled."""
-        self.kali._order(MotionKind.STOP, [self.index])
+    def stop(self) -> int:
+        """Decelerate this arm's motion to rest on its path; queued ones are cancelled.  It
+        goes ahead of every request; its seq, for ``Kali.stopped`` (0 while halted)."""
+        return self.kali._order(MotionKind.STOP, [self.index])
 
-    def abort(self) -> None:
-        """Drop this arm's motion at once: it holds at the last set-point."""
-        self.kali._order(MotionKind.ABORT, [self.index])
+    def abort(self) -> int:
+        """Drop this arm's motion at once: it holds at the last set-point.  Its seq, as
+        ``stop``'s."""
+        return self.kali._order(MotionKind.ABORT, [self.index])
 
 
 class MotionSystem:
@@ -1009,13 +1002,14 @@ class MotionSystem:
             params.update(partner=float(other.index + 1) if newtons else 0.0, fi=float(newtons))
             r.set_servo(params)
 
-    def stop(self) -> None:
-        """Decelerate the motion system to rest on its path."""
-        self.kali._order(MotionKind.STOP, self.indices)
+    def stop(self) -> int:
+        """Decelerate the motion system to rest on its path (ahead of every request); its
+        seq, for ``Kali.stopped`` (0 while halted)."""
+        return self.kali._order(MotionKind.STOP, self.indices)
 
-    def abort(self) -> None:
-        """Drop the motion system's motion at once."""
-        self.kali._order(MotionKind.ABORT, self.indices)
+    def abort(self) -> int:
+        """Drop the motion system's motion at once; its seq, as ``stop``'s."""
+        return self.kali._order(MotionKind.ABORT, self.indices)
 
 
 def _joints(robot: str, q: np.ndarray, rtype: RobotType) -> np.ndarray:
@@ -1068,6 +1062,14 @@ class Kali:
                 layout.MOTION_QUEUE_CAPACITY,
                 share=("client_pid", layout.MOTION_QUEUE_SHARE),
             )
+            self.stops = RequestQueue(
+                arena,
+                layout.KEY_STOP_QUEUE,
+                layout.MOTION_REQUEST,
+                layout.STOP_QUEUE_CAPACITY,
+                share=("client_pid", layout.STOP_QUEUE_SHARE),
+            )
+            self.tg_state = arena.record(layout.KEY_TG_STATE, layout.TG_STATE)
             self.status = arena.record(
                 layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
             )
@@ -1326,23 +1328,56 @@ class Kali:
         """The robots program ``pid`` owns."""
         return [k for k in range(len(self.names)) if int(self.leases["pid"][k]) == pid]
 
-    def _order(self, kind: MotionKind, robots: list[int], force: bool = False) -> None:
-        """A STOP or ABORT nobody waits on (its status record is free once it is done); none
-        while the system is halted: nothing moves then, and the TG ends every motion."""
-        if fault_since(self.inst, int(self.inst.fault["count"])) is None:
-            flags = layout.REQUEST_UNWATCHED | (layout.REQUEST_FORCE if force else 0)
-            self._request(kind, robots, flags=flags)
+    def _order(self, kind: MotionKind, robots: list[int], force: bool = False) -> int:
+        """A STOP or ABORT of ``robots`` through the TG's stop lane (``tg.stops``): taken
+        before any other request, it also cancels their requests this program or another put
+        before it; nobody waits on its outcome (``stopped`` tells when it is carried out).
+        Its seq in the lane, or 0 while the system is halted: nothing moves then, and the TG
+        ends every motion.  A full lane (it is emptied every TG tick) is waited for, ~1 s at
+        most, then QueueFullError."""
+        epoch = int(self.inst.fault["count"])
+        if fault_since(self.inst, epoch) is not None:
+            return 0
+        req = np.zeros((), dtype=layout.MOTION_REQUEST)
+        req["kind"] = kind
+        req["flags"] = layout.REQUEST_UNWATCHED | (
+            layout.REQUEST_FORCE if force or self.force else 0
+        )
+        req["n_robots"] = len(robots)
+        req["robots"][: len(robots)] = robots
+        req["client_pid"] = os.getpid()
+        req["client_name"] = self.program
+        req["fault_epoch"] = epoch
+        req["before_seq"] = self.queue.put_seq()
+        deadline = time.monotonic() + STOP_LANE_WAIT_S
+        while True:
+            try:
+                return self.stops.put(req)
+            except QueueFullError:
+                if time.monotonic() > deadline:
+                    raise
+                self.pause()
 
-    def stop_own(self) -> None:
+    def stop_own(self) -> int:
         """Stop the arms this program owns on their paths (a remote program's ``with`` block
-        does as it ends on Ctrl-C)."""
-        self.stop_robots(self.owned_by(os.getpid()))
+        does as it ends on Ctrl-C); the stop's seq (``stopped``), 0 if none."""
+        return self.stop_robots(self.owned_by(os.getpid()))
 
-    def stop_robots(self, robots: Sequence[int], force: bool = False) -> None:
+    def stop_robots(self, robots: Sequence[int], force: bool = False) -> int:
         """Stop ``robots`` (indices) on their paths; ``force`` takes them over from the
-        program that owns them (``kalictl run`` on Ctrl-C)."""
-        if robots:
-            self._order(MotionKind.STOP, list(robots), force)
+        program that owns them (``kalictl run`` on Ctrl-C).  The stop's seq in the stop
+        lane, for ``stopped`` (0: nothing to stop, or halted)."""
+        return self._order(MotionKind.STOP, list(robots), force) if robots else 0
+
+    def stopped(self, robots: Sequence[int], seq: int) -> bool:
+        """Whether the stop ``seq`` (``stop_robots``) has been carried out on ``robots`` and
+        they are at rest: no motion left on them.  True at once while halted (the
+        amplifiers are cut)."""
+        if self.inst.fault["active"] or seq == 0:
+            return True
+        done = self.tg_robots["stop_seq"]
+        busy = self.tg_robots["busy_seq"]
+        return all(int(done[k]) >= seq and int(busy[k]) == 0 for k in robots)
 
     def _request(
         self, kind: MotionKind, robots: list[int], flags: int = 0, **fields: object
@@ -1394,6 +1429,8 @@ class Kali:
         self.tg_robots = None  # type: ignore[assignment]
         self.fifos = []
         self.status = None  # type: ignore[assignment]
+        self.tg_state = None  # type: ignore[assignment]
+        self.stops = None  # type: ignore[assignment]
         self.leases = None  # type: ignore[assignment]
         self.ft = None  # type: ignore[assignment]
         self.queue = None  # type: ignore[assignment]

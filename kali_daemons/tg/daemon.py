@@ -2,11 +2,13 @@
 of every motion system each TG tick, time-sharing them.
 
 Requests come from user programs through the Type 1 queue ``tg.requests`` (3.3.2); each one's
-fate is written to its status record in ``tg.status`` (seq % STATUS_RING) so a waiting program
-sees it.  Admission is bounded end to end: the TG takes a request from the queue only when its
-status record is free to reuse (never used, or its last request ended and its client has read
-that, dropped its handle or is dead), so it never holds more than it can answer for; until
-then the request waits in the queue, and a full queue refuses producers (QueueFullError).
+fate is written to a status record of ``tg.status`` the TG gives it (``records``: a program
+finds it by the request's seq) so a waiting program sees it.  One program's unread outcomes
+cost only that program (``records``: a share of unread outcomes and of live requests per
+program); the TG waits, and the queue pushes back (QueueFullError), only when every record
+holds a request still queued or running.  Stops and aborts have a lane of their own,
+``tg.stops``, emptied first every tick: they never wait behind other requests, and cancel the
+requests of their arms put in the queue before them.
 
 Arms are owned (``tg.leases``): the first live program to request an arm owns it until it is
 dead; another program's request for it is refused naming the owner, unless it asks with
@@ -83,6 +85,7 @@ from .profiles import (
     check_guard,
     check_joint_target,
 )
+from .records import StatusRecords
 from .tracking import (
     SharedFrames,
     Tracking,
@@ -285,13 +288,13 @@ def plan_path(
 
 
 def write_status(rec: np.void, seq: int, state: RequestState, message: str = "") -> None:
-    """Write request ``seq``'s state into its status record ``rec`` (seq % STATUS_RING).
+    """Write request ``seq``'s state into its status record ``rec`` (``records``).
 
     A waiting client reads the seq, then the state, then the message, while this writes, so
-    the state goes last, after its message; and a record taken over from request
-    seq - STATUS_RING first has that request's state withdrawn (FREE), before the new seq
-    appears.  Else a client that polls early would see its seq with the old request's DONE
-    and think its motion over before it began: a soak caught it, three times in 30 min.
+    the state goes last, after its message; and a record given over from an earlier request
+    first has that request's state withdrawn (FREE), before the new seq appears.  Else a
+    client that polls early would see its seq with the old request's DONE and think its
+    motion over before it began.
     """
     if int(rec["seq"]) != seq:
         rec["state"] = RequestState.FREE
@@ -369,10 +372,22 @@ class TrajectoryGenerator(Daemon):
             layout.MOTION_QUEUE_CAPACITY,
             share=("client_pid", layout.MOTION_QUEUE_SHARE),
         )
+        self.stops = RequestQueue(
+            arena,
+            layout.KEY_STOP_QUEUE,
+            layout.MOTION_REQUEST,
+            layout.STOP_QUEUE_CAPACITY,
+            share=("client_pid", layout.STOP_QUEUE_SHARE),
+        )
         self.status = arena.record(
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
+        self.records = StatusRecords(self.status)
+        self._pending: tuple[int, np.void] | None = None  # taken, waiting for a record
+        self.stop_request = np.zeros(1, dtype=layout.MOTION_REQUEST)
         self.tg_robots = arena.record(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, self.n_robots)
+        # per robot: requests put in the queue before this seq are cancelled (a stop lane's)
+        self._cancel_below = [0] * self.n_robots
         self.state = arena.record(layout.KEY_TG_STATE, layout.TG_STATE)
         self._longest = self.state["longest_ns"].reshape(1)
         self._phase = self.state["phase"].reshape(1)
@@ -458,7 +473,11 @@ class TrajectoryGenerator(Daemon):
     # ------------------------------------------------------------------ status records
 
     def _say(self, seq: int, state: RequestState, message: str = "") -> None:
-        write_status(self.status[seq % layout.STATUS_RING], seq, state, message)
+        """Request ``seq``'s state into its record; an ended one's record is its program's
+        from here on (``StatusRecords.release``)."""
+        write_status(self.records[seq], seq, state, message)
+        if int(state) in _ENDED:
+            self.records.release(seq)
 
     # ------------------------------------------------------------------ the tick
 
@@ -479,27 +498,29 @@ class TrajectoryGenerator(Daemon):
         if int(self.inst.fault["active"]) or count != self._faults_seen:
             self._faults_seen = count
             self._halt_all()
+        self._take_stops()  # first: a stop never waits behind other requests
         taken = 0
         for _ in range(MAX_REQUESTS_PER_TICK):
             if taken and self._spent():  # the rest wait in the queue: at least one a tick
                 break
-            nxt = self.queue.next_seq()
-            if nxt is None:
+            if self._pending is None:
+                seq = self.queue.get_into(self.request)
+                if seq is None:
+                    break
+                self._pending = (seq, self.request[0].copy())
+            seq, req = self._pending
+            if self.records.allocate(seq, int(req["client_pid"])) is None:
+                self._blocked(seq)  # every record holds a live request: the queue pushes back
                 break
-            if not self._record_free(nxt):  # it waits in the queue: the queue pushes back
-                self.state["record_waits"] += 1
-                break
-            seq = self.queue.get_into(self.request)
-            if seq is None:
-                break
-            if seq != nxt and not self._record_free(seq):  # entries before it were forged
-                self.state["unreported"] += 1
-                continue
-            self.state["taken_seq"] = seq
+            self._pending = None
             self._phase_seq[0] = seq & 0xFFFFFFFF
-            self._take(seq, self.request[0].copy())
+            self._take(seq, req)
+            self.state["taken_seq"] = seq  # after its record holds it (clients look there)
             self._work += REQUEST_WORK
             taken += 1
+        if self._pending is None and int(self.state["blocked_seq"]):
+            self.state["blocked_seq"] = 0
+        self.state["evicted"] = self.records.evicted
         t1 = rt.monotonic_ns()
         self._at(TgPhase.STARTING, 0, t1)
         self._start_waiting()
@@ -614,23 +635,67 @@ class TrajectoryGenerator(Daemon):
 
     # ------------------------------------------------------------------ admission
 
-    def _holds(self, seq: int) -> bool:
-        """True if request ``seq`` is a motion or waiting here (its record is in use)."""
-        return any(m.seq == seq for m in self.motions) or any(s == seq for s, _ in self.waiting)
+    def _blocked(self, seq: int) -> None:
+        """Request ``seq`` waits for a record (every one holds a request queued or running):
+        counted, and named with the tick it began for ``kalictl status``."""
+        self.state["record_waits"] += 1
+        if int(self.state["blocked_seq"]) != seq:
+            self.state["blocked_seq"] = seq
+            self.state["blocked_tick"] = self._now
 
-    def _record_free(self, seq: int) -> bool:
-        """True if request ``seq``'s status record may be taken for it: never used, or its
-        last request ended and its client read that (or dropped its handle, or asked with
-        REQUEST_UNWATCHED) or is dead.  A record not ended that no motion or waiting request
-        here holds was written by something else and is free too.  In the cycle; looks at
-        /proc only for an ended, unread record."""
-        rec = self.status[seq % layout.STATUS_RING]
-        have = int(rec["seq"])
-        if have == 0 or have >= seq:
-            return True
-        if int(rec["state"]) not in _ENDED:
-            return not self._holds(have)
-        return bool(rec["read"]) or not pid_alive(int(rec["client_pid"]))
+    def _take_stops(self) -> None:
+        """Carry out every request in the stop lane (``tg.stops``), before any other: a stop
+        or abort of its arms (claimed as any request: refused on an arm another live program
+        owns, unless forced), which also cancels their requests put in the request queue
+        before it.  No status record: nobody waits on its outcome; each robot's
+        ``stop_seq`` says it was carried out.  One put before the latest fault is dropped
+        (the halt stopped everything)."""
+        faults = int(self.inst.fault["count"])
+        while (seq := self.stops.get_into(self.stop_request)) is not None:
+            req = self.stop_request[0]
+            if int(req["fault_epoch"]) < faults:
+                continue
+            try:
+                kind, robots = check_request(
+                    req, self.names, self.types, None, self.contact_limits
+                )
+                if kind not in (MotionKind.STOP, MotionKind.ABORT):
+                    raise MotionError(f"the stop lane takes STOP and ABORT, not {kind.name}")
+            except Exception:  # a request never halts the cell; nobody reads its outcome
+                self.state["stops_refused"] += 1
+                continue
+            if self._claim(robots, req):
+                self.state["stops_refused"] += 1
+                continue
+            self._stop(robots, abort=kind == MotionKind.ABORT)
+            below = int(req["before_seq"])
+            if self._pending is not None and self._pending[0] < below:
+                pending, self._pending = self._pending, None
+                self._cancel_pending(pending, robots, kind)
+            for k in robots:
+                self._cancel_below[k] = max(self._cancel_below[k], below)
+                self.tg_robots["stop_seq"][k] = seq
+            self.state["stops_taken"] += 1
+
+    def _cancel_pending(
+        self, pending: tuple[int, np.void], robots: list[int], kind: MotionKind
+    ) -> None:
+        """A stop came for request ``pending``'s arms while it waited for a record: it is
+        taken as usual and then cancelled (``_take`` sees ``_cancel_below``), or, if it is for
+        other arms, waits on."""
+        seq, req = pending
+        try:
+            mine = set(request_robots(req, self.n_robots)) & set(robots)
+        except Exception:
+            mine = set()
+        if not mine:
+            self._pending = pending
+            return
+        if self.records.allocate(seq, int(req["client_pid"])) is None:
+            self._pending = pending  # still no record: cancelled once it has one
+            return
+        self._take(seq, req)
+        self.state["taken_seq"] = seq
 
     def _claim(self, robots: list[int], req: np.void) -> str:
         """Give ``robots`` to the request's program, or say who owns them ('' when given).
@@ -681,9 +746,9 @@ class TrajectoryGenerator(Daemon):
         """Check a new request; queue, refuse, or act on it (stop, abort).  Nothing a request
         holds raises out of here: whatever is wrong with it refuses it (``refusal``)."""
         calibrated = None if self.robots is None else self.robots["calibrated"]
-        rec = self.status[seq % layout.STATUS_RING]
+        rec = self.records[seq]
         write_status(rec, seq, RequestState.FREE)  # this request's from here on
-        rec["client_pid"] = req["client_pid"]
+        rec["client_pid"] = pid = int(req["client_pid"])
         rec["read"] = 1 if int(req["flags"]) & layout.REQUEST_UNWATCHED else 0
         if int(req["fault_epoch"]) < int(self.inst.fault["count"]):  # put before a fault
             self._say(seq, RequestState.HALTED, self._halt_text())
@@ -694,6 +759,20 @@ class TrajectoryGenerator(Daemon):
             )
         except Exception as exc:  # a request never halts the cell
             self._refuse(seq, req, refusal(exc))
+            return
+        if kind not in (MotionKind.STOP, MotionKind.ABORT):
+            cancelled = [k for k in robots if seq < self._cancel_below[k]]
+            if cancelled:
+                self._refuse(seq, req, f"cancelled: a stop of robot '{self.names[cancelled[0]]}'"
+                             " was put after it")  # fmt: skip
+                return
+        if pid > 0 and self.records.live(pid) > layout.LIVE_SHARE:
+            self._refuse(
+                seq,
+                req,
+                f"program pid {pid} already has {layout.LIVE_SHARE} requests queued or running "
+                f"(layout.LIVE_SHARE); wait for some to end",
+            )
             return
         owner = self._claim(robots, req)
         if owner:
@@ -939,7 +1018,7 @@ class TrajectoryGenerator(Daemon):
 
     def _run(self, m: Motion) -> None:
         """Motion ``m`` is planned (and checked): it runs from this tick."""
-        rec = self.status[m.seq % layout.STATUS_RING]
+        rec = self.records[m.seq]
         rec["limited"] = 0
         rec["duration_s"] = m.profile.duration if math.isfinite(m.profile.duration) else 0.0
         rec["progress"] = 0.0
@@ -987,7 +1066,7 @@ class TrajectoryGenerator(Daemon):
         assert isinstance(plan, CartesianMotion)
         try:
             while not plan.check_some(CHECK_CHUNK):
-                self._progress[m.seq % layout.STATUS_RING] = plan.checked / plan.n_samples
+                self._progress[self.records.index(m.seq)] = plan.checked / plan.n_samples
                 self._work += CHECK_CHUNK
                 if self._spent():
                     return
@@ -1083,7 +1162,7 @@ class TrajectoryGenerator(Daemon):
                 q = m.rows[i]
                 self.fifos[k].push(q, last)
                 np.copyto(self._setpoint_of[k], q)
-        self._progress[m.seq % layout.STATUS_RING] = m.tau / p.duration
+        self._progress[self.records.index(m.seq)] = m.tau / p.duration
         if last and m.stop is not None:
             m.ending, m.ending_message = RequestState.STOPPED, "stopped on the path"
         elif last:
@@ -1112,7 +1191,7 @@ class TrajectoryGenerator(Daemon):
             self._say(b.seq, RequestState.QUEUED, f"after request {a.seq} at rest: {why}")
             return False
         b.blending = True
-        rec = self.status[b.seq % layout.STATUS_RING]
+        rec = self.records[b.seq]
         rec["duration_s"] = b.profile.duration
         rec["progress"] = 0.0
         self._say(b.seq, RequestState.RUNNING)
@@ -1192,8 +1271,8 @@ class TrajectoryGenerator(Daemon):
         for i, k in enumerate(b.robots):
             self.fifos[k].push(rows[i])
             np.copyto(self._setpoint_of[k], rows[i])
-        self._progress[a.seq % layout.STATUS_RING] = a.tau / a.profile.duration
-        self._progress[b.seq % layout.STATUS_RING] = b.tau / b.profile.duration
+        self._progress[self.records.index(a.seq)] = a.tau / a.profile.duration
+        self._progress[self.records.index(b.seq)] = b.tau / b.profile.duration
         if a.tau >= a.profile.duration:  # a has arrived: b goes on alone from here
             a.successor, b.predecessor, b.blending = None, None, False
             self._end_motion(a, RequestState.DONE)
@@ -1210,7 +1289,7 @@ class TrajectoryGenerator(Daemon):
     def _track(self, m: Motion, p: Tracking) -> None:
         """One tick of tracking motion ``m``: its arms' next set-points, or its end."""
         rows = p.step(self._now)
-        self._limited[m.seq % layout.STATUS_RING] = p.limited
+        self._limited[self.records.index(m.seq)] = p.limited
         if rows is None:  # held at the last set-points: nothing more to push
             m.ending = RequestState.ABORTED if p.aborted else RequestState.STOPPED
             m.ending_message = p.why
@@ -1218,7 +1297,7 @@ class TrajectoryGenerator(Daemon):
         for i, k in enumerate(m.robots):
             self.fifos[k].push(rows[i])
             np.copyto(self._setpoint_of[k], rows[i])
-        self._progress[m.seq % layout.STATUS_RING] = min(1.0, p.t / p.duration)
+        self._progress[self.records.index(m.seq)] = min(1.0, p.t / p.duration)
         if p.done:
             if p.why:
                 m.ending, m.ending_message = RequestState.STOPPED, f"stopped on its path: {p.why}"
@@ -1253,7 +1332,7 @@ class TrajectoryGenerator(Daemon):
         n = self.joint_map.counts[k]
         tool = self.bases[k] @ flange_pose(self._chains[k], ft["guard_q"][:n].copy())
         xyz = tool[:3, 3] + tool[:3, 2] * self._tips[k]
-        rec = self.status[m.seq % layout.STATUS_RING]
+        rec = self.records[m.seq]
         rec["contact_robot"] = k
         rec["contact_xyz"] = xyz
         rec["contact_force"] = ft["guard_force"]

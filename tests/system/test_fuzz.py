@@ -47,6 +47,7 @@ from kali_daemons.layout import MotionKind, ProcState, RequestState, SlotOp
 from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.spinlock import pid_alive
+from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import base_transform
 from kali_daemons.tg.daemon import check_request, plan_joints, plan_path
 from kali_daemons.wallclock import step_kali_clock
@@ -427,7 +428,7 @@ def test_random_bytes_as_queue_entries_are_refused_and_move_nothing(live: Kali, 
     req = np.frombuffer(raw, layout.MOTION_REQUEST)[0]
     seq = live.queue.put(req)
     step_kali_clock(live.inst, 10)
-    rec = live.status[seq % layout.STATUS_RING]
+    rec = live.status[records.find(live.status, seq)]
     assert int(rec["seq"]) == seq
     state = RequestState(int(rec["state"]))
     # refused (nothing is powered), or a stop/abort of nothing (done at once)

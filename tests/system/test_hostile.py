@@ -68,6 +68,7 @@ from kali_daemons.layout import (
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.servolevel import refusal_text
 from kali_daemons.spinlock import pid_alive
+from kali_daemons.tg import records
 from kali_daemons.wallclock import release, set_control_rate, step_kali_clock
 
 from ..conftest import leftovers, make_config, unique_name
@@ -282,7 +283,7 @@ def test_a_garbage_motion_request_is_refused_with_the_value_and_moves_nothing(
     pushed = [f.indices()[1] for f in cell.kali.fifos]
     seq = _queue(cell).put(req)  # a raw record: only its dtype is checked on the way in
     step_kali_clock(cell.inst, STEP)
-    rec = cell.kali.status[seq % layout.STATUS_RING]
+    rec = cell.kali.status[records.find(cell.kali.status, seq)]
     assert int(rec["seq"]) == seq
     message = decode(rec["message"])
     assert int(rec["state"]) == RequestState.REFUSED, message
