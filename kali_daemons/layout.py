@@ -970,6 +970,9 @@ TG_FUNCTION = np.dtype(
         ("status", "u1"),  # TG: FunctionStatus
         ("_pad", "u1"),
         ("evaluations", "<u4"),  # TG: times evaluated
+        # TG: evaluations longer than its budget (functions.FUNCTION_SHARE of the TG period);
+        # in real time the first holds its motions (TOO_LONG), in lockstep none does
+        ("over_budget", "<u4"),
         ("start_tick", "<i8"),  # its time t counts from this wall clock tick
         ("last_ns", "<i8"),  # TG: how long its last evaluation took
         ("worst_ns", "<i8"),  # TG: its longest evaluation
@@ -985,7 +988,7 @@ class FunctionStatus(enum.IntEnum):
     IDLE = 0
     RUNNING = 1
     RAISED = 2  # it raised: every motion using it was held
-    TOO_LONG = 3  # an evaluation outlasted its budget: every motion using it was held
+    TOO_LONG = 3  # an evaluation outlasted its budget (real time): every motion using it was held
 
 
 MOTION_REQUEST = np.dtype(

@@ -427,6 +427,7 @@ class TrajectoryGenerator(Daemon):
             registry_for(cfg.tg_functions, cfg.base_dir),
             Sensors(self.names, [], []),  # SIO's records once it has laid them out
             self._base_ns,
+            self.lockstep,
         )
         self._limited = self.status["limited"]
         # a blend's scratch: each path's pose, the sum, two rotations

@@ -1,5 +1,7 @@
 """Issue 51 ("Trust, round two"), each item as a hostile tester found it on main:
 
+- 8: a lockstep run is bit for bit the same whatever the host's load, also with a TG function
+  whose cost sits near its budget (wall time decides nothing in lockstep);
 - 13: ``set_tool`` refuses a tool that is not a rigid, finite 4×4 pose;
 - 14: a base outside the cell is refused when the config is parsed, and arms whose bodies
   overlap at rest are refused by ``kalictl start`` before any process runs.
@@ -7,19 +9,96 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.lib.recfunctions import repack_fields
 
-from kali_daemons import launcher
+from kali_daemons import flightrec, launcher, layout
 from kali_daemons.client import Kali
 from kali_daemons.config import parse_config
 from kali_daemons.errors import ConfigError, MotionError
+from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import ROOT, config_text, leftovers, make_config, unique_name
 from ..test_launcher import kalictl
+from ..test_tracking import WITH_FAULTY_FN, ready_left
+
+# ------------------------------------------------------------------ item 8: lockstep, loaded
+
+
+def _burn_pinned(seconds: float) -> list[subprocess.Popen]:
+    """A busy loop pinned to each CPU for ``seconds``: whatever CPU the executive runs on,
+    one sits beside it."""
+    loop = (
+        "import os, sys, time\n"
+        "os.sched_setaffinity(0, {int(sys.argv[1])})\n"
+        f"end = time.monotonic() + {seconds}\n"
+        "while time.monotonic() < end: pass\n"
+    )
+    cpus = sorted(os.sched_getaffinity(0))
+    return [subprocess.Popen([sys.executable, "-c", loop, str(c)]) for c in cpus]
+
+
+COMPARED = ("tick", "q", "demand", "servo_torque", "ff_torque", "torque", "current", "wrench")
+
+
+def _near_budget_run(start: Callable[..., str], load: bool) -> tuple[np.ndarray, str, int, int]:
+    """Track a TG function that burns 1.7 ms of CPU a tick (its budget: 2 ms, 20 % of the 10
+    ms TG period) for 1.5 s in lockstep, quiet or with every CPU busy beside it; the flight
+    recorder's rows (wall-time fields left out), the motion's state, the function's
+    evaluations and its evaluations over budget."""
+    name = start(lockstep=True, edits=WITH_FAULTY_FN)
+    with Kali(name) as k:
+        here = ready_left(k)
+        left = k.robot("left")
+        busy = k.tg_function("faulty", "busy", mode=3, work_ms=1.7)
+        burners = _burn_pinned(120) if load else []
+        try:
+            h = left.track([here, busy], accel=1.0)
+            step_kali_clock(k.inst, 1500)
+        finally:
+            for b in burners:
+                b.kill()
+                b.wait()
+        assert k.inst.fault_text() is None
+        header = k.inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+        ring = flightrec.attach_ring(k.inst.arena, header)
+        rows = flightrec.read_ring(header, ring, writer_idle=True)
+        slot = k.functions[busy.index]
+        return (
+            repack_fields(rows[list(COMPARED)]),
+            h.state.name,
+            int(slot["evaluations"]),
+            busy.over_budget,
+        )
+
+
+def test_lockstep_is_bit_for_bit_with_a_tg_function_near_its_budget_under_load(
+    kali: Callable[..., str],
+) -> None:
+    """Before: the budget was judged in wall time in lockstep too, so the loaded run's
+    function was held (TOO_LONG) at some tick and the rows parted from there."""
+    quiet, quiet_state, quiet_evals, _ = _near_budget_run(kali, load=False)
+    loaded, loaded_state, loaded_evals, over = _near_budget_run(kali, load=True)
+    print(f"loaded: {over} of {loaded_evals} evaluations over the 2 ms budget, not held")
+    assert quiet_state == loaded_state == "RUNNING"
+    assert quiet_evals == loaded_evals > 100
+    assert np.abs(np.diff(quiet["demand"], axis=0)).max() > 0  # the rows hold the motion
+    for field in COMPARED:  # as bytes: an unpowered arm's servo torque may be NaN
+        a = np.ascontiguousarray(quiet[field]).view(np.uint8).reshape(len(quiet), -1)
+        b = np.ascontiguousarray(loaded[field]).view(np.uint8).reshape(len(loaded), -1)
+        differ = np.flatnonzero((a != b).any(1))
+        assert differ.size == 0, (
+            f"{field}: {differ.size} rows differ, the first at tick {int(quiet['tick'][differ[0]])}"
+        )
+    assert quiet.tobytes() == loaded.tobytes()
+
 
 # ------------------------------------------------------------------ item 13: set_tool
 
