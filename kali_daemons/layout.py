@@ -969,6 +969,7 @@ TG_FUNCTION = np.dtype(
         ("algo", "<u2"),  # 1 + the function's index in the TG's registry (0: none)
         ("status", "u1"),  # TG: FunctionStatus
         ("_pad", "u1"),
+        ("function", f"S{FRAME_NAME_BYTES}"),  # TG: its registry name, once a motion used it
         ("evaluations", "<u4"),  # TG: times evaluated
         # TG: evaluations longer than its budget (functions.FUNCTION_SHARE of the TG period);
         # in real time the first holds its motions (TOO_LONG), in lockstep none does
@@ -1084,6 +1085,9 @@ TG_STATE = np.dtype(
         ("phase", "<u4"),
         ("phase_seq", "<u4"),  # the request (low 32 bits of its seq) being worked on
         ("phase_ns", "<i8"),
+        # TG: 1 + the ``tg.functions`` slot whose function it is evaluating now (0: none), so
+        # a halt for a TG that does not acknowledge names the function it is stuck in
+        ("phase_function", "<i4"),
     ],
     align=True,
 )

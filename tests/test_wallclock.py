@@ -274,7 +274,11 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
 
     c = object.__new__(WallClock)
     c.inst = SimpleNamespace(  # type: ignore[assignment]
-        procs=procs, fault=fault, clock={"mode": RunMode.RUNNING}, raise_fault=raise_fault
+        procs=procs,
+        fault=fault,
+        clock={"mode": RunMode.RUNNING},
+        raise_fault=raise_fault,
+        doing=lambda name: "",  # what a process is busy with: these say nothing
     )
     c._view_table(procs)
     c._log_entries, c._log_count = misses["entries"], misses["count"].reshape(1)

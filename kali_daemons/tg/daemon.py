@@ -429,6 +429,7 @@ class TrajectoryGenerator(Daemon):
             self._base_ns,
             self.lockstep,
         )
+        self.functions.evaluating = self.state["phase_function"].reshape(1)
         self._limited = self.status["limited"]
         # a blend's scratch: each path's pose, the sum, two rotations
         self._blend_poses = (np.eye(4), np.eye(4), np.eye(4), np.eye(3), np.eye(3))

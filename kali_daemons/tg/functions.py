@@ -21,7 +21,10 @@ parameters on line, and names it in a ``track`` loop.
 
 A function that raises, or whose evaluation takes longer than ``FUNCTION_SHARE`` of the TG
 period, holds every motion using it at its last set-point (the motion ends ABORTED naming
-the function and why); nothing else stops and the cell does not halt.  In lockstep an
+the function and why); nothing else stops and the cell does not halt, unless the evaluation
+keeps the TG past its deadline: it runs on the TG's thread, which cannot take the CPU back,
+and the TG then misses its deadline (DEADLINE, naming the function: ``evaluating`` is the
+TG's ``TG_STATE.phase_function``).  In lockstep an
 evaluation's time is measured and an overlong one counted (``over_budget``), but it holds
 nothing: wall time decides nothing there, so a run is the same whatever the host's load.
 """
@@ -280,6 +283,8 @@ class FunctionSlots:
         self.tick_s = base_tick_ns * 1e-9
         self.budget_ns = 0  # set by the TG from its period
         self.lockstep = lockstep
+        # 1 + the slot being evaluated (0: none): the TG binds its TG_STATE.phase_function
+        self.evaluating = np.zeros(1, dtype=np.int32)
         self._seq = [records["seq"][i : i + 1].ctypes.data for i in range(len(records))]
         self._slots = [records[i : i + 1].reshape(()) for i in range(len(records))]
 
@@ -297,6 +302,7 @@ class FunctionSlots:
         if not 0 <= algo < len(self.registry):
             raise ValueError(f"tg function '{self.name(i)}' names function {algo}, unknown here")
         fn = self.registry[algo]
+        slot["function"] = fn.name.encode()
         slot["status"] = FunctionStatus.RUNNING
         return fn, data_of(slot, fn)
 
@@ -310,12 +316,15 @@ class FunctionSlots:
         slot = self._slots[i]
         t = (now_tick - int(slot["start_tick"])) * self.tick_s
         out[...] = _EYE
+        self.evaluating[0] = i + 1  # whoever halts for a TG that stays in here names it
         t0 = rt.monotonic_ns()
         try:
             fn.evaluate(data, t, self.sensors, out)
         except Exception as exc:
             slot["status"] = FunctionStatus.RAISED
             return f"tg function '{self.name(i)}' ({fn.name}) raised {type(exc).__name__}: {exc}"
+        finally:
+            self.evaluating[0] = 0
         took = rt.monotonic_ns() - t0
         slot["last_ns"] = took
         slot["evaluations"] += 1

@@ -336,8 +336,8 @@ class WallClock(Daemon):
             self.inst.raise_fault(
                 FaultCode.DEADLINE,
                 name,
-                f"serious process '{name}' missed {n} consecutive deadlines at period "
-                f"{period_ms:g} ms ({overdue_ns / 1e6:.1f} ms unacknowledged, tolerance "
+                f"serious process '{name}'{self._doing(name)} missed {n} consecutive deadlines "
+                f"at period {period_ms:g} ms ({overdue_ns / 1e6:.1f} ms unacknowledged, tolerance "
                 f"{self.tolerance_ns / 1e6:g} ms{self._not_counted(lost_ns)}); last "
                 f"acknowledged tick {int(self._ack[i])}, signalled tick {int(self._sig[i])}",
                 tick=tick,
@@ -384,6 +384,12 @@ class WallClock(Daemon):
             )
             self.inst.clock["mode"] = RunMode.STOPPED
             return
+
+    def _doing(self, name: str) -> str:
+        """What process ``name`` is stuck in, as its fault message says it after its name:
+        " (evaluating tg function 'wave' (sine) for request 12)" for the TG, else ''."""
+        doing = self.inst.doing(name)
+        return f" ({doing})" if doing else ""
 
     def _not_counted(self, lost_ns: int) -> str:
         """A fault message's note of the clock's stalls left out of a process's time."""

@@ -2,9 +2,13 @@
 
 - 8: a lockstep run is bit for bit the same whatever the host's load, also with a TG function
   whose cost sits near its budget (wall time decides nothing in lockstep);
+- 12: in real time a TG function over its budget holds its motion system only, and one that
+  keeps the TG past its deadline halts the cell with DEADLINE naming the function;
 - 13: ``set_tool`` refuses a tool that is not a rigid, finite 4×4 pose;
 - 14: a base outside the cell is refused when the config is parsed, and arms whose bodies
   overlap at rest are refused by ``kalictl start`` before any process runs.
+
+Lockstep instances, except where timing is the point (item 12).
 """
 
 from __future__ import annotations
@@ -23,9 +27,10 @@ from kali_daemons import flightrec, launcher, layout
 from kali_daemons.client import Kali
 from kali_daemons.config import parse_config
 from kali_daemons.errors import ConfigError, MotionError
+from kali_daemons.layout import FaultCode, RequestState
 from kali_daemons.wallclock import step_kali_clock
 
-from ..conftest import ROOT, config_text, leftovers, make_config, unique_name
+from ..conftest import ROOT, config_text, leftovers, make_config, unique_name, wait_for
 from ..test_launcher import kalictl
 from ..test_tracking import WITH_FAULTY_FN, ready_left
 
@@ -98,6 +103,40 @@ def test_lockstep_is_bit_for_bit_with_a_tg_function_near_its_budget_under_load(
             f"{field}: {differ.size} rows differ, the first at tick {int(quiet['tick'][differ[0]])}"
         )
     assert quiet.tobytes() == loaded.tobytes()
+
+
+# ------------------------------------------------------------------ item 12: real time
+
+
+def test_in_real_time_a_tg_function_past_its_deadline_halts_naming_it(
+    kali: Callable[..., str],
+) -> None:
+    """A function over its budget (5 ms of 2) holds its motion system only; one taking 50 ms
+    keeps the TG from acknowledging past the serious tolerance and halts the cell, DEADLINE in
+    tg, the message naming the function (before: it named the TG only)."""
+    name = kali(lockstep=False, edits=WITH_FAULTY_FN)
+    with Kali(name) as k:
+        k.ready(["left"])
+        left = k.robot("left")
+        here = left.read_pose()
+        fn = k.tg_function("faulty", "fn")
+        h = left.track([here, fn])
+        wait_for(lambda: h.state == RequestState.RUNNING, 5.0, "tracking")
+        fn.set(mode=2, work_ms=5.0)  # over its budget, well within the TG's deadline
+        wait_for(lambda: h.done, 5.0, "the motion held")
+        assert h.state == RequestState.ABORTED
+        assert "tg function 'fn' (faulty) took" in h.message, h.message
+        assert fn.status.name == "TOO_LONG"
+        assert k.inst.fault_text() is None  # held its motion system, halted nothing
+        fn.set(mode=0)
+        h = left.track([here, fn])
+        wait_for(lambda: h.state == RequestState.RUNNING, 5.0, "tracking again")
+        fn.set(mode=2, work_ms=50.0)  # the TG's tick takes 50 ms: past the tolerance
+        wait_for(lambda: k.inst.fault_text() is not None, 5.0, "a halt")
+        fault = k.inst.read_fault()
+        assert (fault.code, fault.process) == (FaultCode.DEADLINE.name, "tg")
+        assert "tg function 'fn' (faulty)" in fault.message, fault.message
+        fn.set(mode=0)
 
 
 # ------------------------------------------------------------------ item 13: set_tool
