@@ -252,7 +252,7 @@ class FaultCode(enum.IntEnum):
 
     NONE = 0
     DEADLINE = 1  # a serious process missed its deadline beyond the tolerance
-    LOCKSTEP_TIMEOUT = 2  # a process did not acknowledge a lockstep tick in time
+    LOCKSTEP_TIMEOUT = 2  # reserved: a lockstep tick not acknowledged in time is a DEADLINE
     DAEMON_ERROR = 3  # a daemon's cycle raised
     PROCESS_DIED = 4
     ESTOP = 5

@@ -1,7 +1,10 @@
-"""Issue 51 ("Trust, round two"), each item as a hostile tester found it on main:
+"""Issue 51 ("Trust, round two"), items 8, 10, 12, 13 and 14, each as a hostile tester found it:
 
 - 8: a lockstep run is bit for bit the same whatever the host's load, also with a TG function
   whose cost sits near its budget (wall time decides nothing in lockstep);
+- 10: a TG function that never returns halts a lockstep instance with DEADLINE naming the TG
+  and the function, in the executive and with a process per daemon, and ``kalictl clock
+  step`` and ``status`` say so at once;
 - 12: in real time a TG function over its budget holds its motion system only, and one that
   keeps the TG past its deadline halts the cell with DEADLINE naming the function;
 - 13: ``set_tool`` refuses a tool that is not a rigid, finite 4×4 pose;
@@ -16,6 +19,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -33,6 +37,9 @@ from kali_daemons.wallclock import step_kali_clock
 from ..conftest import ROOT, config_text, leftovers, make_config, unique_name, wait_for
 from ..test_launcher import kalictl
 from ..test_tracking import WITH_FAULTY_FN, ready_left
+
+TIMEOUT = {r"lockstep_ack_timeout_s: .*$": "lockstep_ack_timeout_s: 0.5"}
+
 
 # ------------------------------------------------------------------ item 8: lockstep, loaded
 
@@ -103,6 +110,63 @@ def test_lockstep_is_bit_for_bit_with_a_tg_function_near_its_budget_under_load(
             f"{field}: {differ.size} rows differ, the first at tick {int(quiet['tick'][differ[0]])}"
         )
     assert quiet.tobytes() == loaded.tobytes()
+
+
+# ------------------------------------------------------------------ item 10: a hung function
+
+
+@pytest.mark.parametrize("separate", [False, True], ids=["executive", "separate-processes"])
+def test_a_tg_function_that_never_returns_halts_lockstep_naming_it(
+    kali: Callable[..., str], separate: bool
+) -> None:
+    """Before: in the executive the step never ended, ``status`` said "fault: none" and
+    ``clock step`` failed after 5 s; with a process per daemon the fault was LOCKSTEP_TIMEOUT
+    naming the TG but not the function."""
+    name = kali(lockstep=True, edits={**WITH_FAULTY_FN, **TIMEOUT}, separate=separate)
+    with Kali(name) as k:
+        here = ready_left(k)
+        stuck = k.tg_function("faulty", "stuck")
+        h = k.robot("left").track([here, stuck])
+        step_kali_clock(k.inst, 30)
+        assert h.state == RequestState.RUNNING
+        stuck.set(mode=4)  # from its next evaluation on it never returns
+        t0 = time.monotonic()
+        step_kali_clock(k.inst, 100, timeout=20.0)
+        took = time.monotonic() - t0
+        fault = k.inst.read_fault()
+        assert fault.code == FaultCode.DEADLINE.name, k.inst.fault_text()
+        assert fault.process == "tg"
+        assert "tg function 'stuck' (faulty)" in fault.message, fault.message
+        assert "0.5 s" in fault.message and "lockstep_ack_timeout_s" in fault.message
+        assert took < 5.0
+        t0 = time.monotonic()
+        r = kalictl("-i", name, "clock", "step", "10")
+        assert r.returncode != 0
+        assert "DEADLINE in tg" in r.stderr + r.stdout, (r.stdout, r.stderr)
+        assert time.monotonic() - t0 < 4.0  # not the command's 5 s timeout
+        r = kalictl("-i", name, "status")
+        assert "fault: DEADLINE in tg" in r.stdout, r.stdout
+        assert "tg function 'stuck' (faulty)" in r.stdout
+        stuck.set(mode=0)  # it returns: the instance stops without being killed
+
+
+def test_a_hosted_daemon_still_hung_after_reset_halts_again(kali: Callable[..., str]) -> None:
+    """In the executive a reset clears the fault, but a daemon still in its cycle is named
+    again, as a real-time TG still hung misses its deadline again once the clock runs."""
+    name = kali(lockstep=True, edits={**WITH_FAULTY_FN, **TIMEOUT})
+    with Kali(name) as k:
+        here = ready_left(k)
+        stuck = k.tg_function("faulty", "stuck")
+        k.robot("left").track([here, stuck])
+        step_kali_clock(k.inst, 30)
+        stuck.set(mode=4)
+        step_kali_clock(k.inst, 100, timeout=20.0)
+        first = k.inst.read_fault()
+        assert first.code == FaultCode.DEADLINE.name
+        assert k.inst.clear_fault()
+        wait_for(lambda: k.inst.fault_text() is not None, 5.0, "the fault raised again")
+        assert "tg function 'stuck' (faulty)" in k.inst.read_fault().message
+        stuck.set(mode=0)
 
 
 # ------------------------------------------------------------------ item 12: real time
