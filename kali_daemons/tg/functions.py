@@ -24,9 +24,9 @@ period, holds every motion using it at its last set-point (the motion ends ABORT
 the function and why); nothing else stops and the cell does not halt, unless the evaluation
 keeps the TG past its deadline: it runs on the TG's thread, which cannot take the CPU back,
 and the TG then misses its deadline (DEADLINE, naming the function: ``evaluating`` is the
-TG's ``TG_STATE.phase_function``).  In lockstep an
-evaluation's time is measured and an overlong one counted (``over_budget``), but it holds
-nothing: wall time decides nothing there, so a run is the same whatever the host's load.
+TG's ``TG_STATE.phase_function``).  In lockstep an evaluation's time is measured and an
+overlong one counted (``over_budget``), but it holds nothing: wall time decides nothing
+there, so a run is the same whatever the host's load.
 """
 
 from __future__ import annotations
