@@ -2,8 +2,9 @@
 
 The stand, the bar and the grasp sites are the plant's world (``model.build_world``) and what
 the viewer draws; ``load_pinocchio`` is the arm model of the dynamics process, the viewer and
-programs.  Pinocchio is imported where a model is loaded, so the plant, which needs these
-dimensions, does not import it.
+programs; ``check_clear_at_rest`` is ``kalictl start``'s check that no two arms of a config
+stand in each other.  Pinocchio is imported where a model is loaded, so the plant, which
+needs these dimensions, does not import it.
 """
 
 from __future__ import annotations
@@ -13,11 +14,12 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
-from kali_daemons.errors import ModelError
+from kali_daemons.errors import ConfigError, ModelError
 
 if TYPE_CHECKING:
     import pinocchio as pin
 
+    from kali_daemons.config import KaliConfig, RobotConfig
     from kali_daemons.robots import RobotType
 
 FLANGE_FRAME: Final = "flange"  # the URDF link of the flange (Pinocchio frame, MuJoCo body)
@@ -86,3 +88,68 @@ def bar_rest_pose() -> np.ndarray:
     t = np.eye(4)
     t[2, 3] = STAND_SIZE[2] + BAR_SIZE[2] / 2
     return t
+
+
+def check_clear_at_rest(cfg: KaliConfig) -> None:
+    """Refuse (ConfigError) a cell in which two arms' bodies overlap where they start: each
+    arm's collision shapes from its URDF (what Pinocchio and coal load, the shapes the plant
+    simulates), at its type's ``q_home`` (where the simulated arm starts), placed at its base.
+    The message names both arms, the two links nearest each other and their distance
+    (negative: how deep they interpenetrate).  Before any process runs: two arms started one
+    inside the other halt the cell at its first tick with a contact force no sensor takes."""
+    import pinocchio as pin  # here, not at load: the plant imports this module
+
+    world = pin.GeometryModel()
+    owner: list[tuple[int, str]] = []  # per shape: its robot and its link
+    for k, robot in enumerate(cfg.robots):
+        for placement, link, shape in _shapes_at_rest(robot, cfg.source):
+            world.addGeometryObject(pin.GeometryObject(f"{k}.{len(owner)}", 0, 0, placement, shape))
+            owner.append((k, link))
+    for i in range(len(owner)):
+        for j in range(i + 1, len(owner)):
+            if owner[i][0] != owner[j][0]:
+                world.addCollisionPair(pin.CollisionPair(i, j))
+    if not world.collisionPairs:
+        return
+    data = pin.GeometryData(world)
+    fixed = pin.Model()  # every shape hangs from the world at its place
+    pin.computeDistances(fixed, fixed.createData(), world, data, np.zeros(0))
+    distance = [r.min_distance for r in data.distanceResults]
+    nearest = int(np.argmin(distance))
+    if distance[nearest] > 0.0:
+        return
+    pair = world.collisionPairs[nearest]
+    (a, link_a), (b, link_b) = owner[pair.first], owner[pair.second]
+    ra, rb = cfg.robots[a], cfg.robots[b]
+    raise ConfigError(
+        f"{cfg.source}: robots '{ra.name}' ({ra.type.name}) and '{rb.name}' ({rb.type.name}) "
+        f"overlap at rest: link '{link_a}' of '{ra.name}' and link '{link_b}' of '{rb.name}' "
+        f"are {distance[nearest]:.3f} m apart (negative: one inside the other), at their "
+        f"starting joint angles (q_home) and bases {list(ra.base_xyz)} turned "
+        f"{ra.base_yaw_deg:g}° and {list(rb.base_xyz)} turned {rb.base_yaw_deg:g}°; their "
+        f"bodies must be apart: move a base (base_xyz, base_yaw_deg)"
+    )
+
+
+def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str, object]]:
+    """Robot ``robot``'s collision shapes (URDF ``<collision>``) at its type's ``q_home``, in
+    the world: (placement, link, coal geometry) each; ConfigError if they cannot be loaded."""
+    import pinocchio as pin
+
+    urdf = str(robot.type.urdf)
+    try:
+        model = pin.buildModelFromUrdf(urdf)
+        shapes = pin.buildGeomFromUrdf(model, urdf, pin.COLLISION)
+    except (RuntimeError, ValueError) as exc:
+        raise ConfigError(
+            f"{source}: robot '{robot.name}': the collision shapes of {urdf} do not load in "
+            f"Pinocchio: {exc}"
+        ) from None
+    data, shape_data = model.createData(), shapes.createData()
+    pin.updateGeometryPlacements(model, data, shapes, shape_data, np.asarray(robot.type.q_home))
+    yaw = np.radians(robot.base_yaw_deg)
+    base = pin.SE3(pin.utils.rotate("z", yaw), np.asarray(robot.base_xyz, dtype=float))
+    return [
+        (base * shape_data.oMg[i], model.frames[g.parentFrame].name, g.geometry)
+        for i, g in enumerate(shapes.geometryObjects)
+    ]

@@ -47,6 +47,10 @@ DEFAULT_MODEL = "puma560"  # a robot entry without a model
 
 MAX_SV_WORKERS = 8
 MAX_ROBOTS = 4
+# A base further than this from the cell's origin along an axis (m) is a typo: the TG refuses
+# any pose further than 10 m from its frame's origin (tg.profiles.MAX_POSE_M), so no target
+# in the world could reach an arm based there, and arms that share a bar stand ~1 m apart
+MAX_BASE_M = 10.0
 MAX_STAGE = 15
 MAX_POLL_US = 500  # an SV's poll for its signal and feed (processes.sv.poll_us)
 DEFAULT_REST_MS = 4  # processes.sv.rest_ms left out: rounded up to whole servo periods
@@ -831,6 +835,19 @@ def _finite(value: Any, path: str) -> float:
     return float(value)
 
 
+def _base_coordinate(value: Any, path: str) -> float:
+    """A coordinate of a robot's base: a finite number within ±MAX_BASE_M."""
+    number = _finite(value, path)
+    if abs(number) > MAX_BASE_M:
+        _fail(
+            path,
+            value,
+            f"must be within ±{MAX_BASE_M:g} m of the cell's origin (no pose the TG accepts "
+            f"lies further out)",
+        )
+    return number
+
+
 def _bool(value: Any, path: str) -> bool:
     """``true`` or ``false`` (not 0/1)."""
     if not isinstance(value, bool):
@@ -1429,7 +1446,7 @@ def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
         xyz_node = m.get("base_xyz", [0.0, 0.0, 0.0])
         if not isinstance(xyz_node, list) or len(xyz_node) != 3:
             _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")
-        x, y, z = (_finite(v, f"{path}.base_xyz[{j}]") for j, v in enumerate(xyz_node))
+        x, y, z = (_base_coordinate(v, f"{path}.base_xyz[{j}]") for j, v in enumerate(xyz_node))
         yaw = _finite(m.get("base_yaw_deg", 0.0), f"{path}.base_yaw_deg")
         servo = _identifier(m.get("servo", "pid"), f"{path}.servo", _SERVO_NAME_RE)
         safe_node = m.get("safe_rad", DEFAULT_SAFE_RAD)

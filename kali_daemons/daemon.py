@@ -788,7 +788,7 @@ class FunctionDaemon(Daemon):
         slots at the start of each tick, so once it has begun the tick after next, or stands
         (stopped, halted, shut down).  A process that leaves may leave that to its exit (the
         clock finds its pid dead); a thread's pid lives on, and a signal it never took would
-        hold a lockstep tick until the timeout (a serious one: LOCKSTEP_TIMEOUT)."""
+        hold a lockstep tick until the timeout (a serious one: DEADLINE)."""
         inst, i = self.inst, self.slot
         c, procs, header = inst.clock, inst.procs, inst.arena.header
         procs[i]["periodic"] = 0

@@ -24,10 +24,18 @@ from .arena import Arena, foreign_object, owner_text, segment_name, shm_path, us
 from .config import KaliConfig, parse_config
 from .errors import ClockError, InstanceError
 from .joints import JointMap
-from .layout import FaultCode, PowerCmd, ProcState
+from .layout import FaultCode, PowerCmd, ProcState, TgPhase
 from .spinlock import SpinLock, holder_text
 
 _WORD = 0xFFFFFFFF  # the fault word: the low half of the fault record's 64-bit state word
+# What the TG is doing in each phase of its tick, for a fault message (Instance.doing)
+_DOING: dict[int, str] = {
+    TgPhase.REQUESTS: "taking",
+    TgPhase.STARTING: "starting",
+    TgPhase.CHECKING: "checking",
+    TgPhase.ADVANCING: "advancing",
+    TgPhase.ENDING: "ending",
+}
 FAULT_READ_WAIT_S = 0.05  # longest a reader waits for a fault's writer to finish its record
 LOCK_STUCK_S = 0.2  # a lock held by one pid this long is reported stuck (kalictl status)
 
@@ -502,6 +510,28 @@ class Instance:
                     count=int(atomic.load64(self._fault_count)),
                 )
             time.sleep(0.0005)
+
+    def doing(self, process: str) -> str:
+        """What process ``process`` is busy with, for a fault naming it ('' when it does not
+        say): the TG's phase of its tick and request (``TG_STATE.phase``), or the TG function
+        it is evaluating: "evaluating tg function 'wave' (sine) for request 12".  Read
+        lock-free while the TG may be writing: it words a fault, it decides nothing."""
+        kinds = {p.name: p.kind for p in self.config.processes}
+        if kinds.get(process) != "tg" or self.arena.lookup(layout.KEY_TG_STATE) is None:
+            return ""
+        state = self.arena.existing(layout.KEY_TG_STATE, layout.TG_STATE)
+        verb = _DOING.get(int(state["phase"]), "")
+        seq, slot = int(state["phase_seq"]), int(state["phase_function"])
+        if not verb:
+            return ""  # between ticks
+        request = f" request {seq}" if seq else " requests"
+        if not (0 < slot <= layout.MAX_FUNCTIONS and self.arena.lookup(layout.KEY_TG_FUNCTIONS)):
+            return verb + request
+        slots = self.arena.existing(
+            layout.KEY_TG_FUNCTIONS, layout.TG_FUNCTION, layout.MAX_FUNCTIONS
+        )
+        label, function = decode(slots[slot - 1]["name"]), decode(slots[slot - 1]["function"])
+        return f"evaluating tg function '{label}' ({function})" + (f" for{request}" if seq else "")
 
     def fault_text(self, last: bool = False) -> str | None:
         """The active fault as one line, or None; ``last``: the latest fault even if cleared

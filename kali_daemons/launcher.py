@@ -32,6 +32,7 @@ import posix_ipc
 
 from . import layout, snapshot
 from .arena import Arena, foreign_object, segment_name, shm_path, unlink_segment, user_text
+from .cell import check_clear_at_rest
 from .config import KaliConfig, cell_of, ms_to_ns, ns_to_ms
 from .errors import ArenaError, ConfigError, InstanceError
 from .instance import Instance, all_semaphore_names, check_instance_name, decode
@@ -498,6 +499,7 @@ def start(
     name = check_instance_name(cfg.instance if instance is None else instance)
     t_start = time.monotonic()
     registry = _check_servos(cfg)
+    check_clear_at_rest(cfg)  # arms standing in each other: refused before anything runs
     record_path = _record_path(cfg, record)
     with lifecycle_lock(name, "start"):
         return _start(cfg, name, lockstep, record_path, t_start, registry, separate)

@@ -256,7 +256,7 @@ class FaultCode(enum.IntEnum):
 
     NONE = 0
     DEADLINE = 1  # a serious process missed its deadline beyond the tolerance
-    LOCKSTEP_TIMEOUT = 2  # a process did not acknowledge a lockstep tick in time
+    LOCKSTEP_TIMEOUT = 2  # reserved: a lockstep tick not acknowledged in time is a DEADLINE
     DAEMON_ERROR = 3  # a daemon's cycle raised
     PROCESS_DIED = 4
     ESTOP = 5
@@ -1005,7 +1005,11 @@ TG_FUNCTION = np.dtype(
         ("algo", "<u2"),  # 1 + the function's index in the TG's registry (0: none)
         ("status", "u1"),  # TG: FunctionStatus
         ("_pad", "u1"),
+        ("function", f"S{FRAME_NAME_BYTES}"),  # TG: its registry name, once a motion used it
         ("evaluations", "<u4"),  # TG: times evaluated
+        # TG: evaluations longer than its budget (functions.FUNCTION_SHARE of the TG period);
+        # in real time the first holds its motions (TOO_LONG), in lockstep none does
+        ("over_budget", "<u4"),
         ("start_tick", "<i8"),  # its time t counts from this wall clock tick
         ("last_ns", "<i8"),  # TG: how long its last evaluation took
         ("worst_ns", "<i8"),  # TG: its longest evaluation
@@ -1021,7 +1025,7 @@ class FunctionStatus(enum.IntEnum):
     IDLE = 0
     RUNNING = 1
     RAISED = 2  # it raised: every motion using it was held
-    TOO_LONG = 3  # an evaluation outlasted its budget: every motion using it was held
+    TOO_LONG = 3  # an evaluation outlasted its budget (real time): every motion using it was held
 
 
 MOTION_REQUEST = np.dtype(
@@ -1128,6 +1132,9 @@ TG_STATE = np.dtype(
         ("evicted", "<u8"),  # TG: unread outcomes that gave way (their handles read LOST)
         ("stops_taken", "<u8"),  # TG: stop-lane requests carried out
         ("stops_refused", "<u8"),  # TG: stop-lane requests refused (an arm owned by another)
+        # TG: 1 + the ``tg.functions`` slot whose function it is evaluating now (0: none), so
+        # a halt for a TG that does not acknowledge names the function it is stuck in
+        ("phase_function", "<i4"),
     ],
     align=True,
 )

@@ -237,7 +237,7 @@ def test_a_release_while_another_program_steps_the_clock_holds_no_tick(
 ) -> None:
     """Released while another process steps the clock, a function may be signalled once more
     before the clock sees the release: it acknowledges that signal unrun, or a lockstep tick
-    would wait for it (a serious one: LOCKSTEP_TIMEOUT).  Started and released over and over
+    would wait for it (a serious one: DEADLINE).  Started and released over and over
     at every phase of the other's 1-tick steps; every tick goes through, nothing is left."""
     name = kali(lockstep=True)
     with Kali(name) as k:

@@ -65,7 +65,7 @@ from ..tg.cartesian import (
 )
 from ..tg.functions import FunctionRegistry
 from ..tg.functions import registry_for as functions_for
-from ..tg.profiles import MotionError, check_guard, check_joint_target
+from ..tg.profiles import MotionError, check_guard, check_joint_target, rigid_pose
 from ..wallclock import step_kali_clock
 from . import periodic, remote, streams
 from .periodic import Control
@@ -551,8 +551,11 @@ class Robot:
             raise MotionError(f"{what}: {str(exc).removeprefix('kinematics: ')}") from None
 
     def set_tool(self, tool: np.ndarray) -> None:
-        """The tool frame in the flange frame (4×4) for this program's Cartesian moves."""
-        self.tool = _pose_arg(f"set_tool: robot '{self.name}'", tool)
+        """The tool frame in the flange frame (4×4) for this program's Cartesian moves: a
+        rigid pose (``rigid_pose``: finite, a rotation, within ``MAX_POSE_M``), else
+        MotionError naming the value and the rule, the tool unchanged.  A scaled or mirrored
+        tool would turn every pose read through it into one no move may target."""
+        self.tool = rigid_pose(f"set_tool: robot '{self.name}'", "tool", tool)
 
     def move_line(
         self,

@@ -205,6 +205,13 @@ class TgFunctionHandle:
         """Its longest evaluation in the TG, s."""
         return int(self._slot["worst_ns"]) * 1e-9
 
+    @property
+    def over_budget(self) -> int:
+        """Its evaluations that took longer than its budget (``FUNCTION_SHARE`` of the TG
+        period): in real time the first holds its motions (TOO_LONG); in lockstep, which
+        never holds one for its time, a count above 0 says real time would have."""
+        return int(self._slot["over_budget"])
+
     def restart(self) -> None:
         """Its time t counts from now again."""
         self._slot["start_tick"] = int(self.kali.inst.clock["tick"])
@@ -236,6 +243,7 @@ def set_up_function(
         slot["data"] = 0
         slot["status"] = FunctionStatus.IDLE
         slot["evaluations"] = 0
+        slot["over_budget"] = 0
         slot["worst_ns"] = 0
         handle._write(params, fresh=True)
     except BaseException:

@@ -442,7 +442,9 @@ class TrajectoryGenerator(Daemon):
             registry_for(cfg.tg_functions, cfg.base_dir, cfg.files),
             Sensors(self.names, [], []),  # SIO's records once it has laid them out
             self._base_ns,
+            self.lockstep,
         )
+        self.functions.evaluating = self.state["phase_function"].reshape(1)
         self._limited = self.status["limited"]
         # a blend's scratch: each path's pose, the sum, two rotations
         self._blend_poses = (np.eye(4), np.eye(4), np.eye(4), np.eye(3), np.eye(3))

@@ -21,7 +21,12 @@ parameters on line, and names it in a ``track`` loop.
 
 A function that raises, or whose evaluation takes longer than ``FUNCTION_SHARE`` of the TG
 period, holds every motion using it at its last set-point (the motion ends ABORTED naming
-the function and why); nothing else stops and the cell does not halt.
+the function and why); nothing else stops and the cell does not halt, unless the evaluation
+keeps the TG past its deadline: it runs on the TG's thread, which cannot take the CPU back,
+and the TG then misses its deadline (DEADLINE, naming the function: ``evaluating`` is the
+TG's ``TG_STATE.phase_function``).  In lockstep an evaluation's time is measured and an
+overlong one counted (``over_budget``), but it holds nothing: wall time decides nothing
+there, so a run is the same whatever the host's load.
 """
 
 from __future__ import annotations
@@ -282,15 +287,19 @@ def get_params(fn: TgFunction, data: Any) -> dict[str, float]:
 
 class FunctionSlots:
     """The TG's side of ``tg.functions``: evaluate slot ``i`` for a motion, timed and
-    guarded (a raise or an overlong evaluation is reported, never raised)."""
+    guarded (a raise, or in real time an overlong evaluation, is reported, never raised;
+    ``lockstep``: an overlong one is counted only)."""
 
     def __init__(self, records: np.ndarray, registry: FunctionRegistry, sensors: Sensors,
-                 base_tick_ns: int) -> None:  # fmt: skip
+                 base_tick_ns: int, lockstep: bool = False) -> None:  # fmt: skip
         self.records = records
         self.registry = registry
         self.sensors = sensors
         self.tick_s = base_tick_ns * 1e-9
         self.budget_ns = 0  # set by the TG from its period
+        self.lockstep = lockstep
+        # 1 + the slot being evaluated (0: none): the TG binds its TG_STATE.phase_function
+        self.evaluating = np.zeros(1, dtype=np.int32)
         self._seq = [records["seq"][i : i + 1].ctypes.data for i in range(len(records))]
         self._slots = [records[i : i + 1].reshape(()) for i in range(len(records))]
 
@@ -308,30 +317,38 @@ class FunctionSlots:
         if not 0 <= algo < len(self.registry):
             raise ValueError(f"tg function '{self.name(i)}' names function {algo}, unknown here")
         fn = self.registry[algo]
+        slot["function"] = fn.name.encode()
         slot["status"] = FunctionStatus.RUNNING
         return fn, data_of(slot, fn)
 
     def evaluate(self, i: int, fn: TgFunction, data: Any, now_tick: int, out: np.ndarray) -> str:
         """Evaluate slot ``i`` into ``out`` (left as it was while its program changes its
-        parameters); why it failed ('' if it did not).  In the cycle."""
+        parameters); why it failed ('' if it did not): it raised, or (real time only) it
+        took longer than its budget.  In the cycle."""
         seq = atomic.load32(self._seq[i])
         if seq & 1:
             return ""
         slot = self._slots[i]
         t = (now_tick - int(slot["start_tick"])) * self.tick_s
         out[...] = _EYE
+        self.evaluating[0] = i + 1  # whoever halts for a TG that stays in here names it
         t0 = rt.monotonic_ns()
         try:
             fn.evaluate(data, t, self.sensors, out)
         except Exception as exc:
             slot["status"] = FunctionStatus.RAISED
             return f"tg function '{self.name(i)}' ({fn.name}) raised {type(exc).__name__}: {exc}"
+        finally:
+            self.evaluating[0] = 0
         took = rt.monotonic_ns() - t0
         slot["last_ns"] = took
         slot["evaluations"] += 1
         if took > int(slot["worst_ns"]):
             slot["worst_ns"] = took
         if self.budget_ns and took > self.budget_ns:
+            slot["over_budget"] += 1
+            if self.lockstep:  # wall time decides nothing in lockstep (README, Lockstep mode)
+                return ""
             slot["status"] = FunctionStatus.TOO_LONG
             return (
                 f"tg function '{self.name(i)}' ({fn.name}) took {took / 1e6:.1f} ms, more than "

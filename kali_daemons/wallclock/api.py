@@ -23,8 +23,15 @@ COMMAND_TIMEOUT_S = 5.0
 
 
 def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
-    """Hand one command to the wall clock and wait until it has applied it."""
+    """Hand one command to the wall clock and wait until it has applied it.
+
+    START and STEP are refused here at once while a fault is active, with the clock's own
+    words: the fault may be a clock that no longer takes commands (a lockstep executive
+    stuck in a daemon's cycle), and the answer is the fault, not a timeout."""
     c = inst.clock
+    fault = inst.fault_text()
+    if cmd in (ClockCommand.START, ClockCommand.STEP) and fault:
+        raise ClockError(f"fault active, kalictl reset first: {fault}")
     with inst.cmd_lock:
         c["cmd"] = int(cmd)
         c["cmd_arg"] = arg
@@ -36,9 +43,11 @@ def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
             if inst.shutting_down:  # the clock has left (kalictl stop): nobody will take it
                 raise ClockError(f"{cmd.name}: instance '{inst.name}' was stopped")
             if time.monotonic() > deadline:
+                fault = inst.fault_text()
                 raise ClockError(
                     f"wall clock (pid {int(c['pid'])}) did not take command {cmd.name} "
-                    f"within {COMMAND_TIMEOUT_S:g} s; is it running?"
+                    f"within {COMMAND_TIMEOUT_S:g} s; "
+                    + (f"the system is halted: {fault}" if fault else "is it running?")
                 )
             time.sleep(0.0005)
         if int(c["cmd_status"]) != 0:

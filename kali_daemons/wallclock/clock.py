@@ -336,8 +336,8 @@ class WallClock(Daemon):
             self.inst.raise_fault(
                 FaultCode.DEADLINE,
                 name,
-                f"serious process '{name}' missed {n} consecutive deadlines at period "
-                f"{period_ms:g} ms ({overdue_ns / 1e6:.1f} ms unacknowledged, tolerance "
+                f"serious process '{name}'{self._doing(name)} missed {n} consecutive deadlines "
+                f"at period {period_ms:g} ms ({overdue_ns / 1e6:.1f} ms unacknowledged, tolerance "
                 f"{self.tolerance_ns / 1e6:g} ms{self._not_counted(lost_ns)}); last "
                 f"acknowledged tick {int(self._ack[i])}, signalled tick {int(self._sig[i])}",
                 tick=tick,
@@ -384,6 +384,12 @@ class WallClock(Daemon):
             )
             self.inst.clock["mode"] = RunMode.STOPPED
             return
+
+    def _doing(self, name: str) -> str:
+        """What process ``name`` is stuck in, as its fault message says it after its name:
+        " (evaluating tg function 'wave' (sine) for request 12)" for the TG, else ''."""
+        doing = self.inst.doing(name)
+        return f" ({doing})" if doing else ""
 
     def _not_counted(self, lost_ns: int) -> str:
         """A fault message's note of the clock's stalls left out of a process's time."""
@@ -459,7 +465,7 @@ class WallClock(Daemon):
         acknowledgement, all consumed so none is left for the next stage.  Waits in slices
         so a process that died meanwhile is found at once: a serious one halts
         (PROCESS_DIED), a non-serious one is left out.  After the timeout a serious late one
-        halts (LOCKSTEP_TIMEOUT); a non-serious one is skipped with a miss.
+        halts (DEADLINE, as in real time); a non-serious one is skipped with a miss.
         """
         ack, slots, sem = self._ack, self._slots, self._ack_sem
         deadline = rt.monotonic_ns() + int(self.lockstep_timeout_s * 1e9)
@@ -492,23 +498,34 @@ class WallClock(Daemon):
 
     def _lockstep_late(self, late: list[int], tick: int) -> bool:
         """The lockstep timeout passed with ``late`` unacknowledged: halt if one of them is
-        serious (False), else count a miss for each and go on (True)."""
+        serious (False: DEADLINE naming it and what it is busy with, as a missed deadline
+        in real time), else count a miss for each and go on (True)."""
         serious = [k for k in late if self._serious[k]]
         if not serious:
             for k in late:
                 if not self._missed(k, self._slots[k], tick, rt.monotonic_ns()):
                     self._died(self._slots[k], tick, False)
             return True
-        names = ", ".join(decode(self.inst.procs[self._slots[k]]["name"]) for k in serious)
+        names = [decode(self.inst.procs[self._slots[k]]["name"]) for k in serious]
+        who = ", ".join(f"'{n}'{self._doing(n)}" for n in names)
+        plural = "es" if len(names) > 1 else ""
+        self._lockstep_deadline(", ".join(names), f"serious process{plural} {who}", tick)
+        return False
+
+    def _lockstep_deadline(
+        self, names: str, who: str, tick: int, what: str = "acknowledge"
+    ) -> None:
+        """Halt for process(es) ``names`` (``who``: as the message names them) that did not
+        ``what`` tick ``tick`` within the lockstep timeout: DEADLINE, as a missed deadline
+        in real time, and the clock stops."""
         self.inst.raise_fault(
-            FaultCode.LOCKSTEP_TIMEOUT,
+            FaultCode.DEADLINE,
             names,
-            f"lockstep: {names} did not acknowledge tick {tick} within "
-            f"{self.lockstep_timeout_s:g} s",
+            f"lockstep: {who} did not {what} tick {tick} within {self.lockstep_timeout_s:g} s "
+            f"(clock.lockstep_ack_timeout_s)",
             tick=tick,
         )
         self.inst.clock["mode"] = RunMode.STOPPED
-        return False
 
     def _died(self, i: int, tick: int, serious: bool) -> bool:
         """True if slot ``i``'s process is gone.  A serious one halts the system with

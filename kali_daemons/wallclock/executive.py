@@ -15,7 +15,11 @@ Everything else is the wall clock's: its commands (start, stop, step, set), its 
 Programs attach and wait exactly as with separate processes, and a periodic function a program
 registers with ``control`` is a thread of it (``Kali.control``) or a process of its own
 (``client.control``), signalled by semaphore in its stage. A hosted daemon that raises fails as
-its own process would (DAEMON_ERROR naming it, state ERROR, left out from then on). ``kalictl
+its own process would (DAEMON_ERROR naming it, state ERROR, left out from then on). A hosted
+daemon that does not return from its cycle (a TG function that never returns) holds the one
+thread that would notice, so a watchdog thread does (``_watch_cycles``): past
+``clock.lockstep_ack_timeout_s`` it halts the system with DEADLINE naming the daemon and what
+it is busy with, as the clock does a process of its own that does not acknowledge.  ``kalictl
 start --lockstep --separate-processes`` keeps one process per daemon, for the tests that kill
 one of them.
 """
@@ -23,12 +27,14 @@ one of them.
 from __future__ import annotations
 
 import importlib
+import threading
 
 from ..daemon import Daemon, _CycleStats, run_daemon
 from ..errors import DaemonError
+from ..instance import decode
 from ..layout import ProcState
 from ..rt import monotonic_ns
-from .clock import WallClock
+from .clock import LOCKSTEP_SLICE_S, WallClock
 
 # (kind, module, class) in the order hosted daemons are configured: the plant makes the
 # boards SIO waits for, SIO lays out the servo level the SVs, dynamics and viewer wait for
@@ -64,6 +70,11 @@ class LockstepExecutive(WallClock):
         self.stats: dict[int, _CycleStats] = {}
         self.gang: list[tuple[int, Daemon]] = []  # (slot, SV): run inside SIO's cycle
         self.every: list[Daemon] = []  # in the order configured, failed ones too
+        self._cycling: list[int] = []  # the hosted slots the watchdog watches
+        self._watch_stop = threading.Event()
+        self._watchdog = threading.Thread(
+            target=self._watch_cycles, name=f"{self.name}.watchdog", daemon=True
+        )
         order = {kind: n for n, (kind, _, _) in enumerate(HOSTED_ORDER)}
         procs = [p for p in self.inst.config.processes if p.kind in order]
         procs.sort(key=lambda p: order[p.kind])
@@ -90,6 +101,12 @@ class LockstepExecutive(WallClock):
                 sio = daemon
         if sio is not None:
             sio.serve = self._serve  # type: ignore[attr-defined]
+        self._cycling = sorted([*self.hosted, *(i for i, _ in self.gang)])
+
+    def on_activate(self) -> None:
+        """The clock's activation, and the watchdog over the hosted daemons' cycles."""
+        super().on_activate()
+        self._watchdog.start()
 
     def on_deactivate(self) -> None:
         """Every hosted daemon's loop has ended with the executive's."""
@@ -98,7 +115,11 @@ class LockstepExecutive(WallClock):
                 daemon.on_deactivate()
 
     def on_shutdown(self) -> None:
-        """Release every hosted daemon, last configured first, then the clock's own."""
+        """Stop the watchdog; release every hosted daemon, last configured first, then the
+        clock's own."""
+        self._watch_stop.set()
+        if self._watchdog.is_alive():
+            self._watchdog.join()
         for daemon in reversed(self.every):
             if daemon.slot >= 0:
                 try:
@@ -143,10 +164,12 @@ class LockstepExecutive(WallClock):
 
     def _run(self, i: int, daemon: Daemon, tick: int) -> bool:
         """Call hosted slot ``i``'s cycle for ``tick`` and account it as its acknowledgement;
-        False if the system halted meanwhile."""
+        False if the system halted meanwhile.  Its signal is written after its release
+        time: the watchdog reads a signal ahead of the acknowledgement as a cycle running
+        since the release time (``_watch_cycles``)."""
         t = monotonic_ns()
-        self._sig[i] = tick
         self._rel[i] = t
+        self._sig[i] = tick
         self._signals[i] += 1
         try:
             daemon.cycle(tick)
@@ -164,14 +187,38 @@ class LockstepExecutive(WallClock):
         ``tick`` now, in SV order, and is accounted as signalled and acknowledged."""
         for i, sv in self.gang:
             t = monotonic_ns()
-            self._sig[i] = tick
             self._rel[i] = t
+            self._sig[i] = tick  # after its release time, as in _run
             self._signals[i] += 1
             try:
                 sv.serve(tick)  # type: ignore[attr-defined]
             except Exception as exc:
                 raise HostedDaemonError(sv, exc) from exc
             self.stats[i].record(tick, t, t, monotonic_ns())
+
+    def _watch_cycles(self) -> None:
+        """The watchdog thread: every ``LOCKSTEP_SLICE_S``, while no fault is active, find
+        the hosted daemons inside their cycle (signalled, not acknowledged; an SV inside
+        SIO's), and once one of them has been in it longer than ``lockstep_timeout_s`` halt
+        with DEADLINE naming the innermost (the latest released: the one running) and what
+        it is busy with.  A reset clears the fault; a daemon still in its cycle is named
+        again, as a hung process in real time misses its deadline again.  Reads the process
+        table only; the executive's thread decides everything else."""
+        limit_ns = int(self.lockstep_timeout_s * 1e9)
+        sig, ack, rel, state = self._sig, self._ack, self._rel, self._state
+        while not self._watch_stop.wait(LOCKSTEP_SLICE_S):
+            if self.inst.fault["active"]:
+                continue
+            inside = [i for i in self._cycling if sig[i] > ack[i] and state[i] == ProcState.ACTIVE]
+            now = monotonic_ns()
+            if not inside or now - min(int(rel[i]) for i in inside) <= limit_ns:
+                continue
+            i = max(inside, key=lambda j: int(rel[j]))
+            name = decode(self.inst.procs[i]["name"])
+            who = f"serious process '{name}'{self._doing(name)}"
+            if not self.inst.procs[i]["serious"]:
+                who = f"process '{name}' (not serious, but every daemon here waits for it)"
+            self._lockstep_deadline(name, who, int(sig[i]), "finish its cycle of")
 
     def _failed(self, daemon: Daemon, exc: Exception) -> None:
         """A hosted daemon raised: it fails as its own process would (DAEMON_ERROR naming
