@@ -135,6 +135,12 @@ class Arena:
     def attach(cls, instance: str) -> Arena:
         """Attach to a running instance's segment; refuse a wrong magic or layout version."""
         name = segment_name(instance)
+        squat = foreign_object(shm_path(name), any_owner=True)
+        if squat is not None:
+            raise ArenaError(
+                f"instance '{instance}': {squat}; not Kali's arena, never mapped "
+                f"(kalictl -i {instance} stop removes it if it is yours)"
+            )
         try:
             shm = posix_ipc.SharedMemory(name)
         except posix_ipc.ExistentialError as exc:
@@ -151,6 +157,10 @@ class Arena:
             raise ArenaError(
                 f"instance '{instance}' is not yours: {name} {owner_text(name)}; "
                 f"{user_text()} may not attach (Kali instances are owner-only)"
+            ) from None
+        except OSError as exc:  # swapped for something else between the look and the open
+            raise ArenaError(
+                f"instance '{instance}': {shm_path(name)}: cannot open: {exc.strerror}"
             ) from None
         try:
             if shm.size < layout.header_bytes():
@@ -523,7 +533,7 @@ def foreign_object(path: str, semaphore: bool = False, any_owner: bool = False) 
         return None
     what = f"{path} {_owner_of(st)}, {st.st_size} B"
     if not stat.S_ISREG(st.st_mode):
-        return f"{what}: not a regular file"
+        return f"{what}: {file_kind(st.st_mode)}, not a regular file"
     if st.st_uid != os.geteuid() and not any_owner:
         return f"{what}: not {user_text()}'s"
     least = SEM_BYTES if semaphore else layout.header_bytes()
@@ -531,6 +541,21 @@ def foreign_object(path: str, semaphore: bool = False, any_owner: bool = False) 
         kind = "semaphore" if semaphore else "arena"
         return f"{what}: smaller than a {kind} ({least} B)"
     return None
+
+
+_KINDS = {
+    stat.S_IFLNK: "a symbolic link",
+    stat.S_IFDIR: "a directory",
+    stat.S_IFIFO: "a FIFO",
+    stat.S_IFCHR: "a character device",
+    stat.S_IFBLK: "a block device",
+    stat.S_IFSOCK: "a socket",
+}
+
+
+def file_kind(mode: int) -> str:
+    """What a file of ``mode`` is, for a message: "a directory", "a symbolic link" ..."""
+    return _KINDS.get(stat.S_IFMT(mode), "a regular file")
 
 
 def _owner_of(st: os.stat_result) -> str:

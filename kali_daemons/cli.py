@@ -234,14 +234,18 @@ def stop(ctx: click.Context) -> None:
     """
     name = _instance_name(ctx)
     r = launcher.stop(name)
+    for what in r.left:
+        click.echo(f"kalictl: stop: left {what}", err=True)
     if not (r.stopped or r.killed or r.removed):
         click.echo(f"instance '{name}': nothing to stop")
-        return
+        sys.exit(1 if r.left else 0)
     n = len(r.stopped)
     msg = f"instance '{name}' stopped: {n} process{'es' if n != 1 else ''} left on request"
     if r.killed:
         msg += f", {len(r.killed)} killed ({', '.join(map(str, r.killed))})"
     click.echo(msg + f", {len(r.removed)} /dev/shm objects removed")
+    if r.left:
+        sys.exit(1)
 
 
 @main.command()

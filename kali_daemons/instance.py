@@ -439,9 +439,12 @@ class Instance:
         f["message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
         atomic.fetch_add64(self._fault_state, 1 << 32)  # even: written (whether reset or not)
         atomic.fetch_add64(self._fault_count, 1)  # last: a halt counted is a halt written
-        self.command_semaphore().release()  # a stopped-but-waiting clock notices at once
-        if self.lockstep:
-            self.ack_semaphore().release()  # a clock waiting for lockstep acks notices too
+        try:
+            self.command_semaphore().release()  # a stopped-but-waiting clock notices at once
+            if self.lockstep:
+                self.ack_semaphore().release()  # a clock waiting for lockstep acks too
+        except InstanceError:  # squatted or gone: the clock sees the fault word at its next look
+            pass
         return True
 
     def power_off_all(self) -> None:

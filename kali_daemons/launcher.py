@@ -13,6 +13,7 @@ one's half-made instance for a stale one.
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import glob
 import os
@@ -31,7 +32,7 @@ import numpy as np
 import posix_ipc
 
 from . import layout, snapshot
-from .arena import Arena, foreign_object, segment_name, shm_path, unlink_segment, user_text
+from .arena import Arena, foreign_object, segment_name, shm_path, user_text
 from .cell import check_clear_at_rest
 from .config import KaliConfig, cell_of, ms_to_ns, ns_to_ms
 from .errors import ArenaError, ConfigError, InstanceError
@@ -274,6 +275,7 @@ class StopReport:
     stopped: list[int] = field(default_factory=list)  # pids that left on request
     killed: list[int] = field(default_factory=list)  # pids that needed SIGKILL
     removed: list[str] = field(default_factory=list)  # /dev/shm entries unlinked
+    left: list[str] = field(default_factory=list)  # entries it would not remove, and why
 
 
 def stop(instance: str) -> StopReport:
@@ -322,22 +324,35 @@ def _stop(instance: str) -> StopReport:
     report.killed = left
     _wait_gone(left, KILL_GRACE_S)
     before = set(shm_objects(instance))
-    for name in all_semaphore_names(instance):
-        try:
-            posix_ipc.unlink_semaphore(name)
-        except posix_ipc.ExistentialError:
-            pass
-    unlink_segment(segment_name(instance))
-    for path in shm_objects(instance):  # anything else under our prefix
-        try:
-            os.unlink(path)
-        except FileNotFoundError:
-            pass
-    report.removed = sorted(before)
+    for path in shm_objects(instance):  # the segment, the semaphores, anything under our names
+        why = _remove_entry(path)
+        if why:
+            report.left.append(f"{path}: {why}")
+    report.removed = sorted(before - set(shm_objects(instance)))
     for path in dirs:
         if _remove_instance_dir(path, instance):
             report.removed.append(str(path))
     return report
+
+
+def _remove_entry(path: str) -> str:
+    """Remove the ``/dev/shm`` entry ``path`` under an instance's name: a file (segment,
+    semaphore, or this user's broken object), a symbolic link (not what it points to), an
+    empty directory; '' once gone, else why it is left (a directory holding files is not
+    Kali's to empty).  Never raises: ``stop`` goes on to the next."""
+    try:
+        st = os.lstat(path)
+        if stat.S_ISDIR(st.st_mode):
+            os.rmdir(path)
+        else:
+            os.unlink(path)
+    except FileNotFoundError:
+        return ""
+    except OSError as exc:
+        if exc.errno == errno.ENOTEMPTY:
+            return "a directory holding files (not Kali's; remove it yourself)"
+        return f"not removed: {exc.strerror}"
+    return ""
 
 
 def _arena_text(arena: Arena, key: str) -> str:
