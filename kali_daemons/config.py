@@ -973,7 +973,7 @@ def _build(doc: Any, source: str, text: str, base_dir: str, files: str) -> KaliC
             f"instance: missing; required, a string matching {_INSTANCE_RE.pattern}"
         )
     instance = _identifier(doc["instance"], "instance", _INSTANCE_RE)
-    arena_kib = _int(doc.get("arena_kib", 4096), "arena_kib", 64, 1_048_576)
+    arena_kib = _int(doc.get("arena_kib", 6144), "arena_kib", 64, 1_048_576)
     startup = _float(doc.get("startup_timeout_s", 60), "startup_timeout_s", 0.0, MAX_TIMEOUT_S)
     clock = _clock(doc.get("clock", {}))
     if "processes" in doc:

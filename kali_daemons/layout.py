@@ -1061,8 +1061,23 @@ MOTION_REQUEST = np.dtype(
         # program share ``group`` (its pid << 32 | a count; 0: none) and start on one TG tick
         ("group", "<u8"),
         ("group_size", "u1"),
-        # STOP, ABORT in the stop lane: its robots' requests put in the request queue before
-        # this seq are cancelled too (they would otherwise start after the stop jumped them)
+    ],
+    align=True,
+)
+
+# A request of the stop lane (``tg.stops``): a stop or an abort of some robots, which the TG
+# carries out before any request of ``tg.requests`` (MOTION_REQUEST's fields of the same name).
+STOP_REQUEST = np.dtype(
+    [
+        ("kind", "u1"),  # MotionKind.STOP or ABORT
+        ("n_robots", "u1"),
+        ("flags", "u1"),  # REQUEST_* bits (FORCE)
+        ("robots", "u1", (MAX_ROBOTS,)),
+        ("client_pid", "<i4"),
+        ("client_name", f"S{PROGRAM_BYTES}"),
+        ("fault_epoch", "<u8"),
+        # its robots' requests put in ``tg.requests`` before this seq are cancelled too (they
+        # would otherwise start after the stop that jumped them)
         ("before_seq", "<u8"),
     ],
     align=True,
@@ -1370,7 +1385,7 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_STOP_QUEUE, QUEUE_HEADER, None, "clients (tail), TG (head)", "clients, TG"),
     Record(
         KEY_STOP_QUEUE + ".slots",
-        queue_entry(MOTION_REQUEST),
+        queue_entry(STOP_REQUEST),
         STOP_QUEUE_CAPACITY,
         "clients",
         "TG",

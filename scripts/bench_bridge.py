@@ -17,7 +17,7 @@ chosen at start:
   FIFO motion: the TG moves them on request); a remote program (``Kali.connect``, opened and
   readied before the window) makes its requests inside the window;
 - ``four``: bench_servo's ``four`` cell (two PUMAs, a UR5, a Panda: 25 joints) as ``bridge``,
-  with ``arena_kib`` 6144 (default.yaml's 4096 is short of the 4222 KiB that cell needs).
+  with ``arena_kib`` 6144 (as default.yaml's).
 
 What is measured.
 
@@ -817,7 +817,7 @@ def report(results: list[Result], argv: list[str], port: int) -> str:
         f"config: bench_servo's 1ms-2sv (config/default.yaml, 1 ms servo, 2 SVs, full "
         f"feed-forward, dashboard) + bridge on tcp/127.0.0.1:{port}, telemetry_hz "
         f"{TELEMETRY_HZ:g}, SCHED_OTHER on CPU 1; the four-arm cell with arena_kib "
-        f"{CELLS['four']['arena_kib']} (default.yaml's 4096 is short of its 4222 KiB)",
+        f"{CELLS['four']['arena_kib']}",
         f"floor: {ct}",
         "",
     ]

@@ -90,7 +90,7 @@ def test_default_file_loads_to_expected_objects() -> None:
     assert cfg == KaliConfig(
         version=CONFIG_VERSION,
         instance="default",
-        arena_kib=4096,
+        arena_kib=6144,
         startup_timeout_s=60.0,
         clock=ClockConfig(1, 1, 10, 20, 5.0, 0),
         processes=EXPECTED_PROCESSES,
@@ -387,7 +387,7 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     ("instance-missing", [("instance: default\n", "")], "instance: missing; required"),
     (
         "arena-too-small",
-        [("arena_kib: 4096", "arena_kib: 63")],
+        [("arena_kib: 6144", "arena_kib: 63")],
         "arena_kib = 63: must be an integer >= 64 and <= 1048576",
     ),
     (
@@ -402,13 +402,13 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     ),
     (
         "arena-too-small-for-the-cell",
-        [("arena_kib: 4096", "arena_kib: 1024")],
-        "arena_kib = 1024: the cell needs 23",  # ~2,325 KiB: the flight recorder's 1,500
+        [("arena_kib: 6144", "arena_kib: 1024")],
+        "arena_kib = 1024: the cell needs 24",  # ~2,470 KiB: the flight recorder's 1,500
     ),
     (
         "arena-string",
-        [("arena_kib: 4096", "arena_kib: '4096'")],
-        "arena_kib = '4096': must be an integer >= 64 and <= 1048576, not a string",
+        [("arena_kib: 6144", "arena_kib: '6144'")],
+        "arena_kib = '6144': must be an integer >= 64 and <= 1048576, not a string",
     ),
     (
         "startup-timeout-too-long",
@@ -417,7 +417,7 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
     ),
     (
         "unknown-top-key",
-        [("arena_kib: 4096", "arena_kb: 4096")],
+        [("arena_kib: 6144", "arena_kb: 6144")],
         "arena_kb: unknown key (did you mean 'arena_kib'?); allowed keys: version, instance, "
         "arena_kib, startup_timeout_s, clock, processes, robots",
     ),
@@ -717,8 +717,8 @@ def test_yaml_syntax_error_names_the_line() -> None:
 
 
 def test_duplicate_key_is_an_error_with_its_line() -> None:
-    text = edit(("arena_kib: 4096\n", "arena_kib: 4096\narena_kib: 8192\n"))
-    assert f"line {line_of('arena_kib: 4096') + 1}, column 1" in error_of(text)
+    text = edit(("arena_kib: 6144\n", "arena_kib: 6144\narena_kib: 8192\n"))
+    assert f"line {line_of('arena_kib: 6144') + 1}, column 1" in error_of(text)
     assert "duplicate key 'arena_kib'" in error_of(text)
 
 
@@ -742,7 +742,7 @@ def test_top_level_must_be_a_mapping(text: str, expected: str) -> None:
 @pytest.mark.parametrize(
     ("edits", "expected"),
     [
-        (("arena_kib: 4096", "arena_kib: true"), "arena_kib = true: must be an integer >= 64"),
+        (("arena_kib: 6144", "arena_kib: true"), "arena_kib = true: must be an integer >= 64"),
         (("priority: 80,", "priority: yes,"), "processes.tg.priority = true: must be an integer"),
         (("cpus: [0, 1]", "cpus: [0, false]"), "processes.sv.cpus[1] = false: must be null or"),
         (("startup_timeout_s: 60", "startup_timeout_s: true"), "startup_timeout_s = true: must"),
@@ -799,7 +799,7 @@ def test_fractional_base_tick_is_accepted() -> None:
     # a tick of a tenth of a ms: 3 and 7 ticks, stored as the decimals written
     tenth = parse_config(
         edit(
-            ("arena_kib: 4096", "arena_kib: 8192"),  # 2 s of flight recorder at 0.3 ms
+            ("arena_kib: 6144", "arena_kib: 8192"),  # 2 s of flight recorder at 0.3 ms
             ("base_tick_ms: 1 ", "base_tick_ms: 0.1 "),
             ("servo_period_ms: 1 ", "servo_period_ms: 0.3 "),
             ("tg_period_ms: 10 ", "tg_period_ms: 0.7 "),
@@ -868,7 +868,7 @@ def test_directory_is_unreadable(tmp_path: Path) -> None:
 
 def test_load_error_names_the_file(tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
-    path.write_text(edit(("arena_kib: 4096", "arena_kib: 1")), encoding="utf-8")
+    path.write_text(edit(("arena_kib: 6144", "arena_kib: 1")), encoding="utf-8")
     with pytest.raises(ConfigError, match=rf"^config: {path}: arena_kib = 1: must be an integer"):
         load_config(path)
 

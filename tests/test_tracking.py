@@ -20,6 +20,7 @@ from kali_daemons import layout, model
 from kali_daemons.client import Kali, MotionFailedError
 from kali_daemons.errors import MotionError
 from kali_daemons.layout import RequestState
+from kali_daemons.tg import records
 from kali_daemons.tg.daemon import LEAD
 from kali_daemons.tg.tracking import follow, rotation, rotvec, write_frame
 from kali_daemons.wallclock import step_kali_clock
@@ -495,7 +496,7 @@ def test_a_segment_given_a_duration_takes_it_to_the_tick(kali: Callable[..., str
             if not np.array_equal(p, moved[-1]):
                 moved.append(p)
         assert h.state == RequestState.DONE
-        rec = k.status[h.seq % 256]
+        rec = k.status[records.find(k.status, h.seq)]
         assert float(rec["duration_s"]) == 1.5
         # τ = 0.01 .. 1.5 s: 150 set-points, the first tick pushing LEAD of them (one seen)
         assert len(moved) - 1 == 150 - (LEAD - 1)

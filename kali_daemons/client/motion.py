@@ -1068,7 +1068,7 @@ class Kali:
             self.stops = RequestQueue(
                 arena,
                 layout.KEY_STOP_QUEUE,
-                layout.MOTION_REQUEST,
+                layout.STOP_REQUEST,
                 layout.STOP_QUEUE_CAPACITY,
                 share=("client_pid", layout.STOP_QUEUE_SHARE),
             )
@@ -1341,7 +1341,7 @@ class Kali:
         epoch = int(self.inst.fault["count"])
         if fault_since(self.inst, epoch) is not None:
             return 0
-        req = np.zeros((), dtype=layout.MOTION_REQUEST)
+        req = np.zeros((), dtype=layout.STOP_REQUEST)
         req["kind"] = kind
         req["flags"] = layout.REQUEST_UNWATCHED | (
             layout.REQUEST_FORCE if force or self.force else 0

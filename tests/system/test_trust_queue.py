@@ -297,10 +297,8 @@ def test_a_stop_cancels_what_its_arm_had_queued_and_the_lane_takes_only_stops(
         assert "cancelled: a stop of robot 'left' was put after it" in queued.message
         later = left.move_joints(start + np.radians([1, 0, 0, 0, 0, 0]), wait=False)
         later.wait(timeout=60)  # put after the stop: runs
-        rogue = np.zeros((), dtype=layout.MOTION_REQUEST)
+        rogue = np.zeros((), dtype=layout.STOP_REQUEST)
         rogue["kind"], rogue["n_robots"], rogue["client_pid"] = MotionKind.JOINTS, 1, os.getpid()
-        rogue["joints"][0, :6] = start
-        rogue["speed_scale"] = 1.0
         state = k.inst.arena.record(layout.KEY_TG_STATE, layout.TG_STATE)
         refused = int(state["stops_refused"])
         k.stops.put(rogue)
