@@ -21,9 +21,10 @@ It is non-serious, SCHED_OTHER and unlocked, on its own CPU share (``bridge.cpu`
 arena as a Type 4 reader and never takes a lock the servo level waits for: a bridge that dies
 or stalls leaves the cell running (``kalictl status``: degraded).  In real time it keeps its
 own clock, as the viewer does, so it goes on reporting after a halt stops the wall clock; in
-lockstep the wall clock steps it.  Requests arrive on Zenoh's threads, are counted against
-``bridge.max_requests_per_s`` and handed to the bridge's own threads (one per session, one for
-verbs, one for the rest): a Zenoh callback never waits.
+lockstep the wall clock steps it.  Requests arrive on Zenoh's threads, each under its user's
+branch (``protocol.UserKeys``), are counted against that user's ``bridge.max_requests_per_s``
+for their kind (``sessions.Gates``; an e-stop never is) and handed to the bridge's own threads
+(one per session, one for verbs, one for the rest): a Zenoh callback never waits.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from ..errors import DaemonError
 from ..wallclock.clock import time_ms
 from . import access, protocol
 from .protocol import BridgeError, Keys
-from .sessions import Gate, Sessions, check_verb
+from .sessions import Gates, Sessions, check_verb
 from .telemetry import Telemetry, Watch
 
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -101,17 +102,18 @@ class Bridge(Daemon):
         )
         log_dir = str(launcher.log_dir(inst.name))
         self.sessions = Sessions(inst.name, cfg.max_sessions, cfg.cpu, log_dir)
-        self.gate = Gate(cfg.max_requests_per_s)
+        self.gates = Gates(cfg.max_requests_per_s)
         self.admin = self._worker("bridge-admin")
         self.admin.put(self.sessions.start_helper)  # ready before the first verb
         self.verbs = self._worker("bridge-verbs")
         self.session_queues: dict[str, queue.Queue] = {}
+        reads, sessions = "status and config", "session open and close"
         self.queryables = [
-            s.declare_queryable(keys.status, self._gated(self.admin, self._status)),
-            s.declare_queryable(keys.config, self._gated(self.admin, self._config)),
-            s.declare_queryable(keys.verbs, self._gated(self.verbs, self._verb)),
-            s.declare_queryable(keys.session_open, self._gated(self.admin, self._open)),
-            s.declare_queryable(keys.session_close, self._gated(self.admin, self._close)),
+            s.declare_queryable(keys.status, self._gated(reads, self.admin, self._status)),
+            s.declare_queryable(keys.config, self._gated(reads, self.admin, self._config)),
+            s.declare_queryable(keys.verbs, self._gated("verbs", self.verbs, self._verb)),
+            s.declare_queryable(keys.session_open, self._gated(sessions, self.admin, self._open)),
+            s.declare_queryable(keys.session_close, self._gated(sessions, self.admin, self._close)),
             s.declare_queryable(keys.session_calls, self._on_call),
         ]
         self.clients = s.liveliness().declare_subscriber(keys.clients, self._on_client)
@@ -137,24 +139,35 @@ class Bridge(Daemon):
     # ------------------------------------------------------------------ requests
 
     def _gated(
-        self, work: queue.Queue, handler: Callable[[zenoh.Query], Any]
+        self, kind: str, work: queue.Queue, handler: Callable[[zenoh.Query], Any]
     ) -> Callable[[zenoh.Query], None]:
-        """A queryable's callback: counted against the rate, then ``handler(query)`` on the
-        ``work`` thread, its value the JSON reply (a KaliError: the error reply)."""
+        """A queryable's callback: counted against its user's rate for ``kind`` (an e-stop
+        never is), then ``handler(query)`` on the ``work`` thread, its value the JSON reply
+        (a KaliError: the error reply)."""
 
         def on_query(query: zenoh.Query) -> None:
-            if not self.gate.admit():
-                self._refuse(query, self._flood_message())
+            try:
+                user, _ = self.keys.parse(query.key_expr)
+            except BridgeError as exc:
+                self._refuse(query, exc)
+                return
+            why = None if self._presses_estop(query) else self.gates.admit(user, kind)
+            if why is not None:
+                self._refuse(query, BridgeError(why))
                 return
             work.put(lambda: self._answer(query, handler))
 
         return on_query
 
-    def _flood_message(self) -> str:
-        return (
-            f"more than {self.inst.config.bridge.max_requests_per_s} requests a "
-            f"second (bridge.max_requests_per_s); refused unread"
-        )
+    def _presses_estop(self, query: zenoh.Query) -> bool:
+        """Whether ``query`` is the verb ``estop`` pressing the button (not releasing it)."""
+        if str(query.key_expr).rsplit("/", 1)[-1] != "estop":
+            return False
+        with contextlib.suppress(BridgeError):
+            request = self._payload(query, "estop")
+            args = request.get("args", []) if isinstance(request, dict) else request
+            return isinstance(args, list) and "--release" not in args
+        return False
 
     def _answer(self, query: zenoh.Query, handler: Callable[[zenoh.Query], Any]) -> None:
         try:
@@ -166,13 +179,9 @@ class Bridge(Daemon):
             query.reply(query.key_expr, payload, encoding=JSON)
         query.drop()
 
-    def _refuse(self, query: zenoh.Query, message: str) -> None:
+    def _refuse(self, query: zenoh.Query, error: BridgeError) -> None:
         with contextlib.suppress(zenoh.ZError):
-            query.reply(
-                query.key_expr,
-                protocol.dumps(protocol.error_reply(BridgeError(message))),
-                encoding=JSON,
-            )
+            query.reply(query.key_expr, protocol.dumps(protocol.error_reply(error)), encoding=JSON)
         query.drop()
 
     @staticmethod
@@ -187,7 +196,7 @@ class Bridge(Daemon):
         doc["bridge"] = {
             "sessions": self.sessions.describe(),
             "events": self.n_events,
-            "refused": self.gate.refused,
+            "refused": self.gates.refused,
             "errors": self.errors,
         }
         return doc
@@ -210,29 +219,31 @@ class Bridge(Daemon):
         return self.sessions.ask_helper({"verb": verb, "args": args})
 
     def _open(self, query: zenoh.Query) -> Any:
+        user, _ = self.keys.parse(query.key_expr)
+        token = self.keys.user(user).client
         request = self._payload(query, "session/open")
         sid = request.get("sid") if isinstance(request, dict) else None
-        if isinstance(sid, str) and not self._client_alive(sid):
+        if isinstance(sid, str) and not self._client_alive(token(sid)):
             raise BridgeError(
-                f"session {sid[:8]}: no liveliness token {self.keys.client(sid)}; "
+                f"session {sid[:8]}: no liveliness token {token(sid)}; "
                 f"declare it before opening the session"
             )
         kali = self.sessions.open(request)
         sid = request["sid"]
         self.session_queues[sid] = self._worker(f"bridge-session-{sid[:8]}")
-        if not self._client_alive(sid):  # it left while its worker started
+        if not self._client_alive(token(sid)):  # it left while its worker started
             self._end_session(sid)
             raise BridgeError(f"session {sid[:8]}: the program left while it opened")
         return kali
 
-    def _client_alive(self, sid: str) -> bool:
-        """Whether the program of session ``sid`` holds its liveliness token: how the bridge
-        learns that it left."""
-        replies = self.session.liveliness().get(self.keys.client(sid), timeout=2.0)
+    def _client_alive(self, token: str) -> bool:
+        """Whether a program holds its liveliness token ``token``: how the bridge learns that
+        it left."""
+        replies = self.session.liveliness().get(token, timeout=2.0)
         return any(r.ok is not None for r in replies)
 
     def _close(self, query: zenoh.Query) -> bool:
-        sid = str(query.key_expr).split("/")[-2]
+        _, (_, sid, _) = self.keys.parse(query.key_expr)
         return self._end_session(sid)
 
     def _end_session(self, sid: str) -> bool:
@@ -244,13 +255,18 @@ class Bridge(Daemon):
 
     def _on_call(self, query: zenoh.Query) -> None:
         """A remote program's call: on its session's own thread, in the order sent."""
-        if not self.gate.admit():
-            self._refuse(query, self._flood_message())
+        try:
+            user, (_, sid, _) = self.keys.parse(query.key_expr)
+        except BridgeError as exc:
+            self._refuse(query, exc)
             return
-        sid = str(query.key_expr).split("/")[-2]
+        why = self.gates.admit(user, f"calls to session {sid[:8]}")
+        if why is not None:
+            self._refuse(query, BridgeError(why))
+            return
         q = self.session_queues.get(sid)
         if q is None:
-            self._refuse(query, f"no session {sid[:8]}; open one first")
+            self._refuse(query, BridgeError(f"no session {sid[:8]}; open one first"))
             return
         payload = query.payload.to_bytes() if query.payload is not None else b""
         q.put(lambda: self._answer(query, lambda _: self.sessions.call(sid, payload)))

@@ -28,6 +28,7 @@ import contextlib
 import functools
 import os
 import secrets
+import ssl
 import threading
 import time
 import weakref
@@ -83,24 +84,47 @@ def reach(
 
     name = os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE) if instance is None else instance
     env = [os.environ.get(v) for v in TLS_ENV]
+    user = user if user is not None else os.environ.get(USER_ENV)
+    certificate = certificate or env[1]
     try:
         config = client_config(
             endpoint,
-            user=user if user is not None else os.environ.get(USER_ENV),
+            user=user,
             password=password if password is not None else os.environ.get(PASSWORD_ENV),
             root_ca=root_ca or env[0],
-            certificate=certificate or env[1],
+            certificate=certificate,
             private_key=private_key or env[2],
         )
     except (ValueError, zenoh.ZError) as exc:  # half the credentials, a bad endpoint
         raise BridgeError(f"cannot connect to {endpoint}: {exc}") from None
-    return Connection(endpoint, name, config)
+    if user is None and certificate is not None:
+        user = common_name(certificate)
+    return Connection(endpoint, name, config, user)
+
+
+def common_name(certificate: str) -> str:
+    """The common name of PEM certificate ``certificate``: the user name a bridge knows its
+    holder by (read with CPython's own certificate decoder, ``ssl._ssl._test_decode_cert``:
+    the standard library has no public one)."""
+    from ..bridge.protocol import BridgeError
+
+    try:
+        subject = ssl._ssl._test_decode_cert(certificate).get("subject", ())  # type: ignore[attr-defined]
+    except (OSError, ssl.SSLError) as exc:
+        raise BridgeError(f"cannot read certificate {certificate}: {exc}") from None
+    names = [value for rdn in subject for key, value in rdn if key == "commonName"]
+    if not names:
+        raise BridgeError(f"certificate {certificate} has no common name: the bridge's user name")
+    return names[-1]
 
 
 class Connection:
-    """One remote program's Zenoh session with a bridge: its session id and token, its calls."""
+    """One remote program's Zenoh session with a bridge: its user name (``user``, else its
+    Zenoh session's id), its session id and token, its calls."""
 
-    def __init__(self, endpoint: str, instance: str, config: zenoh.Config) -> None:
+    def __init__(
+        self, endpoint: str, instance: str, config: zenoh.Config, user: str | None = None
+    ) -> None:
         from ..bridge.protocol import BridgeError, Keys
 
         self.endpoint = endpoint
@@ -111,6 +135,11 @@ class Connection:
         except zenoh.ZError as exc:  # its words, without the Rust source it came from
             reason = str(exc).split("!  at /")[0].split(" at /")[0].rstrip("!. ")
             raise BridgeError(f"cannot connect to {endpoint}: {reason}") from None
+        try:
+            self.mine = self.keys.user(str(self.session.zid()) if user is None else user)
+        except BridgeError:
+            self.session.close()
+            raise
         self.sid = secrets.token_hex(8)
         self.proxies: weakref.WeakValueDictionary[int, Proxy] = weakref.WeakValueDictionary()
         self.dropped: list[int] = []  # handles this program let go: the session forgets them
@@ -133,7 +162,7 @@ class Connection:
                     f"liveliness token {self.keys.alive} within {ALIVE_GRACE_S:g} s: is its "
                     f"bridge enabled, and may this user read it?)"
                 )
-            self.token = self.session.liveliness().declare_token(self.keys.client(self.sid))
+            self.token = self.session.liveliness().declare_token(self.mine.client(self.sid))
         except BaseException:
             self.session.close()
             raise
@@ -209,7 +238,7 @@ class Connection:
             "kwargs": protocol.encode(kwargs, _reference),
             "drop": dropped,
         }
-        answer = self._ask(self.keys.call(self.sid), protocol.dumps(request), limit, method)
+        answer = self._ask(self.mine.call(self.sid), protocol.dumps(request), limit, method)
         value = protocol.decode(answer.get("value"), self.proxy)
         attrs = protocol.decode(answer.get("attrs") or {}, self.proxy)
         return value, attrs
@@ -234,7 +263,7 @@ class Connection:
             return
         try:
             if self.opened and self.bridge_alive.is_set():
-                self.get(self.keys.close(self.sid), {}, timeout=5.0)
+                self.get(self.mine.close(self.sid), {}, timeout=5.0)
         except Exception:  # the token going ends it anyway
             pass
         self.closed = True
@@ -380,7 +409,7 @@ class RemoteKali(Proxy):
         super().__init__(conn, 0, "Kali")
         conn.kali = self
         try:
-            cfg = conn.get(conn.keys.config, {}, timeout=CONNECT_TIMEOUT_S)
+            cfg = conn.get(conn.mine.config, {}, timeout=CONNECT_TIMEOUT_S)
             try:
                 config = parse_config(cfg["text"], f"{cfg['source']} (remote)", cfg["base_dir"])
             except Exception as exc:
@@ -390,7 +419,7 @@ class RemoteKali(Proxy):
             self.inst = RemoteInstance(cfg["instance"], config, bool(cfg["lockstep"]))
             program = program_name().decode(errors="replace")
             ref = conn.get(
-                conn.keys.session_open,
+                conn.mine.session_open,
                 {"sid": conn.sid, "program": program, "force": bool(force)},
                 timeout=CONNECT_TIMEOUT_S + 30.0,
             )
@@ -425,7 +454,7 @@ class RemoteKali(Proxy):
         from ..bridge.protocol import BridgeError
 
         result = self._conn.get(
-            self._conn.keys.verb(verb), {"args": list(args)}, CALL_TIMEOUT_S + 60
+            self._conn.mine.verb(verb), {"args": list(args)}, CALL_TIMEOUT_S + 60
         )
         if not result["ok"]:
             raise BridgeError(result["error"].strip() or f"kalictl {verb} failed")
@@ -433,7 +462,7 @@ class RemoteKali(Proxy):
 
     def status(self) -> dict[str, Any]:
         """``kalictl status --json``'s document, and the bridge's sessions."""
-        return self._conn.get(self._conn.keys.status, {})
+        return self._conn.get(self._conn.mine.status, {})
 
     def close(self) -> None:
         self._conn.close()
