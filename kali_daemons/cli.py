@@ -32,11 +32,10 @@ from .client.motion import INSTANCE_ENV, Kali
 from .client.remote import REMOTE_ENV
 from .config import cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
-from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode
+from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode, estop_pressed
 from .layout import (
     KEY_BOARDS,
     CalibState,
-    FaultCode,
     PowerState,
     ProcState,
     RunMode,
@@ -613,18 +612,15 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
     The board cuts the amplifiers at once, the brakes follow, and the system halts.
     """
     with _attach(ctx) as inst:  # the arena alone: no config parsed, no user code run
+        if not release:
+            click.echo(estop_pressed(inst.press_estop(robot or None, "kalictl")))
+            return
         targets = [robot] if robot else list(inst.cell.names)
         records = inst.boards()
         for name in targets:
-            boards.press_estop(records, inst.robot_index(name), not release)
+            boards.press_estop(records, inst.robot_index(name), False)
         del records
-        if release:
-            click.echo(f"e-stop released: {', '.join(targets)}")
-            return
-        inst.raise_fault(
-            FaultCode.ESTOP, "kalictl", f"emergency stop pressed: {', '.join(targets)}"
-        )
-        click.echo(f"e-stop pressed: {', '.join(targets)}; amplifiers off, system halted")
+        click.echo(f"e-stop released: {', '.join(targets)}")
 
 
 @main.command(context_settings={"ignore_unknown_options": True})

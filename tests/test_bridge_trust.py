@@ -17,11 +17,14 @@ import pytest
 import zenoh
 
 from kali_daemons.bridge.access import client_config
-from kali_daemons.bridge.protocol import Keys
+from kali_daemons.bridge.admission import Turns
+from kali_daemons.bridge.protocol import BridgeError, Keys
 from kali_daemons.client import Kali
+from kali_daemons.instance import Instance
 
 from . import test_bridge
-from .test_bridge import bridge_edit, free_port
+from .conftest import wait_for
+from .test_bridge import KALICTL, bridge_edit, free_port
 
 bridged = test_bridge.bridged  # its fixtures, here too
 listener = test_bridge.listener
@@ -89,9 +92,87 @@ def test_a_readers_flood_never_gets_an_operators_estop_refused(
     assert flood["refused for rate"] > 1000, flood
 
 
+def test_an_estop_reaches_the_arena_within_50_ms_under_a_flood_of_verbs(
+    bridged: Callable[..., tuple[str, str]],
+) -> None:
+    """A client sends ``status --json`` verbs at 600 a second, under the rate limit, for 3 s:
+    beyond 16 waiting they are refused at once; meanwhile five e-stops through the bridge,
+    from another user and from the flooding one, each reach the arena (the fault counted)
+    within 50 ms, and another user's verb is answered in its turn (before: verbs ran one at a
+    time on one thread in the order sent, and an e-stop waited behind every verb queued:
+    seconds)."""
+    name, endpoint = bridged()
+    keys = Keys(name)
+    latencies = []
+    verb = {"args": ["--json"]}
+    with (
+        Instance.attach(name) as inst,
+        Kali.connect(endpoint, name) as operator,
+        flooding(endpoint, keys.user("flooder").verb("status"), verb, 600, 3.0) as flood,
+    ):
+        count = lambda: int(inst.fault["count"])  # noqa: E731
+        session = operator._conn.session
+        time.sleep(1.0)  # hundreds of verbs sent
+        t0 = time.monotonic()
+        assert operator.verb("status", "--json")
+        turn = time.monotonic() - t0
+        for user in (operator._conn.mine.name, "flooder") * 2 + ("flooder",):
+            before = count()
+            t0 = time.monotonic()
+            estop = keys.user(user).verb("estop")
+            session.get(estop, lambda _r: None, payload=b'{"args": []}')
+            wait_for(lambda b=before: count() > b, 2.0, "the e-stop in the arena", 0.0002)
+            latencies.append(time.monotonic() - t0)
+            time.sleep(0.2)
+    ms = [round(x * 1e3, 1) for x in latencies]
+    print(f"e-stop latency under the flood: {ms} ms; another user's verb: {turn:.3f} s; {flood}")
+    assert flood["sent"] >= 1500 and flood["refused, others"] > 1000
+    assert max(latencies) < ESTOP_GOAL_S, ms
+    assert turn < 1.0
+
+
+def test_the_bridges_estop_answers_in_kalictls_words(
+    bridged: Callable[..., tuple[str, str]],
+) -> None:
+    """The e-stop the bridge presses itself says what ``kalictl estop`` says, refuses an
+    unknown robot with kalictl's line and presses nothing then; ``--release`` is kalictl's."""
+    name, endpoint = bridged()
+    with Kali.connect(endpoint, name) as remote, Instance.attach(name) as inst:
+        local = subprocess.run(
+            [KALICTL, "-i", name, "estop", "elbow"], capture_output=True, text=True
+        )
+        with pytest.raises(BridgeError) as refused:
+            remote.verb("estop", "elbow")
+        assert str(refused.value) == "bridge: " + local.stderr.strip()
+        assert inst.fault_text() is None
+        assert (
+            remote.verb("estop", "left") == "e-stop pressed: left; amplifiers off, system halted\n"
+        )
+        assert "bridge" in inst.fault_text() and "emergency stop pressed: left" in inst.fault_text()
+        assert remote.verb("estop", "--release", "left") == "e-stop released: left\n"
+
+
+def test_turns_take_each_users_jobs_in_order_and_the_users_in_turn() -> None:
+    """``admission.Turns``: a user's jobs in the order sent, the users round robin, at most
+    ``limit`` of one user's waiting (the rest refused, naming the user), none after close."""
+    turns = Turns("verbs", limit=3)
+    assert [turns.put("a", lambda i=i: ("a", i)) for i in range(4)][:3] == [None] * 3
+    assert "user 'a': 3 of its verbs wait already" in (turns.put("a", lambda: None) or "")
+    assert turns.put("b", lambda: ("b", 0)) is None
+    assert turns.put("b", lambda: ("b", 1)) is None
+    order = [turns.get()() for _ in range(5)]  # type: ignore[misc]
+    assert order == [("a", 0), ("b", 0), ("a", 1), ("b", 1), ("a", 2)]
+    assert turns.put("c", lambda: ("c", 0)) is None
+    turns.close()
+    assert "takes no more" in (turns.put("c", lambda: None) or "")
+    assert turns.get()() == ("c", 0)  # type: ignore[misc]
+    assert turns.get() is None
+
+
 FLOODER = """
 import json, sys, time, zenoh
 from kali_daemons.bridge.access import client_config
+from kali_daemons.bridge.admission import Turns
 endpoint, key, payload, rate, seconds, *login = sys.argv[1:]
 s = zenoh.open(client_config(endpoint, *login) if login else client_config(endpoint))
 answers = []

@@ -21,16 +21,20 @@ It is non-serious, SCHED_OTHER and unlocked, on its own CPU share (``bridge.cpu`
 arena as a Type 4 reader and never takes a lock the servo level waits for: a bridge that dies
 or stalls leaves the cell running (``kalictl status``: degraded).  In real time it keeps its
 own clock, as the viewer does, so it goes on reporting after a halt stops the wall clock; in
-lockstep the wall clock steps it.  Requests arrive on Zenoh's threads, each under its user's
-branch (``protocol.UserKeys``), are counted against that user's ``bridge.max_requests_per_s``
-for their kind (``sessions.Gates``; an e-stop never is) and handed to the bridge's own threads
-(one per session, one for verbs, one for the rest): a Zenoh callback never waits.
+lockstep the wall clock steps it.
+
+Requests arrive on Zenoh's threads, each under its user's branch (``protocol.UserKeys``).
+An e-stop is pressed there and then, lock-free (``Instance.press_estop``, as ``kalictl
+estop``): it waits behind nothing.  Every other request is counted against its user's
+``bridge.max_requests_per_s`` for its kind and waits its user's turn on one of the bridge's
+own threads, one for status and config, one for verbs, one for session opens and closes, one
+per session for its calls (``admission``): a Zenoh callback never waits, and one user's flood
+delays only that user.
 """
 
 from __future__ import annotations
 
 import contextlib
-import queue
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -40,15 +44,16 @@ import zenoh.ext
 
 from .. import launcher
 from ..daemon import Daemon
-from ..errors import DaemonError
+from ..errors import DaemonError, KaliError
+from ..instance import estop_pressed
 from ..wallclock.clock import time_ms
 from . import access, protocol
+from .admission import Gates, Turns
 from .protocol import BridgeError, Keys
-from .sessions import Gates, Sessions, check_verb
+from .sessions import Sessions, check_verb
 from .telemetry import Telemetry, Watch
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-STOP = object()  # a work queue's last item
 
 
 class Bridge(Daemon):
@@ -62,9 +67,10 @@ class Bridge(Daemon):
         super().__init__(instance, name, **kw)  # type: ignore[arg-type]
         self.session: zenoh.Session | None = None
         self.threads: list[threading.Thread] = []
-        self.queues: list[queue.Queue] = []
+        self.queues: list[Turns] = []
         self.n_events = 0
         self.errors = 0
+        self.refused = 0  # requests refused unread
 
     # ------------------------------------------------------------------ set-up
 
@@ -103,15 +109,16 @@ class Bridge(Daemon):
         log_dir = str(launcher.log_dir(inst.name))
         self.sessions = Sessions(inst.name, cfg.max_sessions, cfg.cpu, log_dir)
         self.gates = Gates(cfg.max_requests_per_s)
-        self.admin = self._worker("bridge-admin")
-        self.admin.put(self.sessions.start_helper)  # ready before the first verb
-        self.verbs = self._worker("bridge-verbs")
-        self.session_queues: dict[str, queue.Queue] = {}
-        reads, sessions = "status and config", "session open and close"
+        reads, sessions = "status and config requests", "session opens and closes"
+        self.reads = self._worker("bridge-reads", reads)
+        self.verbs = self._worker("bridge-verbs", "verbs")
+        self.admin = self._worker("bridge-sessions", sessions)
+        self.admin.put("bridge", self.sessions.start_helper)  # ready before the first verb
+        self.session_queues: dict[str, Turns] = {}
         self.queryables = [
-            s.declare_queryable(keys.status, self._gated(reads, self.admin, self._status)),
-            s.declare_queryable(keys.config, self._gated(reads, self.admin, self._config)),
-            s.declare_queryable(keys.verbs, self._gated("verbs", self.verbs, self._verb)),
+            s.declare_queryable(keys.status, self._gated(reads, self.reads, self._status)),
+            s.declare_queryable(keys.config, self._gated(reads, self.reads, self._config)),
+            s.declare_queryable(keys.verbs, self._on_verb),
             s.declare_queryable(keys.session_open, self._gated(sessions, self.admin, self._open)),
             s.declare_queryable(keys.session_close, self._gated(sessions, self.admin, self._close)),
             s.declare_queryable(keys.session_calls, self._on_call),
@@ -119,12 +126,12 @@ class Bridge(Daemon):
         self.clients = s.liveliness().declare_subscriber(keys.clients, self._on_client)
         self.token = s.liveliness().declare_token(keys.alive)
 
-    def _worker(self, name: str) -> queue.Queue:
-        """A thread of the bridge's own taking work (callables) from a queue, in order."""
-        q: queue.Queue = queue.Queue()
+    def _worker(self, name: str, what: str) -> Turns:
+        """A thread of the bridge's own taking ``what`` (jobs: callables) from its turns."""
+        turns = Turns(what)
 
         def run() -> None:
-            while (job := q.get()) is not STOP:
+            while (job := turns.get()) is not None:
                 try:
                     job()
                 except Exception:  # a reply that cannot be sent: the asker has gone
@@ -133,41 +140,70 @@ class Bridge(Daemon):
         t = threading.Thread(target=run, name=name, daemon=True)
         t.start()
         self.threads = [*(t for t in self.threads if t.is_alive()), t]
-        self.queues.append(q)
-        return q
+        self.queues.append(turns)
+        return turns
 
     # ------------------------------------------------------------------ requests
 
     def _gated(
-        self, kind: str, work: queue.Queue, handler: Callable[[zenoh.Query], Any]
+        self, kind: str, work: Turns, handler: Callable[[zenoh.Query], Any]
     ) -> Callable[[zenoh.Query], None]:
-        """A queryable's callback: counted against its user's rate for ``kind`` (an e-stop
-        never is), then ``handler(query)`` on the ``work`` thread, its value the JSON reply
-        (a KaliError: the error reply)."""
+        """A queryable's callback: ``_admit`` with these."""
+        return lambda query: self._admit(query, kind, work, handler)
 
-        def on_query(query: zenoh.Query) -> None:
-            try:
-                user, _ = self.keys.parse(query.key_expr)
-            except BridgeError as exc:
-                self._refuse(query, exc)
-                return
-            why = None if self._presses_estop(query) else self.gates.admit(user, kind)
-            if why is not None:
-                self._refuse(query, BridgeError(why))
-                return
-            work.put(lambda: self._answer(query, handler))
+    def _admit(
+        self, query: zenoh.Query, kind: str, work: Turns, handler: Callable[[zenoh.Query], Any]
+    ) -> None:
+        """Count ``query`` against its user's rate for ``kind``, then queue ``handler(query)``
+        in the user's turn on the ``work`` thread, its value the JSON reply (a KaliError: the
+        error reply); refused at once, unread, beyond the rate or the user's waiting."""
+        try:
+            user, _ = self.keys.parse(query.key_expr)
+        except BridgeError as exc:
+            self._refuse(query, exc)
+            return
+        why = self.gates.admit(user, kind) or work.put(user, lambda: self._answer(query, handler))
+        if why is not None:
+            self._refuse(query, BridgeError(why))
 
-        return on_query
+    def _on_verb(self, query: zenoh.Query) -> None:
+        """A kalictl verb: pressing the e-stop carried out at once, here on the Zenoh thread
+        that delivered it (it never waits behind another request, nor counts against a
+        rate); any other in its user's turn on the verbs thread."""
+        try:
+            user, (_, verb) = self.keys.parse(query.key_expr)
+            robots = self._pressing(query) if verb == "estop" else None
+        except (BridgeError, ValueError) as exc:  # ValueError: not kali/INST/user/USER/verb/V
+            self._refuse(query, BridgeError(str(exc)))
+            return
+        if robots is None:
+            self._admit(query, "verbs", self.verbs, self._verb)
+        else:
+            self._answer(query, lambda _: self._press_estop(robots[0] if robots else None, user))
 
-    def _presses_estop(self, query: zenoh.Query) -> bool:
-        """Whether ``query`` is the verb ``estop`` pressing the button (not releasing it)."""
-        if str(query.key_expr).rsplit("/", 1)[-1] != "estop":
-            return False
-        with contextlib.suppress(BridgeError):
-            request = self._payload(query, "estop")
-            args = request.get("args", []) if isinstance(request, dict) else request
-            return isinstance(args, list) and "--release" not in args
-        return False
+    def _pressing(self, query: zenoh.Query) -> list[str] | None:
+        """The arguments of verb ``estop`` when they press a button (``[]``: every robot's,
+        ``[ROBOT]``); None for any other use of the verb (``--release``, a mistake: kalictl's
+        to answer, in its words)."""
+        request = self._payload(query, "estop")
+        args = request.get("args", []) if isinstance(request, dict) else request
+        check_verb("estop", args)
+        if args == [] or (
+            isinstance(args, list)
+            and len(args) == 1
+            and isinstance(args[0], str)
+            and not args[0].startswith("-")
+        ):
+            return args
+        return None
+
+    def _press_estop(self, robot: str | None, user: str) -> dict[str, Any]:
+        """Press the e-stop as ``kalictl estop [ROBOT]`` does, answered in its words."""
+        try:
+            pressed = self.inst.press_estop(robot, f"bridge {user}")
+        except KaliError as exc:  # an unknown robot: nothing pressed
+            return {"ok": False, "code": 1, "output": "", "error": f"kalictl: {exc}\n"}
+        return {"ok": True, "code": 0, "output": estop_pressed(pressed) + "\n", "error": ""}
 
     def _answer(self, query: zenoh.Query, handler: Callable[[zenoh.Query], Any]) -> None:
         try:
@@ -180,6 +216,8 @@ class Bridge(Daemon):
         query.drop()
 
     def _refuse(self, query: zenoh.Query, error: BridgeError) -> None:
+        """Answer ``query`` with ``error`` at once, unread (counted)."""
+        self.refused += 1
         with contextlib.suppress(zenoh.ZError):
             query.reply(query.key_expr, protocol.dumps(protocol.error_reply(error)), encoding=JSON)
         query.drop()
@@ -196,7 +234,7 @@ class Bridge(Daemon):
         doc["bridge"] = {
             "sessions": self.sessions.describe(),
             "events": self.n_events,
-            "refused": self.gates.refused,
+            "refused": self.refused,
             "errors": self.errors,
         }
         return doc
@@ -230,7 +268,9 @@ class Bridge(Daemon):
             )
         kali = self.sessions.open(request)
         sid = request["sid"]
-        self.session_queues[sid] = self._worker(f"bridge-session-{sid[:8]}")
+        self.session_queues[sid] = self._worker(
+            f"bridge-session-{sid[:8]}", f"calls to session {sid[:8]}"
+        )
         if not self._client_alive(token(sid)):  # it left while its worker started
             self._end_session(sid)
             raise BridgeError(f"session {sid[:8]}: the program left while it opened")
@@ -249,7 +289,7 @@ class Bridge(Daemon):
     def _end_session(self, sid: str) -> bool:
         q = self.session_queues.pop(sid, None)
         if q is not None:
-            q.put(STOP)
+            q.close()  # its thread ends once the calls waiting are answered (refused)
             self.queues.remove(q)
         return self.sessions.close(sid)
 
@@ -260,16 +300,15 @@ class Bridge(Daemon):
         except BridgeError as exc:
             self._refuse(query, exc)
             return
-        why = self.gates.admit(user, f"calls to session {sid[:8]}")
-        if why is not None:
-            self._refuse(query, BridgeError(why))
-            return
         q = self.session_queues.get(sid)
         if q is None:
             self._refuse(query, BridgeError(f"no session {sid[:8]}; open one first"))
             return
         payload = query.payload.to_bytes() if query.payload is not None else b""
-        q.put(lambda: self._answer(query, lambda _: self.sessions.call(sid, payload)))
+        job = lambda: self._answer(query, lambda _: self.sessions.call(sid, payload))  # noqa: E731
+        why = self.gates.admit(user, q.what) or q.put(user, job)
+        if why is not None:
+            self._refuse(query, BridgeError(why))
 
     def _on_client(self, sample: zenoh.Sample) -> None:
         """A remote program's token went: it died or left; end its session as a local
@@ -277,7 +316,7 @@ class Bridge(Daemon):
         if sample.kind == zenoh.SampleKind.DELETE:
             sid = str(sample.key_expr).rsplit("/", 1)[-1]
             if sid in self.session_queues:
-                self.admin.put(lambda: self._end_session(sid))
+                self.admin.put("bridge", lambda: self._end_session(sid))
 
     # ------------------------------------------------------------------ the cycle
 
@@ -325,7 +364,7 @@ class Bridge(Daemon):
         if sessions is not None:
             sessions.close_all()
         for q in self.queues:
-            q.put(STOP)
+            q.close()
         for t in self.threads:
             t.join(timeout=2.0)
         session, self.session = self.session, None

@@ -20,7 +20,6 @@ import re
 import subprocess
 import sys
 import threading
-import time
 from typing import Any
 
 from .. import launcher
@@ -47,7 +46,6 @@ VERBS: dict[str, frozenset[str] | None] = {
 }
 MAX_VERB_ARGS = 16
 MAX_ARG_CHARS = 200
-MAX_GATES = 256  # rate-limit buckets (user, kind) kept at once
 
 
 class Worker:
@@ -291,52 +289,3 @@ def run_verb(instance: str, verb: str, args: Any) -> dict[str, Any]:
             err.write(f"kalictl: {verb}: {exc}\n")
             code = 2
     return {"ok": code == 0, "code": code, "output": out.getvalue(), "error": err.getvalue()}
-
-
-class Gates:
-    """At most ``rate`` requests a second per user and kind of request (a token bucket of one
-    second's each): beyond it a request is refused before anything reads it, so a flood costs
-    the bridge little CPU and another user's requests, or this user's of another kind, never
-    notice it.  A bucket that has filled up again is forgotten; at most ``limit`` are kept
-    (without authentication a client names itself, and made-up names must not grow them
-    without bound): while that many users are busy, a new one is refused."""
-
-    def __init__(self, rate: int, limit: int = MAX_GATES) -> None:
-        self.rate = float(rate)
-        self.limit = limit
-        self.buckets: dict[tuple[str, str], list[float]] = {}  # (user, kind) -> [tokens, time]
-        self.refused = 0
-        self.lock = threading.Lock()
-
-    def admit(self, user: str, kind: str) -> str | None:
-        """None if ``user`` may make one more request of ``kind`` now, else why not."""
-        with self.lock:
-            now = time.monotonic()
-            bucket = self.buckets.get((user, kind))
-            if bucket is None:
-                if len(self.buckets) >= self.limit:
-                    self._forget_full(now)
-                if len(self.buckets) >= self.limit:
-                    self.refused += 1
-                    return (
-                        f"user {user!r}: {self.limit} users and kinds of request are busy "
-                        f"at once; refused unread"
-                    )
-                bucket = self.buckets[(user, kind)] = [self.rate, now]
-            tokens = min(self.rate, bucket[0] + (now - bucket[1]) * self.rate)
-            bucket[1] = now
-            if tokens >= 1.0:
-                bucket[0] = tokens - 1.0
-                return None
-            bucket[0] = tokens
-            self.refused += 1
-            return (
-                f"user {user!r}: more than {self.rate:g} requests a second of one kind ({kind}; "
-                f"bridge.max_requests_per_s, per user and kind); refused unread"
-            )
-
-    def _forget_full(self, now: float) -> None:
-        """Forget the buckets that have filled up again (their users quiet for a while)."""
-        for key, (tokens, last) in list(self.buckets.items()):
-            if tokens + (now - last) * self.rate >= self.rate:
-                del self.buckets[key]
