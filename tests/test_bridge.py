@@ -302,10 +302,9 @@ def test_malformed_requests_get_clear_errors_and_never_reach_the_queue(
     name, endpoint = bridged(extra={"max_requests_per_s": "200"})
     keys = Keys(name)
     with Kali.connect(endpoint, name) as remote:
-        sid = remote._conn.sid
-        s = listener(endpoint)
+        s = listener(endpoint)  # the program's own calls, malformed: its name and its secret
         mine = keys.user(remote._conn.mine.name)  # unauthenticated: any client may use it
-        call = mine.call(sid)
+        call = mine.call(remote._conn.secret)
 
         def raw(payload: bytes) -> dict:
             replies = list(s.get(call, payload=payload, timeout=10.0))
@@ -338,7 +337,7 @@ def test_malformed_requests_get_clear_errors_and_never_reach_the_queue(
         assert (
             "not a short string" in ask(s, mine.verb("enable"), {"args": [1]})["error"]["message"]
         )
-        assert "no session" in ask(s, mine.call("0" * 16), {"target": 0})["error"]["message"]
+        assert "no such session" in ask(s, mine.call("0" * 32), {"target": 0})["error"]["message"]
         # a flood: 10,000 requests at once; beyond the rate, or the session's calls waiting,
         # each is refused unread
         answers: list[dict] = []

@@ -145,9 +145,8 @@ def test_the_bridges_estop_answers_in_kalictls_words(
             remote.verb("estop", "elbow")
         assert str(refused.value) == "bridge: " + local.stderr.strip()
         assert inst.fault_text() is None
-        assert (
-            remote.verb("estop", "left") == "e-stop pressed: left; amplifiers off, system halted\n"
-        )
+        said = remote.verb("estop", "left")
+        assert said == "e-stop pressed: left; amplifiers off, system halted\n"
         assert "bridge" in inst.fault_text() and "emergency stop pressed: left" in inst.fault_text()
         assert remote.verb("estop", "--release", "left") == "e-stop released: left\n"
 
@@ -216,3 +215,67 @@ def flooding(
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_sessions_calls_need_its_secret_which_is_never_published(
+    bridged: Callable[..., tuple[str, str]], listener: Callable[[str], zenoh.Session]
+) -> None:
+    """Another client lists the remote programs' liveliness tokens and reads the status
+    document: with what it finds there it can neither call the session nor close it, under
+    the program's name or its own; the secret is in no token, status or worker's command
+    line (before: the token's id was the session's address, and any operator could move the
+    program's arms as it and close it)."""
+    name, endpoint = bridged()
+    keys = Keys(name)
+    with Kali.connect(endpoint, name) as program:
+        program.robot("left")
+        secret, owner = program._conn.secret, program._conn.mine.name
+        intruder = listener(endpoint)
+        tokens = [str(r.ok.key_expr) for r in intruder.liveliness().get(f"kali/{name}/**")]
+        published = [t.rsplit("/", 1)[-1] for t in tokens if "/clients/" in t]
+        assert published == [program._conn.sid]
+        status = ask(intruder, keys.user("intruder").status, {})["value"]
+        listed = status["bridge"]["sessions"]
+        assert [s["sid"] for s in listed] == [program._conn.sid[:8]]
+        assert secret not in json.dumps(status) and not any(secret in t for t in tokens)
+        with open(f"/proc/{listed[0]['pid']}/cmdline", "rb") as f:
+            assert secret.encode() not in f.read()
+        call = {"target": 0, "method": "robot", "args": ["left"]}
+        for user in (owner, "intruder"):
+            for public in (published[0], listed[0]["sid"]):
+                mine = keys.user(user)
+                for key, value in ((mine.call(public), call), (mine.close(public), {})):
+                    got = ask(intruder, key, value)
+                    assert got is not None and "no such session" in got["error"]["message"], got
+        assert program.robot("left").name == "left"  # the session lives on
+        assert program.status()["bridge"]["sessions"] == listed
+
+
+def test_another_user_is_refused_a_session_even_with_its_secret(
+    authenticated: Callable[..., tuple[str, str]],
+) -> None:
+    """Operator op2, given op's session's secret, can neither call it nor close it: under
+    its own name the bridge refuses it (the session is op's), under op's Zenoh's access
+    control does (before: any operator could call and close any session)."""
+    name, endpoint = authenticated()
+    keys = Keys(name)
+    with Kali.connect(endpoint, name, user="op", password=USERS["op"]) as program:
+        secret = program._conn.secret
+        other = login(endpoint, "op2")
+        try:
+            call = {"target": 0, "method": "robot", "args": ["left"]}
+            for key, value in (
+                (keys.user("op2").call(secret), call),
+                (keys.user("op2").close(secret), {}),
+            ):
+                got = ask(other, key, value)
+                assert got is not None, key
+                assert "belongs to user 'op'; refused to user 'op2'" in got["error"]["message"]
+            for key, value in (
+                (keys.user("op").call(secret), call),
+                (keys.user("op").close(secret), {}),
+            ):
+                assert ask(other, key, value, timeout=2.0) is None  # refused by Zenoh
+        finally:
+            other.close()
+        assert program.robot("left").name == "left"  # the session lives on

@@ -256,7 +256,10 @@ class Bridge(Daemon):
         check_verb(verb, args)  # refused here, unread by the helper
         return self.sessions.ask_helper({"verb": verb, "args": args})
 
-    def _open(self, query: zenoh.Query) -> Any:
+    def _open(self, query: zenoh.Query) -> dict[str, Any]:
+        """Open a session of the user who asks: ``{"session": its secret, "kali": its Kali's
+        reference}``, in the answer to the opener only (Zenoh sends a reply to its query's
+        sender alone)."""
         user, _ = self.keys.parse(query.key_expr)
         token = self.keys.user(user).client
         request = self._payload(query, "session/open")
@@ -266,15 +269,15 @@ class Bridge(Daemon):
                 f"session {sid[:8]}: no liveliness token {token(sid)}; "
                 f"declare it before opening the session"
             )
-        kali = self.sessions.open(request)
+        secret, kali = self.sessions.open(request, user)
         sid = request["sid"]
-        self.session_queues[sid] = self._worker(
+        self.session_queues[secret] = self._worker(
             f"bridge-session-{sid[:8]}", f"calls to session {sid[:8]}"
         )
         if not self._client_alive(token(sid)):  # it left while its worker started
-            self._end_session(sid)
+            self._end_session(secret)
             raise BridgeError(f"session {sid[:8]}: the program left while it opened")
-        return kali
+        return {"session": secret, "kali": kali}
 
     def _client_alive(self, token: str) -> bool:
         """Whether a program holds its liveliness token ``token``: how the bridge learns that
@@ -283,29 +286,33 @@ class Bridge(Daemon):
         return any(r.ok is not None for r in replies)
 
     def _close(self, query: zenoh.Query) -> bool:
-        _, (_, sid, _) = self.keys.parse(query.key_expr)
-        return self._end_session(sid)
+        """Close the session whose secret the key holds, the asking user's."""
+        user, (_, secret, _) = self.keys.parse(query.key_expr)
+        self.sessions.find(secret, user)
+        return self._end_session(secret)
 
-    def _end_session(self, sid: str) -> bool:
-        q = self.session_queues.pop(sid, None)
+    def _end_session(self, secret: str) -> bool:
+        q = self.session_queues.pop(secret, None)
         if q is not None:
             q.close()  # its thread ends once the calls waiting are answered (refused)
             self.queues.remove(q)
-        return self.sessions.close(sid)
+        return self.sessions.close(secret)
 
     def _on_call(self, query: zenoh.Query) -> None:
-        """A remote program's call: on its session's own thread, in the order sent."""
+        """A remote program's call, to the session whose secret the key holds (the asking
+        user's): on the session's own thread, in the order sent."""
         try:
-            user, (_, sid, _) = self.keys.parse(query.key_expr)
+            user, (_, secret, _) = self.keys.parse(query.key_expr)
+            self.sessions.find(secret, user)
         except BridgeError as exc:
             self._refuse(query, exc)
             return
-        q = self.session_queues.get(sid)
+        q = self.session_queues.get(secret)
         if q is None:
-            self._refuse(query, BridgeError(f"no session {sid[:8]}; open one first"))
+            self._refuse(query, BridgeError("no such session; open one first"))
             return
         payload = query.payload.to_bytes() if query.payload is not None else b""
-        job = lambda: self._answer(query, lambda _: self.sessions.call(sid, payload))  # noqa: E731
+        job = lambda: self._answer(query, lambda _: self.sessions.call(secret, user, payload))  # noqa: E731
         why = self.gates.admit(user, q.what) or q.put(user, job)
         if why is not None:
             self._refuse(query, BridgeError(why))
@@ -314,9 +321,18 @@ class Bridge(Daemon):
         """A remote program's token went: it died or left; end its session as a local
         program's death would (its worker killed)."""
         if sample.kind == zenoh.SampleKind.DELETE:
-            sid = str(sample.key_expr).rsplit("/", 1)[-1]
-            if sid in self.session_queues:
-                self.admin.put("bridge", lambda: self._end_session(sid))
+            with contextlib.suppress(BridgeError, ValueError):
+                user, (_, sid) = self.keys.parse(sample.key_expr)
+                if self.sessions.of(user, sid):
+                    self.admin.put("bridge", lambda: self._client_left(user, sid))
+
+    def _client_left(self, user: str, sid: str) -> None:
+        """End user ``user``'s sessions of public id ``sid`` unless a token of that id is
+        still there (another client's token of the same key coming and going proves
+        nothing)."""
+        if not self._client_alive(self.keys.user(user).client(sid)):
+            for secret in self.sessions.of(user, sid):
+                self._end_session(secret)
 
     # ------------------------------------------------------------------ the cycle
 

@@ -6,8 +6,10 @@ ROBOT/state`` (telemetry, Drop QoS), ``kali/INST/timing`` (1 Hz), ``kali/INST/ev
 changes), and declares the liveliness token ``kali/INST/alive``.  What a client asks and
 declares lies under its user's branch ``kali/INST/user/USER`` (``UserKeys``; with
 authentication Zenoh lets a user only its own): the bridge answers ``.../status``,
-``.../config``, ``.../verb/VERB`` (kalictl's verbs) and ``.../session/...`` (a remote
-program's calls), and a remote program declares ``.../clients/SID`` while it lives.
+``.../config``, ``.../verb/VERB`` (kalictl's verbs), ``.../session/open`` and a remote
+program's calls and close, ``.../session/SECRET/call`` and ``.../close`` (SECRET: what the
+open answered its opener alone), and a remote program declares ``.../clients/SID`` (SID: its
+session's public id) while it lives.
 
 Payloads are JSON (any language reads them).  A remote program's call names an object of its
 session (0: its ``Kali``), a method and the arguments; values cross as JSON with tagged
@@ -111,11 +113,11 @@ class UserKeys:
     def verb(self, verb: str) -> str:
         return f"{self.home}/verb/{verb}"
 
-    def call(self, sid: str) -> str:
-        return f"{self.home}/session/{sid}/call"
+    def call(self, secret: str) -> str:
+        return f"{self.home}/session/{secret}/call"
 
-    def close(self, sid: str) -> str:
-        return f"{self.home}/session/{sid}/close"
+    def close(self, secret: str) -> str:
+        return f"{self.home}/session/{secret}/close"
 
     def client(self, sid: str) -> str:
         return f"{self.home}/clients/{sid}"

@@ -4,7 +4,9 @@ A session is a worker process (``session.py``) standing in for one remote progra
 starts it when the program opens the session, hands it the program's calls one at a time and
 returns its answers, and kills it when the program's liveliness token goes (it died, or its
 machine left the network), so the cell treats that program as a local one that died.  A
-worker runs SCHED_OTHER at a lower priority than the bridge, on the bridge's CPU.
+worker runs SCHED_OTHER at a lower priority than the bridge, on the bridge's CPU.  A session
+belongs to the user who opened it and is addressed by a secret only its opener learns
+(``Sessions``).
 
 Verbs are kalictl's own commands, run one at a time by the bridge's helper process (a worker
 with ``--helper``), so a remote ``enable`` or ``servo set`` meets kalictl's checks and
@@ -17,6 +19,7 @@ import contextlib
 import io
 import os
 import re
+import secrets
 import subprocess
 import sys
 import threading
@@ -44,6 +47,7 @@ VERBS: dict[str, frozenset[str] | None] = {
     "status": frozenset({"--json"}),
     "servo": frozenset({"list", "select", "set", "get", "compare"}),
 }
+SECRET_BYTES = 16  # a session's secret: 128 random bits, 32 hex digits
 MAX_VERB_ARGS = 16
 MAX_ARG_CHARS = 200
 
@@ -51,11 +55,14 @@ MAX_ARG_CHARS = 200
 class Worker:
     """One session's worker process and the lock its calls take turns on."""
 
-    def __init__(self, sid: str, program: str, proc: subprocess.Popen, kali: Any) -> None:
-        self.sid = sid
+    def __init__(
+        self, sid: str, program: str, proc: subprocess.Popen, kali: Any, owner: str = ""
+    ) -> None:
+        self.sid = sid  # public: the program's liveliness token carries it
         self.program = program
         self.proc = proc
         self.kali = kali  # the reference to its Kali, as the remote program gets it
+        self.owner = owner  # the user who opened the session
         self.lock = threading.Lock()
         self.next_id = 0
 
@@ -91,21 +98,26 @@ class Worker:
 
 
 class Sessions:
-    """The open sessions of one instance, at most ``limit``."""
+    """The open sessions of one instance, at most ``limit``, each addressed by its secret:
+    a random number the bridge makes when the session opens and tells its opener only, in
+    the answer to the open, and which is published nowhere (the program's liveliness token
+    and the status document carry its public id).  A session belongs to the user who opened
+    it: a call or a close from another user is refused even with the secret."""
 
     def __init__(self, instance: str, limit: int, cpu: int | None, log_dir: str) -> None:
         self.instance = instance
         self.limit = limit
         self.cpu = cpu
         self.log_dir = log_dir
-        self.workers: dict[str, Worker] = {}
+        self.workers: dict[str, Worker | None] = {}  # by secret; None while it starts
         self.lock = threading.Lock()
         self.helper: Worker | None = None  # verbs and status (ask_helper)
         self.helper_lock = threading.Lock()
         self.closed = False
 
-    def open(self, request: Any) -> dict[str, Any]:
-        """Start a session for ``{"sid", "program", "force"}``; its Kali's reference."""
+    def open(self, request: Any, owner: str) -> tuple[str, dict[str, Any]]:
+        """Start a session of user ``owner`` for ``{"sid", "program", "force"}``: its secret
+        and its Kali's reference."""
         if not isinstance(request, dict):
             raise BridgeError("session/open takes {sid, program, force}")
         sid, program = request.get("sid"), request.get("program", "remote")
@@ -119,23 +131,45 @@ class Sessions:
         with self.lock:
             if self.closed:
                 raise BridgeError(f"instance '{self.instance}' is stopping")
-            if sid in self.workers:
+            if self.of(owner, sid):
                 raise BridgeError(f"session {sid[:8]} is open already")
             if len(self.workers) >= self.limit:
                 raise BridgeError(
                     f"{len(self.workers)} remote programs are connected, the "
                     f"config's bridge.max_sessions; refused"
                 )
-            self.workers[sid] = None  # type: ignore[assignment]  # reserved while it starts
+            secret = secrets.token_hex(SECRET_BYTES)
+            self.workers[secret] = None  # reserved while it starts
         try:
             worker = self._start(sid, program, force)
         except BaseException:
             with self.lock:
-                self.workers.pop(sid, None)
+                self.workers.pop(secret, None)
             raise
+        worker.owner = owner
         with self.lock:
-            self.workers[sid] = worker
-        return worker.kali
+            self.workers[secret] = worker
+        return secret, worker.kali
+
+    def find(self, secret: str, user: str) -> Worker:
+        """The session ``secret`` addresses, which must be ``user``'s (BridgeError)."""
+        worker = self.workers.get(secret)
+        if worker is None:
+            raise BridgeError("no such session; open one first")
+        if worker.owner != user:
+            raise BridgeError(
+                f"session {worker.sid[:8]} ({worker.program}) belongs to user "
+                f"{worker.owner!r}; refused to user {user!r}"
+            )
+        return worker
+
+    def of(self, owner: str, sid: str) -> list[str]:
+        """The secrets of the sessions user ``owner`` opened with public id ``sid``."""
+        return [
+            secret
+            for secret, w in list(self.workers.items())
+            if w is not None and (w.owner, w.sid) == (owner, sid)
+        ]
 
     def _start(self, sid: str, program: str, force: bool) -> Worker:
         options = ["--sid", sid, "--program", program, *(["--force"] if force else [])]
@@ -197,22 +231,20 @@ class Sessions:
         """The helper's answer line to ``request`` (a verb, or the status)."""
         return self.start_helper().call(request)
 
-    def call(self, sid: str, payload: bytes) -> bytes:
-        """Forward one call of session ``sid``; the worker's answer."""
-        worker = self.workers.get(sid)
-        if worker is None:
-            raise BridgeError(f"no session {sid[:8]}; open one first")
+    def call(self, secret: str, user: str, payload: bytes) -> bytes:
+        """Forward one call of ``user`` to session ``secret``; the worker's answer."""
+        worker = self.find(secret, user)
         request = protocol.loads(payload, "call")
         if not isinstance(request, dict):
             raise BridgeError("a call must be a JSON object")
         return worker.call(request)
 
-    def close(self, sid: str) -> bool:
-        """End session ``sid`` (its program left); False if there was none."""
+    def close(self, secret: str) -> bool:
+        """End session ``secret`` (its program left); False if there was none."""
         with self.lock:
-            if self.workers.get(sid, 0) is None:
+            if secret in self.workers and self.workers[secret] is None:
                 return False  # still starting: open() finds its program gone and ends it
-            worker = self.workers.pop(sid, None)
+            worker = self.workers.pop(secret, None)
         if worker is None:
             return False
         worker.stop()
@@ -229,10 +261,10 @@ class Sessions:
             w.stop()
 
     def describe(self) -> list[dict[str, Any]]:
-        """The open sessions: id, program, worker pid."""
+        """The open sessions: public id, user, program, worker pid (never a secret)."""
         with self.lock:
             return [
-                {"sid": w.sid[:8], "program": w.program, "pid": w.proc.pid}
+                {"sid": w.sid[:8], "user": w.owner, "program": w.program, "pid": w.proc.pid}
                 for w in self.workers.values()
                 if w is not None
             ]

@@ -140,7 +140,8 @@ class Connection:
         except BridgeError:
             self.session.close()
             raise
-        self.sid = secrets.token_hex(8)
+        self.sid = secrets.token_hex(8)  # public: its liveliness token carries it
+        self.secret = ""  # its session's address, the bridge's answer to its open
         self.proxies: weakref.WeakValueDictionary[int, Proxy] = weakref.WeakValueDictionary()
         self.dropped: list[int] = []  # handles this program let go: the session forgets them
         self.lock = threading.Lock()
@@ -238,7 +239,7 @@ class Connection:
             "kwargs": protocol.encode(kwargs, _reference),
             "drop": dropped,
         }
-        answer = self._ask(self.mine.call(self.sid), protocol.dumps(request), limit, method)
+        answer = self._ask(self.mine.call(self.secret), protocol.dumps(request), limit, method)
         value = protocol.decode(answer.get("value"), self.proxy)
         attrs = protocol.decode(answer.get("attrs") or {}, self.proxy)
         return value, attrs
@@ -263,7 +264,7 @@ class Connection:
             return
         try:
             if self.opened and self.bridge_alive.is_set():
-                self.get(self.mine.close(self.sid), {}, timeout=5.0)
+                self.get(self.mine.close(self.secret), {}, timeout=5.0)
         except Exception:  # the token going ends it anyway
             pass
         self.closed = True
@@ -418,11 +419,12 @@ class RemoteKali(Proxy):
                 ) from None
             self.inst = RemoteInstance(cfg["instance"], config, bool(cfg["lockstep"]))
             program = program_name().decode(errors="replace")
-            ref = conn.get(
+            opened = conn.get(
                 conn.mine.session_open,
                 {"sid": conn.sid, "program": program, "force": bool(force)},
                 timeout=CONNECT_TIMEOUT_S + 30.0,
             )
+            conn.secret, ref = opened["session"], opened["kali"]
         except BaseException:
             conn.close()
             raise
