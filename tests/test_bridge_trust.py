@@ -7,12 +7,15 @@ from __future__ import annotations
 import contextlib
 import json
 import select
+import signal
 import subprocess
 import sys
+import textwrap
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 
@@ -21,10 +24,14 @@ from kali_daemons.bridge.admission import Turns
 from kali_daemons.bridge.protocol import BridgeError, Keys
 from kali_daemons.client import Kali
 from kali_daemons.instance import Instance
+from kali_daemons.layout import RequestState
+from kali_daemons.spinlock import pid_alive
+from kali_daemons.tg import records
 
 from . import test_bridge
 from .conftest import wait_for
 from .test_bridge import KALICTL, bridge_edit, free_port
+from .test_tg import powered
 
 bridged = test_bridge.bridged  # its fixtures, here too
 listener = test_bridge.listener
@@ -279,3 +286,66 @@ def test_another_user_is_refused_a_session_even_with_its_secret(
         finally:
             other.close()
         assert program.robot("left").name == "left"  # the session lives on
+
+
+def test_ctrl_c_under_kalictl_run_remote_stops_the_arms_of_a_program_ignoring_sigint(
+    bridged: Callable[..., tuple[str, str]], tmp_path: Path
+) -> None:
+    """Ctrl-C under ``kalictl run --remote``: the program's arm stops on its path though the
+    program ignores SIGINT and every error, and kalictl says the arms stopped only once they
+    have; a second Ctrl-C kills it and nothing is left (before: kalictl printed "its arms
+    stop as it leaves", sent SIGINT, and the move went on)."""
+    name, endpoint = bridged()
+    with powered(name) as k:
+        start = k.servo.level.arm("demand", 0).copy()
+        far = start + np.radians([60, 0, 0, 0, 0, 0])
+        prog = tmp_path / "prog.py"
+        prog.write_text(
+            textwrap.dedent(
+                f"""
+                import os, signal, time
+                import numpy as np
+                from kali_daemons.client import Kali
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                kali = Kali()
+                h = kali.robot("left").move_joints(np.array({far.tolist()}), speed=0.003,
+                                                   wait=False)
+                print(os.getpid(), h.seq, len(kali.status()["bridge"]["sessions"]), flush=True)
+                while True:  # steps the (lockstep) clock for ever, whatever happens
+                    try:
+                        kali.pause()
+                    except Exception:
+                        time.sleep(0.01)
+                """
+            )
+        )
+        run = subprocess.Popen(
+            [KALICTL, "-i", name, "run", "--remote", endpoint, str(prog)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            pid, seq, sessions = (int(x) for x in _line(run).split())
+            assert sessions == 1  # kalictl's, which its Kali() adopted
+            wait_for(lambda: records.find(k.status, seq) >= 0, 60, "the motion taken")
+            record = records.find(k.status, seq)
+            state = lambda: RequestState(int(k.status["state"][record]))  # noqa: E731
+            wait_for(lambda: state() == RequestState.RUNNING, 60, "the motion running")
+            run.send_signal(signal.SIGINT)
+            said = _line(run, "stderr", 30)
+            now = state().name
+            assert "arms stopped on their paths: left" in said, (said, now)
+            assert now == "STOPPED", (said, now)  # said once it was so, not before
+            held = k.servo.level.arm("demand", 0).copy()
+            assert start[0] < held[0] < far[0]  # stopped on its path, short of the target
+            assert pid_alive(pid) and run.poll() is None  # it ignores SIGINT, kalictl waits
+            run.send_signal(signal.SIGINT)
+            assert run.wait(timeout=30) == 128 + signal.SIGKILL
+            assert not pid_alive(pid)  # killed and reaped: no orphan
+            wait_for(lambda: k.owner(0) is None, 10, "the session closed, its worker's lease gone")
+        finally:
+            if run.poll() is None:
+                run.kill()
+                run.wait()
+        assert k.inst.fault_text() is None

@@ -113,6 +113,7 @@ class Bridge(Daemon):
         self.reads = self._worker("bridge-reads", reads)
         self.verbs = self._worker("bridge-verbs", "verbs")
         self.admin = self._worker("bridge-sessions", sessions)
+        self.stops = self._worker("bridge-stops", "session stops")
         self.admin.put("bridge", self.sessions.start_helper)  # ready before the first verb
         self.session_queues: dict[str, Turns] = {}
         self.queryables = [
@@ -122,6 +123,7 @@ class Bridge(Daemon):
             s.declare_queryable(keys.session_open, self._gated(sessions, self.admin, self._open)),
             s.declare_queryable(keys.session_close, self._gated(sessions, self.admin, self._close)),
             s.declare_queryable(keys.session_calls, self._on_call),
+            s.declare_queryable(keys.session_stops, self._on_stop),
         ]
         self.clients = s.liveliness().declare_subscriber(keys.clients, self._on_client)
         self.token = s.liveliness().declare_token(keys.alive)
@@ -287,7 +289,7 @@ class Bridge(Daemon):
 
     def _close(self, query: zenoh.Query) -> bool:
         """Close the session whose secret the key holds, the asking user's."""
-        user, (_, secret, _) = self.keys.parse(query.key_expr)
+        user, secret = self.keys.session(query.key_expr)
         self.sessions.find(secret, user)
         return self._end_session(secret)
 
@@ -302,7 +304,7 @@ class Bridge(Daemon):
         """A remote program's call, to the session whose secret the key holds (the asking
         user's): on the session's own thread, in the order sent."""
         try:
-            user, (_, secret, _) = self.keys.parse(query.key_expr)
+            user, secret = self.keys.session(query.key_expr)
             self.sessions.find(secret, user)
         except BridgeError as exc:
             self._refuse(query, exc)
@@ -314,6 +316,22 @@ class Bridge(Daemon):
         payload = query.payload.to_bytes() if query.payload is not None else b""
         job = lambda: self._answer(query, lambda _: self.sessions.call(secret, user, payload))  # noqa: E731
         why = self.gates.admit(user, q.what) or q.put(user, job)
+        if why is not None:
+            self._refuse(query, BridgeError(why))
+
+    def _on_stop(self, query: zenoh.Query) -> None:
+        """Stop the arms of the session whose secret the key holds, the asking user's, and
+        answer once they are at rest (``Sessions.stop``): on a thread of its own, never
+        behind the session's calls, and never refused for rate."""
+        try:
+            user, secret = self.keys.session(query.key_expr)
+            self.sessions.find(secret, user)
+        except BridgeError as exc:
+            self._refuse(query, exc)
+            return
+        why = self.stops.put(
+            user, lambda: self._answer(query, lambda _: self.sessions.stop(secret, user))
+        )
         if why is not None:
             self._refuse(query, BridgeError(why))
 

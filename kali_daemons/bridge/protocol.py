@@ -7,9 +7,10 @@ changes), and declares the liveliness token ``kali/INST/alive``.  What a client 
 declares lies under its user's branch ``kali/INST/user/USER`` (``UserKeys``; with
 authentication Zenoh lets a user only its own): the bridge answers ``.../status``,
 ``.../config``, ``.../verb/VERB`` (kalictl's verbs), ``.../session/open`` and a remote
-program's calls and close, ``.../session/SECRET/call`` and ``.../close`` (SECRET: what the
-open answered its opener alone), and a remote program declares ``.../clients/SID`` (SID: its
-session's public id) while it lives.
+program's calls, stop and close, ``.../session/SECRET/call``, ``.../stop`` (its arms stopped,
+the answer once they are at rest: ``kalictl run --remote``'s Ctrl-C) and ``.../close``
+(SECRET: what the open answered its opener alone), and a remote program declares
+``.../clients/SID`` (SID: its session's public id) while it lives.
 
 Payloads are JSON (any language reads them).  A remote program's call names an object of its
 session (0: its ``Kali``), a method and the arguments; values cross as JSON with tagged
@@ -69,6 +70,7 @@ class Keys:
         self.verbs = f"{users}/verb/*"
         self.session_open = f"{users}/session/open"
         self.session_calls = f"{users}/session/*/call"
+        self.session_stops = f"{users}/session/*/stop"
         self.session_close = f"{users}/session/*/close"
         self.clients = f"{users}/clients/*"
 
@@ -91,6 +93,14 @@ class Keys:
         if len(chunks) < depth + 3 or USER_RE.fullmatch(user) is None:
             raise BridgeError(f"{str(key)!r:.120} names no user (kali/INSTANCE/user/NAME/...)")
         return user, chunks[depth + 2 :]
+
+    def session(self, key: object) -> tuple[str, str]:
+        """(user, secret) of a key ``kali/INST/user/USER/session/SECRET/WHAT``; BridgeError
+        for any other (a wildcard in place of the secret, say)."""
+        user, rest = self.parse(key)
+        if len(rest) != 3 or rest[0] != "session" or not rest[1].isalnum():
+            raise BridgeError(f"{str(key)!r:.120} names no session")
+        return user, rest[1]
 
 
 class UserKeys:
@@ -115,6 +125,9 @@ class UserKeys:
 
     def call(self, secret: str) -> str:
         return f"{self.home}/session/{secret}/call"
+
+    def stop(self, secret: str) -> str:
+        return f"{self.home}/session/{secret}/stop"
 
     def close(self, secret: str) -> str:
         return f"{self.home}/session/{secret}/close"

@@ -48,6 +48,7 @@ VERBS: dict[str, frozenset[str] | None] = {
     "servo": frozenset({"list", "select", "set", "get", "compare"}),
 }
 SECRET_BYTES = 16  # a session's secret: 128 random bits, 32 hex digits
+STOP_WAIT_S = 10.0  # a session's stop waits this long (wall time) for its arms to rest
 MAX_VERB_ARGS = 16
 MAX_ARG_CHARS = 200
 
@@ -65,6 +66,9 @@ class Worker:
         self.owner = owner  # the user who opened the session
         self.lock = threading.Lock()
         self.next_id = 0
+        self.control: tuple[Any, Any] | None = None  # the pipe of its stops: (to it, from it)
+        self.control_lock = threading.Lock()
+        self.interrupted = False  # its arms were stopped: it takes no more calls
 
     def call(self, request: dict[str, Any]) -> bytes:
         """Send one call, return the worker's answer line (BridgeError if it has died)."""
@@ -82,6 +86,26 @@ class Worker:
                 raise BridgeError(f"session {self.sid[:8]} ({self.program}) has ended")
             return line.rstrip(b"\n")
 
+    def stop_arms(self, timeout: float) -> dict[str, Any]:
+        """Have the worker stop the arms its program owns and say once they are at rest
+        (``session.Stopper``), over its control pipe: whatever call its program's pipe is
+        busy with.  ``{"robots", "at_rest", "halted", "waited_s"}``; BridgeError if it has
+        died."""
+        with self.control_lock:
+            line = b""
+            if self.control is not None:
+                try:
+                    self.control[0].write(protocol.dumps({"timeout": timeout}) + b"\n")
+                    self.control[0].flush()
+                    line = self.control[1].readline()
+                except (BrokenPipeError, ValueError, OSError):
+                    line = b""
+            if not line:
+                raise BridgeError(f"session {self.sid[:8]} ({self.program}) has ended")
+            reply = protocol.loads(line, "stop")
+            protocol.raise_reply(reply)
+            return reply["value"]
+
     def stop(self) -> None:
         """End the worker: SIGTERM (it closes its Kali), SIGKILL after a second; reaped."""
         if self.proc.poll() is None:
@@ -91,7 +115,7 @@ class Worker:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        for f in (self.proc.stdin, self.proc.stdout):
+        for f in (self.proc.stdin, self.proc.stdout, *(self.control or ())):
             if f is not None:
                 with contextlib.suppress(OSError):
                     f.close()
@@ -172,12 +196,38 @@ class Sessions:
         ]
 
     def _start(self, sid: str, program: str, force: bool) -> Worker:
-        options = ["--sid", sid, "--program", program, *(["--force"] if force else [])]
-        return self._spawn(sid, program, options, f"bridge.session.{sid[:8]}.log")
+        """A session's worker, with the control pipe of its stops (``Worker.stop_arms``)."""
+        stops, its_stops = os.pipe()  # the worker reads, the bridge writes
+        its_answers, answers = os.pipe()  # the bridge reads, the worker writes
+        options = [
+            "--sid", sid, "--program", program, *(["--force"] if force else []),
+            "--control", f"{stops},{answers}",
+        ]  # fmt: skip
+        try:
+            worker = self._spawn(
+                sid, program, options, f"bridge.session.{sid[:8]}.log", (stops, answers)
+            )
+        except BaseException:
+            os.close(its_stops)
+            os.close(its_answers)
+            raise
+        finally:
+            os.close(stops)
+            os.close(answers)
+        worker.control = (os.fdopen(its_stops, "wb"), os.fdopen(its_answers, "rb"))
+        return worker
 
-    def _spawn(self, sid: str, program: str, options: list[str], log_name: str) -> Worker:
-        """Start a worker process (``session.py``) with ``options`` and wait for its first
-        line: a program's Kali reference, or the helper's ready."""
+    def _spawn(
+        self,
+        sid: str,
+        program: str,
+        options: list[str],
+        log_name: str,
+        pass_fds: tuple[int, ...] = (),
+    ) -> Worker:
+        """Start a worker process (``session.py``) with ``options`` (and the descriptors
+        ``pass_fds``) and wait for its first line: a program's Kali reference, or the
+        helper's ready."""
         args = [
             sys.executable, "-m", "kali_daemons.bridge.session", "--instance", self.instance,
             "--nice", str(WORKER_NICE), *(["--cpu", str(self.cpu)] if self.cpu is not None else []),
@@ -191,6 +241,7 @@ class Sessions:
                 stdout=subprocess.PIPE,
                 stderr=log,
                 close_fds=True,
+                pass_fds=pass_fds,
                 env={
                     **{k: v for k, v in os.environ.items() if k != REMOTE_ENV},
                     **launcher.SINGLE_THREADED,
@@ -234,10 +285,23 @@ class Sessions:
     def call(self, secret: str, user: str, payload: bytes) -> bytes:
         """Forward one call of ``user`` to session ``secret``; the worker's answer."""
         worker = self.find(secret, user)
+        if worker.interrupted:
+            raise BridgeError(
+                f"session {worker.sid[:8]} ({worker.program}): its arms were stopped for an "
+                f"interrupt (kalictl run --remote's Ctrl-C); it takes no more calls"
+            )
         request = protocol.loads(payload, "call")
         if not isinstance(request, dict):
             raise BridgeError("a call must be a JSON object")
         return worker.call(request)
+
+    def stop(self, secret: str, user: str) -> dict[str, Any]:
+        """Stop the arms of ``user``'s session ``secret`` on their paths and wait until they
+        are at rest (``Worker.stop_arms``, at most ``STOP_WAIT_S``); from then on the session
+        takes no more calls, so its program cannot start them again."""
+        worker = self.find(secret, user)
+        worker.interrupted = True
+        return worker.stop_arms(STOP_WAIT_S)
 
     def close(self, secret: str) -> bool:
         """End session ``secret`` (its program left); False if there was none."""

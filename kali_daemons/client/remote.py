@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import os
 import secrets
 import ssl
@@ -45,6 +46,7 @@ from ..layout import TERMINAL_STATES
 from ..robots import RobotType
 
 REMOTE_ENV = "KALI_REMOTE"  # set by `kalictl run --remote ENDPOINT`: Kali() connects there
+SESSION_ENV = "KALI_REMOTE_SESSION"  # and the session it opened, which Kali() adopts
 USER_ENV = "KALI_REMOTE_USER"
 PASSWORD_ENV = "KALI_REMOTE_PASSWORD"
 TLS_ENV = ("KALI_REMOTE_CA", "KALI_REMOTE_CERT", "KALI_REMOTE_KEY")
@@ -99,7 +101,27 @@ def reach(
         raise BridgeError(f"cannot connect to {endpoint}: {exc}") from None
     if user is None and certificate is not None:
         user = common_name(certificate)
-    return Connection(endpoint, name, config, user)
+    handed = handed_over(endpoint, name)
+    return Connection(endpoint, name, config, user if handed is None else handed["user"], handed)
+
+
+def handed_over(endpoint: str, instance: str) -> dict[str, str] | None:
+    """The session ``kalictl run --remote`` opened for this program ($KALI_REMOTE_SESSION:
+    endpoint, instance, user, sid, secret) when it is one on ``endpoint``'s ``instance``, for
+    its ``Kali()`` to adopt; None otherwise."""
+    from ..bridge.protocol import BridgeError
+
+    text = os.environ.get(SESSION_ENV)
+    if not text:
+        return None
+    try:
+        handed = json.loads(text)
+        fields = {key: handed[key] for key in ("endpoint", "instance", "user", "sid", "secret")}
+        if not all(isinstance(v, str) for v in fields.values()):
+            raise ValueError(text)
+    except (ValueError, TypeError, KeyError):
+        raise BridgeError(f"${SESSION_ENV} holds no session kalictl handed over") from None
+    return fields if (fields["endpoint"], fields["instance"]) == (endpoint, instance) else None
 
 
 def common_name(certificate: str) -> str:
@@ -120,10 +142,17 @@ def common_name(certificate: str) -> str:
 
 class Connection:
     """One remote program's Zenoh session with a bridge: its user name (``user``, else its
-    Zenoh session's id), its session id and token, its calls."""
+    Zenoh session's id), its session's public id and token, its secret, its calls.  With
+    ``adopt`` (``handed_over``) the session is one ``kalictl run --remote`` opened and holds:
+    this connection calls it, and neither declares its token nor closes it."""
 
     def __init__(
-        self, endpoint: str, instance: str, config: zenoh.Config, user: str | None = None
+        self,
+        endpoint: str,
+        instance: str,
+        config: zenoh.Config,
+        user: str | None = None,
+        adopt: dict[str, str] | None = None,
     ) -> None:
         from ..bridge.protocol import BridgeError, Keys
 
@@ -142,12 +171,15 @@ class Connection:
             raise
         self.sid = secrets.token_hex(8)  # public: its liveliness token carries it
         self.secret = ""  # its session's address, the bridge's answer to its open
+        self.adopted = adopt is not None
+        if adopt is not None:
+            self.sid, self.secret = adopt["sid"], adopt["secret"]
         self.proxies: weakref.WeakValueDictionary[int, Proxy] = weakref.WeakValueDictionary()
         self.dropped: list[int] = []  # handles this program let go: the session forgets them
         self.lock = threading.Lock()
         self.bridge_alive = threading.Event()
         self.closed = False
-        self.opened = False  # a program's session is open on the bridge
+        self.opened = self.adopted  # a program's session is open on the bridge
         self.kali: RemoteKali | None = None
         try:
             self.watch = self.session.liveliness().declare_subscriber(
@@ -163,10 +195,50 @@ class Connection:
                     f"liveliness token {self.keys.alive} within {ALIVE_GRACE_S:g} s: is its "
                     f"bridge enabled, and may this user read it?)"
                 )
-            self.token = self.session.liveliness().declare_token(self.mine.client(self.sid))
+            if not self.adopted:  # an adopted session's token is its opener's
+                self.token = self.session.liveliness().declare_token(self.mine.client(self.sid))
         except BaseException:
             self.session.close()
             raise
+
+    def open(self, program: str, force: bool = False) -> dict[str, Any]:
+        """Open this program's session (its worker attaches a Kali named ``program``,
+        ``force`` as ``Kali(force=...)``); its Kali's reference."""
+        opened = self.get(
+            self.mine.session_open,
+            {"sid": self.sid, "program": program, "force": bool(force)},
+            timeout=CONNECT_TIMEOUT_S + 30.0,
+        )
+        self.secret, self.opened = opened["session"], True
+        return opened["kali"]
+
+    def adopt(self, force: bool = False) -> dict[str, Any]:
+        """Take up the session handed over (``force`` as ``Kali(force=...)``); its Kali's
+        reference."""
+        from ..bridge import protocol
+
+        request = protocol.dumps({"adopt": {"force": bool(force)}})
+        answer = self._ask(self.mine.call(self.secret), request, CONNECT_TIMEOUT_S, "adopt")
+        return answer["value"]
+
+    def stop(self) -> dict[str, Any]:
+        """Have the bridge stop the arms this session's program owns on their paths, whatever
+        the program is doing, and answer once they are at rest; the session takes no more
+        calls then.  ``{"robots": [names], "at_rest": bool, "halted": fault or None,
+        "waited_s": its longest wait}`` (``session.Stopper``)."""
+        return self.get(self.mine.stop(self.secret), {}, timeout=CALL_TIMEOUT_S)
+
+    def handover(self) -> str:
+        """This connection's session for a program to adopt ($KALI_REMOTE_SESSION)."""
+        return json.dumps(
+            {
+                "endpoint": self.endpoint,
+                "instance": self.instance,
+                "user": self.mine.name,
+                "sid": self.sid,
+                "secret": self.secret,
+            }
+        )
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
@@ -263,7 +335,7 @@ class Connection:
         if self.closed:
             return
         try:
-            if self.opened and self.bridge_alive.is_set():
+            if self.opened and not self.adopted and self.bridge_alive.is_set():
                 self.get(self.mine.close(self.secret), {}, timeout=5.0)
         except Exception:  # the token going ends it anyway
             pass
@@ -418,17 +490,13 @@ class RemoteKali(Proxy):
                     f"instance '{conn.instance}''s config does not parse on this machine: {exc}"
                 ) from None
             self.inst = RemoteInstance(cfg["instance"], config, bool(cfg["lockstep"]))
-            program = program_name().decode(errors="replace")
-            opened = conn.get(
-                conn.mine.session_open,
-                {"sid": conn.sid, "program": program, "force": bool(force)},
-                timeout=CONNECT_TIMEOUT_S + 30.0,
-            )
-            conn.secret, ref = opened["session"], opened["kali"]
+            if conn.adopted:
+                ref = conn.adopt(force)
+            else:
+                ref = conn.open(program_name().decode(errors="replace"), force)
         except BaseException:
             conn.close()
             raise
-        conn.opened = True
         conn.proxies[0] = self
         self._attrs.update(protocol.decode(ref.get("attrs", {}), conn.proxy))
 
