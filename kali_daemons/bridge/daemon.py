@@ -54,6 +54,7 @@ from .sessions import Sessions, check_verb
 from .telemetry import Telemetry, Watch
 
 JSON = zenoh.Encoding.APPLICATION_JSON
+OWN = "bridge/"  # the bridge's own jobs wait their turns as users "bridge/...": no name has a /
 
 
 class Bridge(Daemon):
@@ -114,7 +115,7 @@ class Bridge(Daemon):
         self.verbs = self._worker("bridge-verbs", "verbs")
         self.admin = self._worker("bridge-sessions", sessions)
         self.stops = self._worker("bridge-stops", "session stops")
-        self.admin.put("bridge", self.sessions.start_helper)  # ready before the first verb
+        self.admin.put(OWN + "helper", self.sessions.start_helper)  # ready before the first verb
         self.session_queues: dict[str, Turns] = {}
         self.queryables = [
             s.declare_queryable(keys.status, self._gated(reads, self.reads, self._status)),
@@ -341,8 +342,8 @@ class Bridge(Daemon):
         if sample.kind == zenoh.SampleKind.DELETE:
             with contextlib.suppress(BridgeError, ValueError):
                 user, (_, sid) = self.keys.parse(sample.key_expr)
-                if self.sessions.of(user, sid):
-                    self.admin.put("bridge", lambda: self._client_left(user, sid))
+                if self.sessions.of(user, sid):  # in a turn of its own: never refused
+                    self.admin.put(f"{OWN}{user}/{sid}", lambda: self._client_left(user, sid))
 
     def _client_left(self, user: str, sid: str) -> None:
         """End user ``user``'s sessions of public id ``sid`` unless a token of that id is
