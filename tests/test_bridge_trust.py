@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import select
 import signal
 import subprocess
@@ -324,6 +325,7 @@ def test_ctrl_c_under_kalictl_run_remote_stops_the_arms_of_a_program_ignoring_si
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
+            start_new_session=True,  # a group of its own: kalictl and its program
         )
         try:
             pid, seq, sessions = (int(x) for x in _line(run).split())
@@ -344,8 +346,8 @@ def test_ctrl_c_under_kalictl_run_remote_stops_the_arms_of_a_program_ignoring_si
             assert run.wait(timeout=30) == 128 + signal.SIGKILL
             assert not pid_alive(pid)  # killed and reaped: no orphan
             wait_for(lambda: k.owner(0) is None, 10, "the session closed, its worker's lease gone")
-        finally:
-            if run.poll() is None:
-                run.kill()
-                run.wait()
+        finally:  # kalictl and the program it started, whatever came to pass
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(run.pid, signal.SIGKILL)
+            run.wait()
         assert k.inst.fault_text() is None
