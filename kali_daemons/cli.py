@@ -29,14 +29,13 @@ import numpy as np
 from . import boards, flightrec, introspect, launcher, layout, schedule, shadow
 from .client import remote
 from .client.motion import INSTANCE_ENV, Kali
-from .client.remote import REMOTE_ENV
+from .client.remote import REMOTE_ENV, SESSION_ENV
 from .config import cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
-from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode
+from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode, estop_pressed
 from .layout import (
     KEY_BOARDS,
     CalibState,
-    FaultCode,
     PowerState,
     ProcState,
     RunMode,
@@ -617,18 +616,15 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
     The board cuts the amplifiers at once, the brakes follow, and the system halts.
     """
     with _attach(ctx) as inst:  # the arena alone: no config parsed, no user code run
+        if not release:
+            click.echo(estop_pressed(inst.press_estop(robot or None, "kalictl")))
+            return
         targets = [robot] if robot else list(inst.cell.names)
         records = inst.boards()
         for name in targets:
-            boards.press_estop(records, inst.robot_index(name), not release)
+            boards.press_estop(records, inst.robot_index(name), False)
         del records
-        if release:
-            click.echo(f"e-stop released: {', '.join(targets)}")
-            return
-        inst.raise_fault(
-            FaultCode.ESTOP, "kalictl", f"emergency stop pressed: {', '.join(targets)}"
-        )
-        click.echo(f"e-stop pressed: {', '.join(targets)}; amplifiers off, system halted")
+        click.echo(f"e-stop released: {', '.join(targets)}")
 
 
 @main.command(context_settings={"ignore_unknown_options": True})
@@ -936,8 +932,10 @@ def run(ctx: click.Context, program: Path, args: tuple[str, ...], endpoint: str 
     ``Kali()`` in the program connects to it ($KALI_INSTANCE).  Ctrl-C first stops the arms
     the program owns on their paths, through the TG's queue (taking them over, so the program
     cannot start them again), then sends it SIGINT; a second Ctrl-C kills it and whatever it
-    started.  The exit status is the program's (128 + N when signal N ended it).  Its numeric
-    libraries compute on one thread (OPENBLAS_NUM_THREADS=1 ..., unless it sets them).
+    started.  With --remote the bridge stops them, in the session kalictl opened for the
+    program (which then takes no more calls), and kalictl says so once they are at rest.  The
+    exit status is the program's (128 + N when signal N ended it).  Its numeric libraries
+    compute on one thread (OPENBLAS_NUM_THREADS=1 ..., unless it sets them).
     """
     name = _instance_name(ctx)
     if args[:1] == ("--",):
@@ -962,21 +960,28 @@ def run(ctx: click.Context, program: Path, args: tuple[str, ...], endpoint: str 
 
 def _run_remote(endpoint: str, name: str, program: Path, args: tuple[str, ...]) -> int:
     """``kalictl run --remote``: the program runs here, its ``Kali()`` connects to instance
-    ``name`` through the bridge at ``endpoint`` ($KALI_REMOTE).  Ctrl-C sends it SIGINT: its
-    ``with Kali()`` block stops its arms on their paths as it ends; a second Ctrl-C kills it,
-    and the bridge ends its session as a dead program's.  Its exit status, as ``run``'s."""
-    remote.reach(endpoint, name).close()  # it must answer: say so before the program starts
-    env = {**launcher.SINGLE_THREADED, **os.environ, INSTANCE_ENV: name, REMOTE_ENV: endpoint}
-    proc = subprocess.Popen([sys.executable, str(program), *args], env=env)
+    ``name`` through the bridge at ``endpoint`` ($KALI_REMOTE).  kalictl opens the program's
+    session itself and hands it over ($KALI_REMOTE_SESSION: the program's ``Kali()`` adopts
+    it), so that on Ctrl-C it can have the bridge stop that session's arms whatever the
+    program does (``_interrupted_remote``); it closes the session when the program ends.
+    Its exit status, as ``run``'s."""
+    conn = remote.reach(endpoint, name)  # it must answer: say so before the program starts
     try:
-        status = proc.wait()
-    except KeyboardInterrupt:
+        conn.open(program.name)
+        env = {
+            **launcher.SINGLE_THREADED,
+            **os.environ,
+            INSTANCE_ENV: name,
+            REMOTE_ENV: endpoint,
+            SESSION_ENV: conn.handover(),
+        }
+        proc = subprocess.Popen([sys.executable, str(program), *args], env=env)
         try:
-            click.echo(f"run: {program} interrupted; its arms stop as it leaves", err=True)
             status = proc.wait()
         except KeyboardInterrupt:
-            status = _kill_tree(proc)
-            click.echo(f"run: {program} killed (second Ctrl-C)", err=True)
+            status = _interrupted_remote(conn, proc, program)
+    finally:
+        conn.close()
     return status if status >= 0 else 128 - status
 
 
@@ -998,6 +1003,42 @@ def _stopped_text(kali: Kali, owned: list[int], seq: int) -> str:
         f"a stop of {arms} was asked, and not confirmed within {STOP_CONFIRM_S:g} s "
         f"(kalictl status says what the TG is doing); kalictl estop halts them"
     )
+
+
+def _interrupted_remote(conn: remote.Connection, proc: subprocess.Popen, program: Path) -> int:
+    """Ctrl-C under ``kalictl run --remote``, as ``_interrupted``: the bridge stops the arms
+    of the program's session and answers once they are at rest (the session takes no more
+    calls, so the program cannot start them again), then the program is signalled; a second
+    Ctrl-C kills it.  What kalictl says is what the bridge answered."""
+    try:
+        try:
+            done = conn.stop()
+        except KaliError as exc:
+            said = f"its arms were not stopped, they may still move: {exc}"
+        else:
+            arms = ", ".join(done["robots"])
+            if done["halted"]:
+                said = f"arms halted ({done['halted']}): {arms or 'none moving'}"
+            elif not arms:
+                said = "it moved no arm"
+            elif done["at_rest"]:
+                said = f"arms stopped on their paths: {arms}"
+            else:
+                said = (
+                    f"a stop of {arms} was asked, and not confirmed within "
+                    f"{done['waited_s']:g} s; kalictl estop halts them"
+                )
+        click.echo(f"run: {program} interrupted; {said}", err=True)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        return proc.wait()
+    except KeyboardInterrupt:
+        status = _kill_tree(proc)
+        click.echo(f"run: {program} killed (second Ctrl-C)", err=True)
+        return status
+    except BaseException:
+        _kill_tree(proc)
+        raise
 
 
 def _interrupted(kali: Kali, proc: subprocess.Popen, program: Path) -> int:

@@ -170,7 +170,9 @@ MAX_BRIDGE_USERS = 64
 BRIDGE_STAGE = 5  # after the viewer: it reads what the tick wrote
 DEFAULT_SAFE_RAD = 0.15  # tracking-error tolerance before a runaway halt
 DEFAULT_CURRENT_FAULT_MS = 100.0  # demand beyond the current limit this long halts
-_USER_RE = re.compile(r"[A-Za-z0-9_.@-]{1,64}")
+# a bridge user's name: one chunk of the key expressions under its name (Zenoh reads a chunk
+# starting with @ verbatim, so none does)
+USER_RE = re.compile(r"[A-Za-z0-9_.-][A-Za-z0-9_.@-]{0,63}")
 _SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
 _PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
 MAX_PLUGINS = 16
@@ -375,7 +377,7 @@ class BridgeConfig:
     operators: tuple[str, ...] = ()
     readers: tuple[str, ...] = ()
     tls: TlsConfig | None = None
-    max_requests_per_s: int = 1000  # beyond it a request is refused unread: the CPU is bounded
+    max_requests_per_s: int = 1000  # per user and kind; beyond, refused unread (never an e-stop)
     max_sessions: int = 8  # remote programs at once
     event_history: int = 256  # events a late subscriber is sent
 
@@ -1050,7 +1052,7 @@ def _bridge(node: Any, base_dir: str) -> BridgeConfig:
     for key in ("operators", "readers"):
         names = _list(m.get(key, []), f"bridge.{key}", 0, MAX_BRIDGE_USERS)
         roles[key] = tuple(
-            _identifier(n, f"bridge.{key}[{i}]", _USER_RE) for i, n in enumerate(names)
+            _identifier(n, f"bridge.{key}[{i}]", USER_RE) for i, n in enumerate(names)
         )
     both = set(roles["operators"]) & set(roles["readers"])
     if both:

@@ -111,6 +111,12 @@ class HeldLock:
     holder: str  # holder_text: pid, command, state (stopped, dead, ...)
 
 
+def estop_pressed(robots: list[str]) -> str:
+    """What ``kalictl estop`` says once it has pressed the buttons of ``robots`` (the
+    bridge's e-stop says the same)."""
+    return f"e-stop pressed: {', '.join(robots)}; amplifiers off, system halted"
+
+
 def decode(raw: bytes | np.bytes_) -> str:
     """A fixed-width arena string as text."""
     return bytes(raw).split(b"\0", 1)[0].decode("utf-8", "replace")
@@ -446,6 +452,22 @@ class Instance:
         except InstanceError:  # squatted or gone: the clock sees the fault word at its next look
             pass
         return True
+
+    def press_estop(self, robot: str | None, process: str) -> list[str]:
+        """Press the emergency-stop button of ``robot`` (None: every robot's) and halt the
+        system (a fault ESTOP raised by ``process``): each board cuts its amplifiers at once,
+        the brakes follow.  Lock-free, so from any process whoever holds what (``kalictl
+        estop``, the bridge), from the arena alone (no config parsed, no user code run).  The
+        robots pressed (``estop_pressed`` says so); InstanceError for an unknown robot, with
+        nothing pressed."""
+        targets = [robot] if robot is not None else list(self.cell.names)
+        indices = [self.robot_index(name) for name in targets]
+        records = self.boards()
+        for k in indices:
+            boards.press_estop(records, k, True)
+        del records
+        self.raise_fault(FaultCode.ESTOP, process, f"emergency stop pressed: {', '.join(targets)}")
+        return targets
 
     def power_off_all(self) -> None:
         """Disable every robot's amplifiers through the board (safe from any process; takes

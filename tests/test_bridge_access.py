@@ -24,18 +24,14 @@ import pytest
 import zenoh
 import zenoh.ext as zext
 
-from kali_daemons.bridge.access import (
-    COMMAND_RULES,
-    access_control,
-    bridge_config,
-    client_config,
-)
+from kali_daemons.bridge.access import access_control, bridge_config, client_config
+from kali_daemons.bridge.protocol import BridgeError
+from kali_daemons.client.remote import common_name
 from kali_daemons.config import BridgeConfig, TlsConfig
 
 INST = "t29"
 P = f"kali/{INST}"
 STATE = f"{P}/robots/left/state"
-COMMANDS = (f"{P}/verb/enable", f"{P}/session/open")
 WAIT_S = 5.0  # for what must arrive
 QUIET_S = 0.3  # for what must not: it would have arrived well within this
 QUERY_TIMEOUT_S = 5.0  # a refused query must end long before it
@@ -92,7 +88,12 @@ class Bridge:
         self.tokens: list[tuple[str, zenoh.SampleKind]] = []  # remote clients' tokens
         self._keep = [
             self.session.declare_queryable(key, self._answer)
-            for key in (f"{P}/status", f"{P}/config", f"{P}/verb/*", f"{P}/session/**")
+            for key in (
+                f"{P}/user/*/status",
+                f"{P}/user/*/config",
+                f"{P}/user/*/verb/*",
+                f"{P}/user/*/session/**",
+            )
         ]
         self._keep.append(
             self.session.declare_subscriber(
@@ -101,7 +102,7 @@ class Bridge:
         )
         self._keep.append(
             self.session.liveliness().declare_subscriber(
-                f"{P}/clients/*", lambda s: self.tokens.append((str(s.key_expr), s.kind))
+                f"{P}/user/*/clients/*", lambda s: self.tokens.append((str(s.key_expr), s.kind))
             )
         )
         self._keep.append(self.session.liveliness().declare_token(f"{P}/alive"))
@@ -132,11 +133,23 @@ class Bridge:
         return (key, kind) in self.tokens
 
 
-class Remote:
-    """A remote program: a client session subscribed to all of ``kali/INST``."""
+def reads(user: str) -> tuple[str, ...]:
+    """The keys user ``user`` reads the bridge's answers on."""
+    return (f"{P}/user/{user}/status", f"{P}/user/{user}/config")
 
-    def __init__(self, session: zenoh.Session) -> None:
+
+def commands(user: str) -> tuple[str, ...]:
+    """Keys of user ``user``'s commands: a verb, a session's open."""
+    return (f"{P}/user/{user}/verb/enable", f"{P}/user/{user}/session/open")
+
+
+class Remote:
+    """A remote program: a client session subscribed to all of ``kali/INST``, asking under
+    ``user``'s branch."""
+
+    def __init__(self, session: zenoh.Session, user: str) -> None:
         self.session = session
+        self.user = user
         self.samples: list[tuple[str, str]] = []
         self._sub = session.declare_subscriber(
             f"{P}/**", lambda s: self.samples.append((str(s.key_expr), s.payload.to_string()))
@@ -198,22 +211,26 @@ def forged_put_is_dropped(bridge: Bridge, forger: Remote, other: Remote) -> None
 def assert_reads(bridge: Bridge, remote: Remote) -> None:
     """``remote`` gets telemetry, status, config, the event history and liveliness."""
     assert bridge.publishes_to(remote)
-    assert remote.ask(f"{P}/status") == [f"ok {P}/status"]
-    assert remote.ask(f"{P}/config") == [f"ok {P}/config"]
+    for key in reads(remote.user):
+        assert remote.ask(key) == [f"ok {key}"]
     assert event_history(remote.session) == list(EVENTS)
     assert f"{P}/alive" in remote.alive()
 
 
 def assert_commands(bridge: Bridge, remote: Remote, allowed: bool) -> None:
     """``remote``'s command queries are answered (allowed) or refused before the bridge."""
-    for key in COMMANDS:
+    mine = commands(remote.user)
+    for key in mine:
         assert remote.ask(key) == ([f"ok {key}"] if allowed else [])
-    assert [k for k in bridge.calls if k in COMMANDS] == (list(COMMANDS) if allowed else [])
+    assert [k for k in bridge.calls if k in mine] == (list(mine) if allowed else [])
 
 
-def assert_token(bridge: Bridge, remote: Remote, name: str, allowed: bool) -> zenoh.LivelinessToken:
-    """``remote`` declares ``kali/INST/clients/NAME``; the bridge notices it iff allowed."""
-    key = f"{P}/clients/{name}"
+def assert_token(
+    bridge: Bridge, remote: Remote, name: str, allowed: bool, user: str | None = None
+) -> zenoh.LivelinessToken:
+    """``remote`` declares ``kali/INST/user/USER/clients/NAME`` (``user``: its own, by
+    default); the bridge notices it iff allowed."""
+    key = f"{P}/user/{user or remote.user}/clients/{name}"
     token = remote.session.liveliness().declare_token(key)
     if allowed:
         assert wait_for(lambda: bridge.token_seen(key, zenoh.SampleKind.PUT))
@@ -228,8 +245,8 @@ def assert_nothing(bridge: Bridge, remote: Remote, other: Remote, name: str) -> 
     """``remote`` (a session in no role) can do nothing at all."""
     calls = list(bridge.calls)
     assert not bridge.publishes_to(remote, QUIET_S)
-    assert remote.ask(f"{P}/status") == []
-    assert remote.ask(f"{P}/config") == []
+    for key in reads(remote.user):
+        assert remote.ask(key) == []
     assert_commands(bridge, remote, allowed=False)
     assert bridge.calls == calls
     assert event_history(remote.session) == []
@@ -255,7 +272,17 @@ def usrpwd_bridge(opened: Opener, users_file: Path) -> tuple[Bridge, str]:
 
 
 def login(opened: Opener, endpoint: str, user: str) -> Remote:
-    return Remote(opened(client_config(endpoint, user, USERS[user])))
+    return Remote(opened(client_config(endpoint, user, USERS[user])), user)
+
+
+def assert_others_refused(bridge: Bridge, remote: Remote, other: str) -> None:
+    """Nothing ``remote`` asks or declares under user ``other``'s branch, nor under every
+    user's at once, reaches the bridge."""
+    calls = list(bridge.calls)
+    for key in (*reads(other), *commands(other), f"{P}/user/*/status", f"{P}/user/**"):
+        assert remote.ask(key) == [], key
+    assert bridge.calls == calls
+    assert_token(bridge, remote, "forged", allowed=False, user=other)
 
 
 # --------------------------------------------------------------------------------------------
@@ -274,6 +301,7 @@ def test_bridge_config_is_a_router_with_default_deny() -> None:
     acl = access_control(cfg, INST)
     assert acl["subjects"] == [{"id": "everyone"}]  # unauthenticated: all are operators
     assert [p["id"] for p in acl["policies"]] == ["operators"]
+    assert {"commands-*", "programs-*"} <= set(acl["policies"][0]["rules"])  # any branch
     # no rule anywhere lets a remote session put or delete
     assert not any(
         {"put", "delete"} & set(r["messages"]) for r in acl["rules"] if "ingress" in r["flows"]
@@ -283,17 +311,24 @@ def test_bridge_config_is_a_router_with_default_deny() -> None:
 def test_access_control_roles_follow_the_authentication() -> None:
     tls = TlsConfig("/x/cert.pem", "/x/key.pem", "/x/ca.pem")
     both = BridgeConfig(users_file="/x/users", tls=tls, operators=("op",), readers=("viewer",))
-    subjects = access_control(both, INST)["subjects"]
-    assert subjects == [
-        {"id": "operators-by-user", "usernames": ["op"]},
-        {"id": "operators-by-certificate", "cert_common_names": ["op"]},
-        {"id": "readers-by-user", "usernames": ["viewer"]},
-        {"id": "readers-by-certificate", "cert_common_names": ["viewer"]},
+    acl = access_control(both, INST)
+    assert acl["subjects"] == [
+        {"id": "op-by-user", "usernames": ["op"]},
+        {"id": "op-by-certificate", "cert_common_names": ["op"]},
+        {"id": "viewer-by-user", "usernames": ["viewer"]},
+        {"id": "viewer-by-certificate", "cert_common_names": ["viewer"]},
     ]
+    op, viewer = acl["policies"]
+    assert (op["id"], op["subjects"]) == ("operator-op", ["op-by-user", "op-by-certificate"])
+    assert viewer["id"] == "reader-viewer"
+    assert {"reads-op", "commands-op", "programs-op"} <= set(op["rules"])
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert rules["commands-op"]["key_exprs"] == [f"{P}/user/op/verb/*", f"{P}/user/op/session/**"]
     readers_only = BridgeConfig(users_file="/x/users", readers=("viewer",))
     acl = access_control(readers_only, INST)
-    assert [p["id"] for p in acl["policies"]] == ["readers"]
-    assert set(acl["policies"][0]["rules"]).isdisjoint(COMMAND_RULES)
+    assert [p["id"] for p in acl["policies"]] == ["reader-viewer"]
+    assert "reads-viewer" in acl["policies"][0]["rules"]
+    assert not any(r.startswith(("commands-", "programs-")) for r in acl["policies"][0]["rules"])
 
 
 def test_client_config_needs_whole_credentials() -> None:
@@ -314,12 +349,13 @@ def test_client_config_needs_whole_credentials() -> None:
 def test_unauthenticated_sessions_read_and_command_but_cannot_put(opened: Opener) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bridge = Bridge(opened, BridgeConfig(listen=(endpoint,)))
-    first, second = (Remote(opened(client_config(endpoint))) for _ in range(2))
+    first, second = (Remote(opened(client_config(endpoint)), n) for n in ("first", "second"))
     assert_reads(bridge, first)
     bridge.session.put(f"{P}/timing", "timing")
     assert wait_for(lambda: f"{P}/timing" in first.got_keys())
     assert_commands(bridge, first, allowed=True)
     assert_token(bridge, first, "first", allowed=True)
+    assert_token(bridge, first, "as-second", allowed=True, user="second")  # a name it chose
     forged_put_is_dropped(bridge, second, first)
     forged_put_is_dropped(bridge, first, second)
 
@@ -330,7 +366,7 @@ def test_without_access_control_the_forged_put_would_arrive(opened: Opener) -> N
     config = bridge_config(BridgeConfig(listen=(endpoint,)), INST)
     config.insert_json5("access_control/enabled", "false")
     bridge = Bridge(opened, BridgeConfig(listen=(endpoint,)), config)
-    forger, other = (Remote(opened(client_config(endpoint))) for _ in range(2))
+    forger, other = (Remote(opened(client_config(endpoint)), n) for n in ("forger", "other"))
     assert bridge.publishes_to(other)
     forger.session.put(f"{P}/events", "forged")
     assert wait_for(lambda: "forged" in other.payloads() and "forged" in bridge.samples)
@@ -362,14 +398,15 @@ def test_usrpwd_reader_reads_but_cannot_command(opened: Opener, users_file: Path
     op = login(opened, endpoint, "op")
     assert_reads(bridge, viewer)
     assert_commands(bridge, viewer, allowed=False)
-    assert bridge.calls == [f"{P}/status", f"{P}/config"]
+    assert bridge.calls == list(reads("viewer"))
     assert_token(bridge, viewer, "viewer", allowed=False)
     forged_put_is_dropped(bridge, viewer, op)
+    assert_others_refused(bridge, viewer, "op")
     # it sees the operators' programs come and go
-    token = op.session.liveliness().declare_token(f"{P}/clients/program")
-    assert wait_for(lambda: f"{P}/clients/program" in viewer.alive())
+    token = op.session.liveliness().declare_token(f"{P}/user/op/clients/program")
+    assert wait_for(lambda: f"{P}/user/op/clients/program" in viewer.alive())
     token.undeclare()
-    assert wait_for(lambda: f"{P}/clients/program" not in viewer.alive())
+    assert wait_for(lambda: f"{P}/user/op/clients/program" not in viewer.alive())
 
 
 def test_usrpwd_operator_commands_and_its_death_is_noticed(
@@ -382,8 +419,11 @@ def test_usrpwd_operator_commands_and_its_death_is_noticed(
     assert_commands(bridge, op, allowed=True)
     assert_token(bridge, op, "program", allowed=True)
     forged_put_is_dropped(bridge, op, viewer)
+    assert_others_refused(bridge, op, "viewer")
+    assert_others_refused(bridge, op, "viewer")
     op.session.close()  # the remote program dies: its token goes with its session
-    assert wait_for(lambda: bridge.token_seen(f"{P}/clients/program", zenoh.SampleKind.DELETE))
+    key = f"{P}/user/op/clients/program"
+    assert wait_for(lambda: bridge.token_seen(key, zenoh.SampleKind.DELETE))
 
 
 def test_usrpwd_user_in_no_role_can_do_nothing(opened: Opener, users_file: Path) -> None:
@@ -481,7 +521,8 @@ def test_tls_client_certificate_names_are_roles(opened: Opener, tmp_path: Path) 
             if name is None
             else {"certificate": str(pems[name]), "private_key": str(tmp_path / f"{name}.key")}
         )
-        return Remote(opened(client_config(endpoint, root_ca=str(pems["ca"]), **files)))
+        session = opened(client_config(endpoint, root_ca=str(pems["ca"]), **files))
+        return Remote(session, name or "nobody")
 
     with pytest.raises(zenoh.ZError, match="Unable to connect"):
         connect(None)  # no client certificate: the TLS handshake fails
@@ -495,3 +536,14 @@ def test_tls_client_certificate_names_are_roles(opened: Opener, tmp_path: Path) 
     assert_commands(bridge, op, allowed=True)
     assert_token(bridge, op, "program", allowed=True)
     forged_put_is_dropped(bridge, op, viewer)
+    assert_others_refused(bridge, op, "viewer")
+
+
+def test_a_remote_program_goes_by_its_certificates_common_name(tmp_path: Path) -> None:
+    """A remote ``Kali`` with a client certificate asks under the user its common name is."""
+    if shutil.which("openssl") is None:
+        pytest.skip("the openssl command line is needed to make the test certificates")
+    pems = make_pki(tmp_path, ("op",))
+    assert common_name(str(pems["op"])) == "op"
+    with pytest.raises(BridgeError, match="cannot read certificate"):
+        common_name(str(tmp_path / "nowhere.pem"))

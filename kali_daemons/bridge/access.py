@@ -7,26 +7,30 @@ session sends (its puts, queries, subscriber and liveliness declarations), *egre
 the router sends it (samples, replies, liveliness tokens).  The bridge's own session is local to
 the router, so no rule applies to it.  The default is deny, and the rules only allow:
 
-- **readers**: subscribing to ``kali/INST/**``, liveliness subscriptions and queries there,
-  queries on ``kali/INST/status`` and ``kali/INST/config``; and receiving the samples, replies
-  and liveliness tokens under ``kali/INST/**``;
-- **operators**: all that, plus queries on ``kali/INST/verb/*`` and ``kali/INST/session/**``
-  (the commands) and liveliness tokens under ``kali/INST/clients/*`` (a remote program's
-  presence, whose loss the bridge notices);
+- **readers**: subscribing to ``kali/INST/**``, liveliness subscriptions and queries there;
+  receiving the samples, replies and liveliness tokens under ``kali/INST/**``; and queries on
+  their own ``kali/INST/user/USER/status`` and ``.../config``;
+- **operators**: all that, plus queries on their own ``kali/INST/user/USER/verb/*`` and
+  ``.../session/**`` (the commands) and liveliness tokens ``.../clients/*`` (a remote
+  program's presence, whose loss the bridge notices);
 - nobody: a put or delete (no rule allows one), so no remote session can forge telemetry or
-  events for the others; a key outside ``kali/INST``; a key expression broader than a rule's,
-  such as a query on ``kali/INST/**`` (a rule must include the whole key expression that a
-  message carries).
+  events for the others; a key outside ``kali/INST``; another user's branch; a key expression
+  broader than a rule's, such as a query on ``kali/INST/**`` or ``kali/INST/user/*/status``
+  (a rule must include the whole key expression that a message carries).
+
+So each user asks and declares under its own name only, and the bridge knows from a
+request's key which user sent it: its rate limits are per user, a session is its opener's.
 
 The advanced publisher of ``kali/INST/events`` (``zenoh.ext``) keeps its history behind a
 queryable and a liveliness token under ``kali/INST/events/@adv/pub/ZID/...``; ``@adv`` is a
 verbatim chunk that ``**`` never matches, so those keys have rules of their own
 (``kali/INST/**/@adv/**``).
 
-Without authentication (``BridgeConfig.authenticated`` false: loopback only) every session is an
-operator.  With it, roles name users of the usrpwd dictionary (``transport/auth/usrpwd``) or
-common names of client certificates (TLS with a root CA: mutual TLS); a session that is neither
-can do nothing, and one without valid credentials cannot even open.
+Without authentication (``BridgeConfig.authenticated`` false: loopback only) every session
+is an operator, on any branch (a name of its own choosing).  With it, roles name users of the
+usrpwd dictionary (``transport/auth/usrpwd``) or common names of client certificates (TLS
+with a root CA: mutual TLS); a session that is neither can do nothing, and one without valid
+credentials cannot even open.
 """
 
 from __future__ import annotations
@@ -50,8 +54,7 @@ TOKEN = "liveliness_token"
 LIVELINESS_SUBSCRIBE = "declare_liveliness_subscriber"
 LIVELINESS_QUERY = "liveliness_query"
 
-READ_RULES = ("subscribe", "samples", "liveliness", "tokens", "read-queries", "replies")
-COMMAND_RULES = ("command-queries", "client-tokens")
+COMMON_RULES = ("subscribe", "samples", "liveliness", "tokens", "history-queries", "replies")
 
 
 def prefix(instance: str) -> str:
@@ -59,72 +62,98 @@ def prefix(instance: str) -> str:
     return f"kali/{instance}"
 
 
+def _rule(rid: str, flow: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
+    return {
+        "id": rid,
+        "permission": "allow",
+        "flows": [flow],
+        "messages": messages,
+        "key_exprs": keys,
+    }
+
+
 def access_rules(instance: str) -> list[dict[str, Any]]:
-    """Zenoh ACL rules (all ``allow``) for the key space of ``instance``; the ids of
-    ``READ_RULES`` and ``COMMAND_RULES`` name them in the policies."""
+    """The Zenoh ACL rules (all ``allow``) every role has, ``COMMON_RULES``: reading the key
+    space of ``instance``."""
     p = prefix(instance)
     everything = [f"{p}/**", f"{p}/**/@adv/**"]  # @adv: the advanced publishers' own keys
-
-    def rule(rid: str, flow: str, messages: list[str], keys: list[str]) -> dict[str, Any]:
-        return {
-            "id": rid,
-            "permission": "allow",
-            "flows": [flow],
-            "messages": messages,
-            "key_exprs": keys,
-        }
-
     return [
-        rule("subscribe", "ingress", [SUBSCRIBE], everything),
-        rule("samples", "egress", [PUT, DELETE], everything),
-        rule("liveliness", "ingress", [LIVELINESS_SUBSCRIBE, LIVELINESS_QUERY], everything),
-        rule("tokens", "egress", [TOKEN], everything),
-        rule("read-queries", "ingress", [QUERY], [f"{p}/status", f"{p}/config", everything[1]]),
-        rule("replies", "egress", [REPLY], everything),
-        rule("command-queries", "ingress", [QUERY], [f"{p}/verb/*", f"{p}/session/**"]),
-        rule("client-tokens", "ingress", [TOKEN], [f"{p}/clients/*"]),
+        _rule("subscribe", "ingress", [SUBSCRIBE], everything),
+        _rule("samples", "egress", [PUT, DELETE], everything),
+        _rule("liveliness", "ingress", [LIVELINESS_SUBSCRIBE, LIVELINESS_QUERY], everything),
+        _rule("tokens", "egress", [TOKEN], everything),
+        _rule("history-queries", "ingress", [QUERY], everything[1:]),
+        _rule("replies", "egress", [REPLY], everything),
     ]
 
 
-def _subjects(cfg: BridgeConfig, role: str, names: tuple[str, ...]) -> list[dict[str, Any]]:
-    """The ACL subjects of one role: its names as usrpwd user names and, separately, as
-    client-certificate common names (two subjects, so either identity alone gets the role:
-    one subject holding both lists would require both, and cross-match them)."""
-    if not names:  # an empty list would match nobody; leaving it out would match everybody
-        return []
+def user_rules(instance: str, user: str, command: bool) -> list[dict[str, Any]]:
+    """The rules of user ``user``'s own branch (``*``: anyone's): ``reads-USER``, querying
+    its status and config; if it may ``command``, ``commands-USER``, querying its verbs and
+    sessions, and ``programs-USER``, declaring its programs' liveliness tokens."""
+    home = f"{prefix(instance)}/user/{user}"
+    rules = [_rule(f"reads-{user}", "ingress", [QUERY], [f"{home}/status", f"{home}/config"])]
+    if command:
+        rules += [
+            _rule(f"commands-{user}", "ingress", [QUERY], [f"{home}/verb/*", f"{home}/session/**"]),
+            _rule(f"programs-{user}", "ingress", [TOKEN], [f"{home}/clients/*"]),
+        ]
+    return rules
+
+
+def _subjects(cfg: BridgeConfig, user: str) -> list[dict[str, Any]]:
+    """The ACL subjects of one user: its name as a usrpwd user name and, separately, as a
+    client certificate's common name (two subjects, so either identity alone is the user:
+    one subject holding both would require both)."""
     subjects = []
     if cfg.users_file is not None:
-        subjects.append({"id": f"{role}-by-user", "usernames": list(names)})
+        subjects.append({"id": f"{user}-by-user", "usernames": [user]})
     if cfg.tls is not None and cfg.tls.root_ca is not None:
-        subjects.append({"id": f"{role}-by-certificate", "cert_common_names": list(names)})
+        subjects.append({"id": f"{user}-by-certificate", "cert_common_names": [user]})
     return subjects
 
 
 def access_control(cfg: BridgeConfig, instance: str) -> dict[str, Any]:
-    """The ``access_control`` section of the bridge's Zenoh config (see the module doc)."""
-    if cfg.authenticated:
-        operators = _subjects(cfg, "operators", cfg.operators)
-        readers = _subjects(cfg, "readers", cfg.readers)
-    else:  # loopback only: whoever gets here is a local user, who may command
-        operators, readers = [{"id": "everyone"}], []
-    policies = []
-    if operators:
-        policies.append(
-            {
-                "id": "operators",
-                "rules": [*READ_RULES, *COMMAND_RULES],
-                "subjects": [s["id"] for s in operators],
-            }
-        )
-    if readers:
-        policies.append(
-            {"id": "readers", "rules": list(READ_RULES), "subjects": [s["id"] for s in readers]}
-        )
+    """The ``access_control`` section of the bridge's Zenoh config (see the module doc): a
+    policy per user, ``operator-USER`` or ``reader-USER``, with the rules every role has and
+    those of the user's own branch; unauthenticated, one policy ``operators`` for everyone,
+    on every branch."""
+    rules = access_rules(instance)
+    common = [r["id"] for r in rules]
+    if not cfg.authenticated:  # loopback only: whoever gets here is a local user, who may command
+        own = user_rules(instance, "*", command=True)
+        return {
+            "enabled": True,
+            "default_permission": "deny",
+            "rules": rules + own,
+            "subjects": [{"id": "everyone"}],
+            "policies": [
+                {
+                    "id": "operators",
+                    "rules": common + [r["id"] for r in own],
+                    "subjects": ["everyone"],
+                }
+            ],
+        }
+    subjects, policies = [], []
+    for role, names in (("operator", cfg.operators), ("reader", cfg.readers)):
+        for user in names:
+            own = user_rules(instance, user, command=role == "operator")
+            mine = _subjects(cfg, user)
+            rules += own
+            subjects += mine
+            policies.append(
+                {
+                    "id": f"{role}-{user}",
+                    "rules": common + [r["id"] for r in own],
+                    "subjects": [s["id"] for s in mine],
+                }
+            )
     return {
         "enabled": True,
         "default_permission": "deny",
-        "rules": access_rules(instance),
-        "subjects": operators + readers,  # none: Zenoh then denies everything
+        "rules": rules,
+        "subjects": subjects,  # none: Zenoh then denies everything
         "policies": policies,
     }
 

@@ -21,15 +21,20 @@ It is non-serious, SCHED_OTHER and unlocked, on its own CPU share (``bridge.cpu`
 arena as a Type 4 reader and never takes a lock the servo level waits for: a bridge that dies
 or stalls leaves the cell running (``kalictl status``: degraded).  In real time it keeps its
 own clock, as the viewer does, so it goes on reporting after a halt stops the wall clock; in
-lockstep the wall clock steps it.  Requests arrive on Zenoh's threads, are counted against
-``bridge.max_requests_per_s`` and handed to the bridge's own threads (one per session, one for
-verbs, one for the rest): a Zenoh callback never waits.
+lockstep the wall clock steps it.
+
+Requests arrive on Zenoh's threads, each under its user's branch (``protocol.UserKeys``).
+An e-stop is pressed there and then, lock-free (``Instance.press_estop``, as ``kalictl
+estop``): it waits behind nothing.  Every other request is counted against its user's
+``bridge.max_requests_per_s`` for its kind and waits its user's turn on one of the bridge's
+own threads, one for status and config, one for verbs, one for session opens and closes, one
+per session for its calls (``admission``): a Zenoh callback never waits, and one user's flood
+delays only that user.
 """
 
 from __future__ import annotations
 
 import contextlib
-import queue
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -39,15 +44,17 @@ import zenoh.ext
 
 from .. import launcher
 from ..daemon import Daemon
-from ..errors import DaemonError
+from ..errors import DaemonError, KaliError
+from ..instance import estop_pressed
 from ..wallclock.clock import time_ms
 from . import access, protocol
+from .admission import Gates, Turns
 from .protocol import BridgeError, Keys
-from .sessions import Gate, Sessions, check_verb
+from .sessions import Sessions, check_verb
 from .telemetry import Telemetry, Watch
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-STOP = object()  # a work queue's last item
+OWN = "bridge/"  # the bridge's own jobs wait their turns as users "bridge/...": no name has a /
 
 
 class Bridge(Daemon):
@@ -61,9 +68,10 @@ class Bridge(Daemon):
         super().__init__(instance, name, **kw)  # type: ignore[arg-type]
         self.session: zenoh.Session | None = None
         self.threads: list[threading.Thread] = []
-        self.queues: list[queue.Queue] = []
+        self.queues: list[Turns] = []
         self.n_events = 0
         self.errors = 0
+        self.refused = 0  # requests refused unread
 
     # ------------------------------------------------------------------ set-up
 
@@ -101,28 +109,32 @@ class Bridge(Daemon):
         )
         log_dir = str(launcher.log_dir(inst.name))
         self.sessions = Sessions(inst.name, cfg.max_sessions, cfg.cpu, log_dir)
-        self.gate = Gate(cfg.max_requests_per_s)
-        self.admin = self._worker("bridge-admin")
-        self.admin.put(self.sessions.start_helper)  # ready before the first verb
-        self.verbs = self._worker("bridge-verbs")
-        self.session_queues: dict[str, queue.Queue] = {}
+        self.gates = Gates(cfg.max_requests_per_s)
+        reads, sessions = "status and config requests", "session opens and closes"
+        self.reads = self._worker("bridge-reads", reads)
+        self.verbs = self._worker("bridge-verbs", "verbs")
+        self.admin = self._worker("bridge-sessions", sessions)
+        self.stops = self._worker("bridge-stops", "session stops")
+        self.admin.put(OWN + "helper", self.sessions.start_helper)  # ready before the first verb
+        self.session_queues: dict[str, Turns] = {}
         self.queryables = [
-            s.declare_queryable(keys.status, self._gated(self.admin, self._status)),
-            s.declare_queryable(keys.config, self._gated(self.admin, self._config)),
-            s.declare_queryable(keys.verbs, self._gated(self.verbs, self._verb)),
-            s.declare_queryable(keys.session_open, self._gated(self.admin, self._open)),
-            s.declare_queryable(keys.session_close, self._gated(self.admin, self._close)),
+            s.declare_queryable(keys.status, self._gated(reads, self.reads, self._status)),
+            s.declare_queryable(keys.config, self._gated(reads, self.reads, self._config)),
+            s.declare_queryable(keys.verbs, self._on_verb),
+            s.declare_queryable(keys.session_open, self._gated(sessions, self.admin, self._open)),
+            s.declare_queryable(keys.session_close, self._gated(sessions, self.admin, self._close)),
             s.declare_queryable(keys.session_calls, self._on_call),
+            s.declare_queryable(keys.session_stops, self._on_stop),
         ]
         self.clients = s.liveliness().declare_subscriber(keys.clients, self._on_client)
         self.token = s.liveliness().declare_token(keys.alive)
 
-    def _worker(self, name: str) -> queue.Queue:
-        """A thread of the bridge's own taking work (callables) from a queue, in order."""
-        q: queue.Queue = queue.Queue()
+    def _worker(self, name: str, what: str) -> Turns:
+        """A thread of the bridge's own taking ``what`` (jobs: callables) from its turns."""
+        turns = Turns(what)
 
         def run() -> None:
-            while (job := q.get()) is not STOP:
+            while (job := turns.get()) is not None:
                 try:
                     job()
                 except Exception:  # a reply that cannot be sent: the asker has gone
@@ -131,30 +143,70 @@ class Bridge(Daemon):
         t = threading.Thread(target=run, name=name, daemon=True)
         t.start()
         self.threads = [*(t for t in self.threads if t.is_alive()), t]
-        self.queues.append(q)
-        return q
+        self.queues.append(turns)
+        return turns
 
     # ------------------------------------------------------------------ requests
 
     def _gated(
-        self, work: queue.Queue, handler: Callable[[zenoh.Query], Any]
+        self, kind: str, work: Turns, handler: Callable[[zenoh.Query], Any]
     ) -> Callable[[zenoh.Query], None]:
-        """A queryable's callback: counted against the rate, then ``handler(query)`` on the
-        ``work`` thread, its value the JSON reply (a KaliError: the error reply)."""
+        """A queryable's callback: ``_admit`` with these."""
+        return lambda query: self._admit(query, kind, work, handler)
 
-        def on_query(query: zenoh.Query) -> None:
-            if not self.gate.admit():
-                self._refuse(query, self._flood_message())
-                return
-            work.put(lambda: self._answer(query, handler))
+    def _admit(
+        self, query: zenoh.Query, kind: str, work: Turns, handler: Callable[[zenoh.Query], Any]
+    ) -> None:
+        """Count ``query`` against its user's rate for ``kind``, then queue ``handler(query)``
+        in the user's turn on the ``work`` thread, its value the JSON reply (a KaliError: the
+        error reply); refused at once, unread, beyond the rate or the user's waiting."""
+        try:
+            user, _ = self.keys.parse(query.key_expr)
+        except BridgeError as exc:
+            self._refuse(query, exc)
+            return
+        why = self.gates.admit(user, kind) or work.put(user, lambda: self._answer(query, handler))
+        if why is not None:
+            self._refuse(query, BridgeError(why))
 
-        return on_query
+    def _on_verb(self, query: zenoh.Query) -> None:
+        """A kalictl verb: pressing the e-stop carried out at once, here on the Zenoh thread
+        that delivered it (it never waits behind another request, nor counts against a
+        rate); any other in its user's turn on the verbs thread."""
+        try:
+            user, (_, verb) = self.keys.parse(query.key_expr)
+            robots = self._pressing(query) if verb == "estop" else None
+        except (BridgeError, ValueError) as exc:  # ValueError: not kali/INST/user/USER/verb/V
+            self._refuse(query, BridgeError(str(exc)))
+            return
+        if robots is None:
+            self._admit(query, "verbs", self.verbs, self._verb)
+        else:
+            self._answer(query, lambda _: self._press_estop(robots[0] if robots else None, user))
 
-    def _flood_message(self) -> str:
-        return (
-            f"more than {self.inst.config.bridge.max_requests_per_s} requests a "
-            f"second (bridge.max_requests_per_s); refused unread"
-        )
+    def _pressing(self, query: zenoh.Query) -> list[str] | None:
+        """The arguments of verb ``estop`` when they press a button (``[]``: every robot's,
+        ``[ROBOT]``); None for any other use of the verb (``--release``, a mistake: kalictl's
+        to answer, in its words)."""
+        request = self._payload(query, "estop")
+        args = request.get("args", []) if isinstance(request, dict) else request
+        check_verb("estop", args)
+        if args == [] or (
+            isinstance(args, list)
+            and len(args) == 1
+            and isinstance(args[0], str)
+            and not args[0].startswith("-")
+        ):
+            return args
+        return None
+
+    def _press_estop(self, robot: str | None, user: str) -> dict[str, Any]:
+        """Press the e-stop as ``kalictl estop [ROBOT]`` does, answered in its words."""
+        try:
+            pressed = self.inst.press_estop(robot, f"bridge {user}")
+        except KaliError as exc:  # an unknown robot: nothing pressed
+            return {"ok": False, "code": 1, "output": "", "error": f"kalictl: {exc}\n"}
+        return {"ok": True, "code": 0, "output": estop_pressed(pressed) + "\n", "error": ""}
 
     def _answer(self, query: zenoh.Query, handler: Callable[[zenoh.Query], Any]) -> None:
         try:
@@ -166,13 +218,11 @@ class Bridge(Daemon):
             query.reply(query.key_expr, payload, encoding=JSON)
         query.drop()
 
-    def _refuse(self, query: zenoh.Query, message: str) -> None:
+    def _refuse(self, query: zenoh.Query, error: BridgeError) -> None:
+        """Answer ``query`` with ``error`` at once, unread (counted)."""
+        self.refused += 1
         with contextlib.suppress(zenoh.ZError):
-            query.reply(
-                query.key_expr,
-                protocol.dumps(protocol.error_reply(BridgeError(message))),
-                encoding=JSON,
-            )
+            query.reply(query.key_expr, protocol.dumps(protocol.error_reply(error)), encoding=JSON)
         query.drop()
 
     @staticmethod
@@ -187,7 +237,7 @@ class Bridge(Daemon):
         doc["bridge"] = {
             "sessions": self.sessions.describe(),
             "events": self.n_events,
-            "refused": self.gate.refused,
+            "refused": self.refused,
             "errors": self.errors,
         }
         return doc
@@ -209,59 +259,99 @@ class Bridge(Daemon):
         check_verb(verb, args)  # refused here, unread by the helper
         return self.sessions.ask_helper({"verb": verb, "args": args})
 
-    def _open(self, query: zenoh.Query) -> Any:
+    def _open(self, query: zenoh.Query) -> dict[str, Any]:
+        """Open a session of the user who asks: ``{"session": its secret, "kali": its Kali's
+        reference}``, in the answer to the opener only (Zenoh sends a reply to its query's
+        sender alone)."""
+        user, _ = self.keys.parse(query.key_expr)
+        token = self.keys.user(user).client
         request = self._payload(query, "session/open")
         sid = request.get("sid") if isinstance(request, dict) else None
-        if isinstance(sid, str) and not self._client_alive(sid):
+        if isinstance(sid, str) and not self._client_alive(token(sid)):
             raise BridgeError(
-                f"session {sid[:8]}: no liveliness token {self.keys.client(sid)}; "
+                f"session {sid[:8]}: no liveliness token {token(sid)}; "
                 f"declare it before opening the session"
             )
-        kali = self.sessions.open(request)
+        secret, kali = self.sessions.open(request, user)
         sid = request["sid"]
-        self.session_queues[sid] = self._worker(f"bridge-session-{sid[:8]}")
-        if not self._client_alive(sid):  # it left while its worker started
-            self._end_session(sid)
+        self.session_queues[secret] = self._worker(
+            f"bridge-session-{sid[:8]}", f"calls to session {sid[:8]}"
+        )
+        if not self._client_alive(token(sid)):  # it left while its worker started
+            self._end_session(secret)
             raise BridgeError(f"session {sid[:8]}: the program left while it opened")
-        return kali
+        return {"session": secret, "kali": kali}
 
-    def _client_alive(self, sid: str) -> bool:
-        """Whether the program of session ``sid`` holds its liveliness token: how the bridge
-        learns that it left."""
-        replies = self.session.liveliness().get(self.keys.client(sid), timeout=2.0)
+    def _client_alive(self, token: str) -> bool:
+        """Whether a program holds its liveliness token ``token``: how the bridge learns that
+        it left."""
+        replies = self.session.liveliness().get(token, timeout=2.0)
         return any(r.ok is not None for r in replies)
 
     def _close(self, query: zenoh.Query) -> bool:
-        sid = str(query.key_expr).split("/")[-2]
-        return self._end_session(sid)
+        """Close the session whose secret the key holds, the asking user's."""
+        user, secret = self.keys.session(query.key_expr)
+        self.sessions.find(secret, user)
+        return self._end_session(secret)
 
-    def _end_session(self, sid: str) -> bool:
-        q = self.session_queues.pop(sid, None)
+    def _end_session(self, secret: str) -> bool:
+        q = self.session_queues.pop(secret, None)
         if q is not None:
-            q.put(STOP)
+            q.close()  # its thread ends once the calls waiting are answered (refused)
             self.queues.remove(q)
-        return self.sessions.close(sid)
+        return self.sessions.close(secret)
 
     def _on_call(self, query: zenoh.Query) -> None:
-        """A remote program's call: on its session's own thread, in the order sent."""
-        if not self.gate.admit():
-            self._refuse(query, self._flood_message())
+        """A remote program's call, to the session whose secret the key holds (the asking
+        user's): on the session's own thread, in the order sent."""
+        try:
+            user, secret = self.keys.session(query.key_expr)
+            self.sessions.find(secret, user)
+        except BridgeError as exc:
+            self._refuse(query, exc)
             return
-        sid = str(query.key_expr).split("/")[-2]
-        q = self.session_queues.get(sid)
+        q = self.session_queues.get(secret)
         if q is None:
-            self._refuse(query, f"no session {sid[:8]}; open one first")
+            self._refuse(query, BridgeError("no such session; open one first"))
             return
         payload = query.payload.to_bytes() if query.payload is not None else b""
-        q.put(lambda: self._answer(query, lambda _: self.sessions.call(sid, payload)))
+        job = lambda: self._answer(query, lambda _: self.sessions.call(secret, user, payload))  # noqa: E731
+        why = self.gates.admit(user, q.what) or q.put(user, job)
+        if why is not None:
+            self._refuse(query, BridgeError(why))
+
+    def _on_stop(self, query: zenoh.Query) -> None:
+        """Stop the arms of the session whose secret the key holds, the asking user's, and
+        answer once they are at rest (``Sessions.stop``): on a thread of its own, never
+        behind the session's calls, and never refused for rate."""
+        try:
+            user, secret = self.keys.session(query.key_expr)
+            self.sessions.find(secret, user)
+        except BridgeError as exc:
+            self._refuse(query, exc)
+            return
+        why = self.stops.put(
+            user, lambda: self._answer(query, lambda _: self.sessions.stop(secret, user))
+        )
+        if why is not None:
+            self._refuse(query, BridgeError(why))
 
     def _on_client(self, sample: zenoh.Sample) -> None:
         """A remote program's token went: it died or left; end its session as a local
         program's death would (its worker killed)."""
         if sample.kind == zenoh.SampleKind.DELETE:
-            sid = str(sample.key_expr).rsplit("/", 1)[-1]
-            if sid in self.session_queues:
-                self.admin.put(lambda: self._end_session(sid))
+            with contextlib.suppress(BridgeError, ValueError):
+                user, (_, sid) = self.keys.parse(sample.key_expr)
+                if self.sessions.of(user, sid):  # in a turn of its own: never refused
+                    self.admin.put(f"{OWN}{user}/{sid}", lambda: self._client_left(user, sid))
+
+    def _client_left(self, user: str, sid: str) -> None:
+        """End user ``user``'s sessions of public id ``sid`` unless a token of that id is
+        still there (another client's token of the same key coming and going proves
+        nothing)."""
+        if not self._client_alive(self.keys.user(user).client(sid)):
+            for secret in self.sessions.of(user, sid):
+                self._end_session(secret)
 
     # ------------------------------------------------------------------ the cycle
 
@@ -309,7 +399,7 @@ class Bridge(Daemon):
         if sessions is not None:
             sessions.close_all()
         for q in self.queues:
-            q.put(STOP)
+            q.close()
         for t in self.threads:
             t.join(timeout=2.0)
         session, self.session = self.session, None

@@ -3,10 +3,14 @@
 Key expressions of one instance INST (``Keys``): the bridge publishes ``kali/INST/robots/
 ROBOT/state`` (telemetry, Drop QoS), ``kali/INST/timing`` (1 Hz), ``kali/INST/events``
 (reliable, with a history cache) and ``kali/INST/motion/SEQ`` (each request's state as it
-changes), and declares the liveliness token ``kali/INST/alive``; it answers ``kali/INST/
-status``, ``kali/INST/config``, ``kali/INST/verb/VERB`` (kalictl's verbs) and ``kali/INST/
-session/...`` (a remote program's calls).  A remote program declares ``kali/INST/clients/
-SID`` while it lives.
+changes), and declares the liveliness token ``kali/INST/alive``.  What a client asks and
+declares lies under its user's branch ``kali/INST/user/USER`` (``UserKeys``; with
+authentication Zenoh lets a user only its own): the bridge answers ``.../status``,
+``.../config``, ``.../verb/VERB`` (kalictl's verbs), ``.../session/open`` and a remote
+program's calls, stop and close, ``.../session/SECRET/call``, ``.../stop`` (its arms stopped,
+the answer once they are at rest: ``kalictl run --remote``'s Ctrl-C) and ``.../close``
+(SECRET: what the open answered its opener alone), and a remote program declares
+``.../clients/SID`` (SID: its session's public id) while it lives.
 
 Payloads are JSON (any language reads them).  A remote program's call names an object of its
 session (0: its ``Kali``), a method and the arguments; values cross as JSON with tagged
@@ -33,6 +37,7 @@ import numpy as np
 
 from .. import errors
 from ..client import motion
+from ..config import USER_RE
 from ..errors import KaliError
 from ..layout import CalibState, FfMode, FfState, PowerState, RequestState
 from ..shadow import Trial
@@ -49,40 +54,86 @@ class BridgeError(KaliError):
 
 
 class Keys:
-    """The key expressions of instance ``instance``."""
+    """The key expressions of instance ``instance``: what the bridge publishes, and the
+    wildcards of what it answers, one branch per user (``user`` gives one user's keys)."""
 
     def __init__(self, instance: str) -> None:
         self.root = f"kali/{instance}"
         self.alive = f"{self.root}/alive"
-        self.status = f"{self.root}/status"
-        self.config = f"{self.root}/config"
         self.timing = f"{self.root}/timing"
         self.events = f"{self.root}/events"
         self.robots = f"{self.root}/robots/*/state"
-        self.verbs = f"{self.root}/verb/*"
         self.motions = f"{self.root}/motion/*"
-        self.session_open = f"{self.root}/session/open"
-        self.session_calls = f"{self.root}/session/*/call"
-        self.session_close = f"{self.root}/session/*/close"
-        self.clients = f"{self.root}/clients/*"
+        users = f"{self.root}/user/*"
+        self.status = f"{users}/status"
+        self.config = f"{users}/config"
+        self.verbs = f"{users}/verb/*"
+        self.session_open = f"{users}/session/open"
+        self.session_calls = f"{users}/session/*/call"
+        self.session_stops = f"{users}/session/*/stop"
+        self.session_close = f"{users}/session/*/close"
+        self.clients = f"{users}/clients/*"
 
     def state(self, robot: str) -> str:
         return f"{self.root}/robots/{robot}/state"
 
-    def verb(self, verb: str) -> str:
-        return f"{self.root}/verb/{verb}"
-
     def motion(self, seq: int) -> str:
         return f"{self.root}/motion/{seq}"
 
-    def call(self, sid: str) -> str:
-        return f"{self.root}/session/{sid}/call"
+    def user(self, name: str) -> UserKeys:
+        """The keys user ``name`` asks and declares."""
+        return UserKeys(self.root, name)
 
-    def close(self, sid: str) -> str:
-        return f"{self.root}/session/{sid}/close"
+    def parse(self, key: object) -> tuple[str, list[str]]:
+        """(user, the chunks after ``kali/INST/user/USER/``) of a key the bridge answers;
+        BridgeError when its user chunk is no user name (a wildcard, say)."""
+        chunks = str(key).split("/")
+        depth = self.root.count("/") + 1  # kali/INST/user/USER/...: "user" is chunk 2
+        user = chunks[depth + 1] if chunks[depth : depth + 1] == ["user"] else ""
+        if len(chunks) < depth + 3 or USER_RE.fullmatch(user) is None:
+            raise BridgeError(f"{str(key)!r:.120} names no user (kali/INSTANCE/user/NAME/...)")
+        return user, chunks[depth + 2 :]
+
+    def session(self, key: object) -> tuple[str, str]:
+        """(user, secret) of a key ``kali/INST/user/USER/session/SECRET/WHAT``; BridgeError
+        for any other (a wildcard in place of the secret, say)."""
+        user, rest = self.parse(key)
+        if len(rest) != 3 or rest[0] != "session" or not rest[1].isalnum():
+            raise BridgeError(f"{str(key)!r:.120} names no session")
+        return user, rest[1]
+
+
+class UserKeys:
+    """What user ``name`` asks and declares, all under ``kali/INST/user/NAME``.  With
+    authentication Zenoh's access control lets each user ask and declare under its own name
+    only (``access.py``), so the key tells the bridge who asks; without it, a client goes by
+    a name of its own choosing (a remote ``Kali``: its Zenoh session's id)."""
+
+    def __init__(self, root: str, name: str) -> None:
+        if USER_RE.fullmatch(name) is None:
+            raise BridgeError(
+                f"user name {name!r:.70}: 1..64 of A-Z a-z 0-9 _ . - @, not starting with @"
+            )
+        self.name = name
+        self.home = f"{root}/user/{name}"
+        self.status = f"{self.home}/status"
+        self.config = f"{self.home}/config"
+        self.session_open = f"{self.home}/session/open"
+
+    def verb(self, verb: str) -> str:
+        return f"{self.home}/verb/{verb}"
+
+    def call(self, secret: str) -> str:
+        return f"{self.home}/session/{secret}/call"
+
+    def stop(self, secret: str) -> str:
+        return f"{self.home}/session/{secret}/stop"
+
+    def close(self, secret: str) -> str:
+        return f"{self.home}/session/{secret}/close"
 
     def client(self, sid: str) -> str:
-        return f"{self.root}/clients/{sid}"
+        return f"{self.home}/clients/{sid}"
 
 
 # The calls a remote program may make, by the class of the object it calls (methods, then

@@ -10,7 +10,12 @@ input, answering one line each on the descriptor it was given as standard output
 ``{"id": N, "target": OBJ, "method": M, "args": [...], "kwargs": {...}, "drop": [...]}``;
 the answer ``{"id": N, "value": V, "attrs": {...}}`` or ``{"id": N, "error": {...}}``).
 Only ``protocol.METHODS`` can be called, on the objects of this session, so a remote request
-meets every check a local client's does and is refused with the same message.
+meets every check a local client's does and is refused with the same message.  A line
+``{"adopt": {"force": F}}`` is a program taking up the session ``kalictl run --remote``
+opened for it (``Session.adopt``).
+
+A second pipe, ``--control IN,OUT``, carries the bridge's stops (``Stopper``: kalictl's
+Ctrl-C), served by a thread of their own, so a stop never waits behind the program's call.
 
 When the remote program disappears (its liveliness token goes), the bridge kills this
 process: the cell treats the program as a local one that died — its motions run out, its
@@ -28,6 +33,8 @@ import logging
 import os
 import signal
 import sys
+import threading
+import time
 from typing import Any
 
 from .. import introspect
@@ -39,6 +46,7 @@ from .protocol import ATTRIBUTES, METHODS, PROPERTIES, BridgeError
 from .sessions import run_verb
 
 log = logging.getLogger("kali.bridge.session")
+SETTLE_TG_PERIODS = 3  # a stop is done when the arms have been still this long
 
 
 class Session:
@@ -71,6 +79,18 @@ class Session:
             raise BridgeError(f"no {cls} {oid} in this session")
         return obj
 
+    def adopt(self, options: Any) -> dict[str, Any]:
+        """A program takes up this session another opened for it (``kalictl run --remote``
+        opens it, the program's ``Kali()`` adopts it): ``{"force": bool}`` as its ``Kali``
+        asks; the Kali's reference."""
+        force = options.get("force") if isinstance(options, dict) else None
+        if not isinstance(force, bool):
+            raise BridgeError(f"adopt takes {{force: true or false}}, not {options!r:.60}")
+        kali = self.objects[0]
+        assert isinstance(kali, Kali)
+        kali.force = force
+        return {"value": self.register(kali), "attrs": self.attrs(kali)}
+
     def drop(self, oids: list[Any]) -> None:
         """Forget objects the remote program no longer holds (a handle dropped releases its
         status record, as a local one's)."""
@@ -84,6 +104,8 @@ class Session:
         """Carry out one call; its value or its exception as a reply."""
         if not isinstance(request, dict):
             raise BridgeError("a call must be a JSON object")
+        if "adopt" in request:
+            return self.adopt(request["adopt"])
         self.drop(request.get("drop") or [])
         target = request.get("target", 0)
         if isinstance(target, bool) or not isinstance(target, int):
@@ -108,6 +130,63 @@ class Session:
                 f"a remote {cls} has: {allowed}"
             )
         return {"value": protocol.encode(value, self.register), "attrs": self.attrs(obj)}
+
+
+class Stopper:
+    """Stops the arms this worker's program owns, on the bridge's word (``kalictl run
+    --remote``'s Ctrl-C), from a thread of its own with a ``Kali`` of its own: the same
+    process, so the same arms, whatever the program's call on the main thread is doing (a
+    wait, a ``together`` block being written).  Answers once they are at rest."""
+
+    def __init__(self, instance: str) -> None:
+        self.instance = instance
+        self.kali: Kali | None = None
+
+    def call(self, request: Any) -> dict[str, Any]:
+        if not isinstance(request, dict) or not isinstance(request.get("timeout"), int | float):
+            raise BridgeError("a stop request is {timeout: seconds}")
+        return {"value": self.stop(float(request["timeout"]))}
+
+    def stop(self, timeout: float) -> dict[str, Any]:
+        """Stop every arm this process owns on its path, each motion it starts meanwhile too
+        (a request the TG takes after the stop), until for ``SETTLE_TG_PERIODS`` TG periods
+        none of them moves, or ``timeout`` s (wall time) pass; stepping the clock as a
+        program's wait does in lockstep.  ``{"robots": [names stopped], "at_rest": bool,
+        "halted": the fault or None, "waited_s": timeout}``."""
+        if self.kali is None:
+            self.kali = Kali(self.instance)
+        kali = self.kali
+        clock = kali.inst.clock
+        cfg = kali.inst.config.clock
+        settle = round(SETTLE_TG_PERIODS * cfg.tg_period_ms / cfg.base_tick_ms)
+        pid, deadline = os.getpid(), time.monotonic() + timeout
+        stopped: dict[int, int] = {}  # robot -> the motion stopped on it
+        busy: dict[int, int] = {}  # robot -> the motion moving it
+        quiet_since = int(clock["tick"])
+        while (halted := kali.inst.fault_text()) is None:
+            busy = {k: int(kali.tg_robots["busy_seq"][k]) for k in kali.owned_by(pid)}
+            busy = {k: seq for k, seq in busy.items() if seq != 0}
+            new = [k for k, seq in busy.items() if stopped.get(k) != seq]
+            if new:
+                kali.stop_robots(new)
+                stopped.update((k, busy[k]) for k in new)
+            if busy:
+                quiet_since = int(clock["tick"])
+            elif int(clock["tick"]) - quiet_since >= settle:
+                break
+            if time.monotonic() > deadline:
+                break
+            kali.pause()
+        return {
+            "robots": [kali.names[k] for k in sorted(stopped)],
+            "at_rest": halted is not None or not busy,
+            "halted": halted,
+            "waited_s": timeout,
+        }
+
+    def close(self) -> None:
+        if self.kali is not None:
+            self.kali.close()
 
 
 class Helper:
@@ -147,6 +226,16 @@ def serve(session: Session | Helper, lines: Any, out: Any) -> None:
         out.flush()
 
 
+def _control(stopper: Stopper, fds: str) -> threading.Thread:
+    """Serve ``stopper`` on the control pipe ``fds`` ("IN,OUT", descriptors the bridge
+    passed) from a thread of its own."""
+    fd_in, fd_out = (int(fd) for fd in fds.split(","))
+    lines, out = os.fdopen(fd_in, "rb"), os.fdopen(fd_out, "wb")
+    thread = threading.Thread(target=serve, args=(stopper, lines, out), daemon=True)
+    thread.start()
+    return thread
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="kali_daemons.bridge.session")
     parser.add_argument("--instance", required=True)
@@ -156,6 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--force", action="store_true")
     parser.add_argument("--nice", type=int, default=0)
     parser.add_argument("--cpu", type=int, default=None)
+    parser.add_argument("--control", default="", help="IN,OUT: the pipe of the bridge's stops")
     a = parser.parse_args(argv)
     os.nice(a.nice)  # below the bridge, on its CPU: a remote program never slows the cell
     if a.cpu is not None:
@@ -177,12 +267,16 @@ def main(argv: list[str] | None = None) -> int:
     label = f"{a.program} (remote {a.sid[:8]})"
     kali.program = label.encode()[:PROGRAM_BYTES]
     session = Session(kali)
+    stopper = Stopper(a.instance)
+    if a.control:
+        _control(stopper, a.control)
     try:
         out.write(protocol.dumps({"id": None, "value": session.register(kali)}) + b"\n")
         out.flush()
         serve(session, sys.stdin.buffer, out)
     finally:
         kali.close()
+        stopper.close()
     return 0
 
 

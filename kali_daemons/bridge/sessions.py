@@ -4,7 +4,9 @@ A session is a worker process (``session.py``) standing in for one remote progra
 starts it when the program opens the session, hands it the program's calls one at a time and
 returns its answers, and kills it when the program's liveliness token goes (it died, or its
 machine left the network), so the cell treats that program as a local one that died.  A
-worker runs SCHED_OTHER at a lower priority than the bridge, on the bridge's CPU.
+worker runs SCHED_OTHER at a lower priority than the bridge, on the bridge's CPU.  A session
+belongs to the user who opened it and is addressed by a secret only its opener learns
+(``Sessions``).
 
 Verbs are kalictl's own commands, run one at a time by the bridge's helper process (a worker
 with ``--helper``), so a remote ``enable`` or ``servo set`` meets kalictl's checks and
@@ -17,10 +19,10 @@ import contextlib
 import io
 import os
 import re
+import secrets
 import subprocess
 import sys
 import threading
-import time
 from typing import Any
 
 from .. import launcher
@@ -45,6 +47,8 @@ VERBS: dict[str, frozenset[str] | None] = {
     "status": frozenset({"--json"}),
     "servo": frozenset({"list", "select", "set", "get", "compare"}),
 }
+SECRET_BYTES = 16  # a session's secret: 128 random bits, 32 hex digits
+STOP_WAIT_S = 10.0  # a session's stop waits this long (wall time) for its arms to rest
 MAX_VERB_ARGS = 16
 MAX_ARG_CHARS = 200
 
@@ -52,13 +56,19 @@ MAX_ARG_CHARS = 200
 class Worker:
     """One session's worker process and the lock its calls take turns on."""
 
-    def __init__(self, sid: str, program: str, proc: subprocess.Popen, kali: Any) -> None:
-        self.sid = sid
+    def __init__(
+        self, sid: str, program: str, proc: subprocess.Popen, kali: Any, owner: str = ""
+    ) -> None:
+        self.sid = sid  # public: the program's liveliness token carries it
         self.program = program
         self.proc = proc
         self.kali = kali  # the reference to its Kali, as the remote program gets it
+        self.owner = owner  # the user who opened the session
         self.lock = threading.Lock()
         self.next_id = 0
+        self.control: tuple[Any, Any] | None = None  # the pipe of its stops: (to it, from it)
+        self.control_lock = threading.Lock()
+        self.interrupted = False  # its arms were stopped: it takes no more calls
 
     def call(self, request: dict[str, Any]) -> bytes:
         """Send one call, return the worker's answer line (BridgeError if it has died)."""
@@ -76,6 +86,26 @@ class Worker:
                 raise BridgeError(f"session {self.sid[:8]} ({self.program}) has ended")
             return line.rstrip(b"\n")
 
+    def stop_arms(self, timeout: float) -> dict[str, Any]:
+        """Have the worker stop the arms its program owns and say once they are at rest
+        (``session.Stopper``), over its control pipe: whatever call its program's pipe is
+        busy with.  ``{"robots", "at_rest", "halted", "waited_s"}``; BridgeError if it has
+        died."""
+        with self.control_lock:
+            line = b""
+            if self.control is not None:
+                try:
+                    self.control[0].write(protocol.dumps({"timeout": timeout}) + b"\n")
+                    self.control[0].flush()
+                    line = self.control[1].readline()
+                except (BrokenPipeError, ValueError, OSError):
+                    line = b""
+            if not line:
+                raise BridgeError(f"session {self.sid[:8]} ({self.program}) has ended")
+            reply = protocol.loads(line, "stop")
+            protocol.raise_reply(reply)
+            return reply["value"]
+
     def stop(self) -> None:
         """End the worker: SIGTERM (it closes its Kali), SIGKILL after a second; reaped."""
         if self.proc.poll() is None:
@@ -85,28 +115,33 @@ class Worker:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        for f in (self.proc.stdin, self.proc.stdout):
+        for f in (self.proc.stdin, self.proc.stdout, *(self.control or ())):
             if f is not None:
                 with contextlib.suppress(OSError):
                     f.close()
 
 
 class Sessions:
-    """The open sessions of one instance, at most ``limit``."""
+    """The open sessions of one instance, at most ``limit``, each addressed by its secret:
+    a random number the bridge makes when the session opens and tells its opener only, in
+    the answer to the open, and which is published nowhere (the program's liveliness token
+    and the status document carry its public id).  A session belongs to the user who opened
+    it: a call or a close from another user is refused even with the secret."""
 
     def __init__(self, instance: str, limit: int, cpu: int | None, log_dir: str) -> None:
         self.instance = instance
         self.limit = limit
         self.cpu = cpu
         self.log_dir = log_dir
-        self.workers: dict[str, Worker] = {}
+        self.workers: dict[str, Worker | None] = {}  # by secret; None while it starts
         self.lock = threading.Lock()
         self.helper: Worker | None = None  # verbs and status (ask_helper)
         self.helper_lock = threading.Lock()
         self.closed = False
 
-    def open(self, request: Any) -> dict[str, Any]:
-        """Start a session for ``{"sid", "program", "force"}``; its Kali's reference."""
+    def open(self, request: Any, owner: str) -> tuple[str, dict[str, Any]]:
+        """Start a session of user ``owner`` for ``{"sid", "program", "force"}``: its secret
+        and its Kali's reference."""
         if not isinstance(request, dict):
             raise BridgeError("session/open takes {sid, program, force}")
         sid, program = request.get("sid"), request.get("program", "remote")
@@ -120,31 +155,79 @@ class Sessions:
         with self.lock:
             if self.closed:
                 raise BridgeError(f"instance '{self.instance}' is stopping")
-            if sid in self.workers:
+            if self.of(owner, sid):
                 raise BridgeError(f"session {sid[:8]} is open already")
             if len(self.workers) >= self.limit:
                 raise BridgeError(
                     f"{len(self.workers)} remote programs are connected, the "
                     f"config's bridge.max_sessions; refused"
                 )
-            self.workers[sid] = None  # type: ignore[assignment]  # reserved while it starts
+            secret = secrets.token_hex(SECRET_BYTES)
+            self.workers[secret] = None  # reserved while it starts
         try:
             worker = self._start(sid, program, force)
         except BaseException:
             with self.lock:
-                self.workers.pop(sid, None)
+                self.workers.pop(secret, None)
             raise
+        worker.owner = owner
         with self.lock:
-            self.workers[sid] = worker
-        return worker.kali
+            self.workers[secret] = worker
+        return secret, worker.kali
+
+    def find(self, secret: str, user: str) -> Worker:
+        """The session ``secret`` addresses, which must be ``user``'s (BridgeError)."""
+        worker = self.workers.get(secret)
+        if worker is None:
+            raise BridgeError("no such session; open one first")
+        if worker.owner != user:
+            raise BridgeError(
+                f"session {worker.sid[:8]} ({worker.program}) belongs to user "
+                f"{worker.owner!r}; refused to user {user!r}"
+            )
+        return worker
+
+    def of(self, owner: str, sid: str) -> list[str]:
+        """The secrets of the sessions user ``owner`` opened with public id ``sid``."""
+        return [
+            secret
+            for secret, w in list(self.workers.items())
+            if w is not None and (w.owner, w.sid) == (owner, sid)
+        ]
 
     def _start(self, sid: str, program: str, force: bool) -> Worker:
-        options = ["--sid", sid, "--program", program, *(["--force"] if force else [])]
-        return self._spawn(sid, program, options, f"bridge.session.{sid[:8]}.log")
+        """A session's worker, with the control pipe of its stops (``Worker.stop_arms``)."""
+        stops, its_stops = os.pipe()  # the worker reads, the bridge writes
+        its_answers, answers = os.pipe()  # the bridge reads, the worker writes
+        options = [
+            "--sid", sid, "--program", program, *(["--force"] if force else []),
+            "--control", f"{stops},{answers}",
+        ]  # fmt: skip
+        try:
+            worker = self._spawn(
+                sid, program, options, f"bridge.session.{sid[:8]}.log", (stops, answers)
+            )
+        except BaseException:
+            os.close(its_stops)
+            os.close(its_answers)
+            raise
+        finally:
+            os.close(stops)
+            os.close(answers)
+        worker.control = (os.fdopen(its_stops, "wb"), os.fdopen(its_answers, "rb"))
+        return worker
 
-    def _spawn(self, sid: str, program: str, options: list[str], log_name: str) -> Worker:
-        """Start a worker process (``session.py``) with ``options`` and wait for its first
-        line: a program's Kali reference, or the helper's ready."""
+    def _spawn(
+        self,
+        sid: str,
+        program: str,
+        options: list[str],
+        log_name: str,
+        pass_fds: tuple[int, ...] = (),
+    ) -> Worker:
+        """Start a worker process (``session.py``) with ``options`` (and the descriptors
+        ``pass_fds``) and wait for its first line: a program's Kali reference, or the
+        helper's ready."""
         args = [
             sys.executable, "-m", "kali_daemons.bridge.session", "--instance", self.instance,
             "--nice", str(WORKER_NICE), *(["--cpu", str(self.cpu)] if self.cpu is not None else []),
@@ -158,6 +241,7 @@ class Sessions:
                 stdout=subprocess.PIPE,
                 stderr=log,
                 close_fds=True,
+                pass_fds=pass_fds,
                 env={
                     **{k: v for k, v in os.environ.items() if k != REMOTE_ENV},
                     **launcher.SINGLE_THREADED,
@@ -198,22 +282,33 @@ class Sessions:
         """The helper's answer line to ``request`` (a verb, or the status)."""
         return self.start_helper().call(request)
 
-    def call(self, sid: str, payload: bytes) -> bytes:
-        """Forward one call of session ``sid``; the worker's answer."""
-        worker = self.workers.get(sid)
-        if worker is None:
-            raise BridgeError(f"no session {sid[:8]}; open one first")
+    def call(self, secret: str, user: str, payload: bytes) -> bytes:
+        """Forward one call of ``user`` to session ``secret``; the worker's answer."""
+        worker = self.find(secret, user)
+        if worker.interrupted:
+            raise BridgeError(
+                f"session {worker.sid[:8]} ({worker.program}): its arms were stopped for an "
+                f"interrupt (kalictl run --remote's Ctrl-C); it takes no more calls"
+            )
         request = protocol.loads(payload, "call")
         if not isinstance(request, dict):
             raise BridgeError("a call must be a JSON object")
         return worker.call(request)
 
-    def close(self, sid: str) -> bool:
-        """End session ``sid`` (its program left); False if there was none."""
+    def stop(self, secret: str, user: str) -> dict[str, Any]:
+        """Stop the arms of ``user``'s session ``secret`` on their paths and wait until they
+        are at rest (``Worker.stop_arms``, at most ``STOP_WAIT_S``); from then on the session
+        takes no more calls, so its program cannot start them again."""
+        worker = self.find(secret, user)
+        worker.interrupted = True
+        return worker.stop_arms(STOP_WAIT_S)
+
+    def close(self, secret: str) -> bool:
+        """End session ``secret`` (its program left); False if there was none."""
         with self.lock:
-            if self.workers.get(sid, 0) is None:
+            if secret in self.workers and self.workers[secret] is None:
                 return False  # still starting: open() finds its program gone and ends it
-            worker = self.workers.pop(sid, None)
+            worker = self.workers.pop(secret, None)
         if worker is None:
             return False
         worker.stop()
@@ -230,10 +325,10 @@ class Sessions:
             w.stop()
 
     def describe(self) -> list[dict[str, Any]]:
-        """The open sessions: id, program, worker pid."""
+        """The open sessions: public id, user, program, worker pid (never a secret)."""
         with self.lock:
             return [
-                {"sid": w.sid[:8], "program": w.program, "pid": w.proc.pid}
+                {"sid": w.sid[:8], "user": w.owner, "program": w.program, "pid": w.proc.pid}
                 for w in self.workers.values()
                 if w is not None
             ]
@@ -290,26 +385,3 @@ def run_verb(instance: str, verb: str, args: Any) -> dict[str, Any]:
             err.write(f"kalictl: {verb}: {exc}\n")
             code = 2
     return {"ok": code == 0, "code": code, "output": out.getvalue(), "error": err.getvalue()}
-
-
-class Gate:
-    """At most ``rate`` requests a second (a token bucket of one second's): beyond it a
-    request is refused before anything reads it, so a flood costs the bridge little CPU."""
-
-    def __init__(self, rate: int) -> None:
-        self.rate = float(rate)
-        self.tokens = float(rate)
-        self.last = time.monotonic()
-        self.refused = 0
-        self.lock = threading.Lock()
-
-    def admit(self) -> bool:
-        with self.lock:
-            now = time.monotonic()
-            self.tokens = min(self.rate, self.tokens + (now - self.last) * self.rate)
-            self.last = now
-            if self.tokens >= 1.0:
-                self.tokens -= 1.0
-                return True
-            self.refused += 1
-            return False

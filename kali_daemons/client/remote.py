@@ -26,8 +26,10 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import os
 import secrets
+import ssl
 import threading
 import time
 import weakref
@@ -44,6 +46,7 @@ from ..layout import TERMINAL_STATES
 from ..robots import RobotType
 
 REMOTE_ENV = "KALI_REMOTE"  # set by `kalictl run --remote ENDPOINT`: Kali() connects there
+SESSION_ENV = "KALI_REMOTE_SESSION"  # and the session it opened, which Kali() adopts
 USER_ENV = "KALI_REMOTE_USER"
 PASSWORD_ENV = "KALI_REMOTE_PASSWORD"
 TLS_ENV = ("KALI_REMOTE_CA", "KALI_REMOTE_CERT", "KALI_REMOTE_KEY")
@@ -83,24 +86,74 @@ def reach(
 
     name = os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE) if instance is None else instance
     env = [os.environ.get(v) for v in TLS_ENV]
+    user = user if user is not None else os.environ.get(USER_ENV)
+    certificate = certificate or env[1]
     try:
         config = client_config(
             endpoint,
-            user=user if user is not None else os.environ.get(USER_ENV),
+            user=user,
             password=password if password is not None else os.environ.get(PASSWORD_ENV),
             root_ca=root_ca or env[0],
-            certificate=certificate or env[1],
+            certificate=certificate,
             private_key=private_key or env[2],
         )
     except (ValueError, zenoh.ZError) as exc:  # half the credentials, a bad endpoint
         raise BridgeError(f"cannot connect to {endpoint}: {exc}") from None
-    return Connection(endpoint, name, config)
+    if user is None and certificate is not None:
+        user = common_name(certificate)
+    handed = handed_over(endpoint, name)
+    return Connection(endpoint, name, config, user if handed is None else handed["user"], handed)
+
+
+def handed_over(endpoint: str, instance: str) -> dict[str, str] | None:
+    """The session ``kalictl run --remote`` opened for this program ($KALI_REMOTE_SESSION:
+    endpoint, instance, user, sid, secret) when it is one on ``endpoint``'s ``instance``, for
+    its ``Kali()`` to adopt; None otherwise."""
+    from ..bridge.protocol import BridgeError
+
+    text = os.environ.get(SESSION_ENV)
+    if not text:
+        return None
+    try:
+        handed = json.loads(text)
+        fields = {key: handed[key] for key in ("endpoint", "instance", "user", "sid", "secret")}
+        if not all(isinstance(v, str) for v in fields.values()):
+            raise ValueError(text)
+    except (ValueError, TypeError, KeyError):
+        raise BridgeError(f"${SESSION_ENV} holds no session kalictl handed over") from None
+    return fields if (fields["endpoint"], fields["instance"]) == (endpoint, instance) else None
+
+
+def common_name(certificate: str) -> str:
+    """The common name of PEM certificate ``certificate``: the user name a bridge knows its
+    holder by (read with CPython's own certificate decoder, ``ssl._ssl._test_decode_cert``:
+    the standard library has no public one)."""
+    from ..bridge.protocol import BridgeError
+
+    try:
+        subject = ssl._ssl._test_decode_cert(certificate).get("subject", ())  # type: ignore[attr-defined]
+    except (OSError, ssl.SSLError) as exc:
+        raise BridgeError(f"cannot read certificate {certificate}: {exc}") from None
+    names = [value for rdn in subject for key, value in rdn if key == "commonName"]
+    if not names:
+        raise BridgeError(f"certificate {certificate} has no common name: the bridge's user name")
+    return names[-1]
 
 
 class Connection:
-    """One remote program's Zenoh session with a bridge: its session id and token, its calls."""
+    """One remote program's Zenoh session with a bridge: its user name (``user``, else its
+    Zenoh session's id), its session's public id and token, its secret, its calls.  With
+    ``adopt`` (``handed_over``) the session is one ``kalictl run --remote`` opened and holds:
+    this connection calls it, and neither declares its token nor closes it."""
 
-    def __init__(self, endpoint: str, instance: str, config: zenoh.Config) -> None:
+    def __init__(
+        self,
+        endpoint: str,
+        instance: str,
+        config: zenoh.Config,
+        user: str | None = None,
+        adopt: dict[str, str] | None = None,
+    ) -> None:
         from ..bridge.protocol import BridgeError, Keys
 
         self.endpoint = endpoint
@@ -111,13 +164,22 @@ class Connection:
         except zenoh.ZError as exc:  # its words, without the Rust source it came from
             reason = str(exc).split("!  at /")[0].split(" at /")[0].rstrip("!. ")
             raise BridgeError(f"cannot connect to {endpoint}: {reason}") from None
-        self.sid = secrets.token_hex(8)
+        try:
+            self.mine = self.keys.user(str(self.session.zid()) if user is None else user)
+        except BridgeError:
+            self.session.close()
+            raise
+        self.sid = secrets.token_hex(8)  # public: its liveliness token carries it
+        self.secret = ""  # its session's address, the bridge's answer to its open
+        self.adopted = adopt is not None
+        if adopt is not None:
+            self.sid, self.secret = adopt["sid"], adopt["secret"]
         self.proxies: weakref.WeakValueDictionary[int, Proxy] = weakref.WeakValueDictionary()
         self.dropped: list[int] = []  # handles this program let go: the session forgets them
         self.lock = threading.Lock()
         self.bridge_alive = threading.Event()
         self.closed = False
-        self.opened = False  # a program's session is open on the bridge
+        self.opened = self.adopted  # a program's session is open on the bridge
         self.kali: RemoteKali | None = None
         try:
             self.watch = self.session.liveliness().declare_subscriber(
@@ -133,10 +195,50 @@ class Connection:
                     f"liveliness token {self.keys.alive} within {ALIVE_GRACE_S:g} s: is its "
                     f"bridge enabled, and may this user read it?)"
                 )
-            self.token = self.session.liveliness().declare_token(self.keys.client(self.sid))
+            if not self.adopted:  # an adopted session's token is its opener's
+                self.token = self.session.liveliness().declare_token(self.mine.client(self.sid))
         except BaseException:
             self.session.close()
             raise
+
+    def open(self, program: str, force: bool = False) -> dict[str, Any]:
+        """Open this program's session (its worker attaches a Kali named ``program``,
+        ``force`` as ``Kali(force=...)``); its Kali's reference."""
+        opened = self.get(
+            self.mine.session_open,
+            {"sid": self.sid, "program": program, "force": bool(force)},
+            timeout=CONNECT_TIMEOUT_S + 30.0,
+        )
+        self.secret, self.opened = opened["session"], True
+        return opened["kali"]
+
+    def adopt(self, force: bool = False) -> dict[str, Any]:
+        """Take up the session handed over (``force`` as ``Kali(force=...)``); its Kali's
+        reference."""
+        from ..bridge import protocol
+
+        request = protocol.dumps({"adopt": {"force": bool(force)}})
+        answer = self._ask(self.mine.call(self.secret), request, CONNECT_TIMEOUT_S, "adopt")
+        return answer["value"]
+
+    def stop(self) -> dict[str, Any]:
+        """Have the bridge stop the arms this session's program owns on their paths, whatever
+        the program is doing, and answer once they are at rest; the session takes no more
+        calls then.  ``{"robots": [names], "at_rest": bool, "halted": fault or None,
+        "waited_s": its longest wait}`` (``session.Stopper``)."""
+        return self.get(self.mine.stop(self.secret), {}, timeout=CALL_TIMEOUT_S)
+
+    def handover(self) -> str:
+        """This connection's session for a program to adopt ($KALI_REMOTE_SESSION)."""
+        return json.dumps(
+            {
+                "endpoint": self.endpoint,
+                "instance": self.instance,
+                "user": self.mine.name,
+                "sid": self.sid,
+                "secret": self.secret,
+            }
+        )
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         if sample.kind == zenoh.SampleKind.PUT:
@@ -209,7 +311,7 @@ class Connection:
             "kwargs": protocol.encode(kwargs, _reference),
             "drop": dropped,
         }
-        answer = self._ask(self.keys.call(self.sid), protocol.dumps(request), limit, method)
+        answer = self._ask(self.mine.call(self.secret), protocol.dumps(request), limit, method)
         value = protocol.decode(answer.get("value"), self.proxy)
         attrs = protocol.decode(answer.get("attrs") or {}, self.proxy)
         return value, attrs
@@ -233,8 +335,8 @@ class Connection:
         if self.closed:
             return
         try:
-            if self.opened and self.bridge_alive.is_set():
-                self.get(self.keys.close(self.sid), {}, timeout=5.0)
+            if self.opened and not self.adopted and self.bridge_alive.is_set():
+                self.get(self.mine.close(self.secret), {}, timeout=5.0)
         except Exception:  # the token going ends it anyway
             pass
         self.closed = True
@@ -380,7 +482,7 @@ class RemoteKali(Proxy):
         super().__init__(conn, 0, "Kali")
         conn.kali = self
         try:
-            cfg = conn.get(conn.keys.config, {}, timeout=CONNECT_TIMEOUT_S)
+            cfg = conn.get(conn.mine.config, {}, timeout=CONNECT_TIMEOUT_S)
             try:
                 config = parse_config(cfg["text"], f"{cfg['source']} (remote)", cfg["base_dir"])
             except Exception as exc:
@@ -388,16 +490,13 @@ class RemoteKali(Proxy):
                     f"instance '{conn.instance}''s config does not parse on this machine: {exc}"
                 ) from None
             self.inst = RemoteInstance(cfg["instance"], config, bool(cfg["lockstep"]))
-            program = program_name().decode(errors="replace")
-            ref = conn.get(
-                conn.keys.session_open,
-                {"sid": conn.sid, "program": program, "force": bool(force)},
-                timeout=CONNECT_TIMEOUT_S + 30.0,
-            )
+            if conn.adopted:
+                ref = conn.adopt(force)
+            else:
+                ref = conn.open(program_name().decode(errors="replace"), force)
         except BaseException:
             conn.close()
             raise
-        conn.opened = True
         conn.proxies[0] = self
         self._attrs.update(protocol.decode(ref.get("attrs", {}), conn.proxy))
 
@@ -425,7 +524,7 @@ class RemoteKali(Proxy):
         from ..bridge.protocol import BridgeError
 
         result = self._conn.get(
-            self._conn.keys.verb(verb), {"args": list(args)}, CALL_TIMEOUT_S + 60
+            self._conn.mine.verb(verb), {"args": list(args)}, CALL_TIMEOUT_S + 60
         )
         if not result["ok"]:
             raise BridgeError(result["error"].strip() or f"kalictl {verb} failed")
@@ -433,7 +532,7 @@ class RemoteKali(Proxy):
 
     def status(self) -> dict[str, Any]:
         """``kalictl status --json``'s document, and the bridge's sessions."""
-        return self._conn.get(self._conn.keys.status, {})
+        return self._conn.get(self._conn.mine.status, {})
 
     def close(self) -> None:
         self._conn.close()
