@@ -151,7 +151,7 @@ def _refused_fast(call: Callable[[], object], expected: str) -> str:
     ("case", "key", "expected"),
     [
         ("laughs-as-instance", "instance: default", "aliases expand to more than"),
-        ("laughs-as-arena", "arena_kib: 4096", "aliases expand to more than"),
+        ("laughs-as-arena", "arena_kib: 6144", "aliases expand to more than"),
     ],
 )
 def test_an_alias_bomb_is_refused_fast(case: str, key: str, expected: str) -> None:
@@ -209,7 +209,7 @@ def test_the_arena_needed_is_what_an_instance_uses(kali: Callable[..., str]) -> 
 @pytest.mark.parametrize("kib", [256, 1024, 1800])
 def test_an_arena_too_small_is_refused_at_parse_time(kib: int) -> None:
     """256-1024 KiB used to start and then fail 6 s later in whichever daemon came last."""
-    text = DEFAULT_TEXT.replace("arena_kib: 4096", f"arena_kib: {kib}")
+    text = DEFAULT_TEXT.replace("arena_kib: 6144", f"arena_kib: {kib}")
     with pytest.raises(ConfigError) as info:
         parse_config(text, "small.yaml")
     need_kib = -(-arena_need(parse_config(DEFAULT_TEXT, "x"))[0] // 1024)
