@@ -28,7 +28,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from fractions import Fraction
 from pathlib import Path
 from typing import Protocol
@@ -243,10 +243,15 @@ class ServoLevel:
 class ServoClient:
     """What users, kalictl and robot programs do to the servo level (thesis 3.4)."""
 
-    def __init__(self, inst: Instance) -> None:
+    def __init__(self, inst: Instance, pause: Callable[[], None] | None = None) -> None:
+        """``pause``: how its user lets time pass (a program's ``Kali.pause``, which steps a
+        lockstep instance's stopped clock): given, a call that needs a servo tick (a
+        robot-level select or shadow, or one behind it) waits for it as ``wait()`` does;
+        without it (kalictl) such a call says the clock must be stepped."""
         self.inst = inst
         self.level = ServoLevel(inst)
         self.names = self.level.names
+        self._pause = pause
 
     def close(self) -> None:
         """Release the views."""
@@ -583,9 +588,13 @@ class ServoClient:
         return alg.get_params(self.get_arm(robot, name).copy())
 
     def get_arm(self, robot: str | int, servo: str) -> np.ndarray:
-        """A consistent copy of robot ``robot``'s record of robot-level servo ``servo``."""
+        """A consistent copy of robot ``robot``'s record of robot-level servo ``servo``:
+        through the mailbox while the clock runs, read in place while it is stopped (no SV
+        writes it then, and an operation still pending in the mailbox is left to its tick)."""
         k = self.robot_index(robot)
         idx, alg = self.arm_algorithm(servo)
+        if not self._clock_running():
+            return self.level.arm_data[k][idx].copy()
         self._arm_op(k, SlotOp.GET, idx, None, wait=True)
         raw = self.level.arm_staging[k, : alg.dtype.itemsize].copy()
         return raw.view(alg.dtype).reshape(())
@@ -610,26 +619,24 @@ class ServoClient:
 
     def _arm_op(self, k: int, op: SlotOp, algo: int, payload: bytes | None, wait: bool) -> None:
         """Post a robot-level mailbox operation for the SV that claims robot ``k``; with the
-        clock stopped a get/put/params is carried out here, a select waits for the next
-        tick (its hand-over needs that tick's measurement)."""
+        clock stopped a get/put/params is carried out here, a select or shadow waits for the
+        next tick (its hand-over needs that tick's measurement), as does any operation
+        behind one still pending (``_servo_tick``)."""
         lv = self.level
         r = lv.robots[k : k + 1].reshape(())
+        what = f"robot '{self.names[k]}': robot-level {op.name.lower()}"
         lock = SpinLock(lv.arm_lock_addr[k], f"robot-level servo mailbox of '{self.names[k]}'")
         lock.acquire(OP_TIMEOUT_S)
         try:
             deadline = time.monotonic() + OP_TIMEOUT_S
-            while atomic.load32(lv.arm_op_addr[k]) != SlotOp.NONE:
-                if not self._clock_running():
-                    raise ServoError(
-                        f"robot '{self.names[k]}': a robot-level select waits for the next "
-                        f"servo tick, and the clock is stopped (lockstep: step it first)"
-                    )
+            while (pending := atomic.load32(lv.arm_op_addr[k])) != SlotOp.NONE:
                 if time.monotonic() > deadline:
                     raise ServoError(
-                        f"robot '{self.names[k]}': the previous robot-level update was not "
-                        f"taken within {OP_TIMEOUT_S:g} s (are the SVs running?)"
+                        f"{what}: the robot-level {_op_name(pending).lower()} asked before "
+                        f"it was not taken within {OP_TIMEOUT_S:g} s (are the SVs running?)"
                     )
-                time.sleep(0.0005)
+                before = _op_name(pending).lower()
+                self._servo_tick(f"{what} waits for the {before} asked before it")
             if payload is not None:
                 lv.arm_staging[k, : len(payload)] = np.frombuffer(payload, np.uint8)
             r["arm_op_algo"] = algo
@@ -641,17 +648,33 @@ class ServoClient:
             atomic.store32(lv.arm_op_addr[k], int(op))  # published last: the SV acts on it
             if not wait:
                 return
-            while int(r["arm_ops_done"]) == done and self._clock_running():
+            while int(r["arm_ops_done"]) == done:
+                if op in (SlotOp.SELECT, SlotOp.SHADOW) and int(r["power"]) != PowerState.ON:
+                    return  # no SV serves an unpowered arm: carried out at its first tick on
                 if time.monotonic() > deadline + OP_TIMEOUT_S:
                     raise ServoError(
-                        f"robot '{self.names[k]}': the SV did not carry out the robot-level "
-                        f"update within {OP_TIMEOUT_S:g} s (is the clock running?)"
+                        f"{what}: the SV did not carry it out within {OP_TIMEOUT_S:g} s "
+                        f"(is the clock running?)"
                     )
-                time.sleep(0.0005)
-            if int(r["arm_ops_done"]) != done:
-                self._arm_refused(k)
+                self._servo_tick(f"{what} waits for the next servo tick")
+            self._arm_refused(k)
         finally:
             lock.release()
+
+    def _servo_tick(self, what: str) -> None:
+        """Let time pass until the SV's next tick for ``what``: a short sleep while the
+        clock runs; a step of a lockstep instance's stopped clock through ``pause`` (a
+        program's, as its ``wait()`` steps it); else ServoError saying the clock must run
+        (kalictl in lockstep, or a halt)."""
+        if self._clock_running():
+            time.sleep(0.0005)
+        elif self.inst.fault["active"]:
+            raise ServoError(f"{what}, and the system is halted ({self.inst.fault_text()})")
+        elif self.inst.lockstep and self._pause is not None:
+            self._pause()
+        else:
+            how = "lockstep: kalictl clock step 1" if self.inst.lockstep else "kalictl reset"
+            raise ServoError(f"{what}, and the clock is stopped ({how})")
 
     def _arm_refused(self, k: int) -> None:
         if int(self.level.robots["arm_op_status"][k]) == layout.OP_REFUSED:

@@ -59,10 +59,7 @@ def test_a_push_displaces_the_impedance_servo_s_tool_by_force_over_stiffness(
         step_kali_clock(k.inst, 300)
         left.tare()
         x0, rot = tool_point(k, 0)
-        left.select_servo("impedance")
-        with pytest.raises(ServoError, match="waits for the next servo tick"):
-            left.set_servo({"kx": 1000.0}, "impedance")
-        step_kali_clock(k.inst, 1)
+        left.select_servo("impedance")  # in lockstep: steps the clock to its tick
         kx, ky, kz = STIFFNESS
         left.set_servo({"kx": kx, "ky": ky, "kz": kz}, "impedance")
         step_kali_clock(k.inst, 500)
@@ -82,6 +79,37 @@ def test_a_push_displaces_the_impedance_servo_s_tool_by_force_over_stiffness(
             back = tool_point(k, 0)[0] - x1
             assert np.linalg.norm(back) < 0.002, (axis, back)
         assert k.inst.fault_text() is None
+
+
+def test_back_to_back_robot_level_calls_run_unchanged_in_lockstep(
+    kali: Callable[..., str],
+) -> None:
+    """A program's robot-level servo calls one after another, the lockstep clock stopped:
+    each one that needs a servo tick steps the clock as ``wait()`` does (issue 52 item 1:
+    ``shadow_servo(None)`` then ``select_servo`` raised "a robot-level select waits for the
+    next servo tick, and the clock is stopped"); kalictl, which does not step the clock,
+    reads parameters in place and names the operation it cannot do."""
+    name = kali(lockstep=True, edits=LEFT_ROBOT_SERVOS)
+    with Kali(name) as k:
+        k.ready()
+        left = k.robot("left")
+        left.shadow_servo("computed_torque")
+        left.shadow_servo(None)
+        left.select_servo("computed_torque")
+        left.set_servo({"wn": 30.0})
+        assert k.servo.arm_active("left") == "computed_torque"
+        assert k.servo.get_arm_params("left")["wn"] == 30.0
+        tick = int(k.inst.clock["tick"])
+        k.servo.select_arm("left", "joints", wait=False)  # posted, its tick not come yet
+        assert int(k.inst.clock["tick"]) == tick
+        r = kalictl("-i", name, "servo", "get", "left", "--servo", "computed_torque")
+        assert r.returncode == 0 and "wn=30" in r.stdout, r.stderr
+        r = kalictl("-i", name, "servo", "select", "left", "impedance")
+        assert r.returncode == 1, r.stdout
+        assert "robot-level select waits for the select asked before it" in r.stderr, r.stderr
+        assert "the clock is stopped (lockstep: kalictl clock step 1)" in r.stderr, r.stderr
+        step_kali_clock(k.inst, 1)
+        assert k.servo.arm_active("left") is None  # its joint servos again
 
 
 def test_computed_torque_tracks_as_well_as_the_pid_and_switches_bumplessly(

@@ -158,8 +158,7 @@ def test_a_robot_level_servo_in_shadow_then_selected_while_moving(
         for _ in range(20):
             step_kali_clock(k.inst, 1)
             own.append(slots["shadow_torque"].copy())
-        left.select_servo("computed_torque")
-        step_kali_clock(k.inst, 1)
+        left.select_servo("computed_torque")  # steps the lockstep clock to its tick
         assert sv.arm_active("left") == "computed_torque"
         assert {t.state for t in left.trials()} == {ShadowState.SELECTED}
         steps = np.abs(np.diff(own, axis=0)).max(axis=0)

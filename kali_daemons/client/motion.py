@@ -726,24 +726,23 @@ class Robot:
         """Run this whole arm with robot-level servo ``name`` (``"computed_torque"``,
         ``"impedance"``, a plugin's), or with ``"joints"`` its joint servos again; handed
         over bumplessly at the next servo tick, while it moves or not (thesis 3.3.4)."""
-        self.kali.servo.select_arm(self.name, name, wait=not self.kali.inst.lockstep)
+        self.kali.servo.select_arm(self.name, name)
 
     def set_servo(self, params: Mapping[str, float], servo: str | None = None) -> None:
         """Change parameters of this arm's robot-level servo (default: the active one) on
         line, e.g. ``set_servo({"kz": 500, "fz": 15})``; ServoError, nothing changed, for a
         bad value."""
-        self.kali.servo.set_arm_params(self.name, params, servo, wait=not self.kali.inst.lockstep)
+        self.kali.servo.set_arm_params(self.name, params, servo)
 
     def shadow_servo(self, name: str | None, joint: int | None = None) -> None:
         """Run servo ``name`` in shadow beside this arm's active servos — a robot-level one,
         or with ``joint`` (1..n) that joint's: stepped every tick on the same inputs, its
         torque compared and never applied; None ends the trial.  ``trials()`` reads the
         figures; selecting it afterwards goes on from its own state (issue 27 item 6)."""
-        wait = not self.kali.inst.lockstep
         if joint is None:
-            self.kali.servo.shadow_arm(self.name, name, wait=wait)
+            self.kali.servo.shadow_arm(self.name, name)
         else:
-            self.kali.servo.shadow(self.name, joint, name, wait=wait)
+            self.kali.servo.shadow(self.name, joint, name, wait=not self.kali.inst.lockstep)
 
     def trials(self) -> list[Trial]:
         """This arm's joints' figures from their last shadow trial: (shadow − active)
@@ -989,9 +988,9 @@ class MotionSystem:
             raise MotionError(f"{what}: the two tool points are {length * 1000:.2f} mm apart")
         line /= length
         servo = self.kali.servo
-        for r in self.robots:
+        for r in self.robots:  # both asked first: handed over on one tick, then waited for
             if servo.arm_active(r.name) != "impedance":
-                r.select_servo("impedance")
+                servo.select_arm(r.name, "impedance", wait=False)
         limit = _timeout_arg(what, timeout)
         deadline = time.monotonic() + (math.inf if limit is None else limit)
         while any(servo.arm_active(r.name) != "impedance" for r in self.robots):
@@ -1056,7 +1055,7 @@ class Kali:
         name = os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE) if instance is None else instance
         self.inst = Instance.attach(name)  # an empty name is refused, never the default
         try:
-            self.servo = ServoClient(self.inst)
+            self.servo = ServoClient(self.inst, pause=self._servo_tick)
             arena = self.inst.arena
             self.queue = RequestQueue(
                 arena,
@@ -1107,6 +1106,14 @@ class Kali:
         of its clock (nothing else steps it), so programs run there unchanged."""
         if self.inst.lockstep:
             step_kali_clock(self.inst, LOCKSTEP_STEP)
+        else:
+            time.sleep(POLL_S)
+
+    def _servo_tick(self) -> None:
+        """Let one servo tick pass for a servo call waiting on it: in a lockstep instance
+        one step of its clock (as ``pause`` steps it, finer), else a short sleep."""
+        if self.inst.lockstep:
+            step_kali_clock(self.inst, 1)
         else:
             time.sleep(POLL_S)
 
