@@ -1122,7 +1122,6 @@ TG_STATE = np.dtype(
         # TG: ticks the next request waited in the queue for its status record (unread by a
         # live client): admission is bounded, the queue pushes back on producers
         ("record_waits", "<u8"),
-        ("unreported", "<u8"),  # TG: requests with no record to answer in (a forged queue)
         # TG: its longest tick since start, wall time from its start to its end, and what
         # went into it: taking requests, starting waiting ones (planning paths), the motions
         # (their checks and set-points), its CPU time, and the requests it took then; a

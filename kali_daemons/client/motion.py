@@ -434,14 +434,19 @@ class Robot:
         """The measured joint angles (rad, one per joint of its type), a copy."""
         return self.kali.servo.level.joints["q"][self.span].copy()
 
-    def read_t6(self) -> np.ndarray:
-        """T6 from the measured joints: the flange in the robot's base frame (4×4, thesis
-        3.3.1), by Pinocchio's forward kinematics of the arm model."""
-        return self.kali.flange_pose(self.read_joints(), self.index)
+    def read_t6(self, demand: bool = False) -> np.ndarray:
+        """T6: the flange in the robot's base frame (4×4, thesis 3.3.1), by Pinocchio's
+        forward kinematics of the arm model, from the measured joints or, with ``demand``,
+        from where the arm is servoed to (``Kali.start_point``: where its next motion
+        starts)."""
+        q = self.kali.start_point(self.index) if demand else self.read_joints()
+        return self.kali.flange_pose(q, self.index)
 
-    def read_pose(self) -> np.ndarray:
-        """The tool's pose in the world from the measured joints: B · T6 · Tool."""
-        return self.base @ self.read_t6() @ self.tool
+    def read_pose(self, demand: bool = False) -> np.ndarray:
+        """The tool's pose in the world, B · T6 · Tool: from the measured joints, or with
+        ``demand`` from the demand (exact, where the measured pose is a few encoder counts
+        off it once settled)."""
+        return self.base @ self.read_t6(demand) @ self.tool
 
     def settle(
         self,

@@ -25,11 +25,14 @@ floats from views of ``Data.oMi`` (no numpy temporaries), and the damped normal 
   its limits after the step, so a pose whose solution lies beyond a limit ends with an error
   left and is refused, naming the joints on their limits.
 
-With fewer than 6 joints (a planar arm) J·Jᵀ has rank n < 6 and the damping keeps it
-invertible; every step lies in the span of the joints' motions, so a pose the arm can reach
-(in its plane) converges as fast, and the part of the error no joint can reduce (off the
-plane) stays: the iteration stops as soon as the step is below ``STALL`` of the error and
-refuses the pose, naming what is left.
+With fewer than 6 free joints (a planar arm) J·Jᵀ has rank n < 6 and the damping keeps it
+invertible; every step lies in the span of the joints' motions, so the iteration is a least
+squares one: the part of the error the joints can reduce converges as fast as on a full arm,
+and the part no joint can reduce (off a planar arm's plane) stays.  Once the step is below
+``STALL`` of the error (or the iterations run out), the pose is taken if what is left is
+within ``off_m`` and ``off_rad`` (default ``OFF_M``, ``OFF_RAD``: a measured pose's few
+encoder counts put about that outside the poses the arm reaches, so a line from where the arm
+is works), else refused, naming what is left.  A full arm takes nothing off: 0.
 
 It converges when the position error is below ``tol_m`` and the rotation error below
 ``tol_rad``, and gives up after ``max_iter`` iterations.  ``solve`` with ``out`` allocates
@@ -61,6 +64,10 @@ MAX_STEP: Final = 0.3  # rad, the largest joint change in one iteration
 TASK: Final = 6  # rows of the Jacobian: 3 translation, 3 rotation
 # A step below this fraction of the pose error: what is left lies outside every joint's motion
 STALL: Final = 1e-6
+# The error an arm of fewer than 6 free joints may leave (least squares): what no joint's
+# motion reduces, up to 1 mm and 0.1° (a pose from its measured joints is ~0.1 mm, 0.01° off)
+OFF_M: Final = 1e-3
+OFF_RAD: Final = math.radians(0.1)
 
 _AXES: Final = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
 
@@ -163,6 +170,8 @@ class DlsIk:
         tol_m: float = 1e-11,
         tol_rad: float = 1e-11,
         max_iter: int = 60,
+        off_m: float | None = None,
+        off_rad: float | None = None,
     ) -> None:
         n = model.nq
         if model.nv != n or len(q_min) != n or len(q_max) != n:
@@ -180,6 +189,9 @@ class DlsIk:
         self.tol_m = tol_m
         self.tol_rad = tol_rad
         self.max_iter = max_iter
+        reduced = n - (held is not None) < TASK
+        self.off_m = (OFF_M if reduced else 0.0) if off_m is None else off_m
+        self.off_rad = (OFF_RAD if reduced else 0.0) if off_rad is None else off_rad
         self.lo = [float(v) for v in q_min]
         self.hi = [float(v) for v in q_max]
         self.model = model
@@ -452,11 +464,7 @@ class DlsIk:
             err_r = math.sqrt(wx * wx + wy * wy + wz * wz)
             if err_p <= self.tol_m and err_r <= self.tol_rad:
                 self.iterations = it
-                if out is None:
-                    out = np.empty(n)
-                for k in range(n):
-                    out[k] = q[k]
-                return out
+                return self._answer(q, out)
             if it == self.max_iter:
                 break
             self._jacobian()
@@ -482,6 +490,8 @@ class DlsIk:
                         biggest = abs(d)
             if biggest < STALL * math.sqrt(err_p * err_p + err_r * err_r):
                 self.iterations = it
+                if err_p <= self.off_m and err_r <= self.off_rad:  # least squares: taken
+                    return self._answer(q, out)
                 raise KinematicsError(self._refusal(q, err_p, err_r, it, stalled=True))
             scale = MAX_STEP / biggest if biggest > MAX_STEP else 1.0
             for j in range(n):
@@ -489,7 +499,17 @@ class DlsIk:
                     v = q[j] + scale * a[j]
                     q[j] = lo[j] if v < lo[j] else hi[j] if v > hi[j] else v
         self.iterations = self.max_iter
+        if err_p <= self.off_m and err_r <= self.off_rad:
+            return self._answer(q, out)
         raise KinematicsError(self._refusal(q, err_p, err_r, self.max_iter, stalled=False))
+
+    def _answer(self, q: list[float], out: FloatArray | None) -> FloatArray:
+        """The solution ``q`` into ``out`` (allocated only when None)."""
+        if out is None:
+            out = np.empty(self.n)
+        for k in range(self.n):
+            out[k] = q[k]
+        return out
 
     def _refusal(
         self, q: list[float], err_p: float, err_r: float, iterations: int, stalled: bool
@@ -503,14 +523,15 @@ class DlsIk:
             if k != held and (q[k] <= lo[k] or q[k] >= hi[k])
         ]
         held_text = "" if held is None else f" with joint {held + 1} held at {q[held]:.4f} rad"
-        left = f"{err_p * 1000:.3f} mm and {math.degrees(err_r):.4f}° left"
+        left = f"{err_p * 1000:.3g} mm and {math.degrees(err_r):.3g}° left"
         limits = f"; on their limits: {'; '.join(at_limit)}" if at_limit else ""
         if stalled:
             free = n - (held is not None)
             why = (
                 f"with {free} free joints the flange moves in only {free} of a pose's "
-                f"{TASK} directions: a pose off them, e.g. off a planar arm's plane, is "
-                f"out of reach"
+                f"{TASK} directions: a pose more than {self.off_m * 1000:g} mm or "
+                f"{math.degrees(self.off_rad):g}° off them, e.g. off a planar arm's plane, "
+                f"is out of reach"
                 if free < TASK
                 else "the flange cannot move that way from here: out of reach or singular"
             )
@@ -550,7 +571,9 @@ class NumericalKinematics:
     - ``ikine`` starts from ``q_ref`` (the trajectory generator's previous set-point; default
       ``q_home``) and finds the solution nearest it: one branch, ``NEAREST``.  An arm with
       fewer than 6 joints reaches only some poses (a planar arm: those in its plane, turned
-      about its joints' axis); any other is refused naming the error left.
+      about its joints' axis): its solution is the least squares one, taken if what no
+      joint's motion reduces is within ``off_m`` and ``off_rad`` (``DlsIk``; default 1 mm
+      and 0.1°, so a pose read from the measured joints works), else refused naming it.
     - ``redundant_joint``: the index of the joint that is the redundancy parameter of an arm
       with more than 6 joints; ``ikine`` holds it at ``redundancy`` or, when that is None,
       at ``q_ref``'s value, so a Cartesian path keeps it.  None: every joint is solved for.
@@ -582,6 +605,8 @@ class NumericalKinematics:
         redundant_joint: int | None = None,
         sigma_min: float = SIGMA_MIN,
         tip: str = FLANGE_FRAME,
+        off_m: float | None = None,
+        off_rad: float | None = None,
     ) -> None:
         n = len(q_min)
         if len(q_max) != n or (q_home is not None and len(q_home) != n):
@@ -605,6 +630,7 @@ class NumericalKinematics:
         self.redundant_joint = redundant_joint
         self.sigma_min = float(sigma_min)
         self.tip = tip
+        self.off_m, self.off_rad = off_m, off_rad
         self._solver: DlsIk | None = None
         self._qv = [0.0] * n
         self._home = [float(v) for v in home]
@@ -629,6 +655,8 @@ class NumericalKinematics:
                 self.q_max,
                 name=self.name,
                 held=self.redundant_joint,
+                off_m=self.off_m,
+                off_rad=self.off_rad,
             )
         return self._solver
 

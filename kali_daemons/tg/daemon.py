@@ -675,15 +675,13 @@ class TrajectoryGenerator(Daemon):
             below = int(req["before_seq"])
             if self._pending is not None and self._pending[0] < below:
                 pending, self._pending = self._pending, None
-                self._cancel_pending(pending, robots, kind)
+                self._cancel_pending(pending, robots)
             for k in robots:
                 self._cancel_below[k] = max(self._cancel_below[k], below)
                 self.tg_robots["stop_seq"][k] = seq
             self.state["stops_taken"] += 1
 
-    def _cancel_pending(
-        self, pending: tuple[int, np.void], robots: list[int], kind: MotionKind
-    ) -> None:
+    def _cancel_pending(self, pending: tuple[int, np.void], robots: list[int]) -> None:
         """A stop came for request ``pending``'s arms while it waited for a record: it is
         taken as usual and then cancelled (``_take`` sees ``_cancel_below``), or, if it is for
         other arms, waits on."""

@@ -413,7 +413,7 @@ def test_ikine_refuses_a_pose_off_the_plane_naming_the_residual(planar3: RobotTy
     off[1, 3] = 0.01  # 1 cm out of the plane
     with pytest.raises(
         KinematicsError,
-        match=r"planar3 ikine: no solution: 10\.000 mm and 0\.0000° left after \d iterations, "
+        match=r"planar3 ikine: no solution: 10 mm and 0° left after \d iterations, "
         r"which no joint's motion reduces \(with 3 free joints the flange moves in only 3 of a "
         r"pose's 6 directions",
     ):
@@ -424,7 +424,7 @@ def test_ikine_refuses_a_pose_off_the_plane_naming_the_residual(planar3: RobotTy
         [[math.cos(0.035), -math.sin(0.035), 0], [math.sin(0.035), math.cos(0.035), 0], [0, 0, 1]]
     )
     tilted[0, 3] += 0.02  # and 2 cm along x, which alone is reachable
-    with pytest.raises(KinematicsError, match=r"mm and 2\.0\d+° left after \d+ iterations"):
+    with pytest.raises(KinematicsError, match=r"mm and 2\.0\d° left after \d+ iterations"):
         k.ikine(tilted, NEAREST, q_ref=planar3.q_home)
     far = here.copy()
     far[0, 3] = 1.0
