@@ -162,6 +162,9 @@ class MotionHandle:
             return self._final
         if self.seq == 0:  # made in a together() block that has not ended
             return RequestState.QUEUED, "not sent yet: its together() block has not ended"
+        # the TG writes a request's record, then counts it taken: read in the other order, so
+        # a request it takes between the two reads is not taken for one whose record is gone
+        taken = int(self.kali.tg_state["taken_seq"])
         rec = self._record()
         state = RequestState.QUEUED  # still in the queue, or taken and not yet written
         if rec is not None:
@@ -181,7 +184,7 @@ class MotionHandle:
                 return self._final
             if raw in (RequestState.QUEUED, RequestState.RUNNING):
                 state = RequestState(raw)
-        elif self._rec >= 0 or self.seq <= int(self.kali.tg_state["taken_seq"]):
+        elif self._rec >= 0 or self.seq <= taken:
             self._final = (
                 RequestState.LOST,
                 f"its outcome was not kept: the TG gave its status record to another request "

@@ -21,6 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from kali_daemons import layout
 from kali_daemons.layout import MotionKind, RequestState
@@ -306,3 +307,28 @@ def test_a_stop_cancels_what_its_arm_had_queued_and_the_lane_takes_only_stops(
         assert int(state["stops_refused"]) == refused + 1
         assert int(k.tg_robots["busy_seq"][0]) == 0
         del state
+
+
+def test_a_request_taken_while_its_program_looks_is_not_lost(
+    kali: Callable[..., str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The TG takes a request between its program's search for the record and its look at
+    the count of requests taken: the program must not call it LOST (a soak's carry demo did,
+    6 times in 206 runs, when it looked at the count after the search)."""
+    from kali_daemons.client import motion
+
+    name = kali(lockstep=True)
+    with powered(name) as k:
+        h = k._request(MotionKind.STOP, [1])  # in the queue: the clock is stopped
+        search = records.find
+
+        def taken_meanwhile(status: np.ndarray, seq: int) -> int:
+            found = search(status, seq)
+            if found < 0 and seq == h.seq:  # not there yet; now the TG takes it
+                step_kali_clock(k.inst, 1)
+            return found
+
+        monkeypatch.setattr(motion.records, "find", taken_meanwhile)
+        assert h.state != RequestState.LOST, h.message
+        monkeypatch.undo()
+        assert h.state == RequestState.DONE
