@@ -528,3 +528,21 @@ def test_ctrl_c_in_a_remote_program_stops_its_arms_on_their_paths(
         ended = status[status["seq"] > 0]
         states = {layout.RequestState(int(s)).name for s in ended["state"]}
         assert "STOPPED" in states
+
+
+def test_a_remote_run_on_an_instance_not_there_names_the_instances_that_are(
+    bridged: Callable[..., tuple[str, str]], tmp_path: Path
+) -> None:
+    """Issue 52 item 6: ``kalictl run --remote`` to a name the bridge does not serve said
+    only that it does not answer; it names the instances that do."""
+    name, endpoint = bridged()
+    program = tmp_path / "prog.py"
+    program.write_text("print('ran')\n")
+    r = subprocess.run(
+        [sys.executable, "-m", "kali_daemons", "-i", "nothere", "run", "--remote", endpoint,
+         str(program)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert r.returncode == 1 and "ran" not in r.stdout, r.stdout
+    assert "no Kali instance 'nothere' answers" in r.stderr, r.stderr
+    assert f"instances answering there: {name} (-i NAME)" in r.stderr, r.stderr

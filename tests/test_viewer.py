@@ -17,6 +17,7 @@ import os
 import select
 import shutil
 import signal
+import socket
 import subprocess
 import time
 import urllib.parse
@@ -411,6 +412,28 @@ def test_a_live_viewer_listening_gets_the_dashboard_and_no_web_viewer_starts(
         live.wait(5.0)
     rows, _, _, _ = read_rrd(saved)
     assert rows["/world/left/links/boxes"] >= 10 and rows["/robots/right/current"] >= 10
+
+
+def test_a_port_held_by_something_not_a_viewer_is_said_and_not_streamed_to(
+    kali: Callable[..., str],
+) -> None:
+    """Issue 52 item 6: something else listening at ``dashboard.connect`` (here a socket
+    that accepts and never answers) was taken for a live viewer: the viewer streamed to it,
+    blocked, and ``kalictl start`` took 44 s and said "streaming to the rerun viewer"."""
+    port, _ = pick_port(0)
+    with socket.socket() as squatter:
+        squatter.bind(("127.0.0.1", port))
+        squatter.listen()
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        t0 = time.monotonic()
+        name = kali(lockstep=True, edits=dashboard(connect=url, web="off"))
+        assert time.monotonic() - t0 < 20
+        with Instance.attach(name) as inst:
+            d = launcher.dashboard(inst)
+            assert d is not None and not d.live_url, d
+            assert f"port {port} is in use by something that is not a rerun viewer" in d.message
+            out = kalictl("-i", name, "view").stdout
+            assert "not a rerun viewer" in out and "streaming to" not in out, out
 
 
 # ---------------------------------------------------------------------------- the web viewer

@@ -54,7 +54,15 @@ TOKEN = "liveliness_token"
 LIVELINESS_SUBSCRIBE = "declare_liveliness_subscriber"
 LIVELINESS_QUERY = "liveliness_query"
 
-COMMON_RULES = ("subscribe", "samples", "liveliness", "tokens", "history-queries", "replies")
+COMMON_RULES = (
+    "subscribe",
+    "samples",
+    "liveliness",
+    "instances",
+    "tokens",
+    "history-queries",
+    "replies",
+)
 
 
 def prefix(instance: str) -> str:
@@ -81,6 +89,8 @@ def access_rules(instance: str) -> list[dict[str, Any]]:
         _rule("subscribe", "ingress", [SUBSCRIBE], everything),
         _rule("samples", "egress", [PUT, DELETE], everything),
         _rule("liveliness", "ingress", [LIVELINESS_SUBSCRIBE, LIVELINESS_QUERY], everything),
+        # which instances answer here (a client asking for one not here is told them)
+        _rule("instances", "ingress", [LIVELINESS_QUERY], ["kali/*/alive"]),
         _rule("tokens", "egress", [TOKEN], everything),
         _rule("history-queries", "ingress", [QUERY], everything[1:]),
         _rule("replies", "egress", [REPLY], everything),

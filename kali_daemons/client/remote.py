@@ -190,16 +190,32 @@ class Connection:
                 self.bridge_alive.set()
             # a session just opened may see the token only as its subscriber's history
             if not self.bridge_alive.wait(ALIVE_GRACE_S):
+                seen = self.instances()
+                there = (
+                    f"; instances answering there: {', '.join(seen)} (-i NAME)"
+                    if seen
+                    else "; no instance answers there"
+                )
                 raise BridgeError(
                     f"no Kali instance '{instance}' answers at {endpoint} (no "
                     f"liveliness token {self.keys.alive} within {ALIVE_GRACE_S:g} s: is its "
-                    f"bridge enabled, and may this user read it?)"
+                    f"bridge enabled, and may this user read it?){there}"
                 )
             if not self.adopted:  # an adopted session's token is its opener's
                 self.token = self.session.liveliness().declare_token(self.mine.client(self.sid))
         except BaseException:
             self.session.close()
             raise
+
+    def instances(self) -> list[str]:
+        """The Kali instances whose bridges this session sees (their liveliness tokens
+        ``kali/<instance>/alive``), sorted; those this user may not read are not seen."""
+        try:
+            replies = self.session.liveliness().get("kali/*/alive", timeout=ALIVE_GRACE_S)
+            keys = [str(r.ok.key_expr) for r in replies if r.ok is not None]
+        except zenoh.ZError:
+            return []
+        return sorted({k.split("/")[1] for k in keys if k.count("/") == 2})
 
     def open(self, program: str, force: bool = False) -> dict[str, Any]:
         """Open this program's session (its worker attaches a Kali named ``program``,

@@ -62,7 +62,7 @@ from ..layout import ProcState
 from ..robots import RobotType
 from ..tg.cartesian import base_transform
 from ..wallclock.clock import time_ms
-from .sinks import WebViewer, grpc_address, pick_port, reachable
+from .sinks import WebViewer, grpc_address, grpc_answers, pick_port
 
 TIMELINE = "kali_time"
 READY_TIMEOUT_S = 30.0  # how long the viewer waits at start for SIO's and the plant's records
@@ -343,10 +343,17 @@ class Viewer(Daemon):
         sinks: list[rr.GrpcSink | rr.FileSink] = []
         notes: list[str] = []
         live = ""
-        if d.connect is not None and reachable(*grpc_address(d.connect)):
+        found = None if d.connect is None else grpc_answers(*grpc_address(d.connect))
+        if found:
             live = d.connect
             sinks.append(rr.GrpcSink(live))
             self.log.info("dashboard: streaming to the live rerun viewer at %s", live)
+        elif found is not None:  # streaming there would block the viewer for good
+            port = grpc_address(d.connect)[1]  # type: ignore[arg-type]
+            notes.append(
+                f"dashboard.connect {d.connect}: port {port} is in use by something that is "
+                f"not a rerun viewer (it does not answer gRPC); not streaming there"
+            )
         if d.web == "on" or (d.web == "auto" and not live):
             web_port, web_taken = pick_port(d.web_port)
             grpc_port, grpc_taken = pick_port(d.grpc_port)

@@ -60,6 +60,27 @@ def reachable(host: str, port: int, timeout_s: float = LIVE_PROBE_S) -> bool:
         return False
 
 
+H2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"  # a client's first bytes (RFC 9113 3.4)
+H2_SETTINGS = 4  # the frame type an HTTP/2 server's own preface starts with
+
+
+def grpc_answers(host: str, port: int, timeout_s: float = LIVE_PROBE_S) -> bool | None:
+    """Whether a gRPC server (a rerun viewer) listens at ``host:port``: None if nothing
+    accepts a connection there, True if it answers HTTP/2's preface with its SETTINGS frame,
+    False if something else holds the port (a rerun sink streaming to it would block)."""
+    try:
+        conn = socket.create_connection((host, port), timeout=timeout_s)
+    except OSError:
+        return None
+    with conn:
+        try:
+            conn.sendall(H2_PREFACE)
+            head = conn.recv(9)
+        except OSError:  # silent, or hung up on the preface: not a gRPC server
+            return False
+    return len(head) >= 4 and head[3] == H2_SETTINGS
+
+
 def pick_port(wanted: int) -> tuple[int, bool]:
     """``wanted`` if it can be bound on 127.0.0.1, else a free port; and whether it was taken.
 
