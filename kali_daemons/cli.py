@@ -30,7 +30,7 @@ from . import boards, flightrec, introspect, launcher, layout, schedule, shadow
 from .client import remote
 from .client.motion import INSTANCE_ENV, Kali
 from .client.remote import REMOTE_ENV, SESSION_ENV
-from .config import cell_of, load_config
+from .config import KaliConfig, cell_of, load_config
 from .errors import InstanceError, KaliError, MotionError
 from .instance import LOCK_STUCK_S, Instance, check_instance_name, decode, estop_pressed
 from .layout import (
@@ -189,6 +189,31 @@ def start(
     click.echo(f"logs in {report.log_dir}")
     with Instance.attach(name) as inst:
         _echo_dashboard(launcher.dashboard(inst))
+    hint = feedforward_hint(cfg, name)
+    if hint:
+        click.echo(hint)
+
+
+def feedforward_hint(cfg: KaliConfig, instance: str) -> str | None:
+    """The line ``kalictl start`` prints when arms start without the dynamics feed-forward
+    (``ff: off``, or the dynamics process left out): which, and how to turn it on; None when
+    every arm starts with it (gravity counts: it was chosen)."""
+    names = [r.name for r in cfg.robots]
+    if not any(p.kind == "dynamics" for p in cfg.processes):
+        off, how = names, "processes.dynamics.enabled: true in the config"
+        why = "the dynamics process is left out: "
+    else:
+        off = [r.name for r in cfg.robots if r.ff == "off"]
+        if not off:
+            return None
+        robot = f" {off[0]}" if len(off) == 1 else "" if off == names else " ROBOT"  # "": all
+        flag = "" if instance == "default" else f" -i {instance}"
+        how = f"ff: full in the config or kalictl{flag} ff on{robot}"
+        why = ""
+    whose = "its servos alone follow its motions"
+    if len(off) > 1:
+        whose = "their servos alone follow their motions"
+    return f"feed-forward off: {', '.join(off)} ({why}{whose}, and lag); turn it on with {how}"
 
 
 def _echo_dashboard(d: launcher.Dashboard | None) -> None:

@@ -194,10 +194,14 @@ _DEFAULT_PROCESSES: dict[str, dict[str, Any]] = {
     "dynamics": {"cpu": 1, "priority": 40, "period_ms": 10, "serious": False, "stage": 3},
     "viewer": {"cpu": 1, "priority": 0, "period_ms": 40, "serious": False, "stage": 4},
 }
+# config/default.yaml's cell, feed-forward full as it writes it (an arm written without ``ff``
+# starts without: RobotConfig.ff)
 _DEFAULT_ROBOTS: list[dict[str, Any]] = [
-    {"name": "left", "model": "puma560", "base_xyz": [-0.6, 0.0, 0.0], "base_yaw_deg": 0},
-    {"name": "right", "model": "puma560", "base_xyz": [0.6, 0.0, 0.0], "base_yaw_deg": 180},
-]
+    {"name": "left", "model": "puma560", "base_xyz": [-0.6, 0.0, 0.0], "base_yaw_deg": 0,
+     "ff": "full"},
+    {"name": "right", "model": "puma560", "base_xyz": [0.6, 0.0, 0.0], "base_yaw_deg": 180,
+     "ff": "full"},
+]  # fmt: skip
 
 # Top-level fields ``with_overrides`` may change (each is re-validated).
 _OVERRIDABLE = ("instance", "arena_kib", "startup_timeout_s")

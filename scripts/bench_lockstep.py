@@ -69,7 +69,8 @@ SPEED = 0.5  # of the joint speed and acceleration limits
 MOVES = 4  # requests queued per arm, out and back twice (~2 s each; a client's share of the
 # TG's request queue is 16: four arms x 4)
 PLANT_CYCLES = 2000  # the floor's in-process plant cycles
-FF_FULL = {"robots.*.ff": "full"}
+FF_FULL = {"robots.*.ff": "full"}  # as config/default.yaml starts them
+FF_OFF = {"robots.*.ff": "off"}
 SEPARATE = {"lockstep": True, "separate": True}  # a process per daemon, not the executive
 VIEWER_OFF = {"processes.viewer.enabled": False}
 
@@ -100,8 +101,8 @@ class Scenario:
 SCENARIOS = {
     s.name: s
     for s in (
-        Scenario("default-hold", DEFAULT_CONFIG, program="hold"),
-        Scenario("default", DEFAULT_CONFIG),
+        Scenario("default-hold", DEFAULT_CONFIG, FF_OFF, program="hold"),
+        Scenario("default", DEFAULT_CONFIG, FF_OFF),
         Scenario("default-ff", DEFAULT_CONFIG, FF_FULL),
         Scenario("ff-separate", DEFAULT_CONFIG, FF_FULL, start=SEPARATE),
         Scenario("default-ff-rec", DEFAULT_CONFIG, FF_FULL, record=True),

@@ -5,7 +5,9 @@
 The left arm's shoulder (joint 2) swings 10° out and back, once per gain; before each swing
 the program sets a new proportional gain ``kp`` through the servo interface (thesis 3.4,
 bumpless) and measures the joint's tracking error during the swing.  Every gain sees the
-same motion, so the table compares the gains alone: too soft lags, too stiff rings.
+same motion, so the table compares the gains alone: too soft lags, too stiff rings.  The
+arm's feed-forward is off meanwhile (it would take most of the error the gain is judged by)
+and back as it was after.
 
 The servo interface numbers joints 1..6 as the thesis and the PUMA do; joint vectors such as
 ``read_joints()`` are indexed from 0, so joint 2 is index 1 there.
@@ -33,6 +35,9 @@ with Kali() as kali:
             f"kalictl servo select {ROBOT} {JOINT} pid"
         )
     kp0 = params["kp"]
+    ff = servo.feedforward_state(ROBOT)[0].name.lower()  # as the config starts it: full
+    arm.feedforward("off")  # the PID alone
+    kali.sleep(0.5)  # faded out (feedforward.ramp_ms)
     q0 = arm.read_joints()
     out = q0.copy()
     out[j] += SWING
@@ -52,5 +57,6 @@ with Kali() as kali:
         print(f"{kp0 * scale:6g}   {np.sqrt(np.mean(e**2)):17.3f}   {np.abs(e).max():16.3f}")
     servo.set_params(ROBOT, JOINT, {"kp": kp0})
     arm.move_joints(q0)
+    arm.feedforward(ff)
     print(f"kp back to {servo.get_params(ROBOT, JOINT)['kp']:g}; the arm is where it started")
     del q, demand

@@ -232,7 +232,7 @@ def _wait(what: str, cond: Callable[[], bool], timeout_s: float) -> float:
 def test_stale_feedforward_is_dropped_and_comes_back(kali: Callable[..., str]) -> None:
     """Real time: the dynamics process stopped (SIGSTOP) → STALE within feedforward.stale_ms,
     its torque faded out within ramp_ms, no halt; continued (SIGCONT) → ON again."""
-    name = kali(lockstep=False, edits={r"^(  - \{name: left.*)\}$": r"\1, ff: gravity}"})
+    name = kali(lockstep=False, edits={r"^(  - \{name: left.*), ff: full\}$": r"\1, ff: gravity}"})
     with Instance.attach(name) as inst:
         client = ServoClient(inst)
         _stop_and_continue_dynamics(inst, client)
@@ -282,3 +282,31 @@ def test_kalictl_ff_names_the_modes_and_robots(kali: Callable[..., str]) -> None
     assert r.returncode != 0 and "middle" in r.stderr and "left, right" in r.stderr
     with Instance.attach(name) as inst:
         assert list(ff_records(inst)["mode"]) == [FfMode.FULL, FfMode.FULL]
+
+
+def test_the_start_hint_names_the_arms_without_feed_forward_and_how_to_turn_it_on() -> None:
+    """Issue 52 item 5: ``kalictl start``'s line (cli.feedforward_hint) for arms starting
+    without the dynamics feed-forward: none where every arm has it (the shipped configs), the
+    arm to name where one is off, every arm where all are (or the dynamics process is left
+    out), the instance where it is not the default one."""
+    from kali_daemons.cli import feedforward_hint
+
+    assert feedforward_hint(make_config("default"), "default") is None
+    gravity = {r"^(  - \{name: left,.*), ff: full\}$": r"\1, ff: gravity}"}
+    assert feedforward_hint(make_config("default", gravity), "default") is None
+    right_off = {r"^(  - \{name: right,.*), ff: full\}$": r"\1, ff: off}"}
+    assert feedforward_hint(make_config("default", right_off), "default") == (
+        "feed-forward off: right (its servos alone follow its motions, and lag); turn it on "
+        "with ff: full in the config or kalictl ff on right"
+    )
+    all_off = {r"^(  - \{name: .*), ff: full\}$": r"\1, ff: off}"}
+    assert feedforward_hint(make_config("lab", all_off), "lab") == (
+        "feed-forward off: left, right (their servos alone follow their motions, and lag); "
+        "turn it on with ff: full in the config or kalictl -i lab ff on"
+    )
+    no_dynamics = {r"^(  dynamics: +\{)": r"\1enabled: false, "}
+    assert feedforward_hint(make_config("default", no_dynamics), "default") == (
+        "feed-forward off: left, right (the dynamics process is left out: their servos alone "
+        "follow their motions, and lag); turn it on with processes.dynamics.enabled: true "
+        "in the config"
+    )

@@ -22,7 +22,6 @@ from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import wait_for
 
-FF_FULL = {rf"^(  - \{{name: {arm},.*)\}}$": r"\1, ff: full}" for arm in ("left", "right")}
 ROW_FIELDS = ("tick", *layout.FLIGHT_FIELDS)  # what a row holds of the arms, not of timing
 
 
@@ -37,6 +36,7 @@ def carry_program(name: str) -> tuple[np.ndarray, np.ndarray]:
     """Power both arms, move each through a joint move with full feed-forward, and return
     the flight recorder's last 2 s of rows and the plant's true joint angles."""
     with Kali(name) as k:
+        assert [r.ff for r in k.inst.config.robots] == ["full"] * 2  # as default.yaml starts them
         step_kali_clock(k.inst, 30)
         for robot in k.names:
             k.servo.power(robot, True)
@@ -100,8 +100,8 @@ def test_one_process_hosts_every_daemon_in_its_slot(kali: Callable[..., str]) ->
 def test_the_executive_and_separate_processes_give_the_same_rows_bit_for_bit(
     kali: Callable[..., str],
 ) -> None:
-    rows_one, truth_one = carry_program(kali(lockstep=True, edits=FF_FULL))
-    rows_many, truth_many = carry_program(kali(lockstep=True, edits=FF_FULL, separate=True))
+    rows_one, truth_one = carry_program(kali(lockstep=True))
+    rows_many, truth_many = carry_program(kali(lockstep=True, separate=True))
     assert len(rows_one) == layout.flight_rows(1_000_000)
     assert rows_one.tobytes() == rows_many.tobytes(), first_difference(rows_one, rows_many)
     assert truth_one.tobytes() == truth_many.tobytes()
@@ -109,8 +109,8 @@ def test_the_executive_and_separate_processes_give_the_same_rows_bit_for_bit(
 
 
 def test_a_run_is_the_same_bit_for_bit_under_cpu_load(kali: Callable[..., str]) -> None:
-    rows_quiet, truth_quiet = carry_program(kali(lockstep=True, edits=FF_FULL))
-    name = kali(lockstep=True, edits=FF_FULL)
+    rows_quiet, truth_quiet = carry_program(kali(lockstep=True))
+    name = kali(lockstep=True)
     with cpu_hogs():
         rows_loaded, truth_loaded = carry_program(name)
     assert rows_quiet.tobytes() == rows_loaded.tobytes(), first_difference(rows_quiet, rows_loaded)

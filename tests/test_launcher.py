@@ -19,7 +19,7 @@ from kali_daemons.instance import Instance
 from kali_daemons.layout import FaultCode, RunMode
 from kali_daemons.spinlock import pid_alive
 
-from .conftest import ROOT, leftovers, make_config, unique_name
+from .conftest import ROOT, config_text, leftovers, make_config, unique_name
 
 PROCESSES = ["wallclock", "plant", "tg", "sio", "sv.0", "sv.1", "dynamics", "viewer"]
 
@@ -47,6 +47,7 @@ def test_start_status_mem_stop_from_the_command_line(tmp_path: Path) -> None:
         r = kalictl("start", "-c", str(cfg), env=env)
         assert r.returncode == 0, r.stderr
         assert f"instance '{name}' started" in r.stdout and "real time (clock running)" in r.stdout
+        assert "feed-forward" not in r.stdout  # every arm of the shipped config starts with it
         time.sleep(0.3)
         r = kalictl("-i", name, "status")
         assert r.returncode == 0, r.stderr
@@ -69,6 +70,30 @@ def test_start_status_mem_stop_from_the_command_line(tmp_path: Path) -> None:
     assert leftovers(name) == ([], [])
     r = kalictl("-i", name, "status")
     assert r.returncode == 1 and f"no instance '{name}'" in r.stderr
+
+
+def test_start_names_the_arms_starting_with_feed_forward_off_and_how_to_turn_it_on(
+    tmp_path: Path,
+) -> None:
+    """Issue 52 item 5: an arm started without the dynamics feed-forward lags on a path
+    (1.3 mm on the Panda's 5 cm/s circle); ``kalictl start`` says which and how to turn it
+    on, one line, and nothing where every arm starts with it (the shipped configs)."""
+    name = unique_name()
+    cfg = tmp_path / "k.yaml"
+    cfg.write_text(config_text(name, {r"^(  - \{name: right,.*), ff: full\}$": r"\1, ff: off}"}))
+    env = {"KALI_LOG_DIR": str(tmp_path / "logs")}
+    try:
+        r = kalictl("start", "-c", str(cfg), "--lockstep", env=env)
+        assert r.returncode == 0, r.stderr
+        hints = [line for line in r.stdout.splitlines() if "feed-forward" in line]
+        assert hints == [
+            f"feed-forward off: right (its servos alone follow its motions, and lag); turn it on "
+            f"with ff: full in the config or kalictl -i {name} ff on right"
+        ], r.stdout
+    finally:
+        r = kalictl("-i", name, "stop", env=env)
+    assert r.returncode == 0, r.stderr
+    assert leftovers(name) == ([], [])
 
 
 def test_status_before_any_tick_shows_no_lateness_rather_than_nan(

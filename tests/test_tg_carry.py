@@ -77,7 +77,7 @@ def descend_onto_grasps(k: Kali, pause_ticks: int = 300) -> None:
 def test_two_arms_carry_the_bar_with_a_bounded_internal_force(
     kali: Callable[..., str], ff: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    name = kali(lockstep=True, edits={r"^(  - \{name: .*)\}$": rf"\1, ff: {ff}}}"})
+    name = kali(lockstep=True, edits={r"^(  - \{name: .*), ff: full\}$": rf"\1, ff: {ff}}}"})
     with calibrated(name, ("left", "right")) as k:
         truths = k.inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
         world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
@@ -127,12 +127,12 @@ def test_arms_settled_and_gripped_on_a_late_feed_forward_row_carry_the_bar_unsqu
     name = kali(
         lockstep=True,
         edits={
-            r"^(  - \{name: .*)\}$": r"\1, ff: full}",
             r"(dynamics: .*period_ms: )10,": r"\g<1>50,",
             r"stale_ms: 50 ": "stale_ms: 120 ",
         },
     )
     with calibrated(name, ("left", "right")) as k:
+        assert [r.ff for r in k.inst.config.robots] == ["full"] * 2  # as default.yaml starts them
         world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
         grasps = [model.grasp_in_bar(r) for r in k.inst.config.robots]
         arms = [k.robot(n) for n in ("left", "right")]

@@ -58,6 +58,7 @@ from kali_daemons.layout import (
     CalibState,
     ClockCommand,
     FaultCode,
+    FfMode,
     FfState,
     MotionKind,
     PowerState,
@@ -505,17 +506,21 @@ def test_command_words_with_undefined_values_are_ignored(cell: Cell) -> None:
 def test_a_feedforward_mode_outside_ffmode_keeps_the_last_valid_mode(cell: Cell) -> None:
     servo = cell.kali.servo
     ff = servo._ff_records()
+    assert [int(m) for m in ff["mode"]] == [FfMode.FULL] * 2  # as configured
+    torque = servo.level.joints["ff_torque"].reshape(2, 6)
+    held = torque.copy()
+    assert np.abs(held[:, 1]).min() > 5.0  # joint 2's gravity, at least
     ff["mode"][0] = 7
     ff["mode"][1] = 255
     step_kali_clock(cell.inst, 100)  # ten dynamics cycles
-    with pytest.raises(ServoError, match="feed-forward of robot 'left': mode word 7, state 0"):
+    with pytest.raises(ServoError, match="feed-forward of robot 'left': mode word 7, state 1"):
         servo.feedforward_state("left")
-    assert [int(s) for s in ff["state"]] == [FfState.OFF] * 2  # off, as configured
-    assert not servo.level.joints["ff_torque"].reshape(2, 6).any()
+    assert [int(s) for s in ff["state"]] == [FfState.ON] * 2  # full, as configured, still on
+    np.testing.assert_allclose(torque, held, atol=0.01)  # N·m: the arms hold still
     snap = introspect.snapshot(cell.inst)
     assert snap["robots"][0]["feedforward"]["mode"] == "INVALID(7)"
-    ff["mode"][:] = 0
-    del ff
+    ff["mode"][:] = FfMode.FULL
+    del ff, torque
     untouched(cell)
 
 
