@@ -136,6 +136,7 @@ from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows
 from kali_daemons.tg.functions import FunctionRegistry, FunctionSlots, Sensors, data_of, set_params
 from kali_daemons.tg.profiles import JointMotion
+from kali_daemons.tg.records import StatusRecords
 from kali_daemons.tg.tracking import SharedFrames, Tracking, TrackingMotion, write_frame
 
 SYSTEMS = (1, 2, 4)
@@ -232,8 +233,14 @@ class TgStandIn:
         self._setpoint_of = [self.tg_robots["setpoint"][k, :N] for k in range(n_arms)]
         self._progress = self.status["progress"]
         self._limited = self.status["limited"]
+        self.records = StatusRecords(self.status)  # the TG's: each motion's record (hold)
         self._tick = self.tg_robots["tick"]
         self._out = np.empty(N)
+
+    def hold(self, motions: list[Motion]) -> None:
+        """Give each motion a status record, as the TG does when it takes its request."""
+        for m in motions:
+            self.records.allocate(m.seq, os.getpid())
 
     def drain(self) -> None:
         """Pop every FIFO as SIO would, until every set-point has been taken (untimed)."""
@@ -375,6 +382,7 @@ def cost_per_tick(
         motions = make_motions(mode, systems, dt, arena)
         n_arms = sum(len(m.robots) for m in motions)
         tg = TgStandIn(arena, n_arms, dt, ratio)
+        tg.hold(motions)
         try:
             tg.advance(motions[0])  # the stand-in has all _advance uses, or say what is missing
         except AttributeError as exc:
