@@ -40,11 +40,14 @@ TABLE_SIZE: Final = (0.5, 0.24, 0.40)  # x, y, height (its top)
 TABLE_CENTRE_XY: Final = (0.0, -0.38)
 TOOL_RADIUS_M: Final = 0.012  # each arm's tool: a pad, a sphere ending at the tool point
 # The pad is a felt polishing pad, not steel: sliding friction 0.3 on the table, and soft
-# (MuJoCo's contact time constant, s, and damping ratio): about 20 N/mm, critically damped,
-# pressed by a PUMA at the table.  A rigid sphere on the rigid table chattered (lifting off
-# 30 % of the time at 90 Hz, 0-37 N) whenever a soft impedance slid it, whatever the gains.
+# (MuJoCo's contact time constant, s, and damping ratio: critically damped), softest at the
+# first touch and stiffening as it is pressed (MuJoCo's impedance, from 0.3 at the surface to
+# 0.95 two millimetres in), as felt is.  A rigid sphere on the rigid table chattered (lifting
+# off 30 % of the time at 90 Hz, 0-37 N) whenever a soft impedance slid it, whatever the
+# gains; a pad as stiff at the first touch as pressed let a 2 N press lift off.
 PAD_FRICTION: Final = 0.3
-PAD_SOLREF: Final = (0.1, 1.0)
+PAD_SOLREF: Final = (0.05, 1.0)
+PAD_SOLIMP: Final = (0.3, 0.95, 0.002, 0.5, 1.0)
 
 
 def load_pinocchio(

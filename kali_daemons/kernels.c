@@ -1250,21 +1250,23 @@ static const Field CT_FIELDS[] = {
 
 /* the impedance servo's record (servo.armbuiltins.IMPEDANCE_DTYPE; kali_impedance) */
 typedef struct {
-    double k[6], d[6], f[6], integral[6], limit[6];
-    double partner, fi, u[3], kpi, kii, squeeze, gi, kf, kfi, imax, kq, friction;
-    double handover_s, dt, decay;
-    double bias[8]; /* layout.MAX_JOINTS */
+    double k[6], d[6], f[6], integral[6], limit[6], band[6];
+    double partner, fi, u[3], kpi, kii, squeeze, gi, kf, kfi, imax, kq, cband, ctau;
+    double cdecay;
+    double friction, handover_s, dt, decay;
+    double bias[8], drive[8]; /* layout.MAX_JOINTS */
 } ImpRecord;
 
 static const Field IMP_FIELDS[] = {
     FIELD(ImpRecord, k, 'V'), FIELD(ImpRecord, d, 'V'), FIELD(ImpRecord, f, 'V'),
-    FIELD(ImpRecord, integral, 'V'), FIELD(ImpRecord, limit, 'V'),
+    FIELD(ImpRecord, integral, 'V'), FIELD(ImpRecord, limit, 'V'), FIELD(ImpRecord, band, 'V'),
     FIELD(ImpRecord, partner, 'f'), FIELD(ImpRecord, fi, 'f'), FIELD(ImpRecord, u, 'V'),
     FIELD(ImpRecord, kpi, 'f'), FIELD(ImpRecord, kii, 'f'), FIELD(ImpRecord, squeeze, 'f'),
     FIELD(ImpRecord, gi, 'f'), FIELD(ImpRecord, kf, 'f'), FIELD(ImpRecord, kfi, 'f'),
-    FIELD(ImpRecord, imax, 'f'), FIELD(ImpRecord, kq, 'f'), FIELD(ImpRecord, friction, 'f'),
+    FIELD(ImpRecord, imax, 'f'), FIELD(ImpRecord, kq, 'f'), FIELD(ImpRecord, cband, 'f'),
+    FIELD(ImpRecord, ctau, 'f'), FIELD(ImpRecord, cdecay, 'f'), FIELD(ImpRecord, friction, 'f'),
     FIELD(ImpRecord, handover_s, 'f'), FIELD(ImpRecord, dt, 'f'), FIELD(ImpRecord, decay, 'f'),
-    FIELD(ImpRecord, bias, 'V'), END(ImpRecord),
+    FIELD(ImpRecord, bias, 'V'), FIELD(ImpRecord, drive, 'V'), END(ImpRecord),
 };
 
 /* The fields of record 0 (SlotRecord), 1 (PidRecord), 2 (PdRecord), 3 (ImpRecord) or 4
@@ -1546,6 +1548,27 @@ static inline double drive_friction(const ArmArgs *a, int64_t j, double v) {
     return fr;
 }
 
+/* The drive's friction of joint j in the direction the impedance moves it: viscous at the
+ * demand's velocity v, Coulomb at the sign of v plus the joint's drive s (N·m: all but the
+ * damping) over band times its Coulomb level (servo.armbuiltins._friction_toward). */
+static inline double friction_toward(const ArmArgs *a, int64_t j, double v, double s,
+                                     double band) {
+    int64_t n = a->n;
+    const double *J = a->J;
+    double lin = sqrt(J[j] * J[j] + J[n + j] * J[n + j] + J[2 * n + j] * J[2 * n + j]);
+    double ang = sqrt(J[3 * n + j] * J[3 * n + j] + J[4 * n + j] * J[4 * n + j] +
+                      J[5 * n + j] * J[5 * n + j]);
+    double lever = lin + ang * 0.1; /* m: the joint's reach at the tool (0.1 m for turning) */
+    double x = v * a->gear_w[j];
+    double width = band * lever; /* N·m: band N at the tool */
+    if (width > 0.0) x += s / width;
+    double th = tanh(x);
+    double fr = v * a->viscous[j];
+    fr += (th > 0.0 ? th : 0.0) * a->coulomb_pos[j];
+    fr -= (th < 0.0 ? th : 0.0) * a->coulomb_neg[j];
+    return fr;
+}
+
 static inline double clamp(double x, double lim) { return x < -lim ? -lim : (x > lim ? lim : x); }
 
 /* computed torque (thesis 2.2.3): tau = M (qdd_d + kd de + kp e + ki int e) + h
@@ -1642,8 +1665,20 @@ int64_t kali_impedance(ArmArgs *a) {
     } else {
         for (int i = 0; i < 6; i++) imb[i] = 0.0;
     }
+    double w[6]; /* R F (world axes), then with the sensed wrench: what drives the joints */
+    for (int h = 0; h < 6; h += 3)
+        for (int i = 0; i < 3; i++)
+            w[h + i] = p[4 * i] * f[h] + p[4 * i + 1] * f[h + 1] + p[4 * i + 2] * f[h + 2];
+    if (a->has_sensor)
+        for (int i = 0; i < 6; i++) w[i] += a->wrench[i];
+    double drive[8]; /* J^T (R F + w) */
+    for (int64_t j = 0; j < n; j++) {
+        double sum = 0.0;
+        for (int i = 0; i < 6; i++) sum += w[i] * a->J[i * n + j];
+        drive[j] = sum + (d->drive[j] - sum) * d->cdecay; /* low-passed */
+        d->drive[j] = drive[j];
+    }
     for (int i = 0; i < 6; i++) f[i] += edot[i] * d->d[i];
-    double w[6]; /* R F, world axes */
     for (int h = 0; h < 6; h += 3)
         for (int i = 0; i < 3; i++)
             w[h + i] = p[4 * i] * f[h] + p[4 * i + 1] * f[h + 1] + p[4 * i + 2] * f[h + 2];
@@ -1655,13 +1690,18 @@ int64_t kali_impedance(ArmArgs *a) {
         t += mq;
         t += dq[j] * kq;
         t += a->h[j];
-        if (d->friction != 0.0) t += drive_friction(a, j, a->qd_d[j]);
+        if (d->friction != 0.0) t += friction_toward(a, j, a->qd_d[j], drive[j], d->cband);
         t += d->bias[j];
         d->bias[j] *= d->decay;
         a->tau[j] = t;
     }
     double gain = d->kfi * d->dt;
-    for (int i = 0; i < 6; i++) d->integral[i] = clamp(d->integral[i] + imb[i] * gain, d->limit[i]);
+    for (int i = 0; i < 6; i++) {
+        /* held while the imbalance or the damper's force is outside the band */
+        int outside = fabs(imb[i]) > d->band[i] || fabs(edot[i] * d->d[i]) > d->band[i];
+        double step = outside ? 0.0 : imb[i];
+        d->integral[i] = clamp(d->integral[i] + step * gain, d->limit[i]);
+    }
     if (squeezing) d->gi = clamp(d->gi + d->kii * d->dt * (d->fi - d->squeeze), d->imax);
     return 0;
 }

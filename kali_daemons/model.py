@@ -29,6 +29,7 @@ from kali_daemons.cell import (
     GRASP_HEIGHT,
     GRASP_INSET,
     PAD_FRICTION,
+    PAD_SOLIMP,
     PAD_SOLREF,
     STAND_SIZE,
     TABLE_CENTRE_XY,
@@ -391,6 +392,7 @@ def _add_tool(spec: mujoco.MjSpec, robot: RobotConfig) -> None:
         priority=1,  # its friction and softness, not the fixture's, rule its contacts
         friction=[PAD_FRICTION, 0.005, 0.0001],
         solref=list(PAD_SOLREF),
+        solimp=list(PAD_SOLIMP),
         mass=0.0,
         density=0.0,
         rgba=[0.2, 0.2, 0.25, 1.0],

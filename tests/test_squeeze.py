@@ -32,11 +32,6 @@ SET_DOWN_TOLERANCE_N = 5.0
 WINDOW_TICKS = 5
 TICK_TOLERANCE_N = 6.0
 SET_DOWN_SPEED = 0.005  # m/s: the last centimetre onto the stand, gently (5 mm/s)
-# The squeeze is the impedance servo's, whose torque takes no feed-forward; the arms grasp on
-# their joint servos, and welded where the feed-forward puts them (config/force.yaml's ff:
-# full) the joints' friction as the bar turns back across makes 26-28.4 N for 3 ticks (issue
-# 52 item 4 compensates that friction): judged on grasps made without it, as it was tuned
-SQUEEZE_GRASP = {r"^(  - \{name: .*), ff: full\}$": r"\1, ff: off}"}
 
 
 def carry_with_a_squeeze(k: Kali) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -84,7 +79,7 @@ def test_the_squeeze_holds_through_lift_carry_and_set_down(
     where the two arms on their servos' errors alone squeeze 19-66 N (tests/test_tg_carry),
     and 20 ± 5 N (5 ms means) from the lift to after the set-down; the bar went up 8 cm
     (less its sag on the impedance's springs) and came back where it was."""
-    name = kali(lockstep=True, edits=SQUEEZE_GRASP, base="force.yaml")
+    name = kali(lockstep=True, base="force.yaml")
     with calibrated(name, ("left", "right")) as k:
         seen, height, start = carry_with_a_squeeze(k)
         air = seen[height > start[2] + 2e-3]

@@ -16,7 +16,7 @@ rotation at q, x_d, R_d at q_d, the pose error e = (x_d − x, log(R_d Rᵀ)) an
 ė = J (q̇_d − q̇), both turned into tool axes (Rᵀ), each tool axis i gets
 
     F_i = k_i e_i + d_i ė_i + f_i        (f: the force set-point, tool axes)
-    τ = Jᵀ R F + M(q) q̈_d + h(q, q̇) + friction(q̇_d) + k_q (q̇_d − q̇) + bias
+    τ = Jᵀ R F + M(q) q̈_d + h(q, q̇) + friction(q̇_d, s) + k_q (q̇_d − q̇) + bias
 
 so a steady force F on the tool displaces it by F / k on each axis; ``kx`` ... ``krz``
 and ``dx`` ... ``drz`` are set on line (``kalictl servo set ROBOT kz=500``).  ``fz`` presses
@@ -29,6 +29,15 @@ wrench w (what the environment applies) should balance the spring, k e + f + w =
 imbalance is fed back, ``kf`` times it plus its integral (gain ``kfi``, limited to ``imax``),
 added to F.  At rest the imbalance is zero and so are both terms: the displacement is F / k
 however much the joints stick, and a force set-point is held as the sensor measures it.
+The integral advances on an axis only while its imbalance and its damper's force are within
+``iband``: it trims what is left at rest, and is not wound up by a transient.
+
+Friction is compensated where the joints are about to move, not only where the demand moves
+(q̇_d, zero under a push or a force set-point): each joint's drive s = Jᵀ (R F + w) (all but
+the damping, low-passed with ``ctau``) turns its Coulomb term on in its direction over a
+band of ``cband`` N at the tool, as tanh(G q̇_d / ω₀ + s / (cband · reach)): compensated
+only at q̇_d, a pushed arm sticks and slips, and so does a tool sliding in contact; so, the
+joints stop only where the drive is within the band.
 
 Two arms holding one object squeeze it (``MotionSystem.set_internal_force``): each is told
 its ``partner`` (the other's config index + 1), the squeeze ``fi`` and the unit line ``u``
@@ -254,7 +263,13 @@ IMPEDANCE_PARAMS: tuple[Param, ...] = (
     Param("kf", 1.0, "", "force feedback gain on the impedance's imbalance", maximum=50.0),
     Param("kfi", 10.0, "1/s", "its integral gain", maximum=1e4),
     Param("imax", 60.0, "N", "limit of the integral (moments: times 0.1 m)", maximum=FORCE_MAX),
+    Param("iband", 2.0, "N", "the integral advances on an axis only while its imbalance is within "
+          "this (moments: times 0.1 m)", maximum=FORCE_MAX),
     Param("kq", 1.0, "N·m·s/rad", "joint damping of q̇ − q̇_d", maximum=DAMPING_MAX),
+    Param("cband", 0.5, "N", "Coulomb compensation's band: the drive at the tool (N; moments "
+          "N·0.1 m) over which it turns", maximum=FORCE_MAX),
+    Param("ctau", 0.05, "s", "time constant of the drive the Coulomb compensation follows",
+          maximum=10.0),
     FRICTION,
     HANDOVER,
 )  # fmt: skip
@@ -266,6 +281,7 @@ IMPEDANCE_DTYPE = np.dtype(
         ("f", "<f8", (layout.WRENCH,)),  # force set-point, tool axes (moments 0)
         ("integral", "<f8", (layout.WRENCH,)),  # the force feedback's integral, tool axes
         ("limit", "<f8", (layout.WRENCH,)),  # its limit per axis
+        ("band", "<f8", (layout.WRENCH,)),  # it advances only while the imbalance is within
         ("partner", "<f8"),  # the other arm's index + 1, 0: no squeeze
         ("fi", "<f8"),  # the squeeze, N
         ("u", "<f8", (3,)),  # the line towards the partner, tool axes, unit
@@ -277,18 +293,23 @@ IMPEDANCE_DTYPE = np.dtype(
         ("kfi", "<f8"),
         ("imax", "<f8"),
         ("kq", "<f8"),
+        ("cband", "<f8"),
+        ("ctau", "<f8"),
+        ("cdecay", "<f8"),  # exp(-dt / ctau): the drive's low-pass per tick
         ("friction", "<f8"),
         ("handover_s", "<f8"),
         ("dt", "<f8"),
         ("decay", "<f8"),
         ("bias", "<f8", (N,)),
+        ("drive", "<f8", (N,)),  # the drive the Coulomb compensation follows, low-passed, N·m
     ],
     align=True,
 )
 _ARRAYS = {f"{f}{a}": (f, i) for f in "kd" for i, a in enumerate(AXES)}
 _ARRAYS.update({f"f{a}": ("f", i) for i, a in enumerate(AXES[:3])})
 _ARRAYS.update({f"u{a}": ("u", i) for i, a in enumerate(AXES[:3])})
-_SCALARS = ("partner", "fi", "kpi", "kii", "kf", "kfi", "imax", "kq")
+_ARRAYS["iband"] = ("band", 0)  # the force axes' band; the moments' is it times MOMENT_ARM_M
+_SCALARS = ("partner", "fi", "kpi", "kii", "kf", "kfi", "imax", "kq", "cband", "ctau")
 
 
 def _imp_get(d: Any) -> dict[str, float]:
@@ -317,6 +338,9 @@ def _imp_set(d: Any, values: Mapping[str, float]) -> None:
     d["gi"] = min(max(float(d["gi"]), -v["imax"]), v["imax"])
     d["limit"][:3] = v["imax"]
     d["limit"][3:] = v["imax"] * MOMENT_ARM_M
+    d["cdecay"] = math.exp(-float(d["dt"]) / v["ctau"]) if v["ctau"] > 0.0 else 0.0
+    d["band"][:3] = v["iband"]
+    d["band"][3:] = v["iband"] * MOMENT_ARM_M
     np.clip(d["integral"], -d["limit"], d["limit"], out=d["integral"])
     _derive(d, v)
 
@@ -326,6 +350,7 @@ def _imp_init(d: Any, init: Mapping[str, float], dt: float) -> None:
     _common_init(d, v, dt)
     d["integral"] = 0.0
     d["gi"] = 0.0
+    d["drive"] = 0.0
     _imp_set(d, v)
 
 
@@ -355,7 +380,7 @@ def to_tool(v: np.ndarray, rot: np.ndarray, scratch: np.ndarray) -> None:
     np.copyto(v, scratch)
 
 
-def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
+def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray, fresh: bool = False) -> None:
     """The law, with the imbalance k e + f + w (tool axes) left in ``inp.work6[3]``."""
     w, w6 = inp.work, inp.work6
     e, edot, f, imbalance = w6[0], w6[1], w6[2], w6[3]
@@ -388,6 +413,17 @@ def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
         np.add(f, d["integral"], out=f)
     else:
         imbalance.fill(0.0)
+    drive = w[2]  # what moves each joint but the damping: Jᵀ (R F + w)
+    for half in _HALVES:
+        np.matmul(rot, f[half], out=e[half])
+    if inp.has_sensor:
+        np.add(e, inp.wrench, out=e)
+    np.matmul(e, inp.J, out=drive)
+    if not fresh:  # low-passed: s + (previous - s) * cdecay
+        lag = w[1]
+        np.subtract(d["drive"][: inp.n], drive, out=lag)
+        np.multiply(lag, float(d["cdecay"]), out=lag)
+        np.add(drive, lag, out=drive)
     np.multiply(edot, d["d"], out=e)
     np.add(f, e, out=f)
     for half in _HALVES:
@@ -397,7 +433,43 @@ def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray) -> None:
     np.add(tau, w[1], out=tau)
     np.multiply(dq, float(d["kq"]), out=dq)
     np.add(tau, dq, out=tau)
-    _model_terms(d, inp, tau)
+    np.add(tau, inp.h, out=tau)
+    if d["friction"]:
+        _friction_toward(inp, drive, float(d["cband"]), w[1])
+        np.add(tau, w[1], out=tau)
+
+
+def _friction_toward(inp: ArmInput, drive: np.ndarray, band: float, out: np.ndarray) -> None:
+    """The drive's friction (``DriveFriction``) into ``out``: viscous at q̇_d, Coulomb at the
+    sign of q̇_d (the drive's own smoothing) plus ``drive`` over ``band`` N at the tool."""
+    coefficients = getattr(inp.friction, "coefficients", None)
+    if coefficients is None:
+        out.fill(0.0)
+        return
+    viscous, gear_w, pos, neg = coefficients()
+    jac = inp.J
+    for j in range(inp.n):
+        v = float(inp.qd_d[j])
+        lin = math.sqrt(
+            float(jac[0, j]) * float(jac[0, j])
+            + float(jac[1, j]) * float(jac[1, j])
+            + float(jac[2, j]) * float(jac[2, j])
+        )
+        ang = math.sqrt(
+            float(jac[3, j]) * float(jac[3, j])
+            + float(jac[4, j]) * float(jac[4, j])
+            + float(jac[5, j]) * float(jac[5, j])
+        )
+        lever = lin + ang * MOMENT_ARM_M
+        x = v * float(gear_w[j])
+        width = band * lever
+        if width > 0.0:
+            x += float(drive[j]) / width
+        th = math.tanh(x)
+        fr = v * float(viscous[j])
+        fr += (th if th > 0.0 else 0.0) * float(pos[j])
+        fr -= (th if th < 0.0 else 0.0) * float(neg[j])
+        out[j] = fr
 
 
 def _squeezing(d: Any, inp: ArmInput) -> bool:
@@ -407,11 +479,24 @@ def _squeezing(d: Any, inp: ArmInput) -> bool:
     return partner > 0 and inp.has_sensor and partner <= len(inp.wrenches)
 
 
+def _imp_handover(d: Any, inp: ArmInput, tau_prev: np.ndarray) -> None:
+    """The hand-over bias, and the drive's low-pass started at this tick's drive."""
+    first = inp.work[3]
+    _imp_core(d, inp, first, fresh=True)
+    np.subtract(tau_prev, first, out=d["bias"][: inp.n])
+    np.copyto(d["drive"][: inp.n], inp.work[2])
+
+
 def _imp_step(d: Any, inp: ArmInput, tau: np.ndarray) -> int:
     _imp_core(d, inp, tau)
+    np.copyto(d["drive"][: inp.n], inp.work[2])
     _bias_out(d, inp, tau)
     integral = d["integral"]
     imbalance = inp.work6[3]
+    damping = inp.work6[2]  # the damper's force: the arm moving against its demand
+    np.multiply(inp.work6[1], d["d"], out=damping)
+    outside = (np.abs(imbalance) > d["band"]) | (np.abs(damping) > d["band"])
+    np.copyto(imbalance, 0.0, where=outside)
     np.multiply(imbalance, float(d["kfi"]) * float(d["dt"]), out=imbalance)
     np.add(integral, imbalance, out=integral)
     np.clip(integral, -d["limit"], d["limit"], out=integral)
@@ -430,7 +515,7 @@ IMPEDANCE = ArmServoAlgorithm(
     params=tuple(p.name for p in IMPEDANCE_PARAMS),
     init=_imp_init,
     step=_imp_step,
-    handover=_handover(_imp_core),
+    handover=_imp_handover,
     set_params=_imp_set,
     get_params=_imp_get,
     doc="Cartesian impedance about the tool point: stiffness, damping, force per tool axis",
