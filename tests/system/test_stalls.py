@@ -1,0 +1,180 @@
+"""The machine's stalls against a broken process (issue 58, DESIGN 10 item 6), in real time
+(timing is the point): a cell holding both arms at rest rides out 30 ms in which the machine
+ran none of it, or ran nothing on SIO's CPU (the host's stall of one vCPU, played here by a
+SCHED_FIFO 99 spinner bound to it), with no fault and the arms where they were; SIO stopped
+alone as long still halts, the boards' watchdogs cutting the amplifiers.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+from kali_daemons import layout
+from kali_daemons.client import Kali
+from kali_daemons.instance import Instance
+from kali_daemons.layout import POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED, ProcState
+from kali_daemons.stalls import ClockWitness, TaskClock
+
+from ..conftest import wait_for
+from ..test_wallclock import on_time
+
+STALL_S = 0.030
+# after ready() the joints' integrators still break their stiction for a few seconds: a joint
+# creeps by up to 2.5 counts until then, under 0.05 a second after
+SETTLE_S = 4.0
+# a process of the highest real-time priority spinning on one CPU for a while: what the host
+# does to a vCPU it takes, as every process bound to that CPU sees it
+SPINNER = """
+import os, sys, time
+os.sched_setaffinity(0, {int(sys.argv[1])})
+os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(99))
+end = time.monotonic() + float(sys.argv[2])
+while time.monotonic() < end:
+    pass
+"""
+
+
+def kali_pids(inst: Instance) -> list[int]:
+    """Every Kali process of the instance, the plant and the clock included."""
+    procs = inst.procs
+    return [int(p["pid"]) for p in procs if p["state"] != ProcState.FREE and p["pid"] > 0]
+
+
+@contextmanager
+def holding(kali: Callable[..., str]) -> Iterator[tuple[Instance, Callable[[], np.ndarray]]]:
+    """A real-time cell, both arms powered, calibrated and held at rest; with a reader of
+    the plant's true joint angles in encoder counts."""
+    name = kali(lockstep=False)
+    with Kali(name) as k:
+        k.ready()
+        inst = k.inst
+        truth = inst.arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, 12)
+        per_count = np.concatenate([r.type.drive.rad_per_count for r in inst.config.robots])
+        time.sleep(SETTLE_S)
+        yield inst, lambda: truth["q"] / per_count
+
+
+def test_a_stall_of_the_whole_machine_is_ridden_out(kali: Callable[..., str]) -> None:
+    """Every Kali process and the plant stopped together for 30 ms, then continued: no
+    fault, the arms within an encoder count of where they were."""
+    with holding(kali) as (inst, counts):
+        before = counts()
+        pids = kali_pids(inst)
+        with on_time():
+            for pid in pids:
+                os.kill(pid, signal.SIGSTOP)
+            time.sleep(STALL_S)
+            for pid in pids:
+                os.kill(pid, signal.SIGCONT)
+        time.sleep(0.5)
+        assert inst.fault_text() is None
+        assert np.abs(counts() - before).max() <= 1.0, counts() - before
+
+
+def test_stalls_of_sios_cpu_are_ridden_out(kali: Callable[..., str]) -> None:
+    """The machine runs nothing on SIO's CPU (the clock's, SIO's, sv.0's) for 30 ms, then for
+    60 ms a second later, while the plant runs on the other: no fault (before: the simulated
+    boards' 20 ms watchdogs tripped, counting the time against SIO, and the soak halted with
+    POWER; or a serious process watching the clock saw it stand 20 ms and halted), the
+    watchdogs never tripped, the arms within an encoder count of where they were."""
+    with holding(kali) as (inst, counts):
+        cpu = inst.config.process("sio").cpu
+        assert cpu is not None and cpu == inst.config.process("wallclock").cpu
+        before = counts()
+        for stall_s in (STALL_S, 2 * STALL_S):
+            skipped = int(inst.clock["skipped_ticks"])
+            subprocess.run([sys.executable, "-c", SPINNER, str(cpu), str(stall_s)], check=True)
+            time.sleep(1.0)
+            bit = int(inst.clock["skipped_ticks"]) - skipped
+            assert bit >= 1e3 * stall_s * 0.8, f"the stall did not bite: {bit} ticks skipped"
+            assert inst.fault_text() is None
+            assert not (inst.boards()["power"] & POWER_WATCHDOG_TRIPPED).any()
+        assert np.abs(counts() - before).max() <= 1.0, counts() - before
+
+
+def test_sio_stopped_alone_as_long_still_halts_by_the_watchdog(kali: Callable[..., str]) -> None:
+    """SIO alone stopped for the same 30 ms: the watchdogs trip (nobody retriggers them while
+    the machine runs) and the system halts naming SIO."""
+    with holding(kali) as (inst, _counts):
+        pid = int(inst.procs[inst.slot_of("sio")]["pid"])
+        with on_time():
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(STALL_S)
+            os.kill(pid, signal.SIGCONT)
+        wait_for(lambda: inst.read_fault().active, 2.0, "a halt")
+        assert inst.read_fault().process == "sio", inst.fault_text()
+        boards = inst.boards()
+        assert (boards["power"] & POWER_WATCHDOG_TRIPPED).all() or not (
+            boards["power"] & POWER_AMPS_ON
+        ).any()
+
+
+def test_a_task_clock_tells_running_asleep_stopped_and_dead() -> None:
+    """``TaskClock``: a process asleep is alive and gains no CPU time; one spinning gains it;
+    a stopped or dead one reads -1."""
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)
+        asleep, running = TaskClock(sleeper.pid), TaskClock(spinner.pid)
+        a0, r0 = asleep.ran_ns(), running.ran_ns()
+        time.sleep(0.1)
+        assert 0 <= asleep.ran_ns() - a0 < 1_000_000
+        assert running.ran_ns() - r0 > 10_000_000
+        os.kill(sleeper.pid, signal.SIGSTOP)
+        wait_for(lambda: asleep.ran_ns() == -1, 1.0, "seen stopped")
+        os.kill(sleeper.pid, signal.SIGCONT)
+        wait_for(lambda: asleep.ran_ns() >= 0, 1.0, "seen running again")
+        spinner.kill()
+        spinner.wait()
+        assert running.ran_ns() == -1
+        asleep.close()
+        running.close()
+    finally:
+        for p in (sleeper, spinner):
+            p.kill()
+            p.wait()
+
+
+def test_the_witness_sees_a_clock_held_not_one_stopped(kali: Callable[..., str]) -> None:
+    """``ClockWitness``: a running clock is not held; one the machine keeps off its CPU (the
+    spinner) is, while the stall lasts; one stopped (SIGSTOP) is not."""
+    name = kali(lockstep=False)
+    with Instance.attach(name) as inst:
+        witness = ClockWitness(inst)
+        try:
+            assert not witness.held(time.monotonic_ns())
+            cpu = inst.config.process("wallclock").cpu
+            assert cpu is not None
+            mine = os.sched_getaffinity(0)
+            os.sched_setaffinity(0, {c for c in mine if c != cpu} or mine)  # look from beside
+            try:
+                spin = subprocess.Popen([sys.executable, "-c", SPINNER, str(cpu), "0.05"])
+                seen = []
+                deadline = time.monotonic() + 3.0
+                while spin.poll() is None and time.monotonic() < deadline:
+                    seen.append(witness.held(time.monotonic_ns()))
+                    time.sleep(0.002)
+                spin.wait()
+            finally:
+                os.sched_setaffinity(0, mine)
+            assert any(seen), "the spinner's stall was not seen"
+            time.sleep(0.05)
+            assert not witness.held(time.monotonic_ns())
+            pid = int(inst.clock["pid"])
+            with on_time():
+                os.kill(pid, signal.SIGSTOP)
+                time.sleep(0.01)
+                stopped = witness.held(time.monotonic_ns())
+                os.kill(pid, signal.SIGCONT)
+            assert not stopped
+        finally:
+            witness.close()
