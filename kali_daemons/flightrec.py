@@ -1,10 +1,10 @@
 """The flight recorder: the last seconds of every servo tick, dumped to a file on every halt.
 
 SIO writes one row per servo tick into a ring in the arena (``layout.KEY_FLIGHT_RING``):
-positions, demands, the servo, feed-forward and sent torques, motor currents, each arm's
-wrist wrench, and its own timing.  When the system halts (DESIGN 7) the wall clock, once it
-has stopped, copies the ring in chronological order to
-``flight-<instance>-<time>-tick<T>.npz`` in the instance's log directory, once per fault, and
+positions and velocities, demands and their velocities, the servo, feed-forward and sent
+torques, motor currents, each arm's wrist wrench, and its own timing.  When the system
+halts (DESIGN 7) the wall clock, once it has stopped, copies the ring in chronological order
+to ``flight-<instance>-<time>-tick<T>.npz`` in the instance's log directory, once per fault, and
 names the file in the ring's header, so ``kalictl status`` shows it and ``kalictl flight``
 summarises what led to the halt.
 
@@ -34,10 +34,10 @@ from .spinlock import pid_alive
 
 # of the dump files; 2 added ``n_joints`` (arms of different joint counts, NaN-padded), 3
 # ``wrench`` (each arm's wrist sensor, NaN for an arm without one), 4 ``shadow_torque`` (a
-# shadow trial's torque, never applied: NaN where none ran); formats 1 (every arm 6 joints),
-# 2 and 3 still load
-FORMAT_VERSION = 4
-READABLE_FORMATS = (1, 2, 3, 4)
+# shadow trial's torque, never applied: NaN where none ran), 5 ``qd`` and ``demand_qd`` (the
+# velocities); the earlier formats still load
+FORMAT_VERSION = 5
+READABLE_FORMATS = (1, 2, 3, 4, 5)
 log = logging.getLogger("kali.flight")
 SIO_IDLE_TIMEOUT_S = 1.0  # how long the dumper waits for SIO to finish a tick in progress
 # kali_flight_row's offsets (FlightArgs ``off_<name>``) of the row's timing and last fields
@@ -119,7 +119,9 @@ class FlightRecorder:
     def bind(
         self,
         q: np.ndarray,
+        qd: np.ndarray,
         demand: np.ndarray,
+        demand_qd: np.ndarray,
         servo_torque: np.ndarray,
         ff_torque: np.ndarray,
         torque: np.ndarray,
@@ -130,7 +132,7 @@ class FlightRecorder:
         """Outside the cycle: the arrays (flat over all joints, ``joints.JointMap`` order)
         every row copies, and ``wrench`` (robots × 6, e.g. ``FT_STATE['tool']``; None: no
         sensors, zeros recorded); they must stay the same objects, updated in place."""
-        src = (q, demand, servo_torque, ff_torque, torque, current, shadow_torque)
+        src = (q, qd, demand, demand_qd, servo_torque, ff_torque, torque, current, shadow_torque)
         for name, a in zip(layout.FLIGHT_FIELDS, src, strict=True):
             if a.shape != (self.n_joints,):
                 raise ArenaError(
@@ -219,15 +221,8 @@ class FlightRecorder:
         self._late[r] = t_read_ns - self._release[0]
         self._wait[r] = wait_ns
         self._ran[r] = ran_ns
-        q, demand, servo, ff, torque, current, shadow = self._dst
-        sq, sdemand, sservo, sff, storque, scurrent, sshadow = self._src
-        q[r] = sq
-        demand[r] = sdemand
-        servo[r] = sservo
-        ff[r] = sff
-        torque[r] = storque
-        current[r] = scurrent
-        shadow[r] = sshadow
+        for dst, src in zip(self._dst, self._src, strict=True):  # layout.FLIGHT_FIELDS
+            dst[r] = src
         self._wrench[r] = self._src_wrench
         self._count[0] = n + 1
 

@@ -1194,7 +1194,10 @@ KEY_FLIGHT = "flight"  # FLIGHT header
 KEY_FLIGHT_RING = "flight.ring"  # flight_row(n_joints, n_robots) × FLIGHT header ``rows``
 FLIGHT_SECONDS = 2.0  # servo time the ring holds
 FLIGHT_PATH_BYTES = 256
-FLIGHT_FIELDS = ("q", "demand", "servo_torque", "ff_torque", "torque", "current", "shadow_torque")
+FLIGHT_FIELDS = (
+    "q", "qd", "demand", "demand_qd", "servo_torque", "ff_torque", "torque", "current",
+    "shadow_torque",
+)  # fmt: skip
 
 
 def flight_rows(servo_period_ns: int) -> int:
@@ -1215,7 +1218,9 @@ def flight_row(n_joints: int, n_robots: int) -> np.dtype:
             ("wait_ns", "<i8"),  # of latency_ns, SIO asleep for the servos: feeds to done
             ("ran_ns", "<i8"),  # SIO's CPU time from the read to the write (rt.thread_time_ns)
             ("q", "<f8", n),  # measured joint angles, rad
+            ("qd", "<f8", n),  # their velocity from the encoders, rad/s
             ("demand", "<f8", n),  # interpolated set-points, rad
+            ("demand_qd", "<f8", n),  # the set-points' velocity, rad/s
             ("servo_torque", "<f8", n),  # what the servos asked for, N·m
             ("ff_torque", "<f8", n),  # feed-forward added, N·m
             ("torque", "<f8", n),  # torque sent (after the current clamp), N·m

@@ -37,6 +37,7 @@ import numpy as np
 
 from .. import errors
 from ..client import motion
+from ..client.state import ArmState
 from ..config import USER_RE
 from ..errors import KaliError
 from ..layout import CalibState, FfMode, FfState, PowerState, RequestState
@@ -160,6 +161,7 @@ METHODS: dict[str, frozenset[str]] = {
     "Robot": frozenset(
         {
             "read_joints",
+            "read_state",
             "read_t6",
             "read_pose",
             "grip",
@@ -237,7 +239,7 @@ ERRORS: dict[str, type[Exception]] = {
 ENUMS: dict[str, type[enum.IntEnum]] = {
     e.__name__: e for e in (RequestState, PowerState, CalibState, FfMode, FfState)
 }
-DATACLASSES: dict[str, type] = {"Contact": motion.Contact, "Trial": Trial}
+DATACLASSES: dict[str, type] = {"Contact": motion.Contact, "Trial": Trial, "ArmState": ArmState}
 
 
 def encode(value: Any, register: Callable[[object], dict[str, Any]] | None = None) -> Any:

@@ -70,6 +70,7 @@ from ..wallclock import step_kali_clock
 from . import periodic, remote, streams
 from .periodic import Control
 from .remote import RemoteKali
+from .state import ArmState, StateReader
 from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
 from .together import Together
 
@@ -436,6 +437,12 @@ class Robot:
     def read_joints(self) -> np.ndarray:
         """The measured joint angles (rad, one per joint of its type), a copy."""
         return self.kali.servo.level.joints["q"][self.span].copy()
+
+    def read_state(self) -> ArmState:
+        """The arm at the last servo tick SIO finished, every value of that one tick: joints,
+        velocities, demand, torques, currents, wrench; with its power, calibration and
+        servos as they stand (``client.state.ArmState``)."""
+        return self.kali.state_reader().read(self.index)
 
     def read_t6(self, demand: bool = False) -> np.ndarray:
         """T6: the flange in the robot's base frame (4×4, thesis 3.3.1), by Pinocchio's
@@ -1100,6 +1107,7 @@ class Kali:
         self.held_frames: dict[int, SharedTransform] = {}  # the shared transforms it writes
         self.held_functions: dict[int, TgFunctionHandle] = {}  # the TG functions it set up
         self._functions: FunctionRegistry | None = None  # loaded on first use
+        self._state_reader: StateReader | None = None  # made at the first read_state
         self.grouping: Together | None = None  # a together() block being written
         self.tg_dt = self.inst.config.clock.tg_period_ms / 1000.0
         self._pin: dict[str, tuple] = {}  # per robot type: Pinocchio model, data, flange frame
@@ -1326,6 +1334,12 @@ class Kali:
         is empty), so a new request's start is where they are now."""
         busy = self.tg_robots["busy_seq"]
         return all(int(busy[k]) == 0 for k in robots) and len(self.queue) == 0
+
+    def state_reader(self) -> StateReader:
+        """The reader of the arms' states (``Robot.read_state``), made at the first read."""
+        if self._state_reader is None:
+            self._state_reader = StateReader(self)
+        return self._state_reader
 
     def start_point(self, k: int) -> np.ndarray:
         """Where robot ``k``'s next motion starts when it is idle: the TG's last set-point

@@ -288,7 +288,9 @@ class ServoIO(Daemon):
         self.flight = FlightRecorder(inst, n, create=True, slot=self.slot)  # DESIGN 7
         self.flight.bind(
             self.q,
+            self.qd,
             self.demand,
+            self.demand_vel,
             self.servo_torque,
             self.ff,
             self.torque,

@@ -1,0 +1,83 @@
+"""An arm's state, read publicly (issue 55 item 1): ``Robot.read_state`` is one servo tick's
+snapshot, every value of that tick, and a remote program reads the same through the bridge."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from kali_daemons import layout
+from kali_daemons.client import Kali
+from kali_daemons.client.state import ArmState
+from kali_daemons.layout import PowerState
+from kali_daemons.wallclock import step_kali_clock
+
+from .test_bridge import bridged  # noqa: F401  (the fixture)
+
+JOINT_FIELDS = {  # ArmState's array: SIO's published joint record field, the same tick
+    "q": "q", "qd": "qd", "q_d": "demand", "servo_torque": "servo_torque",
+    "ff_torque": "ff_torque", "torque": "torque", "current": "current",
+}  # fmt: skip
+
+
+def test_read_state_is_one_servo_tick_of_a_moving_arm(kali: Callable[..., str]) -> None:
+    """Tick by tick through a joint move in lockstep (SIO idle between steps, so its joint
+    records hold the same tick): every array equals SIO's own, the demand's velocity is the
+    demand's rate of change, the wrench is the sensor's, time advances a servo period a tick;
+    power, calibration and the servos are as they stand."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready()
+        left = k.robot("left")
+        joints, slots = k.servo.level.joints, k.servo.level.slots
+        span = k.inst.config.joints.span(0)
+        period_s = k.inst.config.clock.servo_period_ms / 1e3
+        move = left.move_joints(left.read_joints() + 0.2, wait=False)
+        states: list[ArmState] = []
+        while not move.done:
+            step_kali_clock(k.inst, 1)
+            s = left.read_state()
+            states.append(s)
+            assert s.tick == int(k.inst.clock["tick"]) - 1
+            for field, column in JOINT_FIELDS.items():
+                np.testing.assert_array_equal(getattr(s, field), joints[column][span], field)
+            np.testing.assert_array_equal(s.qd_d, slots["demand_vel"][span])
+            np.testing.assert_array_equal(s.wrench, left.read_wrench("tool"))
+        assert len(states) > 500
+        ticks = np.array([s.tick for s in states])
+        assert (np.diff(ticks) == 1).all()
+        times = np.array([s.time_s for s in states])
+        np.testing.assert_allclose(np.diff(times), period_s)
+        q_d = np.array([s.q_d for s in states])
+        qd_d = np.array([s.qd_d for s in states])
+        assert np.abs(qd_d).max() > 0.1, "the demand moved"
+        # the velocity the servos are given with the demand (the dynamics process's central
+        # differences at the TG's set-points, interpolated) carries the demand from start to
+        # end, to within those differences' lag
+        moved = q_d[-1] - q_d[0]
+        np.testing.assert_allclose(qd_d.sum(axis=0) * period_s, moved, atol=0.1 * 0.2)
+        qd = np.array([s.qd for s in states])
+        assert np.abs(qd).max() > 0.1, "the arm moved"
+        last = states[-1]
+        assert last.robot == "left" and last.power == PowerState.ON and last.calibrated
+        assert last.servos == tuple(k.servo.active("left", j) for j in range(1, 7))
+        assert len(last.q) == left.n_joints and last.wrench is not None
+
+
+def test_a_remote_program_reads_the_same_state(
+    bridged: Callable[..., tuple[str, str]],  # noqa: F811
+) -> None:
+    """Through the bridge ``read_state`` returns an ``ArmState`` equal, value for value, to
+    what a local program reads at the same tick."""
+    name, endpoint = bridged()
+    with Kali(name) as local, Kali.connect(endpoint, name) as remote:
+        local.ready(["left"])
+        step_kali_clock(local.inst, 50)
+        here = local.robot("left").read_state()
+        there = remote.robot("left").read_state()
+        assert isinstance(there, ArmState)
+        assert there.same(here), (there, here)
+        assert len(here.q) == local.inst.config.robots[0].n_joints
+        assert here.tick == int(local.inst.clock["tick"]) - 1
+        assert layout.FLIGHT_FIELDS[:4] == ("q", "qd", "demand", "demand_qd")
