@@ -1,5 +1,6 @@
 """An arm's state, read publicly (issue 55 item 1): ``Robot.read_state`` is one servo tick's
-snapshot, every value of that tick, and a remote program reads the same through the bridge."""
+snapshot, every value of that tick, ``MotionSystem.read_state`` the object and its arms at one
+tick, and a remote program reads the same through the bridge."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 
 from kali_daemons import layout
 from kali_daemons.client import Kali
-from kali_daemons.client.state import ArmState
+from kali_daemons.client.state import ArmState, ObjectState
 from kali_daemons.layout import PowerState
 from kali_daemons.wallclock import step_kali_clock
 
@@ -78,6 +79,28 @@ def test_a_remote_program_reads_the_same_state(
         there = remote.robot("left").read_state()
         assert isinstance(there, ArmState)
         assert there.same(here), (there, here)
+        mine = local.motion_system(["left", "right"]).read_state()
+        theirs = remote.motion_system(["left", "right"]).read_state()
+        assert isinstance(theirs, ObjectState) and theirs.same(mine), (theirs, mine)
         assert len(here.q) == local.inst.config.robots[0].n_joints
         assert here.tick == int(local.inst.clock["tick"]) - 1
         assert layout.FLIGHT_FIELDS[:4] == ("q", "qd", "demand", "demand_qd")
+
+
+def test_a_motion_system_s_state_is_its_object_and_arms_at_one_tick(
+    kali: Callable[..., str],
+) -> None:
+    """The object's pose from the first arm's measured joints (as ``read_pose`` gives it) and
+    from its demand, and both arms' states, all of one tick."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready()
+        both = k.motion_system(["left", "right"])
+        step_kali_clock(k.inst, 100)
+        s = both.read_state()
+        assert s.robots == ("left", "right") and [a.robot for a in s.arms] == ["left", "right"]
+        assert {a.tick for a in s.arms} == {s.tick} == {int(k.inst.clock["tick"]) - 1}
+        np.testing.assert_allclose(s.pose, both.read_pose(), atol=1e-12)
+        assert np.abs(s.pose - s.pose_d)[:3, 3].max() < 0.002  # held where it is told
+        for a in s.arms:
+            assert a.same(k.robot(a.robot).read_state())

@@ -37,7 +37,7 @@ import numpy as np
 
 from .. import errors
 from ..client import motion
-from ..client.state import ArmState
+from ..client.state import ArmState, ObjectState
 from ..config import USER_RE
 from ..errors import KaliError
 from ..layout import CalibState, FfMode, FfState, PowerState, RequestState
@@ -185,7 +185,7 @@ METHODS: dict[str, frozenset[str]] = {
         }
     ),
     "MotionSystem": frozenset(
-        {"read_pose", "move_line", "move_path", "set_internal_force", "stop", "abort"}
+        {"read_pose", "read_state", "move_line", "move_path", "set_internal_force", "stop", "abort"}
     ),
     "ServoClient": frozenset(
         {
@@ -239,7 +239,9 @@ ERRORS: dict[str, type[Exception]] = {
 ENUMS: dict[str, type[enum.IntEnum]] = {
     e.__name__: e for e in (RequestState, PowerState, CalibState, FfMode, FfState)
 }
-DATACLASSES: dict[str, type] = {"Contact": motion.Contact, "Trial": Trial, "ArmState": ArmState}
+DATACLASSES: dict[str, type] = {
+    "Contact": motion.Contact, "Trial": Trial, "ArmState": ArmState, "ObjectState": ObjectState,
+}  # fmt: skip
 
 
 def encode(value: Any, register: Callable[[object], dict[str, Any]] | None = None) -> Any:

@@ -70,7 +70,7 @@ from ..wallclock import step_kali_clock
 from . import periodic, remote, streams
 from .periodic import Control
 from .remote import RemoteKali
-from .state import ArmState, StateReader
+from .state import ArmState, ObjectState, StateReader
 from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
 from .together import Together
 
@@ -442,7 +442,7 @@ class Robot:
         """The arm at the last servo tick SIO finished, every value of that one tick: joints,
         velocities, demand, torques, currents, wrench; with its power, calibration and
         servos as they stand (``client.state.ArmState``)."""
-        return self.kali.state_reader().read(self.index)
+        return self.kali.state_reader().read([self.index])[0]
 
     def read_t6(self, demand: bool = False) -> np.ndarray:
         """T6: the flange in the robot's base frame (4×4, thesis 3.3.1), by Pinocchio's
@@ -797,6 +797,22 @@ class MotionSystem:
         """The object's pose in the world, from the first arm's measured joints."""
         r = self.robots[0]
         return r.base @ r.read_t6() @ inverse(self.grasps[0])
+
+    def read_state(self) -> ObjectState:
+        """The object and its arms at the last servo tick SIO finished, all of that tick
+        (``client.state.ObjectState``): its pose from the first arm's measured joints and from
+        its demand, and every arm's ``ArmState``."""
+        arms = self.kali.state_reader().read([r.index for r in self.robots])
+        r, first = self.robots[0], arms[0]
+        grasp = inverse(self.grasps[0])  # the first arm's flange to the object
+        return ObjectState(
+            robots=tuple(r.name for r in self.robots),
+            tick=first.tick,
+            time_s=first.time_s,
+            pose=r.base @ self.kali.flange_pose(first.q, r.index) @ grasp,
+            pose_d=r.base @ self.kali.flange_pose(first.q_d, r.index) @ grasp,
+            arms=tuple(arms),
+        )
 
     def move_line(
         self,

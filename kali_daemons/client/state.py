@@ -1,4 +1,5 @@
-"""An arm's state, read publicly: one servo tick's consistent snapshot (``Robot.read_state``).
+"""An arm's state, read publicly: one servo tick's consistent snapshot (``Robot.read_state``,
+``MotionSystem.read_state``).
 
 SIO writes a row of every servo tick into the flight recorder's ring (``flightrec``): the
 measured joints and their velocities, the demand and its velocity, the servo, feed-forward
@@ -10,6 +11,7 @@ on request (power, calibration, which servo runs each joint) as it stands when r
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -81,6 +83,37 @@ class ArmState:
         return True
 
 
+@dataclass(frozen=True, eq=False)
+class ObjectState:
+    """A motion system (arms holding one object) at one servo tick: the object's ``pose``
+    in the world from the first arm's measured joints, ``pose_d`` from its demand (4×4), and
+    every arm's ``ArmState`` of that same tick."""
+
+    robots: tuple[str, ...]
+    tick: int
+    time_s: float
+    pose: np.ndarray
+    pose_d: np.ndarray
+    arms: tuple[ArmState, ...]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "robots", tuple(self.robots))
+        object.__setattr__(self, "pose", np.asarray(self.pose, dtype=np.float64))
+        object.__setattr__(self, "pose_d", np.asarray(self.pose_d, dtype=np.float64))
+        object.__setattr__(self, "arms", tuple(self.arms))
+
+    def same(self, other: ObjectState) -> bool:
+        """Whether ``other`` holds the same values (arrays compared exactly)."""
+        return (
+            self.robots == other.robots
+            and (self.tick, self.time_s) == (other.tick, other.time_s)
+            and np.array_equal(self.pose, other.pose)
+            and np.array_equal(self.pose_d, other.pose_d)
+            and len(self.arms) == len(other.arms)
+            and all(a.same(b) for a, b in zip(self.arms, other.arms, strict=True))
+        )
+
+
 class StateReader:
     """Reads the arms' states from an instance's flight-recorder ring (one per ``Kali``)."""
 
@@ -96,9 +129,9 @@ class StateReader:
         self._clock = inst.clock
         self._has_sensor = [r.ft.sheet is not None for r in inst.config.robots]
 
-    def read(self, index: int) -> ArmState:
-        """Arm ``index``'s state at the last servo tick SIO finished."""
-        kali, h, ring = self._kali, self._header, self._ring
+    def read(self, indices: Sequence[int]) -> list[ArmState]:
+        """Arms ``indices``' states at the last servo tick SIO finished, all of that tick."""
+        h, ring = self._header, self._ring
         rows = int(h["rows"])
         for _ in range(RETRIES):
             count = int(h["count"])
@@ -109,6 +142,13 @@ class StateReader:
                 break
         else:
             raise ServoError("read_state: the flight recorder's ring turned over every read")
+        tick = int(row["tick"])
+        c = self._clock
+        time_s = float(c["time_offset_ms"]) / 1e3 + tick * int(c["base_tick_ns"]) / 1e9
+        return [self._arm(row, k, tick, time_s) for k in indices]
+
+    def _arm(self, row: np.ndarray, index: int, tick: int, time_s: float) -> ArmState:
+        kali = self._kali
         span = kali.inst.config.joints.span(index)
         name = kali.names[index]
         servo = kali.servo
@@ -118,12 +158,10 @@ class StateReader:
             servos = (arm,) * n
         else:
             servos = tuple(servo.active(name, j + 1) for j in range(n))
-        tick = int(row["tick"])
-        c = self._clock
         return ArmState(
             robot=name,
             tick=tick,
-            time_s=float(c["time_offset_ms"]) / 1e3 + tick * int(c["base_tick_ns"]) / 1e9,
+            time_s=time_s,
             **{a: row[f][span] for a, f in ROW_FIELDS.items()},
             wrench=row["wrench"][index].copy() if self._has_sensor[index] else None,
             power=servo.power_state(name),
