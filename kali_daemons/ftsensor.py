@@ -102,7 +102,7 @@ class FtSheet:
         return np.sqrt(np.square(self.noise) + np.square(drift) + np.square(quantum))
 
     def describe(self) -> str:
-        """One line for ``kalictl`` and the README: the ranges and noise."""
+        """One line for ``kalictl`` and the docs: the ranges and noise."""
         parts = [
             f"{a} ±{r:g} {u} (σ {s:g})"
             for a, r, u, s in zip(AXES, self.rated, AXIS_UNITS, self.noise, strict=True)

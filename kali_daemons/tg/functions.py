@@ -347,7 +347,7 @@ class FunctionSlots:
             slot["worst_ns"] = took
         if self.budget_ns and took > self.budget_ns:
             slot["over_budget"] += 1
-            if self.lockstep:  # wall time decides nothing in lockstep (README, Lockstep mode)
+            if self.lockstep:  # wall time decides nothing in lockstep (docs/guide/lockstep.md)
                 return ""
             slot["status"] = FunctionStatus.TOO_LONG
             return (
