@@ -1,4 +1,4 @@
-"""Six-axis wrist force/torque sensors (issue 27): the data sheet, the gauges' ADC bank and the
+"""Six-axis wrist force/torque sensors: the data sheet, the gauges' ADC bank and the
 conversion to Newtons, shared by the plant that plays the sensor and SIO that reads it.
 
 A strain-gauge sensor of the ATI/JR3 class carries six gauge bridges; their amplified voltages

@@ -4,12 +4,10 @@ as one gang).
 The SV that finishes a tick's last servo posts SIO's done semaphore, and SIO, above it on the
 same CPU, preempts it at once to write the DACs: the SV's own acknowledgement waits behind
 SIO's output.  On a tick SIO finishes just in time the clock would count that SV late though
-its servos were long done (three such misses in a 30-minute soak, SIO on time in each).  So
-once every fed servo is done, SIO acknowledges the tick for the SVs it can vouch for, before
-its own; what is left of their cycle is bookkeeping.  For the SV on its CPU to take its feed
-before that, SIO sleeps on the done semaphore right after feeding (computing feed-forward
-first, sv.1 on the other CPU ran every servo while sv.0 waited, and sv.0, never fed in time,
-missed alone in two soaks with SIO on time).
+its servos were long done.  So once every fed servo is done, SIO acknowledges the tick for
+the SVs it can vouch for, before its own; what is left of their cycle is bookkeeping.  For
+the SV on its CPU to take its feed before that, SIO sleeps on the done semaphore right after
+feeding (docs/decisions/0008-sio-acknowledges-for-the-svs.md).
 
 Whom it vouches for:
 

@@ -5,8 +5,8 @@ SIO or not at all, ``wallclock.clock.gang_state``), then waits on its feed semap
 SIO has fed the slots of that tick (``_await_feed``), then claims and runs its work
 (``serve``, which an in-process executive may call directly).  Work comes in three kinds:
 
-- robots fed whole (``arm.ArmRunner``): a robot that runs a robot-level servo (issue 27,
-  thesis 3.3.4's Cartesian servo mode) or has a robot-level mailbox operation pending, claimed
+- robots fed whole (``arm.ArmRunner``): a robot that runs a robot-level servo (thesis
+  3.3.4's Cartesian servo mode) or has a robot-level mailbox operation pending, claimed
   by test-and-set of its first slot's ``busy`` (ARM_FREE → the SV's number) and run as one
   unit: the model at this tick's angles and one step for every joint;
 

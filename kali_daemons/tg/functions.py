@@ -1,4 +1,4 @@
-"""TG functions (issue 28; thesis 3.2.3: a position equation's transforms may be "objects and
+"""TG functions (thesis 3.2.3: a position equation's transforms may be "objects and
 functions"): a transform the trajectory generator computes every tick, inside its cycle, from
 the time, the cell's sensors and its own private data in the arena.
 
