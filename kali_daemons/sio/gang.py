@@ -13,16 +13,16 @@ Whom it vouches for:
 
 - an SV that took this tick's feed (``sv_fed_tick``, written before it claims any slot);
 - an SV on SIO's own CPU that took the previous tick's feed.  Below SIO's priority it runs
-  only while SIO sleeps on the done semaphore, right after feeding: a few µs of context switch
-  before it takes the feed, in which the SV on the other CPU, polling, may run every servo
-  (with the compiled units, two arms' in ~10 µs; or while SIO's vCPU pauses after a wake-up
-  IPI, config/default.yaml).  Its lateness is then SIO's CPU, not its own, and it was on time
-  a tick ago.  SIO notes the tick it vouched for such an SV (its slot's ``vouched_tick``), and
-  the clock, at the next tick, looks whether that SV is alive (``WallClock._died``, after the
-  tick's signals, as for one that missed): a dead one halts with PROCESS_DIED as soon as if it
-  had missed, within the two servo periods of the fault matrix.  A stalled one is not
-  acknowledged the tick after, so the clock names it one tick later, within the serious
-  tolerance.
+  only while SIO sleeps on the done semaphore, right after feeding: a few µs of context
+  switch before it takes the feed, in which the SV on the other CPU, polling, may run every
+  servo (with the compiled units, two arms' in ~10 µs; or while SIO's vCPU pauses after a
+  wake-up IPI, docs/decisions/0002-sv-polling-and-resting.md).  Its lateness is then SIO's
+  CPU, not its own, and it was on time a tick ago.  SIO notes the tick it vouched for such an
+  SV (its slot's ``vouched_tick``), and the clock, at the next tick, looks whether that SV is
+  alive (``WallClock._died``, after the tick's signals, as for one that missed): a dead one
+  halts with PROCESS_DIED as soon as if it had missed, within the two servo periods of the
+  fault matrix.  A stalled one is not acknowledged the tick after, so the clock names it one
+  tick later, within the serious tolerance.
 
 An SV on another CPU that has not taken its feed is never vouched for: it has a CPU of its
 own, and its lateness is its own (a stalled or dead one misses, and the clock names it).

@@ -387,7 +387,7 @@ class ServoWorker(Daemon):
         for the clock's signal: ``Daemon._clock_driven_loop``, ``_learn_feed``), so SIO's post
         wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and after now and then
         one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's CPU time counting
-        on: ``config/default.yaml`` gives the kernel trace.
+        on (docs/decisions/0002-sv-polling-and-resting.md).
         """
         now = rt.monotonic_ns()
         end, poll_end = now + int(self.feed_timeout_s * 1e9), now + self.poll_ns
