@@ -34,8 +34,9 @@ sharing, else to when the SV on SIO's CPU has run them all (learnt over the last
 ``processes.sv.poll_us`` each, so no post has to wake a halted vCPU.  While an SV on SIO's
 CPU runs every servo on its own, such an SV rests: it has the clock signal it only every
 ``processes.sv.rest_ms`` (``Daemon._set_period``), and is back to every tick once the servos
-are worth sharing again (why, with the measurements: docs/decisions/0002-sv-polling-and-
-resting.md).  Every other wait sleeps (two cores: never spin a CPU without bound).
+are worth sharing again (why, with the measurements:
+docs/decisions/0002-sv-polling-and-resting.md).  Every other wait sleeps (two cores: never
+spin a CPU without bound).
 
 ``cycle`` is compiled (``kali_sv_serve``: the wait for the feed and what a polling SV learns
 from it, the claims, the units, the done count and post, the execution-time record); a robot
