@@ -1,10 +1,9 @@
 """Atomic operations on arena words, through Debian's libatomic (thesis appendix A, 3.6.1).
 
-Measured here with ``scripts/bench_atomic.py``: through ctypes into ``libatomic.so.1`` an
-exchange (test-and-set) costs 0.35 µs, a compare-exchange 0.7 µs and a spinlock
-acquire+release 1.8 µs; the same operations through the ``atomics`` PyPI package cost
-3.9-8 µs.  So libatomic it is.  Only naturally aligned 4- and 8-byte words are used: those are
-lock-free on x86-64 and so atomic across processes sharing the mapping.
+Through ctypes into ``libatomic.so.1``, several times cheaper than the ``atomics`` PyPI
+package (``scripts/bench_atomic.py``; docs/decisions/0005-atomics-through-libatomic.md).
+Only naturally aligned 4- and 8-byte words are used: those are lock-free on x86-64 and so
+atomic across processes sharing the mapping.
 
 Every function takes an absolute address (``Arena.address(offset)``); callers keep offsets
 and convert once.  All operations are sequentially consistent.

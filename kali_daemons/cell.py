@@ -33,7 +33,7 @@ BAR_MASS: Final = 1.5
 # above the bar's axis so that the flange disc (0.035-0.045 m out) just touches the bar top.
 GRASP_HEIGHT: Final = 0.065
 GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
-# Something to touch (issue 27): a rigid table in front of the stand (−y), its top reachable by
+# Something to touch: a rigid table in front of the stand (−y), its top reachable by
 # both arms' tools pointing down (PUMAs at x = ±0.6: configurations run / luf) over
 # x ∈ [−0.2, 0.2], y ∈ [−0.45, −0.3].  Only the tools' pads and the bar touch it.
 TABLE_SIZE: Final = (0.5, 0.24, 0.40)  # x, y, height (its top)

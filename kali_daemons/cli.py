@@ -797,7 +797,7 @@ def types(files: tuple[str, ...]) -> None:
         click.echo(f"{file:<12} {t.n_joints} joints  {t.description} (ROBOT {t.name!r})")
     if not files:
         click.echo(
-            "or a .py file defining ROBOT, your own arm (README: Bring your own arm); "
+            "or a .py file defining ROBOT, your own arm (docs/guide/robot-types.md); "
             "kalictl types FILE checks one"
         )
 

@@ -862,10 +862,9 @@ def freeze_heap() -> None:
     generation, so no later collection walks them.
 
     A daemon allocates after start-up (the TG plans each motion as it comes, a program's
-    function may build objects), so the cyclic collector still runs now and then, and a
-    full (generation 2) collection walks the whole heap: in the TG, 49 ms on this VM,
-    which halted a soak (serious, 30 ms unacknowledged).  Frozen, a full collection walks
-    only what was made since."""
+    function may build objects), so the cyclic collector still runs now and then; a full
+    collection of an unfrozen heap took the TG long enough to halt the cell.  Frozen, a full
+    collection walks only what was made since (docs/decisions/0007-freeze-the-heap.md)."""
     gc.collect()
     gc.freeze()
 

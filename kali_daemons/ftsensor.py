@@ -1,4 +1,4 @@
-"""Six-axis wrist force/torque sensors (issue 27): the data sheet, the gauges' ADC bank and the
+"""Six-axis wrist force/torque sensors: the data sheet, the gauges' ADC bank and the
 conversion to Newtons, shared by the plant that plays the sensor and SIO that reads it.
 
 A strain-gauge sensor of the ATI/JR3 class carries six gauge bridges; their amplified voltages
@@ -102,7 +102,7 @@ class FtSheet:
         return np.sqrt(np.square(self.noise) + np.square(drift) + np.square(quantum))
 
     def describe(self) -> str:
-        """One line for ``kalictl`` and the README: the ranges and noise."""
+        """One line for ``kalictl`` and the docs: the ranges and noise."""
         parts = [
             f"{a} ±{r:g} {u} (σ {s:g})"
             for a, r, u, s in zip(AXES, self.rated, AXIS_UNITS, self.noise, strict=True)

@@ -1,4 +1,4 @@
-"""The cell's joints, numbered flat in config order (issue 25: the joint count is data).
+"""The cell's joints, numbered flat in config order (the joint count is data).
 
 Every per-joint array of the controller holds all arms' joints one after another: SIO's working
 arrays, the servo slots, the per-joint records (``layout.JOINT_STATE``, ``layout.JOINT_TRUTH``) and

@@ -584,8 +584,8 @@ def _start(
 
 # Every daemon computes on its one thread.  numpy's OpenBLAS otherwise starts a worker thread
 # per further CPU at import, SCHED_OTHER on the daemon's CPU, and a BLAS call it shares waits
-# for it while SCHED_FIFO work holds that CPU (a priority inversion): in a soak the TG took
-# 34 ms of wall time for 1.2 ms of CPU in one tick and halted the cell (DEADLINE).
+# for it while SCHED_FIFO work holds that CPU: a priority inversion
+# (docs/decisions/0006-single-threaded-daemons.md).
 SINGLE_THREADED = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 

@@ -530,7 +530,7 @@ SERVO_NAME = np.dtype([("name", "S31"), ("robot_level", "u1")])  # 1: a robot-le
 # private data of one algorithm for every joint of the cell: a block of one record per joint
 # (slot order), so an SV runs a built-in over many joints in one call (servo.vector)
 KEY_SERVO_DATA = "servo.data.{algo}"
-# robot-level servos (issue 27, thesis 3.3.4's Cartesian servo mode): one algorithm's private
+# robot-level servos (thesis 3.3.4's Cartesian servo mode): one algorithm's private
 # data for every robot, a record per robot (config order), and each robot's put/get mailbox
 KEY_ARM_DATA = "servo.arm.{arm}"
 KEY_ARM_STAGING = "servo.arm_staging"  # SERVO_STAGING_BYTES per robot
@@ -583,7 +583,7 @@ NO_SHADOW = -1  # ``SERVO_SLOT.shadow`` and ``ROBOT_STATE.arm_shadow`` before an
 
 
 class ShadowState(enum.IntEnum):
-    """A shadow trial (issue 27 item 6), as the SV runs it: its algorithm and figures stay
+    """A shadow trial, as the SV runs it: its algorithm and figures stay
     readable after it ends, until the next trial on the joint or robot starts."""
 
     NONE = 0  # no trial has run
@@ -630,7 +630,7 @@ ROBOT_STATE = np.dtype(
         # SIO takes a command only while it matches and no fault is active: a halt voids it
         ("cmd_faults", "<u4"),
         ("tick", "<i8"),  # SIO: last servo tick
-        # the robot-level servo (issue 27): the active one, or ARM_NONE for joint servos,
+        # the robot-level servo: the active one, or ARM_NONE for joint servos,
         # and its mailbox, as a slot's (SlotOp; the SV carries it out, op_algo -1 = joints)
         ("arm_algo", "<i4"),  # SV
         ("arm_op", "<u4"),  # clients, written last; the SV clears it when done
@@ -706,7 +706,7 @@ FT_STATE = np.dtype(  # one per robot: its wrist force/torque sensor (ftsensor.p
         ("bias", "<f8", (WRENCH,)),  # SIO: the tare's bias, sensor frame (kept across SIO restarts)
         ("rotation", "<f8", (3, 3)),  # SIO: the sensor frame in the world at the sample
         ("contact_limit", "<f8"),  # clients: contact force beyond this halts, N (0: config's)
-        # a guarded move (issue 27 item 4): the TG arms this arm's guard for a request, SIO
+        # a guarded move: the TG arms this arm's guard for a request, SIO
         # trips it when the contact force reaches guard_n and holds the arm where it is then
         ("guard_state", "<u4"),  # GuardState; TG: IDLE→ARMED, back by CAS; SIO: ARMED→TRIPPED
         ("guard_seq", "<u8"),  # TG: the guarded request
@@ -755,7 +755,7 @@ SERVO_SLOT = np.dtype(
         ("ran_tick", "<i8"),  # SV: last tick the servo ran
         ("exec_ns", "<i8"),  # SV: duration of the last step
         ("sv", "<i4"),  # SV: which worker ran it last
-        # a shadow trial (issue 27 item 6), SV: joint servo ``shadow`` (NO_SHADOW: none yet)
+        # a shadow trial, SV: joint servo ``shadow`` (NO_SHADOW: none yet)
         # stepped after the active one on the same inputs, its torque never applied; its
         # ShadowState, its torque, and of (shadow − active) as the motor would get them (a
         # joint servo's plus the feed-forward) the ticks compared, the sum of squares and the
@@ -1207,7 +1207,7 @@ def flight_rows(servo_period_ns: int) -> int:
 
 def flight_row(n_joints: int, n_robots: int) -> np.dtype:
     """One servo tick in the ring: SIO's flat per-joint arrays (joints.JointMap order) and
-    each robot's wrist wrench (issue 27 item 2; zeros for an arm without a sensor)."""
+    each robot's wrist wrench (zeros for an arm without a sensor)."""
     n = (n_joints,)
     return np.dtype(
         [
@@ -1254,7 +1254,7 @@ FLIGHT = np.dtype(
 
 
 # --------------------------------------------------------------------------------------------
-# The layout itself (issue 25 item 6, after iceoryx): every record of the arena in one
+# The layout itself (after iceoryx): every record of the arena in one
 # declarative list, allocated by ``kalictl start`` before any process starts (then the arena is
 # sealed: a daemon attaches to what is here and cannot add a block), and the layout's version
 # as a digest of every dtype, so a changed record can never keep an old version number.

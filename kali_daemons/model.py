@@ -363,7 +363,7 @@ def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> No
 
 
 def _add_tool(spec: mujoco.MjSpec, robot: RobotConfig) -> None:
-    """The robot's tool on its flange, through a wrist force/torque sensor (issue 27).
+    """The robot's tool on its flange, through a wrist force/torque sensor.
 
     A child body ``<robot>/tool`` at the flange frame with the config's tool mass and centre
     of mass (``FtConfig``), a round pad whose tip is the tool point (``tool_tip_m`` out along

@@ -1,4 +1,4 @@
-"""Schedulability check (issue 26 item 5; ``kalictl check``): from what a running instance
+"""Schedulability check (``kalictl check``): from what a running instance
 measures, predict whether the servo tick still fits its period, with margin, after a change,
 and refuse the change with the numbers before anything moves.  ros2_control and LinuxCNC
 report an overrun after it happened; this says beforehand.
@@ -15,7 +15,7 @@ execution times measured on this machine:
   its acknowledgement count), the mean; every process's CPU time, clocked or not (the wall
   clock, the self-timed plant), loads its CPU, on average over the window and in its busiest
   slice as long as the serious miss tolerance (``cpu_loads``): a CPU 62 % busy on average
-  was full for the 30 ms that starved the TG of a force cell (issue 27), which the mean hides;
+  was full for the 30 ms that starved the TG of a force cell, which the mean hides;
 - a servo algorithm's cost per step: timed here, on a scratch record of its private data
   (``step_cost_us``), since an SV runs a plugin's ``step`` as plain Python.
 

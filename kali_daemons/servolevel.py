@@ -155,7 +155,7 @@ class ServoLevel:
         ]
         self.structs = [[struct_view(rec) for rec in row] for row in self.data]
         self.slot_structs = (SlotStruct * n).from_buffer(self.slots)
-        # robot-level servos (issue 27): algorithm a's record for every robot is one block,
+        # robot-level servos: algorithm a's record for every robot is one block,
         # arm_data[k][a] robot k's record (0-d); each robot's mailbox staging bytes
         nr = self.n_robots
         self.arm_blocks: list[np.ndarray] = [

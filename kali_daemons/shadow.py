@@ -1,4 +1,4 @@
-"""Shadow trials (issue 27 item 6): a servo run beside the active one, never applied.
+"""Shadow trials: a servo run beside the active one, never applied.
 
 A researcher trying a new controller on a moving arm runs it in shadow first: every tick the
 SV steps it on exactly the inputs the active servo just had (demand, measurement, for a

@@ -9,9 +9,9 @@
 #   rt-tests    cyclictest: the machine's own timing floor beside every benchmark
 #   chromium    the dashboard test opens the web viewer headless
 #   openssl     the bridge's TLS test makes its certificates
-# Then a virtual environment .venv with the kali_daemons package and its test extras, and the
-# kernels' library built into kali_daemons/__pycache__ (a process that finds none builds it at
-# start, never inside a cycle).
+# Then a virtual environment .venv with the kali_daemons package and its test and docs extras
+# (MkDocs for docs/), and the kernels' library built into kali_daemons/__pycache__ (a process
+# that finds none builds it at start, never inside a cycle).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 log=setup.log
@@ -51,7 +51,7 @@ fi
 [ -x .venv/bin/python ] || step "a virtual environment in .venv ($python)" "$python" -m venv .venv
 step "pip itself, up to date" .venv/bin/python -m pip install -q --disable-pip-version-check \
   --upgrade pip
-step "the kali_daemons package and its test extras into .venv (pip install -e '.[test]')" \
-  .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test]'
+step "the kali_daemons package, its test and docs extras into .venv (pip install -e '.[test,docs]')" \
+  .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test,docs]'
 step "the compiled kernels (python -m kali_daemons.kernels)" .venv/bin/python -m kali_daemons.kernels
 echo "setup: ready ($(.venv/bin/python --version), kalictl at .venv/bin/kalictl; source .venv/bin/activate to put it on PATH)"

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Set up, lint and run the whole test suite.
+# Set up, lint, build the documentation (warnings fail it) and run the whole test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 .venv/bin/ruff check .
+NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict --quiet  # into site/ (gitignored)
 .venv/bin/python -m pytest -q "$@"

@@ -22,7 +22,7 @@ ABOVE = (-0.15, -0.38, 0.41)  # 1 cm over the table, in the left arm's reach
 GUARD_N = 10.0
 SPEED = 0.01  # m/s
 # the force goes on rising while the arm stops, more the faster it came: with the joint PIDs
-# and the felt pad, 0.8 N at 10 mm/s, 1.6 N at 20, 7.9 N at 50 (README, Guarded moves)
+# and the felt pad, 0.8 N at 10 mm/s, 1.6 N at 20, 7.9 N at 50 (docs/guide/force.md, Guarded moves)
 OVERSHOOT_N = 0.2 * SPEED * 1000
 
 

@@ -1,4 +1,4 @@
-"""The hardware boundary (issue 25 item 2): what SIO asks of the I/O boards, and the one board
+"""The hardware boundary: what SIO asks of the I/O boards, and the one board
 Kali has, the McGill I/O board (thesis appendix C).
 
 SIO is generic: hardware read → FIFO → checks → feed slots → wait → feed-forward → hardware

@@ -70,8 +70,8 @@ class PotReader:
     The board converts on START's rising edge and withdraws DONE when START falls, each at
     its own cycle.  Without the last wait, a board cycle that falls behind SIO's (the plant
     keeps its own time in real-time mode) never sees START fall between two channels: no
-    rising edge, no conversion, and the previous channel's DONE read as this one's.  A soak
-    calibrated a joint 0.8 rad off that way and drove it into its limit.
+    rising edge, no conversion, and the previous channel's DONE read as this one's: a joint
+    calibrated 0.8 rad off that way, and driven into its limit.
     """
 
     def __init__(self, control: np.ndarray, analog: np.ndarray, channels: int) -> None:

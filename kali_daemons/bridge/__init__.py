@@ -1,1 +1,1 @@
-"""The Zenoh bridge (issue 29): remote programs, telemetry and supervision."""
+"""The Zenoh bridge: remote programs, telemetry and supervision."""

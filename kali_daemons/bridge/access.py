@@ -1,4 +1,4 @@
-"""Who may do what on the bridge (issue 29): the Zenoh configs of the bridge and of its clients.
+"""Who may do what on the bridge: the Zenoh configs of the bridge and of its clients.
 
 The bridge's session is a Zenoh **router** that remote programs connect to as **clients**; it
 alone publishes under ``kali/INST/**`` and answers the queries there.  Zenoh's access control

@@ -1,4 +1,4 @@
-"""How the bridge admits requests (issue 51): rate limits per user and kind, and bounded
+"""How the bridge admits requests: rate limits per user and kind, and bounded
 queues per user served in turn.
 
 A request is counted against its user's rate for its kind (``Gates``) on the Zenoh thread

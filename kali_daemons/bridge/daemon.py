@@ -1,4 +1,4 @@
-"""The Zenoh bridge (issue 29, DESIGN 11): remote programs, telemetry and supervision.
+"""The Zenoh bridge (DESIGN 11): remote programs, telemetry and supervision.
 
 Every deadline stays on the controller's machine; the bridge only carries what people around
 the cell need, over Zenoh (the engine ROS 2's ``rmw_zenoh`` and ros2_control's remote I/O

@@ -1,4 +1,4 @@
-"""What the bridge, its session workers and remote programs say to each other (issue 29).
+"""What the bridge, its session workers and remote programs say to each other.
 
 Key expressions of one instance INST (``Keys``): the bridge publishes ``kali/INST/robots/
 ROBOT/state`` (telemetry, Drop QoS), ``kali/INST/timing`` (1 Hz), ``kali/INST/events``

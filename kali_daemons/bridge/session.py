@@ -1,4 +1,4 @@
-"""A remote program's stand-in on the controller's machine (issue 29).
+"""A remote program's stand-in on the controller's machine.
 
     python -m kali_daemons.bridge.session --instance NAME --sid SID --program NAME [--force]
     python -m kali_daemons.bridge.session --instance NAME --helper

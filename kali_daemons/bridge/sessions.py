@@ -1,4 +1,4 @@
-"""Remote programs' sessions and kalictl's verbs, as the bridge carries them out (issue 29).
+"""Remote programs' sessions and kalictl's verbs, as the bridge carries them out.
 
 A session is a worker process (``session.py``) standing in for one remote program: the bridge
 starts it when the program opens the session, hands it the program's calls one at a time and

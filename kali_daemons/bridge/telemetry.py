@@ -1,4 +1,4 @@
-"""What the bridge publishes, read from the arena without locking (issue 29).
+"""What the bridge publishes, read from the arena without locking.
 
 The bridge is a Type 4 reader, like the viewer (thesis 3.3.7): it copies records the servo
 level writes and never takes a lock the servo level or the TG may wait for, so a torn read

@@ -472,8 +472,8 @@ class Robot:
         A motion is DONE once its last set-point is demanded; the arm closes its servo error
         after that, for some ms, longer while a feed-forward row is late.  Wait for it before
         what needs the arm there: a gripper closed on the way welds the object where the arm
-        happens to be, and the arms' servos then fight through it until their next motion
-        (issue 24: a soak halted on a wrist torque so).  MotionError, naming the offset, if
+        happens to be, and the arms' servos then fight through it until their next motion.
+        MotionError, naming the offset, if
         not settled within ``timeout`` s of the clock's time; MotionFailedError at a halt."""
         what = f"settle: robot '{self.name}'"
         limit = _timeout_arg(what, timeout)
@@ -514,7 +514,7 @@ class Robot:
         boards.grip(self.kali.inst.boards(), self.index, close)
 
     def read_wrench(self, frame: str = "world") -> np.ndarray:
-        """The arm's wrist force/torque sensor in Newtons (issue 27; SIO's, this tick), a copy
+        """The arm's wrist force/torque sensor in Newtons (SIO's, this tick), a copy
         of 6 values [Fx, Fy, Fz, Tx, Ty, Tz] (N, N·m).  ``frame``: ``"world"`` (default) or
         ``"tool"`` give the contact wrench, what the environment applies to the tool (its own
         weight removed, low-pass filtered), about the tool point in world or tool axes;
@@ -753,7 +753,7 @@ class Robot:
         """Run servo ``name`` in shadow beside this arm's active servos — a robot-level one,
         or with ``joint`` (1..n) that joint's: stepped every tick on the same inputs, its
         torque compared and never applied; None ends the trial.  ``trials()`` reads the
-        figures; selecting it afterwards goes on from its own state (issue 27 item 6)."""
+        figures; selecting it afterwards goes on from its own state."""
         if joint is None:
             self.kali.servo.shadow_arm(self.name, name)
         else:

@@ -1,4 +1,4 @@
-"""A robot program on another machine, through the instance's Zenoh bridge (issue 29).
+"""A robot program on another machine, through the instance's Zenoh bridge.
 
     from kali_daemons.client import Kali
     with Kali.connect("tcp/cell-pc:7447", "default") as kali:   # or Kali() under

@@ -1,4 +1,4 @@
-"""Motion that changes while it runs, from a user program (issue 28; thesis 3.2.3, 2.7).
+"""Motion that changes while it runs, from a user program (thesis 3.2.3, 2.7).
 
     conveyor = kali.shared_transform("conveyor", pose(...), lifetime=0.05)
     h = left.track([conveyor, part, grasp], speed=0.3)   # tool = conveyor · part · grasp

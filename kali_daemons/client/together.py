@@ -1,4 +1,4 @@
-"""Motion systems started together (issue 28 item 4; thesis 3.1: a motion is specified by
+"""Motion systems started together (thesis 3.1: a motion is specified by
 "synchronization, destination, velocity, and force").
 
     with kali.together() as group:

@@ -11,7 +11,7 @@ for every set-point in a robot's TG → SIO FIFO (Type 2) it writes one row
     FfMode.FULL:     τ_i = M(q_i) q̈_i + C(q_i, q̇_i) q̇_i + g(q_i) + friction(q̇_i) + k_v q̇_i
 
 keyed by the set-point's absolute FIFO index (``layout.FEEDFORWARD``), with the demand's
-q̇_i and q̈_i beside it for the robot-level servos (issue 27), which get rows in FULL whatever
+q̇_i and q̈_i beside it for the robot-level servos, which get rows in FULL whatever
 the mode asked for.  SIO interpolates the
 rows of the segment it is on exactly as it interpolates the positions, so feed-forward and
 demand stay aligned however late this process runs; a row that is not there in time, or a
@@ -188,7 +188,7 @@ class Dynamics(Daemon):
         pushed (central differences), a motion's last one's (``rests_at``) at once, with the
         arm at rest there: waiting for SIO to drain the FIFO left the moving row's torques,
         its Coulomb friction among them, on an arm at rest for as long as this process ran
-        late (53 ms in an issue 24 soak, an arm sagging 4 mrad as the grippers closed)."""
+        late (once 53 ms: an arm sagged 4 mrad as the grippers closed)."""
         fifo = self.fifos[k]
         a = self.arms[k]
         head, tail = fifo.indices()

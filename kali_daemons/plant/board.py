@@ -20,7 +20,7 @@ What Kali sees is only the ``layout.IO_BOARD`` record; this class plays the hard
 - **Potentiometers** (joint j's on ADC channel j) through the TLC532A: a conversion starts
   on a rising START bit in the control register and completes with ``ADC_DONE | value`` in
   the analog register; the digital register reads the channels above 2.5 V.
-- **Wrist force/torque sensor** (issue 27): its six strain-gauge bridges on a 16-bit ADC
+- **Wrist force/torque sensor**: its six strain-gauge bridges on a 16-bit ADC
   bank, sampled together on request (``FtBank``, ``kali_daemons.ftsensor``).
 
 All times are the plant's simulated time, so lockstep runs are deterministic.

@@ -120,7 +120,7 @@ class PlantSim:
         self._dac_in = self._joints_in.sibling("kali_plant_dac")
         self._gripper_prev = [0] * n_arms
         self.world_truth = arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
-        # the wrist sensors (issue 27): MuJoCo's force and torque at each arm's sensor site,
+        # the wrist sensors: MuJoCo's force and torque at each arm's sensor site,
         # through its board's gauge ADC bank; pushes on the tools from kalictl push
         self._ft_true = np.zeros((n_arms, 6))
         self._ft_src = [
@@ -133,7 +133,7 @@ class PlantSim:
                 self.regs[k : k + 1].reshape(()),
                 r.ft.sheet,
                 # per robot, not per instance: the same program gives the same readings
-                # under any instance name (lockstep is bit for bit, issue 24)
+                # under any instance name (lockstep is bit for bit)
                 seed=zlib.crc32(f"ft/{r.name}".encode()),
                 dt_s=self.substeps * self.dt,
             )

@@ -1,4 +1,4 @@
-"""Robot types, found by name (issue 25; thesis 3.1, 3.5).
+"""Robot types, found by name (thesis 3.1, 3.5).
 
 ``robot_type("puma560")`` imports ``kali_daemons.robots.puma560`` and returns its ``ROBOT``.
 A type is one package here or, for a researcher's own arm, a module file named in the

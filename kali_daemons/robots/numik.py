@@ -41,7 +41,7 @@ allocates (outside the cycle).
 
 Pinocchio is imported where a model is built, not when this module is: a robot type using it
 (the Panda) is imported by every process that reads the type's facts, and the wall clock,
-SIO and the SVs never build its kinematics (issue 26: they stay without Pinocchio).
+SIO and the SVs never build its kinematics (they stay without Pinocchio).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """What a robot type declares, in one place (thesis 3.1, 3.5: the driver "a set of functions
-entered in a table" per robot type; issue 25).
+entered in a table" per robot type).
 
 A robot type is data plus a few functions, the way Drake and ros2_control describe robots:
 a URDF, a joint count, limits, a drive, kinematics, default servo gains and a calibration

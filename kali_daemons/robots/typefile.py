@@ -1,4 +1,4 @@
-"""A robot type from a module file named in the config (issue 25: bring your own arm).
+"""A robot type from a module file named in the config (bring your own arm).
 
 A researcher's own arm needs no edit to Kali: ``robots[].model`` names a ``.py`` file (the
 config resolves it against its own directory, so every process loads the same file), whose

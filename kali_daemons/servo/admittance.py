@@ -1,4 +1,4 @@
-"""Admittance and hand guiding (issue 27 item 3): robot-level servos that move the arm where
+"""Admittance and hand guiding: robot-level servos that move the arm where
 the sensed wrench pushes it.
 
 A geared arm cannot be pushed by hand: the PUMA's joints stick (25 N·m of Coulomb friction on

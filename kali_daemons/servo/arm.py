@@ -1,4 +1,4 @@
-"""Robot-level servos (issue 27; thesis 3.3.4: a Cartesian servo mode "activated instead of
+"""Robot-level servos (thesis 3.3.4: a Cartesian servo mode "activated instead of
 the joint servo one", 2.2.3: the computed-torque law H(q)u + h): an algorithm that servos a
 whole arm at once.
 

@@ -1,4 +1,4 @@
-"""The built-in robot-level servos (issue 27 item 3; ``arm.py`` for the interface).
+"""The built-in robot-level servos (``arm.py`` for the interface).
 
 **computed_torque** (thesis 2.2.3: τ = H(q) u + h(q, q̇)).  Each tick, with e = q_d − q:
 

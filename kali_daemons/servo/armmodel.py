@@ -1,4 +1,4 @@
-"""The model a robot-level servo sees (issue 27 item 3), refreshed every tick it runs: the
+"""The model a robot-level servo sees, refreshed every tick it runs: the
 arm's mass matrix, nonlinear effects and gravity (Pinocchio, on the model the dynamics
 process's feed-forward uses: rotor inertias and the configured tool included,
 ``cell.load_pinocchio``), the tool point's Jacobian, and the tool point's pose at the

@@ -1,5 +1,5 @@
 """The built-in servos (``builtins.py``: the PID of thesis figure 3.4 and the PD) compiled, to
-run over many joints in one call (issue 26: the servo path near the floor).
+run over many joints in one call (the servo path near the floor).
 
 An algorithm's private data for every joint of the cell is one arena block, one record per
 slot (``layout.KEY_SERVO_DATA``), so a set of joints is a structured array and a row index

@@ -256,7 +256,7 @@ class ServoIO(Daemon):
             )
             for k in range(nr)
         ]
-        # the wrist force/torque sensors, read in Newtons every tick (issue 27, wrench.py)
+        # the wrist force/torque sensors, read in Newtons every tick (wrench.py)
         self.ft_records = inst.arena.record(layout.KEY_FT, layout.FT_STATE, nr)
         boards = inst.boards()
         self._sensors = [
@@ -800,10 +800,10 @@ class ServoIO(Daemon):
     def _checks(self, tick: int) -> bool:
         """Joint range and runaway on powered joints; True when it halted.
 
-        Every joint at once, in one kernel (``kali_checks``; a loop over the joints took
-        ~30 µs of SIO's tick on this VM, the numpy version ~8 µs); only a fault builds a
-        message, in ``_check_fault``.  The client-written limits count only in (0, π] (NaN
-        fails both): a garbage one leaves the last valid limit in force (DESIGN 7)."""
+        Every joint at once, in one kernel (``kali_checks``, docs/internals/kernels.md);
+        only a fault builds a message, in ``_check_fault``.  The client-written limits count
+        only in (0, π] (NaN fails both): a garbage one leaves the last valid limit in force
+        (DESIGN 7)."""
         found = self._check()
         if found == NO_FAULT:
             return False

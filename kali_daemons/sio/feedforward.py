@@ -16,7 +16,7 @@ written once its successor exists) is covered by its neighbour's.
 
 The same rows carry the demand's velocity and acceleration at each set-point (the dynamics
 process's central differences), interpolated alike into ``vel`` and ``acc`` for the servos:
-a robot-level servo (issue 27) needs q̇_d and q̈_d.  They are read whenever feed-forward is
+a robot-level servo needs q̇_d and q̈_d.  They are read whenever feed-forward is
 on or the robot runs a robot-level servo (``arm``: the dynamics process then computes rows
 whatever the mode), and otherwise are zero; a missing row keeps the last good values.
 

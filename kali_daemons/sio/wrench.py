@@ -1,4 +1,4 @@
-"""SIO's wrist force/torque sensors: gauge codes → Newtons (thesis 3.3.3; issue 27).
+"""SIO's wrist force/torque sensors: gauge codes → Newtons (thesis 3.3.3).
 
 3.3.3 gives SIO the sensors: it "gathers sensor information, such as joint position from
 encoders or force readings from force sensors, converts them to standard angles and forces

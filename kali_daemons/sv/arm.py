@@ -1,4 +1,4 @@
-"""An SV's robot-level unit (issue 27 item 3, thesis 3.3.4's Cartesian servo mode): one
+"""An SV's robot-level unit (thesis 3.3.4's Cartesian servo mode): one
 robot fed whole, claimed and run by one SV.
 
 SIO feeds a robot whole while it runs a robot-level servo or has a robot-level mailbox

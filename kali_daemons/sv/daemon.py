@@ -5,8 +5,8 @@ SIO or not at all, ``wallclock.clock.gang_state``), then waits on its feed semap
 SIO has fed the slots of that tick (``_await_feed``), then claims and runs its work
 (``serve``, which an in-process executive may call directly).  Work comes in three kinds:
 
-- robots fed whole (``arm.ArmRunner``): a robot that runs a robot-level servo (issue 27,
-  thesis 3.3.4's Cartesian servo mode) or has a robot-level mailbox operation pending, claimed
+- robots fed whole (``arm.ArmRunner``): a robot that runs a robot-level servo (thesis
+  3.3.4's Cartesian servo mode) or has a robot-level mailbox operation pending, claimed
   by test-and-set of its first slot's ``busy`` (ARM_FREE → the SV's number) and run as one
   unit: the model at this tick's angles and one step for every joint;
 
@@ -31,21 +31,20 @@ An SV bound to another CPU than SIO's (sv.1 by default) is woken by neither post
 sleeps on its own CPU's timer to shortly before SIO's feed is due where the servos are worth
 sharing, else to when the SV on SIO's CPU has run them all (learnt over the last ticks,
 ``_learn_feed``), then polls for the clock's signal and SIO's feed, at most
-``processes.sv.poll_us`` each, so no post has to wake a halted vCPU (a kernel trace
-showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms: config/default.yaml).
-While an SV on SIO's CPU runs every servo on its own, such an SV rests: it has the clock
-signal it only every ``processes.sv.rest_ms`` (``Daemon._set_period``), and is back to every
-tick once the servos are worth sharing again.  Every other wait sleeps (two cores: never
-spin a CPU without bound, DESIGN 10).
+``processes.sv.poll_us`` each, so no post has to wake a halted vCPU.  While an SV on SIO's
+CPU runs every servo on its own, such an SV rests: it has the clock signal it only every
+``processes.sv.rest_ms`` (``Daemon._set_period``), and is back to every tick once the servos
+are worth sharing again (why, with the measurements:
+docs/decisions/0002-sv-polling-and-resting.md).  Every other wait sleeps (two cores: never
+spin a CPU without bound).
 
 ``cycle`` is compiled (``kali_sv_serve``: the wait for the feed and what a polling SV learns
 from it, the claims, the units, the done count and post, the execution-time record); a robot
 fed whole, a unit's non-finite torque and every single slot it hands back to Python
 (``_serve_event``).  ``_await_feed``, ``_learn_feed`` and ``_serve_reference`` are the same
 in Python, its tests' references.  With the base loop's compiled wait (``daemon.ClockWait``)
-an SV's tick is two compiled calls and a few lines of Python: a wake-up of an idle vCPU
-costs ~23 µs of CPU on this VM even in C (cyclictest's own), and sv.1, waking every tick on
-CPU 1, paid ~35 µs more for the interpreter.
+an SV's tick is two compiled calls and a few lines of Python
+(docs/decisions/0001-ctypes-not-numba.md).
 
 A servo that raises, returns a bad status or a non-finite torque halts the system with a
 SERVO fault naming robot, joint and algorithm.
@@ -79,11 +78,10 @@ from . import arm, units
 READY_TIMEOUT_S = 30.0  # how long an SV waits at start for SIO to lay out the slots
 FEED_HISTORY = 16  # ticks over which a polling SV learns when SIO's feed comes
 FEED_MARGIN_NS = 50_000  # it wakes this much before the earliest of them (a timer's lateness)
-# A polling SV shares the servos only where they took long enough in some of those ticks
-# (SIO's feed to every servo done, ``sv_served_max_ns``); else it wakes once they are done,
-# and rests (``processes.sv.rest_ms``).  A single long tick (the host, an interrupt) is past
-# before sharing could help: sharing on one made sv.1 flip to every tick and back ~5 times a
-# second once it rested
+# A polling SV shares the servos only where they took over SHARE_NS (SIO's feed to every
+# servo done, ``sv_served_max_ns``) in SHARE_LOOKS of its last FEED_HISTORY looks, not on a
+# single long tick (docs/decisions/0002-sv-polling-and-resting.md); else it wakes once they
+# are done, and rests
 SHARE_NS = 80_000
 SHARE_LOOKS = 4
 
@@ -390,7 +388,7 @@ class ServoWorker(Daemon):
         for the clock's signal: ``Daemon._clock_driven_loop``, ``_learn_feed``), so SIO's post
         wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and after now and then
         one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's CPU time counting
-        on: ``config/default.yaml`` gives the kernel trace.
+        on (docs/decisions/0002-sv-polling-and-resting.md).
         """
         now = rt.monotonic_ns()
         end, poll_end = now + int(self.feed_timeout_s * 1e9), now + self.poll_ns
@@ -419,28 +417,12 @@ class ServoWorker(Daemon):
         looked (``sv_served_max_ns``, which SIO raises each tick and this takes), and choose
         when to wake from now on (``poll_after_ns``) and how often (``want_ticks``).
 
-        Where the servos took more than ``SHARE_NS`` in ``SHARE_LOOKS`` of the last
-        ``FEED_HISTORY`` looks (while shared, more than half that: shared, they take about
-        half as long), they are worth sharing: wake ``FEED_MARGIN_NS`` before the earliest
-        feed of those looks, so the clock's signal is there and the feed close, and claim
-        servos beside the SV on SIO's CPU.  Otherwise that SV runs them all within
-        ``SHARE_NS`` of the feed on its own (the built-in servos of 12 joints, compiled:
-        ~5 µs): wake once it has, after the latest feed of those looks plus ``SHARE_NS``,
-        and only acknowledge.
-
-        Polling from the due time on, an SV burnt ~0.15 ms a tick on CPU 1 (sv.1 took 24 % of
-        CPU 1, sv.0 7 % of CPU 0 for the same servos), the TG's share of CPU 1 with it (a
-        path's planning tick then took the TG up to 30 ms, past the serious tolerance); waking
-        before the earliest feed, ~0.1 ms a tick for servos sv.0 runs in a few µs, and SIO,
-        woken across vCPUs by sv.1's done post, ~30 µs more than woken by sv.0.
-
-        With nothing to share it rests: signalled every ``rest_ticks`` (``processes.sv.
-        rest_ms``), not every tick, until the servos are worth sharing again (each look
-        sees the longest tick since the last, ``sv_served_max_ns``).  Waking on an idle vCPU
-        costs ~23 µs of CPU here even in C, and sv.1 paid ~32 µs a tick to acknowledge
-        servos sv.0 had run; the clock looks at a resting SV every rest period, so one that
-        dies is found within two of them, and a stalled one within the serious tolerance and
-        two of them."""
+        Worth sharing (over ``SHARE_NS`` in ``SHARE_LOOKS`` of the last ``FEED_HISTORY``
+        looks; half that while shared): wake ``FEED_MARGIN_NS`` before the earliest feed of
+        those looks and claim servos beside the SV on SIO's CPU.  Otherwise wake after the
+        latest feed plus ``SHARE_NS``, only to acknowledge, and rest: signalled every
+        ``rest_ticks`` (``processes.sv.rest_ms``) until a look sees a tick worth sharing.
+        The measurements behind these choices: docs/decisions/0002-sv-polling-and-resting.md."""
         a = self._serve_args  # the history's place is the compiled serve's (its feed_k)
         k = a.feed_k
         self._feed_seen[k] = int(self._fed_ns) - int(self._release[0])

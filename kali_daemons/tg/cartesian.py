@@ -129,10 +129,9 @@ def held_object(
     set-points.  Arms that hold one rigid object are where the object lets them be, and their
     set-points are off that by each arm's servo error; demands that kept the set-points'
     geometry would keep the arms' servos fighting through the object, their integrators
-    winding it into a squeeze for as long as the motion lasts (an issue 24 soak halted on it,
-    an arm sagging 4 mrad on a late feed-forward row when the grippers closed; a lockstep
-    carry gripped by settled arms on late rows squeezed the bar with 77 N so, 19 N with the
-    grasps measured).  Taken from where the arms are, the other arms' first set-points move
+    winding it into a squeeze for as long as the motion lasts (a lockstep carry gripped by
+    settled arms on late feed-forward rows squeezed the bar with 77 N so, 19 N with the grasps
+    measured).  Taken from where the arms are, the other arms' first set-points move
     by that difference, towards the geometry the object holds them in, and arm 0's stays
     where it is."""
     views = starts if measured is None else measured

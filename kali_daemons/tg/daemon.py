@@ -104,11 +104,11 @@ CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before th
 CHECK_CHUNK = 8  # path samples checked between looks at the time
 # The tick's share (CHECK_SHARE of its period) is spent taking requests, planning paths and
 # checking them, in that order; in lockstep it is counted in path samples, not wall time (about
-# what a 10 ms tick's share checks on this VM): planning a path counts as PLAN_SAMPLES, taking a
-# request as REQUEST_WORK.
+# what a 10 ms tick's share checks in real time): planning a path counts as PLAN_SAMPLES,
+# taking a request as REQUEST_WORK (docs/decisions/0009-tg-check-share.md).
 LOCKSTEP_CHECK_SAMPLES = 64
 PLAN_SAMPLES = 32
-REQUEST_WORK = 1  # a request taken (checks, claim, status: 30-40 µs warm, as one two-arm sample)
+REQUEST_WORK = 1  # a request taken costs about what one two-arm path sample does
 _KINDS = frozenset(int(k) for k in MotionKind)
 _TRACKING = (MotionKind.TRACK, MotionKind.TRACK_JOINTS)
 MOVES = (MotionKind.JOINTS, MotionKind.PATH, *_TRACKING)  # kinds that move arms (and own them)
@@ -803,11 +803,10 @@ class TrajectoryGenerator(Daemon):
     def _start_waiting(self) -> None:
         """Start each waiting request whose robots are idle, in order of arrival.
 
-        Planning a Cartesian path (1.5-3.3 ms of CPU on this VM) counts against the tick's
-        check share like the checks: a path is planned only while that share lasts, so a
-        tick plans at most the paths it has time for (two in one tick, each arm's line of
-        ``example_carry.py``, plus a slice of checks each, took the TG 6 ms of CPU and 19 ms
-        on its shared CPU, nearly the serious tolerance); the rest wait a tick in order."""
+        Planning a Cartesian path (milliseconds of CPU) counts against the tick's check share
+        like the checks: a path is planned only while that share lasts, so a tick plans at
+        most the paths it has time for; the rest wait a tick in order
+        (docs/decisions/0009-tg-check-share.md)."""
         busy = {k for m in self.motions for k in m.robots}
         queued: set[int] = set()  # robots an earlier waiting request waits for
         still = []
@@ -1147,7 +1146,7 @@ class TrajectoryGenerator(Daemon):
             return
         self._next_tau(m)
         # the motion's last set-point, where it stops: marked, so the dynamics process
-        # writes its resting row at once, not once SIO has drained the FIFO (issue 24)
+        # writes its resting row at once, not once SIO has drained the FIFO
         last = m.tau >= p.duration or (m.stop is not None and m.stop.sigma(m.stop_t) == 0.0)
         if isinstance(p, CartesianMotion):
             try:

@@ -1,4 +1,4 @@
-"""TG functions (issue 28; thesis 3.2.3: a position equation's transforms may be "objects and
+"""TG functions (thesis 3.2.3: a position equation's transforms may be "objects and
 functions"): a transform the trajectory generator computes every tick, inside its cycle, from
 the time, the cell's sensors and its own private data in the arena.
 
@@ -347,7 +347,7 @@ class FunctionSlots:
             slot["worst_ns"] = took
         if self.budget_ns and took > self.budget_ns:
             slot["over_budget"] += 1
-            if self.lockstep:  # wall time decides nothing in lockstep (README, Lockstep mode)
+            if self.lockstep:  # wall time decides nothing in lockstep (docs/guide/lockstep.md)
                 return ""
             slot["status"] = FunctionStatus.TOO_LONG
             return (

@@ -1,4 +1,4 @@
-"""Motions that change while they run (issue 28; thesis 3.2.3, 3.3.2, 2.7): a motion system
+"""Motions that change while they run (thesis 3.2.3, 3.3.2, 2.7): a motion system
 follows a target the TG evaluates every tick, within speed and acceleration limits.
 
 RCCL writes a motion's goal as a *position equation*, a loop of transforms, some of them

@@ -15,7 +15,7 @@ clock's running time, so a lockstep run has 25 frames per simulated second):
   degrees), torque and feed-forward torque (N·m) and motor current (A), one entity with a
   series per joint of the arm's type (j1 .. jN, from ``layout.JOINT_STATE``); the flange's
   position (m) and roll/pitch/yaw (degrees) in the world; for an arm with a wrist sensor
-  (issue 27), once SIO has heard from it, the contact wrench on the tool about the tool point
+ , once SIO has heard from it, the contact wrench on the tool about the tool point
   in tool axes (``layout.FT_STATE.tool``: force in N, torque in N·m) and, in 3D, an arrow
   from the tool point along the contact force (``world``), ``CONTACT_M_PER_N`` long per
   newton.

@@ -5,11 +5,10 @@ slot acknowledged its previous signal, then writes the tick and its due time int
 and posts the slot's own semaphore (interrupt-then-acknowledge).  A missing acknowledgement
 is a missed deadline: counted and that signal skipped; for a ``serious`` process it halts
 the system once it has gone unacknowledged for more than ``serious_miss_tolerance_ms`` of the
-time the machine gave the clock (DESIGN 10 item 6).  The tolerance is a time, not a count: the
-host stalls one vCPU of these VMs for up to ~20 ms a few times a minute
-(``scripts/bench_wallclock.py``), which costs a 1 ms process one miss per tick of the stall but
-a 10 ms process only two; and time the host stopped the clock too (a wake-up of it over
-``STALL_NS`` late) is not held against anyone (``_missed``, ``_watch``).
+time the machine gave the clock.  The tolerance is a time, not a count (a host stall costs a
+1 ms process one miss per tick of it, a 10 ms process only a few), and time the host stopped
+the clock too (a wake-up of it over ``STALL_NS`` late) is not held against anyone (``_missed``,
+``_watch``; why and the measurements: docs/decisions/0004-clock-stall-rule.md).
 
 Real-time mode sleeps to absolute deadlines (optionally busy-waiting the last µs) and skips
 ahead after an overrun instead of bursting catch-up ticks.  Lockstep mode never sleeps: each
@@ -49,8 +48,8 @@ MAX_CLOCK_ARG = 1e12  # ticks to step, or ms to set the time to: ~30 years at 1 
 LOCKSTEP_SLICE_S = 0.05  # lockstep ack waits check for dead processes this often
 GANG_RUNS, GANG_SIO_LATE, GANG_SVS_LATE = 0, 1, 2  # gang_state: SIO and the SVs this tick
 # A wake-up of the clock later than this was the machine's stall, and the time is not held
-# against anyone (_missed); the soak's stall detector draws the line there too, and this VM's
-# floor is ~100 µs at p99.9 (DESIGN 10), so on a sound machine nothing changes
+# against anyone (_missed); twice the machine's p99.9 wake-up lateness, so on a sound machine
+# nothing changes (docs/decisions/0004-clock-stall-rule.md)
 STALL_NS = 200_000
 
 
@@ -92,7 +91,7 @@ class WallClock(Daemon):
         self._members: list[int] = []  # slots of the clocked SVs (SIO's gang)
         self._member: list[bool] = []  # per entry of _slots: an SV
         self._suspect = [0] * layout.MAX_PROCESSES  # a tick's missers (_slots indices)
-        # The time the machine gave the clock (DESIGN 10 item 6): a wake-up over STALL_NS
+        # The time the machine gave the clock (decision 0004): a wake-up over STALL_NS
         # late is time the clock, at the top priority of its CPU, was not run; a serious
         # process is judged only on the rest (_missed, _watch).  Real time only.
         self._lost_ns = 0  # the clock's stalls, summed
@@ -132,9 +131,8 @@ class WallClock(Daemon):
         here delays SIO's tick.  A rate change (an SV resting or back from it, a few times
         a minute; ``set_control_rate``) re-reads only the periods of the slots the clock
         has, in place (``_read_rates``); a process registering or leaving has the whole
-        table read (``_read_table``).  Reading the table for every rate change, in Python
-        over its 32 records, cost the clock 0.3-1.4 ms now and then, each time one tick of
-        SIO's (issue 24's soak, traced)."""
+        table read (``_read_table``): reading it all for every rate change delayed SIO's
+        tick (docs/decisions/0010-clock-reads-only-rates.md)."""
         c = self.inst.clock
         gen, rates = int(c["registry_gen"]), int(c["rates_gen"])
         if gen != self._gen:
@@ -302,17 +300,14 @@ class WallClock(Daemon):
         time after the tick's signals.
 
         Out of tolerance: unacknowledged since its signal for more than
-        ``serious_miss_tolerance_ms`` of the time the machine gave the clock (DESIGN 10 item
-        6: tell a machine stall from a broken process).  The clock outranks everything on its
-        CPU, so a wake-up of it over ``STALL_NS`` late is time the machine did not run it,
-        nor, as far as anyone can tell, the process: the host has stopped both vCPUs of these
-        VMs together for 17 of 20 ms, in pieces, over 50 ms, the clock ticking now and then (a
-        TG signalled at the first tick after a skip halted 47 ms on, while SIO beside it was
-        never signalled), or waking every tick up to a millisecond late.  A process hung for
-        good still halts, later by those stalls alone.  So: the ticks since its signal (an
-        overrun's skipped ones included) less the clock's stalls since (to within the
-        current wake-up's fraction of a tick); with the clock's wake-ups within ``STALL_NS``,
-        and in lockstep, its consecutive misses times its period, as before."""
+        ``serious_miss_tolerance_ms`` of the time the machine gave the clock, to tell a
+        machine stall from a broken process.  The clock outranks everything on its CPU, so a
+        wake-up of it over ``STALL_NS`` late is time the machine did not run it, nor, as far
+        as anyone can tell, the process.  So: the ticks since its signal (an overrun's
+        skipped ones included) less the clock's stalls since (to within the current
+        wake-up's fraction of a tick); with the clock's wake-ups within ``STALL_NS``, and in
+        lockstep, its consecutive misses times its period.  A process hung for good still
+        halts, later by those stalls alone (docs/decisions/0004-clock-stall-rule.md)."""
         self._misses[i] += 1
         n = int(self._consec[i]) + 1
         self._consec[i] = n
@@ -355,9 +350,9 @@ class WallClock(Daemon):
         but stalled one is looked up again only a watch interval later.
 
         Stalled counts the time since its heartbeat less the clock's stalls meanwhile, as
-        ``_missed`` does: when the whole machine stops (the host took both CPUs for 58 ms in
-        a CI run, and gave them 3 ms of 20 in pieces under a tick in a soak), the clock stops
-        or lags too, so a self-timed process must not halt the system for that time."""
+        ``_missed`` does: when the whole machine stops, the clock stops or lags too, so a
+        self-timed process must not halt the system for that time
+        (docs/decisions/0004-clock-stall-rule.md)."""
         heart = self._heart
         for k, i in enumerate(self._watched):
             age = now_ns - heart[i]

@@ -1,11 +1,12 @@
-"""The newcomer's path (issue 7): what the README tells a user to type works as written.
+"""The newcomer's path: what the README and the docs tell a user to type works as written.
 
-- every ``kalictl`` line of the README and of ``scripts/demo.sh`` is accepted by the real
-  command line's parser (a renamed option or a changed unit, like a move's ``--speed``, fails
-  here rather than in front of a new user);
-- the README's complete robot program runs, copied out of the README, under ``kalictl run``;
-- the README's servo-plugin steps, followed literally, give a new algorithm a joint can
-  switch to while it holds, tuned on line.
+- every ``kalictl`` line of the README, of the pages under ``docs/`` and of
+  ``scripts/demo.sh`` is accepted by the real command line's parser (a renamed option or a
+  changed unit, like a move's ``--speed``, fails here rather than in front of a new user);
+- the README's complete robot program runs, copied out of the README, under ``kalictl run``,
+  and the programs guide shows the same program;
+- the servo guide's plugin steps (``docs/guide/servos.md``), followed literally, give a new
+  algorithm a joint can switch to while it holds, tuned on line.
 
 Lockstep instances (a waiting program steps the clock itself), so the results do not depend
 on the machine's load.
@@ -32,13 +33,14 @@ from ..conftest import ROOT, config_text, unique_name
 from ..test_launcher import kalictl
 
 README = (ROOT / "README.md").read_text()
+DOCS = {p.relative_to(ROOT).as_posix(): p.read_text() for p in sorted(ROOT.glob("docs/**/*.md"))}
 DEMO = (ROOT / "scripts" / "demo.sh").read_text()
 
 
-def readme_section(title: str) -> str:
-    """The README's text under ``## title``, up to the next section."""
-    m = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## )", README, re.M | re.S)
-    assert m, f"README has no section '{title}'"
+def section(text: str, title: str, where: str = "README") -> str:
+    """The text under ``## title`` in ``text``, up to the next ``## `` section or the end."""
+    m = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", text, re.M | re.S)
+    assert m, f"{where} has no section '{title}'"
     return m.group(1)
 
 
@@ -47,10 +49,12 @@ def code_blocks(text: str, lang: str) -> list[str]:
 
 
 def kalictl_lines() -> list[list[str]]:
-    """Every kalictl command a user is shown: demo.sh's and the README's bash blocks'."""
+    """Every kalictl command a user is shown: demo.sh's and the bash blocks' of the README and
+    of every page under docs/."""
     lines = [ln for ln in DEMO.splitlines() if not ln.startswith(("trap ", "kalictl="))]
-    for block in code_blocks(README, "bash"):
-        lines += block.splitlines()
+    for text in [README, *DOCS.values()]:
+        for block in code_blocks(text, "bash"):
+            lines += block.splitlines()
     out: list[list[str]] = []
     for ln in lines:
         lex = shlex.shlex(ln, posix=True, punctuation_chars=True)
@@ -90,7 +94,7 @@ def parse(args: list[str]) -> None:
 
 def test_every_kalictl_line_shown_to_a_user_parses() -> None:
     lines = kalictl_lines()
-    assert len(lines) > 20, lines  # demo.sh alone has more: the extraction works
+    assert len(lines) > 40, lines  # demo.sh and the docs have more: the extraction works
     for args in lines:
         try:
             parse(args)
@@ -101,7 +105,10 @@ def test_every_kalictl_line_shown_to_a_user_parses() -> None:
 
 
 def test_the_readmes_program_runs_as_written(kali: Callable[..., str], tmp_path: Path) -> None:
-    (program,) = code_blocks(readme_section("Moving arms from a program"), "python")
+    (program,) = code_blocks(section(README, "A robot program"), "python")
+    guide = "docs/guide/programs.md"
+    shown = code_blocks(section(DOCS[guide], "Moving arms from a program", guide), "python")
+    assert shown and shown[0] == program, f"{guide} shows another program than the README"
     path = tmp_path / "wave.py"
     path.write_text(program)
     name = kali(lockstep=True)
@@ -114,8 +121,9 @@ def test_the_readmes_servo_plugin_steps_work(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Copy the example, rename it, name it in the config, start, select it, tune it."""
-    section = readme_section("Writing a servo algorithm")
-    assert "cp scripts/servo_plugin_example.py" in section and 'NAME = "mine"' in section
+    guide = "docs/guide/servos.md"
+    steps = section(DOCS[guide], "Writing a servo algorithm", guide)
+    assert "cp scripts/servo_plugin_example.py" in steps and 'NAME = "mine"' in steps
     mine = tmp_path / "my_servo.py"
     shutil.copy(ROOT / "scripts" / "servo_plugin_example.py", mine)
     text = mine.read_text()
@@ -125,7 +133,7 @@ def test_the_readmes_servo_plugin_steps_work(
     config = tmp_path / "kali.yaml"
     config.write_text(
         config_text(name, {r"^plugins: \[(.*)\]$": r"plugins: [\1, my_servo.py]"})
-    )  # relative to the config file, as the README says
+    )  # relative to the config file, as the servo guide says
     monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path / "logs"))
     r = kalictl("start", "-c", str(config), "--lockstep")
     try:
