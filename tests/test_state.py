@@ -7,10 +7,12 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
 from kali_daemons import layout
 from kali_daemons.client import Kali
 from kali_daemons.client.state import ArmState, ObjectState
+from kali_daemons.errors import ServoError
 from kali_daemons.layout import PowerState
 from kali_daemons.wallclock import step_kali_clock
 
@@ -104,3 +106,32 @@ def test_a_motion_system_s_state_is_its_object_and_arms_at_one_tick(
         assert np.abs(s.pose - s.pose_d)[:3, 3].max() < 0.002  # held where it is told
         for a in s.arms:
             assert a.same(k.robot(a.robot).read_state())
+
+
+def test_the_simulator_s_truth_is_public_and_crosses_the_bridge(
+    bridged: Callable[..., tuple[str, str]],  # noqa: F811
+) -> None:
+    """``kali.sim.truth(robot)`` (issue 55 item 4): the true joints within an encoder count of
+    what SIO measured, the tool point where the true joints put the pad's tip, the object
+    where the plant has it; a remote program reads the same values."""
+    name, endpoint = bridged()
+    with Kali(name) as local, Kali.connect(endpoint, name) as remote:
+        local.ready(["left"])
+        step_kali_clock(local.inst, 300)
+        t = local.sim.truth("left")
+        state = local.robot("left").read_state()
+        per_count = local.inst.config.robots[0].type.drive.rad_per_count
+        assert np.abs((t.q - state.q) / per_count).max() <= 1.0
+        cfg = local.inst.config.robots[0]
+        flange = local.robot("left").base @ local.flange_pose(t.q, 0)
+        np.testing.assert_allclose(t.flange, flange)
+        np.testing.assert_allclose(t.tool_point, flange[:3, 3] + flange[:3, 2] * cfg.ft.tool_tip_m)
+        world = local.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
+        np.testing.assert_allclose(t.object_pose[:3, 3], world["object_pose"][0][:3])
+        assert abs(np.linalg.det(t.object_pose[:3, :3]) - 1.0) < 1e-9
+        assert t.amps_on and not t.estop and t.plant_ticks > 0
+        there = remote.sim.truth("left")
+        assert there.same(t), (there, t)
+        local.sim.simulated = False  # as on an instance whose arms are real hardware
+        with pytest.raises(ServoError, match="real hardware has no truth"):
+            local.sim.truth("left")

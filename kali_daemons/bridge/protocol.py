@@ -38,6 +38,7 @@ import numpy as np
 from .. import errors
 from ..client import motion
 from ..client.state import ArmState, ObjectState
+from ..client.truth import Truth
 from ..config import USER_RE
 from ..errors import KaliError
 from ..layout import CalibState, FfMode, FfState, PowerState, RequestState
@@ -208,6 +209,7 @@ METHODS: dict[str, frozenset[str]] = {
         }
     ),
     "MotionHandle": frozenset({"wait", "cancel"}),
+    "SimTruth": frozenset({"truth"}),
     "Together": frozenset({"__enter__", "__exit__", "wait"}),
 }
 PROPERTIES: dict[str, frozenset[str]] = {
@@ -215,12 +217,13 @@ PROPERTIES: dict[str, frozenset[str]] = {
 }
 # the plain attributes a proxy holds, read when the object crosses (and after each call)
 ATTRIBUTES: dict[str, tuple[str, ...]] = {
-    "Kali": ("names", "tg_dt", "force", "servo"),
+    "Kali": ("names", "tg_dt", "force", "servo", "sim"),
     "ServoClient": ("names",),
     "Robot": ("index", "name", "n_joints", "base", "tool"),
     "MotionSystem": ("names", "indices", "grasps"),
     "MotionHandle": ("seq", "robots"),
     "Together": (),
+    "SimTruth": ("simulated",),
 }
 # the exceptions a call may raise remotely, by name; any other comes back as BridgeError
 ERRORS: dict[str, type[Exception]] = {
@@ -241,6 +244,7 @@ ENUMS: dict[str, type[enum.IntEnum]] = {
 }
 DATACLASSES: dict[str, type] = {
     "Contact": motion.Contact, "Trial": Trial, "ArmState": ArmState, "ObjectState": ObjectState,
+    "Truth": Truth,
 }  # fmt: skip
 
 

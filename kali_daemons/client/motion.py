@@ -73,6 +73,7 @@ from .remote import RemoteKali
 from .state import ArmState, ObjectState, StateReader
 from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
 from .together import Together
+from .truth import SimTruth
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
 _ENDED = frozenset(int(s) for s in TERMINAL_STATES if s != RequestState.LOST)
@@ -1124,6 +1125,7 @@ class Kali:
         self.held_functions: dict[int, TgFunctionHandle] = {}  # the TG functions it set up
         self._functions: FunctionRegistry | None = None  # loaded on first use
         self._state_reader: StateReader | None = None  # made at the first read_state
+        self.sim = SimTruth(self)  # the simulator's truth (kali.sim.truth(robot))
         self.grouping: Together | None = None  # a together() block being written
         self.tg_dt = self.inst.config.clock.tg_period_ms / 1000.0
         self._pin: dict[str, tuple] = {}  # per robot type: Pinocchio model, data, flange frame
