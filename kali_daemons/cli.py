@@ -540,6 +540,59 @@ def flight(ctx: click.Context, file: Path | None, ticks: int) -> None:
 
 
 @main.group()
+def record() -> None:
+    """Record every servo tick of every arm to an MCAP file (start, stop, status)."""
+
+
+@record.command("start")
+@click.argument("path", type=click.Path(dir_okay=False, path_type=Path))
+@click.pass_context
+@_errors
+def record_start(ctx: click.Context, path: Path) -> None:
+    """Start recording to PATH (a new .mcap file) until kalictl record stop."""
+    from . import recording  # the recorder's machinery: only when recording
+
+    with _attach(ctx.parent) as inst:
+        pid = recording.start(inst, path)
+        click.echo(f"recording instance '{inst.name}' to {path.absolute()} (recorder pid {pid})")
+
+
+@record.command("stop")
+@click.pass_context
+@_errors
+def record_stop(ctx: click.Context) -> None:
+    """Stop recording: what is left is drained and the file finished."""
+    from . import recording
+
+    with _attach(ctx.parent) as inst:
+        doc = recording.stop(inst)
+        click.echo(_record_line(doc))
+        if doc["error"]:
+            raise click.ClickException(doc["error"])
+
+
+@record.command("status")
+@click.pass_context
+@_errors
+def record_status(ctx: click.Context) -> None:
+    """The recording in progress, or the last one."""
+    from . import recording
+
+    name = _instance_name(ctx.parent)
+    doc = recording.read_status(name)
+    click.echo(_record_line(doc) if doc else f"instance '{name}': no recording yet")
+
+
+def _record_line(doc: dict[str, object]) -> str:
+    gaps = f", {doc['gaps']} ticks LOST" if doc["gaps"] else ", no tick lost"
+    error = f"; {doc['error']}" if doc["error"] else ""
+    return (
+        f"recording {doc['state']}: {doc['path']}: {doc['ticks']} servo ticks "
+        f"({doc['first_tick']}..{doc['last_tick']}){gaps}, {int(doc['bytes']) / 1e6:.1f} MB{error}"
+    )
+
+
+@main.group()
 def clock() -> None:
     """Run, stop, set or single-step the wall clock."""
 

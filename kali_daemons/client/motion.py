@@ -36,11 +36,13 @@ the owner (``force=True``, as ``kalictl move --force``, takes it over).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -1352,6 +1354,21 @@ class Kali:
         is empty), so a new request's start is where they are now."""
         busy = self.tg_robots["busy_seq"]
         return all(int(busy[k]) == 0 for k in robots) and len(self.queue) == 0
+
+    @contextlib.contextmanager
+    def record(self, path: str | os.PathLike[str]) -> Iterator[dict[str, object]]:
+        """Record every servo tick of every arm to the new MCAP file ``path`` while the block
+        runs (``kali_daemons.recording``: joint states, wrenches and every servo quantity as
+        ROS 2 messages any MCAP tool opens); the dict it gives is filled with the recording's
+        final status when the block ends (``ticks``, ``gaps``, ``bytes``, ``error``)."""
+        from .. import recording  # the recorder's machinery: only when recording
+
+        recording.start(self.inst, Path(path))
+        status: dict[str, object] = {}
+        try:
+            yield status
+        finally:
+            status.update(recording.stop(self.inst))
 
     def state_reader(self) -> StateReader:
         """The reader of the arms' states (``Robot.read_state``), made at the first read."""

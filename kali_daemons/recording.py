@@ -1,0 +1,359 @@
+"""Recording a run to MCAP: every servo tick of every arm (``kali.record``, ``kalictl record``).
+
+SIO already writes one row of every servo tick into the flight recorder's ring
+(``flightrec``); the recorder, a non-serious process of its own on the wall clock (every
+``PERIOD_MS``), drains the rows written since its last cycle to an MCAP file, so nothing is
+copied twice in SIO's cycle.  In lockstep the clock waits for it like any clocked process,
+so no row can be overwritten before it is drained; in real time the ring holds 2 s, and a
+recorder that fell that far behind writes the ticks it lost to ``/kali/gaps``: a gap is
+reported, never silent.  A failure to write (a full disk) ends the recording and says why
+in its status; the arms never notice.
+
+Topics, one message per arm per tick, log time the clock's running time of the tick:
+
+- ``/kali/<arm>/joint_states``: ``sensor_msgs/msg/JointState`` (measured position and
+  velocity, sent torque as effort), which Foxglove, PlotJuggler and ``ros2 bag`` show as is;
+- ``/kali/<arm>/wrench``: ``geometry_msgs/msg/WrenchStamped``, the contact wrench at the
+  tool point in tool axes (arms with a wrist sensor);
+- ``/kali/<arm>/servo``: ``kali_msgs/msg/ServoTick``, everything of the tick: the tick, q,
+  qd, the demand and its velocity, servo, feed-forward and sent torques, currents and a
+  shadow trial's torque (NaN where none ran);
+- ``/kali/gaps``: ``kali_msgs/msg/Gap``, ticks lost between two drains (none, normally).
+
+Every message is ROS 2 CDR with its definition in the file, so any MCAP reader decodes it
+without Kali or ROS installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap_ros2.writer import Writer
+
+from . import layout
+from .daemon import Daemon
+from .errors import KaliError
+from .instance import Instance
+from .launcher import instance_dir
+from .layout import ProcState
+
+PERIOD_MS = 100  # how often the recorder drains the ring (it holds 2 s)
+NAME = "recorder"  # its process-table slot
+START_TIMEOUT_S = 20.0
+STOP_TIMEOUT_S = 30.0
+
+TIME = "================================================================================\n"
+HEADER_DEF = (
+    f"{TIME}MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+    f"{TIME}MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+)
+JOINT_STATE_DEF = (
+    "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+    f"float64[] effort\n{HEADER_DEF}"
+)
+WRENCH_DEF = (
+    "std_msgs/Header header\ngeometry_msgs/Wrench wrench\n"
+    f"{TIME}MSG: geometry_msgs/Wrench\ngeometry_msgs/Vector3 force\ngeometry_msgs/Vector3 torque\n"
+    f"{TIME}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n{HEADER_DEF}"
+)
+SERVO_FIELDS = (
+    "q", "qd", "q_d", "qd_d", "servo_torque", "ff_torque", "torque", "current", "shadow_torque",
+)  # fmt: skip
+# each ServoTick array's column of the flight row
+ROW_COLUMNS = dict(zip(SERVO_FIELDS, layout.FLIGHT_FIELDS, strict=True))
+SERVO_DEF = (
+    "std_msgs/Header header\nint64 tick\n"
+    + "".join(f"float64[] {f}\n" for f in SERVO_FIELDS)
+    + HEADER_DEF
+)
+GAP_DEF = f"std_msgs/Header header\nint64 first_tick\nint64 ticks\n{HEADER_DEF}"
+
+
+def status_path(instance: str) -> Path:
+    """Where the recorder of ``instance`` says what it does (JSON)."""
+    return instance_dir(instance) / "recorder.json"
+
+
+class Recording:
+    """Drains an instance's flight-recorder ring into an MCAP file (``drain``), from the
+    rows written after it was made; the cycle logic of the recorder process, which a test
+    can drive too."""
+
+    def __init__(self, inst: Instance, path: Path) -> None:
+        self.inst = inst
+        self.path = path
+        cfg = inst.config
+        self.header = inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+        h = self.header
+        if int(h["rows"]) == 0:
+            raise KaliError(f"recording: instance '{inst.name}': SIO has no flight recorder yet")
+        self.rows = int(h["rows"])
+        row = layout.flight_row(int(h["n_joints"]), int(h["n_robots"]))
+        self.ring = inst.arena.existing(layout.KEY_FLIGHT_RING, row, self.rows)
+        self.names = [r.name for r in cfg.robots]
+        self.spans = [cfg.joints.span(k) for k in range(len(self.names))]
+        self.joint_names = [
+            [f"{r.name}_joint{j + 1}" for j in range(r.n_joints)] for r in cfg.robots
+        ]
+        self.sensors = [r.ft.sheet is not None for r in cfg.robots]
+        self.base_ns = int(inst.clock["base_tick_ns"])
+        self.next = int(h["count"])  # the first row to record
+        self.written = 0  # servo ticks written
+        self.gaps = 0  # ticks lost
+        self.first_tick = self.last_tick = -1
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(path, "xb")  # noqa: SIM115 - open until close(); never over a file
+        self.writer = Writer(self._file)
+        self.writer.add_metadata("kali", {"instance": inst.name, "robots": ",".join(self.names)})
+        self._schemas = {
+            "joints": self.writer.register_msgdef("sensor_msgs/msg/JointState", JOINT_STATE_DEF),
+            "wrench": self.writer.register_msgdef("geometry_msgs/msg/WrenchStamped", WRENCH_DEF),
+            "servo": self.writer.register_msgdef("kali_msgs/msg/ServoTick", SERVO_DEF),
+            "gap": self.writer.register_msgdef("kali_msgs/msg/Gap", GAP_DEF),
+        }
+
+    def drain(self) -> int:
+        """Write every whole row written since the last drain; the ticks written."""
+        h, rows = self.header, self.rows
+        count = int(h["count"])
+        if count <= self.next:
+            return 0
+        if count - self.next > rows - 1:  # lapped: those rows are gone
+            lost_from = self.next
+            self.next = count - (rows - 1)
+            self._gap(lost_from, self.next - lost_from)
+        data = self.ring[np.arange(self.next, count) % rows].copy()
+        after = int(h["count"])
+        whole = max(0, after + 1 - rows - self.next)  # rows the writer may have overwritten
+        if whole:
+            self._gap(self.next, whole)
+            data = data[whole:]
+        for row in data:
+            self._write_row(row)
+        self.next = count
+        return len(data)
+
+    def _stamp(self, tick: int) -> dict[str, Any]:
+        ns = tick * self.base_ns
+        return {"stamp": {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000},
+                "frame_id": ""}  # fmt: skip
+
+    def _write_row(self, row: np.ndarray) -> None:
+        tick = int(row["tick"])
+        t = tick * self.base_ns
+        header = self._stamp(tick)
+        w, s = self.writer, self._schemas
+        for k, name in enumerate(self.names):
+            span = self.spans[k]
+            w.write_message(
+                f"/kali/{name}/joint_states", s["joints"],
+                {"header": header, "name": self.joint_names[k],
+                 "position": row["q"][span].tolist(), "velocity": row["qd"][span].tolist(),
+                 "effort": row["torque"][span].tolist()},
+                log_time=t, publish_time=t,
+            )  # fmt: skip
+            servo = {f: row[c][span].astype(np.float64).tolist() for f, c in ROW_COLUMNS.items()}
+            w.write_message(
+                f"/kali/{name}/servo", s["servo"], {"header": header, "tick": tick, **servo},
+                log_time=t, publish_time=t,
+            )  # fmt: skip
+            if self.sensors[k]:
+                f = row["wrench"][k]
+                w.write_message(
+                    f"/kali/{name}/wrench", s["wrench"],
+                    {"header": header | {"frame_id": f"{name}_tool"}, "wrench": {
+                        "force": dict(zip("xyz", map(float, f[:3]), strict=True)),
+                        "torque": dict(zip("xyz", map(float, f[3:]), strict=True))}},
+                    log_time=t, publish_time=t,
+                )  # fmt: skip
+        if self.first_tick < 0:
+            self.first_tick = tick
+        self.last_tick = tick
+        self.written += 1
+
+    def _gap(self, first_row: int, rows: int) -> None:
+        """Rows ``first_row`` .. + ``rows`` were overwritten before they were drained."""
+        tick = self.last_tick + 1 if self.last_tick >= 0 else 0
+        self.writer.write_message(
+            "/kali/gaps", self._schemas["gap"],
+            {"header": self._stamp(tick), "first_tick": tick, "ticks": rows},
+            log_time=tick * self.base_ns,
+        )  # fmt: skip
+        self.gaps += rows
+
+    def close(self) -> None:
+        """Finish the file (its index and summary), outside any cycle."""
+        try:
+            self.writer.finish()
+        finally:
+            self._file.close()
+
+    def status(self, state: str, error: str = "") -> dict[str, Any]:
+        return {
+            "pid": os.getpid(), "state": state, "path": str(self.path), "ticks": self.written,
+            "first_tick": self.first_tick, "last_tick": self.last_tick, "gaps": self.gaps,
+            "bytes": self._file.tell() if not self._file.closed else self.path.stat().st_size,
+            "error": error,
+        }  # fmt: skip
+
+
+class Recorder(Daemon):
+    """The recorder process: a non-serious clocked process that drains the ring each period
+    (``Recording``); ends on SIGTERM (``stop``), draining what is left and finishing the
+    file."""
+
+    kind = NAME
+    realtime = False  # file I/O and compression: never at SCHED_FIFO
+    takes_named_slot = False
+
+    def __init__(self, instance: str, name: str, path: Path) -> None:
+        super().__init__(instance, name, period_ms=PERIOD_MS, serious=False, stage=9)
+        self.path = path
+        self.recording: Recording | None = None
+        self.error = ""
+
+    def on_configure(self) -> None:
+        self.recording = Recording(self.inst, self.path)
+        self._say("recording")
+
+    def cycle(self, tick: int) -> None:
+        if self.recording is None or self.error:
+            return
+        try:
+            self.recording.drain()
+        except OSError as exc:  # a full disk: the recording ends, the arms never notice
+            self.error = f"cannot write {self.path}: {exc.strerror or exc}"
+            self._end()
+            return
+        self._say("recording")
+
+    def on_deactivate(self) -> None:
+        if self.recording is not None and not self.error:
+            try:
+                self.recording.drain()
+            except OSError as exc:
+                self.error = f"cannot write {self.path}: {exc.strerror or exc}"
+        self._end()
+
+    def _end(self) -> None:
+        if self.recording is None:
+            return
+        try:
+            self.recording.close()
+        except OSError as exc:
+            self.error = self.error or f"cannot finish {self.path}: {exc.strerror or exc}"
+        self._say("failed" if self.error else "done")
+        self.recording = None
+
+    def _say(self, state: str) -> None:
+        assert self.recording is not None
+        doc = self.recording.status(state, self.error)
+        part = status_path(self.instance_name).with_suffix(".part")
+        part.write_text(json.dumps(doc))
+        os.replace(part, status_path(self.instance_name))
+
+
+def read_status(instance: str) -> dict[str, Any] | None:
+    """The last recorder's status document, or None if there was none."""
+    try:
+        return json.loads(status_path(instance).read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
+def running(inst: Instance) -> int:
+    """The recorder's pid on ``inst``, or 0."""
+    i = inst.find_slot(NAME)
+    if i < 0 or int(inst.procs[i]["state"]) in (ProcState.FREE, ProcState.DIED):
+        return 0
+    return int(inst.procs[i]["pid"])
+
+
+def start(inst: Instance, path: Path) -> int:
+    """Start recording instance ``inst`` to ``path`` (a new file): the recorder process,
+    returning its pid once it records; KaliError naming why not."""
+    if running(inst):
+        doc = read_status(inst.name) or {}
+        raise KaliError(
+            f"record: instance '{inst.name}' is already recording to {doc.get('path', '?')}"
+        )
+    path = Path(path).absolute()
+    if path.exists():
+        raise KaliError(f"record: {path} exists: a recording is never written over")
+    if not path.parent.is_dir():
+        raise KaliError(f"record: {path.parent} is not a directory")
+    if not os.access(path.parent, os.W_OK):
+        raise KaliError(f"record: {path.parent} cannot be written")
+    with contextlib.suppress(FileNotFoundError):
+        status_path(inst.name).unlink()
+    log = instance_dir(inst.name) / "recorder.log"
+    with open(log, "ab") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "kali_daemons.recording", "--instance", inst.name, "--out",
+             str(path)],
+            stdout=out, stderr=out, start_new_session=True,
+        )  # fmt: skip
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while time.monotonic() < deadline:
+        i = inst.find_slot(NAME)
+        if i >= 0 and int(inst.procs[i]["state"]) == ProcState.ACTIVE:
+            return proc.pid
+        if proc.poll() is not None:
+            raise KaliError(f"record: the recorder ended at start: {_tail(log)}")
+        time.sleep(0.01)
+    proc.kill()
+    raise KaliError(f"record: the recorder did not start within {START_TIMEOUT_S:g} s")
+
+
+def stop(inst: Instance) -> dict[str, Any]:
+    """Stop the recording (the recorder drains what is left and finishes the file); its
+    final status.  KaliError if none runs."""
+    pid = running(inst)
+    if not pid:
+        raise KaliError(f"record: instance '{inst.name}' is not recording")
+    os.kill(pid, signal.SIGTERM)
+    deadline = time.monotonic() + STOP_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if running(inst) != pid:
+            break
+        time.sleep(0.01)
+    else:
+        raise KaliError(f"record: the recorder (pid {pid}) did not finish in {STOP_TIMEOUT_S:g} s")
+    doc = read_status(inst.name)
+    if doc is None:
+        raise KaliError("record: the recorder ended without a word (recorder.log)")
+    return doc
+
+
+def _tail(log: Path) -> str:
+    lines = log.read_text(errors="replace").strip().splitlines()
+    return lines[-1] if lines else "(no output)"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m kali_daemons.recording --instance NAME --out PATH``."""
+    ap = argparse.ArgumentParser(prog="kali_daemons.recording")
+    ap.add_argument("--instance", required=True)
+    ap.add_argument("--out", required=True, type=Path)
+    args = ap.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO,
+        format=f"%(asctime)s {NAME}[%(process)d] %(levelname)s %(message)s",
+        stream=sys.stderr,
+    )
+    sys.exit(Recorder(args.instance, NAME, args.out).main())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,117 @@
+"""Recording a run to MCAP (issue 55 item 2): every servo tick of every arm, lossless in
+lockstep, read back by independent readers (the ``mcap`` package's and ``rosbags``)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from kali_daemons.client import Kali
+from kali_daemons.client.state import ArmState
+from kali_daemons.errors import KaliError
+from kali_daemons.wallclock import step_kali_clock
+
+from .test_launcher import kalictl
+
+SERVO_FIELDS = ("q", "qd", "q_d", "qd_d", "servo_torque", "ff_torque", "torque", "current")
+
+
+def by_topic(path: Path) -> dict[str, list]:
+    """Every message of the file, decoded, by topic (the mcap package's own reader)."""
+    out: dict[str, list] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _schema, channel, _message, msg in reader.iter_decoded_messages():
+            out.setdefault(channel.topic, []).append(msg)
+    return out
+
+
+def test_a_recording_holds_every_servo_tick_of_every_arm(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """``with kali.record(path)`` around a move of both arms, stepped tick by tick: every tick
+    of every arm is in the file once, in order, no gap, each message equal to what
+    ``read_state`` saw that tick; ``rosbags`` reads the same ticks and joint states."""
+    name = kali(lockstep=True)
+    path = tmp_path / "run.mcap"
+    with Kali(name) as k:
+        k.ready()
+        left, right = k.robot("left"), k.robot("right")
+        seen: dict[str, dict[int, ArmState]] = {"left": {}, "right": {}}
+        with k.record(path) as status:
+            with k.together():
+                left.move_joints(left.read_joints() + 0.1, wait=False)
+                move = right.move_joints(right.read_joints() - 0.1, wait=False)
+            while not move.done:
+                step_kali_clock(k.inst, 1)
+                for arm in (left, right):
+                    s = arm.read_state()
+                    seen[arm.name][s.tick] = s
+            step_kali_clock(k.inst, 250)  # more than a recorder period after the last read
+        assert status["error"] == "" and status["gaps"] == 0, status
+        topics = by_topic(path)
+        for arm in ("left", "right"):
+            servo = topics[f"/kali/{arm}/servo"]
+            ticks = np.array([m.tick for m in servo])
+            assert (np.diff(ticks) == 1).all(), "every tick once, in order"
+            assert ticks[0] <= min(seen[arm]) and ticks[-1] >= max(seen[arm]) + 200
+            assert len(ticks) == status["ticks"]
+            for m in servo:
+                s = seen[arm].get(m.tick)
+                if s is not None:
+                    for f in SERVO_FIELDS:
+                        np.testing.assert_array_equal(getattr(m, f), getattr(s, f), f)
+            joints = topics[f"/kali/{arm}/joint_states"]
+            assert len(joints) == len(ticks)
+            assert list(joints[0].name) == [f"{arm}_joint{j}" for j in range(1, 7)]
+            wrench = topics[f"/kali/{arm}/wrench"]
+            assert len(wrench) == len(ticks)
+        assert "/kali/gaps" not in topics
+
+    from rosbags.highlevel import AnyReader  # an independent reader of ROS 2 recordings
+
+    with AnyReader([path]) as reader:
+        states = [c for c in reader.connections if c.topic == "/kali/left/joint_states"]
+        assert states and states[0].msgtype == "sensor_msgs/msg/JointState"
+        positions = [
+            reader.deserialize(raw, c.msgtype).position
+            for c, _t, raw in reader.messages(connections=states)
+        ]
+    assert len(positions) == len(topics["/kali/left/joint_states"])
+    first = topics["/kali/left/servo"][0]
+    np.testing.assert_array_equal(positions[0], first.q)
+
+
+def test_kalictl_records_and_refuses_what_it_cannot_do(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """``kalictl record start|status|stop``: the ticks stepped are in the file; a second
+    recording at once, an existing file, a directory that is not there: each refused, naming
+    why, and nothing written over."""
+    name = kali(lockstep=True)
+    path = tmp_path / "cli.mcap"
+    r = kalictl("-i", name, "record", "start", str(path))
+    assert r.returncode == 0, r.stderr
+    again = kalictl("-i", name, "record", "start", str(tmp_path / "other.mcap"))
+    assert again.returncode != 0 and "already recording to" in again.stderr, again.stderr
+    assert kalictl("-i", name, "clock", "step", "500").returncode == 0
+    r = kalictl("-i", name, "record", "status")
+    assert "recording recording" in r.stdout, r.stdout
+    r = kalictl("-i", name, "record", "stop")
+    assert r.returncode == 0 and "no tick lost" in r.stdout, (r.stdout, r.stderr)
+    ticks = [m.tick for m in by_topic(path)["/kali/left/servo"]]
+    assert len(ticks) >= 500 and (np.diff(ticks) == 1).all()
+    size = path.stat().st_size
+    r = kalictl("-i", name, "record", "start", str(path))
+    assert r.returncode != 0 and "exists" in r.stderr and path.stat().st_size == size
+    r = kalictl("-i", name, "record", "start", str(tmp_path / "none" / "x.mcap"))
+    assert r.returncode != 0 and "is not a directory" in r.stderr
+    with Kali(name) as k, pytest.raises(KaliError, match="is not recording"):
+        from kali_daemons import recording
+
+        recording.stop(k.inst)
