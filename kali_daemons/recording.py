@@ -47,6 +47,7 @@ from .errors import KaliError
 from .instance import Instance
 from .launcher import instance_dir
 from .layout import ProcState
+from .log import SERVO_FIELDS
 
 PERIOD_MS = 100  # how often the recorder drains the ring (it holds 2 s)
 NAME = "recorder"  # its process-table slot
@@ -67,9 +68,6 @@ WRENCH_DEF = (
     f"{TIME}MSG: geometry_msgs/Wrench\ngeometry_msgs/Vector3 force\ngeometry_msgs/Vector3 torque\n"
     f"{TIME}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n{HEADER_DEF}"
 )
-SERVO_FIELDS = (
-    "q", "qd", "q_d", "qd_d", "servo_torque", "ff_torque", "torque", "current", "shadow_torque",
-)  # fmt: skip
 # each ServoTick array's column of the flight row
 ROW_COLUMNS = dict(zip(SERVO_FIELDS, layout.FLIGHT_FIELDS, strict=True))
 SERVO_DEF = (

@@ -11,6 +11,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from kali_daemons import log
 from kali_daemons.client import Kali
 from kali_daemons.client.state import ArmState
 from kali_daemons.errors import KaliError
@@ -85,6 +86,30 @@ def test_a_recording_holds_every_servo_tick_of_every_arm(
     assert len(positions) == len(topics["/kali/left/joint_states"])
     first = topics["/kali/left/servo"][0]
     np.testing.assert_array_equal(positions[0], first.q)
+
+    run = log.read(path)  # Kali's own reader: arrays aligned on ticks
+    assert set(run.arms) == {"left", "right"} and run.gaps == []
+    for arm in ("left", "right"):
+        a = run.arms[arm]
+        np.testing.assert_array_equal(a.tick, [m.tick for m in topics[f"/kali/{arm}/servo"]])
+        assert a.q.shape == (len(a.tick), 6) and a.wrench is not None
+        assert a.wrench.shape == (len(a.tick), 6)
+        for t, s in seen[arm].items():
+            i = int(np.searchsorted(a.tick, t))
+            np.testing.assert_array_equal(a.torque[i], s.torque)
+            np.testing.assert_array_equal(a.wrench[i], s.wrench)
+        np.testing.assert_allclose(np.diff(a.time_s), 1e-3)
+    np.testing.assert_array_equal(run.arms["left"].tick, run.arms["right"].tick)
+
+
+def test_reading_what_is_not_a_recording_says_so(tmp_path: Path) -> None:
+    """``log.read`` of a missing file, of one that is not MCAP: each a KaliError naming it."""
+    with pytest.raises(KaliError, match="no such file"):
+        log.read(tmp_path / "none.mcap")
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all" * 10)
+    with pytest.raises(KaliError, match="not a readable MCAP recording"):
+        log.read(junk)
 
 
 def test_kalictl_records_and_refuses_what_it_cannot_do(
