@@ -18,7 +18,11 @@ Topics, one message per arm per tick, log time the clock's running time of the t
 - ``/kali/<arm>/servo``: ``kali_msgs/msg/ServoTick``, everything of the tick: the tick, q,
   qd, the demand and its velocity, servo, feed-forward and sent torques, currents and a
   shadow trial's torque (NaN where none ran);
-- ``/kali/gaps``: ``kali_msgs/msg/Gap``, ticks lost between two drains (none, normally).
+- ``/kali/gaps``: ``kali_msgs/msg/Gap``, ticks lost between two drains (none, normally);
+- ``/kali/requests``: ``kali_msgs/msg/Request``, each motion request as its state changes
+  (seen at the recorder's period: its outcome always, a state it passed through between two
+  drains not);
+- ``/kali/faults``: ``kali_msgs/msg/Fault``, each fault raised (a halt, an e-stop).
 
 Every message is ROS 2 CDR with its definition in the file, so any MCAP reader decodes it
 without Kali or ROS installed.
@@ -44,9 +48,9 @@ from mcap_ros2.writer import Writer
 from . import layout
 from .daemon import Daemon
 from .errors import KaliError
-from .instance import Instance
+from .instance import Instance, decode
 from .launcher import instance_dir
-from .layout import ProcState
+from .layout import ProcState, RequestState
 from .log import SERVO_FIELDS
 
 PERIOD_MS = 100  # how often the recorder drains the ring (it holds 2 s)
@@ -76,6 +80,13 @@ SERVO_DEF = (
     + HEADER_DEF
 )
 GAP_DEF = f"std_msgs/Header header\nint64 first_tick\nint64 ticks\n{HEADER_DEF}"
+REQUEST_DEF = (
+    "std_msgs/Header header\nuint64 seq\nstring state\nint32 client_pid\nfloat64 duration_s\n"
+    f"float64 progress\nstring message\n{HEADER_DEF}"
+)
+FAULT_DEF = (
+    f"std_msgs/Header header\nint64 tick\nstring code\nstring process\nstring message\n{HEADER_DEF}"
+)
 
 
 def status_path(instance: str) -> Path:
@@ -119,7 +130,15 @@ class Recording:
             "wrench": self.writer.register_msgdef("geometry_msgs/msg/WrenchStamped", WRENCH_DEF),
             "servo": self.writer.register_msgdef("kali_msgs/msg/ServoTick", SERVO_DEF),
             "gap": self.writer.register_msgdef("kali_msgs/msg/Gap", GAP_DEF),
+            "request": self.writer.register_msgdef("kali_msgs/msg/Request", REQUEST_DEF),
+            "fault": self.writer.register_msgdef("kali_msgs/msg/Fault", FAULT_DEF),
         }
+        self.requests = inst.arena.existing(
+            layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
+        )
+        # what was written of each status record (seq, state) and of the faults (count)
+        self._said = [(int(r["seq"]), int(r["state"])) for r in self.requests]
+        self._faults = int(inst.fault["count"])
 
     def drain(self) -> int:
         """Write every whole row written since the last drain; the ticks written."""
@@ -140,7 +159,37 @@ class Recording:
         for row in data:
             self._write_row(row)
         self.next = count
+        self._events()
         return len(data)
+
+    def _events(self) -> None:
+        """The requests whose state changed since the last drain (each one's outcome at
+        least: a record is given to another request only long after) and a new fault."""
+        tick = max(self.last_tick, 0)
+        t = tick * self.base_ns
+        for i, r in enumerate(self.requests):
+            now = (int(r["seq"]), int(r["state"]))
+            if now[0] == 0 or now == self._said[i]:
+                continue
+            self._said[i] = now
+            self.writer.write_message(
+                "/kali/requests", self._schemas["request"],
+                {"header": self._stamp(tick), "seq": now[0],
+                 "state": RequestState(now[1]).name, "client_pid": int(r["client_pid"]),
+                 "duration_s": float(r["duration_s"]), "progress": float(r["progress"]),
+                 "message": decode(r["message"])},
+                log_time=t, publish_time=t,
+            )  # fmt: skip
+        count = int(self.inst.fault["count"])
+        if count != self._faults:
+            self._faults = count
+            f = self.inst.read_fault()
+            self.writer.write_message(
+                "/kali/faults", self._schemas["fault"],
+                {"header": self._stamp(tick), "tick": int(f.tick), "code": str(f.code),
+                 "process": f.process, "message": f.message},
+                log_time=t, publish_time=t,
+            )  # fmt: skip
 
     def _stamp(self, tick: int) -> dict[str, Any]:
         ns = tick * self.base_ns

@@ -140,3 +140,29 @@ def test_kalictl_records_and_refuses_what_it_cannot_do(
         from kali_daemons import recording
 
         recording.stop(k.inst)
+
+
+def test_a_recording_survives_a_halt_with_the_halt_in_it(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """An e-stop during a recorded move: the recording ends cleanly after the halt, every
+    tick up to it there, with the move's request and the fault (ESTOP) in it."""
+    name = kali(lockstep=True)
+    path = tmp_path / "halt.mcap"
+    with Kali(name) as k:
+        k.ready()
+        left = k.robot("left")
+        with k.record(path) as status:
+            move = left.move_joints(left.read_joints() + 0.3, wait=False)
+            step_kali_clock(k.inst, 400)
+            k.inst.press_estop(None, "test")  # the clock stops: no step until a reset
+            halted_at = int(k.inst.clock["tick"])
+        assert status["error"] == "" and status["gaps"] == 0, status
+        assert k.inst.fault_text() is not None
+    topics = by_topic(path)
+    ticks = [m.tick for m in topics["/kali/left/servo"]]
+    assert (np.diff(ticks) == 1).all() and ticks[-1] >= halted_at - 10
+    faults = topics["/kali/faults"]
+    assert [f.code for f in faults] == ["ESTOP"], faults
+    seqs = {r.seq: r.state for r in topics["/kali/requests"]}
+    assert move.seq in seqs, seqs
