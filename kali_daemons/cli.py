@@ -525,14 +525,19 @@ def top(ctx: click.Context, once: bool, interval: str) -> None:
     type=click.IntRange(1, 10_000),
     help="Ticks before the fault shown one by one.",
 )
+@click.option("--now", is_flag=True, help="Dump the ring as it stands, without a halt, first.")
 @click.pass_context
 @_errors
-def flight(ctx: click.Context, file: Path | None, ticks: int) -> None:
+def flight(ctx: click.Context, file: Path | None, ticks: int, now: bool) -> None:
     """What led to a halt: the flight recorder's dump FILE (default: the instance's latest).
 
     The fault, the ticks covered, each robot's worst tracking error, torque and current over
-    them, and tick by tick before the halt.
+    them, and tick by tick before the halt.  With --now: the last 2 s as they stand, written
+    to a ring-*.npz file of their own.
     """
+    if now:
+        with _attach(ctx) as inst:
+            file = flightrec.dump_now(inst)
     path = file or flightrec.find_latest(_instance_name(ctx))
     click.echo(f"flight recorder dump {path}")
     for line in flightrec.summary(flightrec.load(path), ticks):

@@ -407,6 +407,26 @@ def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Pa
     return path
 
 
+def dump_now(inst: Instance, directory: Path | None = None) -> Path:
+    """Write the ring as it stands, without a halt (``kalictl flight --now``), to
+    ``ring-<instance>-<time>-tick<T>.npz`` in the log directory (never taken for a halt's
+    dump); the fault fields say it was asked for.  Outside any cycle."""
+    header = inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+    if int(header["rows"]) == 0:
+        raise InstanceError(f"flight recorder: instance '{inst.name}': SIO has not laid it out")
+    data = read_ring(header, attach_ring(inst.arena, header))
+    tick = int(inst.clock["tick"])
+    asked = FaultInfo(
+        code="NONE", process="kalictl", tick=tick,
+        message="the ring as it stood, asked for (kalictl flight --now); no halt",
+        time_ns=time.time_ns(), pid=os.getpid(), active=False, count=int(inst.fault["count"]),
+    )  # fmt: skip
+    path = write_dump(inst, data, asked, directory or log_dir(inst.name))
+    final = path.with_name(path.name.replace("flight-", "ring-", 1))
+    os.replace(path, final)
+    return final
+
+
 def latest_dump(directory: Path, instance: str) -> Path | None:
     """The newest dump of ``instance`` in ``directory``, or None."""
     files = [p for p in directory.glob(f"flight-{instance}-*.npz") if p.is_file()]

@@ -166,3 +166,20 @@ def test_a_recording_survives_a_halt_with_the_halt_in_it(
     assert [f.code for f in faults] == ["ESTOP"], faults
     seqs = {r.seq: r.state for r in topics["/kali/requests"]}
     assert move.seq in seqs, seqs
+
+
+def test_kalictl_flight_now_dumps_the_ring_without_a_halt(kali: Callable[..., str]) -> None:
+    """``kalictl flight --now`` writes the last 2 s as they stand (a ring-*.npz, its fault
+    fields saying it was asked for) and sums it up; it is never taken for a halt's dump."""
+    name = kali(lockstep=True)
+    r = kalictl("-i", name, "clock", "step", "300")
+    assert r.returncode == 0, r.stderr
+    r = kalictl("-i", name, "flight", "--now")
+    assert r.returncode == 0, r.stderr
+    first = r.stdout.splitlines()[0]
+    assert first.startswith("flight recorder dump ") and "/ring-" in first, r.stdout
+    path = Path(first.removeprefix("flight recorder dump "))
+    assert path.is_file() and "fault: NONE in kalictl" in r.stdout and "asked for" in r.stdout
+    assert "covers ticks" in r.stdout and "300 servo ticks" in r.stdout, r.stdout
+    r = kalictl("-i", name, "flight")
+    assert r.returncode != 0 and "ring-" not in r.stdout + r.stderr, (r.stdout, r.stderr)
