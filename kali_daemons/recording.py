@@ -1,13 +1,13 @@
 """Recording a run to MCAP: every servo tick of every arm (``kali.record``, ``kalictl record``).
 
 SIO already writes one row of every servo tick into the flight recorder's ring
-(``flightrec``); the recorder, a non-serious process of its own on the wall clock (every
-``PERIOD_MS``), drains the rows written since its last cycle to an MCAP file, so nothing is
-copied twice in SIO's cycle.  In lockstep the clock waits for it like any clocked process,
-so no row can be overwritten before it is drained; in real time the ring holds 2 s, and a
-recorder that fell that far behind writes the ticks it lost to ``/kali/gaps``: a gap is
-reported, never silent.  A failure to write (a full disk) ends the recording and says why
-in its status; the arms never notice.
+(``flightrec``); the recorder, a non-serious process of its own on the wall clock (every TG
+period, so it sees each of the TG's set-points), drains the rows written since its last
+cycle to an MCAP file, so nothing is copied twice in SIO's cycle.  In lockstep the clock
+waits for it like any clocked process, so no row can be overwritten before it is drained;
+in real time the ring holds 2 s, and a recorder that fell that far behind writes the ticks
+it lost to ``/kali/gaps``: a gap is reported, never silent.  A failure to write (a full
+disk) ends the recording and says why in its status; the arms never notice.
 
 Topics, one message per arm per tick, log time the clock's running time of the tick:
 
@@ -18,6 +18,8 @@ Topics, one message per arm per tick, log time the clock's running time of the t
 - ``/kali/<arm>/servo``: ``kali_msgs/msg/ServoTick``, everything of the tick: the tick, q,
   qd, the demand and its velocity, servo, feed-forward and sent torques, currents and a
   shadow trial's torque (NaN where none ran);
+- ``/kali/<arm>/setpoint``: ``kali_msgs/msg/SetPoint``, each set-point the TG makes for the
+  arm (its tick and joint angles; in real time one the recorder was late for is not seen);
 - ``/kali/gaps``: ``kali_msgs/msg/Gap``, ticks lost between two drains (none, normally);
 - ``/kali/requests``: ``kali_msgs/msg/Request``, each motion request as its state changes
   (seen at the recorder's period: its outcome always, a state it passed through between two
@@ -54,7 +56,6 @@ from .launcher import instance_dir
 from .layout import ProcState, RequestState
 from .log import SERVO_FIELDS
 
-PERIOD_MS = 100  # how often the recorder drains the ring (it holds 2 s)
 NAME = "recorder"  # its process-table slot
 START_TIMEOUT_S = 20.0
 STOP_TIMEOUT_S = 30.0
@@ -85,6 +86,7 @@ REQUEST_DEF = (
     "std_msgs/Header header\nuint64 seq\nstring state\nint32 client_pid\nfloat64 duration_s\n"
     f"float64 progress\nstring message\n{HEADER_DEF}"
 )
+SETPOINT_DEF = f"std_msgs/Header header\nint64 tg_tick\nfloat64[] q\n{HEADER_DEF}"
 FAULT_DEF = (
     f"std_msgs/Header header\nint64 tick\nstring code\nstring process\nstring message\n{HEADER_DEF}"
 )
@@ -201,6 +203,7 @@ class Recording:
                 ("gap", "kali_msgs/msg/Gap", GAP_DEF),
                 ("request", "kali_msgs/msg/Request", REQUEST_DEF),
                 ("fault", "kali_msgs/msg/Fault", FAULT_DEF),
+                ("setpoint", "kali_msgs/msg/SetPoint", SETPOINT_DEF),
             )
         }
 
@@ -210,7 +213,7 @@ class Recording:
         self._channels = [
             {kind: channel(f"/kali/{name}/{topic}", kind)
              for kind, topic in (("joints", "joint_states"), ("servo", "servo"),
-                                 ("wrench", "wrench"))
+                                 ("wrench", "wrench"), ("setpoint", "setpoint"))
              if kind != "wrench" or self.sensors[k]}
             for k, name in enumerate(self.names)
         ]  # fmt: skip
@@ -226,6 +229,8 @@ class Recording:
         # what was written of each status record (seq, state) and of the faults (count)
         self._said = [(int(r["seq"]), int(r["state"])) for r in self.requests]
         self._faults = int(inst.fault["count"])
+        self.tg = inst.arena.existing(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.names))
+        self._tg_ticks = [int(t) for t in self.tg["tick"]]  # the last set-point written
 
     def drain(self) -> int:
         """Write every whole row written since the last drain; the ticks written."""
@@ -310,6 +315,17 @@ class Recording:
             c.float64(float(r["progress"]))
             c.string(decode(r["message"]).encode())
             add(self._events_ch["request"], t, c.bytes(), t)
+        for k in range(len(self.names)):  # the TG's newest set-point of each arm
+            tg_tick = int(self.tg["tick"][k])
+            if tg_tick == self._tg_ticks[k]:
+                continue
+            self._tg_ticks[k] = tg_tick
+            n = self.spans[k].stop - self.spans[k].start
+            c.reset()  # kali_msgs/msg/SetPoint
+            c.header(tg_tick * self.base_ns)
+            c.int64(tg_tick)
+            c.float64s(self.tg["setpoint"][k, :n])
+            add(self._channels[k]["setpoint"], tg_tick * self.base_ns, c.bytes(), t)
         count = int(self.inst.fault["count"])
         if count != self._faults:
             self._faults = count
@@ -346,8 +362,8 @@ class Recorder(Daemon):
     realtime = False  # file I/O and compression: never at SCHED_FIFO
     takes_named_slot = False
 
-    def __init__(self, instance: str, name: str, path: Path) -> None:
-        super().__init__(instance, name, period_ms=PERIOD_MS, serious=False, stage=9)
+    def __init__(self, instance: str, name: str, path: Path, period_ms: float) -> None:
+        super().__init__(instance, name, period_ms=period_ms, serious=False, stage=9)
         self.path = path
         self.recording: Recording | None = None
         self.error = ""
@@ -481,7 +497,9 @@ def main(argv: list[str] | None = None) -> None:
         format=f"%(asctime)s {NAME}[%(process)d] %(levelname)s %(message)s",
         stream=sys.stderr,
     )
-    sys.exit(Recorder(args.instance, NAME, args.out).main())
+    with Instance.attach(args.instance) as inst:  # drained every TG period: each set-point
+        period_ms = inst.config.clock.tg_period_ms
+    sys.exit(Recorder(args.instance, NAME, args.out, period_ms).main())
 
 
 if __name__ == "__main__":
