@@ -59,6 +59,7 @@ from .log import SERVO_FIELDS
 NAME = "recorder"  # its process-table slot
 START_TIMEOUT_S = 20.0
 STOP_TIMEOUT_S = 30.0
+STATUS_S = 0.5  # how often a recording's status file is brought up to date
 
 TIME = "================================================================================\n"
 HEADER_DEF = (
@@ -227,7 +228,8 @@ class Recording:
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
         # what was written of each status record (seq, state) and of the faults (count)
-        self._said = [(int(r["seq"]), int(r["state"])) for r in self.requests]
+        self._seq, self._state = self.requests["seq"], self.requests["state"]  # views
+        self._said_seq, self._said_state = self._seq.copy(), self._state.copy()
         self._faults = int(inst.fault["count"])
         self.tg = inst.arena.existing(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.names))
         self._tg_ticks = [int(t) for t in self.tg["tick"]]  # the last set-point written
@@ -301,11 +303,14 @@ class Recording:
         tick = max(self.last_tick, 0)
         t = tick * self.base_ns
         c, add = self._cdr, self.writer.add_message
-        for i, r in enumerate(self.requests):
-            now = (int(r["seq"]), int(r["state"]))
-            if now[0] == 0 or now == self._said[i]:
-                continue
-            self._said[i] = now
+        seq, state = self._seq.copy(), self._state.copy()
+        changed = np.flatnonzero(
+            (seq != 0) & ((seq != self._said_seq) | (state != self._said_state))
+        )
+        self._said_seq, self._said_state = seq, state
+        for i in changed:
+            r = self.requests[i]
+            now = (int(seq[i]), int(state[i]))
             c.reset()  # kali_msgs/msg/Request
             c.header(t)
             c.uint64(now[0])
@@ -367,6 +372,7 @@ class Recorder(Daemon):
         self.path = path
         self.recording: Recording | None = None
         self.error = ""
+        self._said_at = 0.0  # when the status file was last written
 
     def on_configure(self) -> None:
         self.recording = Recording(self.inst, self.path)
@@ -381,7 +387,10 @@ class Recorder(Daemon):
             self.error = f"cannot write {self.path}: {exc.strerror or exc}"
             self._end()
             return
-        self._say("recording")
+        now = time.monotonic()
+        if now >= self._said_at + STATUS_S:
+            self._said_at = now
+            self._say("recording")
 
     def on_deactivate(self) -> None:
         if self.recording is not None and not self.error:
