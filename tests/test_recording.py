@@ -17,6 +17,7 @@ from kali_daemons.client.state import ArmState
 from kali_daemons.errors import KaliError
 from kali_daemons.wallclock import step_kali_clock
 
+from .test_bridge import bridged  # noqa: F401  (the fixture)
 from .test_launcher import kalictl
 
 SERVO_FIELDS = ("q", "qd", "q_d", "qd_d", "servo_torque", "ff_torque", "torque", "current")
@@ -183,3 +184,26 @@ def test_kalictl_flight_now_dumps_the_ring_without_a_halt(kali: Callable[..., st
     assert "covers ticks" in r.stdout and "300 servo ticks" in r.stdout, r.stdout
     r = kalictl("-i", name, "flight")
     assert r.returncode != 0 and "ring-" not in r.stdout + r.stderr, (r.stdout, r.stderr)
+
+
+def test_a_remote_program_records_and_gets_the_file(
+    bridged: Callable[..., tuple[str, str]], tmp_path: Path  # noqa: F811
+) -> None:
+    """``kali.record(path)`` through the bridge: the recording is made on the controller's
+    machine and fetched to ``path`` here, the same bytes, every tick in it."""
+    name, endpoint = bridged()
+    path = tmp_path / "remote.mcap"
+    with Kali.connect(endpoint, name) as remote:
+        remote.ready(["left"])
+        left = remote.robot("left")
+        with remote.record(path) as status:
+            left.move_joints(left.read_joints() + 0.05, speed=0.5)
+        assert status["error"] == "" and status["gaps"] == 0, status
+    there = Path(status["there"])
+    assert there.read_bytes() == path.read_bytes()
+    ticks = log.read(path).arms["left"].tick
+    assert len(ticks) == status["ticks"] and (np.diff(ticks) == 1).all()
+    with Kali.connect(endpoint, name) as remote:
+        refused = pytest.raises(KaliError, match="exists")
+        with refused:
+            remote.record(path).__enter__()

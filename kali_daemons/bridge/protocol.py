@@ -157,6 +157,9 @@ METHODS: dict[str, frozenset[str]] = {
             "owner",
             "flange_pose",
             "stop_own",
+            "record_in_log_dir",
+            "stop_recording",
+            "recorded_bytes",
         }
     ),
     "Robot": frozenset(

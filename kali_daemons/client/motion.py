@@ -36,6 +36,7 @@ the owner (``force=True``, as ``kalictl move --force``, takes it over).
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import math
 import os
@@ -78,6 +79,7 @@ from .together import Together
 from .truth import SimTruth
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
+RECORDED_CHUNK = 1 << 19  # bytes of a recording a remote program fetches per call
 _ENDED = frozenset(int(s) for s in TERMINAL_STATES if s != RequestState.LOST)
 # a tracking motion's limits unless the program gives its own: m/s, rad/s, m/s², rad/s²
 TRACK_LIMITS = (0.25, 1.0, 1.0, 4.0)
@@ -1127,6 +1129,7 @@ class Kali:
         self.held_functions: dict[int, TgFunctionHandle] = {}  # the TG functions it set up
         self._functions: FunctionRegistry | None = None  # loaded on first use
         self._state_reader: StateReader | None = None  # made at the first read_state
+        self._recording: Path | None = None  # this program's last recording
         self.sim = SimTruth(self)  # the simulator's truth (kali.sim.truth(robot))
         self.grouping: Together | None = None  # a together() block being written
         self.tg_dt = self.inst.config.clock.tg_period_ms / 1000.0
@@ -1361,14 +1364,48 @@ class Kali:
         runs (``kali_daemons.recording``: joint states, wrenches and every servo quantity as
         ROS 2 messages any MCAP tool opens); the dict it gives is filled with the recording's
         final status when the block ends (``ticks``, ``gaps``, ``bytes``, ``error``)."""
-        from .. import recording  # the recorder's machinery: only when recording
-
-        recording.start(self.inst, Path(path))
+        self.start_recording(path)
         status: dict[str, object] = {}
         try:
             yield status
         finally:
-            status.update(recording.stop(self.inst))
+            status.update(self.stop_recording())
+
+    def start_recording(self, path: str | os.PathLike[str] | None = None) -> str:
+        """Start recording to the new file ``path`` (None: a new ``rec-*.mcap`` in the
+        instance's log directory); its path.  ``record`` is the block form."""
+        from .. import recording  # the recorder's machinery: only when recording
+        from ..launcher import log_dir
+
+        if path is None:
+            stamp = time.strftime("%Y%m%d-%H%M%S")
+            path = log_dir(self.inst.name) / f"rec-{self.inst.name}-{stamp}.mcap"
+        self._recording = Path(path).absolute()
+        recording.start(self.inst, self._recording)
+        return str(self._recording)
+
+    def record_in_log_dir(self) -> str:
+        """``start_recording`` into the log directory: what a remote program asks for (it
+        names no path on this machine), fetching the file with ``recorded_bytes``."""
+        return self.start_recording(None)
+
+    def stop_recording(self) -> dict[str, object]:
+        """Stop the recording: what is left is drained and the file finished; its status."""
+        from .. import recording
+
+        return recording.stop(self.inst)
+
+    def recorded_bytes(self, offset: int, size: int = RECORDED_CHUNK) -> str:
+        """Up to ``size`` bytes of this program's last recording from ``offset``, base64 (a
+        remote program fetches its recording so); '' at the end."""
+        if self._recording is None:
+            raise KaliError("recorded_bytes: this program has made no recording")
+        if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
+            raise KaliError(f"recorded_bytes: offset {offset!r:.40} is not a byte count")
+        size = max(1, min(int(size), RECORDED_CHUNK))
+        with open(self._recording, "rb") as f:
+            f.seek(offset)
+            return base64.b64encode(f.read(size)).decode()
 
     def state_reader(self) -> StateReader:
         """The reader of the arms' states (``Robot.read_state``), made at the first read."""

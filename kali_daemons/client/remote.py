@@ -24,6 +24,7 @@ the bridge ends its session as a local program's death would.
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import functools
 import json
@@ -33,7 +34,8 @@ import ssl
 import threading
 import time
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -532,6 +534,28 @@ class RemoteKali(Proxy):
             "control: a periodic function runs on the controller's machine (its deadline is "
             "the wall clock's); run this program there with kalictl run"
         )
+
+    @contextlib.contextmanager
+    def record(self, path: str | os.PathLike[str]) -> Iterator[dict[str, Any]]:
+        """As ``Kali.record``: the recording is made on the controller's machine (its log
+        directory) and fetched to ``path`` here when the block ends."""
+        from ..bridge.protocol import BridgeError
+
+        target = Path(path).absolute()
+        if target.exists():
+            raise BridgeError(f"record: {target} exists: a recording is never written over")
+        if not target.parent.is_dir():
+            raise BridgeError(f"record: {target.parent} is not a directory")
+        there = self._call("record_in_log_dir")
+        status: dict[str, Any] = {}
+        try:
+            yield status
+        finally:
+            status.update(self._call("stop_recording"))
+            with open(target, "xb") as out:
+                while chunk := base64.b64decode(self._call("recorded_bytes", out.tell())):
+                    out.write(chunk)
+            status["there"], status["path"] = there, str(target)
 
     def verb(self, verb: str, *args: str) -> str:
         """Run kalictl verb ``verb`` (enable, disable, estop, reset, calibrate, servo, ff,
