@@ -1,0 +1,133 @@
+"""Benchmark: what recording a run to MCAP costs, in real time, beside cyclictest.
+
+What is measured.  One real-time instance (the default cell unless ``--config``), both arms
+swinging, for two windows of ``--seconds`` each in one invocation: without a recording, then
+with ``kali.record`` on.  Per window: SIO's sensor-to-DAC latency (its read-to-write time,
+the flight recorder's ``latency_ns``) p50 / p99 / max and SIO's own CPU time per tick, the
+servo ticks the recording holds against those SIO served, the ticks it lost, its size per
+minute and the recorder's CPU share of one core.  cyclictest runs beside both windows on
+every CPU as the machine's floor (its p99 wake-up lateness).
+
+How to read it.  ``+µs`` is the recording window's p50 less the other's: what recording adds
+to SIO's tick (nothing is copied twice in SIO's cycle: the recorder drains the ring SIO
+writes anyway); ``lost`` must be 0; the recorder's share is of one CPU.
+
+    .venv/bin/python scripts/bench_recording.py --seconds 60
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
+from harness import DEFAULT_CONFIG, KaliRun, cell_config, table
+
+from kali_daemons import flightrec, layout, recording
+from kali_daemons.client import Kali
+
+
+def swing(kali: Kali, stop: threading.Event) -> None:
+    """Both arms back and forth until ``stop``."""
+    arms = [kali.robot(n) for n in kali.names]
+    homes = [a.read_joints() for a in arms]
+    sign = 1.0
+    while not stop.is_set():
+        with kali.together():
+            handles = [
+                a.move_joints(q + sign * 0.15, speed=0.5, wait=False)
+                for a, q in zip(arms, homes, strict=True)
+            ]
+        for h in handles:
+            h.wait(timeout=30)
+        sign = -sign
+
+
+def window(kali: Kali, seconds: float, path: Path | None) -> dict[str, float]:
+    """One window: SIO's latency and CPU per tick from the ring, and the recording's figures."""
+    inst = kali.inst
+    header = inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+    ring = flightrec.attach_ring(inst.arena, header)
+    first = int(header["count"])
+    out: dict[str, float] = {}
+    t0 = time.monotonic()
+    if path is None:
+        time.sleep(seconds)
+    else:
+        with kali.record(path) as status:
+            pid = recording.running(inst)
+            stat = Path(f"/proc/{pid}/stat")
+            c0 = sum(int(v) for v in stat.read_text().split()[13:15])
+            time.sleep(seconds)
+            c1 = sum(int(v) for v in stat.read_text().split()[13:15])
+        wall = time.monotonic() - t0
+        out["cpu_pct"] = 100.0 * (c1 - c0) / os.sysconf("SC_CLK_TCK") / wall
+        out["ticks"], out["lost"] = float(status["ticks"]), float(status["gaps"])
+        out["mb_min"] = float(status["bytes"]) / 1e6 / wall * 60.0
+    rows = flightrec.read_ring(header, ring)
+    rows = rows[rows["tick"] >= 0][-(int(header["count"]) - first) :]
+    lat = rows["latency_ns"] / 1e3
+    out["served"] = float(int(header["count"]) - first)
+    out["p50"], out["p99"], out["max"] = (float(np.percentile(lat, q)) for q in (50, 99, 100))
+    out["ran"] = float(np.median(rows["ran_ns"])) / 1e3
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    ap.add_argument("--seconds", type=float, default=30.0, help="each window")
+    args = ap.parse_args()
+    name = f"benchrec{os.getpid()}"
+    cfg = cell_config({}, name, args.config)
+    tmp = Path(tempfile.mkdtemp(prefix="bench_recording."))
+    hist = tmp / "cyclictest.hist"
+    stop = threading.Event()
+    with KaliRun(cfg, log_dir=tmp, lockstep=False):
+        ct = subprocess.Popen(
+            cyclictest_command(int(2 * args.seconds + 30), os.cpu_count() or 1, hist, 1000,
+                               spike_us=0),
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True,
+        )  # fmt: skip
+        try:
+            with Kali(name) as kali:
+                kali.ready()
+                mover = threading.Thread(target=swing, args=(kali, stop), daemon=True)
+                mover.start()
+                time.sleep(2.0)
+                plain = window(kali, args.seconds, None)
+                recorded = window(kali, args.seconds, tmp / "run.mcap")
+                stop.set()
+                mover.join(timeout=60)
+        finally:
+            stop.set()
+            stop_cyclictest(ct)
+    floor = ct_row("cyclictest", parse_histfile(hist), "all", 1000)
+    rows = [
+        ("without recording", f"{plain['p50']:.0f}", f"{plain['p99']:.0f}", f"{plain['max']:.0f}",
+         f"{plain['ran']:.0f}", f"{plain['served']:.0f}", "-", "-", "-", "-"),
+        ("recording", f"{recorded['p50']:.0f}", f"{recorded['p99']:.0f}",
+         f"{recorded['max']:.0f}", f"{recorded['ran']:.0f}", f"{recorded['served']:.0f}",
+         f"{recorded['ticks']:.0f}", f"{recorded['lost']:.0f}", f"{recorded['mb_min']:.1f}",
+         f"{recorded['cpu_pct']:.1f}"),
+    ]  # fmt: skip
+    print(table(
+        ["window", "SIO p50 µs", "p99 µs", "max µs", "SIO CPU µs", "ticks served",
+         "ticks recorded", "lost", "MB/min", "recorder % core"],
+        rows,
+        title=f"recording to MCAP, {len(cfg.robots)} arms, {args.seconds:g} s windows, real time",
+        caption=(f"+µs (SIO p50, recording - without): {recorded['p50'] - plain['p50']:+.1f}; "
+                 f"cyclictest p99 {floor.p99_us:.0f} µs (the floor), SIO p99 / floor: "
+                 f"{recorded['p99'] / max(floor.p99_us, 1):.2f}"),
+    ))  # fmt: skip
+
+
+if __name__ == "__main__":
+    sys.exit(main())
