@@ -131,9 +131,12 @@ class Cdr:
         for t in texts:
             self.string(t)
 
-    def int64(self, v: int) -> None:
+    def int64(self, v: int) -> int:
+        """An int64; its offset in the message."""
         self._align(8)
+        at = len(self.buf)
         self.buf += struct.pack("<q", v)
+        return at
 
     def uint64(self, v: int) -> None:
         self._align(8)
@@ -147,19 +150,46 @@ class Cdr:
         self._align(8)
         self.buf += struct.pack("<d", v)
 
-    def float64s(self, values: np.ndarray) -> None:
-        """float64[] (a sequence)."""
+    def float64s(self, values: np.ndarray) -> int:
+        """float64[] (a sequence); the offset of its values in the message."""
         self._align(4)
         self.buf += struct.pack("<I", len(values))
         self._align(8)
+        at = len(self.buf)
         self.buf += np.ascontiguousarray(values, dtype="<f8").tobytes()
+        return at
 
-    def float64_fixed(self, values: np.ndarray) -> None:
-        """Consecutive float64 fields (a Wrench's six)."""
+    def float64_fixed(self, values: np.ndarray) -> int:
+        """Consecutive float64 fields (a Wrench's six); the offset of the first."""
         self._align(8)
+        at = len(self.buf)
         self.buf += np.ascontiguousarray(values, dtype="<f8").tobytes()
+        return at
 
     def bytes(self) -> bytes:
+        return bytes(self.buf)
+
+
+class Template:
+    """A message whose layout never changes (an arm's joint state, servo tick or wrench):
+    encoded once, then each tick only its stamp, tick and values are written in place
+    (``fill``), one copy of the bytes per message."""
+
+    def __init__(self, cdr: Cdr, tick_at: int, columns: list[tuple[str, int, int]]) -> None:
+        self.buf = bytearray(cdr.buf)
+        self.tick_at = tick_at  # -1: no tick field
+        # (flight-row column, its first value in the message, how many)
+        self.views = [
+            (column, np.frombuffer(self.buf, dtype="<f8", count=n, offset=at))
+            for column, at, n in columns
+        ]
+
+    def fill(self, ns: int, tick: int, row: np.ndarray, span: slice | int) -> bytes:
+        struct.pack_into("<iI", self.buf, 4, ns // 1_000_000_000, ns % 1_000_000_000)
+        if self.tick_at >= 0:
+            struct.pack_into("<q", self.buf, self.tick_at, tick)
+        for column, view in self.views:
+            view[:] = row[column][span]
         return bytes(self.buf)
 
 
@@ -222,8 +252,8 @@ class Recording:
             kind: channel(f"/kali/{topic}", kind)
             for kind, topic in (("gap", "gaps"), ("request", "requests"), ("fault", "faults"))
         }
-        self._names_b = [[n.encode() for n in names] for names in self.joint_names]
         self._cdr = Cdr()
+        self._templates = [self._arm_templates(k) for k in range(len(self.names))]
         self.requests = inst.arena.existing(
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
@@ -233,6 +263,26 @@ class Recording:
         self._faults = int(inst.fault["count"])
         self.tg = inst.arena.existing(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.names))
         self._tg_ticks = [int(t) for t in self.tg["tick"]]  # the last set-point written
+
+    def _arm_templates(self, k: int) -> dict[str, Template]:
+        """Arm ``k``'s joint state, servo tick and wrench messages, laid out once."""
+        n = self.spans[k].stop - self.spans[k].start
+        zeros, c, out = np.zeros(n), self._cdr, {}
+        c.reset()  # sensor_msgs/msg/JointState
+        c.header(0)
+        c.strings([name.encode() for name in self.joint_names[k]])
+        cols = [(col, c.float64s(zeros), n) for col in ("q", "qd", "torque")]
+        out["joints"] = Template(c, -1, cols)
+        c.reset()  # kali_msgs/msg/ServoTick
+        c.header(0)
+        tick_at = c.int64(0)
+        cols = [(col, c.float64s(zeros), n) for col in ROW_COLUMNS.values()]
+        out["servo"] = Template(c, tick_at, cols)
+        if self.sensors[k]:
+            c.reset()  # geometry_msgs/msg/WrenchStamped
+            c.header(0, f"{self.names[k]}_tool".encode())
+            out["wrench"] = Template(c, -1, [("wrench", c.float64_fixed(np.zeros(6)), 6)])
+        return out
 
     def drain(self) -> int:
         """Write every whole row written since the last drain; the ticks written."""
@@ -259,27 +309,13 @@ class Recording:
     def _write_row(self, row: np.ndarray) -> None:
         tick = int(row["tick"])
         t = tick * self.base_ns
-        c, add = self._cdr, self.writer.add_message
-        for k, name in enumerate(self.names):
-            span, ch = self.spans[k], self._channels[k]
-            c.reset()  # sensor_msgs/msg/JointState
-            c.header(t)
-            c.strings(self._names_b[k])
-            c.float64s(row["q"][span])
-            c.float64s(row["qd"][span])
-            c.float64s(row["torque"][span])
-            add(ch["joints"], t, c.bytes(), t)
-            c.reset()  # kali_msgs/msg/ServoTick
-            c.header(t)
-            c.int64(tick)
-            for column in ROW_COLUMNS.values():
-                c.float64s(row[column][span])
-            add(ch["servo"], t, c.bytes(), t)
+        add = self.writer.add_message
+        for k in range(len(self.names)):
+            span, ch, tpl = self.spans[k], self._channels[k], self._templates[k]
+            add(ch["joints"], t, tpl["joints"].fill(t, tick, row, span), t)
+            add(ch["servo"], t, tpl["servo"].fill(t, tick, row, span), t)
             if self.sensors[k]:
-                c.reset()  # geometry_msgs/msg/WrenchStamped
-                c.header(t, f"{name}_tool".encode())
-                c.float64_fixed(row["wrench"][k])
-                add(ch["wrench"], t, c.bytes(), t)
+                add(ch["wrench"], t, tpl["wrench"].fill(t, tick, row, k), t)
         if self.first_tick < 0:
             self.first_tick = tick
         self.last_tick = tick
@@ -374,6 +410,14 @@ class Recorder(Daemon):
         self.error = ""
         self._said_at = 0.0  # when the status file was last written
 
+    def _fail(self, exc: BaseException) -> None:
+        """A recorder that fails says so in its status and leaves; it never halts the cell
+        (the arms never notice a recording)."""
+        self.error = f"{type(exc).__name__}: {exc}"
+        self.log.error("recorder failed: %s", self.error)
+        if self.recording is not None:
+            self._end()
+
     def on_configure(self) -> None:
         self.recording = Recording(self.inst, self.path)
         self._say("recording")
@@ -385,6 +429,10 @@ class Recorder(Daemon):
             self.recording.drain()
         except OSError as exc:  # a full disk: the recording ends, the arms never notice
             self.error = f"cannot write {self.path}: {exc.strerror or exc}"
+            self._end()
+            return
+        except Exception as exc:  # a fault of the recorder's own: ends it, halts nothing
+            self.error = f"{type(exc).__name__}: {exc}"
             self._end()
             return
         now = time.monotonic()

@@ -3,6 +3,7 @@ lockstep, read back by independent readers (the ``mcap`` package's and ``rosbags
 
 from __future__ import annotations
 
+import subprocess
 from collections.abc import Callable
 from pathlib import Path
 
@@ -207,3 +208,33 @@ def test_a_remote_program_records_and_gets_the_file(
         refused = pytest.raises(KaliError, match="exists")
         with refused:
             remote.record(path).__enter__()
+
+
+def test_a_disk_that_fills_ends_the_recording_and_the_arms_never_notice(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """Recording onto a 256 KiB file system: the recording ends saying the disk is full,
+    nothing halts and the clock steps on."""
+    disk = tmp_path / "small"
+    disk.mkdir()
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(disk)], capture_output=True
+    )
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small file system here: {mounted.stderr.decode()}")
+    try:
+        name = kali(lockstep=True)
+        with Kali(name) as k:
+            k.ready()
+            left = k.robot("left")
+            with k.record(disk / "full.mcap") as status:
+                for _ in range(3):
+                    left.move_joints(left.read_joints() + 0.2, speed=0.5)
+                    left.move_joints(left.read_joints() - 0.2, speed=0.5)
+            assert "No space left on device" in status["error"], status
+            assert k.inst.fault_text() is None
+            tick = int(k.inst.clock["tick"])
+            step_kali_clock(k.inst, 100)
+            assert int(k.inst.clock["tick"]) == tick + 100
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)
