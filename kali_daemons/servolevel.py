@@ -28,7 +28,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
 from typing import Protocol
@@ -406,6 +406,52 @@ class ServoClient:
         for key, value in params.items():
             values[alg.params.index(key)] = float(value)
         self._op(i, SlotOp.PARAMS, idx, values.tobytes(), wait)
+
+    def select_joints(
+        self,
+        robot: str | int,
+        servo: str,
+        params: Sequence[Mapping[str, float]] | Mapping[str, float] | None = None,
+    ) -> None:
+        """Every joint of ``robot`` onto joint servo ``servo``, each with its parameters
+        (``params[j]`` for joint j + 1; one mapping: the same for every joint), selected
+        together so they hand over on one servo tick.  Every joint's parameters are checked
+        before any is changed: a bad one is a ServoError naming the joint, nothing changed."""
+        k = self.robot_index(robot)
+        n = self.level.map.counts[k]
+        if params is None or isinstance(params, Mapping):
+            per_joint: list[Mapping[str, float]] = [dict(params or {})] * n
+        else:
+            per_joint = list(params)
+            if len(per_joint) != n:
+                raise ServoError(
+                    f"select_joints: robot '{self.names[k]}' has {n} joints, "
+                    f"{len(per_joint)} sets of parameters given"
+                )
+        idx, alg = self.algorithm(servo)
+        for j, values in enumerate(per_joint, start=1):  # all checked, then all changed
+            i = self.slot(k, j)
+            check_names(f"{self._where(i)} '{servo}'", servo, alg.params, values)
+            trial = self.level.data[i][idx].copy()
+            try:
+                alg.set_params(struct_view(trial), dict(values))
+            except KaliError as exc:
+                raise ServoError(f"{self._where(i)} '{servo}': {exc}") from None
+        for j, values in enumerate(per_joint, start=1):
+            if values:
+                self.set_params(k, j, values, servo)
+        for j in range(1, n + 1):  # posted back to back: taken on one tick
+            self.select(k, j, servo, wait=False)
+        deadline = time.monotonic() + OP_TIMEOUT_S
+        while any(atomic.load32(self.level.op_addr[self.slot(k, j)]) for j in range(1, n + 1)):
+            if time.monotonic() > deadline:
+                raise ServoError(
+                    f"select_joints: robot '{self.names[k]}': the SVs did not take '{servo}' "
+                    f"within {OP_TIMEOUT_S:g} s (is the clock running?)"
+                )
+            self._servo_tick(f"robot '{self.names[k]}': select_joints waits for the next tick")
+        for j in range(1, n + 1):
+            self._check_refused(self.slot(k, j))
 
     def get_params(
         self, robot: str | int, joint: int, servo: str | None = None

@@ -135,3 +135,30 @@ def test_the_simulator_s_truth_is_public_and_crosses_the_bridge(
         local.sim.simulated = False  # as on an instance whose arms are real hardware
         with pytest.raises(ServoError, match="real hardware has no truth"):
             local.sim.truth("left")
+
+
+def test_one_call_selects_a_joint_servo_with_per_joint_parameters(
+    kali: Callable[..., str],
+) -> None:
+    """``robot.select_joint_servos("pd", params)`` (issue 55 item 6): every joint on the PD
+    with its own gains, handed over on one servo tick; a bad gain on one joint is refused
+    naming it, before anything changed."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready(["left"])
+        left = k.robot("left")
+        gains = [{"kp": 1000.0 + 100 * j, "kv": 20.0 + j} for j in range(6)]
+        bad = [dict(g) for g in gains]
+        bad[3]["kp"] = -1.0
+        with pytest.raises(ServoError, match="joint 4"):
+            left.select_joint_servos("pd", bad)
+        assert [k.servo.active("left", j) for j in range(1, 7)] == ["pid"] * 6
+        tick = int(k.inst.clock["tick"])
+        left.select_joint_servos("pd", gains)
+        assert [k.servo.active("left", j) for j in range(1, 7)] == ["pd"] * 6
+        assert int(k.inst.clock["tick"]) - tick <= 2  # one servo tick (lockstep: stepped)
+        for j, g in enumerate(gains, start=1):
+            got = k.servo.get_params("left", j)
+            assert (got["kp"], got["kv"]) == (g["kp"], g["kv"]), (j, got)
+        step_kali_clock(k.inst, 200)
+        assert k.inst.fault_text() is None

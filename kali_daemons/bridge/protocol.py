@@ -180,6 +180,7 @@ METHODS: dict[str, frozenset[str]] = {
             "move_joints",
             "feedforward",
             "select_servo",
+            "select_joint_servos",
             "set_servo",
             "shadow_servo",
             "trials",

@@ -748,6 +748,16 @@ class Robot:
         over bumplessly at the next servo tick, while it moves or not (thesis 3.3.4)."""
         self.kali.servo.select_arm(self.name, name)
 
+    def select_joint_servos(
+        self,
+        name: str,
+        params: Sequence[Mapping[str, float]] | Mapping[str, float] | None = None,
+    ) -> None:
+        """Every joint of this arm onto joint servo ``name`` with its own parameters
+        (``params[j]`` for joint j + 1, or one mapping for all), handed over together on one
+        servo tick, bumplessly; every joint's parameters checked before any changes."""
+        self.kali.servo.select_joints(self.name, name, params)
+
     def set_servo(self, params: Mapping[str, float], servo: str | None = None) -> None:
         """Change parameters of this arm's robot-level servo (default: the active one) on
         line, e.g. ``set_servo({"kz": 500, "fz": 15})``; ServoError, nothing changed, for a
