@@ -763,8 +763,7 @@ def _wait_power(inst: Instance, names: list[str], on: bool, timeout_s: float) ->
     while any(int(robots["power"][k]) != want for k in index):
         if time.monotonic() > deadline or inst.fault["active"]:
             states = ", ".join(
-                f"{n}: {_power_name(int(robots['power'][k]))} "
-                f"({decode(robots['message'][k])})"
+                f"{n}: {_power_name(int(robots['power'][k]))} ({decode(robots['message'][k])})"
                 for n, k in zip(names, index, strict=True)
             )
             why = inst.fault_text() or f"not {want.name} within {timeout_s:g} s"

@@ -36,6 +36,7 @@ from .instance import Instance
 from .kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
 from .layout import FaultCode, ProcState, RunMode
 from .spinlock import pid_alive
+from .stalls import ClockWitness
 
 IDLE_WAIT_S = 0.25  # longest semaphore wait before a heartbeat and a shutdown check
 SETTLE_POLL_S = 0.001  # a leaving function's wait for the clock to see it leave
@@ -313,6 +314,7 @@ class Daemon:
         # 20 ms watchdog (which cuts the amplifiers anyway); looking costs nothing until then
         self._idle_wait_s = CLOCK_WATCH_S if self.serious and not inst.lockstep else IDLE_WAIT_S
         self._clock_tick, self._clock_waits = -1, 0  # _watch_clock's view of a standing clock
+        self._clock_witness: ClockWitness | None = None  # made when the clock first stands
         waiter = ClockWait(
             inst, i, self.period_ticks, 0 if inst.lockstep else self.poll_ns, self._idle_wait_s,
             self._poll_after, stats, ack_sem,
@@ -339,6 +341,8 @@ class Daemon:
         finally:
             self._clock_wait = None
             waiter.close()
+            if self._clock_witness is not None:
+                self._clock_witness.close()
 
     def _set_period(self, ticks: int) -> None:
         """Inside the cycle: be signalled every ``ticks`` base ticks (a polling SV with
@@ -369,7 +373,8 @@ class Daemon:
         vCPU, DESIGN 10: the clock too, and this process with it) ends one wait late, before
         the clock on its own CPU has ticked again, and never counts, as the clock's
         ``_watch`` rules for the plant (a CI run once halted at start when dynamics, whose
-        waits are 250 ms, saw tick 0 across one)."""
+        waits are 250 ms, saw tick 0 across one); nor does a wait through which the machine
+        held the clock's CPU alone (``stalls.ClockWitness``)."""
         c, f = self.inst.clock, self.inst.fault
         pid = int(c["pid"])
         if pid <= 0 or f["active"]:
@@ -387,6 +392,10 @@ class Daemon:
             return
         if tick != self._clock_tick or self.inst.lockstep or c["mode"] != RunMode.RUNNING:
             self._clock_tick, self._clock_waits = tick, 0
+            return
+        if self._clock_witness is None:
+            self._clock_witness = ClockWitness(self.inst)
+        if self._clock_witness.held(rt.monotonic_ns()):
             return
         self._clock_waits += 1
         watched_ms = self._clock_waits * self._idle_wait_s * 1e3

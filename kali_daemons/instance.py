@@ -147,9 +147,7 @@ class Cell:
         n = int(rec["n_robots"])
         robots = rec["robots"][: max(0, min(n, layout.MAX_ROBOTS))].copy()
         counts = tuple(int(c) for c in robots["n_joints"])
-        if not 1 <= n <= layout.MAX_ROBOTS or not all(
-            1 <= c <= layout.MAX_JOINTS for c in counts
-        ):
+        if not 1 <= n <= layout.MAX_ROBOTS or not all(1 <= c <= layout.MAX_JOINTS for c in counts):
             raise InstanceError(
                 f"instance '{instance}': its cell record holds {n} robots of {list(counts)} "
                 f"joints, not 1..{layout.MAX_ROBOTS} robots of 1..{layout.MAX_JOINTS} joints "

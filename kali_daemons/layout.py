@@ -926,7 +926,11 @@ class MotionKind(enum.IntEnum):
 
 
 class RequestState(enum.IntEnum):
-    """A request's life, written by the TG into its status record."""
+    """A request's life, written by the TG into its status record; printed by name (a
+    program's ``print(handle.state)`` says DONE, not 3)."""
+
+    def __str__(self) -> str:
+        return self.name
 
     FREE = 0
     QUEUED = 1  # accepted by the TG, waiting for its robots to finish earlier motions

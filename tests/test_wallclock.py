@@ -635,7 +635,10 @@ def test_a_standing_clock_is_seen_only_through_two_waits_of_a_process_own(
 
     monkeypatch.setattr(dm, "pid_alive", lambda pid: True)
     faults: list[str] = []
-    clock = {"pid": 4242, "tick": 0, "mode": RunMode.STOPPED, "serious_miss_tolerance_ms": 20}
+    clock = {
+        "pid": 4242, "tick": 0, "mode": RunMode.STOPPED, "serious_miss_tolerance_ms": 20,
+        "base_tick_ns": 1_000_000, "ready": 0,  # not ready: no witness of its CPU (stalls)
+    }  # fmt: skip
     fault = {"active": 0}
 
     def raise_fault(code: FaultCode, process: str, message: str, tick: int) -> bool:
@@ -652,6 +655,7 @@ def test_a_standing_clock_is_seen_only_through_two_waits_of_a_process_own(
             clock=clock, fault=fault, lockstep=False, raise_fault=raise_fault
         )
         d._idle_wait_s, d._clock_tick, d._clock_waits = wait_s, -1, 0
+        d._clock_witness = None
         d._watch_clock()  # before start: the clock stands, as it should
         clock["mode"] = RunMode.RUNNING
         for _ in range(halts_after - 1):

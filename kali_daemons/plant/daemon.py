@@ -4,7 +4,9 @@ another), motors, amplifiers, I/O and DAC boards, behind their registers in the 
 
 from __future__ import annotations
 
+from .. import rt
 from ..daemon import Daemon
+from ..stalls import ClockWitness
 from .sim import PlantSim
 
 
@@ -25,7 +27,18 @@ class Plant(Daemon):
         period_ms = self.period_ticks * cfg.clock.base_tick_ms
         self.sim = PlantSim(cfg, self.inst.arena, period_ms=period_ms)
         self.sim.cycle()  # first cycle outside real time: warms every code path
+        # SIO is not signalled while the machine holds the clock's CPU; if SIO shares that
+        # CPU, it did not run either, and the boards' watchdogs do not count the time
+        self.stalls = ClockWitness(self.inst)
+        clock, sio = cfg.process("wallclock"), cfg.process("sio")
+        self.stalls.enabled &= clock.cpu is not None and clock.cpu == sio.cpu
+
+    def on_deactivate(self) -> None:
+        self.stalls.close()
 
     def cycle(self, tick: int) -> None:
-        """Inside the cycle: one plant period."""
+        """Inside the cycle: one plant period, not counted by the boards' watchdogs while the
+        machine holds SIO's CPU (``stalls``)."""
+        if self.stalls.held(rt.monotonic_ns()):
+            self.sim.hold_watchdogs()
         self.sim.cycle()

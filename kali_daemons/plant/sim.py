@@ -35,7 +35,7 @@ from ..arena import Arena
 from ..config import KaliConfig
 from ..joints import ArmCopy
 from ..model import World, build_world
-from .board import BOARD_STATE, EncoderBank, FtBank, IoBoardSim, boards_kernel
+from .board import BOARD_STATE, RETRIGGER_NS, EncoderBank, FtBank, IoBoardSim, boards_kernel
 from .motor import Drive, MotorBank
 
 if TYPE_CHECKING:
@@ -99,6 +99,7 @@ class PlantSim:
         self.truth = arena.record(layout.KEY_TRUTHS, layout.ARM_TRUTH, n_arms)
         self.joint_truth = arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, joints.total)
         self._board_state = np.zeros((n_arms, BOARD_STATE), np.int64)  # the boards' rows
+        self._retriggered = self._board_state[:, RETRIGGER_NS]  # when each watchdog last was
         self.boards = [
             IoBoardSim(self.regs[k : k + 1].reshape(()), pc, types[k], self._board_state[k])
             for k in range(n_arms)
@@ -188,6 +189,11 @@ class PlantSim:
         self._write_truth()
 
     # ------------------------------------------------------------------ one cycle
+
+    def hold_watchdogs(self) -> None:
+        """Let the next cycle not count for the boards' watchdogs: the machine held SIO's CPU
+        (``stalls.MachineStalls``), so their timers resume where they froze.  In the cycle."""
+        self._retriggered += self.substeps * self.dt_ns
 
     def cycle(self) -> None:
         """Advance the plant one period; inside the cycle (no allocation beyond numpy views)."""
