@@ -2,6 +2,9 @@
  *
  * Every kernel takes one pointer to its argument block, laid out once at configure time
  * (the arrays never move: arena views and preallocated arrays), so a call costs ~0.3 us.
+ * The blocks' structs are generated from their one declaration (kernel_args.py) into
+ * kernel_args.h, as are their ctypes classes; kali_layout() lists each one's fields, and
+ * kernels.load() refuses a library whose layout is not the ctypes classes'.
  * A per-joint array is a View: its first element and its stride in bytes, so arena record
  * fields (strided) and private arrays (contiguous) are read alike.  The arithmetic is the
  * reference numpy implementation's, operation for operation, built with -ffp-contract=off
@@ -17,24 +20,11 @@
 #include <string.h>
 #include <time.h>
 
-typedef struct {
-    char *p;        /* element 0 */
-    int64_t stride; /* bytes between elements */
-} View;
+#include "kernel_args.h" /* every block's and record's struct: kernel_args.py */
 
 #define AT(type, v, i) (*(type *)((v).p + (int64_t)(i) * (v).stride))
 
 /* ---------------------------------------------------------------- encoders -> radians */
-
-typedef struct {
-    int64_t n;
-    char *encoders;  /* the boards' registers */
-    View enc_off;    /* int64: joint i's counter at encoders + enc_off[i] (uint16) */
-    View acc, prev;  /* int32: accumulated counts, last 12-bit reading */
-    View offset;     /* double: calibration offsets, rad */
-    View rad_per_count, q;
-    int64_t modulo, half; /* 4096, 2048 (figure C.3) */
-} ReadArgs;
 
 int64_t kali_read(ReadArgs *a) {
     uint32_t mask = (uint32_t)a->modulo - 1u, half = (uint32_t)a->half;
@@ -53,13 +43,6 @@ int64_t kali_read(ReadArgs *a) {
 
 /* ---------------------------------------------------------------- velocity filter */
 
-typedef struct {
-    int64_t n;
-    View q, q_prev, qd;
-    double gain;  /* rate * a */
-    double b;     /* 1 / (1 + a) */
-} VelocityArgs;
-
 int64_t kali_velocity(VelocityArgs *a) {
     for (int64_t i = 0; i < a->n; i++) {
         double q = AT(double, a->q, i);
@@ -71,17 +54,6 @@ int64_t kali_velocity(VelocityArgs *a) {
 }
 
 /* ---------------------------------------------------------------- range and runaway */
-
-typedef struct {
-    int64_t n, n_robots;
-    View bounds;           /* int64, n_robots + 1: robot k's joints are bounds[k] .. bounds[k+1] */
-    View q, demand, q_min, q_max;
-    View range_check;      /* uint8: nonzero = checked */
-    View fed;              /* uint8 (bool) */
-    View safe;             /* double: client-written limits */
-    View safe_ok;          /* double: the last valid limit of each joint (updated here) */
-    double pi;
-} ChecksArgs;
 
 /* -1: no fault; i: joint i beyond its range; n + i: joint i's tracking error beyond safe.
  * The first robot at fault, its range before its runaway, its first joint. */
@@ -106,17 +78,6 @@ int64_t kali_checks(ChecksArgs *a) {
 }
 
 /* ---------------------------------------------------------------- feed the slots */
-
-typedef struct {
-    int64_t n;
-    View demand, q, qd, fed;
-    View slot_demand, slot_position, slot_velocity;
-    View slot_busy;  /* uint32: 0 = fed (an SV may claim it), else not_fed */
-    int64_t not_fed;
-    uint32_t *ctrl_fed, *ctrl_done; /* the servo control record's counts */
-    View demand_vel, demand_acc, ff, slot_demand_vel, slot_demand_acc, slot_ff;
-    View mark;  /* uint32 per slot: the busy value a fed slot gets (0, or ARM_FREE/ARM_HELD) */
-} FeedArgs;
 
 /* Stores before this are issued before stores after it (x86 keeps them in order). */
 #define ORDERED() __asm__ __volatile__("" ::: "memory")
@@ -147,11 +108,6 @@ int64_t kali_feed(FeedArgs *a) {
 
 /* ---------------------------------------------------------------- torques out */
 
-typedef struct {
-    int64_t n;
-    View slot_torque, fed, servo_torque, ff, torque;
-} TorquesArgs;
-
 /* servo and feed-forward torques of the fed joints, and their sum */
 int64_t kali_torques(TorquesArgs *a) {
     for (int64_t i = 0; i < a->n; i++) {
@@ -164,16 +120,6 @@ int64_t kali_torques(TorquesArgs *a) {
     }
     return 0;
 }
-
-typedef struct {
-    int64_t n;
-    View torque, gkt, current_limit, codes_per_amp;
-    View current;   /* double out, A */
-    View clamped;   /* uint8 (bool) out */
-    char *dacs;     /* the DAC boards' registers */
-    View dac_off;   /* int64: joint i's DAC code at dacs + dac_off[i] (uint16) */
-    double zero, top; /* DAC code of 0 V, highest code */
-} DacArgs;
 
 int64_t kali_dac(DacArgs *a) {
     for (int64_t i = 0; i < a->n; i++) {
@@ -190,13 +136,6 @@ int64_t kali_dac(DacArgs *a) {
     }
     return 0;
 }
-
-typedef struct {
-    int64_t n;
-    View torque, fed, clamped;
-    View over;          /* int64: consecutive fed ticks clamped */
-    View current_ticks; /* int64: how many halt */
-} CurrentArgs;
 
 /* -1, or the first joint clamped for its current_ticks */
 int64_t kali_current_check(CurrentArgs *a) {
@@ -221,15 +160,6 @@ int64_t kali_current_check(CurrentArgs *a) {
  * (the currents, cut into the range at once) and applied joint forces.  numpy's minimum
  * and maximum propagate NaN: so do np_min and np_max.  tanh is libm's: numpy's differs in
  * the last bit for some values, so this equals its reference to ~1e-15, not bit for bit. */
-
-typedef struct {
-    int64_t n;
-    const double *volts, *qd, *enabled, *current;
-    const double *gear, *kt_r, *vbus_r, *i_max, *gain, *w_scale, *g_extra_pos, *g_extra_neg;
-    double *ctrl, *range, *friction;          /* the bank's: range is n x 2 (low, high) */
-    const int64_t *acts, *act_adr, *dofs;     /* joint i's actuator, activation, dof */
-    double *mj_actrange, *mj_ctrl, *mj_act, *mj_qfrc; /* MuJoCo's arrays (actrange nu x 2) */
-} MotorArgs;
 
 static inline double np_max(double a, double b) { return (a >= b || a != a) ? a : b; }
 static inline double np_min(double a, double b) { return (a <= b || a != a) ? a : b; }
@@ -267,19 +197,6 @@ int64_t kali_motors(MotorArgs *a) {
  * channel's bit set in its board's index register, unless CSR_INDEX_OFF), the count modulo
  * 4096 into the board's counter register.  Returns the indexes captured. */
 
-typedef struct {
-    int64_t n;
-    const double *angle, *cpr, *phase;    /* motor angle, counts per rad, index phase */
-    int64_t *ref, *count;                 /* the bank's: the count's zero, the count */
-    double *rev;                          /* the bank's: revolution of the last index */
-    const int64_t *robot_of, *joint_of;
-    char *encoders;                       /* the boards' counter registers (uint16) */
-    const int64_t *enc_off;               /* joint i's at encoders + enc_off[i] */
-    View csr, index;                      /* uint8 per board */
-    int64_t index_off, modulo;            /* CSR_INDEX_OFF; 4096 */
-    double two_pi;
-} EncoderArgs;
-
 /* numpy's float -> int64 cast of a whole number: the minimum for NaN and out of range */
 static inline int64_t to_int64(double f) {
     return (f >= -9223372036854775808.0 && f < 9223372036854775808.0) ? (int64_t)f : INT64_MIN;
@@ -316,14 +233,6 @@ int64_t kali_encoders(EncoderArgs *a) {
  * as layout.lateness_bin gives it, the heartbeat), then its acknowledgement, last: the
  * store the clock reads. */
 
-typedef struct {
-    int64_t *late, *late_max, *exec, *exec_max, *heart, *ack;
-    uint64_t *acks;
-    uint32_t *hist;
-    int64_t linear_us, log_bins;        /* layout.HIST_LINEAR_US, HIST_LOG_BINS */
-    int64_t tick, release, woke, done;
-} StatsArgs;
-
 /* layout.lateness_bin: a lateness's histogram bin */
 static int64_t lateness_bin(int64_t ns, int64_t linear_us, int64_t log_bins) {
     int64_t us = ns >= 0 ? ns / 1000 : -((-ns + 999) / 1000); /* Python's floor // */
@@ -350,22 +259,6 @@ int64_t kali_cycle_stats(StatsArgs *a) {
  * flightrec.py's FlightRecorder.record_reference, field for field: one servo tick's row of
  * the ring (its timing, the six per-joint columns, the shadow torque in single precision,
  * each robot's wrench), then the header's count, published last. */
-
-typedef struct {
-    int64_t n, n_robots, rows;
-    char *ring;
-    int64_t row_size;
-    int64_t off_tick, off_t, off_lat, off_late, off_wait, off_ran, off_shadow, off_wrench;
-    const int64_t *off_cols;          /* the float64 columns' offsets in a row */
-    const View *cols;                 /* their sources, n each */
-    int64_t n_cols;
-    View shadow;                      /* float64, n */
-    const char *wrench;               /* n_robots x 6 float64 */
-    int64_t wrench_row, wrench_col;   /* its strides, bytes */
-    const int64_t *release;           /* SIO's slot's release_ns */
-    uint64_t *count;                  /* rows written: the header's, this writer's alone */
-    int64_t tick, t_read, latency, wait, ran;
-} FlightArgs;
 
 int64_t kali_flight_row(FlightArgs *a) {
     uint64_t next = *a->count;
@@ -400,22 +293,6 @@ int64_t kali_flight_row(FlightArgs *a) {
  * the boards' flags into the arms' truth records. */
 
 enum { B_AMPS, B_BRAKES, B_TRIPPED, B_SWITCH, B_SINCE, B_RETRIGGER, B_PREV_CSR, B_PREV_ADC, B_STATE };
-
-typedef struct {
-    int64_t n_arms;
-    View csr, estop, power, index, adc_control, adc_analog, adc_digital, clamped; /* registers */
-    View amps_on, brakes_engaged, watchdog_tripped, truth_estop;                  /* truth */
-    int64_t *state;                   /* n_arms x B_STATE */
-    const int64_t *base, *count;      /* arm k's joints: flat base[k] .. base[k] + count[k] */
-    double *enabled;                  /* per joint: the motor bank's enable (1.0 / 0.0) */
-    uint8_t *braked;                  /* per joint: the brakes hold */
-    const double *q, *lo, *hi, *mid;  /* per joint: angle, the pots' span, 2.5 V */
-    int64_t now_ns, hold_ns, watchdog_ns, brake_ns, never;
-    int64_t timeout_on, retrigger, no_disable, enable, index_off;   /* CSR bits */
-    int64_t p_amps, p_brakes, p_tripped, p_estop;                   /* POWER bits */
-    int64_t adc_start, channel_mask, adc_done, value_mask, channels, self_test;
-    double pot_v_min, pot_v_max, adc_volts, adc_top;
-} BoardArgs;
 
 static void set_amps(int64_t *s, int64_t on, int64_t now) {
     if (on != s[B_AMPS]) {
@@ -534,19 +411,6 @@ int64_t kali_boards_truth(BoardArgs *a) {
  * counted on its arm's board), and after MuJoCo's step the joints' angles, velocities and
  * motor currents gathered from MuJoCo's arrays, the motor angles and joint torques. */
 
-typedef struct {
-    int64_t n;
-    const double *qpos, *qvel, *act;              /* MuJoCo's */
-    const int64_t *qpos_idx, *dofs, *act_adr;     /* joint i's entries in them */
-    const double *gear, *gkt;
-    double *q, *qd, *current, *motor_angle, *torque;
-    char *dacs;                                   /* the DAC boards' records */
-    const int64_t *dac_off, *robot_of;            /* joint i's code at dacs + dac_off[i] */
-    View clamped;                                 /* uint32 per arm */
-    double *volts;
-    double top, zero, scale;                      /* 4095, the code of 0 V, volts per code */
-} PlantIoArgs;
-
 int64_t kali_plant_dac(PlantIoArgs *a) {
     for (int64_t i = 0; i < a->n; i++) {
         double v = (double)*(uint16_t *)(a->dacs + a->dac_off[i]);
@@ -581,26 +445,6 @@ int64_t kali_plant_joints(PlantIoArgs *a) {
  * A weld's rows are in MuJoCo's constraint arrays, which move as contacts come and go: while
  * one is active the kernel returns 1 before writing anything, the plant copies the rows
  * (_weld_forces) and calls it again with welds_read set. */
-
-typedef struct {
-    int64_t n;                     /* arms */
-    const uint8_t *eq_active;      /* MuJoCo's: weld k is arm k's */
-    uint8_t *held;                 /* n, bool */
-    const double *weld;            /* n x 6: the rows _weld_forces copied */
-    View grasped;                  /* uint8, per arm record */
-    View grasp_wrench, ft_wrench, push; /* each record's field (6, 6, 3 doubles) */
-    const double *ft_true;         /* n x 6 */
-    const double *xfrc;            /* MuJoCo's xfrc_applied, 6 a body */
-    const int64_t *tool_body;      /* n */
-    const double *site_xpos;       /* 3 a site */
-    const int64_t *grasp_site;     /* n */
-    const double *object_qpos;     /* 7 */
-    int64_t *sim_time_ns;
-    uint64_t *ticks;
-    double *object_pose;           /* 7 */
-    double *internal_force;
-    int64_t sim_ns, cycles, welds_read;
-} PlantTruthArgs;
 
 #define ROW(v, k) ((double *)((v).p + (int64_t)(k) * (v).stride))
 #define WRENCH 6 /* layout.WRENCH: force and torque, a weld's constraint rows too */
@@ -653,20 +497,6 @@ int64_t kali_plant_truth(PlantTruthArgs *a) {
  * reference draws six at a time); the kernel takes them in order and returns 1 once fewer
  * than a cycle's most (12) are left, for FtBank to draw more outside the kernel. */
 
-typedef struct {
-    const double *normals;
-    int64_t size, at;                 /* the block's length, the next draw */
-    double *offset;                   /* six volts: the bank's (FtBank.offset) */
-    double drift;                     /* a cycle's random-walk step, volts */
-    const double *gauges, *noise_sd;  /* C^-1 (6 x 6), the wrench's noise per axis */
-    const double *wrench;             /* the tool on the sensor, sensor frame */
-    int16_t *codes;
-    const uint16_t *control;
-    uint16_t *status;
-    int64_t served, seq_mask, request, ready; /* ready: FT_READY | FT_PRESENT */
-    double volts_per_code, rail;
-} FtArgs;
-
 int64_t kali_ft_bank(FtArgs *a) {
     const double *r = a->normals + a->at;
     for (int i = 0; i < 6; i++) a->offset[i] += r[i] * a->drift;
@@ -696,22 +526,6 @@ int64_t kali_ft_bank(FtArgs *a) {
  * SIO's end of a robot's Type 2 FIFO (channels.py, thesis 2.2.2): this servo tick's
  * interpolated demand.  InterpolatingFifo.pop_into is the reference, step for step; the
  * consumer's ratio (num, den, its stamp) lives here once a FIFO is popped by this kernel. */
-
-typedef struct {
-    int64_t n;                        /* the set-points' width */
-    uint64_t *head;                   /* the header's head (this consumer's) and tail */
-    const uint64_t *tail;
-    const double *ring;               /* capacity x n */
-    const uint64_t *stamps;           /* each set-point's ratio word */
-    int64_t capacity;
-    double bound;                     /* a value not strictly within +-bound is refused */
-    double *cur, *start, *target;     /* the .state block: output, A, B */
-    uint32_t *seg_ticks, *seg_done, *primed, *rejected, *ratio_num, *ratio_den;
-    uint64_t *underruns, *phase_acc;
-    View out;
-    int64_t num, den;                 /* the ratio of the segment in progress */
-    uint64_t stamp;                   /* num | den << 32 */
-} FifoPopArgs;
 
 int64_t kali_fifo_pop(FifoPopArgs *a) {
     int64_t n = a->n;
@@ -783,20 +597,6 @@ int64_t kali_fifo_pop(FifoPopArgs *a) {
  * from its FIFO (kali_fifo_pop) and its joints are fed.  Every other robot is left as it is
  * for _robot: its bit is set in the result.  The fed mask is cleared first, every joint. */
 
-typedef struct {
-    int64_t n, n_robots;
-    View bounds;                     /* int64, n_robots + 1: robot k's joints bounds[k] .. */
-    View fed;                        /* uint8 (bool), every joint */
-    View pots_read, power, power_cmd, calib_cmd, calib_state, guided; /* uint8, per robot */
-    View guard_state;                /* uint32, per robot */
-    View amps;                       /* uint8, per robot: the board register with ... */
-    int64_t amps_bit;                /* ... this bit set while its amplifiers are on */
-    int64_t on, tripped;             /* PowerState.ON, GuardState.TRIPPED */
-    int64_t calib_active;            /* bit s set: calibration state s is under way */
-    FifoPopArgs **pops;              /* robot k's kali_fifo_pop block */
-    int64_t faulted;                 /* this tick's, set by SIO before each call */
-} RobotsArgs;
-
 int64_t kali_sio_robots(RobotsArgs *a) {
     for (int64_t i = 0; i < a->n; i++) AT(uint8_t, a->fed, i) = 0;
     int64_t others = 0;
@@ -825,27 +625,6 @@ int64_t kali_sio_robots(RobotsArgs *a) {
  * RobotFeedforward.update is the reference, step for step): the dynamics process's rows of
  * the segment the FIFO interpolates (A = set-point b - 1, B = set-point b, a row's key 1 +
  * its index) by the same fraction as the demand; stale rows dropped, the weight ramped. */
-
-typedef struct {
-    int64_t n, rows, row_len;       /* joints; FF_ROWS; MAX_JOINTS (a row's values) */
-    const uint64_t *keys;           /* the record's key[FF_ROWS] */
-    const double *tau, *qd, *qdd;   /* its rows: row r at r * row_len */
-    const uint8_t *mode;            /* its words: the mode a client wants */
-    uint8_t *state;                 /* FfState */
-    const int64_t *heartbeat;       /* the dynamics process's last tick */
-    uint64_t *stale_ticks;
-    uint32_t *stale_events;
-    double *weight_rec;
-    const uint64_t *head;           /* the FIFO's header: the next set-point to take */
-    const uint32_t *seg_ticks, *seg_done;
-    View out, vel, acc;             /* double: the robot's joints of SIO's arrays */
-    double *last;                   /* 3 x n: the last good torque, velocity, acceleration */
-    int64_t heartbeat_limit, missing_limit, mode_max;
-    double step;                    /* weight per servo tick */
-    int64_t tick, arm;              /* this tick's, from SIO */
-    int64_t mode_ok, missing, stale; /* the state between ticks */
-    double weight;
-} FfArgs;
 
 #define FF_MAX_JOINTS 64 /* n <= layout.MAX_JOINTS <= this (asserted at binding) */
 
@@ -940,16 +719,6 @@ int64_t kali_feedforward(FfArgs *a) {
 
 /* ---------------------------------------------------------------- publish */
 
-typedef struct {
-    View src, dst;
-    int64_t size; /* bytes per element: 4 or 8 */
-} Copy;
-
-typedef struct {
-    int64_t n, m;
-    Copy *copies;
-} CopyArgs;
-
 /* m flat arrays of n elements each into their records */
 int64_t kali_copy(CopyArgs *a) {
     for (int64_t c = 0; c < a->m; c++) {
@@ -1016,14 +785,6 @@ static void chain_pose(int64_t n, const double *origins, const double *axes, con
     out[15] = 1.0;
 }
 
-typedef struct {
-    int64_t n;              /* the chain's joints */
-    const double *origins;  /* (n + 1) x 16: chain.Chain.origins, C order */
-    const double *axes;     /* n x 3: chain.Chain.axes */
-    const double *q;        /* n joint angles, rad, contiguous */
-    double *out;            /* 16: the flange pose, row-major */
-} ChainPoseArgs;
-
 int64_t kali_chain_pose(ChainPoseArgs *a) {
     chain_pose(a->n, a->origins, a->axes, a->q, a->out);
     return 0;
@@ -1042,31 +803,6 @@ int64_t kali_chain_pose(ChainPoseArgs *a) {
  * failed; the message is Python's to build. */
 
 enum { WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT };
-
-typedef struct {
-    int64_t n;                          /* the chain's joints */
-    const double *origins, *axes, *q;   /* chain.Chain, the arm's angles (contiguous) */
-    const int16_t *codes;               /* the board's 6 gauge codes */
-    const double *cal;                  /* 6x6 calibration matrix, row-major, N per volt */
-    const double *base;                 /* 4x4 base pose in the world, row-major */
-    const double *g;                    /* gravity in the world, m/s^2 */
-    const double *com;                  /* the tool's centre of mass, sensor frame */
-    const double *rated;                /* the sheet's range per axis */
-    const double *limit;                /* FT_STATE.contact_limit: a client may only lower it */
-    double mass, tip, alpha, volts, limit_config;
-    int64_t rail;                       /* a code at +-rail is saturated */
-    int64_t tare_left, tare_ticks;      /* in/out: samples a tare still sums; of how many */
-    double *raw, *grav, *sensor, *filt, *tool, *world, *bias, *sum, *rotation;
-    double force, limit_used;           /* out: the contact force and the limit it met, N */
-    /* the tick's handshake and bookkeeping (kali_wrench_tick) */
-    uint16_t *status, *control;         /* the board's ft_status, ft_control */
-    uint32_t *stale, *tare_count;       /* FT_STATE fields */
-    uint64_t *samples;
-    int64_t *sample_tick;
-    uint8_t *present, *tare_cmd, *tare_state;
-    int64_t tick, seq, stale_limit;     /* in: this tick; in/out: the sequence asked for */
-    int64_t ready, request, seq_mask, averaging, done; /* ftsensor's bits, TareState's values */
-} WrenchArgs;
 
 /* The conversion alone, for the tests against convert_reference. */
 int64_t kali_wrench_convert(WrenchArgs *a) {
@@ -1152,135 +888,11 @@ int64_t kali_wrench_tick(WrenchArgs *a) {
 /* ================================================================ the built-in servos
  *
  * The PID of thesis figure 3.4 and the PD (servo/builtins.py), over many joints in one call.
- * Each algorithm's private data for the cell is one arena block of a record per slot; the
- * structs below mirror the records' numpy dtypes (PID_DTYPE, PD_DTYPE, layout.SERVO_SLOT,
- * all aligned) and kali_fields() lists their fields, so that kernels.load() refuses a
- * library whose structs differ from the dtypes.  pid_row and pd_row are pid_step and
+ * Each algorithm's private data for the cell is one arena block of a record per slot; its
+ * struct (PidRecord, PdRecord, SlotRecord in kernel_args.h) is generated from the record's
+ * numpy dtype and kali_fields() lists its fields, so that kernels.load() refuses a library
+ * whose structs differ from the dtypes.  pid_row and pd_row are pid_step and
  * pd_step: the same operations in the same order (no contraction), so the same numbers. */
-
-typedef struct {
-    double kp, ki, kv, fe, fv, integration_band, integration_reset, bias_tau;
-    double sampling_period, inv_period, ki_t, lpfe1, lpfe2, lpfv1, lpfv2, bias_decay;
-    double error, old_position, old_velocity, integral, bias;
-    uint32_t primed;
-} PidRecord;
-
-typedef struct {
-    double kp, kv, fv, bias_tau;
-    double sampling_period, inv_period, lpfv1, lpfv2, bias_decay;
-    double error, old_position, old_velocity, bias;
-    uint32_t primed;
-} PdRecord;
-
-typedef struct {
-    uint32_t busy, op, op_algo, op_lock, ops_done, algo, enabled;
-    int32_t status;
-    double demand, position, velocity, demand_vel, demand_acc, ff, torque, error;
-    uint32_t reset;
-    int32_t op_status;
-    int64_t ran_tick, exec_ns;
-    int32_t sv;
-    int32_t shadow;
-    uint32_t shadow_state, _pad;
-    double shadow_torque;
-    uint64_t shadow_n;
-    double shadow_sq, shadow_peak;
-} SlotRecord;
-
-typedef struct {
-    const char *name; /* NULL ends a table; that entry's offset is the struct's size */
-    int64_t offset, size;
-    char kind;        /* numpy's dtype kind: 'f', 'u', 'i' */
-} Field;
-
-#define FIELD(T, f, k) {#f, (int64_t)offsetof(T, f), (int64_t)sizeof(((T *)0)->f), k}
-#define END(T) {NULL, (int64_t)sizeof(T), 0, 0}
-
-static const Field PID_FIELDS[] = {
-    FIELD(PidRecord, kp, 'f'), FIELD(PidRecord, ki, 'f'), FIELD(PidRecord, kv, 'f'),
-    FIELD(PidRecord, fe, 'f'), FIELD(PidRecord, fv, 'f'),
-    FIELD(PidRecord, integration_band, 'f'), FIELD(PidRecord, integration_reset, 'f'),
-    FIELD(PidRecord, bias_tau, 'f'), FIELD(PidRecord, sampling_period, 'f'),
-    FIELD(PidRecord, inv_period, 'f'), FIELD(PidRecord, ki_t, 'f'),
-    FIELD(PidRecord, lpfe1, 'f'), FIELD(PidRecord, lpfe2, 'f'), FIELD(PidRecord, lpfv1, 'f'),
-    FIELD(PidRecord, lpfv2, 'f'), FIELD(PidRecord, bias_decay, 'f'),
-    FIELD(PidRecord, error, 'f'), FIELD(PidRecord, old_position, 'f'),
-    FIELD(PidRecord, old_velocity, 'f'), FIELD(PidRecord, integral, 'f'),
-    FIELD(PidRecord, bias, 'f'), FIELD(PidRecord, primed, 'u'), END(PidRecord),
-};
-
-static const Field PD_FIELDS[] = {
-    FIELD(PdRecord, kp, 'f'), FIELD(PdRecord, kv, 'f'), FIELD(PdRecord, fv, 'f'),
-    FIELD(PdRecord, bias_tau, 'f'), FIELD(PdRecord, sampling_period, 'f'),
-    FIELD(PdRecord, inv_period, 'f'), FIELD(PdRecord, lpfv1, 'f'), FIELD(PdRecord, lpfv2, 'f'),
-    FIELD(PdRecord, bias_decay, 'f'), FIELD(PdRecord, error, 'f'),
-    FIELD(PdRecord, old_position, 'f'), FIELD(PdRecord, old_velocity, 'f'),
-    FIELD(PdRecord, bias, 'f'), FIELD(PdRecord, primed, 'u'), END(PdRecord),
-};
-
-static const Field SLOT_FIELDS[] = {
-    FIELD(SlotRecord, busy, 'u'), FIELD(SlotRecord, op, 'u'), FIELD(SlotRecord, op_algo, 'u'),
-    FIELD(SlotRecord, op_lock, 'u'), FIELD(SlotRecord, ops_done, 'u'),
-    FIELD(SlotRecord, algo, 'u'), FIELD(SlotRecord, enabled, 'u'),
-    FIELD(SlotRecord, status, 'i'), FIELD(SlotRecord, demand, 'f'),
-    FIELD(SlotRecord, position, 'f'), FIELD(SlotRecord, velocity, 'f'),
-    FIELD(SlotRecord, demand_vel, 'f'), FIELD(SlotRecord, demand_acc, 'f'),
-    FIELD(SlotRecord, ff, 'f'), FIELD(SlotRecord, torque, 'f'), FIELD(SlotRecord, error, 'f'),
-    FIELD(SlotRecord, reset, 'u'), FIELD(SlotRecord, op_status, 'i'),
-    FIELD(SlotRecord, ran_tick, 'i'), FIELD(SlotRecord, exec_ns, 'i'),
-    FIELD(SlotRecord, sv, 'i'), FIELD(SlotRecord, shadow, 'i'),
-    FIELD(SlotRecord, shadow_state, 'u'), FIELD(SlotRecord, _pad, 'u'),
-    FIELD(SlotRecord, shadow_torque, 'f'), FIELD(SlotRecord, shadow_n, 'u'),
-    FIELD(SlotRecord, shadow_sq, 'f'), FIELD(SlotRecord, shadow_peak, 'f'), END(SlotRecord),
-};
-
-/* the computed torque servo's record (servo.armbuiltins.CT_DTYPE; kali_computed_torque) */
-typedef struct {
-    double wn, zeta, friction, handover_s, kp, kd, wi, ilimit, ki, dt, decay;
-    double bias[8], integral[8]; /* layout.MAX_JOINTS */
-} CtRecord;
-
-static const Field CT_FIELDS[] = {
-    FIELD(CtRecord, wn, 'f'), FIELD(CtRecord, zeta, 'f'), FIELD(CtRecord, friction, 'f'),
-    FIELD(CtRecord, handover_s, 'f'), FIELD(CtRecord, kp, 'f'), FIELD(CtRecord, kd, 'f'),
-    FIELD(CtRecord, wi, 'f'), FIELD(CtRecord, ilimit, 'f'), FIELD(CtRecord, ki, 'f'),
-    FIELD(CtRecord, dt, 'f'), FIELD(CtRecord, decay, 'f'), FIELD(CtRecord, bias, 'V'),
-    FIELD(CtRecord, integral, 'V'), END(CtRecord),
-};
-
-/* the impedance servo's record (servo.armbuiltins.IMPEDANCE_DTYPE; kali_impedance) */
-typedef struct {
-    double k[6], d[6], f[6], integral[6], limit[6], band[6];
-    double partner, fi, u[3], kpi, kii, squeeze, gi, kf, kfi, imax, kq, cband, ctau;
-    double cdecay;
-    double friction, handover_s, dt, decay;
-    double bias[8], drive[8]; /* layout.MAX_JOINTS */
-} ImpRecord;
-
-static const Field IMP_FIELDS[] = {
-    FIELD(ImpRecord, k, 'V'), FIELD(ImpRecord, d, 'V'), FIELD(ImpRecord, f, 'V'),
-    FIELD(ImpRecord, integral, 'V'), FIELD(ImpRecord, limit, 'V'), FIELD(ImpRecord, band, 'V'),
-    FIELD(ImpRecord, partner, 'f'), FIELD(ImpRecord, fi, 'f'), FIELD(ImpRecord, u, 'V'),
-    FIELD(ImpRecord, kpi, 'f'), FIELD(ImpRecord, kii, 'f'), FIELD(ImpRecord, squeeze, 'f'),
-    FIELD(ImpRecord, gi, 'f'), FIELD(ImpRecord, kf, 'f'), FIELD(ImpRecord, kfi, 'f'),
-    FIELD(ImpRecord, imax, 'f'), FIELD(ImpRecord, kq, 'f'), FIELD(ImpRecord, cband, 'f'),
-    FIELD(ImpRecord, ctau, 'f'), FIELD(ImpRecord, cdecay, 'f'), FIELD(ImpRecord, friction, 'f'),
-    FIELD(ImpRecord, handover_s, 'f'), FIELD(ImpRecord, dt, 'f'), FIELD(ImpRecord, decay, 'f'),
-    FIELD(ImpRecord, bias, 'V'), FIELD(ImpRecord, drive, 'V'), END(ImpRecord),
-};
-
-/* The fields of record 0 (SlotRecord), 1 (PidRecord), 2 (PdRecord), 3 (ImpRecord) or 4
- * (CtRecord); NULL for another. */
-const Field *kali_fields(int64_t record) {
-    switch (record) {
-    case 0: return SLOT_FIELDS;
-    case 1: return PID_FIELDS;
-    case 2: return PD_FIELDS;
-    case 3: return IMP_FIELDS;
-    case 4: return CT_FIELDS;
-    default: return NULL;
-    }
-}
 
 /* pid_step on one record (written in place): the torque, the filtered error into *error. */
 static inline double pid_row(PidRecord *d, double demand, double position, double *error) {
@@ -1332,15 +944,6 @@ static inline double pd_row(PdRecord *d, double demand, double position, double 
     return d->kp * e - d->kv * v + bias;
 }
 
-typedef struct {
-    int64_t n;
-    char *data;      /* the algorithm's records */
-    View rows;       /* int64: row k of the step is record rows[k] */
-    View demand, position, torque, error;
-    View status;     /* int32 */
-    int64_t ok;      /* STATUS_OK */
-} VectorArgs;
-
 /* The PID on records rows[0..n-1] of data, with demand[k] and position[k]: torques, errors
  * and statuses out (servo.vector.pid_vector_step). */
 int64_t kali_pid_vector(VectorArgs *a) {
@@ -1371,23 +974,6 @@ int64_t kali_pd_vector(VectorArgs *a) {
 }
 
 /* ---------------------------------------------------------------- an SV's unit */
-
-typedef struct {
-    SlotRecord *slots;   /* the cell's slots */
-    PidRecord *pid;      /* the PID's block: a record per slot */
-    PdRecord *pd;        /* the PD's block */
-    int64_t lo, hi;      /* the robot's slots */
-    int64_t pid_a, pd_a; /* the built-ins' registry indices */
-    int64_t me;          /* the SV's busy value: its number + 1 */
-    int64_t sv;          /* its number */
-    int64_t ok;          /* STATUS_OK */
-    int64_t *left;       /* out: slots claimed for the per-slot path */
-    int64_t tick;        /* in: the tick served */
-    int64_t exec_ns;     /* in/out: this unit's last cost per slot, noted as each step's */
-    int64_t n_left;      /* out: slots put into left */
-    int64_t fault;       /* out: the first slot whose torque was not finite, or -1 */
-    double bad;          /* out: its torque */
-} UnitArgs;
 
 #define SHADOW_RUNNING 1u /* layout.ShadowState.RUNNING */
 
@@ -1484,19 +1070,6 @@ int64_t kali_serve_unit(UnitArgs *a) {
  * the robot's record the same.  A torque that is not finite writes nothing: 1 (the SV halts,
  * naming the algorithm). */
 
-typedef struct {
-    int64_t n;
-    double *tau;                /* n, contiguous: the step's torques */
-    const double *q_d, *q;      /* the ArmInput's, contiguous */
-    View enabled;               /* uint32: the slots' (clients': 0 = no torque) */
-    View torque, error;         /* double: the slots' */
-    View status, sv;            /* int32 */
-    View ran, exec;             /* int64 */
-    int32_t *arm_status;        /* the robot's record */
-    int64_t *arm_exec_ns, *arm_ran_tick;
-    int64_t tick, sv_index, t0;
-} ArmFinishArgs;
-
 int64_t kali_arm_finish(ArmFinishArgs *a) {
     int64_t n = a->n;
     for (int64_t i = 0; i < n; i++)
@@ -1523,20 +1096,6 @@ int64_t kali_arm_finish(ArmFinishArgs *a) {
  * the laws) on one arm, its record the arena's, stepped in place; the inputs the SV's
  * ArmInput, contiguous.  Each equals its Python step to ~1e-12 (numpy's small products go
  * through BLAS, which sums in an order of its own). */
-
-typedef struct {
-    int64_t n;                        /* the arm's joints */
-    void *d;                          /* the robot's record of the algorithm (arena) */
-    const double *q_d, *qd_d, *qdd_d; /* n each: the demand */
-    const double *q, *qd, *h;         /* n each: the measurement, C(q, qd) qd + g(q) */
-    const double *M, *J;              /* n x n, 6 x n, row-major */
-    const double *pose, *pose_d;      /* 4x4 row-major: the tool point at q, at q_d */
-    const double *wrench;             /* 6: this arm's contact wrench, world axes */
-    const char *wrenches;             /* robots x 6 doubles, rows wrench_stride bytes apart */
-    int64_t wrench_stride, robots, has_sensor;
-    const double *viscous, *gear_w, *coulomb_pos, *coulomb_neg; /* n each: DriveFriction's */
-    double *tau;                      /* n: out */
-} ArmArgs;
 
 /* The drive's friction torque of joint j at velocity v (dynamics.inverse.DriveFriction:
  * viscous plus asymmetric Coulomb smoothed by tanh), term for term as numpy computes it. */
@@ -1713,20 +1272,6 @@ int64_t kali_impedance(ArmArgs *a) {
  * lives here, and the reference steps the same fields.
  * Returns 1 when this tick's writes were a retrigger (the level fell, C.4). */
 
-typedef struct {
-    int64_t n_arms;
-    View csr, power_reg;               /* uint8, per arm: the registers */
-    View power, enable_ticks;          /* per robot: uint8 PowerState, int32 */
-    View capture;                      /* uint8, per arm: index capture on (calibration) */
-    char *codes;                       /* the DAC records' codes: arm k's row at k * codes_row */
-    int64_t codes_row;
-    View n_joints;                     /* int64, per arm */
-    const uint32_t *fault_active;      /* halted: the fault word, read here */
-    int64_t base_csr, green_red, no_disable, enable, index_off, amps_on;
-    int64_t on, enabling, off, hold_ticks, dac_zero, retrigger, retrigger_ticks;
-    int64_t ticks, bit, prev_bit;      /* end_tick's state */
-} McgillArgs;
-
 static inline int64_t retrigger_level(const McgillArgs *a, int64_t tick) {
     return (tick / a->retrigger_ticks) % 2 == 0 ? a->retrigger : 0;
 }
@@ -1768,59 +1313,8 @@ int64_t kali_mcgill_control(McgillArgs *a) {
  * does that part in Python and calls the pass again.  The board-specific steps (the encoders,
  * the DACs, the command registers) are the boards' kernels, called through their pointers. */
 
-typedef int64_t (*KernelFn)(void *);
-
 enum { SIO_FED, SIO_DONE, SIO_CAPTURE, SIO_SENSOR, SIO_ROBOTS, SIO_CHECK, SIO_CURRENT, SIO_WAIT };
 enum { ST_READ, ST_VELOCITY, ST_SENSORS, ST_ROBOTS, ST_CHECKS, ST_FEED, ST_WAIT, ST_BACK, ST_OUT };
-
-typedef struct {
-    int64_t n, n_robots;
-    KernelFn read_fn, dac_fn, control_fn;   /* the boards' */
-    void *read_args, *dac_args, *control_args;
-    const uint8_t *capture;                 /* per robot: index capture on */
-    VelocityArgs *velocity;
-    WrenchArgs **sensors;
-    const uint32_t **guard_state;           /* per sensor: its arm's guard ... */
-    const double **guard_n;                 /* ... and the force that trips it */
-    int64_t n_sensors, guard_armed;
-    RobotsArgs *robots;
-    ChecksArgs *checks;
-    FfArgs **ff;                            /* per robot */
-    FeedArgs *feed;
-    TorquesArgs *torques;
-    CurrentArgs *current;
-    CopyArgs *publish;
-    FlightArgs *flight;
-    const uint32_t *fault_active;
-    const uint64_t *fault_count;
-    View arm_algo, arm_op, shadows;         /* per robot: int32, uint32, uint32 */
-    View bounds;                            /* int64, n_robots + 1 */
-    uint8_t *whole;                         /* per robot: fed whole last tick */
-    View mark, ff_out;                      /* per joint: uint32, double */
-    int64_t arm_none, arm_free, arm_held;
-    sem_t **feeds;
-    int64_t n_feeds;
-    sem_t *done_sem;                        /* the SVs' last post: every servo done */
-    uint32_t *ctrl_done;
-    int64_t slice_ns;                       /* how long one wait for it lasts (a period) */
-    int64_t *ctrl_tick;
-    int64_t *fed_ns;                        /* when SIO fed its last tick */
-    int64_t *served_max;                    /* per SV: the longest feed-to-done since it learnt */
-    View robots_tick;                       /* int64, per robot */
-    const int64_t *sv_fed_tick;             /* the gang (sio/gang.py): per SV */
-    View signal_tick, ack_tick, vouched_tick; /* int64, per process slot */
-    const int64_t *gang_sv, *gang_slot, *gang_lag;
-    int64_t n_gang;
-    int64_t *ack_early;                     /* SIO's slot's ack_tick, or NULL */
-    const int64_t *clock_tick;
-    int64_t *lat_last, *lat_max;
-    uint32_t *hist;
-    int64_t linear_us, log_bins;
-    /* per tick: from SIO, between the passes, to SIO */
-    int64_t tick, post, ok;                 /* ok: the servos were done (_wait_done) */
-    int64_t stage, faulted, faults_seen, at, result, fed;
-    int64_t t_read, c_read, t_fed, t_done, t_out, c_out, retrigger_tick;
-} SioArgs;
 
 static inline int64_t thread_cpu_ns(void) { /* rt.thread_time_ns */
     struct timespec t;
@@ -1997,41 +1491,6 @@ int64_t kali_sio_tick(SioArgs *a) {
 enum { SV_DONE, SV_ARM, SV_FAULT, SV_LEFT, SV_SLOT };
 enum { SV_START, SV_ARMS, SV_UNITS, SV_UNIT_DONE, SV_UNIT_LEFT, SV_SLOTS, SV_END, SV_FEED };
 
-typedef struct {
-    int64_t n, n_arms, n_units;
-    SlotRecord *slots;
-    int64_t *fed_tick_out;            /* ctrl sv_fed_tick[this SV] */
-    const uint32_t *ctrl_fed;
-    uint32_t *ctrl_done;
-    const int64_t *ctrl_tick;
-    const int64_t *arm_lo;            /* per robot fed whole, in this SV's order: first slot */
-    UnitArgs **units;                 /* in this SV's order */
-    const int64_t *order;             /* the single slots, in this SV's order */
-    sem_t *done_sem;
-    int64_t me, arm_free;
-    int64_t *exec_last, *exec_max;
-    uint64_t *servos;
-    uint32_t *exec_hist;
-    int64_t linear_us, log_bins;
-    /* the feed (stage SV_FEED, ServoWorker._await_feed and _learn_feed) */
-    sem_t *feed_sem;
-    int64_t poll_ns, feed_wait_ns;      /* poll the feed this long first; wait at most this */
-    int64_t learn;                      /* a polling SV learns when to wake from each feed */
-    const int64_t *fed_ns;              /* ctrl: when SIO fed */
-    int64_t *served_max;                /* ctrl: the longest the servos took since it learnt */
-    const int64_t *release;             /* procs release_ns[this SV's slot] */
-    int64_t *feed_seen, *served;        /* the last `history` learnt */
-    int64_t history, feed_k, margin_ns, share_ns, share_looks, cap_ns;
-    int64_t sharing;                    /* between calls: the last look found them worth it */
-    int64_t servo_ticks, rest_ticks;    /* its period in ticks: sharing, with nothing to share */
-    int64_t want_ticks;                 /* out: the one it learnt (the SV applies it) */
-    int64_t *poll_after;                /* the base loop's: from when after the due tick to poll */
-    /* per call: from the SV, between calls, to it */
-    int64_t fed_tick, count;
-    int64_t stage, at, unit, tick_now, fed, ran, t0;
-    int64_t wanted;                     /* SV_FEED: the tick signalled (a feed of it or later) */
-} ServeArgs;
-
 static void sv_done(ServeArgs *a, int64_t count) {
     uint32_t before = __atomic_fetch_add(a->ctrl_done, (uint32_t)count, __ATOMIC_SEQ_CST);
     if ((int64_t)(before + (uint32_t)count) == a->fed) sem_post(a->done_sem); /* the last */
@@ -2189,22 +1648,6 @@ int64_t kali_sv_serve(ServeArgs *a) {
  * first accounts and acknowledges the cycle the last signal ran (kali_clock_settle). */
 
 enum { WAIT_SIGNAL, WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN };
-
-typedef struct {
-    StatsArgs *stats;            /* the slot's account of a cycle (daemon._CycleStats) */
-    sem_t *ack_sem;              /* lockstep: the clock's acknowledgement post, else NULL */
-    sem_t *sem;                  /* this slot's: the wall clock posts it */
-    const int64_t *release;      /* procs release_ns[slot]: when the clock meant the signal */
-    const int64_t *signal_tick;  /* procs signal_tick[slot] */
-    const int64_t *after;        /* the daemon's poll_after (an SV learns it) */
-    const uint32_t *shutdown;    /* the arena header's */
-    const int64_t *next_due;     /* procs next_due[slot]: the clock's next due tick for it */
-    int64_t base_ns, period_ticks;  /* the clock's tick and this process's period in ticks */
-    int64_t poll_ns, idle_ns;
-    int64_t signalled;           /* between calls: the last call took a signal */
-    int64_t cycled;              /* between calls: its cycle has run, not yet accounted */
-    int64_t tick, woke, since;   /* out: the tick signalled, when taken, when meant to wake */
-} WaitArgs;
 
 /* The cycle of the last signal has run: account it and acknowledge (kali_cycle_stats), then,
  * in lockstep, post the clock's acknowledgement. */

@@ -363,16 +363,17 @@ def test_the_librarys_structs_mirror_the_records_dtypes() -> None:
         assert size == dtype.itemsize, record
 
 
-def test_a_library_whose_struct_differs_from_the_dtype_is_refused(tmp_path, monkeypatch) -> None:
-    """A kernels.c whose PD struct has two fields swapped builds, but is refused at load with
-    an error naming the record, the field and both layouts; so is a dtype that has moved."""
+def test_a_library_whose_struct_differs_from_the_dtype_is_refused(tmp_path) -> None:
+    """A kernel_args.h whose PD struct has two fields swapped builds, but is refused at load
+    with an error naming the record, the field and both layouts; so is a dtype that has moved."""
     source = tmp_path / "kernels.c"
-    text = kernels.SOURCE.read_text()
-    struct = "typedef struct {\n    double kp, kv, fv, bias_tau;"
+    source.write_text(kernels.SOURCE.read_text())
+    text = kernels.HEADER.read_text()
+    struct = "typedef struct {\n    double kp;\n    double kv;"
     assert struct in text
-    source.write_text(text.replace(struct, "typedef struct {\n    double kv, kp, fv, bias_tau;"))
-    monkeypatch.setattr(kernels, "SOURCE", source)
-    path = kernels.build(tmp_path / "kernels-swapped.so")
+    swapped = text.replace(struct, "typedef struct {\n    double kv;\n    double kp;")
+    (tmp_path / kernels.HEADER.name).write_text(swapped)
+    path = kernels.build(tmp_path / "kernels-swapped.so", source)
     with pytest.raises(DaemonError, match=r"PD_DTYPE: field 'kp' is .* \(8, 8, 'f'\) in C, "):
         kernels.open_library(path)
     moved = np.dtype([("busy", "<u4"), *layout.SERVO_SLOT.descr[2:]], align=True)  # no op
