@@ -1,6 +1,6 @@
-"""Every compiled kernel's argument block, declared once: the C structs (``kernel_args.h``)
-and the ctypes classes are both generated from ``BLOCKS``, as LinuxCNC's halcompile makes a
-component's struct and glue from its ``.comp`` declaration.
+"""Every compiled kernel's argument block, declared once: the C structs
+(``csrc/kernel_args.h``) and the ctypes classes are both generated from ``BLOCKS``, as
+LinuxCNC's halcompile makes a component's struct and glue from its ``.comp`` declaration.
 
 A block is its C name, its owner (the process or package that binds it), the kernels that
 take it and its fields, in order: ``(names, C type)`` or ``(names, C type, doc)``, several
@@ -10,9 +10,10 @@ is an address (``c_void_p``), except a table of ``View`` or ``Copy``, typed.  Th
 kernels step in place (``RECORDS``) are generated from their numpy dtypes.
 
 ``kernel_args.h`` is generated and checked in (``python -m kali_daemons.kernel_args`` writes
-it; a test holds it to these declarations), and the library it is compiled into lists every
+it; a test holds it to these declarations), and each library it is compiled into lists every
 struct's fields (``kali_layout``, ``kali_fields``), so that ``kernels.open_library`` refuses
-one whose layout is not the ctypes classes'.
+one whose layout is not the ctypes classes'.  A block's owner says which library holds its
+kernels (``LIBRARIES``): the simulator's are its own.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from . import layout
 from .servo.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
 from .servo.builtins import PD_DTYPE, PID_DTYPE
 
-HEADER = Path(__file__).with_name("kernel_args.h")
+HEADER = Path(__file__).with_name("csrc") / "kernel_args.h"
 
 Row = tuple[str, str] | tuple[str, str, str] | str
 
@@ -657,6 +658,30 @@ Copy = STRUCTS["Copy"]
 Field = STRUCTS["Field"]
 KERNELS: dict[str, type[ctypes.Structure]] = {k: STRUCTS[b.name] for b in BLOCKS for k in b.kernels}
 
+# the libraries (csrc/<name>.c) and the owners whose kernels each holds: the simulator's are
+# its own, so that no controller process loads them; the core's are in both
+LIBRARIES: dict[str, tuple[str, ...]] = {
+    "controller": ("core", "sio", "servo", "fifo", "clock", "flightrec"),
+    "simulator": ("core", "plant"),
+}
+
+
+def library_blocks(library: str) -> list[type[ctypes.Structure]]:
+    """The ctypes classes of the blocks ``library``'s kernels take."""
+    return [STRUCTS[b.name] for b in BLOCKS if b.owner in LIBRARIES[library]]
+
+
+def library_kernels(library: str) -> list[str]:
+    """The kernels ``library`` holds."""
+    return [k for b in BLOCKS if b.owner in LIBRARIES[library] for k in b.kernels]
+
+
+def library_of(kernel: str) -> str:
+    """The library holding ``kernel`` (the controller's, for a core kernel)."""
+    owner = next(b.owner for b in BLOCKS if kernel in b.kernels)
+    return next(lib for lib, owners in LIBRARIES.items() if owner in owners)
+
+
 # --------------------------------------------------------------------------------------------
 # The header
 
@@ -701,7 +726,7 @@ def header() -> str:
     """``kernel_args.h``: every block's and record's C struct, and their layout tables."""
     out = [
         "/* Generated from kali_daemons/kernel_args.py by `python -m kali_daemons.kernel_args`:",
-        " * edit the declarations there, not this file.  Included once, by kernels.c. */",
+        " * edit the declarations there, not this file.  Included by common.h. */",
         "",
         "#ifndef KALI_KERNEL_ARGS_H",
         "#define KALI_KERNEL_ARGS_H",

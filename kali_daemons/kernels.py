@@ -2,11 +2,11 @@
 reference each one must equal.
 
 SIO's tick was ~50 small numpy calls (0.3-0.5 µs each before any work) plus Python loops;
-these few C loops (``kernels.c``) do the same arithmetic over every joint in one call each:
-encoders → angles (``read``), the velocity filter, range and runaway checks, feeding the
-slots, the torque sum, torques → DAC codes, the current check, publishing.  The SVs' built-in
-servos are here too: the PID and the PD over a set of joints (``servo.vector``) and an SV's
-unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in one call
+these few C loops (``csrc/``, a file per owner) do the same arithmetic over every joint in
+one call each: encoders → angles (``read``), the velocity filter, range and runaway checks,
+feeding the slots, the torque sum, torques → DAC codes, the current check, publishing.  The
+SVs' built-in servos are here too: the PID and the PD over a set of joints (``servo.vector``)
+and an SV's unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in one call
 (``sv.units``); their references are the per-joint Python steps (``servo.builtins``).
 The plant's amplifiers and motors and its writes into MuJoCo (``kali_motors``, bound by
 ``plant.motor.MotorBank.compiled``; its reference is ``plant.motor.drive_reference``) are
@@ -66,12 +66,15 @@ structs in ``kernel_args.h`` and the ctypes classes both generated from it); ``l
 refuses a library whose structs differ from the ctypes classes (``check_block``) or the
 dtypes (``check_record``).
 
-Build: ``python -m kali_daemons.kernels`` (run by ``scripts/setup.sh``) compiles
-``kernels.c`` with ``cc`` (``$CC``) into ``kernels-<hash>.so``, the hash over the sources and
-the flags, so an edited source is never served by a stale library.  It lives in
+Build: ``python -m kali_daemons.kernels`` (run by ``scripts/setup.sh``) compiles each library
+(``kernel_args.LIBRARIES``: the controller's, ``csrc/controller.c``, and the simulator's own,
+``csrc/simulator.c``, each one translation unit including its owners' files) with ``cc``
+(``$CC``) into ``<library>-<hash>.so``, the hash over the sources and the flags, so an
+edited source is never served by a stale library.  It lives in
 ``$KALI_KERNEL_DIR`` if set, else in this package's ``__pycache__`` (an editable install, a
 clean CI checkout), else, if that is not writable, ``~/.cache/kali``.  A process that finds
-no library builds it (~0.2 s) in ``load`` — SIO at configure, never inside a cycle.
+no library builds it (~0.2 s) in ``load`` — SIO at configure, never inside a cycle.  A
+kernel runs in its owner's library (``kernel_args.library_of``).
 
 Every kernel is bound once (``Kernel``): its argument block holds the arrays' addresses and
 strides, so the arrays must never move (arena views and preallocated arrays do not); the
@@ -101,8 +104,8 @@ if TYPE_CHECKING:
     from .chain import Chain
     from .servo.arm import ArmInput
 
-SOURCE = Path(__file__).with_name("kernels.c")
-HEADER = kernel_args.HEADER  # generated from kernel_args.py: every struct SOURCE includes
+CSRC = Path(__file__).with_name("csrc")  # the kernels' C, a file per owner
+HEADER = kernel_args.HEADER  # generated from kernel_args.py: every struct the C uses
 CFLAGS = ("-O2", "-std=c99", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 COUNTER_BITS = 12  # the HCTL-2000's counter (figure C.3)
 COUNTER_MODULO = 1 << COUNTER_BITS
@@ -148,8 +151,10 @@ RECORDS: dict[str, tuple[int, np.dtype]] = {
 
 
 def _digest() -> str:
-    h = hashlib.sha256(SOURCE.read_bytes())
-    h.update(HEADER.read_bytes())
+    h = hashlib.sha256()
+    for source in sorted(CSRC.glob("*.[ch]")):
+        h.update(source.name.encode())
+        h.update(source.read_bytes())
     h.update(" ".join(CFLAGS).encode())
     return h.hexdigest()[:16]
 
@@ -162,9 +167,9 @@ def _writable(d: Path) -> bool:
     return os.access(d, os.W_OK)
 
 
-def library_path() -> Path:
-    """Where this source's library is (or goes): see the module docstring."""
-    name = f"kernels-{_digest()}.so"
+def library_path(library: str = "controller") -> Path:
+    """Where this source's ``library`` is (or goes): see the module docstring."""
+    name = f"{library}-{_digest()}.so"
     env = os.environ.get("KALI_KERNEL_DIR")
     if env:
         return Path(env) / name
@@ -174,12 +179,14 @@ def library_path() -> Path:
     return Path.home() / ".cache" / "kali" / name
 
 
-def build(path: Path | None = None, source: Path | None = None) -> Path:
-    """Compile ``source`` (default ``SOURCE``, with the ``kernel_args.h`` beside it) into
-    ``path`` (default ``library_path()``); atomic, so a process loading it meanwhile sees
-    the old file or the whole new one."""
-    path = library_path() if path is None else path
-    source = SOURCE if source is None else source
+def build(
+    path: Path | None = None, source: Path | None = None, library: str = "controller"
+) -> Path:
+    """Compile ``library``'s translation unit (``source``, default ``csrc/<library>.c``, with
+    the files it includes beside it) into ``path`` (default ``library_path(library)``);
+    atomic, so a process loading it meanwhile sees the old file or the whole new one."""
+    path = library_path(library) if path is None else path
+    source = CSRC / f"{library}.c" if source is None else source
     path.parent.mkdir(parents=True, exist_ok=True)
     cc = os.environ.get("CC", "cc")
     fd, tmp = tempfile.mkstemp(prefix=".kernels-", suffix=".so", dir=path.parent)
@@ -207,26 +214,26 @@ def build(path: Path | None = None, source: Path | None = None) -> Path:
     return path
 
 
-_lib: ctypes.CDLL | None = None
+_libs: dict[str, ctypes.CDLL] = {}
 
 
-def load() -> ctypes.CDLL:
-    """The kernels' library, built first if this source has none yet (outside any cycle)."""
-    global _lib
-    if _lib is None:
-        path = library_path()
+def load(library: str = "controller") -> ctypes.CDLL:
+    """One of the kernels' libraries (``kernel_args.LIBRARIES``), built first if this source
+    has none yet (outside any cycle)."""
+    if library not in _libs:
+        path = library_path(library)
         if not path.exists():
-            build(path)
-        _lib = open_library(path)
-    return _lib
+            build(path, library=library)
+        _libs[library] = open_library(path, library)
+    return _libs[library]
 
 
-def open_library(path: Path) -> ctypes.CDLL:
+def open_library(path: Path, library: str = "controller") -> ctypes.CDLL:
     """The library at ``path`` with its kernels typed, once its structs are found to be the
     ctypes argument blocks (``check_block``) and the records' dtypes (``check_record``): a
     DaemonError otherwise.  Outside any cycle."""
     lib = ctypes.CDLL(str(path))
-    for name in _KERNELS:
+    for name in kernel_args.library_kernels(library):
         fn = getattr(lib, name)
         fn.argtypes = (c_void_p,)
         fn.restype = c_int64
@@ -234,7 +241,7 @@ def open_library(path: Path) -> ctypes.CDLL:
     lib.kali_fields.restype = ctypes.POINTER(Field)
     lib.kali_layout.argtypes = (ctypes.c_char_p,)
     lib.kali_layout.restype = ctypes.POINTER(Field)
-    for struct in kernel_args.STRUCTS.values():
+    for struct in kernel_args.library_blocks(library):
         check_block(lib, path, struct)
     for record, (number, dtype) in RECORDS.items():
         check_record(lib, path, record, number, dtype)
@@ -340,18 +347,23 @@ def check_record(lib: ctypes.CDLL, path: Path, record: str, number: int, dtype: 
 class Kernel:
     """One kernel bound to its arguments at configure: ``kernel()`` runs it (inside the
     cycle: no allocation) and returns its int64 result.  Array arguments become ``View``s;
-    the kernel keeps them, and whatever ``keep`` holds (a copy table), alive."""
+    the kernel keeps them, and whatever ``keep`` holds (a copy table), alive.  It runs in
+    ``library`` (default: the one its owner's kernels are in, ``kernel_args.library_of``)."""
 
-    __slots__ = ("_args", "_fn", "_keep", "_ptr")
+    __slots__ = ("_args", "_fn", "_keep", "_lib", "_ptr")
 
-    def __init__(self, name: str, keep: tuple[object, ...] = (), **fields: object) -> None:
+    def __init__(
+        self, name: str, keep: tuple[object, ...] = (), library: str | None = None,
+        **fields: object,
+    ) -> None:  # fmt: skip
         arrays = tuple(v for v in fields.values() if isinstance(v, np.ndarray))
         for f, value in fields.items():
             if isinstance(value, np.ndarray):
                 fields[f] = view(value)
         self._args = _KERNELS[name](**fields)
         self._keep = keep + arrays
-        self._fn = getattr(load(), name)
+        self._lib = load(library or kernel_args.library_of(name))
+        self._fn = getattr(self._lib, name)
         self._ptr = ctypes.addressof(self._args)
 
     def __call__(self) -> int:
@@ -366,7 +378,7 @@ class Kernel:
     def sibling(self, name: str) -> Callable[[], int]:
         """Another kernel of the library on this one's argument block (a part of it the
         tests check against its reference)."""
-        fn, ptr = getattr(load(), name), self._ptr
+        fn, ptr = getattr(self._lib, name), self._ptr
         return lambda: fn(ptr)
 
     @property
@@ -376,8 +388,9 @@ class Kernel:
         return self._args
 
 
-def copies(pairs: list[tuple[np.ndarray, np.ndarray]]) -> Kernel:
-    """One kernel copying each flat ``src`` into its ``dst`` (same length and item size)."""
+def copies(pairs: list[tuple[np.ndarray, np.ndarray]], library: str = "controller") -> Kernel:
+    """One kernel copying each flat ``src`` into its ``dst`` (same length and item size), in
+    ``library`` (every library has it: the simulator's own copies run in its own)."""
     n = len(pairs[0][0])
     table = (Copy * len(pairs))()
     for c, (src, dst) in enumerate(pairs):
@@ -385,7 +398,7 @@ def copies(pairs: list[tuple[np.ndarray, np.ndarray]]) -> Kernel:
         table[c] = Copy(view(src), view(dst), src.itemsize)
     arrays = tuple(a for pair in pairs for a in pair)
     ptr = ctypes.cast(table, ctypes.POINTER(Copy))
-    return Kernel("kali_copy", (table, *arrays), n=n, m=len(pairs), copies=ptr)
+    return Kernel("kali_copy", (table, *arrays), library, n=n, m=len(pairs), copies=ptr)
 
 
 def chain_pose(chain: Chain, q: np.ndarray, out: np.ndarray) -> Kernel:
@@ -587,11 +600,14 @@ def current_check_reference(
     return int(np.argmax(hit)) if hit.any() else -1
 
 
-def warm() -> Path:
-    """Build the library if needed and load it; its path (``python -m kali_daemons.kernels``)."""
-    load()
-    return library_path()
+def warm() -> list[Path]:
+    """Build the libraries if needed and load them; their paths (``python -m
+    kali_daemons.kernels``)."""
+    for library in kernel_args.LIBRARIES:
+        load(library)
+    return [library_path(library) for library in kernel_args.LIBRARIES]
 
 
 if __name__ == "__main__":
-    print(f"kali kernels: {warm()}")
+    for built in warm():
+        print(f"kali kernels: {built}")

@@ -5,6 +5,7 @@ ctypes classes is refused at load, naming the block, the field and both offsets.
 from __future__ import annotations
 
 import ctypes
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,19 +20,31 @@ def test_the_checked_in_header_is_what_the_declarations_generate() -> None:
     assert kernel_args.HEADER.read_text() == kernel_args.header()
 
 
-def test_every_kernel_has_a_declared_block_and_every_block_a_layout() -> None:
-    """The library lists every declared block with the ctypes class's fields, offsets, sizes
-    and kinds, and its size; each kernel the declarations name is in it."""
-    lib = kernels.load()
+@pytest.mark.parametrize("library", list(kernel_args.LIBRARIES))
+def test_every_kernel_has_a_declared_block_and_every_block_a_layout(library: str) -> None:
+    """Each library lists every declared block with the ctypes class's fields, offsets,
+    sizes and kinds, and its size; it holds its owners' kernels and no other owner's: the
+    simulator's are in a library of their own."""
+    lib = kernels.load(library)
     for name, struct in kernel_args.STRUCTS.items():
         found = kernels.block_fields(lib, name)
         assert found is not None, name
         fields, size = found
         assert fields == kernels.ctypes_fields(struct), name
         assert size == ctypes.sizeof(struct), name
+    held = kernel_args.library_kernels(library)
     for name in kernel_args.KERNELS:
-        assert hasattr(lib, name), name
+        assert hasattr(lib, name) == (name in held), (library, name)
     assert kernels.block_fields(lib, "NoSuchArgs") is None
+
+
+def test_the_simulators_kernels_are_its_own() -> None:
+    """The plant's kernels bind to the simulator's library, everything else to the
+    controller's; a copy runs in either."""
+    assert kernel_args.library_of("kali_motors") == "simulator"
+    assert kernel_args.library_of("kali_sio_tick") == "controller"
+    assert "kali_copy" in kernel_args.library_kernels("simulator")
+    assert "kali_motors" not in kernel_args.library_kernels("controller")
 
 
 def test_the_declarations_read_as_the_c_they_generate() -> None:
@@ -48,14 +61,15 @@ def test_the_declarations_read_as_the_c_they_generate() -> None:
 
 
 def _doctored(tmp_path: Path, edit: Callable[[str], str]) -> Path:
-    """The library built from this kernels.c and an edited kernel_args.h, in ``tmp_path``."""
-    source = tmp_path / "kernels.c"
-    source.write_text(kernels.SOURCE.read_text())
+    """The controller's library built from these sources with an edited kernel_args.h, in
+    ``tmp_path``."""
+    csrc = tmp_path / "csrc"
+    shutil.copytree(kernels.CSRC, csrc)
     text = kernels.HEADER.read_text()
     edited = edit(text)
     assert edited != text
-    (tmp_path / kernels.HEADER.name).write_text(edited)
-    return kernels.build(tmp_path / "kernels-doctored.so", source)
+    (csrc / kernels.HEADER.name).write_text(edited)
+    return kernels.build(tmp_path / "kernels-doctored.so", csrc / "controller.c")
 
 
 def test_a_c_struct_with_an_extra_field_is_refused_at_load(tmp_path) -> None:

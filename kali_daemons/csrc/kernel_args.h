@@ -1,5 +1,5 @@
 /* Generated from kali_daemons/kernel_args.py by `python -m kali_daemons.kernel_args`:
- * edit the declarations there, not this file.  Included once, by kernels.c. */
+ * edit the declarations there, not this file.  Included by common.h. */
 
 #ifndef KALI_KERNEL_ARGS_H
 #define KALI_KERNEL_ARGS_H
