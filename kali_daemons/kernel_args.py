@@ -3,7 +3,9 @@
 LinuxCNC's halcompile makes a component's struct and glue from its ``.comp`` declaration.
 
 A block is its C name, its owner (the process or package that binds it), the kernels that
-take it and its fields, in order: ``(names, C type)`` or ``(names, C type, doc)``, several
+take it, each with its Python reference (``module:qualname`` under ``kali_daemons``, the
+code the tests hold it equal to; empty where the tests compare with numpy directly), and
+its fields, in order: ``(names, C type)`` or ``(names, C type, doc)``, several
 names of one type on a row as C writes them, and a bare string a comment before the rows it
 introduces.  A per-joint array is a ``View`` (its element type in the doc); any other pointer
 is an address (``c_void_p``), except a table of ``View`` or ``Copy``, typed.  The records the
@@ -19,9 +21,12 @@ kernels (``LIBRARIES``): the simulator's are its own.
 from __future__ import annotations
 
 import ctypes
+import importlib
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,11 +41,12 @@ Row = tuple[str, str] | tuple[str, str, str] | str
 
 @dataclass(frozen=True)
 class Block:
-    """One argument block: its C name, owner, the kernels taking it and its rows."""
+    """One argument block: its C name, owner, the kernels taking it (each with its
+    reference) and its rows."""
 
     name: str
     owner: str
-    kernels: tuple[str, ...]
+    kernels: dict[str, str]
     rows: tuple[Row, ...]
 
     def fields(self) -> list[tuple[str, str]]:
@@ -53,7 +59,7 @@ class Block:
         ]
 
 
-def block(name: str, owner: str, kernels: tuple[str, ...], *rows: Row) -> Block:
+def block(name: str, owner: str, kernels: dict[str, str], *rows: Row) -> Block:
     """A ``Block`` (the declarations below read as a table)."""
     return Block(name, owner, kernels, rows)
 
@@ -62,14 +68,14 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "View",
         "core",
-        (),
+        {},
         ("p", "char *", "element 0"),
         ("stride", "int64_t", "bytes between elements"),
     ),
     block(
         "ReadArgs",
         "sio",
-        ("kali_read",),
+        {"kali_read": "kernels:read_reference"},
         ("n", "int64_t"),
         ("encoders", "char *", "the boards' registers"),
         ("enc_off", "View", "int64: joint i's counter at encoders + enc_off[i] (uint16)"),
@@ -81,7 +87,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "VelocityArgs",
         "sio",
-        ("kali_velocity",),
+        {"kali_velocity": "kernels:velocity_reference"},
         ("n", "int64_t"),
         ("q, q_prev, qd", "View"),
         ("gain", "double", "rate * a"),
@@ -90,7 +96,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "ChecksArgs",
         "sio",
-        ("kali_checks",),
+        {"kali_checks": "kernels:checks_reference"},
         ("n, n_robots", "int64_t"),
         ("bounds", "View", "int64, n_robots + 1: robot k's joints are bounds[k] .. bounds[k+1]"),
         ("q, demand, q_min, q_max", "View"),
@@ -103,7 +109,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "FeedArgs",
         "sio",
-        ("kali_feed",),
+        {"kali_feed": "kernels:feed_reference"},
         ("n", "int64_t"),
         ("demand, q, qd, fed", "View"),
         ("slot_demand, slot_position, slot_velocity", "View"),
@@ -120,14 +126,14 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "TorquesArgs",
         "sio",
-        ("kali_torques",),
+        {"kali_torques": "kernels:torques_reference"},
         ("n", "int64_t"),
         ("slot_torque, fed, servo_torque, ff, torque", "View"),
     ),
     block(
         "DacArgs",
         "sio",
-        ("kali_dac",),
+        {"kali_dac": "kernels:dac_reference"},
         ("n", "int64_t"),
         ("torque, gkt, current_limit, codes_per_amp", "View"),
         ("current", "View", "double out, A"),
@@ -139,7 +145,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "CurrentArgs",
         "sio",
-        ("kali_current_check",),
+        {"kali_current_check": "kernels:current_check_reference"},
         ("n", "int64_t"),
         ("torque, fed, clamped", "View"),
         ("over", "View", "int64: consecutive fed ticks clamped"),
@@ -148,7 +154,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "MotorArgs",
         "plant",
-        ("kali_motors",),
+        {"kali_motors": "plant.motor:drive_reference"},
         ("n", "int64_t"),
         ("volts, qd, enabled, current", "const double *"),
         ("gear, kt_r, vbus_r, i_max, gain, w_scale, g_extra_pos, g_extra_neg", "const double *"),
@@ -159,7 +165,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "EncoderArgs",
         "plant",
-        ("kali_encoders",),
+        {"kali_encoders": "plant.board:EncoderBank.sample"},
         ("n", "int64_t"),
         ("angle, cpr, phase", "const double *", "motor angle, counts per rad, index phase"),
         ("ref, count", "int64_t *", "the bank's: the count's zero, the count"),
@@ -174,7 +180,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "StatsArgs",
         "clock",
-        ("kali_cycle_stats",),
+        {"kali_cycle_stats": "daemon:_CycleStats.record_reference"},
         ("late, late_max, exec, exec_max, heart, ack", "int64_t *"),
         ("acks", "uint64_t *"),
         ("hist", "uint32_t *"),
@@ -184,7 +190,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "FlightArgs",
         "flightrec",
-        ("kali_flight_row",),
+        {"kali_flight_row": "flightrec:FlightRecorder.record_reference"},
         ("n, n_robots, rows", "int64_t"),
         ("ring", "char *"),
         ("row_size", "int64_t"),
@@ -205,7 +211,11 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "BoardArgs",
         "plant",
-        ("kali_boards_update", "kali_boards_convert", "kali_boards_truth"),
+        {
+            "kali_boards_update": "plant.board:IoBoardSim.update",
+            "kali_boards_convert": "plant.board:IoBoardSim.convert",
+            "kali_boards_truth": "plant.sim:PlantSim._write_truth_reference",
+        },
         ("n_arms", "int64_t"),
         (
             "csr, estop, power, index, adc_control, adc_analog, adc_digital, clamped",
@@ -227,7 +237,10 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "PlantIoArgs",
         "plant",
-        ("kali_plant_dac", "kali_plant_joints"),
+        {
+            "kali_plant_dac": "plant.sim:PlantSim._read_dac",
+            "kali_plant_joints": "plant.sim:PlantSim._read_joints",
+        },
         ("n", "int64_t"),
         ("qpos, qvel, act", "const double *", "MuJoCo's"),
         ("qpos_idx, dofs, act_adr", "const int64_t *", "joint i's entries in them"),
@@ -242,7 +255,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "PlantTruthArgs",
         "plant",
-        ("kali_plant_truth",),
+        {"kali_plant_truth": "plant.sim:PlantSim._write_truth_reference"},
         ("n", "int64_t", "arms"),
         ("eq_active", "const uint8_t *", "MuJoCo's: weld k is arm k's"),
         ("held", "uint8_t *", "n, bool"),
@@ -264,7 +277,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "FtArgs",
         "plant",
-        ("kali_ft_bank",),
+        {"kali_ft_bank": "plant.board:FtBank.cycle"},
         ("normals", "const double *"),
         ("size, at", "int64_t", "the block's length, the next draw"),
         ("offset", "double *", "six volts: the bank's (FtBank.offset)"),
@@ -280,7 +293,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "FifoPopArgs",
         "fifo",
-        ("kali_fifo_pop",),
+        {"kali_fifo_pop": "channels:InterpolatingFifo.pop_into"},
         ("n", "int64_t", "the set-points' width"),
         ("head", "uint64_t *", "the header's head (this consumer's) and tail"),
         ("tail", "const uint64_t *"),
@@ -298,7 +311,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "RobotsArgs",
         "sio",
-        ("kali_sio_robots",),
+        {"kali_sio_robots": "sio.daemon:ServoIO._robot"},
         ("n, n_robots", "int64_t"),
         ("bounds", "View", "int64, n_robots + 1: robot k's joints bounds[k] .."),
         ("fed", "View", "uint8 (bool), every joint"),
@@ -314,7 +327,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "FfArgs",
         "sio",
-        ("kali_feedforward",),
+        {"kali_feedforward": "sio.feedforward:RobotFeedforward.update"},
         ("n, rows, row_len", "int64_t", "joints; FF_ROWS; MAX_JOINTS (a row's values)"),
         ("keys", "const uint64_t *", "the record's key[FF_ROWS]"),
         ("tau, qd, qdd", "const double *", "its rows: row r at r * row_len"),
@@ -337,21 +350,21 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "Copy",
         "core",
-        (),
+        {},
         ("src, dst", "View"),
         ("size", "int64_t", "bytes per element: 4 or 8"),
     ),
     block(
         "CopyArgs",
         "core",
-        ("kali_copy",),
+        {"kali_copy": ""},
         ("n, m", "int64_t"),
         ("copies", "Copy *"),
     ),
     block(
         "ChainPoseArgs",
-        "servo",
-        ("kali_chain_pose",),
+        "chain",
+        {"kali_chain_pose": "chain:flange_pose"},
         ("n", "int64_t", "the chain's joints"),
         ("origins", "const double *", "(n + 1) x 16: chain.Chain.origins, C order"),
         ("axes", "const double *", "n x 3: chain.Chain.axes"),
@@ -361,7 +374,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "WrenchArgs",
         "sio",
-        ("kali_wrench_tick", "kali_wrench_convert"),
+        {"kali_wrench_tick": "", "kali_wrench_convert": "sio.wrench:convert_reference"},
         ("n", "int64_t", "the chain's joints"),
         ("origins, axes, q", "const double *", "chain.Chain, the arm's angles (contiguous)"),
         ("codes", "const int16_t *", "the board's 6 gauge codes"),
@@ -392,7 +405,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "Field",
         "core",
-        (),
+        {},
         ("name", "const char *", "NULL ends a table; that entry's offset is the struct's size"),
         ("offset, size", "int64_t"),
         ("kind", "char", "numpy's dtype kind: 'f', 'u', 'i'"),
@@ -400,7 +413,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "VectorArgs",
         "servo",
-        ("kali_pid_vector", "kali_pd_vector"),
+        {"kali_pid_vector": "servo.builtins:pid_step", "kali_pd_vector": "servo.builtins:pd_step"},
         ("n", "int64_t"),
         ("data", "char *", "the algorithm's records"),
         ("rows", "View", "int64: row k of the step is record rows[k]"),
@@ -411,7 +424,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "UnitArgs",
         "servo",
-        ("kali_serve_unit",),
+        {"kali_serve_unit": "sv.units:serve_unit_reference"},
         ("slots", "SlotRecord *", "the cell's slots"),
         ("pid", "PidRecord *", "the PID's block: a record per slot"),
         ("pd", "PdRecord *", "the PD's block"),
@@ -430,7 +443,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "ArmFinishArgs",
         "servo",
-        ("kali_arm_finish",),
+        {"kali_arm_finish": "sv.arm:ArmRunner._finish_reference"},
         ("n", "int64_t"),
         ("tau", "double *", "n, contiguous: the step's torques"),
         ("q_d, q", "const double *", "the ArmInput's, contiguous"),
@@ -445,7 +458,10 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "ArmArgs",
         "servo",
-        ("kali_impedance", "kali_computed_torque"),
+        {
+            "kali_impedance": "servo.armbuiltins:_imp_step",
+            "kali_computed_torque": "servo.armbuiltins:_ct_step",
+        },
         ("n", "int64_t", "the arm's joints"),
         ("d", "void *", "the robot's record of the algorithm (arena)"),
         ("q_d, qd_d, qdd_d", "const double *", "n each: the demand"),
@@ -461,7 +477,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "McgillArgs",
         "sio",
-        ("kali_mcgill_control",),
+        {"kali_mcgill_control": "boards.mcgill:McGillBoards.control"},
         ("n_arms", "int64_t"),
         ("csr, power_reg", "View", "uint8, per arm: the registers"),
         ("power, enable_ticks", "View", "per robot: uint8 PowerState, int32"),
@@ -477,7 +493,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "SioArgs",
         "sio",
-        ("kali_sio_tick",),
+        {"kali_sio_tick": "sio.daemon:ServoIO._tick_reference"},
         ("n, n_robots", "int64_t"),
         ("read_fn, dac_fn, control_fn", "KernelFn", "the boards'"),
         ("read_args, dac_args, control_args", "void *"),
@@ -528,7 +544,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "ServeArgs",
         "servo",
-        ("kali_sv_serve",),
+        {"kali_sv_serve": "sv.daemon:ServoWorker._serve_reference"},
         ("n, n_arms, n_units", "int64_t"),
         ("slots", "SlotRecord *"),
         ("fed_tick_out", "int64_t *", "ctrl sv_fed_tick[this SV]"),
@@ -569,7 +585,10 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "WaitArgs",
         "clock",
-        ("kali_clock_wait", "kali_clock_settle"),
+        {
+            "kali_clock_wait": "daemon:ClockWait.wait_reference",
+            "kali_clock_settle": "daemon:ClockWait.settle_reference",
+        },
         ("stats", "StatsArgs *", "the slot's account of a cycle (daemon._CycleStats)"),
         ("ack_sem", "sem_t *", "lockstep: the clock's acknowledgement post, else NULL"),
         ("sem", "sem_t *", "this slot's: the wall clock posts it"),
@@ -661,7 +680,7 @@ KERNELS: dict[str, type[ctypes.Structure]] = {k: STRUCTS[b.name] for b in BLOCKS
 # the libraries (csrc/<name>.c) and the owners whose kernels each holds: the simulator's are
 # its own, so that no controller process loads them; the core's are in both
 LIBRARIES: dict[str, tuple[str, ...]] = {
-    "controller": ("core", "sio", "servo", "fifo", "clock", "flightrec"),
+    "controller": ("core", "chain", "sio", "servo", "fifo", "clock", "flightrec"),
     "simulator": ("core", "plant"),
 }
 
@@ -781,7 +800,35 @@ def header() -> str:
     return "\n".join(out)
 
 
+def reference(kernel: str) -> Callable[..., Any] | None:
+    """``kernel``'s Python reference, imported; None if it has none."""
+    path = next(b.kernels[kernel] for b in BLOCKS if kernel in b.kernels)
+    if not path:
+        return None
+    module, _, qualname = path.partition(":")
+    found: Any = importlib.import_module(f"kali_daemons.{module}")
+    for part in qualname.split("."):
+        found = getattr(found, part)
+    return found
+
+
+def table() -> str:
+    """Every kernel: its library, owner, block and reference (``python -m
+    kali_daemons.kernel_args --list``)."""
+    rows = [("kernel", "library", "owner", "block", "reference")]
+    for b in BLOCKS:
+        for kernel, ref in b.kernels.items():
+            rows.append((kernel, library_of(kernel), b.owner, b.name, ref or "-"))
+    widths = [max(len(r[c]) for r in rows) for c in range(5)]
+    return "\n".join(
+        "  ".join(f"{v:<{w}}" for v, w in zip(r, widths, strict=True)).rstrip() for r in rows
+    )
+
+
 if __name__ == "__main__":
+    if sys.argv[1:] == ["--list"]:
+        print(table())
+        sys.exit(0)
     if sys.argv[1:] == ["--check"]:
         sys.exit(0 if HEADER.read_text() == header() else f"{HEADER} is stale: regenerate it")
     HEADER.write_text(header())

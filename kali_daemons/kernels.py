@@ -2,58 +2,12 @@
 reference each one must equal.
 
 SIO's tick was ~50 small numpy calls (0.3-0.5 µs each before any work) plus Python loops;
-these few C loops (``csrc/``, a file per owner) do the same arithmetic over every joint in
-one call each: encoders → angles (``read``), the velocity filter, range and runaway checks,
-feeding the slots, the torque sum, torques → DAC codes, the current check, publishing.  The
-SVs' built-in servos are here too: the PID and the PD over a set of joints (``servo.vector``)
-and an SV's unit, claimed by compare-and-swap of each slot's ``busy`` word and stepped in one call
-(``sv.units``); their references are the per-joint Python steps (``servo.builtins``).
-The plant's amplifiers and motors and its writes into MuJoCo (``kali_motors``, bound by
-``plant.motor.MotorBank.compiled``; its reference is ``plant.motor.drive_reference``) are
-here for the plant's cycle, and so are its encoder counters (``kali_encoders``, bound by
-``plant.board.EncoderBank.compiled``; its reference is ``EncoderBank.sample``), its I/O
-boards (``kali_boards_update``, ``kali_boards_convert``, bound by ``plant.board.boards_kernel``;
-their references are ``IoBoardSim.update`` and ``.convert``) and its wrist sensors' gauge
-banks (``kali_ft_bank``, bound by ``plant.board.FtBank.compiled``; its reference is
-``FtBank.cycle``), and its reading of the DAC boards and of MuJoCo's joints
-(``kali_plant_dac``, ``kali_plant_joints``, bound by ``plant.sim.PlantSim``; their references
-are its ``_read_dac`` and ``_read_joints``), and its truth records after each cycle
-(``kali_plant_truth``, bound by ``PlantSim._truth_views``; its reference is
-``PlantSim._write_truth_reference``).
-A robot's demand from its FIFO (``kali_fifo_pop``, bound by
-``channels.InterpolatingFifo.compiled_pop``; its reference is ``pop_into``) and its
-feed-forward as SIO applies it (``kali_feedforward``, bound by
-``sio.feedforward.RobotFeedforward.compiled``) is here too; its reference is that class's
-``update``; and so is SIO's step of every robot where nothing but its motion is happening
-to it: the demand popped, the joints fed (``kali_sio_robots``, bound by
-``sio.daemon.ServoIO._bind_kernels``; its reference is ``ServoIO._robot``, which any other
-robot still takes).  SIO's whole tick is one call (``kali_sio_tick``) of two passes
-(``kali_sio_front``: read, sensors, robots, checks, feed-forward, feed, the feeds posted;
-then the sleep until the servos are done; ``kali_sio_back``: the gang's acknowledgements,
-torques, DACs, the current check, the boards' registers, publishing, the flight row), bound
-by ``ServoIO._bind_tick``; their reference is ``ServoIO._tick_reference``,
-which also does every event the passes hand back.  The McGill boards' command registers are
-written by ``kali_mcgill_control`` (bound by ``McGillBoards.control_kernel``; its reference
-is ``McGillBoards.control`` with ``end_tick``).  An SV's serve (the robots fed whole, the
-units, the single slots, each counted done) is ``kali_sv_serve``, bound by
-``sv.daemon.ServoWorker._bind_serve``; its reference is ``ServoWorker._serve_reference``.
-Every process's account of a cycle in its process-table slot (``kali_cycle_stats``, bound by
-``daemon._CycleStats``; its reference is ``_CycleStats.record_reference``) is here, and so is
-SIO's row of the flight recorder (``kali_flight_row``, bound by
-``flightrec.FlightRecorder.bind``; its reference is ``FlightRecorder.record_reference``), and
-so is every clocked process's wait for the wall clock's signal, which first accounts the
-cycle before it (``kali_clock_wait``, ``kali_clock_settle``, bound by ``daemon.ClockWait``;
-their reference is ``ClockWait.wait_reference``).  An SV's wait for SIO's
-feed and what it learns from it are the first stage of its serve (``SV_FEED``; their
-references are ``ServoWorker._await_feed`` and ``_learn_feed``).
-The flange pose of a robot type's serial chain (``kali_chain_pose``, bound by ``chain_pose``)
-is here for a wrist force/torque sensor read each tick; its reference is
-``chain.flange_pose``.
-The robot-level built-ins (issue 27: computed torque and the Cartesian impedance, one arm a
-call: ``kali_computed_torque``, ``kali_impedance``, bound by ``arm_step``) are here too; their
-references are ``servo.armbuiltins._ct_step`` and ``_imp_step``; and so is what the SV does
-with the torques of any robot-level step (``kali_arm_finish``, bound by ``sv.arm.ArmRunner``;
-its reference is ``ArmRunner._finish_reference``).
+these C loops (``csrc/``, a file per owner) do the same arithmetic over every joint in one
+call each, and so do the SVs' servos, the FIFO's pop, the clock's wait, the flight
+recorder's row and the plant's cycle (the simulator's library).  Every kernel, its library,
+owner, argument block and the Python reference the tests hold it equal to are declared once
+in ``kernel_args`` (``python -m kali_daemons.kernel_args --list`` prints the table); its
+owner binds it (``Kernel("kali_...", ...)``) at configure.
 
 Why C through ctypes and not numba (measured on this VM, 12 joints): a numba call with 12
 array arguments costs 0.67 µs, a ctypes call with one pointer to an argument block laid

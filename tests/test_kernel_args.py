@@ -50,7 +50,7 @@ def test_the_simulators_kernels_are_its_own() -> None:
 def test_the_declarations_read_as_the_c_they_generate() -> None:
     """Several names on a row share its type, as in C; a section string is a comment."""
     read = next(b for b in kernel_args.BLOCKS if b.name == "ReadArgs")
-    assert read.kernels == ("kali_read",)
+    assert read.kernels == {"kali_read": "kernels:read_reference"}
     assert ("acc", "View") in read.fields() and ("prev", "View") in read.fields()
     assert "    View acc, prev; /* int32: accumulated counts, last 12-bit reading */" in (
         kernel_args.header()
@@ -121,3 +121,13 @@ def test_a_block_the_library_lacks_is_refused() -> None:
     stale = type("NoSuchArgs", (ctypes.Structure,), {"_fields_": (("n", ctypes.c_int64),)})
     with pytest.raises(DaemonError, match="has no argument block NoSuchArgs"):
         kernels.check_block(kernels.load(), kernels.library_path(), stale)
+
+
+def test_every_kernels_reference_is_declared_and_exists() -> None:
+    """Each kernel's Python reference, as its declaration names it, imports and is callable;
+    a kernel without one (a copy, the wrist sensor's handshake) says so with an empty name."""
+    for name in kernel_args.KERNELS:
+        found = kernel_args.reference(name)
+        assert found is None or callable(found), name
+    assert kernel_args.reference("kali_read") is kernels.read_reference
+    assert kernel_args.reference("kali_copy") is None

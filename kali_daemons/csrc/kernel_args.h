@@ -395,7 +395,7 @@ typedef struct {
     Copy *copies;
 } CopyArgs;
 
-/* ChainPoseArgs (servo): kali_chain_pose */
+/* ChainPoseArgs (chain): kali_chain_pose */
 typedef struct {
     int64_t n; /* the chain's joints */
     const double *origins; /* (n + 1) x 16: chain.Chain.origins, C order */
