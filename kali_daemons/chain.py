@@ -5,7 +5,7 @@ force/torque sensor's reading in the world frame, the tool's gravity) and loads 
 ``chain_of`` reads the URDF once (``xml.etree``) into a ``Chain``: per moving joint the fixed
 transform from the parent frame to the joint's frame and the joint's axis, fixed joints folded
 into the next transform.  ``flange_pose`` is the numpy reference; inside the cycle the
-compiled ``kali_chain_pose`` (``kernels.c``, bound by ``kernels.chain_pose``) computes the
+compiled ``kali_chain_pose`` (``csrc/chain.c``, bound by ``kernels.chain_pose``) computes the
 same product on the same arrays.
 """
 
@@ -87,7 +87,7 @@ def flange_pose(chain: Chain, q: FloatArray, out: FloatArray | None = None) -> F
 
 def _rotation(axis: FloatArray, angle: float) -> FloatArray:
     """The rotation (3×3) by ``angle`` about the unit ``axis`` (Rodrigues):
-    cos·I + sin·[axis]× + (1 − cos)·axis·axisᵀ, entry for entry as ``kernels.c`` has it."""
+    cos·I + sin·[axis]× + (1 − cos)·axis·axisᵀ, entry for entry as ``csrc/chain.c`` has it."""
     x, y, z = (float(v) for v in axis)
     c, s = math.cos(angle), math.sin(angle)
     t = 1.0 - c

@@ -589,7 +589,7 @@ class InterpolatingFifo:
         return True
 
     def compiled_pop(self, out: np.ndarray) -> Callable[[], int]:
-        """``pop_into(out)`` compiled (``kernels.c``'s ``kali_fifo_pop``): each call of the
+        """``pop_into(out)`` compiled (``csrc/fifo.c``'s ``kali_fifo_pop``): each call of the
         returned kernel writes this servo tick's demand into ``out`` (float64, ``width``,
         never moving) and returns 1 or 0 as ``pop_into`` returns True or False.  The
         consumer's ratio moves into the kernel, so from here on this FIFO is popped only by

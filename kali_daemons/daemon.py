@@ -456,7 +456,7 @@ class ClockWait:
     """A clocked process's wait for the wall clock's signal on its slot's semaphore (thesis
     3.6.2), polling where ``poll_ns`` asks (``Daemon._clock_driven_loop``).
 
-    ``wait`` is one compiled call (``kernels.c``'s ``kali_clock_wait``, on the C library's
+    ``wait`` is one compiled call (``csrc/clock.c``'s ``kali_clock_wait``, on the C library's
     own opens of the semaphores: ``rt.semaphore_address``); ``wait_reference`` is what it
     does, in Python.  Each first accounts the cycle the last signal ran and acknowledges it
     (``settle``: ``stats``, then, in lockstep, ``ack_sem``), so a tick costs the loop one
@@ -570,7 +570,7 @@ class ClockWait:
 class _CycleStats:
     """Writes one slot's process-side statistics; inside the cycle, no allocation.
 
-    ``record`` is one compiled call (``kernels.c``'s ``kali_cycle_stats``: every process
+    ``record`` is one compiled call (``csrc/clock.c``'s ``kali_cycle_stats``: every process
     makes it every cycle); ``record_reference`` is what it does, in numpy.  Each field is
     viewed once, here: indexing a structured record by field name builds a new view every
     time, which at 1 kHz is most of what the bookkeeping would cost.

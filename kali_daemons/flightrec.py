@@ -149,7 +149,7 @@ class FlightRecorder:
         self._bind_kernel()
 
     def _bind_kernel(self) -> None:
-        """``record_reference`` compiled (``kernels.c``'s ``kali_flight_row``), bound to the
+        """``record_reference`` compiled (``csrc/flightrec.c``'s ``kali_flight_row``), bound to the
         ring and the sources ``bind`` named; it carries on the ring's count.  Outside the
         cycle."""
         from .kernels import Kernel, View, view

@@ -7,7 +7,7 @@ An SV is built without its process shell (``ServoWorker.__new__`` and the attrib
 repository root: ``python scripts/bench_sv_units.py``.
 
 On the same loaded 2-vCPU VM (min / median): per-slot ctypes steps, no units, 44.3 / 45.3
-us; units compiled with numba, 6.2 / 6.4 us; units in C (``kernels.c``, the one compiled
+us; units compiled with numba, 6.2 / 6.4 us; units in C (``csrc/servo.c``, the one compiled
 technology left), 4.9-5.1 / 5.1-5.3 us.
 """
 

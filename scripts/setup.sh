@@ -5,7 +5,7 @@
 #
 # Debian packages, each only if missing:
 #   libatomic1  the arena's lock-free words (ctypes into libatomic.so.1)
-#   gcc         the compiled servo-path kernels (kali_daemons/kernels.c)
+#   gcc         the compiled servo-path kernels (kali_daemons/csrc/)
 #   rt-tests    cyclictest: the machine's own timing floor beside every benchmark
 #   chromium    the dashboard test opens the web viewer headless
 #   openssl     the bridge's TLS test makes its certificates

@@ -1,5 +1,5 @@
 """The built-in servos run over many joints in one call (issue 26 item 2): the compiled
-``servo.vector`` steps (C, ``kernels.c``) equal the per-joint Python ``step`` bit for bit,
+``servo.vector`` steps (C, ``csrc/servo.c``) equal the per-joint Python ``step`` bit for bit,
 the SV's unit (``sv.units``) takes exactly the joints it may, leaves the rest to the per-slot
 path and equals its Python reference, no daemon imports numba, and on line a joint switches
 between PID, PD and a plugin inside a running unit without a torque jump while the rest of
@@ -319,7 +319,7 @@ def test_the_compiled_unit_equals_its_python_reference(
 
 
 def test_no_daemon_loads_numba() -> None:
-    """The servo path's kernels are C (kernels.c): importing the SV or SIO daemon loads
+    """The servo path's kernels are C (csrc/): importing the SV or SIO daemon loads
     neither numba nor llvmlite (~127 MB RSS, all of it locked by mlockall)."""
     code = (
         "import sys, kali_daemons.sv.daemon, kali_daemons.sio.daemon, kali_daemons.sv.units;"

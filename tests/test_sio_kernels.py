@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import shutil
 from collections.abc import Iterator
 from fractions import Fraction
 
@@ -344,10 +345,10 @@ def test_copies_publish_each_array_into_its_record_field(data: st.DataObject) ->
 
 def test_the_library_is_built_once_per_source_and_reloaded(tmp_path, monkeypatch) -> None:
     """A fresh directory gets the library on the first build; its name carries the source's
-    hash, so an edited kernels.c never loads a stale one."""
+    hash, so an edited source (csrc/) never loads a stale one."""
     monkeypatch.setenv("KALI_KERNEL_DIR", str(tmp_path))
     path = kernels.library_path()
-    assert path.parent == tmp_path and path.name.startswith("kernels-")
+    assert path.parent == tmp_path and path.name.startswith("controller-")
     assert not path.exists()
     assert kernels.build() == path and path.exists()
     assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no temporary left
@@ -363,16 +364,17 @@ def test_the_librarys_structs_mirror_the_records_dtypes() -> None:
         assert size == dtype.itemsize, record
 
 
-def test_a_library_whose_struct_differs_from_the_dtype_is_refused(tmp_path, monkeypatch) -> None:
-    """A kernels.c whose PD struct has two fields swapped builds, but is refused at load with
-    an error naming the record, the field and both layouts; so is a dtype that has moved."""
-    source = tmp_path / "kernels.c"
-    text = kernels.SOURCE.read_text()
-    struct = "typedef struct {\n    double kp, kv, fv, bias_tau;"
+def test_a_library_whose_struct_differs_from_the_dtype_is_refused(tmp_path) -> None:
+    """A kernel_args.h whose PD struct has two fields swapped builds, but is refused at load
+    with an error naming the record, the field and both layouts; so is a dtype that has moved."""
+    csrc = tmp_path / "csrc"
+    shutil.copytree(kernels.CSRC, csrc)
+    text = kernels.HEADER.read_text()
+    struct = "typedef struct {\n    double kp;\n    double kv;"
     assert struct in text
-    source.write_text(text.replace(struct, "typedef struct {\n    double kv, kp, fv, bias_tau;"))
-    monkeypatch.setattr(kernels, "SOURCE", source)
-    path = kernels.build(tmp_path / "kernels-swapped.so")
+    swapped = text.replace(struct, "typedef struct {\n    double kv;\n    double kp;")
+    (csrc / kernels.HEADER.name).write_text(swapped)
+    path = kernels.build(tmp_path / "kernels-swapped.so", csrc / "controller.c")
     with pytest.raises(DaemonError, match=r"PD_DTYPE: field 'kp' is .* \(8, 8, 'f'\) in C, "):
         kernels.open_library(path)
     moved = np.dtype([("busy", "<u4"), *layout.SERVO_SLOT.descr[2:]], align=True)  # no op

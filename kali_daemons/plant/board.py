@@ -67,7 +67,7 @@ ADC_SELF_TEST = 10
 
 ADC_VOLTS, ADC_TOP = 5.0, 255  # the TLC532A: 8 bits over 0-5 V
 
-# an I/O board's state, a row of int64 (IoBoardSim.state; kernels.c's B_* in this order)
+# an I/O board's state, a row of int64 (IoBoardSim.state; csrc/plant.c's B_* in this order)
 AMPS, BRAKES, TRIPPED, SWITCH_NS, ENABLE_SINCE, RETRIGGER_NS, PREV_CSR, PREV_ADC = range(8)
 BOARD_STATE = 8
 NEVER = np.iinfo(np.int64).min  # ENABLE_SINCE while the enable bit is not held
@@ -213,7 +213,7 @@ def boards_kernel(
     enabled: np.ndarray,
     braked: np.ndarray,
 ) -> Kernel:
-    """Every board's ``update`` and ``convert`` compiled (``kernels.c``'s
+    """Every board's ``update`` and ``convert`` compiled (``csrc/plant.c``'s
     ``kali_boards_update``; ``.sibling("kali_boards_convert")`` and
     ``.sibling("kali_boards_truth")`` on the same block).  ``boards``: one per record of
     ``regs`` (IO_BOARD) and ``truth`` (ARM_TRUTH), their ``state`` rows of one C-ordered array;
@@ -334,7 +334,7 @@ class EncoderBank:
         self._index[k] = 0
 
     def compiled(self, motor_angle: np.ndarray) -> Kernel:
-        """``sample(motor_angle)`` compiled (``kernels.c``'s ``kali_encoders``): each call of
+        """``sample(motor_angle)`` compiled (``csrc/plant.c``'s ``kali_encoders``): each call of
         the kernel counts the angles now in ``motor_angle`` (flat float64, never moving) and
         returns the indexes captured.  Outside the cycle."""
         from ..kernels import Kernel, channel_offsets  # the library: the plant's
@@ -447,7 +447,7 @@ class FtBank:
         self._status[...] = ftsensor.FT_READY | ftsensor.FT_PRESENT | seq  # last
 
     def compiled(self, wrench: np.ndarray) -> Callable[[], None]:
-        """``cycle(wrench)`` compiled (``kernels.c``'s ``kali_ft_bank``): each call of the
+        """``cycle(wrench)`` compiled (``csrc/plant.c``'s ``kali_ft_bank``): each call of the
         result is one cycle on the wrench now in ``wrench`` (six float64, contiguous, never
         moving).  The generator's normals are drawn ``RANDOM_BLOCK`` ahead (the same numbers in
         the same order as ``cycle`` draws them) and more are drawn, outside the kernel, when

@@ -22,7 +22,7 @@ implicitly, so stiction holds exactly and stays stable at the plant's step; this
 the asymmetric remainder as a torque, regularised by tanh(ω_m / ω₀).  The brakes raise the
 frictionloss to their holding torque.
 
-The plant runs a cycle of it compiled (``MotorBank.compiled``: ``kernels.c``'s
+The plant runs a cycle of it compiled (``MotorBank.compiled``: ``csrc/plant.c``'s
 ``kali_motors``, the bank's arithmetic and MuJoCo's inputs in one call instead of ~25 numpy
 calls and four fancy-indexed writes); ``drive_reference`` is what it equals (to ~1e-15:
 libm's tanh, not numpy's).
@@ -113,7 +113,7 @@ class MotorBank:
         np.subtract(a, b, out=self.friction)
 
     def compiled(self, volts: np.ndarray, qd: np.ndarray, current: np.ndarray, mj: Drive) -> Kernel:
-        """``drive_reference`` compiled (``kernels.c``'s ``kali_motors``), bound to the DAC
+        """``drive_reference`` compiled (``csrc/plant.c``'s ``kali_motors``), bound to the DAC
         ``volts``, joint speeds ``qd`` and motor ``current`` (flat, float64, never moving) and
         to MuJoCo's arrays ``mj``: each call is one cycle of it.  Outside the cycle."""
         from ..kernels import Kernel  # the library: the plant's, not every importer's

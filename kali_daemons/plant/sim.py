@@ -218,7 +218,7 @@ class PlantSim:
         self._write_truth()
 
     def _io_kernel(self) -> Kernel:
-        """``_read_joints`` compiled (``kernels.c``'s ``kali_plant_joints``), on a block
+        """``_read_joints`` compiled (``csrc/plant.c``'s ``kali_plant_joints``), on a block
         ``kali_plant_dac`` (``_read_dac`` compiled) shares: MuJoCo's arrays, the DAC boards'
         records and the plant's arrays, none of which ever moves.  Outside the cycle."""
         from ..kernels import Kernel, channel_offsets  # the library: the plant's
@@ -375,8 +375,9 @@ class PlantSim:
         n = len(self.boards)
         sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)
         fields = ("q", "qd", "current", "torque", "motor_angle")
-        self._truth_copies = copies(  # one kernel
-            [(src, self.joint_truth[f]) for f, src in zip(fields, sources, strict=True)]
+        self._truth_copies = copies(  # one kernel, in the simulator's library
+            [(src, self.joint_truth[f]) for f, src in zip(fields, sources, strict=True)],
+            "simulator",
         )
         self._truth_grasped = [self.truth[k : k + 1]["grasped"].reshape(()) for k in range(n)]
         self._truth_wrench = [self.truth["grasp_wrench"][k] for k in range(n)]

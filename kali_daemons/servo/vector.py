@@ -3,7 +3,7 @@ run over many joints in one call (the servo path near the floor).
 
 An algorithm's private data for every joint of the cell is one arena block, one record per
 slot (``layout.KEY_SERVO_DATA``), so a set of joints is a structured array and a row index
-each.  ``kernels.c``'s ``pid_row`` and ``pd_row`` are ``pid_step`` and ``pd_step`` on one
+each.  ``csrc/servo.c``'s ``pid_row`` and ``pd_row`` are ``pid_step`` and ``pd_step`` on one
 record, the same operations in the same order with no contraction, so they give the per-joint
 Python step's numbers (``tests/test_servo_vector.py`` checks it to 1e-12; in practice bit
 for bit); its structs mirror PID_DTYPE and PD_DTYPE, which ``kernels.load`` checks.

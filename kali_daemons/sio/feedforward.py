@@ -24,7 +24,7 @@ Nothing written by another process is taken on trust (DESIGN 7): a mode word tha
 FfMode leaves the last valid mode in force, and an interpolated torque that is not finite
 counts as a missing row (the last good torque is kept; missing long enough, it is stale).
 
-SIO runs it compiled (``RobotFeedforward.compiled``: ``kernels.c``'s ``kali_feedforward``,
+SIO runs it compiled (``RobotFeedforward.compiled``: ``csrc/sio.c``'s ``kali_feedforward``,
 one call a robot, ~50 µs of SIO's tick in Python for two arms); ``update`` is the reference
 the kernel equals bit for bit (tests/test_sio_kernels.py).
 """
@@ -129,7 +129,7 @@ class RobotFeedforward:
         self._mode_ok = word if word in _MODES else int(FfMode.OFF)  # the last valid mode
 
     def compiled(self) -> FfKernel:
-        """This robot's feed-forward as ``kernels.c``'s ``kali_feedforward``, bound to the
+        """This robot's feed-forward as ``csrc/sio.c``'s ``kali_feedforward``, bound to the
         same record, FIFO and arrays and starting from this object's state: from then on
         each tick is ``kernel.arm = ...; kernel.step(tick)``, and this object's ``update``
         (the reference) must not be called.  Outside the cycle."""

@@ -3,7 +3,7 @@ robot fed whole, claimed and run by one SV.
 
 SIO feeds a robot whole while it runs a robot-level servo or has a robot-level mailbox
 operation pending: its first slot's ``busy`` is ``ARM_FREE``, the others ``ARM_HELD``
-(``kernels.c kali_feed``), so neither the compiled units nor the per-slot path claim any of
+(``csrc/sio.c kali_feed``), so neither the compiled units nor the per-slot path claim any of
 its joints.  The SV that wins the first slot's test-and-set (ARM_FREE → its number) runs the
 robot (``ArmRunner.run``):
 

@@ -1,7 +1,7 @@
 """An SV's unit of work: one robot's joints that run a built-in servo this tick, claimed and
 run in one compiled call (thesis 3.3.5 for the claiming).
 
-A ``Unit`` is ``kernels.c``'s ``kali_serve_unit`` bound to one robot's slots ``lo..hi-1``.
+A ``Unit`` is ``csrc/servo.c``'s ``kali_serve_unit`` bound to one robot's slots ``lo..hi-1``.
 A slot joins the unit when it is fed and unclaimed (``busy`` 0), has no mailbox operation,
 no reset, no shadow trial running (``SERVO_SLOT.shadow_state``), is enabled and its active algorithm
 is the PID or the PD; it is claimed by the
