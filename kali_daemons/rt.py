@@ -76,7 +76,7 @@ def poll_semaphore(sem: posix_ipc.Semaphore, deadline_ns: int) -> bool:
     The value is read, never taken: the caller then takes the post with an ordinary wait,
     which returns at once.  A process polling is no waiter, so the post wakes nobody: no
     wake-up crosses vCPUs, and no IPI pauses the poster's vCPU (DESIGN 10 items 1-2;
-    ``config/default.yaml`` gives the kernel trace).  Bounded by the caller, as DESIGN 10
+    ``docs/decisions/sv-placement.md`` gives the kernel trace).  Bounded by the caller, as DESIGN 10
     item 1 asks of every spin on these two cores.
     """
     while sem.value == 0:

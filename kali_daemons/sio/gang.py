@@ -18,8 +18,9 @@ Whom it vouches for:
   only while SIO sleeps on the done semaphore, right after feeding: a few µs of context switch
   before it takes the feed, in which the SV on the other CPU, polling, may run every servo
   (with the compiled units, two arms' in ~10 µs; or while SIO's vCPU pauses after a wake-up
-  IPI, config/default.yaml).  Its lateness is then SIO's CPU, not its own, and it was on time
-  a tick ago.  SIO notes the tick it vouched for such an SV (its slot's ``vouched_tick``), and
+  IPI, docs/decisions/sv-placement.md).  Its lateness is then SIO's CPU, not its own, and it
+  was on time a tick ago.  SIO notes the tick it vouched for such an SV (its slot's
+  ``vouched_tick``), and
   the clock, at the next tick, looks whether that SV is alive (``WallClock._died``, after the
   tick's signals, as for one that missed): a dead one halts with PROCESS_DIED as soon as if it
   had missed, within the two servo periods of the fault matrix.  A stalled one is not

@@ -32,7 +32,8 @@ sleeps on its own CPU's timer to shortly before SIO's feed is due where the serv
 sharing, else to when the SV on SIO's CPU has run them all (learnt over the last ticks,
 ``_learn_feed``), then polls for the clock's signal and SIO's feed, at most
 ``processes.sv.poll_us`` each, so no post has to wake a halted vCPU (a kernel trace
-showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms: config/default.yaml).
+showed such a wake-up now and then pausing the poster's vCPU 0.1-0.5 ms:
+docs/decisions/sv-placement.md).
 While an SV on SIO's CPU runs every servo on its own, such an SV rests: it has the clock
 signal it only every ``processes.sv.rest_ms`` (``Daemon._set_period``), and is back to every
 tick once the servos are worth sharing again.  Every other wait sleeps (two cores: never
@@ -390,7 +391,7 @@ class ServoWorker(Daemon):
         for the clock's signal: ``Daemon._clock_driven_loop``, ``_learn_feed``), so SIO's post
         wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and after now and then
         one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's CPU time counting
-        on: ``config/default.yaml`` gives the kernel trace.
+        on: ``docs/decisions/sv-placement.md`` gives the kernel trace.
         """
         now = rt.monotonic_ns()
         end, poll_end = now + int(self.feed_timeout_s * 1e9), now + self.poll_ns
