@@ -31,7 +31,7 @@ import stat
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal, NoReturn
+from typing import Any, Literal, NoReturn
 
 import numpy as np
 import yaml
@@ -74,8 +74,6 @@ MAX_CONFIG_BYTES = 1 << 20  # a config is a few KiB; /dev/zero or a log file is 
 MAX_YAML_DEPTH = 32  # the deepest real config is 4 levels
 MAX_YAML_NODES = 100_000  # after alias expansion; the default config has ~600
 MAX_CONVEYOR_M_S = 0.5  # a faster belt is a units mistake
-FF_MODES = ("off", "gravity", "full")  # layout.FfMode by name
-DASHBOARD_WEB = ("auto", "on", "off")  # when the viewer serves the web viewer
 # a rerun gRPC address: scheme, host (group 2) and port (group 3)
 GRPC_URL_RE = re.compile(r"rerun(\+https?)?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})/proxy")
 MAX_RECORD_PATH = 200
@@ -136,54 +134,62 @@ _MISSING: Any = object()
 # path, the value and what is allowed.
 
 
-def _doc(text: str, unit: str | None = None, **bounds: Any) -> Any:
-    """A field's description, unit and bounds (``ge``, ``gt``, ``le``, ``pattern``)."""
+def _f(default: Any = ..., doc: str = "", unit: str | None = None, **bounds: Any) -> Any:
+    """One field's declaration: its default (``...``: required), description, unit and bounds
+    (``ge``, ``gt``, ``le``, ``pattern``)."""
     extra = {"unit": unit} if unit else None
-    return Field(description=text, json_schema_extra=extra, **bounds)
+    return Field(default, description=doc, json_schema_extra=extra, **bounds)
+
+
+def _cpu_field(default: Any = ..., doc: str = "CPU to bind to; null: no binding") -> Any:
+    return _f(default, doc, ge=0)
+
+
+def _priority(default: Any = ...) -> Any:
+    doc = "0: normal scheduling (SCHED_OTHER); 1..99: real-time SCHED_FIFO priority"
+    return _f(default, doc, ge=0, le=MAX_PRIORITY)
+
+
+def _serious(default: Any = ...) -> Any:
+    doc = (
+        "true: missing deadlines (beyond clock.serious_miss_tolerance_ms) or dying halts the "
+        "system; a non-serious process that dies is left out, the rest runs on"
+    )
+    return _f(default, doc)
+
+
+def _stage(default: Any = ...) -> Any:
+    doc = "order within a tick in lockstep mode, lower first; sv shares sio's"
+    return _f(default, doc, ge=0, le=MAX_STAGE)
+
+
+def _poll_us(default: Any) -> Any:
+    doc = (
+        "sv only: a worker on another CPU than sio's polls this long for the clock's signal, "
+        "then for sio's feed, before it sleeps on them (at most half a servo period is used); "
+        "0: it sleeps on them"
+    )
+    return _f(default, doc, "us", ge=0, le=MAX_POLL_US)
+
+
+def _rest_ms(default: Any, left_out: str = "") -> Any:
+    doc = (
+        "sv only: such a polling worker, while the worker on sio's CPU runs every servo on its "
+        "own, is signalled only every this long: 0 (every tick) or whole servo periods up to "
+        "clock.serious_miss_tolerance_ms" + left_out
+    )
+    return _f(default, doc, "ms", ge=0)
+
+
+def _period_field(default: Any = ..., doc: str = "a whole number of base ticks") -> Any:
+    return _f(default, doc, "ms", gt=0, le=MAX_PERIOD_MS)
 
 
 _FROZEN = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
-
-Ms = Annotated[
-    int | float, _doc("a period, a whole number of base ticks", "ms", gt=0, le=MAX_PERIOD_MS)
-]
-Cpu = Annotated[int | None, _doc("CPU to bind to; null: no binding", ge=0)]
-Priority = Annotated[
-    int,
-    _doc("0: normal scheduling (SCHED_OTHER); 1..99: SCHED_FIFO priority", ge=0, le=MAX_PRIORITY),
-]
-Serious = Annotated[
-    bool,
-    _doc(
-        "true: missing deadlines (beyond clock.serious_miss_tolerance_ms) or dying halts the "
-        "system; a non-serious process that dies is left out, the rest runs on"
-    ),
-]
-Stage = Annotated[
-    int,
-    _doc("order within a tick in lockstep mode, lower first; sv shares sio's", ge=0, le=MAX_STAGE),
-]
-PollUs = Annotated[
-    int,
-    _doc(
-        "sv only: a worker on another CPU than sio's polls this long for the clock's signal, "
-        "then for sio's feed, before it sleeps on them (at most half a servo period is used); "
-        "0: it sleeps on them",
-        "us",
-        ge=0,
-        le=MAX_POLL_US,
-    ),
-]
-RestMs = Annotated[
-    int | float,
-    _doc(
-        "sv only: such a polling worker, while the worker on sio's CPU runs every servo on its "
-        "own, is signalled only every this long; 0 or whole servo periods up to "
-        "clock.serious_miss_tolerance_ms; 0: every tick",
-        "ms",
-        ge=0,
-    ),
-]
+FfMode = Literal["off", "gravity", "full"]  # layout.FfMode by name
+DashboardWeb = Literal["auto", "on", "off"]  # when the viewer serves the web viewer
+FF_MODES: tuple[str, ...] = typing.get_args(FfMode)
+DASHBOARD_WEB: tuple[str, ...] = typing.get_args(DashboardWeb)
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -193,139 +199,114 @@ class ClockConfig:
     The periods are ms, ints when whole (``base_tick_ms: 0.5`` gives a 2 kHz servo).
     """
 
-    base_tick_ms: Annotated[
-        int | float,
-        _doc(
-            "the clock's tick, a whole number of microseconds (e.g. 0.5 or 0.25)",
-            "ms",
-            ge=MIN_BASE_TICK_MS,
-            le=MAX_BASE_TICK_MS,
-        ),
-    ] = 1
-    servo_period_ms: Annotated[Ms, _doc("period of sio and the sv workers", "ms")] = 1
-    tg_period_ms: Annotated[
-        Ms, _doc("period of the trajectory generator, >= servo_period_ms", "ms")
-    ] = 10
-    serious_miss_tolerance_ms: Annotated[
-        int,
-        _doc(
-            "how long a serious process may go unacknowledged before halting (the time the "
-            "host stopped the clock itself not counted); above servo_period_ms",
-            "ms",
-            ge=0,
-            le=1000,
-        ),
-    ] = 20
-    lockstep_ack_timeout_s: Annotated[
-        float,
-        _doc(
-            "in lockstep mode, how long the clock waits for each tick's acks",
-            "s",
-            gt=0,
-            le=MAX_TIMEOUT_S,
-        ),
-    ] = 5.0
-    busy_wait_us: Annotated[
-        int, _doc("busy-wait this long before each tick for sharper timing", "us", ge=0, le=500)
-    ] = 0
+    base_tick_ms: int | float = _f(
+        1,
+        "the clock's tick, a whole number of microseconds (e.g. 0.5 or 0.25)",
+        "ms",
+        ge=MIN_BASE_TICK_MS,
+        le=MAX_BASE_TICK_MS,
+    )
+    servo_period_ms: int | float = _period_field(1, "period of sio and the sv workers")
+    tg_period_ms: int | float = _period_field(10, "period of the TG, >= servo_period_ms")
+    serious_miss_tolerance_ms: int = _f(
+        20,
+        "how long a serious process may go unacknowledged before halting (the time the host "
+        "stopped the clock itself not counted); above servo_period_ms",
+        "ms",
+        ge=0,
+        le=1000,
+    )
+    lockstep_ack_timeout_s: float = _f(
+        5.0,
+        "in lockstep mode, how long the clock waits for each tick's acks",
+        "s",
+        gt=0,
+        le=MAX_TIMEOUT_S,
+    )
+    busy_wait_us: int = _f(
+        0, "busy-wait this long before each tick for sharper timing", "us", ge=0, le=500
+    )
 
 
 @dataclass(frozen=True, config=_FROZEN)
 class ProcessEntry:
     """One ``processes.<kind>`` entry as written; each kind takes the keys of
-    ``_PROCESS_KEYS`` (``sv`` expands to ``count`` workers, ``sv.0`` ..)."""
+    ``_PROCESS_KEYS``, and ``serious`` and ``stage`` left out are its kind's
+    (``_KIND_DEFAULTS``); ``sv`` expands to ``count`` workers, ``sv.0`` .."""
 
-    enabled: Annotated[
-        bool,
-        _doc(
-            "dynamics and viewer only: false leaves the process out; the servo level "
-            "runs the same without them"
-        ),
-    ] = True
-    cpu: Cpu = None
-    count: Annotated[int, _doc("sv only: servo workers", ge=1, le=MAX_SV_WORKERS)] = 2
-    cpus: Annotated[
-        tuple[Cpu, ...] | None, _doc("sv only: one CPU (or null) per worker; null: none bound")
-    ] = None
-    priority: Priority = 0
-    period_ms: Annotated[
-        Ms | None,
-        _doc(
-            "plant, dynamics and viewer only; null: the base tick (plant), the TG's period "
-            "(dynamics), 40 ms in whole ticks (viewer)",
-            "ms",
-        ),
-    ] = None
-    serious: Serious = False  # left out: the kind's (_KIND_DEFAULTS)
-    stage: Stage = 0  # left out: the kind's place in a tick (_KIND_DEFAULTS)
-    poll_us: PollUs = 200
-    rest_ms: Annotated[
-        RestMs | None,
-        _doc(
-            f"null: {DEFAULT_REST_MS} ms rounded up to whole servo periods (0 beyond the "
-            "serious tolerance)",
-            "ms",
-        ),
-    ] = None
+    enabled: bool = _f(
+        True,
+        "dynamics and viewer only: false leaves the process out; the servo level runs the "
+        "same without them",
+    )
+    cpu: int | None = _cpu_field(None)
+    count: int = _f(2, "sv only: servo workers", ge=1, le=MAX_SV_WORKERS)
+    cpus: tuple[int | None, ...] | None = _f(
+        None, "sv only: one CPU (or null) per worker; left out: none bound"
+    )
+    priority: int = _priority(0)
+    period_ms: int | float | None = _period_field(
+        None,
+        "plant, dynamics and viewer only; left out: the base tick (plant), the TG's period "
+        "(dynamics), 40 ms in whole ticks (viewer)",
+    )
+    serious: bool = _serious(False)
+    stage: int = _stage(0)
+    poll_us: int = _poll_us(200)
+    rest_ms: int | float | None = _rest_ms(
+        None, f"; left out: {DEFAULT_REST_MS} ms rounded up to whole servo periods"
+    )
 
 
 @dataclass(frozen=True, config=_FROZEN)
 class ProcessConfig:
     """One periodic process (or the wall clock), with its period already resolved."""
 
-    name: Annotated[str, _doc("the process: its kind, or sv.<i> for the i-th SV")]
-    kind: Annotated[str, _doc("one of PROCESS_NAMES, or bridge")]
-    cpu: Cpu
-    priority: Priority
-    period_ms: Annotated[Ms, _doc("a whole number of base ticks; an int when whole", "ms")]
-    serious: Serious
-    stage: Stage
-    poll_us: PollUs = 0
-    rest_ms: RestMs = 0
+    name: str = _f(doc="the process: its kind, or sv.<i> for the i-th SV")
+    kind: str = _f(doc="one of PROCESS_NAMES, or bridge")
+    cpu: int | None = _cpu_field()
+    priority: int = _priority()
+    period_ms: int | float = _period_field(doc="a whole number of base ticks; an int when whole")
+    serious: bool = _serious()
+    stage: int = _stage()
+    poll_us: int = _poll_us(0)
+    rest_ms: int | float = _rest_ms(0)
 
 
 @dataclass(frozen=True, config=_FROZEN)
 class PlantConfig:
     """The simulated world's timing (thesis 3.7, appendix C): fixed by the hardware it models."""
 
-    substep_ms: Annotated[
-        float,
-        _doc(
-            "MuJoCo step; divides processes.plant.period_ms (the current loop is 500 Hz)",
-            "ms",
-            gt=0,
-            le=1,
-        ),
-    ] = 0.5
-    watchdog_ms: Annotated[
-        float,
-        _doc(
-            "the I/O board's safety timeout (thesis appendix C.4); longer than SIO's "
-            "retrigger cycle",
-            "ms",
-            gt=0,
-            le=1000,
-        ),
-    ] = 20.0
-    enable_hold_ms: Annotated[
-        float,
-        _doc("how long the enable bit must stay high for the power relay", "ms", gt=0, le=1000),
-    ] = 15.0
-    brake_delay_ms: Annotated[
-        float,
-        _doc(
-            "brake solenoids engage or release this long after the amplifiers", "ms", gt=0, le=1000
-        ),
-    ] = 50.0
-    conveyor_m_s: Annotated[
-        tuple[float, float],
-        _doc(
-            "the stand's top is a conveyor belt carrying the bar at this velocity (world x, "
-            f"y; at most {MAX_CONVEYOR_M_S:g} m/s) while the first arm's I/O board runs it; "
-            "[0, 0]: no belt",
-            "m/s",
-        ),
-    ] = (0.0, 0.0)
+    substep_ms: float = _f(
+        0.5,
+        "MuJoCo step; divides processes.plant.period_ms (the current loop is 500 Hz)",
+        "ms",
+        gt=0,
+        le=1,
+    )
+    watchdog_ms: float = _f(
+        20.0,
+        "the I/O board's safety timeout (thesis appendix C.4); longer than SIO's retrigger cycle",
+        "ms",
+        gt=0,
+        le=1000,
+    )
+    enable_hold_ms: float = _f(
+        15.0, "how long the enable bit must stay high for the power relay", "ms", gt=0, le=1000
+    )
+    brake_delay_ms: float = _f(
+        50.0,
+        "brake solenoids engage or release this long after the amplifiers",
+        "ms",
+        gt=0,
+        le=1000,
+    )
+    conveyor_m_s: tuple[float, float] = _f(
+        (0.0, 0.0),
+        "the stand's top is a conveyor belt carrying the bar at this velocity (world x, y; at "
+        f"most {MAX_CONVEYOR_M_S:g} m/s) while the first arm's I/O board runs it; [0, 0]: none",
+        "m/s",
+    )
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -337,41 +318,31 @@ class FtConfig:
     point, ``tool_tip_m`` out along the sensor's z, is where the contact wrench is given.
     """
 
-    sensor: Annotated[
-        str | None, _doc(f"a data sheet: {', '.join(FT_SHEETS)}; none or null: no sensor")
-    ] = "mini45"
-    tool_mass_kg: Annotated[
-        float,
-        _doc(
-            "the tool's mass: the plant, SIO's gravity compensation and the dynamics "
-            "model all carry it; 0: a bare pad",
-            "kg",
-            ge=0,
-            le=50,
-        ),
-    ] = 0.0
-    tool_com_m: Annotated[
-        tuple[float, float, float], _doc("the tool's centre of mass, sensor frame", "m")
-    ] = (0.0, 0.0, 0.0)
-    tool_tip_m: Annotated[
-        float, _doc("the tool point, out along the sensor's z", "m", ge=0, le=1)
-    ] = 0.042
-    cutoff_hz: Annotated[
-        float, _doc("SIO's low-pass on the contact wrench", "Hz", gt=0, le=1000)
-    ] = 30.0
-    contact_limit_n: Annotated[
-        float, _doc("a contact force beyond this halts (FORCE)", "N", gt=0, le=10_000)
-    ] = 150.0
-    stale_ms: Annotated[
-        float,
-        _doc(
-            "no fresh sample this long halts (FORCE: the sensor is silent); above the "
-            "clock's serious-miss tolerance, so that a stalled plant is named as what it is",
-            "ms",
-            gt=0,
-            le=1000,
-        ),
-    ] = 50.0
+    sensor: str | None = _f("mini45", f"a data sheet: {', '.join(FT_SHEETS)}; none: no sensor")
+    tool_mass_kg: float = _f(
+        0.0,
+        "the tool's mass, carried by the plant, SIO's gravity compensation and the dynamics "
+        "model; 0: a bare pad",
+        "kg",
+        ge=0,
+        le=50,
+    )
+    tool_com_m: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), "the tool's centre of mass, sensor frame, each within ±1", "m"
+    )
+    tool_tip_m: float = _f(0.042, "the tool point, out along the sensor's z", "m", ge=0, le=1)
+    cutoff_hz: float = _f(30.0, "SIO's low-pass on the contact wrench", "Hz", gt=0, le=1000)
+    contact_limit_n: float = _f(
+        150.0, "a contact force beyond this halts (FORCE)", "N", gt=0, le=10_000
+    )
+    stale_ms: float = _f(
+        50.0,
+        "no fresh sample this long halts (FORCE: the sensor is silent); above the clock's "
+        "serious-miss tolerance, so that a stalled plant is named as what it is",
+        "ms",
+        gt=0,
+        le=1000,
+    )
 
     @property
     def sheet(self) -> FtSheet | None:
@@ -383,71 +354,59 @@ class FtConfig:
 class RobotConfig:
     """One arm in the cell: its model and where its base sits in the world frame."""
 
-    name: Annotated[str, _doc("the arm's name, unique in the cell", pattern=_ROBOT_NAME_RE.pattern)]
-    model: Annotated[
-        str,
-        _doc(
-            "a robot type (kalictl types lists them), or a .py file defining ROBOT, relative "
-            "to the config file"
-        ),
-    ] = DEFAULT_MODEL
-    base_xyz: Annotated[
-        tuple[float, float, float],
-        _doc(f"where its base sits in the world frame, within ±{MAX_BASE_M:g} m", "m"),
-    ] = (0.0, 0.0, 0.0)
-    base_yaw_deg: Annotated[float, _doc("its base turned about the vertical", "deg")] = 0.0
-    servo: Annotated[
-        str,
-        _doc(
-            "the servo algorithm every joint starts with: pid, pd, or a plugin's",
-            pattern=_SERVO_NAME_RE.pattern,
-        ),
-    ] = "pid"
-    safe_rad: Annotated[
-        float | tuple[float, ...],
-        _doc(
-            f"tracking-error tolerance before a runaway halt, one number or one per joint "
-            f"(0, π]; left out: {DEFAULT_SAFE_RAD}",
-            "rad",
-        ),
-    ] = ()
-    current_fault_ms: Annotated[
-        float,
-        _doc("a demand beyond the motor current limit this long halts", "ms", gt=0, le=10_000),
-    ] = DEFAULT_CURRENT_FAULT_MS
-    ff: Annotated[
-        Literal["off", "gravity", "full"],
-        _doc(
-            "feed-forward it starts with (kalictl ff changes it on line): off, gravity, or "
-            "full (inverse dynamics of the demanded motion)"
-        ),
-    ] = "off"
-    index_phases_deg: Annotated[
-        tuple[float, ...],
-        _doc(
-            "its calibration sheet (thesis 3.5.1): each joint's index-pulse motor angle in "
-            "[0, 360), measured once per arm; left out: its robot type's",
-            "deg",
-        ),
-    ] = ()
-    grasp_yaw_deg: Annotated[
-        float,
-        _doc(
-            "how its flange holds the bar: its grasp site turned this much about the "
-            "vertical through the grasp point",
-            "deg",
-            gt=-180,
-            le=180,
-        ),
-    ] = 0.0
-    ft: Annotated[FtConfig, _doc("its wrist force/torque sensor and tool")] = FtConfig()
-    robot_servos: Annotated[
-        bool,
-        _doc(
-            "whether it may run robot-level servos: the SVs then hold its model (~20 MB "
-            "more each), so the lean default leaves it off"
-        ),
-    ] = False
+    name: str = _f(doc="the arm's name, unique in the cell", pattern=_ROBOT_NAME_RE.pattern)
+    model: str = _f(
+        DEFAULT_MODEL,
+        "a robot type (kalictl types lists them), or a .py file defining ROBOT, relative to "
+        "the config file",
+    )
+    base_xyz: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), f"where its base sits in the world frame, within ±{MAX_BASE_M:g}", "m"
+    )
+    base_yaw_deg: float = _f(0.0, "its base turned about the vertical", "deg")
+    servo: str = _f(
+        "pid",
+        "the servo algorithm every joint starts with: pid, pd, or a plugin's",
+        pattern=_SERVO_NAME_RE.pattern,
+    )
+    safe_rad: float | tuple[float, ...] = _f(
+        (),
+        "tracking-error tolerance before a runaway halt, one number in (0, π] or one per "
+        f"joint; left out: {DEFAULT_SAFE_RAD}",
+        "rad",
+    )
+    current_fault_ms: float = _f(
+        DEFAULT_CURRENT_FAULT_MS,
+        "a demand beyond the motor current limit this long halts",
+        "ms",
+        gt=0,
+        le=10_000,
+    )
+    ff: FfMode = _f(
+        "off",
+        "feed-forward it starts with (kalictl ff changes it on line): off, gravity, or full "
+        "(inverse dynamics of the demanded motion)",
+    )
+    index_phases_deg: tuple[float, ...] = _f(
+        (),
+        "its calibration sheet (thesis 3.5.1): each joint's index-pulse motor angle in "
+        "[0, 360), measured once per arm; left out: its robot type's",
+        "deg",
+    )
+    grasp_yaw_deg: float = _f(
+        0.0,
+        "how its flange holds the bar: its grasp site turned this much about the vertical "
+        "through the grasp point",
+        "deg",
+        gt=-180,
+        le=180,
+    )
+    ft: FtConfig = _f(FtConfig(), "its wrist force/torque sensor and tool")
+    robot_servos: bool = _f(
+        False,
+        "whether it may run robot-level servos: the SVs then hold its model (~20 MB more "
+        "each), so the lean default leaves it off",
+    )
 
     def __post_init__(self) -> None:
         if not isinstance(self.safe_rad, tuple):
@@ -477,59 +436,45 @@ class RobotConfig:
 class FeedforwardConfig:
     """How SIO treats the dynamics process's feed-forward torques (thesis 3.3.6)."""
 
-    stale_ms: Annotated[
-        float,
-        _doc(
-            "silent or behind this long, the dynamics process's torques are dropped",
-            "ms",
-            gt=0,
-            le=10_000,
-        ),
-    ] = 50.0
-    ramp_ms: Annotated[
-        float,
-        _doc("feed-forward fades in and out over this time: no torque step", "ms", ge=0, le=10_000),
-    ] = 200.0
+    stale_ms: float = _f(
+        50.0,
+        "silent or behind this long, the dynamics process's torques are dropped",
+        "ms",
+        gt=0,
+        le=10_000,
+    )
+    ramp_ms: float = _f(
+        200.0, "feed-forward fades in and out over this time: no torque step", "ms", ge=0, le=10_000
+    )
 
 
 @dataclass(frozen=True, config=_FROZEN)
 class DashboardConfig:
     """Where the viewer's live rerun dashboard goes (thesis 3.3.7, DESIGN 8)."""
 
-    connect: Annotated[
-        str | None,
-        _doc(
-            "a rerun viewer to stream to when one listens there, a gRPC URL like "
-            "rerun+http://127.0.0.1:9876/proxy; null: never look for one"
-        ),
-    ] = "rerun+http://127.0.0.1:9876/proxy"
-    web: Annotated[
-        Literal["auto", "on", "off"],
-        _doc("serve the web viewer on 127.0.0.1: auto (when no live viewer is found), on, off"),
-    ] = "auto"
-    web_port: Annotated[
-        int, _doc("the web viewer's HTTP port; 0 or a taken port: a free one", ge=0, le=65535)
-    ] = 9090
-    grpc_port: Annotated[
-        int,
-        _doc("its data stream; 0 or a taken port: a free one; not web_port", ge=0, le=65535),
-    ] = 9877
-    record: Annotated[
-        str | None,
-        _doc(
-            f"also record to this .rrd file (relative to the config file, 1..{MAX_RECORD_PATH} "
-            "characters); null: none"
-        ),
-    ] = None
-    server_memory_mib: Annotated[
-        int,
-        _doc(
-            "what the web viewer's server keeps for browsers that connect late",
-            "MiB",
-            ge=16,
-            le=65536,
-        ),
-    ] = 256
+    connect: str | None = _f(
+        "rerun+http://127.0.0.1:9876/proxy",
+        "a rerun viewer to stream to when one listens there (a gRPC URL); null: never look",
+    )
+    web: DashboardWeb = _f(
+        "auto", "serve the web viewer on 127.0.0.1: auto (when no live viewer is found), on, off"
+    )
+    web_port: int = _f(9090, "the web viewer's HTTP port; 0 or taken: a free one", ge=0, le=65535)
+    grpc_port: int = _f(
+        9877, "its data stream, not web_port; 0 or taken: a free one", ge=0, le=65535
+    )
+    record: str | None = _f(
+        None,
+        f"also record to this .rrd file (relative to the config file, 1..{MAX_RECORD_PATH} "
+        "characters)",
+    )
+    server_memory_mib: int = _f(
+        256,
+        "what the web viewer's server keeps for browsers that connect late",
+        "MiB",
+        ge=16,
+        le=65536,
+    )
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -537,11 +482,9 @@ class TlsConfig:
     """The bridge's TLS files (absolute paths): its certificate and key, and the CA whose
     client certificates it accepts (a client's common name is its user name for the roles)."""
 
-    certificate: Annotated[str, _doc("the bridge's certificate, a PEM file")]
-    private_key: Annotated[str, _doc("its private key, a PEM file")]
-    root_ca: Annotated[
-        str | None, _doc("the CA whose client certificates it accepts; null: none")
-    ] = None
+    certificate: str = _f(doc="the bridge's certificate, a PEM file")
+    private_key: str = _f(doc="its private key, a PEM file")
+    root_ca: str | None = _f(None, "the CA whose client certificates it accepts")
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -555,41 +498,32 @@ class BridgeConfig:
     With them, ``operators`` may command and ``readers`` only read (telemetry, events,
     status); anyone else is refused by Zenoh's access control."""
 
-    enabled: Annotated[bool, _doc("start the bridge")] = False
-    listen: Annotated[
-        tuple[str, ...],
-        _doc(
-            f"1..{MAX_LISTEN} Zenoh endpoints like tcp/127.0.0.1:7447; beyond loopback only "
-            "with authentication"
-        ),
-    ] = ("tcp/127.0.0.1:7447",)
-    cpu: Annotated[Cpu, _doc("its CPU (SCHED_OTHER, never the servo level's); null: any")] = 1
-    telemetry_hz: Annotated[
-        float, _doc("each robot's state, decimated from the servo rate", "Hz", gt=0, le=1000)
-    ] = 100.0
-    timing_hz: Annotated[float, _doc("per-process timing statistics", "Hz", gt=0, le=100)] = 1.0
-    users_file: Annotated[
-        str | None,
-        _doc("Zenoh's user:password dictionary (relative to the config file); null: none"),
-    ] = None
-    operators: Annotated[
-        tuple[str, ...], _doc("users (or certificate common names) who may command")
-    ] = ()
-    readers: Annotated[
-        tuple[str, ...], _doc("users who may only read (telemetry, events, status)")
-    ] = ()
-    tls: Annotated[TlsConfig | None, _doc("the TLS files, for tls/ endpoints; null: none")] = None
-    max_requests_per_s: Annotated[
-        int,
-        _doc(
-            "per user and kind of request; beyond, refused unread (never an e-stop)",
-            "1/s",
-            ge=1,
-            le=100_000,
-        ),
-    ] = 1000
-    max_sessions: Annotated[int, _doc("remote programs at once", ge=1, le=64)] = 8
-    event_history: Annotated[int, _doc("events a late subscriber is sent", ge=1, le=10_000)] = 256
+    enabled: bool = _f(False, "start the bridge")
+    listen: tuple[str, ...] = _f(
+        ("tcp/127.0.0.1:7447",),
+        f"1..{MAX_LISTEN} Zenoh endpoints like tcp/127.0.0.1:7447; beyond loopback only with "
+        "authentication",
+    )
+    cpu: int | None = _cpu_field(1, "its CPU (SCHED_OTHER, never the servo level's)")
+    telemetry_hz: float = _f(
+        100.0, "each robot's state, decimated from the servo rate", "Hz", gt=0, le=1000
+    )
+    timing_hz: float = _f(1.0, "per-process timing statistics", "Hz", gt=0, le=100)
+    users_file: str | None = _f(
+        None, "Zenoh's user:password dictionary (relative to the config file)"
+    )
+    operators: tuple[str, ...] = _f((), "users (or certificate common names) who may command")
+    readers: tuple[str, ...] = _f((), "users who may only read (telemetry, events, status)")
+    tls: TlsConfig | None = _f(None, "the TLS files, for tls/ endpoints")
+    max_requests_per_s: int = _f(
+        1000,
+        "per user and kind of request; beyond, refused unread (never an e-stop)",
+        "1/s",
+        ge=1,
+        le=100_000,
+    )
+    max_sessions: int = _f(8, "remote programs at once", ge=1, le=64)
+    event_history: int = _f(256, "events a late subscriber is sent", ge=1, le=10_000)
 
     @property
     def authenticated(self) -> bool:
@@ -599,35 +533,44 @@ class BridgeConfig:
         )
 
 
-# The top-level fields, shared by the file (ConfigFile) and the result (KaliConfig)
-Version = Annotated[int, _doc(f"format version of the file; this Kali reads {CONFIG_VERSION}")]
-InstanceName = Annotated[
-    str,
-    _doc(
+# The top-level scalars, shared by the file (ConfigFile) and the result (KaliConfig)
+
+
+def _version() -> Any:
+    return _f(doc=f"format version of the file; this Kali reads {CONFIG_VERSION}")
+
+
+def _instance(default: Any = ...) -> Any:
+    doc = (
         "the instance name: several instances run side by side on one machine; kalictl -i "
-        "NAME gives it instead",
-        pattern=_INSTANCE_RE.pattern,
-    ),
-]
-ArenaKib = Annotated[int, _doc("size of the shared-memory arena", "KiB", ge=64, le=1_048_576)]
-StartupTimeout = Annotated[
-    float,
-    _doc("how long kalictl start waits for every process to come up", "s", gt=0, le=MAX_TIMEOUT_S),
-]
-Plugins = Annotated[
-    tuple[str, ...],
-    _doc(
-        f"servo plugins, at most {MAX_PLUGINS}: Python files (relative to the config file) "
-        "or module names, each defining register(registry)"
-    ),
-]
-TgFunctions = Annotated[
-    tuple[str, ...],
-    _doc(
+        "NAME gives it instead"
+    )
+    return _f(default, doc, pattern=_INSTANCE_RE.pattern)
+
+
+def _arena_kib(default: Any = ...) -> Any:
+    return _f(default, "size of the shared-memory arena", "KiB", ge=64, le=1_048_576)
+
+
+def _startup_timeout_s(default: Any = ...) -> Any:
+    doc = "how long kalictl start waits for every process to come up"
+    return _f(default, doc, "s", gt=0, le=MAX_TIMEOUT_S)
+
+
+def _plugins_field() -> Any:
+    doc = (
+        f"servo plugins, at most {MAX_PLUGINS}: Python files (relative to the config file) or "
+        "module names, each defining register(registry)"
+    )
+    return _f((), doc)
+
+
+def _tg_functions_field() -> Any:
+    doc = (
         "TG function plugins, likewise: register(registry) adds transforms the TG computes "
         "every tick for tracking motions"
-    ),
-]
+    )
+    return _f((), doc)
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -649,18 +592,18 @@ class ConfigFile:
     A section left out takes its defaults; ``processes`` and ``robots`` left out are the
     shipped cell's (``DEFAULT_FILE``)."""
 
-    version: Version
-    instance: InstanceName | None = None
-    arena_kib: ArenaKib = 6144
-    startup_timeout_s: StartupTimeout = 60.0
+    version: int = _version()
+    instance: str | None = _instance(None)
+    arena_kib: int = _arena_kib(6144)
+    startup_timeout_s: float = _startup_timeout_s(60.0)
     clock: ClockConfig = ClockConfig()
-    processes: ProcessesFile | None = None
-    robots: Annotated[
-        tuple[RobotConfig, ...] | None, _doc(f"the arms in the cell, 1..{MAX_ROBOTS}")
-    ] = None
+    processes: ProcessesFile | None = _f(None, "left out: config/default.yaml's")
+    robots: tuple[RobotConfig, ...] | None = _f(
+        None, f"the arms in the cell, 1..{MAX_ROBOTS}; left out: config/default.yaml's"
+    )
     plant: PlantConfig = PlantConfig()
-    plugins: Plugins = ()
-    tg_functions: TgFunctions = ()
+    plugins: tuple[str, ...] = _plugins_field()
+    tg_functions: tuple[str, ...] = _tg_functions_field()
     feedforward: FeedforwardConfig = FeedforwardConfig()
     dashboard: DashboardConfig = DashboardConfig()
     bridge: BridgeConfig = BridgeConfig()
@@ -670,29 +613,27 @@ class ConfigFile:
 class KaliConfig:
     """A whole, validated configuration plus the text it came from."""
 
-    version: Version
-    instance: InstanceName
-    arena_kib: ArenaKib
-    startup_timeout_s: StartupTimeout
-    clock: ClockConfig
-    processes: tuple[ProcessConfig, ...]
-    robots: tuple[RobotConfig, ...]
-    source: Annotated[str, _doc("where the text came from, for messages")]
-    text: Annotated[str, _doc("the config's text, as stored in the arena")]
+    version: int = _version()
+    instance: str = _instance()
+    arena_kib: int = _arena_kib()
+    startup_timeout_s: float = _startup_timeout_s()
+    clock: ClockConfig = _f(doc="the wall clock's rates")
+    processes: tuple[ProcessConfig, ...] = _f(doc="every process, sv expanded, in start order")
+    robots: tuple[RobotConfig, ...] = _f(doc="the arms, in config order")
+    source: str = _f(doc="where the text came from, for messages")
+    text: str = _f(doc="the config's text, as stored in the arena")
     plant: PlantConfig = PlantConfig()
-    plugins: Plugins = ()
-    tg_functions: TgFunctions = ()
+    plugins: tuple[str, ...] = _plugins_field()
+    tg_functions: tuple[str, ...] = _tg_functions_field()
     feedforward: FeedforwardConfig = FeedforwardConfig()
     dashboard: DashboardConfig = DashboardConfig()
     bridge: BridgeConfig = BridgeConfig()
-    base_dir: Annotated[str, _doc("the directory relative paths are taken from")] = "."
-    files: Annotated[
-        str,
-        _doc(
-            "where a running instance keeps the copies of its user files it loads instead "
-            "of the originals (kali_daemons.snapshot); '': the originals"
-        ),
-    ] = ""
+    base_dir: str = _f(".", "the directory relative paths are taken from")
+    files: str = _f(
+        "",
+        "where a running instance keeps the copies of its user files it loads instead of the "
+        "originals (kali_daemons.snapshot); '': the originals",
+    )
 
     @functools.cached_property
     def joints(self) -> JointMap:
@@ -1814,7 +1755,34 @@ def schema() -> dict[str, Any]:
         }
         section["properties"][kind] = {"$ref": f"#/$defs/Process_{kind}"}
     out["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    _json_bounds(out)
     return out
+
+
+_JSON_BOUNDS = {
+    "ge": "minimum",
+    "gt": "exclusiveMinimum",
+    "le": "maximum",
+    "lt": "exclusiveMaximum",
+}
+
+
+def _json_bounds(node: Any) -> None:
+    """Write, in place, the bounds pydantic leaves under their Python names where a field is
+    an int or a float (``ms`` periods: ints when whole) as JSON Schema's on a number."""
+    if isinstance(node, dict):
+        if any(key in node for key in _JSON_BOUNDS):
+            if node.get("anyOf") == [{"type": "integer"}, {"type": "number"}]:
+                del node["anyOf"]
+                node["type"] = "number"
+            for key, name in _JSON_BOUNDS.items():
+                if key in node:
+                    node[name] = node.pop(key)
+        for value in node.values():
+            _json_bounds(value)
+    elif isinstance(node, list):
+        for value in node:
+            _json_bounds(value)
 
 
 def _plain(value: Any) -> Any:

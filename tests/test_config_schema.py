@@ -47,6 +47,9 @@ def test_kalictl_config_schema_prints_a_json_schema_every_shipped_file_meets() -
         500,
     )
     assert clock["unit"] == "us" and clock["description"]
+    servo = printed["$defs"]["ClockConfig"]["properties"]["servo_period_ms"]
+    assert (servo["type"], servo["exclusiveMinimum"], servo["maximum"]) == ("number", 0, 60000)
+    assert not any(f'"{bound}":' in r.stdout for bound in ("ge", "gt", "le", "lt"))
     # a process kind's entry holds only its keys, with its kind's defaults
     tg = printed["$defs"]["Process_tg"]
     assert list(tg["properties"]) == ["cpu", "priority", "serious", "stage"]
