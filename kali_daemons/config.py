@@ -1347,7 +1347,8 @@ def _bridge(node: Any, base_dir: str) -> BridgeConfig:
     if v["users_file"] is not None:
         v["users_file"] = _file(v["users_file"], "bridge.users_file", base_dir)
     for key in ("operators", "readers"):
-        names = _list(list(v[key]), f"bridge.{key}", 0, MAX_BRIDGE_USERS)
+        given = list(v[key]) if isinstance(v[key], tuple) else v[key]  # the default: a tuple
+        names = _list(given, f"bridge.{key}", 0, MAX_BRIDGE_USERS)
         v[key] = tuple(_identifier(n, f"bridge.{key}[{i}]", USER_RE) for i, n in enumerate(names))
     both = set(v["operators"]) & set(v["readers"])
     if both:
