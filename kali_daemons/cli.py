@@ -119,6 +119,12 @@ def _instance_name(ctx: click.Context) -> str:
     return "default" if name is None else check_instance_name(name)
 
 
+def _given_instance(ctx: click.Context) -> str | None:
+    """The instance named by -i or $KALI_INSTANCE, checked, or None (the config's then)."""
+    name = ctx.obj["instance"]
+    return None if name is None else check_instance_name(name)
+
+
 def _attach(ctx: click.Context) -> Instance:
     return Instance.attach(_instance_name(ctx))
 
@@ -172,7 +178,7 @@ def start(
     """Start every Kali process; return when all are ready."""
     if separate and not lockstep:
         raise click.UsageError("--separate-processes goes with --lockstep (real time always is)")
-    cfg = load_config(config_path or DEFAULT_CONFIG, instance=ctx.obj["instance"])
+    cfg = load_config(config_path or DEFAULT_CONFIG, instance=_given_instance(ctx))
     name = cfg.instance
     report = launcher.start(cfg, lockstep=lockstep, instance=name, record=record, separate=separate)
     if report.stale_cleaned:
@@ -807,7 +813,7 @@ def config_schema() -> None:
 def config_show(ctx: click.Context, config_path: Path | None) -> None:
     """Print the config as kalictl start reads it, every default written out (YAML); checked
     as kalictl start checks it."""
-    cfg = load_config(config_path or DEFAULT_CONFIG, instance=ctx.obj["instance"])
+    cfg = load_config(config_path or DEFAULT_CONFIG, instance=_given_instance(ctx))
     click.echo(config_mod.show(cfg), nl=False)
 
 
