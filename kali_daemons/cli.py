@@ -27,6 +27,7 @@ import click
 import numpy as np
 
 from . import boards, flightrec, introspect, launcher, layout, schedule, shadow
+from . import config as config_mod
 from .client import remote
 from .client.motion import INSTANCE_ENV, Kali
 from .client.remote import REMOTE_ENV, SESSION_ENV
@@ -118,6 +119,12 @@ def _instance_name(ctx: click.Context) -> str:
     return "default" if name is None else check_instance_name(name)
 
 
+def _given_instance(ctx: click.Context) -> str | None:
+    """The instance named by -i or $KALI_INSTANCE, checked, or None (the config's then)."""
+    name = ctx.obj["instance"]
+    return None if name is None else check_instance_name(name)
+
+
 def _attach(ctx: click.Context) -> Instance:
     return Instance.attach(_instance_name(ctx))
 
@@ -171,8 +178,8 @@ def start(
     """Start every Kali process; return when all are ready."""
     if separate and not lockstep:
         raise click.UsageError("--separate-processes goes with --lockstep (real time always is)")
-    cfg = load_config(config_path or DEFAULT_CONFIG)
-    name = cfg.instance if ctx.obj["instance"] is None else ctx.obj["instance"]
+    cfg = load_config(config_path or DEFAULT_CONFIG, instance=_given_instance(ctx))
+    name = cfg.instance
     report = launcher.start(cfg, lockstep=lockstep, instance=name, record=record, separate=separate)
     if report.stale_cleaned:
         click.echo(
@@ -836,6 +843,36 @@ def _power_name(word: int) -> str:
         return PowerState(word).name
     except ValueError:
         return f"INVALID({word})"
+
+
+@main.group("config")
+def config_group() -> None:
+    """The config file: its schema, and a file read with every default written out."""
+
+
+@config_group.command("schema")
+def config_schema() -> None:
+    """Print the config file's JSON Schema: every field with its type, default, bounds, unit
+    and description (editors validate a config against it)."""
+    click.echo(json.dumps(config_mod.schema(), indent=2))
+
+
+@config_group.command("show")
+@click.option(
+    "-c",
+    "--config",
+    "config_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help=f"Config file (default {DEFAULT_CONFIG}).",
+)
+@click.pass_context
+@_errors
+def config_show(ctx: click.Context, config_path: Path | None) -> None:
+    """Print the config as kalictl start reads it, every default written out (YAML); checked
+    as kalictl start checks it."""
+    cfg = load_config(config_path or DEFAULT_CONFIG, instance=_given_instance(ctx))
+    click.echo(config_mod.show(cfg), nl=False)
 
 
 @main.command()

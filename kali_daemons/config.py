@@ -6,13 +6,17 @@ a dotted path (``processes.sv.cpus[1]``), the value given and what is allowed, e
 ``config: config/default.yaml: clock.servo_period_ms = 3: must be a multiple of
 clock.base_tick_ms (2)``.
 
+Each field is declared once, on its section's pydantic dataclass, with its type, default,
+bounds, unit and description: the file is read from those declarations (``_read``), the JSON
+Schema is generated from them (``schema``, ``kalictl config schema``) and a config is written
+back with every default filled in (``show``, ``kalictl config show``).  The reading stays in
+small explicit helpers (``_int``, ``_float``, ``_mapping`` ...) rather than pydantic's own
+validation, so each message names the path, the value and the bound in Kali's words.
+
 Periods are in ms and may be fractional: the base tick is a whole number of microseconds
 (0.5 ms gives a 2 kHz servo) and every period a whole number of base ticks, compared in
 integer nanoseconds by ``period_ticks``.  A whole-ms value is kept as an ``int``, so an
 integer config reads exactly as it always did.
-
-Validation is a handful of small explicit helpers (``_int``, ``_float``, ``_mapping`` ...)
-rather than a schema library, so each message can say exactly what went wrong.
 """
 
 from __future__ import annotations
@@ -24,13 +28,16 @@ import math
 import os
 import re
 import stat
+import typing
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, Literal, NoReturn
 
 import numpy as np
 import yaml
+from pydantic import ConfigDict, Field, TypeAdapter
+from pydantic.dataclasses import dataclass
+from pydantic.fields import FieldInfo
 
 from kali_daemons import layout
 from kali_daemons.errors import ConfigError
@@ -44,6 +51,8 @@ from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
 CONFIG_VERSION = 1
 PROCESS_NAMES = ("wallclock", "plant", "tg", "sio", "sv", "dynamics", "viewer")
 DEFAULT_MODEL = "puma560"  # a robot entry without a model
+# the shipped cell: its processes and robots sections are the defaults of a file without them
+DEFAULT_FILE = Path(__file__).resolve().parent.parent / "config" / "default.yaml"
 
 MAX_SV_WORKERS = 8
 MAX_ROBOTS = 4
@@ -64,22 +73,29 @@ VIEWER_PERIOD_MS = 40
 MAX_CONFIG_BYTES = 1 << 20  # a config is a few KiB; /dev/zero or a log file is not one
 MAX_YAML_DEPTH = 32  # the deepest real config is 4 levels
 MAX_YAML_NODES = 100_000  # after alias expansion; the default config has ~600
-
+MAX_CONVEYOR_M_S = 0.5  # a faster belt is a units mistake
+# a rerun gRPC address: scheme, host (group 2) and port (group 3)
+GRPC_URL_RE = re.compile(r"rerun(\+https?)?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})/proxy")
+MAX_RECORD_PATH = 200
+# a Zenoh endpoint the bridge listens on: protocol, host (group 2), port (group 3)
+ENDPOINT_RE = re.compile(r"(tcp|tls|udp|quic)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})")
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
+MAX_LISTEN = 4
+MAX_BRIDGE_USERS = 64
+BRIDGE_STAGE = 5  # after the viewer: it reads what the tick wrote
+DEFAULT_SAFE_RAD = 0.15  # tracking-error tolerance before a runaway halt
+DEFAULT_CURRENT_FAULT_MS = 100.0  # demand beyond the current limit this long halts
 _INSTANCE_RE = re.compile(r"[a-z0-9][a-z0-9_-]{0,23}")
 _ROBOT_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,15}")
+# a bridge user's name: one chunk of the key expressions under its name (Zenoh reads a chunk
+# starting with @ verbatim, so none does)
+USER_RE = re.compile(r"[A-Za-z0-9_.-][A-Za-z0-9_.@-]{0,63}")
+_SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
+_PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
+MAX_PLUGINS = 16
 
-# Default lockstep stage of each kind when ``stage`` is omitted (lower runs first in a tick).
-_DEFAULT_STAGE = {
-    "wallclock": 0,
-    "plant": 0,
-    "tg": 1,
-    "sio": 2,
-    "sv": 2,
-    "dynamics": 3,
-    "viewer": 4,
-}
-
-# The keys each process entry accepts; tg/sio/sv get their period from the clock section.
+# Which keys each process entry accepts (ProcessEntry declares them); tg/sio/sv get their
+# period from the clock section.
 _PROCESS_KEYS = {
     "wallclock": ("cpu", "priority"),
     "plant": ("cpu", "priority", "period_ms", "serious", "stage"),
@@ -89,119 +105,20 @@ _PROCESS_KEYS = {
     "dynamics": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
     "viewer": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
 }
+# What a kind's entry takes when it leaves ``serious`` or ``stage`` out: the servo processes
+# are serious (a user who leaves the key out never loses the halt on a dead or late servo
+# process by accident); the lockstep stage orders a tick (lower runs first)
+_KIND_DEFAULTS: dict[str, dict[str, Any]] = {
+    "wallclock": {"serious": False, "stage": 0},
+    "plant": {"serious": True, "stage": 0},
+    "tg": {"serious": True, "stage": 1},
+    "sio": {"serious": True, "stage": 2},
+    "sv": {"serious": True, "stage": 2},
+    "dynamics": {"serious": False, "stage": 3},
+    "viewer": {"serious": False, "stage": 4},
+}
 _CLOCK_PERIOD_FIELD = {"tg": "clock.tg_period_ms", "sio": "clock.servo_period_ms"}
 _CLOCK_PERIOD_FIELD["sv"] = _CLOCK_PERIOD_FIELD["sio"]
-
-_TOP_KEYS = (
-    "version",
-    "instance",
-    "arena_kib",
-    "startup_timeout_s",
-    "clock",
-    "processes",
-    "robots",
-    "plant",
-    "plugins",
-    "tg_functions",
-    "feedforward",
-    "dashboard",
-    "bridge",
-)
-_PLANT_KEYS = ("substep_ms", "watchdog_ms", "enable_hold_ms", "brake_delay_ms", "conveyor_m_s")
-MAX_CONVEYOR_M_S = 0.5  # a faster belt is a units mistake
-_CLOCK_KEYS = (
-    "base_tick_ms",
-    "servo_period_ms",
-    "tg_period_ms",
-    "serious_miss_tolerance_ms",
-    "lockstep_ack_timeout_s",
-    "busy_wait_us",
-)
-_ROBOT_KEYS = (
-    "name",
-    "model",
-    "base_xyz",
-    "base_yaw_deg",
-    "servo",
-    "safe_rad",
-    "current_fault_ms",
-    "ff",
-    "index_phases_deg",
-    "grasp_yaw_deg",
-    "ft",
-    "robot_servos",
-)
-_FT_KEYS = (
-    "sensor",
-    "tool_mass_kg",
-    "tool_com_m",
-    "tool_tip_m",
-    "cutoff_hz",
-    "contact_limit_n",
-    "stale_ms",
-)
-FF_MODES = ("off", "gravity", "full")  # layout.FfMode by name
-_FEEDFORWARD_KEYS = ("stale_ms", "ramp_ms")
-_DASHBOARD_KEYS = ("connect", "web", "web_port", "grpc_port", "record", "server_memory_mib")
-DASHBOARD_WEB = ("auto", "on", "off")  # when the viewer serves the web viewer
-# a rerun gRPC address: scheme, host (group 2) and port (group 3)
-GRPC_URL_RE = re.compile(r"rerun(\+https?)?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})/proxy")
-MAX_RECORD_PATH = 200
-_BRIDGE_KEYS = (
-    "enabled",
-    "listen",
-    "cpu",
-    "telemetry_hz",
-    "timing_hz",
-    "users_file",
-    "operators",
-    "readers",
-    "tls",
-    "max_requests_per_s",
-    "max_sessions",
-    "event_history",
-)
-_TLS_KEYS = ("certificate", "private_key", "root_ca")
-# a Zenoh endpoint the bridge listens on: protocol, host (group 2), port (group 3)
-ENDPOINT_RE = re.compile(r"(tcp|tls|udp|quic)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})")
-LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
-MAX_LISTEN = 4
-MAX_BRIDGE_USERS = 64
-BRIDGE_STAGE = 5  # after the viewer: it reads what the tick wrote
-DEFAULT_SAFE_RAD = 0.15  # tracking-error tolerance before a runaway halt
-DEFAULT_CURRENT_FAULT_MS = 100.0  # demand beyond the current limit this long halts
-# a bridge user's name: one chunk of the key expressions under its name (Zenoh reads a chunk
-# starting with @ verbatim, so none does)
-USER_RE = re.compile(r"[A-Za-z0-9_.-][A-Za-z0-9_.@-]{0,63}")
-_SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
-_PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
-MAX_PLUGINS = 16
-
-# Used when the file has no ``processes`` / ``robots`` section (same as config/default.yaml).
-_DEFAULT_PROCESSES: dict[str, dict[str, Any]] = {
-    "wallclock": {"cpu": 0, "priority": 90},
-    "plant": {"cpu": 1, "priority": 83, "period_ms": 1, "serious": True, "stage": 0},
-    "tg": {"cpu": 1, "priority": 80, "serious": True, "stage": 1},
-    "sio": {"cpu": 0, "priority": 85, "serious": True, "stage": 2},
-    "sv": {
-        "count": 2,
-        "cpus": [0, 1],
-        "priority": 84,
-        "serious": True,
-        "stage": 2,
-        "poll_us": 200,
-    },
-    "dynamics": {"cpu": 1, "priority": 40, "period_ms": 10, "serious": False, "stage": 3},
-    "viewer": {"cpu": 1, "priority": 0, "period_ms": 40, "serious": False, "stage": 4},
-}
-# config/default.yaml's cell, feed-forward full as it writes it (an arm written without ``ff``
-# starts without: RobotConfig.ff)
-_DEFAULT_ROBOTS: list[dict[str, Any]] = [
-    {"name": "left", "model": "puma560", "base_xyz": [-0.6, 0.0, 0.0], "base_yaw_deg": 0,
-     "ff": "full"},
-    {"name": "right", "model": "puma560", "base_xyz": [0.6, 0.0, 0.0], "base_yaw_deg": 180,
-     "ff": "full"},
-]  # fmt: skip
 
 # Top-level fields ``with_overrides`` may change (each is re-validated).
 _OVERRIDABLE = ("instance", "arena_kib", "startup_timeout_s")
@@ -210,78 +127,222 @@ _MISSING: Any = object()
 
 
 # --------------------------------------------------------------------------------------------
-# The typed, frozen result
+# The declarations: each field once, with its type, default, bounds, unit and description.
+# The sections are frozen pydantic dataclasses: attribute access, equality, hashing and
+# ``dataclasses.replace`` as plain dataclasses, plus a JSON Schema (``schema``).  The file is
+# read by ``_read`` from these declarations, so that every message keeps naming the dotted
+# path, the value and what is allowed.
 
 
-@dataclass(frozen=True)
+def _f(default: Any = ..., doc: str = "", unit: str | None = None, **bounds: Any) -> Any:
+    """One field's declaration: its default (``...``: required), description, unit and bounds
+    (``ge``, ``gt``, ``le``, ``pattern``)."""
+    extra = {"unit": unit} if unit else None
+    return Field(default, description=doc, json_schema_extra=extra, **bounds)
+
+
+def _cpu_field(default: Any = ..., doc: str = "CPU to bind to; null: no binding") -> Any:
+    return _f(default, doc, ge=0)
+
+
+def _priority(default: Any = ...) -> Any:
+    doc = "0: normal scheduling (SCHED_OTHER); 1..99: real-time SCHED_FIFO priority"
+    return _f(default, doc, ge=0, le=MAX_PRIORITY)
+
+
+def _serious(default: Any = ...) -> Any:
+    doc = (
+        "true: missing deadlines (beyond clock.serious_miss_tolerance_ms) or dying halts the "
+        "system; a non-serious process that dies is left out, the rest runs on"
+    )
+    return _f(default, doc)
+
+
+def _stage(default: Any = ...) -> Any:
+    doc = "order within a tick in lockstep mode, lower first; sv shares sio's"
+    return _f(default, doc, ge=0, le=MAX_STAGE)
+
+
+def _poll_us(default: Any) -> Any:
+    doc = (
+        "sv only: a worker on another CPU than sio's polls this long for the clock's signal, "
+        "then for sio's feed, before it sleeps on them (at most half a servo period is used); "
+        "0: it sleeps on them"
+    )
+    return _f(default, doc, "us", ge=0, le=MAX_POLL_US)
+
+
+def _rest_ms(default: Any, left_out: str = "") -> Any:
+    doc = (
+        "sv only: such a polling worker, while the worker on sio's CPU runs every servo on its "
+        "own, is signalled only every this long: 0 (every tick) or whole servo periods up to "
+        "clock.serious_miss_tolerance_ms" + left_out
+    )
+    return _f(default, doc, "ms", ge=0)
+
+
+def _period_field(default: Any = ..., doc: str = "a whole number of base ticks") -> Any:
+    return _f(default, doc, "ms", gt=0, le=MAX_PERIOD_MS)
+
+
+_FROZEN = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+FfMode = Literal["off", "gravity", "full"]  # layout.FfMode by name
+DashboardWeb = Literal["auto", "on", "off"]  # when the viewer serves the web viewer
+FF_MODES: tuple[str, ...] = typing.get_args(FfMode)
+DASHBOARD_WEB: tuple[str, ...] = typing.get_args(DashboardWeb)
+
+
+@dataclass(frozen=True, config=_FROZEN)
 class ClockConfig:
     """Wall-clock rates; every period in the system is a multiple of ``base_tick_ms``.
 
     The periods are ms, ints when whole (``base_tick_ms: 0.5`` gives a 2 kHz servo).
     """
 
-    base_tick_ms: float = 1
-    servo_period_ms: float = 1
-    tg_period_ms: float = 10
-    serious_miss_tolerance_ms: int = 20
-    lockstep_ack_timeout_s: float = 5.0
-    busy_wait_us: int = 0
+    base_tick_ms: int | float = _f(
+        1,
+        "the clock's tick, a whole number of microseconds (e.g. 0.5 or 0.25)",
+        "ms",
+        ge=MIN_BASE_TICK_MS,
+        le=MAX_BASE_TICK_MS,
+    )
+    servo_period_ms: int | float = _period_field(1, "period of sio and the sv workers")
+    tg_period_ms: int | float = _period_field(10, "period of the TG, >= servo_period_ms")
+    serious_miss_tolerance_ms: int = _f(
+        20,
+        "how long a serious process may go unacknowledged before halting (the time the host "
+        "stopped the clock itself not counted); above servo_period_ms",
+        "ms",
+        ge=0,
+        le=1000,
+    )
+    lockstep_ack_timeout_s: float = _f(
+        5.0,
+        "in lockstep mode, how long the clock waits for each tick's acks",
+        "s",
+        gt=0,
+        le=MAX_TIMEOUT_S,
+    )
+    busy_wait_us: int = _f(
+        0, "busy-wait this long before each tick for sharper timing", "us", ge=0, le=500
+    )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
+class ProcessEntry:
+    """One ``processes.<kind>`` entry as written; each kind takes the keys of
+    ``_PROCESS_KEYS``, and ``serious`` and ``stage`` left out are its kind's
+    (``_KIND_DEFAULTS``); ``sv`` expands to ``count`` workers, ``sv.0`` .."""
+
+    enabled: bool = _f(
+        True,
+        "dynamics and viewer only: false leaves the process out; the servo level runs the "
+        "same without them",
+    )
+    cpu: int | None = _cpu_field(None)
+    count: int = _f(2, "sv only: servo workers", ge=1, le=MAX_SV_WORKERS)
+    cpus: tuple[int | None, ...] | None = _f(
+        None, "sv only: one CPU (or null) per worker; left out: none bound"
+    )
+    priority: int = _priority(0)
+    period_ms: int | float | None = _period_field(
+        None,
+        "plant, dynamics and viewer only; left out: the base tick (plant), the TG's period "
+        "(dynamics), 40 ms in whole ticks (viewer)",
+    )
+    serious: bool = _serious(False)
+    stage: int = _stage(0)
+    poll_us: int = _poll_us(200)
+    rest_ms: int | float | None = _rest_ms(
+        None, f"; left out: {DEFAULT_REST_MS} ms rounded up to whole servo periods"
+    )
+
+
+@dataclass(frozen=True, config=_FROZEN)
 class ProcessConfig:
     """One periodic process (or the wall clock), with its period already resolved."""
 
-    name: str
-    kind: str
-    cpu: int | None
-    priority: int
-    period_ms: float  # a whole number of base ticks; an int when whole ms
-    serious: bool
-    stage: int
-    # sv only: a worker bound to another CPU than SIO's wakes on its own timer at each due
-    # tick and polls this long for the clock's signal, then for SIO's feed, before it sleeps
-    # on them (``Daemon.poll_ns``); 0: it always sleeps
-    poll_us: int = 0
-    # sv only: such a polling worker, while the worker on SIO's CPU runs every servo on its
-    # own, is signalled only every this many ms (it rests: sv/daemon.py); 0: every tick
-    rest_ms: float = 0
+    name: str = _f(doc="the process: its kind, or sv.<i> for the i-th SV")
+    kind: str = _f(doc="one of PROCESS_NAMES, or bridge")
+    cpu: int | None = _cpu_field()
+    priority: int = _priority()
+    period_ms: int | float = _period_field(doc="a whole number of base ticks; an int when whole")
+    serious: bool = _serious()
+    stage: int = _stage()
+    poll_us: int = _poll_us(0)
+    rest_ms: int | float = _rest_ms(0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
 class PlantConfig:
     """The simulated world's timing (thesis 3.7, appendix C): fixed by the hardware it models."""
 
-    substep_ms: float = 0.5  # MuJoCo step; the 500 Hz current loop needs at least 1 kHz
-    watchdog_ms: float = 20.0  # I/O board safety timeout (appendix C.4)
-    enable_hold_ms: float = 15.0  # enable bit must stay high this long (power switch relay)
-    brake_delay_ms: float = 50.0  # brake solenoids engage/release this long after the amps
-    # the stand's top is a conveyor belt carrying the bar at this velocity (world x, y; m/s)
-    # while the first arm's I/O board drives its motor (``boards.run_conveyor``); 0: no belt
-    conveyor_m_s: tuple[float, float] = (0.0, 0.0)
+    substep_ms: float = _f(
+        0.5,
+        "MuJoCo step; divides processes.plant.period_ms (the current loop is 500 Hz)",
+        "ms",
+        gt=0,
+        le=1,
+    )
+    watchdog_ms: float = _f(
+        20.0,
+        "the I/O board's safety timeout (thesis appendix C.4); longer than SIO's retrigger cycle",
+        "ms",
+        gt=0,
+        le=1000,
+    )
+    enable_hold_ms: float = _f(
+        15.0, "how long the enable bit must stay high for the power relay", "ms", gt=0, le=1000
+    )
+    brake_delay_ms: float = _f(
+        50.0,
+        "brake solenoids engage or release this long after the amplifiers",
+        "ms",
+        gt=0,
+        le=1000,
+    )
+    conveyor_m_s: tuple[float, float] = _f(
+        (0.0, 0.0),
+        "the stand's top is a conveyor belt carrying the bar at this velocity (world x, y; at "
+        f"most {MAX_CONVEYOR_M_S:g} m/s) while the first arm's I/O board runs it; [0, 0]: none",
+        "m/s",
+    )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
 class FtConfig:
-    """A robot's wrist force/torque sensor and the tool on it (issue 27, ``ftsensor.py``).
+    """A robot's wrist force/torque sensor and the tool on it (``ftsensor.py``).
 
     The sensor sits on the flange (its frame the flange's); the tool hangs on the sensor: its
     mass and centre of mass (sensor frame) are what SIO subtracts as gravity, and its tool
     point, ``tool_tip_m`` out along the sensor's z, is where the contact wrench is given.
     """
 
-    sensor: str | None = "mini45"  # a data sheet of ftsensor.SHEETS; None: no sensor
-    # a bare pad by default (the bar's grasp and every tuned gain stay as they were); a
-    # researcher's tool, gripper or payload is given here, and the plant, SIO's gravity
-    # compensation and the dynamics model all carry it
-    tool_mass_kg: float = 0.0
-    tool_com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    tool_tip_m: float = 0.042
-    cutoff_hz: float = 30.0  # SIO's low-pass on the contact wrench
-    contact_limit_n: float = 150.0  # a contact force beyond this halts (FORCE)
-    # no fresh sample this long halts (FORCE: the sensor is silent); above the clock's
-    # serious-miss tolerance, so that a stalled plant (the board) is named as what it is
-    stale_ms: float = 50.0
+    sensor: str | None = _f("mini45", f"a data sheet: {', '.join(FT_SHEETS)}; none: no sensor")
+    tool_mass_kg: float = _f(
+        0.0,
+        "the tool's mass, carried by the plant, SIO's gravity compensation and the dynamics "
+        "model; 0: a bare pad",
+        "kg",
+        ge=0,
+        le=50,
+    )
+    tool_com_m: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), "the tool's centre of mass, sensor frame, each within ±1", "m"
+    )
+    tool_tip_m: float = _f(0.042, "the tool point, out along the sensor's z", "m", ge=0, le=1)
+    cutoff_hz: float = _f(30.0, "SIO's low-pass on the contact wrench", "Hz", gt=0, le=1000)
+    contact_limit_n: float = _f(
+        150.0, "a contact force beyond this halts (FORCE)", "N", gt=0, le=10_000
+    )
+    stale_ms: float = _f(
+        50.0,
+        "no fresh sample this long halts (FORCE: the sensor is silent); above the clock's "
+        "serious-miss tolerance, so that a stalled plant is named as what it is",
+        "ms",
+        gt=0,
+        le=1000,
+    )
 
     @property
     def sheet(self) -> FtSheet | None:
@@ -289,35 +350,76 @@ class FtConfig:
         return None if self.sensor is None else ft_sheet(self.sensor)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
 class RobotConfig:
     """One arm in the cell: its model and where its base sits in the world frame."""
 
-    name: str
-    model: str
-    base_xyz: tuple[float, float, float]
-    base_yaw_deg: float
-    servo: str = "pid"  # the servo algorithm every joint starts with (builtin or plugin)
-    safe_rad: tuple[float, ...] = ()  # tracking tolerance per joint; empty: DEFAULT_SAFE_RAD
-    current_fault_ms: float = DEFAULT_CURRENT_FAULT_MS  # demand beyond the limit this long halts
-    ff: str = "off"  # feed-forward it starts with: off, gravity or full (FF_MODES)
-    # the arm's calibration sheet (thesis 3.5.1): each joint's index-pulse motor angle, rad;
-    # the config's index_phases_deg, else (left empty) its robot type's
-    index_phases: tuple[float, ...] = ()
-    # how its flange holds the bar: its grasp site turned this much (deg, counter-clockwise
-    # seen from above) about the vertical through the grasp point (kali_daemons.model)
-    grasp_yaw_deg: float = 0.0
-    ft: FtConfig = FtConfig()  # its wrist force/torque sensor and tool
-    # whether it may run robot-level servos (issue 27): the SVs then hold its model (they
-    # load Pinocchio for it, ~20 MB more PSS each), so the lean default leaves it off
-    robot_servos: bool = False
+    name: str = _f(doc="the arm's name, unique in the cell", pattern=_ROBOT_NAME_RE.pattern)
+    model: str = _f(
+        DEFAULT_MODEL,
+        "a robot type (kalictl types lists them), or a .py file defining ROBOT, relative to "
+        "the config file",
+    )
+    base_xyz: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), f"where its base sits in the world frame, within ±{MAX_BASE_M:g}", "m"
+    )
+    base_yaw_deg: float = _f(0.0, "its base turned about the vertical", "deg")
+    servo: str = _f(
+        "pid",
+        "the servo algorithm every joint starts with: pid, pd, or a plugin's",
+        pattern=_SERVO_NAME_RE.pattern,
+    )
+    safe_rad: float | tuple[float, ...] = _f(
+        (),
+        "tracking-error tolerance before a runaway halt, one number in (0, π] or one per "
+        f"joint; left out: {DEFAULT_SAFE_RAD}",
+        "rad",
+    )
+    current_fault_ms: float = _f(
+        DEFAULT_CURRENT_FAULT_MS,
+        "a demand beyond the motor current limit this long halts",
+        "ms",
+        gt=0,
+        le=10_000,
+    )
+    ff: FfMode = _f(
+        "off",
+        "feed-forward it starts with (kalictl ff changes it on line): off, gravity, or full "
+        "(inverse dynamics of the demanded motion)",
+    )
+    index_phases_deg: tuple[float, ...] = _f(
+        (),
+        "its calibration sheet (thesis 3.5.1): each joint's index-pulse motor angle in "
+        "[0, 360), measured once per arm; left out: its robot type's",
+        "deg",
+    )
+    grasp_yaw_deg: float = _f(
+        0.0,
+        "how its flange holds the bar: its grasp site turned this much about the vertical "
+        "through the grasp point",
+        "deg",
+        gt=-180,
+        le=180,
+    )
+    ft: FtConfig = _f(FtConfig(), "its wrist force/torque sensor and tool")
+    robot_servos: bool = _f(
+        False,
+        "whether it may run robot-level servos: the SVs then hold its model (~20 MB more "
+        "each), so the lean default leaves it off",
+    )
 
     def __post_init__(self) -> None:
-        if not self.index_phases:
-            sheet = tuple(float(v) for v in self.type.index_phases)
-            object.__setattr__(self, "index_phases", sheet)
-        if not self.safe_rad:
+        if not isinstance(self.safe_rad, tuple):
+            object.__setattr__(self, "safe_rad", (float(self.safe_rad),) * self.n_joints)
+        elif not self.safe_rad:
             object.__setattr__(self, "safe_rad", (DEFAULT_SAFE_RAD,) * self.n_joints)
+
+    @property
+    def index_phases(self) -> tuple[float, ...]:
+        """Each joint's index-pulse motor angle, rad: ``index_phases_deg``, else the type's."""
+        if self.index_phases_deg:
+            return tuple(math.radians(v) for v in self.index_phases_deg)
+        return tuple(float(v) for v in self.type.index_phases)
 
     @property
     def n_joints(self) -> int:
@@ -330,60 +432,98 @@ class RobotConfig:
         return robot_type(self.model)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
 class FeedforwardConfig:
     """How SIO treats the dynamics process's feed-forward torques (thesis 3.3.6)."""
 
-    stale_ms: float = 50.0  # silent or behind this long: SIO drops the feed-forward
-    ramp_ms: float = 200.0  # feed-forward fades in and out over this time: no torque step
+    stale_ms: float = _f(
+        50.0,
+        "silent or behind this long, the dynamics process's torques are dropped",
+        "ms",
+        gt=0,
+        le=10_000,
+    )
+    ramp_ms: float = _f(
+        200.0, "feed-forward fades in and out over this time: no torque step", "ms", ge=0, le=10_000
+    )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
 class DashboardConfig:
     """Where the viewer's live rerun dashboard goes (thesis 3.3.7, DESIGN 8)."""
 
-    # a rerun viewer to stream to when one listens there (None: never look for one)
-    connect: str | None = "rerun+http://127.0.0.1:9876/proxy"
-    web: str = "auto"  # serve the web viewer on 127.0.0.1: auto (no live viewer found), on, off
-    web_port: int = 9090  # its HTTP port; 0 or a taken port: a free one (kalictl view tells)
-    grpc_port: int = 9877  # its data stream; not 9876, where a native viewer listens
-    record: str | None = None  # an .rrd file to record to, relative to the config's directory
-    server_memory_mib: int = 256  # data the web viewer's server keeps for late browsers
+    connect: str | None = _f(
+        "rerun+http://127.0.0.1:9876/proxy",
+        "a rerun viewer to stream to when one listens there (a gRPC URL); null: never look",
+    )
+    web: DashboardWeb = _f(
+        "auto", "serve the web viewer on 127.0.0.1: auto (when no live viewer is found), on, off"
+    )
+    web_port: int = _f(9090, "the web viewer's HTTP port; 0 or taken: a free one", ge=0, le=65535)
+    grpc_port: int = _f(
+        9877, "its data stream, not web_port; 0 or taken: a free one", ge=0, le=65535
+    )
+    record: str | None = _f(
+        None,
+        f"also record to this .rrd file (relative to the config file, 1..{MAX_RECORD_PATH} "
+        "characters)",
+    )
+    server_memory_mib: int = _f(
+        256,
+        "what the web viewer's server keeps for browsers that connect late",
+        "MiB",
+        ge=16,
+        le=65536,
+    )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
 class TlsConfig:
     """The bridge's TLS files (absolute paths): its certificate and key, and the CA whose
     client certificates it accepts (a client's common name is its user name for the roles)."""
 
-    certificate: str
-    private_key: str
-    root_ca: str | None = None
+    certificate: str = _f(doc="the bridge's certificate, a PEM file")
+    private_key: str = _f(doc="its private key, a PEM file")
+    root_ca: str | None = _f(None, "the CA whose client certificates it accepts")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, config=_FROZEN)
 class BridgeConfig:
-    """The Zenoh bridge (issue 29, ``kali_daemons/bridge``): where it listens, how often it
-    publishes and who may do what.  Off by default; on, ``kalictl start`` starts process
-    ``bridge`` (non-serious, SCHED_OTHER, on ``cpu``).
+    """The Zenoh bridge (``kali_daemons/bridge``): where it listens, how often it publishes
+    and who may do what.  Off by default; on, ``kalictl start`` starts process ``bridge``
+    (non-serious, SCHED_OTHER, on ``cpu``).
 
     Without ``users_file`` or client-certificate TLS nobody is authenticated, so the bridge
     may listen on loopback only and every session there may command (as a local user can).
     With them, ``operators`` may command and ``readers`` only read (telemetry, events,
     status); anyone else is refused by Zenoh's access control."""
 
-    enabled: bool = False
-    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
-    cpu: int | None = 1
-    telemetry_hz: float = 100.0  # each robot's state, decimated from the servo rate
-    timing_hz: float = 1.0  # per-process timing statistics
-    users_file: str | None = None  # Zenoh's user:password dictionary, absolute
-    operators: tuple[str, ...] = ()
-    readers: tuple[str, ...] = ()
-    tls: TlsConfig | None = None
-    max_requests_per_s: int = 1000  # per user and kind; beyond, refused unread (never an e-stop)
-    max_sessions: int = 8  # remote programs at once
-    event_history: int = 256  # events a late subscriber is sent
+    enabled: bool = _f(False, "start the bridge")
+    listen: tuple[str, ...] = _f(
+        ("tcp/127.0.0.1:7447",),
+        f"1..{MAX_LISTEN} Zenoh endpoints like tcp/127.0.0.1:7447; beyond loopback only with "
+        "authentication",
+    )
+    cpu: int | None = _cpu_field(1, "its CPU (SCHED_OTHER, never the servo level's)")
+    telemetry_hz: float = _f(
+        100.0, "each robot's state, decimated from the servo rate", "Hz", gt=0, le=1000
+    )
+    timing_hz: float = _f(1.0, "per-process timing statistics", "Hz", gt=0, le=100)
+    users_file: str | None = _f(
+        None, "Zenoh's user:password dictionary (relative to the config file)"
+    )
+    operators: tuple[str, ...] = _f((), "users (or certificate common names) who may command")
+    readers: tuple[str, ...] = _f((), "users who may only read (telemetry, events, status)")
+    tls: TlsConfig | None = _f(None, "the TLS files, for tls/ endpoints")
+    max_requests_per_s: int = _f(
+        1000,
+        "per user and kind of request; beyond, refused unread (never an e-stop)",
+        "1/s",
+        ge=1,
+        le=100_000,
+    )
+    max_sessions: int = _f(8, "remote programs at once", ge=1, le=64)
+    event_history: int = _f(256, "events a late subscriber is sent", ge=1, le=10_000)
 
     @property
     def authenticated(self) -> bool:
@@ -393,29 +533,107 @@ class BridgeConfig:
         )
 
 
-@dataclass(frozen=True)
-class KaliConfig:
-    """A whole, validated configuration plus the text it came from."""
+# The top-level scalars, shared by the file (ConfigFile) and the result (KaliConfig)
 
-    version: int
-    instance: str
-    arena_kib: int
-    startup_timeout_s: float
-    clock: ClockConfig
-    processes: tuple[ProcessConfig, ...]
-    robots: tuple[RobotConfig, ...]
-    source: str
-    text: str
+
+def _version() -> Any:
+    return _f(doc=f"format version of the file; this Kali reads {CONFIG_VERSION}")
+
+
+def _instance(default: Any = ...) -> Any:
+    doc = (
+        "the instance name: several instances run side by side on one machine; kalictl -i "
+        "NAME gives it instead"
+    )
+    return _f(default, doc, pattern=_INSTANCE_RE.pattern)
+
+
+def _arena_kib(default: Any = ...) -> Any:
+    return _f(default, "size of the shared-memory arena", "KiB", ge=64, le=1_048_576)
+
+
+def _startup_timeout_s(default: Any = ...) -> Any:
+    doc = "how long kalictl start waits for every process to come up"
+    return _f(default, doc, "s", gt=0, le=MAX_TIMEOUT_S)
+
+
+def _plugins_field() -> Any:
+    doc = (
+        f"servo plugins, at most {MAX_PLUGINS}: Python files (relative to the config file) or "
+        "module names, each defining register(registry)"
+    )
+    return _f((), doc)
+
+
+def _tg_functions_field() -> Any:
+    doc = (
+        "TG function plugins, likewise: register(registry) adds transforms the TG computes "
+        "every tick for tracking motions"
+    )
+    return _f((), doc)
+
+
+@dataclass(frozen=True, config=_FROZEN)
+class ProcessesFile:
+    """The ``processes`` section: one entry per kind, all seven present."""
+
+    wallclock: ProcessEntry
+    plant: ProcessEntry
+    tg: ProcessEntry
+    sio: ProcessEntry
+    sv: ProcessEntry
+    dynamics: ProcessEntry
+    viewer: ProcessEntry
+
+
+@dataclass(frozen=True, config=_FROZEN)
+class ConfigFile:
+    """A config file as written: what ``kalictl config schema`` prints and ``_build`` reads.
+    A section left out takes its defaults; ``processes`` and ``robots`` left out are the
+    shipped cell's (``DEFAULT_FILE``)."""
+
+    version: int = _version()
+    instance: str | None = _instance(None)
+    arena_kib: int = _arena_kib(6144)
+    startup_timeout_s: float = _startup_timeout_s(60.0)
+    clock: ClockConfig = ClockConfig()
+    processes: ProcessesFile | None = _f(None, "left out: config/default.yaml's")
+    robots: tuple[RobotConfig, ...] | None = _f(
+        None, f"the arms in the cell, 1..{MAX_ROBOTS}; left out: config/default.yaml's"
+    )
     plant: PlantConfig = PlantConfig()
-    plugins: tuple[str, ...] = ()  # servo plugin files (relative to base_dir) or module names
-    tg_functions: tuple[str, ...] = ()  # TG function plugins, likewise (tg.functions)
+    plugins: tuple[str, ...] = _plugins_field()
+    tg_functions: tuple[str, ...] = _tg_functions_field()
     feedforward: FeedforwardConfig = FeedforwardConfig()
     dashboard: DashboardConfig = DashboardConfig()
     bridge: BridgeConfig = BridgeConfig()
-    base_dir: str = "."  # directory relative plugin paths are taken from
-    # where a running instance keeps the copies of its user files it loads instead of the
-    # originals (``kali_daemons.snapshot``; '' for none: a config read from its file)
-    files: str = ""
+
+
+@dataclass(frozen=True, config=_FROZEN)
+class KaliConfig:
+    """A whole, validated configuration plus the text it came from."""
+
+    version: int = _version()
+    instance: str = _instance()
+    arena_kib: int = _arena_kib()
+    startup_timeout_s: float = _startup_timeout_s()
+    clock: ClockConfig = _f(doc="the wall clock's rates")
+    processes: tuple[ProcessConfig, ...] = _f(doc="every process, sv expanded, in start order")
+    robots: tuple[RobotConfig, ...] = _f(doc="the arms, in config order")
+    source: str = _f(doc="where the text came from, for messages")
+    text: str = _f(doc="the config's text, as stored in the arena")
+    plant: PlantConfig = PlantConfig()
+    plugins: tuple[str, ...] = _plugins_field()
+    tg_functions: tuple[str, ...] = _tg_functions_field()
+    feedforward: FeedforwardConfig = FeedforwardConfig()
+    dashboard: DashboardConfig = DashboardConfig()
+    bridge: BridgeConfig = BridgeConfig()
+    base_dir: str = _f(".", "the directory relative paths are taken from")
+    files: str = _f(
+        "",
+        "where a running instance keeps the copies of its user files it loads instead of the "
+        "originals (kali_daemons.snapshot); '': the originals",
+    )
 
     @functools.cached_property
     def joints(self) -> JointMap:
@@ -448,13 +666,18 @@ class KaliConfig:
 
 
 def parse_config(
-    text: str, source: str = "<string>", base_dir: str | None = None, files: str = ""
+    text: str,
+    source: str = "<string>",
+    base_dir: str | None = None,
+    files: str = "",
+    instance: str | None = None,
 ) -> KaliConfig:
     """Parse and fully validate YAML ``text``; ``source`` names it in every error message.
 
     ``base_dir`` is where relative plugin and robot type file paths are found (default: the
     current directory); ``files``, when given, where a running instance keeps its copies of
-    them (``kali_daemons.snapshot``), which are loaded instead.
+    them (``kali_daemons.snapshot``), which are loaded instead.  ``instance``, when given
+    (``kalictl -i``), names the instance: the file then needs no ``instance`` of its own.
     """
     if not isinstance(text, str):
         raise ConfigError(f"{source}: config text must be a str, not {type(text).__name__}")
@@ -471,7 +694,7 @@ def parse_config(
         raise ConfigError(f"{source}: YAML does not parse: {exc}") from None
     base = os.path.abspath(base_dir or ".")
     try:
-        cfg = _build(doc, source, text, base, files)
+        cfg = _build(doc, source, text, base, files, instance)
     except _InvalidError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     check_arena(cfg)
@@ -487,8 +710,9 @@ _FILE_KINDS = {
 }
 
 
-def load_config(path: str | os.PathLike[str]) -> KaliConfig:
-    """Read and parse the config file at ``path``; a missing or unreadable file is a ConfigError."""
+def load_config(path: str | os.PathLike[str], instance: str | None = None) -> KaliConfig:
+    """Read and parse the config file at ``path`` (``instance`` as for ``parse_config``); a
+    missing or unreadable file is a ConfigError."""
     source = os.fspath(path)
     try:
         # non-blocking: opening a FIFO for reading would wait for a writer forever
@@ -516,7 +740,7 @@ def load_config(path: str | os.PathLike[str]) -> KaliConfig:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{source}: config file is not UTF-8 text: {exc.reason}") from None
-    return parse_config(text, source, os.path.dirname(os.path.abspath(source)))
+    return parse_config(text, source, os.path.dirname(os.path.abspath(source)), instance=instance)
 
 
 def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
@@ -526,17 +750,13 @@ def with_overrides(cfg: KaliConfig, **changes: Any) -> KaliConfig:
     process that re-parses it sees the file's values, not the overrides.
     """
     checked: dict[str, Any] = {}
+    declared = KaliConfig.__pydantic_fields__  # type: ignore[attr-defined]
     for key, value in changes.items():
         try:
-            if key == "instance":
-                checked[key] = _identifier(value, "instance", _INSTANCE_RE)
-            elif key == "arena_kib":
-                checked[key] = _int(value, "arena_kib", 64, 1_048_576)
-            elif key == "startup_timeout_s":
-                checked[key] = _float(value, "startup_timeout_s", 0.0, MAX_TIMEOUT_S)
-            else:
+            if key not in _OVERRIDABLE:
                 allowed = ", ".join(_OVERRIDABLE)
                 raise _InvalidError(f"{key}: cannot be overridden; overridable fields: {allowed}")
+            checked[key] = _check(value, key, declared[key])
         except _InvalidError as exc:
             raise ConfigError(f"{cfg.source} (override): {exc}") from None
     out = dataclasses.replace(cfg, **checked)
@@ -961,9 +1181,85 @@ def _period(
 # Section builders
 
 
-def _build(doc: Any, source: str, text: str, base_dir: str, files: str) -> KaliConfig:
+# --------------------------------------------------------------------------------------------
+# Reading a section from its declaration
+
+
+def _bounds(info: FieldInfo) -> dict[str, Any]:
+    """A declared field's bounds: ``ge``, ``gt``, ``le``, ``lt``, ``pattern`` as given."""
+    out: dict[str, Any] = {}
+    for item in info.metadata:
+        for key in ("ge", "gt", "le", "lt", "pattern"):
+            if getattr(item, key, None) is not None:
+                out[key] = getattr(item, key)
+    return out
+
+
+def _check(value: Any, path: str, info: FieldInfo) -> Any:
+    """``value`` checked against its declaration when that is a bool, a bounded int or
+    number, a pattern or a choice; any other value is returned as written, for its section's
+    own check."""
+    kind, bounds = info.annotation, _bounds(info)
+    if kind is bool:
+        return _bool(value, path)
+    if kind is int and "ge" in bounds:
+        return _int(value, path, bounds["ge"], bounds.get("le"))
+    if kind is float and "le" in bounds:
+        lo_open = "gt" in bounds
+        return _float(value, path, bounds["gt" if lo_open else "ge"], bounds["le"], lo_open)
+    if kind is float:
+        return _finite(value, path)
+    if kind is str and "pattern" in bounds:
+        return _identifier(value, path, re.compile(bounds["pattern"]))
+    if typing.get_origin(kind) is Literal:
+        return _choice(value, path, typing.get_args(kind))
+    return value
+
+
+def _read(
+    cls: type,
+    node: Any,
+    path: str,
+    keys: tuple[str, ...] | None = None,
+    hints: Mapping[str, str] | None = None,
+    defaults: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Section ``node`` at ``path`` read by ``cls``'s declarations (only ``keys`` of them when
+    given): an unknown key refused with a suggestion, each value given checked (``_check``),
+    each left out given its default (``defaults``, else the declared one; ``_MISSING`` for a
+    required field)."""
+    fields: dict[str, FieldInfo] = cls.__pydantic_fields__  # type: ignore[attr-defined]
+    allowed = keys or tuple(fields)
+    given = _mapping(node, path, allowed, hints)
+    out: dict[str, Any] = {}
+    for key in allowed:
+        info = fields[key]
+        if key in given:
+            out[key] = _check(given[key], _join(path, key), info)
+        elif defaults is not None and key in defaults:
+            out[key] = defaults[key]
+        else:
+            out[key] = _MISSING if info.is_required() else info.get_default()
+    return out
+
+
+@functools.cache
+def _shipped() -> dict[str, Any]:
+    """``DEFAULT_FILE``'s document: its ``processes`` and ``robots`` are those of a file that
+    leaves them out."""
+    return yaml.load(DEFAULT_FILE.read_text(encoding="utf-8"), Loader=_Loader)
+
+
+# --------------------------------------------------------------------------------------------
+# Section builders
+
+
+def _build(
+    doc: Any, source: str, text: str, base_dir: str, files: str, instance: str | None
+) -> KaliConfig:
     """Turn the parsed YAML document into a KaliConfig, or raise _InvalidError; relative
-    paths are taken from ``base_dir`` (absolute), user files read from ``files`` if given."""
+    paths are taken from ``base_dir`` (absolute), user files read from ``files`` if given;
+    ``instance``, when given, names the instance instead of the file."""
     if not isinstance(doc, dict):
         empty = " (the file is empty)" if doc is None else ""
         _fail("the top level", doc, f"must be a mapping{empty}, not {_kind_of(doc)}")
@@ -973,50 +1269,45 @@ def _build(doc: Any, source: str, text: str, base_dir: str, files: str) -> KaliC
         raise _InvalidError(f"version: missing; required, this Kali reads version {CONFIG_VERSION}")
     if type(version) is not int or version != CONFIG_VERSION:
         _fail("version", version, f"unsupported; this Kali reads version {CONFIG_VERSION}")
-    _mapping(doc, "", _TOP_KEYS)
-    if "instance" not in doc:
+    top = _read(ConfigFile, doc, "")
+    if top["instance"] is not None:
+        top["instance"] = _identifier(top["instance"], "instance", _INSTANCE_RE)
+    if instance is not None:
+        top["instance"] = _identifier(instance, "instance", _INSTANCE_RE)
+    if top["instance"] is None:
         raise _InvalidError(
-            f"instance: missing; required, a string matching {_INSTANCE_RE.pattern}"
+            f"instance: missing; required, a string matching {_INSTANCE_RE.pattern} "
+            "(or name the instance with kalictl -i NAME)"
         )
-    instance = _identifier(doc["instance"], "instance", _INSTANCE_RE)
-    arena_kib = _int(doc.get("arena_kib", 6144), "arena_kib", 64, 1_048_576)
-    startup = _float(doc.get("startup_timeout_s", 60), "startup_timeout_s", 0.0, MAX_TIMEOUT_S)
     clock = _clock(doc.get("clock", {}))
     if "processes" in doc:
         processes = _processes(doc["processes"], clock)
     else:
         try:
-            processes = _processes(_DEFAULT_PROCESSES, clock)
+            processes = _processes(_shipped()["processes"], clock)
         except _InvalidError as exc:
-            raise _InvalidError(f"{exc} (in the built-in default processes section)") from None
-    robots = _robots(doc.get("robots", _DEFAULT_ROBOTS), base_dir, files)
+            raise _InvalidError(f"{exc} (in {DEFAULT_FILE}, the default processes)") from None
+    robots = _robots(doc.get("robots", _shipped()["robots"]), base_dir, files)
     bridge = _bridge(doc.get("bridge", {}), base_dir)
     if bridge.enabled:  # not in ``processes``: its section holds everything about it
         processes = (*processes, bridge_process(bridge, clock))
     plant_period = next(p.period_ms for p in processes if p.kind == "plant")
-    plant = _plant(doc.get("plant", {}), plant_period, clock.servo_period_ms)
-    plugins = tuple(
-        _identifier(p, f"plugins[{i}]", _PLUGIN_RE)
-        for i, p in enumerate(_list(doc.get("plugins", []), "plugins", 0, MAX_PLUGINS))
-    )
-    tg_functions = tuple(
-        _identifier(p, f"tg_functions[{i}]", _PLUGIN_RE)
-        for i, p in enumerate(_list(doc.get("tg_functions", []), "tg_functions", 0, MAX_PLUGINS))
-    )
     return KaliConfig(
         version=CONFIG_VERSION,
-        instance=instance,
-        arena_kib=arena_kib,
-        startup_timeout_s=startup,
+        instance=top["instance"],
+        arena_kib=top["arena_kib"],
+        startup_timeout_s=top["startup_timeout_s"],
         clock=clock,
         processes=processes,
         robots=robots,
         source=source,
         text=text,
-        plant=plant,
-        plugins=plugins,
-        tg_functions=tg_functions,
-        feedforward=_feedforward(doc.get("feedforward", {})),
+        plant=_plant(doc.get("plant", {}), plant_period, clock.servo_period_ms),
+        plugins=_plugins(top["plugins"], "plugins"),
+        tg_functions=_plugins(top["tg_functions"], "tg_functions"),
+        feedforward=FeedforwardConfig(
+            **_read(FeedforwardConfig, doc.get("feedforward", {}), "feedforward")
+        ),
         dashboard=_dashboard(doc.get("dashboard", {})),
         bridge=bridge,
         base_dir=base_dir,
@@ -1024,66 +1315,46 @@ def _build(doc: Any, source: str, text: str, base_dir: str, files: str) -> KaliC
     )
 
 
+def _plugins(node: Any, path: str) -> tuple[str, ...]:
+    """``plugins`` or ``tg_functions``: file paths or module names."""
+    entries = _list(list(node) if isinstance(node, tuple) else node, path, 0, MAX_PLUGINS)
+    return tuple(_identifier(p, f"{path}[{i}]", _PLUGIN_RE) for i, p in enumerate(entries))
+
+
 def _bridge(node: Any, base_dir: str) -> BridgeConfig:
-    """The ``bridge`` section (issue 29): listening endpoints, rates, users and roles, TLS."""
-    m = _mapping(node, "bridge", _BRIDGE_KEYS)
-    d = BridgeConfig()
-    enabled = _bool(m.get("enabled", d.enabled), "bridge.enabled")
-    listen_node = m.get("listen", list(d.listen))
+    """The ``bridge`` section: listening endpoints, rates, users and roles, TLS."""
+    v = _read(BridgeConfig, node, "bridge")
+    listen_node = v["listen"]
     if isinstance(listen_node, str):
         listen_node = [listen_node]
+    elif isinstance(listen_node, tuple):
+        listen_node = list(listen_node)
     listen = []
     for i, e in enumerate(_list(listen_node, "bridge.listen", 1, MAX_LISTEN)):
         found = ENDPOINT_RE.fullmatch(e) if isinstance(e, str) else None
         if found is None or not 0 < int(found.group(3)) < 65536:
             _fail(f"bridge.listen[{i}]", e, "must be a Zenoh endpoint like tcp/127.0.0.1:7447")
         listen.append(e)
-    tls = None
-    if m.get("tls") is not None:
-        t = _mapping(m["tls"], "bridge.tls", _TLS_KEYS)
-        files = {}
-        for key in _TLS_KEYS:
-            if t.get(key) is None:
-                if key == "root_ca":
-                    continue
+    v["listen"] = tuple(listen)
+    if v["tls"] is not None:
+        t = _read(TlsConfig, v["tls"], "bridge.tls")
+        for key, value in t.items():
+            if value is _MISSING:
                 raise _InvalidError(f"bridge.tls.{key}: missing; a PEM file path")
-            files[key] = _file(t[key], f"bridge.tls.{key}", base_dir)
-        tls = TlsConfig(**files)
-    users_file = m.get("users_file")
-    if users_file is not None:
-        users_file = _file(users_file, "bridge.users_file", base_dir)
-    roles = {}
+            if value is not None:
+                t[key] = _file(value, f"bridge.tls.{key}", base_dir)
+        v["tls"] = TlsConfig(**t)
+    if v["users_file"] is not None:
+        v["users_file"] = _file(v["users_file"], "bridge.users_file", base_dir)
     for key in ("operators", "readers"):
-        names = _list(m.get(key, []), f"bridge.{key}", 0, MAX_BRIDGE_USERS)
-        roles[key] = tuple(
-            _identifier(n, f"bridge.{key}[{i}]", USER_RE) for i, n in enumerate(names)
-        )
-    both = set(roles["operators"]) & set(roles["readers"])
+        given = list(v[key]) if isinstance(v[key], tuple) else v[key]  # the default: a tuple
+        names = _list(given, f"bridge.{key}", 0, MAX_BRIDGE_USERS)
+        v[key] = tuple(_identifier(n, f"bridge.{key}[{i}]", USER_RE) for i, n in enumerate(names))
+    both = set(v["operators"]) & set(v["readers"])
     if both:
         _fail("bridge.readers", sorted(both)[0], "is an operator too; give each user one role")
-    cfg = BridgeConfig(
-        enabled=enabled,
-        listen=tuple(listen),
-        cpu=_cpu(m.get("cpu", d.cpu), "bridge.cpu"),
-        telemetry_hz=_float(
-            m.get("telemetry_hz", d.telemetry_hz), "bridge.telemetry_hz", 0.0, 1000.0
-        ),
-        timing_hz=_float(m.get("timing_hz", d.timing_hz), "bridge.timing_hz", 0.0, 100.0),
-        users_file=users_file,
-        operators=roles["operators"],
-        readers=roles["readers"],
-        tls=tls,
-        max_requests_per_s=_int(
-            m.get("max_requests_per_s", d.max_requests_per_s),
-            "bridge.max_requests_per_s",
-            1,
-            100_000,
-        ),
-        max_sessions=_int(m.get("max_sessions", d.max_sessions), "bridge.max_sessions", 1, 64),
-        event_history=_int(
-            m.get("event_history", d.event_history), "bridge.event_history", 1, 10_000
-        ),
-    )
+    v["cpu"] = _cpu(v["cpu"], "bridge.cpu")
+    cfg = BridgeConfig(**v)
     if cfg.authenticated and not (cfg.operators or cfg.readers):
         _fail(
             "bridge.operators",
@@ -1107,7 +1378,7 @@ def _bridge(node: Any, base_dir: str) -> BridgeConfig:
                     "is not loopback: listening beyond this machine "
                     "needs authentication (bridge.users_file, or bridge.tls with a root_ca)",
                 )
-    if any(e.startswith("tls/") for e in listen) and tls is None:
+    if any(e.startswith("tls/") for e in listen) and cfg.tls is None:
         _fail("bridge.listen", list(listen), "a tls/ endpoint needs bridge.tls")
     return cfg
 
@@ -1127,14 +1398,23 @@ def bridge_process(bridge: BridgeConfig, clock: ClockConfig) -> ProcessConfig:
     tick = clock.base_tick_ms
     ticks = period_ticks(1000.0 / bridge.telemetry_hz, tick, round_up=True)
     period = ns_to_ms(ticks * ms_to_ns(tick))
-    return ProcessConfig("bridge", "bridge", bridge.cpu, 0, period, False, BRIDGE_STAGE)
+    return ProcessConfig(
+        name="bridge",
+        kind="bridge",
+        cpu=bridge.cpu,
+        priority=0,
+        period_ms=period,
+        serious=False,
+        stage=BRIDGE_STAGE,
+    )
 
 
 def _dashboard(node: Any) -> DashboardConfig:
     """The ``dashboard`` section: the viewer's live viewer address, web viewer and recording."""
-    m = _mapping(node, "dashboard", _DASHBOARD_KEYS)
-    d = DashboardConfig()
-    connect = m.get("connect", d.connect)
+    if isinstance(node, dict) and isinstance(node.get("web"), bool):  # YAML 1.1 reads on/off
+        node = {**node, "web": "on" if node["web"] else "off"}
+    v = _read(DashboardConfig, node, "dashboard")
+    connect = v["connect"]
     if connect is not None:
         url = "a rerun gRPC URL like rerun+http://127.0.0.1:9876/proxy, or null"
         if not isinstance(connect, str):
@@ -1142,39 +1422,16 @@ def _dashboard(node: Any) -> DashboardConfig:
         found = GRPC_URL_RE.fullmatch(connect)
         if len(connect) > MAX_RECORD_PATH or found is None or not 0 < int(found.group(3)) < 65536:
             _fail("dashboard.connect", connect, f"must be {url}")
-    web = m.get("web", d.web)
-    web = {True: "on", False: "off"}.get(web, web) if isinstance(web, bool) else web
-    web = _choice(web, "dashboard.web", DASHBOARD_WEB)
-    web_port = _int(m.get("web_port", d.web_port), "dashboard.web_port", 0, 65535)
-    grpc_port = _int(m.get("grpc_port", d.grpc_port), "dashboard.grpc_port", 0, 65535)
-    if grpc_port and grpc_port == web_port:
-        _fail("dashboard.grpc_port", grpc_port, "must differ from dashboard.web_port")
-    record = m.get("record", d.record)
+    if v["grpc_port"] and v["grpc_port"] == v["web_port"]:
+        _fail("dashboard.grpc_port", v["grpc_port"], "must differ from dashboard.web_port")
+    record = v["record"]
     if record is not None:
         allowed = f"must be null or a file path of 1..{MAX_RECORD_PATH} characters"
         if not isinstance(record, str):
             _fail("dashboard.record", record, f"{allowed}, not {_kind_of(record)}")
         if not 0 < len(record) <= MAX_RECORD_PATH or any(c in record for c in "\0\n\r"):
             _fail("dashboard.record", record, allowed)
-    memory = m.get("server_memory_mib", d.server_memory_mib)
-    return DashboardConfig(
-        connect=connect,
-        web=web,
-        web_port=web_port,
-        grpc_port=grpc_port,
-        record=record,
-        server_memory_mib=_int(memory, "dashboard.server_memory_mib", 16, 65536),
-    )
-
-
-def _feedforward(node: Any) -> FeedforwardConfig:
-    """The ``feedforward`` section: staleness limit and fade time, in ms."""
-    m = _mapping(node, "feedforward", _FEEDFORWARD_KEYS)
-    d = FeedforwardConfig()
-    return FeedforwardConfig(
-        stale_ms=_float(m.get("stale_ms", d.stale_ms), "feedforward.stale_ms", 0.0, 10_000.0),
-        ramp_ms=_float(m.get("ramp_ms", d.ramp_ms), "feedforward.ramp_ms", 0.0, 10_000.0, False),
-    )
+    return DashboardConfig(**v)
 
 
 def _plant(node: Any, period_ms: float, servo_ms: float) -> PlantConfig:
@@ -1183,9 +1440,8 @@ def _plant(node: Any, period_ms: float, servo_ms: float) -> PlantConfig:
     The plant advances one whole period per cycle, in ``period_ms / substep_ms`` MuJoCo steps.
     The watchdog must outlast SIO's retrigger cycle (``retrigger_hold_ticks``).
     """
-    d = PlantConfig()
-    m = _mapping(node, "plant", _PLANT_KEYS)
-    sub = _float(m.get("substep_ms", d.substep_ms), "plant.substep_ms", 0.0, 1.0)
+    v = _read(PlantConfig, node, "plant")
+    sub = v["substep_ms"]
     n = period_ms / sub
     if round(n) < 1 or abs(n - round(n)) > 1e-9 * n:
         _fail(
@@ -1194,7 +1450,7 @@ def _plant(node: Any, period_ms: float, servo_ms: float) -> PlantConfig:
             f"must divide processes.plant.period_ms = {period_ms} "
             "(the plant advances one period per cycle, in whole substeps)",
         )
-    watchdog = _float(m.get("watchdog_ms", d.watchdog_ms), "plant.watchdog_ms", 0.0, 1000.0)
+    watchdog = v["watchdog_ms"]
     cycle = 2 * retrigger_hold_ticks(servo_ms, period_ms) * servo_ms
     if watchdog <= cycle:
         _fail(
@@ -1204,23 +1460,14 @@ def _plant(node: Any, period_ms: float, servo_ms: float) -> PlantConfig:
             f"held for the whole {servo_ms:g} ms servo periods that last two plant periods, "
             f"{period_ms:g} ms, so that the board reads it)",
         )
-    return PlantConfig(
-        substep_ms=sub,
-        watchdog_ms=watchdog,
-        enable_hold_ms=_float(
-            m.get("enable_hold_ms", d.enable_hold_ms), "plant.enable_hold_ms", 0.0, 1000.0
-        ),
-        brake_delay_ms=_float(
-            m.get("brake_delay_ms", d.brake_delay_ms), "plant.brake_delay_ms", 0.0, 1000.0
-        ),
-        conveyor_m_s=_conveyor(m.get("conveyor_m_s", list(d.conveyor_m_s))),
-    )
+    v["conveyor_m_s"] = _conveyor(v["conveyor_m_s"])
+    return PlantConfig(**v)
 
 
 def _conveyor(node: Any) -> tuple[float, float]:
     """``plant.conveyor_m_s``: the belt's velocity [vx, vy], at most MAX_CONVEYOR_M_S."""
     path = "plant.conveyor_m_s"
-    if not isinstance(node, list) or len(node) != 2:
+    if not isinstance(node, list | tuple) or len(node) != 2:
         _fail(path, node, "must be a list of 2 numbers [vx, vy] in m/s (the belt is level)")
     v = tuple(_finite(x, f"{path}[{j}]") for j, x in enumerate(node))
     if math.hypot(*v) > MAX_CONVEYOR_M_S:
@@ -1230,29 +1477,13 @@ def _conveyor(node: Any) -> tuple[float, float]:
 
 def _clock(node: Any) -> ClockConfig:
     """The ``clock`` section: rates first, then the periods that depend on them."""
-    d = ClockConfig()
-    m = _mapping(node, "clock", _CLOCK_KEYS)
-    tick = _base_tick(m.get("base_tick_ms", d.base_tick_ms), "clock.base_tick_ms")
-    servo = _clock_period(m, "servo_period_ms", d.servo_period_ms, tick, tick, "base_tick_ms")
-    tg = _clock_period(m, "tg_period_ms", d.tg_period_ms, tick, servo, "servo_period_ms")
-    clock = ClockConfig(
-        base_tick_ms=tick,
-        servo_period_ms=servo,
-        tg_period_ms=tg,
-        serious_miss_tolerance_ms=_int(
-            m.get("serious_miss_tolerance_ms", d.serious_miss_tolerance_ms),
-            "clock.serious_miss_tolerance_ms",
-            0,
-            1000,
-        ),
-        lockstep_ack_timeout_s=_float(
-            m.get("lockstep_ack_timeout_s", d.lockstep_ack_timeout_s),
-            "clock.lockstep_ack_timeout_s",
-            0.0,
-            MAX_TIMEOUT_S,
-        ),
-        busy_wait_us=_int(m.get("busy_wait_us", d.busy_wait_us), "clock.busy_wait_us", 0, 500),
-    )
+    v = _read(ClockConfig, node, "clock")
+    given: dict[str, Any] = node
+    tick = _base_tick(v["base_tick_ms"], "clock.base_tick_ms")
+    v["base_tick_ms"] = tick
+    v["servo_period_ms"] = servo = _clock_period(v, given, "servo_period_ms", tick, "base_tick_ms")
+    v["tg_period_ms"] = _clock_period(v, given, "tg_period_ms", servo, "servo_period_ms")
+    clock = ClockConfig(**v)
     if clock.serious_miss_tolerance_ms <= servo:  # a serious servo would halt at its first miss
         _fail(
             "clock.serious_miss_tolerance_ms",
@@ -1264,13 +1495,13 @@ def _clock(node: Any) -> ClockConfig:
 
 
 def _clock_period(
-    m: dict[str, Any], key: str, default: float, tick: float, lo: float, lo_key: str
+    v: dict[str, Any], given: dict[str, Any], key: str, lo: float, lo_key: str
 ) -> float:
     """``clock.<key>``; when the default is what fails (e.g. a 3 ms tick), the message says so."""
     try:
-        return _period(m.get(key, default), f"clock.{key}", tick, lo=lo, lo_name=f"clock.{lo_key}")
+        return _period(v[key], f"clock.{key}", v["base_tick_ms"], lo, f"clock.{lo_key}")
     except _InvalidError as exc:
-        if key in m:
+        if key in given:
             raise
         raise _InvalidError(f"{exc} (the default; set clock.{key} explicitly)") from None
 
@@ -1308,9 +1539,8 @@ def _check_servo_stage(processes: list[ProcessConfig]) -> None:
     """The SVs share SIO's lockstep stage (thesis 3.3.4: one gang each servo tick).  SIO
     waits inside its tick for the SVs' servos, and a lockstep stage ends only when all of
     its processes have acknowledged, so SVs in an earlier stage would wait for a feed that
-    never comes, and in a later one SIO would wait for them: the first powered tick then
-    halted after 4 s (0.8 of the lockstep timeout) with "DEADLINE in sio: servos not done
-    ... (unclaimed)" for every joint, which names the symptom, not the config."""
+    never comes, and in a later one SIO would wait for them (a deadline halt that names the
+    symptom, not the config)."""
     sio = next(p for p in processes if p.kind == "sio")
     sv = next(p for p in processes if p.kind == "sv")
     if sv.stage != sio.stage:
@@ -1334,34 +1564,28 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
         hints["cpu"] = "not allowed: sv has one worker per entry of cpus, e.g. cpus: [0, 1]"
     if kind == "wallclock":
         hints["period_ms"] = "not allowed: the wall clock ticks every clock.base_tick_ms"
-    m = _mapping(node, path, _PROCESS_KEYS[kind], hints)
-    if not _bool(m.get("enabled", True), f"{path}.enabled"):
+    v = _read(ProcessEntry, node, path, _PROCESS_KEYS[kind], hints, _KIND_DEFAULTS[kind])
+    v = {**_KIND_DEFAULTS[kind], **v}
+    if not v.get("enabled", True):
         return []  # an optional process (dynamics, viewer) left out: Kali runs without it
-
-    priority = _int(m.get("priority", 0), f"{path}.priority", 0, MAX_PRIORITY)
-    # omitted: serious as in the default config (the plant, tg, sio and sv are; a user who
-    # leaves the key out never loses the halt on a dead or late servo process by accident)
-    serious = _bool(
-        m.get("serious", _DEFAULT_PROCESSES[kind].get("serious", False)), f"{path}.serious"
-    )
-    stage = _int(m.get("stage", _DEFAULT_STAGE[kind]), f"{path}.stage", 0, MAX_STAGE)
-    if "period_ms" in m:
-        period = _period(m["period_ms"], f"{path}.period_ms", clock.base_tick_ms)
+    if v.get("period_ms") is not None:
+        period = _period(v["period_ms"], f"{path}.period_ms", clock.base_tick_ms)
     else:
         period = _default_period(kind, clock)
-
-    def make(name: str, cpu: int | None, poll_us: int = 0, rest: float = 0) -> ProcessConfig:
-        return ProcessConfig(name, kind, cpu, priority, period, serious, stage, poll_us, rest)
-
+    common = {
+        "kind": kind,
+        "priority": v["priority"],
+        "period_ms": period,
+        "serious": v["serious"],
+        "stage": v["stage"],
+    }
     if kind != "sv":
-        return [make(kind, _cpu(m.get("cpu"), f"{path}.cpu"))]
-    poll = _int(
-        m.get("poll_us", _DEFAULT_PROCESSES["sv"]["poll_us"]), f"{path}.poll_us", 0, MAX_POLL_US
-    )
-    rest = _rest(m["rest_ms"], f"{path}.rest_ms", clock) if "rest_ms" in m else _rest_of(clock)
-    count = _int(m.get("count", 2), f"{path}.count", 1, MAX_SV_WORKERS)
-    if "cpus" in m:
-        cpus_node = m["cpus"]
+        return [ProcessConfig(name=kind, cpu=_cpu(v.get("cpu"), f"{path}.cpu"), **common)]
+    rest = v["rest_ms"]
+    rest = _rest_of(clock) if rest is None else _rest(rest, f"{path}.rest_ms", clock)
+    count = v["count"]
+    if v["cpus"] is not None:
+        cpus_node = v["cpus"]
         if not isinstance(cpus_node, list) or len(cpus_node) != count:
             got = (
                 f"{len(cpus_node)} entries" if isinstance(cpus_node, list) else _kind_of(cpus_node)
@@ -1375,7 +1599,10 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
         cpus = [_cpu(c, f"{path}.cpus[{i}]") for i, c in enumerate(cpus_node)]
     else:
         cpus = [None] * count
-    return [make(f"sv.{i}", cpu, poll, rest) for i, cpu in enumerate(cpus)]
+    return [
+        ProcessConfig(name=f"sv.{i}", cpu=cpu, poll_us=v["poll_us"], rest_ms=rest, **common)
+        for i, cpu in enumerate(cpus)
+    ]
 
 
 def _rest_of(clock: ClockConfig) -> float:
@@ -1435,12 +1662,15 @@ def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
     first_index: dict[str, int] = {}
     for i, entry in enumerate(entries):
         path = f"robots[{i}]"
-        m = _mapping(entry, path, _ROBOT_KEYS)
-        if "name" not in m:
+        if isinstance(entry, dict) and entry.get("ff") is False:  # YAML 1.1 reads off as false
+            entry = {**entry, "ff": "off"}
+        if isinstance(entry, dict) and "name" not in entry:
+            _mapping(entry, path, tuple(RobotConfig.__pydantic_fields__))
             raise _InvalidError(
                 f"{path}.name: missing; required, a string matching {_ROBOT_NAME_RE.pattern}"
             )
-        name = _identifier(m["name"], f"{path}.name", _ROBOT_NAME_RE)
+        v = _read(RobotConfig, entry, path)
+        name = v["name"]
         if name in first_index:
             _fail(
                 f"{path}.name",
@@ -1448,94 +1678,174 @@ def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
                 f"duplicate; robot names must be unique (also robots[{first_index[name]}])",
             )
         first_index[name] = i
-        model, rtype = _model(m.get("model", DEFAULT_MODEL), f"{path}.model", base_dir, files)
-        xyz_node = m.get("base_xyz", [0.0, 0.0, 0.0])
-        if not isinstance(xyz_node, list) or len(xyz_node) != 3:
-            _fail(f"{path}.base_xyz", xyz_node, "must be a list of 3 numbers [x, y, z] in metres")
-        x, y, z = (_base_coordinate(v, f"{path}.base_xyz[{j}]") for j, v in enumerate(xyz_node))
-        yaw = _finite(m.get("base_yaw_deg", 0.0), f"{path}.base_yaw_deg")
-        servo = _identifier(m.get("servo", "pid"), f"{path}.servo", _SERVO_NAME_RE)
-        safe_node = m.get("safe_rad", DEFAULT_SAFE_RAD)
+        v["model"], rtype = _model(v["model"], f"{path}.model", base_dir, files)
+        xyz = v["base_xyz"]
+        if not isinstance(xyz, list | tuple) or len(xyz) != 3:
+            _fail(f"{path}.base_xyz", xyz, "must be a list of 3 numbers [x, y, z] in metres")
+        v["base_xyz"] = tuple(
+            _base_coordinate(c, f"{path}.base_xyz[{j}]") for j, c in enumerate(xyz)
+        )
         nj = rtype.n_joints
-        if isinstance(safe_node, list):
-            if len(safe_node) != nj:
+        safe = v["safe_rad"]
+        if safe == ():
+            safe = DEFAULT_SAFE_RAD
+        if isinstance(safe, list):
+            if len(safe) != nj:
                 _fail(
                     f"{path}.safe_rad",
-                    safe_node,
-                    f"must be a number or a list of {nj} numbers (one per joint of a {model}), "
-                    f"not {len(safe_node)}",
+                    safe,
+                    f"must be a number or a list of {nj} numbers (one per joint of a "
+                    f"{v['model']}), not {len(safe)}",
                 )
-            safe = tuple(
-                _float(v, f"{path}.safe_rad[{j}]", 0.0, math.pi) for j, v in enumerate(safe_node)
+            v["safe_rad"] = tuple(
+                _float(s, f"{path}.safe_rad[{j}]", 0.0, math.pi) for j, s in enumerate(safe)
             )
         else:
-            safe = (_float(safe_node, f"{path}.safe_rad", 0.0, math.pi),) * nj
-        fault_ms = _float(
-            m.get("current_fault_ms", DEFAULT_CURRENT_FAULT_MS),
-            f"{path}.current_fault_ms",
-            0.0,
-            10_000.0,
-        )
-        ff_node = m.get("ff", "off")
-        if ff_node is False:  # YAML 1.1 reads a bare off as false
-            ff_node = "off"
-        ff = _choice(ff_node, f"{path}.ff", FF_MODES)
-        sheet: tuple[float, ...] = ()  # the type's
-        if "index_phases_deg" in m:
-            phases = _per_joint(
-                m["index_phases_deg"],
+            v["safe_rad"] = (_float(safe, f"{path}.safe_rad", 0.0, math.pi),) * nj
+        if "index_phases_deg" in entry:
+            v["index_phases_deg"] = _per_joint(
+                entry["index_phases_deg"],
                 f"{path}.index_phases_deg",
-                rtype.n_joints,
+                nj,
                 0.0,
                 360.0,
                 per_joint_only=True,
             )
-            sheet = tuple(math.radians(v) for v in phases)
-        grasp_yaw = _float(m.get("grasp_yaw_deg", 0.0), f"{path}.grasp_yaw_deg", -180.0, 180.0)
-        ft = _ft(m.get("ft", {}), f"{path}.ft")
-        robot_servos = _bool(m.get("robot_servos", False), f"{path}.robot_servos")
-        robots.append(
-            RobotConfig(
-                name,
-                model,
-                (x, y, z),
-                yaw,
-                servo,
-                safe,
-                fault_ms,
-                ff,
-                sheet,
-                grasp_yaw,
-                ft,
-                robot_servos,
-            )
-        )
+        v["ft"] = _ft(entry.get("ft", {}), f"{path}.ft")
+        robots.append(RobotConfig(**v))
     return tuple(robots)
 
 
 def _ft(node: Any, path: str) -> FtConfig:
     """A robot's ``ft`` section: its wrist sensor (``sensor: none`` for none) and tool."""
-    m = _mapping(node, path, _FT_KEYS)
-    d = FtConfig()
-    sensor_node = m.get("sensor", d.sensor)
-    if sensor_node is None or sensor_node == "none":
-        sensor = None
-    else:
-        sensor = _choice(sensor_node, f"{path}.sensor", (*FT_SHEETS, "none"))
-    com_node = m.get("tool_com_m", list(d.tool_com_m))
-    if not isinstance(com_node, list) or len(com_node) != 3:
-        _fail(f"{path}.tool_com_m", com_node, "must be a list of 3 numbers [x, y, z] in metres")
-    cx, cy, cz = (_float(v, f"{path}.tool_com_m[{j}]", -1.0, 1.0) for j, v in enumerate(com_node))
-    return FtConfig(
-        sensor=sensor,
-        tool_mass_kg=_float(
-            m.get("tool_mass_kg", d.tool_mass_kg), f"{path}.tool_mass_kg", 0.0, 50.0, False
-        ),
-        tool_com_m=(cx, cy, cz),
-        tool_tip_m=_float(m.get("tool_tip_m", d.tool_tip_m), f"{path}.tool_tip_m", 0.0, 1.0, False),
-        cutoff_hz=_float(m.get("cutoff_hz", d.cutoff_hz), f"{path}.cutoff_hz", 0.0, 1000.0),
-        contact_limit_n=_float(
-            m.get("contact_limit_n", d.contact_limit_n), f"{path}.contact_limit_n", 0.0, 10_000.0
-        ),
-        stale_ms=_float(m.get("stale_ms", d.stale_ms), f"{path}.stale_ms", 0.0, 1000.0),
+    v = _read(FtConfig, node, path)
+    if v["sensor"] == "none":
+        v["sensor"] = None
+    if v["sensor"] is not None:
+        v["sensor"] = _choice(v["sensor"], f"{path}.sensor", (*FT_SHEETS, "none"))
+    com = v["tool_com_m"]
+    if not isinstance(com, list | tuple) or len(com) != 3:
+        _fail(f"{path}.tool_com_m", com, "must be a list of 3 numbers [x, y, z] in metres")
+    v["tool_com_m"] = tuple(
+        _float(c, f"{path}.tool_com_m[{j}]", -1.0, 1.0) for j, c in enumerate(com)
     )
+    return FtConfig(**v)
+
+
+# --------------------------------------------------------------------------------------------
+# The schema and a resolved file (kalictl config schema, kalictl config show)
+
+
+def schema() -> dict[str, Any]:
+    """The JSON Schema of a config file, from the declarations (``ConfigFile``): each process
+    kind's entry holds only its keys, with its kind's defaults."""
+    out = TypeAdapter(ConfigFile).json_schema()
+    defs = out["$defs"]
+    entry = defs.pop("ProcessEntry")
+    section = defs["ProcessesFile"]
+    for kind in PROCESS_NAMES:
+        keys = _PROCESS_KEYS[kind]
+        props = {k: dict(entry["properties"][k]) for k in keys}
+        for key, value in _KIND_DEFAULTS[kind].items():
+            if key in props:
+                props[key]["default"] = value
+        defs[f"Process_{kind}"] = {
+            **entry,
+            "title": f"processes.{kind}",
+            "properties": props,
+        }
+        section["properties"][kind] = {"$ref": f"#/$defs/Process_{kind}"}
+    out["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    _json_bounds(out)
+    return out
+
+
+_JSON_BOUNDS = {
+    "ge": "minimum",
+    "gt": "exclusiveMinimum",
+    "le": "maximum",
+    "lt": "exclusiveMaximum",
+}
+
+
+def _json_bounds(node: Any) -> None:
+    """Write, in place, the bounds pydantic leaves under their Python names where a field is
+    an int or a float (``ms`` periods: ints when whole) as JSON Schema's on a number."""
+    if isinstance(node, dict):
+        if any(key in node for key in _JSON_BOUNDS):
+            if node.get("anyOf") == [{"type": "integer"}, {"type": "number"}]:
+                del node["anyOf"]
+                node["type"] = "number"
+            for key, name in _JSON_BOUNDS.items():
+                if key in node:
+                    node[name] = node.pop(key)
+        for value in node.values():
+            _json_bounds(value)
+    elif isinstance(node, list):
+        for value in node:
+            _json_bounds(value)
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with tuples as lists and dataclasses as dicts, for ``yaml.safe_dump``."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def resolved(cfg: KaliConfig) -> dict[str, Any]:
+    """``cfg`` as a config file with every default written out (``kalictl config show``);
+    read again it gives the same config."""
+    processes: dict[str, Any] = {}
+    for kind in PROCESS_NAMES:
+        procs = [p for p in cfg.processes if p.kind == kind]
+        if not procs:
+            processes[kind] = {"enabled": False}
+            continue
+        p = procs[0]
+        entry = {
+            "enabled": True,
+            "cpu": p.cpu,
+            "count": len(procs),
+            "cpus": [q.cpu for q in procs],
+            "priority": p.priority,
+            "period_ms": p.period_ms,
+            "serious": p.serious,
+            "stage": p.stage,
+            "poll_us": p.poll_us,
+            "rest_ms": p.rest_ms,
+        }
+        processes[kind] = {k: entry[k] for k in _PROCESS_KEYS[kind]}
+    robots = []
+    for r in cfg.robots:
+        robot = _plain(r)
+        # the sheet as read: the type's, in degrees, when the file gives none
+        robot["index_phases_deg"] = [round(math.degrees(p), 9) for p in r.index_phases]
+        robots.append(robot)
+    doc: dict[str, Any] = {}
+    for name in ConfigFile.__pydantic_fields__:
+        doc[name] = _plain(getattr(cfg, name))
+    doc["processes"] = processes
+    doc["robots"] = robots
+    return doc
+
+
+class _ShowDumper(yaml.SafeDumper):
+    """A SafeDumper writing a list of scalars on one line, as the shipped files do."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    flow = not any(isinstance(v, dict | list) for v in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_ShowDumper.add_representer(list, _represent_list)
+
+
+def show(cfg: KaliConfig) -> str:
+    """``resolved(cfg)`` as YAML, headed by where it came from."""
+    head = f"# {cfg.source}, every default written out (kalictl config show)\n"
+    text = yaml.dump(resolved(cfg), Dumper=_ShowDumper, sort_keys=False, allow_unicode=True)
+    return head + text

@@ -224,7 +224,8 @@ class Instance:
             text = self._text(layout.KEY_CONFIG)
             base = self._text(layout.KEY_CONFIG_DIR)
             files = self._text(layout.KEY_CONFIG_FILES)
-            self._config = parse_config(text, f"{self.arena.name}:config", base or None, files)
+            source = f"{self.arena.name}:config"
+            self._config = parse_config(text, source, base or None, files, instance=self.name)
         return self._config
 
     @property

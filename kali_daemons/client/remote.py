@@ -502,7 +502,9 @@ class RemoteKali(Proxy):
         try:
             cfg = conn.get(conn.mine.config, {}, timeout=CONNECT_TIMEOUT_S)
             try:
-                config = parse_config(cfg["text"], f"{cfg['source']} (remote)", cfg["base_dir"])
+                source = f"{cfg['source']} (remote)"
+                name = cfg["instance"]
+                config = parse_config(cfg["text"], source, cfg["base_dir"], instance=name)
             except Exception as exc:
                 raise BridgeError(
                     f"instance '{conn.instance}''s config does not parse on this machine: {exc}"
