@@ -1056,6 +1056,9 @@ def run(ctx: click.Context, program: Path, args: tuple[str, ...], endpoint: str 
     exit status is the program's (128 + N when signal N ended it).  Its numeric libraries
     compute on one thread (OPENBLAS_NUM_THREADS=1 ..., unless it sets them).
     """
+    # Ctrl-C is how a user stops the arms: taken even when kalictl was started with SIGINT
+    # ignored (a background job, nohup), which Python would otherwise keep ignored
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     name = _instance_name(ctx)
     if args[:1] == ("--",):
         args = args[1:]

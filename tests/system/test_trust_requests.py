@@ -232,14 +232,17 @@ def test_two_programs_on_one_arm_the_second_is_refused_naming_the_owner(
         assert k.inst.fault_text() is None
 
 
+@pytest.mark.parametrize("inherited", ["default", "ignored"])
 def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
-    kali: Callable[..., str], tmp_path: Path
+    kali: Callable[..., str], tmp_path: Path, inherited: str
 ) -> None:
     """Ctrl-C under ``kalictl run``: the program's arm stops on its path though the program
     ignores SIGINT (before: kalictl waited for the program, the arm went on); a second Ctrl-C
     kills it and nothing is left running; ``--`` passes the rest through.  The move is slow
     (~250 simulated s): the lockstep executive runs it at several times real time, and the
-    stop, kalictl's signal handling in wall time, must come before it ends."""
+    stop, kalictl's signal handling in wall time, must come before it ends.  The same when
+    kalictl starts with SIGINT ignored, as a background job or ``nohup`` starts it (before:
+    Python kept it ignored, and kalictl let the arm run on, saying nothing)."""
     name = kali(lockstep=True)
     with powered(name) as k:
         start = k.servo.level.arm("demand", 0).copy()
@@ -259,12 +262,14 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
                     kali.pause()
             """,
         )
+        ignore = inherited == "ignored"
         run = subprocess.Popen(
             [*KALICTL, "-i", name, "run", str(prog), "--", "--help", "-i", "x"],
             env=ENV,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
+            preexec_fn=(lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignore else None,
         )
         try:
             pid_text, seq_text, *argv = _line(run).split()
