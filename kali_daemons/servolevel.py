@@ -395,13 +395,7 @@ class ServoClient:
         """
         i = self.slot(robot, joint)
         name = self.active(robot, joint) if servo is None else servo
-        idx, alg = self.algorithm(name)
-        check_names(f"{self._where(i)} '{name}'", name, alg.params, params)
-        trial = self.level.data[i][idx].copy()
-        try:
-            alg.set_params(struct_view(trial), dict(params))
-        except KaliError as exc:
-            raise ServoError(f"{self._where(i)} '{name}': {exc}") from None
+        idx, alg = self._check_params(i, name, params)
         values = np.full(len(alg.params), math.nan)
         for key, value in params.items():
             values[alg.params.index(key)] = float(value)
@@ -428,15 +422,8 @@ class ServoClient:
                     f"select_joints: robot '{self.names[k]}' has {n} joints, "
                     f"{len(per_joint)} sets of parameters given"
                 )
-        idx, alg = self.algorithm(servo)
         for j, values in enumerate(per_joint, start=1):  # all checked, then all changed
-            i = self.slot(k, j)
-            check_names(f"{self._where(i)} '{servo}'", servo, alg.params, values)
-            trial = self.level.data[i][idx].copy()
-            try:
-                alg.set_params(struct_view(trial), dict(values))
-            except KaliError as exc:
-                raise ServoError(f"{self._where(i)} '{servo}': {exc}") from None
+            self._check_params(self.slot(k, j), servo, values)
         for j, values in enumerate(per_joint, start=1):
             if values:
                 self.set_params(k, j, values, servo)
@@ -452,6 +439,20 @@ class ServoClient:
             self._servo_tick(f"robot '{self.names[k]}': select_joints waits for the next tick")
         for j in range(1, n + 1):
             self._check_refused(self.slot(k, j))
+
+    def _check_params(
+        self, i: int, name: str, params: Mapping[str, float]
+    ) -> tuple[int, ServoAlgorithm]:
+        """Servo ``name``'s index and algorithm, once ``params`` are known to be valid for
+        slot ``i`` (set on a copy of its record); ServoError naming the slot otherwise."""
+        idx, alg = self.algorithm(name)
+        check_names(f"{self._where(i)} '{name}'", name, alg.params, params)
+        trial = self.level.data[i][idx].copy()
+        try:
+            alg.set_params(struct_view(trial), dict(params))
+        except KaliError as exc:
+            raise ServoError(f"{self._where(i)} '{name}': {exc}") from None
+        return idx, alg
 
     def get_params(
         self, robot: str | int, joint: int, servo: str | None = None
