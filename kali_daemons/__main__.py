@@ -1,5 +1,5 @@
 """``python -m kali_daemons``: the same as ``kalictl``."""
 
-from .cli import main
+from .tools.cli import main
 
 main()

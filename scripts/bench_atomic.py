@@ -1,6 +1,6 @@
 """Benchmark: the cost of one atomic operation on a shared word, as Kali's processes pay it.
 
-What is measured.  Each operation of ``kali_daemons.atomic`` (ctypes calls into Debian's
+What is measured.  Each operation of ``kali_daemons.core.atomic`` (ctypes calls into Debian's
 libatomic) on an aligned word of an anonymous shared mmap -- load32, exchange32 (test-and-set),
 a CompareExchange32 that succeeds, fetch_add64 -- and an uncontended ``SpinLock``
 acquire + release (two compare-exchanges plus the Python around them), each timed over
@@ -33,8 +33,8 @@ from dataclasses import dataclass
 
 from harness import table, time_per_op
 
-from kali_daemons import atomic
-from kali_daemons.spinlock import SpinLock
+from kali_daemons.core import atomic
+from kali_daemons.core.spinlock import SpinLock
 
 WORD32_OFFSET = 0
 WORD64_OFFSET = 8
@@ -55,7 +55,7 @@ def _noop(addr: int, value: int) -> int:
 
 
 def kali_cases(addr32: int, addr64: int, lock: SpinLock) -> list[tuple[str, Callable[[int], None]]]:
-    """The loops over kali_daemons.atomic and SpinLock (each binds its callable locally)."""
+    """The loops over kali_daemons.core.atomic and SpinLock (each binds its callable locally)."""
     load32, xchg32, add64 = atomic.load32, atomic.exchange32, atomic.fetch_add64
     cas = atomic.CompareExchange32()
     acquire, release = lock.acquire, lock.release

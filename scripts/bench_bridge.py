@@ -135,13 +135,13 @@ from harness import (
 )
 
 from kali_daemons.bridge.access import client_config
-from kali_daemons.bridge.protocol import Keys
 from kali_daemons.bridge.sessions import run_verb
 from kali_daemons.client import Kali
-from kali_daemons.config import KaliConfig
-from kali_daemons.errors import KaliError
-from kali_daemons.layout import PowerState
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.client.protocol import Keys
+from kali_daemons.core.errors import KaliError
+from kali_daemons.core.layout import PowerState
+from kali_daemons.runtime.config import KaliConfig
+from kali_daemons.servo.level import ServoClient
 
 PERIOD_US = 1000  # bench_servo's 1ms-2sv
 N_SV = 2

@@ -1,7 +1,7 @@
 """Benchmark: what the flight recorder adds to SIO's cycle, per servo tick.
 
 What is measured.  ``FlightRecorder.record`` exactly as SIO calls it at the end of its cycle
-(``kali_daemons/flightrec.py``): one row of 4 timing integers and 6 per-joint float arrays
+(``kali_daemons/runtime/flightrec.py``): one row of 4 timing integers and 6 per-joint float arrays
 written into the ring in a real arena segment, for 1, 2 and 4 arms (6, 12, 24 joints), timed
 over ``--iterations`` calls with the garbage collector off, so the ring wraps many times.  An
 empty loop is shown beside it for the interpreter's own share.
@@ -27,11 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 from harness import DEFAULT_CONFIG, table, time_per_op
 
-from kali_daemons import launcher, layout
-from kali_daemons.arena import Arena
-from kali_daemons.config import KaliConfig, load_config
-from kali_daemons.flightrec import FlightRecorder
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
 from kali_daemons.robots import puma560
+from kali_daemons.runtime.config import KaliConfig, load_config
+from kali_daemons.runtime.flightrec import FlightRecorder
+from kali_daemons.tools import launcher
 
 
 @dataclass

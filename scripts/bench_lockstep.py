@@ -58,8 +58,8 @@ from harness import (
 )
 
 from kali_daemons.client import Kali
-from kali_daemons.errors import KaliError
-from kali_daemons.layout import PowerState
+from kali_daemons.core.errors import KaliError
+from kali_daemons.core.layout import PowerState
 from kali_daemons.wallclock import step_kali_clock
 
 MIXED_CONFIG = REPO / "config" / "mixed.yaml"

@@ -32,11 +32,12 @@ import time
 from benchlib import run_ns
 from harness import Goal, KaliRun, cell_config, robots, table
 
-from kali_daemons import launcher, layout
-from kali_daemons.arena import Arena
-from kali_daemons.config import KaliConfig
-from kali_daemons.layout import CSR_ENABLE, CSR_NO_DISABLE
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.layout import CSR_ENABLE, CSR_NO_DISABLE
 from kali_daemons.plant.sim import PlantSim
+from kali_daemons.runtime.config import KaliConfig
+from kali_daemons.tools import launcher
 
 GOAL = Goal("two arms at real time", "median share", "<", 15.0, "% of one core")
 REPEATS = 5

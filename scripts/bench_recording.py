@@ -30,8 +30,10 @@ import numpy as np
 from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
 from harness import DEFAULT_CONFIG, KaliRun, cell_config, table
 
-from kali_daemons import flightrec, layout, recording
+from kali_daemons import recording
 from kali_daemons.client import Kali
+from kali_daemons.core import layout
+from kali_daemons.runtime import flightrec
 
 
 def swing(kali: Kali, stop: threading.Event) -> None:

@@ -19,10 +19,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np
 
-from kali_daemons import atomic, launcher
-from kali_daemons.instance import Instance
-from kali_daemons.servolevel import ServoLevel
-from kali_daemons.sv.daemon import ServoWorker
+from kali_daemons.core import atomic
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoLevel
+from kali_daemons.servo.sv.daemon import ServoWorker
+from kali_daemons.tools import launcher
 from tests.conftest import make_config, unique_name
 
 name = unique_name("bench")

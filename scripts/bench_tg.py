@@ -119,18 +119,18 @@ from harness import (
     say,
 )
 
-from kali_daemons import layout
-from kali_daemons.arena import Arena
-from kali_daemons.channels import InterpolatingFifo
 from kali_daemons.client import Kali
 from kali_daemons.client.motion import TRACK_LIMITS, MotionHandle, MotionSystem
-from kali_daemons.config import KaliConfig, load_config
-from kali_daemons.errors import KaliError
-from kali_daemons.instance import Instance
-from kali_daemons.layout import FrameKind, RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.channels import InterpolatingFifo
+from kali_daemons.core.errors import KaliError
+from kali_daemons.core.layout import FrameKind, RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
-from kali_daemons.servolevel import FIFO_CAPACITY
+from kali_daemons.runtime.config import KaliConfig, load_config
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows

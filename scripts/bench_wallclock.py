@@ -89,9 +89,9 @@ from benchlib import (
 )
 from harness import Floor, Goal, KaliRun, Window, cell_config, rows_table
 
-from kali_daemons import layout
-from kali_daemons.config import KaliConfig, load_config
-from kali_daemons.errors import KaliError
+from kali_daemons.core import layout
+from kali_daemons.core.errors import KaliError
+from kali_daemons.runtime.config import KaliConfig, load_config
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "bench_wallclock.yaml"

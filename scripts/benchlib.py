@@ -28,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from kali_daemons import launcher, layout
-from kali_daemons.instance import Instance, decode
+from kali_daemons.core import layout
+from kali_daemons.runtime.instance import Instance, decode
+from kali_daemons.tools import launcher
 
 CT_PRIORITY = 80
 CT_HIST_US = 20_000  # cyclictest histogram range; later wake-ups count as overflows

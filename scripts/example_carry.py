@@ -9,8 +9,8 @@ bar's frame (``model.grasp_in_bar``).
 
 import numpy as np
 
-from kali_daemons import model
 from kali_daemons.client import Kali
+from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 
 LIFT = 0.08  # m

@@ -16,8 +16,8 @@ path, lifts the bar off the belt, stops the belt and sets the bar down.
 
 import numpy as np
 
-from kali_daemons import model
 from kali_daemons.client import Kali
+from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 
 ABOVE = 0.05  # m: the approach starts this high above the grasp site

@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from kali_daemons.client import Kali, pose
-from kali_daemons.errors import ServoError
+from kali_daemons.core.errors import ServoError
 
 DOWN = np.diag([1.0, -1.0, -1.0])  # the tool pointing straight down
 START = (-0.15, -0.38, 0.42)  # 2 cm over the table, within the left arm's reach (m, world)

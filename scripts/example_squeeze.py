@@ -13,8 +13,8 @@ their servo errors make, 19-66 N.  The program prints the squeeze its sensors me
 
 import numpy as np
 
-from kali_daemons import model
 from kali_daemons.client import Kali
+from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 
 LIFT = 0.08  # m

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from kali_daemons.client import Kali
-from kali_daemons.errors import MotionError
+from kali_daemons.core.errors import MotionError
 
 DEVICE = Path(__file__).with_name("hand_controller.py")
 DEVICE_S = 6.0

@@ -67,10 +67,11 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
-from kali_daemons import introspect, launcher, layout
-from kali_daemons.config import KaliConfig, load_config, ms_to_ns, parse_config
-from kali_daemons.instance import Instance
-from kali_daemons.introspect import Introspector
+from kali_daemons.core import layout
+from kali_daemons.runtime.config import KaliConfig, load_config, ms_to_ns, parse_config
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import introspect, launcher
+from kali_daemons.tools.introspect import Introspector
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "default.yaml"
@@ -535,7 +536,7 @@ def flight_dump(inst: Instance) -> str | None:
 
 
 def pss_kib(pid: int) -> tuple[int, int]:
-    """(PSS, RSS) of ``pid`` in KiB (``kali_daemons.introspect.pss_kib``); (-1, -1) when it
+    """(PSS, RSS) of ``pid`` in KiB (``kali_daemons.tools.introspect.pss_kib``); (-1, -1) when it
     is gone, so a table row says so instead of the run failing.
 
     PSS shares each page among the processes that map it, so the PSS of a set of processes

@@ -5,7 +5,7 @@
 #
 # Debian packages, each only if missing:
 #   libatomic1  the arena's lock-free words (ctypes into libatomic.so.1)
-#   gcc         the compiled servo-path kernels (kali_daemons/csrc/)
+#   gcc         the compiled servo-path kernels (kali_daemons/core/csrc/)
 #   rt-tests    cyclictest: the machine's own timing floor beside every benchmark
 #   chromium    the dashboard test opens the web viewer headless
 #   openssl     the bridge's TLS test makes its certificates
@@ -53,5 +53,5 @@ step "pip itself, up to date" .venv/bin/python -m pip install -q --disable-pip-v
   --upgrade pip
 step "the kali_daemons package, its test and docs extras into .venv (pip install -e '.[test,docs]')" \
   .venv/bin/python -m pip install -q --disable-pip-version-check -e '.[test,docs]'
-step "the compiled kernels (python -m kali_daemons.kernels)" .venv/bin/python -m kali_daemons.kernels
+step "the compiled kernels (python -m kali_daemons.core.kernels)" .venv/bin/python -m kali_daemons.core.kernels
 echo "setup: ready ($(.venv/bin/python --version), kalictl at .venv/bin/kalictl; source .venv/bin/activate to put it on PATH)"

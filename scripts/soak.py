@@ -143,12 +143,13 @@ from benchlib import (
 )
 from harness import Floor, KaliRun, cell_config, flight_dump, halt_window_ns
 
-from kali_daemons import launcher, layout
-from kali_daemons.config import KaliConfig
-from kali_daemons.errors import KaliError
-from kali_daemons.flightrec import attach_ring, read_ring
-from kali_daemons.instance import Instance
-from kali_daemons.introspect import Introspector
+from kali_daemons.core import layout
+from kali_daemons.core.errors import KaliError
+from kali_daemons.runtime.config import KaliConfig
+from kali_daemons.runtime.flightrec import attach_ring, read_ring
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import launcher
+from kali_daemons.tools.introspect import Introspector
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_CONFIG = REPO / "config" / "default.yaml"

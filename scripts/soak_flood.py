@@ -23,11 +23,11 @@ import signal
 import sys
 import time
 
-from kali_daemons import layout
 from kali_daemons.client import Kali, MotionFailedError
 from kali_daemons.client.motion import MotionHandle, RequestLostError
-from kali_daemons.errors import QueueFullError
-from kali_daemons.layout import MotionKind, RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import QueueFullError
+from kali_daemons.core.layout import MotionKind, RequestState
 
 ROBOTS = ("left", "right")  # the arms the soak's demo moves
 OUTSTANDING = layout.STATUS_SHARE  # requests in flight: the unread outcomes a program keeps

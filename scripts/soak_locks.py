@@ -19,9 +19,9 @@ import signal
 import sys
 import time
 
-from kali_daemons.errors import LockError
-from kali_daemons.instance import Instance
-from kali_daemons.spinlock import SpinLock
+from kali_daemons.core.errors import LockError
+from kali_daemons.core.spinlock import SpinLock
+from kali_daemons.runtime.instance import Instance
 
 WAIT_S = 0.05  # longest it waits for a lock someone else holds before it moves on
 

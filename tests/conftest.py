@@ -13,9 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import launcher, layout
-from kali_daemons.arena import Arena
-from kali_daemons.config import KaliConfig, parse_config
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.runtime.config import KaliConfig, parse_config
+from kali_daemons.tools import launcher
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_TEXT = (ROOT / "config" / "default.yaml").read_text()
@@ -146,8 +147,8 @@ class HostedCell:
         edits: dict[str, str] | None = None,
         base: str = "default.yaml",
     ) -> None:
-        from kali_daemons.instance import Instance
-        from kali_daemons.wallclock.executive import HOSTED_ORDER
+        from kali_daemons.lockstep.executive import HOSTED_ORDER
+        from kali_daemons.runtime.instance import Instance
 
         classes = {kind: (mod, cls) for kind, mod, cls in HOSTED_ORDER}
         self.name = unique_name("host")

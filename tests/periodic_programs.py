@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from kali_daemons.arena import Arena
-from kali_daemons.spinlock import SpinLock
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.spinlock import SpinLock
 from kali_daemons.wallclock import control
 
 TRACE = np.dtype([("lock", "<u4"), ("n", "<u4"), ("rows", "<i8", (4096, 2))])

@@ -14,9 +14,9 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, precondition, rule
 
-from kali_daemons import atomic, layout
-from kali_daemons.arena import DIR_READ_WAIT_S, Arena, segment_name, unlink_segment
-from kali_daemons.errors import ArenaError, ArenaFullError
+from kali_daemons.core import atomic, layout
+from kali_daemons.core.arena import DIR_READ_WAIT_S, Arena, segment_name, unlink_segment
+from kali_daemons.core.errors import ArenaError, ArenaFullError
 
 from .conftest import unique_name
 
@@ -77,7 +77,7 @@ def test_non_owner_exit_does_not_unlink(arena: Arena) -> None:
     arena.record("shared", np.dtype("<i8"), 1)
     code = (
         "import numpy as np\n"
-        "from kali_daemons.arena import Arena\n"
+        "from kali_daemons.core.arena import Arena\n"
         f"a = Arena.attach({name!r})\n"
         "v = a.record('shared', np.dtype('<i8'), 1)\n"
         "v[0] = 4242\n"

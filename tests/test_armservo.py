@@ -12,15 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.chain import base_pose, chain_of, flange_pose
 from kali_daemons.client import Kali
-from kali_daemons.errors import ConfigError, ServoError
-from kali_daemons.instance import Instance
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ConfigError, ServoError
+from kali_daemons.robots.chain import base_pose, chain_of, flange_pose
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import Registry
 from kali_daemons.servo.arm import ArmInput, ArmServoAlgorithm
 from kali_daemons.servo.armbuiltins import IMPEDANCE, rotation_error
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.servo.level import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_dynamics import LEFT, MOVE_S, _run, standard_move
 from tests.test_launcher import kalictl
@@ -347,8 +347,8 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
     ``_imp_step`` to 1e-12 over random states, parameters and rotation errors (none, small,
     near π), with and without a sensor, a squeeze, friction compensation, and over ticks
     (bias, integrals)."""
-    from kali_daemons.dynamics.inverse import DriveFriction
     from kali_daemons.robots import robot_type
+    from kali_daemons.robots.inverse import DriveFriction
     from kali_daemons.servo.armbuiltins import IMPEDANCE_DTYPE, _imp_init, _imp_set, _imp_step
 
     rng = np.random.default_rng(seed)
@@ -401,8 +401,8 @@ def test_the_compiled_computed_torque_step_equals_the_python_step(
     """``kernels.arm_step("computed_torque", ...)`` equals ``_ct_step`` to 1e-12 over random
     states and parameters, with and without friction compensation, over ticks (bias, each
     joint's integral, its limit reached)."""
-    from kali_daemons.dynamics.inverse import DriveFriction
     from kali_daemons.robots import robot_type
+    from kali_daemons.robots.inverse import DriveFriction
     from kali_daemons.servo.armbuiltins import COMPUTED_TORQUE, CT_DTYPE, _ct_init, _ct_step
 
     rng = np.random.default_rng(100 + seed)

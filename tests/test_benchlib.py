@@ -220,7 +220,7 @@ def test_the_soak_reads_where_a_stuck_serious_process_is() -> None:
 
     from soak import STUCK_MS, StuckWatch
 
-    from kali_daemons import layout
+    from kali_daemons.core import layout
 
     procs = np.zeros(layout.MAX_PROCESSES, dtype=layout.PROCESS)
     procs["periodic"][3], procs["serious"][3], procs["pid"][3] = 1, 1, os.getpid()

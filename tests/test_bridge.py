@@ -19,13 +19,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from kali_daemons import layout
 from kali_daemons.bridge.access import client_config
-from kali_daemons.bridge.protocol import BridgeError, Keys
 from kali_daemons.client import Kali
 from kali_daemons.client.motion import pose
-from kali_daemons.errors import KaliError
-from kali_daemons.instance import Instance
+from kali_daemons.client.protocol import BridgeError, Keys
+from kali_daemons.core import layout
+from kali_daemons.core.errors import KaliError
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import wait_for

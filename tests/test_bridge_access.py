@@ -25,9 +25,9 @@ import zenoh
 import zenoh.ext as zext
 
 from kali_daemons.bridge.access import access_control, bridge_config, client_config
-from kali_daemons.bridge.protocol import BridgeError
+from kali_daemons.client.protocol import BridgeError
 from kali_daemons.client.remote import common_name
-from kali_daemons.config import BridgeConfig, TlsConfig
+from kali_daemons.runtime.config import BridgeConfig, TlsConfig
 
 INST = "t29"
 P = f"kali/{INST}"

@@ -22,11 +22,11 @@ import zenoh
 
 from kali_daemons.bridge.access import client_config
 from kali_daemons.bridge.admission import Turns
-from kali_daemons.bridge.protocol import BridgeError, Keys
 from kali_daemons.client import Kali
-from kali_daemons.instance import Instance
-from kali_daemons.layout import RequestState
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.client.protocol import BridgeError, Keys
+from kali_daemons.core.layout import RequestState
+from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.tg import records
 
 from . import test_bridge

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from kali_daemons import layout
+from kali_daemons.core import layout
 from kali_daemons.robots import puma560, robot_type
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.robots.puma560.kinematics import CONFIGS, KinematicsError

@@ -1,4 +1,4 @@
-"""The serial chain read from a robot type's URDF (``kali_daemons.chain``): its flange pose
+"""The serial chain read from a robot type's URDF (``kali_daemons.robots.chain``): its flange pose
 equals Pinocchio's on every shipped type and on an arm with unaligned axes and fixed joints
 between the moving ones, the compiled ``kali_chain_pose`` equals the numpy reference, and a
 URDF that is not a type's chain is refused naming the file."""
@@ -15,11 +15,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kali_daemons import kernels
-from kali_daemons.cell import FLANGE_FRAME, load_pinocchio
-from kali_daemons.chain import Chain, chain_of, flange_pose
-from kali_daemons.errors import ModelError
+from kali_daemons.core import kernels
+from kali_daemons.core.errors import ModelError
 from kali_daemons.robots import RobotType, known_types, robot_type
+from kali_daemons.robots.cell import FLANGE_FRAME, load_pinocchio
+from kali_daemons.robots.chain import Chain, chain_of, flange_pose
 
 SETTINGS = settings(max_examples=60, deadline=None)
 TOL = 1e-12

@@ -16,10 +16,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kali_daemons.arena import Arena, segment_name
-from kali_daemons.channels import Flag as ChannelFlag
-from kali_daemons.channels import FlagArray, InterpolatingFifo, Record, RequestQueue
-from kali_daemons.errors import ChannelError, QueueFullError
+from kali_daemons.core.arena import Arena, segment_name
+from kali_daemons.core.channels import Flag as ChannelFlag
+from kali_daemons.core.channels import FlagArray, InterpolatingFifo, Record, RequestQueue
+from kali_daemons.core.errors import ChannelError, QueueFullError
 
 ARENA_BYTES = 1 << 20
 PAYLOAD = np.dtype([("producer", "<u4"), ("i", "<u4")])

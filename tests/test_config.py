@@ -1,4 +1,4 @@
-"""Tests for kali_daemons.config: the default file, every rejection path, and immutability.
+"""Tests for kali_daemons.runtime.config: the default file, every rejection path, and immutability.
 
 Malformed configs are small edits of config/default.yaml, so each case shows exactly which
 change is wrong and which message (field path, value, what is allowed) it must produce.
@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons import config as config_mod
-from kali_daemons.config import (
+from kali_daemons.core.errors import ConfigError
+from kali_daemons.runtime import config as config_mod
+from kali_daemons.runtime.config import (
     CONFIG_VERSION,
     PROCESS_NAMES,
     ClockConfig,
@@ -25,7 +26,6 @@ from kali_daemons.config import (
     parse_config,
     with_overrides,
 )
-from kali_daemons.errors import ConfigError
 
 from .conftest import make_config
 

@@ -11,10 +11,10 @@ import jsonschema
 import pytest
 import yaml
 
-from kali_daemons import config as config_mod
-from kali_daemons.config import ConfigFile, load_config, parse_config, schema, show
-from kali_daemons.errors import ConfigError
-from kali_daemons.instance import Instance
+from kali_daemons.core.errors import ConfigError
+from kali_daemons.runtime import config as config_mod
+from kali_daemons.runtime.config import ConfigFile, load_config, parse_config, schema, show
+from kali_daemons.runtime.instance import Instance
 
 from .conftest import ROOT, config_text, leftovers, unique_name
 from .test_launcher import kalictl

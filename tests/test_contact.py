@@ -9,7 +9,7 @@ from collections.abc import Callable
 import numpy as np
 
 from kali_daemons.client import Kali, pose
-from kali_daemons.layout import RequestState
+from kali_daemons.core.layout import RequestState
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_armservo import tool_point
 from tests.test_guarded import ABOVE, DOWN, TABLE_Z, over_the_table

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 from kali_daemons.client import Control, Kali
-from kali_daemons.daemon import RELEASED_ELSEWHERE, RETURNED_FALSE
-from kali_daemons.errors import ClockError
-from kali_daemons.layout import FaultCode, ProcState
+from kali_daemons.core.errors import ClockError
+from kali_daemons.core.layout import FaultCode, ProcState
+from kali_daemons.runtime.daemon import RELEASED_ELSEWHERE, RETURNED_FALSE
 from kali_daemons.wallclock import release, step_kali_clock
 
 from .conftest import ROOT
@@ -247,7 +247,7 @@ def test_a_release_while_another_program_steps_the_clock_holds_no_tick(
                 "-c",
                 textwrap.dedent(
                     f"""
-                    from kali_daemons.instance import Instance
+                    from kali_daemons.runtime.instance import Instance
                     from kali_daemons.wallclock import step_kali_clock
                     with Instance.attach({name!r}) as inst:
                         for _ in range(2000):

@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 import roboticstoolbox as rtb
 
-from kali_daemons import layout
-from kali_daemons.arena import Arena
 from kali_daemons.client import Kali
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.layout import FfMode, FfState, PowerState
 from kali_daemons.dynamics.daemon import Dynamics
-from kali_daemons.dynamics.inverse import InverseDynamics, central_differences
-from kali_daemons.instance import Instance
-from kali_daemons.layout import FfMode, FfState, PowerState
 from kali_daemons.robots import puma560
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.robots.inverse import InverseDynamics, central_differences
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import make_config
@@ -289,7 +289,7 @@ def test_the_start_hint_names_the_arms_without_feed_forward_and_how_to_turn_it_o
     without the dynamics feed-forward: none where every arm has it (the shipped configs), the
     arm to name where one is off, every arm where all are (or the dynamics process is left
     out), the instance where it is not the default one."""
-    from kali_daemons.cli import feedforward_hint
+    from kali_daemons.tools.cli import feedforward_hint
 
     assert feedforward_hint(make_config("default"), "default") is None
     gravity = {r"^(  - \{name: left,.*), ff: full\}$": r"\1, ff: gravity}"}

@@ -11,10 +11,10 @@ from collections.abc import Callable
 
 import pytest
 
-from kali_daemons.cell import TABLE_SIZE
 from kali_daemons.client import Kali
-from kali_daemons.errors import MotionError
-from kali_daemons.layout import ProcState
+from kali_daemons.core.errors import MotionError
+from kali_daemons.core.layout import ProcState
+from kali_daemons.robots.cell import TABLE_SIZE
 from kali_daemons.robots.puma560 import PID_DEFAULTS
 from kali_daemons.wallclock import step_kali_clock
 

@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 from numpy.lib.recfunctions import repack_fields
 
-from kali_daemons import flightrec, launcher, layout
 from kali_daemons.client import Kali
-from kali_daemons.instance import Instance
-from kali_daemons.layout import FaultCode, PowerState, ProcState, RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.layout import FaultCode, PowerState, ProcState, RequestState
+from kali_daemons.runtime import flightrec
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import wait_for

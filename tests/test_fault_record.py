@@ -14,10 +14,10 @@ from types import FrameType
 
 import pytest
 
-from kali_daemons import instance as instance_module
-from kali_daemons import launcher
-from kali_daemons.instance import Instance
-from kali_daemons.layout import FaultCode
+from kali_daemons.core.layout import FaultCode
+from kali_daemons.runtime import instance as instance_module
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import launcher
 
 from .conftest import make_config, unique_name
 

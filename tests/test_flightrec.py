@@ -16,15 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import flightrec, launcher, layout
-from kali_daemons.arena import Arena
 from kali_daemons.client import Kali
-from kali_daemons.config import KaliConfig
-from kali_daemons.errors import ArenaFullError, InstanceError
-from kali_daemons.instance import Instance
-from kali_daemons.introspect import Introspector
-from kali_daemons.layout import FaultCode, PowerState
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.errors import ArenaFullError, InstanceError
+from kali_daemons.core.layout import FaultCode, PowerState
+from kali_daemons.runtime import flightrec
+from kali_daemons.runtime.config import KaliConfig
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
+from kali_daemons.tools import launcher
+from kali_daemons.tools.introspect import Introspector
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import make_config, unique_name

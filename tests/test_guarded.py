@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from kali_daemons.client import Kali, Robot, pose
-from kali_daemons.errors import MotionError
-from kali_daemons.layout import MotionKind, RequestState
+from kali_daemons.core.errors import MotionError
+from kali_daemons.core.layout import MotionKind, RequestState
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_armservo import tool_point
 from tests.test_wrench import truth

@@ -14,12 +14,12 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import top
 from kali_daemons.client import Kali
-from kali_daemons.errors import MotionError, ServoError
-from kali_daemons.introspect import Introspector
-from kali_daemons.layout import RequestState
+from kali_daemons.core.errors import MotionError, ServoError
+from kali_daemons.core.layout import RequestState
 from kali_daemons.servo.admittance import ADMITTANCE_PARAMS
+from kali_daemons.tools import top
+from kali_daemons.tools.introspect import Introspector
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_armservo import LEFT_ROBOT_SERVOS, tool_point
 from tests.test_introspect import render

@@ -25,8 +25,8 @@ from harness import (
     table,
 )
 
-from kali_daemons import launcher
-from kali_daemons.errors import ConfigError
+from kali_daemons.core.errors import ConfigError
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import unique_name

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons import launcher
-from kali_daemons.instance import Instance
-from kali_daemons.introspect import pss_kib
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
+from kali_daemons.tools import launcher
+from kali_daemons.tools.introspect import pss_kib
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ROOT
@@ -33,7 +33,7 @@ MIB = 1024  # KiB
 BARRED = {
     "kali_daemons.wallclock.clock": HEAVY,
     "kali_daemons.sio.daemon": HEAVY,
-    "kali_daemons.sv.daemon": HEAVY,
+    "kali_daemons.servo.sv.daemon": HEAVY,
     "kali_daemons.tg.daemon": ("mujoco", "rerun"),  # a Panda's kinematics are on Pinocchio
     "kali_daemons.plant.daemon": ("pinocchio", "rerun"),
     "kali_daemons.dynamics.daemon": ("mujoco", "rerun"),
@@ -52,7 +52,7 @@ def loaded_after(module: str, config: str) -> list[str]:
     code = (
         f"import sys, {module}\n"
         "from pathlib import Path\n"
-        "from kali_daemons.config import parse_config\n"
+        "from kali_daemons.runtime.config import parse_config\n"
         f"path = Path({str(ROOT / 'config' / config)!r})\n"
         "cfg = parse_config(path.read_text(), str(path), str(path.parent))\n"
         "assert all(r.type.n_joints for r in cfg.robots)\n"

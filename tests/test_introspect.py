@@ -8,11 +8,11 @@ from collections.abc import Callable
 
 from rich.console import Console
 
-from kali_daemons import top
-from kali_daemons.instance import Instance
-from kali_daemons.introspect import Introspector, plain
-from kali_daemons.layout import FaultCode
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.core.layout import FaultCode
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
+from kali_daemons.tools import top
+from kali_daemons.tools.introspect import Introspector, plain
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_launcher import PROCESSES, kalictl

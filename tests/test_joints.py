@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.config import parse_config
-from kali_daemons.errors import ConfigError
-from kali_daemons.joints import ArmCopy, JointMap
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ConfigError
+from kali_daemons.core.joints import ArmCopy, JointMap
+from kali_daemons.runtime.config import parse_config
 
 from .conftest import config_text
 

@@ -1,6 +1,6 @@
-"""The kernels' argument blocks are declared once (``kali_daemons.kernel_args``): the checked-in
-``kernel_args.h`` is what the declarations generate, and a library whose structs are not the
-ctypes classes is refused at load, naming the block, the field and both offsets."""
+"""The kernels' argument blocks are declared once (``kali_daemons.core.kernel_args``): the
+checked-in ``kernel_args.h`` is what the declarations generate, and a library whose structs are
+not the ctypes classes is refused at load, naming the block, the field and both offsets."""
 
 from __future__ import annotations
 
@@ -11,12 +11,13 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons import kernel_args, kernels
-from kali_daemons.errors import DaemonError
+from kali_daemons.core import kernel_args, kernels
+from kali_daemons.core.errors import DaemonError
 
 
 def test_the_checked_in_header_is_what_the_declarations_generate() -> None:
-    """Edit ``kernel_args.py``, then ``python -m kali_daemons.kernel_args``: never the header."""
+    """Edit ``kernel_args.py``, then ``python -m kali_daemons.core.kernel_args``: never the
+    header."""
     assert kernel_args.HEADER.read_text() == kernel_args.header()
 
 
@@ -50,7 +51,7 @@ def test_the_simulators_kernels_are_its_own() -> None:
 def test_the_declarations_read_as_the_c_they_generate() -> None:
     """Several names on a row share its type, as in C; a section string is a comment."""
     read = next(b for b in kernel_args.BLOCKS if b.name == "ReadArgs")
-    assert read.kernels == {"kali_read": "kernels:read_reference"}
+    assert read.kernels == {"kali_read": "core.kernels:read_reference"}
     assert ("acc", "View") in read.fields() and ("prev", "View") in read.fields()
     assert "    View acc, prev; /* int32: accumulated counts, last 12-bit reading */" in (
         kernel_args.header()

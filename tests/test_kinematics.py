@@ -17,9 +17,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kali_daemons.errors import KaliError
-from kali_daemons.model import FLANGE_FRAME, load_pinocchio
+from kali_daemons.core.errors import KaliError
 from kali_daemons.robots import puma560
+from kali_daemons.robots.model import FLANGE_FRAME, load_pinocchio
 from kali_daemons.robots.puma560.kinematics import (
     CONFIGS,
     REACH_MAX,

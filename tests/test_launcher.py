@@ -13,11 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons import launcher, layout
-from kali_daemons.errors import InstanceError
-from kali_daemons.instance import Instance
-from kali_daemons.layout import FaultCode, RunMode
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.core import layout
+from kali_daemons.core.errors import InstanceError
+from kali_daemons.core.layout import FaultCode, RunMode
+from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import launcher
 
 from .conftest import ROOT, config_text, leftovers, make_config, unique_name
 

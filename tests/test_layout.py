@@ -10,11 +10,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.arena import Arena
-from kali_daemons.config import arena_need, cell_of, parse_config
-from kali_daemons.errors import ArenaError
-from kali_daemons.instance import Instance
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.errors import ArenaError
+from kali_daemons.runtime.config import arena_need, cell_of, parse_config
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import registry_for
 
 from .conftest import ROOT, config_text

@@ -20,9 +20,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from kali_daemons.config import FtConfig, RobotConfig, load_config
-from kali_daemons.errors import ConfigError, ModelError
-from kali_daemons.model import (
+from kali_daemons.core.errors import ConfigError, ModelError
+from kali_daemons.robots import puma560, robot_type
+from kali_daemons.robots.model import (
     FLANGE_FRAME,
     TOOL_CONTACT,
     World,
@@ -30,7 +30,7 @@ from kali_daemons.model import (
     build_world,
     load_pinocchio,
 )
-from kali_daemons.robots import puma560, robot_type
+from kali_daemons.runtime.config import FtConfig, RobotConfig, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 GEN_SCRIPT = ROOT / "scripts" / "gen_puma560_urdf.py"

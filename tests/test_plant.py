@@ -11,12 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.arena import Arena
-from kali_daemons.boards.mcgill import PotReader, retrigger_bit
-from kali_daemons.config import retrigger_hold_ticks
-from kali_daemons.instance import Instance
-from kali_daemons.layout import (
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.layout import (
     ADC_DONE,
     ADC_START,
     CSR_ENABLE,
@@ -30,7 +27,7 @@ from kali_daemons.layout import (
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
-from kali_daemons.model import build_world
+from kali_daemons.hardware.mcgill import PotReader, retrigger_bit
 from kali_daemons.plant.board import (
     BOARD_STATE,
     EncoderBank,
@@ -42,6 +39,9 @@ from kali_daemons.plant.board import (
 from kali_daemons.plant.motor import Drive, MotorBank, drive_reference
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.robots import puma560
+from kali_daemons.robots.model import build_world
+from kali_daemons.runtime.config import retrigger_hold_ticks
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
 
 from .conftest import make_config

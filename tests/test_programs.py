@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from kali_daemons.client import Kali
-from kali_daemons.errors import MotionError
-from kali_daemons.layout import RequestState
+from kali_daemons.core.errors import MotionError
+from kali_daemons.core.layout import RequestState
 from kali_daemons.tg import records
 from kali_daemons.wallclock import step_kali_clock
 

@@ -12,10 +12,10 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from kali_daemons import log
 from kali_daemons.client import Kali
 from kali_daemons.client.state import ArmState
-from kali_daemons.errors import KaliError
+from kali_daemons.core.errors import KaliError
+from kali_daemons.recording import log
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_bridge import bridged  # noqa: F401  (the fixture)

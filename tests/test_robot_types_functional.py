@@ -24,12 +24,12 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from kali_daemons.errors import KaliError
-from kali_daemons.instance import Instance
-from kali_daemons.layout import CSR_NO_DISABLE, CalibState, FaultCode, PowerState
+from kali_daemons.core.errors import KaliError
+from kali_daemons.core.layout import CSR_NO_DISABLE, CalibState, FaultCode, PowerState
+from kali_daemons.core.spinlock import pid_alive
 from kali_daemons.robots import RobotType, known_types
-from kali_daemons.servolevel import ServoClient
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ByArm, wait_for

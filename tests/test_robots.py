@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from kali_daemons.errors import ConfigError
+from kali_daemons.core.errors import ConfigError
 from kali_daemons.robots import MAX_JOINTS, known_types, puma560, robot_type
 from kali_daemons.robots.profile import read_only
 

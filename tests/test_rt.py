@@ -11,8 +11,9 @@ from collections.abc import Callable
 import posix_ipc
 import pytest
 
-from kali_daemons import daemon, rt
-from kali_daemons.instance import Instance
+from kali_daemons.core import rt
+from kali_daemons.runtime import daemon
+from kali_daemons.runtime.instance import Instance
 
 PR_GET_TIMERSLACK = 30
 

@@ -1,6 +1,7 @@
-"""The schedulability check (``kali_daemons/schedule.py``, ``kalictl check``; issue 26 item 5):
-response-time analysis on measured figures, a servo's step timed on its own parameters, and a
-real-time instance refusing a servo that would not fit before anything changes."""
+"""The schedulability check (``kali_daemons/servo/schedule.py``, ``kalictl check``; issue 26
+item 5): response-time analysis on measured figures, a servo's step timed on its own
+parameters, and a real-time instance refusing a servo that would not fit before anything
+changes."""
 
 from __future__ import annotations
 
@@ -10,13 +11,12 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import schedule
-from kali_daemons.errors import ScheduleError
-from kali_daemons.instance import Instance
-from kali_daemons.layout import PowerState
-from kali_daemons.schedule import Change, Figures, Task, predict
-from kali_daemons.servo import PID, registry_for, struct_view
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.core.errors import ScheduleError
+from kali_daemons.core.layout import PowerState
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo import PID, registry_for, schedule, struct_view
+from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.schedule import Change, Figures, Task, predict
 
 from .conftest import wait_for
 from .system.test_faults import PLUGIN

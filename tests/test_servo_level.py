@@ -19,9 +19,8 @@ from typing import Any, cast
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.instance import Instance
-from kali_daemons.layout import (
+from kali_daemons.core import layout
+from kali_daemons.core.layout import (
     CSR_NO_DISABLE,
     POWER_AMPS_ON,
     POWER_WATCHDOG_TRIPPED,
@@ -30,7 +29,8 @@ from kali_daemons.layout import (
     PowerState,
 )
 from kali_daemons.robots import puma560
-from kali_daemons.servolevel import ServoClient, ServoError
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ROOT, ByArm, wait_for
@@ -763,7 +763,7 @@ def test_a_polling_sv_wakes_before_the_feed_only_where_the_servos_are_worth_shar
     that came while it rested: SIO keeps the longest since its last look.  Shared, the
     servos take about half as long: it goes on sharing while they take over half the limit.
     The learning alone, on an SV hosted in this process, fed the times SIO publishes."""
-    from kali_daemons.sv.daemon import FEED_HISTORY, FEED_MARGIN_NS, SHARE_LOOKS, SHARE_NS
+    from kali_daemons.servo.sv.daemon import FEED_HISTORY, FEED_MARGIN_NS, SHARE_LOOKS, SHARE_NS
 
     from .conftest import HostedCell
 
@@ -822,7 +822,7 @@ def test_the_compiled_feed_wait_and_learning_equal_the_reference() -> None:
     it rested through all taken with the feed; and, as ``_await_feed`` does, a post older
     than the tick wanted is passed over and a cycle that gets no feed within its wait runs
     nothing.  On an SV hosted in this process."""
-    from kali_daemons.sv.daemon import SHARE_NS
+    from kali_daemons.servo.sv.daemon import SHARE_NS
 
     from .conftest import HostedCell
 

@@ -18,11 +18,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kali_daemons import layout
-from kali_daemons.layout import SlotOp, SlotReset
+from kali_daemons.core import layout
+from kali_daemons.core.layout import SlotOp, SlotReset
 from kali_daemons.servo import PD, PID, Handover, struct_view
+from kali_daemons.servo.sv.units import serve_unit, serve_unit_reference
 from kali_daemons.servo.vector import pd_vector_step, pid_vector_step
-from kali_daemons.sv.units import serve_unit, serve_unit_reference
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ByArm
@@ -322,7 +322,8 @@ def test_no_daemon_loads_numba() -> None:
     """The servo path's kernels are C (csrc/): importing the SV or SIO daemon loads
     neither numba nor llvmlite (~127 MB RSS, all of it locked by mlockall)."""
     code = (
-        "import sys, kali_daemons.sv.daemon, kali_daemons.sio.daemon, kali_daemons.sv.units;"
+        "import sys, kali_daemons.servo.sv.daemon, kali_daemons.sio.daemon;"
+        "import kali_daemons.servo.sv.units;"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'llvmlite')))"
     )
     done = subprocess.run(

@@ -1,4 +1,4 @@
-"""Shadow trials (issue 27 item 6, ``kali_daemons/shadow.py``), end to end in lockstep on a
+"""Shadow trials (issue 27 item 6, ``kali_daemons/servo/shadow.py``), end to end in lockstep on a
 moving arm: a joint servo or a robot-level one in shadow is stepped every tick on exactly
 the active servo's inputs (a private copy of its record, stepped here on the inputs each
 tick left in the slot, gives its torque to the last bit), its torque is never applied, the
@@ -16,12 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import flightrec, layout, top
 from kali_daemons.client import Kali
-from kali_daemons.errors import ServoError
-from kali_daemons.introspect import Introspector
-from kali_daemons.layout import RequestState, ShadowState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ServoError
+from kali_daemons.core.layout import RequestState, ShadowState
+from kali_daemons.runtime import flightrec
 from kali_daemons.servo import PD, struct_view
+from kali_daemons.tools import top
+from kali_daemons.tools.introspect import Introspector
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_armservo import LEFT_ROBOT_SERVOS
 from tests.test_introspect import render

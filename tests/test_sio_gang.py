@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kali_daemons import layout
+from kali_daemons.core import layout
 from kali_daemons.sio.gang import GangAcknowledger
 
 SLOTS = [3, 4]  # sv.0 on SIO's CPU, sv.1 on the other one

@@ -1,4 +1,4 @@
-"""The compiled kernels (``kali_daemons.kernels``) equal their numpy references bit for bit,
+"""The compiled kernels (``kali_daemons.core.kernels``) equal their numpy references bit for bit,
 over random inputs: counters with wrap, masks, NaN and garbage safe limits, joints beyond
 their limits, and range, runaway and current faults on the same tick (issue 26 item 2)."""
 
@@ -15,13 +15,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from kali_daemons import atomic, kernels, launcher, layout
-from kali_daemons.arena import Arena
-from kali_daemons.channels import ChannelError, InterpolatingFifo
-from kali_daemons.errors import DaemonError
-from kali_daemons.kernels import Kernel, copies
-from kali_daemons.layout import FfState
+from kali_daemons.core import atomic, kernels, layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.channels import ChannelError, InterpolatingFifo
+from kali_daemons.core.errors import DaemonError
+from kali_daemons.core.kernels import Kernel, copies
+from kali_daemons.core.layout import FfState
 from kali_daemons.sio.feedforward import RobotFeedforward
+from kali_daemons.tools import launcher
 
 from .conftest import unique_name
 

@@ -19,10 +19,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from kali_daemons.errors import ChannelError
-from kali_daemons.layout import POWER_AMPS_ON as AMPS_ON
-from kali_daemons.layout import CalibState, GuardState, PowerCmd, PowerState
-from kali_daemons.servolevel import ServoLevel
+from kali_daemons.core.errors import ChannelError
+from kali_daemons.core.layout import POWER_AMPS_ON as AMPS_ON
+from kali_daemons.core.layout import CalibState, GuardState, PowerCmd, PowerState
+from kali_daemons.servo.level import ServoLevel
 from kali_daemons.sio.daemon import ServoIO
 
 from .conftest import HostedCell

@@ -24,8 +24,8 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.kernels import (
+from kali_daemons.core import layout
+from kali_daemons.core.kernels import (
     SIO_CAPTURE,
     SIO_CHECK,
     SIO_CURRENT,
@@ -35,8 +35,8 @@ from kali_daemons.kernels import (
     SV_FAULT,
     SV_SLOT,
 )
-from kali_daemons.layout import FaultCode, FfMode, GuardState, PowerCmd
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.core.layout import FaultCode, FfMode, GuardState, PowerCmd
+from kali_daemons.servo.level import ServoClient
 from kali_daemons.sio.daemon import ServoIO
 from kali_daemons.sio.gang import GangAcknowledger
 

@@ -10,10 +10,10 @@ import time
 import numpy as np
 import pytest
 
-from kali_daemons import atomic
-from kali_daemons.arena import Arena
-from kali_daemons.errors import LockError
-from kali_daemons.spinlock import SpinLock, pid_alive
+from kali_daemons.core import atomic
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.errors import LockError
+from kali_daemons.core.spinlock import SpinLock, pid_alive
 
 COUNTER = np.dtype([("lock", "<u4"), ("_pad", "<u4"), ("count", "<u8")])
 

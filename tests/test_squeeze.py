@@ -11,10 +11,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import layout, model
 from kali_daemons.client import Kali
-from kali_daemons.errors import MotionError, ServoError
-from kali_daemons.layout import RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import MotionError, ServoError
+from kali_daemons.core.layout import RequestState
+from kali_daemons.robots import model
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_tg_carry import LIFT_M, bar_position, go_to_grasps
 from tests.test_tg_cartesian import calibrated

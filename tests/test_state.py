@@ -9,11 +9,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import layout
 from kali_daemons.client import Kali
 from kali_daemons.client.state import ArmState, ObjectState
-from kali_daemons.errors import ServoError
-from kali_daemons.layout import PowerState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ServoError
+from kali_daemons.core.layout import PowerState
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_bridge import bridged  # noqa: F401  (the fixture)

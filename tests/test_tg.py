@@ -15,21 +15,22 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from kali_daemons import launcher, layout
-from kali_daemons.arena import Arena
-from kali_daemons.channels import InterpolatingFifo
 from kali_daemons.client import Kali, MotionFailedError, MotionHandle, pose
 from kali_daemons.client.motion import Robot
-from kali_daemons.config import KaliConfig, ms_to_ns
-from kali_daemons.joints import per_joint
-from kali_daemons.layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.channels import InterpolatingFifo
+from kali_daemons.core.joints import per_joint
+from kali_daemons.core.layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
 from kali_daemons.robots import puma560
-from kali_daemons.servolevel import FIFO_CAPACITY
+from kali_daemons.runtime.config import KaliConfig, ms_to_ns
+from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import daemon as tgd
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import base_transform, inverse
 from kali_daemons.tg.daemon import TrajectoryGenerator, check_request, write_status
 from kali_daemons.tg.profiles import MotionError
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import make_config, unique_name

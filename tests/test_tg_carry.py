@@ -9,10 +9,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import layout, model
 from kali_daemons.client import Kali
 from kali_daemons.client.motion import Robot
-from kali_daemons.layout import RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.layout import RequestState
+from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock

@@ -13,10 +13,10 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 
-from kali_daemons import layout
 from kali_daemons.client import Kali, MotionFailedError, pose
-from kali_daemons.errors import ServoError
-from kali_daemons.layout import CalibState, MotionKind, PowerState, RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ServoError
+from kali_daemons.core.layout import CalibState, MotionKind, PowerState, RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.tg import records

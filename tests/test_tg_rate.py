@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from kali_daemons.client import Kali, set_control_rate
-from kali_daemons.errors import ClockError
-from kali_daemons.layout import RequestState
+from kali_daemons.core.errors import ClockError
+from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.tg import records
 from kali_daemons.wallclock import step_kali_clock

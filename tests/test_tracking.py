@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import layout, model
 from kali_daemons.client import Kali, MotionFailedError
-from kali_daemons.errors import MotionError
-from kali_daemons.layout import RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import MotionError
+from kali_daemons.core.layout import RequestState
+from kali_daemons.robots import model
 from kali_daemons.tg import records
 from kali_daemons.tg.daemon import LEAD
 from kali_daemons.tg.tracking import follow, rotation, rotvec, write_frame

@@ -32,16 +32,17 @@ import pinocchio as pin
 import pytest
 import rerun as rr
 
-from kali_daemons import launcher, layout
-from kali_daemons.arena import Arena
 from kali_daemons.client import Kali
-from kali_daemons.config import DashboardConfig
-from kali_daemons.errors import ConfigError
-from kali_daemons.instance import Instance
-from kali_daemons.joints import per_joint
-from kali_daemons.layout import FaultCode, RunMode
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.core import layout
+from kali_daemons.core.arena import Arena
+from kali_daemons.core.errors import ConfigError
+from kali_daemons.core.joints import per_joint
+from kali_daemons.core.layout import FaultCode, RunMode
+from kali_daemons.runtime.config import DashboardConfig
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
 from kali_daemons.tg.cartesian import base_transform
+from kali_daemons.tools import launcher
 from kali_daemons.viewer.daemon import CONTACT_M_PER_N, Viewer, blueprint
 from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
 from kali_daemons.wallclock import start_kali_clock, step_kali_clock

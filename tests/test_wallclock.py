@@ -15,10 +15,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from kali_daemons import launcher, layout, rt
-from kali_daemons.errors import ClockError
-from kali_daemons.instance import Instance
-from kali_daemons.layout import FaultCode, ProcState, RunMode
+from kali_daemons.core import layout, rt
+from kali_daemons.core.errors import ClockError
+from kali_daemons.core.layout import FaultCode, ProcState, RunMode
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import (
     release,
     set_control_rate,
@@ -306,7 +307,7 @@ def test_a_process_changing_its_own_period_never_sleeps_past_its_signal(old: int
     tick of a run, through the clock's real re-read and tick logic.  It wakes exactly at its
     signal except, once per change to a shorter period, early: where it sleeps on the
     semaphore instead, a wake-up across vCPUs."""
-    from kali_daemons.daemon import Daemon, next_wake
+    from kali_daemons.runtime.daemon import Daemon, next_wake
 
     events: list[tuple[str, int]] = []
     c = _tick_clock([100, 101, 102], {100, 101, 102}, events)
@@ -366,7 +367,7 @@ def test_a_rate_change_is_taken_up_in_place_without_reading_the_table_again() ->
     the clock running that long in each of the 31 misses the soak had not put down to the
     machine: SIO, signalled, waited for the clock and missed the next tick.  A process
     registering or leaving still has the whole table read (the registry's generation)."""
-    from kali_daemons.daemon import Daemon
+    from kali_daemons.runtime.daemon import Daemon
 
     c = _tick_clock([100, 101, 102], {100, 101, 102}, [])
     procs = c.inst.procs
@@ -631,7 +632,7 @@ def test_a_standing_clock_is_seen_only_through_two_waits_of_a_process_own(
     One wait is never enough, whatever its length: a stall of the whole machine ends it
     late, before the clock (on another CPU) has ticked again.  A CI run once halted at start
     that way: dynamics (250 ms waits) saw tick 0 across one wait."""
-    from kali_daemons import daemon as dm
+    from kali_daemons.runtime import daemon as dm
 
     monkeypatch.setattr(dm, "pid_alive", lambda pid: True)
     faults: list[str] = []
@@ -855,7 +856,7 @@ def test_the_compiled_cycle_account_equals_the_reference() -> None:
     ``record_reference`` does, byte for byte: lateness and execution time and their maxima,
     the histogram's bin over its linear and logarithmic ranges (early wake-ups in bin 0,
     hours late in the last), heartbeat, count and acknowledged tick."""
-    from kali_daemons.daemon import _CycleStats
+    from kali_daemons.runtime.daemon import _CycleStats
 
     procs = [np.zeros(4, layout.PROCESS) for _ in range(2)]
     stats = [_CycleStats(p, 2) for p in procs]
@@ -887,7 +888,7 @@ def test_the_compiled_clock_wait_equals_the_reference() -> None:
     period, an SV resting, and the clock's own due tick where within a period); the post
     that comes with the arena's shutdown flag (SHUTDOWN); a signal handler interrupting the
     wait (INTR, and the handler has run)."""
-    from kali_daemons.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
+    from kali_daemons.core.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
 
     from .conftest import HostedCell
 
@@ -913,8 +914,8 @@ def _clock_wait_trace(inst: Instance, compiled: bool, handled: list[int]) -> lis
     """One run of the story above through ``ClockWait.wait`` or ``wait_reference``: per
     call, the event, the waiter's flags, the slot's acknowledged tick, its accounts and the
     clock's posts given."""
-    from kali_daemons.daemon import ClockWait, _CycleStats
-    from kali_daemons.kernels import WAIT_IDLE, WAIT_SIGNAL
+    from kali_daemons.core.kernels import WAIT_IDLE, WAIT_SIGNAL
+    from kali_daemons.runtime.daemon import ClockWait, _CycleStats
 
     procs, slot, header = inst.procs, inst.slot_of("tg"), inst.arena.header
     sem, ack = inst.slot_semaphore(slot), inst.ack_semaphore()

@@ -9,14 +9,14 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from kali_daemons import layout
 from kali_daemons.client import Kali
-from kali_daemons.config import parse_config
-from kali_daemons.errors import ServoError
-from kali_daemons.ftsensor import FT_RAIL, FT_REQUEST, FT_SEQ_MASK, MINI45
-from kali_daemons.kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED
-from kali_daemons.layout import FaultCode
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ServoError
+from kali_daemons.core.kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED
+from kali_daemons.core.layout import FaultCode
+from kali_daemons.hardware.ftsensor import FT_RAIL, FT_REQUEST, FT_SEQ_MASK, MINI45
 from kali_daemons.plant.board import FtBank
+from kali_daemons.runtime.config import parse_config
 from kali_daemons.sio.wrench import ArmSensor, convert_reference
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_launcher import kalictl

@@ -40,7 +40,7 @@ from typing import Any
 
 import zenoh
 
-from ..config import BridgeConfig
+from ..runtime.config import BridgeConfig
 
 MODE = "router"  # remote programs connect to the bridge as clients
 

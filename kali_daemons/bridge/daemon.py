@@ -42,14 +42,15 @@ from typing import Any
 import zenoh
 import zenoh.ext
 
-from .. import launcher
-from ..daemon import Daemon
-from ..errors import DaemonError, KaliError
-from ..instance import estop_pressed
+from ..client import protocol
+from ..client.protocol import BridgeError, Keys
+from ..core.errors import DaemonError, KaliError
+from ..runtime.daemon import Daemon
+from ..runtime.instance import estop_pressed
+from ..tools import launcher
 from ..wallclock.clock import time_ms
-from . import access, protocol
+from . import access
 from .admission import Gates, Turns
-from .protocol import BridgeError, Keys
 from .sessions import Sessions, check_verb
 from .telemetry import Telemetry, Watch
 

@@ -37,12 +37,12 @@ import threading
 import time
 from typing import Any
 
-from .. import introspect
+from ..client import protocol
 from ..client.motion import Kali
-from ..instance import Instance
-from ..layout import PROGRAM_BYTES
-from . import protocol
-from .protocol import ATTRIBUTES, METHODS, PROPERTIES, BridgeError
+from ..client.protocol import ATTRIBUTES, METHODS, PROPERTIES, BridgeError
+from ..core.layout import PROGRAM_BYTES
+from ..runtime.instance import Instance
+from ..tools import introspect
 from .sessions import run_verb
 
 log = logging.getLogger("kali.bridge.session")

@@ -25,11 +25,11 @@ import sys
 import threading
 from typing import Any
 
-from .. import launcher
+from ..client import protocol
+from ..client.protocol import BridgeError
 from ..client.remote import REMOTE_ENV
-from ..errors import KaliError
-from . import protocol
-from .protocol import BridgeError
+from ..core.errors import KaliError
+from ..tools import launcher
 
 SID_RE = re.compile(r"[0-9a-f]{16,32}")
 PROGRAM_RE = re.compile(r"[^\x00-\x1f]{1,64}")
@@ -367,7 +367,7 @@ def run_verb(instance: str, verb: str, args: Any) -> dict[str, Any]:
     helper does): ``{"ok", "output"}`` with what kalictl printed, its error line when it
     refused."""
     check_verb(verb, args)
-    from ..cli import main  # here: the daemons never need click
+    from ..tools.cli import main  # here: the daemons never need click
 
     out, err = io.StringIO(), io.StringIO()
     with _verb_lock, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):

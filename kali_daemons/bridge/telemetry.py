@@ -14,11 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from .. import launcher, layout
-from ..instance import Instance, decode
-from ..layout import CalibState, PowerState, ProcState, RequestState
+from ..client.protocol import finite_or_none
+from ..core import layout
+from ..core.layout import CalibState, PowerState, ProcState, RequestState
+from ..runtime.instance import Instance, decode
+from ..tools import launcher
 from ..wallclock.clock import time_ms
-from .protocol import finite_or_none
 
 
 def _floats(values: np.ndarray) -> list[float | None]:

@@ -12,7 +12,7 @@ periodically on the wall clock while it goes on (``Kali.control``, a ``Control``
 itself the periodic function, blocking until it is released.
 """
 
-from ..instance import Instance
+from ..runtime.instance import Instance
 from ..wallclock import (
     control,
     release,

@@ -49,15 +49,16 @@ from typing import Any
 
 import numpy as np
 
-from .. import boards, layout
-from ..channels import RequestQueue
-from ..errors import KaliError, KinematicsError, QueueFullError, ServoError
-from ..instance import Instance, decode
-from ..layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
+from .. import hardware
+from ..core import layout
+from ..core.channels import RequestQueue
+from ..core.errors import KaliError, KinematicsError, QueueFullError, ServoError
+from ..core.layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
+from ..core.spinlock import pid_alive
 from ..robots import Kinematics, RobotType
-from ..servolevel import ServoClient
-from ..shadow import Trial
-from ..spinlock import pid_alive
+from ..runtime.instance import Instance, decode
+from ..servo.level import ServoClient
+from ..servo.shadow import Trial
 from ..tg import records
 from ..tg.cartesian import (
     CartesianMotion,
@@ -516,7 +517,7 @@ class Robot:
         """Close (or open) the gripper: its output bit on the robot's I/O board.  The plant
         welds a closing gripper to the object if the flange is within reach of its grasp."""
         close = _flag_arg(f"grip: robot '{self.name}'", "close", close)
-        boards.grip(self.kali.inst.boards(), self.index, close)
+        hardware.grip(self.kali.inst.boards(), self.index, close)
 
     def read_wrench(self, frame: str = "world") -> np.ndarray:
         """The arm's wrist force/torque sensor in Newtons (SIO's, this tick), a copy
@@ -1248,7 +1249,7 @@ class Kali:
     def run_conveyor(self, run: bool = True) -> None:
         """Start (or stop) the cell's conveyor belt: its motor line on the first arm's I/O
         board (the simulated cell's ``plant.conveyor_m_s``)."""
-        boards.run_conveyor(self.inst.boards(), _flag_arg("run_conveyor", "run", run))
+        hardware.run_conveyor(self.inst.boards(), _flag_arg("run_conveyor", "run", run))
 
     def together(self, *moves: Callable[[], object]) -> Together:
         """Motion requests that start together, on one TG tick (thesis 3.1): a block,
@@ -1352,7 +1353,7 @@ class Kali:
         model of its type (loaded on first use)."""
         import pinocchio as pin  # here: a program that never asks pays nothing for it
 
-        from ..cell import FLANGE_FRAME, load_pinocchio
+        from ..robots.cell import FLANGE_FRAME, load_pinocchio
 
         rcfg = self.inst.config.robots[robot]
         if rcfg.model not in self._pin:  # by model: two type files may share a ROBOT.name
@@ -1385,7 +1386,7 @@ class Kali:
         """Start recording to the new file ``path`` (None: a new ``rec-*.mcap`` in the
         instance's log directory); its path.  ``record`` is the block form."""
         from .. import recording  # the recorder's machinery: only when recording
-        from ..launcher import log_dir
+        from ..tools.launcher import log_dir
 
         if path is None:
             stamp = time.strftime("%Y%m%d-%H%M%S")

@@ -38,8 +38,8 @@ import weakref
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from ..daemon import FunctionDaemon
-from ..errors import ClockError, KaliError
+from ..core.errors import ClockError, KaliError
+from ..runtime.daemon import FunctionDaemon
 from ..wallclock.api import check_period
 
 if TYPE_CHECKING:

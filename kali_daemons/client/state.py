@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import layout
-from ..errors import ServoError
-from ..layout import PowerState
+from ..core import layout
+from ..core.errors import ServoError
+from ..core.layout import PowerState
 
 if TYPE_CHECKING:
     from .motion import Kali

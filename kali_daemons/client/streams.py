@@ -28,11 +28,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import atomic, layout
-from ..errors import ConfigError, MotionError
-from ..instance import decode
-from ..layout import FrameKind, FunctionStatus, MotionKind
-from ..spinlock import pid_alive
+from ..core import atomic, layout
+from ..core.errors import ConfigError, MotionError
+from ..core.layout import FrameKind, FunctionStatus, MotionKind
+from ..core.spinlock import pid_alive
+from ..runtime.instance import decode
 from ..tg.cartesian import encode_config
 from ..tg.functions import TgFunction, data_of, get_params, set_params
 from ..tg.profiles import rigid_pose

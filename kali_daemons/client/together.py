@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import MotionError, QueueFullError
-from ..layout import TERMINAL_STATES, MotionKind
+from ..core.errors import MotionError, QueueFullError
+from ..core.layout import TERMINAL_STATES, MotionKind
 
 if TYPE_CHECKING:
     from .motion import Kali, MotionHandle

@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import layout
-from ..errors import ServoError
+from ..core import layout
+from ..core.errors import ServoError
 from ..tg.cartesian import base_transform
 
 if TYPE_CHECKING:

@@ -50,15 +50,15 @@ from fractions import Fraction
 
 import numpy as np
 
-from .. import layout, rt
-from ..arena import Arena
-from ..channels import InterpolatingFifo
-from ..config import KaliConfig, ms_to_ns
-from ..daemon import Daemon
-from ..errors import DaemonError
-from ..layout import FfMode
-from ..servolevel import FF_MODES, FIFO_CAPACITY, ServoLevel
-from .inverse import InverseDynamics, central_differences
+from ..core import layout, rt
+from ..core.arena import Arena
+from ..core.channels import InterpolatingFifo
+from ..core.errors import DaemonError
+from ..core.layout import FfMode
+from ..robots.inverse import InverseDynamics, central_differences
+from ..runtime.config import KaliConfig, ms_to_ns
+from ..runtime.daemon import Daemon
+from ..servo.level import FF_MODES, FIFO_CAPACITY, ServoLevel
 
 SIO_WAIT_S = 30.0  # how long the dynamics process waits at start for SIO's servo level
 MAX_ROWS_PER_CYCLE = 64  # per robot: a cycle's work stays bounded when a long move arrives

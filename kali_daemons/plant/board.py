@@ -21,7 +21,7 @@ What Kali sees is only the ``layout.IO_BOARD`` record; this class plays the hard
   on a rising START bit in the control register and completes with ``ADC_DONE | value`` in
   the analog register; the digital register reads the channels above 2.5 V.
 - **Wrist force/torque sensor**: its six strain-gauge bridges on a 16-bit ADC
-  bank, sampled together on request (``FtBank``, ``kali_daemons.ftsensor``).
+  bank, sampled together on request (``FtBank``, ``kali_daemons.hardware.ftsensor``).
 
 All times are the plant's simulated time, so lockstep runs are deterministic.
 """
@@ -34,10 +34,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import ftsensor, layout
-from ..config import PlantConfig
-from ..joints import ArmCopy, JointMap
-from ..layout import (
+from ..core import layout
+from ..core.joints import ArmCopy, JointMap
+from ..core.layout import (
     ADC_CHANNEL_MASK,
     ADC_DONE,
     ADC_START,
@@ -52,10 +51,12 @@ from ..layout import (
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
+from ..hardware import ftsensor
 from ..robots import RobotType
+from ..runtime.config import PlantConfig
 
 if TYPE_CHECKING:
-    from ..kernels import Kernel
+    from ..core.kernels import Kernel
 
 TWO_PI = 2.0 * math.pi
 COUNTER_MODULO = 4096
@@ -220,7 +221,7 @@ def boards_kernel(
     ``q``, ``enabled`` (float64: the motors' 1.0 / 0.0) and ``braked`` (bool) flat per joint of
     ``joints``.  Set ``args.now_ns`` before each update; it returns 1 when a brake changed.
     Outside the cycle."""
-    from ..kernels import Kernel  # the library: the plant's
+    from ..core.kernels import Kernel  # the library: the plant's
 
     state = boards[0].state.base
     assert state is not None and state.shape == (len(boards), BOARD_STATE), "one state array"
@@ -337,7 +338,7 @@ class EncoderBank:
         """``sample(motor_angle)`` compiled (``csrc/plant.c``'s ``kali_encoders``): each call of
         the kernel counts the angles now in ``motor_angle`` (flat float64, never moving) and
         returns the indexes captured.  Outside the cycle."""
-        from ..kernels import Kernel, channel_offsets  # the library: the plant's
+        from ..core.kernels import Kernel, channel_offsets  # the library: the plant's
 
         j = self.joints
         enc = self.regs["encoder"]
@@ -395,7 +396,7 @@ class EncoderBank:
 
 class FtBank:
     """One arm's wrist force/torque sensor and the I/O board's gauge ADC bank behind
-    ``ft_gauge``/``ft_control``/``ft_status`` (``kali_daemons.ftsensor``): the sensor's six
+    ``ft_gauge``/``ft_control``/``ft_status`` (``kali_daemons.hardware.ftsensor``): the sensor's six
     bridges produce ``v = C⁻¹ (w + noise) + offset`` for the wrench ``w`` the tool exerts on
     it, and a new request (``FT_REQUEST`` with a sequence number not served yet) samples them
     all at once, at the cycle it is seen, into signed 16-bit codes clipped at the rails.
@@ -453,7 +454,7 @@ class FtBank:
         the same order as ``cycle`` draws them) and more are drawn, outside the kernel, when
         it says it is near the end: a few µs once every few hundred cycles.  From here on the
         bank is stepped only this way.  Outside the cycle."""
-        from ..kernels import Kernel  # the library: the plant's
+        from ..core.kernels import Kernel  # the library: the plant's
 
         assert wrench.shape == (ftsensor.GAUGES,) and wrench.flags.c_contiguous
         assert wrench.dtype == np.float64

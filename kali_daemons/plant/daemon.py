@@ -4,9 +4,9 @@ another), motors, amplifiers, I/O and DAC boards, behind their registers in the 
 
 from __future__ import annotations
 
-from .. import rt
-from ..daemon import Daemon
-from ..stalls import ClockWitness
+from ..core import rt
+from ..runtime.daemon import Daemon
+from ..runtime.stalls import ClockWitness
 from .sim import PlantSim
 
 

@@ -38,7 +38,7 @@ from ..robots import RobotType
 from ..robots.profile import FRICTION_SMOOTHING_RAD_S
 
 if TYPE_CHECKING:
-    from ..kernels import Kernel
+    from ..core.kernels import Kernel
 
 
 class MotorBank:
@@ -116,7 +116,7 @@ class MotorBank:
         """``drive_reference`` compiled (``csrc/plant.c``'s ``kali_motors``), bound to the DAC
         ``volts``, joint speeds ``qd`` and motor ``current`` (flat, float64, never moving) and
         to MuJoCo's arrays ``mj``: each call is one cycle of it.  Outside the cycle."""
-        from ..kernels import Kernel  # the library: the plant's, not every importer's
+        from ..core.kernels import Kernel  # the library: the plant's, not every importer's
 
         flat = {
             "volts": volts, "qd": qd, "enabled": self.enabled, "current": current,

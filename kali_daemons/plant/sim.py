@@ -30,16 +30,16 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from .. import layout
-from ..arena import Arena
-from ..config import KaliConfig
-from ..joints import ArmCopy
-from ..model import World, build_world
+from ..core import layout
+from ..core.arena import Arena
+from ..core.joints import ArmCopy
+from ..robots.model import World, build_world
+from ..runtime.config import KaliConfig
 from .board import BOARD_STATE, RETRIGGER_NS, EncoderBank, FtBank, IoBoardSim, boards_kernel
 from .motor import Drive, MotorBank
 
 if TYPE_CHECKING:
-    from ..kernels import Kernel
+    from ..core.kernels import Kernel
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
@@ -221,7 +221,7 @@ class PlantSim:
         """``_read_joints`` compiled (``csrc/plant.c``'s ``kali_plant_joints``), on a block
         ``kali_plant_dac`` (``_read_dac`` compiled) shares: MuJoCo's arrays, the DAC boards'
         records and the plant's arrays, none of which ever moves.  Outside the cycle."""
-        from ..kernels import Kernel, channel_offsets  # the library: the plant's
+        from ..core.kernels import Kernel, channel_offsets  # the library: the plant's
 
         j, d, codes = self.joints, self.data, self.dac["code"]
         robot_of = np.ascontiguousarray(j.robot_of, dtype=np.int64)
@@ -370,7 +370,7 @@ class PlantSim:
 
     def _truth_views(self) -> None:
         """View every truth field once (a field lookup by name builds a new view each time)."""
-        from ..kernels import Kernel, copies  # the library: the plant's
+        from ..core.kernels import Kernel, copies  # the library: the plant's
 
         n = len(self.boards)
         sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)

@@ -13,7 +13,7 @@ import re
 from functools import cache
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .profile import MAX_JOINTS, Drive, Kinematics, RobotType
 from .typefile import is_type_file, load_type_file
 

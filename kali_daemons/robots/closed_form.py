@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Final
 
-from ..errors import KinematicsError
+from ..core.errors import KinematicsError
 
 TWO_PI: Final = 2.0 * math.pi
 LIMIT_TOL: Final = 1e-10  # rad: a joint this far outside a limit is put on it

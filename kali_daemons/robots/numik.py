@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
-from ..errors import KinematicsError
+from ..core.errors import KinematicsError
 from .profile import FloatArray
 
 if TYPE_CHECKING:

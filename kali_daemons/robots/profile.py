@@ -32,8 +32,8 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import ConfigError
-from ..layout import MAX_JOINTS
+from ..core.errors import ConfigError
+from ..core.layout import MAX_JOINTS
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

@@ -26,8 +26,8 @@ from typing import Final
 
 import numpy as np
 
-from ..errors import ConfigError, KaliError
-from ..pyfile import guarded, import_file
+from ..core.errors import ConfigError, KaliError
+from ..core.pyfile import guarded, import_file
 from .profile import RobotType
 
 FLANGE_LINK: Final = "flange"

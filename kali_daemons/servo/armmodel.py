@@ -21,11 +21,11 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 
-from ..cell import FLANGE_FRAME, load_pinocchio
-from ..chain import base_pose, chain_of
-from ..config import RobotConfig
-from ..dynamics.inverse import DriveFriction
-from ..kernels import chain_pose
+from ..core.kernels import chain_pose
+from ..robots.cell import FLANGE_FRAME, load_pinocchio
+from ..robots.chain import base_pose, chain_of
+from ..robots.inverse import DriveFriction
+from ..runtime.config import RobotConfig
 from .arm import ArmInput
 
 TOOL_FRAME = "kali_tool_point"

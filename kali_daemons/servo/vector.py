@@ -8,9 +8,9 @@ record, the same operations in the same order with no contraction, so they give 
 Python step's numbers (``tests/test_servo_vector.py`` checks it to 1e-12; in practice bit
 for bit); its structs mirror PID_DTYPE and PD_DTYPE, which ``kernels.load`` checks.
 ``pid_vector_step`` and ``pd_vector_step`` run them over a set of rows; the SV's unit
-(``kali_daemons.sv.units``) runs them inside its claiming loop.
+(``kali_daemons.servo.sv.units``) runs them inside its claiming loop.
 
-C through ctypes, like SIO's kernels (``kali_daemons.kernels`` says why not numba): a kernel
+C through ctypes, like SIO's kernels (``kali_daemons.core.kernels`` says why not numba): a kernel
 is bound once to its arrays (``vector_kernel``) and then called with no arguments.
 """
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels import Kernel
+from ..core.kernels import Kernel
 from .builtins import PD_DTYPE, PID_DTYPE
 from .registry import STATUS_OK
 

@@ -1,6 +1,6 @@
 """``python -m kali_daemons.sio --instance NAME --name NAME``."""
 
-from ..daemon import run_daemon
+from ..runtime.daemon import run_daemon
 from .daemon import ServoIO
 
 run_daemon(ServoIO)

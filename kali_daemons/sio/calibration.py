@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import layout
-from ..layout import CalibState, SlotReset
+from ..core import layout
+from ..core.layout import CalibState, SlotReset
 
 if TYPE_CHECKING:
     from .daemon import ServoIO

@@ -22,7 +22,7 @@ tick.
     currents, the current check), and drive each board's power switch and keep-alive (the
     McGill board's watchdog).
 
-Every register bit is the board module's (``kali_daemons/boards/mcgill.py``); SIO asks it
+Every register bit is the board module's (``kali_daemons/hardware/mcgill.py``); SIO asks it
 for angles, torques out, power, pots and index pulses.
 
 The tick is one compiled call (``kali_sio_tick``) of two passes (``kali_sio_front``: (a) and (b)
@@ -55,14 +55,9 @@ from collections.abc import Callable
 import numpy as np
 import posix_ipc
 
-from .. import layout, rt
-from ..boards import Hardware, McGillBoards
-from ..boards.mcgill import ENABLE_HOLD_MS, boards_present
-from ..config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks, retrigger_hold_ticks
-from ..daemon import Daemon
-from ..errors import DaemonError
-from ..flightrec import FlightRecorder
-from ..kernels import (
+from ..core import layout, rt
+from ..core.errors import DaemonError
+from ..core.kernels import (
     NO_FAULT,
     SIO_CAPTURE,
     SIO_CHECK,
@@ -78,9 +73,14 @@ from ..kernels import (
     Kernel,
     copies,
 )
-from ..layout import FaultCode, FfMode, GuardState, PowerCmd, PowerState, SlotReset
-from ..servolevel import ServoLevel
-from ..spinlock import pid_alive
+from ..core.layout import FaultCode, FfMode, GuardState, PowerCmd, PowerState, SlotReset
+from ..core.spinlock import pid_alive
+from ..hardware import Hardware, McGillBoards
+from ..hardware.mcgill import ENABLE_HOLD_MS, boards_present
+from ..runtime.config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks, retrigger_hold_ticks
+from ..runtime.daemon import Daemon
+from ..runtime.flightrec import FlightRecorder
+from ..servo.level import ServoLevel
 from .calibration import ACTIVE, Calibration
 from .feedforward import RobotFeedforward
 from .gang import GangAcknowledger
@@ -295,14 +295,14 @@ class ServoIO(Daemon):
             self.ff,
             self.torque,
             self.current,
-            lv.slots["shadow_torque"],  # the SVs' (kali_daemons.shadow), done by the record
+            lv.slots["shadow_torque"],  # the SVs' (kali_daemons.servo.shadow), done by the record
             self.ft_records["tool"],
         )
         self._bind_kernels()
         ctrl["ready"] = 1
 
     def _bind_kernels(self) -> None:
-        """The tick's arithmetic as compiled kernels (``kali_daemons.kernels``), bound to the
+        """The tick's arithmetic as compiled kernels (``kali_daemons.core.kernels``), bound to the
         arrays above; the library is built here if missing (~0.2 s), never in the cycle."""
         lv, n = self.level, self.level.n
         js = lv.joints
@@ -684,7 +684,7 @@ class ServoIO(Daemon):
 
     def _arm_robot(self, k: int) -> bool:
         """Whether robot ``k`` is fed whole this tick (a robot-level servo runs it, a
-        robot-level mailbox operation waits, or a shadow trial runs: ``kali_daemons.shadow``),
+        robot-level mailbox operation waits, or a shadow trial runs: ``kali_daemons.servo.shadow``),
         its slots' marks set to match; True if it runs a robot-level servo."""
         arm = int(self._arm_algo[k]) != layout.ARM_NONE
         whole = arm or int(self._arm_op[k]) != 0 or int(self._shadows[k]) != 0

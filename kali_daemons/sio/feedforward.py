@@ -35,9 +35,9 @@ import ctypes
 
 import numpy as np
 
-from .. import layout
-from ..channels import InterpolatingFifo
-from ..layout import FfMode, FfState
+from ..core import layout
+from ..core.channels import InterpolatingFifo
+from ..core.layout import FfMode, FfState
 
 _MODES = frozenset(int(m) for m in FfMode)
 
@@ -221,7 +221,7 @@ class FfKernel:
     __slots__ = ("_args", "_kernel", "ff")
 
     def __init__(self, ff: RobotFeedforward) -> None:
-        from ..kernels import Kernel  # the library: SIO's, not every importer's
+        from ..core.kernels import Kernel  # the library: SIO's, not every importer's
 
         n = ff.out.shape[0]
         assert n <= layout.MAX_JOINTS and ff._last.flags.c_contiguous

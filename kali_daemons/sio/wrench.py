@@ -32,10 +32,11 @@ import math
 
 import numpy as np
 
-from .. import atomic, ftsensor
-from ..chain import Chain, base_pose, chain_of, flange_pose
-from ..config import KaliConfig, ms_to_ns
-from ..ftsensor import (
+from ..core import atomic
+from ..core.kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED, Kernel
+from ..core.layout import GuardState, TareState
+from ..hardware import ftsensor
+from ..hardware.ftsensor import (
     AXES,
     AXIS_UNITS,
     FT_PRESENT,
@@ -44,8 +45,8 @@ from ..ftsensor import (
     FT_SEQ_MASK,
     gravity_wrench,
 )
-from ..kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED, Kernel
-from ..layout import GuardState, TareState
+from ..robots.chain import Chain, base_pose, chain_of, flange_pose
+from ..runtime.config import KaliConfig, ms_to_ns
 
 TARE_MS = 100.0  # a tare averages this long of samples
 

@@ -1,6 +1,6 @@
 """``python -m kali_daemons.tg --instance NAME --name NAME``."""
 
-from ..daemon import run_daemon
+from ..runtime.daemon import run_daemon
 from .daemon import TrajectoryGenerator
 
 run_daemon(TrajectoryGenerator)

@@ -43,8 +43,8 @@ from typing import Final
 
 import numpy as np
 
-from .. import layout
-from ..errors import KinematicsError
+from ..core import layout
+from ..core.errors import KinematicsError
 from ..robots import Kinematics, RobotType
 from .profiles import MAX_MOTION_S, CartesianPath, MotionError, rigid_pose
 

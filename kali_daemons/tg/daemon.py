@@ -56,14 +56,10 @@ from fractions import Fraction
 
 import numpy as np
 
-from .. import atomic, layout, rt
-from ..chain import chain_of, flange_pose
-from ..channels import InterpolatingFifo, RequestQueue
-from ..config import MAX_PERIOD_MS, ms_to_ns
-from ..daemon import Daemon
-from ..errors import KinematicsError
-from ..instance import decode
-from ..layout import (
+from ..core import atomic, layout, rt
+from ..core.channels import InterpolatingFifo, RequestQueue
+from ..core.errors import KinematicsError
+from ..core.layout import (
     CalibState,
     FaultCode,
     GuardState,
@@ -72,9 +68,13 @@ from ..layout import (
     RequestState,
     TgPhase,
 )
+from ..core.spinlock import pid_alive
 from ..robots import RobotType
-from ..servolevel import FIFO_CAPACITY
-from ..spinlock import pid_alive
+from ..robots.chain import chain_of, flange_pose
+from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
+from ..runtime.daemon import Daemon
+from ..runtime.instance import decode
+from ..servo.level import FIFO_CAPACITY
 from .cartesian import CartesianMotion, base_transform, decode_config
 from .functions import FUNCTION_SHARE, FunctionSlots, Sensors, registry_for
 from .profiles import (

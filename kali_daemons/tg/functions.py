@@ -40,11 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from .. import atomic, layout, rt
-from ..errors import ConfigError
-from ..instance import decode
-from ..layout import FunctionStatus
-from ..pyfile import guarded
+from ..core import atomic, layout, rt
+from ..core.errors import ConfigError
+from ..core.layout import FunctionStatus
+from ..core.pyfile import guarded
+from ..core.spinlock import pid_alive
+from ..runtime.instance import decode
 from ..servo.registry import (
     Param,
     check_dtype,
@@ -54,7 +55,6 @@ from ..servo.registry import (
     resolve_params,
     struct_type,
 )
-from ..spinlock import pid_alive
 
 FUNCTION_SHARE = 0.2  # of the TG period one evaluation may take
 _NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,31}")

@@ -28,7 +28,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import MotionError
+from ..core.errors import MotionError
 from ..robots import RobotType
 
 PEAK_SPEED_FACTOR = 15.0 / 8.0  # peak of the quintic's velocity, in units of distance/time

@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import layout
-from ..layout import RequestState
-from ..spinlock import pid_alive
+from ..core import layout
+from ..core.layout import RequestState
+from ..core.spinlock import pid_alive
 
 _ENDED = np.zeros(256, dtype=bool)  # by state word: the request has ended
 _ENDED[[int(s) for s in layout.TERMINAL_STATES]] = True

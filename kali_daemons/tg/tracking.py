@@ -48,12 +48,12 @@ from typing import Any
 
 import numpy as np
 
-from .. import atomic, layout
-from ..errors import KinematicsError
-from ..instance import decode
-from ..layout import FrameKind
+from ..core import atomic, layout
+from ..core.errors import KinematicsError
+from ..core.layout import FrameKind
+from ..core.spinlock import pid_alive
 from ..robots import RobotType
-from ..spinlock import pid_alive
+from ..runtime.instance import decode
 from .cartesian import Arms, decode_config, held_object
 from .functions import FunctionSlots, TgFunction
 from .profiles import (

@@ -45,8 +45,11 @@ import pinocchio as pin
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .. import layout, rt
-from ..cell import (
+from ..core import layout, rt
+from ..core.errors import DaemonError
+from ..core.layout import ProcState
+from ..robots import RobotType
+from ..robots.cell import (
     BAR_SIZE,
     FLANGE_FRAME,
     STAND_SIZE,
@@ -54,12 +57,9 @@ from ..cell import (
     TABLE_SIZE,
     load_pinocchio,
 )
-from ..config import KaliConfig
-from ..daemon import Daemon
-from ..errors import DaemonError
-from ..instance import decode
-from ..layout import ProcState
-from ..robots import RobotType
+from ..runtime.config import KaliConfig
+from ..runtime.daemon import Daemon
+from ..runtime.instance import decode
 from ..tg.cartesian import base_transform
 from ..wallclock.clock import time_ms
 from .sinks import WebViewer, grpc_address, grpc_answers, pick_port

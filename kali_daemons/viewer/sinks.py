@@ -24,8 +24,8 @@ import time
 import urllib.parse
 from pathlib import Path
 
-from ..config import GRPC_URL_RE
-from ..errors import DaemonError
+from ..core.errors import DaemonError
+from ..runtime.config import GRPC_URL_RE
 
 LIVE_PROBE_S = 0.2  # one TCP connect to the live viewer's address; longer means "not there"
 WEB_START_S = 10.0  # how long the web viewer's server may take to listen

@@ -1,6 +1,6 @@
 """``python -m kali_daemons.wallclock --instance NAME``: the master wall clock process."""
 
-from ..daemon import run_daemon
+from ..runtime.daemon import run_daemon
 from .clock import WallClock
 
 run_daemon(WallClock)

@@ -13,11 +13,11 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
-from ..config import MAX_PERIOD_MS, ms_to_ns, ns_to_ms, period_ticks
-from ..daemon import FunctionDaemon
-from ..errors import ClockError
-from ..instance import Instance, decode
-from ..layout import ClockCommand, RunMode
+from ..core.errors import ClockError
+from ..core.layout import ClockCommand, RunMode
+from ..runtime.config import MAX_PERIOD_MS, ms_to_ns, ns_to_ms, period_ticks
+from ..runtime.daemon import FunctionDaemon
+from ..runtime.instance import Instance, decode
 
 COMMAND_TIMEOUT_S = 5.0
 

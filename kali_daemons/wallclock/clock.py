@@ -35,13 +35,13 @@ import os
 import numpy as np
 import posix_ipc
 
-from .. import layout, rt
-from ..config import MAX_PERIOD_MS, ms_to_ns
-from ..daemon import Daemon, _CycleStats
-from ..flightrec import FlightDumper
-from ..instance import decode
-from ..layout import ClockCommand, FaultCode, ProcState, RunMode
-from ..spinlock import pid_alive
+from ..core import layout, rt
+from ..core.layout import ClockCommand, FaultCode, ProcState, RunMode
+from ..core.spinlock import pid_alive
+from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
+from ..runtime.daemon import Daemon, _CycleStats
+from ..runtime.flightrec import FlightDumper
+from ..runtime.instance import decode
 
 STOPPED_WAIT_S = 0.2
 MAX_CLOCK_ARG = 1e12  # ticks to step, or ms to set the time to: ~30 years at 1 ms

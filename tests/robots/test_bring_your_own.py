@@ -20,15 +20,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import launcher
 from kali_daemons.client import Kali
-from kali_daemons.config import load_config, parse_config
-from kali_daemons.errors import ConfigError, KinematicsError
-from kali_daemons.layout import CSR_NO_DISABLE, CalibState, FaultCode, PowerState, RequestState
+from kali_daemons.core.errors import ConfigError, KinematicsError
+from kali_daemons.core.layout import CSR_NO_DISABLE, CalibState, FaultCode, PowerState, RequestState
 from kali_daemons.robots import robot_type
 from kali_daemons.robots.numik import NEAREST
 from kali_daemons.robots.profile import RobotType
+from kali_daemons.runtime.config import load_config, parse_config
 from kali_daemons.tg.profiles import MotionError
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import config_text, leftovers, unique_name

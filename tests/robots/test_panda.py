@@ -13,7 +13,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from kali_daemons.errors import KinematicsError
+from kali_daemons.core.errors import KinematicsError
 from kali_daemons.robots import robot_type
 from kali_daemons.robots.numik import DlsIk, _log3
 from kali_daemons.robots.panda import ROBOT, facts

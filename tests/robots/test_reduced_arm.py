@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 from kali_daemons.client import Kali
-from kali_daemons.errors import KinematicsError
-from kali_daemons.layout import RequestState
+from kali_daemons.core.errors import KinematicsError
+from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import robot_type
 from kali_daemons.robots.numik import OFF_RAD
 from kali_daemons.tg.profiles import MotionError

@@ -13,7 +13,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from kali_daemons.errors import KinematicsError
+from kali_daemons.core.errors import KinematicsError
 from kali_daemons.robots import robot_type
 from kali_daemons.robots.profile import INTEGRATION_BAND_RAD, MAX_JOINTS, RobotType
 from kali_daemons.robots.ur5 import ROBOT, facts

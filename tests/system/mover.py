@@ -17,7 +17,7 @@ import numpy as np
 
 from kali_daemons.client import Kali
 from kali_daemons.client.motion import MotionFailedError
-from kali_daemons.layout import PowerState
+from kali_daemons.core.layout import PowerState
 
 SWING = np.radians([20.0, -8.0, 8.0, 20.0, 15.0, 20.0])  # about each arm's start
 SPEED = 0.3  # of the joint speed and acceleration limits: a swing takes about a second

@@ -43,9 +43,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import launcher, layout
-from kali_daemons.instance import Instance
-from kali_daemons.layout import (
+from kali_daemons.core import layout
+from kali_daemons.core.layout import (
     CSR_NO_DISABLE,
     POWER_AMPS_ON,
     POWER_WATCHDOG_TRIPPED,
@@ -55,8 +54,10 @@ from kali_daemons.layout import (
     ProcState,
     RunMode,
 )
-from kali_daemons.servolevel import ServoClient
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import ROOT, config_text, leftovers, unique_name, wait_for

@@ -38,18 +38,19 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from kali_daemons import atomic, launcher, layout
-from kali_daemons.cli import main as kalictl
 from kali_daemons.client import Kali, MotionHandle
-from kali_daemons.config import KaliConfig, parse_config
-from kali_daemons.errors import ChannelError, ConfigError, KaliError, MotionError
-from kali_daemons.layout import MotionKind, ProcState, RequestState, SlotOp
+from kali_daemons.core import atomic, layout
+from kali_daemons.core.errors import ChannelError, ConfigError, KaliError, MotionError
+from kali_daemons.core.layout import MotionKind, ProcState, RequestState, SlotOp
+from kali_daemons.core.spinlock import pid_alive
 from kali_daemons.robots import puma560
 from kali_daemons.robots.puma560 import kinematics
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.runtime.config import KaliConfig, parse_config
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import base_transform
 from kali_daemons.tg.daemon import check_request, plan_joints, plan_path
+from kali_daemons.tools import launcher
+from kali_daemons.tools.cli import main as kalictl
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import DEFAULT_TEXT, leftovers, make_config, unique_name

@@ -49,12 +49,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from kali_daemons import atomic, introspect, launcher, layout
-from kali_daemons.channels import InterpolatingFifo, RequestQueue
 from kali_daemons.client import Kali
-from kali_daemons.errors import ChannelError, ClockError, ServoError
-from kali_daemons.instance import Instance, decode
-from kali_daemons.layout import (
+from kali_daemons.core import atomic, layout
+from kali_daemons.core.channels import InterpolatingFifo, RequestQueue
+from kali_daemons.core.errors import ChannelError, ClockError, ServoError
+from kali_daemons.core.layout import (
     CalibState,
     ClockCommand,
     FaultCode,
@@ -66,10 +65,12 @@ from kali_daemons.layout import (
     RequestState,
     SlotOp,
 )
+from kali_daemons.core.spinlock import pid_alive
 from kali_daemons.robots.puma560 import kinematics
-from kali_daemons.servolevel import refusal_text
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.runtime.instance import Instance, decode
+from kali_daemons.servo.level import refusal_text
 from kali_daemons.tg import records
+from kali_daemons.tools import introspect, launcher
 from kali_daemons.wallclock import release, set_control_rate, step_kali_clock
 
 from ..conftest import leftovers, make_config, unique_name

@@ -22,13 +22,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import launcher, layout
-from kali_daemons.arena import segment_name
 from kali_daemons.client import Kali
-from kali_daemons.errors import InstanceError
-from kali_daemons.instance import Instance, command_semaphore_name
-from kali_daemons.layout import FaultCode, ProcState
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.core import layout
+from kali_daemons.core.arena import segment_name
+from kali_daemons.core.errors import InstanceError
+from kali_daemons.core.layout import FaultCode, ProcState
+from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.runtime.instance import Instance, command_semaphore_name
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import ROOT, leftovers, unique_name

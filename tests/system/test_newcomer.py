@@ -24,9 +24,9 @@ from pathlib import Path
 import click
 import pytest
 
-from kali_daemons import cli
-from kali_daemons.instance import Instance
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.servo.level import ServoClient
+from kali_daemons.tools import cli
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import ROOT, config_text, unique_name

@@ -17,11 +17,11 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from kali_daemons import layout
 from kali_daemons.client import Kali
-from kali_daemons.instance import Instance
-from kali_daemons.layout import POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED, ProcState
-from kali_daemons.stalls import ClockWitness, TaskClock
+from kali_daemons.core import layout
+from kali_daemons.core.layout import POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED, ProcState
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.runtime.stalls import ClockWitness, TaskClock
 
 from ..conftest import wait_for
 from ..test_wallclock import on_time

@@ -20,12 +20,13 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons import atomic, launcher, layout
-from kali_daemons.arena import SEM_BYTES
-from kali_daemons.errors import InstanceError
-from kali_daemons.instance import Instance, command_semaphore_name
-from kali_daemons.layout import FaultCode, PowerState, ProcState, RunMode
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.core import atomic, layout
+from kali_daemons.core.arena import SEM_BYTES
+from kali_daemons.core.errors import InstanceError
+from kali_daemons.core.layout import FaultCode, PowerState, ProcState, RunMode
+from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.runtime.instance import Instance, command_semaphore_name
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import start_kali_clock
 
 from ..conftest import ROOT, config_text, leftovers, unique_name, wait_for
@@ -34,8 +35,8 @@ from ..test_launcher import kalictl
 NOBODY = 65534
 HOLDER = """
 import os, signal, sys
-from kali_daemons.instance import Instance
-from kali_daemons.spinlock import SpinLock
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.core.spinlock import SpinLock
 inst = Instance.attach(sys.argv[1])
 for name, addr in inst.lock_words():
     SpinLock(addr, name).acquire(timeout=5)
@@ -153,8 +154,8 @@ def test_a_fault_writer_stopped_half_way_still_halts_and_is_named(
     name = kali(lockstep=True)
     script = (
         "import os, signal, sys, time\n"
-        "from kali_daemons.instance import Instance\n"
-        "from kali_daemons.layout import FaultCode\n"
+        "from kali_daemons.runtime.instance import Instance\n"
+        "from kali_daemons.core.layout import FaultCode\n"
         "inst = Instance.attach(sys.argv[1])\n"
         "def stop_half_way():  # raise_fault asks the time once it has won, mid-record\n"
         "    print(1, flush=True)\n"
@@ -185,8 +186,8 @@ def test_many_processes_raising_at_once_record_one_fault_and_count_all(
     name = kali(lockstep=True)
     script = (
         "import sys, time\n"
-        "from kali_daemons.instance import Instance\n"
-        "from kali_daemons.layout import FaultCode\n"
+        "from kali_daemons.runtime.instance import Instance\n"
+        "from kali_daemons.core.layout import FaultCode\n"
         "inst = Instance.attach(sys.argv[1])\n"
         "t = float(sys.argv[2])\n"
         "while time.time() < t: pass\n"

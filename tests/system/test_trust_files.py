@@ -21,10 +21,11 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons import launcher, layout
-from kali_daemons.errors import ConfigError
-from kali_daemons.instance import Instance
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ConfigError
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import registry_for
+from kali_daemons.tools import launcher
 
 from ..conftest import ROOT, leftovers, unique_name
 from ..robots.test_bring_your_own import write_arm, write_config

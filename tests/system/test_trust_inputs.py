@@ -20,13 +20,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import launcher, layout
-from kali_daemons.config import arena_need, load_config, parse_config
-from kali_daemons.errors import ConfigError
-from kali_daemons.instance import Instance
-from kali_daemons.layout import PowerCmd, PowerState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ConfigError
+from kali_daemons.core.layout import PowerCmd, PowerState
+from kali_daemons.runtime.config import arena_need, load_config, parse_config
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import MAX_DATA_BYTES
-from kali_daemons.servolevel import ServoClient
+from kali_daemons.servo.level import ServoClient
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import leftovers, make_config, unique_name, wait_for

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from kali_daemons import layout
-from kali_daemons.layout import MotionKind, RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.layout import MotionKind, RequestState
 from kali_daemons.tg import records
 from kali_daemons.tg.records import StatusRecords
 from kali_daemons.wallclock import step_kali_clock
@@ -38,8 +38,8 @@ HOARD = 300  # more requests than the old ring had records
 HOARDER = """
 import sys
 from kali_daemons.client import Kali
-from kali_daemons.errors import QueueFullError
-from kali_daemons.layout import MotionKind
+from kali_daemons.core.errors import QueueFullError
+from kali_daemons.core.layout import MotionKind
 with Kali() as kali:
     handles, full = [], 0
     while len(handles) < {n} and full < 2000:
@@ -201,7 +201,7 @@ def test_status_names_who_fills_the_queue(kali: Callable[..., str]) -> None:
         other = subprocess.run(
             [sys.executable, "-c", textwrap.dedent(f"""
                 from kali_daemons.client import Kali
-                from kali_daemons.layout import MotionKind
+                from kali_daemons.core.layout import MotionKind
                 with Kali() as kali:
                     for _ in range({layout.MOTION_QUEUE_SHARE}):
                         kali._request(MotionKind.STOP, [1])

@@ -20,12 +20,13 @@ import numpy as np
 import pytest
 from numpy.lib.recfunctions import repack_fields
 
-from kali_daemons import flightrec, layout
 from kali_daemons.client import Kali, MotionFailedError, pose
 from kali_daemons.client.motion import RequestLostError
-from kali_daemons.errors import QueueFullError
-from kali_daemons.layout import FaultCode, MotionKind, PowerState, RequestState
-from kali_daemons.spinlock import pid_alive
+from kali_daemons.core import layout
+from kali_daemons.core.errors import QueueFullError
+from kali_daemons.core.layout import FaultCode, MotionKind, PowerState, RequestState
+from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.runtime import flightrec
 from kali_daemons.tg import records
 from kali_daemons.wallclock import step_kali_clock
 

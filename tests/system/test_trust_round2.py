@@ -27,11 +27,13 @@ import numpy as np
 import pytest
 from numpy.lib.recfunctions import repack_fields
 
-from kali_daemons import flightrec, launcher, layout
 from kali_daemons.client import Kali
-from kali_daemons.config import parse_config
-from kali_daemons.errors import ConfigError, MotionError
-from kali_daemons.layout import FaultCode, RequestState
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ConfigError, MotionError
+from kali_daemons.core.layout import FaultCode, RequestState
+from kali_daemons.runtime import flightrec
+from kali_daemons.runtime.config import parse_config
+from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import ROOT, config_text, leftovers, make_config, unique_name, wait_for
@@ -274,7 +276,7 @@ def test_arms_overlapping_at_rest_are_refused_by_start_before_anything_runs(
     "config", ["default.yaml", "mixed.yaml", "force.yaml", "bridge.yaml", "bench_wallclock.yaml"]
 )
 def test_the_shipped_cells_are_clear_at_rest(config: str) -> None:
-    from kali_daemons.cell import check_clear_at_rest
+    from kali_daemons.robots.cell import check_clear_at_rest
 
     path = ROOT / "config" / config
     check_clear_at_rest(parse_config(path.read_text(), str(path), str(path.parent)))

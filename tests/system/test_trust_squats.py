@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from kali_daemons.instance import command_semaphore_name, slot_semaphore_name
+from kali_daemons.runtime.instance import command_semaphore_name, slot_semaphore_name
 
 from ..conftest import leftovers, unique_name
 from ..test_launcher import kalictl

@@ -16,9 +16,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from kali_daemons import layout
-from kali_daemons.instance import Instance
-from kali_daemons.layout import PowerCmd, PowerState
+from kali_daemons.core import layout
+from kali_daemons.core.layout import PowerCmd, PowerState
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.wallclock import step_kali_clock
 
 from ..conftest import wait_for

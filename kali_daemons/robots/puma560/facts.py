@@ -15,7 +15,7 @@ Conventions.  Standard DH, link transform ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx
 signed gear ratio (motor angle = G · joint angle); ``JM``, ``B_MOTOR``, ``TC_POS``/``TC_NEG`` are
 on the motor side, the ``ARMATURE``, ``VISCOUS`` and ``COULOMB_*`` arrays are their joint-side
 equivalents.  This module only states facts; ``scripts/gen_puma560_urdf.py`` turns them into
-``config/puma560.urdf`` and ``kali_daemons.model`` loads that file.
+``config/puma560.urdf`` and ``kali_daemons.robots.model`` loads that file.
 
 Two inertias in the table are not physical rigid bodies and MuJoCo refuses them, so
 ``MASS``/``INERTIA`` (used by Pinocchio, MuJoCo and the tests' toolbox oracle alike) differ

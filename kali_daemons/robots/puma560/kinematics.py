@@ -13,7 +13,8 @@ Conventions (``kali_daemons.robots.puma560``).  Standard DH,
 a = (0, a2, a3, 0, 0, 0), α = (90°, 0, −90°, 90°, −90°, 0°); d1 = 0.6718 m includes the
 pedestal.  ``T6 = A_1···A_6`` is DH frame 6, the flange, in the robot's base frame (DH frame 0,
 on the floor under joint 1); no tool transform.  It is the ``flange`` frame of
-``kali_daemons.model`` (Pinocchio, MuJoCo) and the toolbox's ``fkine`` with its d1 set to ours.
+``kali_daemons.robots.model`` (Pinocchio, MuJoCo) and the toolbox's ``fkine`` with its d1 set to
+ours.
 As d5 = d6 = 0 the flange origin *is* the wrist centre
 (the point where the axes of joints 4, 5 and 6 meet).
 
@@ -70,7 +71,7 @@ from typing import Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from ...errors import KinematicsError
+from ...core.errors import KinematicsError
 from ..closed_form import check_rigid, into_limits
 from .facts import ALPHA, NJOINTS, Q_MAX, Q_MIN, A, D
 

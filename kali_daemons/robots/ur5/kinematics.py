@@ -52,7 +52,7 @@ from typing import Final
 
 import numpy as np
 
-from ...errors import KinematicsError
+from ...core.errors import KinematicsError
 from ..closed_form import check_rigid, into_limits
 from ..profile import FloatArray
 from . import facts

@@ -1,0 +1,125 @@
+"""Reading a recording back (``kali_daemons.recording.log.read``): each arm's servo ticks as numpy
+arrays aligned on ticks, from the MCAP file ``kali.record`` wrote (``recording``).
+
+    from kali_daemons import log
+    run = log.read("run.mcap")
+    left = run.arms["left"]            # ArmLog: tick, time_s, q, qd, q_d, ..., wrench
+    error = left.q_d[:, 1] - left.q[:, 1]
+    run.frame("left")                   # a pandas DataFrame, where pandas is installed
+
+Any MCAP reader opens the file; this one knows Kali's topics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from ..core.errors import KaliError
+
+# the quantities of a recorded servo tick (kali_msgs/msg/ServoTick, one value per joint)
+SERVO_FIELDS = (
+    "q", "qd", "q_d", "qd_d", "servo_torque", "ff_torque", "torque", "current", "shadow_torque",
+)  # fmt: skip
+
+
+@dataclass
+class ArmLog:
+    """One arm's recorded servo ticks: ``tick`` (N,), ``time_s`` (N,) and each servo
+    quantity (N, joints): ``q``, ``qd``, ``q_d``, ``qd_d``, ``servo_torque``, ``ff_torque``,
+    ``torque``, ``current``, ``shadow_torque``; ``wrench`` (N, 6: force, torque, tool axes)
+    where the arm has a wrist sensor, else None."""
+
+    name: str
+    tick: np.ndarray
+    time_s: np.ndarray
+    series: dict[str, np.ndarray]
+    wrench: np.ndarray | None
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        series = self.__dict__.get("series", {})
+        if name in series:
+            return series[name]
+        raise AttributeError(name)
+
+
+@dataclass
+class Log:
+    """A recording: each arm's ``ArmLog`` by name, and the ticks it lost (``gaps``: (first
+    tick, ticks) pairs; empty when every tick is there)."""
+
+    path: Path
+    arms: dict[str, ArmLog]
+    gaps: list[tuple[int, int]] = field(default_factory=list)
+
+    def frame(self, arm: str) -> Any:
+        """Arm ``arm``'s ticks as a pandas DataFrame indexed by tick, a column per quantity
+        and joint (``q_1`` .. ``q_6``); ImportError if pandas is not installed."""
+        import pandas as pd
+
+        a = self.arms[arm]
+        columns: dict[str, np.ndarray] = {"time_s": a.time_s}
+        for name, values in a.series.items():
+            for j in range(values.shape[1]):
+                columns[f"{name}_{j + 1}"] = values[:, j]
+        if a.wrench is not None:
+            for j, axis in enumerate(("fx", "fy", "fz", "tx", "ty", "tz")):
+                columns[axis] = a.wrench[:, j]
+        return pd.DataFrame(columns, index=pd.Index(a.tick, name="tick"))
+
+
+def read(path: str | Path) -> Log:
+    """The recording at ``path``; KaliError if it cannot be read or is not Kali's."""
+    path = Path(path)
+    ticks: dict[str, list[int]] = {}
+    stamps: dict[str, list[int]] = {}
+    series: dict[str, dict[str, list[Any]]] = {}
+    wrenches: dict[str, dict[int, list[float]]] = {}
+    gaps: list[tuple[int, int]] = []
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            for _schema, channel, message, msg in reader.iter_decoded_messages():
+                parts = channel.topic.split("/")
+                if channel.topic == "/kali/gaps":
+                    gaps.append((int(msg.first_tick), int(msg.ticks)))
+                elif len(parts) == 4 and parts[1] == "kali" and parts[3] == "servo":
+                    arm = parts[2]
+                    ticks.setdefault(arm, []).append(int(msg.tick))
+                    stamps.setdefault(arm, []).append(int(message.log_time))
+                    s = series.setdefault(arm, {f: [] for f in SERVO_FIELDS})
+                    for f in SERVO_FIELDS:
+                        s[f].append(getattr(msg, f))
+                elif len(parts) == 4 and parts[1] == "kali" and parts[3] == "wrench":
+                    w = msg.wrench
+                    wrenches.setdefault(parts[2], {})[int(message.log_time)] = [
+                        w.force.x,
+                        w.force.y,
+                        w.force.z,
+                        w.torque.x,
+                        w.torque.y,
+                        w.torque.z,
+                    ]
+    except FileNotFoundError:
+        raise KaliError(f"log: {path}: no such file") from None
+    except (McapError, ValueError, EOFError, OSError) as exc:
+        raise KaliError(f"log: {path} is not a readable MCAP recording ({exc})") from None
+    if not ticks:
+        raise KaliError(f"log: {path} holds no Kali servo ticks (/kali/<arm>/servo)")
+    arms = {}
+    for arm, t in ticks.items():
+        w = wrenches.get(arm)
+        arms[arm] = ArmLog(
+            name=arm,
+            tick=np.array(t, dtype=np.int64),
+            time_s=np.array(stamps[arm]) / 1e9,
+            series={f: np.array(v, dtype=np.float64) for f, v in series[arm].items()},
+            wrench=None if w is None else np.array([w[ns] for ns in stamps[arm]]),
+        )
+    return Log(path=path, arms=arms, gaps=gaps)

@@ -1,0 +1,158 @@
+"""The cell's dimensions and the controller's arm model, without MuJoCo (see ``model.py``).
+
+The stand, the bar and the grasp sites are the plant's world (``model.build_world``) and what
+the viewer draws; ``load_pinocchio`` is the arm model of the dynamics process, the viewer and
+programs; ``check_clear_at_rest`` is ``kalictl start``'s check that no two arms of a config
+stand in each other.  Pinocchio is imported where a model is loaded, so the plant, which
+needs these dimensions, does not import it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Final
+
+import numpy as np
+
+from kali_daemons.core.errors import ConfigError, ModelError
+
+if TYPE_CHECKING:
+    import pinocchio as pin
+
+    from kali_daemons.robots import RobotType
+    from kali_daemons.runtime.config import KaliConfig, RobotConfig
+
+FLANGE_FRAME: Final = "flange"  # the URDF link of the flange (Pinocchio frame, MuJoCo body)
+
+# The cell (metres, kilograms).  A table-like stand at the origin, between the arms, and a
+# square bar lying on it along x; each arm grasps the end nearer to it from above.
+STAND_SIZE: Final = (0.24, 0.30, 0.565)  # x, y, height; centred on the world origin
+BAR_SIZE: Final = (0.36, 0.04, 0.04)  # length (along x), width, height
+BAR_MASS: Final = 1.5
+# A grasp site sits above a bar end: the flange (the wrist centre, as d6 = 0) stays this far
+# above the bar's axis so that the flange disc (0.035-0.045 m out) just touches the bar top.
+GRASP_HEIGHT: Final = 0.065
+GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
+# Something to touch: a rigid table in front of the stand (−y), its top reachable by
+# both arms' tools pointing down (PUMAs at x = ±0.6: configurations run / luf) over
+# x ∈ [−0.2, 0.2], y ∈ [−0.45, −0.3].  Only the tools' pads and the bar touch it.
+TABLE_SIZE: Final = (0.5, 0.24, 0.40)  # x, y, height (its top)
+TABLE_CENTRE_XY: Final = (0.0, -0.38)
+TOOL_RADIUS_M: Final = 0.012  # each arm's tool: a pad, a sphere ending at the tool point
+# The pad is a felt polishing pad, not steel: sliding friction 0.3 on the table, and soft
+# (MuJoCo's contact time constant, s, and damping ratio: critically damped), softest at the
+# first touch and stiffening as it is pressed (MuJoCo's impedance, from 0.3 at the surface to
+# 0.95 two millimetres in), as felt is.  A rigid sphere on the rigid table chattered (lifting
+# off 30 % of the time at 90 Hz, 0-37 N) whenever a soft impedance slid it, whatever the
+# gains; a pad as stiff at the first touch as pressed let a 2 N press lift off.
+PAD_FRICTION: Final = 0.3
+PAD_SOLREF: Final = (0.05, 1.0)
+PAD_SOLIMP: Final = (0.3, 0.95, 0.002, 0.5, 1.0)
+
+
+def load_pinocchio(
+    robot: RobotType, tool: tuple[float, tuple[float, float, float]] | None = None
+) -> pin.Model:
+    """An arm of type ``robot`` as a Pinocchio model, base at the origin, with its armature
+    and gravity; with ``tool`` (mass in kg, centre of mass in the flange frame: the config's
+    ``FtConfig``) the tool the plant's arm carries on its wrist sensor, so the dynamics
+    process's feed-forward holds its weight too.
+
+    ``rnea`` / ``crba`` / ``aba`` on it include the drive's rotor inertia.  The flange is the
+    frame named ``FLANGE_FRAME``.
+    """
+    import pinocchio as pin  # here, not at load: the plant imports this module
+
+    urdf = robot.urdf
+    if not Path(urdf).is_file():
+        raise ModelError(f"{urdf}: no such file")
+    try:
+        model = pin.buildModelFromUrdf(str(urdf))
+    except (RuntimeError, ValueError) as exc:
+        raise ModelError(f"{urdf}: Pinocchio cannot load it: {exc}") from None
+    if model.nv != robot.n_joints or not model.existFrame(FLANGE_FRAME):
+        raise ModelError(
+            f"{urdf}: robot type {robot.name!r} expects {robot.n_joints} joints and a "
+            f"{FLANGE_FRAME!r} frame, found {model.nv} joints"
+        )
+    model.armature = np.array(robot.drive.armature, dtype=float)
+    if tool is not None and tool[0] > 0.0:
+        mass, com = tool
+        frame = model.frames[model.getFrameId(FLANGE_FRAME)]
+        inertia = mass * TOOL_RADIUS_M**2 / 2.0  # as the plant's tool (model._add_tool)
+        body = pin.Inertia(mass, np.asarray(com, dtype=float), np.eye(3) * inertia)
+        model.appendBodyToJoint(frame.parentJoint, body, frame.placement)
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -robot.gravity]), np.zeros(3))
+    return model
+
+
+def bar_rest_pose() -> np.ndarray:
+    """The bar's pose (4×4, world) lying on the stand, as the cell is built."""
+    t = np.eye(4)
+    t[2, 3] = STAND_SIZE[2] + BAR_SIZE[2] / 2
+    return t
+
+
+def check_clear_at_rest(cfg: KaliConfig) -> None:
+    """Refuse (ConfigError) a cell in which two arms' bodies overlap where they start: each
+    arm's collision shapes from its URDF (what Pinocchio and coal load, the shapes the plant
+    simulates), at its type's ``q_home`` (where the simulated arm starts), placed at its base.
+    The message names both arms, the two links nearest each other and their distance
+    (negative: how deep they interpenetrate).  Before any process runs: two arms started one
+    inside the other halt the cell at its first tick with a contact force no sensor takes."""
+    import pinocchio as pin  # here, not at load: the plant imports this module
+
+    world = pin.GeometryModel()
+    owner: list[tuple[int, str]] = []  # per shape: its robot and its link
+    for k, robot in enumerate(cfg.robots):
+        for placement, link, shape in _shapes_at_rest(robot, cfg.source):
+            world.addGeometryObject(pin.GeometryObject(f"{k}.{len(owner)}", 0, 0, placement, shape))
+            owner.append((k, link))
+    for i in range(len(owner)):
+        for j in range(i + 1, len(owner)):
+            if owner[i][0] != owner[j][0]:
+                world.addCollisionPair(pin.CollisionPair(i, j))
+    if not world.collisionPairs:
+        return
+    data = pin.GeometryData(world)
+    fixed = pin.Model()  # every shape hangs from the world at its place
+    pin.computeDistances(fixed, fixed.createData(), world, data, np.zeros(0))
+    distance = [r.min_distance for r in data.distanceResults]
+    nearest = int(np.argmin(distance))
+    if distance[nearest] > 0.0:
+        return
+    pair = world.collisionPairs[nearest]
+    (a, link_a), (b, link_b) = owner[pair.first], owner[pair.second]
+    ra, rb = cfg.robots[a], cfg.robots[b]
+    raise ConfigError(
+        f"{cfg.source}: robots '{ra.name}' ({ra.type.name}) and '{rb.name}' ({rb.type.name}) "
+        f"overlap at rest: link '{link_a}' of '{ra.name}' and link '{link_b}' of '{rb.name}' "
+        f"are {distance[nearest]:.3f} m apart (negative: one inside the other), at their "
+        f"starting joint angles (q_home) and bases {list(ra.base_xyz)} turned "
+        f"{ra.base_yaw_deg:g}° and {list(rb.base_xyz)} turned {rb.base_yaw_deg:g}°; their "
+        f"bodies must be apart: move a base (base_xyz, base_yaw_deg)"
+    )
+
+
+def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str, object]]:
+    """Robot ``robot``'s collision shapes (URDF ``<collision>``) at its type's ``q_home``, in
+    the world: (placement, link, coal geometry) each; ConfigError if they cannot be loaded."""
+    import pinocchio as pin
+
+    urdf = str(robot.type.urdf)
+    try:
+        model = pin.buildModelFromUrdf(urdf)
+        shapes = pin.buildGeomFromUrdf(model, urdf, pin.COLLISION)
+    except (RuntimeError, ValueError) as exc:
+        raise ConfigError(
+            f"{source}: robot '{robot.name}': the collision shapes of {urdf} do not load in "
+            f"Pinocchio: {exc}"
+        ) from None
+    data, shape_data = model.createData(), shapes.createData()
+    pin.updateGeometryPlacements(model, data, shapes, shape_data, np.asarray(robot.type.q_home))
+    yaw = np.radians(robot.base_yaw_deg)
+    base = pin.SE3(pin.utils.rotate("z", yaw), np.asarray(robot.base_xyz, dtype=float))
+    return [
+        (base * shape_data.oMg[i], model.frames[g.parentFrame].name, g.geometry)
+        for i, g in enumerate(shapes.geometryObjects)
+    ]

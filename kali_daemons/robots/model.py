@@ -1,0 +1,473 @@
+"""Arm models, loaded from each robot type's one URDF by both sides (DESIGN.md section 6).
+
+``load_pinocchio`` gives the controller an arm model; ``build_world`` gives the plant a MuJoCo
+cell of one or more arms, each from its robot type's URDF (``kali_daemons.robots``), plus a
+stand and a bar the arms can carry together.  Neither loader reads rotor inertia from URDF,
+so both set the drive's armature here; that, the motors and the world's layout are the only
+things added on top of the file.  Everything runs outside the cycle (it allocates and reads
+files).  The cell's dimensions and ``load_pinocchio`` live in ``cell.py``, without MuJoCo
+(re-exported here), so the dynamics process and the viewer do not import MuJoCo, nor the
+plant Pinocchio.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+import mujoco
+import numpy as np
+import numpy.typing as npt
+
+from kali_daemons.core.errors import ModelError
+from kali_daemons.robots import RobotType
+from kali_daemons.robots.cell import (
+    BAR_MASS,
+    BAR_SIZE,
+    FLANGE_FRAME,
+    GRASP_HEIGHT,
+    GRASP_INSET,
+    PAD_FRICTION,
+    PAD_SOLIMP,
+    PAD_SOLREF,
+    STAND_SIZE,
+    TABLE_CENTRE_XY,
+    TABLE_SIZE,
+    TOOL_RADIUS_M,
+    bar_rest_pose,
+    load_pinocchio,
+)
+from kali_daemons.runtime.config import RobotConfig
+
+IntArray = npt.NDArray[np.int64]
+
+# The weld's time constant in timesteps.  MuJoCo's default 0.02 s lets the held bar sag 3.8 mm
+# at the grasp pose; 8 steps (4 ms at 0.5 ms) gives 0.17 mm and stays 4x above the 2-step
+# floor below which MuJoCo's 'refsafe' would clamp it.
+WELD_TIMECONST_STEPS: Final = 8
+# contact bits: the fixtures and the tools' pads touch each other (and nothing else of the
+# arms); the bar, the stand and the floor keep MuJoCo's default bit 1
+TOOL_CONTACT: Final = 2
+
+
+@dataclass(frozen=True)
+class World:
+    """A compiled MuJoCo cell and the indices the plant needs, per robot in config order.
+
+    Every per-robot field is a tuple indexed like ``robots`` (``index(name)`` maps a name).
+
+    The arms carry no joint damping or friction loss and no actuators: the plant's motor model
+    applies motor torque, viscous and asymmetric Coulomb friction and the brakes through
+    ``data.qfrc_applied[dof_adr[k]]``.  Arm geoms never collide (contype = conaffinity =
+    0); only the bar touches the stand and the floor.
+
+    Grasping.  ``weld[k]`` is a MuJoCo weld equality between the robot's ``tool`` body (body1;
+    it sits at the flange frame, on the wrist force/torque sensor, so the sensor feels the
+    bar) and the bar (body2), inactive at start.  A weld's ``eq_data`` row (MuJoCo 4) is
+    ``[anchor(3), relpos(3), relquat(4), torquescale, from_qpos0]``: with anchor 0 the weld
+    holds the bar's origin at ``relpos`` and its orientation at ``relquat`` in the flange
+    frame; ``from_qpos0 = 1`` would let ``mj_setConst`` overwrite relpose, so it stays 0.  To
+    grasp without a jump the plant writes the *current* relative pose and then activates:
+    after ``mj_kinematics`` (or a step), ``relpos = R1ᵀ(x2 - x1)``, ``relquat = q1⁻¹·q2``
+    from ``data.xpos``/``data.xquat``, ``model.eq_data[weld, 3:10] = relpos, relquat``, then
+    ``data.eq_active[weld] = 1``; the method ``activate_weld`` does exactly this.  Releasing is
+    ``data.eq_active[weld] = 0``.  At build time relpose is the ideal grasp (flange frame on
+    the grasp site), so ``eq_active = 1`` alone would snap the bar into the hand.
+    """
+
+    model: mujoco.MjModel
+    robots: tuple[str, ...]  # names, in config order
+    qpos_adr: tuple[IntArray, ...]  # per robot: qpos indices of its joints j1..jn (n_joints)
+    dof_adr: tuple[IntArray, ...]  # per robot: dof indices (qvel, qacc, qfrc_*) of j1..jn
+    flange_site: tuple[int, ...]  # per robot: site at the flange frame (the last DH frame)
+    grasp_site: tuple[int, ...]  # per robot: site on the bar where its flange frame should go
+    weld: tuple[int, ...]  # per robot: equality id, bar <-> its flange, inactive at start
+    object_body: int  # the bar
+    object_qpos_adr: int  # first of the bar's 7 free-joint qpos (position, quaternion)
+    object_dof_adr: int  # first of its 6 dofs
+    motor: tuple[IntArray, ...] = ()  # per robot: its n_joints motor actuator ids, j1..jn
+    motor_act_adr: tuple[IntArray, ...] = ()  # per robot: their activations (currents) in data.act
+    tool_body: tuple[int, ...] = ()  # per robot: its tool, on the flange through the F/T sensor
+    # per robot: sensordata address of its F/T sensor's force (3) then torque (3), -1 if none
+    ft_adr: tuple[int, ...] = ()
+
+    def index(self, robot: int | str) -> int:
+        """The position of ``robot`` (a name, or already an index) in ``robots``."""
+        if isinstance(robot, str):
+            if robot not in self.robots:
+                raise ModelError(f"world: no robot {robot!r}; robots: {', '.join(self.robots)}")
+            return self.robots.index(robot)
+        if not 0 <= robot < len(self.robots):
+            raise ModelError(f"world: robot index {robot} out of range 0..{len(self.robots) - 1}")
+        return robot
+
+    def activate_weld(self, data: mujoco.MjData, robot: int | str) -> None:
+        """Grasp: hold the bar where it is now relative to ``robot``'s flange, then activate.
+
+        Uses ``data.xpos``/``data.xquat``, so call it after ``mj_kinematics`` (or any step).
+        Writes ``model.eq_data`` of that weld: anchor 0, relpose = the bar's pose in the flange
+        frame, torquescale 1, from_qpos0 0.  Outside the cycle: it allocates.
+        """
+        model = self.model
+        eq = self.weld[self.index(robot)]
+        b1, b2 = model.eq_obj1id[eq], model.eq_obj2id[eq]
+        q1inv = np.empty(4)
+        mujoco.mju_negQuat(q1inv, data.xquat[b1])
+        relpos = np.empty(3)
+        mujoco.mju_rotVecQuat(relpos, data.xpos[b2] - data.xpos[b1], q1inv)
+        relquat = np.empty(4)
+        mujoco.mju_mulQuat(relquat, q1inv, data.xquat[b2])
+        model.eq_data[eq, 0:3] = 0.0
+        model.eq_data[eq, 3:6] = relpos
+        model.eq_data[eq, 6:10] = relquat
+        model.eq_data[eq, 10] = 1.0
+        model.eq_data[eq, 11] = 0.0
+        data.eq_active[eq] = 1
+
+
+def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> World:
+    """The plant's MuJoCo cell: each robot's type's URDF attached once per robot, a stand and
+    a bar.
+
+    Each arm is its type's URDF loaded with ``MjSpec.from_file`` and attached under the name
+    prefix ``"<robot>/"`` at its ``base_xyz``, turned ``base_yaw_deg`` about z; every arm dof
+    gets its drive's armature.  Arms may differ in joint count: every per-robot index of the
+    ``World`` has that robot type's ``n_joints`` entries.  Integrator: ``implicitfast``.  The
+    plant's friction torques are explicit (``qfrc_applied``), which is stable here with a wide
+    margin: the stiffest ratio of viscous friction to joint inertia (the PUMA's joint 1,
+    5.8 N·m·s / 0.78 kg·m²) gives dt·b/I ≈ 0.004 at 0.5 ms against the explicit bound of 2.
+    ``implicitfast`` costs no more than Euler with no damping in the model, and keeps any
+    damping or actuator added later implicit.
+    """
+    if not robots:
+        raise ModelError("build_world: no robots; the cell needs at least one arm")
+    if not (0.0 < timestep <= 0.01):
+        raise ModelError(f"build_world: timestep = {timestep} s: must be > 0 and <= 0.01")
+    names = tuple(r.name for r in robots)
+    if len(set(names)) != len(names):
+        raise ModelError(f"build_world: robot names must be unique, got {list(names)}")
+    types = [r.type for r in robots]
+    if len({t.gravity for t in types}) != 1:
+        raise ModelError(f"build_world: robot types disagree on gravity: {types}")
+
+    spec = mujoco.MjSpec()
+    spec.modelname = "kali_cell"
+    spec.option.timestep = timestep
+    spec.option.gravity = [0.0, 0.0, -types[0].gravity]
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    # friction as a cone, not MuJoCo's faster pyramid: a pad sliding on the table under a
+    # soft impedance chattered (lifting off 7 % of the time) with the pyramid's edges
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    _add_scenery(spec)
+    bar = _add_bar(spec, robots)
+    for r, t in zip(robots, types, strict=True):
+        _attach_arm(spec, r, t)
+        _add_tool(spec, r)
+        _add_motors(spec, r.name, t)
+        _add_weld(spec, r.name, bar, WELD_TIMECONST_STEPS * timestep)
+
+    try:
+        model = spec.compile()
+    except ValueError as exc:
+        urdfs = ", ".join(sorted({str(t.urdf) for t in types}))
+        raise ModelError(f"{urdfs}: MuJoCo cannot build the cell: {exc}") from None
+    joints = {r.name: t.n_joints for r, t in zip(robots, types, strict=True)}
+
+    def jid(robot: str, j: int) -> int:
+        return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{robot}/j{j + 1}")
+
+    def oid(kind: mujoco.mjtObj, name: str) -> int:
+        return mujoco.mj_name2id(model, kind, name)
+
+    def adr(table: np.ndarray, robot: str) -> IntArray:
+        out = np.array([table[jid(robot, j)] for j in range(joints[robot])], dtype=np.int64)
+        out.setflags(write=False)
+        return out
+
+    def motors(robot: str, table: np.ndarray | None = None) -> IntArray:
+        ids = [
+            oid(mujoco.mjtObj.mjOBJ_ACTUATOR, f"{robot}/motor{j + 1}") for j in range(joints[robot])
+        ]
+        out = np.array(ids if table is None else [table[i] for i in ids], dtype=np.int64)
+        out.setflags(write=False)
+        return out
+
+    def ft_address(robot: str) -> int:
+        sid = oid(mujoco.mjtObj.mjOBJ_SENSOR, f"{robot}/ft_force")
+        return -1 if sid < 0 else int(model.sensor_adr[sid])
+
+    bar_body = oid(mujoco.mjtObj.mjOBJ_BODY, "object")
+    bar_joint = model.body_jntadr[bar_body]
+    return World(
+        model=model,
+        robots=names,
+        qpos_adr=tuple(adr(model.jnt_qposadr, n) for n in names),
+        dof_adr=tuple(adr(model.jnt_dofadr, n) for n in names),
+        flange_site=tuple(oid(mujoco.mjtObj.mjOBJ_SITE, f"{n}/flange") for n in names),
+        grasp_site=tuple(oid(mujoco.mjtObj.mjOBJ_SITE, f"object/grasp_{n}") for n in names),
+        weld=tuple(oid(mujoco.mjtObj.mjOBJ_EQUALITY, f"{n}/grasp") for n in names),
+        object_body=bar_body,
+        object_qpos_adr=int(model.jnt_qposadr[bar_joint]),
+        object_dof_adr=int(model.jnt_dofadr[bar_joint]),
+        motor=tuple(motors(n) for n in names),
+        motor_act_adr=tuple(motors(n, model.actuator_actadr) for n in names),
+        tool_body=tuple(oid(mujoco.mjtObj.mjOBJ_BODY, f"{n}/tool") for n in names),
+        ft_adr=tuple(ft_address(n) for n in names),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# World pieces
+
+
+def _yaw_quat(yaw_deg: float) -> list[float]:
+    half = math.radians(yaw_deg) / 2.0
+    return [math.cos(half), 0.0, 0.0, math.sin(half)]
+
+
+def _add_scenery(spec: mujoco.MjSpec) -> None:
+    """Floor, light, the stand and the table (static, colliding; the table with the tools'
+    pads too)."""
+    world = spec.worldbody
+    world.add_light(name="sun", pos=[0.0, -1.0, 3.0], dir=[0.0, 0.3, -1.0])
+    world.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[3.0, 3.0, 0.05],
+        rgba=[0.55, 0.57, 0.6, 1.0],
+    )
+    sx, sy, sz = STAND_SIZE
+    world.add_geom(
+        name="stand",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[sx / 2, sy / 2, sz / 2],
+        pos=[0.0, 0.0, sz / 2],
+        rgba=[0.45, 0.33, 0.22, 1.0],
+    )
+    tx, ty, tz = TABLE_SIZE
+    world.add_geom(
+        name="table",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[tx / 2, ty / 2, tz / 2],
+        pos=[*TABLE_CENTRE_XY, tz / 2],
+        contype=1 | TOOL_CONTACT,
+        conaffinity=1 | TOOL_CONTACT,
+        rgba=[0.62, 0.6, 0.55, 1.0],
+    )
+
+
+def _grasp_pose(robot: RobotConfig) -> tuple[list[float], list[float]]:
+    """A robot's grasp site in the bar frame (position, quaternion w x y z): above the bar
+    end nearer its base, z down.
+
+    The site's x axis points along the bar towards the robot's base, so a robot at yaw 0 on
+    the -x side and one at yaw 180 on the +x side reach their ends with the same joint
+    angles (the PUMA's ``θ6`` near +20° rather than -160°).  The robot's ``grasp_yaw_deg``
+    then turns the site about the bar's vertical through the grasp point, for an arm whose
+    last joint cannot turn the flange that way (the Panda's joint 7 stops at ±166°: 180
+    points its flange's x axis to the bar's middle, joint 7 near 0).
+    """
+    half = BAR_SIZE[0] / 2 - GRASP_INSET
+    if robot.base_xyz[0] <= 0.0:  # the -x end; x = -X, z = -Z: a half turn about Y
+        pos, quat = [-half, 0.0, GRASP_HEIGHT], np.array([0.0, 0.0, 1.0, 0.0])
+    else:  # the +x end; x = +X, z = -Z: a half turn about X
+        pos, quat = [half, 0.0, GRASP_HEIGHT], np.array([0.0, 1.0, 0.0, 0.0])
+    turned = np.empty(4)
+    mujoco.mju_mulQuat(turned, np.array(_yaw_quat(robot.grasp_yaw_deg)), quat)
+    return pos, [float(v) for v in turned]
+
+
+def grasp_in_bar(robot: RobotConfig) -> np.ndarray:
+    """Where ``robot``'s flange holds the bar, in the bar's frame (4×4): its grasp site.
+
+    A robot program carrying the bar uses these as its motion system's grasps, so the
+    object's pose is the bar's own.
+    """
+    pos, (w, x, y, z) = _grasp_pose(robot)
+    t = np.eye(4)
+    t[:3, :3] = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    t[:3, 3] = pos
+    return t
+
+
+def _add_bar(spec: mujoco.MjSpec, robots: Sequence[RobotConfig]) -> mujoco.MjsBody:
+    """The carried object: a free square bar lying on the stand, with one grasp site per arm."""
+    lx, ly, lz = BAR_SIZE
+    body = spec.worldbody.add_body(name="object", pos=[0.0, 0.0, STAND_SIZE[2] + lz / 2])
+    body.add_freejoint(name="object")
+    body.add_geom(
+        name="object",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[lx / 2, ly / 2, lz / 2],
+        mass=BAR_MASS,
+        rgba=[0.85, 0.35, 0.1, 1.0],
+    )
+    for r in robots:
+        pos, quat = _grasp_pose(r)
+        body.add_site(
+            name=f"object/grasp_{r.name}",
+            pos=pos,
+            quat=quat,
+            size=[0.01, 0.01, 0.01],
+            rgba=[0.1, 0.8, 0.2, 0.6],
+        )
+    return body
+
+
+def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> None:
+    """Attach the type's URDF arm at the robot's base; set armature; switch its contacts off.
+
+    The file must have exactly the type's ``n_joints`` moving joints, named ``j1``..``jn``.
+    """
+    urdf = rtype.urdf
+    if not Path(urdf).is_file():
+        raise ModelError(f"{urdf}: no such file")
+    try:
+        arm = mujoco.MjSpec.from_file(str(urdf))
+    except ValueError as exc:
+        raise ModelError(f"{urdf}: MuJoCo cannot load it: {exc}") from None
+    found = [j.name for j in arm.joints]
+    if len(found) != rtype.n_joints:  # one more would move unactuated, one fewer unmodelled
+        raise ModelError(
+            f"{urdf}: robot type {rtype.name!r} expects {rtype.n_joints} moving joints, "
+            f"the file has {len(found)}: {', '.join(found)}"
+        )
+    frame = spec.worldbody.add_frame(pos=list(robot.base_xyz), quat=_yaw_quat(robot.base_yaw_deg))
+    prefix = f"{robot.name}/"
+    spec.attach(arm, prefix=prefix, frame=frame)
+    armature = rtype.drive.armature
+    for j in range(rtype.n_joints):
+        joint = spec.joint(f"{prefix}j{j + 1}")
+        if joint is None:
+            raise ModelError(f"{urdf}: no joint 'j{j + 1}'")
+        joint.armature = float(armature[j])
+        joint.damping = np.zeros(3)  # MuJoCo 4: damping polynomial coefficients
+        joint.frictionloss = 0.0
+    for geom in spec.geoms:
+        if geom.name.startswith(prefix):
+            geom.contype = 0
+            geom.conaffinity = 0
+            if geom.group == 0:  # the URDF <collision> copies: hide under the coloured visuals
+                geom.group = 3
+    flange = spec.body(f"{prefix}{FLANGE_FRAME}")
+    if flange is None:
+        raise ModelError(f"{urdf}: no {FLANGE_FRAME!r} link")
+    flange.add_site(name=f"{prefix}flange", size=[0.008, 0.008, 0.008], rgba=[0.9, 0.1, 0.1, 1])
+
+
+def _add_tool(spec: mujoco.MjSpec, robot: RobotConfig) -> None:
+    """The robot's tool on its flange, through a wrist force/torque sensor.
+
+    A child body ``<robot>/tool`` at the flange frame with the config's tool mass and centre
+    of mass (``FtConfig``), a round pad whose tip is the tool point (``tool_tip_m`` out along
+    z) and that touches only the fixtures (``TOOL_CONTACT``: not the bar it holds by the weld,
+    not the floor), and the site ``<robot>/ft`` at its origin, where MuJoCo's force and torque
+    sensors measure what passes between the flange and the tool (sensors
+    ``<robot>/ft_force``, ``<robot>/ft_torque``: the force the flange applies to the tool,
+    in the site frame).  Without a sensor in the config the tool is there, unmeasured.
+    """
+    ft = robot.ft
+    flange = spec.body(f"{robot.name}/{FLANGE_FRAME}")
+    tool = flange.add_body(name=f"{robot.name}/tool")
+    if ft.tool_mass_kg > 0.0:  # else a massless tool: its pad has no density either
+        tool.mass = ft.tool_mass_kg
+        tool.ipos = list(ft.tool_com_m)
+        inertia = ft.tool_mass_kg * TOOL_RADIUS_M**2 / 2.0
+        tool.inertia = [inertia, inertia, inertia]
+        tool.explicitinertial = True
+    tool.add_geom(
+        name=f"{robot.name}/pad",
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[TOOL_RADIUS_M, 0.0, 0.0],
+        pos=[0.0, 0.0, ft.tool_tip_m - TOOL_RADIUS_M],
+        contype=TOOL_CONTACT,
+        conaffinity=TOOL_CONTACT,
+        priority=1,  # its friction and softness, not the fixture's, rule its contacts
+        friction=[PAD_FRICTION, 0.005, 0.0001],
+        solref=list(PAD_SOLREF),
+        solimp=list(PAD_SOLIMP),
+        mass=0.0,
+        density=0.0,
+        rgba=[0.2, 0.2, 0.25, 1.0],
+    )
+    site = tool.add_site(name=f"{robot.name}/ft", size=[0.01, 0.01, 0.004], rgba=[0.1, 0.3, 0.9, 1])
+    if ft.sensor is None:
+        return
+    for kind, suffix in (
+        (mujoco.mjtSensor.mjSENS_FORCE, "force"),
+        (mujoco.mjtSensor.mjSENS_TORQUE, "torque"),
+    ):
+        sensor = spec.add_sensor()
+        sensor.name = f"{robot.name}/ft_{suffix}"
+        sensor.type = kind
+        sensor.objtype = mujoco.mjtObj.mjOBJ_SITE
+        sensor.objname = site.name
+
+
+def _add_motors(spec: mujoco.MjSpec, robot: str, rtype: RobotType) -> None:
+    """One motor per joint: its amplifier's current loop as a first-order actuator.
+
+    The activation is the motor current (A), filtered exactly at the amplifier's bandwidth
+    (``filterexact``); the gear G·Kt turns it into joint torque.  ``actrange`` is compiled as
+    the motor's peak current; the plant narrows it every cycle to the bus-voltage limits, or
+    to [0, 0] while the amplifier is off.
+    """
+    d = rtype.drive
+    for j in range(rtype.n_joints):
+        act = spec.add_actuator()
+        act.name = f"{robot}/motor{j + 1}"
+        act.target = f"{robot}/j{j + 1}"
+        act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+        act.dynprm[0] = 1.0 / (2.0 * math.pi * d.amp_bandwidth_hz)
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.gainprm[0] = 1.0
+        act.biastype = mujoco.mjtBias.mjBIAS_NONE
+        act.gear[0] = float(d.gear[j] * d.kt[j])
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        act.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
+        act.actrange = [-float(d.max_current[j]), float(d.max_current[j])]
+
+
+def _add_weld(spec: mujoco.MjSpec, robot: str, bar: mujoco.MjsBody, timeconst: float) -> None:
+    """An inactive weld flange <-> bar; relpose starts as the ideal grasp (see World)."""
+    pos = None
+    quat = None
+    for site in bar.sites:
+        if site.name == f"object/grasp_{robot}":
+            pos, quat = np.array(site.pos), np.array(site.quat)
+    assert pos is not None and quat is not None, f"no grasp site for {robot}"
+    # bar in the site frame = inverse of the site's pose in the bar frame
+    qinv = np.empty(4)
+    mujoco.mju_negQuat(qinv, quat)
+    relpos = np.empty(3)
+    mujoco.mju_rotVecQuat(relpos, -pos, qinv)
+    spec.add_equality(
+        name=f"{robot}/grasp",
+        type=mujoco.mjtEq.mjEQ_WELD,
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        name1=f"{robot}/tool",
+        name2="object",
+        active=False,
+        data=[0.0, 0.0, 0.0, *relpos, *qinv, 1.0, 0.0],
+        solref=[timeconst, 1.0],
+    )
+
+
+__all__ = [
+    "BAR_MASS",
+    "BAR_SIZE",
+    "FLANGE_FRAME",
+    "STAND_SIZE",
+    "World",
+    "bar_rest_pose",
+    "build_world",
+    "load_pinocchio",
+]
