@@ -11,7 +11,7 @@ With ω = 2π·bandwidth_hz and J the joint's inertia (kg·m², armature G²·Jm
 gains kp = J·ω² and kv = 2·J·ω put both closed-loop poles at −ω: no overshoot, and one
 number to turn.  A load (gravity) leaves an error of load / kp: there is no integral.
 
-What a plugin must do (``kali_daemons/servo/registry.py`` has the details):
+What a plugin must do (``kali_daemons/servo/algorithms/registry.py`` has the details):
 
 - declare its private data as an *aligned* numpy structured dtype of numeric scalars, at
   most 1024 B: one record per joint lives in shared memory, so any SV can run any joint;

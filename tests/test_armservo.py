@@ -18,8 +18,8 @@ from kali_daemons.core.errors import ConfigError, ServoError
 from kali_daemons.robots.chain import base_pose, chain_of, flange_pose
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import Registry
-from kali_daemons.servo.arm import ArmInput, ArmServoAlgorithm
-from kali_daemons.servo.armbuiltins import IMPEDANCE, rotation_error
+from kali_daemons.servo.algorithms.arm import ArmInput, ArmServoAlgorithm
+from kali_daemons.servo.algorithms.armbuiltins import IMPEDANCE, rotation_error
 from kali_daemons.servo.level import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_dynamics import LEFT, MOVE_S, _run, standard_move
@@ -349,7 +349,12 @@ def test_the_compiled_impedance_step_equals_the_python_step(type_name: str, seed
     (bias, integrals)."""
     from kali_daemons.robots import robot_type
     from kali_daemons.robots.inverse import DriveFriction
-    from kali_daemons.servo.armbuiltins import IMPEDANCE_DTYPE, _imp_init, _imp_set, _imp_step
+    from kali_daemons.servo.algorithms.armbuiltins import (
+        IMPEDANCE_DTYPE,
+        _imp_init,
+        _imp_set,
+        _imp_step,
+    )
 
     rng = np.random.default_rng(seed)
     rtype = robot_type(type_name)
@@ -403,7 +408,12 @@ def test_the_compiled_computed_torque_step_equals_the_python_step(
     joint's integral, its limit reached)."""
     from kali_daemons.robots import robot_type
     from kali_daemons.robots.inverse import DriveFriction
-    from kali_daemons.servo.armbuiltins import COMPUTED_TORQUE, CT_DTYPE, _ct_init, _ct_step
+    from kali_daemons.servo.algorithms.armbuiltins import (
+        COMPUTED_TORQUE,
+        CT_DTYPE,
+        _ct_init,
+        _ct_step,
+    )
 
     rng = np.random.default_rng(100 + seed)
     rtype = robot_type(type_name)
@@ -493,7 +503,7 @@ def test_the_model_s_tool_pose_is_pinocchio_s_tool_frame_in_the_world(
     last transforms commute with a base turned about z and a tip along z.)"""
     import pinocchio as pin
 
-    from kali_daemons.servo.armmodel import ArmModel
+    from kali_daemons.servo.sv.armmodel import ArmModel
 
     cfg = make_config(unique_name(), edits, base)
     rng = np.random.default_rng(7)

@@ -17,7 +17,7 @@ import pytest
 from kali_daemons.client import Kali
 from kali_daemons.core.errors import MotionError, ServoError
 from kali_daemons.core.layout import RequestState
-from kali_daemons.servo.admittance import ADMITTANCE_PARAMS
+from kali_daemons.servo.algorithms.admittance import ADMITTANCE_PARAMS
 from kali_daemons.tools import top
 from kali_daemons.tools.introspect import Introspector
 from kali_daemons.wallclock import step_kali_clock

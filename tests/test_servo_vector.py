@@ -21,8 +21,8 @@ from hypothesis import strategies as st
 from kali_daemons.core import layout
 from kali_daemons.core.layout import SlotOp, SlotReset
 from kali_daemons.servo import PD, PID, Handover, struct_view
+from kali_daemons.servo.algorithms.vector import pd_vector_step, pid_vector_step
 from kali_daemons.servo.sv.units import serve_unit, serve_unit_reference
-from kali_daemons.servo.vector import pd_vector_step, pid_vector_step
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ByArm

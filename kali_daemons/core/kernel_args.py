@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from ..servo.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
-from ..servo.builtins import PD_DTYPE, PID_DTYPE
+from ..servo.algorithms.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
+from ..servo.algorithms.builtins import PD_DTYPE, PID_DTYPE
 from . import layout
 
 HEADER = Path(__file__).with_name("csrc") / "kernel_args.h"
@@ -413,7 +413,10 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "VectorArgs",
         "servo",
-        {"kali_pid_vector": "servo.builtins:pid_step", "kali_pd_vector": "servo.builtins:pd_step"},
+        {
+            "kali_pid_vector": "servo.algorithms.builtins:pid_step",
+            "kali_pd_vector": "servo.algorithms.builtins:pd_step",
+        },
         ("n", "int64_t"),
         ("data", "char *", "the algorithm's records"),
         ("rows", "View", "int64: row k of the step is record rows[k]"),
@@ -459,8 +462,8 @@ BLOCKS: tuple[Block, ...] = (
         "ArmArgs",
         "servo",
         {
-            "kali_impedance": "servo.armbuiltins:_imp_step",
-            "kali_computed_torque": "servo.armbuiltins:_ct_step",
+            "kali_impedance": "servo.algorithms.armbuiltins:_imp_step",
+            "kali_computed_torque": "servo.algorithms.armbuiltins:_ct_step",
         },
         ("n", "int64_t", "the arm's joints"),
         ("d", "void *", "the robot's record of the algorithm (arena)"),

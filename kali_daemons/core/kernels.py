@@ -50,13 +50,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..servo.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
+from ..servo.algorithms.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
 from . import kernel_args, layout
 from .errors import DaemonError
 
 if TYPE_CHECKING:
     from ..robots.chain import Chain
-    from ..servo.arm import ArmInput
+    from ..servo.algorithms.arm import ArmInput
 
 CSRC = Path(__file__).with_name("csrc")  # the kernels' C, a file per owner
 HEADER = kernel_args.HEADER  # generated from kernel_args.py: every struct the C uses

@@ -5,9 +5,9 @@ The SV daemon builds ``registry_for(cfg.plugins, cfg.base_dir)`` once, views eac
 private data with ``struct_view`` and calls ``step`` every tick; see ``registry.py``.
 """
 
-from .arm import ArmInput, ArmServoAlgorithm
-from .builtins import PD, PID
-from .registry import (
+from .algorithms.arm import ArmInput, ArmServoAlgorithm
+from .algorithms.builtins import PD, PID
+from .algorithms.registry import (
     MAX_DATA_BYTES,
     STATUS_OK,
     Handover,

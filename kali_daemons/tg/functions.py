@@ -46,7 +46,7 @@ from ..core.layout import FunctionStatus
 from ..core.pyfile import guarded
 from ..core.spinlock import pid_alive
 from ..runtime.instance import decode
-from ..servo.registry import (
+from ..servo.algorithms.registry import (
     Param,
     check_dtype,
     defaults,

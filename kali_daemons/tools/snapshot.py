@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 from ..core.errors import ConfigError
 from ..core.pyfile import mirror
 from ..robots import is_type_file
-from ..servo.registry import plugin_file
+from ..servo.algorithms.registry import plugin_file
 
 if TYPE_CHECKING:
     from ..runtime.config import KaliConfig

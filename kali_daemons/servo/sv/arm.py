@@ -36,7 +36,7 @@ from ...core.errors import ServoError
 from ...core.kernels import Kernel, copies
 from ...core.layout import ShadowState, SlotOp, SlotReset
 from .. import shadow
-from ..arm import ArmInput
+from ..algorithms.arm import ArmInput
 from ..level import apply_arm_op, apply_op, handover
 
 _NO_MODEL = (
@@ -45,7 +45,7 @@ _NO_MODEL = (
 )
 
 if TYPE_CHECKING:
-    from ..armmodel import ArmModel
+    from .armmodel import ArmModel
     from .daemon import ServoWorker
 
 
@@ -65,7 +65,7 @@ class ArmRunner:
         # its model only where the config lets it run robot-level servos (Pinocchio's cost)
         self.model: ArmModel | None = None
         if robot.robot_servos:
-            from ..armmodel import ArmModel  # here: it loads Pinocchio (test_imports)
+            from .armmodel import ArmModel  # here: it loads Pinocchio (test_imports)
 
             self.model = ArmModel(robot, self.inp)
         self.tau = np.zeros(self.n)

@@ -40,9 +40,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..core import layout
-from ..core.errors import ConfigError
-from ..core.pyfile import guarded, import_file, mirror
+from ...core import layout
+from ...core.errors import ConfigError
+from ...core.pyfile import guarded, import_file, mirror
 from .arm import ArmServoAlgorithm, check_arm_dtype, probe_arm_step
 
 STATUS_OK = 0  # what ``step`` returns when all is well

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import ConfigError
+from ...core.errors import ConfigError
 from .registry import (
     STATUS_OK,
     Handover,

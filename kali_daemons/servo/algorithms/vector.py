@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.kernels import Kernel
+from ...core.kernels import Kernel
 from .builtins import PD_DTYPE, PID_DTYPE
 from .registry import STATUS_OK
 

@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core import layout
-from ..core.errors import ConfigError
+from ...core import layout
+from ...core.errors import ConfigError
 
 MAX_DATA_BYTES = layout.SERVO_STAGING_BYTES  # a robot's record must fit its put/get mailbox
 MAX_ARRAY = 64  # elements of one array field of a robot-level servo's private data

@@ -21,12 +21,12 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 
-from ..core.kernels import chain_pose
-from ..robots.cell import FLANGE_FRAME, load_pinocchio
-from ..robots.chain import base_pose, chain_of
-from ..robots.inverse import DriveFriction
-from ..runtime.config import RobotConfig
-from .arm import ArmInput
+from ...core.kernels import chain_pose
+from ...robots.cell import FLANGE_FRAME, load_pinocchio
+from ...robots.chain import base_pose, chain_of
+from ...robots.inverse import DriveFriction
+from ...runtime.config import RobotConfig
+from ..algorithms.arm import ArmInput
 
 TOOL_FRAME = "kali_tool_point"
 

@@ -68,8 +68,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core import layout
-from ..core.errors import ConfigError
+from ...core import layout
+from ...core.errors import ConfigError
 from .arm import ArmInput, ArmServoAlgorithm
 from .registry import Param, Registry, defaults, resolve_params
 
@@ -124,7 +124,7 @@ def _compiled(name: str) -> Callable[[Any, ArmInput, np.ndarray], Callable[[], i
     the plant's filled the second CPU until the TG starved."""
 
     def bind(d: Any, inp: ArmInput, tau: np.ndarray) -> Callable[[], int]:
-        from ..core import kernels  # here: kernels imports this module's dtypes
+        from ...core import kernels  # here: kernels imports this module's dtypes
 
         return kernels.arm_step(name, d, inp, tau)
 

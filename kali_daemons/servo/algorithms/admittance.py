@@ -44,8 +44,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core import layout
-from ..core.errors import ConfigError
+from ...core import layout
+from ...core.errors import ConfigError
 from .arm import ArmInput, ArmServoAlgorithm
 from .armbuiltins import AXES, CT_PARAMS, STIFFNESS_MAX, N, to_tool
 from .registry import Param, defaults, resolve_params
