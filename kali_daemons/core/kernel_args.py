@@ -30,8 +30,6 @@ from typing import Any
 
 import numpy as np
 
-from ..servo.algorithms.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
-from ..servo.algorithms.builtins import PD_DTYPE, PID_DTYPE
 from . import layout
 
 HEADER = Path(__file__).with_name("csrc") / "kernel_args.h"
@@ -612,10 +610,10 @@ BLOCKS: tuple[Block, ...] = (
 # for messages); their structs are generated from the dtypes
 RECORDS: tuple[tuple[str, str, np.dtype], ...] = (
     ("SlotRecord", "layout.SERVO_SLOT", layout.SERVO_SLOT),
-    ("PidRecord", "servo.builtins.PID_DTYPE", PID_DTYPE),
-    ("PdRecord", "servo.builtins.PD_DTYPE", PD_DTYPE),
-    ("ImpRecord", "servo.armbuiltins.IMPEDANCE_DTYPE", IMPEDANCE_DTYPE),
-    ("CtRecord", "servo.armbuiltins.CT_DTYPE", CT_DTYPE),
+    ("PidRecord", "layout.PID_DTYPE", layout.PID_DTYPE),
+    ("PdRecord", "layout.PD_DTYPE", layout.PD_DTYPE),
+    ("ImpRecord", "layout.IMPEDANCE_DTYPE", layout.IMPEDANCE_DTYPE),
+    ("CtRecord", "layout.CT_DTYPE", layout.CT_DTYPE),
 )
 
 # --------------------------------------------------------------------------------------------

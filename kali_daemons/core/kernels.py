@@ -50,7 +50,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..servo.algorithms.armbuiltins import CT_DTYPE, IMPEDANCE_DTYPE
 from . import kernel_args, layout
 from .errors import DaemonError
 
@@ -383,8 +382,8 @@ def chain_pose(chain: Chain, q: np.ndarray, out: np.ndarray) -> Kernel:
 
 # each robot-level built-in's kernel and the dtype of the record it steps
 ARM_KERNELS: dict[str, tuple[str, np.dtype]] = {
-    "impedance": ("kali_impedance", IMPEDANCE_DTYPE),
-    "computed_torque": ("kali_computed_torque", CT_DTYPE),
+    "impedance": ("kali_impedance", layout.IMPEDANCE_DTYPE),
+    "computed_torque": ("kali_computed_torque", layout.CT_DTYPE),
 }
 
 

@@ -797,6 +797,118 @@ SERVO_CTRL = np.dtype(
 
 
 # --------------------------------------------------------------------------------------------
+# The built-in servos' private data (writer: the SV running the servo; servo/builtins.py and
+# servo/armbuiltins.py): one record per slot (PID, PD) or per robot (computed torque,
+# impedance), stepped in place by the compiled kernels (core/kernel_args.py's RECORDS)
+
+PID_DTYPE = np.dtype(
+    [
+        # parameters (set_params / get_params)
+        ("kp", "<f8"),  # N·m/rad
+        ("ki", "<f8"),  # N·m/(rad·s)
+        ("kv", "<f8"),  # N·m·s/rad
+        ("fe", "<f8"),  # Hz, error filter cut-off
+        ("fv", "<f8"),  # Hz, velocity filter cut-off
+        ("integration_band", "<f8"),  # rad
+        ("integration_reset", "<f8"),  # N·m
+        ("bias_tau", "<f8"),  # s
+        # precomputed from the parameters and the sample interval (figure 3.4's lpf terms)
+        ("sampling_period", "<f8"),  # s, T
+        ("inv_period", "<f8"),  # 1/s, 1/T
+        ("ki_t", "<f8"),  # N·m/rad, ki·T
+        ("lpfe1", "<f8"),  # T·2π·fe
+        ("lpfe2", "<f8"),  # 1/(1 + lpfe1)
+        ("lpfv1", "<f8"),  # T·2π·fv
+        ("lpfv2", "<f8"),  # 1/(1 + lpfv1)
+        ("bias_decay", "<f8"),  # exp(-T/bias_tau), per step
+        # state
+        ("error", "<f8"),  # rad, the filtered error e_{k-1}
+        ("old_position", "<f8"),  # rad, θ_{k-1}
+        ("old_velocity", "<f8"),  # rad/s, the filtered velocity v_{k-1}
+        ("integral", "<f8"),  # N·m, ki·∫e so far, within ±integration_reset
+        ("bias", "<f8"),  # N·m, hand-over torque still to fade out
+        ("primed", "<u4"),  # 0 after init: the first step takes its position as θ_{k-1}
+    ],
+    align=True,
+)
+
+PD_DTYPE = np.dtype(
+    [
+        # parameters
+        ("kp", "<f8"),  # N·m/rad
+        ("kv", "<f8"),  # N·m·s/rad
+        ("fv", "<f8"),  # Hz
+        ("bias_tau", "<f8"),  # s
+        # precomputed
+        ("sampling_period", "<f8"),  # s, T
+        ("inv_period", "<f8"),  # 1/s
+        ("lpfv1", "<f8"),  # T·2π·fv
+        ("lpfv2", "<f8"),  # 1/(1 + lpfv1)
+        ("bias_decay", "<f8"),  # exp(-T/bias_tau)
+        # state
+        ("error", "<f8"),  # rad, last error (raw)
+        ("old_position", "<f8"),  # rad
+        ("old_velocity", "<f8"),  # rad/s, filtered
+        ("bias", "<f8"),  # N·m, hand-over torque still to fade out
+        ("primed", "<u4"),  # 0 after init
+    ],
+    align=True,
+)
+
+# a robot-level servo's per-joint arrays are MAX_JOINTS long; a robot uses its n
+CT_DTYPE = np.dtype(
+    [
+        ("wn", "<f8"),
+        ("zeta", "<f8"),
+        ("friction", "<f8"),
+        ("handover_s", "<f8"),
+        ("kp", "<f8"),  # ω_n², 1/s²
+        ("kd", "<f8"),  # 2 ζ ω_n, 1/s
+        ("wi", "<f8"),
+        ("ilimit", "<f8"),
+        ("ki", "<f8"),  # ω_i ω_n², 1/s³
+        ("dt", "<f8"),
+        ("decay", "<f8"),
+        ("bias", "<f8", (MAX_JOINTS,)),
+        ("integral", "<f8", (MAX_JOINTS,)),  # ∫e per joint, rad·s
+    ],
+    align=True,
+)
+
+IMPEDANCE_DTYPE = np.dtype(
+    [
+        ("k", "<f8", (WRENCH,)),  # tool axes: N/m, then N·m/rad
+        ("d", "<f8", (WRENCH,)),
+        ("f", "<f8", (WRENCH,)),  # force set-point, tool axes (moments 0)
+        ("integral", "<f8", (WRENCH,)),  # the force feedback's integral, tool axes
+        ("limit", "<f8", (WRENCH,)),  # its limit per axis
+        ("band", "<f8", (WRENCH,)),  # it advances only while the imbalance is within
+        ("partner", "<f8"),  # the other arm's index + 1, 0: no squeeze
+        ("fi", "<f8"),  # the squeeze, N
+        ("u", "<f8", (3,)),  # the line towards the partner, tool axes, unit
+        ("kpi", "<f8"),
+        ("kii", "<f8"),
+        ("squeeze", "<f8"),  # the squeeze both sensors measure, N (this tick's)
+        ("gi", "<f8"),  # its integral, N
+        ("kf", "<f8"),
+        ("kfi", "<f8"),
+        ("imax", "<f8"),
+        ("kq", "<f8"),
+        ("cband", "<f8"),
+        ("ctau", "<f8"),
+        ("cdecay", "<f8"),  # exp(-dt / ctau): the drive's low-pass per tick
+        ("friction", "<f8"),
+        ("handover_s", "<f8"),
+        ("dt", "<f8"),
+        ("decay", "<f8"),
+        ("bias", "<f8", (MAX_JOINTS,)),
+        ("drive", "<f8", (MAX_JOINTS,)),  # the drive Coulomb compensation follows, low-passed, N·m
+    ],
+    align=True,
+)
+
+
+# --------------------------------------------------------------------------------------------
 # Feed-forward dynamics (DESIGN 1, thesis 3.3.6, 2.2.3): the dynamics process computes, for
 # each set-point in a robot's TG → SIO FIFO, the joint torque that the demanded motion needs
 # (gravity, or the full inverse dynamics); SIO interpolates them exactly as it interpolates

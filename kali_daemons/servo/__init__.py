@@ -5,21 +5,20 @@ The SV daemon builds ``registry_for(cfg.plugins, cfg.base_dir)`` once, views eac
 private data with ``struct_view`` and calls ``step`` every tick; see ``registry.py``.
 """
 
-from .algorithms.arm import ArmInput, ArmServoAlgorithm
-from .algorithms.builtins import PD, PID
-from .algorithms.registry import (
+from .algorithms.algorithm import (
     MAX_DATA_BYTES,
     STATUS_OK,
     Handover,
     Param,
-    Registry,
     ServoAlgorithm,
     defaults,
-    registry_for,
     resolve_params,
     struct_type,
     struct_view,
 )
+from .algorithms.arm import ArmInput, ArmServoAlgorithm
+from .algorithms.builtins import PD, PID
+from .algorithms.registry import Registry, registry_for
 
 __all__ = [
     "MAX_DATA_BYTES",

@@ -46,15 +46,8 @@ from ..core.layout import FunctionStatus
 from ..core.pyfile import guarded
 from ..core.spinlock import pid_alive
 from ..runtime.instance import decode
-from ..servo.algorithms.registry import (
-    Param,
-    check_dtype,
-    defaults,
-    import_plugin,
-    plugin_file,
-    resolve_params,
-    struct_type,
-)
+from ..servo.algorithms.algorithm import Param, check_dtype, defaults, resolve_params, struct_type
+from ..servo.algorithms.registry import import_plugin, plugin_file
 
 FUNCTION_SHARE = 0.2  # of the TG period one evaluation may take
 _NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,31}")

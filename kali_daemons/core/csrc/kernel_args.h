@@ -46,7 +46,7 @@ typedef struct {
     double shadow_peak;
 } SlotRecord;
 
-/* servo.builtins.PID_DTYPE */
+/* layout.PID_DTYPE */
 typedef struct {
     double kp;
     double ki;
@@ -72,7 +72,7 @@ typedef struct {
     uint32_t primed;
 } PidRecord;
 
-/* servo.builtins.PD_DTYPE */
+/* layout.PD_DTYPE */
 typedef struct {
     double kp;
     double kv;
@@ -90,7 +90,7 @@ typedef struct {
     uint32_t primed;
 } PdRecord;
 
-/* servo.armbuiltins.IMPEDANCE_DTYPE */
+/* layout.IMPEDANCE_DTYPE */
 typedef struct {
     double k[6];
     double d[6];
@@ -120,7 +120,7 @@ typedef struct {
     double drive[8];
 } ImpRecord;
 
-/* servo.armbuiltins.CT_DTYPE */
+/* layout.CT_DTYPE */
 typedef struct {
     double wn;
     double zeta;

@@ -46,9 +46,9 @@ import numpy as np
 
 from ...core import layout
 from ...core.errors import ConfigError
+from .algorithm import Param, defaults, resolve_params
 from .arm import ArmInput, ArmServoAlgorithm
 from .armbuiltins import AXES, CT_PARAMS, STIFFNESS_MAX, N, to_tool
-from .registry import Param, defaults, resolve_params
 
 W = layout.WRENCH
 _HALVES = (slice(0, 3), slice(3, 6))

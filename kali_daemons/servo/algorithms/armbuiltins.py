@@ -64,14 +64,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...core import layout
+from ...core import kernels, layout
 from ...core.errors import ConfigError
+from ...core.layout import CT_DTYPE, IMPEDANCE_DTYPE
+from .algorithm import Param, defaults, resolve_params
 from .arm import ArmInput, ArmServoAlgorithm
-from .registry import Param, Registry, defaults, resolve_params
+
+if TYPE_CHECKING:
+    from .registry import Registry
 
 N = layout.MAX_JOINTS  # the per-joint arrays of a record are this long; a robot uses n
 AXES = ("x", "y", "z", "rx", "ry", "rz")  # tool axes: the wrench's and a twist's order
@@ -124,8 +128,6 @@ def _compiled(name: str) -> Callable[[Any, ArmInput, np.ndarray], Callable[[], i
     the plant's filled the second CPU until the TG starved."""
 
     def bind(d: Any, inp: ArmInput, tau: np.ndarray) -> Callable[[], int]:
-        from ...core import kernels  # here: kernels imports this module's dtypes
-
         return kernels.arm_step(name, d, inp, tau)
 
     return bind
@@ -151,25 +153,6 @@ CT_PARAMS: tuple[Param, ...] = (
     FRICTION,
     HANDOVER,
 )  # fmt: skip
-
-CT_DTYPE = np.dtype(
-    [
-        ("wn", "<f8"),
-        ("zeta", "<f8"),
-        ("friction", "<f8"),
-        ("handover_s", "<f8"),
-        ("kp", "<f8"),  # ω_n², 1/s²
-        ("kd", "<f8"),  # 2 ζ ω_n, 1/s
-        ("wi", "<f8"),
-        ("ilimit", "<f8"),
-        ("ki", "<f8"),  # ω_i ω_n², 1/s³
-        ("dt", "<f8"),
-        ("decay", "<f8"),
-        ("bias", "<f8", (N,)),
-        ("integral", "<f8", (N,)),  # ∫e per joint, rad·s
-    ],
-    align=True,
-)
 
 
 def _ct_set(d: Any, values: Mapping[str, float]) -> None:
@@ -274,37 +257,6 @@ IMPEDANCE_PARAMS: tuple[Param, ...] = (
     HANDOVER,
 )  # fmt: skip
 
-IMPEDANCE_DTYPE = np.dtype(
-    [
-        ("k", "<f8", (layout.WRENCH,)),  # tool axes: N/m, then N·m/rad
-        ("d", "<f8", (layout.WRENCH,)),
-        ("f", "<f8", (layout.WRENCH,)),  # force set-point, tool axes (moments 0)
-        ("integral", "<f8", (layout.WRENCH,)),  # the force feedback's integral, tool axes
-        ("limit", "<f8", (layout.WRENCH,)),  # its limit per axis
-        ("band", "<f8", (layout.WRENCH,)),  # it advances only while the imbalance is within
-        ("partner", "<f8"),  # the other arm's index + 1, 0: no squeeze
-        ("fi", "<f8"),  # the squeeze, N
-        ("u", "<f8", (3,)),  # the line towards the partner, tool axes, unit
-        ("kpi", "<f8"),
-        ("kii", "<f8"),
-        ("squeeze", "<f8"),  # the squeeze both sensors measure, N (this tick's)
-        ("gi", "<f8"),  # its integral, N
-        ("kf", "<f8"),
-        ("kfi", "<f8"),
-        ("imax", "<f8"),
-        ("kq", "<f8"),
-        ("cband", "<f8"),
-        ("ctau", "<f8"),
-        ("cdecay", "<f8"),  # exp(-dt / ctau): the drive's low-pass per tick
-        ("friction", "<f8"),
-        ("handover_s", "<f8"),
-        ("dt", "<f8"),
-        ("decay", "<f8"),
-        ("bias", "<f8", (N,)),
-        ("drive", "<f8", (N,)),  # the drive the Coulomb compensation follows, low-passed, N·m
-    ],
-    align=True,
-)
 _ARRAYS = {f"{f}{a}": (f, i) for f in "kd" for i, a in enumerate(AXES)}
 _ARRAYS.update({f"f{a}": ("f", i) for i, a in enumerate(AXES[:3])})
 _ARRAYS.update({f"u{a}": ("u", i) for i, a in enumerate(AXES[:3])})

@@ -36,20 +36,22 @@ from __future__ import annotations
 import ctypes
 import math
 from collections.abc import Mapping
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from ...core.errors import ConfigError
-from .registry import (
+from ...core.layout import PD_DTYPE, PID_DTYPE
+from . import admittance, armbuiltins
+from .algorithm import (
     STATUS_OK,
     Handover,
     Param,
-    Registry,
     ServoAlgorithm,
     defaults,
     resolve_params,
 )
+
+if TYPE_CHECKING:
+    from .registry import Registry
 
 # ------------------------------------------------------------------------------ PID
 
@@ -95,37 +97,6 @@ PID_PARAMS: tuple[Param, ...] = (
         "time constant of the decaying hand-over bias",
         maximum=BIAS_TAU_MAX,
     ),
-)
-
-PID_DTYPE = np.dtype(
-    [
-        # parameters (set_params / get_params)
-        ("kp", "<f8"),  # N·m/rad
-        ("ki", "<f8"),  # N·m/(rad·s)
-        ("kv", "<f8"),  # N·m·s/rad
-        ("fe", "<f8"),  # Hz, error filter cut-off
-        ("fv", "<f8"),  # Hz, velocity filter cut-off
-        ("integration_band", "<f8"),  # rad
-        ("integration_reset", "<f8"),  # N·m
-        ("bias_tau", "<f8"),  # s
-        # precomputed from the parameters and the sample interval (figure 3.4's lpf terms)
-        ("sampling_period", "<f8"),  # s, T
-        ("inv_period", "<f8"),  # 1/s, 1/T
-        ("ki_t", "<f8"),  # N·m/rad, ki·T
-        ("lpfe1", "<f8"),  # T·2π·fe
-        ("lpfe2", "<f8"),  # 1/(1 + lpfe1)
-        ("lpfv1", "<f8"),  # T·2π·fv
-        ("lpfv2", "<f8"),  # 1/(1 + lpfv1)
-        ("bias_decay", "<f8"),  # exp(-T/bias_tau), per step
-        # state
-        ("error", "<f8"),  # rad, the filtered error e_{k-1}
-        ("old_position", "<f8"),  # rad, θ_{k-1}
-        ("old_velocity", "<f8"),  # rad/s, the filtered velocity v_{k-1}
-        ("integral", "<f8"),  # N·m, ki·∫e so far, within ±integration_reset
-        ("bias", "<f8"),  # N·m, hand-over torque still to fade out
-        ("primed", "<u4"),  # 0 after init: the first step takes its position as θ_{k-1}
-    ],
-    align=True,
 )
 
 
@@ -260,29 +231,6 @@ PD_PARAMS: tuple[Param, ...] = (
     ),
 )
 
-PD_DTYPE = np.dtype(
-    [
-        # parameters
-        ("kp", "<f8"),  # N·m/rad
-        ("kv", "<f8"),  # N·m·s/rad
-        ("fv", "<f8"),  # Hz
-        ("bias_tau", "<f8"),  # s
-        # precomputed
-        ("sampling_period", "<f8"),  # s, T
-        ("inv_period", "<f8"),  # 1/s
-        ("lpfv1", "<f8"),  # T·2π·fv
-        ("lpfv2", "<f8"),  # 1/(1 + lpfv1)
-        ("bias_decay", "<f8"),  # exp(-T/bias_tau)
-        # state
-        ("error", "<f8"),  # rad, last error (raw)
-        ("old_position", "<f8"),  # rad
-        ("old_velocity", "<f8"),  # rad/s, filtered
-        ("bias", "<f8"),  # N·m, hand-over torque still to fade out
-        ("primed", "<u4"),  # 0 after init
-    ],
-    align=True,
-)
-
 
 def pd_step(data: Any, demand: float, position: float) -> tuple[float, float, int]:
     """One servo interval of the PD: ``kp·e − kv·v + bias``.  Inside the cycle."""
@@ -388,8 +336,6 @@ def register(registry: Registry) -> None:
     """The built-ins, in their fixed order: pid = 0, pd = 1; then the robot-level ones
     (``armbuiltins``: computed_torque = 0, impedance = 1; ``admittance``: admittance = 2,
     guiding = 3)."""
-    from . import admittance, armbuiltins  # here: they import the registry, which imports this
-
     registry.register(PID)
     registry.register(PD)
     armbuiltins.register(registry)

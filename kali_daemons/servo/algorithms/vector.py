@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.kernels import Kernel
+from .algorithm import STATUS_OK
 from .builtins import PD_DTYPE, PID_DTYPE
-from .registry import STATUS_OK
 
 _C_NAMES = {"pid": ("kali_pid_vector", PID_DTYPE), "pd": ("kali_pd_vector", PD_DTYPE)}
 
