@@ -53,7 +53,7 @@ from ..core.errors import KaliError
 from ..core.layout import ProcState, RequestState
 from ..runtime.daemon import Daemon
 from ..runtime.instance import Instance, decode
-from ..tools.launcher import instance_dir
+from ..runtime.paths import instance_dir
 from .log import SERVO_FIELDS
 
 NAME = "recorder"  # its process-table slot

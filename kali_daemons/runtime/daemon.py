@@ -35,6 +35,7 @@ from ..core.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
 from ..core.layout import FaultCode, ProcState, RunMode
 from ..core.spinlock import pid_alive
 from .config import period_ticks
+from .flightrec import FlightDumper
 from .instance import Instance
 from .stalls import ClockWitness
 
@@ -414,8 +415,6 @@ class Daemon:
         cycle: the system has halted); a failure is logged, never raised.  At normal
         priority: tens of ms of compression and file I/O at SCHED_FIFO would starve the
         plant on this CPU while its brakes come on."""
-        from .flightrec import FlightDumper  # flightrec imports the launcher: not at load
-
         policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
         rt.leave_realtime()
         dumper = FlightDumper(self.inst)

@@ -28,9 +28,9 @@ from ..core.arena import Arena
 from ..core.errors import ArenaError, ArenaFullError, InstanceError, KaliError
 from ..core.layout import ProcState
 from ..core.spinlock import pid_alive
-from ..tools.launcher import log_dir
 from .config import ms_to_ns
 from .instance import FaultInfo, Instance, decode
+from .paths import log_dir
 
 # of the dump files; 2 added ``n_joints`` (arms of different joint counts, NaN-padded), 3
 # ``wrench`` (each arm's wrist sensor, NaN for an arm without one), 4 ``shadow_torque`` (a

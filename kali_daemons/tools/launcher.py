@@ -39,6 +39,7 @@ from ..core.spinlock import holder_text, pid_alive
 from ..robots.cell import check_clear_at_rest
 from ..runtime.config import KaliConfig, cell_of, ms_to_ns, ns_to_ms
 from ..runtime.instance import Instance, all_semaphore_names, check_instance_name, decode
+from ..runtime.paths import instance_dir, log_dir, private_dir, private_log_dir, runtime_dir
 from ..servo import Registry, registry_for
 from ..tg.functions import registry_for as functions_for
 from ..wallclock import start_kali_clock
@@ -64,49 +65,6 @@ KILL_GRACE_S = 2.0
 LIFECYCLE_WAIT_S = 60.0  # longest ``stop`` waits for a start or stop of the instance to end
 
 
-def log_dir(instance: str) -> Path:
-    """Where the daemons' logs and flight dumps go: ``$KALI_LOG_DIR/<instance>`` or
-    ``/tmp/kali-<instance>``: one directory per instance, so two instances never write the
-    same ``<process>.log`` (one KALI_LOG_DIR shared by two instances interleaved them)."""
-    base = os.environ.get("KALI_LOG_DIR")
-    return Path(base) / instance if base else Path(f"/tmp/kali-{instance}")
-
-
-def private_log_dir(path: Path) -> Path:
-    """Create the log directory ``path`` (mode 0700) or check the one there: it must be a real
-    directory (not a symbolic link) of this user that neither group nor others can write, so
-    no other user can plant a link the daemons' logs or flight dumps would follow, or swap
-    the files; InstanceError naming the directory and its owner otherwise."""
-    return _private_dir(path, "log directory", "KALI_LOG_DIR")
-
-
-def _private_dir(path: Path, what: str, env: str) -> Path:
-    """Create ``path`` (mode 0700) or check it is a real directory of this user that neither
-    group nor others can write; InstanceError naming it, its owner and ``env`` otherwise."""
-    path.mkdir(mode=0o700, parents=True, exist_ok=True)
-    st = os.lstat(path)
-    if not stat.S_ISDIR(st.st_mode):
-        raise InstanceError(f"{what} {path} is not a directory (a symbolic link?)")
-    if st.st_uid != os.geteuid():
-        raise InstanceError(
-            f"{what} {path} belongs to {user_text(st.st_uid)}, not {user_text()}: "
-            f"remove it or set {env} to a directory of your own"
-        )
-    if st.st_mode & 0o022:
-        raise InstanceError(
-            f"{what} {path} has mode {stat.S_IMODE(st.st_mode):04o}: group or others "
-            f"may write it; chmod go-w it or set {env}"
-        )
-    return path
-
-
-def instance_dir(instance: str) -> Path:
-    """The instance's own directory, ``<runtime dir>/<instance>``: the copies of the user
-    files it runs on (``files/``, ``kali_daemons.tools.snapshot``), made by ``kalictl start`` and
-    removed by ``kalictl stop``."""
-    return runtime_dir() / instance
-
-
 INSTANCE_MARK = "instance"  # a file in an instance's directory holding its name
 
 
@@ -115,7 +73,7 @@ def _make_instance_dir(instance: str) -> Path:
     instance's so that ``_remove_instance_dir`` never removes a directory it did not make."""
     path = instance_dir(instance)
     _remove_instance_dir(path, instance)
-    _private_dir(runtime_dir(), "runtime directory", "KALI_RUNTIME_DIR")
+    private_dir(runtime_dir(), "runtime directory", "KALI_RUNTIME_DIR")
     path.mkdir(mode=0o700)
     (path / INSTANCE_MARK).write_text(f"{instance}\n")
     return path
@@ -135,18 +93,6 @@ def _remove_instance_dir(path: Path, instance: str) -> bool:
     return not path.exists()
 
 
-def runtime_dir() -> Path:
-    """Where the instances' lifecycle locks live: ``$KALI_RUNTIME_DIR``, else
-    ``$XDG_RUNTIME_DIR/kali``, else ``/run/kali`` for root and ``/tmp/kali-run-<uid>``."""
-    env = os.environ.get("KALI_RUNTIME_DIR")
-    if env:
-        return Path(env)
-    xdg = os.environ.get("XDG_RUNTIME_DIR")
-    if xdg:
-        return Path(xdg) / "kali"
-    return Path("/run/kali") if os.geteuid() == 0 else Path(f"/tmp/kali-run-{os.geteuid()}")
-
-
 @contextmanager
 def lifecycle_lock(instance: str, operation: str, wait_s: float = 0.0) -> Iterator[None]:
     """Hold ``instance``'s lifecycle lock (an exclusive ``flock``) for ``operation``.
@@ -157,7 +103,7 @@ def lifecycle_lock(instance: str, operation: str, wait_s: float = 0.0) -> Iterat
     is left behind; a locker checks it locked the file that has the name (not one removed
     while it waited).
     """
-    path = _private_dir(runtime_dir(), "runtime directory", "KALI_RUNTIME_DIR") / (
+    path = private_dir(runtime_dir(), "runtime directory", "KALI_RUNTIME_DIR") / (
         f"{instance}.lock"
     )
     deadline = time.monotonic() + wait_s

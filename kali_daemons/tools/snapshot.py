@@ -2,7 +2,7 @@
 
 Each robot type file the config names (``robots[].model: arm.py``) with its URDF and the
 meshes that URDF names, each servo plugin file and each TG function plugin file is copied into
-the instance's directory (``launcher.instance_dir``), at its absolute path below ``files/``
+the instance's directory (``paths.instance_dir``), at its absolute path below ``files/``
 (``pyfile.mirror``), so a file that finds its URDF beside itself (``Path(__file__).with_name``)
 finds the copy.  Every process of the instance, every program and every kalictl command then
 loads the copies (``KaliConfig.files``): moving, editing or breaking a file after start changes
