@@ -134,10 +134,10 @@ from harness import (
     table,
 )
 
-from kali_daemons.bridge.access import client_config
 from kali_daemons.bridge.sessions import run_verb
 from kali_daemons.client import Kali
 from kali_daemons.client.protocol import Keys
+from kali_daemons.client.zenohconfig import client_config
 from kali_daemons.core.errors import KaliError
 from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.config import KaliConfig

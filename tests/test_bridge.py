@@ -19,10 +19,9 @@ import numpy as np
 import pytest
 import zenoh
 
-from kali_daemons.bridge.access import client_config
-from kali_daemons.client import Kali
-from kali_daemons.client.motion import pose
+from kali_daemons.client import Kali, pose
 from kali_daemons.client.protocol import BridgeError, Keys
+from kali_daemons.client.zenohconfig import client_config
 from kali_daemons.core import layout
 from kali_daemons.core.errors import KaliError
 from kali_daemons.runtime.instance import Instance

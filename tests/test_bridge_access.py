@@ -24,9 +24,10 @@ import pytest
 import zenoh
 import zenoh.ext as zext
 
-from kali_daemons.bridge.access import access_control, bridge_config, client_config
+from kali_daemons.bridge.access import access_control, bridge_config
 from kali_daemons.client.protocol import BridgeError
 from kali_daemons.client.remote import common_name
+from kali_daemons.client.zenohconfig import client_config
 from kali_daemons.runtime.config import BridgeConfig, TlsConfig
 
 INST = "t29"

@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 import zenoh
 
-from kali_daemons.bridge.access import client_config
 from kali_daemons.bridge.admission import Turns
 from kali_daemons.client import Kali
 from kali_daemons.client.protocol import BridgeError, Keys
+from kali_daemons.client.zenohconfig import client_config
 from kali_daemons.core.layout import RequestState
 from kali_daemons.core.spinlock import pid_alive
 from kali_daemons.runtime.instance import Instance
@@ -179,7 +179,7 @@ def test_turns_take_each_users_jobs_in_order_and_the_users_in_turn() -> None:
 
 FLOODER = """
 import json, sys, time, zenoh
-from kali_daemons.bridge.access import client_config
+from kali_daemons.client.zenohconfig import client_config
 from kali_daemons.bridge.admission import Turns
 endpoint, key, payload, rate, seconds, *login = sys.argv[1:]
 s = zenoh.open(client_config(endpoint, *login) if login else client_config(endpoint))

@@ -35,11 +35,11 @@ credentials cannot even open.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import zenoh
 
+from ..client.zenohconfig import insert_json, no_scouting
 from ..runtime.config import BridgeConfig
 
 MODE = "router"  # remote programs connect to the bridge as clients
@@ -168,72 +168,25 @@ def access_control(cfg: BridgeConfig, instance: str) -> dict[str, Any]:
     }
 
 
-def _insert(config: zenoh.Config, key: str, value: Any) -> None:
-    """Set ``key`` of ``config`` to ``value``, given as JSON (a subset of JSON5)."""
-    config.insert_json5(key, json.dumps(value))
-
-
-def _no_scouting(config: zenoh.Config) -> None:
-    """No multicast or gossip scouting: a session talks to the endpoints it is given only.
-    No shared-memory transport either: its /dev/shm files would outlive a session killed
-    with SIGKILL (a run leaves nothing in /dev/shm), and the bridge's messages are small."""
-    _insert(config, "scouting/multicast/enabled", False)
-    _insert(config, "scouting/gossip/enabled", False)
-    _insert(config, "transport/shared_memory/enabled", False)
-
-
 def bridge_config(cfg: BridgeConfig, instance: str) -> zenoh.Config:
     """The bridge's own Zenoh session: a router listening on ``cfg.listen`` and connecting to
     nothing, with timestamps (an advanced publisher's cache needs the session's clock), TLS,
     usrpwd authentication and the access control of ``access_control``."""
     config = zenoh.Config()
-    _insert(config, "mode", MODE)
-    _insert(config, "listen/endpoints", list(cfg.listen))
-    _insert(config, "connect/endpoints", [])
-    _no_scouting(config)
+    insert_json(config, "mode", MODE)
+    insert_json(config, "listen/endpoints", list(cfg.listen))
+    insert_json(config, "connect/endpoints", [])
+    no_scouting(config)
     # a router's open otherwise waits scouting/delay (500 ms) for peers it cannot find
-    _insert(config, "scouting/delay", 0)
-    _insert(config, "timestamping/enabled", True)
+    insert_json(config, "scouting/delay", 0)
+    insert_json(config, "timestamping/enabled", True)
     if cfg.tls is not None:
-        _insert(config, "transport/link/tls/listen_certificate", cfg.tls.certificate)
-        _insert(config, "transport/link/tls/listen_private_key", cfg.tls.private_key)
+        insert_json(config, "transport/link/tls/listen_certificate", cfg.tls.certificate)
+        insert_json(config, "transport/link/tls/listen_private_key", cfg.tls.private_key)
         if cfg.tls.root_ca is not None:  # client certificates required, signed by this CA
-            _insert(config, "transport/link/tls/root_ca_certificate", cfg.tls.root_ca)
-            _insert(config, "transport/link/tls/enable_mtls", True)
+            insert_json(config, "transport/link/tls/root_ca_certificate", cfg.tls.root_ca)
+            insert_json(config, "transport/link/tls/enable_mtls", True)
     if cfg.users_file is not None:
-        _insert(config, "transport/auth/usrpwd/dictionary_file", cfg.users_file)
-    _insert(config, "access_control", access_control(cfg, instance))
-    return config
-
-
-def client_config(
-    endpoint: str,
-    user: str | None = None,
-    password: str | None = None,
-    root_ca: str | None = None,
-    certificate: str | None = None,
-    private_key: str | None = None,
-) -> zenoh.Config:
-    """A remote program's Zenoh session: a client of the bridge at ``endpoint`` only.
-
-    ``user``/``password`` log in with usrpwd; ``root_ca`` is the CA that signed the bridge's
-    certificate (a ``tls/`` endpoint); ``certificate``/``private_key`` are the client's own for
-    mutual TLS, whose common name is its user name."""
-    if (user is None) != (password is None):
-        raise ValueError("client_config: give both user and password, or neither")
-    if (certificate is None) != (private_key is None):
-        raise ValueError("client_config: give both certificate and private_key, or neither")
-    config = zenoh.Config()
-    _insert(config, "mode", "client")
-    _insert(config, "connect/endpoints", [endpoint])
-    _no_scouting(config)
-    if user is not None:
-        _insert(config, "transport/auth/usrpwd/user", user)
-        _insert(config, "transport/auth/usrpwd/password", password)
-    if root_ca is not None:
-        _insert(config, "transport/link/tls/root_ca_certificate", root_ca)
-    if certificate is not None:
-        _insert(config, "transport/link/tls/connect_certificate", certificate)
-        _insert(config, "transport/link/tls/connect_private_key", private_key)
-        _insert(config, "transport/link/tls/enable_mtls", True)
+        insert_json(config, "transport/auth/usrpwd/dictionary_file", cfg.users_file)
+    insert_json(config, "access_control", access_control(cfg, instance))
     return config

@@ -22,7 +22,8 @@ from ..wallclock import (
     step_kali_clock,
     stop_kali_clock,
 )
-from .motion import Contact, Kali, MotionFailedError, MotionHandle, MotionSystem, Robot, pose
+from .common import Contact, MotionFailedError, pose
+from .motion import Kali, MotionHandle, MotionSystem, Robot
 from .periodic import Control
 from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
 from .together import Together

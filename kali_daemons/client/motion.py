@@ -42,7 +42,6 @@ import math
 import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -55,8 +54,10 @@ from ..core.channels import RequestQueue
 from ..core.errors import KaliError, KinematicsError, QueueFullError, ServoError
 from ..core.layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
 from ..core.spinlock import pid_alive
-from ..robots import Kinematics, RobotType
+from ..robots import RobotType
+from ..robots.cell import FLANGE_FRAME, load_pinocchio
 from ..runtime.instance import Instance, decode
+from ..runtime.paths import log_dir
 from ..servo.level import ServoClient
 from ..servo.shadow import Trial
 from ..tg import records
@@ -72,6 +73,25 @@ from ..tg.functions import registry_for as functions_for
 from ..tg.profiles import MotionError, check_guard, check_joint_target, rigid_pose
 from ..wallclock import step_kali_clock
 from . import periodic, remote, streams
+from .common import (
+    DEFAULT_INSTANCE,
+    FT_FRAMES,
+    INSTANCE_ENV,
+    Contact,
+    MotionFailedError,
+    RequestLostError,
+    _arcs_arg,
+    _config_arg,
+    _durations_arg,
+    _flag_arg,
+    _list_arg,
+    _pose_arg,
+    _real_array,
+    _speed_arg,
+    _timeout_arg,
+    fault_since,
+    program_name,
+)
 from .periodic import Control
 from .remote import RemoteKali
 from .state import ArmState, ObjectState, StateReader
@@ -90,50 +110,6 @@ STOP_LANE_WAIT_S = 1.0  # longest a stop waits for room in the TG's stop lane (e
 SETTLE_M = 2e-4
 SETTLE_RAD = 1e-3
 SETTLE_HOLD_S = 0.05
-DEFAULT_INSTANCE = "default"
-INSTANCE_ENV = "KALI_INSTANCE"  # set by `kalictl -i NAME run PROGRAM`
-
-
-class MotionFailedError(MotionError):
-    """The system halted (or the request was refused, stopped or aborted) while waiting."""
-
-
-class RequestLostError(MotionFailedError):
-    """The request's status record holds a later request: its outcome cannot be told."""
-
-
-def fault_since(inst: Instance, epoch: int) -> str | None:
-    """The fault that halts a request put at fault count ``epoch``: the active one, or one
-    raised (and maybe cleared) since; None if there is none."""
-    if inst.fault_text() is not None or int(inst.fault["count"]) > epoch:
-        return inst.fault_text(last=True) or "the system halted"
-    return None
-
-
-def program_name() -> bytes:
-    """This program's name as requests carry it (the script's file name, else the pid)."""
-    import sys
-
-    path = sys.argv[0] if sys.argv else ""
-    name = os.path.basename(path)
-    if name == "__main__.py":  # python -m PACKAGE
-        name = os.path.basename(os.path.dirname(path))
-    if name in ("", "-c", "-m"):
-        name = f"python pid {os.getpid()}"
-    return name.encode()[: layout.PROGRAM_BYTES]
-
-
-@dataclass(frozen=True)
-class Contact:
-    """Where a guarded move touched: the robot whose wrist sensor felt the guard's force,
-    its tool point then (world, m), the contact force that tripped the guard (N, the
-    sample's magnitude) and the contact wrench then (world axes, N and N·m, low-passed
-    as ``Robot.read_wrench``: it lags the sample)."""
-
-    robot: str
-    position: np.ndarray
-    force: float
-    wrench: np.ndarray
 
 
 class MotionHandle:
@@ -280,134 +256,6 @@ class MotionHandle:
     def cancel(self) -> None:
         """Stop the motion smoothly on its path (a queued one never starts)."""
         self.kali._order(MotionKind.STOP, self.robots)
-
-
-def pose(xyz: Sequence[float], rotation: np.ndarray | None = None) -> np.ndarray:
-    """A 4×4 pose at ``xyz`` (m) with ``rotation`` (3×3, or a 4×4 whose rotation is taken;
-    default: the identity)."""
-    t = np.eye(4)
-    t[:3, 3] = np.asarray(xyz, dtype=np.float64).reshape(3)
-    if rotation is not None:
-        r = np.asarray(rotation, dtype=np.float64)
-        t[:3, :3] = r[:3, :3]
-    return t
-
-
-def _real_array(what: str, value: object, expected: str) -> np.ndarray:
-    """``value`` as a float64 array if it holds real numbers (not complex, text, objects or
-    bools, which numpy would convert or refuse in its own words); MotionError otherwise."""
-    try:
-        raw = np.asarray(value)
-        if raw.dtype.kind not in "iuf":
-            raise TypeError(f"dtype {raw.dtype}")
-        return raw.astype(np.float64)
-    except (TypeError, ValueError) as exc:
-        raise MotionError(f"{what}: {value!r:.60} is not {expected} ({exc})") from None
-
-
-def _pose_arg(what: str, value: object) -> np.ndarray:
-    t = _real_array(what, value, "a 4×4 pose")
-    if t.shape != (4, 4):
-        raise MotionError(f"{what}: shape {t.shape}, expected a 4×4 pose")
-    if not np.isfinite(t).all():
-        raise MotionError(f"{what}: not finite")
-    return t
-
-
-def _config_arg(what: str, value: object, kin: Kinematics) -> object | None:
-    """A configuration of the arm's type: one of ``kin.configs``, its string, or None."""
-    if value is None or value in kin.configs:
-        return value
-    if not isinstance(value, str):
-        raise MotionError(
-            f"{what}: {value!r:.60} is not one of the arm's configurations "
-            f"({', '.join(map(str, kin.configs))}), nor None"
-        )
-    try:
-        return kin.parse_config(value)
-    except KinematicsError as exc:
-        raise MotionError(f"{what}: {exc}") from None
-
-
-def _timeout_arg(what: str, value: object) -> float | None:
-    """A timeout in seconds: None (no limit) or a number >= 0; MotionError otherwise."""
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
-        raise MotionError(f"{what}: timeout {value!r:.60}, must be None or seconds >= 0")
-    return float(value)
-
-
-def _flag_arg(what: str, name: str, value: object) -> bool:
-    """A yes/no argument (``wait``, ``close``): a bool or 0/1; MotionError otherwise."""
-    if isinstance(value, bool | np.bool_) or (
-        isinstance(value, int | np.integer) and int(value) in (0, 1)
-    ):
-        return bool(value)
-    raise MotionError(f"{what}: {name} {value!r:.60} is not True or False")
-
-
-def _list_arg(what: str, name: str, value: object) -> list:
-    """A sequence argument (poses, names, configurations) as a list; MotionError if it is
-    none (a number, None, a mapping: iterating a mapping would take its keys)."""
-    if isinstance(value, Mapping | str | bytes) or value is None:
-        raise MotionError(f"{what}: {name} {value!r:.60} is not a list")
-    try:
-        return list(value)  # type: ignore[call-overload]
-    except TypeError:
-        raise MotionError(f"{what}: {name} {value!r:.60} is not a list") from None
-
-
-def _speed_arg(what: str, name: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise MotionError(f"{what}: {name} {value!r:.60} is not a finite number")
-    return float(value)
-
-
-FT_FRAMES = ("world", "tool", "sensor")  # Robot.read_wrench's frames (layout.FT_STATE fields)
-
-
-def _arcs_arg(what: str, arcs: object, n: int) -> list[np.ndarray | None]:
-    """``arcs`` (None, or one per segment: a point [x, y, z] the arc passes, or None for a
-    line) checked; MotionError naming the bad one."""
-    if arcs is None:
-        return [None] * n
-    items = _list_arg(what, "arcs", arcs)
-    if len(items) != n:
-        raise MotionError(f"{what}: {len(items)} arcs for {n} segments")
-    out: list[np.ndarray | None] = []
-    for i, v in enumerate(items):
-        if v is None:
-            out.append(None)
-            continue
-        point = _real_array(f"{what}: arcs[{i}]", v, "a point [x, y, z]")
-        if point.shape != (3,):
-            raise MotionError(f"{what}: arcs[{i}] has shape {point.shape}, not a point (3,)")
-        out.append(point)
-    return out
-
-
-def _durations_arg(what: str, durations: object, n: int) -> list[float]:
-    """``durations`` (None, or one per segment: s > 0, or None for "by the speeds") as
-    floats, 0 meaning by the speeds; MotionError naming the bad one."""
-    if durations is None:
-        return [0.0] * n
-    items = _list_arg(what, "durations", durations)
-    if len(items) != n:
-        raise MotionError(f"{what}: {len(items)} durations for {n} segments")
-    out = []
-    for i, d in enumerate(items):
-        if d is None:
-            out.append(0.0)
-            continue
-        if (
-            isinstance(d, bool)
-            or not isinstance(d, int | float)
-            or not (math.isfinite(d) and d > 0.0)
-        ):
-            raise MotionError(f"{what}: durations[{i}] is {d!r:.40}; a time in s > 0, or None")
-        out.append(float(d))
-    return out
 
 
 def _guard_arg(what: str, guard: object, kali: Kali, robots: list[int]) -> float:
@@ -1353,8 +1201,6 @@ class Kali:
         model of its type (loaded on first use)."""
         import pinocchio as pin  # here: a program that never asks pays nothing for it
 
-        from ..robots.cell import FLANGE_FRAME, load_pinocchio
-
         rcfg = self.inst.config.robots[robot]
         if rcfg.model not in self._pin:  # by model: two type files may share a ROBOT.name
             model = load_pinocchio(rcfg.type)
@@ -1385,8 +1231,7 @@ class Kali:
     def start_recording(self, path: str | os.PathLike[str] | None = None) -> str:
         """Start recording to the new file ``path`` (None: a new ``rec-*.mcap`` in the
         instance's log directory); its path.  ``record`` is the block form."""
-        from .. import recording  # the recorder's machinery: only when recording
-        from ..tools.launcher import log_dir
+        from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
         if path is None:
             stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -1402,7 +1247,7 @@ class Kali:
 
     def stop_recording(self) -> dict[str, object]:
         """Stop the recording: what is left is drained and the file finished; its status."""
-        from .. import recording
+        from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
         return recording.stop(self.inst)
 

@@ -35,14 +35,14 @@ from typing import Any
 
 import numpy as np
 
-from ..client import motion
-from ..client.state import ArmState, ObjectState
-from ..client.truth import Truth
 from ..core import errors
 from ..core.errors import KaliError
 from ..core.layout import CalibState, FfMode, FfState, PowerState, RequestState
 from ..runtime.config import USER_RE
 from ..servo.shadow import Trial
+from .common import Contact, MotionFailedError, RequestLostError
+from .state import ArmState, ObjectState
+from .truth import Truth
 
 MAX_PAYLOAD_BYTES = 1 << 20  # a call's JSON; 16 poses of a path are ~6 KiB
 MAX_ARRAY_VALUES = 4096  # numbers in one array argument
@@ -234,9 +234,9 @@ ERRORS: dict[str, type[Exception]] = {
     cls.__name__: cls
     for cls in (
         *(c for c in vars(errors).values() if isinstance(c, type) and issubclass(c, KaliError)),
-        motion.MotionError,
-        motion.MotionFailedError,
-        motion.RequestLostError,
+        errors.MotionError,
+        MotionFailedError,
+        RequestLostError,
         BridgeError,
         TimeoutError,
         TypeError,
@@ -247,7 +247,7 @@ ENUMS: dict[str, type[enum.IntEnum]] = {
     e.__name__: e for e in (RequestState, PowerState, CalibState, FfMode, FfState)
 }
 DATACLASSES: dict[str, type] = {
-    "Contact": motion.Contact, "Trial": Trial, "ArmState": ArmState, "ObjectState": ObjectState,
+    "Contact": Contact, "Trial": Trial, "ArmState": ArmState, "ObjectState": ObjectState,
     "Truth": Truth,
 }  # fmt: skip
 

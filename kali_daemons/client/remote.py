@@ -46,6 +46,10 @@ from ..core.errors import KaliError
 from ..core.layout import TERMINAL_STATES
 from ..robots import RobotType
 from ..runtime.config import KaliConfig, parse_config
+from . import protocol
+from .common import DEFAULT_INSTANCE, INSTANCE_ENV, program_name
+from .protocol import METHODS, PROPERTIES, BridgeError, Keys
+from .zenohconfig import client_config
 
 REMOTE_ENV = "KALI_REMOTE"  # set by `kalictl run --remote ENDPOINT`: Kali() connects there
 SESSION_ENV = "KALI_REMOTE_SESSION"  # and the session it opened, which Kali() adopts
@@ -82,10 +86,6 @@ def reach(
 ) -> Connection:
     """A Zenoh session with the bridge of ``instance`` at ``endpoint``, its liveliness seen
     (no program session yet: ``kalictl run --remote`` checks the instance answers with it)."""
-    from ..bridge.access import client_config
-    from .motion import DEFAULT_INSTANCE, INSTANCE_ENV
-    from .protocol import BridgeError
-
     name = os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE) if instance is None else instance
     env = [os.environ.get(v) for v in TLS_ENV]
     user = user if user is not None else os.environ.get(USER_ENV)
@@ -111,8 +111,6 @@ def handed_over(endpoint: str, instance: str) -> dict[str, str] | None:
     """The session ``kalictl run --remote`` opened for this program ($KALI_REMOTE_SESSION:
     endpoint, instance, user, sid, secret) when it is one on ``endpoint``'s ``instance``, for
     its ``Kali()`` to adopt; None otherwise."""
-    from .protocol import BridgeError
-
     text = os.environ.get(SESSION_ENV)
     if not text:
         return None
@@ -130,8 +128,6 @@ def common_name(certificate: str) -> str:
     """The common name of PEM certificate ``certificate``: the user name a bridge knows its
     holder by (read with CPython's own certificate decoder, ``ssl._ssl._test_decode_cert``:
     the standard library has no public one)."""
-    from .protocol import BridgeError
-
     try:
         subject = ssl._ssl._test_decode_cert(certificate).get("subject", ())  # type: ignore[attr-defined]
     except (OSError, ssl.SSLError) as exc:
@@ -156,8 +152,6 @@ class Connection:
         user: str | None = None,
         adopt: dict[str, str] | None = None,
     ) -> None:
-        from .protocol import BridgeError, Keys
-
         self.endpoint = endpoint
         self.instance = instance
         self.keys = Keys(instance)
@@ -233,8 +227,6 @@ class Connection:
     def adopt(self, force: bool = False) -> dict[str, Any]:
         """Take up the session handed over (``force`` as ``Kali(force=...)``); its Kali's
         reference."""
-        from . import protocol
-
         request = protocol.dumps({"adopt": {"force": bool(force)}})
         answer = self._ask(self.mine.call(self.secret), request, CONNECT_TIMEOUT_S, "adopt")
         return answer["value"]
@@ -266,16 +258,11 @@ class Connection:
 
     def get(self, key: str, value: Any, timeout: float = CALL_TIMEOUT_S) -> Any:
         """Ask ``key`` with JSON ``value``; the reply's value, or its exception raised."""
-        from . import protocol
-
         return self._ask(key, protocol.dumps(value), timeout, key).get("value")
 
     def _ask(self, key: str, payload: bytes, timeout: float, what: str) -> dict[str, Any]:
         """One query and its one answer (a mapping); the exception it carries raised, a
         BridgeError if none comes within ``timeout`` s or the bridge goes meanwhile."""
-        from . import protocol
-        from .protocol import BridgeError
-
         if self.closed:
             raise BridgeError(f"the connection to {self.endpoint} is closed")
         replies: list[zenoh.Reply] = []
@@ -312,8 +299,6 @@ class Connection:
         self, oid: int, method: str, args: Sequence[Any], kwargs: dict[str, Any]
     ) -> tuple[Any, dict[str, Any]]:
         """Call ``method`` of the session's object ``oid``: (value, its attributes now)."""
-        from . import protocol
-
         timeout = kwargs.get("timeout")
         limit = (
             min(NO_DEADLINE_S, max(0.0, float(timeout)) + CALL_TIMEOUT_S)
@@ -365,8 +350,6 @@ def _reference(obj: object) -> dict[str, Any]:
     """A proxy given back as an argument: the session's object it stands for."""
     if isinstance(obj, Proxy):
         return {"__obj__": obj._oid, "class": obj._cls}
-    from .protocol import BridgeError
-
     raise BridgeError(f"a {type(obj).__name__} cannot cross the bridge")
 
 
@@ -380,8 +363,6 @@ class Proxy:
         self._attrs: dict[str, Any] = {}
 
     def __getattr__(self, name: str) -> Any:
-        from .protocol import METHODS, PROPERTIES
-
         if name.startswith("__"):
             raise AttributeError(name)
         attrs = self.__dict__.get("_attrs", {})
@@ -391,8 +372,6 @@ class Proxy:
             return self._call(name)
         if name in METHODS.get(self._cls, ()):
             return functools.partial(self._call, name)
-        from .protocol import BridgeError
-
         raise BridgeError(
             f"a remote {self._cls} has no {name!r}: periodic functions, streams, tracking "
             f"and live views of shared memory stay on the controller's machine; remote: "
@@ -493,10 +472,6 @@ class RemoteKali(Proxy):
     """A remote program's ``Kali`` (``connect``)."""
 
     def __init__(self, conn: Connection, force: bool = False) -> None:
-        from . import protocol
-        from .motion import program_name
-        from .protocol import BridgeError
-
         super().__init__(conn, 0, "Kali")
         conn.kali = self
         try:
@@ -530,8 +505,6 @@ class RemoteKali(Proxy):
         return group
 
     def control(self, *args: Any, **kwargs: Any) -> None:
-        from .protocol import BridgeError
-
         raise BridgeError(
             "control: a periodic function runs on the controller's machine (its deadline is "
             "the wall clock's); run this program there with kalictl run"
@@ -541,8 +514,6 @@ class RemoteKali(Proxy):
     def record(self, path: str | os.PathLike[str]) -> Iterator[dict[str, Any]]:
         """As ``Kali.record``: the recording is made on the controller's machine (its log
         directory) and fetched to ``path`` here when the block ends."""
-        from .protocol import BridgeError
-
         target = Path(path).absolute()
         if target.exists():
             raise BridgeError(f"record: {target} exists: a recording is never written over")
@@ -563,8 +534,6 @@ class RemoteKali(Proxy):
         """Run kalictl verb ``verb`` (enable, disable, estop, reset, calibrate, servo, ff,
         rate, status) on the instance; what kalictl printed.  BridgeError with kalictl's own
         error line if it refused."""
-        from .protocol import BridgeError
-
         result = self._conn.get(
             self._conn.mine.verb(verb), {"args": list(args)}, CALL_TIMEOUT_S + 60
         )

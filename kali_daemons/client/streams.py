@@ -37,6 +37,7 @@ from ..tg.cartesian import encode_config
 from ..tg.functions import TgFunction, data_of, get_params, set_params
 from ..tg.profiles import rigid_pose
 from ..tg.tracking import check_limits, check_track_time, rotation, write_frame
+from .common import _config_arg, _pose_arg, _real_array
 
 if TYPE_CHECKING:
     from .motion import Kali, MotionHandle, MotionSystem, Robot
@@ -264,8 +265,6 @@ def track(
     """Put a TRACK request: ``system``'s control frame follows the product of ``loop``
     within ``limits`` (m/s, rad/s, m/s², rad/s²) for ``duration`` s (None: until stopped);
     MotionError naming the argument."""
-    from .motion import _config_arg, _pose_arg  # one home for argument checks
-
     what = f"track: {', '.join(repr(n) for n in system.names)}"
     factors = list(loop) if isinstance(loop, list | tuple) else None
     if factors is None or not 1 <= len(factors) <= layout.MAX_LOOP:
@@ -347,8 +346,6 @@ class Stream:
         lifetime, so a late send never jumps far), the rotation about the target's point.
         A spacemouse's or a joystick's velocity command; the TG keeps the arm in its
         limits.  MotionError for a twist that is not 6 finite numbers."""
-        from .motion import _real_array
-
         t = _real_array(f"stream of '{self.robot.name}': twist", twist, "6 numbers")
         if t.shape != (TWIST,):
             raise MotionError(

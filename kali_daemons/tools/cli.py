@@ -28,7 +28,8 @@ import numpy as np
 
 from .. import hardware
 from ..client import remote
-from ..client.motion import INSTANCE_ENV, Kali
+from ..client.common import INSTANCE_ENV
+from ..client.motion import Kali
 from ..client.remote import REMOTE_ENV, SESSION_ENV
 from ..core import layout
 from ..core.errors import InstanceError, KaliError, MotionError
