@@ -39,6 +39,7 @@ import numpy as np
 from . import atomic, layout
 from .arena import Arena
 from .errors import ArenaError, ChannelError, QueueFullError
+from .kernels import Kernel
 from .spinlock import SpinLock
 
 _INITIALISING = 0xFFFFFFFF  # FIFO capacity word while its creator writes the geometry
@@ -594,8 +595,6 @@ class InterpolatingFifo:
         never moving) and returns 1 or 0 as ``pop_into`` returns True or False.  The
         consumer's ratio moves into the kernel, so from here on this FIFO is popped only by
         it (``pop_into`` refuses).  Consumer, outside the cycle."""
-        from .kernels import Kernel  # the library: the consumer's, not every importer's
-
         assert out.dtype == np.float64 and out.shape == (self.width,), (out.dtype, out.shape)
         h = self._h
         ring = self._rows[0]

@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core import layout
 from ..core.joints import ArmCopy, JointMap
+from ..core.kernels import Kernel, channel_offsets
 from ..core.layout import (
     ADC_CHANNEL_MASK,
     ADC_DONE,
@@ -54,9 +54,6 @@ from ..core.layout import (
 from ..hardware import ftsensor
 from ..robots import RobotType
 from ..runtime.config import PlantConfig
-
-if TYPE_CHECKING:
-    from ..core.kernels import Kernel
 
 TWO_PI = 2.0 * math.pi
 COUNTER_MODULO = 4096
@@ -221,8 +218,6 @@ def boards_kernel(
     ``q``, ``enabled`` (float64: the motors' 1.0 / 0.0) and ``braked`` (bool) flat per joint of
     ``joints``.  Set ``args.now_ns`` before each update; it returns 1 when a brake changed.
     Outside the cycle."""
-    from ..core.kernels import Kernel  # the library: the plant's
-
     state = boards[0].state.base
     assert state is not None and state.shape == (len(boards), BOARD_STATE), "one state array"
     assert all(b.state.base is state for b in boards) and state.flags.c_contiguous
@@ -338,8 +333,6 @@ class EncoderBank:
         """``sample(motor_angle)`` compiled (``csrc/plant.c``'s ``kali_encoders``): each call of
         the kernel counts the angles now in ``motor_angle`` (flat float64, never moving) and
         returns the indexes captured.  Outside the cycle."""
-        from ..core.kernels import Kernel, channel_offsets  # the library: the plant's
-
         j = self.joints
         enc = self.regs["encoder"]
         robot_of = np.ascontiguousarray(j.robot_of, dtype=np.int64)
@@ -454,8 +447,6 @@ class FtBank:
         the same order as ``cycle`` draws them) and more are drawn, outside the kernel, when
         it says it is near the end: a few µs once every few hundred cycles.  From here on the
         bank is stepped only this way.  Outside the cycle."""
-        from ..core.kernels import Kernel  # the library: the plant's
-
         assert wrench.shape == (ftsensor.GAUGES,) and wrench.flags.c_contiguous
         assert wrench.dtype == np.float64
         block = self._normals = np.empty(RANDOM_BLOCK)

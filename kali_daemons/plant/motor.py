@@ -30,15 +30,13 @@ libm's tanh, not numpy's).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
+from ..core.kernels import Kernel
 from ..robots import RobotType
 from ..robots.profile import FRICTION_SMOOTHING_RAD_S
-
-if TYPE_CHECKING:
-    from ..core.kernels import Kernel
 
 
 class MotorBank:
@@ -116,8 +114,6 @@ class MotorBank:
         """``drive_reference`` compiled (``csrc/plant.c``'s ``kali_motors``), bound to the DAC
         ``volts``, joint speeds ``qd`` and motor ``current`` (flat, float64, never moving) and
         to MuJoCo's arrays ``mj``: each call is one cycle of it.  Outside the cycle."""
-        from ..core.kernels import Kernel  # the library: the plant's, not every importer's
-
         flat = {
             "volts": volts, "qd": qd, "enabled": self.enabled, "current": current,
             "gear": self.gear, "kt_r": self._kt_r, "vbus_r": self._vbus_r, "i_max": self.i_max,

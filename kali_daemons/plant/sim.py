@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 import zlib
-from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -33,13 +32,11 @@ import numpy as np
 from ..core import layout
 from ..core.arena import Arena
 from ..core.joints import ArmCopy
+from ..core.kernels import Kernel, channel_offsets, copies
 from ..robots.model import World, build_world
 from ..runtime.config import KaliConfig
 from .board import BOARD_STATE, RETRIGGER_NS, EncoderBank, FtBank, IoBoardSim, boards_kernel
 from .motor import Drive, MotorBank
-
-if TYPE_CHECKING:
-    from ..core.kernels import Kernel
 
 DAC_MAX = (1 << layout.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
@@ -221,8 +218,6 @@ class PlantSim:
         """``_read_joints`` compiled (``csrc/plant.c``'s ``kali_plant_joints``), on a block
         ``kali_plant_dac`` (``_read_dac`` compiled) shares: MuJoCo's arrays, the DAC boards'
         records and the plant's arrays, none of which ever moves.  Outside the cycle."""
-        from ..core.kernels import Kernel, channel_offsets  # the library: the plant's
-
         j, d, codes = self.joints, self.data, self.dac["code"]
         robot_of = np.ascontiguousarray(j.robot_of, dtype=np.int64)
         joint_of = np.ascontiguousarray(j.joint_of, dtype=np.int64)
@@ -370,8 +365,6 @@ class PlantSim:
 
     def _truth_views(self) -> None:
         """View every truth field once (a field lookup by name builds a new view each time)."""
-        from ..core.kernels import Kernel, copies  # the library: the plant's
-
         n = len(self.boards)
         sources = (self.q, self.qd, self.current, self.torque, self.motor_angle)
         fields = ("q", "qd", "current", "torque", "motor_angle")

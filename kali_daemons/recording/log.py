@@ -61,7 +61,7 @@ class Log:
     def frame(self, arm: str) -> Any:
         """Arm ``arm``'s ticks as a pandas DataFrame indexed by tick, a column per quantity
         and joint (``q_1`` .. ``q_6``); ImportError if pandas is not installed."""
-        import pandas as pd
+        import pandas as pd  # here: pandas is optional, and only this needs it
 
         a = self.arms[arm]
         columns: dict[str, np.ndarray] = {"time_s": a.time_s}

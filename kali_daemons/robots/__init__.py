@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 import re
 from functools import cache
+from importlib import resources
 from pathlib import Path
 
 from ..core.errors import ConfigError
@@ -54,8 +55,6 @@ def _type_file(path: Path) -> RobotType:
 
 def known_types() -> list[str]:
     """The names of the robot types shipped with Kali."""
-    from importlib import resources
-
     return sorted(
         p.name
         for p in resources.files(__name__).iterdir()

@@ -137,7 +137,7 @@ def check_clear_at_rest(cfg: KaliConfig) -> None:
 def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str, object]]:
     """Robot ``robot``'s collision shapes (URDF ``<collision>``) at its type's ``q_home``, in
     the world: (placement, link, coal geometry) each; ConfigError if they cannot be loaded."""
-    import pinocchio as pin
+    import pinocchio as pin  # here, not at load: the plant imports this module
 
     urdf = str(robot.type.urdf)
     try:

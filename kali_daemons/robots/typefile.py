@@ -83,7 +83,7 @@ def _load(path: Path, where: str) -> RobotType:
 def check_urdf(robot: RobotType, where: str) -> None:
     """The type's URDF loads in Pinocchio and MuJoCo with joints ``j1 .. jN`` (N = the type's
     ``n_joints``, revolute, base to tip) and a ``flange`` link; ``ConfigError`` otherwise."""
-    import mujoco
+    import mujoco  # here: both loaders only when a type file is checked (kalictl start, types)
     import pinocchio as pin
 
     urdf = Path(robot.urdf)
@@ -121,7 +121,7 @@ def check_kinematics(robot: RobotType, where: str) -> None:
     """``ROBOT.kinematics`` has the ``Kinematics`` methods and at least one branch, and its
     ``fkine(q_home)`` is the flange pose the URDF gives (Pinocchio); ``ConfigError``
     otherwise."""
-    import pinocchio as pin
+    import pinocchio as pin  # here: only when a type file is checked
 
     kin = robot.kinematics
     missing = [m for m in _KINEMATICS_METHODS if not callable(getattr(kin, m, None))]

@@ -47,6 +47,8 @@ from kali_daemons.hardware.ftsensor import SHEETS as FT_SHEETS
 from kali_daemons.hardware.ftsensor import FtSheet
 from kali_daemons.hardware.ftsensor import sheet as ft_sheet
 from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
+from kali_daemons.servo.algorithms.algorithm import MAX_DATA_BYTES
+from kali_daemons.servo.algorithms.registry import Registry
 
 CONFIG_VERSION = 1
 PROCESS_NAMES = ("wallclock", "plant", "tg", "sio", "sv", "dynamics", "viewer")
@@ -790,7 +792,6 @@ def arena_need(cfg: KaliConfig) -> tuple[int, int, list[tuple[str, int]]]:
     A plugin's private data is counted at its largest (``MAX_DATA_BYTES`` a joint, and as
     much a robot for a robot-level servo it may register): its dtype is known only once the
     plugin is imported, which parsing does not do.  Outside anything real-time."""
-    from ..servo import MAX_DATA_BYTES, Registry
 
     def rounded(nbytes: int) -> int:
         return -(-nbytes // layout.ALIGN) * layout.ALIGN

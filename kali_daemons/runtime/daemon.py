@@ -31,7 +31,7 @@ import posix_ipc
 
 from ..core import layout, rt
 from ..core.errors import DaemonError
-from ..core.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL
+from ..core.kernels import WAIT_IDLE, WAIT_INTR, WAIT_SHUTDOWN, WAIT_SIGNAL, Kernel
 from ..core.layout import FaultCode, ProcState, RunMode
 from ..core.spinlock import pid_alive
 from .config import period_ticks
@@ -481,8 +481,6 @@ class ClockWait:
         stats: _CycleStats,
         ack_sem: posix_ipc.Semaphore | None = None,
     ) -> None:
-        from ..core.kernels import Kernel
-
         procs = inst.procs
         self._sem = inst.slot_semaphore(slot)
         self._rel = procs["release_ns"][slot : slot + 1]
@@ -581,8 +579,6 @@ class _CycleStats:
     )  # fmt: skip
 
     def __init__(self, procs: np.ndarray, slot: int) -> None:
-        from ..core.kernels import Kernel
-
         def one(field: str) -> np.ndarray:
             return procs[field][slot : slot + 1]
 

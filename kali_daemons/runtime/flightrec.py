@@ -26,6 +26,7 @@ import numpy as np
 from ..core import layout
 from ..core.arena import Arena
 from ..core.errors import ArenaError, ArenaFullError, InstanceError, KaliError
+from ..core.kernels import Kernel, View, view
 from ..core.layout import ProcState
 from ..core.spinlock import pid_alive
 from .config import ms_to_ns
@@ -152,8 +153,6 @@ class FlightRecorder:
         """``record_reference`` compiled (``csrc/flightrec.c``'s ``kali_flight_row``), bound to the
         ring and the sources ``bind`` named; it carries on the ring's count.  Outside the
         cycle."""
-        from ..core.kernels import Kernel, View, view
-
         fields = self.ring.dtype.fields
         assert fields is not None
         cols = layout.FLIGHT_FIELDS[:-1]  # the float64 ones; shadow_torque is single

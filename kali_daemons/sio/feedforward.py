@@ -37,6 +37,7 @@ import numpy as np
 
 from ..core import layout
 from ..core.channels import InterpolatingFifo
+from ..core.kernels import Kernel
 from ..core.layout import FfMode, FfState
 
 _MODES = frozenset(int(m) for m in FfMode)
@@ -221,8 +222,6 @@ class FfKernel:
     __slots__ = ("_args", "_kernel", "ff")
 
     def __init__(self, ff: RobotFeedforward) -> None:
-        from ..core.kernels import Kernel  # the library: SIO's, not every importer's
-
         n = ff.out.shape[0]
         assert n <= layout.MAX_JOINTS and ff._last.flags.c_contiguous
         assert sorted(_MODES) == list(range(len(_MODES)))  # the kernel's validity: <= max

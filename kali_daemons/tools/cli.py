@@ -34,6 +34,7 @@ from ..client.remote import REMOTE_ENV, SESSION_ENV
 from ..core import layout
 from ..core.errors import InstanceError, KaliError, MotionError
 from ..core.layout import KEY_BOARDS, CalibState, PowerState, ProcState, RunMode, ShadowState
+from ..robots import known_types, robot_type
 from ..runtime import config as config_mod
 from ..runtime import flightrec
 from ..runtime.config import KaliConfig, cell_of, load_config
@@ -559,7 +560,7 @@ def record() -> None:
 @_errors
 def record_start(ctx: click.Context, path: Path) -> None:
     """Start recording to PATH (a new .mcap file) until kalictl record stop."""
-    from .. import recording  # the recorder's machinery: only when recording
+    from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
     with _attach(ctx.parent) as inst:
         pid = recording.start(inst, path)
@@ -571,7 +572,7 @@ def record_start(ctx: click.Context, path: Path) -> None:
 @_errors
 def record_stop(ctx: click.Context) -> None:
     """Stop recording: what is left is drained and the file finished."""
-    from .. import recording
+    from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
     with _attach(ctx.parent) as inst:
         doc = recording.stop(inst)
@@ -585,7 +586,7 @@ def record_stop(ctx: click.Context) -> None:
 @_errors
 def record_status(ctx: click.Context) -> None:
     """The recording in progress, or the last one."""
-    from .. import recording
+    from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
     name = _instance_name(ctx.parent)
     doc = recording.read_status(name)
@@ -879,8 +880,6 @@ def types(files: tuple[str, ...]) -> None:
     """List the robot types a config's robots[].model may name: those shipped with Kali
     (kali_daemons/robots), then each .py FILE given, loaded and checked as kalictl start
     would (its ROBOT, URDF and kinematics)."""
-    from ..robots import known_types, robot_type
-
     for name in known_types():
         t = robot_type(name)
         click.echo(f"{name:<12} {t.n_joints} joints  {t.description}")

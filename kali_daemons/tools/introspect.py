@@ -15,6 +15,7 @@ types, a quantity with no value yet (a percentile of an empty histogram) is ``No
 from __future__ import annotations
 
 import enum
+import fnmatch
 import math
 import time
 from typing import Any
@@ -510,7 +511,6 @@ def record_lines(inst: Instance, cell: layout.Cell, pattern: str = "*") -> list[
     glob), its dtype, count, writer and readers, then each field and its values, one line
     per field (across all records of the block), like ``halcmd show``.  Reads the arena
     without locks (Type 4: values of one moment, not one consistent copy)."""
-    import fnmatch
 
     lines = []
     for b in layout.blocks(cell):
