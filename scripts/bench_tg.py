@@ -127,12 +127,13 @@ from kali_daemons.core.channels import InterpolatingFifo
 from kali_daemons.core.errors import KaliError
 from kali_daemons.core.layout import FrameKind, RequestState
 from kali_daemons.robots import puma560
+from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.runtime.config import KaliConfig, load_config
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import records
-from kali_daemons.tg.cartesian import CartesianMotion, base_transform, inverse
+from kali_daemons.tg.cartesian import CartesianMotion
 from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows
 from kali_daemons.tg.functions import FunctionRegistry, FunctionSlots, Sensors, data_of, set_params
 from kali_daemons.tg.profiles import JointMotion

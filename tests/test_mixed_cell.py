@@ -17,7 +17,7 @@ from kali_daemons.client import Kali, MotionHandle, Robot, pose
 from kali_daemons.core import layout
 from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import model
-from kali_daemons.tg.cartesian import base_transform, inverse
+from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.wallclock import step_kali_clock
 from tests.conftest import make_config
 from tests.test_tg_cartesian import calibrated

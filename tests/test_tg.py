@@ -23,11 +23,11 @@ from kali_daemons.core.channels import InterpolatingFifo
 from kali_daemons.core.joints import per_joint
 from kali_daemons.core.layout import CalibState, FaultCode, MotionKind, PowerState, RequestState
 from kali_daemons.robots import puma560
+from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.runtime.config import KaliConfig, ms_to_ns
 from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import daemon as tgd
 from kali_daemons.tg import records
-from kali_daemons.tg.cartesian import base_transform, inverse
 from kali_daemons.tg.daemon import TrajectoryGenerator, check_request, write_status
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tools import launcher

@@ -18,9 +18,10 @@ from kali_daemons.core import layout
 from kali_daemons.core.errors import ServoError
 from kali_daemons.core.layout import CalibState, MotionKind, PowerState, RequestState
 from kali_daemons.robots import puma560
+from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.tg import records
-from kali_daemons.tg.cartesian import CartesianMotion, base_transform, encode_config, inverse
+from kali_daemons.tg.cartesian import CartesianMotion, encode_config
 from kali_daemons.tg.daemon import LEAD, Motion, TrajectoryGenerator
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tg.records import StatusRecords

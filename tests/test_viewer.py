@@ -38,15 +38,14 @@ from kali_daemons.core.arena import Arena
 from kali_daemons.core.errors import ConfigError
 from kali_daemons.core.joints import per_joint
 from kali_daemons.core.layout import FaultCode, RunMode
+from kali_daemons.robots.cell import base_transform
 from kali_daemons.runtime.config import DashboardConfig
-from kali_daemons.runtime.instance import Instance
+from kali_daemons.runtime.instance import Instance, time_ms
 from kali_daemons.servo.level import ServoClient
-from kali_daemons.tg.cartesian import base_transform
 from kali_daemons.tools import launcher
 from kali_daemons.viewer.daemon import CONTACT_M_PER_N, Viewer, blueprint
 from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
 from kali_daemons.wallclock import start_kali_clock, step_kali_clock
-from kali_daemons.wallclock.clock import time_ms
 
 from .conftest import make_config, wait_for
 from .test_launcher import kalictl

@@ -46,9 +46,8 @@ from ..client import protocol
 from ..client.protocol import BridgeError, Keys
 from ..core.errors import DaemonError, KaliError
 from ..runtime.daemon import Daemon
-from ..runtime.instance import estop_pressed
+from ..runtime.instance import estop_pressed, time_ms
 from ..tools import launcher
-from ..wallclock.clock import time_ms
 from . import access
 from .admission import Gates, Turns
 from .sessions import Sessions, check_verb

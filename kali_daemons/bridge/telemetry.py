@@ -17,9 +17,8 @@ import numpy as np
 from ..client.protocol import finite_or_none
 from ..core import layout
 from ..core.layout import CalibState, PowerState, ProcState, RequestState
-from ..runtime.instance import Instance, decode
+from ..runtime.instance import Instance, decode, time_ms
 from ..tools import launcher
-from ..wallclock.clock import time_ms
 
 
 def _floats(values: np.ndarray) -> list[float | None]:

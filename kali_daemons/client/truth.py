@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core import layout
 from ..core.errors import ServoError
-from ..tg.cartesian import base_transform
+from ..robots.cell import base_transform
 
 if TYPE_CHECKING:
     from .motion import Kali

@@ -9,6 +9,8 @@ needs these dimensions, does not import it.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Final
 
@@ -156,3 +158,20 @@ def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str,
         (base * shape_data.oMg[i], model.frames[g.parentFrame].name, g.geometry)
         for i, g in enumerate(shapes.geometryObjects)
     ]
+
+
+def base_transform(xyz: Sequence[float], yaw_deg: float) -> np.ndarray:
+    """The 4×4 pose of a robot's base in the world: at ``xyz`` (m), turned ``yaw_deg`` about z."""
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    t = np.eye(4)
+    t[:2, :2] = ((c, -s), (s, c))
+    t[:3, 3] = xyz
+    return t
+
+
+def inverse(t: np.ndarray) -> np.ndarray:
+    """The inverse of a rigid 4×4 transform (Rᵀ, −Rᵀp)."""
+    out = np.eye(4)
+    out[:3, :3] = t[:3, :3].T
+    out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
+    return out

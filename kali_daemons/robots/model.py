@@ -16,7 +16,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import mujoco
 import numpy as np
@@ -40,7 +40,9 @@ from kali_daemons.robots.cell import (
     bar_rest_pose,
     load_pinocchio,
 )
-from kali_daemons.runtime.config import RobotConfig
+
+if TYPE_CHECKING:
+    from kali_daemons.runtime.config import RobotConfig
 
 IntArray = npt.NDArray[np.int64]
 

@@ -620,3 +620,8 @@ def _code_name(code: int) -> str:
         return FaultCode(code).name
     except ValueError:
         return f"code {code}"
+
+
+def time_ms(clock: np.ndarray) -> float:
+    """Running time of the wall clock in ms (thesis: total running time in milliseconds)."""
+    return float(clock["time_offset_ms"]) + int(clock["tick"]) * int(clock["base_tick_ns"]) / 1e6

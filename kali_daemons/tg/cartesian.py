@@ -46,6 +46,7 @@ import numpy as np
 from ..core import layout
 from ..core.errors import KinematicsError
 from ..robots import Kinematics, RobotType
+from ..robots.cell import inverse
 from .profiles import MAX_MOTION_S, CartesianPath, MotionError, rigid_pose
 
 GRASP_TOL_M: Final = 0.002  # arms of one motion system must agree on the object's pose to this
@@ -72,23 +73,6 @@ def decode_config(code: int, kin: Kinematics) -> object | None:
             f"configurations (layout.CONFIG_GIVEN | 0..{len(kin.configs) - 1})"
         )
     return kin.configs[index]
-
-
-def base_transform(xyz: Sequence[float], yaw_deg: float) -> np.ndarray:
-    """The 4×4 pose of a robot's base in the world: at ``xyz`` (m), turned ``yaw_deg`` about z."""
-    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
-    t = np.eye(4)
-    t[:2, :2] = ((c, -s), (s, c))
-    t[:3, 3] = xyz
-    return t
-
-
-def inverse(t: np.ndarray) -> np.ndarray:
-    """The inverse of a rigid 4×4 transform (Rᵀ, −Rᵀp)."""
-    out = np.eye(4)
-    out[:3, :3] = t[:3, :3].T
-    out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
-    return out
 
 
 def rotation_angle(r: np.ndarray) -> float:

@@ -70,12 +70,13 @@ from ..core.layout import (
 )
 from ..core.spinlock import pid_alive
 from ..robots import RobotType
+from ..robots.cell import base_transform
 from ..robots.chain import chain_of, flange_pose
 from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
 from ..runtime.daemon import Daemon
 from ..runtime.instance import decode
 from ..servo.level import FIFO_CAPACITY
-from .cartesian import CartesianMotion, base_transform, decode_config
+from .cartesian import CartesianMotion, decode_config
 from .functions import FUNCTION_SHARE, FunctionSlots, Sensors, registry_for
 from .profiles import (
     MAX_MOTION_S,

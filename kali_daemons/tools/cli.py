@@ -38,7 +38,14 @@ from ..robots import known_types, robot_type
 from ..runtime import config as config_mod
 from ..runtime import flightrec
 from ..runtime.config import KaliConfig, cell_of, load_config
-from ..runtime.instance import LOCK_STUCK_S, Instance, check_instance_name, decode, estop_pressed
+from ..runtime.instance import (
+    LOCK_STUCK_S,
+    Instance,
+    check_instance_name,
+    decode,
+    estop_pressed,
+    time_ms,
+)
 from ..servo import registry_for, schedule, shadow
 from ..servo.level import ServoClient, ServoError
 from ..wallclock import (
@@ -48,7 +55,6 @@ from ..wallclock import (
     step_kali_clock,
     stop_kali_clock,
 )
-from ..wallclock.clock import time_ms
 from . import introspect, launcher
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "default.yaml"

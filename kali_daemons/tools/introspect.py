@@ -26,10 +26,9 @@ from .. import hardware
 from ..core import layout
 from ..core.layout import CalibState, FfMode, FfState, PowerState, RequestState, RunMode
 from ..core.spinlock import holder_text, pid_alive
-from ..runtime.instance import Instance, decode
+from ..runtime.instance import Instance, decode, time_ms
 from ..servo import shadow
 from ..tg import records
-from ..wallclock.clock import time_ms
 from . import launcher
 
 FF_SCALARS = ("weight", "stale_ticks", "stale_events", "heartbeat_tick", "rows_written")

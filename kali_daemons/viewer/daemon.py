@@ -55,13 +55,12 @@ from ..robots.cell import (
     STAND_SIZE,
     TABLE_CENTRE_XY,
     TABLE_SIZE,
+    base_transform,
     load_pinocchio,
 )
 from ..runtime.config import KaliConfig
 from ..runtime.daemon import Daemon
-from ..runtime.instance import decode
-from ..tg.cartesian import base_transform
-from ..wallclock.clock import time_ms
+from ..runtime.instance import decode, time_ms
 from .sinks import WebViewer, grpc_address, grpc_answers, pick_port
 
 TIMELINE = "kali_time"

@@ -618,8 +618,3 @@ def gang_state(
         if ack[m] >= sig[m] and tick >= due[m]:
             return GANG_RUNS
     return GANG_SVS_LATE if members else GANG_RUNS
-
-
-def time_ms(clock: np.ndarray) -> float:
-    """Running time of the wall clock in ms (thesis: total running time in milliseconds)."""
-    return float(clock["time_offset_ms"]) + int(clock["tick"]) * int(clock["base_tick_ns"]) / 1e6

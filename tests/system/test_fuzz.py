@@ -44,10 +44,10 @@ from kali_daemons.core.errors import ChannelError, ConfigError, KaliError, Motio
 from kali_daemons.core.layout import MotionKind, ProcState, RequestState, SlotOp
 from kali_daemons.core.spinlock import pid_alive
 from kali_daemons.robots import puma560
+from kali_daemons.robots.cell import base_transform
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.runtime.config import KaliConfig, parse_config
 from kali_daemons.tg import records
-from kali_daemons.tg.cartesian import base_transform
 from kali_daemons.tg.daemon import check_request, plan_joints, plan_path
 from kali_daemons.tools import launcher
 from kali_daemons.tools.cli import main as kalictl
