@@ -134,8 +134,8 @@ from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion
-from kali_daemons.tg.daemon import Motion, TrajectoryGenerator, joint_rows
 from kali_daemons.tg.functions import FunctionRegistry, FunctionSlots, Sensors, data_of, set_params
+from kali_daemons.tg.planner import Motion, TrajectoryGenerator, joint_rows
 from kali_daemons.tg.profiles import JointMotion
 from kali_daemons.tg.records import StatusRecords
 from kali_daemons.tg.tracking import SharedFrames, Tracking, TrackingMotion, write_frame

@@ -20,7 +20,7 @@ from kali_daemons.tg.cartesian import (
     encode_config,
     inverse,
 )
-from kali_daemons.tg.daemon import (
+from kali_daemons.tg.planner import (
     CHECK_CHUNK,
     LOCKSTEP_CHECK_SAMPLES,
     Motion,

@@ -26,9 +26,9 @@ from kali_daemons.robots import puma560
 from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.runtime.config import KaliConfig, ms_to_ns
 from kali_daemons.servo.level import FIFO_CAPACITY
-from kali_daemons.tg import daemon as tgd
+from kali_daemons.tg import planner as tgd
 from kali_daemons.tg import records
-from kali_daemons.tg.daemon import TrajectoryGenerator, check_request, write_status
+from kali_daemons.tg.planner import TrajectoryGenerator, check_request, write_status
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock

@@ -22,7 +22,7 @@ from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion, encode_config
-from kali_daemons.tg.daemon import LEAD, Motion, TrajectoryGenerator
+from kali_daemons.tg.planner import LEAD, Motion, TrajectoryGenerator
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tg.records import StatusRecords
 from kali_daemons.wallclock import step_kali_clock

@@ -22,7 +22,7 @@ from kali_daemons.core.errors import MotionError
 from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import model
 from kali_daemons.tg import records
-from kali_daemons.tg.daemon import LEAD
+from kali_daemons.tg.planner import LEAD
 from kali_daemons.tg.tracking import follow, rotation, rotvec, write_frame
 from kali_daemons.wallclock import step_kali_clock
 

@@ -42,7 +42,7 @@ HOSTED_ORDER = (
     ("plant", "plant.daemon", "Plant"),
     ("sio", "sio.daemon", "ServoIO"),
     ("sv", "servo.sv.daemon", "ServoWorker"),
-    ("tg", "tg.daemon", "TrajectoryGenerator"),
+    ("tg", "tg.planner", "TrajectoryGenerator"),
     ("dynamics", "dynamics.daemon", "Dynamics"),
     ("viewer", "viewer.daemon", "Viewer"),
 )

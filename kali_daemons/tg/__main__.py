@@ -1,6 +1,6 @@
 """``python -m kali_daemons.tg --instance NAME --name NAME``."""
 
 from ..runtime.daemon import run_daemon
-from .daemon import TrajectoryGenerator
+from .planner import TrajectoryGenerator
 
 run_daemon(TrajectoryGenerator)
