@@ -4,7 +4,7 @@ what the TG process costs at real time with two cooperating arms (issue 5).
 Two measurements:
 
 1. **In-process cost per tick** (deterministic; the headline table).  The TG's own per-tick
-   method, ``TrajectoryGenerator._advance`` (τ advance, ``sample``, ``InterpolatingFifo.push``
+   method, ``Planner._advance`` (τ advance, ``sample``, ``InterpolatingFifo.push``
    of each arm's row, the set-point and progress records), runs unchanged on a stand-in that
    holds only what it uses, over a private arena with real FIFOs, for 1, 2 and 4 motion
    systems of three kinds:
@@ -135,7 +135,7 @@ from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion
 from kali_daemons.tg.functions import FunctionRegistry, FunctionSlots, Sensors, data_of, set_params
-from kali_daemons.tg.planner import Motion, TrajectoryGenerator, joint_rows
+from kali_daemons.tg.planner import Motion, Planner, joint_rows
 from kali_daemons.tg.profiles import JointMotion
 from kali_daemons.tg.records import StatusRecords
 from kali_daemons.tg.tracking import SharedFrames, Tracking, TrackingMotion, write_frame
@@ -210,12 +210,12 @@ def base_of(k: int) -> np.ndarray:
 
 
 class TgStandIn:
-    """What ``TrajectoryGenerator._advance`` reads and writes, over a private arena: its FIFOs,
+    """What ``Planner._advance`` reads and writes, over a private arena: its FIFOs,
     set-point and progress records and TG period.  ``advance`` is the TG's own method."""
 
-    advance = TrajectoryGenerator._advance
-    _track = TrajectoryGenerator._track
-    _next_tau = TrajectoryGenerator._next_tau
+    advance = Planner._advance
+    _track = Planner._track
+    _next_tau = Planner._next_tau
 
     def __init__(self, arena: Arena, n_arms: int, dt: float, ratio: Fraction) -> None:
         self.dt = dt
@@ -388,7 +388,7 @@ def cost_per_tick(
             tg.advance(motions[0])  # the stand-in has all _advance uses, or say what is missing
         except AttributeError as exc:
             raise BenchError(
-                f"TrajectoryGenerator._advance now uses something TgStandIn lacks ({exc}): "
+                f"Planner._advance now uses something TgStandIn lacks ({exc}): "
                 "update scripts/bench_tg.py"
             ) from None
         cpu, wall, cold = [], [], []
@@ -460,7 +460,7 @@ def format_costs(rows: list[CostRow], checks: list[CheckRow], dt: float) -> str:
     """The in-process table, the anchor line and the check table."""
     lines = [
         f"=== TG cost per tick, in process: python {sys.version.split()[0]}, TG period "
-        f"{dt * 1000:g} ms, TrajectoryGenerator._advance per motion system; µs per tick, "
+        f"{dt * 1000:g} ms, Planner._advance per motion system; µs per tick, "
         f"median (best) of {rows[0].blocks} blocks of {BLOCK_TICKS} ticks ===",
     ]
     head = (

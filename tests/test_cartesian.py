@@ -11,20 +11,15 @@ import pytest
 
 from kali_daemons.core import layout
 from kali_daemons.robots import puma560, robot_type
+from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.robots.puma560.kinematics import CONFIGS, KinematicsError
-from kali_daemons.tg.cartesian import (
-    CartesianMotion,
-    base_transform,
-    decode_config,
-    encode_config,
-    inverse,
-)
+from kali_daemons.tg.cartesian import CartesianMotion, decode_config, encode_config
 from kali_daemons.tg.planner import (
     CHECK_CHUNK,
     LOCKSTEP_CHECK_SAMPLES,
     Motion,
-    TrajectoryGenerator,
+    Planner,
 )
 from kali_daemons.tg.profiles import MotionError
 
@@ -247,8 +242,8 @@ class _OneRecord:
 class _Checker:
     """The TG's ``_check`` over one motion, with ``_run`` recorded instead of run."""
 
-    _check = TrajectoryGenerator._check
-    _spent = TrajectoryGenerator._spent
+    _check = Planner._check
+    _spent = Planner._spent
 
     def __init__(self, until_ns: int, lockstep: bool = False) -> None:
         self.check_ns = 2_500_000  # CHECK_SHARE of a 10 ms period

@@ -34,7 +34,7 @@ BARRED = {
     "kali_daemons.wallclock.clock": HEAVY,
     "kali_daemons.sio.daemon": HEAVY,
     "kali_daemons.servo.sv.daemon": HEAVY,
-    "kali_daemons.tg.planner": ("mujoco", "rerun"),  # a Panda's kinematics are on Pinocchio
+    "kali_daemons.tg.daemon": ("mujoco", "rerun"),  # a Panda's kinematics are on Pinocchio
     "kali_daemons.plant.daemon": ("pinocchio", "rerun"),
     "kali_daemons.dynamics.daemon": ("mujoco", "rerun"),
     "kali_daemons.viewer.daemon": ("mujoco",),

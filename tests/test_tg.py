@@ -28,7 +28,7 @@ from kali_daemons.runtime.config import KaliConfig, ms_to_ns
 from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import planner as tgd
 from kali_daemons.tg import records
-from kali_daemons.tg.planner import TrajectoryGenerator, check_request, write_status
+from kali_daemons.tg.planner import Planner, check_request, write_status
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
@@ -224,10 +224,10 @@ def test_a_status_record_taken_over_never_shows_its_new_seq_with_the_old_state()
 class _Waiting:
     """The TG's start of waiting requests, with ``_start`` noting what it would start."""
 
-    _start_waiting = TrajectoryGenerator._start_waiting
-    _robots_of = TrajectoryGenerator._robots_of
-    _spent = TrajectoryGenerator._spent
-    _blend_into = TrajectoryGenerator._blend_into
+    _start_waiting = Planner._start_waiting
+    _robots_of = Planner._robots_of
+    _spent = Planner._spent
+    _blend_into = Planner._blend_into
 
     def __init__(self, check_until: int) -> None:
         self.n_robots = 2
@@ -294,12 +294,10 @@ class BareTg:
         procs = np.zeros(1, layout.PROCESS)
         procs["period_ticks"] = int(self.ratio)
         self.fault = np.zeros((), layout.FAULT)
-        self.tg = TrajectoryGenerator(cfg.instance, "tg")
-        self.tg.inst = SimpleNamespace(  # type: ignore[assignment]
+        inst = SimpleNamespace(
             config=cfg, arena=arena, lockstep=True, clock=clock, procs=procs, fault=self.fault
         )
-        self.tg.slot = 0
-        self.tg.on_configure()
+        self.tg = Planner(inst, "tg", 0)  # type: ignore[arg-type]
         self.sio = [  # SIO's ends of the FIFOs: attaching checks their width
             InterpolatingFifo(
                 arena, layout.KEY_FIFO.format(robot=r.name), r.n_joints, FIFO_CAPACITY, self.ratio
@@ -352,7 +350,7 @@ def bare_arena() -> Iterator[Arena]:
     launcher.stop(name)
 
 
-def _outcomes(tg: TrajectoryGenerator, seqs: list[int]) -> list[bool]:
+def _outcomes(tg: Planner, seqs: list[int]) -> list[bool]:
     """Which of ``seqs`` the TG has taken and answered (its status record is the request's)."""
     return [records.find(tg.status, s) >= 0 for s in seqs]
 

@@ -22,7 +22,7 @@ from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion, encode_config
-from kali_daemons.tg.planner import LEAD, Motion, TrajectoryGenerator
+from kali_daemons.tg.planner import LEAD, Motion, Planner
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tg.records import StatusRecords
 from kali_daemons.wallclock import step_kali_clock
@@ -258,11 +258,11 @@ class _TgMethods:
     """The TG's own motion-ending methods over a real instance's records, for the one case the
     check leaves no way to reach from outside: no joint solution at run time."""
 
-    _advance = TrajectoryGenerator._advance
-    _next_tau = TrajectoryGenerator._next_tau
-    _kinematics_halt = TrajectoryGenerator._kinematics_halt
-    _end_motion = TrajectoryGenerator._end_motion
-    _say = TrajectoryGenerator._say
+    _advance = Planner._advance
+    _next_tau = Planner._next_tau
+    _kinematics_halt = Planner._kinematics_halt
+    _end_motion = Planner._end_motion
+    _say = Planner._say
 
     def __init__(self, k: Kali) -> None:
         self.inst = k.inst

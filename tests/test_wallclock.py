@@ -18,7 +18,7 @@ import pytest
 from kali_daemons.core import layout, rt
 from kali_daemons.core.errors import ClockError
 from kali_daemons.core.layout import FaultCode, ProcState, RunMode
-from kali_daemons.runtime.instance import Instance
+from kali_daemons.runtime.instance import Instance, time_ms
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import (
     release,
@@ -34,7 +34,6 @@ from kali_daemons.wallclock.clock import (
     GANG_SVS_LATE,
     WallClock,
     gang_state,
-    time_ms,
 )
 
 from .conftest import ROOT, wait_for

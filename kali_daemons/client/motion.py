@@ -55,19 +55,13 @@ from ..core.errors import KaliError, KinematicsError, QueueFullError, ServoError
 from ..core.layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
 from ..core.spinlock import pid_alive
 from ..robots import RobotType
-from ..robots.cell import FLANGE_FRAME, load_pinocchio
+from ..robots.cell import FLANGE_FRAME, base_transform, inverse, load_pinocchio
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import log_dir
 from ..servo.level import ServoClient
 from ..servo.shadow import Trial
 from ..tg import records
-from ..tg.cartesian import (
-    CartesianMotion,
-    base_transform,
-    encode_config,
-    inverse,
-    rotation_angle,
-)
+from ..tg.cartesian import CartesianMotion, encode_config, rotation_angle
 from ..tg.functions import FunctionRegistry
 from ..tg.functions import registry_for as functions_for
 from ..tg.profiles import MotionError, check_guard, check_joint_target, rigid_pose

@@ -42,7 +42,7 @@ HOSTED_ORDER = (
     ("plant", "plant.daemon", "Plant"),
     ("sio", "sio.daemon", "ServoIO"),
     ("sv", "servo.sv.daemon", "ServoWorker"),
-    ("tg", "tg.planner", "TrajectoryGenerator"),
+    ("tg", "tg.daemon", "TrajectoryGenerator"),
     ("dynamics", "dynamics.daemon", "Dynamics"),
     ("viewer", "viewer.daemon", "Viewer"),
 )

@@ -1,6 +1,6 @@
 """``python -m kali_daemons.tg --instance NAME --name NAME``."""
 
 from ..runtime.daemon import run_daemon
-from .planner import TrajectoryGenerator
+from .daemon import TrajectoryGenerator
 
 run_daemon(TrajectoryGenerator)

@@ -1,5 +1,6 @@
-"""Trajectory generator (thesis 3.3.1, 2.2.1; DESIGN 5): one process computes the set-points
-of every motion system each TG tick, time-sharing them.
+"""The trajectory generator's cycle logic (thesis 3.3.1, 2.2.1; DESIGN 5): one process computes
+the set-points of every motion system each TG tick, time-sharing them (``Planner``; its
+process shell is ``daemon.TrajectoryGenerator``).
 
 Requests come from user programs through the Type 1 queue ``tg.requests`` (3.3.2); each one's
 fate is written to a status record of ``tg.status`` the TG gives it (``records``: a program
@@ -73,8 +74,7 @@ from ..robots import RobotType
 from ..robots.cell import base_transform
 from ..robots.chain import chain_of, flange_pose
 from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
-from ..runtime.daemon import Daemon
-from ..runtime.instance import decode
+from ..runtime.instance import Instance, decode
 from ..servo.level import FIFO_CAPACITY
 from .cartesian import CartesianMotion, decode_config
 from .functions import FUNCTION_SHARE, FunctionSlots, Sensors, registry_for
@@ -354,13 +354,15 @@ def joint_rows(widths: Sequence[int]) -> tuple[np.ndarray, list[np.ndarray]]:
     return out, [out[end - w : end] for w, end in zip(widths, ends, strict=True)]
 
 
-class TrajectoryGenerator(Daemon):
-    """The TG: takes requests, plans and checks them, and feeds the FIFOs every tick."""
+class Planner:
+    """The TG's cycle logic: takes requests, plans and checks them, and feeds the FIFOs every
+    tick (``cycle``).  Plain state over the arena's records, laid over them outside the
+    cycle (``__init__``, from the process's ``Instance``, its name and its process-table
+    slot); the process shell (``daemon.TrajectoryGenerator``), the lockstep executive
+    through it, and the tests drive the same ``cycle``."""
 
-    kind = "tg"
-
-    def on_configure(self) -> None:
-        inst = self.inst
+    def __init__(self, inst: Instance, name: str, slot: int) -> None:
+        self.inst, self.name, self.slot = inst, name, slot
         cfg = inst.config
         arena = inst.arena
         self.names = [r.name for r in cfg.robots]
