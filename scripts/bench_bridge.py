@@ -141,7 +141,7 @@ from kali_daemons.client.zenohconfig import client_config
 from kali_daemons.core.errors import KaliError
 from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.config import KaliConfig
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 
 PERIOD_US = 1000  # bench_servo's 1ms-2sv
 N_SV = 2

@@ -169,7 +169,7 @@ from kali_daemons.core.errors import KaliError
 from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.config import KaliConfig, period_ticks
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 
 POWER_TIMEOUT_S = 5.0  # both arms must report ON within this after the enable request
 SETTLE_S = 2.0  # after power-on: let the arms settle before the motion starts

@@ -20,7 +20,7 @@ from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import Registry
 from kali_daemons.servo.algorithms.arm import ArmInput, ArmServoAlgorithm
 from kali_daemons.servo.algorithms.armbuiltins import IMPEDANCE, rotation_error
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_dynamics import LEFT, MOVE_S, _run, standard_move
 from tests.test_launcher import kalictl

@@ -22,7 +22,7 @@ from kali_daemons.dynamics.daemon import Dynamics
 from kali_daemons.robots import puma560
 from kali_daemons.robots.inverse import InverseDynamics, central_differences
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import make_config

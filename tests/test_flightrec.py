@@ -24,7 +24,7 @@ from kali_daemons.core.layout import FaultCode, PowerState
 from kali_daemons.runtime import flightrec
 from kali_daemons.runtime.config import KaliConfig
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
 from kali_daemons.tools.introspect import Introspector
 from kali_daemons.wallclock import step_kali_clock

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
 from kali_daemons.tools.introspect import pss_kib
 from kali_daemons.wallclock import step_kali_clock

@@ -10,7 +10,7 @@ from rich.console import Console
 
 from kali_daemons.core.layout import FaultCode
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import top
 from kali_daemons.tools.introspect import Introspector, plain
 from kali_daemons.wallclock import step_kali_clock

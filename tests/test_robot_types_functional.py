@@ -29,7 +29,7 @@ from kali_daemons.core.layout import CSR_NO_DISABLE, CalibState, FaultCode, Powe
 from kali_daemons.core.spinlock import pid_alive
 from kali_daemons.robots import RobotType, known_types
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ByArm, wait_for

@@ -15,7 +15,7 @@ from kali_daemons.core.errors import ScheduleError
 from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import PID, registry_for, schedule, struct_view
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.servo.schedule import Change, Figures, Task, predict
 
 from .conftest import wait_for

@@ -30,7 +30,7 @@ from kali_daemons.core.layout import (
 )
 from kali_daemons.robots import puma560
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient, ServoError
+from kali_daemons.servo.client import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ROOT, ByArm, wait_for

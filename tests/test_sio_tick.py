@@ -36,7 +36,7 @@ from kali_daemons.core.kernels import (
     SV_SLOT,
 )
 from kali_daemons.core.layout import FaultCode, FfMode, GuardState, PowerCmd
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.sio.daemon import ServoIO
 from kali_daemons.sio.gang import GangAcknowledger
 

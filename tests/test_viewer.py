@@ -41,7 +41,7 @@ from kali_daemons.core.layout import FaultCode, RunMode
 from kali_daemons.robots.cell import base_transform
 from kali_daemons.runtime.config import DashboardConfig
 from kali_daemons.runtime.instance import Instance, time_ms
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
 from kali_daemons.viewer.daemon import CONTACT_M_PER_N, Viewer, blueprint
 from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary

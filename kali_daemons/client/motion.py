@@ -58,7 +58,7 @@ from ..robots import RobotType
 from ..robots.cell import FLANGE_FRAME, base_transform, inverse, load_pinocchio
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import log_dir
-from ..servo.level import ServoClient
+from ..servo.client import ServoClient
 from ..servo.shadow import Trial
 from ..tg import records
 from ..tg.cartesian import CartesianMotion, encode_config, rotation_angle

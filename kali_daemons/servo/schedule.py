@@ -41,8 +41,8 @@ from ..core import layout
 from ..core.errors import ScheduleError
 from ..runtime.flightrec import attach_ring, read_ring
 from ..runtime.instance import Instance, decode
-from . import Handover, ServoAlgorithm, struct_view
-from .level import ServoClient
+from .algorithms.algorithm import Handover, ServoAlgorithm, struct_view
+from .client import ServoClient
 from .sv import units
 
 DEFAULT_MARGIN = 0.2  # the servo tick may take 80 % of its period, the rest is headroom

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..core import atomic, layout
 from ..core.layout import ShadowState
-from . import Handover
+from .algorithms.algorithm import Handover
 
 if TYPE_CHECKING:
     from .level import ServoLevel

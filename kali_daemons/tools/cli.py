@@ -47,7 +47,7 @@ from ..runtime.instance import (
     time_ms,
 )
 from ..servo import registry_for, schedule, shadow
-from ..servo.level import ServoClient, ServoError
+from ..servo.client import ServoClient, ServoError
 from ..wallclock import (
     set_control_rate,
     set_kali_clock,

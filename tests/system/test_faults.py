@@ -56,7 +56,7 @@ from kali_daemons.core.layout import (
 )
 from kali_daemons.core.spinlock import pid_alive
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 

@@ -25,7 +25,7 @@ import click
 import pytest
 
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import cli
 from kali_daemons.wallclock import step_kali_clock
 

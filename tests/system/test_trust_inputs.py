@@ -26,7 +26,7 @@ from kali_daemons.core.layout import PowerCmd, PowerState
 from kali_daemons.runtime.config import arena_need, load_config, parse_config
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import MAX_DATA_BYTES
-from kali_daemons.servo.level import ServoClient
+from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 

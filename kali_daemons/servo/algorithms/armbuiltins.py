@@ -21,7 +21,7 @@ rotation at q, x_d, R_d at q_d, the pose error e = (x_d − x, log(R_d Rᵀ)) an
 so a steady force F on the tool displaces it by F / k on each axis; ``kx`` ... ``krz``
 and ``dx`` ... ``drz`` are set on line (``kalictl servo set ROBOT kz=500``).  ``fz`` presses
 along the tool's z axis (moving in contact); a set-point beyond the wrist sensor's rated
-range is refused by the client (``servolevel.ServoClient``).
+range is refused by the client (``servo.client.ServoClient``).
 
 A geared arm's joints stick (the PUMA's Coulomb friction holds 25 N·m on joint 1, a 50 N
 push at half a metre), so with a wrist sensor the law closes a force loop too: the sensed

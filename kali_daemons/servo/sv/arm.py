@@ -9,7 +9,7 @@ robot (``ArmRunner.run``):
 
 1. this tick's inputs from the robot's slots (demand, its velocity and acceleration, the
    measurement, the feed-forward) and its wrist sensor's world wrench;
-2. the robot's mailbox operation, if any (``servolevel.apply_arm_op``): a SELECT switches
+2. the robot's mailbox operation, if any (``level.apply_arm_op``): a SELECT switches
    the robot between its joint servos and a robot-level servo, bumplessly both ways — into a
    robot-level servo from the torque the motors had last tick (``handover``), back into the
    joint servos from that torque less the feed-forward SIO adds again from this tick;

@@ -71,7 +71,8 @@ from ...core.kernels import SV_ARM, SV_DONE, SV_FAULT, SV_FEED, SV_LEFT, SV_SLOT
 from ...core.layout import FaultCode, ShadowState, SlotOp, SlotReset
 from ...runtime.config import period_ticks
 from ...runtime.daemon import Daemon, drain
-from .. import Handover, shadow
+from .. import shadow
+from ..algorithms.algorithm import Handover
 from ..level import ServoLevel, apply_op, handover
 from . import arm, units
 

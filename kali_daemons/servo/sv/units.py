@@ -31,9 +31,8 @@ import numpy as np
 
 from ...core import layout
 from ...core.kernels import Kernel
-from .. import PD, PID, struct_view
-from ..algorithms.algorithm import STATUS_OK
-from ..algorithms.builtins import PD_DTYPE, PID_DTYPE
+from ..algorithms.algorithm import STATUS_OK, struct_view
+from ..algorithms.builtins import PD, PD_DTYPE, PID, PID_DTYPE
 
 ALGORITHMS = (PID.name, PD.name)  # the built-ins a unit runs, in one compiled call per arm
 
