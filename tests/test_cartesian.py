@@ -15,12 +15,7 @@ from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.robots.puma560.kinematics import CONFIGS, KinematicsError
 from kali_daemons.tg.cartesian import CartesianMotion, decode_config, encode_config
-from kali_daemons.tg.planner import (
-    CHECK_CHUNK,
-    LOCKSTEP_CHECK_SAMPLES,
-    Motion,
-    Planner,
-)
+from kali_daemons.tg.planner import CHECK_CHUNK, LOCKSTEP_CHECK_SAMPLES, Motion, Planner
 from kali_daemons.tg.profiles import MotionError
 
 DT = 0.01

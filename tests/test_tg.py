@@ -28,8 +28,10 @@ from kali_daemons.runtime.config import KaliConfig, ms_to_ns
 from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import planner as tgd
 from kali_daemons.tg import records
-from kali_daemons.tg.planner import Planner, check_request, write_status
+from kali_daemons.tg.planner import Planner
 from kali_daemons.tg.profiles import MotionError
+from kali_daemons.tg.records import write_status
+from kali_daemons.tg.requests import check_request
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 

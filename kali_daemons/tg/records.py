@@ -16,7 +16,8 @@ handle; so one program's unread outcomes cost only that program:
 
 Never a record by seq modulo the ring: one unread record then blocked every later request of
 every program at its place.  Outside the servo cycle; in the TG's tick, a few numpy
-operations over the records per request taken.
+operations over the records per request taken.  ``write_status`` writes a request's state
+into its record in the order a polling client can trust.
 """
 
 from __future__ import annotations
@@ -127,3 +128,23 @@ def holders(records: np.ndarray) -> dict[int, tuple[int, int]]:
         mine = records["client_pid"] == p
         out[int(p)] = (int(np.count_nonzero(live & mine)), int(np.count_nonzero(unread & mine)))
     return out
+
+
+def write_status(rec: np.void, seq: int, state: RequestState, message: str = "") -> None:
+    """Write request ``seq``'s state into its status record ``rec`` (``records``).
+
+    A waiting client reads the seq, then the state, then the message, while this writes, so
+    the state goes last, after its message; and a record given over from an earlier request
+    first has that request's state withdrawn (FREE), before the new seq appears.  Else a
+    client that polls early would see its seq with the old request's DONE and think its
+    motion over before it began.
+    """
+    if int(rec["seq"]) != seq:
+        rec["state"] = RequestState.FREE
+        rec["duration_s"] = 0.0
+        rec["progress"] = 0.0
+        rec["read"] = 0
+        rec["client_pid"] = 0
+    rec["seq"] = seq
+    rec["message"] = message.encode()[: layout.MESSAGE_BYTES]
+    rec["state"] = state

@@ -48,7 +48,7 @@ from kali_daemons.robots.cell import base_transform
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.runtime.config import KaliConfig, parse_config
 from kali_daemons.tg import records
-from kali_daemons.tg.planner import check_request, plan_joints, plan_path
+from kali_daemons.tg.requests import check_request, plan_joints, plan_path
 from kali_daemons.tools import launcher
 from kali_daemons.tools.cli import main as kalictl
 from kali_daemons.wallclock import step_kali_clock
