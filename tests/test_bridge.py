@@ -270,6 +270,51 @@ def test_events_arrive_in_order_and_none_is_lost_across_a_fault_and_reset(
     late_sub.undeclare()
 
 
+def stream_and_track(k: Kali) -> list[np.ndarray]:
+    """One program, run locally or through the bridge: a pose stream the left tool follows,
+    then a shared transform it tracks, ``k.sleep`` between sends (the clock stepped in
+    lockstep); the demand after each step."""
+    k.ready(["left"])
+    left = k.robot("left")
+    start = left.read_pose()
+    seen = []
+    with left.stream(lifetime=0.1, accel=5.0) as s:
+        p = start.copy()
+        for _ in range(20):
+            p[2, 3] += 0.002
+            s.send(p)
+            k.sleep(0.02)
+            seen.append(left.read_state().q_d)
+        assert s.handle.limited > 0
+    frame = k.shared_transform("target", start, lifetime=0.2)
+    handle = left.track([frame], speed=0.2)
+    for i in range(20):
+        p = start.copy()
+        p[1, 3] += 0.001 * i
+        frame.set(p)
+        k.sleep(0.01)
+        seen.append(left.read_state().q_d)
+    k.sleep(0.3)  # not set for longer than its lifetime: the arm stops on its path
+    assert handle.state == layout.RequestState.STOPPED and "not written for" in handle.message
+    frame.close()
+    return seen
+
+
+def test_a_remote_stream_and_shared_transform_drive_the_arm_as_a_local_program_does(
+    kali: Callable[..., str], bridged: Callable[..., tuple[str, str]]
+) -> None:
+    """Issue 55 item 5: ``robot.stream()``, ``kali.shared_transform`` and ``robot.track``
+    through the bridge, unchanged: the remote stream is a shared transform the program's
+    session writes, with the same lifetime and stale-stop rule, and the demands tick by tick
+    are those of the same program run locally."""
+    with Kali(kali(lockstep=True)) as local:
+        here = stream_and_track(local)
+    name, endpoint = bridged()
+    with Kali.connect(endpoint, name) as remote:
+        there = stream_and_track(remote)
+    np.testing.assert_array_equal(np.array(there), np.array(here))
+
+
 def test_verbs_answer_with_kalictls_words(
     bridged: Callable[..., tuple[str, str]],
 ) -> None:

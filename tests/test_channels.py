@@ -382,6 +382,25 @@ def test_fifo_reset_holds_position_and_drops_pending(arena: Arena) -> None:
     assert all(moved)
 
 
+def test_fifo_publishes_where_a_reset_holds_for_the_set_point_pushed_next(arena: Arena) -> None:
+    """``held_before(i)``: the position of the latest reset, for set-point ``i`` pushed first
+    after it (its predecessor, which the ring does not hold); nothing for any other index,
+    before any reset, or while a reset is being written (the sequence lock is odd)."""
+    fifo = InterpolatingFifo(arena, "tg.fifo", 2, 4, (4, 1))
+    other = InterpolatingFifo(arena, "tg.fifo", 2, 4, (4, 1))  # the dynamics process's
+    out = np.zeros(2)
+    assert not other.held_before(0, out)
+    fifo.push(np.array([100.0, 100.0]))
+    fifo.reset(np.array([1.0, 2.0]))
+    fifo.reset(np.array([3.0, 4.0]))  # the latest counts
+    fifo.push(np.array([5.0, 4.0]))
+    assert other.held_before(1, out) and out.tolist() == [3.0, 4.0]
+    assert not other.held_before(0, out) and not other.held_before(2, out)
+    resets = other._h["resets"]
+    resets[...] = int(resets) + 1  # as while the consumer writes one
+    assert not other.held_before(1, out)
+
+
 def test_fifo_attacher_shares_state_and_geometry_is_checked(arena: Arena) -> None:
     tg = InterpolatingFifo(arena, "tg.fifo", 2, 8, Fraction(5, 2))
     sio = InterpolatingFifo(arena, "tg.fifo", 2, 8, (10, 4))  # same ratio, unreduced

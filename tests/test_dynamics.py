@@ -149,6 +149,35 @@ def test_a_motions_last_set_point_gets_its_resting_row_as_soon_as_it_is_pushed(
     del ff
 
 
+def test_a_move_right_after_calibration_gets_the_demands_own_velocity(
+    kali: Callable[..., str],
+) -> None:
+    """A motion's first row takes q_{i-1} from the hold row this process wrote while the FIFO
+    was drained.  Calibration re-bases the angles and SIO holds the arm where it now reads,
+    at once; a move pushed before this process ran again got a velocity from the old hold
+    position: on the first move after ``ready()`` the left arm's demanded q̇ swung to
+    -34°/s on joint 1 (the move goes the other way) over 20 ms while the demand stood still,
+    and the feed-forward sent 263 N m.  The demand's velocity must agree with its positions
+    (it integrates to the demand's displacement) and the feed-forward stay near gravity."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready(["left"])
+        left = k.robot("left")
+        start = left.read_joints()
+        left.move_joints(start + np.radians([15, -10, 20, 0, 25, 0]), speed=0.5, wait=False)
+        states = []
+        for _ in range(60):
+            step_kali_clock(k.inst, 1)
+            states.append(left.read_state())
+    q_d = np.array([s.q_d for s in states])
+    qd_d = np.array([s.qd_d for s in states])
+    ff = np.array([s.ff_torque for s in states])
+    travelled = np.degrees(qd_d[1:].sum(axis=0) * 1e-3)  # 1 ms servo ticks
+    moved = np.degrees(q_d[-1] - q_d[0])
+    np.testing.assert_allclose(travelled, moved, atol=0.02)
+    assert np.abs(ff[:, 0]).max() < 20.0, np.round(ff[:, 0], 1)  # no gravity on joint 1
+
+
 def _run(inst: Instance, client: ServoClient, traj: np.ndarray) -> np.ndarray:
     """Push ``traj`` (TG-rate set-points) into left's FIFO as the commanded path, step the
     clock through it and return the tracking error (demand − q) every SAMPLE_TICKS."""

@@ -170,6 +170,63 @@ def test_a_recording_survives_a_halt_with_the_halt_in_it(
     assert move.seq in seqs, seqs
 
 
+def test_a_recording_carries_servo_changes_and_the_simulators_truth(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """A gain changed, a servo selected, a joint's servo disabled and enabled, a shadow trial
+    begun and stopped, a robot-level servo selected while recording: each is on
+    ``/kali/<arm>/servo_changes`` at its tick with the servo's parameters as they then were;
+    the plant's truth is on ``/kali/sim/<arm>/truth`` (sampled each recorder period, labelled
+    as the simulator's), its joints where the encoders said at that tick.  ``log.read`` gives
+    both."""
+    name = kali(lockstep=True, base="force.yaml")
+    path = tmp_path / "servos.mcap"
+    with Kali(name) as k:
+        k.ready()
+        sv = k.servo
+        with k.record(path) as status:
+            step_kali_clock(k.inst, 20)
+            sv.set_params("left", 2, {"kp": 1234.0})
+            step_kali_clock(k.inst, 20)
+            sv.select("left", 3, "pd")
+            sv.enable_servo("left", 4, False)
+            step_kali_clock(k.inst, 20)
+            sv.enable_servo("left", 4, True)
+            sv.shadow("right", 1, "pd")
+            step_kali_clock(k.inst, 30)
+            sv.shadow("right", 1, None)
+            sv.select_arm("right", "computed_torque")
+            step_kali_clock(k.inst, 30)
+        assert status["error"] == "" and status["gaps"] == 0, status
+    topics = by_topic(path)
+    left = [(m.joint, m.kind, m.servo) for m in topics["/kali/left/servo_changes"]]
+    right = [(m.joint, m.kind, m.servo) for m in topics["/kali/right/servo_changes"]]
+    assert left == [
+        (2, "params", "pid"),
+        (3, "select", "pd"),
+        (4, "disable", "pid"),
+        (4, "enable", "pid"),
+    ], left
+    assert right == [
+        (1, "shadow", "pd"),
+        (1, "shadow_stopped", "pd"),
+        (0, "select", "computed_torque"),
+    ], right
+    gain = topics["/kali/left/servo_changes"][0]
+    assert dict(zip(gain.names, gain.values, strict=True))["kp"] == 1234.0
+    ticks = [m.tick for m in topics["/kali/left/servo_changes"]]
+    assert ticks == sorted(ticks) and ticks[0] < ticks[1]
+    servo = {m.tick: m for m in topics["/kali/left/servo"]}
+    truth = topics["/kali/sim/left/truth"]
+    assert len(truth) >= 9  # one a recorder period (10 ms) over 100 ticks
+    for m in truth:
+        np.testing.assert_allclose(m.q, servo[m.tick].q, atol=2e-4)  # an encoder count or so
+    run = log.read(path)
+    assert [(c.joint, c.kind, c.servo) for c in run.servo_changes["left"]] == left
+    np.testing.assert_array_equal(run.truth["left"].tick, [m.tick for m in truth])
+    assert run.truth["left"].q.shape == (len(truth), 6)
+
+
 def test_kalictl_flight_now_dumps_the_ring_without_a_halt(kali: Callable[..., str]) -> None:
     """``kalictl flight --now`` writes the last 2 s as they stand (a ring-*.npz, its fault
     fields saying it was asked for) and sums it up; it is never taken for a halt's dump."""

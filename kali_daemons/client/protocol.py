@@ -139,9 +139,11 @@ class UserKeys:
 
 
 # The calls a remote program may make, by the class of the object it calls (methods, then
-# properties read as attributes).  Periodic functions, streams and tracking stay on the
-# controller's machine (their deadlines are the TG's and the wall clock's), as do the live
-# views of shared memory (``kali.servo.level``, ``kali.ft``).
+# properties read as attributes).  A remote stream or shared transform is one its session
+# holds and writes on each call, under the same lifetime and stale-stop rule as a local
+# one's.  Periodic functions and TG functions stay on the controller's machine (their
+# deadlines are the wall clock's and the TG's), as do the live views of shared memory
+# (``kali.servo.level``, ``kali.ft``).
 METHODS: dict[str, frozenset[str]] = {
     "Kali": frozenset(
         {
@@ -160,6 +162,8 @@ METHODS: dict[str, frozenset[str]] = {
             "record_in_log_dir",
             "stop_recording",
             "recorded_bytes",
+            "shared_transform",
+            "find_transform",
         }
     ),
     "Robot": frozenset(
@@ -187,10 +191,22 @@ METHODS: dict[str, frozenset[str]] = {
             "servo_params",
             "stop",
             "abort",
+            "stream",
+            "stream_joints",
+            "track",
         }
     ),
     "MotionSystem": frozenset(
-        {"read_pose", "read_state", "move_line", "move_path", "set_internal_force", "stop", "abort"}
+        {
+            "read_pose",
+            "read_state",
+            "move_line",
+            "move_path",
+            "set_internal_force",
+            "track",
+            "stop",
+            "abort",
+        }
     ),
     "ServoClient": frozenset(
         {
@@ -215,9 +231,13 @@ METHODS: dict[str, frozenset[str]] = {
     "MotionHandle": frozenset({"wait", "cancel"}),
     "SimTruth": frozenset({"truth"}),
     "Together": frozenset({"__enter__", "__exit__", "wait"}),
+    "Stream": frozenset({"send", "send_twist", "close"}),
+    "JointStream": frozenset({"send", "close"}),
+    "SharedTransform": frozenset({"set", "set_joints", "close", "live"}),
 }
 PROPERTIES: dict[str, frozenset[str]] = {
     "MotionHandle": frozenset({"state", "message", "done", "contact", "limited"}),
+    "SharedTransform": frozenset({"value"}),
 }
 # the plain attributes a proxy holds, read when the object crosses (and after each call)
 ATTRIBUTES: dict[str, tuple[str, ...]] = {
@@ -228,6 +248,9 @@ ATTRIBUTES: dict[str, tuple[str, ...]] = {
     "MotionHandle": ("seq", "robots"),
     "Together": (),
     "SimTruth": ("simulated",),
+    "Stream": ("handle", "frame"),
+    "JointStream": ("handle", "frame"),
+    "SharedTransform": ("index", "name", "lifetime"),
 }
 # the exceptions a call may raise remotely, by name; any other comes back as BridgeError
 ERRORS: dict[str, type[Exception]] = {
@@ -254,7 +277,8 @@ DATACLASSES: dict[str, type] = {
 
 def encode(value: Any, register: Callable[[object], dict[str, Any]] | None = None) -> Any:
     """``value`` as JSON-ready data; ``register`` turns an object of a ``METHODS`` class
-    into its tagged reference (the worker's table), else such an object is a BridgeError."""
+    (or a remote program's proxy of one) into its tagged reference (the worker's table),
+    else such an object is a BridgeError."""
     if isinstance(value, enum.IntEnum) and type(value).__name__ in ENUMS:  # before int
         return {"__enum__": type(value).__name__, "name": value.name}
     if value is None or isinstance(value, bool | int | float | str):
@@ -270,8 +294,10 @@ def encode(value: Any, register: Callable[[object], dict[str, Any]] | None = Non
         return [encode(v, register) for v in value]
     if isinstance(value, dict):
         return {str(k): encode(v, register) for k, v in value.items()}
-    if register is not None and type(value).__name__ in METHODS:
-        return register(value)
+    if register is not None and (
+        type(value).__name__ in METHODS or getattr(type(value), "stands_for_remote", False)
+    ):
+        return register(value)  # a session's object, or a remote proxy given back
     raise BridgeError(f"a {type(value).__name__} cannot cross the bridge")
 
 

@@ -356,6 +356,8 @@ def _reference(obj: object) -> dict[str, Any]:
 class Proxy:
     """A session object on the controller's machine: its attributes, its methods as calls."""
 
+    stands_for_remote = True  # given back as an argument, it crosses as its reference
+
     def __init__(self, conn: Connection, oid: int, cls: str) -> None:
         self._conn = conn
         self._oid = oid
@@ -373,7 +375,7 @@ class Proxy:
         if name in METHODS.get(self._cls, ()):
             return functools.partial(self._call, name)
         raise BridgeError(
-            f"a remote {self._cls} has no {name!r}: periodic functions, streams, tracking "
+            f"a remote {self._cls} has no {name!r}: periodic functions, TG functions "
             f"and live views of shared memory stay on the controller's machine; remote: "
             f"{', '.join(sorted(METHODS.get(self._cls, set()) | set(attrs)))}"
         )
@@ -457,6 +459,22 @@ class RemoteTogether(Proxy):
 
     def wait(self, timeout: float | None = None, any: bool = False) -> Any:
         return self._call("wait", timeout=timeout, any=any)
+
+
+class RemoteStream(Proxy):
+    """A pose or joint stream its session holds (``Robot.stream``): each ``send`` a call the
+    session carries out at once; leaving ``with`` closes it, stopping the arm."""
+
+    def __enter__(self) -> RemoteStream:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._call("close")
 
 
 class RemoteInstance:
@@ -568,4 +586,6 @@ PROXIES: dict[str, type[Proxy]] = {
     "Robot": RemoteRobot,
     "MotionHandle": RemoteHandle,
     "Together": RemoteTogether,
+    "Stream": RemoteStream,
+    "JointStream": RemoteStream,
 }

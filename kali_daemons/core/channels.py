@@ -370,7 +370,8 @@ class InterpolatingFifo:
     Blocks: ``key`` (``layout.FIFO_HEADER``), ``key + ".ring"`` (float64 ``(capacity, width)``),
     ``key + ".ratios"`` (u64 ``capacity``: each set-point's ratio word, see ``_pack``),
     ``key + ".rests"`` (u8 ``capacity``: 1 where a motion stops, its last set-point) and
-    ``key + ".state"`` (float64 ``(3, width)``: current output, segment start A, target B).
+    ``key + ".state"`` (float64 ``(3, width)``: current output, segment start A, target B)
+    and ``key + ".hold"`` (float64 ``width``: the position of the latest ``reset``).
     All interpolation state is in the arena, so a restarted consumer resumes where it was.
     """
 
@@ -415,6 +416,9 @@ class InterpolatingFifo:
         self._rests = arena.record(key + ".rests", np.dtype("u1"), cap)
         state = arena.record(key + ".state", np.dtype("<f8"), 3 * width).reshape(3, width)
         self._cur, self._start, self._target = state[0], state[1], state[2]
+        self._hold = arena.record(key + ".hold", np.dtype("<f8"), width)
+        self._resets_addr = arena.address_of_field(off, fh, "resets")
+        self._hold_index = self._h["hold_index"]
         # Consumer-only header fields as 0-d views, and private scratch (never shared).
         h = self._h
         self._acc = h["phase_acc"]
@@ -512,7 +516,13 @@ class InterpolatingFifo:
         Consumer, at start or after a halt; safe in a cycle when given a float ndarray.
         """
         x = self._check_vector("position", position)
-        atomic.store64(self._head_addr, atomic.load64(self._tail_addr))
+        seq = atomic.load64(self._resets_addr)  # this consumer is its only writer
+        atomic.store64(self._resets_addr, seq + 1)  # odd: being written
+        tail = atomic.load64(self._tail_addr)
+        self._hold_index[...] = tail
+        np.copyto(self._hold, x)
+        atomic.store64(self._resets_addr, seq + 2)
+        atomic.store64(self._head_addr, tail)
         np.copyto(self._cur, x)
         np.copyto(self._start, x)
         np.copyto(self._target, x)
@@ -693,6 +703,17 @@ class InterpolatingFifo:
         """True if set-point ``index`` was pushed as the last of its motion (the demand stops
         there); meaningful while it is in the ring."""
         return bool(self._rests[index % self._capacity])
+
+    def held_before(self, index: int, out: np.ndarray) -> bool:
+        """If set-point ``index`` is the first pushed after the consumer's latest ``reset``,
+        copy the position that reset held into ``out`` (the set-point's predecessor) and
+        return True; False otherwise, or while a reset is being written.  Any reader, without
+        locking (``resets`` is a sequence lock)."""
+        seq = atomic.load64(self._resets_addr)
+        if seq == 0 or seq & 1 or int(self._hold_index) != index:
+            return False
+        np.copyto(out, self._hold)
+        return atomic.load64(self._resets_addr) == seq
 
     def held(self, out: np.ndarray) -> None:
         """Copy the segment's target B, where the output ends or holds, into ``out``."""

@@ -363,6 +363,12 @@ FIFO_HEADER = np.dtype(
         # word); producer (set_ratio), creator.  Each set-point carries its own stamp in the
         # ``.ratios`` block, so a change never touches set-points already in the ring.
         ("push_ratio", "<u8"),
+        # The consumer's resets (``reset``: a start, power on, calibration, a guard's trip, a
+        # hand guiding): a sequence lock, odd while one is written, then ``hold_index``
+        # (the tail then: the first set-point pushed after it) and the ``.hold`` block (the
+        # position it holds, that set-point's predecessor for the dynamics process).
+        ("resets", "<u8"),
+        ("hold_index", "<u8"),
     ],
     align=True,
 )
@@ -1493,6 +1499,7 @@ RECORDS: tuple[Record, ...] = (
     # each set-point's 1 if its motion stops there (its last), for the dynamics process
     Record(KEY_FIFO + ".rests", np.dtype("u1"), FIFO_CAPACITY, "TG", "dynamics"),
     Record(KEY_FIFO + ".state", np.dtype("<f8"), lambda c, k: 3 * c.joints[k], "SIO", "SIO"),
+    Record(KEY_FIFO + ".hold", np.dtype("<f8"), lambda c, k: c.joints[k], "SIO", "dynamics"),
     # motion requests (channels.RequestQueue) and the TG's records
     Record(KEY_MOTION_QUEUE, QUEUE_HEADER, None, "clients (tail), TG (head)", "clients, TG"),
     Record(

@@ -221,9 +221,13 @@ class Dynamics(Daemon):
             self.next_row[k] = i + 1
 
     def _previous(self, k: int, i: int) -> None:
-        """q_{i-1} into ``q_prev``: the position its own row was written for (the hold
-        position after a reset), else the ring's set-point, else q_i itself (a start)."""
+        """q_{i-1} into ``q_prev``: where SIO held if set-point ``i`` is the first after a
+        reset (the FIFO publishes it: a row this process wrote while the FIFO was drained may
+        predate the reset, as calibration re-bases the angles), else the position its own row
+        was written for (the hold), else the ring's set-point, else q_i itself (a start)."""
         a = self.arms[k]
+        if self.fifos[k].held_before(i, a.q_prev):
+            return
         key = i  # 1 + (i - 1)
         row = key % layout.FF_ROWS
         if int(self.ff["key"][k, row]) == key:

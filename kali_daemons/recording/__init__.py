@@ -25,6 +25,8 @@ Topics, one message per arm per tick, log time the clock's running time of the t
   (seen at the recorder's period: its outcome always, a state it passed through between two
   drains not);
 - ``/kali/faults``: ``kali_msgs/msg/Fault``, each fault raised (a halt, an e-stop).
+- ``/kali/<arm>/servo_changes`` and, in simulation, ``/kali/sim/<arm>/truth``: the servo
+  level's changes and the plant's truth (``recording.events``).
 
 Every message is ROS 2 CDR with its definition in the file, so any MCAP reader decodes it
 without Kali or ROS installed.
@@ -54,6 +56,7 @@ from ..core.layout import ProcState, RequestState
 from ..runtime.daemon import Daemon
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import instance_dir
+from .events import TRUTH_FIELDS, ServoWatch, TruthSampler, simulated
 from .log import SERVO_FIELDS
 
 NAME = "recorder"  # its process-table slot
@@ -90,6 +93,15 @@ REQUEST_DEF = (
 SETPOINT_DEF = f"std_msgs/Header header\nint64 tg_tick\nfloat64[] q\n{HEADER_DEF}"
 FAULT_DEF = (
     f"std_msgs/Header header\nint64 tick\nstring code\nstring process\nstring message\n{HEADER_DEF}"
+)
+SERVO_CHANGE_DEF = (
+    "std_msgs/Header header\nint64 tick\nint32 joint\nstring kind\nstring servo\n"
+    f"string[] names\nfloat64[] values\n{HEADER_DEF}"
+)
+SIM_TRUTH_DEF = (
+    "std_msgs/Header header\nint64 tick\nfloat64 sim_time_s\nuint64 plant_ticks\n"
+    + "".join(f"float64[] {f}\n" for f in TRUTH_FIELDS)
+    + f"float64[6] contact_wrench\nfloat64[6] grasp_wrench\nbool grasped\n{HEADER_DEF}"
 )
 
 
@@ -145,6 +157,10 @@ class Cdr:
     def int32(self, v: int) -> None:
         self._align(4)
         self.buf += struct.pack("<i", v)
+
+    def uint8(self, v: int) -> None:
+        """A uint8 or bool."""
+        self.buf += struct.pack("<B", v)
 
     def float64(self, v: float) -> None:
         self._align(8)
@@ -235,6 +251,8 @@ class Recording:
                 ("request", "kali_msgs/msg/Request", REQUEST_DEF),
                 ("fault", "kali_msgs/msg/Fault", FAULT_DEF),
                 ("setpoint", "kali_msgs/msg/SetPoint", SETPOINT_DEF),
+                ("change", "kali_msgs/msg/ServoChange", SERVO_CHANGE_DEF),
+                ("truth", "kali_msgs/msg/SimTruth", SIM_TRUTH_DEF),
             )
         }
 
@@ -244,10 +262,16 @@ class Recording:
         self._channels = [
             {kind: channel(f"/kali/{name}/{topic}", kind)
              for kind, topic in (("joints", "joint_states"), ("servo", "servo"),
-                                 ("wrench", "wrench"), ("setpoint", "setpoint"))
+                                 ("wrench", "wrench"), ("setpoint", "setpoint"),
+                                 ("change", "servo_changes"))
              if kind != "wrench" or self.sensors[k]}
             for k, name in enumerate(self.names)
         ]  # fmt: skip
+        self.servos = ServoWatch(inst)
+        self.truth = TruthSampler(inst) if simulated(inst) else None
+        self._truth_ch = [
+            channel(f"/kali/sim/{name}/truth", "truth") for name in self.names
+        ] if self.truth is not None else []  # fmt: skip
         self._events_ch = {
             kind: channel(f"/kali/{topic}", kind)
             for kind, topic in (("gap", "gaps"), ("request", "requests"), ("fault", "faults"))
@@ -367,6 +391,18 @@ class Recording:
             c.int64(tg_tick)
             c.float64s(self.tg["setpoint"][k, :n])
             add(self._channels[k]["setpoint"], tg_tick * self.base_ns, c.bytes(), t)
+        for k, joint, kind, servo, params in self.servos.changes():
+            c.reset()  # kali_msgs/msg/ServoChange
+            c.header(t)
+            c.int64(tick)
+            c.int32(joint)
+            c.string(kind.encode())
+            c.string(servo.encode())
+            c.strings([n.encode() for n in params])
+            c.float64s(np.array(list(params.values()), dtype=np.float64))
+            add(self._channels[k]["change"], t, c.bytes(), t)
+        if self.truth is not None:
+            self._sample_truth()
         count = int(self.inst.fault["count"])
         if count != self._faults:
             self._faults = count
@@ -377,6 +413,26 @@ class Recording:
             for text in (str(f.code), f.process, f.message):
                 c.string(text.encode())
             add(self._events_ch["fault"], t, c.bytes(), t)
+
+    def _sample_truth(self) -> None:
+        """Every arm's truth as the plant has it now, stamped with the clock's tick."""
+        assert self.truth is not None
+        arms, joints, world = self.truth.sample()
+        tick = int(self.inst.clock["tick"])
+        t = tick * self.base_ns
+        c = self._cdr
+        for k, span in enumerate(self.truth.spans):
+            c.reset()  # kali_msgs/msg/SimTruth
+            c.header(t)
+            c.int64(tick)
+            c.float64(int(world["sim_time_ns"]) / 1e9)
+            c.uint64(int(world["ticks"]))
+            for f in TRUTH_FIELDS:
+                c.float64s(joints[f][span])
+            c.float64_fixed(arms["ft_wrench"][k])
+            c.float64_fixed(arms["grasp_wrench"][k])
+            c.uint8(int(arms["grasped"][k]))
+            self.writer.add_message(self._truth_ch[k], t, c.bytes(), t)
 
     def close(self) -> None:
         """Finish the file (its index and summary), outside any cycle."""

@@ -49,14 +49,46 @@ class ArmLog:
         raise AttributeError(name)
 
 
+@dataclass(frozen=True)
+class ServoChange:
+    """A change of an arm's servos at ``tick``: ``joint`` (1.., 0 the robot-level servo),
+    ``kind`` (select, params, enable, disable, shadow, shadow_stopped, ...), ``servo`` and its
+    ``params`` as they then were."""
+
+    tick: int
+    joint: int
+    kind: str
+    servo: str
+    params: dict[str, float]
+
+
+@dataclass
+class TruthLog:
+    """The simulator's truth of one arm, one row a recorder period: ``tick`` (the clock's),
+    ``sim_time_s``, per joint ``q``, ``qd``, ``current``, ``torque`` (N, joints) and
+    ``contact_wrench``, ``grasp_wrench`` (N, 6)."""
+
+    tick: np.ndarray
+    sim_time_s: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    current: np.ndarray
+    torque: np.ndarray
+    contact_wrench: np.ndarray
+    grasp_wrench: np.ndarray
+
+
 @dataclass
 class Log:
     """A recording: each arm's ``ArmLog`` by name, and the ticks it lost (``gaps``: (first
-    tick, ticks) pairs; empty when every tick is there)."""
+    tick, ticks) pairs; empty when every tick is there); each arm's ``servo_changes`` and,
+    from a simulated cell, its ``truth`` (``TruthLog``)."""
 
     path: Path
     arms: dict[str, ArmLog]
     gaps: list[tuple[int, int]] = field(default_factory=list)
+    servo_changes: dict[str, list[ServoChange]] = field(default_factory=dict)
+    truth: dict[str, TruthLog] = field(default_factory=dict)
 
     def frame(self, arm: str) -> Any:
         """Arm ``arm``'s ticks as a pandas DataFrame indexed by tick, a column per quantity
@@ -82,6 +114,8 @@ def read(path: str | Path) -> Log:
     series: dict[str, dict[str, list[Any]]] = {}
     wrenches: dict[str, dict[int, list[float]]] = {}
     gaps: list[tuple[int, int]] = []
+    changes: dict[str, list[ServoChange]] = {}
+    truths: dict[str, list[Any]] = {}
     try:
         with open(path, "rb") as f:
             reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -96,6 +130,12 @@ def read(path: str | Path) -> Log:
                     s = series.setdefault(arm, {f: [] for f in SERVO_FIELDS})
                     for f in SERVO_FIELDS:
                         s[f].append(getattr(msg, f))
+                elif len(parts) == 4 and parts[1] == "kali" and parts[3] == "servo_changes":
+                    params = dict(zip(msg.names, map(float, msg.values), strict=True))
+                    change = ServoChange(int(msg.tick), int(msg.joint), msg.kind, msg.servo, params)
+                    changes.setdefault(parts[2], []).append(change)
+                elif len(parts) == 5 and parts[1:3] == ["kali", "sim"] and parts[4] == "truth":
+                    truths.setdefault(parts[3], []).append(msg)
                 elif len(parts) == 4 and parts[1] == "kali" and parts[3] == "wrench":
                     w = msg.wrench
                     wrenches.setdefault(parts[2], {})[int(message.log_time)] = [
@@ -122,4 +162,17 @@ def read(path: str | Path) -> Log:
             series={f: np.array(v, dtype=np.float64) for f, v in series[arm].items()},
             wrench=None if w is None else np.array([w[ns] for ns in stamps[arm]]),
         )
-    return Log(path=path, arms=arms, gaps=gaps)
+    truth = {
+        arm: TruthLog(
+            tick=np.array([m.tick for m in ms], dtype=np.int64),
+            sim_time_s=np.array([m.sim_time_s for m in ms]),
+            q=np.array([m.q for m in ms]),
+            qd=np.array([m.qd for m in ms]),
+            current=np.array([m.current for m in ms]),
+            torque=np.array([m.torque for m in ms]),
+            contact_wrench=np.array([m.contact_wrench for m in ms]),
+            grasp_wrench=np.array([m.grasp_wrench for m in ms]),
+        )
+        for arm, ms in truths.items()
+    }
+    return Log(path=path, arms=arms, gaps=gaps, servo_changes=changes, truth=truth)
