@@ -10,6 +10,9 @@ is the named null of the directory's linked list.
 ``RECORDS`` at the end lists every record (key, dtype, count, writer, readers).  ``kalictl
 start`` allocates them all (``blocks``) before any process starts and seals the arena, so a
 daemon only attaches; ``LAYOUT_VERSION`` is a digest of every dtype here.
+
+One module on purpose, however long: every record in shared memory in one place (DESIGN 2), so
+``LAYOUT_VERSION`` covers them all and each says who writes it.
 """
 
 from __future__ import annotations

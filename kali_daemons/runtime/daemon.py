@@ -9,6 +9,9 @@ activate → cycle … → deactivate → shutdown, or error.  The loop is alway
 (the interrupt-then-acknowledge protocol of thesis 3.6.2).  A daemon that is self-timed in
 real-time mode (the plant, which is the outside world and keeps its own clock, DESIGN 6)
 sleeps to its own absolute deadlines instead; in lockstep mode every daemon is clock-driven.
+
+Long on purpose: the one daemon base class with what its loop needs (the compiled clock wait,
+the cycle statistics), and ``FunctionDaemon``, a program's periodic function on the same loop.
 """
 
 from __future__ import annotations

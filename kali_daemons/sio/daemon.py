@@ -44,6 +44,10 @@ wall clock stops, and the fault names the robot, joint, value and limit (DESIGN 
 At start SIO reads each joint's potentiometer through the board's ADC (C.5) so angles are
 right to a degree or so; ``kalictl calibrate`` then makes them exact against the encoder index
 pulses (3.5.1, ``calibration.py``), stepped here while the robot is powered.
+
+Long on purpose: SIO's one daemon; its tick is a compiled call (``kali_sio_tick``), and what
+is here is that tick's binding and the steps around it (power, calibration, checks, faults, the
+wait for the servos) on the one daemon's state.
 """
 
 from __future__ import annotations

@@ -7,6 +7,9 @@
 
 ``-i NAME`` picks the instance (default: ``$KALI_INSTANCE``, else the config's, else
 ``default``), so two instances run side by side.
+
+Long on purpose: kalictl's whole command tree in one click group; each command is a thin call
+into the module that does the work.
 """
 
 from __future__ import annotations

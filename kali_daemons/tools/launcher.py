@@ -9,6 +9,9 @@ any of its spinlocks held by a stopped or dead process: it reads the process tab
 a crash.  Start, stop and that clean-up are serialised per instance by an OS lock
 (``flock``) on ``<runtime dir>/<instance>.lock``, so a second ``start`` never takes a first
 one's half-made instance for a stale one.
+
+Long on purpose: ``start`` and ``stop``, with the locking, the checks and the clean-up they
+share.
 """
 
 from __future__ import annotations

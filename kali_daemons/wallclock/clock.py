@@ -25,6 +25,9 @@ lockstep mode a non-serious process that does not acknowledge within the timeout
 (a miss) instead of halting the system, as a late one is in real time.  Nobody watches a dead
 wall clock from here: the serious processes do (``Daemon._watch_clock``), and the boards'
 watchdogs cut the amplifiers.
+
+Long on purpose: the wall clock's one daemon (its commands, signals, supervision and halts on
+one process table).
 """
 
 from __future__ import annotations
