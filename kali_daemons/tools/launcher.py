@@ -467,7 +467,7 @@ def start(
 
     In real-time mode the clock is started once everyone is ready; in lockstep mode it stays
     stopped at tick 0 until ``clock start`` or ``clock step N``.  A lockstep instance runs
-    every daemon in one process, the lockstep executive (``wallclock/executive.py``), unless
+    every daemon in one process, the lockstep executive (``lockstep/executive.py``), unless
     ``separate`` asks for a process per daemon as in real time (for fault injection: a test
     that kills one).  ``record`` (relative to the current directory) overrides the config's
     ``dashboard.record`` (relative to the config's).
