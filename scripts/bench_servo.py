@@ -527,7 +527,7 @@ def analyse(
     ct = ct_row("cyclictest", ct_res, "0,1", period, res.ct_priority)  # Floor.row's
     base_ms = cfg.clock.base_tick_ms
     servo_ticks = period_ticks(cfg.clock.servo_period_ms, base_ms)
-    rests = {  # a polling SV with nothing to share is signalled every rest_ms (sv/daemon.py)
+    rests = {  # a polling SV with nothing to share is signalled every rest_ms (servo/sv/daemon.py)
         n: k1.procs[n].period_ticks / servo_ticks
         for n in servo_names
         if k1.procs[n].period_ticks != servo_ticks

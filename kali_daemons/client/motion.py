@@ -32,6 +32,9 @@ handle whose record was reused anyway (by a writer outside the protocol) reads L
 with the fault: nothing waits for the TG to tick again.  An arm belongs to the first program
 that moves it until that program exits; another program's requests for it are refused naming
 the owner (``force=True``, as ``kalictl move --force``, takes it over).
+
+Long on purpose: ``Kali``, ``Robot``, ``MotionSystem`` and ``MotionHandle`` share one request
+protocol over one instance; what the other client modules share with them is in ``common``.
 """
 
 from __future__ import annotations

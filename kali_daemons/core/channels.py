@@ -23,6 +23,9 @@ own head, checks the tail against it and each entry's sequence number against th
 place, and drops what does not fit (``discarded``); the Type 2 consumer refuses set-points that
 are not finite (or beyond its ``bound``) and ratio stamps below 1, holding instead
 (``rejected``).
+
+One module on purpose: the four channel types of thesis 3.2.1 side by side, sharing the arena's
+creator/attacher handshake.
 """
 
 from __future__ import annotations

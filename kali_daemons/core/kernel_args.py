@@ -16,6 +16,9 @@ it; a test holds it to these declarations), and each library it is compiled into
 struct's fields (``kali_layout``, ``kali_fields``), so that ``kernels.open_library`` refuses
 one whose layout is not the ctypes classes'.  A block's owner says which library holds its
 kernels (``LIBRARIES``): the simulator's are its own.
+
+One module on purpose: every kernel's argument block declared once, the one source of the C
+header and the ctypes classes.
 """
 
 from __future__ import annotations

@@ -10,6 +10,9 @@ is the named null of the directory's linked list.
 ``RECORDS`` at the end lists every record (key, dtype, count, writer, readers).  ``kalictl
 start`` allocates them all (``blocks``) before any process starts and seals the arena, so a
 daemon only attaches; ``LAYOUT_VERSION`` is a digest of every dtype here.
+
+One module on purpose, however long: every record in shared memory in one place (DESIGN 2), so
+``LAYOUT_VERSION`` covers them all and each says who writes it.
 """
 
 from __future__ import annotations
@@ -650,7 +653,7 @@ ROBOT_STATE = np.dtype(
         ("arm_shadow", "<i4"),
         ("arm_shadow_state", "<u4"),
         # SV (atomic add): shadow trials running on the robot, joint and robot-level; SIO
-        # feeds a robot with any whole, for one SV (sv/arm.py)
+        # feeds a robot with any whole, for one SV (servo/sv/arm.py)
         ("shadows", "<u4"),
         ("arm_exec_ns", "<i8"),  # SV: duration of its last step, model update included
         ("arm_ran_tick", "<i8"),  # SV: last tick it ran
@@ -795,7 +798,7 @@ SERVO_CTRL = np.dtype(
         ("sv_exec_hist", "<u4", (MAX_SV, HIST_BINS)),  # SV k: feed-to-done time histogram
         ("sv_fed_tick", "<i8", (MAX_SV,)),  # SV k: the tick whose feed it took last (-1: none)
         ("fed_ns", "<i8"),  # SIO: CLOCK_MONOTONIC when it fed its last tick (polling SVs learn)
-        # SIO: the longest feed to every servo done since SV k last learnt it (sv/daemon.py)
+        # SIO: the longest feed to every servo done since SV k last learnt it (servo/sv/daemon.py)
         ("sv_served_max_ns", "<i8", (MAX_SV,)),
     ],
     align=True,

@@ -20,7 +20,7 @@ One board per arm (``layout.IO_BOARD``, ``layout.DAC_BOARD``), joint ``j`` on ch
 - **E-stop and gripper** (additions of the simulated cell): the operator's button and the
   gripper's close line, written by ``kalictl estop`` and programs.
 
-``McGillBoards`` is what SIO holds (the ``boards.Hardware`` interface); ``cut_all``,
+``McGillBoards`` is what SIO holds (the ``hardware.Hardware`` interface); ``cut_all``,
 ``press_estop``, ``estops_pressed`` and ``grip`` work on the register record from any process,
 outside any cycle, without a lock (``raise_fault`` cuts the amplifiers through ``cut_all``
 whoever holds what).
@@ -126,7 +126,7 @@ class _Arm:
 
 
 class McGillBoards:
-    """The cell's boards as SIO drives them, tick by tick (``boards.Hardware``).
+    """The cell's boards as SIO drives them, tick by tick (``hardware.Hardware``).
 
     ``boards`` and ``dacs`` are the register records (one per arm, config order); ``types``
     the arms' robot types; ``index_phase`` their calibration sheets, flat; ``hold_ticks``

@@ -42,6 +42,9 @@ allocates (outside the cycle).
 Pinocchio is imported where a model is built, not when this module is: a robot type using it
 (the Panda) is imported by every process that reads the type's facts, and the wall clock,
 SIO and the SVs never build its kinematics (they stay without Pinocchio).
+
+Long on purpose: one numerical inverse kinematics (damped least squares, its nearest-branch
+choice) and the ``Kinematics`` a type built on it gets.
 """
 
 from __future__ import annotations

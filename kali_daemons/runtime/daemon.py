@@ -9,6 +9,9 @@ activate → cycle … → deactivate → shutdown, or error.  The loop is alway
 (the interrupt-then-acknowledge protocol of thesis 3.6.2).  A daemon that is self-timed in
 real-time mode (the plant, which is the outside world and keeps its own clock, DESIGN 6)
 sleeps to its own absolute deadlines instead; in lockstep mode every daemon is clock-driven.
+
+Long on purpose: the one daemon base class with what its loop needs (the compiled clock wait,
+the cycle statistics), and ``FunctionDaemon``, a program's periodic function on the same loop.
 """
 
 from __future__ import annotations
@@ -174,7 +177,7 @@ class Daemon:
     def host(self, inst: Instance) -> None:
         """Outside the cycle: configure and activate this daemon inside the lockstep
         executive's process, on its Instance, leaving the process's CPU and scheduling to
-        it; the executive then calls ``cycle`` itself (``wallclock.executive``)."""
+        it; the executive then calls ``cycle`` itself (``lockstep.executive``)."""
         self._configure(inst)
         self.on_activate()
         self._set_state(ProcState.ACTIVE)
@@ -347,7 +350,7 @@ class Daemon:
 
     def _set_period(self, ticks: int) -> None:
         """Inside the cycle: be signalled every ``ticks`` base ticks (a polling SV with
-        nothing to share rests: ``sv/daemon.py``).  The process record and the clock's
+        nothing to share rests: ``servo/sv/daemon.py``).  The process record and the clock's
         ``rates_gen`` tell the clock, which re-reads its slots' periods between two of its
         ticks; until then it signals at the old period, and a polling wait sleeps to the
         earlier of its next due tick at the new period and the clock's own (``next_wake``).

@@ -11,6 +11,9 @@ summarises what led to the halt.
 - ``FlightRecorder``: the writer, inside SIO's cycle (one compiled call a tick, ``record``).
 - ``FlightDumper``: the wall clock's side, outside any cycle (the clock is stopped).
 - ``read_ring``, ``load``, ``summary``, ``latest_dump``: readers for kalictl and tests.
+
+Long on purpose: the flight recorder's writer, its dump and its reading back, on one ring's
+layout.
 """
 
 from __future__ import annotations

@@ -7,6 +7,9 @@ only ``kalictl start`` creates (``launcher.create_instance``).  Names:
 - semaphores   ``/kali.<instance>.s<NN>``    one per process-table slot (thesis 3.6.2)
                ``/kali.<instance>.cmd``      wakes the wall clock for a command
                ``/kali.<instance>.ack``      lockstep acknowledgements to the wall clock
+
+Long on purpose: every process's one view of an instance (its records, semaphores, fault and
+process table).
 """
 
 from __future__ import annotations

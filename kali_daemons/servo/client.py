@@ -2,6 +2,8 @@
 the operations on the slots' put/get mailbox (put/get/select, gains, enable, range checking,
 ``safe``, shadow trials, robot-level servos), power and calibration, over ``level.ServoLevel``.
 Outside any cycle: a client waits for the SV to carry an operation out at the slot's next run.
+
+Long on purpose: every operation a user has on the servo level, on one client's state.
 """
 
 from __future__ import annotations

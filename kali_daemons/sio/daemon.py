@@ -1,7 +1,7 @@
 """Servo I/O (thesis 3.3.3, 3.3.5, figure 3.2): the servo level's bottleneck, once per servo
 tick.
 
-(a) Read every joint through the boards (``boards.Hardware``: the McGill board's counters and
+(a) Read every joint through the boards (``hardware.Hardware``: the McGill board's counters and
     the robot driver, counts → radians) and estimate velocities
     (backward difference through a 25 Hz first-order low-pass, as the PID of figure 3.4).
 (b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
@@ -12,7 +12,7 @@ tick.
     process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped),
     and feed the servo slots: demand (with its velocity and acceleration), position,
     velocity and feed-forward in, then ``busy`` cleared so the SVs can claim them (a robot
-    running a robot-level servo is fed whole, for one SV: ``sv/arm.py``), then the tick they
+    running a robot-level servo is fed whole, for one SV: ``servo/sv/arm.py``), then the tick they
     are fed for, then one post per SV on its feed semaphore (an SV passes over a post left
     from a tick it missed).
 (c) Sleep at once until the SV finishing the last slot posts the done semaphore, so the SV
@@ -44,6 +44,10 @@ wall clock stops, and the fault names the robot, joint, value and limit (DESIGN 
 At start SIO reads each joint's potentiometer through the board's ADC (C.5) so angles are
 right to a degree or so; ``kalictl calibrate`` then makes them exact against the encoder index
 pulses (3.5.1, ``calibration.py``), stepped here while the robot is powered.
+
+Long on purpose: SIO's one daemon; its tick is a compiled call (``kali_sio_tick``), and what
+is here is that tick's binding and the steps around it (power, calibration, checks, faults, the
+wait for the servos) on the one daemon's state.
 """
 
 from __future__ import annotations
@@ -194,7 +198,7 @@ class ServoIO(Daemon):
         self.demand = np.zeros(n)
         self.demand_vel = np.zeros(n)  # the demand's velocity and acceleration (feedforward.py)
         self.demand_acc = np.zeros(n)
-        # a fed slot's busy value: 0, or ARM_FREE / ARM_HELD for a robot fed whole (sv/arm.py)
+        # a fed slot's busy value: 0, or ARM_FREE / ARM_HELD for a robot fed whole (servo/sv/arm.py)
         self.mark = np.zeros(n, dtype=np.uint32)
         self._whole = np.zeros(nr, dtype=np.uint8)  # fed whole last tick (_arm_robot)
         self._arm_algo = rs["arm_algo"]
@@ -630,7 +634,7 @@ class ServoIO(Daemon):
             ff.step(tick)
         fed = self._feed()
         t_fed = rt.monotonic_ns()
-        lv.ctrl["fed_ns"] = t_fed  # when: the polling SVs learn from it (sv/daemon.py)
+        lv.ctrl["fed_ns"] = t_fed  # when: the polling SVs learn from it (servo/sv/daemon.py)
         self._ctrl_tick[...] = tick  # last: an SV seeing this tick sees its slots published
         if self.serve is None:
             for sem in self.feeds:

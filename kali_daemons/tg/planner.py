@@ -45,6 +45,9 @@ in its status record and nothing moves: an exception these checks did not forese
 as well, naming the exception, rather than halting the cell.  Entries the queue itself cannot
 vouch for (a sequence number that does not match their place, a corrupt head or tail) are
 dropped by ``RequestQueue.get_into`` and counted; they have no status record to answer in.
+
+Long on purpose: the TG's one cycle, every step of it on one class's state; a request's checks
+are in ``requests``, the motions' laws in ``profiles``, ``cartesian`` and ``tracking``.
 """
 
 from __future__ import annotations

@@ -17,6 +17,9 @@ keeps its path, its velocity stays continuous, and during the stop every set-poi
 
 Construction validates and allocates; ``sample`` writes into caller-owned arrays and
 allocates no arrays, so it may run inside the TG cycle.
+
+Long on purpose: every motion law the TG samples (joint moves, Cartesian paths with their blends
+and arcs, the stop ramp) with the checks they share.
 """
 
 from __future__ import annotations

@@ -37,6 +37,9 @@ At the start the loop must close (``start``): every shared transform claimed by 
 program and written at least once, and the target reachable by every arm; else the request
 is refused naming the factor or the arm.  Construction allocates; ``step`` allocates no
 arrays (Python floats only) and runs inside the TG cycle.
+
+Long on purpose: a tracking motion's whole law (shared frames, following, braking, the Cartesian
+and joint variants) in one place.
 """
 
 from __future__ import annotations

@@ -7,6 +7,9 @@
 
 ``-i NAME`` picks the instance (default: ``$KALI_INSTANCE``, else the config's, else
 ``default``), so two instances run side by side.
+
+Long on purpose: kalictl's whole command tree in one click group; each command is a thin call
+into the module that does the work.
 """
 
 from __future__ import annotations
@@ -353,7 +356,7 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 f"{r['heartbeat_age_ms']:>5.0f}ms"
             )
         servo_ms = next((r["period_ms"] for r in rows if r["name"] == "sio"), None)
-        for r in rows:  # a polling SV with nothing to share (sv/daemon.py)
+        for r in rows:  # a polling SV with nothing to share (servo/sv/daemon.py)
             if r["name"].startswith("sv.") and servo_ms and r["period_ms"] > servo_ms:
                 click.echo(
                     f"{r['name']} rests: signalled every {r['period_ms']:g} ms while the SV on "

@@ -9,6 +9,9 @@ any of its spinlocks held by a stopped or dead process: it reads the process tab
 a crash.  Start, stop and that clean-up are serialised per instance by an OS lock
 (``flock``) on ``<runtime dir>/<instance>.lock``, so a second ``start`` never takes a first
 one's half-made instance for a stale one.
+
+Long on purpose: ``start`` and ``stop``, with the locking, the checks and the clean-up they
+share.
 """
 
 from __future__ import annotations
@@ -464,7 +467,7 @@ def start(
 
     In real-time mode the clock is started once everyone is ready; in lockstep mode it stays
     stopped at tick 0 until ``clock start`` or ``clock step N``.  A lockstep instance runs
-    every daemon in one process, the lockstep executive (``wallclock/executive.py``), unless
+    every daemon in one process, the lockstep executive (``lockstep/executive.py``), unless
     ``separate`` asks for a process per daemon as in real time (for fault injection: a test
     that kills one).  ``record`` (relative to the current directory) overrides the config's
     ``dashboard.record`` (relative to the config's).

@@ -34,6 +34,9 @@ keeps drawing after a halt stops the wall clock — when the user most needs to 
 In lockstep mode the wall clock steps it like every daemon.  It is not a real-time process:
 SCHED_OTHER, memory not locked, and its cycle allocates (rerun's log calls do).  A frame that
 fails is counted and logged, never raised: the dashboard must not halt the system.
+
+Long on purpose: the viewer's one daemon, what it draws laid out once at configure and logged
+each cycle.
 """
 
 from __future__ import annotations

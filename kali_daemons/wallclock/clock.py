@@ -25,6 +25,9 @@ lockstep mode a non-serious process that does not acknowledge within the timeout
 (a miss) instead of halting the system, as a late one is in real time.  Nobody watches a dead
 wall clock from here: the serious processes do (``Daemon._watch_clock``), and the boards'
 watchdogs cut the amplifiers.
+
+Long on purpose: the wall clock's one daemon (its commands, signals, supervision and halts on
+one process table).
 """
 
 from __future__ import annotations
@@ -608,7 +611,7 @@ def gang_state(
     after whatever delayed SIO was over (GANG_SIO_LATE).  If no SV has acknowledged, SIO
     signalled alone would feed slots nobody is signalled to run and wait for them until it
     halts (GANG_SVS_LATE); an SV resting (``due`` after ``tick``: a polling SV with nothing
-    to share, ``sv/daemon.py``) is not signalled this tick either.  Else the gang runs; an SV
+    to share, ``servo/sv/daemon.py``) is not signalled this tick either.  Else the gang runs; an SV
     that is late misses on its own, and the others take its share.  Read once per tick,
     before anyone is signalled.
     """

@@ -72,7 +72,7 @@ WATCHDOG_MS = 20.0  # plant.watchdog_ms
 CLOCK_WATCH_MS = 10.0  # daemon.CLOCK_WATCH_S: how often a serious process looks at the clock
 SERVO, TG, PLANT = 1, 10, 1  # periods in base ticks (1 ms) of the default config
 # sv.1, polling on CPU 1 while sv.0 runs every servo on its own, rests: the clock signals it
-# every processes.sv.rest_ms (sv/daemon.py), and its failures are found within its periods
+# every processes.sv.rest_ms (servo/sv/daemon.py), and its failures are found within its periods
 REST = 4
 # A stall halts once a serious process is unacknowledged beyond the tolerance: the 21st
 # consecutive miss, found at the tick after it; a tick more when the signal caught the victim

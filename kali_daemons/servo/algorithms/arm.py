@@ -7,7 +7,7 @@ derivatives, the measurement, the wrist sensor's wrench, the feed-forward, and t
 the measured angles: mass matrix, nonlinear effects, gravity, the tool point's Jacobian and
 pose, ``armmodel.ArmModel``) and calls the active algorithm's ``step``, which writes every
 joint's torque.  A robot runs either its joint servos or one robot-level servo; the switch is
-bumpless both ways (``handover``; the SV's ``sv/arm.py``).
+bumpless both ways (``handover``; the SV's ``servo/sv/arm.py``).
 
 An algorithm is an ``ArmServoAlgorithm``, registered in the same ``Registry`` as joint servos
 (by a plugin's ``register(registry)`` too) and with the same life: private data in the arena
