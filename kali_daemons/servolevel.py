@@ -50,6 +50,7 @@ from .servo import (
     registry_for,
     struct_view,
 )
+from .shadow import Trial
 from .spinlock import SpinLock
 
 FIFO_CAPACITY = layout.FIFO_CAPACITY  # TG set-points a TG → SIO FIFO holds (the layout sizes it)
@@ -57,7 +58,9 @@ FIFO_CAPACITY = layout.FIFO_CAPACITY  # TG set-points a TG → SIO FIFO holds (t
 # way is no joint angle (joint range itself is SIO's range check, which halts)
 SETPOINT_BOUND_RAD = 4.0 * math.pi
 OP_TIMEOUT_S = 2.0  # how long a client waits for the SV to carry out a mailbox operation
-SlotStruct = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)
+# numpy's stubs type a structured dtype's ctypes class as a scalar's (dtype[void] matches no
+# overload); it is a Structure
+SlotStruct: type[ctypes.Structure] = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)  # type: ignore[arg-type, assignment]
 JOINT_SERVOS = "joints"  # what ``select_arm`` takes for "back to the joint servos"
 FORCE_SETPOINTS = ("fx", "fy", "fz")  # robot-level parameters the wrist sensor must measure
 SQUEEZE_SETPOINT = "fi"  # and a squeeze, along any line: within the smallest force range
@@ -154,7 +157,8 @@ class ServoLevel:
             [block[i : i + 1].reshape(()) for block in self.blocks] for i in range(n)
         ]
         self.structs = [[struct_view(rec) for rec in row] for row in self.data]
-        self.slot_structs = (SlotStruct * n).from_buffer(self.slots)
+        # numpy's stubs give an ndarray the buffer protocol only from Python 3.12 on
+        self.slot_structs = (SlotStruct * n).from_buffer(self.slots)  # type: ignore[arg-type]
         # robot-level servos: algorithm a's record for every robot is one block,
         # arm_data[k][a] robot k's record (0-d); each robot's mailbox staging bytes
         nr = self.n_robots
@@ -485,7 +489,7 @@ class ServoClient:
             self._check_tared(k, alg.name)
         self._arm_op(k, SlotOp.SHADOW, idx, None, wait)
 
-    def trials(self, robot: str | int | None = None) -> list[shadow.Trial]:
+    def trials(self, robot: str | int | None = None) -> list[Trial]:
         """Every joint's figures from its last shadow trial (of ``robot``, or all)."""
         k = None if robot is None else self.robot_index(robot)
         return shadow.trials(self.level, k)
@@ -745,7 +749,7 @@ class ServoClient:
         """Set a joint's tracking-error tolerance (rad) before a runaway halt."""
         i = self.slot(robot, joint)
         try:
-            value = float(safe_rad)  # type: ignore[arg-type]
+            value = float(safe_rad)
         except (TypeError, ValueError):
             value = math.nan
         if isinstance(safe_rad, bool) or not 0.0 < value <= math.pi:
