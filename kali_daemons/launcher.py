@@ -27,6 +27,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import posix_ipc
@@ -329,9 +330,9 @@ def _stop(instance: str) -> StopReport:
         if why:
             report.left.append(f"{path}: {why}")
     report.removed = sorted(before - set(shm_objects(instance)))
-    for path in dirs:
-        if _remove_instance_dir(path, instance):
-            report.removed.append(str(path))
+    for d in dirs:
+        if _remove_instance_dir(d, instance):
+            report.removed.append(str(d))
     return report
 
 
@@ -651,7 +652,7 @@ def _tail(path: Path, lines: int = 15) -> str:
     return "\n".join("    " + t for t in text)
 
 
-def describe(inst: Instance) -> list[dict[str, object]]:
+def describe(inst: Instance) -> list[dict[str, Any]]:
     """The process table as plain rows, for ``kalictl status`` and tests."""
     rows = []
     base_ns = int(inst.clock["base_tick_ns"])
@@ -687,7 +688,7 @@ def describe(inst: Instance) -> list[dict[str, object]]:
     return rows
 
 
-def recent_misses(inst: Instance, n: int = layout.MISS_LOG_LEN) -> list[dict[str, object]]:
+def recent_misses(inst: Instance, n: int = layout.MISS_LOG_LEN) -> list[dict[str, Any]]:
     """The last ``n`` missed deadlines from the clock's log, oldest first."""
     log = inst.misses
     count = int(log["count"])

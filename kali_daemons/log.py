@@ -43,7 +43,7 @@ class ArmLog:
     wrench: np.ndarray | None
 
     def __getattr__(self, name: str) -> np.ndarray:
-        series = self.__dict__.get("series", {})
+        series: dict[str, np.ndarray] = self.__dict__.get("series", {})
         if name in series:
             return series[name]
         raise AttributeError(name)
@@ -94,8 +94,8 @@ def read(path: str | Path) -> Log:
                     ticks.setdefault(arm, []).append(int(msg.tick))
                     stamps.setdefault(arm, []).append(int(message.log_time))
                     s = series.setdefault(arm, {f: [] for f in SERVO_FIELDS})
-                    for f in SERVO_FIELDS:
-                        s[f].append(getattr(msg, f))
+                    for name in SERVO_FIELDS:  # not f: that is the file
+                        s[name].append(getattr(msg, name))
                 elif len(parts) == 4 and parts[1] == "kali" and parts[3] == "wrench":
                     w = msg.wrench
                     wrenches.setdefault(parts[2], {})[int(message.log_time)] = [
