@@ -74,12 +74,12 @@ class Turns:
     def __init__(self, what: str, limit: int = MAX_WAITING) -> None:
         self.what = what
         self.limit = limit
-        self.jobs: dict[str, collections.deque[Callable[[], None]]] = {}
+        self.jobs: dict[str, collections.deque[Callable[[], object]]] = {}
         self.turn: collections.deque[str] = collections.deque()  # users with jobs, in turn
         self.closed = False
         self.ready = threading.Condition()
 
-    def put(self, user: str, job: Callable[[], None]) -> str | None:
+    def put(self, user: str, job: Callable[[], object]) -> str | None:
         """Queue ``job`` of ``user``: None, or why it was refused (nothing queued)."""
         with self.ready:
             if self.closed:
@@ -96,7 +96,7 @@ class Turns:
             self.ready.notify()
             return None
 
-    def get(self) -> Callable[[], None] | None:
+    def get(self) -> Callable[[], object] | None:
         """The next job, waiting for one; None once closed with none left."""
         with self.ready:
             while not self.turn:

@@ -104,7 +104,8 @@ class Bridge(Daemon):
             keys.events,
             encoding=JSON,
             cache=zenoh.ext.CacheConfig(max_samples=cfg.event_history),
-            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5),
+            # zenoh's stubs require sporadic_heartbeat too; it defaults to None
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=0.5),  # type: ignore[call-arg]
             publisher_detection=True,
         )
         log_dir = str(launcher.log_dir(inst.name))
@@ -252,7 +253,7 @@ class Bridge(Daemon):
             "lockstep": bool(self.inst.lockstep),
         }
 
-    def _verb(self, query: zenoh.Query) -> dict[str, Any]:
+    def _verb(self, query: zenoh.Query) -> bytes:  # the helper's answer line, as it is
         verb = str(query.key_expr).rsplit("/", 1)[-1]
         request = self._payload(query, verb)
         args = request.get("args", []) if isinstance(request, dict) else request
@@ -285,6 +286,7 @@ class Bridge(Daemon):
     def _client_alive(self, token: str) -> bool:
         """Whether a program holds its liveliness token ``token``: how the bridge learns that
         it left."""
+        assert self.session is not None  # opened at configure, closed once the workers are joined
         replies = self.session.liveliness().get(token, timeout=2.0)
         return any(r.ok is not None for r in replies)
 

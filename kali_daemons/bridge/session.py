@@ -114,7 +114,7 @@ class Session:
         if obj is None:
             raise BridgeError(f"no object {target} in this session")
         cls = type(obj).__name__
-        method = request.get("method")
+        method: Any = request.get("method")  # a name only if PROPERTIES or METHODS has it
         args = protocol.decode(request.get("args") or [], self.resolve)
         kwargs = protocol.decode(request.get("kwargs") or {}, self.resolve)
         if not isinstance(args, list) or not isinstance(kwargs, dict):

@@ -162,7 +162,7 @@ class Watch:
         changed = np.flatnonzero(
             (state != self.proc_state) | (pid != self.proc_pid) | (name != self.proc_name)
         )
-        out = []
+        out: list[dict[str, Any]] = []
         for i in changed:
             if self.proc_state[i] != ProcState.FREE and (
                 state[i] == ProcState.FREE or name[i] != self.proc_name[i]
@@ -186,7 +186,7 @@ class Watch:
         """Requests whose state changed: the record's request or its state is new."""
         seqs, states = self.status["seq"].copy(), self.status["state"].copy()
         changed = np.flatnonzero((seqs != self.seqs) | (states != self.states))
-        out = []
+        out: list[dict[str, Any]] = []
         for i in changed:
             rec = self.status[i]
             seq, state = int(rec["seq"]), int(rec["state"])

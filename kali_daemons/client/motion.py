@@ -47,7 +47,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -788,7 +788,7 @@ class MotionSystem:
             for i, v in enumerate(part_vias):
                 if v is not None:
                     arc_flags[i], arc_via[i] = 1, v
-            fields = {
+            fields: dict[str, Any] = {  # "flags" is _request's own argument
                 "flags": 0 if blend or first else layout.REQUEST_STOP_BETWEEN,
                 "n_segments": len(part),
                 "poses": poses,
@@ -1358,7 +1358,7 @@ class Kali:
         req["fault_epoch"] = epoch
         for name, value in fields.items():
             if name == "joints":  # one row per robot, its joint count of the record's columns
-                for i, row in enumerate(value):  # type: ignore[arg-type]
+                for i, row in enumerate(cast("Sequence[np.ndarray]", value)):
                     req["joints"][i, : len(row)] = row
             elif name in ("grasps", "config"):  # one per robot of the request
                 req[name][: len(robots)] = value

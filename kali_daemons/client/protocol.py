@@ -301,7 +301,9 @@ def encode(value: Any, register: Callable[[object], dict[str, Any]] | None = Non
     raise BridgeError(f"a {type(value).__name__} cannot cross the bridge")
 
 
-def decode(value: Any, resolve: Callable[[int, str], object] | None = None, depth: int = 0) -> Any:
+def decode(
+    value: Any, resolve: Callable[[int, str, Any], object] | None = None, depth: int = 0
+) -> Any:
     """JSON data back to values: arrays, states, dataclasses; ``resolve(id, cls, attrs)``
     turns a reference into the object (the worker's own, or the remote program's proxy).  Anything
     deeper than MAX_DEPTH or an array larger than MAX_ARRAY_VALUES is a BridgeError."""

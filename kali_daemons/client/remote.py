@@ -287,6 +287,7 @@ class Connection:
             )
         reply = replies[0]
         if reply.ok is None:
+            assert reply.err is not None  # zenoh: a reply is either ok or err
             text = reply.err.payload.to_bytes().decode(errors="replace")
             raise BridgeError(f"{what}: {text}")
         answer = protocol.loads(reply.ok.payload.to_bytes(), what)

@@ -383,7 +383,7 @@ class Stream:
 class JointStream(Stream):
     """A joint-target stream: ``send(q)`` (rad, one per joint); see ``Stream``."""
 
-    def send(self, q: np.ndarray) -> None:  # type: ignore[override]
+    def send(self, q: np.ndarray) -> None:
         """The arm's next joint targets."""
         self.frame.set_joints(q)
 

@@ -243,6 +243,7 @@ class Arena:
 
     def address_of_field(self, offset: int, dtype: np.dtype, field: str, index: int = 0) -> int:
         """Address of ``field`` of record ``index`` in an array of ``dtype`` at ``offset``."""
+        assert dtype.fields is not None, f"{self.name}: address_of_field: {dtype} has no fields"
         return self.address(offset + index * dtype.itemsize + dtype.fields[field][1])
 
     def view(self, offset: int, dtype: np.dtype, count: int | None = None) -> np.ndarray:

@@ -38,7 +38,7 @@ def _load_libatomic() -> ctypes.CDLL:
 _lib = _load_libatomic()
 
 
-def _fn(name: str, restype: type, *argtypes: type):
+def _fn(name: str, restype: type | None, *argtypes: type):
     fn = getattr(_lib, name)
     fn.restype = restype
     fn.argtypes = list(argtypes)

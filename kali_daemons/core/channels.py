@@ -34,8 +34,9 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from fractions import Fraction
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -44,6 +45,9 @@ from .arena import Arena
 from .errors import ArenaError, ChannelError, QueueFullError
 from .kernels import Kernel
 from .spinlock import SpinLock
+
+if TYPE_CHECKING:
+    from .kernels import Kernel
 
 _INITIALISING = 0xFFFFFFFF  # FIFO capacity word while its creator writes the geometry
 _INIT_TIMEOUT_S = 2.0
@@ -107,7 +111,7 @@ class RequestQueue:
         """Create or attach (outside the cycle: takes the directory and producers' locks)."""
         self.key = key
         self.payload = np.dtype(payload)
-        if self.payload.names is None:
+        if self.payload.fields is None:  # as names: None for an unstructured dtype
             raise ChannelError(f"queue '{key}': payload must be a structured dtype")
         cap = _check_capacity("queue", key, capacity)
         self._h = arena.record(key, layout.QUEUE_HEADER)
@@ -170,9 +174,10 @@ class RequestQueue:
                 f"queue '{self.key}': entry must be a dict or a {self.payload} record, "
                 f"not {type(values).__name__}"
             )
-        names = self.payload.names
+        names, fields = self.payload.names, self.payload.fields
+        assert names is not None and fields is not None  # a structured payload (__init__)
         for name in values:
-            if name not in self.payload.fields:
+            if name not in fields:
                 raise ChannelError(
                     f"queue '{self.key}': unknown field {name!r}; fields are {', '.join(names)}"
                 )
@@ -183,11 +188,12 @@ class RequestQueue:
             try:
                 staging[name] = value
             except (ValueError, TypeError) as exc:
-                ftype = self.payload.fields[name][0]
+                ftype = fields[name][0]
                 want = ftype.base if ftype.shape else ftype
                 raise ChannelError(
                     f"queue '{self.key}': field {name!r} takes {want} of shape {ftype.shape}, "
-                    f"got {type(value).__name__} of shape {np.shape(value)} ({exc})"
+                    # np.shape takes any object; numpy's stubs only an array-like
+                    f"got {type(value).__name__} of shape {np.shape(value)} ({exc})"  # type: ignore[call-overload]
                 ) from exc
         return staging
 
@@ -602,7 +608,7 @@ class InterpolatingFifo:
         np.copyto(out, self._cur)
         return True
 
-    def compiled_pop(self, out: np.ndarray) -> Callable[[], int]:
+    def compiled_pop(self, out: np.ndarray) -> Kernel:
         """``pop_into(out)`` compiled (``csrc/fifo.c``'s ``kali_fifo_pop``): each call of the
         returned kernel writes this servo tick's demand into ``out`` (float64, ``width``,
         never moving) and returns 1 or 0 as ``pop_into`` returns True or False.  The

@@ -29,7 +29,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -788,7 +788,7 @@ def header() -> str:
     for name, _, dtype in RECORDS:
         fields = [
             f"FIELD({name}, {f}, '{'V' if sub.subdtype else sub.kind}')"
-            for f, (sub, *_) in dtype.fields.items()
+            for f, (sub, *_) in (dtype.fields or {}).items()
         ]
         out += ["", *_c_table(f"{name}_FIELDS", name, fields)]
     for b in BLOCKS:
@@ -814,7 +814,7 @@ def reference(kernel: str) -> Callable[..., Any] | None:
     found: Any = importlib.import_module(f"kali_daemons.{module}")
     for part in qualname.split("."):
         found = getattr(found, part)
-    return found
+    return cast("Callable[..., Any]", found)
 
 
 def table() -> str:

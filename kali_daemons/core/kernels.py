@@ -75,7 +75,7 @@ McgillArgs = kernel_args.STRUCTS["McgillArgs"]  # its binder keeps the block (bo
 _KERNELS = kernel_args.KERNELS
 
 
-def view(a: np.ndarray) -> View:
+def view(a: np.ndarray) -> ctypes.Structure:
     """``a`` (1-D, any stride) as a ``View``; the caller keeps ``a`` alive."""
     assert a.ndim == 1, f"a kernel takes 1-D arrays, not shape {a.shape}"
     return View(a.ctypes.data, a.strides[0])
@@ -307,7 +307,7 @@ class Kernel:
     __slots__ = ("_args", "_fn", "_keep", "_lib", "_ptr")
 
     def __init__(
-        self, name: str, keep: tuple[object, ...] = (), library: str | None = None,
+        self, name: str, keep: tuple[object, ...] = (), library: str | None = None, /,
         **fields: object,
     ) -> None:  # fmt: skip
         arrays = tuple(v for v in fields.values() if isinstance(v, np.ndarray))

@@ -1549,6 +1549,7 @@ def blocks(cell: Cell) -> list[Block]:
     an ``{algo}`` key once per servo algorithm."""
     out: list[Block] = []
     for rec in RECORDS:
+        at: list[tuple[str, int | None]]  # each block's key and index
         if "{robot}" in rec.key:
             at = [(rec.key.format(robot=name), k) for k, name in enumerate(cell.robots)]
         elif "{algo}" in rec.key:

@@ -65,9 +65,10 @@ class Hardware(Protocol):
         """Arm ``k``'s power status for a fault message (outside the common path)."""
 
     def control(
-        self, k: int, power: PowerState, enable_ticks: int, capture: bool, halted: bool
+        self, k: int, power: int, enable_ticks: int, capture: bool, halted: bool
     ) -> None:
-        """Arm ``k``'s power switch, index capture and indicators for this tick."""
+        """Arm ``k``'s power switch (``power`` a ``PowerState``), index capture and
+        indicators for this tick."""
 
     def end_tick(self) -> bool:
         """After every arm's ``control``: the tick's keep-alive; True when it reached the

@@ -24,6 +24,7 @@ Inside the cycle: preallocated arrays only, and each conversion one compiled ker
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -62,7 +63,7 @@ class JointDriver:
         )
         n = self.n = self.map.total
 
-        def tile(values: object) -> np.ndarray:
+        def tile(values: Callable[[RobotType], object]) -> np.ndarray:
             return np.concatenate([np.asarray(values(t), dtype=np.float64) for t in types])
 
         self.types = types

@@ -201,7 +201,7 @@ class McGillBoards:
         return f"board power register {layout.power_text(int(self._arms[k].power))}"
 
     def control(
-        self, k: int, power: PowerState, enable_ticks: int, capture: bool, halted: bool
+        self, k: int, power: int, enable_ticks: int, capture: bool, halted: bool
     ) -> None:
         """Write arm ``k``'s command register for this tick: the power switch (the enable
         pulse for the first ``hold_ticks`` of ENABLING, the disable while halted or off with

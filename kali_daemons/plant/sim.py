@@ -259,7 +259,8 @@ class PlantSim:
         force and torque the flange applies to the tool (site frame); the sensor reads the
         tool's on the flange, the opposite."""
         for k in self._ft_arms:
-            np.negative(self._ft_src[k], out=self._ft_true[k])
+            # _ft_arms lists the arms whose source is there
+            np.negative(self._ft_src[k], out=self._ft_true[k])  # type: ignore[arg-type]
         for step in self._ft_steps:
             step()  # FtBank.cycle, compiled
 

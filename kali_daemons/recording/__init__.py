@@ -437,7 +437,7 @@ class Recording:
     def close(self) -> None:
         """Finish the file (its index and summary), outside any cycle."""
         try:
-            self.writer.finish()
+            self.writer.finish()  # type: ignore[no-untyped-call]  # mcap's has no annotations
         finally:
             self._file.close()
 
@@ -525,7 +525,8 @@ class Recorder(Daemon):
 def read_status(instance: str) -> dict[str, Any] | None:
     """The last recorder's status document, or None if there was none."""
     try:
-        return json.loads(status_path(instance).read_text())
+        doc: dict[str, Any] = json.loads(status_path(instance).read_text())
+        return doc
     except (FileNotFoundError, json.JSONDecodeError):
         return None
 

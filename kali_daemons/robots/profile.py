@@ -50,7 +50,7 @@ INTEGRATION_BAND_RAD = 0.01  # rad
 
 def read_only(values: object, dtype: type = np.float64) -> npt.NDArray:
     """A read-only copy: a robot type's facts, nobody changes them in place."""
-    arr = np.array(values, dtype=dtype)
+    arr: npt.NDArray = np.array(values, dtype=dtype)
     arr.setflags(write=False)
     return arr
 
@@ -106,7 +106,10 @@ class Kinematics(Protocol):
     trajectory generator's cycle: no numpy allocation on the success path.
     """
 
-    configs: tuple[object, ...]
+    @property
+    def configs(self) -> tuple[object, ...]:
+        """The branches, in the order their indices name them (read-only: a type's fact)."""
+        ...
 
     def fkine(self, q: FloatArray, out: FloatArray | None = None) -> FloatArray:
         """The flange pose (4×4) in the base frame for joint angles ``q``."""
@@ -115,7 +118,7 @@ class Kinematics(Protocol):
     def ikine(
         self,
         t6: FloatArray,
-        config: object,
+        config: Any,  # one of ``configs`` or its string: each type takes its own branch type
         q_ref: FloatArray | None = None,
         out: FloatArray | None = None,
         redundancy: float | None = None,

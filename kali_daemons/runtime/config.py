@@ -142,7 +142,7 @@ _MISSING: Any = object()
 def _f(default: Any = ..., doc: str = "", unit: str | None = None, **bounds: Any) -> Any:
     """One field's declaration: its default (``...``: required), description, unit and bounds
     (``ge``, ``gt``, ``le``, ``pattern``)."""
-    extra = {"unit": unit} if unit else None
+    extra: dict[str, Any] | None = {"unit": unit} if unit else None
     return Field(default, description=doc, json_schema_extra=extra, **bounds)
 
 
@@ -1669,7 +1669,9 @@ def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
         if isinstance(entry, dict) and entry.get("ff") is False:  # YAML 1.1 reads off as false
             entry = {**entry, "ff": "off"}
         if isinstance(entry, dict) and "name" not in entry:
-            _mapping(entry, path, tuple(RobotConfig.__pydantic_fields__))
+            # pydantic's dataclass decorator is typed as returning the class unchanged; the
+            # class it returns has __pydantic_fields__
+            _mapping(entry, path, tuple(RobotConfig.__pydantic_fields__))  # type: ignore[attr-defined]
             raise _InvalidError(
                 f"{path}.name: missing; required, a string matching {_ROBOT_NAME_RE.pattern}"
             )
@@ -1829,7 +1831,7 @@ def resolved(cfg: KaliConfig) -> dict[str, Any]:
         robot["index_phases_deg"] = [round(math.degrees(p), 9) for p in r.index_phases]
         robots.append(robot)
     doc: dict[str, Any] = {}
-    for name in ConfigFile.__pydantic_fields__:
+    for name in ConfigFile.__pydantic_fields__:  # type: ignore[attr-defined]  # as above
         doc[name] = _plain(getattr(cfg, name))
     doc["processes"] = processes
     doc["robots"] = robots

@@ -27,7 +27,7 @@ import threading
 import time
 import traceback
 from collections.abc import Callable
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import posix_ipc
@@ -79,7 +79,7 @@ class Daemon:
         self.instance_name = instance
         self.name = name
         self.log = logging.getLogger(f"kali.{name}")
-        self._overrides = {
+        self._overrides: dict[str, Any] = {
             "period_ms": period_ms,
             "serious": serious,
             "stage": stage,

@@ -404,7 +404,7 @@ def write_dump(inst: Instance, data: np.ndarray, fault: FaultInfo, directory: Pa
         path = directory / base.replace(".npz", f"-{k}.npz")
     part = path.with_name(path.name + ".part")
     with open(part, "xb") as out:
-        np.savez(out, **arrays)
+        np.savez(out, **arrays)  # type: ignore[arg-type]  # (none of them named allow_pickle)
     os.replace(part, path)
     return path
 

@@ -121,8 +121,8 @@ def estop_pressed(robots: list[str]) -> str:
     return f"e-stop pressed: {', '.join(robots)}; amplifiers off, system halted"
 
 
-def decode(raw: bytes | np.bytes_) -> str:
-    """A fixed-width arena string as text."""
+def decode(raw: bytes | np.bytes_ | np.ndarray) -> str:
+    """A fixed-width arena string (bytes, or a record's field viewed) as text."""
     return bytes(raw).split(b"\0", 1)[0].decode("utf-8", "replace")
 
 

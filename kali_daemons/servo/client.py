@@ -319,7 +319,7 @@ class ServoClient:
             self._check_tared(k, alg.name)
         self._arm_op(k, SlotOp.SHADOW, idx, None, wait)
 
-    def trials(self, robot: str | int | None = None) -> list[shadow.Trial]:
+    def trials(self, robot: str | int | None = None) -> list[Trial]:
         """Every joint's figures from its last shadow trial (of ``robot``, or all)."""
         k = None if robot is None else self.robot_index(robot)
         return shadow.trials(self.level, k)
@@ -579,7 +579,7 @@ class ServoClient:
         """Set a joint's tracking-error tolerance (rad) before a runaway halt."""
         i = self.slot(robot, joint)
         try:
-            value = float(safe_rad)  # type: ignore[arg-type]
+            value = float(safe_rad)
         except (TypeError, ValueError):
             value = math.nan
         if isinstance(safe_rad, bool) or not 0.0 < value <= math.pi:

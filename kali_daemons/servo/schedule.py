@@ -269,8 +269,8 @@ def predict(
         if change.servo_us:
             response += change.servo_us
             sv_cpus = {t.cpu for t in servo_tasks if t.name.startswith("sv")}
-            busiest = max(sv_cpus, key=lambda c: load.get(c, 0.0), default=-1)
-            add(busiest, change.servo_us / fig.period_us)
+            busiest_cpu = max(sv_cpus, key=lambda c: load.get(c, 0.0), default=-1)
+            add(busiest_cpu, change.servo_us / fig.period_us)
             lines.append(f"  servos {change.servo_us:+.1f} µs a tick (one SV runs the step)")
         if change.process:
             old = next((t for t in tasks if t.name == change.process), None)

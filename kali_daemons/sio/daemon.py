@@ -440,7 +440,7 @@ class ServoIO(Daemon):
         (fn_read, a_read), (fn_dac, a_dac), (fn_ctl, a_ctl) = (
             k.address for k in (read, dac, control)
         )
-        keep = (read, dac, control, sensors, guard_state, guard_n, ffs, feeds)
+        keep: tuple[object, ...] = (read, dac, control, sensors, guard_state, guard_n, ffs, feeds)
         keep += (gang_sv, gang_slot, gang_lag, self._sensors, self._ff, self._velocity)
         keep += (self._robots, self._check, self._feed, self._torques, self._current)
         keep += (self._publish, self.flight)
@@ -979,6 +979,18 @@ class _RobotViews:
         "q",
         "slot_reset",
     )
+    # robot k's fields of ``layout.ROBOT_STATE``, each a 0-d view, made in ``__init__``
+    power: np.ndarray
+    power_cmd: np.ndarray
+    pots_read: np.ndarray
+    enable_ticks: np.ndarray
+    message: np.ndarray
+    calib_cmd: np.ndarray
+    calib_state: np.ndarray
+    calib_found: np.ndarray
+    calibrated: np.ndarray
+    guided: np.ndarray
+    cmd_faults: np.ndarray
 
     def __init__(self, sio: ServoIO, k: int) -> None:
         robots = sio.level.robots

@@ -226,7 +226,7 @@ class CartesianMotion:
         transition_s: float,
         dt: float,
         durations: Sequence[float] | None = None,
-        arcs: Sequence[Sequence[float] | None] | None = None,
+        arcs: Sequence[Sequence[float] | np.ndarray | None] | None = None,
         measured: Sequence[np.ndarray] | None = None,
     ) -> None:
         self.names = list(names)

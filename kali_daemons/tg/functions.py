@@ -259,7 +259,8 @@ def registry_for(
 def data_of(slot: np.ndarray, fn: TgFunction) -> Any:
     """Function ``fn``'s private record in ``slot`` (a 0-d ``TG_FUNCTION`` view), as a
     ctypes structure over the arena (writes go through)."""
-    return struct_type(fn.dtype).from_buffer(slot["data"])
+    # numpy's stubs give an ndarray the buffer protocol only from Python 3.12 on
+    return struct_type(fn.dtype).from_buffer(slot["data"])  # type: ignore[arg-type]
 
 
 def set_params(fn: TgFunction, data: Any, values: Mapping[str, float], fresh: bool) -> None:

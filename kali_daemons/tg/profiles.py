@@ -141,7 +141,8 @@ def _array(what: str, name: str, value: object, shape: tuple[int, ...]) -> np.nd
 
 def _positive(what: str, name: str, value: object, n: int, unit: str) -> np.ndarray:
     """A limit vector of ``n`` finite values > 0 (a scalar is used for every joint)."""
-    a = _array(what, name, [value] * n if np.ndim(value) == 0 else value, (n,))
+    # np.ndim takes any object; numpy's stubs only an array-like
+    a = _array(what, name, [value] * n if np.ndim(value) == 0 else value, (n,))  # type: ignore[arg-type]
     for j in range(n):
         if not a[j] > 0.0:
             raise MotionError(f"{what}: {name}[{j}] is {a[j]} {unit}, must be > 0")
@@ -408,7 +409,7 @@ class CartesianPath:
         transition_s: float,
         blend: Blend = "paul",
         durations: Sequence[float] | None = None,
-        arcs: Sequence[Sequence[float] | None] | None = None,
+        arcs: Sequence[Sequence[float] | np.ndarray | None] | None = None,
     ) -> None:
         what = "cartesian path"
         self.speed = _float(what, "speed", speed, "m/s")
@@ -484,7 +485,8 @@ class CartesianPath:
             length = float(np.linalg.norm(p1 - p0))
             angle, axis = angle_axis(self.poses[k, :3, :3].T @ self.poses[k + 1, :3, :3])
             label = f"segment {k + 1} ({'start' if k == 0 else f'targets[{k - 1}]'} → targets[{k}])"
-            circle = None if self.arcs[k] is None else _circle(what, label, p0, self.arcs[k], p1)
+            arc = self.arcs[k]
+            circle = None if arc is None else _circle(what, label, p0, arc, p1)
             self._circles.append(circle)
             if circle is not None:
                 length = circle[1] * circle[4]  # r · sweep

@@ -56,7 +56,8 @@ class StatusRecords:
         return self._of[seq]
 
     def __getitem__(self, seq: int) -> np.void:
-        return self.records[self._of[seq]]
+        record: np.void = self.records[self._of[seq]]
+        return record
 
     def holds(self, seq: int) -> bool:
         return seq in self._of

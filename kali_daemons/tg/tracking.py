@@ -268,7 +268,7 @@ def pose_fault(t: np.ndarray) -> str:
 # Checking a TRACK request (pure: the TG calls it on every request it takes)
 
 
-def check_limits(req: np.void) -> None:
+def check_limits(req: np.void | np.ndarray) -> None:
     """MotionError unless a TRACK request's limits are finite, > 0 and plausible, and its
     ``track_s`` finite in [0, MAX_MOTION_S]."""
     for name, top, unit in (
@@ -377,7 +377,7 @@ class TrackingMotion(Tracking):
         configs: Sequence[object | None],
         loop: Sequence[tuple[FrameKind, int | np.ndarray]],
         frames: SharedFrames,
-        limits: tuple[float, float, float, float],
+        limits: tuple[float, ...],  # v_max, w_max, a_max, alpha_max
         dt: float,
         track_s: float = 0.0,
         functions: FunctionSlots | None = None,
@@ -407,9 +407,9 @@ class TrackingMotion(Tracking):
             elif kind == FrameKind.FUNCTION:
                 value = np.eye(4)
                 self._values.append(value)
-                self._unbound.append((int(what), value))  # type: ignore[arg-type]
+                self._unbound.append((int(what), value))
             else:
-                index = int(what)  # type: ignore[arg-type]
+                index = int(what)
                 value = np.eye(4)
                 self._values.append(value)
                 self._shared.append((index, value, frames.name(index)))
@@ -712,7 +712,7 @@ def plan_tracking(
             float(req["speed_scale"]), dt, float(req["track_s"]),
         )  # fmt: skip
     else:
-        loop = []
+        loop: list[tuple[FrameKind, int | np.ndarray]] = []
         for i in range(int(req["n_loop"])):
             kind, index = (int(v) for v in req["loop"][i])
             if kind == FrameKind.FIXED:

@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import wraps
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -387,14 +388,14 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 )
 
 
-def _request_lines(req: dict[str, object] | None, tick: int) -> list[str]:
+def _request_lines(req: dict[str, Any] | None, tick: int) -> list[str]:
     """``kalictl status``'s lines on the TG's requests, only when something holds them up:
     a request waiting for a status record (and who holds the records), the queue at least
     half full (and whose entries), a program at its share of unread outcomes."""
     if req is None:
         return []
-    programs: list[dict] = req["programs"]  # type: ignore[assignment]
-    queue: dict = req["queue"]  # type: ignore[assignment]
+    programs: list[dict] = req["programs"]
+    queue: dict = req["queue"]
     lines = []
     if req["blocked_seq"]:
         who = ", ".join(
@@ -523,9 +524,9 @@ def top(ctx: click.Context, once: bool, interval: str) -> None:
     from . import top as top_view  # rich is loaded for this command only
 
     lo, hi = TOP_INTERVAL_S
-    interval = _number("top", "--interval", interval, lo, hi, "seconds")
+    seconds = _number("top", "--interval", interval, lo, hi, "seconds")
     with _attach(ctx) as inst:
-        top_view.run(inst, interval, once)
+        top_view.run(inst, seconds, once)
 
 
 @main.command()
@@ -571,7 +572,7 @@ def record_start(ctx: click.Context, path: Path) -> None:
     """Start recording to PATH (a new .mcap file) until kalictl record stop."""
     from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
-    with _attach(ctx.parent) as inst:
+    with _attach(ctx) as inst:
         pid = recording.start(inst, path)
         click.echo(f"recording instance '{inst.name}' to {path.absolute()} (recorder pid {pid})")
 
@@ -583,7 +584,7 @@ def record_stop(ctx: click.Context) -> None:
     """Stop recording: what is left is drained and the file finished."""
     from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
-    with _attach(ctx.parent) as inst:
+    with _attach(ctx) as inst:
         doc = recording.stop(inst)
         click.echo(_record_line(doc))
         if doc["error"]:
@@ -597,12 +598,12 @@ def record_status(ctx: click.Context) -> None:
     """The recording in progress, or the last one."""
     from .. import recording  # here: the recorder's machinery (mcap) only when recording
 
-    name = _instance_name(ctx.parent)
+    name = _instance_name(ctx)
     doc = recording.read_status(name)
     click.echo(_record_line(doc) if doc else f"instance '{name}': no recording yet")
 
 
-def _record_line(doc: dict[str, object]) -> str:
+def _record_line(doc: dict[str, Any]) -> str:
     gaps = f", {doc['gaps']} ticks LOST" if doc["gaps"] else ", no tick lost"
     error = f"; {doc['error']}" if doc["error"] else ""
     return (
@@ -621,7 +622,7 @@ def clock() -> None:
 @_errors
 def clock_start(ctx: click.Context) -> None:
     """Run the wall clock (refused while a fault is active)."""
-    with _attach(ctx.parent) as inst:
+    with _attach(ctx) as inst:
         start_kali_clock(inst)
         click.echo(f"clock running from tick {int(inst.clock['tick'])}")
 
@@ -631,7 +632,7 @@ def clock_start(ctx: click.Context) -> None:
 @_errors
 def clock_stop(ctx: click.Context) -> None:
     """Stop the wall clock: no periodic process is signalled."""
-    with _attach(ctx.parent) as inst:
+    with _attach(ctx) as inst:
         stop_kali_clock(inst)
         click.echo(f"clock stopped at tick {int(inst.clock['tick'])}")
 
@@ -642,7 +643,7 @@ def clock_stop(ctx: click.Context) -> None:
 @_errors
 def clock_set(ctx: click.Context, ms: float) -> None:
     """Set the clock's running time to MS milliseconds."""
-    with _attach(ctx.parent) as inst:
+    with _attach(ctx) as inst:
         set_kali_clock(inst, ms)
         click.echo(f"clock time set to {ms:g} ms at tick {int(inst.clock['tick'])}")
 
@@ -653,7 +654,7 @@ def clock_set(ctx: click.Context, ms: float) -> None:
 @_errors
 def clock_step(ctx: click.Context, ticks: int) -> None:
     """Lockstep: run TICKS more ticks, then stop."""
-    with _attach(ctx.parent) as inst:
+    with _attach(ctx) as inst:
         tick = step_kali_clock(inst, ticks)
         fault = inst.fault_text()
         click.echo(f"clock at tick {tick}" + (f"; halted: {fault}" if fault else ""))

@@ -162,7 +162,7 @@ class Introspector:
     def _processes(self) -> list[dict[str, Any]]:
         rows = launcher.describe(self.inst)
         for r in rows:
-            p = self.inst.procs[int(r["slot"])]  # type: ignore[call-overload]
+            p = self.inst.procs[int(r["slot"])]
             hist = np.array(p["hist"], dtype=np.int64)
             r["late_p999_us"] = launcher.percentile(hist, 0.999)
             r["max_consecutive_misses"] = int(p["max_consecutive_misses"])

@@ -30,6 +30,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import posix_ipc
@@ -290,9 +291,9 @@ def _stop(instance: str) -> StopReport:
         if why:
             report.left.append(f"{path}: {why}")
     report.removed = sorted(before - set(shm_objects(instance)))
-    for path in dirs:
-        if _remove_instance_dir(path, instance):
-            report.removed.append(str(path))
+    for d in dirs:
+        if _remove_instance_dir(d, instance):
+            report.removed.append(str(d))
     return report
 
 
@@ -613,7 +614,7 @@ def _tail(path: Path, lines: int = 15) -> str:
     return "\n".join("    " + t for t in text)
 
 
-def describe(inst: Instance) -> list[dict[str, object]]:
+def describe(inst: Instance) -> list[dict[str, Any]]:
     """The process table as plain rows, for ``kalictl status`` and tests."""
     rows = []
     base_ns = int(inst.clock["base_tick_ns"])
@@ -649,7 +650,7 @@ def describe(inst: Instance) -> list[dict[str, object]]:
     return rows
 
 
-def recent_misses(inst: Instance, n: int = layout.MISS_LOG_LEN) -> list[dict[str, object]]:
+def recent_misses(inst: Instance, n: int = layout.MISS_LOG_LEN) -> list[dict[str, Any]]:
     """The last ``n`` missed deadlines from the clock's log, oldest first."""
     log = inst.misses
     count = int(log["count"])

@@ -51,9 +51,9 @@ def user_files(cfg: KaliConfig) -> list[Path]:
                 found[path] = None
     base = Path(cfg.base_dir)
     for spec in (*cfg.plugins, *cfg.tg_functions):
-        path = plugin_file(spec, base)
-        if path is not None:
-            found[path] = None
+        plugin = plugin_file(spec, base)
+        if plugin is not None:
+            found[plugin] = None
     return list(found)
 
 

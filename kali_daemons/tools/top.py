@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 from rich import box
-from rich.console import Console, Group
+from rich.console import Console, Group, RenderableType
 from rich.live import Live
 from rich.table import Table
 from rich.text import Text
@@ -333,7 +333,7 @@ def frame(
     """One whole screen for a terminal ``width`` columns wide; with a ``height`` (a live
     screen) the parts are spaced out and the refresh shown only if it all still fits."""
     wide = width >= WIDE
-    parts = [
+    parts: list[RenderableType] = [
         header(prev, cur),
         fault_line(cur),
         processes(prev, cur, wide),

@@ -347,6 +347,7 @@ class Viewer(Daemon):
         live = ""
         found = None if d.connect is None else grpc_answers(*grpc_address(d.connect))
         if found:
+            assert d.connect is not None  # found: its answer
             live = d.connect
             sinks.append(rr.GrpcSink(live))
             self.log.info("dashboard: streaming to the live rerun viewer at %s", live)
@@ -558,7 +559,8 @@ class Viewer(Daemon):
         pose = self.world["object_pose"]
         if pose[3:] @ pose[3:] > 0.5:  # a unit quaternion once the plant has written it
             w, x, y, z = pose[3:]
-            rec.log("world/object", rr.Transform3D(translation=pose[:3], quaternion=(x, y, z, w)))
+            # rerun types QuaternionLike as its Quaternion only; it takes the four (x, y, z, w)
+            rec.log("world/object", rr.Transform3D(translation=pose[:3], quaternion=(x, y, z, w)))  # type: ignore[arg-type]
         self._timing()
         self._events()
 
@@ -607,7 +609,7 @@ class Viewer(Daemon):
             for path in ("timing/exec_us", "timing/late_us", "timing/misses"):
                 self.rec.log(path, rr.SeriesLines(names=names), static=True)
 
-    def _process_event(self, i: int, was: int, now: int) -> None:
+    def _process_event(self, i: int | np.integer, was: int, now: int) -> None:
         assert self.rec is not None
         name = self._proc_names[i]
         if now == ProcState.FREE:

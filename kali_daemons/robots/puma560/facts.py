@@ -49,7 +49,7 @@ URDF_PATH: Final = Path(__file__).resolve().parents[3] / "config" / "puma560.urd
 
 def _ro(values: object, dtype: type = np.float64) -> npt.NDArray:
     """A read-only numpy array: these are facts, nobody should change them in place."""
-    arr = np.array(values, dtype=dtype)
+    arr: npt.NDArray = np.array(values, dtype=dtype)
     arr.setflags(write=False)
     return arr
 

@@ -87,6 +87,15 @@ class ArmInput:
         "wrench",
         "wrenches",
     )
+    # the joint vectors (n,), made in ``__init__``
+    q_d: np.ndarray
+    qd_d: np.ndarray
+    qdd_d: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    tau_ff: np.ndarray
+    h: np.ndarray
+    g: np.ndarray
 
     def __init__(self, n: int, dt: float, robot: str = "") -> None:
         self.n, self.dt, self.robot = n, dt, robot
