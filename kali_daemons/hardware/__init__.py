@@ -20,7 +20,6 @@ from typing import Protocol
 import numpy as np
 
 from ..core.kernels import Kernel
-from ..core.layout import PowerState
 from .driver import JointDriver
 from .mcgill import (
     McGillBoards,

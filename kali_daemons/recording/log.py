@@ -43,7 +43,7 @@ class ArmLog:
     wrench: np.ndarray | None
 
     def __getattr__(self, name: str) -> np.ndarray:
-        series = self.__dict__.get("series", {})
+        series: dict[str, np.ndarray] = self.__dict__.get("series", {})
         if name in series:
             return series[name]
         raise AttributeError(name)
@@ -127,9 +127,9 @@ def read(path: str | Path) -> Log:
                     arm = parts[2]
                     ticks.setdefault(arm, []).append(int(msg.tick))
                     stamps.setdefault(arm, []).append(int(message.log_time))
-                    s = series.setdefault(arm, {f: [] for f in SERVO_FIELDS})
-                    for f in SERVO_FIELDS:
-                        s[f].append(getattr(msg, f))
+                    s = series.setdefault(arm, {name: [] for name in SERVO_FIELDS})
+                    for name in SERVO_FIELDS:
+                        s[name].append(getattr(msg, name))
                 elif len(parts) == 4 and parts[1] == "kali" and parts[3] == "servo_changes":
                     params = dict(zip(msg.names, map(float, msg.values), strict=True))
                     change = ServoChange(int(msg.tick), int(msg.joint), msg.kind, msg.servo, params)

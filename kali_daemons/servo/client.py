@@ -32,6 +32,7 @@ from .level import (
     flag,
     refusal_text,
 )
+from .shadow import Trial
 
 OP_TIMEOUT_S = 2.0  # how long a client waits for the SV to carry out a mailbox operation
 JOINT_SERVOS = "joints"  # what ``select_arm`` takes for "back to the joint servos"

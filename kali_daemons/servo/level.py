@@ -48,7 +48,9 @@ FIFO_CAPACITY = layout.FIFO_CAPACITY  # TG set-points a TG → SIO FIFO holds (t
 # SIO refuses a set-point beyond ±this (rad) as garbage, holding instead: two full turns either
 # way is no joint angle (joint range itself is SIO's range check, which halts)
 SETPOINT_BOUND_RAD = 4.0 * math.pi
-SlotStruct = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)
+# numpy's stubs type a structured dtype's ctypes class as a scalar's (dtype[void] matches no
+# overload); it is a Structure
+SlotStruct: type[ctypes.Structure] = np.ctypeslib.as_ctypes_type(layout.SERVO_SLOT)  # type: ignore[arg-type, assignment]
 
 
 class ArmHands(Protocol):
@@ -117,7 +119,8 @@ class ServoLevel:
             [block[i : i + 1].reshape(()) for block in self.blocks] for i in range(n)
         ]
         self.structs = [[struct_view(rec) for rec in row] for row in self.data]
-        self.slot_structs = (SlotStruct * n).from_buffer(self.slots)
+        # numpy's stubs give an ndarray the buffer protocol only from Python 3.12 on
+        self.slot_structs = (SlotStruct * n).from_buffer(self.slots)  # type: ignore[arg-type]
         # robot-level servos: algorithm a's record for every robot is one block,
         # arm_data[k][a] robot k's record (0-d); each robot's mailbox staging bytes
         nr = self.n_robots

@@ -210,7 +210,9 @@ class Planner:
             InterpolatingFifo(arena, layout.KEY_FIFO.format(robot=name), n, FIFO_CAPACITY, ratio)
             for name, n in zip(self.names, self.joint_map.counts, strict=True)
         ]
-        self.robots = None  # SIO's records, once SIO has created them
+        # SIO's records, once SIO has created them: None before, while every tick returns at
+        # once (so the methods it calls take them as laid out)
+        self.robots: np.ndarray = None  # type: ignore[assignment]
         self.dt = cfg.clock.tg_period_ms / 1000.0
         self.check_ns = int(CHECK_SHARE * ms_to_ns(cfg.clock.tg_period_ms))
         self._check_until = 0  # monotonic ns: when this tick's check share ends (cycle)
@@ -670,10 +672,11 @@ class Planner:
         """Plan request ``req`` from where motion ``a`` ends, to follow it without a stop
         (``_blend``); a path is checked from there first, while ``a`` runs.  Refused with the
         reason as any request would be."""
+        profile: JointMotion | CartesianMotion
         try:
             if isinstance(a.profile, JointMotion):
                 start = a.profile.target.copy()
-                profile: JointMotion | CartesianMotion = plan_joints(req, robots, start, self.types)
+                profile = plan_joints(req, robots, start, self.types)
                 overlap = min(a.profile.law.accel_time, profile.law.accel_time)
             else:
                 assert isinstance(a.profile, CartesianMotion)
@@ -957,7 +960,7 @@ class Planner:
                 self.fifos[k].push(rows[i], last)
                 np.copyto(self._setpoint_of[k], rows[i])
         else:
-            p.sample(m.tau, m.out)
+            p.sample(m.tau, m.out)  # type: ignore[union-attr]  # not tracking: a joint motion
             for i, k in enumerate(m.robots):
                 q = m.rows[i]
                 self.fifos[k].push(q, last)
@@ -1079,7 +1082,8 @@ class Planner:
             for k in b.robots:
                 self.tg_robots["busy_seq"][k] = b.seq
             if isinstance(a.profile, JointMotion):  # b's own samples from the next tick
-                b.profile.sample(b.tau, b.out)
+                # a joint motion's successor is one (_plan_successor)
+                b.profile.sample(b.tau, b.out)  # type: ignore[union-attr, call-arg]
         elif a.stop is not None and a.stop.sigma(a.stop_t) == 0.0:
             assert b.stop is not None
             a.successor, b.predecessor, b.blending = None, None, False

@@ -523,8 +523,8 @@ def _start(
             hosted = executive and p.kind not in OWN_PROCESS
             if hosted:
                 continue  # hosted by the executive: it is the wall clock's process
-            clock = executive and p.kind == "wallclock"
-            module = "lockstep.executive" if clock else MODULES[p.kind]
+            hosts = executive and p.kind == "wallclock"
+            module = "lockstep.executive" if hosts else MODULES[p.kind]
             logs_of[p.name] = logs / f"{p.name}.log"
             children[p.name] = _spawn(module, name, p.name, logs_of[p.name])
         if executive:  # one process: every slot is the executive's

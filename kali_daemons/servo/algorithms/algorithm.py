@@ -169,7 +169,8 @@ def struct_view(record: np.ndarray) -> Any:
         raise ValueError(f"struct_view needs one record, got an array of shape {record.shape}")
     if not record.flags.writeable or not record.flags.c_contiguous:
         raise ValueError("struct_view needs a writable, contiguous record")
-    return struct_type(record.dtype).from_buffer(record)
+    # numpy's stubs give an ndarray the buffer protocol only from Python 3.12 on
+    return struct_type(record.dtype).from_buffer(record)  # type: ignore[arg-type]
 
 
 def check_dtype(dtype: Any) -> str | None:
