@@ -30,9 +30,9 @@ import numpy as np
 from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
 from harness import DEFAULT_CONFIG, KaliRun, cell_config, table
 
-from kali_daemons import recording
 from kali_daemons.client import Kali
 from kali_daemons.core import layout
+from kali_daemons.recording import recorder
 from kali_daemons.runtime import flightrec
 
 
@@ -64,7 +64,7 @@ def window(kali: Kali, seconds: float, path: Path | None) -> dict[str, float]:
         time.sleep(seconds)
     else:
         with kali.record(path) as status:
-            pid = recording.running(inst)
+            pid = recorder.running(inst)
             stat = Path(f"/proc/{pid}/stat")
             c0 = sum(int(v) for v in stat.read_text().split()[13:15])
             time.sleep(seconds)

@@ -139,9 +139,9 @@ def test_kalictl_records_and_refuses_what_it_cannot_do(
     r = kalictl("-i", name, "record", "start", str(tmp_path / "none" / "x.mcap"))
     assert r.returncode != 0 and "is not a directory" in r.stderr
     with Kali(name) as k, pytest.raises(KaliError, match="is not recording"):
-        from kali_daemons import recording
+        from kali_daemons.recording import recorder
 
-        recording.stop(k.inst)
+        recorder.stop(k.inst)
 
 
 def test_a_recording_survives_a_halt_with_the_halt_in_it(

@@ -1228,13 +1228,13 @@ class Kali:
     def start_recording(self, path: str | os.PathLike[str] | None = None) -> str:
         """Start recording to the new file ``path`` (None: a new ``rec-*.mcap`` in the
         instance's log directory); its path.  ``record`` is the block form."""
-        from .. import recording  # here: the recorder's machinery (mcap) only when recording
+        from ..recording import recorder  # here: mcap only when recording
 
         if path is None:
             stamp = time.strftime("%Y%m%d-%H%M%S")
             path = log_dir(self.inst.name) / f"rec-{self.inst.name}-{stamp}.mcap"
         self._recording = Path(path).absolute()
-        recording.start(self.inst, self._recording)
+        recorder.start(self.inst, self._recording)
         return str(self._recording)
 
     def record_in_log_dir(self) -> str:
@@ -1244,9 +1244,9 @@ class Kali:
 
     def stop_recording(self) -> dict[str, object]:
         """Stop the recording: what is left is drained and the file finished; its status."""
-        from .. import recording  # here: the recorder's machinery (mcap) only when recording
+        from ..recording import recorder  # here: mcap only when recording
 
-        return recording.stop(self.inst)
+        return recorder.stop(self.inst)
 
     def recorded_bytes(self, offset: int, size: int = RECORDED_CHUNK) -> str:
         """Up to ``size`` bytes of this program's last recording from ``offset``, base64 (a

@@ -1,5 +1,5 @@
 """``python -m kali_daemons.recording --instance NAME --out PATH``: the recorder process."""
 
-from . import main
+from .recorder import main
 
 main()

@@ -570,10 +570,10 @@ def record() -> None:
 @_errors
 def record_start(ctx: click.Context, path: Path) -> None:
     """Start recording to PATH (a new .mcap file) until kalictl record stop."""
-    from .. import recording  # here: the recorder's machinery (mcap) only when recording
+    from ..recording import recorder  # here: the recorder's mcap only when recording
 
     with _attach(ctx) as inst:
-        pid = recording.start(inst, path)
+        pid = recorder.start(inst, path)
         click.echo(f"recording instance '{inst.name}' to {path.absolute()} (recorder pid {pid})")
 
 
@@ -582,10 +582,10 @@ def record_start(ctx: click.Context, path: Path) -> None:
 @_errors
 def record_stop(ctx: click.Context) -> None:
     """Stop recording: what is left is drained and the file finished."""
-    from .. import recording  # here: the recorder's machinery (mcap) only when recording
+    from ..recording import recorder  # here: the recorder's mcap only when recording
 
     with _attach(ctx) as inst:
-        doc = recording.stop(inst)
+        doc = recorder.stop(inst)
         click.echo(_record_line(doc))
         if doc["error"]:
             raise click.ClickException(doc["error"])
@@ -596,10 +596,10 @@ def record_stop(ctx: click.Context) -> None:
 @_errors
 def record_status(ctx: click.Context) -> None:
     """The recording in progress, or the last one."""
-    from .. import recording  # here: the recorder's machinery (mcap) only when recording
+    from ..recording import recorder  # here: the recorder's mcap only when recording
 
     name = _instance_name(ctx)
-    doc = recording.read_status(name)
+    doc = recorder.read_status(name)
     click.echo(_record_line(doc) if doc else f"instance '{name}': no recording yet")
 
 

@@ -1,0 +1,616 @@
+"""Recording a run to MCAP: every servo tick of every arm (``kali.record``, ``kalictl record``).
+
+SIO already writes one row of every servo tick into the flight recorder's ring
+(``flightrec``); the recorder, a non-serious process of its own on the wall clock (every TG
+period, so it sees each of the TG's set-points), drains the rows written since its last
+cycle to an MCAP file, so nothing is copied twice in SIO's cycle.  In lockstep the clock
+waits for it like any clocked process, so no row can be overwritten before it is drained;
+in real time the ring holds 2 s, and a recorder that fell that far behind writes the ticks
+it lost to ``/kali/gaps``: a gap is reported, never silent.  A failure to write (a full
+disk) ends the recording and says why in its status; the arms never notice.
+
+Topics, one message per arm per tick, log time the clock's running time of the tick:
+
+- ``/kali/<arm>/joint_states``: ``sensor_msgs/msg/JointState`` (measured position and
+  velocity, sent torque as effort), which Foxglove, PlotJuggler and ``ros2 bag`` show as is;
+- ``/kali/<arm>/wrench``: ``geometry_msgs/msg/WrenchStamped``, the contact wrench at the
+  tool point in tool axes (arms with a wrist sensor);
+- ``/kali/<arm>/servo``: ``kali_msgs/msg/ServoTick``, everything of the tick: the tick, q,
+  qd, the demand and its velocity, servo, feed-forward and sent torques, currents and a
+  shadow trial's torque (NaN where none ran);
+- ``/kali/<arm>/setpoint``: ``kali_msgs/msg/SetPoint``, each set-point the TG makes for the
+  arm (its tick and joint angles; in real time one the recorder was late for is not seen);
+- ``/kali/gaps``: ``kali_msgs/msg/Gap``, ticks lost between two drains (none, normally);
+- ``/kali/requests``: ``kali_msgs/msg/Request``, each motion request as its state changes
+  (seen at the recorder's period: its outcome always, a state it passed through between two
+  drains not);
+- ``/kali/faults``: ``kali_msgs/msg/Fault``, each fault raised (a halt, an e-stop).
+- ``/kali/<arm>/servo_changes`` and, in simulation, ``/kali/sim/<arm>/truth``: the servo
+  level's changes and the plant's truth (``recording.events``).
+
+Every message is ROS 2 CDR with its definition in the file, so any MCAP reader decodes it
+without Kali or ROS installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from ..core import layout
+from ..core.errors import KaliError
+from ..core.layout import ProcState, RequestState
+from ..runtime.daemon import Daemon
+from ..runtime.instance import Instance, decode
+from ..runtime.paths import instance_dir
+from .events import TRUTH_FIELDS, ServoWatch, TruthSampler, simulated
+from .log import SERVO_FIELDS
+
+NAME = "recorder"  # its process-table slot
+START_TIMEOUT_S = 20.0
+STOP_TIMEOUT_S = 30.0
+STATUS_S = 0.5  # how often a recording's status file is brought up to date
+
+TIME = "================================================================================\n"
+HEADER_DEF = (
+    f"{TIME}MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+    f"{TIME}MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+)
+JOINT_STATE_DEF = (
+    "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+    f"float64[] effort\n{HEADER_DEF}"
+)
+WRENCH_DEF = (
+    "std_msgs/Header header\ngeometry_msgs/Wrench wrench\n"
+    f"{TIME}MSG: geometry_msgs/Wrench\ngeometry_msgs/Vector3 force\ngeometry_msgs/Vector3 torque\n"
+    f"{TIME}MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n{HEADER_DEF}"
+)
+# each ServoTick array's column of the flight row
+ROW_COLUMNS = dict(zip(SERVO_FIELDS, layout.FLIGHT_FIELDS, strict=True))
+SERVO_DEF = (
+    "std_msgs/Header header\nint64 tick\n"
+    + "".join(f"float64[] {f}\n" for f in SERVO_FIELDS)
+    + HEADER_DEF
+)
+GAP_DEF = f"std_msgs/Header header\nint64 first_tick\nint64 ticks\n{HEADER_DEF}"
+REQUEST_DEF = (
+    "std_msgs/Header header\nuint64 seq\nstring state\nint32 client_pid\nfloat64 duration_s\n"
+    f"float64 progress\nstring message\n{HEADER_DEF}"
+)
+SETPOINT_DEF = f"std_msgs/Header header\nint64 tg_tick\nfloat64[] q\n{HEADER_DEF}"
+FAULT_DEF = (
+    f"std_msgs/Header header\nint64 tick\nstring code\nstring process\nstring message\n{HEADER_DEF}"
+)
+SERVO_CHANGE_DEF = (
+    "std_msgs/Header header\nint64 tick\nint32 joint\nstring kind\nstring servo\n"
+    f"string[] names\nfloat64[] values\n{HEADER_DEF}"
+)
+SIM_TRUTH_DEF = (
+    "std_msgs/Header header\nint64 tick\nfloat64 sim_time_s\nuint64 plant_ticks\n"
+    + "".join(f"float64[] {f}\n" for f in TRUTH_FIELDS)
+    + f"float64[6] contact_wrench\nfloat64[6] grasp_wrench\nbool grasped\n{HEADER_DEF}"
+)
+
+
+def status_path(instance: str) -> Path:
+    """Where the recorder of ``instance`` says what it does (JSON)."""
+    return instance_dir(instance) / "recorder.json"
+
+
+class Cdr:
+    """A ROS 2 message encoded as little-endian CDR, for the recording's few fixed message
+    types: each field appended at its alignment (relative to the payload after the 4-byte
+    encapsulation header), into one reused buffer.  mcap-ros2-support's generic encoder
+    (a dict per message) cost the recorder a quarter of a core at two arms and 1 kHz."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray(b"\x00\x01\x00\x00")  # CDR, little endian
+
+    def reset(self) -> None:
+        del self.buf[4:]
+
+    def _align(self, n: int) -> None:
+        pad = -(len(self.buf) - 4) % n
+        if pad:
+            self.buf += bytes(pad)
+
+    def header(self, ns: int, frame: bytes = b"") -> None:
+        """std_msgs/Header: builtin_interfaces/Time stamp, string frame_id."""
+        self._align(4)
+        self.buf += struct.pack("<iI", ns // 1_000_000_000, ns % 1_000_000_000)
+        self.string(frame)
+
+    def string(self, text: bytes) -> None:
+        self._align(4)
+        self.buf += struct.pack("<I", len(text) + 1) + text + b"\x00"
+
+    def strings(self, texts: list[bytes]) -> None:
+        self._align(4)
+        self.buf += struct.pack("<I", len(texts))
+        for t in texts:
+            self.string(t)
+
+    def int64(self, v: int) -> int:
+        """An int64; its offset in the message."""
+        self._align(8)
+        at = len(self.buf)
+        self.buf += struct.pack("<q", v)
+        return at
+
+    def uint64(self, v: int) -> None:
+        self._align(8)
+        self.buf += struct.pack("<Q", v)
+
+    def int32(self, v: int) -> None:
+        self._align(4)
+        self.buf += struct.pack("<i", v)
+
+    def uint8(self, v: int) -> None:
+        """A uint8 or bool."""
+        self.buf += struct.pack("<B", v)
+
+    def float64(self, v: float) -> None:
+        self._align(8)
+        self.buf += struct.pack("<d", v)
+
+    def float64s(self, values: np.ndarray) -> int:
+        """float64[] (a sequence); the offset of its values in the message."""
+        self._align(4)
+        self.buf += struct.pack("<I", len(values))
+        self._align(8)
+        at = len(self.buf)
+        self.buf += np.ascontiguousarray(values, dtype="<f8").tobytes()
+        return at
+
+    def float64_fixed(self, values: np.ndarray) -> int:
+        """Consecutive float64 fields (a Wrench's six); the offset of the first."""
+        self._align(8)
+        at = len(self.buf)
+        self.buf += np.ascontiguousarray(values, dtype="<f8").tobytes()
+        return at
+
+    def bytes(self) -> bytes:
+        return bytes(self.buf)
+
+
+class Template:
+    """A message whose layout never changes (an arm's joint state, servo tick or wrench):
+    encoded once, then each tick only its stamp, tick and values are written in place
+    (``fill``), one copy of the bytes per message."""
+
+    def __init__(self, cdr: Cdr, tick_at: int, columns: list[tuple[str, int, int]]) -> None:
+        self.buf = bytearray(cdr.buf)
+        self.tick_at = tick_at  # -1: no tick field
+        # (flight-row column, its first value in the message, how many)
+        self.views = [
+            (column, np.frombuffer(self.buf, dtype="<f8", count=n, offset=at))
+            for column, at, n in columns
+        ]
+
+    def fill(self, ns: int, tick: int, row: np.ndarray, span: slice | int) -> bytes:
+        struct.pack_into("<iI", self.buf, 4, ns // 1_000_000_000, ns % 1_000_000_000)
+        if self.tick_at >= 0:
+            struct.pack_into("<q", self.buf, self.tick_at, tick)
+        for column, view in self.views:
+            view[:] = row[column][span]
+        return bytes(self.buf)
+
+
+class Recording:
+    """Drains an instance's flight-recorder ring into an MCAP file (``drain``), from the
+    rows written after it was made; the cycle logic of the recorder process, which a test
+    can drive too."""
+
+    def __init__(self, inst: Instance, path: Path) -> None:
+        self.inst = inst
+        self.path = path
+        cfg = inst.config
+        self.header = inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+        h = self.header
+        if int(h["rows"]) == 0:
+            raise KaliError(f"recording: instance '{inst.name}': SIO has no flight recorder yet")
+        self.rows = int(h["rows"])
+        row = layout.flight_row(int(h["n_joints"]), int(h["n_robots"]))
+        self.ring = inst.arena.existing(layout.KEY_FLIGHT_RING, row, self.rows)
+        self.names = [r.name for r in cfg.robots]
+        self.spans = [cfg.joints.span(k) for k in range(len(self.names))]
+        self.joint_names = [
+            [f"{r.name}_joint{j + 1}" for j in range(r.n_joints)] for r in cfg.robots
+        ]
+        self.sensors = [r.ft.sheet is not None for r in cfg.robots]
+        self.base_ns = int(inst.clock["base_tick_ns"])
+        self.next = int(h["count"])  # the first row to record
+        self.written = 0  # servo ticks written
+        self.gaps = 0  # ticks lost
+        self.first_tick = self.last_tick = -1
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(path, "xb")  # noqa: SIM115 - open until close(); never over a file
+        self.writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library="kali")
+        self.writer.add_metadata("kali", {"instance": inst.name, "robots": ",".join(self.names)})
+        schemas = {
+            kind: self.writer.register_schema(name, "ros2msg", text.encode())
+            for kind, name, text in (
+                ("joints", "sensor_msgs/msg/JointState", JOINT_STATE_DEF),
+                ("wrench", "geometry_msgs/msg/WrenchStamped", WRENCH_DEF),
+                ("servo", "kali_msgs/msg/ServoTick", SERVO_DEF),
+                ("gap", "kali_msgs/msg/Gap", GAP_DEF),
+                ("request", "kali_msgs/msg/Request", REQUEST_DEF),
+                ("fault", "kali_msgs/msg/Fault", FAULT_DEF),
+                ("setpoint", "kali_msgs/msg/SetPoint", SETPOINT_DEF),
+                ("change", "kali_msgs/msg/ServoChange", SERVO_CHANGE_DEF),
+                ("truth", "kali_msgs/msg/SimTruth", SIM_TRUTH_DEF),
+            )
+        }
+
+        def channel(topic: str, kind: str) -> int:
+            return self.writer.register_channel(topic, "cdr", schemas[kind])
+
+        self._channels = [
+            {kind: channel(f"/kali/{name}/{topic}", kind)
+             for kind, topic in (("joints", "joint_states"), ("servo", "servo"),
+                                 ("wrench", "wrench"), ("setpoint", "setpoint"),
+                                 ("change", "servo_changes"))
+             if kind != "wrench" or self.sensors[k]}
+            for k, name in enumerate(self.names)
+        ]  # fmt: skip
+        self.servos = ServoWatch(inst)
+        self.truth = TruthSampler(inst) if simulated(inst) else None
+        self._truth_ch = [
+            channel(f"/kali/sim/{name}/truth", "truth") for name in self.names
+        ] if self.truth is not None else []  # fmt: skip
+        self._events_ch = {
+            kind: channel(f"/kali/{topic}", kind)
+            for kind, topic in (("gap", "gaps"), ("request", "requests"), ("fault", "faults"))
+        }
+        self._cdr = Cdr()
+        self._templates = [self._arm_templates(k) for k in range(len(self.names))]
+        self.requests = inst.arena.existing(
+            layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
+        )
+        # what was written of each status record (seq, state) and of the faults (count)
+        self._seq, self._state = self.requests["seq"], self.requests["state"]  # views
+        self._said_seq, self._said_state = self._seq.copy(), self._state.copy()
+        self._faults = int(inst.fault["count"])
+        self.tg = inst.arena.existing(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.names))
+        self._tg_ticks = [int(t) for t in self.tg["tick"]]  # the last set-point written
+
+    def _arm_templates(self, k: int) -> dict[str, Template]:
+        """Arm ``k``'s joint state, servo tick and wrench messages, laid out once."""
+        n = self.spans[k].stop - self.spans[k].start
+        zeros, c, out = np.zeros(n), self._cdr, {}
+        c.reset()  # sensor_msgs/msg/JointState
+        c.header(0)
+        c.strings([name.encode() for name in self.joint_names[k]])
+        cols = [(col, c.float64s(zeros), n) for col in ("q", "qd", "torque")]
+        out["joints"] = Template(c, -1, cols)
+        c.reset()  # kali_msgs/msg/ServoTick
+        c.header(0)
+        tick_at = c.int64(0)
+        cols = [(col, c.float64s(zeros), n) for col in ROW_COLUMNS.values()]
+        out["servo"] = Template(c, tick_at, cols)
+        if self.sensors[k]:
+            c.reset()  # geometry_msgs/msg/WrenchStamped
+            c.header(0, f"{self.names[k]}_tool".encode())
+            out["wrench"] = Template(c, -1, [("wrench", c.float64_fixed(np.zeros(6)), 6)])
+        return out
+
+    def drain(self) -> int:
+        """Write every whole row written since the last drain; the ticks written."""
+        h, rows = self.header, self.rows
+        count = int(h["count"])
+        if count <= self.next:
+            return 0
+        if count - self.next > rows - 1:  # lapped: those rows are gone
+            lost_from = self.next
+            self.next = count - (rows - 1)
+            self._gap(lost_from, self.next - lost_from)
+        data = self.ring[np.arange(self.next, count) % rows].copy()
+        after = int(h["count"])
+        whole = max(0, after + 1 - rows - self.next)  # rows the writer may have overwritten
+        if whole:
+            self._gap(self.next, whole)
+            data = data[whole:]
+        for row in data:
+            self._write_row(row)
+        self.next = count
+        self._events()
+        return len(data)
+
+    def _write_row(self, row: np.ndarray) -> None:
+        tick = int(row["tick"])
+        t = tick * self.base_ns
+        add = self.writer.add_message
+        for k in range(len(self.names)):
+            span, ch, tpl = self.spans[k], self._channels[k], self._templates[k]
+            add(ch["joints"], t, tpl["joints"].fill(t, tick, row, span), t)
+            add(ch["servo"], t, tpl["servo"].fill(t, tick, row, span), t)
+            if self.sensors[k]:
+                add(ch["wrench"], t, tpl["wrench"].fill(t, tick, row, k), t)
+        if self.first_tick < 0:
+            self.first_tick = tick
+        self.last_tick = tick
+        self.written += 1
+
+    def _gap(self, first_row: int, rows: int) -> None:
+        """Rows ``first_row`` .. + ``rows`` were overwritten before they were drained."""
+        tick = self.last_tick + 1 if self.last_tick >= 0 else 0
+        t = tick * self.base_ns
+        c = self._cdr
+        c.reset()  # kali_msgs/msg/Gap
+        c.header(t)
+        c.int64(tick)
+        c.int64(rows)
+        self.writer.add_message(self._events_ch["gap"], t, c.bytes(), t)
+        self.gaps += rows
+
+    def _events(self) -> None:
+        """The requests whose state changed since the last drain (each one's outcome at
+        least: a record is given to another request only long after) and a new fault."""
+        tick = max(self.last_tick, 0)
+        t = tick * self.base_ns
+        c, add = self._cdr, self.writer.add_message
+        seq, state = self._seq.copy(), self._state.copy()
+        changed = np.flatnonzero(
+            (seq != 0) & ((seq != self._said_seq) | (state != self._said_state))
+        )
+        self._said_seq, self._said_state = seq, state
+        for i in changed:
+            r = self.requests[i]
+            now = (int(seq[i]), int(state[i]))
+            c.reset()  # kali_msgs/msg/Request
+            c.header(t)
+            c.uint64(now[0])
+            c.string(RequestState(now[1]).name.encode())
+            c.int32(int(r["client_pid"]))
+            c.float64(float(r["duration_s"]))
+            c.float64(float(r["progress"]))
+            c.string(decode(r["message"]).encode())
+            add(self._events_ch["request"], t, c.bytes(), t)
+        for k in range(len(self.names)):  # the TG's newest set-point of each arm
+            tg_tick = int(self.tg["tick"][k])
+            if tg_tick == self._tg_ticks[k]:
+                continue
+            self._tg_ticks[k] = tg_tick
+            n = self.spans[k].stop - self.spans[k].start
+            c.reset()  # kali_msgs/msg/SetPoint
+            c.header(tg_tick * self.base_ns)
+            c.int64(tg_tick)
+            c.float64s(self.tg["setpoint"][k, :n])
+            add(self._channels[k]["setpoint"], tg_tick * self.base_ns, c.bytes(), t)
+        for k, joint, kind, servo, params in self.servos.changes():
+            c.reset()  # kali_msgs/msg/ServoChange
+            c.header(t)
+            c.int64(tick)
+            c.int32(joint)
+            c.string(kind.encode())
+            c.string(servo.encode())
+            c.strings([n.encode() for n in params])
+            c.float64s(np.array(list(params.values()), dtype=np.float64))
+            add(self._channels[k]["change"], t, c.bytes(), t)
+        if self.truth is not None:
+            self._sample_truth()
+        count = int(self.inst.fault["count"])
+        if count != self._faults:
+            self._faults = count
+            f = self.inst.read_fault()
+            c.reset()  # kali_msgs/msg/Fault
+            c.header(t)
+            c.int64(int(f.tick))
+            for text in (str(f.code), f.process, f.message):
+                c.string(text.encode())
+            add(self._events_ch["fault"], t, c.bytes(), t)
+
+    def _sample_truth(self) -> None:
+        """Every arm's truth as the plant has it now, stamped with the clock's tick."""
+        assert self.truth is not None
+        arms, joints, world = self.truth.sample()
+        tick = int(self.inst.clock["tick"])
+        t = tick * self.base_ns
+        c = self._cdr
+        for k, span in enumerate(self.truth.spans):
+            c.reset()  # kali_msgs/msg/SimTruth
+            c.header(t)
+            c.int64(tick)
+            c.float64(int(world["sim_time_ns"]) / 1e9)
+            c.uint64(int(world["ticks"]))
+            for f in TRUTH_FIELDS:
+                c.float64s(joints[f][span])
+            c.float64_fixed(arms["ft_wrench"][k])
+            c.float64_fixed(arms["grasp_wrench"][k])
+            c.uint8(int(arms["grasped"][k]))
+            self.writer.add_message(self._truth_ch[k], t, c.bytes(), t)
+
+    def close(self) -> None:
+        """Finish the file (its index and summary), outside any cycle."""
+        try:
+            self.writer.finish()  # type: ignore[no-untyped-call]  # mcap's has no annotations
+        finally:
+            self._file.close()
+
+    def status(self, state: str, error: str = "") -> dict[str, Any]:
+        return {
+            "pid": os.getpid(), "state": state, "path": str(self.path), "ticks": self.written,
+            "first_tick": self.first_tick, "last_tick": self.last_tick, "gaps": self.gaps,
+            "bytes": self._file.tell() if not self._file.closed else self.path.stat().st_size,
+            "error": error,
+        }  # fmt: skip
+
+
+class Recorder(Daemon):
+    """The recorder process: a non-serious clocked process that drains the ring each period
+    (``Recording``); ends on SIGTERM (``stop``), draining what is left and finishing the
+    file."""
+
+    kind = NAME
+    realtime = False  # file I/O and compression: never at SCHED_FIFO
+    takes_named_slot = False
+
+    def __init__(self, instance: str, name: str, path: Path, period_ms: float) -> None:
+        super().__init__(instance, name, period_ms=period_ms, serious=False, stage=9)
+        self.path = path
+        self.recording: Recording | None = None
+        self.error = ""
+        self._said_at = 0.0  # when the status file was last written
+
+    def _fail(self, exc: BaseException) -> None:
+        """A recorder that fails says so in its status and leaves; it never halts the cell
+        (the arms never notice a recording)."""
+        self.error = f"{type(exc).__name__}: {exc}"
+        self.log.error("recorder failed: %s", self.error)
+        if self.recording is not None:
+            self._end()
+
+    def on_configure(self) -> None:
+        self.recording = Recording(self.inst, self.path)
+        self._say("recording")
+
+    def cycle(self, tick: int) -> None:
+        if self.recording is None or self.error:
+            return
+        try:
+            self.recording.drain()
+        except OSError as exc:  # a full disk: the recording ends, the arms never notice
+            self.error = f"cannot write {self.path}: {exc.strerror or exc}"
+            self._end()
+            return
+        except Exception as exc:  # a fault of the recorder's own: ends it, halts nothing
+            self.error = f"{type(exc).__name__}: {exc}"
+            self._end()
+            return
+        now = time.monotonic()
+        if now >= self._said_at + STATUS_S:
+            self._said_at = now
+            self._say("recording")
+
+    def on_deactivate(self) -> None:
+        if self.recording is not None and not self.error:
+            try:
+                self.recording.drain()
+            except OSError as exc:
+                self.error = f"cannot write {self.path}: {exc.strerror or exc}"
+        self._end()
+
+    def _end(self) -> None:
+        if self.recording is None:
+            return
+        try:
+            self.recording.close()
+        except OSError as exc:
+            self.error = self.error or f"cannot finish {self.path}: {exc.strerror or exc}"
+        self._say("failed" if self.error else "done")
+        self.recording = None
+
+    def _say(self, state: str) -> None:
+        assert self.recording is not None
+        doc = self.recording.status(state, self.error)
+        part = status_path(self.instance_name).with_suffix(".part")
+        part.write_text(json.dumps(doc))
+        os.replace(part, status_path(self.instance_name))
+
+
+def read_status(instance: str) -> dict[str, Any] | None:
+    """The last recorder's status document, or None if there was none."""
+    try:
+        doc: dict[str, Any] = json.loads(status_path(instance).read_text())
+        return doc
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None
+
+
+def running(inst: Instance) -> int:
+    """The recorder's pid on ``inst``, or 0."""
+    i = inst.find_slot(NAME)
+    if i < 0 or int(inst.procs[i]["state"]) in (ProcState.FREE, ProcState.DIED):
+        return 0
+    return int(inst.procs[i]["pid"])
+
+
+def start(inst: Instance, path: Path) -> int:
+    """Start recording instance ``inst`` to ``path`` (a new file): the recorder process,
+    returning its pid once it records; KaliError naming why not."""
+    if running(inst):
+        doc = read_status(inst.name) or {}
+        raise KaliError(
+            f"record: instance '{inst.name}' is already recording to {doc.get('path', '?')}"
+        )
+    path = Path(path).absolute()
+    if path.exists():
+        raise KaliError(f"record: {path} exists: a recording is never written over")
+    if not path.parent.is_dir():
+        raise KaliError(f"record: {path.parent} is not a directory")
+    if not os.access(path.parent, os.W_OK):
+        raise KaliError(f"record: {path.parent} cannot be written")
+    with contextlib.suppress(FileNotFoundError):
+        status_path(inst.name).unlink()
+    log = instance_dir(inst.name) / "recorder.log"
+    with open(log, "ab") as out:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "kali_daemons.recording", "--instance", inst.name, "--out",
+             str(path)],
+            stdout=out, stderr=out, start_new_session=True,
+        )  # fmt: skip
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while time.monotonic() < deadline:
+        i = inst.find_slot(NAME)
+        if i >= 0 and int(inst.procs[i]["state"]) == ProcState.ACTIVE:
+            return proc.pid
+        if proc.poll() is not None:
+            raise KaliError(f"record: the recorder ended at start: {_tail(log)}")
+        time.sleep(0.01)
+    proc.kill()
+    raise KaliError(f"record: the recorder did not start within {START_TIMEOUT_S:g} s")
+
+
+def stop(inst: Instance) -> dict[str, Any]:
+    """Stop the recording (the recorder drains what is left and finishes the file); its
+    final status.  KaliError if none runs."""
+    pid = running(inst)
+    if not pid:
+        raise KaliError(f"record: instance '{inst.name}' is not recording")
+    os.kill(pid, signal.SIGTERM)
+    deadline = time.monotonic() + STOP_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if running(inst) != pid:
+            break
+        time.sleep(0.01)
+    else:
+        raise KaliError(f"record: the recorder (pid {pid}) did not finish in {STOP_TIMEOUT_S:g} s")
+    doc = read_status(inst.name)
+    if doc is None:
+        raise KaliError("record: the recorder ended without a word (recorder.log)")
+    return doc
+
+
+def _tail(log: Path) -> str:
+    lines = log.read_text(errors="replace").strip().splitlines()
+    return lines[-1] if lines else "(no output)"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m kali_daemons.recording --instance NAME --out PATH``."""
+    ap = argparse.ArgumentParser(prog="kali_daemons.recording")
+    ap.add_argument("--instance", required=True)
+    ap.add_argument("--out", required=True, type=Path)
+    args = ap.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO,
+        format=f"%(asctime)s {NAME}[%(process)d] %(levelname)s %(message)s",
+        stream=sys.stderr,
+    )
+    with Instance.attach(args.instance) as inst:  # drained every TG period: each set-point
+        period_ms = inst.config.clock.tg_period_ms
+    sys.exit(Recorder(args.instance, NAME, args.out, period_ms).main())
