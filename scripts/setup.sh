@@ -10,7 +10,7 @@
 #   chromium    the dashboard test opens the web viewer headless
 #   openssl     the bridge's TLS test makes its certificates
 # Then a virtual environment .venv with the kali_daemons package and its test and docs extras
-# (MkDocs for docs/), and the kernels' library built into kali_daemons/__pycache__ (a process
+# (MkDocs for docs/), and the kernels' library built into kali_daemons/core/__pycache__ (a process
 # that finds none builds it at start, never inside a cycle).
 set -euo pipefail
 cd "$(dirname "$0")/.."
