@@ -1,4 +1,4 @@
-"""Tests for the closed-form PUMA 560 kinematics (kali_daemons.kinematics).
+"""Tests for the closed-form PUMA 560 kinematics (kali_daemons.robots.puma560.kinematics).
 
 Oracles: robotics-toolbox-python's ``Puma560`` (``fkine`` from the DH table, ``ikine_a`` after
 Paul & Zhang) with its d1 set to ours, and Pinocchio's ``flange`` frame from the URDF.  The

@@ -280,7 +280,7 @@ def test_a_lifecycle_lock_held_by_a_stopped_kalictl_is_refused_at_once_naming_it
     name = unique_name("held")
     script = (
         "import os, signal, sys\n"
-        "from kali_daemons import launcher\n"
+        "from kali_daemons.tools import launcher\n"
         "with launcher.lifecycle_lock(sys.argv[1], 'start'):\n"
         "    print('in', flush=True)\n"
         "    os.kill(os.getpid(), signal.SIGSTOP)\n"
