@@ -100,7 +100,7 @@ class SimTruth:
         self._kali = kali
         inst = kali.inst
         cfg = inst.config
-        self.simulated = any(p.kind == "plant" for p in cfg.processes)
+        self.simulated = cfg.simulated
         if self.simulated:
             arena, n = inst.arena, len(cfg.robots)
             self._arms = arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, n)

@@ -167,7 +167,3 @@ class TruthSampler:
         """Copies of the arms', the joints' and the world's truth records."""
         return self.arms.copy(), self.joints.copy(), self.world[0].copy()
 
-
-def simulated(inst: Instance) -> bool:
-    """Whether the instance's cell has a simulated plant (and so a truth)."""
-    return any(p.kind == "plant" for p in inst.config.processes)

@@ -1,35 +1,12 @@
 """Recording a run to MCAP: every servo tick of every arm (``kali.record``, ``kalictl record``).
 
-SIO already writes one row of every servo tick into the flight recorder's ring
-(``flightrec``); the recorder, a non-serious process of its own on the wall clock (every TG
-period, so it sees each of the TG's set-points), drains the rows written since its last
-cycle to an MCAP file, so nothing is copied twice in SIO's cycle.  In lockstep the clock
-waits for it like any clocked process, so no row can be overwritten before it is drained;
-in real time the ring holds 2 s, and a recorder that fell that far behind writes the ticks
-it lost to ``/kali/gaps``: a gap is reported, never silent.  A failure to write (a full
-disk) ends the recording and says why in its status; the arms never notice.
-
-Topics, one message per arm per tick, log time the clock's running time of the tick:
-
-- ``/kali/<arm>/joint_states``: ``sensor_msgs/msg/JointState`` (measured position and
-  velocity, sent torque as effort), which Foxglove, PlotJuggler and ``ros2 bag`` show as is;
-- ``/kali/<arm>/wrench``: ``geometry_msgs/msg/WrenchStamped``, the contact wrench at the
-  tool point in tool axes (arms with a wrist sensor);
-- ``/kali/<arm>/servo``: ``kali_msgs/msg/ServoTick``, everything of the tick: the tick, q,
-  qd, the demand and its velocity, servo, feed-forward and sent torques, currents and a
-  shadow trial's torque (NaN where none ran);
-- ``/kali/<arm>/setpoint``: ``kali_msgs/msg/SetPoint``, each set-point the TG makes for the
-  arm (its tick and joint angles; in real time one the recorder was late for is not seen);
-- ``/kali/gaps``: ``kali_msgs/msg/Gap``, ticks lost between two drains (none, normally);
-- ``/kali/requests``: ``kali_msgs/msg/Request``, each motion request as its state changes
-  (seen at the recorder's period: its outcome always, a state it passed through between two
-  drains not);
-- ``/kali/faults``: ``kali_msgs/msg/Fault``, each fault raised (a halt, an e-stop).
-- ``/kali/<arm>/servo_changes`` and, in simulation, ``/kali/sim/<arm>/truth``: the servo
-  level's changes and the plant's truth (``recording.events``).
-
-Every message is ROS 2 CDR with its definition in the file, so any MCAP reader decodes it
-without Kali or ROS installed.
+The recorder, a non-serious clocked process of its own (every TG period), drains the rows SIO
+already writes to the flight recorder's ring (nothing is copied twice in SIO's cycle), with
+the TG's set-points, the requests, the faults, the servo level's changes and the simulator's
+truth (``events``), as ROS 2 messages (``messages``) any MCAP reader decodes.  In lockstep the
+clock waits for it, so no tick is lost; in real time a recorder more than the ring behind
+writes the ticks it lost to ``/kali/gaps``.  A failure to write ends the recording with the
+reason in its status; the arms never notice.  The topics: docs/guide/data.md.
 """
 
 from __future__ import annotations
@@ -55,7 +32,7 @@ from ..core.layout import ProcState, RequestState
 from ..runtime.daemon import Daemon
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import instance_dir
-from .events import TRUTH_FIELDS, ServoWatch, TruthSampler, simulated
+from .events import TRUTH_FIELDS, ServoWatch, TruthSampler
 from .messages import (
     FAULT_DEF,
     GAP_DEF,
@@ -140,7 +117,7 @@ class Recording:
             for k, name in enumerate(self.names)
         ]  # fmt: skip
         self.servos = ServoWatch(inst)
-        self.truth = TruthSampler(inst) if simulated(inst) else None
+        self.truth = TruthSampler(inst) if inst.config.simulated else None
         self._truth_ch = [
             channel(f"/kali/sim/{name}/truth", "truth") for name in self.names
         ] if self.truth is not None else []  # fmt: skip

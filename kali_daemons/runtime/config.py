@@ -665,6 +665,11 @@ class KaliConfig:
         """Every process the wall clock drives, i.e. all but the wall clock itself."""
         return tuple(p for p in self.processes if p.kind != "wallclock")
 
+    @property
+    def simulated(self) -> bool:
+        """Whether the cell's arms are a simulated plant's (which has a truth), not hardware."""
+        return any(p.kind == "plant" for p in self.processes)
+
 
 # --------------------------------------------------------------------------------------------
 # Public entry points
