@@ -1,36 +1,14 @@
 """Who may do what on the bridge: the Zenoh configs of the bridge and of its clients.
 
-The bridge's session is a Zenoh **router** that remote programs connect to as **clients**; it
-alone publishes under ``kali/INST/**`` and answers the queries there.  Zenoh's access control
-runs on the router, on each remote session's transport: *ingress* rules filter what a remote
-session sends (its puts, queries, subscriber and liveliness declarations), *egress* rules what
-the router sends it (samples, replies, liveliness tokens).  The bridge's own session is local to
-the router, so no rule applies to it.  The default is deny, and the rules only allow:
-
-- **readers**: subscribing to ``kali/INST/**``, liveliness subscriptions and queries there;
-  receiving the samples, replies and liveliness tokens under ``kali/INST/**``; and queries on
-  their own ``kali/INST/user/USER/status`` and ``.../config``;
-- **operators**: all that, plus queries on their own ``kali/INST/user/USER/verb/*`` and
-  ``.../session/**`` (the commands) and liveliness tokens ``.../clients/*`` (a remote
-  program's presence, whose loss the bridge notices);
-- nobody: a put or delete (no rule allows one), so no remote session can forge telemetry or
-  events for the others; a key outside ``kali/INST``; another user's branch; a key expression
-  broader than a rule's, such as a query on ``kali/INST/**`` or ``kali/INST/user/*/status``
-  (a rule must include the whole key expression that a message carries).
-
-So each user asks and declares under its own name only, and the bridge knows from a
-request's key which user sent it: its rate limits are per user, a session is its opener's.
-
-The advanced publisher of ``kali/INST/events`` (``zenoh.ext``) keeps its history behind a
-queryable and a liveliness token under ``kali/INST/events/@adv/pub/ZID/...``; ``@adv`` is a
-verbatim chunk that ``**`` never matches, so those keys have rules of their own
-(``kali/INST/**/@adv/**``).
-
-Without authentication (``BridgeConfig.authenticated`` false: loopback only) every session
-is an operator, on any branch (a name of its own choosing).  With it, roles name users of the
-usrpwd dictionary (``transport/auth/usrpwd``) or common names of client certificates (TLS
-with a root CA: mutual TLS); a session that is neither can do nothing, and one without valid
-credentials cannot even open.
+The bridge's session is a Zenoh router that remote programs connect to as clients; it alone
+publishes under ``kali/INST/**``.  Zenoh's access control runs on the router, default deny,
+and the rules only allow: readers subscribe and query their own status and config; operators
+also query their own verbs and sessions and declare their programs' liveliness tokens; nobody
+puts or deletes, so no remote session can forge telemetry or events.  A rule must include the
+whole key expression a message carries, so each user asks and declares under its own name
+only and the bridge knows from a request's key who sent it.  Without authentication (loopback
+only) every session is an operator, on any branch.  The rules one by one:
+docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations

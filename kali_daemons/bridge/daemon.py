@@ -1,35 +1,15 @@
-"""The Zenoh bridge (DESIGN 11): remote programs, telemetry and supervision.
+"""The Zenoh bridge process (DESIGN 11): remote programs, telemetry and supervision, under
+``kali/<instance>/`` (``protocol.Keys``).
 
-Every deadline stays on the controller's machine; the bridge only carries what people around
-the cell need, over Zenoh (the engine ROS 2's ``rmw_zenoh`` and ros2_control's remote I/O
-use), under ``kali/<instance>/…`` (``protocol.Keys``):
-
-- each robot's state (``telemetry.Telemetry``) every cycle — one cycle per telemetry sample,
-  ``bridge.telemetry_hz`` — with Drop congestion control: a slow subscriber loses samples,
-  never slows the bridge; per-process timing at ``bridge.timing_hz``;
-- events (``telemetry.Watch``: faults, power, calibration, messages, processes, requests),
-  reliable, numbered, through an advanced publisher whose cache gives a late subscriber the
-  last ``bridge.event_history``; each request's state also on ``motion/SEQ`` for a program
-  waiting on it;
-- the liveliness token ``kali/<instance>/alive``;
-- queryables: status (``kalictl status --json``'s document), config (the text, for a remote
-  program's robot types), kalictl's verbs (``sessions.run_verb``) and remote programs'
-  sessions (``sessions.Sessions``); verbs and status are the helper process's work
-  (``session.Helper``), so their Python never delays the telemetry.
-
-It is non-serious, SCHED_OTHER and unlocked, on its own CPU share (``bridge.cpu``), reads the
-arena as a Type 4 reader and never takes a lock the servo level waits for: a bridge that dies
-or stalls leaves the cell running (``kalictl status``: degraded).  In real time it keeps its
-own clock, as the viewer does, so it goes on reporting after a halt stops the wall clock; in
-lockstep the wall clock steps it.
-
-Requests arrive on Zenoh's threads, each under its user's branch (``protocol.UserKeys``).
-An e-stop is pressed there and then, lock-free (``Instance.press_estop``, as ``kalictl
-estop``): it waits behind nothing.  Every other request is counted against its user's
-``bridge.max_requests_per_s`` for its kind and waits its user's turn on one of the bridge's
-own threads, one for status and config, one for verbs, one for session opens and closes, one
-per session for its calls (``admission``): a Zenoh callback never waits, and one user's flood
-delays only that user.
+Every deadline stays on the controller's machine.  The bridge is non-serious, SCHED_OTHER and
+unlocked on its own CPU share (``bridge.cpu``), reads the arena as a Type 4 reader and never
+takes a lock the servo level waits for: a bridge that dies or stalls leaves the cell running.
+In real time it keeps its own clock, so it reports on after a halt; in lockstep the wall
+clock steps it.  Requests arrive on Zenoh's threads: an e-stop is pressed there and then,
+lock-free; every other request is counted against its user's rate and waits its user's turn
+on one of the bridge's own threads (``admission``), so a Zenoh callback never waits and one
+user's flood delays only that user.  Verbs and status run in the helper process
+(``session.Helper``).  What it publishes and answers: docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations

@@ -4,25 +4,14 @@
     python -m kali_daemons.bridge.session --instance NAME --helper
 
 The bridge starts one per remote program's session.  It is a local client program like any
-other: it attaches a ``Kali`` (its pid owns the arms the remote program moves, its name is the
-remote program's), then carries out that program's calls, one JSON line each on its standard
-input, answering one line each on the descriptor it was given as standard output (a line is
-``{"id": N, "target": OBJ, "method": M, "args": [...], "kwargs": {...}, "drop": [...]}``;
-the answer ``{"id": N, "value": V, "attrs": {...}}`` or ``{"id": N, "error": {...}}``).
-Only ``protocol.METHODS`` can be called, on the objects of this session, so a remote request
-meets every check a local client's does and is refused with the same message.  A line
-``{"adopt": {"force": F}}`` is a program taking up the session ``kalictl run --remote``
-opened for it (``Session.adopt``).
-
-A second pipe, ``--control IN,OUT``, carries the bridge's stops (``Stopper``: kalictl's
-Ctrl-C), served by a thread of their own, so a stop never waits behind the program's call.
-
-When the remote program disappears (its liveliness token goes), the bridge kills this
-process: the cell treats the program as a local one that died — its motions run out, its
-arms' leases lapse, the status records it never read are freed.
-
-With ``--helper`` it is the bridge's helper instead (``Helper``): kalictl's verbs and the
-status document, answered the same way, one line each.
+other: its ``Kali`` (its pid owns the arms the remote program moves, its name is the remote
+program's) carries out that program's calls, one JSON line each on standard input, one answer
+line each on the descriptor given as standard output.  Only ``protocol.METHODS`` can be
+called, so a remote request meets every check a local one does.  The bridge's stops come on a
+second pipe (``--control``), served by a thread of their own (``Stopper``), so a stop never
+waits behind a call.  When the remote program disappears the bridge kills this process and
+the cell treats the program as a local one that died.  ``--helper``: kalictl's verbs and the
+status document instead (``Helper``).  The line formats: docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations

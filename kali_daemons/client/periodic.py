@@ -6,22 +6,12 @@
         ctl.release("done with it")                     # thesis release(message)
 
 ``Kali.control`` runs the function in a thread of the calling program (a
-``daemon.FunctionDaemon`` started with ``start_thread``), on the wall clock: it has a slot in
-the process table with the program's pid, the clock signals it every period and, in a
-lockstep instance, waits for its acknowledgement, so a run is as deterministic as one with a
-process per function.  A thread and not a child process: the function shares the program's
-objects, and what the program owns by pid (its arms' leases, its shared transforms) is the
-function's too.  It shares the program's GIL as well: in real time a long computation of the
-program that holds the GIL delays the function by up to ``sys.getswitchinterval()`` (5 ms),
-or for as long as one C call holds it.
-
-The function and the program may take the same arena spinlock (a request queue's: both
-queueing motion requests): its word holds the taking thread's id, so they take it in turn.
-
-A program's functions end with it: ``Kali.close`` releases those it started, and so does the
-interpreter's exit for any left (``atexit``); a program killed outright leaves its slot to
-the clock, which finds its pid dead (a serious function halts the system then, as a dead
-process does).
+``daemon.FunctionDaemon``) on the wall clock, with a slot in the process table under the
+program's pid: in lockstep the clock waits for it, so a run is as deterministic as one with a
+process per function.  A thread, not a child process, so the function shares the program's
+objects, what the program owns by pid (leases, shared transforms) and its GIL.  A program's
+functions end with it (``Kali.close``, ``atexit``); one killed outright leaves its slot to the
+clock, which finds its pid dead.
 """
 
 from __future__ import annotations

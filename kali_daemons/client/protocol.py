@@ -1,27 +1,13 @@
 """What the bridge, its session workers and remote programs say to each other.
 
-Key expressions of one instance INST (``Keys``): the bridge publishes ``kali/INST/robots/
-ROBOT/state`` (telemetry, Drop QoS), ``kali/INST/timing`` (1 Hz), ``kali/INST/events``
-(reliable, with a history cache) and ``kali/INST/motion/SEQ`` (each request's state as it
-changes), and declares the liveliness token ``kali/INST/alive``.  What a client asks and
-declares lies under its user's branch ``kali/INST/user/USER`` (``UserKeys``; with
-authentication Zenoh lets a user only its own): the bridge answers ``.../status``,
-``.../config``, ``.../verb/VERB`` (kalictl's verbs), ``.../session/open`` and a remote
-program's calls, stop and close, ``.../session/SECRET/call``, ``.../stop`` (its arms stopped,
-the answer once they are at rest: ``kalictl run --remote``'s Ctrl-C) and ``.../close``
-(SECRET: what the open answered its opener alone), and a remote program declares
-``.../clients/SID`` (SID: its session's public id) while it lives.
-
-Payloads are JSON (any language reads them).  A remote program's call names an object of its
-session (0: its ``Kali``), a method and the arguments; values cross as JSON with tagged
-forms: ``{"__nd__": [...]}`` an array of floats; ``{"__obj__": ID, "class": C, "attrs":
-{...}}`` an object the worker holds (a robot, a motion system, a request's handle, a
-together() group, the servo client); ``{"__enum__": E, "name": N}`` a state (a request's,
-power, calibration, feed-forward); ``{"__dc__": D, ...}`` a dataclass (a guarded move's
-contact, a shadow trial's figures).  Only the methods ``METHODS`` lists can be called, each
-on the class it names: the worker runs them on the real client objects, so a remote request
-meets every check a local one does, and its refusal is the same exception with the same
-message (``ERRORS``).
+``Keys`` names what the bridge publishes under ``kali/INST/`` and answers there; ``UserKeys``
+what one user asks and declares under its own branch ``kali/INST/user/USER/`` (with
+authentication Zenoh lets a user only its own).  Payloads are JSON, any language reads them,
+with tagged forms for arrays, a session's objects, states and dataclasses (``encode``,
+``decode``).  Only the methods ``METHODS`` lists can be called, each on the class it names:
+the worker runs them on the real client objects, so a remote request meets every check a
+local one does and is refused with the same exception and message (``ERRORS``).  The key
+space and the tagged forms: docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations

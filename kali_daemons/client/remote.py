@@ -3,23 +3,15 @@
     from kali_daemons.client import Kali
     with Kali.connect("tcp/cell-pc:7447", "default") as kali:   # or Kali() under
         kali.ready(["left"])                                      # kalictl run --remote
-        left = kali.robot("left")
-        left.move_joints(q, speed=0.3)
+        kali.robot("left").move_joints(q, speed=0.3)
 
-``connect`` returns a ``RemoteKali``: the same robots, motion systems, moves, waits and reads
-as a local ``Kali``, so a program runs unchanged from a workstation.  Each call goes to the
-program's session on the controller's machine (``bridge/session.py``), where a local client
-carries it out with every check a local program meets; a refusal comes back as the same
-exception with the same message.  Poses and joint angles cross as arrays; robots, motion
-systems and request handles are proxies of the session's objects, holding their plain
-attributes (``name``, ``index``, ``base``, ``tool``, ``seq`` …).  A wait in real time follows
-the request's state on ``kali/INSTANCE/motion/SEQ`` as the bridge publishes it; in lockstep
-the session steps the clock as a local program's wait does.
-
-What a program runs periodically (``control``), streams and tracking loops stay on the
-controller's machine: their deadlines are the TG's and the wall clock's, not the network's.
-The program's liveliness token tells the bridge it lives: when it dies or its machine goes,
-the bridge ends its session as a local program's death would.
+``connect`` returns a ``RemoteKali`` with a local ``Kali``'s robots, motion systems, moves,
+waits and reads, so a program runs unchanged.  Each call goes to the program's session on the
+controller's machine (``bridge/session.py``), where a local client carries it out with every
+check a local program meets; a refusal comes back as the same exception and message.
+Periodic functions and TG functions stay on the controller's machine: their deadlines are the
+wall clock's and the TG's, not the network's.  The program's liveliness token tells the
+bridge it lives.  How calls, proxies and waits work: docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations

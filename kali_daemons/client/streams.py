@@ -2,20 +2,15 @@
 
     conveyor = kali.shared_transform("conveyor", pose(...), lifetime=0.05)
     h = left.track([conveyor, part, grasp], speed=0.3)   # tool = conveyor · part · grasp
-    ...                                                   # conveyor.set(...) as it moves
     left.stop()                                           # decelerates on its path
-
     with left.stream(lifetime=0.1) as s:                  # teleoperation: a pose stream
         for p in hand_controller():
             s.send(p)                                     # the arm follows within limits
 
-A *shared transform* is a record of ``tg.frames`` this program holds and writes, whole or
-not at all, at any rate; the TG reads it every tick (``tg.tracking``).  A tracking motion's
-target is a loop of transforms, fixed poses and shared ones, multiplied each TG tick; a
-*stream* is one shared transform the arm's tool follows.  The TG keeps the arm within the
-limits the request gives and stops it on its path when a shared transform is not written
-within its lifetime, holds garbage, or the loop runs out of reach.  Records held by a program
-are free again once it closes them or exits.
+A *shared transform* is a record of ``tg.frames`` this program holds and writes, whole or not
+at all, at any rate; the TG reads it every tick (``tg.tracking``) and stops the arm on its
+path when it is not written within its lifetime.  A *stream* is one shared transform the
+arm's tool follows.  Records are free again once the program closes them or exits.
 """
 
 from __future__ import annotations

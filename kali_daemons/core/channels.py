@@ -1,28 +1,15 @@
 """The four inter-process channel types of thesis 3.2.1, all living in the arena by key.
 
-1. :class:`RequestQueue` (Type 1): asynchronous producers → one synchronous consumer, e.g.
-   motion requests from user programs to the TG.  Producers serialise on a spinlock; the
-   consumer never takes it, so the synchronous side never waits on an asynchronous process.
-2. :class:`InterpolatingFifo` (Type 2): TG set-points → SIO, linearly interpolated between
-   the two rates (thesis 2.2.2).
+1. :class:`RequestQueue` (Type 1): asynchronous producers → one synchronous consumer.
+2. :class:`InterpolatingFifo` (Type 2): TG set-points → SIO, interpolated (thesis 2.2.2).
 3. :class:`Flag` / :class:`FlagArray` (Type 3): test-and-set flags holding the setter's pid.
 4. :class:`Record` (Type 4): a plain record with no synchronisation.
 
-Every constructor takes ``(arena, key, ...)`` and goes through ``Arena.record``, which returns
-the existing block when the key exists: creator and attacher run the same code.  The creator
-fixes the geometry; an attacher asking for a different one gets a :class:`ChannelError`
-naming the key, the field, the existing and the requested values.
-
-Head and tail counters are monotonically increasing u64 words (slot = counter % capacity).
-A writer fills a slot and then publishes the new tail with one atomic 64-bit store; the reader
-loads the tail atomically before reading slots and publishes its head the same way after
-copying.  "Safe in a cycle" below means: no array allocation, no I/O, no logging.
-
-Consumers never trust what another process wrote (DESIGN 7): the Type 1 consumer keeps its
-own head, checks the tail against it and each entry's sequence number against the entry's
-place, and drops what does not fit (``discarded``); the Type 2 consumer refuses set-points that
-are not finite (or beyond its ``bound``) and ratio stamps below 1, holding instead
-(``rejected``).
+Creator and attacher run the same constructor, ``(arena, key, ...)`` through
+``Arena.record``: the creator fixes the geometry, and an attacher asking for another gets a
+:class:`ChannelError`.  Consumers never trust what another process wrote (DESIGN 7).  "Safe
+in a cycle" below means: no array allocation, no I/O, no logging.  The counters and the
+consumers' checks: docs/internals/arena.md, docs/internals/sio-viewer-core.md.
 
 One module on purpose: the four channel types of thesis 3.2.1 side by side, sharing the arena's
 creator/attacher handshake.

@@ -1,21 +1,14 @@
-"""Every compiled kernel's argument block, declared once: the C structs
-(``csrc/kernel_args.h``) and the ctypes classes are both generated from ``BLOCKS``, as
-LinuxCNC's halcompile makes a component's struct and glue from its ``.comp`` declaration.
+"""Every compiled kernel's argument block, declared once in ``BLOCKS``: the C structs
+(``csrc/kernel_args.h``) and the ctypes classes are both generated from it, as LinuxCNC's
+halcompile makes a component's struct and glue from its ``.comp`` declaration.
 
-A block is its C name, its owner (the process or package that binds it), the kernels that
-take it, each with its Python reference (``module:qualname`` under ``kali_daemons``, the
-code the tests hold it equal to; empty where the tests compare with numpy directly), and
-its fields, in order: ``(names, C type)`` or ``(names, C type, doc)``, several
-names of one type on a row as C writes them, and a bare string a comment before the rows it
-introduces.  A per-joint array is a ``View`` (its element type in the doc); any other pointer
-is an address (``c_void_p``), except a table of ``View`` or ``Copy``, typed.  The records the
-kernels step in place (``RECORDS``) are generated from their numpy dtypes.
-
-``kernel_args.h`` is generated and checked in (``python -m kali_daemons.core.kernel_args`` writes
-it; a test holds it to these declarations), and each library it is compiled into lists every
-struct's fields (``kali_layout``, ``kali_fields``), so that ``kernels.open_library`` refuses
-one whose layout is not the ctypes classes'.  A block's owner says which library holds its
-kernels (``LIBRARIES``): the simulator's are its own.
+A block is its C name, its owner (whose library holds its kernels, ``LIBRARIES``), its
+kernels each with its Python reference, and its rows in C order: ``(names, C type)`` or
+``(names, C type, doc)``, or a bare string, a comment.  A per-joint array is a ``View``.  The
+records the kernels step in place (``RECORDS``) are generated from their numpy dtypes.  After
+editing, regenerate the checked-in header (``python -m kali_daemons.core.kernel_args``): a
+test and ``kernels.open_library`` refuse a mismatch.  The rules in full:
+docs/internals/sio-viewer-core.md.
 
 One module on purpose: every kernel's argument block declared once, the one source of the C
 header and the ctypes classes.

@@ -1,38 +1,17 @@
-"""The servo path's per-tick arithmetic as compiled kernels (issue 26 item 2), and the numpy
-reference each one must equal.
+"""The servo path's per-tick arithmetic as compiled kernels, and the numpy reference each one
+must equal.
 
-SIO's tick was ~50 small numpy calls (0.3-0.5 µs each before any work) plus Python loops;
-these C loops (``csrc/``, a file per owner) do the same arithmetic over every joint in one
-call each, and so do the SVs' servos, the FIFO's pop, the clock's wait, the flight
-recorder's row and the plant's cycle (the simulator's library).  Every kernel, its library,
-owner, argument block and the Python reference the tests hold it equal to are declared once
-in ``kernel_args`` (``python -m kali_daemons.core.kernel_args --list`` prints the table); its
-owner binds it (``Kernel("kali_...", ...)``) at configure.
+The C is in ``csrc/`` (a file per owner), compiled into the controller's and the simulator's
+libraries (``kernel_args.LIBRARIES``) by ``python -m kali_daemons.core.kernels``, or by
+``load`` at configure when none is found, never inside a cycle.  Every kernel, its library,
+owner, argument block and reference are declared once in ``kernel_args``; ``load`` refuses a
+library whose structs differ from the ctypes classes (``check_block``) or the dtypes
+(``check_record``).  Every kernel is bound once (``Kernel``): its argument block holds the
+arrays' addresses and strides, so the arrays must never move; the bound kernel keeps them
+alive, and a call is then ``kernel()``, with no allocation.
 
-Why C through ctypes and not numba (measured on this VM, 12 joints): a numba call with 12
-array arguments costs 0.67 µs, a ctypes call with one pointer to an argument block laid
-out at configure 0.27 µs; and ``import numba`` alone grows a process by ~127 MB RSS
-(llvmlite's 179 MB library, all of it locked by SIO's ``mlockall``), against issue 26's
-lean daemon set.  The library is ~20 KB and needs only ``cc``.  Those kernels step the
-arena's records (slots, the built-ins' private data) in place through C structs generated
-from their dtypes, and take their arguments in blocks declared once (``kernel_args``: the C
-structs in ``kernel_args.h`` and the ctypes classes both generated from it); ``load``
-refuses a library whose structs differ from the ctypes classes (``check_block``) or the
-dtypes (``check_record``).
-
-Build: ``python -m kali_daemons.core.kernels`` (run by ``scripts/setup.sh``) compiles each library
-(``kernel_args.LIBRARIES``: the controller's, ``csrc/controller.c``, and the simulator's own,
-``csrc/simulator.c``, each one translation unit including its owners' files) with ``cc``
-(``$CC``) into ``<library>-<hash>.so``, the hash over the sources and the flags, so an
-edited source is never served by a stale library.  It lives in
-``$KALI_KERNEL_DIR`` if set, else in this package's ``__pycache__`` (an editable install, a
-clean CI checkout), else, if that is not writable, ``~/.cache/kali``.  A process that finds
-no library builds it (~0.2 s) in ``load`` — SIO at configure, never inside a cycle.  A
-kernel runs in its owner's library (``kernel_args.library_of``).
-
-Every kernel is bound once (``Kernel``): its argument block holds the arrays' addresses and
-strides, so the arrays must never move (arena views and preallocated arrays do not); the
-bound kernel keeps them alive.  A call is then ``kernel()``: no allocation.
+Build, cache and the kernels' table: docs/internals/kernels.md; why C through ctypes and not
+numba: docs/decisions/0001-ctypes-not-numba.md.
 """
 
 from __future__ import annotations

@@ -1,46 +1,16 @@
 """Feed-forward dynamics (thesis 3.3.6, 2.2.3): the joint torques the demanded motion needs,
 computed with Pinocchio about as often as the TG runs, for SIO to add to the servo torques.
 
-Thesis 2.2.3: the controller's torque is τ = H(q) u + h(q, q̇), where the inverse dynamics
-H and h change far more slowly than the servo samples, so a process at a few tens of Hz can
-supply them; 3.3.6 makes that an asynchronous process whose torques SIO "reads and adds to
-the amplifier torque demand automatically".  Here it works on the demanded trajectory itself:
-for every set-point in a robot's TG → SIO FIFO (Type 2) it writes one row
-
-    FfMode.GRAVITY:  τ_i = g(q_i)
-    FfMode.FULL:     τ_i = M(q_i) q̈_i + C(q_i, q̇_i) q̇_i + g(q_i) + friction(q̇_i) + k_v q̇_i
-
-keyed by the set-point's absolute FIFO index (``layout.FEEDFORWARD``), with the demand's
-q̇_i and q̈_i beside it for the robot-level servos, which get rows in FULL whatever
-the mode asked for.  SIO interpolates the
-rows of the segment it is on exactly as it interpolates the positions, so feed-forward and
-demand stay aligned however late this process runs; a row that is not there in time, or a
-process that has gone silent, is SIO's to detect and drop (``sio/daemon.py``).
-
-The last term is the velocity feed-forward of thesis 2.2.3's servo law
-u = q̈_d + k_D (q̇_d − q̇) + k_P (q_d − q): Kali's PID (figure 3.4) damps the *measured*
-velocity, −k_v q̇, which at speed leaves a tracking lag of k_v q̇ / k_p (3° on joint 3 at
-2.4 rad/s) that no model of the arm removes; adding k_v q̇_d turns it into k_v (q̇_d − q̇).
-k_v is read, without locking, from the parameters of each joint's active servo algorithm
-(any algorithm with a ``kv`` parameter: the PID, the PD, plugins that name theirs so).
-
-q̇_i and q̈_i are central differences over the neighbouring set-points, with each segment's
-own duration (its ratio stamp × the servo period), so a row is written once its successor
-has been pushed; while the FIFO is drained SIO holds at the segment's target, and the row of
-that target is the gravity there, refreshed every cycle.  The torques themselves (rotor
-inertia, motor friction) are ``inverse.py``'s.
-
-Pinocchio's Python bindings return each result as a new vector (one entry per joint); this
-process is asynchronous and non-serious (3.3.6), so those small allocations are accepted here.
-
-Each robot has as many joints as its type (``cfg.joints``): its FIFO, its scratch vectors and
-the columns of its ``FEEDFORWARD`` rows it writes (``q``/``tau`` are ``layout.MAX_JOINTS``
-wide; the rest stay 0) are that wide, and its joint ``j``'s servo is slot ``base[k] + j``.
-
-What others write is checked here (DESIGN 7): a mode word that is no FfMode (a client's
-garbage) leaves the last valid mode in force, and a set-point that is not finite gets no row
-(SIO refuses it too and covers the gap with its neighbour's row); a torque that comes out
-non-finite is never published.
+For every set-point in a robot's TG → SIO FIFO it writes one row of ``layout.FEEDFORWARD``,
+keyed by the set-point's absolute FIFO index: τ = g(q) in GRAVITY, in FULL
+τ = M(q) q̈ + C(q, q̇) q̇ + g(q) + friction(q̇) + k_v q̇ (k_v the active servo's ``kv``: the
+PID then damps the velocity error), with q̇ and q̈ beside it for the robot-level servos,
+which get FULL rows whatever the mode.  SIO interpolates the rows as it interpolates the
+positions, so they stay aligned however late this process runs; a missing or stale row is
+SIO's to detect and drop.  Asynchronous and non-serious (3.3.6): Pinocchio's small
+allocations are accepted here.  What others write is checked (DESIGN 7): a mode word that is
+no FfMode leaves the last valid mode, a set-point that is not finite gets no row, a torque
+that is not finite is never published.  More: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations
@@ -188,7 +158,7 @@ class Dynamics(Daemon):
         pushed (central differences), a motion's last one's (``rests_at``) at once, with the
         arm at rest there: waiting for SIO to drain the FIFO left the moving row's torques,
         its Coulomb friction among them, on an arm at rest for as long as this process ran
-        late (once 53 ms: an arm sagged 4 mrad as the grippers closed)."""
+        late."""
         fifo = self.fifos[k]
         a = self.arms[k]
         head, tail = fifo.indices()

@@ -3,19 +3,11 @@ servos work in, for arms of any robot type on McGill I/O and DAC boards.
 
 Servos only ever see joint radians and joint N·m (3.3.4); this module owns every conversion
 between those and the hardware, vectorised over all arms (flat joints, arm ``k``'s joint ``j``
-at ``JointMap.base[k] + j``; on the arm's board, channel ``j``), with each arm's drive from
-its robot type (``kali_daemons.robots``):
-
-- **Encoders** (figure C.3): each 12-bit HCTL-2000 reading is compared with the previous one
-  and the difference, wrapped at half range (±2048), is added to a 32-bit accumulated count.
-  The counters must therefore be read before 2048 counts pass (at 1 kHz that is over 100
-  motor revolutions per second, far above the motors' top speed).
-- **Angles**: ``q = counts / (counts per motor rev · G / 2π) + offset``; the signed gear
-  ratio G gives the direction, the offset comes from calibration (3.5.1).
-- **Torque out**: joint torque τ → motor current ``i = τ / (G · Kt)``, clamped at the
-  current limit → amplifier input ``V = i / (A per V)`` → 12-bit offset-binary DAC code
-  over the DAC's ± full scale.  Returns whether each joint's demand had to be clamped, for
-  SIO's current check.
+at ``JointMap.base[k] + j``; on the arm's board, channel ``j``), each arm's drive from its
+robot type: 12-bit encoder readings accumulated into 32-bit counts (so each counter must be
+read before it moves 2048 counts), counts to angles through the signed gear ratio and the
+calibration offset (3.5.1), and joint torque to a clamped motor current and a DAC code.  The
+formulas: docs/internals/robots-hardware-plant.md.
 
 Inside the cycle: preallocated arrays only, and each conversion one compiled kernel
 (``kali_daemons.core.kernels``: ``kali_read``, ``kali_dac``, with their numpy references).

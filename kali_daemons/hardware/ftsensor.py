@@ -1,24 +1,14 @@
 """Six-axis wrist force/torque sensors: the data sheet, the gauges' ADC bank and the
 conversion to Newtons, shared by the plant that plays the sensor and SIO that reads it.
 
-A strain-gauge sensor of the ATI/JR3 class carries six gauge bridges; their amplified voltages
-``v`` are sampled together by a 16-bit ADC bank (±10 V) and the wrench the tool exerts on the
-sensor is ``w = C v`` with the sensor's 6×6 calibration matrix ``C`` (N and N·m per volt).
-The bridges have an offset (a few hundred mV, different on every sensor, drifting slowly with
-temperature) that a *tare* removes, and noise.  Loads past the rated range are outside the
-calibration; a gauge at its ADC rail (saturated) reads nothing meaningful at all.
-
-Sign and frames.  The sensor frame is the flange frame (the sensor is mounted on the flange,
-its origin at the flange origin, its axes the flange's).  ``w`` is the wrench the tool side
-exerts on the sensor, about the sensor origin: an idle tool reads its own weight.  SIO then
-subtracts the tool's gravity and gives the *contact wrench*: what the environment applies to
-the tool (pressing the tool up against a table reads +z in the world).
-
-The bank (``layout.IO_BOARD``, appendix-C style): SIO writes ``ft_control = FT_REQUEST | seq``
-(a 7-bit sequence number); the board, at its next cycle, samples every gauge at once (sample
-and hold), writes the six codes into ``ft_gauge`` and then ``ft_status = FT_READY |
-FT_PRESENT | seq``.  A code is signed 16-bit over ±10 V; ``FT_RAIL`` and ``-FT_RAIL - 1`` are
-the rails.
+A strain-gauge sensor of the ATI/JR3 class: six gauge bridges sampled together by a 16-bit
+ADC bank (±10 V), the wrench ``w = C v`` with the sensor's 6×6 calibration matrix ``C``;
+offsets that drift (a tare removes them), noise, and rails where a gauge reads nothing
+meaningful.  The sensor frame is the flange frame, and ``w`` is the wrench the tool side
+exerts on the sensor, about its origin (an idle tool reads its own weight); SIO subtracts the
+tool's gravity to give the contact wrench.  The bank's request/ready handshake on
+``ft_control``/``ft_status`` and the sign conventions in full:
+docs/internals/robots-hardware-plant.md.
 """
 
 from __future__ import annotations

@@ -2,23 +2,11 @@
 controller writes or reads lives here and nowhere else.
 
 One board per arm (``layout.IO_BOARD``, ``layout.DAC_BOARD``), joint ``j`` on channel ``j``:
-
-- **Counters and DACs** (C.3, figure C.3): through ``driver.JointDriver`` (counts → radians,
-  torque → DAC codes).
-- **Power switch** (C.5.1).  CSR bit 7 low disables the robot, overriding any enable; bit 3
-  held high for ``ENABLE_HOLD_MS`` closes the power relay (it needs ~15 ms).  The board
-  reports the Robot Power Switch circuit in its power register (amplifiers on, brakes
-  released, watchdog tripped, e-stop).
-- **Watchdog** (C.4).  With timeout mode on (bit 6), a high-then-low pulse on bit 5
-  retriggers it; without one for the watchdog time it cuts the amplifiers.  The level is held
-  ``config.retrigger_hold_ticks`` servo ticks each way, so every edge reaches the board.
-- **Index capture** (C.3).  Bit 4 low: an index pulse resets its counter and sets its bit in
-  the index register.
-- **Potentiometers** (C.5).  The TLC532A ADC, one channel per joint, by a START/DONE
-  handshake (``PotReader``).
-- **LEDs** (C.5.1).  Green while the arm is powered; red while it is not, or halted.
-- **E-stop and gripper** (additions of the simulated cell): the operator's button and the
-  gripper's close line, written by ``kalictl estop`` and programs.
+counters and DACs through ``driver.JointDriver``; the power switch (CSR bit 7 low disables,
+overriding any enable; bit 3 held ``ENABLE_HOLD_MS`` enables); the watchdog, retriggered by a
+high-then-low pulse on bit 5; index capture (bit 4 low); the potentiometers' ADC handshake
+(``PotReader``); the LEDs; and the simulated cell's e-stop, gripper and conveyor lines.  Each
+bit's meaning: docs/internals/robots-hardware-plant.md.
 
 ``McGillBoards`` is what SIO holds (the ``hardware.Hardware`` interface); ``cut_all``,
 ``press_estop``, ``estops_pressed`` and ``grip`` work on the register record from any process,
@@ -70,8 +58,8 @@ class PotReader:
     The board converts on START's rising edge and withdraws DONE when START falls, each at
     its own cycle.  Without the last wait, a board cycle that falls behind SIO's (the plant
     keeps its own time in real-time mode) never sees START fall between two channels: no
-    rising edge, no conversion, and the previous channel's DONE read as this one's: a joint
-    calibrated 0.8 rad off that way, and driven into its limit.
+    rising edge, no conversion, and the previous channel's DONE read as this one's, so the
+    joint would be calibrated from another joint's pot.
     """
 
     def __init__(self, control: np.ndarray, analog: np.ndarray, channels: int) -> None:

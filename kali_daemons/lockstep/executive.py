@@ -1,27 +1,15 @@
 """The lockstep executive: every daemon of a lockstep instance in one process (DESIGN 11).
 
-Lockstep's job is to run the same daemon code in stage order as fast as the CPUs allow, bit
-for bit (DESIGN 3).  With a process per daemon, each tick costs a semaphore post, a wake-up
-and an acknowledgement per process, on two vCPUs: the executive, not the physics, took 90 %
-of a run.  Here the wall clock hosts them instead: it configures the plant, SIO, the SVs,
-the TG, the dynamics process and the viewer in its own process (``Daemon.host``, in the
-order their start-up waits need), and each tick calls the ``cycle`` of every one due, stage
-by stage, exactly where it would have posted its semaphore and waited for its
-acknowledgement.  The SVs run inside SIO's cycle, where SIO would post their feeds
-(``ServoIO.serve``), as the gang they are (thesis 3.3.4).
-
-Everything else is the wall clock's: its commands (start, stop, step, set), its process table
-(each hosted daemon keeps its slot, with the executive's pid), its statistics and its halts.
-Programs attach and wait exactly as with separate processes, and a periodic function a program
-registers with ``control`` is a thread of it (``Kali.control``) or a process of its own
-(``client.control``), signalled by semaphore in its stage. A hosted daemon that raises fails as
-its own process would (DAEMON_ERROR naming it, state ERROR, left out from then on). A hosted
-daemon that does not return from its cycle (a TG function that never returns) holds the one
-thread that would notice, so a watchdog thread does (``_watch_cycles``): past
-``clock.lockstep_ack_timeout_s`` it halts the system with DEADLINE naming the daemon and what
-it is busy with, as the clock does a process of its own that does not acknowledge.  ``kalictl
-start --lockstep --separate-processes`` keeps one process per daemon, for the tests that kill
-one of them.
+Lockstep runs the same daemon code in stage order as fast as the CPUs allow, bit for bit
+(DESIGN 3); with a process per daemon, the posts, wake-ups and acknowledgements of every
+tick cost more than the work.  Here the wall clock configures the daemons in its own process
+(``Daemon.host``, in ``HOSTED_ORDER``) and each tick calls the ``cycle`` of every one due,
+stage by stage, where it would have posted its semaphore; the SVs run inside SIO's cycle,
+where SIO would post their feeds (``ServoIO.serve``).  Everything else is the wall clock's:
+commands, process table (each hosted daemon keeps its slot), statistics, halts.  A hosted
+daemon that raises fails as its own process would; one that never returns from its cycle is
+caught by a watchdog thread (``_watch_cycles``), which halts with DEADLINE naming it.
+More: docs/internals/servo-level.md; the user's view: docs/guide/lockstep.md.
 """
 
 from __future__ import annotations

@@ -1,29 +1,15 @@
 """The McGill robot I/O board of one arm, simulated behind its registers (thesis appendix C).
 
-What Kali sees is only the ``layout.IO_BOARD`` record; this class plays the hardware:
+What Kali sees is only the ``layout.IO_BOARD`` record; this module plays the hardware: the
+power switch and brakes, the watchdog, the e-stop, the HCTL-2000 encoder counters with index
+capture, the TLC532A pot ADC and the wrist sensor's gauge bank (``FtBank``).  How each behaves
+at its registers: docs/internals/robots-hardware-plant.md; the controller's side of the same
+bits is ``kali_daemons.hardware.mcgill``.
 
-- **Power switch** (C.3, C.5.1).  Bit 7 low disables the robot at once, overriding enables;
-  with bit 7 high, holding the enable bit 3 high for ``enable_hold_ms`` (the relay) turns
-  the amplifiers on.  The brake solenoids follow the amplifiers ``brake_delay_ms`` later, in
-  both directions (on enable the brakes hold briefly while the amplifiers are on).
-- **Watchdog** (C.4).  With the timeout mode bit 6 set, a high-then-low pulse on bit 5
-  retriggers it; ``watchdog_ms`` without one trips it: amplifiers off, buzzer, and the robot
-  stays disabled until a retrigger and a new enable.  Unlike the real circuit, this board
-  reads the bit once a plant cycle, so a level shorter than a cycle can go unseen: SIO holds
-  each two cycles long (``config.retrigger_hold_ticks``).
-- **Emergency stop**: the operator's button disables like bit 7 while pressed.
-- **Encoders** (HCTL-2000, C.3): 12-bit counters of quadrature counts of the motor angle,
-  wrapping at 4096, joint j on channel j (an arm of n joints leaves channels n.. at 0).
-  With index capture enabled (bit 4 low), an index pulse, once per motor revolution at a
-  fixed motor angle, resets the channel's counter to 0 and sets its bit in the index
-  register; disabling capture clears the register.
-- **Potentiometers** (joint j's on ADC channel j) through the TLC532A: a conversion starts
-  on a rising START bit in the control register and completes with ``ADC_DONE | value`` in
-  the analog register; the digital register reads the channels above 2.5 V.
-- **Wrist force/torque sensor**: its six strain-gauge bridges on a 16-bit ADC
-  bank, sampled together on request (``FtBank``, ``kali_daemons.hardware.ftsensor``).
-
-All times are the plant's simulated time, so lockstep runs are deterministic.
+Unlike the real circuit, the board reads the watchdog's retrigger bit once a plant cycle, so a
+level shorter than a cycle can go unseen: SIO holds each level two cycles
+(``config.retrigger_hold_ticks``).  All times are the plant's simulated time, so lockstep runs
+are deterministic.
 """
 
 from __future__ import annotations

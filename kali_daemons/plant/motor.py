@@ -1,31 +1,15 @@
 """Motors and PWM amplifiers of every joint (thesis table 3.1 and 3.7.2), from each arm's
-robot type's drive (``kali_daemons.robots``; the PUMA's numbers are in puma560.md).
+robot type's drive (``kali_daemons.robots``).
 
-Per joint, vectorised over all arms:
-
-    DAC volts → commanded current (the amplifier's A/V, clipped at the motor's peak current)
-      → current loop, first order (500 Hz on the PUMA), whose output the bus voltage limits:
-        R·i + Kt·ω_m must stay within ± the bus (so back-EMF limits the current at speed)
-      → motor torque Kt·i → joint torque G·Kt·i (signed gear ratio).
-
-The current loop itself runs inside MuJoCo, at every substep: each joint has a
-``filterexact`` actuator whose activation is the motor current and whose gear is G·Kt
-(``model.build_world``).  Once per plant cycle this model computes what the amplifier does
-with its inputs: the commanded current, and the range the current may take, i.e. the bus
-voltage limits at the present motor speed, or [0, 0] when the amplifier is off (it cuts its
-current at once, < 1 µs, appendix C.4).
-
-Friction is the drive's, at the joint: viscous G²·B and asymmetric Coulomb |G|·Tc±.  The
-symmetric part of the Coulomb friction, |G|·min(Tc+, |Tc−|), and the viscous part go to
-MuJoCo as ``dof_frictionloss`` and ``dof_damping``, which it treats as constraints and
-implicitly, so stiction holds exactly and stays stable at the plant's step; this model adds
-the asymmetric remainder as a torque, regularised by tanh(ω_m / ω₀).  The brakes raise the
-frictionloss to their holding torque.
-
-The plant runs a cycle of it compiled (``MotorBank.compiled``: ``csrc/plant.c``'s
-``kali_motors``, the bank's arithmetic and MuJoCo's inputs in one call instead of ~25 numpy
-calls and four fancy-indexed writes); ``drive_reference`` is what it equals (to ~1e-15:
-libm's tanh, not numpy's).
+Per joint, vectorised over all arms: DAC volts → commanded current (the amplifier's A/V,
+clipped at the motor's peak current) → a first-order current loop whose output the bus
+limits (R·i + Kt·ω_m within ± the bus) → joint torque G·Kt·i.  The loop itself runs inside
+MuJoCo at every substep (``model.build_world``); once per plant cycle this model sets its
+command and range, [0, 0] while the amplifier is off.  Friction: the symmetric Coulomb and
+the viscous parts go to MuJoCo as constraints (stiction holds exactly), the asymmetric
+remainder is a torque here; a brake raises the joint's frictionloss to its holding torque.
+The plant runs a cycle compiled (``MotorBank.compiled``: ``csrc/plant.c``'s ``kali_motors``);
+``drive_reference`` is what it equals.  In full: docs/internals/robots-hardware-plant.md.
 """
 
 from __future__ import annotations

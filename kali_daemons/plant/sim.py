@@ -1,24 +1,15 @@
 """The simulated cell behind the board registers: MuJoCo world, motors, I/O and DAC boards.
 
 ``PlantSim`` is the whole plant without a process around it, so tests drive it tick by tick
-in-process and the plant daemon calls ``cycle`` from its loop.  One cycle:
+in-process and the plant daemon calls ``cycle`` from its loop.  One cycle: the boards apply
+their registers (power switch, watchdog, brakes); the DAC codes become amplifier volts; the
+grippers weld or let go and the belt carries the bar; the motor model sets each current loop
+and MuJoCo runs ``substeps`` steps; then the encoders count, the pot ADCs convert and the truth
+records are written (in full: docs/internals/robots-hardware-plant.md).
 
-1. every board applies its command/status register and e-stop (power switch, watchdog,
-   brakes) at the plant's simulated time;
-2. the DAC codes become amplifier input volts (codes above 4095 are clamped and counted);
-3. the gripper registers close or open the welds to the object, and the conveyor belt (the
-   stand's top, ``plant.conveyor_m_s``) carries the bar while the first board runs it;
-4. the motor model sets each motor's current command and range (``motor.py``), and MuJoCo
-   runs ``substeps`` steps, integrating the 500 Hz current loops with the arm dynamics;
-5. the encoders count the new motor angles (once per cycle is enough: at the motors' top
-   speed, 40 V / Kt, a motor turns under 0.03 revolutions per millisecond, so no index
-   pulse is passed unseen), the pot ADCs serve conversions, and the truth records are written.
-
-Arms may differ in joint count (``joints.JointMap``, the config's ``joints``): every per-joint
-array here (``q``, ``volts``, ``motor_angle``, ...) holds the cell's joints flat, arm ``k``'s
-joint ``j`` at ``base[k] + j``, as does the truth record ``JOINT_TRUTH``; the boards keep
-joint ``j`` on channel ``j`` of its arm's IO_BOARD and DAC_BOARD, channels past the arm's
-joint count unused.
+Every per-joint array here (``q``, ``volts``, ``motor_angle``, ...) and the truth record
+``JOINT_TRUTH`` hold the cell's joints flat, arm ``k``'s joint ``j`` at ``base[k] + j``
+(``joints.JointMap``); the boards keep joint ``j`` on channel ``j`` of its arm's boards.
 """
 
 from __future__ import annotations
@@ -349,8 +340,8 @@ class PlantSim:
         grasps into ``_held[k]``.  MuJoCo lays the active equality constraints' rows out
         first, ``ne`` of them, in the equalities' order, six per weld; the welds are the
         cell's only equalities, one per arm in arm order (asserted at build), so arm ``k``'s
-        rows follow those of the arms before it that hold.  (Searching every row by type and
-        id took 37 µs an arm a cycle: the plant's largest cost while it carried the bar.)"""
+        rows follow those of the arms before it that hold: counted, not searched by type and
+        id, which would be the plant's largest cost while it carries the bar."""
         d = self.data
         force = d.efc_force
         row = 0

@@ -1,50 +1,17 @@
 """Numerical inverse kinematics on a Pinocchio model, for robot types without a closed form.
 
 ``NumericalKinematics`` is a whole ``Kinematics`` (``profile.py``) for any serial arm of 1 to
-8 revolute joints described by a URDF: forward kinematics, the inverse from the previous
-set-point (one branch, ``NEAREST``: the solution nearest it), an optional redundancy
-parameter, and a singularity check.  The Panda uses it; so can a researcher's own arm.
+8 revolute joints described by a URDF; the Panda uses it, and so can a researcher's own arm.
+``DlsIk`` solves by damped least squares (Levenberg-Marquardt, λ² = ``DAMPING`` + |e|²) from
+the previous set-point, so it stays on the branch nearest it (one branch, ``NEAREST``); one
+joint may be held, which removes a 7-joint arm's redundancy.  An arm of fewer than 6 free
+joints gets the least-squares solution, taken if what is left is within ``off_m`` and
+``off_rad``.  The iteration in full: docs/internals/robots-hardware-plant.md.
 
-``DlsIk`` solves for the joint angles that put one frame of a serial chain of revolute joints
-at a pose, by damped least squares (Levenberg-Marquardt) from a starting guess, so it stays
-on the branch nearest the guess: the trajectory generator starts it from the previous
-set-point, a few millimetres away, and it converges in two or three iterations.  One joint
-may be *held* at a given angle, which removes the redundancy of a 7-joint arm.
-
-Each iteration: Pinocchio's ``forwardKinematics`` (C++, into its ``Data``) gives the joint
-frames; the flange pose, the pose error and the geometric Jacobian are then computed in Python
-floats from views of ``Data.oMi`` (no numpy temporaries), and the damped normal equations
-(J·Jᵀ + λ²·I)·y = e, Δq = Jᵀ·y are solved by a 6×6 Cholesky factorisation in floats:
-
-- e = (p* − p, log(R*·Rᵀ)): position error and the rotation vector taking the present
-  orientation to the target, both in the base frame, where the Jacobian's columns are
-  (w_j × (p − o_j), w_j) for joint j's axis w_j through o_j;
-- λ² = ``DAMPING`` + |e|² (Yamashita and Fukushima's choice: heavily damped far from the
-  target, Newton's quadratic convergence near it);
-- a step is scaled so no joint moves more than ``MAX_STEP`` rad, and each joint is clamped to
-  its limits after the step, so a pose whose solution lies beyond a limit ends with an error
-  left and is refused, naming the joints on their limits.
-
-With fewer than 6 free joints (a planar arm) J·Jᵀ has rank n < 6 and the damping keeps it
-invertible; every step lies in the span of the joints' motions, so the iteration is a least
-squares one: the part of the error the joints can reduce converges as fast as on a full arm,
-and the part no joint can reduce (off a planar arm's plane) stays.  Once the step is below
-``STALL`` of the error (or the iterations run out), the pose is taken if what is left is
-within ``off_m`` and ``off_rad`` (default ``OFF_M``, ``OFF_RAD``: a measured pose's few
-encoder counts put about that outside the poses the arm reaches, so a line from where the arm
-is works), else refused, naming what is left.  A full arm takes nothing off: 0.
-
-It converges when the position error is below ``tol_m`` and the rotation error below
-``tol_rad``, and gives up after ``max_iter`` iterations.  ``solve`` with ``out`` allocates
-nothing numpy on the success path (inside the cycle); building the solver loads nothing but
-allocates (outside the cycle).
-
-Pinocchio is imported where a model is built, not when this module is: a robot type using it
-(the Panda) is imported by every process that reads the type's facts, and the wall clock,
-SIO and the SVs never build its kinematics (they stay without Pinocchio).
-
-Long on purpose: one numerical inverse kinematics (damped least squares, its nearest-branch
-choice) and the ``Kinematics`` a type built on it gets.
+``solve`` with ``out`` allocates nothing numpy on the success path (inside the cycle);
+building the solver allocates (outside it).  Pinocchio is imported where a model is built,
+not when this module is: every process imports a type's facts, and the wall clock, SIO and
+the SVs never build its kinematics (they stay without Pinocchio).
 """
 
 from __future__ import annotations
@@ -153,7 +120,8 @@ def cholesky_solve(a: list[float], b: list[float], m: int) -> bool:
 
 
 class DlsIk:
-    """Damped-least-squares inverse kinematics of frame ``tip`` of ``model`` (see the module).
+    """Damped-least-squares inverse kinematics of frame ``tip`` of ``model`` (see the module;
+    the iteration in full in docs/internals/robots-hardware-plant.md).
 
     ``model``: a Pinocchio model whose joints are all revolute about their x, y or z axis
     (URDF revolute joints; Kali's generated URDFs turn about z), one configuration entry each.

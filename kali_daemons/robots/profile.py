@@ -1,25 +1,19 @@
 """What a robot type declares, in one place (thesis 3.1, 3.5: the driver "a set of functions
 entered in a table" per robot type).
 
-A robot type is data plus a few functions, the way Drake and ros2_control describe robots:
-a URDF, a joint count, limits, a drive, kinematics, default servo gains and a calibration
-sheet.  Each type is one package under ``kali_daemons/robots/`` exposing ``ROBOT``, a
-``RobotType``; ``kali_daemons.robots.robot_type(name)`` finds it by the ``robots[].model``
-name of the config.  A researcher's own arm is one module file anywhere, named in the config
-by its path (``model: arms/myarm.py``) and checked by ``typefile.py``; ``numik.py``'s
-``NumericalKinematics`` gives it kinematics from its URDF.  Nothing outside the type's
-package or file knows which arm it drives.
+A robot type is data plus a few functions: a URDF, a joint count, limits, a drive,
+kinematics, default servo gains and a calibration sheet.  Each shipped type is a package under
+``kali_daemons/robots/`` exposing ``ROBOT``, a ``RobotType``, that
+``kali_daemons.robots.robot_type(name)`` finds by the config's ``robots[].model``; a
+researcher's own arm is one module file named there by its path (``model: arms/myarm.py``,
+checked by ``typefile.py``), with ``numik.NumericalKinematics`` if it has no closed form.
+Nothing outside the type's package or file knows which arm it drives.
 
-Conventions every type keeps:
-
-- Arrays are indexed by joint, ``0 .. n_joints - 1``; every per-joint array has
-  ``n_joints`` entries and is read-only.
-- The URDF's revolute joints are named ``j1 .. jN`` from base to tip, and its last link is
-  named ``flange`` (the mounting flange, where tools and the bar grasp attach).  The base
-  link is at the robot's base frame (``robots[].base_xyz`` / ``base_yaw_deg`` place it).
-- ``G`` is the signed gear ratio: motor angle = G · joint angle.  Motor-side quantities
-  (rotor inertia, motor friction) are converted to the joint side through it.
-- Angles in rad, lengths in m, torques in N·m at the joint unless named motor-side.
+Conventions every type keeps: per-joint arrays are read-only, indexed ``0 .. n_joints - 1``;
+the URDF's revolute joints are ``j1 .. jN`` base to tip, its last link ``flange`` (where tools
+and the bar grasp attach) and its base link at the robot's base frame; ``G`` is the signed
+gear ratio (motor angle = G · joint angle), through which motor-side quantities reach the
+joint; angles in rad, lengths in m, torques in N·m at the joint unless named motor-side.
 """
 
 from __future__ import annotations
@@ -158,10 +152,8 @@ def servo_gains(
     The band must be 2.5 · reset / kp or wider, or a joint sagging or stuck on friction
     outside it never integrates; the PUMA's stiff joints meet that at 0.01 rad.  A joint
     whose load is large for its inertia gets a higher ωn, until kp · 0.01 rad = 2.5 · reset,
-    rather than a wider band: inside the band the integral winds up during a step, and
-    bands of 0.023-0.037 rad (the UR5's and the Panda's joints 2, 3 and 5 at ωn 50-60)
-    overshot a 0.02 rad step by 39-46 % where the PUMA's overshoot 10 %
-    (tests/test_robot_types_functional.py)."""
+    rather than a wider band: inside the band the integral winds up during a step, so a
+    wide band overshoots (the figures: docs/internals/robots-hardware-plant.md)."""
     pid: list[dict[str, float]] = []
     for j, inertia in enumerate(j_home):
         reset = float(max(1.0, math.ceil(1.2 * hold[j])))

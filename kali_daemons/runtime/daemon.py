@@ -234,8 +234,7 @@ class Daemon:
         """SCHED_FIFO at the configured priority, once start-up is over: ``on_configure``,
         ``on_activate`` and ``freeze_heap`` run as SCHED_OTHER.  Tens of ms of set-up or of
         collecting a heap holding MuJoCo and Pinocchio at SCHED_FIFO starve every process of
-        lower priority on this CPU, another instance's servo processes included (a second
-        instance's start halted the first: sv.0 unacknowledged for 21 ms)."""
+        lower priority on this CPU, another instance's servo processes included."""
         rt.go_realtime(self._rt, self._priority)
         self.inst.procs[self.slot]["priority"] = self._rt.priority
         for w in self._rt.warnings:  # one warning per refusal, at start-up only
@@ -376,9 +375,9 @@ class Daemon:
         tolerance, and at least two: a stall of the whole machine (the host stops every
         vCPU, DESIGN 10: the clock too, and this process with it) ends one wait late, before
         the clock on its own CPU has ticked again, and never counts, as the clock's
-        ``_watch`` rules for the plant (a CI run once halted at start when dynamics, whose
-        waits are 250 ms, saw tick 0 across one); nor does a wait through which the machine
-        held the clock's CPU alone (``stalls.ClockWitness``)."""
+        ``_watch`` rules for the plant (one wait may be longer than the tolerance: 250 ms
+        for a non-serious process such as dynamics); nor does a wait through which the
+        machine held the clock's CPU alone (``stalls.ClockWitness``)."""
         c, f = self.inst.clock, self.inst.fault
         pid = int(c["pid"])
         if pid <= 0 or f["active"]:

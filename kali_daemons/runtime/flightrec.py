@@ -207,10 +207,10 @@ class FlightRecorder:
         ``wait_ns`` is the part of ``latency_ns`` SIO slept for the servos (the SVs' share,
         on every CPU), so a slow tick tells whether SIO or the servos were slow; ``ran_ns``
         the CPU time SIO's thread had from the read to the write (``rt.thread_time_ns``: its
-        work, with posting the feeds and waking inside the wait, p50 ~90 µs).  A tick whose
-        own share (latency - wait) is far above it lost the difference to something else on
-        its CPU: the clock above it, interrupts, or the host taking the vCPU (a pause the
-        host does not report as steal still counts as run time).
+        work, with posting the feeds and waking inside the wait).  A tick whose own share
+        (latency - wait) is far above it lost the difference to something else on its CPU:
+        the clock above it, interrupts, or the host taking the vCPU (a pause the host does
+        not report as steal still counts as run time).
 
         The row count is published last, so a reader copying the ring knows which rows may
         be torn (``read_ring``).

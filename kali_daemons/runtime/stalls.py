@@ -22,8 +22,8 @@ from .instance import Instance
 
 # the clock's heartbeat is older than this many of its ticks when it has not run
 STALE_TICKS = 2
-# the longest stretch a stall is not counted; beyond, it counts again (the host stalls seen
-# here last up to ~60 ms, DESIGN 10)
+# the longest stretch a stall is not counted; beyond, it counts again (DESIGN 10: well above
+# the longest host stall measured, docs/internals/sio-viewer-core.md)
 LONGEST_HELD_NS = 100_000_000
 # a clock that had this much CPU time since it last ticked is running (in a fault of its own)
 RAN_NS = 1_000_000

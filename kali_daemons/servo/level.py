@@ -1,26 +1,16 @@
-"""The servo level in the arena (DESIGN 4, thesis 3.3.3 - 3.4, figure 3.3), as SIO, the SVs
-and clients see it.
+"""The servo level in the arena (DESIGN 4, thesis 3.3.3 - 3.4, figure 3.3) as SIO, the SVs and
+clients see it: ``ServoLevel`` views its records; ``apply_op`` and ``apply_arm_op`` carry out
+the put/get mailbox (3.4).
 
-- ``robots``: one ``ROBOT_STATE`` per robot (power, calibration).
-- ``joints``: one ``JOINT_STATE`` per joint of the cell (SIO's measurements, the clients'
-  tolerances and checks), flat: robot k joint j is ``cfg.joints.base[k] + j``.
-- ``slots``: one ``SERVO_SLOT`` per joint, flat in the same order.  SIO feeds
-  them and clears ``busy``; an SV claims a slot by test-and-set of ``busy`` (3.3.5).
-- Private data: one record per (slot, algorithm) of that algorithm's dtype, so a joint keeps
-  the state of every algorithm it may switch to, and any SV can run any joint (3.3.4).  An
-  algorithm's records for all joints are one block (``blocks[k]``, slot order), so an SV can
-  run a built-in over a robot's joints in one call; ``data[i][k]`` views slot i's record.
-- The put/get mailbox (3.4): a client never touches a running servo's data.  It writes the
-  staging bytes and the operation, and the SV carries it out at the slot's next run, before
-  the step.  So a servo is never skipped for an update and never sees half-written data.
-  The SV trusts none of it (DESIGN 7): an undefined operation, an algorithm index outside the
-  registry, a PUT record with a non-finite field or a parameter out of range, a PARAMS value
-  out of range are refused (``apply_op``), the servo's data unchanged; the slot's
-  ``op_status`` says so and the staging bytes then hold the reason, which ``ServoClient``
-  raises as a ServoError.
+Per robot a ``ROBOT_STATE``; per joint, flat in config order (robot k joint j is
+``cfg.joints.base[k] + j``), a ``JOINT_STATE`` and a ``SERVO_SLOT``, which SIO feeds and an
+SV claims by test-and-set of ``busy`` (3.3.5); per (slot, algorithm) a private-data record,
+so a joint keeps every algorithm's state and any SV can run any joint (3.3.4).
 
-``ServoLevel`` is the view; ``client.ServoClient`` adds the operations users call (put/get/select,
-gains, enable, range checking, ``safe``, power, calibration).
+A client never touches a running servo's data: it writes the mailbox, and the SV carries the
+operation out at the slot's next run, before the step.  The SV trusts none of it (DESIGN 7):
+a bad operation is refused with the reason in the staging bytes, the servo's data unchanged.
+``client.ServoClient`` adds the operations users call.  More: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations
@@ -216,7 +206,8 @@ def apply_op(level: ServoLevel, i: int, op: int) -> bool:
     is stopped and no SV runs); True if done, False if refused.
 
     Every word and byte of the mailbox is a client's, so each is checked first: ``op`` must be
-    PUT, GET, SELECT or PARAMS and ``op_algo`` a registered index; a PUT record must have
+    PUT, GET, SELECT, PARAMS or SHADOW and ``op_algo`` a registered index (for SHADOW, or
+    ``SHADOW_OFF``); a PUT record must have
     every field finite and pass the algorithm's own ``set_params`` with its own parameters (on
     a copy, which also recomputes the terms derived from them; that copy is what is put); a
     PARAMS value must pass ``set_params`` (NaN = unchanged), on a copy too.  A refusal

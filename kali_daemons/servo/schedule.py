@@ -1,30 +1,15 @@
-"""Schedulability check (``kalictl check``): from what a running instance
-measures, predict whether the servo tick still fits its period, with margin, after a change,
-and refuse the change with the numbers before anything moves.  ros2_control and LinuxCNC
-report an overrun after it happened; this says beforehand.
+"""Schedulability check (``kalictl check``, and before a servo select, a shadow trial or a rate
+change): from what a running instance measures, predict whether the servo tick still fits
+``1 - margin`` of its period after a change, and refuse the change with the numbers before
+anything moves.
 
-The model is fixed-priority response-time analysis (Joseph and Pandya, as in every
-SCHED_FIFO controller), over the processes as configured (CPU, priority, period) with
-execution times measured on this machine:
-
-- the servo tick: SIO's own share of a tick (encoder read to DAC write, less the time it slept
-  for the servos) and the servos' share (the sleep), each at its p99 over the flight
-  recorder's last ticks (``flightrec``), so the measured wake-ups, interrupts and the wall
-  clock above SIO are in them already;
-- every clocked process: CPU time per cycle over a short window (``/proc`` schedstat and
-  its acknowledgement count), the mean; every process's CPU time, clocked or not (the wall
-  clock, the self-timed plant), loads its CPU, on average over the window and in its busiest
-  slice as long as the serious miss tolerance (``cpu_loads``): a CPU 62 % busy on average
-  was full for the 30 ms that starved the TG of a force cell, which the mean hides;
-- a servo algorithm's cost per step: timed here, on a scratch record of its private data
-  (``step_cost_us``), since an SV runs a plugin's ``step`` as plain Python.
-
-A change is a selected servo (its step cost added to the servos' share, less what the joint's
-current plugin cost; a built-in runs in the SVs' compiled unit and counts as free), or a new
-period for a process (its interference on every servo process below it on its CPU, and every
-CPU's load).  The servo tick fits when its predicted response is at most ``1 - margin`` of
-the servo period; each CPU's load must stay below 100 %.  Lockstep has no deadlines: the
-check passes there, saying so.
+The model is fixed-priority response-time analysis over the processes as configured (CPU,
+priority, period) with execution times measured on the running machine: the servo tick's
+SIO and servo shares at p99 from the flight recorder, each clocked process's CPU time per
+cycle, each CPU's load on average and in its busiest slice of the serious tolerance, and a
+servo's ``step`` timed on a copy of the joint's data (a built-in, run in the SVs' compiled
+unit, counts as free).  Lockstep has no deadlines: the check passes there.  The model in
+full: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations

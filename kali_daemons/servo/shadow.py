@@ -1,26 +1,15 @@
-"""Shadow trials: a servo run beside the active one, never applied.
+"""Shadow trials: a servo run beside the active one on the same inputs, never applied.
 
-A researcher trying a new controller on a moving arm runs it in shadow first: every tick the
-SV steps it on exactly the inputs the active servo just had (demand, measurement, for a
-robot-level servo the model and the wrench too), keeps its torque and compares it with the
-active servo's, as the motors would get them (a joint servo's torque plus SIO's feed-forward,
-a robot-level servo's whole).  The trial's figures, the ticks compared, the sum of squares
-and the largest magnitude of (shadow − active), stay in the slots (``SERVO_SLOT.shadow*``)
-until the next trial, so ``kalictl servo compare`` can print RMS and peak whenever asked;
-the flight recorder keeps its torque per tick (NaN where no trial ran).
-Selecting the shadowed servo afterwards goes on from its own state: it has run on the arm's
-inputs all along, so its output trajectory continues without a jump.
-
-A trial is started and ended through the slot's or the robot's mailbox (``SlotOp.SHADOW``;
-``op_algo`` the algorithm, or ``SHADOW_OFF``).  Starting hands the running servo's state
-over to the shadow, as a select would, so the trial starts level with the active servo.
-A robot runs joint trials (any of its joints) or one robot-level trial, not both: their
-figures share the slots.  While any trial runs, SIO feeds the robot whole (``shadows``, a
-count kept by atomic add), so its joints run on the per-slot path in one SV, shadow after
-active.  A shadow that raises or returns a bad status or a non-finite torque is never a
-fault: it was never applied; its trial ends (RAISED, FAILED) and the arm runs on.
-
-No peer controller has this (asked for in ros-controls and NASA Astrobee threads).
+Every tick the SV steps the shadow on exactly the inputs the active servo just had and keeps,
+in the slots (``SERVO_SLOT.shadow*``), the ticks compared and the sum of squares and peak of
+(shadow − active) as the motors would get them, for ``kalictl servo compare``.  A trial is
+started and ended through the slot's or the robot's mailbox (``SlotOp.SHADOW``); starting
+hands the running servo's state over, as a select would, and selecting the shadow afterwards
+goes on from its own state.  A robot runs joint trials or one robot-level trial, not both
+(their figures share the slots); while any runs, SIO feeds the robot whole (``shadows``, a
+count kept by atomic add).  A shadow that raises or returns a bad status or a non-finite
+torque is never a fault: its trial ends (RAISED, FAILED) and the arm runs on.  More:
+docs/internals/servo-level.md.
 """
 
 from __future__ import annotations

@@ -1,25 +1,15 @@
 """Reading the potentiometers and calibrating against the encoder index pulses (thesis 3.5.1,
 appendix C.3, C.5), as SIO does it inside its servo tick.
 
-Encoders are relative: at power-on Kali knows each joint only from its potentiometer, an
-8-bit reading good to a degree or so.  Calibration makes the angles exact:
+Encoders are relative: at power-on each joint is known only from its potentiometer, to a
+degree or so.  ``Calibration`` makes the angles exact: SEARCH (index capture on, every joint
+servoed slowly toward the pulse its angle predicts), SETTLE (capture off, at rest on the
+pulses), POTS (each pot reading says which pulse it is, figure 3.6; an ambiguous one is
+refused rather than guessed), DONE (offsets set, positions and demands moved by the same
+constant, the servos handed over bumplessly with ``SlotReset.SHIFT``).
 
-1. **Search.**  Index capture on (the McGill board's CSR bit 4 low); every joint is servoed
-   slowly (one index spacing per ``SEARCH_S``, about one count per millisecond) toward the
-   index pulse its present angle predicts, away from a joint limit, for at most
-   ``SEARCH_SPAN`` spacings.  When a joint's bit appears in the index register its counter
-   has just been reset by the pulse: the driver counts from the pulse from then on
-   (``JointDriver.at_index``) and the joint is servoed onto it.  All joints search at once.
-2. **Settle.**  Every pulse found, capture off; the joints come to rest on their pulses.
-3. **Pots.**  Read the potentiometers (on the McGill board, through the TLC532A).  Each
-   reading, less the counts since the pulse, says which pulse it is: the nearest one in the
-   driver's table of pulse angles (the linear interpolation method of figure 3.6).  A reading
-   further than ``AMBIGUOUS`` of a spacing from every pulse is refused rather than guessed.
-4. **Done.**  Each offset is set so its pulse reads its exact angle.  Positions and demands
-   move by the same constant, the servos are handed over bumplessly in the new coordinates
-   (``SlotReset.SHIFT``), and the arm holds on the pulses.
-
-Everything here is preallocated; messages are encoded only when the state changes.
+Everything here is preallocated; messages are encoded only when the state changes.  The
+steps in detail: docs/internals/sio-viewer-core.md.
 """
 
 from __future__ import annotations

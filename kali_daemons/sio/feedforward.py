@@ -1,32 +1,16 @@
 """Feed-forward as SIO applies it (thesis 3.3.6: "the SIO reads the compensation torque and
 adds it to the amplifier torque demand automatically").
 
-The dynamics process writes one row per set-point of a robot's TG → SIO FIFO, keyed by the
-set-point's FIFO index (``layout.FEEDFORWARD``, ``dynamics/daemon.py``).  Each servo tick
-SIO takes the rows of the segment it is interpolating, A = set-point b − 1 and B = set-point
-b, and interpolates them by the same fraction as the demand, so the torque belongs to the
-position being demanded.
+The dynamics process writes a row (torque, velocity, acceleration) for each set-point of a
+robot's TG → SIO FIFO, keyed by the set-point's FIFO index (``layout.FEEDFORWARD``).  Each
+servo tick SIO interpolates the rows of the segment's two set-points by the demand's own
+fraction, so the torque belongs to the position being demanded.  Stale feed-forward is
+dropped, never applied, and the weight always fades over ``feedforward.ramp_ms``: the servos
+see no torque step.  Nothing another process wrote is taken on trust (DESIGN 7).
 
-Stale feed-forward is dropped, never applied: when the dynamics process's heartbeat is older
-than ``feedforward.stale_ms``, or the rows SIO needs have been missing that long, the robot's
-state turns STALE, its rows are no longer used and the last good torque fades out.  Switching
-feed-forward on or off fades it in or out the same way, over ``feedforward.ramp_ms``, so the
-servos see no torque step.  A row missing for less than that (the newest set-point's row is
-written once its successor exists) is covered by its neighbour's.
-
-The same rows carry the demand's velocity and acceleration at each set-point (the dynamics
-process's central differences), interpolated alike into ``vel`` and ``acc`` for the servos:
-a robot-level servo needs q̇_d and q̈_d.  They are read whenever feed-forward is
-on or the robot runs a robot-level servo (``arm``: the dynamics process then computes rows
-whatever the mode), and otherwise are zero; a missing row keeps the last good values.
-
-Nothing written by another process is taken on trust (DESIGN 7): a mode word that is no
-FfMode leaves the last valid mode in force, and an interpolated torque that is not finite
-counts as a missing row (the last good torque is kept; missing long enough, it is stale).
-
-SIO runs it compiled (``RobotFeedforward.compiled``: ``csrc/sio.c``'s ``kali_feedforward``,
-one call a robot, ~50 µs of SIO's tick in Python for two arms); ``update`` is the reference
-the kernel equals bit for bit (tests/test_sio_kernels.py).
+SIO runs it compiled (``RobotFeedforward.compiled``, ``csrc/sio.c``'s ``kali_feedforward``);
+``update`` is the reference the kernel equals bit for bit (tests/test_sio_kernels.py), so the
+two change together.  Staleness, fades and the rows: docs/internals/sio-viewer-core.md.
 """
 
 from __future__ import annotations

@@ -1,33 +1,17 @@
 """SIO's acknowledgement of the SVs whose servos are done (thesis 3.3.4: SIO and the SVs run
-as one gang).
+as one gang; docs/decisions/0008-sio-acknowledges-for-the-svs.md).
 
-The SV that finishes a tick's last servo posts SIO's done semaphore, and SIO, above it on the
-same CPU, preempts it at once to write the DACs: the SV's own acknowledgement waits behind
-SIO's output.  On a tick SIO finishes just in time the clock would count that SV late though
-its servos were long done.  So once every fed servo is done, SIO acknowledges the tick for
-the SVs it can vouch for, before its own; what is left of their cycle is bookkeeping.  For
-the SV on its CPU to take its feed before that, SIO sleeps on the done semaphore right after
-feeding (docs/decisions/0008-sio-acknowledges-for-the-svs.md).
+The SV that finishes a tick's last servo wakes SIO, which, above it on the same CPU, preempts
+it at once: the SV's own acknowledgement would wait behind SIO's output.  Once every fed
+servo is done, SIO acknowledges the tick, before its own, for the SVs it can vouch for:
 
-Whom it vouches for:
+- an SV that took this tick's feed (``sv_fed_tick``);
+- an SV on SIO's own CPU that took the previous tick's feed: its lateness is SIO's CPU, not
+  its own.  SIO notes the tick in its slot's ``vouched_tick``, and the clock checks at the
+  next tick that the SV is alive (``WallClock._died``).
 
-- an SV that took this tick's feed (``sv_fed_tick``, written before it claims any slot);
-- an SV on SIO's own CPU that took the previous tick's feed.  Below SIO's priority it runs
-  only while SIO sleeps on the done semaphore, right after feeding: a few µs of context
-  switch before it takes the feed, in which the SV on the other CPU, polling, may run every
-  servo (with the compiled units, two arms' in ~10 µs; or while SIO's vCPU pauses after a
-  wake-up IPI, docs/decisions/0002-sv-polling-and-resting.md).  Its lateness is then SIO's
-  CPU, not its own, and it was on time a tick ago.  SIO notes the tick it vouched for such an
-  SV (its slot's ``vouched_tick``), and the clock, at the next tick, looks whether that SV is
-  alive (``WallClock._died``, after the tick's signals, as for one that missed): a dead one
-  halts with PROCESS_DIED as soon as if it had missed, within the two servo periods of the
-  fault matrix.  A stalled one is not acknowledged the tick after, so the clock names it one
-  tick later, within the serious tolerance.
-
-An SV on another CPU that has not taken its feed is never vouched for: it has a CPU of its
-own, and its lateness is its own (a stalled or dead one misses, and the clock names it).
-Real time only: lockstep has no deadlines, and its clock counts one acknowledgement post per
-process, so there every SV acknowledges for itself.
+Never an SV on another CPU that has not taken its feed.  Real time only: in lockstep every SV
+acknowledges for itself.  The reasoning in full: docs/internals/sio-viewer-core.md.
 """
 
 from __future__ import annotations

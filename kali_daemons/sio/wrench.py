@@ -1,29 +1,16 @@
 """SIO's wrist force/torque sensors: gauge codes → Newtons (thesis 3.3.3).
 
-3.3.3 gives SIO the sensors: it "gathers sensor information, such as joint position from
-encoders or force readings from force sensors, converts them to standard angles and forces
-(ie., Newtons)".  Once per servo tick, for every arm with a sensor (``config.FtConfig``):
+Once per servo tick, for every arm with a sensor (``config.FtConfig``): the board's sample
+handshake (``ftsensor``); codes → volts → the data sheet's calibration matrix, less the
+tare's bias (``FT_STATE.sensor``); the tool's weight at the measured pose subtracted (the
+contact wrench); a first-order low-pass; the result at the tool point in tool and world axes
+(``FT_STATE.tool``, ``world``).  A silent sensor, a gauge at its ADC rail, an axis beyond its
+rated range or a contact force beyond the limit halts (FORCE).  A tare (``FT_STATE.tare_cmd``)
+averages ``TARE_MS`` of samples into the bias, which stays in the arena.
 
-1. **The bank's handshake** (``ftsensor``): when the board answers the sequence number SIO
-   asked for, its six codes are this tick's sample and SIO asks for the next at once; a
-   sensor silent for ``stale_ms`` halts (FORCE).
-2. **Counts → wrench**: volts, then the data sheet's calibration matrix, less the tare's bias:
-   the wrench the tool exerts on the sensor, sensor frame (``FT_STATE.sensor``).  A gauge at
-   its ADC rail, or an axis beyond the sheet's rated range, halts (FORCE).
-3. **Gravity**: the sensor frame in the world is the arm's base pose times its flange pose
-   at the measured joints (``chain.py``, this tick's angles); the tool's weight there,
-   ``[m g; c × m g]``, is subtracted: the contact wrench, what the environment applies to the
-   tool.  A contact force beyond the robot's limit halts (FORCE).
-4. **Filter and frames**: a first-order low-pass at ``cutoff_hz``, then moved to the tool
-   point (``tool_tip_m`` along z) in tool axes (``FT_STATE.tool``) and world axes (``world``).
-
-A tare (``FT_STATE.tare_cmd``) averages the next ``TARE_MS`` of samples of the reading less
-the tool's gravity: that mean is the sensor's offset, the new bias.  The arm should be still
-and touch nothing; the bias stays in the arena, so a restarted SIO keeps it.
-
-Steps 2-4 are one compiled kernel (``kali_wrench``; a numpy version of them took ~30 µs of
-SIO's tick per arm); ``convert_reference`` is its numpy reference.  Only a halt builds a
-message.
+All of it is one compiled kernel a tick (``kali_wrench_tick``, the conversion in it
+``kali_wrench_convert``); ``convert_reference`` is the conversion's numpy reference.  Only a
+halt builds a message.  The steps in detail: docs/internals/sio-viewer-core.md.
 """
 
 from __future__ import annotations
@@ -229,8 +216,8 @@ class ArmSensor:
 
 
 def convert_reference(arm: ArmSensor) -> int:
-    """``kali_wrench`` in numpy, on ``arm``'s arrays and kernel scalars (the tests' reference:
-    equal to ~1e-12)."""
+    """``kali_wrench_convert`` in numpy, on ``arm``'s arrays and kernel scalars (the tests'
+    reference: equal to ~1e-12)."""
     a = arm.args
     pose = flange_pose(arm.chain, arm.q)
     rot = (arm.base @ pose)[:3, :3]

@@ -2,36 +2,14 @@
 kinematics every TG tick, and the whole-path check before anything moves (thesis 2.2.1,
 3.3.1; DESIGN 5).
 
-A motion system is one arm, or several arms holding one object.  Its path is the pose O(τ)
-of the object's control frame in the world frame (a ``profiles.CartesianPath``); arm k, with
-its base at B_k in the world and its flange held at G_k in the object's frame (the *grasp*,
-tool transforms folded in by the client: a lone arm with tool Tool has G = Tool⁻¹, so O is
-the tool's pose; the arms must agree on O at the start within ``GRASP_TOL_M`` /
-``GRASP_TOL_RAD``, and each arm's grasp is then taken as it really holds the object: from its
-set-points while the arms move, from their measured joints when they start at rest), has
-
-    T6_k(τ) = B_k⁻¹ · O(τ) · G_k
-
-and its joint set-point is ``ikine(T6_k, config_k, q_ref = its last set-point)`` of its robot
-type's kinematics (``kali_daemons.robots``).
-The configuration is the one each arm is in when the motion starts: a straight line cannot
-change it (2.2.1), so a request naming another one is refused.
-
-The check (``check_some``) walks the path at exactly the path times the TG will use (every
-TG period, τ = dt, 2·dt, …, duration) and refuses, naming the segment, the arm, the joint or
-the singularity and the place, any sample where
-
-- the pose is out of the arm's reach or needs a joint outside its limits (``ikine`` fails),
-- the arm comes too near a singularity (its type's ``kinematics.singular`` says how near; the
-  PUMA's: 5 cm of the shoulder or elbow singularity, 5° of the wrist one),
-- a joint would have to move faster than its limit (the type's ``qd_max``; near a singularity
-  the joint speeds a straight line needs grow without bound),
-- the configuration would change (a safety net: with fixed flags it can only happen on a
-  singularity, which the distances above already keep away from).
-
-A stop only slows the motion along the same path (``profiles.StopRamp``), so set-points at
-run time lie between checked ones.  If ``ikine`` fails at run time anyway, the TG stops the
-motion system and halts the system (FaultCode.SINGULARITY), as in the thesis.
+The path is the pose O(τ) of the object's control frame in the world (a
+``profiles.CartesianPath``); arm k, based at B_k and holding the object at grasp G_k, has
+T6_k(τ) = B_k⁻¹ · O(τ) · G_k, solved near its last set-point in the configuration it starts
+in (a straight line cannot change it, 2.2.1).  ``check_some`` walks the path at exactly the
+TG's sample times and refuses, naming segment, arm, joint and place, a sample out of reach,
+too near a singularity, needing a joint faster than its limit or changing configuration.  A
+stop only slows the motion along the same path, so run-time set-points lie between checked
+ones; an ``ikine`` failure at run time anyway halts the system (FaultCode.SINGULARITY).
 """
 
 from __future__ import annotations
@@ -113,11 +91,9 @@ def held_object(
     set-points.  Arms that hold one rigid object are where the object lets them be, and their
     set-points are off that by each arm's servo error; demands that kept the set-points'
     geometry would keep the arms' servos fighting through the object, their integrators
-    winding it into a squeeze for as long as the motion lasts (a lockstep carry gripped by
-    settled arms on late feed-forward rows squeezed the bar with 77 N so, 19 N with the grasps
-    measured).  Taken from where the arms are, the other arms' first set-points move
-    by that difference, towards the geometry the object holds them in, and arm 0's stays
-    where it is."""
+    winding it into a squeeze for as long as the motion lasts.  Taken from where the arms
+    are, the other arms' first set-points move by that difference, towards the geometry the
+    object holds them in, and arm 0's stays where it is."""
     views = starts if measured is None else measured
     start = bases[0] @ kins[0].fkine(starts[0]) @ inverse(grasps[0])
     held = start if measured is None else bases[0] @ kins[0].fkine(views[0]) @ inverse(grasps[0])

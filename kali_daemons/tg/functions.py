@@ -2,31 +2,14 @@
 functions"): a transform the trajectory generator computes every tick, inside its cycle, from
 the time, the cell's sensors and its own private data in the arena.
 
-A function is a ``TgFunction``: a name, the aligned structured dtype of its private data (at
-most ``layout.FUNCTION_DATA_BYTES``; its parameters are fields of it), its parameters
-(``servo.Param``: default, unit, bounds), and
-
-- ``evaluate(data, t, sensors, out)``: in the TG cycle, every tick of every motion whose loop
-  names it: write the transform for time ``t`` (s since the program set it up) into ``out``
-  (4×4, identity on entry).  ``data`` is its private record (a ctypes view: ``data.amplitude``);
-  ``sensors`` the cell's measured joints and contact wrenches (``Sensors``).  Python floats
-  and the record only: no allocation of arrays, no I/O, no logging.
-- ``derive(data)``: outside the cycle, after its parameters are set or changed: derived terms.
-
-The registry holds the built-ins (``conveyor``, ``line``, ``sine``) and then the functions of
-the config's ``tg_functions`` plugins (files or modules defining ``register(registry)``, as
-servo plugins do; ``scripts/tg_function_example.py`` is one to copy).  A program sets one up
-with ``Kali.tg_function(name, **params)`` (a slot of ``tg.functions``), changes its
-parameters on line, and names it in a ``track`` loop.
-
-A function that raises, or whose evaluation takes longer than ``FUNCTION_SHARE`` of the TG
-period, holds every motion using it at its last set-point (the motion ends ABORTED naming
-the function and why); nothing else stops and the cell does not halt, unless the evaluation
-keeps the TG past its deadline: it runs on the TG's thread, which cannot take the CPU back,
-and the TG then misses its deadline (DEADLINE, naming the function: ``evaluating`` is the
-TG's ``TG_STATE.phase_function``).  In lockstep an evaluation's time is measured and an
-overlong one counted (``over_budget``), but it holds nothing: wall time decides nothing
-there, so a run is the same whatever the host's load.
+A ``TgFunction`` is a name, the aligned dtype of its private data (its parameters are
+fields), ``evaluate(data, t, sensors, out)`` (in the TG cycle: Python floats and the record
+only, no arrays allocated, no I/O, no logging) and ``derive(data)`` (outside it, after its
+parameters change).  The registry holds the built-ins, then the config's ``tg_functions``
+plugins.  A function that raises, or in real time takes more than ``FUNCTION_SHARE`` of the
+TG period, holds the motions using it (ABORTED); it runs on the TG's thread, so one that keeps
+the TG past its deadline halts the cell (DEADLINE, naming it).  In lockstep an overlong
+evaluation is only counted: wall time decides nothing there.
 """
 
 from __future__ import annotations

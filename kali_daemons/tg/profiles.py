@@ -1,25 +1,14 @@
 """Motion profiles the trajectory generator samples at its tick (thesis 2.2.1, DESIGN 5).
 
-Each motion is a pure function of its *path time* τ with no clock of its own: the TG advances
-τ by dt every tick (10 ms by default, changeable on line) and asks ``sample(tau, ...)`` for the
-set-point.  To stop a motion the TG scales time instead of editing the geometry: it advances
-τ by σ·dt with σ going smoothly from 1 to 0 (``stop_profile`` / ``StopRamp``), so the motion
-keeps its path, its velocity stays continuous, and during the stop every set-point velocity is
-σ × the nominal one (the nominal one is what ``sample`` writes to its velocity output).
-
-- ``JointMotion``: joint mode; one normalised smoothed-trapezoid time law shared by all joints,
-  so they start and arrive together with continuous position, velocity and acceleration.
-- ``CartesianPath``: straight-line segments at a commanded speed, orientation turned about one
-  fixed axis per segment, transitions after Paul's method centred on the via points.
-- ``joint_move``: the simple quintic joint move ``kalictl move`` pushes through the TG → SIO
-  FIFO: every joint follows the same quintic (minimum-jerk) time law from rest to rest, and
-  the slowest joint sets the duration at its speed limit.
+Each motion is a pure function of its path time τ with no clock of its own: the TG advances τ
+by dt every tick and asks ``sample(tau, ...)`` for the set-point.  A stop scales time, never
+the geometry: τ advances by σ·dt with σ going smoothly from 1 to 0 (``StopRamp``), so the
+motion keeps its path and its velocity stays continuous.  ``JointMotion``: every joint on one
+shared smooth time law; ``CartesianPath``: lines and arcs with Paul's transitions at the via
+points; ``joint_move``: the quintic move ``kalictl move`` sends.
 
 Construction validates and allocates; ``sample`` writes into caller-owned arrays and
 allocates no arrays, so it may run inside the TG cycle.
-
-Long on purpose: every motion law the TG samples (joint moves, Cartesian paths with their blends
-and arcs, the stop ramp) with the checks they share.
 """
 
 from __future__ import annotations

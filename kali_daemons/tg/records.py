@@ -4,20 +4,11 @@ its request's outcome).
 The TG gives each request it takes a record of its own (``StatusRecords.allocate``) and a
 program finds it by the request's sequence number (``find``).  A record is the TG's while its
 request is queued or running, then its program's until it reads the outcome or drops the
-handle; so one program's unread outcomes cost only that program:
-
-- a program keeps at most ``layout.STATUS_SHARE`` outcomes unread: when it asks for more,
-  its oldest unread one gives way (its handle reads LOST, saying why);
-- a program has at most ``layout.LIVE_SHARE`` requests queued or running: more are refused;
-- when no record is free, an unread outcome of a dead program is taken, else the oldest
-  unread one of the program holding the most; only records of requests still queued or
-  running are never taken, and when every record is one the TG waits (the queue pushes
-  back) and ``kalictl status`` names who holds them.
-
-Never a record by seq modulo the ring: one unread record then blocked every later request of
-every program at its place.  Outside the servo cycle; in the TG's tick, a few numpy
-operations over the records per request taken.  ``write_status`` writes a request's state
-into its record in the order a polling client can trust.
+handle, so one program's unread outcomes cost only that program (``layout.STATUS_SHARE``,
+``layout.LIVE_SHARE``); a record whose request is queued or running is never taken.  Never a
+record by seq modulo the ring: one unread record would block every later request of every
+program.  ``write_status`` writes in the order a polling client can trust.  Outside the servo
+cycle; the eviction order: docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations

@@ -1,45 +1,15 @@
 """Motions that change while they run (thesis 3.2.3, 3.3.2, 2.7): a motion system
 follows a target the TG evaluates every tick, within speed and acceleration limits.
 
-RCCL writes a motion's goal as a *position equation*, a loop of transforms, some of them
-"objects and functions" that change while the arm moves (3.2.3).  A TRACK request gives the
-control frame's target as the product
-
-    O*(t) = F_0 · F_1 · … · F_{n-1}
-
-of up to ``layout.MAX_LOOP`` factors, each fixed (a pose of the request) or *shared*: a
-record of ``tg.frames`` that a program (a sensor loop, a hand controller, a remote client)
-writes whenever it likes, whole or not at all (``SharedFrames``; a seqlock), and the TG reads
-every tick without waiting.  The arms of the motion system then follow it as a
-``cartesian.CartesianMotion`` does its path: T6_k = B_k⁻¹ · O · G_k, inverse kinematics near
-the last set-point.  A *stream* is the simplest loop: one shared transform the program writes
-at its own rate (``Robot.stream``); TRACK_JOINTS streams joint targets instead.
-
-The commanded O does not jump to O*: ``follow`` moves it each tick as far as the limits let
-it (speed and acceleration, linear and angular; per joint for joint streams).  A target that
-moves within them is followed exactly — the set-point of tick n is the target read at tick n
-— and one that moves faster (a jump, a burst) is approached at the limits, braking to arrive
-without overshoot, and the ticks it took are counted (``limited``).  The motion stops on its
-path (decelerates at the acceleration limits along the way it was going, like
-``profiles.StopRamp`` for a path) when
-
-- a shared transform has not been written for longer than its stated lifetime (libfranka's
-  and MoveIt Servo's stale-command rule: a program that stops or hangs stops the arm),
-- the target is not finite, not a rigid motion, or (a joint stream) outside a joint's range,
-- its program asks (``stop``), or the time it asked to track for has passed;
-
-and it holds its arms at their last set-points at once, ending STOPPED with the reason, when
-the next set-point cannot be had (no inverse-kinematics solution, too near a singularity, a
-joint faster than its limit): a target from outside cannot be checked before it moves, so
-running out of reach ends the motion, never halts the cell.
-
-At the start the loop must close (``start``): every shared transform claimed by a live
-program and written at least once, and the target reachable by every arm; else the request
-is refused naming the factor or the arm.  Construction allocates; ``step`` allocates no
-arrays (Python floats only) and runs inside the TG cycle.
-
-Long on purpose: a tracking motion's whole law (shared frames, following, braking, the Cartesian
-and joint variants) in one place.
+A TRACK request's target is RCCL's position equation, a loop O* = F_0 · … · F_{n-1} of fixed
+poses, shared transforms (``tg.frames`` records a program writes whole, at any rate, and the
+TG reads without waiting: ``SharedFrames``) and TG functions; TRACK_JOINTS streams joint
+targets.  ``follow`` moves the commanded target towards O* each tick: exactly while O* moves
+within the limits, at the limits and braking without overshoot beyond them.  A stale,
+non-finite or non-rigid target stops the motion on its path; a next set-point that cannot be
+had (no solution, a singularity, a joint too fast) holds the arms and ends it STOPPED, never
+halting the cell.  ``start`` (the loop must close) runs outside the cycle; ``step`` allocates
+no arrays and runs inside it.  The whole law: docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations

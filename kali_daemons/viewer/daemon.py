@@ -4,36 +4,10 @@
 the relevant data from shared memory and displays it at about 25 Hz refresh so that the user
 can monitor the system status like robot position, tracking error, etc." (3.3.7)
 
-Each cycle it reads the arena without locking (Type 4 records: a torn read costs one frame of
-the dashboard, never a command) and logs to rerun, on the timeline ``kali_time`` (the wall
-clock's running time, so a lockstep run has 25 frames per simulated second):
-
-- ``world/...``: every arm drawn from its type's URDF visual shapes (Pinocchio's visual model),
-  placed by forward kinematics of the *measured* joint angles at each robot's base; each
-  flange's frame; the bar at its pose in the plant (``truth.world``) on its stand.
-- ``robots/<robot>/...``: per joint the angle, demand, tracking error (demand − angle; all in
-  degrees), torque and feed-forward torque (N·m) and motor current (A), one entity with a
-  series per joint of the arm's type (j1 .. jN, from ``layout.JOINT_STATE``); the flange's
-  position (m) and roll/pitch/yaw (degrees) in the world; for an arm with a wrist sensor
- , once SIO has heard from it, the contact wrench on the tool about the tool point
-  in tool axes (``layout.FT_STATE.tool``: force in N, torque in N·m) and, in 3D, an arrow
-  from the tool point along the contact force (``world``), ``CONTACT_M_PER_N`` long per
-  newton.
-- ``timing/...``: per process its last execution time, wake-up lateness and missed deadlines
-  from the process table; SIO's sensor-to-DAC latency.
-- ``events/...``: faults (ERROR), the robots' power and calibration messages (INFO) and process
-  state changes, as they happen.
-
-Where it goes (``sinks.py``, the config's ``dashboard`` section): a live rerun viewer when one
-listens, else the web viewer served on 127.0.0.1; and a recording file if asked for.  A
-blueprint lays the dashboard out: the arms in 3D and the events on one side, the time series
-on the other.
-
-In real-time mode the viewer keeps its own 40 ms clock (self-timed, like the plant), so it
-keeps drawing after a halt stops the wall clock — when the user most needs to see the arms.
-In lockstep mode the wall clock steps it like every daemon.  It is not a real-time process:
-SCHED_OTHER, memory not locked, and its cycle allocates (rerun's log calls do).  A frame that
-fails is counted and logged, never raised: the dashboard must not halt the system.
+Each cycle it reads the arena without locking (Type 4 records: a torn read costs one frame,
+never a command) and logs to rerun (``sinks.py`` says where).  It is not a real-time process:
+its cycle allocates, and a frame that fails is counted and logged, never raised, for the
+dashboard must not halt the system.  What it draws: docs/internals/sio-viewer-core.md.
 
 Long on purpose: the viewer's one daemon, what it draws laid out once at configure and logged
 each cycle.

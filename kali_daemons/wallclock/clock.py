@@ -1,33 +1,16 @@
-"""The master wall clock (thesis 3.2.1, 3.6.2; DESIGN section 3).
+"""The master wall clock (thesis 3.2.1, 3.6.2; DESIGN section 3): one daemon, on purpose, for
+the clock's commands, signals, supervision and halts over one process table.
 
-Each base tick the clock, for every periodic slot due at that tick, first checks that the
-slot acknowledged its previous signal, then writes the tick and its due time into the slot
-and posts the slot's own semaphore (interrupt-then-acknowledge).  A missing acknowledgement
-is a missed deadline: counted and that signal skipped; for a ``serious`` process it halts
-the system once it has gone unacknowledged for more than ``serious_miss_tolerance_ms`` of the
-time the machine gave the clock.  The tolerance is a time, not a count (a host stall costs a
-1 ms process one miss per tick of it, a 10 ms process only a few), and time the host stopped
-the clock too (a wake-up of it over ``STALL_NS`` late) is not held against anyone (``_missed``,
-``_watch``; why and the measurements: docs/decisions/0004-clock-stall-rule.md).
-
-Real-time mode sleeps to absolute deadlines (optionally busy-waiting the last µs) and skips
-ahead after an overrun instead of bursting catch-up ticks.  Lockstep mode never sleeps: each
-tick it signals the due slots stage by stage and waits for all their acknowledgements, so a
-run is deterministic and as fast as the CPUs allow.
-
-The clock also supervises (DESIGN 7).  A clocked process that misses a deadline, and in
-real-time mode a self-timed one (the plant, the viewer) whose heartbeat is two periods old,
-is looked up: if it died, a serious one halts the system (PROCESS_DIED, naming it) and a
-non-serious one (dynamics, viewer) is left out from then on (state DIED) while the rest runs
-on without it: no feed-forward, no dashboard.  A serious self-timed one that is alive but has
-not run for the serious tolerance (stalled) halts with DEADLINE, like a clocked one.  In
-lockstep mode a non-serious process that does not acknowledge within the timeout is skipped
-(a miss) instead of halting the system, as a late one is in real time.  Nobody watches a dead
-wall clock from here: the serious processes do (``Daemon._watch_clock``), and the boards'
-watchdogs cut the amplifiers.
-
-Long on purpose: the wall clock's one daemon (its commands, signals, supervision and halts on
-one process table).
+Each base tick, for every slot due, it checks that the slot acknowledged its previous signal,
+then writes the tick and its due time and posts the slot's semaphore
+(interrupt-then-acknowledge).  A missing acknowledgement is a missed deadline, counted and
+that signal skipped; a serious process halts the system once unacknowledged for longer than
+``serious_miss_tolerance_ms`` of the time the machine gave the clock (``_missed``,
+``_watch``; docs/decisions/0004-clock-stall-rule.md).  SIO and the SVs are signalled as a
+gang (``gang_state``).  Real time sleeps to absolute deadlines and skips ahead after an
+overrun; lockstep never sleeps and waits for each stage's acknowledgements.  A process that
+has died halts the system if serious and is left out if not (DESIGN 7).  The clock runs above
+SIO on its CPU: what it does between ticks delays SIO.  More: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations

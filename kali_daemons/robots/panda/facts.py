@@ -1,33 +1,16 @@
 """The Franka Emika Panda's facts as typed constants: kinematics, dynamics, limits, drives, gains.
 
-Sources, number by number:
+Kinematics, joint limits and the maker's speed and torque limits are Franka's published ones
+(its modified-DH table, as robotics-toolbox-python 1.5 and ``franka_description`` carry it;
+the flange is frame 8, 0.107 m past joint 7, without the hand).  Link masses, centres of mass,
+inertias and joint friction are Gaz et al.'s identification (IEEE RA-L 4(4), 2019), whose
+friction model has no viscous term.  The trajectory generator plans with half the maker's
+speeds; the drives are plausible equivalents, not Franka's (the package docstring).  Each
+number's source: docs/internals/robots-hardware-plant.md.
 
-- Kinematics: Franka's modified-DH table ("Robot and interface specifications", Franka
-  Control Interface documentation), as robotics-toolbox-python 1.5 carries it in
-  ``roboticstoolbox/models/DH/Panda.py`` and franka_ros's ``franka_description`` in its
-  joint origins; the flange (frame 8) is d = 0.107 m past joint 7, without the hand.
-- Joint position limits, the maker's speed limits (2.175 rad/s on joints 1-4, 2.61 rad/s on
-  5-7) and torque limits (87 N·m on joints 1-4, 12 N·m on 5-7): the same documentation and
-  ``franka_description``.
-- Link masses, centres of mass and inertia tensors: Gaz, Cognetti, Oliva, Robuffo Giordano
-  and De Luca, "Dynamic identification of the Franka Emika Panda robot with retrieval of
-  feasible parameters using penalty-based optimization", IEEE RA-L 4(4), 2019, as
-  ``franka_description``'s inertials (and MuJoCo Menagerie's Panda) carry them, in the link
-  frames of the modified-DH table (link i's frame on joint i's axis).  The toolbox carries
-  the same numbers with link 7's centre of mass shifted into the flange frame (its d7 =
-  0.107) and link 1's z = 0 instead of −0.04762: z along joint 1's axis enters no joint
-  torque of a fixed-base arm.  ``tests/robots/test_panda.py`` checks both.
-- Joint friction: Gaz et al.'s friction model (their ``get_FrictionTorque``),
-  τ_f(q̇) = φ1/(1 + e^(−φ2(q̇ + φ3))) − φ1/(1 + e^(−φ2·φ3)), whose limits for q̇ → ±∞ are
-  the Coulomb levels used here; it has no viscous term, so ``VISCOUS`` is 0.
-- Speed limits the trajectory generator plans with: half the maker's (as the PUMA's and the
-  UR5's), ``QDD_MAX`` = 2 s⁻¹ · QD_MAX, inside the maker's 7.5-20 rad/s².
-- Drives: plausible equivalents, not Franka's (see the package docstring).
-
-Conventions.  Modified DH (Craig): ``T_i = Rx(α_{i−1})·Tx(a_{i−1})·Rz(θ_i)·Tz(d_i)``; row i of
-``A``/``ALPHA`` holds a_{i−1}/α_{i−1} as Franka's table prints them.  Arrays are indexed by
-joint, 0..6 for joints 1..7.  Inertia tensors are about the centre of mass, in link i's frame,
-as (Ixx, Iyy, Izz, Ixy, Ixz, Iyz).
+Conventions: modified DH (Craig), ``T_i = Rx(α_{i−1})·Tx(a_{i−1})·Rz(θ_i)·Tz(d_i)``, row i of
+``A``/``ALPHA`` holding a_{i−1}/α_{i−1} as Franka prints them; arrays indexed by joint, 0..6;
+inertia tensors about the centre of mass in link i's frame, (Ixx, Iyy, Izz, Ixy, Ixz, Iyz).
 """
 
 from __future__ import annotations
@@ -138,13 +121,11 @@ COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
 )
 
 # --------------------------------------------------------------------------------------------
-# Default servo gains, by the PUMA's rule as kali_daemons/robots/ur5/facts.py writes it out:
+# Default servo gains, by the PUMA's rule as robots/profile.py servo_gains writes it out:
 # kp = J·ωn², kv = 2ζ·J·ωn − viscous, ki = 20 s⁻¹ · kp, integration_reset = 1.2 · (largest
 # gravity + Coulomb) rounded up to a whole N·m, integration_band 0.01 rad; ζ = 0.7, ωn = 50
 # rad/s on joints 1-4 and 60 rad/s on 5-7, raised where kp · 0.01 rad < 2.5 · reset until it
-# is not (robots/profile.py servo_gains): joints 2-7 at 88, 77, 75, 116, 95 and 67 rad/s
-# (joint 2: kp 15 500 N·m/rad, not 5 010; its 0.031 rad band overshot a 0.02 rad step by
-# 44 %, tests/test_robot_types_functional.py).  J is the diagonal of
+# is not (the raised values: docs/internals/robots-hardware-plant.md).  J is the diagonal of
 # Pinocchio's crba at Q_HOME on config/panda.urdf with ARMATURE set, GRAVITY_MAX the largest
 # gravity torque over the joint ranges; tests/robots/test_panda.py recomputes both.
 

@@ -1,33 +1,16 @@
 """The PUMA 560's facts as typed constants: kinematics, dynamics, motors, amplifiers, encoders.
 
-Transcribed from ``shared/puma560.md``, which gathers them from:
+Transcribed from ``shared/puma560.md``: kinematics and link and motor dynamics from
+robotics-toolbox-python's ``Puma560`` (Corke & Armstrong-Hélouvry, ICRA 1994) with the
+pedestal in d1 = 0.6718 m; joint limits from Wang & Chen 1991; motors, amplifiers and DAC from
+the thesis, table 3.1 and section 3.7.2; encoders from its appendix C.  Standard DH; arrays
+indexed by joint, 0..5; ``JM``, ``B_MOTOR``, ``TC_POS``/``TC_NEG`` are motor side, and
+``ARMATURE``, ``VISCOUS``, ``COULOMB_*`` their joint-side equivalents through ``G``.
 
-- kinematics and link/motor dynamics: robotics-toolbox-python
-  ``roboticstoolbox/models/DH/Puma560.py`` (after Corke & Armstrong-Hélouvry, "A search for
-  consensus among model parameters reported for the PUMA 560 robot", ICRA 1994), with the
-  pedestal (d1 = 0.6718 m; the MATLAB toolbox has d1 = 0);
-- joint limits: Wang & Chen, IEEE Trans. RA 7(4) 1991;
-- motors, amplifiers and DAC: the thesis, table 3.1 and section 3.7.2;
-- encoders: the thesis, appendix C.
-
-Conventions.  Standard DH, link transform ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)``; DH frame
-``i`` is fixed to link ``i``.  Arrays are indexed by joint, 0..5 for joints 1..6.  ``G`` is the
-signed gear ratio (motor angle = G · joint angle); ``JM``, ``B_MOTOR``, ``TC_POS``/``TC_NEG`` are
-on the motor side, the ``ARMATURE``, ``VISCOUS`` and ``COULOMB_*`` arrays are their joint-side
-equivalents.  This module only states facts; ``scripts/gen_puma560_urdf.py`` turns them into
-``config/puma560.urdf`` and ``kali_daemons.robots.model`` loads that file.
-
-Two inertias in the table are not physical rigid bodies and MuJoCo refuses them, so
-``MASS``/``INERTIA`` (used by Pinocchio, MuJoCo and the tests' toolbox oracle alike) differ
-from ``MASS_RAW``/``INERTIA_RAW`` in exactly two places:
-
-- Link 1: mass 0 and inertia diag(0, 0.35, 0) are singular.  Joint 1's axis is DH y1, so
-  Iyy = 0.35 is the only entry any joint torque sees: with a fixed base link 1 only turns
-  about that principal axis through its centre of mass, so Ixx, Izz and the mass (on the axis)
-  enter neither the mass matrix nor the bias forces.  Fix: mass 1 g, Ixx = Izz = 0.175, the
-  smallest equal pair that satisfies the triangle inequality Ixx + Izz >= Iyy = 0.35.
-- Link 3: Iyy = 0.086 > Ixx + Izz = 0.0785.  Fix: Ixx 0.066 -> 0.0735 = Iyy - Izz, just enough
-  (equality, exact in binary floating point too).  This one does change the dynamics a little.
+``MASS``/``INERTIA`` differ from the published ``MASS_RAW``/``INERTIA_RAW`` on links 1 and 3
+only: the smallest changes that make them physical rigid bodies, which MuJoCo requires (why
+these, in docs/internals/robots-hardware-plant.md).  This module only states facts;
+``scripts/gen_puma560_urdf.py`` turns them into ``config/puma560.urdf``.
 """
 
 from __future__ import annotations
@@ -107,7 +90,7 @@ INERTIA_RAW: Final[FloatArray] = _ro(  # kg·m², principal moments Ixx, Iyy, Iz
     ]
 )
 
-# The two minimal fixes, explained in the module docstring.
+# The two minimal fixes (docs/internals/robots-hardware-plant.md says why these).
 LINK1_MASS: Final = 1e-3  # kg
 LINK1_IXX_IZZ: Final = 0.175  # kg·m², = 0.35 / 2
 LINK3_IXX: Final = 0.0735  # kg·m², = 0.086 - 0.0125
@@ -185,23 +168,20 @@ GRAVITY_QN: Final[FloatArray] = _ro([0.0, 31.64, 6.04, 0.0, 0.028, 0.0])  # N·m
 # --------------------------------------------------------------------------------------------
 # Default gains of the built-in servos (kali_daemons.servo, thesis 3.4 and figure 3.4): the
 # init data the SV gives each joint's PID and PD.  Joint side: torque N·m at the joint, angle
-# rad at the joint.  Tuned through the simulated plant at 1 kHz (tests/test_servo_algorithms):
+# rad at the joint.  The rule robots/profile.py servo_gains writes out for the other types:
 #
-# - kp = J·ωn² and kv = 2ζ·J·ωn − (the joint's viscous friction), with J the joint-side
-#   inertia at QN including the armature G²·Jm (3.66, 4.41, 0.94, 0.19, 0.17, 0.19 kg·m²),
-#   ωn = 50, 55, 60, 60, 60, 60 rad/s and ζ = 0.7: well inside the 50 Hz error filter and the
-#   25 Hz velocity filter, stable from QZ to QR;
-# - ki = 20 s⁻¹ · kp: the integral must push through Coulomb friction (|G|·Tc, 25 N·m on
-#   joint 1) and hold gravity (32 N·m on joint 2 at QN) from errors of a few encoder counts;
+# - kp = J·ωn² and kv = 2ζ·J·ωn − (the joint's viscous friction), J the joint-side inertia at
+#   QN with the armature G²·Jm, ωn = 50, 55, 60, 60, 60, 60 rad/s and ζ = 0.7: well inside
+#   the 50 Hz error filter and the 25 Hz velocity filter;
+# - ki = 20 s⁻¹ · kp: the integral pushes through Coulomb friction and holds gravity from
+#   errors of a few encoder counts;
 # - integration_band 0.01 rad: the integral winds up only near the set-point, yet the band is
-#   2.5-3 times (gravity + friction) / kp of joints 1-3 (3-4 mrad): a joint stuck on friction
-#   or sagging outside the band would never integrate.  Halving kp needs a wider band;
+#   2.5-3 times (gravity + friction) / kp of joints 1-3: a joint stuck on friction or sagging
+#   outside the band would never integrate.  Halving kp needs a wider band;
 # - integration_reset: the largest gravity plus friction torque the joint must hold, N·m.
 #
-# Measured at QN: every joint holds its demand within ±1 encoder count 2 s after power-on
-# (joint 2 from 0.55 s, joint 3 from 0.82 s); a 0.02 rad step settles within 5 % in at most
-# 0.16 s with at most 10 % overshoot (0.4 s and 10 % at QZ, QR, QS); joints 1-2 saturate the
-# motor current for under 10 ms at the step.  Stable with every gain doubled.
+# The inertias and what these gains measure in the simulated plant:
+# docs/internals/robots-hardware-plant.md.
 
 _PID_TABLE: Final = (  # per joint: kp, ki, kv, integration_band, integration_reset
     (9000.0, 180000.0, 250.0, 0.010, 50.0),
@@ -226,7 +206,7 @@ PID_DEFAULTS: Final[tuple[dict[str, float], ...]] = tuple(
 )
 
 # The PD: the PID's kp and kv without the integral, so it cannot hold a load without an
-# error (joint 2 at QN sags 2-3.5 mrad); the hand-over bias fades with bias_tau.
+# error (a sag of a few mrad on joint 2); the hand-over bias fades with bias_tau.
 PD_DEFAULTS: Final[tuple[dict[str, float], ...]] = tuple(
     {"kp": g["kp"], "kv": g["kv"], "fv": g["fv"], "bias_tau": 0.5} for g in PID_DEFAULTS
 )

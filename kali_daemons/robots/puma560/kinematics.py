@@ -1,65 +1,17 @@
 """PUMA 560 kinematics in closed form: T6 from joint angles and back, configurations, singularities.
 
-The trajectory generator calls these every tick for every arm: ``write_t6`` turns a Cartesian
-set-point into joint set-points by inverse kinematics with *explicit* configuration flags, and
-checks for singularities before a motion starts (thesis 2.2.1: configuration changes and
-singularities must be caught at the trajectory level, and picking "the solution nearest the
-current joints" is not a safe rule near a singularity; 3.3.1: ``write_t6`` / ``read_t6``).  So
-this module is plain ``math`` on Python floats, no Pinocchio and no numpy temporaries.  The
-budget is 10 µs per ``fkine`` and 30 µs per ``ikine``; they take about 2 µs and 6 µs.
+The trajectory generator calls these every tick for every arm (thesis 3.3.1: ``write_t6`` /
+``read_t6``) with *explicit* configuration flags, and checks for singularities before a
+motion starts (thesis 2.2.1: picking "the solution nearest the current joints" is not a safe
+rule near a singularity).  So this is plain ``math`` on Python floats, no Pinocchio and no
+numpy temporaries: the budget is 10 µs per ``fkine`` and 30 µs per ``ikine``.
 
-Conventions (``kali_daemons.robots.puma560``).  Standard DH,
-``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)`` with d = (d1, 0, d3, d4, 0, 0),
-a = (0, a2, a3, 0, 0, 0), α = (90°, 0, −90°, 90°, −90°, 0°); d1 = 0.6718 m includes the
-pedestal.  ``T6 = A_1···A_6`` is DH frame 6, the flange, in the robot's base frame (DH frame 0,
-on the floor under joint 1); no tool transform.  It is the ``flange`` frame of
-``kali_daemons.robots.model`` (Pinocchio, MuJoCo) and the toolbox's ``fkine`` with its d1 set to
-ours.
-As d5 = d6 = 0 the flange origin *is* the wrist centre
-(the point where the axes of joints 4, 5 and 6 meet).
-
-Closed form.  Paul, Shimano & Mayer, "Kinematic control equations for simple manipulators",
-IEEE Trans. SMC 11(6), 1981, and Paul & Zhang, "Computationally efficient kinematics for
-manipulators with spherical wrists based on the homogeneous transformation representation",
-IJRR 5(2), 1986 (the solution robotics-toolbox-python's ``Puma560.ikine_a`` follows); see also
-Craig, *Introduction to Robotics*, section 4.7.  The wrist centre fixes θ1, θ2, θ3; the
-rotation left over, ``R3ᵀ·R = Rz(θ4)·Ry(−θ5)·Rz(θ6)``, is a ZYZ Euler triple (with −θ5,
-because α4 = +90°).
-
-Configurations and the toolbox's letters.  In the vertical *arm plane* (the plane of the
-upper arm: through the shoulder S = (0, 0, d1), spanned by x1 = z0 × z1 and z0, where z1 is
-the joint-2 axis) let ρ be the wrist centre's coordinate along x1 and h its height above S::
-
-    ρ = a2·c2 + a3·c23 − d4·s23            h = a2·s2 + a3·s23 + d4·c23
-    e = d4·c3 + a3·s3
-
-ρ is the wrist centre's signed distance from the vertical plane through the axes of joints 1
-and 2; e is its signed distance from the line of the upper arm (S through the elbow E, the
-joint-3 axis), positive when the forearm is turned clockwise about z1 from that line.  Then
-
-- arm RIGHT ⇔ ρ ≥ 0: looking down, and facing from joint 1's axis towards the wrist centre,
-  the shoulder offset d3 (which runs along +z1 from the upper arm to the forearm) is on the
-  right, as for a human right arm reaching forward; LEFT: the arm reaches back over its
-  shoulder.  ρ = ±√(x² + y² − d3²) for a wrist centre at (x, y).
-- elbow UP ⇔ the elbow E lies strictly above the line through S and the wrist centre W, in
-  the arm plane (the half plane of larger z).  Since (W − S) × (E − S) = −a2·e along z1,
-  UP ⇔ ρ·e < 0 for ρ ≠ 0, and the formula used is: UP ⇔ e < 0 on the right arm, e > 0 on
-  the left one (ρ = 0 counts as right, e = 0 as down).
-- wrist FLIP ⇔ sin θ5 > 0 (θ5 > 0 within joint 5's limits), equivalently
-  (z3 × z5)·z4 > 0: the approach axis z5 = z6 is turned from the forearm axis z3 in the
-  positive sense about joint 5's axis z4.  NOFLIP ⇔ θ5 ≤ 0.  The other wrist solution of a
-  pose is (θ4 + π, −θ5, θ6 + π).
-
-These are the meanings of 'l'/'r', 'u'/'d' and 'n'/'f' in robotics-toolbox-python 1.5's
-``Puma560.ikine_a`` (checked solution by solution in ``tests/test_kinematics.py``).  Note the
-wrist letters: the toolbox takes the ZYZ Euler angles with the middle angle in [0, π] as
-"not flipped", and θ5 is minus that angle, so its "n" has θ5 ≤ 0 and the nominal pose QN
-(θ5 = +45°) is "ruf", not "run".
-
-Singularities, |det J| = a2·|e|·|ρ|·|sin θ5| (puma560.md): shoulder at ρ = 0 (wrist centre
-on the vertical line through S at distance d3 from axis 1), elbow at e = 0 (arm stretched,
-θ3 = atan2(a3, d4) − 90° = −87.3°), wrist at θ5 = 0.  Note QR and QS are 0.0203 m (= a3)
-from the shoulder and elbow singularities, not on them; QZ, QR and QS are wrist-singular.
+Standard DH with the pedestal in d1 (``facts``, ``kali_daemons.robots.puma560``); ``T6`` is
+DH frame 6, the flange, in the base frame, with no tool: the ``flange`` frame of
+``kali_daemons.robots.model`` and the toolbox's ``fkine``.  The closed form (Paul, Shimano &
+Mayer 1981; Paul & Zhang 1986), the geometric meaning of the 'l'/'r', 'u'/'d', 'n'/'f' flags
+(robotics-toolbox-python's: the nominal pose QN is "ruf") and the singularities are in
+docs/internals/robots-hardware-plant.md.
 """
 
 from __future__ import annotations
@@ -129,7 +81,7 @@ class Config:
     ``up``: elbow UP ('u') when the elbow is above the line from the shoulder to the wrist
     centre in the arm plane (e < 0 on the right arm, e > 0 on the left); DOWN ('d') otherwise.
     ``flip``: wrist FLIP ('f') when sin θ5 > 0; NOFLIP ('n') when θ5 ≤ 0.
-    The module docstring defines ρ and e and shows why these read as stated.
+    docs/internals/robots-hardware-plant.md defines ρ and e and shows why these read as stated.
 
     Written as exactly three letters, arm then elbow then wrist: ``str(Config(True, True,
     False)) == "run"`` and ``Config.from_string("ldf")``.

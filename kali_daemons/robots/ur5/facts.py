@@ -1,34 +1,15 @@
 """The UR5's facts as typed constants: kinematics, link dynamics, limits, drives, servo gains.
 
-Sources, number by number:
+Kinematics (standard DH) and link masses and centres of mass are Universal Robots' published
+UR5 (CB3) table, where robotics-toolbox-python 1.5's ``UR5`` has three transcription slips
+(``tests/robots/test_ur5.py`` checks they are the only differences).  UR publishes no inertia
+tensors: each link is a uniform solid cylinder (``CYLINDERS``), an approximation that leaves
+the gravity torques exact.  Joint limits ±2π (±π on the elbow, joint 3); speeds the data
+sheet's, halved; drives plausible equivalents, not UR's (the package docstring).  Each
+number's source: docs/internals/robots-hardware-plant.md.
 
-- Kinematics (standard DH) and link masses and centres of mass: Universal Robots, "DH
-  parameters for calculations of kinematics and dynamics" (the UR5 / CB3 table), the values
-  robotics-toolbox-python 1.5 carries in ``roboticstoolbox/models/DH/UR5.py`` except for
-  three transcription slips there, where UR's table (and ur_description, and the UR5 manual's
-  DH table "UR5 serie 3") is followed: d1 = 0.089159 m (the toolbox: 0.089459), link 6's
-  mass 0.1879 kg (the toolbox: 0.1897) and link 5's centre of mass y = +0.0018 m (the
-  toolbox: -0.0018).  ``tests/robots/test_ur5.py`` checks that these are the only
-  differences.
-- Inertia tensors: UR does not publish them for the UR5 (its page says they are negligible at
-  this size) and the toolbox has none.  Each link is taken as a uniform solid cylinder of the
-  link's mass about its centre of mass, radius 0.06 m (0.0375 m for the flange link), the
-  axis and length given in ``CYLINDERS``: the kind of approximation ur_description makes for
-  its inertials (its shoulder link's, 0.0103 kg·m² across, is this link 1).  It is an
-  approximation, stated as such; gravity torques depend only on the published masses and
-  centres of mass.
-- Joint limits: ±360° on the real arm; Kali uses ±2π for joints 1, 2, 4, 5, 6 and ±π for
-  joint 3, as ur_description does since the elbow cannot pass through itself (at ±π the
-  forearm lies on the upper arm).  ±2π leaves two 2π-equivalents for most angles, so the
-  inverse kinematics can keep a wrist joint's turn count near the current joints.
-- Speed limits: the UR5 data sheet's 180°/s on every joint, derated by half, as the PUMA's
-  are set well inside what its drives do: ``QD_MAX`` = 90°/s.  ``QDD_MAX`` = 2 s⁻¹ · QD_MAX
-  (full speed in 0.5 s), the PUMA's ratio.
-- Drives: plausible equivalents, not UR's (see the package docstring).
-
-Conventions.  Standard DH, ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)``; DH frame ``i`` is fixed
-to link ``i``; centres of mass and inertias are in DH frame ``i``.  Arrays are indexed by
-joint, 0..5 for joints 1..6.  ``G`` is the signed gear ratio (motor angle = G · joint angle).
+Conventions: standard DH, ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)``; centres of mass and
+inertias in DH frame ``i``; arrays indexed by joint, 0..5; ``G`` the signed gear ratio.
 """
 
 from __future__ import annotations
@@ -136,21 +117,15 @@ COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
 )
 
 # --------------------------------------------------------------------------------------------
-# Default servo gains, by the PUMA's rule (kali_daemons/puma560.py):
-#
-#   kp = J·ωn², kv = 2ζ·J·ωn − viscous, ki = 20 s⁻¹ · kp,
-#   integration_reset = 1.2 · (the largest gravity torque + Coulomb friction), rounded up to
-#       a whole N·m: what the integral must hold, with a margin (the PUMA's has 15-20 %),
-#   integration_band = 0.01 rad, the PUMA's; where kp · 0.01 rad < 2.5 · integration_reset
-#       (a load the integral could not reach from outside the band) ωn is raised until it is
-#       not, rather than the band widened (robots/profile.py servo_gains),
-#
-# with ζ = 0.7, ωn = 50 rad/s on joints 1-3 and 60 rad/s on 4-6 (the PUMA's values), raised
-# so on joints 2-5 to 85, 76, 97 and 62 rad/s (joint 2: kp 18 000 N·m/rad, not 6 240), and J
-# the joint-side inertia at Q_HOME including the armature: the diagonal of Pinocchio's crba
-# on config/ur5.urdf with ARMATURE set.  GRAVITY_MAX is the largest gravity torque over the
-# joint ranges (joint 2 with the arm stretched level).  tests/robots/test_ur5.py recomputes
-# both tables from the model.
+# Default servo gains, by the PUMA's rule (robots/puma560/facts.py) as robots/profile.py
+# servo_gains writes it out: kp = J·ωn², kv = 2ζ·J·ωn − viscous, ki = 20 s⁻¹ · kp,
+# integration_reset = 1.2 · (largest gravity + Coulomb) rounded up to a whole N·m,
+# integration_band 0.01 rad, ωn raised where the band needs it; ζ = 0.7, ωn = 50 rad/s on
+# joints 1-3 and 60 rad/s on 4-6 (the PUMA's values).  J is the joint-side inertia at Q_HOME
+# with the armature (the diagonal of Pinocchio's crba on config/ur5.urdf with ARMATURE set),
+# GRAVITY_MAX the largest gravity torque over the joint ranges (joint 2 with the arm
+# stretched level); tests/robots/test_ur5.py recomputes both.  The raised ωn:
+# docs/internals/robots-hardware-plant.md.
 
 J_HOME: Final[FloatArray] = read_only([1.282, 2.497, 1.118, 0.0805, 0.0654, 0.0613])  # kg·m²
 GRAVITY_MAX: Final[FloatArray] = read_only([0.0, 55.25, 17.15, 1.52, 0.34, 0.0])  # N·m

@@ -1,44 +1,13 @@
 """UR5 kinematics in closed form: T6 from joint angles and back, its 8 branches, singularities.
 
-Conventions (``facts``).  Standard DH, ``A_i = Rz(θ_i)·Tz(d_i)·Tx(a_i)·Rx(α_i)`` with
-d = (d1, 0, 0, d4, d5, d6), a = (0, a2, a3, 0, 0, 0), α = (90°, 0, 0, 90°, −90°, 0); a2 and
-a3 are negative (UR's table: at θ = 0 the arm stretches along −x1).  ``T6 = A_1···A_6`` is
-DH frame 6, the flange, in the base frame (DH frame 0, on the mounting plate under joint 1);
-no tool.  It is the ``flange`` link of ``config/ur5.urdf`` and the toolbox's ``fkine``.
-
-Closed form, after Hawkins, "Analytic inverse kinematics for the Universal Robots UR-5/UR-10
-arms" (2013), the solution ``ur_kinematics`` implements.  Joints 2, 3 and 4 are parallel, so
-everything they move stays in the *arm plane* through the shoulder S = (0, 0, d1), spanned by
-x1 = (c1, s1, 0) and z0, shifted by d4 along z1 = (s1, −c1, 0).  With the wrist point
-P5 = p − d6·z6 (the origin of DH frame 5, on joint 5's axis) at (x, y) in plan:
-
-- ``s`` = P5's coordinate along x1, the signed distance of P5 from the vertical plane through
-  the axes of joints 1 and 2:  s = a2·c2 + a3·c23 + d5·s234.  (x, y) = s·x1 + d4·z1, so
-  s = ±√(x² + y² − d4²) and θ1 = atan2(d4·x + s·y, s·x − d4·y).
-- θ5 from cos θ5 = z6·z1 (the flange axis against joint 2's), sin θ5 = ±|z6 × z1|.
-- θ6 from x6·z1 = s5·c6 and y6·z1 = −s5·s6.
-- θ234 from x4 = c5c6·x6 − c5s6·y6 − s5·z6 = c234·x1 + s234·z0; then joint 4's origin
-  P4 = P5 − d5·z4 with z4 = s234·x1 − c234·z0, at (u, v) in the arm plane from S, and
-  (u, v) = a2·(c2, s2) + a3·(c23, s23): the planar two-link arm gives θ3 = ±acos(...) and θ2.
-
-Branches, defined geometrically (``Branch``), computed by ``config_of`` from q directly:
-
-- shoulder RIGHT ⇔ s ≥ 0: looking down, facing from joint 1's axis towards P5, the shoulder
-  offset d4 (along +z1, from the upper arm's plane to the wrist) is on the right (as the PUMA's
-  'r' with d3).  The home pose has s = −0.487 m: LEFT.
-- elbow UP ⇔ s·sin θ3 < 0: the elbow (joint 3's axis) lies above the line from the shoulder
-  to joint 4's axis in the arm plane, for an arm reaching out on its own side (the
-  cross product of S→P4 and S→elbow is −a2·a3·s3 along z1; 'above' is its sign times that of
-  the reach along x1, taken as s, whose sign changes only through the shoulder singularity).
-  s = 0 counts as RIGHT, s3 = 0 as DOWN.
-- wrist FLIP ⇔ sin θ5 > 0; NOFLIP ⇔ θ5 ≤ 0.  The two wrist solutions of a pose are
-  (θ5, θ6) and (−θ5, θ6 + π), with θ234 changed by π.
-
-Singularities: det J = a2·a3·s3·s5·s (Hawkins; checked numerically in the tests), so the
-shoulder's at s = 0 (P5 on the plane of axes 1 and 2), the elbow's at s3 = 0 (arm stretched
-or folded) and the wrist's at s5 = 0 (axes 4 and 6 parallel).  ``singular`` refuses within
-``SHOULDER_MIN_M``, ``ELBOW_MIN_M`` (|a3·s3|, the distance of joint 4's axis from the upper
-arm's line) and ``WRIST_MIN_DEG``: the PUMA's thresholds in ``kali_daemons/tg/cartesian.py``.
+Standard DH from ``facts`` (a2 and a3 negative, as in UR's table); ``T6`` is DH frame 6, the
+flange, in the base frame, with no tool: the ``flange`` link of ``config/ur5.urdf`` and the
+toolbox's ``fkine``.  The closed form follows Hawkins, "Analytic inverse kinematics for the
+Universal Robots UR-5/UR-10 arms" (2013).  Branches are three geometric flags written in the
+PUMA's letters (``Branch``; the home pose is 'lun'), and ``singular`` refuses a Cartesian
+path within the PUMA's thresholds of the singularities of det J = a2·a3·s3·s5·s.  The
+derivation, the branch definitions and the singularities are in
+docs/internals/robots-hardware-plant.md.
 
 Plain ``math`` on Python floats like the PUMA's: ``fkine``/``ikine`` with ``out`` given,
 ``config_of`` and ``singular`` allocate nothing numpy on the success path.
@@ -74,7 +43,7 @@ REACH_MAX: Final = abs(_A2) + abs(_A3)  # m
 REACH_TOL: Final = 1e-12  # on s² (m²) and on |cos θ3| − 1
 WRIST_SINGULAR: Final = 1e-10  # |sin θ5| below this is θ5 = 0 and θ6 is taken from q_ref
 
-# Singularity thresholds for Cartesian paths: the PUMA's (kali_daemons/tg/cartesian.py).
+# Singularity thresholds for Cartesian paths: the PUMA's (robots/puma560/kinematics.py).
 SHOULDER_MIN_M: Final = 0.05
 ELBOW_MIN_M: Final = 0.05
 WRIST_MIN_DEG: Final = 5.0
@@ -103,9 +72,9 @@ class Branch:
 
     ``right``: shoulder RIGHT ('r') when s ≥ 0, else LEFT ('l'); ``up``: elbow UP ('u') when
     s·sin θ3 < 0, else DOWN ('d'); ``flip``: wrist FLIP ('f') when sin θ5 > 0, else NOFLIP
-    ('n').  The module docstring defines s and why the flags read as named.  Written as three
-    letters, shoulder, elbow, wrist, like the PUMA's: ``str(Branch(False, True, False)) ==
-    "lun"`` (the home pose).
+    ('n').  docs/internals/robots-hardware-plant.md defines s and why the flags read as named.
+    Written as three letters, shoulder, elbow, wrist, like the PUMA's:
+    ``str(Branch(False, True, False)) == "lun"`` (the home pose).
     """
 
     right: bool

@@ -1,39 +1,15 @@
-"""Admittance and hand guiding: robot-level servos that move the arm where
-the sensed wrench pushes it.
+"""Admittance and hand guiding: robot-level servos that move the arm where the sensed wrench
+pushes it (admittance control, the impedance servo's dual; thesis 3.3.4's end-effector force
+sensor).
 
-A geared arm cannot be pushed by hand: the PUMA's joints stick (25 N·m of Coulomb friction on
-joint 1 holds a 50 N push at half a metre), so an arm that should yield is moved by its wrist
-sensor instead (admittance control, the impedance servo's dual; thesis 3.3.4's end-effector
-force sensor).  A virtual mass-damper(-spring) per tool axis is pushed by the sensed contact
-wrench; its motion is the reference a stiff joint-space law tracks.  Each tick, with F the
-contact wrench in tool axes, its force and its moment each shortened along itself by a dead
-band (``band``, ``bandm``: the sensor's noise and offset drift must not creep the arm), v
-the reference's twist relative to its base (tool axes, capped at ``vmax`` and ``wmax``) and δ
-the reference's joint offset from its base:
-
-    m v̇ = F − d v − k x,   x = Rᵀ J δ           (per tool axis)
-    δ̇ = J⁺ R v                                  (damped least squares, ``lam``)
-    q_r = base + δ,   q̇_r = q̇_base + δ̇,   q̈_r = q̈_base + J⁺ R v̇
-    τ = M(q) (q̈_r + 2ζω_n (q̇_r − q̇) + ω_n² (q_r − q) + ω_i ω_n² ∫(q_r − q)) + h(q, q̇)
-        + friction(q̇_r) + bias
-
-(the computed-torque law of ``armbuiltins``, on the reference instead of the demand).
-
-**admittance**: the base is the demand (q_d and its derivatives): the arm follows the TG's
-motions and yields to a steady push by F / k on each tool axis, returning when released; on
-an axis with k = 0 it yields freely and stays where it was pushed (relative to the demand).
-
-**guiding**: hand guiding.  No spring; the base is where the arm was when the servo took it
-over: the arm goes where it is pushed and stays there.  Its algorithm ``guides``: while it
-runs, SIO's demand follows the measured arm (``ROBOT_STATE.guided``), the TG refuses motion
-requests and stops a running one, and selecting another servo afterwards holds the arm where
-it was left.  SIO's joint-range check still halts an arm pushed past its range.
-
-Both take the arm over bumplessly: the reference starts where the arm is, at rest, and the
-difference between the torque the motors had and the law's first torque decays as a bias
-with time constant ``handover_s`` (as the other robot-level built-ins).  The damped least
-squares solve allocates its 6 × 2 result a tick (one ``np.linalg.solve`` for the twist and
-its rate), like the frame Jacobian ``armmodel`` accepts.
+A geared arm's joints stick, so an arm that should yield is moved by its wrist sensor: a
+virtual mass-damper(-spring) per tool axis, pushed by the sensed wrench less a dead band
+(``band``, ``bandm``), gives a reference that the computed-torque law of ``armbuiltins``
+tracks.  **admittance** bases the reference on the demand: the arm follows the TG's motions
+and yields to a steady push by F / k per tool axis.  **guiding** has no spring and bases it
+where the arm was taken over: the arm goes where it is pushed and stays; its algorithm
+``guides`` (SIO's demand follows the arm, the TG moves it not).  Both hand over bumplessly,
+as the other robot-level built-ins.  The laws: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations

@@ -2,27 +2,20 @@
 the joint servo one", 2.2.3: the computed-torque law H(q)u + h): an algorithm that servos a
 whole arm at once.
 
-Each servo tick the SV that claims the robot fills one ``ArmInput`` (the demand and its
-derivatives, the measurement, the wrist sensor's wrench, the feed-forward, and the model at
-the measured angles: mass matrix, nonlinear effects, gravity, the tool point's Jacobian and
-pose, ``armmodel.ArmModel``) and calls the active algorithm's ``step``, which writes every
-joint's torque.  A robot runs either its joint servos or one robot-level servo; the switch is
-bumpless both ways (``handover``; the SV's ``servo/sv/arm.py``).
-
-An algorithm is an ``ArmServoAlgorithm``, registered in the same ``Registry`` as joint servos
-(by a plugin's ``register(registry)`` too) and with the same life: private data in the arena
-(one record per robot), ``init`` / ``set_params`` / ``get_params`` outside the cycle, on-line
-parameters and get/put through the robot's mailbox.  ``data`` is the robot's record itself, a
-0-d numpy structured array in the arena: ``data["kx"]`` reads a field, ``data["kx"] = v``
-writes it, and an array field (``("bias", "<f8", (8,))``) is a view to compute in place.
-
-Which function runs where:
+An ``ArmServoAlgorithm`` is registered in the same ``Registry`` as joint servos (by a
+plugin's ``register(registry)`` too) and has the same life: private data in the arena (one
+record per robot), on-line parameters and get/put through the robot's mailbox.  Each servo
+tick the SV that claims the robot fills one ``ArmInput`` and calls the active algorithm's
+``step``.  A robot runs either its joint servos or one robot-level servo; the switch is
+bumpless both ways.  ``data`` is the robot's record, a 0-d numpy structured array in the
+arena: ``data["kx"]`` reads a field, ``data["kx"] = v`` writes it, and an array field
+(``("bias", "<f8", (8,))``) is a view to compute in place.
 
 - ``step(data, inp, tau) -> status``: inside the servo cycle.  Writes the n joint torques
   (N·m) into ``tau``; returns 0 when all is well.  Numpy in place, no I/O, no logging.
-- ``handover(data, inp, tau_prev)``: inside the cycle, when the robot switches to this
-  algorithm, just before its first ``step`` in the same tick: ``tau_prev`` is the torque the
-  motors got last tick (servo plus feed-forward), which the first step should continue from.
+- ``handover(data, inp, tau_prev)``: inside the cycle, just before the first ``step`` after
+  the robot switches to this algorithm, in the same tick: ``tau_prev`` is the torque the
+  motors got last tick (servo plus feed-forward), which that step should continue from.
 - ``init(data, init_data, sample_interval_s)``, ``set_params``, ``get_params``: outside.
 """
 

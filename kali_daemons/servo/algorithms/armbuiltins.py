@@ -1,63 +1,17 @@
-"""The built-in robot-level servos (``arm.py`` for the interface).
+"""The built-in robot-level servos, computed_torque and impedance (``arm.py`` for the interface).
 
-**computed_torque** (thesis 2.2.3: τ = H(q) u + h(q, q̇)).  Each tick, with e = q_d − q:
+**computed_torque** (thesis 2.2.3: τ = H(q) u + h(q, q̇)) linearises the arm with its own
+model into n decoupled second-order errors of natural frequency ``wn`` and damping ratio
+``zeta``; an integral (``wi``, ``ilimit``) takes up what the model misses.  **impedance** is
+a Cartesian spring and damper about the tool point per tool axis with a force set-point
+(thesis 3.3.4); with a wrist sensor it also feeds back the spring's imbalance against the
+sensed wrench (the joints stick), compensates friction in the direction the joints are
+driven, and shares a squeeze of a held object with a ``partner`` arm.
 
-    u = q̈_d + 2 ζ ω_n (q̇_d − q̇) + ω_n² e + ω_i ω_n² ∫e
-    τ = M(q) u + h(q, q̇) + friction(q̇_d) + bias
-
-the arm's own model linearising it into n decoupled second-order errors of natural frequency
-``wn`` and damping ratio ``zeta``, the same on every joint (a rotor's inertia included);
-the integral (``wi``, each joint's ∫e limited to ``ilimit``) takes up what the model misses,
-the joints' stiction first.
-
-**impedance** (a Cartesian impedance about the tool point, per tool axis; 3.3.4's damping
-and impedance control on an end-effector force sensor).  With x, R the tool point and its
-rotation at q, x_d, R_d at q_d, the pose error e = (x_d − x, log(R_d Rᵀ)) and twist error
-ė = J (q̇_d − q̇), both turned into tool axes (Rᵀ), each tool axis i gets
-
-    F_i = k_i e_i + d_i ė_i + f_i        (f: the force set-point, tool axes)
-    τ = Jᵀ R F + M(q) q̈_d + h(q, q̇) + friction(q̇_d, s) + k_q (q̇_d − q̇) + bias
-
-so a steady force F on the tool displaces it by F / k on each axis; ``kx`` ... ``krz``
-and ``dx`` ... ``drz`` are set on line (``kalictl servo set ROBOT kz=500``).  ``fz`` presses
-along the tool's z axis (moving in contact); a set-point beyond the wrist sensor's rated
-range is refused by the client (``servo.client.ServoClient``).
-
-A geared arm's joints stick (the PUMA's Coulomb friction holds 25 N·m on joint 1, a 50 N
-push at half a metre), so with a wrist sensor the law closes a force loop too: the sensed
-wrench w (what the environment applies) should balance the spring, k e + f + w = 0, and the
-imbalance is fed back, ``kf`` times it plus its integral (gain ``kfi``, limited to ``imax``),
-added to F.  At rest the imbalance is zero and so are both terms: the displacement is F / k
-however much the joints stick, and a force set-point is held as the sensor measures it.
-The integral advances on an axis only while its imbalance and its damper's force are within
-``iband``: it trims what is left at rest, and is not wound up by a transient.
-
-Friction is compensated where the joints are about to move, not only where the demand moves
-(q̇_d, zero under a push or a force set-point): each joint's drive s = Jᵀ (R F + w) (all but
-the damping, low-passed with ``ctau``) turns its Coulomb term on in its direction over a
-band of ``cband`` N at the tool, as tanh(G q̇_d / ω₀ + s / (cband · reach)): compensated
-only at q̇_d, a pushed arm sticks and slips, and so does a tool sliding in contact; so, the
-joints stop only where the drive is within the band.
-
-Two arms holding one object squeeze it (``MotionSystem.set_internal_force``): each is told
-its ``partner`` (the other's config index + 1), the squeeze ``fi`` and the unit line ``u``
-towards the partner in its tool axes.  Both measure the same squeeze from both sensors,
-s = ½ (w_partner − w_own) · u (world axes), and push along u by
-
-    fi + kpi (fi − s) + kii ∫(fi − s)
-
-so the corrections are equal and opposite: they squeeze the object without moving it.  The
-servos' own errors no longer decide the squeeze (carrying the bar on joint servos squeezed it
-with 19-66 N): at 20 N the plant's truth stays within 17-25 N through lift, carry and a
-5 mm/s set-down (``tests/test_squeeze.py``).  ``kpi`` is 2: the sensors' 30 Hz low-pass is
-in the loop, and at 5 real time oscillates until a sensor saturates.  ``kii`` is 80/s: the
-slow part of the disturbance (the arms' springs giving and taking the bar's weight, the
-sideways start of a carry) is taken back within ~50 ms; at 20/s the squeeze strayed to
-15.6-25.2 N in the air.
-
-Both take a robot over bumplessly: at the switch the difference between the torque the
-motors had and this law's first torque becomes a ``bias`` that decays with time constant
-``handover_s``.  Their error (each slot's ``error``) is q_d − q, as the joint servos'.
+Both hand over bumplessly: the difference between the motors' last torque and the law's
+first becomes a ``bias`` decaying with ``handover_s``.  Each slot's ``error`` is q_d − q, as
+the joint servos'.  Their steps run compiled (``kernels.arm_step``), equal to ``_ct_step``
+and ``_imp_step`` here.  The laws in full: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations
@@ -123,9 +77,8 @@ def _handover(core: Any) -> Any:
 
 def _compiled(name: str) -> Callable[[Any, ArmInput, np.ndarray], Callable[[], int]]:
     """``ArmServoAlgorithm.bind`` for built-in ``name``: its step compiled
-    (``kernels.arm_step``).  In Python each step was ~15-45 µs of small numpy calls a tick
-    warm, ~130 µs in real time beside the plant for the impedance, and two arms' of it with
-    the plant's filled the second CPU until the TG starved."""
+    (``kernels.arm_step``), since as small numpy calls two arms' steps and the plant fill
+    the second CPU (figures: docs/internals/servo-level.md)."""
 
     def bind(d: Any, inp: ArmInput, tau: np.ndarray) -> Callable[[], int]:
         return kernels.arm_step(name, d, inp, tau)
@@ -346,7 +299,7 @@ def _imp_core(d: Any, inp: ArmInput, tau: np.ndarray, fresh: bool = False) -> No
     to_tool(edot, rot, f)
     np.multiply(e, d["k"], out=f)  # the spring and the set-point: what the arm should exert
     np.add(f, d["f"], out=f)
-    if _squeezing(d, inp):  # a squeeze (the module's docstring)
+    if _squeezing(d, inp):  # a squeeze (docs/internals/servo-level.md)
         u, line = d["u"], e[:3]  # e is free until the force feedback
         np.matmul(rot, u, out=line)  # the line towards the partner, world axes
         other = inp.wrenches[int(d["partner"]) - 1]

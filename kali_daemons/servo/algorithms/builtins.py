@@ -3,32 +3,18 @@
 Both close the loop on joint angle (rad) and output joint torque (N·m), as every Kali servo
 does (3.3.4); the robot driver in SIO does the encoder and DAC conversions.
 
-**PID (figure 3.4).**  Each servo interval T:
-
-1. the position error and the velocity are low-pass filtered, first order, discretised by
-   backward difference: with ``a = T·2π·f``, ``y_k = (a·x_k + y_{k-1}) / (1 + a)``.  The
-   error filter has cut-off ``fe`` (≈ 50 Hz), the velocity filter ``fv`` (≈ 25 Hz) and is fed
-   the position difference ``(θ_k − θ_{k-1}) / T``: encoder quantisation makes that noisy;
-2. the integral of the filtered error accumulates only while ``|e| ≤ integration_band``
-   (no wind-up during large moves), and is limited to ``± integration_reset``;
-3. ``torque = kp·e + ki·∫e − kv·v``, and the filtered error is the servo's error.
-
-Two choices the figure leaves open, made here so a researcher's on-line changes are smooth:
-
-- the integral is kept as the torque it contributes, ``I = Σ ki·T·e`` in N·m (``ki·T`` is
-  precomputed, as in the figure), so ``integration_reset`` is a torque limit, easy to set
-  from the load the integral must hold (gravity plus friction), and changing ``ki`` on line
-  changes how fast I grows, not I itself;
-- a hand-over ``bias`` torque, decaying with time constant ``bias_tau``, carries whatever the
-  integral cannot hold at a switch (``ki = 0``, or beyond the reset), so switching servos is
-  bumpless (3.3.4: "the user may switch servo algorithms ... on-line").
+**PID.**  Each servo interval the position error and the velocity (the position difference
+over the interval) pass first-order low-pass filters, cut-offs ``fe`` and ``fv``; the
+integral of the filtered error grows only while ``|e| ≤ integration_band`` and is kept as the
+torque it contributes, I, limited to ``± integration_reset`` N·m; then
+``torque = kp·e + I − kv·v + bias``.  The hand-over ``bias``, decaying with time constant
+``bias_tau``, carries what the integral cannot hold at a switch, so switching is bumpless.
 
 **PD.**  ``torque = kp·e − kv·v + bias`` with the raw error, the same velocity filter and
 the same decaying hand-over bias.  No integral: a joint under load holds with an offset.
 
 Each robot type's tuned gains are its ``pid_defaults`` and ``pd_defaults``
-(``kali_daemons.robots``); the defaults here are the figure's (kp 50-200, kv 1-7, fe 50,
-fv 25) with no integral action, for an unknown joint.
+(``kali_daemons.robots``); the defaults here are for an unknown joint.
 """
 
 from __future__ import annotations

@@ -1,28 +1,15 @@
-"""An SV's robot-level unit (thesis 3.3.4's Cartesian servo mode): one
-robot fed whole, claimed and run by one SV.
+"""An SV's robot-level unit (thesis 3.3.4's Cartesian servo mode): one robot fed whole, claimed
+and run by one SV (``ArmRunner``).
 
-SIO feeds a robot whole while it runs a robot-level servo or has a robot-level mailbox
-operation pending: its first slot's ``busy`` is ``ARM_FREE``, the others ``ARM_HELD``
-(``csrc/sio.c kali_feed``), so neither the compiled units nor the per-slot path claim any of
-its joints.  The SV that wins the first slot's test-and-set (ARM_FREE → its number) runs the
-robot (``ArmRunner.run``):
-
-1. this tick's inputs from the robot's slots (demand, its velocity and acceleration, the
-   measurement, the feed-forward) and its wrist sensor's world wrench;
-2. the robot's mailbox operation, if any (``level.apply_arm_op``): a SELECT switches
-   the robot between its joint servos and a robot-level servo, bumplessly both ways — into a
-   robot-level servo from the torque the motors had last tick (``handover``), back into the
-   joint servos from that torque less the feed-forward SIO adds again from this tick;
-3. with joint servos, each joint's servo as the per-slot path runs it; with a robot-level
-   servo, the model at this tick's angles (``servo.armmodel``) and one ``step`` for every
-   joint's torque (a built-in's compiled, ``ArmServoAlgorithm.bind``: ``kernels.arm_step``).
-   A slot's reset hands the servo over too: at power on as if holding the arm's weight,
-   after calibration from the running torque.  A disabled joint gets no torque.  A step
-   that raises, returns a nonzero status or a non-finite torque halts with a SERVO fault
-   naming the robot and the algorithm.
-
-Each joint's slot then holds its torque, error (q_d − q), status, tick and SV, as a joint
-servo leaves them, so SIO, the flight recorder and the dashboard see no difference.
+SIO feeds a robot whole while it runs a robot-level servo, has a robot-level mailbox
+operation pending or runs a shadow trial: its first slot's ``busy`` is ``ARM_FREE``, the
+others ``ARM_HELD``, and the SV that wins the first slot's test-and-set runs the robot:
+this tick's inputs, the robot's mailbox operation, then either each joint's servo as the
+per-slot path runs it or the model at this tick's angles and one robot-level ``step`` for
+every joint.  A switch is bumpless both ways (``select``).  Each slot then holds what a joint
+servo leaves there, so SIO, the flight recorder and the dashboard see no difference.  A step
+that raises or returns a bad status or a non-finite torque halts with a SERVO fault naming
+the robot and the algorithm.  The steps in order: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations

@@ -1,59 +1,19 @@
-"""Servo executor with dynamic loading (thesis 3.3.4, 3.3.5).
+"""The SV daemon: a servo worker that claims fed servo slots and runs them (thesis 3.3.4, 3.3.5).
 
-Every SV is signalled by the wall clock with SIO (the SVs are gang-scheduled: signalled with
-SIO or not at all, ``wallclock.clock.gang_state``), then waits on its feed semaphore until
-SIO has fed the slots of that tick (``_await_feed``), then claims and runs its work
-(``serve``, which an in-process executive may call directly).  Work comes in three kinds:
+Signalled by the wall clock with SIO (the SVs are gang-scheduled:
+``wallclock.clock.gang_state``), an SV waits until SIO has fed the tick's slots
+(``_await_feed``), then claims its work by test-and-set of the slots' ``busy`` words and runs
+it (``serve``, which the lockstep executive calls directly): robots fed whole
+(``arm.ArmRunner``), then every robot's built-in joints in one compiled call
+(``units.Unit``), then every other fed slot one at a time (``_run``).  The SV that finishes
+the tick's last slot posts SIO's done semaphore.  ``cycle`` is compiled (``kali_sv_serve``)
+and hands back to Python only what needs it (``_serve_event``); ``_await_feed``,
+``_learn_feed`` and ``_serve_reference`` are the same in Python, its tests' references.
 
-- robots fed whole (``arm.ArmRunner``): a robot that runs a robot-level servo (thesis
-  3.3.4's Cartesian servo mode) or has a robot-level mailbox operation pending, claimed
-  by test-and-set of its first slot's ``busy`` (ARM_FREE → the SV's number) and run as one
-  unit: the model at this tick's angles and one step for every joint;
-
-- units (``units.Unit``): per robot, the fed joints running a built-in servo (PID,
-  PD) with nothing to do before the step, claimed by test-and-set of each ``busy`` word and
-  run in one compiled call over the algorithm's block of private data;
-- single slots: every other fed slot (a plugin, a pending mailbox operation or reset, a
-  disabled servo), claimed by test-and-set of its ``busy`` word; whichever SV is free takes
-  the next joint, so a costly servo simply takes more of the workers.  For a claimed slot
-  it carries out a pending mailbox operation (put/get/select/params, 3.4), runs the
-  joint's algorithm and stores torque, error and status.
-
-Each SV goes through the robots fed whole, then every robot's unit (SV k starting k/N of
-the way round, so two SVs share two arms), then through the single slots.  Every slot run
-counts as done; the SV that finishes the tick's last slot posts SIO's done semaphore.  Each
-SV notes the tick whose feed it took (``sv_fed_tick``): SIO acknowledges that tick for it
-as soon as every servo is done, since the SV's own acknowledgement, on SIO's CPU below
-SIO's priority, would wait behind SIO's output (``sio/gang.py``, which also says when SIO
-vouches for the SV on its CPU that took the previous tick's feed).
-
-An SV bound to another CPU than SIO's (sv.1 by default) is woken by neither post: in real time it
-sleeps on its own CPU's timer to shortly before SIO's feed is due where the servos are worth
-sharing, else to when the SV on SIO's CPU has run them all (learnt over the last ticks,
-``_learn_feed``), then polls for the clock's signal and SIO's feed, at most
-``processes.sv.poll_us`` each, so no post has to wake a halted vCPU.  While an SV on SIO's
-CPU runs every servo on its own, such an SV rests: it has the clock signal it only every
-``processes.sv.rest_ms`` (``Daemon._set_period``), and is back to every tick once the servos
-are worth sharing again (why, with the measurements:
-docs/decisions/0002-sv-polling-and-resting.md).  Every other wait sleeps (two cores: never
-spin a CPU without bound).
-
-``cycle`` is compiled (``kali_sv_serve``: the wait for the feed and what a polling SV learns
-from it, the claims, the units, the done count and post, the execution-time record); a robot
-fed whole, a unit's non-finite torque and every single slot it hands back to Python
-(``_serve_event``).  ``_await_feed``, ``_learn_feed`` and ``_serve_reference`` are the same
-in Python, its tests' references.  With the base loop's compiled wait (``daemon.ClockWait``)
-an SV's tick is two compiled calls and a few lines of Python
-(docs/decisions/0001-ctypes-not-numba.md).
-
-A servo that raises, returns a bad status or a non-finite torque halts the system with a
-SERVO fault naming robot, joint and algorithm.
-
-What clients write is checked where the SV reads it (DESIGN 7): the mailbox by ``apply_op``
-(a bad operation is refused with the reason, the servo runs on unchanged), and a slot's
-active-algorithm word, should anything but an SV write an index outside the registry there,
-is restored to the robot's configured servo, handed over bumplessly from the slot's last
-torque, before the step.
+A servo that raises, returns a bad status or a non-finite torque halts with a SERVO fault
+naming robot, joint and algorithm; nothing a client wrote is trusted (DESIGN 7).  An SV on
+another CPU than SIO's polls and rests (docs/decisions/0002-sv-polling-and-resting.md); every
+other wait sleeps.  How the work is shared and checked: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations
@@ -387,9 +347,8 @@ class ServoWorker(Daemon):
         Not fed yet, an SV on another CPU than SIO's first polls the feed for ``poll_ns`` (it
         is awake anyway, having woken on its timer shortly before the feed is due and polled
         for the clock's signal: ``Daemon._clock_driven_loop``, ``_learn_feed``), so SIO's post
-        wakes nobody.  Sleeping, it would be a wake-up across vCPUs, and after now and then
-        one of those the host takes SIO's vCPU away for 0.1-0.5 ms, SIO's CPU time counting
-        on (docs/decisions/0002-sv-polling-and-resting.md).
+        wakes nobody: a post that wakes a halted vCPU can stall the poster's vCPU, SIO's
+        (docs/decisions/0002-sv-polling-and-resting.md).
         """
         now = rt.monotonic_ns()
         end, poll_end = now + int(self.feed_timeout_s * 1e9), now + self.poll_ns

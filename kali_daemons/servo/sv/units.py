@@ -1,25 +1,14 @@
-"""An SV's unit of work: one robot's joints that run a built-in servo this tick, claimed and
-run in one compiled call (thesis 3.3.5 for the claiming).
+"""An SV's unit of work: one robot's joints that run a built-in servo (PID, PD) this tick,
+claimed and run in one compiled call, ``csrc/servo.c``'s ``kali_serve_unit`` (thesis 3.3.5
+for the claiming).
 
-A ``Unit`` is ``csrc/servo.c``'s ``kali_serve_unit`` bound to one robot's slots ``lo..hi-1``.
-A slot joins the unit when it is fed and unclaimed (``busy`` 0), has no mailbox operation,
-no reset, no shadow trial running (``SERVO_SLOT.shadow_state``), is enabled and its active algorithm
-is the PID or the PD; it is claimed by the
-same test-and-set of ``busy`` (0 → the SV's number) as the per-slot path, here
-``__atomic_compare_exchange_n`` (the ``lock cmpxchg`` that ``atomic.CompareExchange32``
-reaches through libatomic), and then re-checked: should a client have posted an operation
-between the look and the claim, the slot is the caller's to run on the per-slot path
-(``left``).  For each slot of the unit the built-in's row function steps the joint's record
-in its algorithm's block, and torque, error, status, ``ran_tick``, ``sv`` and ``exec_ns``
-are written as the per-slot path writes them.  A non-finite torque zeroes the slot's torque,
-leaves ``ran_tick`` and is reported (the first such slot and its torque) for the SV to halt,
-naming the joint and algorithm; the rest of the unit runs on, as the per-slot path does.
-
-Everything else (plugins, a pending operation or reset, a shadow trial, a disabled servo,
-an algorithm index outside the registry) is left unclaimed for the per-slot path.  Whoever gets to a
-slot first runs it; as the row functions equal the Python steps, which path ran a joint
-does not change its numbers.  ``serve_unit_reference`` is the same walk in Python over the
-per-joint steps, which ``tests/test_servo_vector.py`` holds the kernel to.
+A slot joins the unit when it is fed and unclaimed, has no mailbox operation, reset or shadow
+trial, is enabled and runs the PID or the PD; it is claimed by the same test-and-set of
+``busy`` as the per-slot path and re-checked after the claim (a client's operation posted
+meanwhile leaves it to the per-slot path: ``left``).  Everything else stays unclaimed for the
+per-slot path.  The row functions equal the Python steps, so which path ran a joint does not
+change its numbers; ``serve_unit_reference`` is the kernel's reference
+(``tests/test_servo_vector.py``).  More: docs/internals/servo-level.md.
 """
 
 from __future__ import annotations
