@@ -12,6 +12,9 @@ joints gets the least-squares solution, taken if what is left is within ``off_m`
 building the solver allocates (outside it).  Pinocchio is imported where a model is built,
 not when this module is: every process imports a type's facts, and the wall clock, SIO and
 the SVs never build its kinematics (they stay without Pinocchio).
+
+Long on purpose: one numerical inverse kinematics (damped least squares, its nearest-branch
+choice) and the ``Kinematics`` a type built on it gets.
 """
 
 from __future__ import annotations

@@ -9,6 +9,9 @@ points; ``joint_move``: the quintic move ``kalictl move`` sends.
 
 Construction validates and allocates; ``sample`` writes into caller-owned arrays and
 allocates no arrays, so it may run inside the TG cycle.
+
+Long on purpose: every motion law the TG samples (joint moves, Cartesian paths with their blends
+and arcs, the stop ramp) with the checks they share.
 """
 
 from __future__ import annotations

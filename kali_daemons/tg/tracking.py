@@ -10,6 +10,9 @@ non-finite or non-rigid target stops the motion on its path; a next set-point th
 had (no solution, a singularity, a joint too fast) holds the arms and ends it STOPPED, never
 halting the cell.  ``start`` (the loop must close) runs outside the cycle; ``step`` allocates
 no arrays and runs inside it.  The whole law: docs/internals/motion-client-bridge.md.
+
+Long on purpose: a tracking motion's whole law (shared frames, following, braking, the Cartesian
+and joint variants) in one place.
 """
 
 from __future__ import annotations
