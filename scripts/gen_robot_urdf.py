@@ -1,4 +1,4 @@
-"""Generate ``config/ur5.urdf`` and ``config/panda.urdf`` from their robot types' facts.
+"""Generate ``robots/ur5/ur5.urdf`` and ``robots/panda/panda.urdf`` from their robot types' facts.
 
     .venv/bin/python scripts/gen_robot_urdf.py                 # (re)write both
     .venv/bin/python scripts/gen_robot_urdf.py panda           # one of them
@@ -359,7 +359,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("robots", nargs="*", help=f"any of {', '.join(ARMS)} (default: all)")
     parser.add_argument("--check", action="store_true", help="exit 1 if a file is stale")
-    parser.add_argument("--output-dir", type=Path, help="write there instead of config/")
+    parser.add_argument(
+        "--output-dir", type=Path, help="write there, not beside the facts"
+    )
     args = parser.parse_args(argv)
     unknown = sorted(set(args.robots) - set(ARMS))
     if unknown:

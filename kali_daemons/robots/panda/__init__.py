@@ -2,7 +2,7 @@
 
 Kinematics, limits and link dynamics are published ones (Franka's documentation and Gaz et
 al. 2019), with their sources in ``facts``; the inverse kinematics is numerical on Pinocchio
-with joint 3 as the redundancy parameter (``kinematics``); ``config/panda.urdf`` is generated
+with joint 3 as the redundancy parameter (``kinematics``); ``robots/panda/panda.urdf`` is generated
 from the facts by ``scripts/gen_robot_urdf.py``.
 
 The drives are plausible equivalents wired to McGill-style boards, NOT Franka's integrated

@@ -25,7 +25,7 @@ from ..profile import FloatArray, IntArray, read_only, servo_gains
 
 NJOINTS: Final = 7
 GRAVITY: Final = 9.81  # m/s²
-URDF_PATH: Final = Path(__file__).resolve().parents[3] / "config" / "panda.urdf"
+URDF_PATH: Final = Path(__file__).with_name("panda.urdf")  # package data
 
 # --------------------------------------------------------------------------------------------
 # Kinematics: modified DH (Franka)
@@ -126,7 +126,7 @@ COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
 # gravity + Coulomb) rounded up to a whole N·m, integration_band 0.01 rad; ζ = 0.7, ωn = 50
 # rad/s on joints 1-4 and 60 rad/s on 5-7, raised where kp · 0.01 rad < 2.5 · reset until it
 # is not (the raised values: docs/internals/robots-hardware-plant.md).  J is the diagonal of
-# Pinocchio's crba at Q_HOME on config/panda.urdf with ARMATURE set, GRAVITY_MAX the largest
+# Pinocchio's crba at Q_HOME on robots/panda/panda.urdf with ARMATURE set, GRAVITY_MAX the largest
 # gravity torque over the joint ranges; tests/robots/test_panda.py recomputes both.
 
 J_HOME: Final[FloatArray] = read_only(  # kg·m²

@@ -8,7 +8,7 @@ the other six are then an anthropomorphic arm, better conditioned.  There are no
 branches: ``configs`` is one ``NEAREST``.  ``singular`` refuses a configuration whose 6×7
 Jacobian, or 6×6 without joint 3, has a singular value below ``SIGMA_MIN`` (what the PUMA's
 thresholds amount to).  The flange is frame 8 of Franka's modified-DH table (no hand), the
-``flange`` link of ``config/panda.urdf``.  The conditioning figures behind these choices:
+``flange`` link of ``robots/panda/panda.urdf``.  The conditioning figures behind these choices:
 docs/internals/robots-hardware-plant.md.
 """
 

@@ -10,7 +10,7 @@ indexed by joint, 0..5; ``JM``, ``B_MOTOR``, ``TC_POS``/``TC_NEG`` are motor sid
 ``MASS``/``INERTIA`` differ from the published ``MASS_RAW``/``INERTIA_RAW`` on links 1 and 3
 only: the smallest changes that make them physical rigid bodies, which MuJoCo requires (why
 these, in docs/internals/robots-hardware-plant.md).  This module only states facts;
-``scripts/gen_puma560_urdf.py`` turns them into ``config/puma560.urdf``.
+``scripts/gen_puma560_urdf.py`` turns them into ``robots/puma560/puma560.urdf``.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ IntArray = npt.NDArray[np.int64]
 NJOINTS: Final = 6
 GRAVITY: Final = 9.81  # m/s², as in robotics-toolbox-python, so the gravity torques compare
 
-URDF_PATH: Final = Path(__file__).resolve().parents[3] / "config" / "puma560.urdf"
+URDF_PATH: Final = Path(__file__).with_name("puma560.urdf")  # package data
 
 
 def _ro(values: object, dtype: type = np.float64) -> npt.NDArray:

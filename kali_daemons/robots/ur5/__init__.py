@@ -2,7 +2,7 @@
 
 Kinematics and link masses and centres of mass are UR's published ones, inertia tensors an
 approximation (uniform cylinders), all with their sources in ``facts``; the inverse
-kinematics is closed form with 8 branches (``kinematics``); ``config/ur5.urdf`` is generated
+kinematics is closed form with 8 branches (``kinematics``); ``robots/ur5/ur5.urdf`` is generated
 from the facts by ``scripts/gen_robot_urdf.py``.
 
 The drives are plausible equivalents wired to McGill-style boards, NOT Universal Robots'

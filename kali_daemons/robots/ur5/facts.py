@@ -24,7 +24,7 @@ from ..profile import FloatArray, IntArray, read_only, servo_gains
 
 NJOINTS: Final = 6
 GRAVITY: Final = 9.81  # m/s², as the PUMA's and the toolbox's
-URDF_PATH: Final = Path(__file__).resolve().parents[3] / "config" / "ur5.urdf"
+URDF_PATH: Final = Path(__file__).with_name("ur5.urdf")  # package data
 
 # --------------------------------------------------------------------------------------------
 # Kinematics: standard DH (UR's table, UR5)
@@ -122,7 +122,7 @@ COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
 # integration_reset = 1.2 · (largest gravity + Coulomb) rounded up to a whole N·m,
 # integration_band 0.01 rad, ωn raised where the band needs it; ζ = 0.7, ωn = 50 rad/s on
 # joints 1-3 and 60 rad/s on 4-6 (the PUMA's values).  J is the joint-side inertia at Q_HOME
-# with the armature (the diagonal of Pinocchio's crba on config/ur5.urdf with ARMATURE set),
+# with the armature (the diagonal of Pinocchio's crba on robots/ur5/ur5.urdf with ARMATURE set),
 # GRAVITY_MAX the largest gravity torque over the joint ranges (joint 2 with the arm
 # stretched level); tests/robots/test_ur5.py recomputes both.  The raised ωn:
 # docs/internals/robots-hardware-plant.md.

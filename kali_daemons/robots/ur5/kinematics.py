@@ -1,7 +1,7 @@
 """UR5 kinematics in closed form: T6 from joint angles and back, its 8 branches, singularities.
 
 Standard DH from ``facts`` (a2 and a3 negative, as in UR's table); ``T6`` is DH frame 6, the
-flange, in the base frame, with no tool: the ``flange`` link of ``config/ur5.urdf`` and the
+flange, in the base frame, with no tool: the ``flange`` link of ``robots/ur5/ur5.urdf`` and the
 toolbox's ``fkine``.  The closed form follows Hawkins, "Analytic inverse kinematics for the
 Universal Robots UR-5/UR-10 arms" (2013).  Branches are three geometric flags written in the
 PUMA's letters (``Branch``; the home pose is 'lun'), and ``singular`` refuses a Cartesian
