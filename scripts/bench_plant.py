@@ -34,7 +34,8 @@ from harness import Goal, KaliRun, cell_config, robots, table
 
 from kali_daemons.core import layout
 from kali_daemons.core.arena import Arena
-from kali_daemons.core.layout import CSR_ENABLE, CSR_NO_DISABLE
+from kali_daemons.hardware.mcgill import registers
+from kali_daemons.hardware.mcgill.registers import CSR_ENABLE, CSR_NO_DISABLE
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.runtime.config import KaliConfig
 from kali_daemons.tools import launcher
@@ -63,7 +64,7 @@ def power_up(sim: PlantSim) -> None:
         sim.cycle()
     for board in sim.boards:
         board.regs["csr"] = CSR_NO_DISABLE
-    sim.dac["code"][:, : layout.MAX_JOINTS] = layout.DAC_ZERO + 100  # every channel
+    sim.dac["code"][:, : layout.MAX_JOINTS] = registers.DAC_ZERO + 100  # every channel
 
 
 def in_process(arms: int, cycles: int) -> tuple[float, float]:

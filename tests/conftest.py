@@ -15,11 +15,19 @@ import pytest
 
 from kali_daemons.core import layout
 from kali_daemons.core.arena import Arena
+from kali_daemons.hardware.mcgill.boards import records
 from kali_daemons.runtime.config import KaliConfig, parse_config
+from kali_daemons.runtime.instance import Instance
 from kali_daemons.tools import launcher
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_TEXT = (ROOT / "config" / "default.yaml").read_text()
+
+
+def boards_of(inst: Instance) -> np.ndarray:
+    """The simulated McGill boards' registers of ``inst``, one record per robot: what the
+    white-box tests of the board and its safety paths look at."""
+    return records(inst.arena, inst.cell.n_robots)
 
 
 def unique_name(prefix: str = "t") -> str:

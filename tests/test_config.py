@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from kali_daemons.core.errors import ConfigError
+from kali_daemons.hardware.registry import hardware_kind
 from kali_daemons.runtime import config as config_mod
 from kali_daemons.runtime.config import (
     CONFIG_VERSION,
@@ -632,7 +633,31 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "robots[1].base_yaw: unknown key (did you mean 'base_yaw_deg'?); allowed keys: name, "
         "model, base_xyz, base_yaw_deg",
     ),
+    (
+        "robot-hardware-unknown-kind",
+        [("base_yaw_deg: 180", "base_yaw_deg: 180, hardware: {kind: mcgil}")],
+        "robots[1].hardware.kind = 'mcgil': no hardware kind 'mcgil' (did you mean 'mcgill'?); "
+        "the kinds are: mcgill",
+    ),
+    (
+        "robot-hardware-bad-name",
+        [("base_yaw_deg: 180", "base_yaw_deg: 180, hardware: {kind: McGill}")],
+        "robots[1].hardware.kind = 'McGill': must be a string matching",
+    ),
+    (
+        "robot-hardware-unknown-key",
+        [("base_yaw_deg: 180", "base_yaw_deg: 180, hardware: {kind: mcgill, adress: x}")],
+        "robots[1].hardware.adress: unknown key",
+    ),
 ]
+
+
+def test_a_robot_names_its_hardware_kind_and_the_default_is_the_mcgill_board() -> None:
+    cfg = parse_config(
+        edit(("base_yaw_deg: 180", "base_yaw_deg: 180, hardware: {kind: mcgill}")), SOURCE
+    )
+    assert [r.hardware.kind for r in cfg.robots] == ["mcgill", "mcgill"]
+    assert hardware_kind("mcgill").channels >= max(r.n_joints for r in cfg.robots)
 
 
 @pytest.mark.parametrize(

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kali_daemons.core import layout
 from kali_daemons.core.errors import ConfigError
 from kali_daemons.core.joints import ArmCopy, JointMap
+from kali_daemons.hardware.mcgill import registers
 from kali_daemons.runtime.config import parse_config
 
 from .conftest import config_text
@@ -35,7 +35,7 @@ def test_four_arms_are_25_joints_numbered_without_gaps() -> None:
 def test_a_uniform_cell_copies_in_one_piece() -> None:
     jm = JointMap(("left", "right"), (6, 6))
     assert jm.uniform == 6 and jm.total == 12
-    regs = np.zeros(2, dtype=layout.IO_BOARD)
+    regs = np.zeros(2, dtype=registers.IO_BOARD)
     flat = np.zeros(12, dtype=np.int32)
     regs["encoder"] = np.arange(16).reshape(2, 8)
     copy = ArmCopy(jm, flat, regs["encoder"])
@@ -47,7 +47,7 @@ def test_a_uniform_cell_copies_in_one_piece() -> None:
 def test_mixed_arms_copy_channel_j_to_joint_j(counts: tuple[int, ...]) -> None:
     """Each arm's joint j is its board's channel j; the channels past its joints stay put."""
     jm = JointMap(tuple(f"r{k}" for k in range(len(counts))), counts)
-    dacs = np.zeros(len(counts), dtype=layout.DAC_BOARD)
+    dacs = np.zeros(len(counts), dtype=registers.DAC_BOARD)
     codes = dacs["code"]
     codes[...] = 7  # unused channels keep this
     flat = np.arange(1.0, jm.total + 1.0)
@@ -56,9 +56,9 @@ def test_mixed_arms_copy_channel_j_to_joint_j(counts: tuple[int, ...]) -> None:
     for k, n in enumerate(counts):
         assert codes[k, :n].tolist() == flat[jm.span(k)].tolist()
         assert (codes[k, n:] == 7).all()
-    copy.fill_arms(layout.DAC_ZERO)
+    copy.fill_arms(registers.DAC_ZERO)
     for k, n in enumerate(counts):
-        assert (codes[k, :n] == layout.DAC_ZERO).all() and (codes[k, n:] == 7).all()
+        assert (codes[k, :n] == registers.DAC_ZERO).all() and (codes[k, n:] == 7).all()
     back = np.zeros(jm.total)
     codes[...] = np.arange(8)
     ArmCopy(jm, back, codes).to_flat()

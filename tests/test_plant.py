@@ -13,7 +13,9 @@ import pytest
 
 from kali_daemons.core import layout
 from kali_daemons.core.arena import Arena
-from kali_daemons.core.layout import (
+from kali_daemons.hardware.mcgill import PotReader, registers
+from kali_daemons.hardware.mcgill.boards import retrigger_bit, retrigger_hold_ticks
+from kali_daemons.hardware.mcgill.registers import (
     ADC_DONE,
     ADC_START,
     CSR_ENABLE,
@@ -27,7 +29,6 @@ from kali_daemons.core.layout import (
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
-from kali_daemons.hardware.mcgill import PotReader, retrigger_bit
 from kali_daemons.plant.board import (
     BOARD_STATE,
     EncoderBank,
@@ -40,11 +41,10 @@ from kali_daemons.plant.motor import Drive, MotorBank, drive_reference
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.robots import puma560
 from kali_daemons.robots.model import build_world
-from kali_daemons.runtime.config import retrigger_hold_ticks
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.wallclock import step_kali_clock, stop_kali_clock
 
-from .conftest import make_config
+from .conftest import boards_of, make_config
 from .test_launcher import kalictl
 
 CFG = make_config("plant")
@@ -201,7 +201,7 @@ def test_dac_drives_the_joint_with_the_right_sign(plant: PlantSim) -> None:
     run_ms(plant, 60)
     j = 0  # waist: no gravity, so the sign of the motion is the sign of the torque
     q0 = plant.q[j]
-    plant.dac[0]["code"][j] = layout.DAC_ZERO + 400  # +1.95 V → +4.9 A
+    plant.dac[0]["code"][j] = registers.DAC_ZERO + 400  # +1.95 V → +4.9 A
     run_ms(plant, 100)
     expected = math.copysign(1.0, puma560.G[j])  # joint torque = G·Kt·i
     assert (plant.q[j] - q0) * expected > 0.01
@@ -217,7 +217,7 @@ def test_dac_codes_beyond_12_bits_are_clamped_and_counted(plant: PlantSim) -> No
 
 def test_current_loop_is_first_order_at_500_hz(plant: PlantSim) -> None:
     enable(plant)  # brakes still hold for ~50 ms: the joints stay put while we watch
-    plant.dac[0]["code"][:N] = layout.DAC_ZERO + 82  # 0.4 V → 1 A, below every limit
+    plant.dac[0]["code"][:N] = registers.DAC_ZERO + 82  # 0.4 V → 1 A, below every limit
     plant.cycle()
     tau = 1.0 / (2 * math.pi * 500)
     expected = 2.5 * 82 * 10 / 2048 * (1.0 - math.exp(-0.001 / tau))  # one 1 ms cycle
@@ -273,7 +273,7 @@ def test_back_emf_limits_the_current_in_the_plant(plant: PlantSim) -> None:
 
 
 def _board(arena: Arena, phase: float = 0.3) -> tuple[IoBoardSim, EncoderBank, np.ndarray]:
-    rack = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, 1)
+    rack = arena.record(registers.KEY_BOARDS, registers.IO_BOARD, 1)
     regs = rack[0:1].reshape(())
     board = IoBoardSim(regs, CFG.plant, puma560.ROBOT)
     return board, EncoderBank(rack, [puma560.ROBOT], np.full(N, phase), np.zeros(N)), regs
@@ -384,7 +384,7 @@ def test_a_puma_and_a_panda_keep_their_joints_on_their_own_channels(arena: Arena
     np.testing.assert_array_equal(truth["q"], np.concatenate([t.q_home for t in types]))
     at_zero = truth["motor_angle"].copy()  # where each counter was powered on
     # every DAC channel of both boards gets a code; only the arms' joints' channels are read
-    codes = layout.DAC_ZERO + 100 * np.arange(1, layout.DAC_CHANNELS + 1)
+    codes = registers.DAC_ZERO + 100 * np.arange(1, registers.DAC_CHANNELS + 1)
     for k, count in enumerate(joints.counts):
         sim.dac[k]["code"] = codes
         sim.dac[k]["code"][count:] = 5000  # beyond 12 bits, but on no joint: never clamped
@@ -412,10 +412,10 @@ def test_a_puma_and_a_panda_keep_their_joints_on_their_own_channels(arena: Arena
         assert list(board["encoder"][:n]) == list(want.astype(int)), robot.name
         assert not board["encoder"][n:].any(), f"{robot.name}: channels {n}.. stay 0"
         assert int(board["index"]) == 0
-        np.testing.assert_allclose(sim.volts[span], (codes[:n] - layout.DAC_ZERO) * 10 / 2048)
+        np.testing.assert_allclose(sim.volts[span], (codes[:n] - registers.DAC_ZERO) * 10 / 2048)
         assert int(sim.dac[k]["clamped"]) == 0
         # the pots: channel j is joint j of this arm; past the arm's joints, unconnected
-        for ch in range(layout.BOARD_CHANNELS):
+        for ch in range(registers.BOARD_CHANNELS):
             got = _convert(sim.boards[k], board, q, ch)
             pot = adc_code(pot_volts(float(q[ch]), t.q_min[ch], t.q_max[ch])) if ch < n else 0
             assert got == pot, f"{robot.name} channel {ch}"
@@ -470,7 +470,7 @@ def test_kalictl_estop_presses_the_button_and_halts(kali: Callable[..., str]) ->
     r = kalictl("-i", name, "estop", "left")
     assert r.returncode == 0 and "e-stop pressed: left" in r.stdout
     with Instance.attach(name) as inst:
-        board = inst.boards()[inst.robot_index("left")]
+        board = boards_of(inst)[inst.robot_index("left")]
         assert int(board["estop"]) == 1
         assert "ESTOP in kalictl" in inst.fault_text()
         inst.clear_fault()
@@ -516,7 +516,7 @@ def test_two_arms_grasp_the_bar_and_carry_real_internal_forces(plant: PlantSim) 
     run_ms(plant, 60)
     pushes = {}
     for sign in (+1, -1):
-        plant.dac[0]["code"][1] = layout.DAC_ZERO + sign * 300
+        plant.dac[0]["code"][1] = registers.DAC_ZERO + sign * 300
         run_ms(plant, 100)
         pushes[sign] = float(plant.world_truth["internal_force"])
         for k, t in enumerate(plant.truth):
@@ -638,7 +638,7 @@ def test_the_compiled_encoders_equal_the_reference(cell: str) -> None:
     rng = np.random.default_rng(26)
     phases = rng.uniform(0.0, 2 * math.pi, n)
     start = rng.uniform(-20.0, 20.0, n)
-    regs = [np.zeros(joints.n_robots, dtype=layout.IO_BOARD) for _ in range(2)]
+    regs = [np.zeros(joints.n_robots, dtype=registers.IO_BOARD) for _ in range(2)]
     angles = [start.copy(), start.copy()]
     banks = [EncoderBank(r, types, phases, a, joints) for r, a in zip(regs, angles, strict=True)]
     kernel = banks[1].compiled(angles[1])
@@ -676,7 +676,7 @@ def test_the_compiled_boards_equal_the_reference(cell: str) -> None:
     joints, types = cfg.joints, [r.type for r in cfg.robots]
     n, arms = joints.total, joints.n_robots
     rng = np.random.default_rng(27)
-    regs = [np.zeros(arms, dtype=layout.IO_BOARD) for _ in range(2)]
+    regs = [np.zeros(arms, dtype=registers.IO_BOARD) for _ in range(2)]
     truth = [np.zeros(arms, dtype=layout.ARM_TRUTH) for _ in range(2)]
     states = [np.zeros((arms, BOARD_STATE), np.int64) for _ in range(2)]
     boards = [

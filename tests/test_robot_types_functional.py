@@ -25,14 +25,15 @@ import numpy as np
 import pytest
 
 from kali_daemons.core.errors import KaliError
-from kali_daemons.core.layout import CSR_NO_DISABLE, CalibState, FaultCode, PowerState
+from kali_daemons.core.layout import CalibState, FaultCode, PowerState
 from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.hardware.mcgill.registers import CSR_NO_DISABLE
 from kali_daemons.robots import RobotType, known_types
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo.client import ServoClient
 from kali_daemons.wallclock import step_kali_clock
 
-from .conftest import ByArm, wait_for
+from .conftest import ByArm, boards_of, wait_for
 from .test_servo_level import switch_jumps
 
 TYPES = ("puma560", "ur5", "panda")
@@ -267,7 +268,7 @@ def test_kill_9_of_each_process_halts_or_degrades_with_the_arms_cut(
             assert info.code == FaultCode.PROCESS_DIED.name, f"{model}, {victim}: {info}"
             assert f"process '{victim}' (pid" in info.message and "died" in info.message
             if victim != "plant":  # the plant's death takes the boards' answers with it
-                assert not (inst.boards()["csr"] & CSR_NO_DISABLE).any(), "amplifiers cut"
+                assert not (boards_of(inst)["csr"] & CSR_NO_DISABLE).any(), "amplifiers cut"
 
 
 @contextmanager

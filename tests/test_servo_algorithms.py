@@ -20,8 +20,8 @@ import pytest
 
 from kali_daemons.core.arena import Arena
 from kali_daemons.core.errors import ConfigError
-from kali_daemons.core.layout import CSR_ENABLE, CSR_INDEX_OFF, CSR_NO_DISABLE
-from kali_daemons.hardware import JointDriver
+from kali_daemons.hardware.mcgill import JointDriver
+from kali_daemons.hardware.mcgill.registers import CSR_ENABLE, CSR_INDEX_OFF, CSR_NO_DISABLE
 from kali_daemons.plant.sim import PlantSim
 from kali_daemons.robots import puma560
 from kali_daemons.servo import (

@@ -20,20 +20,19 @@ import numpy as np
 import pytest
 
 from kali_daemons.core import layout
-from kali_daemons.core.layout import (
+from kali_daemons.core.layout import CalibState, FaultCode, PowerState
+from kali_daemons.hardware.mcgill import registers
+from kali_daemons.hardware.mcgill.registers import (
     CSR_NO_DISABLE,
     POWER_AMPS_ON,
     POWER_WATCHDOG_TRIPPED,
-    CalibState,
-    FaultCode,
-    PowerState,
 )
 from kali_daemons.robots import puma560
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo.client import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
-from .conftest import ROOT, ByArm, wait_for
+from .conftest import ROOT, ByArm, boards_of, wait_for
 from .test_launcher import kalictl
 
 COUNT = 2 * math.pi / (puma560.COUNTS_PER_MOTOR_REV * np.abs(puma560.G))  # rad per count
@@ -201,7 +200,7 @@ def test_runaway_halts_naming_robot_joint_value_and_limit(kali: Callable[..., st
         code, process, text = fault(inst)
         assert code == FaultCode.RUNAWAY and process == "sio"
         assert "robot 'right' joint 3: tracking error" in text and "beyond safe 0.0100 rad" in text
-        assert not int(inst.boards()["csr"][1]) & CSR_NO_DISABLE  # amplifiers commanded off
+        assert not int(boards_of(inst)["csr"][1]) & CSR_NO_DISABLE  # amplifiers commanded off
         # reset + enable: the arm holds again
         inst.clear_fault()
         client.set_safe("right", 3, 0.15)
@@ -237,7 +236,7 @@ def test_amplifiers_going_off_while_servoing_halt_naming_the_boards_bits(
         client = ServoClient(inst)
         try:
             power_all(inst, client, 100)
-            boards = inst.boards()
+            boards = boards_of(inst)
             boards[1]["estop"] = 1
             step_kali_clock(inst, 5)
             code, process, text = fault(inst)
@@ -258,9 +257,9 @@ def test_amplifiers_going_off_while_servoing_halt_naming_the_boards_bits(
 
 
 def test_power_text_names_every_bit() -> None:
-    assert layout.power_text(0) == "0x00 (amplifiers off)"
-    assert layout.power_text(0x16) == "0x16 (brakes released, watchdog tripped, buzzer)"
-    assert layout.power_text(0x1F) == (
+    assert registers.power_text(0) == "0x00 (amplifiers off)"
+    assert registers.power_text(0x16) == "0x16 (brakes released, watchdog tripped, buzzer)"
+    assert registers.power_text(0x1F) == (
         "0x1f (amplifiers on, brakes released, watchdog tripped, e-stop pressed, buzzer)"
     )
 
@@ -287,7 +286,7 @@ def test_a_dead_sv_halts_naming_it(kali: Callable[..., str]) -> None:
         step_kali_clock(inst, 5)
         code, process, text = fault(inst)
         assert code == FaultCode.PROCESS_DIED and process == "sv.1", text
-        assert not (inst.boards()["csr"] & CSR_NO_DISABLE).any()  # amplifiers commanded off
+        assert not (boards_of(inst)["csr"] & CSR_NO_DISABLE).any()  # amplifiers commanded off
 
 
 def test_a_feed_post_left_from_a_missed_tick_does_not_idle_an_sv(
@@ -546,7 +545,7 @@ def test_a_dead_sio_halts_and_the_watchdog_trips(kali: Callable[..., str]) -> No
             time.sleep(0.3)
             code, process, text = fault(inst)
             assert code == FaultCode.PROCESS_DIED and process == "sio", text
-            power = inst.boards()["power"]
+            power = boards_of(inst)["power"]
             assert not (power & POWER_AMPS_ON).any()
             assert (power & POWER_WATCHDOG_TRIPPED).all()  # nobody retriggers it any more
             truth = inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)

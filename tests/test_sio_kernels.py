@@ -21,6 +21,7 @@ from kali_daemons.core.channels import ChannelError, InterpolatingFifo
 from kali_daemons.core.errors import DaemonError
 from kali_daemons.core.kernels import Kernel, copies
 from kali_daemons.core.layout import FfState
+from kali_daemons.hardware.mcgill import registers
 from kali_daemons.sio.feedforward import RobotFeedforward
 from kali_daemons.tools import launcher
 
@@ -32,7 +33,7 @@ ODD_SAFE = (math.nan, -0.1, 0.0, 4.0, math.inf)  # limits a client may write: no
 
 def arms(draw: st.DrawFn) -> tuple[int, ...]:
     """Joint counts of 1..4 arms, 1..8 joints each (one McGill board per arm)."""
-    return tuple(draw(st.lists(st.integers(1, layout.BOARD_CHANNELS), min_size=1, max_size=4)))
+    return tuple(draw(st.lists(st.integers(1, registers.BOARD_CHANNELS), min_size=1, max_size=4)))
 
 
 def floats(draw: st.DrawFn, n: int, lo: float, hi: float) -> np.ndarray:
@@ -79,7 +80,7 @@ def encoder_case(draw: st.DrawFn) -> dict[str, object]:
 def test_read_equals_the_reference_with_wrap_and_32_bit_accumulation(c: dict) -> None:
     counts, n = c["counts"], len(c["acc"])
     robot_of, joint_of = flat_map(counts)
-    boards = np.zeros(len(counts), layout.IO_BOARD)  # the register record, strided fields
+    boards = np.zeros(len(counts), registers.IO_BOARD)  # the register record, strided fields
     boards["encoder"][robot_of, joint_of] = c["words"]
     acc, prev, q = c["acc"].copy(), c["prev"].copy(), np.zeros(n)
     enc = boards["encoder"]
@@ -273,7 +274,7 @@ def test_torques_dac_and_current_check_equal_the_reference(c: dict) -> None:
     counts = c["counts"]
     n = len(c["fed"])
     robot_of, joint_of = flat_map(counts)
-    dacs = np.zeros(len(counts), layout.DAC_BOARD)
+    dacs = np.zeros(len(counts), registers.DAC_BOARD)
     codes = dacs["code"]
     slot = np.zeros(n, layout.SERVO_SLOT)
     slot["torque"] = c["slot_torque"]
@@ -301,7 +302,7 @@ def test_torques_dac_and_current_check_equal_the_reference(c: dict) -> None:
         clamped=clamped,
         dacs=codes.ctypes.data,
         dac_off=kernels.channel_offsets(codes, robot_of, joint_of),
-        zero=float(layout.DAC_ZERO),
+        zero=float(registers.DAC_ZERO),
         top=4095.0,
     )()
     first = Kernel(
@@ -318,7 +319,7 @@ def test_torques_dac_and_current_check_equal_the_reference(c: dict) -> None:
     kernels.torques_reference(c["slot_torque"], fed, r_servo, r_ff, r_torque)
     r_codes = kernels.dac_reference(
         r_torque, c["gkt"], c["limit"], c["codes_per_amp"], r_current, r_clamped,
-        float(layout.DAC_ZERO), 4095.0,
+        float(registers.DAC_ZERO), 4095.0,
     )  # fmt: skip
     r_first = kernels.current_check_reference(r_torque, fed, r_clamped, r_over, c["ticks"])
     for a, b in ((servo, r_servo), (ff, r_ff), (torque, r_torque), (current, r_current)):

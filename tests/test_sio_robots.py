@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 
 from kali_daemons.core.errors import ChannelError
-from kali_daemons.core.layout import POWER_AMPS_ON as AMPS_ON
 from kali_daemons.core.layout import CalibState, GuardState, PowerCmd, PowerState
+from kali_daemons.hardware.mcgill.registers import POWER_AMPS_ON as AMPS_ON
 from kali_daemons.servo.level import ServoLevel
 from kali_daemons.sio.daemon import ServoIO
 
-from .conftest import HostedCell
+from .conftest import HostedCell, boards_of
 
 CASES = 400
 
@@ -81,7 +81,7 @@ def pick(rng: np.random.Generator, common: object, others: list[object], p: floa
 def random_case(h: Hosted, rng: np.random.Generator) -> bool:
     """Write a random state into the hosted SIO's records and FIFOs; the tick's ``faulted``."""
     sio, rs = h.sio, h.sio.level.robots
-    boards = h.inst.boards()
+    boards = boards_of(h.inst)
     for k in range(sio.level.n_robots):
         rs["pots_read"][k] = pick(rng, 1, [0])
         rs["power"][k] = pick(rng, PowerState.ON, [PowerState.OFF, PowerState.ENABLING])
@@ -132,7 +132,7 @@ def test_the_robots_kernel_equals_robot_on_what_it_takes(hosted: Hosted) -> None
 def test_a_robot_in_the_common_case_is_taken_and_any_other_is_left(hosted: Hosted) -> None:
     """Each condition of the common case, alone broken, leaves the robot to ``_robot``."""
     sio, rs = hosted.sio, hosted.sio.level.robots
-    boards = hosted.inst.boards()
+    boards = boards_of(hosted.inst)
 
     def common() -> None:
         for k in range(sio.level.n_robots):

@@ -17,6 +17,7 @@ from kali_daemons.client import Kali, MotionFailedError, pose
 from kali_daemons.core import layout
 from kali_daemons.core.errors import ServoError
 from kali_daemons.core.layout import CalibState, MotionKind, PowerState, RequestState
+from kali_daemons.hardware.mcgill import registers
 from kali_daemons.robots import puma560
 from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
@@ -26,6 +27,8 @@ from kali_daemons.tg.planner import LEAD, Motion, Planner
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tg.records import StatusRecords
 from kali_daemons.wallclock import step_kali_clock
+
+from .conftest import boards_of
 
 SQUARE_TOL_M = 0.002  # the measured tool path stays this close to the commanded lines
 LEFT = slice(0, puma560.ROBOT.n_joints)  # the default cell's left PUMA: the first flat joints
@@ -308,6 +311,6 @@ def test_no_joint_solution_at_run_time_stops_the_motion_and_halts(
         assert text is not None and "SINGULARITY" in text, text
         assert "motion system 'left', request 77: no joint solution at segment 1 of 1" in text
         assert "out of reach" in text
-        csr = k.inst.boards()["csr"]
-        assert not (csr & layout.CSR_NO_DISABLE).any()  # every amplifier cut by the halt
+        csr = boards_of(k.inst)["csr"]
+        assert not (csr & registers.CSR_NO_DISABLE).any()  # every amplifier cut by the halt
         del csr

@@ -15,6 +15,7 @@ from kali_daemons.core.errors import ServoError
 from kali_daemons.core.kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED
 from kali_daemons.core.layout import FaultCode
 from kali_daemons.hardware.ftsensor import FT_RAIL, FT_REQUEST, FT_SEQ_MASK, MINI45
+from kali_daemons.hardware.mcgill import registers
 from kali_daemons.plant.board import FtBank
 from kali_daemons.runtime.config import parse_config
 from kali_daemons.sio.wrench import ArmSensor, convert_reference
@@ -147,7 +148,7 @@ def test_the_compiled_conversion_equals_its_numpy_reference() -> None:
     rng = np.random.default_rng(7)
     twins = []
     for _ in range(2):
-        regs = np.zeros((), layout.IO_BOARD)
+        regs = np.zeros((), registers.IO_BOARD)
         state = np.zeros((), layout.FT_STATE)
         q = np.zeros(cfg.robots[0].n_joints)
         twins.append((ArmSensor(cfg, 0, regs, state, q, 0.001), regs, state, q))
@@ -191,7 +192,7 @@ def test_the_sheet_s_error_grows_as_the_plant_s_offsets_drift() -> None:
     dt, cycles, n = 0.001, 1000, 300
     change = np.empty((n, layout.WRENCH))
     for i in range(n):
-        bank = FtBank(np.zeros((), layout.IO_BOARD), MINI45, seed=i, dt_s=dt)
+        bank = FtBank(np.zeros((), registers.IO_BOARD), MINI45, seed=i, dt_s=dt)
         start = bank.offset.copy()
         for _ in range(cycles):
             bank.cycle(np.zeros(layout.WRENCH))
@@ -209,7 +210,7 @@ def test_the_compiled_gauge_bank_equals_the_reference() -> None:
     request bit low) the codes, clipped at the rails for wrenches past the range, and the
     status; over enough cycles that the kernel's block of draws is refilled many times, with
     six draws left over and with none."""
-    regs = [np.zeros((), layout.IO_BOARD) for _ in range(2)]
+    regs = [np.zeros((), registers.IO_BOARD) for _ in range(2)]
     banks = [FtBank(r, MINI45, seed=24, dt_s=0.001) for r in regs]
     wrench = [np.zeros(layout.WRENCH) for _ in range(2)]
     step = banks[1].compiled(wrench[1])

@@ -11,27 +11,10 @@
         both = kali.motion_system(["left", "right"])               # grasps: as they hold now
         both.move_path([p1, p2, p3], speed=0.05, transition_s=0.3)
 
-Poses are 4×4 homogeneous transforms in the world frame, metres; ``pose(xyz, rot)`` builds
-one.  A robot's T6 (``read_t6``) is its flange in its own base frame (thesis 3.3.1); its
-*pose* (``read_pose``) is its tool in the world, B · T6 · Tool, with B from the config
-(``base_xyz``, ``base_yaw_deg``) and Tool set by ``set_tool`` (identity by default).
-
-Requests go through the TG's Type 1 queue; each request's fate comes back in its status
-record.  Everything is validated here before it is queued (the TG validates again): a bad
-request raises ``MotionError`` (``ServoError`` for a robot name, power or calibration) naming
-the argument, and nothing moves; no other exception comes out of a bad argument.  A Cartesian
-path whose arms are idle is checked whole here, with the TG's own check (``tg.cartesian``),
-so the reason comes back at once.  A halt wakes every waiting program with the fault
-(``MotionFailedError``).
-
-Every request's outcome stays readable until this program has read it (or dropped its
-handle, or exited): the TG reuses a status record only then, and takes no request it could not
-answer for, so a flood of requests meets ``QueueFullError`` instead of losing outcomes.  A
-handle whose record was reused anyway (by a writer outside the protocol) reads LOST and its
-``wait`` raises ``RequestLostError``.  A halt reads HALTED at once on every request not over,
-with the fault: nothing waits for the TG to tick again.  An arm belongs to the first program
-that moves it until that program exits; another program's requests for it are refused naming
-the owner (``force=True``, as ``kalictl move --force``, takes it over).
+Poses are 4×4 transforms in the world frame, metres.  Everything is validated before it is
+queued (``MotionError`` naming the argument; nothing moves), a halt wakes every waiting
+program with the fault (``MotionFailedError``), and an arm belongs to the first program that
+moves it.  The request protocol: docs/internals/motion-client-bridge.md.
 
 Long on purpose: ``Kali``, ``Robot``, ``MotionSystem`` and ``MotionHandle`` share one request
 protocol over one instance; what the other client modules share with them is in ``common``.
@@ -51,7 +34,6 @@ from typing import Any, cast
 
 import numpy as np
 
-from .. import hardware
 from ..core import layout
 from ..core.channels import RequestQueue
 from ..core.errors import KaliError, KinematicsError, QueueFullError, ServoError
@@ -359,10 +341,11 @@ class Robot:
             self.kali.pause()
 
     def grip(self, close: bool = True) -> None:
-        """Close (or open) the gripper: its output bit on the robot's I/O board.  The plant
-        welds a closing gripper to the object if the flange is within reach of its grasp."""
+        """Close (or open) the gripper (through the robot's hardware: on the McGill board, its
+        output line).  The plant welds a closing gripper to the object if the flange is within
+        reach of its grasp."""
         close = _flag_arg(f"grip: robot '{self.name}'", "close", close)
-        hardware.grip(self.kali.inst.boards(), self.index, close)
+        self.kali.inst.hardware(self.index).grip(self.index, close)
 
     def read_wrench(self, frame: str = "world") -> np.ndarray:
         """The arm's wrist force/torque sensor in Newtons (SIO's, this tick), a copy
@@ -1092,9 +1075,9 @@ class Kali:
         return MotionSystem(self, robots, list(grasps))
 
     def run_conveyor(self, run: bool = True) -> None:
-        """Start (or stop) the cell's conveyor belt: its motor line on the first arm's I/O
-        board (the simulated cell's ``plant.conveyor_m_s``)."""
-        hardware.run_conveyor(self.inst.boards(), _flag_arg("run_conveyor", "run", run))
+        """Start (or stop) the cell's conveyor belt (the simulated cell's
+        ``plant.conveyor_m_s``): its motor line on the first arm's hardware."""
+        self.inst.hardware(0).run_conveyor(_flag_arg("run_conveyor", "run", run))
 
     def together(self, *moves: Callable[[], object]) -> Together:
         """Motion requests that start together, on one TG tick (thesis 3.1): a block,

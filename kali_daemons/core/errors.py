@@ -61,6 +61,12 @@ class DaemonError(KaliError):
     subsystem = "daemon"
 
 
+class HardwareError(KaliError):
+    """The hardware behind an arm: not answering, or refusing what it was asked."""
+
+    subsystem = "hardware"
+
+
 class InstanceError(KaliError):
     """Starting, stopping or finding a Kali instance."""
 

@@ -6,8 +6,8 @@ the flight recorder.  Robot ``k``'s joint ``j`` (0-based) is flat index ``base[k
 of two PUMAs, a UR5 and a Panda has 6 + 6 + 6 + 7 = 25 joints and no gaps. Joint numbers shown to
 people are 1-based (``label``), as the thesis numbers the PUMA's.
 
-The hardware keeps its own shape: one McGill board of ``layout.BOARD_CHANNELS`` counter and
-DAC channels per arm, joint ``j`` on channel ``j``.  ``ArmCopy`` moves values between a flat
+The hardware keeps its own shape: per arm, ``layout.MAX_JOINTS`` channels at most (a McGill
+board's counters and DACs), joint ``j`` on channel ``j``.  ``ArmCopy`` moves values between a flat
 array and such a per-arm view, planned once so the cycle does not allocate.
 """
 

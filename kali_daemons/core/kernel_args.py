@@ -474,7 +474,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "McgillArgs",
         "sio",
-        {"kali_mcgill_control": "hardware.mcgill:McGillBoards.control"},
+        {"kali_mcgill_control": "hardware.mcgill.boards:McGillBoards.control"},
         ("n_arms", "int64_t"),
         ("csr, power_reg", "View", "uint8, per arm: the registers"),
         ("power, enable_ticks", "View", "per robot: uint8 PowerState, int32"),

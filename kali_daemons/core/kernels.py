@@ -50,7 +50,7 @@ NO_FAULT = -1
 View = kernel_args.View
 Copy = kernel_args.Copy
 Field = kernel_args.Field  # one field of a struct, as ``kali_layout`` and ``kali_fields`` list it
-McgillArgs = kernel_args.STRUCTS["McgillArgs"]  # its binder keeps the block (boards.mcgill)
+McgillArgs = kernel_args.STRUCTS["McgillArgs"]  # its binder keeps the block (hardware.mcgill)
 _KERNELS = kernel_args.KERNELS
 
 

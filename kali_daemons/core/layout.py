@@ -21,7 +21,7 @@ import enum
 import hashlib
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -380,98 +380,20 @@ FLAG = np.dtype([("word", "<u4")])  # Type 3 test-and-set flag: 0 clear, else th
 
 
 # --------------------------------------------------------------------------------------------
-# Hardware registers: the only interface between Kali and the plant (DESIGN 6, thesis 3.7,
-# appendix C.5).  A real board could replace the plant by implementing these records.
-
-# Each is an array with one record per robot, in the config's order: the rack of boards, so
-# the plant and SIO touch every arm's registers with one array operation.
-KEY_BOARDS = "boards"  # McGill I/O boards, IO_BOARD per robot
-KEY_DACS = "dacs"  # DAC boards, DAC_BOARD per robot
+# The simulated plant's truth and the operator's pushes (DESIGN 6): never read by the
+# controller.  The hardware's own registers are its kind's records (``hardware/<kind>``),
+# laid out with these through ``Cell.hardware``.
 KEY_TRUTHS = "truths"  # plant-only truth, ARM_TRUTH per robot (never read by the controller)
 KEY_JOINT_TRUTHS = "truths.joints"  # plant-only truth, JOINT_TRUTH per joint of the cell
 KEY_WORLD_TRUTH = "truth.world"
 KEY_PUSHES = "plant.pushes"  # PUSH per robot: external pushes the operator asks the plant for
 
-# Command/status register bits (appendix C.5.1).  Note the inverted senses of the thesis.
-CSR_RED_LED_OFF = 1 << 0  # 0 = red LED on, 1 = off
-CSR_GREEN_LED_ON = 1 << 1  # 1 = green LED on
-CSR_INTERRUPT = 1 << 2  # read only, reserved
-CSR_ENABLE = 1 << 3  # hold high ~15 ms, then low: enables the robot (power switch relay)
-CSR_INDEX_OFF = 1 << 4  # 0 = index pulse capture enabled, 1 = disabled (and cleared)
-CSR_RETRIGGER = 1 << 5  # high then low retriggers the watchdog
-CSR_TIMEOUT_ON = 1 << 6  # 1 = safety timeout (watchdog) on
-CSR_NO_DISABLE = 1 << 7  # 0 = robot disabled, overriding enables; 1 = allows enables
-
-# Power status: the Robot Power Switch circuit's state as the board reports it (an addition:
-# the original CSR did not expose it; a real board would latch it in a spare register).
-POWER_AMPS_ON = 1 << 0  # amplifiers enabled
-POWER_BRAKES_RELEASED = 1 << 1  # brake solenoids released (0: brakes holding)
-POWER_WATCHDOG_TRIPPED = 1 << 2  # the watchdog timed out; cleared by a retrigger
-POWER_ESTOP = 1 << 3  # the emergency-stop input is pressed
-POWER_BUZZER = 1 << 4  # the timeout buzzer sounds
-_POWER_NAMES = (
-    (POWER_AMPS_ON, "amplifiers on"),
-    (POWER_BRAKES_RELEASED, "brakes released"),
-    (POWER_WATCHDOG_TRIPPED, "watchdog tripped"),
-    (POWER_ESTOP, "e-stop pressed"),
-    (POWER_BUZZER, "buzzer"),
-)
-
-
-def power_text(bits: int) -> str:
-    """The board power register as a fault message gives it: ``0x16 (brakes released,
-    watchdog tripped, buzzer)``; never in a cycle (it builds a string)."""
-    names = [name for bit, name in _POWER_NAMES if bits & bit] or ["amplifiers off"]
-    return f"0x{bits:02x} ({', '.join(names)})"
-
-
-# TLC532A analog register: bit 8 = conversion complete, low 8 bits = value (±1/2 LSB).
-ADC_START = 1 << 7  # control register: start a conversion of channel (bits 0-3)
-ADC_CHANNEL_MASK = 0x0F
-ADC_DONE = 1 << 8
-ADC_VALUE_MASK = 0xFF
-
-BOARD_CHANNELS = 8  # encoder/pot channels per board
-DAC_CHANNELS = 8
-DAC_BITS = 12
-DAC_ZERO = 1 << (DAC_BITS - 1)  # offset binary: 0 = -10 V, 2048 = 0 V, 4095 = +9.995 V
-# Joints an arm may have: one board's channels, joint j on channel j.  Per-arm records size
-# their joint arrays by it; per-joint records (JOINT_STATE, JOINT_TRUTH) hold the cell's
-# joints flat instead, arm k's joint j at joints.JointMap.base[k] + j.
-MAX_JOINTS = BOARD_CHANNELS
+# The joints one arm's records hold: every hardware kind carries at most these per arm
+# (``hardware.registry`` checks it).  Per-arm records size their joint arrays by it; per-joint
+# records (JOINT_STATE, JOINT_TRUTH) hold the cell's joints flat instead, arm k's joint j at
+# joints.JointMap.base[k] + j.
+MAX_JOINTS = 8
 WRENCH = 6  # a wrench's values: force x, y, z (N), then torque x, y, z (N·m); one gauge each
-
-IO_BOARD = np.dtype(
-    [
-        ("encoder", "<u2", (BOARD_CHANNELS,)),  # plant: HCTL-2000 counters, low 12 bits
-        ("index", "u1"),  # plant: index capture register, bit j = channel j captured
-        ("csr", "u1"),  # Kali: command/status register, CSR_* bits
-        ("power", "u1"),  # plant: POWER_* bits
-        ("estop", "u1"),  # operator: emergency-stop button (kalictl estop), 1 = pressed
-        ("adc_control", "<u2"),  # Kali: TLC532A control register
-        ("adc_digital", "<u2"),  # plant: TLC532A digital register, bit j = channel j > 2.5 V
-        ("adc_analog", "<u2"),  # plant: TLC532A analog register, ADC_DONE | value
-        ("gripper", "u1"),  # Kali: 1 = close the gripper (weld to the object if in reach)
-        ("present", "u1"),  # plant: 1 once the board answers (its registers are valid)
-        ("conveyor", "u1"),  # Kali: 1 = run the conveyor belt's motor (the first arm's board)
-        ("_pad", "u1"),
-        ("clamped", "<u4"),  # plant: out-of-range register values clamped, as hardware does
-        # the wrist F/T sensor's gauge ADC bank (ftsensor.py): one simultaneous sample of its
-        # six bridges per request, signed 16-bit codes over ±10 V
-        ("ft_gauge", "<i2", (WRENCH,)),  # plant: the codes of the sample ft_status names
-        ("ft_control", "<u2"),  # Kali: FT_REQUEST | seq asks for a new sample
-        ("ft_status", "<u2"),  # plant: FT_READY | FT_PRESENT | seq once that sample is in
-    ],
-    align=True,
-)
-
-DAC_BOARD = np.dtype(
-    [
-        ("code", "<u2", (DAC_CHANNELS,)),  # Kali: 12-bit offset-binary codes; more is clamped
-        ("clamped", "<u4"),  # plant: codes above 4095 clamped
-    ],
-    align=True,
-)
 
 ARM_TRUTH = np.dtype(
     [
@@ -986,6 +908,8 @@ CELL_ROBOT = np.dtype(
     [
         ("name", f"S{ROBOT_NAME_BYTES}"),
         ("model", f"S{TYPE_NAME_BYTES}"),  # its robot type's name
+        ("hardware", f"S{TYPE_NAME_BYTES}"),  # its hardware kind's name (hardware.registry)
+        ("hardware_version", "<u4"),  # that kind's records' digest (dtypes_digest)
         ("n_joints", "<u4"),
         ("first_joint", "<u4"),  # flat index of its joint 1 (joints.JointMap)
         ("rad_per_count", "<f8", (MAX_JOINTS,)),  # an encoder count at the joint, rad
@@ -1380,6 +1304,7 @@ FLIGHT = np.dtype(
 # sealed: a daemon attaches to what is here and cannot add a block), and the layout's version
 # as a digest of every dtype, so a changed record can never keep an old version number.
 
+HARDWARE_KEYS = "hw."  # every hardware kind's records are keyed hw.<kind>.<record>
 FIFO_CAPACITY = 256  # TG set-points a TG → SIO FIFO holds (2.56 s at 10 ms)
 
 
@@ -1395,6 +1320,7 @@ class Cell:
     config_dir_bytes: int  # its directory's
     arms: tuple[np.dtype, ...] = ()  # each robot-level servo's private data, registry order
     config_files_bytes: int = 0  # the path of the instance's copies of its user files
+    hardware: tuple[Record, ...] = ()  # the records of the cell's hardware kinds (HARDWARE_KEYS)
 
     @property
     def n_joints(self) -> int:
@@ -1434,9 +1360,7 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_CONFIG_DIR, *_u1(lambda c, i: c.config_dir_bytes + 1), "kalictl start", "all"),
     Record(KEY_CONFIG_FILES, *_u1(lambda c, i: c.config_files_bytes + 1), "kalictl start", "all"),
     Record(KEY_CELL, CELL, None, "kalictl start", "kalictl, introspection"),
-    # the hardware (the plant simulates it)
-    Record(KEY_BOARDS, IO_BOARD, lambda c, i: len(c.robots), "SIO and the plant", "SIO"),
-    Record(KEY_DACS, DAC_BOARD, lambda c, i: len(c.robots), "SIO", "the plant"),
+    # the simulated plant's truth
     Record(KEY_TRUTHS, ARM_TRUTH, lambda c, i: len(c.robots), "plant", "tests, viewer"),
     Record(KEY_JOINT_TRUTHS, JOINT_TRUTH, lambda c, i: c.n_joints, "plant", "tests"),
     Record(KEY_WORLD_TRUTH, WORLD_TRUTH, None, "plant", "viewer, tests"),
@@ -1545,10 +1469,10 @@ class Block:
 
 
 def blocks(cell: Cell) -> list[Block]:
-    """Every block of ``cell``'s arena, in ``RECORDS`` order: a ``{robot}`` key once per robot,
-    an ``{algo}`` key once per servo algorithm."""
+    """Every block of ``cell``'s arena, in ``RECORDS`` order then its hardware's: a
+    ``{robot}`` key once per robot, an ``{algo}`` key once per servo algorithm."""
     out: list[Block] = []
-    for rec in RECORDS:
+    for rec in (*RECORDS, *cell.hardware):
         at: list[tuple[str, int | None]]  # each block's key and index
         if "{robot}" in rec.key:
             at = [(rec.key.format(robot=name), k) for k, name in enumerate(cell.robots)]
@@ -1578,23 +1502,33 @@ _LAYOUT_KEYS = re.compile("|".join(f"(?:{_key_pattern(r.key)})" for r in RECORDS
 
 
 def is_layout_key(key: str) -> bool:
-    """Whether ``key`` names a record of ``RECORDS`` (for some robot, slot or algorithm): once
-    the arena is sealed no such block may be created; a program's own blocks may."""
-    return _LAYOUT_KEYS.fullmatch(key) is not None
+    """Whether ``key`` names a record of ``RECORDS`` (for some robot, slot or algorithm) or of
+    a hardware kind (``HARDWARE_KEYS``): once the arena is sealed no such block may be
+    created; a program's own blocks may."""
+    return key.startswith(HARDWARE_KEYS) or _LAYOUT_KEYS.fullmatch(key) is not None
+
+
+def dtypes_digest(shapes: Sequence[tuple[str, Any]]) -> int:
+    """32 bits of a BLAKE2b digest of named dtypes' shapes (names, types, shapes and offsets
+    of every field): a record's version, which no change to it can keep."""
+    text = repr(
+        [(name, d.descr if isinstance(d, np.dtype) and d.names else d) for name, d in shapes]
+    )
+    return int.from_bytes(hashlib.blake2b(text.encode(), digest_size=4).digest(), "little")
 
 
 def _digest() -> int:
-    """The layout's version: 32 bits of a BLAKE2b digest of every dtype this module declares
-    (names, types, shapes and offsets of every field, by the dtype's ``descr``)."""
-    shapes = [
-        (name, value.descr if value.names else value.str)
+    """The layout's version: ``dtypes_digest`` of every dtype this module declares (by the
+    dtype's ``descr``) and the constants that size the arena's header."""
+    shapes: list[tuple[str, Any]] = [
+        (name, value if value.names else value.str)
         for name, value in sorted(globals().items())
         if isinstance(value, np.dtype)
     ]
-    shapes.append(("flight_row", flight_row(1, 1).descr))
-    shapes.append(("queue_entry", queue_entry(MOTION_REQUEST).descr))
-    text = repr((shapes, ALIGN, MAX_BLOCKS, MAX_PROCESSES)).encode()
-    return int.from_bytes(hashlib.blake2b(text, digest_size=4).digest(), "little")
+    shapes.append(("flight_row", flight_row(1, 1)))
+    shapes.append(("queue_entry", queue_entry(MOTION_REQUEST)))
+    shapes.append(("sizes", (ALIGN, MAX_BLOCKS, MAX_PROCESSES)))
+    return dtypes_digest(shapes)
 
 
 LAYOUT_VERSION = _digest()

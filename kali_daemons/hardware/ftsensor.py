@@ -31,7 +31,7 @@ ADC_VOLTS: Final = 10.0  # ± full scale of the gauge ADC bank
 FT_RAIL: Final = (1 << (ADC_BITS - 1)) - 1  # 32767: a gauge here (or at -32768) is saturated
 VOLTS_PER_CODE: Final = ADC_VOLTS / (FT_RAIL + 1)
 
-# ft_control / ft_status bits (layout.IO_BOARD)
+# ft_control / ft_status bits (registers.IO_BOARD)
 FT_SEQ_MASK: Final = 0x7F
 FT_REQUEST: Final = 1 << 7  # control: sample the gauges (a new seq: a new sample)
 FT_READY: Final = 1 << 8  # status: the codes in ft_gauge are the sample of seq

@@ -1,6 +1,6 @@
 """The McGill robot I/O board of one arm, simulated behind its registers (thesis appendix C).
 
-What Kali sees is only the ``layout.IO_BOARD`` record; this module plays the hardware: the
+What Kali sees is only the ``registers.IO_BOARD`` record; this module plays the hardware: the
 power switch and brakes, the watchdog, the e-stop, the HCTL-2000 encoder counters with index
 capture, the TLC532A pot ADC and the wrist sensor's gauge bank (``FtBank``).  How each behaves
 at its registers: docs/internals/robots-hardware-plant.md; the controller's side of the same
@@ -19,10 +19,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..core import layout
 from ..core.joints import ArmCopy, JointMap
 from ..core.kernels import Kernel, channel_offsets
-from ..core.layout import (
+from ..hardware import ftsensor
+from ..hardware.mcgill import registers
+from ..hardware.mcgill.registers import (
     ADC_CHANNEL_MASK,
     ADC_DONE,
     ADC_START,
@@ -37,7 +38,6 @@ from ..core.layout import (
     POWER_ESTOP,
     POWER_WATCHDOG_TRIPPED,
 )
-from ..hardware import ftsensor
 from ..robots import RobotType
 from ..runtime.config import PlantConfig
 
@@ -181,7 +181,7 @@ class IoBoardSim:
                 code = 0  # unconnected inputs
             r["adc_analog"] = ADC_DONE | code
         elif not start and s[PREV_ADC]:
-            r["adc_analog"] = int(r["adc_analog"]) & layout.ADC_VALUE_MASK
+            r["adc_analog"] = int(r["adc_analog"]) & registers.ADC_VALUE_MASK
         s[PREV_ADC] = int(start)
         # digital register: the channels above 2.5 V, i.e. past the middle of their range
         np.greater(q, self.mid, out=self._above)
@@ -248,7 +248,7 @@ def boards_kernel(
         adc_start=ADC_START,
         channel_mask=ADC_CHANNEL_MASK,
         adc_done=ADC_DONE,
-        value_mask=layout.ADC_VALUE_MASK,
+        value_mask=registers.ADC_VALUE_MASK,
         channels=ADC_CHANNELS,
         self_test=ADC_SELF_TEST,
         pot_v_min=POT_V_MIN,

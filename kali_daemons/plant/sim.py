@@ -24,12 +24,13 @@ from ..core import layout
 from ..core.arena import Arena
 from ..core.joints import ArmCopy
 from ..core.kernels import Kernel, channel_offsets, copies
+from ..hardware.mcgill import registers
 from ..robots.model import World, build_world
 from ..runtime.config import KaliConfig
 from .board import BOARD_STATE, RETRIGGER_NS, EncoderBank, FtBank, IoBoardSim, boards_kernel
 from .motor import Drive, MotorBank
 
-DAC_MAX = (1 << layout.DAC_BITS) - 1
+DAC_MAX = (1 << registers.DAC_BITS) - 1
 GRASP_REACH_M = 0.03  # a closing gripper welds to the object only this close to its grasp site
 BELT_LIFT_M = 0.005  # the belt carries the bar only while it lies on it (not lifted by this)
 WELD_ROWS = 6  # a weld's constraint rows: force, then torque
@@ -81,9 +82,9 @@ class PlantSim:
         )
         self._drive = self.motors.compiled(self.volts, self.qd, self.current, drive)
         self._read_joints()
-        self.regs = arena.record(layout.KEY_BOARDS, layout.IO_BOARD, n_arms)
-        self.dac = arena.record(layout.KEY_DACS, layout.DAC_BOARD, n_arms)
-        self.dac["code"] = layout.DAC_ZERO
+        self.regs = arena.record(registers.KEY_BOARDS, registers.IO_BOARD, n_arms)
+        self.dac = arena.record(registers.KEY_DACS, registers.DAC_BOARD, n_arms)
+        self.dac["code"] = registers.DAC_ZERO
         self.truth = arena.record(layout.KEY_TRUTHS, layout.ARM_TRUTH, n_arms)
         self.joint_truth = arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, joints.total)
         self._board_state = np.zeros((n_arms, BOARD_STATE), np.int64)  # the boards' rows
@@ -231,8 +232,8 @@ class PlantSim:
             dacs=codes.ctypes.data,
             clamped=self.dac["clamped"],
             top=float(DAC_MAX),
-            zero=float(layout.DAC_ZERO),
-            scale=10.0 / layout.DAC_ZERO,
+            zero=float(registers.DAC_ZERO),
+            scale=10.0 / registers.DAC_ZERO,
             **{name: a.ctypes.data for name, a in arrays.items()},
         )
 
@@ -281,8 +282,8 @@ class PlantSim:
             for k in self.joints.robot_of[np.flatnonzero(out > DAC_MAX)]:
                 self.dac["clamped"][k] += 1
             np.minimum(out, DAC_MAX, out=out)
-        np.subtract(out, layout.DAC_ZERO, out=out)
-        np.multiply(out, 10.0 / layout.DAC_ZERO, out=out)
+        np.subtract(out, registers.DAC_ZERO, out=out)
+        np.multiply(out, 10.0 / registers.DAC_ZERO, out=out)
 
     def _apply_brakes(self) -> None:
         self.motors.joint_frictionloss(self.braked, self._frictionloss)

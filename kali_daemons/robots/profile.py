@@ -229,7 +229,9 @@ class RobotType:
 
         n = self.n_joints
         if not (isinstance(n, int) and 1 <= n <= MAX_JOINTS):
-            raise bad("n_joints", n, f"must be 1 .. {MAX_JOINTS} (one McGill board's channels)")
+            raise bad(
+                "n_joints", n, f"must be 1 .. {MAX_JOINTS} (the joints Kali's per-arm records hold)"
+            )
         per_joint = [(f.name, getattr(self, f.name)) for f in fields(self)]
         per_joint += [(f"drive.{f.name}", getattr(self.drive, f.name)) for f in fields(Drive)]
         for what, value in per_joint:

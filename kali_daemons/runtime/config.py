@@ -1,22 +1,13 @@
 """The Kali configuration: one versioned YAML file, parsed once into frozen, typed dataclasses.
 
-Every process reads the same config (its text is stored in the shared-memory arena), so it is
-validated completely up front: nothing starts on a bad config.  Every error names the field as
-a dotted path (``processes.sv.cpus[1]``), the value given and what is allowed, e.g.
-``config: config/default.yaml: clock.servo_period_ms = 3: must be a multiple of
-clock.base_tick_ms (2)``.
-
-Each field is declared once, on its section's pydantic dataclass, with its type, default,
-bounds, unit and description: the file is read from those declarations (``_read``), the JSON
-Schema is generated from them (``schema``, ``kalictl config schema``) and a config is written
-back with every default filled in (``show``, ``kalictl config show``).  The reading stays in
-small explicit helpers (``_int``, ``_float``, ``_mapping`` ...) rather than pydantic's own
-validation, so each message names the path, the value and the bound in Kali's words.
-
-Periods are in ms and may be fractional: the base tick is a whole number of microseconds
-(0.5 ms gives a 2 kHz servo) and every period a whole number of base ticks, compared in
-integer nanoseconds by ``period_ticks``.  A whole-ms value is kept as an ``int``, so an
-integer config reads exactly as it always did.
+Every process reads the same config (its text is in the arena), so it is validated completely
+up front: nothing starts on a bad config, and every error names the field as a dotted path,
+the value and what is allowed (``config: config/default.yaml: clock.servo_period_ms = 3: must
+be a multiple of clock.base_tick_ms (2)``).  Each field is declared once, on its section's
+pydantic dataclass (type, default, bounds, unit, description): the file is read from those
+declarations (``_read``, with Kali's own messages), the JSON Schema generated from them
+(``schema``) and a config written back with every default (``show``).  Periods are in ms, a
+whole number of base ticks, compared in integer nanoseconds (``period_ticks``).
 
 One module on purpose, however long: every field of the config declared once, beside the reading
 and the checks that use it (DESIGN 9).
@@ -49,6 +40,8 @@ from kali_daemons.core.pyfile import mirror
 from kali_daemons.hardware.ftsensor import SHEETS as FT_SHEETS
 from kali_daemons.hardware.ftsensor import FtSheet
 from kali_daemons.hardware.ftsensor import sheet as ft_sheet
+from kali_daemons.hardware.mcgill.boards import retrigger_hold_ticks
+from kali_daemons.hardware.registry import DEFAULT_KIND, hardware_kind
 from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
 from kali_daemons.servo.algorithms.algorithm import MAX_DATA_BYTES
 from kali_daemons.servo.algorithms.registry import Registry
@@ -95,6 +88,7 @@ _ROBOT_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,15}")
 # a bridge user's name: one chunk of the key expressions under its name (Zenoh reads a chunk
 # starting with @ verbatim, so none does)
 USER_RE = re.compile(r"[A-Za-z0-9_.-][A-Za-z0-9_.@-]{0,63}")
+_KIND_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
 _SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
 _PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
 MAX_PLUGINS = 16
@@ -356,6 +350,18 @@ class FtConfig:
 
 
 @dataclass(frozen=True, config=_FROZEN)
+class HardwareConfig:
+    """What stands behind a robot: a hardware kind (``kali_daemons.hardware``, DESIGN 6)."""
+
+    kind: str = _f(
+        DEFAULT_KIND,
+        "a hardware kind: mcgill (the McGill I/O board of thesis appendix C, simulated by the "
+        "plant)",
+        pattern=_KIND_RE.pattern,
+    )
+
+
+@dataclass(frozen=True, config=_FROZEN)
 class RobotConfig:
     """One arm in the cell: its model and where its base sits in the world frame."""
 
@@ -407,6 +413,7 @@ class RobotConfig:
         le=180,
     )
     ft: FtConfig = _f(FtConfig(), "its wrist force/torque sensor and tool")
+    hardware: HardwareConfig = _f(HardwareConfig(), "what stands behind it")
     robot_servos: bool = _f(
         False,
         "whether it may run robot-level servos: the SVs then hold its model (~20 MB more "
@@ -670,6 +677,11 @@ class KaliConfig:
         """Whether the cell's arms are a simulated plant's (which has a truth), not hardware."""
         return any(p.kind == "plant" for p in self.processes)
 
+    @property
+    def hardware_kinds(self) -> tuple[str, ...]:
+        """The hardware kinds behind the cell's arms, each once, in config order."""
+        return tuple(dict.fromkeys(r.hardware.kind for r in self.robots))
+
 
 # --------------------------------------------------------------------------------------------
 # Public entry points
@@ -789,6 +801,9 @@ def cell_of(
         config_bytes=len(cfg.text.encode()),
         config_dir_bytes=len(cfg.base_dir.encode()),
         config_files_bytes=len(cfg.files.encode()),
+        hardware=tuple(
+            dict.fromkeys(rec for kind in cfg.hardware_kinds for rec in hardware_kind(kind).records)
+        ),
     )
 
 
@@ -847,17 +862,6 @@ def ms_to_ns(ms: float) -> int:
 def ns_to_ms(ns: int) -> float:
     """``ns`` in ms: an int when whole, else the nearest float (``500_000`` -> ``0.5``)."""
     return ns // NS_PER_MS if ns % NS_PER_MS == 0 else ns / NS_PER_MS
-
-
-def retrigger_hold_ticks(servo_period_ms: float, plant_period_ms: float) -> int:
-    """How many servo ticks SIO holds the board's watchdog retrigger bit high, and then low
-    ("one must set high state then low state to perform a retrigger", thesis C.5): the
-    fewest that last two plant periods.  The simulated board reads its registers once a
-    plant period, so a level held one 1 ms servo tick can fall between two reads, and when
-    the plant reads as SIO writes, every falling edge can for 20 ms: a soak halted so, SIO
-    on time at every tick.  Held two reads long, each level is read at least once."""
-    servo_ns, plant_ns = ms_to_ns(servo_period_ms), ms_to_ns(plant_period_ms)
-    return max(1, -(-2 * plant_ns // servo_ns))
 
 
 def period_ticks(period_ms: float, base_tick_ms: float, *, round_up: bool = False) -> int:
@@ -1723,8 +1727,27 @@ def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
                 per_joint_only=True,
             )
         v["ft"] = _ft(entry.get("ft", {}), f"{path}.ft")
+        v["hardware"] = _hardware(entry.get("hardware", {}), f"{path}.hardware", v["model"], nj)
         robots.append(RobotConfig(**v))
     return tuple(robots)
+
+
+def _hardware(node: Any, path: str, model: str, n_joints: int) -> HardwareConfig:
+    """A robot's ``hardware`` section: a known kind that carries all of the arm's joints."""
+    v = _read(HardwareConfig, node, path)
+    try:
+        kind = hardware_kind(v["kind"])
+    except ConfigError as exc:
+        raise _InvalidError(
+            f"{path}.kind = {_show(v['kind'])}: {str(exc).removeprefix('config: ')}"
+        ) from None
+    if n_joints > kind.channels:
+        _fail(
+            f"{path}.kind",
+            v["kind"],
+            f"carries {kind.channels} joints per arm; a {model} has {n_joints}",
+        )
+    return HardwareConfig(**v)
 
 
 def _ft(node: Any, path: str) -> FtConfig:

@@ -22,13 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 import posix_ipc
 
-from .. import hardware
 from ..core import atomic, layout
 from ..core.arena import Arena, foreign_object, owner_text, segment_name, shm_path, user_text
-from ..core.errors import ClockError, InstanceError
+from ..core.errors import ClockError, ConfigError, InstanceError
 from ..core.joints import JointMap
 from ..core.layout import FaultCode, PowerCmd, ProcState, TgPhase
 from ..core.spinlock import SpinLock, holder_text
+from ..hardware import HardwareKind, Operations, hardware_kind
 from .config import KaliConfig, parse_config
 
 _WORD = 0xFFFFFFFF  # the fault word: the low half of the fault record's 64-bit state word
@@ -130,11 +130,13 @@ def decode(raw: bytes | np.bytes_ | np.ndarray) -> str:
 class Cell:
     """The cell as ``kalictl start`` wrote it into the arena (``layout.CELL``): what the
     safety path and the status tools need, without parsing the config or running user code.
-    Per robot in config order: name, robot type name, each joint's encoder resolution (rad a
-    count) and motor current limit (A)."""
+    Per robot in config order: name, robot type name, hardware kind, each joint's encoder
+    resolution (rad a count) and motor current limit (A)."""
 
     names: tuple[str, ...]
     models: tuple[str, ...]
+    hardware: tuple[str, ...]
+    hardware_versions: tuple[int, ...]
     joints: JointMap
     rad_per_count: tuple[np.ndarray, ...]
     max_current: tuple[np.ndarray, ...]
@@ -162,6 +164,8 @@ class Cell:
         return Cell(
             names=names,
             models=tuple(decode(r) for r in robots["model"]),
+            hardware=tuple(decode(r) for r in robots["hardware"]),
+            hardware_versions=tuple(int(v) for v in robots["hardware_version"]),
             joints=JointMap(names, counts),
             rad_per_count=tuple(r["rad_per_count"][:c] for r, c in per_joint),
             max_current=tuple(r["max_current"][:c] for r, c in per_joint),
@@ -182,7 +186,7 @@ class Instance:
         self._config: KaliConfig | None = None
         self._cell: Cell | None = None
         self._sems: dict[str, posix_ipc.Semaphore] = {}
-        self._boards: np.ndarray | None = None  # cached once the plant has made them
+        self._ops: dict[str, Operations] = {}  # each hardware kind's, once asked for
         clock_off = arena.lookup(layout.KEY_CLOCK)[0]  # type: ignore[index]
         fault_off = arena.lookup(layout.KEY_FAULT)[0]  # type: ignore[index]
         self.table_lock = SpinLock(
@@ -208,6 +212,7 @@ class Instance:
         for sem in self._sems.values():
             sem.close()
         self._sems.clear()
+        self._ops.clear()  # their record views pin the mapping
         self.arena.close()
 
     def __enter__(self) -> Instance:
@@ -267,9 +272,38 @@ class Instance:
             )
         return names.index(robot)
 
-    def boards(self) -> np.ndarray:
-        """The I/O board registers, one record per robot (created by the plant)."""
-        return self.arena.existing(layout.KEY_BOARDS, layout.IO_BOARD, self.cell.n_robots)
+    def hardware(self, k: int) -> Operations:
+        """The operations of the hardware behind robot ``k``, outside any cycle and without
+        a lock (``hardware.Operations``), from the arena alone."""
+        return self._operations(self.cell.hardware[k])
+
+    def all_hardware(self) -> list[Operations]:
+        """The operations of every hardware kind in the cell, each once."""
+        return [self._operations(name) for name in dict.fromkeys(self.cell.hardware)]
+
+    def hardware_kind(self, name: str) -> HardwareKind:
+        """The hardware kind ``name`` of this cell, checked against the version its records
+        were laid out with: InstanceError if this Kali has no such kind or another version of
+        its records (a process of another Kali must not misread a register)."""
+        try:
+            kind = hardware_kind(name)
+        except ConfigError as exc:  # an arena written by another Kali
+            raise InstanceError(f"instance '{self.name}': {exc}") from None
+        laid = {n: v for n, v in zip(self.cell.hardware, self.cell.hardware_versions, strict=True)}
+        if laid.get(name) != kind.version:
+            raise InstanceError(
+                f"instance '{self.name}': its {name} hardware records are version "
+                f"{laid.get(name)}, this Kali's {kind.version}; stop the instance with the Kali "
+                "that started it"
+            )
+        return kind
+
+    def _operations(self, name: str) -> Operations:
+        ops = self._ops.get(name)
+        if ops is None:
+            kind = self.hardware_kind(name)
+            ops = self._ops[name] = kind.operations(self.arena, self.cell.n_robots)
+        return ops
 
     def robot_states(self) -> np.ndarray:
         """SIO's record of each robot (``layout.ROBOT_STATE``), config order."""
@@ -299,10 +333,6 @@ class Instance:
         pushes["force"][k] = force
         pushes["duration_ns"][k] = round(seconds * 1e9)
         pushes["seq"][k] = int(pushes["seq"][k]) + 1  # last: the plant starts the push
-
-    def dacs(self) -> np.ndarray:
-        """The DAC board registers, one record per robot (created by the plant)."""
-        return self.arena.existing(layout.KEY_DACS, layout.DAC_BOARD, self.cell.n_robots)
 
     def semaphore(self, posix_name: str) -> posix_ipc.Semaphore:
         """Open (once) one of the instance's semaphores."""
@@ -465,21 +495,16 @@ class Instance:
         nothing pressed."""
         targets = [robot] if robot is not None else list(self.cell.names)
         indices = [self.robot_index(name) for name in targets]
-        records = self.boards()
         for k in indices:
-            hardware.press_estop(records, k, True)
-        del records
+            self.hardware(k).press_estop(k, True)
         self.raise_fault(FaultCode.ESTOP, process, f"emergency stop pressed: {', '.join(targets)}")
         return targets
 
     def power_off_all(self) -> None:
-        """Disable every robot's amplifiers through the board (safe from any process; takes
-        no lock, so it works whoever holds what)."""
-        if self._boards is None:
-            if self.arena.lookup(layout.KEY_BOARDS) is None:
-                return  # no plant or boards yet: nothing is powered
-            self._boards = self.boards()
-        hardware.cut_all(self._boards)
+        """Cut every robot's drive through its hardware (safe from any process; takes no
+        lock, so it works whoever holds what)."""
+        for ops in self.all_hardware():
+            ops.cut()
 
     def clear_fault(self) -> bool:
         """Clear the active fault (kalictl reset); False if none was active.

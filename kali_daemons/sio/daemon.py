@@ -1,49 +1,15 @@
 """Servo I/O (thesis 3.3.3, 3.3.5, figure 3.2): the servo level's bottleneck, once per servo
-tick.
+tick.  (a) Read every joint through the hardware (``hardware.Hardware``) and estimate
+velocities; (b) take each robot's demand from its TG → SIO FIFO (or hold), check range and
+tracking error, take the feed-forward (``feedforward.py``) and feed the servo slots, then
+post the SVs; (c) sleep until the servos are done, acknowledge for the SVs it can vouch for
+(``gang.py``), add the feed-forward, write the torques, and drive power and the keep-alive.
 
-(a) Read every joint through the boards (``hardware.Hardware``: the McGill board's counters and
-    the robot driver, counts → radians) and estimate velocities
-    (backward difference through a 25 Hz first-order low-pass, as the PID of figure 3.4).
-(b) Take this tick's demand from each robot's TG → SIO FIFO (Type 2, 2.2.2) — or hold where
-    the arm is while it is not powered, or where it was when a guarded move's contact force
-    reached its guard (the wrist sensor's sample of this tick, unfiltered: ``wrench.py``;
-    the TG then ends the motion) — check joint range and tracking error, take each
-    robot's feed-forward and the demand's velocity and acceleration from the dynamics
-    process's rows (``feedforward.py``: interpolated like the demand; stale ones dropped),
-    and feed the servo slots: demand (with its velocity and acceleration), position,
-    velocity and feed-forward in, then ``busy`` cleared so the SVs can claim them (a robot
-    running a robot-level servo is fed whole, for one SV: ``servo/sv/arm.py``), then the tick they
-    are fed for, then one post per SV on its feed semaphore (an SV passes over a post left
-    from a tick it missed).
-(c) Sleep at once until the SV finishing the last slot posts the done semaphore, so the SV
-    on SIO's CPU takes its feed before the servos are done; acknowledge the tick for each
-    SV it can vouch for (``gang.py``); add the feed-forward to the joint servos' torques (a
-    robot-level servo's torque is the whole torque), write the torques to the boards (motor
-    currents, the current check), and drive each board's power switch and keep-alive (the
-    McGill board's watchdog).
-
-Every register bit is the board module's (``kali_daemons/hardware/mcgill.py``); SIO asks it
-for angles, torques out, power, pots and index pulses.
-
-The tick is one compiled call (``kali_sio_tick``) of two passes (``kali_sio_front``: (a) and (b)
-up to the feeds posted; the sleep on the done semaphore; ``kali_sio_back``: (c)), the boards'
-own kernels called through their addresses: SIO's tick was ~30 µs of Python on a hot cache and
-~80 µs of CPU in real time, most of it the interpreter between ~20 kernel calls; now ~5 µs.
-What the common tick does not do (an index pulse to catch, a sensor's halt or reached guard, a
-robot that is powering, calibrating, held, guided or told something, a range or runaway fault, a
-current fault) a call hands back, SIO does it in Python and the call goes on (and where the
-servos are not done within a period, ``_wait_done`` waits on and judges, as before).
-``_tick_reference`` is the whole tick in Python, step for step: the call's test reference
-(``tests/test_sio_tick.py``).
-
-Range, runaway (tracking error beyond ``safe``), a current demand beyond the motor's limit for
-``current_fault_ms``, amplifiers dropping out, and servo slots not done within the serious
-tolerance each halt the system: ``raise_fault`` cuts every amplifier through its board, the
-wall clock stops, and the fault names the robot, joint, value and limit (DESIGN 7).
-
-At start SIO reads each joint's potentiometer through the board's ADC (C.5) so angles are
-right to a degree or so; ``kalictl calibrate`` then makes them exact against the encoder index
-pulses (3.5.1, ``calibration.py``), stepped here while the robot is powered.
+The common tick is one compiled call (``kali_sio_tick``); what it hands back (an index pulse,
+a sensor's trip, a robot powering or calibrating, a fault) SIO does in Python, and
+``_tick_reference`` is the whole tick in Python, the call's test reference.  Range, runaway,
+current, amplifiers and servos not done each halt the system naming the robot, joint, value
+and limit (DESIGN 7).  More: docs/internals/sio-viewer-core.md.
 
 Long on purpose: SIO's one daemon; its tick is a compiled call (``kali_sio_tick``), and what
 is here is that tick's binding and the steps around it (power, calibration, checks, faults, the
@@ -79,9 +45,8 @@ from ..core.kernels import (
 )
 from ..core.layout import FaultCode, FfMode, GuardState, PowerCmd, PowerState, SlotReset
 from ..core.spinlock import pid_alive
-from ..hardware import Hardware, McGillBoards
-from ..hardware.mcgill import ENABLE_HOLD_MS, boards_present
-from ..runtime.config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks, retrigger_hold_ticks
+from ..hardware import Hardware
+from ..runtime.config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks
 from ..runtime.daemon import Daemon
 from ..runtime.flightrec import FlightRecorder
 from ..servo.level import ServoLevel
@@ -90,7 +55,6 @@ from .feedforward import RobotFeedforward
 from .gang import GangAcknowledger
 from .wrench import ArmSensor, sensors_of
 
-BOARD_WAIT_S = 30.0  # how long SIO waits at start for the plant (or hardware) registers
 POWER_ON_TIMEOUT_MS = 300.0  # amplifiers and brakes must report on within this
 VELOCITY_FILTER_HZ = 25.0  # low-pass on encoder velocities, as the PID's (figure 3.4)
 STAMP = 0xFFFFFFFF  # a command's ``cmd_faults`` stamp holds the fault count's low 32 bits
@@ -107,10 +71,11 @@ class ServoIO(Daemon):
         """Lay out the servo level, attach to the boards and build the driver."""
         inst = self.inst
         cfg = inst.config
-        if not boards_present(inst.boards(), BOARD_WAIT_S):
+        kinds = cfg.hardware_kinds
+        if len(kinds) != 1:
             raise DaemonError(
-                f"{self.name}: the boards did not answer within {BOARD_WAIT_S:g} s "
-                f"(is the plant running?)"
+                f"{self.name}: a cell of {' and '.join(kinds)} hardware; SIO drives one kind "
+                "of hardware per cell"
             )
         lv = self.level = ServoLevel(inst, create=True)
         ctrl = lv.ctrl
@@ -136,17 +101,7 @@ class ServoIO(Daemon):
             return max(1, -(-ms_to_ns(ms) // period_ns))
 
         self.power_timeout_ticks = servo_ticks(POWER_ON_TIMEOUT_MS)
-        # the boards, with the arms' calibration sheets (thesis 3.5.1) from their configs
-        self.hw: Hardware = McGillBoards(
-            inst.boards(),
-            inst.dacs(),
-            [r.type for r in cfg.robots],
-            np.concatenate([r.index_phases for r in cfg.robots]),
-            hold_ticks=servo_ticks(ENABLE_HOLD_MS),
-            retrigger_ticks=retrigger_hold_ticks(
-                cfg.clock.servo_period_ms, cfg.process("plant").period_ms
-            ),
-        )
+        self.hw: Hardware = inst.hardware_kind(kinds[0]).drive(inst.arena, cfg, servo_ticks)
         self.driver = self.hw.driver  # conversions and calibration offsets (thesis 3.5)
         if not first:
             self.driver.load(*self._driver_state)
@@ -262,12 +217,11 @@ class ServoIO(Daemon):
         ]
         # the wrist force/torque sensors, read in Newtons every tick (wrench.py)
         self.ft_records = inst.arena.record(layout.KEY_FT, layout.FT_STATE, nr)
-        boards = inst.boards()
         self._sensors = [
             ArmSensor(
                 cfg,
                 k,
-                boards[k : k + 1].reshape(()),
+                self.hw.gauges(k),
                 self.ft_records[k : k + 1].reshape(()),
                 self.q[lv.map.span(k)],
                 period_s,

@@ -2,49 +2,15 @@
 the set-points of every motion system each TG tick, time-sharing them (``Planner``; its
 process shell is ``daemon.TrajectoryGenerator``).
 
-Requests come from user programs through the Type 1 queue ``tg.requests`` (3.3.2); each one's
-fate is written to a status record of ``tg.status`` the TG gives it (``records``: a program
-finds it by the request's seq) so a waiting program sees it.  One program's unread outcomes
-cost only that program (``records``: a share of unread outcomes and of live requests per
-program); the TG waits, and the queue pushes back (QueueFullError), only when every record
-holds a request still queued or running.  Stops and aborts have a lane of their own,
-``tg.stops``, emptied first every tick: they never wait behind other requests, and cancel the
-requests of their arms put in the queue before them.
-
-Arms are owned (``tg.leases``): the first live program to request an arm owns it until it is
-dead; another program's request for it is refused naming the owner, unless it asks with
-REQUEST_FORCE (``kalictl move --force``, ``kalictl run`` on Ctrl-C), which takes the arm over
-and stops the old owner's motions on it.  The claim is checked here, where a request is taken:
-a client cannot be trusted to check it.  A request put before a fault that has since been
-raised is HALTED when taken (its ``fault_epoch``); one put after a reset is judged as usual.
-
-Every request is validated again here, whatever the client checked: the arena is never
-trusted.  A motion runs on its path time τ; each tick τ advances by the TG period, or by
-σ · period while a stop ramps σ smoothly to 0 (``profiles.StopRamp``), and the set-point for τ
-goes into each robot's TG → SIO FIFO (Type 2), which SIO interpolates at the servo rate.
-
-The FIFO is kept one set-point ahead of SIO, so a late TG tick does not starve the servos.
-On a halt every motion is dropped and every request waiting or running is told the fault.
-
-A Cartesian request (PATH) is checked before anything moves (``cartesian.CartesianMotion``):
-once its arms are free, its whole path is walked at the TG's own sample times, a slice of
-each tick (``CHECK_SHARE`` of the period in real time; in lockstep ``LOCKSTEP_CHECK_SAMPLES``
-path samples, so the tick a path starts on depends on simulated time only, never on the
-host's load), while the arms hold; it starts when the walk is through, or is refused with
-the reason.  An inverse kinematics failure at run time stops the
-motion system and halts the system (FaultCode.SINGULARITY, thesis 2.2.1).
-
-Allocation happens only when a request is accepted (planning builds its motion object);
-ticks that only advance running motions allocate nothing.
-
-Hostile input (DESIGN 7): a request is checked field by field where the TG takes it
-(``requests.check_request``: kind, robot count and indices, finite numbers in range, segment count,
-configuration bytes, calibration) and planned (``plan_joints``, ``plan_path``: a motion longer
-than ``MAX_MOTION_S`` is refused too).  Whatever a request holds, it is refused with a message
-in its status record and nothing moves: an exception these checks did not foresee refuses it
-as well, naming the exception, rather than halting the cell.  Entries the queue itself cannot
-vouch for (a sequence number that does not match their place, a corrupt head or tail) are
-dropped by ``RequestQueue.get_into`` and counted; they have no status record to answer in.
+Requests come through the Type 1 queue ``tg.requests`` (3.3.2), stops and aborts through
+their own lane ``tg.stops``, emptied first; each request's fate goes to a status record of
+``tg.status`` (``records``).  Arms are owned (``tg.leases``) by the first live program that
+moves them.  Every request is validated again here (``requests.check_request``): the arena is
+never trusted, and a request these checks cannot place is refused, never a halt.  A motion
+runs on its path time τ; its set-point goes into each robot's TG → SIO FIFO (Type 2), kept one
+set-point ahead of SIO.  A Cartesian path is walked whole before it starts, within a share of
+each tick.  Allocation happens only when a request is accepted.  The rules in full:
+docs/internals/motion-client-bridge.md.
 
 Long on purpose: the TG's one cycle, every step of it on one class's state; a request's checks
 are in ``requests``, the motions' laws in ``profiles``, ``cartesian`` and ``tracking``.

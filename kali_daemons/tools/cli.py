@@ -30,14 +30,19 @@ from typing import Any
 import click
 import numpy as np
 
-from .. import hardware
 from ..client import remote
 from ..client.common import INSTANCE_ENV
 from ..client.motion import Kali
 from ..client.remote import REMOTE_ENV, SESSION_ENV
 from ..core import layout
 from ..core.errors import InstanceError, KaliError, MotionError
-from ..core.layout import KEY_BOARDS, CalibState, PowerState, ProcState, RunMode, ShadowState
+from ..core.layout import (
+    CalibState,
+    PowerState,
+    ProcState,
+    RunMode,
+    ShadowState,
+)
 from ..robots import known_types, robot_type
 from ..runtime import config as config_mod
 from ..runtime import flightrec
@@ -718,10 +723,9 @@ def estop(ctx: click.Context, robot: str | None, release: bool) -> None:
             click.echo(estop_pressed(inst.press_estop(robot or None, "kalictl")))
             return
         targets = [robot] if robot else list(inst.cell.names)
-        records = inst.boards()
         for name in targets:
-            hardware.press_estop(records, inst.robot_index(name), False)
-        del records
+            k = inst.robot_index(name)
+            inst.hardware(k).press_estop(k, False)
         click.echo(f"e-stop released: {', '.join(targets)}")
 
 
@@ -777,9 +781,11 @@ def reset(ctx: click.Context) -> None:
     Refused while an e-stop button is still pressed (LinuxCNC: the e-stop chain must be
     closed before the machine can be reset)."""
     with _attach(ctx) as inst:
-        boards_laid_out = inst.arena.lookup(KEY_BOARDS) is not None  # not before the plant
-        buttons = hardware.estops_pressed(inst.boards()) if boards_laid_out else []
-        pressed = [n for n, b in zip(inst.cell.names, buttons, strict=False) if b]
+        pressed = [
+            name
+            for k, name in enumerate(inst.cell.names)
+            if inst.hardware(k).estops_pressed()[k]
+        ]
         if pressed:
             raise InstanceError(
                 f"reset: the e-stop of robot '{pressed[0]}' is still pressed"

@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from .. import hardware
 from ..core import layout
 from ..core.layout import CalibState, FfMode, FfState, PowerState, RequestState, RunMode
 from ..core.spinlock import holder_text, pid_alive
@@ -177,8 +176,7 @@ class Introspector:
             return None
         ff = self._view(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, nr)
         slots = self._view(layout.KEY_SLOTS, layout.SERVO_SLOT, self.joints.total)
-        board = self._view(layout.KEY_BOARDS, layout.IO_BOARD, nr)
-        cut = [False] * nr if board is None else hardware.amplifiers_cut(board.copy())
+        cut = [self.inst.hardware(k).amplifiers_cut()[k] for k in range(nr)]
         out = []
         for k, name in enumerate(self.names):
             r = rs[k].copy()  # one consistent-enough copy of a Type 4 record

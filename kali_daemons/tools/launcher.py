@@ -40,6 +40,7 @@ from ..core.arena import Arena, foreign_object, segment_name, shm_path, user_tex
 from ..core.errors import ArenaError, ConfigError, InstanceError
 from ..core.layout import ProcState, RunMode
 from ..core.spinlock import holder_text, pid_alive
+from ..hardware import hardware_kind
 from ..robots.cell import check_clear_at_rest
 from ..runtime.config import KaliConfig, cell_of, ms_to_ns, ns_to_ms
 from ..runtime.instance import Instance, all_semaphore_names, check_instance_name, decode
@@ -404,6 +405,8 @@ def _write_cell(rec: np.ndarray, cfg: KaliConfig) -> None:
         n = r.n_joints
         out["name"] = r.name.encode()
         out["model"] = r.type.name.encode()[: layout.TYPE_NAME_BYTES]
+        out["hardware"] = r.hardware.kind.encode()
+        out["hardware_version"] = hardware_kind(r.hardware.kind).version
         out["n_joints"] = n
         out["first_joint"] = cfg.joints.base[k]
         out["rad_per_count"][:n] = r.type.drive.rad_per_count

@@ -22,7 +22,13 @@ import pytest
 
 from kali_daemons.client import Kali
 from kali_daemons.core.errors import ConfigError, KinematicsError
-from kali_daemons.core.layout import CSR_NO_DISABLE, CalibState, FaultCode, PowerState, RequestState
+from kali_daemons.core.layout import (
+    CalibState,
+    FaultCode,
+    PowerState,
+    RequestState,
+)
+from kali_daemons.hardware.mcgill.registers import CSR_NO_DISABLE
 from kali_daemons.robots import robot_type
 from kali_daemons.robots.numik import NEAREST
 from kali_daemons.robots.profile import RobotType
@@ -31,7 +37,7 @@ from kali_daemons.tg.profiles import MotionError
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
-from ..conftest import config_text, leftovers, unique_name
+from ..conftest import boards_of, config_text, leftovers, unique_name
 from ..test_launcher import kalictl
 from . import numpy_data_allocations
 
@@ -548,6 +554,6 @@ def test_the_planar_arm_powers_calibrates_holds_moves_and_halts_on_its_range(
         text = k.inst.fault_text() or ""
         assert FaultCode[info.code] == FaultCode.RANGE and info.process == "sio", text
         assert re.search(r"robot 'right' joint 3 at 114\.\d\d° is beyond its limit 114\.59°", text)
-        boards = k.inst.boards()
+        boards = boards_of(k.inst)
         assert not int(boards["csr"][1]) & CSR_NO_DISABLE  # amplifiers commanded off
         del joints, fifo, boards

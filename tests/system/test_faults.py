@@ -45,9 +45,6 @@ import pytest
 
 from kali_daemons.core import layout
 from kali_daemons.core.layout import (
-    CSR_NO_DISABLE,
-    POWER_AMPS_ON,
-    POWER_WATCHDOG_TRIPPED,
     FaultCode,
     FfState,
     PowerState,
@@ -55,12 +52,17 @@ from kali_daemons.core.layout import (
     RunMode,
 )
 from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.hardware.mcgill.registers import (
+    CSR_NO_DISABLE,
+    POWER_AMPS_ON,
+    POWER_WATCHDOG_TRIPPED,
+)
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
-from ..conftest import ROOT, config_text, leftovers, unique_name, wait_for
+from ..conftest import ROOT, boards_of, config_text, leftovers, unique_name, wait_for
 from ..test_launcher import kalictl
 from .conftest import MATRIX
 
@@ -290,7 +292,7 @@ def _halts(
         assert fault.bound_ms is not None
         row["within"] = f"{ms:.1f} / {fault.bound_ms:g} ms"
         assert ms <= fault.bound_ms, f"{fault.label}: halted {ms:.1f} ms after: {message}"
-    boards = inst.boards()
+    boards = boards_of(inst)
     if fault.victim == "plant":  # the board is gone with it: Kali commanded the cut
         assert not (boards["csr"] & CSR_NO_DISABLE).any()
         row["amps"], row["brakes"] = "cut (csr)", "n/a"

@@ -28,11 +28,12 @@ from kali_daemons.core.arena import segment_name
 from kali_daemons.core.errors import InstanceError
 from kali_daemons.core.layout import FaultCode, ProcState
 from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.hardware.mcgill import registers
 from kali_daemons.runtime.instance import Instance, command_semaphore_name
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import step_kali_clock
 
-from ..conftest import ROOT, leftovers, unique_name
+from ..conftest import ROOT, boards_of, leftovers, unique_name
 from ..test_launcher import kalictl
 from ..test_servo_level import power_all
 
@@ -73,8 +74,8 @@ def snapshot(inst: Instance) -> dict[str, object]:
         "cmd_seq": int(inst.clock["cmd_seq"]),
         "fault": (int(inst.fault["active"]), int(inst.fault["count"])),
         "procs": [(r["name"], r["pid"], r["state"]) for r in launcher.describe(inst)],
-        "csr": inst.boards()["csr"].tolist(),
-        "estop": inst.boards()["estop"].tolist(),
+        "csr": boards_of(inst)["csr"].tolist(),
+        "estop": boards_of(inst)["estop"].tolist(),
         "shm": launcher.shm_objects(inst.name),
     }
 
@@ -182,7 +183,7 @@ def test_two_instances_side_by_side_never_see_each_other(kali: Callable[..., str
             r = kalictl("-i", a, "estop")
             assert r.returncode == 0, r.stderr
             assert int(ka.inst.fault["code"]) == FaultCode.ESTOP
-            assert not (ka.inst.boards()["csr"] & layout.CSR_NO_DISABLE).any()  # amps cut
+            assert not (boards_of(ka.inst)["csr"] & registers.CSR_NO_DISABLE).any()  # amps cut
         assert snapshot(inst_b) == quiet  # clock, fault, processes, boards untouched
         assert np.array_equal(joints_b["q"], q_b) and not robots_b["power"].any()
         r = kalictl("-i", a, "stop")

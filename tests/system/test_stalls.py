@@ -19,11 +19,12 @@ import numpy as np
 
 from kali_daemons.client import Kali
 from kali_daemons.core import layout
-from kali_daemons.core.layout import POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED, ProcState
+from kali_daemons.core.layout import ProcState
+from kali_daemons.hardware.mcgill.registers import POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.runtime.stalls import ClockWitness, TaskClock
 
-from ..conftest import wait_for
+from ..conftest import boards_of, wait_for
 from ..test_wallclock import on_time
 
 STALL_S = 0.030
@@ -96,7 +97,7 @@ def test_stalls_of_sios_cpu_are_ridden_out(kali: Callable[..., str]) -> None:
             bit = int(inst.clock["skipped_ticks"]) - skipped
             assert bit >= 1e3 * stall_s * 0.8, f"the stall did not bite: {bit} ticks skipped"
             assert inst.fault_text() is None
-            assert not (inst.boards()["power"] & POWER_WATCHDOG_TRIPPED).any()
+            assert not (boards_of(inst)["power"] & POWER_WATCHDOG_TRIPPED).any()
         assert np.abs(counts() - before).max() <= 1.0, counts() - before
 
 
@@ -111,7 +112,7 @@ def test_sio_stopped_alone_as_long_still_halts_by_the_watchdog(kali: Callable[..
             os.kill(pid, signal.SIGCONT)
         wait_for(lambda: inst.read_fault().active, 2.0, "a halt")
         assert inst.read_fault().process == "sio", inst.fault_text()
-        boards = inst.boards()
+        boards = boards_of(inst)
         assert (boards["power"] & POWER_WATCHDOG_TRIPPED).all() or not (
             boards["power"] & POWER_AMPS_ON
         ).any()

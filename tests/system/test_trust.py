@@ -25,11 +25,12 @@ from kali_daemons.core.arena import SEM_BYTES
 from kali_daemons.core.errors import InstanceError
 from kali_daemons.core.layout import FaultCode, PowerState, ProcState, RunMode
 from kali_daemons.core.spinlock import pid_alive
+from kali_daemons.hardware.mcgill import registers
 from kali_daemons.runtime.instance import Instance, command_semaphore_name
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import start_kali_clock
 
-from ..conftest import ROOT, config_text, leftovers, unique_name, wait_for
+from ..conftest import ROOT, boards_of, config_text, leftovers, unique_name, wait_for
 from ..test_launcher import kalictl
 
 NOBODY = 65534
@@ -119,9 +120,11 @@ def test_a_stopped_holder_of_every_lock_keeps_no_halt_estop_status_or_stop_from_
         fault = inst.read_fault()
         assert (fault.code, fault.process, fault.pid) == ("PROCESS_DIED", "sv.0", clock_pid)
         assert pid_alive(clock_pid)  # it did not die waiting on a lock
-        assert not any(inst.boards()["csr"] & layout.CSR_NO_DISABLE)  # amplifiers cut
+        assert not any(boards_of(inst)["csr"] & registers.CSR_NO_DISABLE)  # amplifiers cut
         if not lockstep:  # (in lockstep the plant stands with the clock)
-            wait_for(lambda: not any(inst.boards()["power"] & layout.POWER_AMPS_ON), 1, "amps off")
+            wait_for(
+                lambda: not any(boards_of(inst)["power"] & registers.POWER_AMPS_ON), 1, "amps off"
+            )
 
         r = kalictl("-i", name, "status")
         assert r.returncode == 0, r.stderr
@@ -134,7 +137,7 @@ def test_a_stopped_holder_of_every_lock_keeps_no_halt_estop_status_or_stop_from_
         r = kalictl("-i", name, "estop")
         assert r.returncode == 0, r.stderr
         assert time.monotonic() - t0 < 10.0
-        assert all(inst.boards()["estop"] == 1)
+        assert all(boards_of(inst)["estop"] == 1)
 
     t0 = time.monotonic()
     r = kalictl("-i", name, "stop")

@@ -27,7 +27,7 @@ from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo import registry_for
 from kali_daemons.tools import launcher
 
-from ..conftest import ROOT, leftovers, unique_name
+from ..conftest import ROOT, boards_of, leftovers, unique_name
 from ..robots.test_bring_your_own import write_arm, write_config
 from ..test_launcher import kalictl
 
@@ -94,13 +94,13 @@ def test_the_safety_path_needs_nothing_but_the_arena_whatever_the_users_files_do
                 assert r.returncode == 0, (what, args, r.stderr)
                 assert took < FAST, (what, args, f"{took:.1f} s")
             assert "e-stop pressed: left, right" in _timed("estop", env=env)[0].stdout, what
-            assert all(inst.boards()["estop"] == 1), what  # pressed, really
+            assert all(boards_of(inst)["estop"] == 1), what  # pressed, really
             assert inst.fault_text() is not None and "emergency stop" in inst.fault_text()
             for args in (("estop", "--release"), ("reset",), ("enable",), ("disable",)):
                 r, took = _timed(*args, env=env)
                 assert r.returncode == 0, (what, args, r.stderr)
                 assert took < FAST, (what, args, f"{took:.1f} s")
-            assert not any(inst.boards()["estop"]) and inst.fault_text() is None, what
+            assert not any(boards_of(inst)["estop"]) and inst.fault_text() is None, what
 
 
 def test_an_instance_runs_on_the_files_it_started_with(

@@ -1,7 +1,7 @@
 """The McGill I/O board, as Kali drives it (thesis appendix C, 3.5): every register bit the
 controller writes or reads lives here and nowhere else.
 
-One board per arm (``layout.IO_BOARD``, ``layout.DAC_BOARD``), joint ``j`` on channel ``j``:
+One board per arm (``registers.IO_BOARD``, ``registers.DAC_BOARD``), joint ``j`` on channel ``j``:
 counters and DACs through ``driver.JointDriver``; the power switch (CSR bit 7 low disables,
 overriding any enable; bit 3 held ``ENABLE_HOLD_MS`` enables); the watchdog, retriggered by a
 high-then-low pulse on bit 5; index capture (bit 4 low); the potentiometers' ADC handshake
@@ -17,12 +17,19 @@ whoever holds what).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import layout
-from ..core.kernels import Kernel, McgillArgs
-from ..core.layout import (
+from ...core.arena import Arena
+from ...core.errors import HardwareError
+from ...core.kernels import Kernel, McgillArgs
+from ...core.layout import PowerState
+from ...robots import RobotType
+from . import registers
+from .driver import JointDriver
+from .registers import (
     ADC_DONE,
     ADC_START,
     CSR_ENABLE,
@@ -34,11 +41,12 @@ from ..core.layout import (
     CSR_TIMEOUT_ON,
     POWER_AMPS_ON,
     POWER_BRAKES_RELEASED,
-    PowerState,
 )
-from ..robots import RobotType
-from .driver import JointDriver
 
+if TYPE_CHECKING:
+    from ...runtime.config import KaliConfig as CellConfig
+
+BOARD_WAIT_S = 30.0  # how long SIO waits at start for the boards (the plant) to answer
 ENABLE_HOLD_MS = 20.0  # enable bit held high this long (the relay needs ~15 ms, C.5.1)
 # at rest: enables allowed, watchdog on, index capture off, red LED on, green off
 BASE_CSR = CSR_NO_DISABLE | CSR_TIMEOUT_ON | CSR_INDEX_OFF
@@ -46,8 +54,19 @@ BASE_CSR = CSR_NO_DISABLE | CSR_TIMEOUT_ON | CSR_INDEX_OFF
 
 def retrigger_bit(servo_tick: int, hold_ticks: int) -> int:
     """The watchdog's retrigger bit at ``servo_tick``: high for ``hold_ticks``, low for as many
-    (``config.retrigger_hold_ticks``), so every falling edge reaches the board (C.5)."""
+    (``retrigger_hold_ticks``), so every falling edge reaches the board (C.5)."""
     return CSR_RETRIGGER if (servo_tick // hold_ticks) % 2 == 0 else 0
+
+
+def retrigger_hold_ticks(servo_period_ms: float, plant_period_ms: float) -> int:
+    """How many servo ticks SIO holds the board's watchdog retrigger bit high, and then low
+    ("one must set high state then low state to perform a retrigger", thesis C.5): the
+    fewest that last two plant periods.  The simulated board reads its registers once a
+    plant period, so a level held one 1 ms servo tick can fall between two reads, and when
+    the plant reads just as SIO writes, every falling edge can be missed for 20 ms with SIO on
+    time at every tick.  Held two reads long, each level is read at least once."""
+    servo_ns, plant_ns = round(servo_period_ms * 1e6), round(plant_period_ms * 1e6)
+    return max(1, -(-2 * plant_ns // servo_ns))
 
 
 class PotReader:
@@ -90,7 +109,7 @@ class PotReader:
             return False
         if not value & ADC_DONE:
             return False  # not converted yet
-        self.codes[c] = value & layout.ADC_VALUE_MASK
+        self.codes[c] = value & registers.ADC_VALUE_MASK
         self.control[...] = 0
         self._waiting = False
         self._channel = c + 1
@@ -145,6 +164,31 @@ class McGillBoards:
             prev_bit=retrigger_bit(0, retrigger_ticks),
         )
 
+    @classmethod
+    def attach(
+        cls, arena: Arena, cfg: CellConfig, servo_ticks: Callable[[float], int]
+    ) -> McGillBoards:
+        """The cell's boards once every one answers (``BOARD_WAIT_S``), with the arms'
+        calibration sheets (thesis 3.5.1) from ``cfg``; ``servo_ticks(ms)``: at least ``ms``
+        of servo ticks.  HardwareError if a board does not answer."""
+        n = len(cfg.robots)
+        boards = records(arena, n)
+        if not boards_present(boards, BOARD_WAIT_S):
+            raise HardwareError(
+                f"mcgill: the boards did not answer within {BOARD_WAIT_S:g} s "
+                "(is the plant running?)"
+            )
+        return cls(
+            boards,
+            dac_records(arena, n),
+            [r.type for r in cfg.robots],
+            np.concatenate([r.index_phases for r in cfg.robots]),
+            hold_ticks=servo_ticks(ENABLE_HOLD_MS),
+            retrigger_ticks=retrigger_hold_ticks(
+                cfg.clock.servo_period_ms, cfg.process("plant").period_ms
+            ),
+        )
+
     # ------------------------------------------------------------------ set-up
 
     def start(self) -> None:
@@ -186,11 +230,9 @@ class McGillBoards:
 
     def power_text(self, k: int) -> str:
         """Arm ``k``'s power register for a message: ``0x16 (brakes released, ...)``."""
-        return f"board power register {layout.power_text(int(self._arms[k].power))}"
+        return f"board power register {registers.power_text(int(self._arms[k].power))}"
 
-    def control(
-        self, k: int, power: int, enable_ticks: int, capture: bool, halted: bool
-    ) -> None:
+    def control(self, k: int, power: int, enable_ticks: int, capture: bool, halted: bool) -> None:
         """Write arm ``k``'s command register for this tick: the power switch (the enable
         pulse for the first ``hold_ticks`` of ENABLING, the disable while halted or off with
         the amplifiers on), this tick's retrigger level, index capture and the LEDs; DACs at
@@ -206,7 +248,7 @@ class McGillBoards:
         if capture:
             csr &= ~CSR_INDEX_OFF  # index capture on: the pulse resets the counter (C.3)
         if power == PowerState.OFF:
-            arm.codes[:] = layout.DAC_ZERO
+            arm.codes[:] = registers.DAC_ZERO
             if int(arm.power) & POWER_AMPS_ON:
                 csr &= ~CSR_NO_DISABLE  # bit 7 low cuts the amplifiers (disable, C.5.1)
         arm.csr[...] = csr
@@ -270,7 +312,7 @@ class McGillBoards:
             enabling=PowerState.ENABLING,
             off=PowerState.OFF,
             hold_ticks=self.hold_ticks,
-            dac_zero=layout.DAC_ZERO,
+            dac_zero=registers.DAC_ZERO,
             retrigger=CSR_RETRIGGER,
             retrigger_ticks=self.retrigger_ticks,
             ticks=st.ticks,
@@ -281,6 +323,11 @@ class McGillBoards:
         return kernel
 
     # ------------------------------------------------------------------ calibration (3.5.1)
+
+    def gauges(self, k: int) -> np.ndarray:
+        """Arm ``k``'s wrist sensor's gauge ADC registers (0-d: ``ft_gauge``, ``ft_control``,
+        ``ft_status``; ``ftsensor``), on its board."""
+        return self._boards[k : k + 1].reshape(())
 
     def pots(self, k: int) -> PotReader:
         """Arm ``k``'s potentiometer reader."""
@@ -297,7 +344,56 @@ class McGillBoards:
 
 
 # ---------------------------------------------------------------------------------------------
-# From any process, outside any cycle, on the register record (``Instance.boards()``)
+# From any process, outside any cycle, on the register record (``records``, ``McGillOps``)
+
+
+def records(arena: Arena, n_robots: int) -> np.ndarray:
+    """The I/O board registers, one record per robot (laid out by ``kalictl start``, answered
+    by the plant); ArenaError if they are not laid out."""
+    return arena.existing(registers.KEY_BOARDS, registers.IO_BOARD, n_robots)
+
+
+def dac_records(arena: Arena, n_robots: int) -> np.ndarray:
+    """The DAC board registers, one record per robot."""
+    return arena.existing(registers.KEY_DACS, registers.DAC_BOARD, n_robots)
+
+
+class McGillOps:
+    """The boards' operations outside any cycle (``hardware.Operations``): from any process,
+    on the register record, without a lock."""
+
+    def __init__(self, arena: Arena, n_robots: int) -> None:
+        self._arena, self._n = arena, n_robots
+        self._boards: np.ndarray | None = None  # viewed once laid out
+
+    def _view(self) -> np.ndarray | None:
+        if self._boards is None and self._arena.lookup(registers.KEY_BOARDS) is not None:
+            self._boards = records(self._arena, self._n)
+        return self._boards
+
+    def cut(self) -> None:
+        boards = self._view()
+        if boards is not None:  # not laid out: nothing is powered
+            cut_all(boards)
+
+    def amplifiers_cut(self) -> list[bool]:
+        boards = self._view()
+        return [False] * self._n if boards is None else amplifiers_cut(boards.copy())
+
+    def press_estop(self, k: int, pressed: bool) -> None:
+        boards = self._view()
+        if boards is not None:
+            press_estop(boards, k, pressed)
+
+    def estops_pressed(self) -> list[bool]:
+        boards = self._view()
+        return [False] * self._n if boards is None else estops_pressed(boards)
+
+    def grip(self, k: int, close: bool) -> None:
+        grip(records(self._arena, self._n), k, close)
+
+    def run_conveyor(self, run: bool) -> None:
+        run_conveyor(records(self._arena, self._n), run)
 
 
 def boards_present(boards: np.ndarray, timeout_s: float) -> bool:

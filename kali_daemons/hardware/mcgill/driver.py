@@ -20,13 +20,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..core import layout
-from ..core.joints import ArmCopy, JointMap
-from ..core.kernels import COUNTER_BITS, COUNTER_HALF, COUNTER_MODULO, Kernel, channel_offsets
-from ..robots import RobotType
+from ...core.joints import ArmCopy, JointMap
+from ...core.kernels import COUNTER_BITS, COUNTER_HALF, COUNTER_MODULO, Kernel, channel_offsets
+from ...robots import RobotType
+from . import registers
 
 __all__ = ["COUNTER_BITS", "COUNTER_HALF", "COUNTER_MODULO", "DAC_MAX", "JointDriver"]
-DAC_MAX = (1 << layout.DAC_BITS) - 1
+DAC_MAX = (1 << registers.DAC_BITS) - 1
 
 
 class JointDriver:
@@ -75,7 +75,9 @@ class JointDriver:
         self.index_spacing = 2.0 * math.pi / np.abs(self.gear)  # rad between index pulses
         # DAC codes per motor ampere: codes per volt over the amplifier's amperes per volt
         self.codes_per_amp = tile(
-            lambda t: [layout.DAC_ZERO / t.drive.dac_volts / t.drive.amp_gain_a_per_v] * t.n_joints
+            lambda t: (
+                [registers.DAC_ZERO / t.drive.dac_volts / t.drive.amp_gain_a_per_v] * t.n_joints
+            )
         )
         self.index_phase = (
             np.zeros(n) if index_phase is None else np.asarray(index_phase, dtype=np.float64)
@@ -155,7 +157,7 @@ class JointDriver:
             clamped=clamped,
             dacs=self._dac_regs.ctypes.data,
             dac_off=self._dac_off,
-            zero=float(layout.DAC_ZERO),
+            zero=float(registers.DAC_ZERO),
             top=float(DAC_MAX),
         )
         self._dac_arrays = (torque, current, clamped)
@@ -221,7 +223,7 @@ class JointDriver:
 
     def zero(self) -> None:
         """Every joint's DAC channel to 0 V."""
-        self._codes.fill_arms(layout.DAC_ZERO)
+        self._codes.fill_arms(registers.DAC_ZERO)
 
     # ------------------------------------------------------------------ potentiometers
 
