@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 
 
 class Operations(Protocol):
-    """A hardware kind's operations outside any cycle: from any process, without a lock, on
+    """A hardware kind's operations, all outside any cycle: from any process, without a lock, on
     the arena alone (no config parsed), so a halt never waits on the process that may have
     caused it (docs/decisions/0015).  ``k`` is a robot's index in the cell."""
 
@@ -43,42 +43,49 @@ class Operations(Protocol):
 
 
 class Hardware(Protocol):
-    """The boards as SIO drives them, once per servo tick, inside its cycle (no allocation)."""
+    """The hardware as SIO drives it.  ros2_control's lifecycle, in Kali's words: configure is
+    the kind's ``drive`` (attach, wait for the hardware to answer), activate ``start``, read
+    and write ``read``/``write``, deactivate ``zero``.  Each method says where it runs: *in the
+    cycle* (SIO's tick: no allocation, no blocking, no I/O) or *outside it*."""
 
     driver: JointDriver  # counts ↔ radians, torque → codes, calibration offsets (thesis 3.5)
 
     def start(self) -> None:
-        """First start (not a restarted SIO): registers at rest, counters as the reference."""
+        """Outside the cycle, at SIO's first start (not a restart): registers at rest, the
+        counters' readings as the reference."""
 
     def read(self, q: np.ndarray) -> None:
-        """Joint angles (rad) into ``q``."""
+        """In the cycle: joint angles (rad) into ``q``."""
 
     def write(self, torque: np.ndarray, current: np.ndarray, clamped: np.ndarray) -> None:
-        """Joint torques (N·m) out; motor currents (A) and where they were clamped back."""
+        """In the cycle: joint torques (N·m) out; motor currents (A) and where they were
+        clamped back."""
 
     def zero(self) -> None:
-        """No torque on any joint (a halt)."""
+        """In the cycle or outside it: no torque on any joint (a halt)."""
 
     def amps_on(self, k: int) -> bool:
-        """Whether arm ``k``'s amplifiers are on."""
+        """In the cycle: whether arm ``k``'s amplifiers are on."""
 
     def amps_register(self) -> tuple[np.ndarray, int]:
-        """The register (uint8, one per arm, a 1-D view) and the bit of it that ``amps_on``
-        reads: SIO's compiled common path (``kali_sio_robots``) tests it in place."""
+        """Outside the cycle (once, at configure): the register (uint8, one per arm, a 1-D
+        view) and the bit of it that ``amps_on`` reads: SIO's compiled common path
+        (``kali_sio_robots``) tests it in place."""
 
     def powered(self, k: int) -> bool:
-        """Whether arm ``k`` can servo: amplifiers on, brakes released."""
+        """In the cycle: whether arm ``k`` can servo (amplifiers on, brakes released)."""
 
     def power_text(self, k: int) -> str:
-        """Arm ``k``'s power status for a fault message (outside the common path)."""
+        """Outside the cycle (it builds a string): arm ``k``'s power status for a fault
+        message."""
 
     def control(self, k: int, power: int, enable_ticks: int, capture: bool, halted: bool) -> None:
-        """Arm ``k``'s power switch (``power`` a ``PowerState``), index capture and
-        indicators for this tick."""
+        """In the cycle: arm ``k``'s power switch (``power`` a ``PowerState``), index capture
+        and indicators for this tick."""
 
     def end_tick(self) -> bool:
-        """After every arm's ``control``: the tick's keep-alive; True when it reached the
-        board (the watchdog was retriggered)."""
+        """In the cycle, after every arm's ``control``: the tick's keep-alive; True when it
+        reached the hardware (the watchdog was retriggered)."""
 
     def tick_kernels(
         self,
@@ -87,22 +94,26 @@ class Hardware(Protocol):
         capture: np.ndarray,
         fault_active: np.ndarray,
     ) -> tuple[Kernel, Kernel, Kernel]:
-        """After ``driver.bind``: ``read``, ``write`` and every arm's ``control`` then
-        ``end_tick`` as bound kernels, for SIO's compiled tick (``kali_sio_front``,
-        ``kali_sio_back``), which calls them through their addresses; ``power`` and
-        ``enable_ticks`` are the robots' records' fields, ``capture`` SIO's flags (uint8 per
-        arm: index capture on), ``fault_active`` the fault word.  The control kernel returns
-        1 where ``end_tick`` returns True."""
+        """Outside the cycle (once, at configure), after ``driver.bind``: ``read``, ``write``
+        and every arm's ``control`` then ``end_tick`` as bound kernels, for SIO's compiled
+        tick (``kali_sio_front``, ``kali_sio_back``), which calls them through their
+        addresses; ``power`` and ``enable_ticks`` are the robots' records' fields,
+        ``capture`` SIO's flags (uint8 per arm: index capture on), ``fault_active`` the fault
+        word.  The control kernel returns 1 where ``end_tick`` returns True."""
 
     def gauges(self, k: int) -> np.ndarray:
-        """Arm ``k``'s wrist sensor's gauge ADC registers (0-d record: ``ft_gauge``,
-        ``ft_control``, ``ft_status``; ``ftsensor``)."""
+        """Outside the cycle (once, at configure): arm ``k``'s wrist sensor's gauge ADC
+        registers, which SIO's cycle then reads (0-d record: ``ft_gauge``, ``ft_control``,
+        ``ft_status``; ``ftsensor``)."""
 
     def pots(self, k: int) -> PotReader:
-        """Arm ``k``'s absolute joint sensors, read one joint per step."""
+        """Outside the common tick (calibration's steps): arm ``k``'s absolute joint sensors,
+        read one joint per step."""
 
     def index_hits(self, k: int) -> int:
-        """Arm ``k``'s index pulses seen since capture went on: bit j for joint j."""
+        """In the cycle, while calibrating: arm ``k``'s index pulses seen since capture went
+        on, bit j for joint j."""
 
     def at_index(self, k: int, j: int, i: int, angle: float) -> None:
-        """Arm ``k``'s joint ``j`` (flat ``i``) is at its index pulse: it reads ``angle``."""
+        """In the cycle, while calibrating: arm ``k``'s joint ``j`` (flat ``i``) is at its index
+        pulse and reads ``angle``."""
