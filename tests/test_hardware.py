@@ -11,12 +11,14 @@ import pytest
 
 from kali_daemons.core import layout
 from kali_daemons.core.arena import Arena
-from kali_daemons.core.errors import ArenaError, ConfigError
+from kali_daemons.core.errors import ArenaError, ConfigError, InstanceError
 from kali_daemons.hardware import HardwareKind, hardware_kind, known_kinds
 from kali_daemons.hardware.mcgill import KIND, McGillOps, registers
 from kali_daemons.runtime.config import cell_of
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import launcher
 
-from .conftest import make_config
+from .conftest import leftovers, make_config, unique_name
 
 MCGILL = hardware_kind("mcgill")
 
@@ -97,3 +99,29 @@ def test_the_boards_operations_work_on_the_arena_alone(arena: Arena) -> None:
     assert boards["gripper"].tolist() == [0, 1] and boards["conveyor"].tolist() == [1, 0]
     del boards
     assert np.all(ops.estops_pressed() == [False, True])
+
+
+def test_a_process_of_another_kali_refuses_a_cells_other_hardware_records() -> None:
+    """``kalictl start`` stores each robot's hardware kind and its records' version in the
+    cell record; a process whose kind's records differ refuses the cell (it must not misread,
+    or write, a register) and names both versions."""
+    name = unique_name("hw")
+    launcher._create(make_config(name), name, lockstep=True).close()
+    try:
+        with Instance.attach(name) as inst:
+            assert inst.cell.hardware == ("mcgill", "mcgill")
+            assert inst.hardware_kind("mcgill") is MCGILL
+            assert inst.hardware(1).amplifiers_cut() == [True, True]  # at rest: disabled
+            rec = inst.arena.existing(layout.KEY_CELL, layout.CELL)
+            rec["robots"]["hardware_version"][1] = MCGILL.version ^ 1
+            del rec
+        with Instance.attach(name) as other:
+            expected = (
+                f"instance '{name}': its mcgill hardware records are version "
+                f"{MCGILL.version ^ 1}, this Kali's {MCGILL.version}"
+            )
+            with pytest.raises(InstanceError, match=re.escape(expected)):
+                other.cell  # noqa: B018 - reading it is the check
+    finally:
+        launcher.stop(name)
+    assert leftovers(name) == ([], [])

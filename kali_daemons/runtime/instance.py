@@ -126,6 +126,21 @@ def decode(raw: bytes | np.bytes_ | np.ndarray) -> str:
     return bytes(raw).split(b"\0", 1)[0].decode("utf-8", "replace")
 
 
+def _check_kind(instance: str, name: str, version: int) -> None:
+    """InstanceError unless this Kali has hardware kind ``name`` with records of ``version``
+    (the digest ``kalictl start`` stored): a process of another Kali must not misread, or
+    write, a register."""
+    try:
+        kind = hardware_kind(name)
+    except ConfigError as exc:
+        raise InstanceError(f"instance '{instance}': {exc}") from None
+    if kind.version != version:
+        raise InstanceError(
+            f"instance '{instance}': its {name} hardware records are version {version}, this "
+            f"Kali's {kind.version}; stop the instance with the Kali that started it"
+        )
+
+
 @dataclass(frozen=True)
 class Cell:
     """The cell as ``kalictl start`` wrote it into the arena (``layout.CELL``): what the
@@ -136,7 +151,6 @@ class Cell:
     names: tuple[str, ...]
     models: tuple[str, ...]
     hardware: tuple[str, ...]
-    hardware_versions: tuple[int, ...]
     joints: JointMap
     rad_per_count: tuple[np.ndarray, ...]
     max_current: tuple[np.ndarray, ...]
@@ -160,12 +174,14 @@ class Cell:
                 f"(written outside kalictl start)"
             )
         names = tuple(decode(r) for r in robots["name"])
+        kinds = tuple(decode(r) for r in robots["hardware"])
+        for kind_name, version in zip(kinds, robots["hardware_version"], strict=True):
+            _check_kind(instance, kind_name, int(version))
         per_joint = list(zip(robots, counts, strict=True))
         return Cell(
             names=names,
             models=tuple(decode(r) for r in robots["model"]),
-            hardware=tuple(decode(r) for r in robots["hardware"]),
-            hardware_versions=tuple(int(v) for v in robots["hardware_version"]),
+            hardware=kinds,
             joints=JointMap(names, counts),
             rad_per_count=tuple(r["rad_per_count"][:c] for r, c in per_joint),
             max_current=tuple(r["max_current"][:c] for r, c in per_joint),
@@ -282,21 +298,11 @@ class Instance:
         return [self._operations(name) for name in dict.fromkeys(self.cell.hardware)]
 
     def hardware_kind(self, name: str) -> HardwareKind:
-        """The hardware kind ``name`` of this cell, checked against the version its records
-        were laid out with: InstanceError if this Kali has no such kind or another version of
-        its records (a process of another Kali must not misread a register)."""
-        try:
-            kind = hardware_kind(name)
-        except ConfigError as exc:  # an arena written by another Kali
-            raise InstanceError(f"instance '{self.name}': {exc}") from None
-        laid = {n: v for n, v in zip(self.cell.hardware, self.cell.hardware_versions, strict=True)}
-        if laid.get(name) != kind.version:
-            raise InstanceError(
-                f"instance '{self.name}': its {name} hardware records are version "
-                f"{laid.get(name)}, this Kali's {kind.version}; stop the instance with the Kali "
-                "that started it"
-            )
-        return kind
+        """The hardware kind ``name`` behind some of this cell's robots, its records the
+        version they were laid out with (``Cell.read`` checks it)."""
+        if name not in self.cell.hardware:
+            raise InstanceError(f"instance '{self.name}': no robot of hardware kind {name!r}")
+        return hardware_kind(name)
 
     def _operations(self, name: str) -> Operations:
         ops = self._ops.get(name)
