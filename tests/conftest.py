@@ -66,11 +66,6 @@ def config_text(
     """The text of ``make_config``'s config (for ``kalictl start -c FILE``)."""
     source = DEFAULT_TEXT if base == "default.yaml" else (ROOT / "config" / base).read_text()
     text = re.sub(r"(?m)^instance: .*$", f"instance: {instance}", source)
-    # absolute plugin paths, so the text also works when a test writes it elsewhere
-    plugin = ROOT / "scripts" / "servo_plugin_example.py"
-    text = re.sub(r"(?m)^plugins: .*$", f"plugins: [{plugin}]", text)
-    functions = ROOT / "scripts" / "tg_function_example.py"
-    text = re.sub(r"(?m)^tg_functions: .*$", f"tg_functions: [{functions}]", text)
     # no web viewer server per test instance (tests/test_viewer.py turns it on where it is the
     # point): the suite starts dozens of instances
     text = re.sub(r"(?m)^  web: auto\b", "  web: off ", text)

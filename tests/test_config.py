@@ -98,8 +98,8 @@ def test_default_file_loads_to_expected_objects() -> None:
         robots=EXPECTED_ROBOTS,
         source=str(DEFAULT_PATH),
         text=DEFAULT_TEXT,
-        plugins=("../scripts/servo_plugin_example.py",),
-        tg_functions=("../scripts/tg_function_example.py",),
+        plugins=("kali_daemons.examples.servo_plugin_example",),
+        tg_functions=("kali_daemons.examples.tg_function_example",),
         plant=PlantConfig(conveyor_m_s=(0.0, 0.02)),
         base_dir=str(DEFAULT_PATH.parent),
     )
@@ -138,8 +138,9 @@ def test_optional_sections_default_to_the_default_file() -> None:
     full = parse_config(DEFAULT_TEXT)
     # the default file names the example plugins and gives the stand a belt; without the
     # sections there are none
-    assert full.plugins == ("../scripts/servo_plugin_example.py",) and minimal.plugins == ()
-    assert full.tg_functions == ("../scripts/tg_function_example.py",)
+    assert full.plugins == ("kali_daemons.examples.servo_plugin_example",)
+    assert minimal.plugins == ()
+    assert full.tg_functions == ("kali_daemons.examples.tg_function_example",)
     assert minimal.tg_functions == () and minimal.plant.conveyor_m_s == (0.0, 0.0)
     bare = dataclasses.replace(full, text="", plugins=(), tg_functions=(), plant=PlantConfig())
     assert dataclasses.replace(minimal, text="") == bare

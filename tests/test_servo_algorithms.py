@@ -40,7 +40,7 @@ from .conftest import make_config
 N = puma560.ROBOT.n_joints  # the loop servos one PUMA
 
 ROOT = Path(__file__).resolve().parents[1]
-EXAMPLE = "scripts/servo_plugin_example.py"
+EXAMPLE = "kali_daemons/examples/servo_plugin_example.py"
 T = 0.001  # s, the servo interval of every test here (1 kHz)
 
 # --------------------------------------------------------------------------------------------
@@ -405,7 +405,7 @@ def test_registry_builtins_first_then_plugins_in_order() -> None:
         reg.index("pidd")
     with pytest.raises(IndexError, match=r"index 3 outside 0..2"):
         reg[3]
-    with pytest.raises(ConfigError, match="already registered by plugin 'scripts/servo_plugin"):
+    with pytest.raises(ConfigError, match="already registered by plugin 'kali_daemons/examples/servo_plugin"):
         reg.load_plugin(str(ROOT / EXAMPLE))  # the same file again, by absolute path
 
 

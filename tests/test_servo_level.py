@@ -442,7 +442,7 @@ def test_the_sv_on_the_other_cpu_rests_while_sv0_runs_every_servo_alone(
     if (os.cpu_count() or 1) < 2:
         pytest.skip("sv.1 is bound to CPU 1; this machine has one CPU")
     faulty = ROOT / "tests" / "system" / "faulty_servo.py"
-    example = ROOT / "scripts" / "servo_plugin_example.py"
+    example = ROOT / "kali_daemons" / "examples" / "servo_plugin_example.py"
     name = kali(lockstep=False, edits={r"^plugins: .*$": f"plugins: [{example}, {faulty}]"})
     with powered_in_real_time(name) as (inst, client):
         procs, sv1 = inst.procs, inst.slot_of("sv.1")

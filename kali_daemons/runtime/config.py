@@ -50,7 +50,7 @@ CONFIG_VERSION = 1
 PROCESS_NAMES = ("wallclock", "plant", "tg", "sio", "sv", "dynamics", "viewer")
 DEFAULT_MODEL = "puma560"  # a robot entry without a model
 # the shipped cell: its processes and robots sections are the defaults of a file without them
-DEFAULT_FILE = Path(__file__).resolve().parents[2] / "config" / "default.yaml"
+DEFAULT_FILE = Path(__file__).resolve().parents[1] / "config" / "default.yaml"  # package data
 
 MAX_SV_WORKERS = 8
 MAX_ROBOTS = 4
@@ -1300,7 +1300,7 @@ def _build(
             processes = _processes(_shipped()["processes"], clock)
         except _InvalidError as exc:
             raise _InvalidError(f"{exc} (in {DEFAULT_FILE}, the default processes)") from None
-    robots = _robots(doc.get("robots", _shipped()["robots"]), base_dir, files)
+    robots = _robots(doc["robots"] if "robots" in doc else _shipped()["robots"], base_dir, files)
     bridge = _bridge(doc.get("bridge", {}), base_dir)
     if bridge.enabled:  # not in ``processes``: its section holds everything about it
         processes = (*processes, bridge_process(bridge, clock))

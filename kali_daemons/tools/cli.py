@@ -46,7 +46,7 @@ from ..core.layout import (
 from ..robots import known_types, robot_type
 from ..runtime import config as config_mod
 from ..runtime import flightrec
-from ..runtime.config import KaliConfig, cell_of, load_config
+from ..runtime.config import DEFAULT_FILE, KaliConfig, cell_of, load_config
 from ..runtime.instance import (
     LOCK_STUCK_S,
     Instance,
@@ -66,7 +66,7 @@ from ..wallclock import (
 )
 from . import introspect, launcher
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "default.yaml"
+DEFAULT_CONFIG = DEFAULT_FILE  # the shipped cell
 # what the system runs without when a non-serious process dies (DESIGN 7: degrade)
 TOP_INTERVAL_S = (0.05, 60.0)  # kalictl top's refresh interval
 MOVE_TIMEOUT_S = 3600.0  # kalictl move's longest wait

@@ -1,6 +1,6 @@
 """A servo plugin that misbehaves on request, for the fault-injection matrix (issue 7).
 
-``faulty`` is a PD with a hand-over bias (as ``scripts/servo_plugin_example.py``) whose
+``faulty`` is a PD with a hand-over bias (as ``kali_daemons.examples.servo_plugin_example``) whose
 ``fail`` parameter makes its step go wrong: 1 raises, 2 returns a NaN torque, 3 takes
 ``slow_ms`` per step.  Set ``fail`` on the joint's ``faulty`` record first, then select it:
 the first step misbehaves, so no PD tuning matters.

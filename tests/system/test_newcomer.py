@@ -123,9 +123,10 @@ def test_the_readmes_servo_plugin_steps_work(
     """Copy the example, rename it, name it in the config, start, select it, tune it."""
     guide = "docs/guide/servos.md"
     steps = section(DOCS[guide], "Writing a servo algorithm", guide)
-    assert "cp scripts/servo_plugin_example.py" in steps and 'NAME = "mine"' in steps
+    assert "cp kali_daemons/examples/servo_plugin_example.py" in steps
+    assert 'NAME = "mine"' in steps
     mine = tmp_path / "my_servo.py"
-    shutil.copy(ROOT / "scripts" / "servo_plugin_example.py", mine)
+    shutil.copy(ROOT / "kali_daemons" / "examples" / "servo_plugin_example.py", mine)
     text = mine.read_text()
     assert text.count('NAME = "bwpd"') == 1
     mine.write_text(text.replace('NAME = "bwpd"', 'NAME = "mine"'))

@@ -4,7 +4,7 @@ declares is in ``algorithm``.
 The registry holds the built-ins first (``pid`` = 0, ``pd`` = 1, ``builtins.py``), then the
 plugins named in the config, in order.  A plugin is a Python file or module defining
 ``register(registry)``, which calls ``registry.register(ServoAlgorithm(...))``;
-``scripts/servo_plugin_example.py`` is one to copy.
+``kali_daemons/examples/servo_plugin_example.py`` is one to copy.
 """
 
 from __future__ import annotations

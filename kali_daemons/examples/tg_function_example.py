@@ -1,10 +1,11 @@
-"""A TG function plugin to copy (issue 28; thesis 3.2.3: a position equation's transforms may
-be "objects and functions"): ``circle``, a point going round a circle in the x-y plane of the
+"""A TG function plugin to copy (thesis 3.2.3: a position equation's transforms may be
+"objects and functions"): ``circle``, a point going round a circle in the x-y plane of the
 frame before it in the loop.
 
-Name the file in the config and a program can use it in any tracking loop:
+Name it in the config (this module by name, or your copy's file) and a program can use it in
+any tracking loop:
 
-    tg_functions: [scripts/tg_function_example.py]
+    tg_functions: [kali_daemons.examples.tg_function_example]     # or [my_function.py]
 
     c = kali.tg_function("circle", radius=0.02, frequency_hz=0.25)
     left.track([left.read_pose(), c])        # the tool circles where it is

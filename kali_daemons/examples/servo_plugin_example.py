@@ -1,8 +1,9 @@
 """A servo plugin to copy: a critically damped PD set by its bandwidth (thesis 3.4).
 
-Name the file in the config and every joint can switch to it by name while the arm moves:
+Name it in the config (this module by name, or your copy's file) and every joint can switch
+to it by name while the arm moves:
 
-    plugins: [scripts/servo_plugin_example.py]
+    plugins: [kali_daemons.examples.servo_plugin_example]     # or [my_servo.py]
 
     kalictl servo select left 2 bwpd
     kalictl servo set left 2 bandwidth_hz=6 inertia=4.4
