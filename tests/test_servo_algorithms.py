@@ -405,7 +405,7 @@ def test_registry_builtins_first_then_plugins_in_order() -> None:
         reg.index("pidd")
     with pytest.raises(IndexError, match=r"index 3 outside 0..2"):
         reg[3]
-    with pytest.raises(ConfigError, match="already registered by plugin 'kali_daemons/examples/servo_plugin"):
+    with pytest.raises(ConfigError, match=f"already registered by plugin '{EXAMPLE}'"):
         reg.load_plugin(str(ROOT / EXAMPLE))  # the same file again, by absolute path
 
 
