@@ -24,7 +24,7 @@ from ..core.layout import HARDWARE_KEYS, MAX_JOINTS, Record, dtypes_digest
 from .interface import Hardware, Operations
 
 DEFAULT_KIND = "mcgill"
-_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+KIND_NAME = re.compile(r"[a-z][a-z0-9_]{0,23}")  # a kind's name: its package's
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ def hardware_kind(name: str) -> HardwareKind:
     """The hardware kind ``name``; ``ConfigError`` naming the kinds there are if there is
     none (with the nearest as a suggestion)."""
     names = known_kinds()
-    if not isinstance(name, str) or not _NAME.match(name) or name not in names:
+    if not isinstance(name, str) or not KIND_NAME.fullmatch(name) or name not in names:
         near = difflib.get_close_matches(str(name), names, n=1)
         hint = f" (did you mean {near[0]!r}?)" if near else ""
         raise ConfigError(f"no hardware kind {name!r}{hint}; the kinds are: {', '.join(names)}")

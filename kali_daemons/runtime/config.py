@@ -41,7 +41,7 @@ from kali_daemons.hardware.ftsensor import SHEETS as FT_SHEETS
 from kali_daemons.hardware.ftsensor import FtSheet
 from kali_daemons.hardware.ftsensor import sheet as ft_sheet
 from kali_daemons.hardware.mcgill.boards import retrigger_hold_ticks
-from kali_daemons.hardware.registry import DEFAULT_KIND, hardware_kind
+from kali_daemons.hardware.registry import DEFAULT_KIND, KIND_NAME, hardware_kind, known_kinds
 from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
 from kali_daemons.servo.algorithms.algorithm import MAX_DATA_BYTES
 from kali_daemons.servo.algorithms.registry import Registry
@@ -88,7 +88,6 @@ _ROBOT_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,15}")
 # a bridge user's name: one chunk of the key expressions under its name (Zenoh reads a chunk
 # starting with @ verbatim, so none does)
 USER_RE = re.compile(r"[A-Za-z0-9_.-][A-Za-z0-9_.@-]{0,63}")
-_KIND_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
 _SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
 _PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
 MAX_PLUGINS = 16
@@ -355,9 +354,8 @@ class HardwareConfig:
 
     kind: str = _f(
         DEFAULT_KIND,
-        "a hardware kind: mcgill (the McGill I/O board of thesis appendix C, simulated by the "
-        "plant)",
-        pattern=_KIND_RE.pattern,
+        f"a hardware kind, a package of kali_daemons/hardware: {', '.join(known_kinds())}",
+        pattern=KIND_NAME.pattern,
     )
 
 
