@@ -1,8 +1,5 @@
 """A servo plugin to copy: a critically damped PD set by its bandwidth (thesis 3.4).
 
-Name it in the config (this module by name, or your copy's file) and every joint can switch
-to it by name while the arm moves:
-
     plugins: [kali_daemons.examples.servo_plugin_example]     # or [my_servo.py]
 
     kalictl servo select left 2 bwpd
@@ -11,18 +8,7 @@ to it by name while the arm moves:
 With ω = 2π·bandwidth_hz and J the joint's inertia (kg·m², armature G²·Jm included), the
 gains kp = J·ω² and kv = 2·J·ω put both closed-loop poles at −ω: no overshoot, and one
 number to turn.  A load (gravity) leaves an error of load / kp: there is no integral.
-
-What a plugin must do (``kali_daemons/servo/algorithms/registry.py`` has the details):
-
-- declare its private data as an *aligned* numpy structured dtype of numeric scalars, at
-  most 1024 B: one record per joint lives in shared memory, so any SV can run any joint;
-- ``init`` fills the parameters (missing ones: the defaults) and resets the state;
-- ``step`` runs every servo tick (1 kHz): Python floats and ``data.<field>`` only, no
-  numpy, no allocation, no logging, no I/O; it returns (torque N·m, error rad, status 0);
-- ``handover`` sets the state so the first step continues from the previous servo's torque
-  (bumpless switching); here a bias torque that then fades out;
-- ``set_params`` / ``get_params`` change and read the parameters on line, keeping the state;
-- ``register(registry)`` registers the algorithm under its name.
+What a plugin must do: docs/guide/servos.md, "What a plugin must do".
 """
 
 from __future__ import annotations

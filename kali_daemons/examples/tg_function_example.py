@@ -2,26 +2,13 @@
 "objects and functions"): ``circle``, a point going round a circle in the x-y plane of the
 frame before it in the loop.
 
-Name it in the config (this module by name, or your copy's file) and a program can use it in
-any tracking loop:
-
     tg_functions: [kali_daemons.examples.tg_function_example]     # or [my_function.py]
 
     c = kali.tg_function("circle", radius=0.02, frequency_hz=0.25)
     left.track([left.read_pose(), c])        # the tool circles where it is
     c.set(radius=0.04)                       # on line: the TG keeps the arm within its limits
 
-What a plugin must do (``kali_daemons/tg/functions.py`` has the details):
-
-- declare its private data as an *aligned* numpy structured dtype of numeric scalars, at most
-  256 B (``layout.FUNCTION_DATA_BYTES``), with a field per parameter; it lives in the arena;
-- ``evaluate(data, t, sensors, out)`` runs in the TG every tick of a motion using it: write
-  the transform at time ``t`` (s since the program set it up) into ``out`` (4×4, identity on
-  entry); ``sensors.q[k]`` and ``sensors.wrench[k]`` are robot k's measured joints and
-  contact wrench.  Floats and ``data.<field>`` only: no allocation, no I/O, no logging, and
-  at most 20 % of the TG period (beyond, or raising, it holds the motions using it);
-- ``derive(data)`` (optional) recomputes derived terms after parameters change;
-- ``register(registry)`` registers it.
+What a TG function must do: docs/guide/programs.md, "What a TG function must do".
 """
 
 from __future__ import annotations
