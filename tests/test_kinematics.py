@@ -507,3 +507,13 @@ def test_stretched_arm_is_at_the_outer_reach() -> None:
     w = fkine(np.array([0.0, 0.3, STRETCH_Q3, 0.0, 0.0, 0.0]))[:3, 3]
     rho = math.sqrt(w[0] ** 2 + w[1] ** 2 - D3**2)
     np.testing.assert_allclose(math.hypot(rho, w[2] - puma560.D[0]), REACH_MAX, atol=1e-12)
+
+
+def test_a_configuration_argument_that_is_an_array_is_refused_as_a_motion_error() -> None:
+    """Found by tests/system/test_fuzz.py: an array where a configuration goes compared
+    itself with the configurations element-wise and raised numpy's ValueError."""
+    from kali_daemons.client.common import MotionError, _config_arg  # the helper under test
+
+    kin = puma560.ROBOT.kinematics
+    with pytest.raises(MotionError, match="is not one of the arm's configurations"):
+        _config_arg("move_line", np.array([False, False]), kin)

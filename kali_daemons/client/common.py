@@ -97,17 +97,23 @@ def _pose_arg(what: str, value: object) -> np.ndarray:
 
 def _config_arg(what: str, value: object, kin: Kinematics) -> object | None:
     """A configuration of the arm's type: one of ``kin.configs``, its string, or None."""
-    if value is None or value in kin.configs:
-        return value
-    if not isinstance(value, str):
+    if value is None:
+        return None
+    if isinstance(value, str):
+        try:
+            return kin.parse_config(value)
+        except KinematicsError as exc:
+            raise MotionError(f"{what}: {exc}") from None
+    try:
+        known = value in kin.configs
+    except (TypeError, ValueError):  # an array compares element-wise: no truth value
+        known = False
+    if not known:
         raise MotionError(
             f"{what}: {value!r:.60} is not one of the arm's configurations "
             f"({', '.join(map(str, kin.configs))}), nor None"
         )
-    try:
-        return kin.parse_config(value)
-    except KinematicsError as exc:
-        raise MotionError(f"{what}: {exc}") from None
+    return value
 
 
 def _timeout_arg(what: str, value: object) -> float | None:
