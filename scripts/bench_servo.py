@@ -170,6 +170,7 @@ from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.config import KaliConfig, period_ticks
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo.client import ServoClient
+from kali_daemons.tools.launcher import percentile
 
 POWER_TIMEOUT_S = 5.0  # both arms must report ON within this after the enable request
 SETTLE_S = 2.0  # after power-on: let the arms settle before the motion starts
@@ -185,6 +186,7 @@ MOTION_PERIOD_S = 2.0
 SIGNS = np.array([1.0, -1.0] * (layout.MAX_JOINTS // 2))  # neighbouring joints: opposite ways
 REFERENCE = ("wallclock", "plant", "tg", "dynamics", "viewer")  # wake-up rows shown for reference
 MISS_KINDS = ("tg", "sio", "sv")  # clock-driven, serious: their misses count
+FR3_CONFIG = DEFAULT_CONFIG.with_name("fr3.yaml")
 
 
 @dataclass(frozen=True)
@@ -200,6 +202,7 @@ class RunSpec:
     cell: str = "pumas"  # CELLS: the arms (default.yaml's two PUMAs, or another cell)
     arm_servo: str | None = None  # a robot-level servo every arm runs instead of its joints'
     shadow: str | None = None  # a robot-level servo every arm runs in shadow beside its joints'
+    base: Path = DEFAULT_CONFIG  # the config file the run is made from
 
 
 RUNS = {
@@ -218,6 +221,8 @@ RUNS = {
         RunSpec("1ms-2sv-imp", 1000, 2, arm_servo="impedance"),
         # the joint PIDs with computed torque in shadow trial on both arms (issue 27 item 6)
         RunSpec("1ms-2sv-shadow", 1000, 2, shadow="computed_torque"),
+        # an FR3 through libfranka against franky-sim, its packets pacing the clock (issue 54)
+        RunSpec("fr3-1ms", 1000, 1, extras=False, cell="fr3", base=FR3_CONFIG),
     )
 }
 DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv", "0.5ms-2sv")
@@ -226,7 +231,10 @@ DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv
 def config_for(spec: RunSpec, instance: str, record: Path | None = None) -> KaliConfig:
     """default.yaml with ``spec``'s servo period (clock, servo, plant), SV count and cell;
     with the extras, full feed-forward on every arm and the dashboard also recorded to
-    ``record``, else no dynamics and no viewer process."""
+    ``record``, else no dynamics and no viewer process.  An FR3 run is config/fr3.yaml as it
+    is (its robot's 1 ms cycle, one SV)."""
+    if spec.base != DEFAULT_CONFIG:
+        return cell_config({}, instance, spec.base, spec.name)
     overrides = {
         **period_overrides(spec.period_us),
         **sv_overrides(DEFAULT_CONFIG, spec.n_sv),
@@ -248,6 +256,13 @@ GOAL_SERVO_CPU = Goal(
 )  # fmt: skip
 GOAL_PSS_ALL = Goal("PSS of the whole set", "PSS", "<=", 400, "MiB", source="issue 26")
 GOAL_PSS_CLOCK = Goal("PSS of the wall clock", "PSS", "<=", 40, "MiB", source="issue 26")
+GOAL_FR3_SHARE = Goal(
+    "FR3: Kali's share (state in -> command out) p99", "p99", "<=", 250, "µs", source="issue 54",
+    floor="cyclictest's p99 in the same run",
+)  # fmt: skip
+GOAL_FR3_ANSWERED = Goal(
+    "FR3: states answered by a command", "answered", ">=", 99.9, "%", source="issue 54"
+)  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------
@@ -405,6 +420,7 @@ class RunResult:
     problems: list[str] = field(default_factory=list)  # what broke
     notes: list[str] = field(default_factory=list)
     error: str | None = None  # the benchmark itself failed in this run
+    fr3: dict[str, Any] = field(default_factory=dict)  # an FR3 run's link figures
 
 
 def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResult:
@@ -448,6 +464,7 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
                     extra=lambda: [f.underruns for f in fifos],
                 )  # fmt: skip
                 s0 = window.open()
+                fr0 = fr3_counts(inst, cfg)
                 stat0 = cpu_times()
                 real_offset = time.time_ns() - time.monotonic_ns()
                 t0 = s0.kali.t_ns
@@ -472,6 +489,7 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
                             sio_samples.append(int(sio_rec["exec_last_ns"]))
                     watch.poll(ct, end)
                 s1 = window.close()
+                res.fr3 = fr3_figures(fr0, fr3_counts(inst, cfg), (s1.kali.t_ns - t0) / 1e9)
                 res.memory_kib = {n: pss_kib(pid) for n, pid in run.pids.items()}
                 res.machine["steal_ms"] = steal_ms(stat0, cpu_times())
                 tail.poll()
@@ -505,6 +523,40 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
     analyse(res, cfg, window, ct_res, logged, stalls, sio_samples, servo_names)
     res.notes += watch.notes()
     return res
+
+
+def fr3_counts(inst: Instance, cfg: KaliConfig) -> dict[str, Any] | None:
+    """An FR3 cell's link counters now (its first arm's), and franky-sim's steps; None for
+    a cell without one."""
+    if "franka" not in cfg.hardware_kinds:
+        return None
+    from kali_daemons.hardware.franka.arms import records  # an FR3 run only
+
+    arm = records(inst.arena, len(cfg.robots))[0]
+    world = inst.arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+    out = {f: int(arm[f]) for f in ("seq", "answered", "late", "lost", "share_max_ns")}
+    return {**out, "hist": arm["share_hist"].copy(), "steps": int(world["ticks"])}
+
+
+def fr3_figures(a: dict[str, Any] | None, b: dict[str, Any] | None, seconds: float) -> dict:
+    """The window's FR3 figures: Kali's share of each robot cycle (the link's state in to
+    its command out) p50/p99/max, states answered, late and lost, and franky-sim's own rate."""
+    if a is None or b is None:
+        return {}
+    hist = b["hist"] - a["hist"]
+    answered, late = b["answered"] - a["answered"], b["late"] - a["late"]
+    grew = b["share_max_ns"] > a["share_max_ns"]
+    return {
+        "share_p50_us": percentile(hist, 50),
+        "share_p99_us": percentile(hist, 99),
+        "share_max_us": b["share_max_ns"] / 1e3 if grew else percentile(hist, 100),
+        "states": b["seq"] - a["seq"],
+        "answered": answered,
+        "late": late,
+        "lost": b["lost"] - a["lost"],
+        "answered_pct": 100.0 * answered / max(1, answered + late),
+        "plant_hz": (b["steps"] - a["steps"]) / seconds,
+    }
 
 
 def analyse(
@@ -797,11 +849,17 @@ def format_summary(results: list[RunResult]) -> str:
             f"{r.servo_cpu_us:>14.0f}"
         )
     lines += format_extras(results)
+    lines += [format_fr3(r) for r in results if r.fr3]
     lines.append("")
     for r in results:
         own = r.misses_kali_only + r.misses - r.misses_logged
         if r.period_us == 1000:
             lines += [v.line() for v in goals_1khz(r, own)]
+        if r.fr3:
+            share = replace(GOAL_FR3_SHARE, name=f"{GOAL_FR3_SHARE.name} ({r.run})")
+            lines.append(share.judge(r.fr3["share_p99_us"], r.wakeup[0].p99_us).line())
+            answered = replace(GOAL_FR3_ANSWERED, name=f"{GOAL_FR3_ANSWERED.name} ({r.run})")
+            lines.append(answered.judge(round(r.fr3["answered_pct"], 3)).line())
         else:
             if r.error:
                 lines.append(f"2 kHz ({r.run}): not measured: {r.error}")
@@ -816,6 +874,19 @@ def format_summary(results: list[RunResult]) -> str:
                     "of one core"
                 )
     return "\n".join(lines)
+
+
+def format_fr3(r: RunResult) -> str:
+    """An FR3 run's link line: Kali's share of the robot cycle, the states answered (none
+    can be answered twice: the link writes one command per state it read), franky-sim's
+    own rate (the plant's speed, apart from Kali's)."""
+    f = r.fr3
+    return (
+        f"{r.run}: Kali's share (link state in -> command out) p50/p99/max "
+        f"{us(f['share_p50_us'])}/{us(f['share_p99_us'])}/{us(f['share_max_us'])} µs; "
+        f"{f['states']} states, {f['answered']} answered once ({f['answered_pct']:.3f} %), "
+        f"{f['late']} late, {f['lost']} lost; franky-sim stepped at {f['plant_hz']:.0f} Hz"
+    )
 
 
 def goals_1khz(r: RunResult, own: int) -> list[Verdict]:

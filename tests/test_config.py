@@ -638,7 +638,7 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "robot-hardware-unknown-kind",
         [("base_yaw_deg: 180", "base_yaw_deg: 180, hardware: {kind: mcgil}")],
         "robots[1].hardware.kind = 'mcgil': no hardware kind 'mcgil' (did you mean 'mcgill'?); "
-        "the kinds are: mcgill",
+        "the kinds are: franka, mcgill",
     ),
     (
         "robot-hardware-bad-name",
@@ -649,6 +649,29 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "robot-hardware-unknown-key",
         [("base_yaw_deg: 180", "base_yaw_deg: 180, hardware: {kind: mcgill, adress: x}")],
         "robots[1].hardware.adress: unknown key",
+    ),
+    (
+        "robot-hardware-mcgill-address",
+        [("base_yaw_deg: 180", "base_yaw_deg: 180, hardware: {kind: mcgill, address: 10.0.0.2}")],
+        "robots[1].hardware.address = '10.0.0.2': only for a networked robot (a mcgill arm is "
+        "reached through its boards)",
+    ),
+    (
+        "robot-hardware-franka-puma",
+        [
+            (
+                "base_yaw_deg: 180",
+                "base_yaw_deg: 180, ft: {sensor: none}, hardware: {kind: franka, address: x}",
+            )
+        ],
+        "robots[1].hardware.kind = 'franka': cannot drive a puma560: libfranka drives 7-joint "
+        "Franka arms with absolute encoders (model: fr3)",
+    ),
+    (
+        "robot-hardware-mcgill-fr3",
+        [("model: puma560, base_xyz: [0.6", "model: fr3, base_xyz: [0.6")],
+        "robots[1].hardware.kind = 'mcgill': cannot drive a fr3: its joint 5 moves 112361 encoder "
+        "counts in a servo period at 2.63 rad/s; the board's counters must be read within 2048",
     ),
 ]
 

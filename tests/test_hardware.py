@@ -24,7 +24,7 @@ MCGILL = hardware_kind("mcgill")
 
 
 def test_the_mcgill_board_is_a_kind_found_by_name() -> None:
-    assert known_kinds() == ["mcgill"]
+    assert known_kinds() == ["franka", "mcgill"]
     assert MCGILL is KIND and MCGILL.channels == registers.BOARD_CHANNELS == 8
     assert {r.key for r in MCGILL.records} == {"hw.mcgill.boards", "hw.mcgill.dacs"}
 
@@ -32,8 +32,11 @@ def test_the_mcgill_board_is_a_kind_found_by_name() -> None:
 @pytest.mark.parametrize(
     ("name", "expected"),
     [
-        ("mcgil", "no hardware kind 'mcgil' (did you mean 'mcgill'?); the kinds are: mcgill"),
-        ("franka", "no hardware kind 'franka'; the kinds are: mcgill"),
+        (
+            "mcgil",
+            "no hardware kind 'mcgil' (did you mean 'mcgill'?); the kinds are: franka, mcgill",
+        ),
+        ("kuka", "no hardware kind 'kuka'; the kinds are: franka, mcgill"),
         ("../mcgill", "no hardware kind '../mcgill'"),
     ],
 )

@@ -488,6 +488,48 @@ BLOCKS: tuple[Block, ...] = (
         ("ticks, bit, prev_bit", "int64_t", "end_tick's state"),
     ),
     block(
+        "FrankaReadArgs",
+        "franka",
+        {"kali_franka_read": "hardware.franka.arms:FrankaDriver.read_reference"},
+        ("n, n_arms", "int64_t"),
+        ("arms", "char *", "the FR3s' records (hardware.franka.registers)"),
+        ("q_off", "View", "int64: joint i's angle at arms + q_off[i] (double)"),
+        ("seq_off", "View", "int64, per arm: its state's seq at arms + seq_off[k] (uint64)"),
+        ("q", "View", "double out, rad"),
+        ("seen", "View", "uint64 out, per arm: the state this tick answers"),
+    ),
+    block(
+        "FrankaWriteArgs",
+        "franka",
+        {"kali_franka_write": "hardware.franka.arms:FrankaDriver.write_reference"},
+        ("n", "int64_t"),
+        ("torque, torque_limit", "View", "N·m"),
+        ("step", "View", "N·m: the most the torque may change in one tick (the FR3's rate)"),
+        ("last", "View", "N·m: the torque sent last tick"),
+        ("current", "View", "double out: the torque sent, N·m (the FR3 takes torques)"),
+        ("clamped", "View", "uint8 (bool) out: beyond the torque limit"),
+        ("arms", "char *"),
+        ("tau_off", "View", "int64: joint i's command at arms + tau_off[i] (double)"),
+    ),
+    block(
+        "FrankaControlArgs",
+        "franka",
+        {"kali_franka_control": "hardware.franka.arms:FrankaArms.control"},
+        ("n_arms", "int64_t"),
+        ("arms", "char *"),
+        ("row", "int64_t", "bytes between two arms' records"),
+        ("want_off, cmd_seq_off, tau_off", "int64_t", "fields' offsets in a record"),
+        ("power", "View", "per robot: uint8 PowerState"),
+        ("n_joints", "View", "int64, per arm"),
+        ("seen", "View", "uint64, per arm: the state this tick answers (the read kernel's)"),
+        ("last", "View", "double, per joint: the write kernel's, zeroed with the arm's torque"),
+        ("base", "View", "int64, per arm: its first joint"),
+        ("links", "sem_t **", "per arm: its link's semaphore, posted with the command"),
+        ("fault_active", "const uint32_t *"),
+        ("on, enabling", "int64_t"),
+        ("ticks", "int64_t", "ticks whose commands went out"),
+    ),
+    block(
         "SioArgs",
         "sio",
         {"kali_sio_tick": "sio.daemon:ServoIO._tick_reference"},
@@ -677,7 +719,7 @@ KERNELS: dict[str, type[ctypes.Structure]] = {k: STRUCTS[b.name] for b in BLOCKS
 # the libraries (csrc/<name>.c) and the owners whose kernels each holds: the simulator's are
 # its own, so that no controller process loads them; the core's are in both
 LIBRARIES: dict[str, tuple[str, ...]] = {
-    "controller": ("core", "chain", "sio", "servo", "fifo", "clock", "flightrec"),
+    "controller": ("core", "chain", "sio", "franka", "servo", "fifo", "clock", "flightrec"),
     "simulator": ("core", "plant"),
 }
 

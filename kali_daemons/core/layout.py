@@ -133,7 +133,7 @@ CLOCK = np.dtype(
         ("cmd_seq", "<u8"),  # incremented by the writer of a command
         ("cmd_done", "<u8"),  # last cmd_seq the clock has applied
         ("cmd", "<u4"),  # ClockCommand
-        ("_pad", "<u4"),
+        ("paced", "<u4"),  # 1: the hardware's state packets pace the tick (real time)
         ("cmd_arg", "<f8"),  # argument: ticks for STEP, ms for SET
         ("cmd_lock", "<u4"),  # spinlock word serialising command writers
         ("cmd_status", "<i4"),  # 0 applied, -1 refused (reason in cmd_message)
@@ -271,6 +271,7 @@ class FaultCode(enum.IntEnum):
     SERVO = 11  # a servo algorithm raised, returned a bad status or a non-finite torque
     POWER = 12  # a robot's amplifiers went off while it was servoing
     FORCE = 13  # a wrist force/torque sensor saturated, beyond its range or the contact limit
+    HARDWARE = 14  # the hardware reported an error (a robot's controller, its connection)
 
 
 FAULT = np.dtype(

@@ -81,13 +81,14 @@ class Dynamics(Daemon):
     def load(self, cfg: KaliConfig) -> None:
         """Each robot type's model and each robot's scratch, its joint count wide (outside
         the cycle)."""
-        models: dict[tuple, InverseDynamics] = {}  # one per robot type and tool
+        models: dict[tuple, InverseDynamics] = {}  # one per robot type, tool and gravity
         self.inverse = []
         for r in cfg.robots:
             tool = (r.ft.tool_mass_kg, r.ft.tool_com_m)
-            if (r.model, tool) not in models:
-                models[r.model, tool] = InverseDynamics(r.type, tool)
-            self.inverse.append(models[r.model, tool])
+            key = (r.model, tool, r.holds_gravity)
+            if key not in models:
+                models[key] = InverseDynamics(r.type, tool, gravity=not r.holds_gravity)
+            self.inverse.append(models[key])
         self.n_robots = len(cfg.robots)
         self.joint_map = cfg.joints  # robot k's joint j: flat index (servo slot) base[k] + j
         self.servo_period_s = cfg.clock.servo_period_ms / 1000.0

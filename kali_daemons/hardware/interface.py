@@ -15,7 +15,6 @@ from ..core.kernels import Kernel
 
 if TYPE_CHECKING:
     from .mcgill.boards import PotReader
-    from .mcgill.driver import JointDriver
 
 
 class Operations(Protocol):
@@ -25,6 +24,10 @@ class Operations(Protocol):
 
     def cut(self) -> None:
         """Every arm's drive off at once (a halt); nothing if the hardware is not there yet."""
+
+    def reset(self) -> None:
+        """A halt cleared (kalictl reset): what the hardware needs to run again (its error
+        recovery); power stays off until enabled."""
 
     def amplifiers_cut(self) -> list[bool]:
         """Each arm's drive off or being cut, whatever SIO has seen yet."""
@@ -42,13 +45,59 @@ class Operations(Protocol):
         """Start (or stop) the cell's conveyor belt."""
 
 
+class Driver(Protocol):
+    """A kind's driver (thesis 3.5's table): joint angles in, joint torques out, the arms'
+    limits; what SIO asks of it beside the tick's kernels."""
+
+    q_min: np.ndarray  # rad, flat
+    q_max: np.ndarray
+    gkt: np.ndarray  # joint N·m per unit of SIO's "current" (a motor's A; an FR3's N·m)
+    current_limit: np.ndarray
+    acc: np.ndarray  # its state a restarted SIO resumes (the joint records' acc, prev, offset)
+    prev: np.ndarray
+    offset: np.ndarray
+
+    def load(self, acc: np.ndarray, prev: np.ndarray, offset: np.ndarray) -> None:
+        """Outside the cycle: resume from the joint records' state."""
+
+    def angles(self, q: np.ndarray) -> None:
+        """Outside the cycle: the joint angles (rad) it holds now into ``q``."""
+
+    def bind(
+        self, q: np.ndarray, torque: np.ndarray, current: np.ndarray, clamped: np.ndarray
+    ) -> None:
+        """Outside the cycle: bind its kernels to SIO's arrays."""
+
+    def zero(self) -> None:
+        """No torque on any joint (a halt)."""
+
+    def set_angle(self, i: int, angle: float) -> None:
+        """Outside the common tick: make joint ``i`` read ``angle`` (calibration)."""
+
+
+class IndexedDriver(Driver, Protocol):
+    """A driver of incremental encoders with index pulses and potentiometers: what
+    calibration (thesis 3.5.1, ``sio.calibration``) steps through."""
+
+    index_spacing: np.ndarray  # rad between a joint's index pulses, flat
+    rad_per_count: np.ndarray
+
+    def nearest_index(self, i: int, angle: float) -> float:
+        """Joint ``i``'s index pulse nearest ``angle`` (rad)."""
+
+    def pot_angle(self, i: int, code: int) -> float:
+        """Joint ``i``'s angle as its pot's reading ``code`` tells it."""
+
+
 class Hardware(Protocol):
     """The hardware as SIO drives it.  ros2_control's lifecycle, in Kali's words: configure is
     the kind's ``drive`` (attach, wait for the hardware to answer), activate ``start``, read
     and write ``read``/``write``, deactivate ``zero``.  Each method says where it runs: *in the
     cycle* (SIO's tick: no allocation, no blocking, no I/O) or *outside it*."""
 
-    driver: JointDriver  # counts ↔ radians, torque → codes, calibration offsets (thesis 3.5)
+    @property
+    def driver(self) -> Driver:
+        """Angles in, torques out, the arms' limits (thesis 3.5)."""
 
     def start(self) -> None:
         """Outside the cycle, at SIO's first start (not a restart): registers at rest, the
@@ -101,6 +150,9 @@ class Hardware(Protocol):
         ``capture`` SIO's flags (uint8 per arm: index capture on), ``fault_active`` the fault
         word.  The control kernel returns 1 where ``end_tick`` returns True."""
 
+    def close(self) -> None:
+        """Outside the cycle, at SIO's end: give back what ``tick_kernels`` opened."""
+
     def gauges(self, k: int) -> np.ndarray:
         """Outside the cycle (once, at configure): arm ``k``'s wrist sensor's gauge ADC
         registers, which SIO's cycle then reads (0-d record: ``ft_gauge``, ``ft_control``,
@@ -109,6 +161,11 @@ class Hardware(Protocol):
     def pots(self, k: int) -> PotReader:
         """Outside the common tick (calibration's steps): arm ``k``'s absolute joint sensors,
         read one joint per step."""
+
+    def absolute_angles(self, k: int) -> str | None:
+        """Outside the common tick, at start, once per tick until done: one step of reading arm
+        ``k``'s absolute joint sensors into the driver; once its angles are in, what they came
+        from (a status message), else None."""
 
     def index_hits(self, k: int) -> int:
         """In the cycle, while calibrating: arm ``k``'s index pulses seen since capture went

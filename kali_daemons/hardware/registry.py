@@ -37,9 +37,21 @@ class HardwareKind:
     # what any process may do on an instance's arena of ``n`` robots, outside any cycle
     operations: Callable[[Arena, int], Operations]
     # what SIO drives each servo tick: attached to the arena for the config's cell, with
-    # ``servo_ticks(ms)`` (at least ``ms`` of servo ticks); HardwareError if it does not answer
-    drive: Callable[[Arena, Any, Callable[[float], int]], Hardware]
+    # ``servo_ticks(ms)`` (at least ``ms`` of servo ticks) and ``semaphore(process)`` (that
+    # process's wake-up semaphore); HardwareError if it does not answer
+    drive: Callable[[Arena, Any, Callable[[float], int], Callable[[str], Any]], Hardware]
     records: tuple[Record, ...] = ()  # its arena records, keyed hw.<name>.* (layout.Cell)
+    # one link process per arm (``kali_daemons.link``, named link.<robot>): it holds the
+    # robot's connection, and the first arm's link's packets pace the wall clock
+    links: bool = False
+    # the hardware holds its arms against gravity itself: the feed-forward leaves gravity out
+    compensates_gravity: bool = False
+    # it reads a wrist force/torque sensor's gauges (``hardware.ftsensor``)
+    gauges: bool = True
+    # why it cannot drive an arm of a robot type at a servo period (s), or "" if it can
+    refuses: Callable[[Any, float], str] = lambda rtype, period_s: ""
+    # the module the cell's simulated plant runs as (``python -m kali_daemons.<it>``)
+    simulator: str = "plant"
 
     def __post_init__(self) -> None:
         if any(not isinstance(r.dtype, np.dtype) for r in self.records):

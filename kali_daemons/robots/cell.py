@@ -53,7 +53,9 @@ PAD_SOLIMP: Final = (0.3, 0.95, 0.002, 0.5, 1.0)
 
 
 def load_pinocchio(
-    robot: RobotType, tool: tuple[float, tuple[float, float, float]] | None = None
+    robot: RobotType,
+    tool: tuple[float, tuple[float, float, float]] | None = None,
+    gravity: bool = True,
 ) -> pin.Model:
     """An arm of type ``robot`` as a Pinocchio model, base at the origin, with its armature
     and gravity; with ``tool`` (mass in kg, centre of mass in the flange frame: the config's
@@ -61,7 +63,9 @@ def load_pinocchio(
     process's feed-forward holds its weight too.
 
     ``rnea`` / ``crba`` / ``aba`` on it include the drive's rotor inertia.  The flange is the
-    frame named ``FLANGE_FRAME``.
+    frame named ``FLANGE_FRAME``.  ``gravity`` False: the arm's hardware holds it against
+    gravity itself (an FR3), so the model's gravity is zero and nothing Kali computes from it
+    adds gravity a second time.
     """
     import pinocchio as pin  # here, not at load: the plant imports this module
 
@@ -84,7 +88,8 @@ def load_pinocchio(
         inertia = mass * TOOL_RADIUS_M**2 / 2.0  # as the plant's tool (model._add_tool)
         body = pin.Inertia(mass, np.asarray(com, dtype=float), np.eye(3) * inertia)
         model.appendBodyToJoint(frame.parentJoint, body, frame.placement)
-    model.gravity = pin.Motion(np.array([0.0, 0.0, -robot.gravity]), np.zeros(3))
+    g = robot.gravity if gravity else 0.0
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -g]), np.zeros(3))
     return model
 
 

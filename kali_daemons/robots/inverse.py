@@ -31,10 +31,14 @@ class InverseDynamics:
     vectors Pinocchio's Python bindings return."""
 
     def __init__(
-        self, robot: RobotType, tool: tuple[float, tuple[float, float, float]] | None = None
+        self,
+        robot: RobotType,
+        tool: tuple[float, tuple[float, float, float]] | None = None,
+        gravity: bool = True,
     ) -> None:
-        """``tool``: the mass and centre of mass (flange frame) of the tool the arm carries."""
-        self.model = load_pinocchio(robot, tool)
+        """``tool``: the mass and centre of mass (flange frame) of the tool the arm carries;
+        ``gravity`` False: its hardware holds it against gravity (``load_pinocchio``)."""
+        self.model = load_pinocchio(robot, tool, gravity)
         self.data = self.model.createData()
         n = robot.n_joints
         self.tau = np.zeros(n)

@@ -219,6 +219,9 @@ class RobotType:
     # The calibration sheet (thesis 3.5.1, C.3): each joint's index-pulse motor angle, rad in
     # [0, 2π), measured once per arm; a robot's config may name its own.
     index_phases: FloatArray = field(default_factory=lambda: read_only([]))
+    # The arm knows its joint angles at power-up (absolute encoders): it has nothing to
+    # calibrate, thesis 3.5.1's calibration does not apply, and its sheet is empty.
+    absolute_encoders: bool = False
     gravity: float = 9.81  # m/s²
 
     def __post_init__(self) -> None:

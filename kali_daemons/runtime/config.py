@@ -88,6 +88,7 @@ _ROBOT_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,15}")
 # a bridge user's name: one chunk of the key expressions under its name (Zenoh reads a chunk
 # starting with @ verbatim, so none does)
 USER_RE = re.compile(r"[A-Za-z0-9_.-][A-Za-z0-9_.@-]{0,63}")
+_ADDRESS_RE = re.compile(r"|[A-Za-z0-9][A-Za-z0-9.-]{0,62}")  # an IPv4 address or host name
 _SERVO_NAME_RE = re.compile(r"[a-z][a-z0-9_]{0,23}")
 _PLUGIN_RE = re.compile(r"[A-Za-z0-9_./-]{1,200}")
 MAX_PLUGINS = 16
@@ -96,7 +97,8 @@ MAX_PLUGINS = 16
 # period from the clock section.
 _PROCESS_KEYS = {
     "wallclock": ("cpu", "priority"),
-    "plant": ("cpu", "priority", "period_ms", "serious", "stage"),
+    "plant": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
+    "link": ("cpu", "priority", "serious", "stage"),
     "tg": ("cpu", "priority", "serious", "stage"),
     "sio": ("cpu", "priority", "serious", "stage"),
     "sv": ("count", "cpus", "priority", "serious", "stage", "poll_us", "rest_ms"),
@@ -109,12 +111,15 @@ _PROCESS_KEYS = {
 _KIND_DEFAULTS: dict[str, dict[str, Any]] = {
     "wallclock": {"serious": False, "stage": 0},
     "plant": {"serious": True, "stage": 0},
+    "link": {"serious": True, "stage": 0},
     "tg": {"serious": True, "stage": 1},
     "sio": {"serious": True, "stage": 2},
     "sv": {"serious": True, "stage": 2},
     "dynamics": {"serious": False, "stage": 3},
     "viewer": {"serious": False, "stage": 4},
 }
+# processes a cell runs only with hardware that needs them: one link per networked arm
+OPTIONAL_PROCESSES = ("link",)
 _CLOCK_PERIOD_FIELD = {"tg": "clock.tg_period_ms", "sio": "clock.servo_period_ms"}
 _CLOCK_PERIOD_FIELD["sv"] = _CLOCK_PERIOD_FIELD["sio"]
 
@@ -234,8 +239,8 @@ class ProcessEntry:
 
     enabled: bool = _f(
         True,
-        "dynamics and viewer only: false leaves the process out; the servo level runs the "
-        "same without them",
+        "plant, dynamics and viewer only: false leaves the process out; the servo level runs "
+        "the same without dynamics and viewer, and without a plant on real hardware",
     )
     cpu: int | None = _cpu_field(None)
     count: int = _f(2, "sv only: servo workers", ge=1, le=MAX_SV_WORKERS)
@@ -357,6 +362,12 @@ class HardwareConfig:
         f"a hardware kind, a package of kali_daemons/hardware: {', '.join(known_kinds())}",
         pattern=KIND_NAME.pattern,
     )
+    address: str = _f(
+        "",
+        "a networked robot's address (a kind with links: franka), an IPv4 address or a host "
+        "name; 127.0.0.x reaches the simulator",
+        pattern=_ADDRESS_RE.pattern,
+    )
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -440,6 +451,12 @@ class RobotConfig:
     def type(self) -> RobotType:
         """The arm's robot type (``kali_daemons.robots``)."""
         return robot_type(self.model)
+
+    @property
+    def holds_gravity(self) -> bool:
+        """Whether its hardware holds it against gravity itself (an FR3): the feed-forward
+        and the robot-level servos' models then leave gravity out."""
+        return hardware_kind(self.hardware.kind).compensates_gravity
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -585,7 +602,8 @@ def _tg_functions_field() -> Any:
 
 @dataclass(frozen=True, config=_FROZEN)
 class ProcessesFile:
-    """The ``processes`` section: one entry per kind, all seven present."""
+    """The ``processes`` section: one entry per kind, all seven present; ``link`` places the
+    links of networked arms (one per arm, ``link.<robot>``)."""
 
     wallclock: ProcessEntry
     plant: ProcessEntry
@@ -594,6 +612,7 @@ class ProcessesFile:
     sv: ProcessEntry
     dynamics: ProcessEntry
     viewer: ProcessEntry
+    link: ProcessEntry | None = None
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -1291,18 +1310,26 @@ def _build(
             "(or name the instance with kalictl -i NAME)"
         )
     clock = _clock(doc.get("clock", {}))
-    if "processes" in doc:
-        processes = _processes(doc["processes"], clock)
-    else:
-        try:
-            processes = _processes(_shipped()["processes"], clock)
-        except _InvalidError as exc:
-            raise _InvalidError(f"{exc} (in {DEFAULT_FILE}, the default processes)") from None
-    robots = _robots(doc["robots"] if "robots" in doc else _shipped()["robots"], base_dir, files)
+    procs_node = doc["processes"] if "processes" in doc else _shipped()["processes"]
+    try:
+        processes = _processes(procs_node, clock)
+    except _InvalidError as exc:
+        if "processes" in doc:
+            raise
+        raise _InvalidError(f"{exc} (in {DEFAULT_FILE}, the default processes)") from None
+    robots = _robots(
+        doc["robots"] if "robots" in doc else _shipped()["robots"], base_dir, files, clock
+    )
+    links = _links(procs_node.get("link"), robots, clock)
+    if links:  # after the plant (a simulator they connect to), before the rest
+        after = max(i for i, p in enumerate(processes) if p.kind in ("wallclock", "plant"))
+        processes = (*processes[: after + 1], *links, *processes[after + 1 :])
     bridge = _bridge(doc.get("bridge", {}), base_dir)
     if bridge.enabled:  # not in ``processes``: its section holds everything about it
         processes = (*processes, bridge_process(bridge, clock))
-    plant_period = next(p.period_ms for p in processes if p.kind == "plant")
+    plant_period = next(
+        (p.period_ms for p in processes if p.kind == "plant"), clock.base_tick_ms
+    )
     return KaliConfig(
         version=CONFIG_VERSION,
         instance=top["instance"],
@@ -1532,7 +1559,7 @@ def _default_period(kind: str, clock: ClockConfig) -> float:
 
 def _processes(node: Any, clock: ClockConfig) -> tuple[ProcessConfig, ...]:
     """The ``processes`` section, expanded (``sv`` -> ``sv.0`` ..) in PROCESS_NAMES order."""
-    m = _mapping(node, "processes", PROCESS_NAMES)
+    m = _mapping(node, "processes", PROCESS_NAMES + OPTIONAL_PROCESSES)
     missing = [k for k in PROCESS_NAMES if k not in m]
     if missing:
         raise _InvalidError(
@@ -1544,6 +1571,25 @@ def _processes(node: Any, clock: ClockConfig) -> tuple[ProcessConfig, ...]:
         out.extend(_process(kind, m[kind], clock))
     _check_servo_stage(out)
     return tuple(out)
+
+
+def _links(node: Any, robots: tuple[RobotConfig, ...], clock: ClockConfig) -> list[ProcessConfig]:
+    """One link process per arm of a networked kind (``link.<robot>``), placed by the
+    ``processes.link`` entry: the arm's connection, ticking with its robot."""
+    entry = _process("link", node, clock)[0] if node is not None else None
+    return [
+        ProcessConfig(
+            name=f"link.{r.name}",
+            kind="link",
+            cpu=entry.cpu if entry else None,
+            priority=entry.priority if entry else 0,
+            period_ms=clock.base_tick_ms,
+            serious=entry.serious if entry else True,
+            stage=entry.stage if entry else 0,
+        )
+        for r in robots
+        if hardware_kind(r.hardware.kind).links
+    ]
 
 
 def _check_servo_stage(processes: list[ProcessConfig]) -> None:
@@ -1665,7 +1711,9 @@ def _model(value: Any, path: str, base_dir: str, files: str) -> tuple[str, Robot
         raise _InvalidError(f"{path} = {_show(value, 200)}: {text}{relative}") from None
 
 
-def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
+def _robots(
+    node: Any, base_dir: str, files: str, clock: ClockConfig
+) -> tuple[RobotConfig, ...]:
     """The ``robots`` list: 1..MAX_ROBOTS arms with unique names; a ``model`` that is a file
     path is taken from ``base_dir`` when relative and stored absolute."""
     entries = _list(node, "robots", 1, MAX_ROBOTS)
@@ -1725,13 +1773,26 @@ def _robots(node: Any, base_dir: str, files: str) -> tuple[RobotConfig, ...]:
                 per_joint_only=True,
             )
         v["ft"] = _ft(entry.get("ft", {}), f"{path}.ft")
-        v["hardware"] = _hardware(entry.get("hardware", {}), f"{path}.hardware", v["model"], nj)
+        v["hardware"] = _hardware(
+            entry.get("hardware", {}), f"{path}.hardware", v["model"], rtype, clock
+        )
+        if v["ft"].sensor is not None and not hardware_kind(v["hardware"].kind).gauges:
+            _fail(
+                f"{path}.ft.sensor",
+                v["ft"].sensor,
+                f"{v['hardware'].kind} hardware reads no wrist sensor's gauges; "
+                "ft: {sensor: none}",
+            )
         robots.append(RobotConfig(**v))
     return tuple(robots)
 
 
-def _hardware(node: Any, path: str, model: str, n_joints: int) -> HardwareConfig:
-    """A robot's ``hardware`` section: a known kind that carries all of the arm's joints."""
+def _hardware(
+    node: Any, path: str, model: str, rtype: RobotType, clock: ClockConfig
+) -> HardwareConfig:
+    """A robot's ``hardware`` section: a known kind that carries all of the arm's joints and
+    can drive its type, with an address if (and only if) the kind is networked."""
+    n_joints = rtype.n_joints
     v = _read(HardwareConfig, node, path)
     try:
         kind = hardware_kind(v["kind"])
@@ -1744,6 +1805,17 @@ def _hardware(node: Any, path: str, model: str, n_joints: int) -> HardwareConfig
             f"{path}.kind",
             v["kind"],
             f"carries {kind.channels} joints per arm; a {model} has {n_joints}",
+        )
+    why = kind.refuses(rtype, clock.servo_period_ms / 1000.0)
+    if why:
+        _fail(f"{path}.kind", v["kind"], f"cannot drive a {model}: {why}")
+    if kind.links and not v["address"]:
+        _fail(f"{path}.address", "", f"required: the {kind.name} robot's network address")
+    if not kind.links and v["address"]:
+        _fail(
+            f"{path}.address",
+            v["address"],
+            f"only for a networked robot (a {kind.name} arm is reached through its boards)",
         )
     return HardwareConfig(**v)
 
@@ -1775,7 +1847,7 @@ def schema() -> dict[str, Any]:
     defs = out["$defs"]
     entry = defs.pop("ProcessEntry")
     section = defs["ProcessesFile"]
-    for kind in PROCESS_NAMES:
+    for kind in PROCESS_NAMES + OPTIONAL_PROCESSES:
         keys = _PROCESS_KEYS[kind]
         props = {k: dict(entry["properties"][k]) for k in keys}
         for key, value in _KIND_DEFAULTS[kind].items():

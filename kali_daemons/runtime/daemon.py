@@ -843,14 +843,17 @@ def next_wake(tick: int, period: int, clock_due: int) -> int:
     return (tick // period + 1) * period
 
 
-def drain(sem: posix_ipc.Semaphore) -> None:
+def drain(sem: posix_ipc.Semaphore) -> int:
     """Take every post ``sem`` holds, without waiting (outside the cycle, or in a cycle's
-    Python reference: ``ServoWorker._await_feed``)."""
+    Python reference: ``ServoWorker._await_feed``); how many it held."""
+    taken = 0
     try:
         while True:
             sem.acquire(0)
+            taken += 1
     except posix_ipc.BusyError:
         pass
+    return taken
 
 
 def freeze_heap() -> None:

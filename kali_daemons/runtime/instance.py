@@ -528,6 +528,8 @@ class Instance:
         while state & _WORD:  # clear the word, keep the sequence count (a writer may be busy)
             cleared, state = self._fault_cas(self._fault_state, state, state & ~_WORD)
             if cleared:
+                for ops in self.all_hardware():
+                    ops.reset()  # the hardware's own recovery (an FR3's), power still off
                 return True
         return False
 

@@ -15,7 +15,7 @@ steps in detail: docs/internals/sio-viewer-core.md.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from ..core import layout
 from ..core.layout import CalibState, SlotReset
 
 if TYPE_CHECKING:
+    from ..hardware.interface import IndexedDriver
     from .daemon import ServoIO
 
 SEARCH_S = 1.0  # seconds to sweep one index spacing: about one encoder count per ms
@@ -55,13 +56,13 @@ class Calibration:
         self.base = span.start
         n = self.n = span.stop - span.start
         self.all_found = (1 << n) - 1  # calib_found once every joint's pulse is found
-        self.driver = sio.driver
+        self.driver = cast("IndexedDriver", sio.driver)  # only arms with index pulses
         self._capture = sio._capture[k : k + 1]  # SIO's flag: CSR bit 4 low while on
         self.capture = False
         self.hw = sio.hw
         self.pots = sio.hw.pots(k)
         rate = sio.rate
-        spacing = sio.driver.index_spacing[span]
+        spacing = self.driver.index_spacing[span]
         self.speed_per_tick = spacing / (SEARCH_S * rate)  # rad per servo tick
         self.travel = SEARCH_SPAN * spacing
         self.search_ticks = math.ceil((SEARCH_SPAN * SEARCH_S + SEARCH_GRACE_S) * rate)
@@ -197,3 +198,31 @@ class Calibration:
             f"calibrated: angles moved by up to {math.degrees(moved):.2f}° (pots were "
             f"{worst:.0%} of a spacing from the pulses at most)",
         )
+
+
+class Absolute:
+    """An arm with absolute encoders (its robot type's ``absolute_encoders``): its angles are
+    exact from power-up, so there is nothing to calibrate (thesis 3.5.1 does not apply)."""
+
+    capture = False
+
+    def __init__(self, sio: ServoIO, k: int) -> None:
+        self.r = sio._r[k]
+        self.what = f"robot '{sio.level.names[k]}' ({sio.inst.config.robots[k].model})"
+
+    def begin(self) -> None:
+        """Refused, saying why."""
+        self.r.calib_state[...] = CalibState.FAILED
+        self.r.message[...] = (
+            f"nothing to calibrate: {self.what} has absolute encoders, its angles are exact"
+        ).encode()[: layout.MESSAGE_BYTES]
+
+    def fail(self, why: str) -> None:
+        """Nothing runs, so nothing to give up."""
+
+    def step(self) -> None:
+        """Never active."""
+
+    def catch_index(self) -> None:
+        """No index pulses."""
+

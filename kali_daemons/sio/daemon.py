@@ -50,7 +50,7 @@ from ..runtime.config import DEFAULT_SAFE_RAD, ms_to_ns, period_ticks
 from ..runtime.daemon import Daemon
 from ..runtime.flightrec import FlightRecorder
 from ..servo.level import ServoLevel
-from .calibration import ACTIVE, Calibration
+from .calibration import ACTIVE, Absolute, Calibration
 from .feedforward import RobotFeedforward
 from .gang import GangAcknowledger
 from .wrench import ArmSensor, sensors_of
@@ -101,7 +101,9 @@ class ServoIO(Daemon):
             return max(1, -(-ms_to_ns(ms) // period_ns))
 
         self.power_timeout_ticks = servo_ticks(POWER_ON_TIMEOUT_MS)
-        self.hw: Hardware = inst.hardware_kind(kinds[0]).drive(inst.arena, cfg, servo_ticks)
+        self.hw: Hardware = inst.hardware_kind(kinds[0]).drive(
+            inst.arena, cfg, servo_ticks, lambda name: inst.slot_semaphore(inst.slot_of(name))
+        )
         self.driver = self.hw.driver  # conversions and calibration offsets (thesis 3.5)
         if not first:
             self.driver.load(*self._driver_state)
@@ -199,7 +201,10 @@ class ServoIO(Daemon):
         self._robots_tick = rs["tick"]
         self._r = [_RobotViews(self, k) for k in range(nr)]
         self._capture = np.zeros(nr, dtype=np.uint8)  # index capture on (calibration.py)
-        self._calib = [Calibration(self, k) for k in range(nr)]
+        self._calib: list[Calibration | Absolute] = [
+            Absolute(self, k) if r.type.absolute_encoders else Calibration(self, k)
+            for k, r in enumerate(cfg.robots)
+        ]
         ffc = cfg.feedforward
         self._ff_reference = [  # their kernels run in the cycle (_bind_kernels: self._ff)
             RobotFeedforward(
@@ -481,6 +486,7 @@ class ServoIO(Daemon):
     def on_shutdown(self) -> None:
         """Outside the cycle: release what on_configure took."""
         self._close_semaphore_addresses()
+        self.hw.close()
 
     def _close_semaphore_addresses(self) -> None:
         """Give back the compiled tick's opens of the feed and done semaphores."""
@@ -741,19 +747,19 @@ class ServoIO(Daemon):
             r.fed[:] = True
 
     def _read_pots(self, k: int) -> None:
-        """One step of reading robot ``k``'s pots at start; then the angles from them."""
-        reader = self.hw.pots(k)
-        if not reader.poll():
+        """One step of reading robot ``k``'s absolute joint sensors at start (its pots, or
+        absolute encoders: ``Hardware.absolute_angles``); then the angles from them."""
+        said = self.hw.absolute_angles(k)
+        if said is None:
             return
         r = self._r[k]
-        for j in range(reader.channels):
-            i = self.level.map.index(k, j)
-            self.driver.set_angle(i, self.driver.pot_angle(i, reader.codes[j]))
         self.driver.angles(self.q)
         self.q_prev[self.level.map.span(k)] = r.q
         self.fifos[k].reset(r.q)
         r.pots_read[...] = 1
-        r.message[...] = b"joint angles from the potentiometers (not calibrated)"
+        if self.inst.config.robots[k].type.absolute_encoders:
+            r.calibrated[...] = 1  # exact from power-up
+        r.message[...] = said.encode()
 
     def _checks(self, tick: int) -> bool:
         """Joint range and runaway on powered joints; True when it halted.

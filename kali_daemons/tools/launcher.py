@@ -60,10 +60,13 @@ MODULES = {
     "dynamics": "dynamics",
     "viewer": "viewer",
     "bridge": "bridge",
+    "link": "link",
 }
 # kinds that run as their own process in lockstep too, never hosted by the executive: a
 # bridge that dies (or is killed) must leave the cell running, lockstep or not
 OWN_PROCESS = frozenset({"wallclock", "bridge"})
+# the cell's hardware kinds in lockstep: only those the lockstep executive can step
+LOCKSTEP_KINDS = frozenset({"mcgill"})
 
 STOP_GRACE_S = 3.0
 KILL_GRACE_S = 2.0
@@ -369,6 +372,8 @@ def _create(
         clock["lockstep_timeout_ms"] = int(cfg.clock.lockstep_ack_timeout_s * 1000)
         clock["busy_wait_ns"] = cfg.clock.busy_wait_us * 1000
         clock["lockstep"] = int(lockstep)
+        # a networked robot's state packets are the cell's interrupt (decision 0015)
+        clock["paced"] = int(any(hardware_kind(k).links for k in cfg.hardware_kinds))
         clock["mode"] = RunMode.STOPPED
         clock["step_target"] = -1
         del clock
@@ -477,6 +482,12 @@ def start(
     ``dashboard.record`` (relative to the config's).
     """
     name = check_instance_name(cfg.instance if instance is None else instance)
+    if lockstep and not set(cfg.hardware_kinds) <= LOCKSTEP_KINDS:
+        raise ConfigError(
+            f"{cfg.source}: lockstep drives {', '.join(sorted(LOCKSTEP_KINDS))} hardware; a "
+            f"cell of {', '.join(cfg.hardware_kinds)} runs in real time (kalictl start "
+            "without --lockstep)"
+        )
     t_start = time.monotonic()
     registry = _check_servos(cfg)
     check_clear_at_rest(cfg)  # arms standing in each other: refused before anything runs
@@ -528,6 +539,8 @@ def _start(
                 continue  # hosted by the executive: it is the wall clock's process
             hosts = executive and p.kind == "wallclock"
             module = "lockstep.executive" if hosts else MODULES[p.kind]
+            if p.kind == "plant":  # the cell's hardware's simulator
+                module = hardware_kind(cfg.hardware_kinds[0]).simulator
             logs_of[p.name] = logs / f"{p.name}.log"
             children[p.name] = _spawn(module, name, p.name, logs_of[p.name])
         if executive:  # one process: every slot is the executive's

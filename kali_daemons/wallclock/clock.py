@@ -25,13 +25,14 @@ from ..core import layout, rt
 from ..core.layout import ClockCommand, FaultCode, ProcState, RunMode
 from ..core.spinlock import pid_alive
 from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
-from ..runtime.daemon import Daemon, _CycleStats
+from ..runtime.daemon import Daemon, _CycleStats, drain
 from ..runtime.flightrec import FlightDumper
 from ..runtime.instance import decode
 
 STOPPED_WAIT_S = 0.2
 MAX_CLOCK_ARG = 1e12  # ticks to step, or ms to set the time to: ~30 years at 1 ms
 LOCKSTEP_SLICE_S = 0.05  # lockstep ack waits check for dead processes this often
+PACE_SLICE_S = 0.005  # paced by the hardware: with no packet this long, the clock supervises
 GANG_RUNS, GANG_SIO_LATE, GANG_SVS_LATE = 0, 1, 2  # gang_state: SIO and the SVs this tick
 # A wake-up of the clock later than this was the machine's stall, and the time is not held
 # against anyone (_missed); twice the machine's p99.9 wake-up lateness, so on a sound machine
@@ -52,11 +53,16 @@ class WallClock(Daemon):
         self.tolerance_ns = int(c["serious_miss_tolerance_ms"]) * 1_000_000
         self.lockstep_timeout_s = int(c["lockstep_timeout_ms"]) / 1000.0
         self.lockstep = bool(c["lockstep"])
+        # real time paced by the hardware: each state packet a networked robot's link posts on
+        # the clock's own semaphore is a base tick (decision 0015); none in a slice: the clock
+        # only supervises
+        self.paced = bool(c["paced"]) and not self.lockstep
         self._view_table(self.inst.procs)
         log = self.inst.misses
         self._log_entries = log["entries"]
         self._log_count = log["count"].reshape(1)  # a writable one-element view
         self._sems = [self.inst.slot_semaphore(i) for i in range(layout.MAX_PROCESSES)]
+        self._pace = self._sems[self.slot]
         self._cmd_sem = self.inst.command_semaphore()
         self._ack_sem = self.inst.ack_semaphore()
         self._gen = self._rates_gen = -1
@@ -196,6 +202,8 @@ class WallClock(Daemon):
             if mode != RunMode.STOPPED and fault["active"]:
                 c["mode"] = mode = RunMode.STOPPED  # halt (DESIGN 7): a fault stops the clock
             if mode == RunMode.STOPPED:
+                if self.paced:
+                    drain(self._pace)  # packets while stopped are no ticks to catch up on
                 self._flight.dump_if_halted()  # once per fault, nothing signalled (DESIGN 7)
                 self.inst.procs[self.slot]["heartbeat_ns"] = now()
                 try:
@@ -214,6 +222,9 @@ class WallClock(Daemon):
                 c["tick"] = tick
                 if mode == RunMode.STEPPING and tick >= int(c["step_target"]):
                     c["mode"] = RunMode.STOPPED
+                continue
+            if self.paced:
+                tick = self._paced_tick(tick, stats)
                 continue
             due = t0 + tick * base
             if self.busy_ns:
@@ -236,6 +247,31 @@ class WallClock(Daemon):
             if self._watched:
                 self._watch(now())
             tick += 1
+
+    def _paced_tick(self, tick: int, stats: _CycleStats) -> int:
+        """Real time paced by the hardware: wait for the next state packet (a post of the
+        clock's semaphore), which is this tick's due time, and signal it; the next tick.
+        Packets the clock was too late for are skipped, as an overrun is (no burst of
+        catch-up ticks); none within a slice: the clock supervises and asks again."""
+        now = rt.monotonic_ns
+        try:
+            self._pace.acquire(PACE_SLICE_S)
+        except (posix_ipc.BusyError, posix_ipc.SignalError):
+            self._watch(now())
+            return tick
+        woke = now()
+        c = self.inst.clock
+        skip = drain(self._pace)
+        if skip:
+            c["overruns"] += 1
+            c["skipped_ticks"] += skip
+            tick += skip
+        c["tick"] = tick
+        self._realtime_tick(tick, woke)
+        stats.record(tick, woke, woke, now())
+        if self._watched:
+            self._watch(now())
+        return tick + 1
 
     def _realtime_tick(self, tick: int, due: int) -> None:
         """Check acknowledgements and signal every slot due at ``tick``; inside the cycle.

@@ -369,7 +369,7 @@ def test_a_missing_module_is_refused_naming_where_relative_paths_start(tmp_path:
         parse_beside(tmp_path, "arms/planar3.py")
     with pytest.raises(
         ConfigError,
-        match=r"robots\[1\]\.model = 'kuka': must be one of: panda, puma560, ur5, "
+        match=r"robots\[1\]\.model = 'kuka': must be one of: fr3, panda, puma560, ur5, "
         r"or a \.py file defining ROBOT",
     ):
         parse_beside(tmp_path, "kuka")

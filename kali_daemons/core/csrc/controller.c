@@ -9,4 +9,5 @@
 #include "flightrec.c"
 #include "fifo.c"
 #include "sio.c"
+#include "franka.c"
 #include "servo.c"

@@ -510,6 +510,45 @@ typedef struct {
     int64_t ticks, bit, prev_bit; /* end_tick's state */
 } McgillArgs;
 
+/* FrankaReadArgs (franka): kali_franka_read */
+typedef struct {
+    int64_t n, n_arms;
+    char *arms; /* the FR3s' records (hardware.franka.registers) */
+    View q_off; /* int64: joint i's angle at arms + q_off[i] (double) */
+    View seq_off; /* int64, per arm: its state's seq at arms + seq_off[k] (uint64) */
+    View q; /* double out, rad */
+    View seen; /* uint64 out, per arm: the state this tick answers */
+} FrankaReadArgs;
+
+/* FrankaWriteArgs (franka): kali_franka_write */
+typedef struct {
+    int64_t n;
+    View torque, torque_limit; /* N·m */
+    View step; /* N·m: the most the torque may change in one tick (the FR3's rate) */
+    View last; /* N·m: the torque sent last tick */
+    View current; /* double out: the torque sent, N·m (the FR3 takes torques) */
+    View clamped; /* uint8 (bool) out: beyond the torque limit */
+    char *arms;
+    View tau_off; /* int64: joint i's command at arms + tau_off[i] (double) */
+} FrankaWriteArgs;
+
+/* FrankaControlArgs (franka): kali_franka_control */
+typedef struct {
+    int64_t n_arms;
+    char *arms;
+    int64_t row; /* bytes between two arms' records */
+    int64_t want_off, cmd_seq_off, tau_off; /* fields' offsets in a record */
+    View power; /* per robot: uint8 PowerState */
+    View n_joints; /* int64, per arm */
+    View seen; /* uint64, per arm: the state this tick answers (the read kernel's) */
+    View last; /* double, per joint: the write kernel's, zeroed with the arm's torque */
+    View base; /* int64, per arm: its first joint */
+    sem_t **links; /* per arm: its link's semaphore, posted with the command */
+    const uint32_t *fault_active;
+    int64_t on, enabling;
+    int64_t ticks; /* ticks whose commands went out */
+} FrankaControlArgs;
+
 /* SioArgs (sio): kali_sio_tick */
 typedef struct {
     int64_t n, n_robots;
@@ -1346,6 +1385,50 @@ static const Field McgillArgs_LAYOUT[] = {
     END(McgillArgs),
 };
 
+static const Field FrankaReadArgs_LAYOUT[] = {
+    LAYOUT(FrankaReadArgs, n),
+    LAYOUT(FrankaReadArgs, n_arms),
+    LAYOUT(FrankaReadArgs, arms),
+    LAYOUT(FrankaReadArgs, q_off),
+    LAYOUT(FrankaReadArgs, seq_off),
+    LAYOUT(FrankaReadArgs, q),
+    LAYOUT(FrankaReadArgs, seen),
+    END(FrankaReadArgs),
+};
+
+static const Field FrankaWriteArgs_LAYOUT[] = {
+    LAYOUT(FrankaWriteArgs, n),
+    LAYOUT(FrankaWriteArgs, torque),
+    LAYOUT(FrankaWriteArgs, torque_limit),
+    LAYOUT(FrankaWriteArgs, step),
+    LAYOUT(FrankaWriteArgs, last),
+    LAYOUT(FrankaWriteArgs, current),
+    LAYOUT(FrankaWriteArgs, clamped),
+    LAYOUT(FrankaWriteArgs, arms),
+    LAYOUT(FrankaWriteArgs, tau_off),
+    END(FrankaWriteArgs),
+};
+
+static const Field FrankaControlArgs_LAYOUT[] = {
+    LAYOUT(FrankaControlArgs, n_arms),
+    LAYOUT(FrankaControlArgs, arms),
+    LAYOUT(FrankaControlArgs, row),
+    LAYOUT(FrankaControlArgs, want_off),
+    LAYOUT(FrankaControlArgs, cmd_seq_off),
+    LAYOUT(FrankaControlArgs, tau_off),
+    LAYOUT(FrankaControlArgs, power),
+    LAYOUT(FrankaControlArgs, n_joints),
+    LAYOUT(FrankaControlArgs, seen),
+    LAYOUT(FrankaControlArgs, last),
+    LAYOUT(FrankaControlArgs, base),
+    LAYOUT(FrankaControlArgs, links),
+    LAYOUT(FrankaControlArgs, fault_active),
+    LAYOUT(FrankaControlArgs, on),
+    LAYOUT(FrankaControlArgs, enabling),
+    LAYOUT(FrankaControlArgs, ticks),
+    END(FrankaControlArgs),
+};
+
 static const Field SioArgs_LAYOUT[] = {
     LAYOUT(SioArgs, n),
     LAYOUT(SioArgs, n_robots),
@@ -1543,6 +1626,9 @@ const Field *kali_layout(const char *name) {
     if (!strcmp(name, "ArmFinishArgs")) return ArmFinishArgs_LAYOUT;
     if (!strcmp(name, "ArmArgs")) return ArmArgs_LAYOUT;
     if (!strcmp(name, "McgillArgs")) return McgillArgs_LAYOUT;
+    if (!strcmp(name, "FrankaReadArgs")) return FrankaReadArgs_LAYOUT;
+    if (!strcmp(name, "FrankaWriteArgs")) return FrankaWriteArgs_LAYOUT;
+    if (!strcmp(name, "FrankaControlArgs")) return FrankaControlArgs_LAYOUT;
     if (!strcmp(name, "SioArgs")) return SioArgs_LAYOUT;
     if (!strcmp(name, "ServeArgs")) return ServeArgs_LAYOUT;
     if (!strcmp(name, "WaitArgs")) return WaitArgs_LAYOUT;

@@ -166,11 +166,16 @@ class McGillBoards:
 
     @classmethod
     def attach(
-        cls, arena: Arena, cfg: CellConfig, servo_ticks: Callable[[float], int]
+        cls,
+        arena: Arena,
+        cfg: CellConfig,
+        servo_ticks: Callable[[float], int],
+        semaphore: Callable[[str], object] | None = None,
     ) -> McGillBoards:
         """The cell's boards once every one answers (``BOARD_WAIT_S``), with the arms'
         calibration sheets (thesis 3.5.1) from ``cfg``; ``servo_ticks(ms)``: at least ``ms``
-        of servo ticks.  HardwareError if a board does not answer."""
+        of servo ticks (the boards wake no process: ``semaphore`` unused).  HardwareError if
+        a board does not answer."""
         n = len(cfg.robots)
         boards = records(arena, n)
         if not boards_present(boards, BOARD_WAIT_S):
@@ -322,6 +327,9 @@ class McGillBoards:
         self._state = kernel.args
         return kernel
 
+    def close(self) -> None:
+        """Nothing opened."""
+
     # ------------------------------------------------------------------ calibration (3.5.1)
 
     def gauges(self, k: int) -> np.ndarray:
@@ -332,6 +340,17 @@ class McGillBoards:
     def pots(self, k: int) -> PotReader:
         """Arm ``k``'s potentiometer reader."""
         return self._arms[k].pots
+
+    def absolute_angles(self, k: int) -> str | None:
+        """One step of reading arm ``k``'s pots at start (``PotReader``); once every joint's
+        is read, the driver's angles set from them (coarse: the pots' 8 bits, 3.5.1)."""
+        reader = self._arms[k].pots
+        if not reader.poll():
+            return None
+        base = sum(t.n_joints for t in self._types[:k])
+        for j in range(reader.channels):
+            self.driver.set_angle(base + j, self.driver.pot_angle(base + j, reader.codes[j]))
+        return "joint angles from the potentiometers (not calibrated)"
 
     def index_hits(self, k: int) -> int:
         """Arm ``k``'s index register: bit j set once joint j's pulse reset its counter."""
@@ -375,6 +394,9 @@ class McGillOps:
         boards = self._view()
         if boards is not None:  # not laid out: nothing is powered
             cut_all(boards)
+
+    def reset(self) -> None:
+        """Nothing: SIO's next tick writes the disable bit back up (the halt is cleared)."""
 
     def amplifiers_cut(self) -> list[bool]:
         boards = self._view()

@@ -38,7 +38,8 @@ class ArmModel:
     def __init__(self, robot: RobotConfig, inp: ArmInput) -> None:
         rtype = robot.type
         ft = robot.ft
-        self.model = load_pinocchio(rtype, (ft.tool_mass_kg, ft.tool_com_m))
+        tool = (ft.tool_mass_kg, ft.tool_com_m)
+        self.model = load_pinocchio(rtype, tool, gravity=not robot.holds_gravity)
         flange = self.model.frames[self.model.getFrameId(FLANGE_FRAME)]
         tip = pin.SE3(np.eye(3), np.array([0.0, 0.0, ft.tool_tip_m]))
         self.frame = self.model.addFrame(

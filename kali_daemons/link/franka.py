@@ -1,0 +1,266 @@
+"""The FR3's link: one process per FR3, holding its libfranka connection (decision 0015).
+
+libfranka's calls block and hold the interpreter lock, so each FR3's connection is a process
+of its own that never stalls SIO: it publishes every state packet into the arm's record
+(``hardware.franka.registers``) and, while torque control runs, answers it with the torques
+SIO wrote for it (``writeOnce``).  The first FR3's link posts the wall clock's semaphore with
+each packet: the robot's packets are the cell's interrupt, so every state is answered by one
+command computed from it (thesis 3.2.1's hardware timer, here the robot's own).  A libfranka
+error halts the cell naming the robot and libfranka's words; ``kalictl reset`` runs its error
+recovery.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import numpy as np
+import posix_ipc
+
+from ..core import rt
+from ..core.errors import HardwareError
+from ..core.layout import FaultCode, lateness_bin
+from ..hardware.franka import registers
+from ..hardware.franka.registers import LINK_CONNECTED, LINK_CONTROL, LINK_ERROR, LINK_ESTOP
+from ..runtime.daemon import Daemon
+
+# how long a link tries to reach its robot at start (a simulator loads), within what start
+# waits for every process (the config's startup_timeout_s)
+CONNECT_WAIT_FRACTION = 0.7
+CONNECT_RETRY_S = 0.2
+ROBOT_PORT = 1337  # libfranka's command port (TCP); the states come over UDP
+# A command later than this after its state answers nothing: the robot has moved on to the
+# next cycle (1 ms), so SIO's answer to this state is a miss, counted in ``late``
+ANSWER_WAIT_S = 0.0009
+RECONNECT_S = 0.5  # a lost connection is tried again this often (once the fault is reset)
+
+
+def franka() -> Any:
+    """pylibfranka, imported where it is used: only an FR3 cell's processes load it."""
+    import pylibfranka  # only an FR3 cell's links load it (15 MB of libfranka)
+
+    return pylibfranka
+
+
+class FrankaLink(Daemon):
+    """One FR3's libfranka connection: states into its record, SIO's torques out."""
+
+    kind = "link"
+    self_timed_in_realtime = True  # the robot times it; the clock watches its heartbeat
+
+    def on_configure(self) -> None:
+        inst = self.inst
+        cfg = inst.config
+        robot_name = self.name.partition(".")[2]
+        self.k = k = next(i for i, r in enumerate(cfg.robots) if r.name == robot_name)
+        self.robot = cfg.robots[k]
+        self.n = self.robot.n_joints
+        self.address = self.robot.hardware.address
+        self.label = f"robot '{robot_name}' (FR3 at {self.address})"
+        arms = inst.arena.existing(registers.KEY_ARMS, registers.FRANKA_ARM, len(cfg.robots))
+        self.arm = arms[k : k + 1].reshape(())
+        franka_arms = [i for i, r in enumerate(cfg.robots) if r.hardware.kind == "franka"]
+        self.pacer = k == franka_arms[0] and not inst.lockstep
+        self._pace = inst.slot_semaphore(inst.slot_of("wallclock")) if self.pacer else None
+        self._answer = inst.slot_semaphore(self.slot)
+        self._tau = np.zeros(self.n)
+        n = self.n  # the record's fields viewed once (``_publish``, every packet)
+        self._q, self._dq, self._tau_j = (self.arm[f][:n] for f in ("q", "dq", "tau_J"))
+        self._wrench, self._cmd = self.arm["wrench"], self.arm["tau"][:n]
+        self._share_hist = self.arm["share_hist"]
+        self._ctrl: Any = None  # the active torque control, while the arm is powered
+        self._robot: Any = None
+        self._rt_on = False  # past start-up: at the configured priority
+        self.arm["link_pid"] = os.getpid()
+        self.arm["error"] = b""
+        self._publish(self._connect(CONNECT_WAIT_FRACTION * cfg.startup_timeout_s))
+
+    # ------------------------------------------------------------------ connection
+
+    def _connect(self, wait_s: float) -> Any:
+        """Reach the robot within ``wait_s`` (a simulator may still be loading), refusing one
+        in a mode Kali cannot drive; its first state.  HardwareError naming the robot
+        otherwise."""
+        pf = franka()
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                self._robot = pf.Robot(self.address, pf.RealtimeConfig.kIgnore)
+                break
+            except Exception as exc:
+                if time.monotonic() > deadline:
+                    raise HardwareError(
+                        f"franka: {self.label}: no robot or simulator answers at "
+                        f"{self.address}:{ROBOT_PORT} within {wait_s:g} s (libfranka: {exc})"
+                    ) from None
+                time.sleep(CONNECT_RETRY_S)
+            finally:
+                self._own_scheduling()
+        state = self._robot.read_once()
+        mode = state.robot_mode
+        if mode == pf.RobotMode.Reflex:
+            self._robot.automatic_error_recovery()  # a reflex left from before Kali
+        elif mode not in (pf.RobotMode.Idle, pf.RobotMode.Move):
+            raise HardwareError(
+                f"franka: {self.label} is in mode {mode.name}, not Idle: release its user "
+                "stop and leave guiding mode (Desk) before starting Kali"
+            )
+        self.arm["status"] = LINK_CONNECTED
+        return state
+
+    def _own_scheduling(self) -> None:
+        """Undo what libfranka's Robot() does to the calling thread (SCHED_FIFO 99, above
+        every Kali process and the machine's own floor) and take the configured priority."""
+        rt.leave_realtime()
+        if self._rt_on:
+            rt.go_realtime(self._rt, self._priority)
+
+    def _go_realtime(self) -> None:
+        super()._go_realtime()
+        self._rt_on = True
+
+    # ------------------------------------------------------------------ the loop
+
+    def _loop(self) -> None:
+        header = self.inst.arena.header
+        arm, procs = self.arm, self.inst.procs
+        while not self._leave and not header["shutdown"]:
+            procs[self.slot]["heartbeat_ns"] = rt.monotonic_ns()
+            try:
+                if self._robot is None:
+                    self._reconnect()
+                elif self._ctrl is None:
+                    self._idle_step()
+                elif int(arm["stop"]) or int(arm["estop"]) or not int(arm["want"]):
+                    self._finish_control()
+                else:
+                    self._control_step()
+            except Exception as exc:  # libfranka's: the robot's error, or a lost connection
+                self._lost(exc)
+        if self._ctrl is not None:
+            self._finish_control()
+
+    def _idle_step(self) -> None:
+        """Not servoing: publish the next state; start torque control when SIO wants it,
+        run the error recovery when reset asks."""
+        arm = self.arm
+        error = int(arm["status"]) & LINK_ERROR
+        if int(arm["recover"]):
+            if error:
+                self._robot.automatic_error_recovery()
+                arm["error"] = b""
+            arm["recover"] = error = 0
+        estop = bool(int(arm["estop"]))
+        arm["status"] = LINK_CONNECTED | (LINK_ESTOP if estop else 0) | error
+        if int(arm["want"]) and not int(arm["stop"]) and not estop and not error:
+            self._ctrl = self._robot.start_torque_control()
+            arm["status"] = LINK_CONNECTED | LINK_CONTROL
+            return
+        self._publish(self._robot.read_once())
+
+    def _control_step(self) -> None:
+        """One robot cycle in torque control: the state in, SIO's answer to it out."""
+        arm = self.arm
+        state, dt = self._ctrl.readOnce()
+        t_in = rt.monotonic_ns()
+        seq = self._publish(state)
+        lost = round(dt.to_sec() * 1000.0) - 1
+        if lost > 0:
+            arm["lost"] += lost
+        if not self._answered(seq, t_in):
+            arm["late"] += 1
+            return
+        np.copyto(self._tau, self._cmd)
+        self._ctrl.writeOnce(franka().Torques(self._tau.tolist()))
+        t_out = rt.monotonic_ns()
+        arm["sent_ns"] = t_out
+        arm["answered"] += 1
+        share = t_out - t_in  # Kali's share of the robot's cycle: state in, command out
+        self._share_hist[lateness_bin(share)] += 1
+        if share > arm["share_max_ns"]:
+            arm["share_max_ns"] = share
+
+    def _answered(self, seq: int, t_in: int) -> bool:
+        """Wait for SIO's command answering state ``seq`` (its post of this link's semaphore),
+        until the robot's next cycle would begin."""
+        arm = self.arm
+        deadline = t_in + int(ANSWER_WAIT_S * 1e9)
+        while int(arm["cmd_seq"]) != seq:
+            left = deadline - rt.monotonic_ns()
+            if left <= 0:
+                return False
+            try:
+                self._answer.acquire(left / 1e9)
+            except posix_ipc.BusyError:
+                return int(arm["cmd_seq"]) == seq
+        return True
+
+    def _finish_control(self) -> None:
+        """End torque control: a last zero command with ``motion_finished`` (libfranka then
+        stops the robot: its own brakes hold it), or libfranka's stop if that fails."""
+        pf = franka()
+        arm = self.arm
+        try:
+            self._ctrl.readOnce()
+            last = pf.Torques([0.0] * self.n)
+            last.motion_finished = True
+            self._ctrl.writeOnce(last)
+        except Exception:
+            self._robot.stop()
+        finally:
+            self._ctrl = None
+            arm["status"] = int(arm["status"]) & ~LINK_CONTROL
+
+    def _publish(self, state: Any) -> int:
+        """The state packet into the record, ``seq`` last; the clock's interrupt if this
+        link paces the cell.  Returns the new ``seq``."""
+        arm = self.arm
+        self._q[:] = state.q
+        self._dq[:] = state.dq
+        self._tau_j[:] = state.tau_J
+        self._wrench[:] = state.O_F_ext_hat_K
+        arm["success_rate"] = state.control_command_success_rate
+        arm["mode"] = int(state.robot_mode.value)
+        arm["robot_ms"] = round(state.time.to_sec() * 1000.0)
+        arm["state_ns"] = rt.monotonic_ns()
+        seq = int(arm["seq"]) + 1
+        arm["seq"] = seq
+        if self._pace is not None:
+            self._pace.release()
+        return seq
+
+    # ------------------------------------------------------------------ errors
+
+    def _lost(self, exc: Exception) -> None:
+        """libfranka raised: the robot's error (a reflex, a rejected command) or the
+        connection lost.  Halt the cell naming both; keep the connection if it still works
+        (states keep coming, recovery on reset), else try it again once reset."""
+        arm = self.arm
+        self._ctrl = None
+        text = f"{type(exc).__name__}: {exc}".replace("\n", " ")
+        arm["error"] = text.encode()[: registers.FRANKA_ARM["error"].itemsize]
+        arm["status"] = (int(arm["status"]) & ~LINK_CONTROL) | LINK_ERROR
+        self.inst.raise_fault(FaultCode.HARDWARE, self.name, f"{self.label}: libfranka: {text}")
+        try:
+            self._publish(self._robot.read_once())
+        except Exception:
+            self._robot = None
+            arm["status"] = LINK_ERROR
+
+    def _reconnect(self) -> None:
+        """The connection is gone: once the halt is reset, try it again."""
+        if int(self.inst.fault["active"]):
+            time.sleep(RECONNECT_S)
+            return
+        try:
+            self._publish(self._connect(RECONNECT_S))
+            self.arm["error"] = b""
+        except HardwareError:
+            self._robot = None
+            self.arm["status"] = LINK_ERROR
+
+    def on_shutdown(self) -> None:
+        self.arm["status"] = 0
+        self._robot = None

@@ -1,0 +1,82 @@
+"""An FR3 cell's plant: franky-sim, a MuJoCo FR3 that serves libfranka's network protocol
+(Apache-2.0, not written here), so every byte Kali's links exchange with it is the real
+robot's protocol (docs/decisions/0015).
+
+One simulated FR3 per arm of the cell, each serving its arm's address (127.0.0.x), at its
+base position and its robot type's home pose; every plant period, each robot's commands are
+taken, the world steps 1 ms and each robot's state goes out.  The truth (joint angles,
+velocities, applied torques) goes into the plant's truth records for tests and the viewer.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..core import layout
+from ..core.errors import DaemonError
+from ..runtime.daemon import Daemon
+
+FRANKY_STEP_MS = 1.0  # franky-sim steps its world 1 ms per step, like the FR3's cycle
+
+
+class FrankySim(Daemon):
+    """franky-sim hosted as the cell's plant: self-timed in real time."""
+
+    kind = "plant"
+    self_timed_in_realtime = True
+
+    def on_configure(self) -> None:
+        from franky_sim import SimulationServer  # only an FR3 cell's plant loads it
+        from franky_sim.mujoco_simulator import MujocoSimulator
+
+        cfg = self.inst.config
+        if self.period_ns != round(FRANKY_STEP_MS * 1e6):
+            raise DaemonError(
+                f"{self.name}: franky-sim steps {FRANKY_STEP_MS:g} ms; "
+                "processes.plant.period_ms must be 1"
+            )
+        robots = [r for r in cfg.robots if r.hardware.kind == "franka"]
+        self.sim: Any = MujocoSimulator(enable_visualization=False)
+        self.sim.init()
+        self.robots = [
+            self.sim.add_robot(initial_q=tuple(r.type.q_home), position=tuple(r.base_xyz))
+            for r in robots
+        ]
+        self.server: Any = SimulationServer(self.sim, [r.hardware.address for r in robots])
+        self.server.init()
+        served = [rs.hostname for rs in self.server.robot_servers]
+        wanted = [r.hardware.address for r in robots]
+        if served != wanted:
+            raise DaemonError(f"{self.name}: franky-sim serves {served}, the cell wants {wanted}")
+        m = cfg.joints
+        self._truth = self.inst.arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, m.total)
+        self._world = self.inst.arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, None)
+        index = {r.name: k for k, r in enumerate(cfg.robots)}
+        self._spans = [m.span(index[r.name]) for r in robots]
+        self._ticks = 0
+
+    def cycle(self, tick: int) -> None:
+        """One 1 ms step: commands in, the world stepped, states out; the truth published."""
+        self.server.run_once(realtime=False)
+        self._ticks += 1
+        truth = self._truth
+        for robot, span in zip(self.robots, self._spans, strict=True):
+            inner = robot._get_state()  # franky-sim's own truth (what it packs into states)
+            truth["q"][span] = inner.q
+            truth["qd"][span] = inner.dq
+            truth["torque"][span] = inner.tau_j
+        self._world["ticks"] = self._ticks
+        self._world["sim_time_ns"] = self._ticks * 1_000_000
+
+    def on_shutdown(self) -> None:
+        server, sim = getattr(self, "server", None), getattr(self, "sim", None)
+        if server is not None:
+            server.cleanup()
+        if sim is not None:
+            sim.cleanup()
+
+
+if __name__ == "__main__":  # python -m kali_daemons.plant.franky --instance NAME --name plant
+    from ..runtime.daemon import run_daemon  # run as a program only
+
+    run_daemon(FrankySim)

@@ -1,0 +1,155 @@
+"""An FR3 through libfranka, against franky-sim (a MuJoCo FR3 serving libfranka's protocol,
+written elsewhere): config/fr3.yaml's cell in real time, every byte over the real protocol on
+loopback.  Motions end where the simulator's truth says; a halt, a dead simulator, a dead or
+stopped link each stop the cell naming why; nothing is left behind (the ``kali`` fixture)."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from kali_daemons.client import Kali, pose
+from kali_daemons.client.common import MotionFailedError
+from kali_daemons.core import layout
+from kali_daemons.core.errors import ConfigError, KaliError
+from kali_daemons.core.layout import FaultCode, PowerState
+from kali_daemons.hardware.franka import registers
+from kali_daemons.hardware.franka.arms import records
+from kali_daemons.runtime.instance import Instance
+from kali_daemons.tools import launcher
+from kali_daemons.wallclock import start_kali_clock
+
+from .conftest import leftovers, make_config, unique_name, wait_for
+
+STEADY_RAD = 2e-3  # a joint move's end, on the simulator's truth
+LINE_M = 1e-3  # a line's end, the flange by the truth's angles
+
+
+def fr3_cell(kali: Callable[..., str]) -> str:
+    """config/fr3.yaml's cell in real time, its FR3 on an address of its own (franky-sim
+    binds it: two test runs side by side must not meet)."""
+    address = f"127.{os.getpid() % 250 + 1}.{random.randrange(1, 255)}.{random.randrange(1, 255)}"
+    return kali(lockstep=False, base="fr3.yaml", edits={r"127\.0\.0\.1": address})
+
+
+def arm_record(inst: Instance) -> np.ndarray:
+    return records(inst.arena, inst.cell.n_robots)[0]
+
+
+def truth_q(inst: Instance) -> np.ndarray:
+    return inst.arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, 7)["q"].copy()
+
+
+def test_an_fr3_moves_through_libfranka_and_ends_where_the_simulator_says(
+    kali: Callable[..., str],
+) -> None:
+    name = fr3_cell(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])  # power on; nothing to calibrate (absolute encoders)
+        assert k.servo.calibrated("arm")
+        arm = k.robot("arm")
+        q0 = arm.read_joints()
+        target = q0 + np.radians([20, 10, -15, 15, 20, -20, 30])
+        arm.move_joints(target, speed=0.5)
+        arm.settle()
+        assert np.abs(truth_q(k.inst) - target).max() < STEADY_RAD
+        here = arm.read_pose(demand=True)
+        goal = here[:3, 3] + np.array([0.0, 0.08, -0.04])
+        arm.move_line(pose(goal, here), speed=0.1)
+        arm.settle()
+        flange = arm.base @ arm.type.kinematics.fkine(truth_q(k.inst)) @ arm.tool
+        assert np.linalg.norm(flange[:3, 3] - goal) < LINE_M
+        rec = arm_record(k.inst)
+        assert int(rec["status"]) & registers.LINK_CONTROL
+        assert int(rec["answered"]) > 1000  # every tick of the motions went out as torques
+        # the robot's packets pace the clock: one tick per state
+        assert int(k.inst.clock["tick"]) <= int(rec["seq"])
+
+
+def test_a_halt_stops_the_fr3_within_a_robot_cycle_and_reset_lets_it_run_again(
+    kali: Callable[..., str],
+) -> None:
+    name = fr3_cell(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])
+        rec = arm_record(k.inst)
+        k.inst.raise_fault(FaultCode.OPERATOR, "test", "halt the FR3")
+        wait_for(lambda: not int(rec["status"]) & registers.LINK_CONTROL, 2.0, "torque control off")
+        assert int(rec["mode"]) == 1  # libfranka's Idle: the robot holds itself
+        assert k.servo.power_state("arm") == PowerState.OFF
+        assert k.inst.clear_fault()
+        start_kali_clock(k.inst)
+        k.ready(["arm"])
+        arm = k.robot("arm")
+        target = arm.read_joints() + np.radians([0, 0, 0, 10, 0, 0, 0])
+        arm.move_joints(target, speed=0.5)
+        arm.settle()
+        assert np.abs(truth_q(k.inst) - target).max() < STEADY_RAD
+
+
+def test_calibrating_an_fr3_says_there_is_nothing_to_calibrate(kali: Callable[..., str]) -> None:
+    name = fr3_cell(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])
+        k.servo.calibrate("arm")
+        wait_for(lambda: k.servo.calibration("arm")[0] == layout.CalibState.FAILED, 2.0)
+        assert "nothing to calibrate" in k.servo.calibration("arm")[2]
+        assert "absolute encoders" in k.servo.calibration("arm")[2]
+        assert k.servo.calibrated("arm")
+
+
+@pytest.mark.parametrize(
+    ("process", "sig", "code", "says"),
+    [
+        ("plant", signal.SIGKILL, "PROCESS_DIED", "process 'plant'"),
+        ("link.arm", signal.SIGKILL, "PROCESS_DIED", "process 'link.arm'"),
+        ("link.arm", signal.SIGSTOP, "DEADLINE", "'link.arm'"),
+    ],
+    ids=["franky-sim-killed", "link-killed", "link-stopped"],
+)
+def test_losing_the_robot_halts_the_cell_naming_what_was_lost(
+    kali: Callable[..., str], process: str, sig: signal.Signals, code: str, says: str
+) -> None:
+    name = fr3_cell(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])
+        pid = int(k.inst.procs[k.inst.slot_of(process)]["pid"])
+        os.kill(pid, sig)
+        try:
+            wait_for(lambda: bool(k.inst.fault["active"]), 5.0, f"a halt after {process} lost")
+            fault = k.inst.read_fault()
+            assert fault.code == code, fault
+            assert says in fault.message, fault
+            assert k.inst.hardware(0).amplifiers_cut() == [True]  # the link is told to stop
+            with pytest.raises(MotionFailedError, match="the system is halted"):
+                k.robot("arm").move_joints(k.robot("arm").read_joints(), speed=0.5)
+        finally:
+            if sig == signal.SIGSTOP:
+                os.kill(pid, signal.SIGCONT)
+
+
+def test_an_unreachable_robot_is_refused_at_start_naming_it() -> None:
+    """No simulator and no robot at the address: the link gives up within start's wait,
+    saying where it looked; start cleans up."""
+    name = unique_name()
+    edits = {
+        r"127\.0\.0\.1": "127.254.254.254",
+        r"^  plant: .*$": "  plant: {enabled: false}",
+        r"^arena_kib: 6144$": "arena_kib: 6144\nstartup_timeout_s: 6",
+    }
+    t0 = time.monotonic()
+    with pytest.raises(KaliError, match=r"no robot or simulator answers at 127\.254\.254\.254"):
+        launcher.start(make_config(name, edits, base="fr3.yaml"), lockstep=False)
+    assert time.monotonic() - t0 < 6 + launcher.STOP_GRACE_S + launcher.KILL_GRACE_S + 5
+    assert leftovers(name) == ([], [])
+
+
+def test_lockstep_is_refused_for_an_fr3_cell() -> None:
+    with pytest.raises(ConfigError, match="runs in real time"):
+        launcher.start(make_config(unique_name(), base="fr3.yaml"), lockstep=True)
