@@ -29,6 +29,7 @@ from .conftest import leftovers, make_config, unique_name, wait_for
 
 STEADY_RAD = 2e-3  # a joint move's end, on the simulator's truth
 LINE_M = 1e-3  # a line's end, the flange by the truth's angles
+HAND_CLOSED_M, HAND_OPEN_M = 0.005, 0.075  # the Franka Hand's fingers: 0 .. 0.08 m apart
 
 
 def fr3_cell(kali: Callable[..., str]) -> str:
@@ -68,6 +69,11 @@ def test_an_fr3_moves_through_libfranka_and_ends_where_the_simulator_says(
         rec = arm_record(k.inst)
         assert int(rec["status"]) & registers.LINK_CONTROL
         assert int(rec["answered"]) > 1000  # every tick of the motions went out as torques
+        # the Franka Hand, through libfranka's gripper connection in its own process
+        arm.grip(True)  # waits for the Hand's outcome
+        assert float(rec["grip_width"]) < HAND_CLOSED_M
+        arm.grip(False)
+        assert float(rec["grip_width"]) > HAND_OPEN_M
         # the robot's packets pace the clock: one tick per state
         assert int(k.inst.clock["tick"]) <= int(rec["seq"])
 
@@ -109,7 +115,7 @@ def test_calibrating_an_fr3_says_there_is_nothing_to_calibrate(kali: Callable[..
     [
         ("plant", signal.SIGKILL, "PROCESS_DIED", "process 'plant'"),
         ("link.arm", signal.SIGKILL, "PROCESS_DIED", "process 'link.arm'"),
-        ("link.arm", signal.SIGSTOP, "DEADLINE", "'link.arm'"),
+        ("link.arm", signal.SIGSTOP, "DEADLINE", "'link.arm' (its last state packet from the FR3"),
     ],
     ids=["franky-sim-killed", "link-killed", "link-stopped"],
 )
@@ -144,7 +150,8 @@ def test_an_unreachable_robot_is_refused_at_start_naming_it() -> None:
         r"^arena_kib: 6144$": "arena_kib: 6144\nstartup_timeout_s: 6",
     }
     t0 = time.monotonic()
-    with pytest.raises(KaliError, match=r"no robot or simulator answers at 127\.254\.254\.254"):
+    unreachable = r"at 127\.254\.254\.254\): no (robot or simulator|gripper)"
+    with pytest.raises(KaliError, match=unreachable):
         launcher.start(make_config(name, edits, base="fr3.yaml"), lockstep=False)
     assert time.monotonic() - t0 < 6 + launcher.STOP_GRACE_S + launcher.KILL_GRACE_S + 5
     assert leftovers(name) == ([], [])

@@ -79,6 +79,8 @@ from .together import Together
 from .truth import SimTruth
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
+GRIP_TIMEOUT_S = 5.0  # a Franka Hand's grasp or opening takes up to ~2 s
+GRIP_POLL_S = 0.005
 RECORDED_CHUNK = 1 << 19  # bytes of a recording a remote program fetches per call
 _ENDED = frozenset(int(s) for s in TERMINAL_STATES if s != RequestState.LOST)
 # a tracking motion's limits unless the program gives its own: m/s, rad/s, m/s², rad/s²
@@ -340,12 +342,24 @@ class Robot:
                 )
             self.kali.pause()
 
-    def grip(self, close: bool = True) -> None:
-        """Close (or open) the gripper (through the robot's hardware: on the McGill board, its
-        output line).  The plant welds a closing gripper to the object if the flange is within
-        reach of its grasp."""
-        close = _flag_arg(f"grip: robot '{self.name}'", "close", close)
-        self.kali.inst.hardware(self.index).grip(self.index, close)
+    def grip(self, close: bool = True, timeout: float | None = GRIP_TIMEOUT_S) -> None:
+        """Close (or open) the gripper, through the robot's hardware: on the McGill board its
+        output line, set at once (the plant welds a closing gripper to the object if the
+        flange is within reach of its grasp); on an FR3 its Franka Hand, waited for until
+        it reports its outcome (MotionFailedError if it failed, or ``timeout`` s passed)."""
+        what = f"grip: robot '{self.name}'"
+        close = _flag_arg(what, "close", close)
+        limit = _timeout_arg(what, timeout)
+        hw = self.kali.inst.hardware(self.index)
+        ticket = hw.grip(self.index, close)
+        deadline = time.monotonic() + (math.inf if limit is None else limit)
+        while ticket and (ok := hw.grip_result(self.index, ticket)) is None:
+            if time.monotonic() > deadline:
+                raise MotionFailedError(f"{what}: the gripper did not finish within {timeout} s")
+            time.sleep(GRIP_POLL_S)
+        if ticket and not ok:
+            verb = "closing" if close else "opening"
+            raise MotionFailedError(f"{what}: the gripper reports its {verb} failed")
 
     def read_wrench(self, frame: str = "world") -> np.ndarray:
         """The arm's wrist force/torque sensor in Newtons (SIO's, this tick), a copy

@@ -38,11 +38,19 @@ class Operations(Protocol):
     def estops_pressed(self) -> list[bool]:
         """Each arm's emergency stop: True while pressed."""
 
-    def grip(self, k: int, close: bool) -> None:
-        """Close (or open) arm ``k``'s gripper."""
+    def grip(self, k: int, close: bool) -> int:
+        """Close (or open) arm ``k``'s gripper; a ticket for ``grip_result``, or 0 where the
+        hardware reports no outcome (a line set at once)."""
+
+    def grip_result(self, k: int, ticket: int) -> bool | None:
+        """Whether arm ``k``'s gripper command ``ticket`` succeeded; None while it runs."""
 
     def run_conveyor(self, run: bool) -> None:
         """Start (or stop) the cell's conveyor belt."""
+
+    def link_text(self, k: int) -> str:
+        """What arm ``k``'s link process is waiting for, for a fault that names it ('' for
+        hardware without links); it builds a string: never in a cycle."""
 
 
 class Driver(Protocol):

@@ -44,6 +44,9 @@ class HardwareKind:
     # one link process per arm (``kali_daemons.link``, named link.<robot>): it holds the
     # robot's connection, and the first arm's link's packets pace the wall clock
     links: bool = False
+    # an arm may have a hand of its own process (hand.<robot>, ``kali_daemons.link``), named
+    # by the config's hardware.hand
+    hands: bool = False
     # the hardware holds its arms against gravity itself: the feed-forward leaves gravity out
     compensates_gravity: bool = False
     # it reads a wrist force/torque sensor's gauges (``hardware.ftsensor``)

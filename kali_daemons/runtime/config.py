@@ -368,6 +368,11 @@ class HardwareConfig:
         "name; 127.0.0.x reaches the simulator",
         pattern=_ADDRESS_RE.pattern,
     )
+    hand: bool = _f(
+        False,
+        "a kind with hands (franka): the arm has one (a Franka Hand), driven by its own "
+        "process (hand.<robot>)",
+    )
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -1575,9 +1580,10 @@ def _processes(node: Any, clock: ClockConfig) -> tuple[ProcessConfig, ...]:
 
 def _links(node: Any, robots: tuple[RobotConfig, ...], clock: ClockConfig) -> list[ProcessConfig]:
     """One link process per arm of a networked kind (``link.<robot>``), placed by the
-    ``processes.link`` entry: the arm's connection, ticking with its robot."""
+    ``processes.link`` entry: the arm's connection, ticking with its robot; then one hand
+    process per arm with a hand (``hand.<robot>``: non-serious, SCHED_OTHER, unbound)."""
     entry = _process("link", node, clock)[0] if node is not None else None
-    return [
+    links = [
         ProcessConfig(
             name=f"link.{r.name}",
             kind="link",
@@ -1590,6 +1596,20 @@ def _links(node: Any, robots: tuple[RobotConfig, ...], clock: ClockConfig) -> li
         for r in robots
         if hardware_kind(r.hardware.kind).links
     ]
+    hands = [
+        ProcessConfig(
+            name=f"hand.{r.name}",
+            kind="hand",
+            cpu=None,
+            priority=0,
+            period_ms=clock.base_tick_ms,
+            serious=False,
+            stage=0,
+        )
+        for r in robots
+        if r.hardware.hand
+    ]
+    return links + hands
 
 
 def _check_servo_stage(processes: list[ProcessConfig]) -> None:
@@ -1811,6 +1831,8 @@ def _hardware(
         _fail(f"{path}.kind", v["kind"], f"cannot drive a {model}: {why}")
     if kind.links and not v["address"]:
         _fail(f"{path}.address", "", f"required: the {kind.name} robot's network address")
+    if v["hand"] and not kind.hands:
+        _fail(f"{path}.hand", True, f"a {kind.name} arm's gripper is a line of its hardware")
     if not kind.links and v["address"]:
         _fail(
             f"{path}.address",

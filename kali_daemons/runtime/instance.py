@@ -578,6 +578,9 @@ class Instance:
         it is evaluating: "evaluating tg function 'wave' (sine) for request 12".  Read
         lock-free while the TG may be writing: it words a fault, it decides nothing."""
         kinds = {p.name: p.kind for p in self.config.processes}
+        if kinds.get(process) == "link":  # a networked robot's: what its hardware says
+            k = self.robot_index(process.partition(".")[2])
+            return self.hardware(k).link_text(k)
         if kinds.get(process) != "tg" or self.arena.lookup(layout.KEY_TG_STATE) is None:
             return ""
         state = self.arena.existing(layout.KEY_TG_STATE, layout.TG_STATE)

@@ -61,6 +61,7 @@ MODULES = {
     "viewer": "viewer",
     "bridge": "bridge",
     "link": "link",
+    "hand": "link.hand",
 }
 # kinds that run as their own process in lockstep too, never hosted by the executive: a
 # bridge that dies (or is killed) must leave the cell running, lockstep or not

@@ -393,8 +393,9 @@ class WallClock(Daemon):
             self.inst.raise_fault(
                 FaultCode.DEADLINE,
                 name,
-                f"serious process '{name}' (pid {int(p['pid'])}, self-timed every "
-                f"{int(p['period_ticks']) * self.base_ns / 1e6:g} ms) has not run for "
+                f"serious process '{name}'{self._doing(name)} (pid {int(p['pid'])}, "
+                f"self-timed every {int(p['period_ticks']) * self.base_ns / 1e6:g} ms) has not "
+                "run for "
                 f"{(age - lost) / 1e6:.1f} ms (tolerance {self.tolerance_ns / 1e6:g} ms"
                 f"{self._not_counted(lost)}): alive but stalled",
                 tick=tick,

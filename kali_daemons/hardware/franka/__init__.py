@@ -33,6 +33,7 @@ KIND = HardwareKind(
     drive=FrankaArms.attach,
     records=registers.RECORDS,
     links=True,
+    hands=True,
     compensates_gravity=True,
     gauges=False,
     simulator="plant.franky",

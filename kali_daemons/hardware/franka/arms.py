@@ -348,10 +348,33 @@ class FrankaOps:
         arms = self._view()
         return [False] * self._n if arms is None else [bool(b) for b in arms["estop"]]
 
-    def grip(self, k: int, close: bool) -> None:
+    def grip(self, k: int, close: bool) -> int:
+        """A command to arm ``k``'s hand process; its number is the ticket."""
         arms = records(self._arena, self._n)
+        if not int(arms["hand_up"][k]):
+            raise HardwareError(
+                f"franka: robot {k} has no Franka Hand running (hardware.hand: true in its "
+                "config, and its hand process up)"
+            )
         arms["grip_close"][k] = 1 if close else 0
-        arms["grip_cmd"][k] += 1
+        ticket = int(arms["grip_cmd"][k]) + 1
+        arms["grip_cmd"][k] = ticket
+        return ticket
+
+    def grip_result(self, k: int, ticket: int) -> bool | None:
+        arms = records(self._arena, self._n)
+        if int(arms["grip_done"][k]) != ticket:
+            return None
+        return int(arms["grip_state"][k]) == registers.GRIP_DONE
 
     def run_conveyor(self, run: bool) -> None:
         raise HardwareError("franka: an FR3 cell has no conveyor")
+
+    def link_text(self, k: int) -> str:
+        """How long since arm ``k``'s link published its last state packet (a link stuck in
+        libfranka's ``readOnce`` waits for the robot; a stopped one publishes none)."""
+        arms = self._view()
+        if arms is None or not int(arms["seq"][k]):
+            return "connecting to its FR3"
+        age_ms = (rt.monotonic_ns() - int(arms["state_ns"][k])) / 1e6
+        return f"its last state packet from the FR3 published {age_ms:.0f} ms ago"

@@ -50,8 +50,9 @@ FRANKA_ARM = np.dtype(
         ("success_rate", "<f8"),  # control_command_success_rate
         ("mode", "u1"),  # RobotMode
         ("status", "u1"),  # LINK_* bits
-        ("grip_state", "u1"),  # GRIP_*: the last gripper command's outcome
-        ("_pad", "u1"),
+        ("grip_state", "u1"),  # the hand: GRIP_*, the last gripper command's outcome
+        ("grip_held", "u1"),  # the hand: 1 while its fingers hold something
+        ("hand_up", "u1"),  # the hand: 1 while its process takes commands
         ("link_pid", "<i4"),
         ("answered", "<u8"),  # states answered by a command (writeOnce)
         ("late", "<u8"),  # states in control that SIO's command did not answer in time
@@ -59,7 +60,8 @@ FRANKA_ARM = np.dtype(
         ("sent_ns", "<i8"),  # CLOCK_MONOTONIC when the last command went out
         ("share_max_ns", "<i8"),  # the longest state-in to command-out so far
         ("share_hist", "<u4", (HIST_BINS,)),  # state-in to command-out (layout.lateness_bin)
-        ("grip_width", "<f8"),  # m, the gripper's opening
+        ("grip_width", "<f8"),  # the hand: m, the fingers' opening
+        ("grip_done", "<u4"),  # the hand: the gripper command ``grip_state`` is the outcome of
         ("error", f"S{MESSAGE_BYTES}"),  # libfranka's error while LINK_ERROR
         # SIO: the command answering state ``cmd_seq``
         ("cmd_seq", "<u8"),
@@ -69,7 +71,7 @@ FRANKA_ARM = np.dtype(
         ("stop", "u1"),  # 1: a halt: stop the robot now (libfranka's stop); cleared by reset
         ("estop", "u1"),  # 1: the e-stop is pressed
         ("recover", "u1"),  # 1: run libfranka's error recovery (kalictl reset); the link clears
-        ("grip_cmd", "<u4"),  # a gripper command's sequence number: bumped with grip_close
+        ("grip_cmd", "<u4"),  # a gripper command's number: bumped with grip_close (FrankaOps)
         ("grip_close", "u1"),  # 1: grasp (close), 0: open
     ],
     align=True,

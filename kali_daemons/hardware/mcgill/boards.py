@@ -411,11 +411,18 @@ class McGillOps:
         boards = self._view()
         return [False] * self._n if boards is None else estops_pressed(boards)
 
-    def grip(self, k: int, close: bool) -> None:
+    def grip(self, k: int, close: bool) -> int:
         grip(records(self._arena, self._n), k, close)
+        return 0  # a line: set at once, no outcome reported
+
+    def grip_result(self, k: int, ticket: int) -> bool | None:
+        return True
 
     def run_conveyor(self, run: bool) -> None:
         run_conveyor(records(self._arena, self._n), run)
+
+    def link_text(self, k: int) -> str:
+        return ""  # the boards are registers: no link
 
 
 def boards_present(boards: np.ndarray, timeout_s: float) -> bool:

@@ -26,7 +26,7 @@ from typing import Final
 
 import numpy as np
 
-from ..profile import FloatArray, IntArray, read_only, servo_gains
+from ..profile import INTEGRATION_BAND_RAD, FloatArray, IntArray, read_only
 
 NJOINTS: Final = 7
 GRAVITY: Final = 9.81  # m/s²
@@ -127,24 +127,43 @@ COUNTS_PER_JOINT_RAD: Final[FloatArray] = read_only(
 )
 
 # --------------------------------------------------------------------------------------------
-# Default servo gains, by the Panda's rule (robots/profile.py servo_gains): ζ = 0.7, ωn = 50
-# rad/s on joints 1-4 and 60 rad/s on 5-7, raised where the load needs it.  J is the diagonal
-# of Pinocchio's crba at Q_HOME on fr3.urdf with ARMATURE set, GRAVITY_MAX the largest gravity
-# torque over the joint ranges (sampled, then maximised); tests/robots/test_fr3.py recomputes
-# both.  The FR3 compensates gravity itself: whoever drives the arm deals with that, not this.
+# Default servo gains: Franka's own joint impedance, the stiffness and damping libfranka's
+# examples servo an FR3 with (joint_impedance_control.cpp, motion_with_control.cpp).  The FR3
+# holds itself against gravity, so the PID's integral takes up friction alone: its reset is
+# 1.2 x the joint's Coulomb friction rounded up to a whole N·m, ki = 20 s⁻¹ x kp as the PUMA's,
+# and its band is wide enough (2.5 x reset / kp, at least the PUMA's 0.01 rad) that a joint
+# stuck on its friction outside it still integrates.  Kali's rule for McGill-style drives
+# (robots/profile.py servo_gains, ωn = 50 rad/s) would be ten to thirty times stiffer than an
+# FR3 is driven, more than its 1 N·m-per-millisecond torque rate lets a servo use.
 
-J_HOME: Final[FloatArray] = read_only(  # kg·m²
-    [0.6935, 1.720, 1.118, 1.029, 0.1015, 0.1045, 0.07412]
-)
-GRAVITY_MAX: Final[FloatArray] = read_only(  # N·m
+GRAVITY_MAX: Final[FloatArray] = read_only(  # N·m, over the joint ranges (the FR3 holds it)
     [0.0, 52.17, 26.92, 20.04, 2.01, 1.78, 0.06]
 )
-WN: Final[FloatArray] = read_only([50.0] * 4 + [60.0] * 3)  # rad/s
-ZETA: Final = 0.7
+KP: Final[FloatArray] = read_only([600.0, 600.0, 600.0, 600.0, 250.0, 150.0, 50.0])  # N·m/rad
+KV: Final[FloatArray] = read_only([50.0, 50.0, 50.0, 50.0, 30.0, 25.0, 15.0])  # N·m·s/rad
 
-PID_DEFAULTS, PD_DEFAULTS = servo_gains(
-    J_HOME, WN, ZETA, VISCOUS, GRAVITY_MAX + np.maximum(COULOMB_POS, -COULOMB_NEG)
-)
+
+def _gains() -> tuple[tuple[dict[str, float], ...], tuple[dict[str, float], ...]]:
+    pid = []
+    for j in range(NJOINTS):
+        reset = float(max(1.0, math.ceil(1.2 * max(COULOMB_POS[j], -COULOMB_NEG[j]))))
+        pid.append(
+            {
+                "kp": float(KP[j]),
+                "ki": 20.0 * float(KP[j]),
+                "kv": float(KV[j]),
+                "fe": 50.0,  # Hz, error filter (thesis figure 3.4)
+                "fv": 25.0,  # Hz, velocity filter
+                "integration_band": max(INTEGRATION_BAND_RAD, 2.5 * reset / float(KP[j])),
+                "integration_reset": reset,
+                "bias_tau": 0.5,  # s, hand-over bias
+            }
+        )
+    pd = [{"kp": g["kp"], "kv": g["kv"], "fv": g["fv"], "bias_tau": 0.5} for g in pid]
+    return tuple(pid), tuple(pd)
+
+
+PID_DEFAULTS, PD_DEFAULTS = _gains()
 
 # No calibration sheet: the joints' encoders are absolute (RobotType.absolute_encoders)
 INDEX_PHASES: Final[FloatArray] = read_only([])
