@@ -547,9 +547,9 @@ def fr3_figures(a: dict[str, Any] | None, b: dict[str, Any] | None, seconds: flo
     answered, late = b["answered"] - a["answered"], b["late"] - a["late"]
     grew = b["share_max_ns"] > a["share_max_ns"]
     return {
-        "share_p50_us": percentile(hist, 50),
-        "share_p99_us": percentile(hist, 99),
-        "share_max_us": b["share_max_ns"] / 1e3 if grew else percentile(hist, 100),
+        "share_p50_us": percentile(hist, 0.5),
+        "share_p99_us": percentile(hist, 0.99),
+        "share_max_us": b["share_max_ns"] / 1e3 if grew else percentile(hist, 1.0),
         "states": b["seq"] - a["seq"],
         "answered": answered,
         "late": late,

@@ -8,8 +8,11 @@ from __future__ import annotations
 import os
 import random
 import signal
+import subprocess
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -25,7 +28,7 @@ from kali_daemons.runtime.instance import Instance
 from kali_daemons.tools import launcher
 from kali_daemons.wallclock import start_kali_clock
 
-from .conftest import leftovers, make_config, unique_name, wait_for
+from .conftest import ROOT, leftovers, make_config, unique_name, wait_for
 
 STEADY_RAD = 2e-3  # a joint move's end, on the simulator's truth
 LINE_M = 1e-3  # a line's end, the flange by the truth's angles
@@ -160,3 +163,61 @@ def test_an_unreachable_robot_is_refused_at_start_naming_it() -> None:
 def test_lockstep_is_refused_for_an_fr3_cell() -> None:
     with pytest.raises(ConfigError, match="runs in real time"):
         launcher.start(make_config(unique_name(), base="fr3.yaml"), lockstep=True)
+
+
+@contextmanager
+def proxied_cell(kali: Callable[..., str]) -> Iterator[tuple[str, subprocess.Popen]]:
+    """An FR3 cell whose link reaches franky-sim through scripts/franka_proxy.py (a relay of
+    libfranka's protocol that drops or blacks out states on a signal); the proxy's counts
+    printed when it stops."""
+    net = f"127.{os.getpid() % 250 + 1}.{random.randrange(1, 255)}"
+    listen, upstream = f"{net}.{random.randrange(1, 127)}", f"{net}.{random.randrange(128, 255)}"
+    proxy = subprocess.Popen(
+        [sys.executable, str(ROOT / "scripts" / "franka_proxy.py"), "--listen", listen,
+         "--upstream", upstream, "--drop-p", "0.2"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proxy.stdout is not None and proxy.stdout.readline().startswith("READY")
+        # no hand: the proxy relays the robot's port alone, not the gripper's
+        edits = {
+            r"address: 127\.0\.0\.1, hand: true": (
+                f"address: {listen}, simulator_address: {upstream}"
+            )
+        }
+        yield kali(lockstep=False, base="fr3.yaml", edits=edits), proxy
+    finally:
+        proxy.terminate()
+        proxy.wait(timeout=5)
+
+
+def test_states_dropped_on_the_way_are_counted_and_the_arm_holds(
+    kali: Callable[..., str],
+) -> None:
+    """A fifth of the robot's state packets lost for two seconds: the clock ticks on the
+    ones that come, the link counts the lost ones, the arm holds where it was."""
+    with proxied_cell(kali) as (name, proxy), Kali(name) as k:
+        k.ready(["arm"])
+        rec = arm_record(k.inst)
+        held = k.robot("arm").read_joints()
+        lost = int(rec["lost"])
+        proxy.send_signal(signal.SIGUSR2)  # drop each state with probability 0.2
+        time.sleep(2.0)
+        proxy.send_signal(signal.SIGUSR2)
+        assert not k.inst.fault["active"], k.inst.fault_text()
+        assert int(rec["lost"]) - lost > 100  # ~400 of ~2000 states
+        assert np.abs(truth_q(k.inst) - held).max() < STEADY_RAD
+
+
+def test_states_blacked_out_halt_the_cell_naming_the_robot_link(
+    kali: Callable[..., str],
+) -> None:
+    """No state packet at all: the link waits in libfranka's readOnce, the clock ticks no
+    more and halts the cell on the link's silence, saying when the last state came."""
+    with proxied_cell(kali) as (name, proxy), Kali(name) as k:
+        k.ready(["arm"])
+        proxy.send_signal(signal.SIGUSR1)  # black the states out
+        wait_for(lambda: bool(k.inst.fault["active"]), 5.0, "a halt")
+        fault = k.inst.read_fault()
+        assert fault.code == "DEADLINE", fault
+        assert "'link.arm' (its last state packet from the FR3 published" in fault.message

@@ -42,10 +42,10 @@ class FrankySim(Daemon):
             self.sim.add_robot(initial_q=tuple(r.type.q_home), position=tuple(r.base_xyz))
             for r in robots
         ]
-        self.server: Any = SimulationServer(self.sim, [r.hardware.address for r in robots])
+        wanted = [r.hardware.simulator_address or r.hardware.address for r in robots]
+        self.server: Any = SimulationServer(self.sim, wanted)
         self.server.init()
         served = [rs.hostname for rs in self.server.robot_servers]
-        wanted = [r.hardware.address for r in robots]
         if served != wanted:
             raise DaemonError(f"{self.name}: franky-sim serves {served}, the cell wants {wanted}")
         m = cfg.joints

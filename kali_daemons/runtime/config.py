@@ -368,6 +368,12 @@ class HardwareConfig:
         "name; 127.0.0.x reaches the simulator",
         pattern=_ADDRESS_RE.pattern,
     )
+    simulator_address: str = _f(
+        "",
+        "a networked robot's: where the cell's simulator serves it, when something stands "
+        "between (a proxy, a network emulator); left out: address",
+        pattern=_ADDRESS_RE.pattern,
+    )
     hand: bool = _f(
         False,
         "a kind with hands (franka): the arm has one (a Franka Hand), driven by its own "
@@ -1833,6 +1839,8 @@ def _hardware(
         _fail(f"{path}.address", "", f"required: the {kind.name} robot's network address")
     if v["hand"] and not kind.hands:
         _fail(f"{path}.hand", True, f"a {kind.name} arm's gripper is a line of its hardware")
+    if not kind.links and v["simulator_address"]:
+        _fail(f"{path}.simulator_address", v["simulator_address"], "only for a networked robot")
     if not kind.links and v["address"]:
         _fail(
             f"{path}.address",
