@@ -1,4 +1,5 @@
-"""Robot program: the left arm's tool draws a 10 cm square in a vertical plane.
+"""Robot program: the first arm's tool draws a 10 cm square in a vertical plane (the left
+PUMA in the default cell; any cell's first arm: kalictl start -c config/fr3.yaml for an FR3).
 
     kalictl start && kalictl run scripts/example_square.py
 
@@ -13,8 +14,9 @@ from kali_daemons.client import Kali, pose
 SIDE = 0.10  # m
 
 with Kali() as kali:  # the instance `kalictl run` names ($KALI_INSTANCE), else "default"
-    kali.ready(["left"])  # power on and calibrate, if not done yet
-    arm = kali.robot("left")
+    name = kali.names[0]  # the cell's first arm
+    kali.ready([name])  # power on and calibrate, if not done yet
+    arm = kali.robot(name)
     start = arm.read_pose()  # the tool in the world frame, 4×4
     corners = [
         pose(start[:3, 3] + np.array(step), start)  # same orientation, moved

@@ -1,4 +1,5 @@
-"""Robot program: the left arm follows a hand controller, and stops when the device stops.
+"""Robot program: the first arm (the left PUMA in the default cell) follows a hand
+controller, and stops when the device stops.
 
     kalictl start && kalictl run scripts/example_teleop.py
 
@@ -26,8 +27,9 @@ DEVICE = Path(__file__).with_name("hand_controller.py")
 DEVICE_S = 6.0
 
 with Kali() as kali:
-    kali.ready(["left"])
-    left = kali.robot("left")
+    name = kali.names[0]  # the cell's first arm
+    kali.ready([name])
+    left = kali.robot(name)
     left.feedforward("full")
     start = left.read_pose()
     device = subprocess.Popen([sys.executable, str(DEVICE), "--seconds", str(DEVICE_S)])

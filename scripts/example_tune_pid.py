@@ -2,7 +2,8 @@
 
     kalictl start && kalictl run scripts/example_tune_pid.py
 
-The left arm's shoulder (joint 2) swings 10° out and back, once per gain; before each swing
+The first arm's shoulder (joint 2; the left PUMA in the default cell) swings 10° out and
+back, once per gain; before each swing
 the program sets a new proportional gain ``kp`` through the servo interface (thesis 3.4,
 bumpless) and measures the joint's tracking error during the swing.  Every gain sees the
 same motion, so the table compares the gains alone: too soft lags, too stiff rings.  The
@@ -20,10 +21,12 @@ import numpy as np
 
 from kali_daemons.client import Kali
 
-ROBOT, JOINT = "left", 2  # the shoulder; index JOINT - 1 in joint vectors
+JOINT = 2  # the shoulder; index JOINT - 1 in joint vectors
 SWING = math.radians(10)
+SPEED = 0.2  # of the arm's planned speed: slow enough that the softest gain lags safely
 
 with Kali() as kali:
+    ROBOT = kali.names[0]  # the cell's first arm
     kali.ready([ROBOT])
     arm = kali.robot(ROBOT)
     servo = kali.servo
@@ -48,7 +51,7 @@ with Kali() as kali:
         servo.set_params(ROBOT, JOINT, {"kp": kp0 * scale})  # on line, while holding
         errors = []
         for target in (out, q0):  # out and back: the same swing for every gain
-            swing = arm.move_joints(target, speed=0.5, wait=False)
+            swing = arm.move_joints(target, speed=SPEED, wait=False)
             while not swing.done:
                 kali.pause()
                 errors.append(float(q[j] - demand[j]))

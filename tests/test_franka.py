@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -29,6 +30,7 @@ from kali_daemons.tools import launcher
 from kali_daemons.wallclock import start_kali_clock
 
 from .conftest import ROOT, leftovers, make_config, unique_name, wait_for
+from .test_examples import run_example
 
 STEADY_RAD = 2e-3  # a joint move's end, on the simulator's truth
 LINE_M = 1e-3  # a line's end, the flange by the truth's angles
@@ -221,3 +223,42 @@ def test_states_blacked_out_halt_the_cell_naming_the_robot_link(
         fault = k.inst.read_fault()
         assert fault.code == "DEADLINE", fault
         assert "'link.arm' (its last state packet from the FR3 published" in fault.message
+
+
+def test_two_fr3s_in_one_simulated_world_move_together_as_a_motion_system(
+    kali: Callable[..., str],
+) -> None:
+    """config/fr3-two.yaml: two FR3s served by one franky-sim, one object frame fixed to both
+    flanges; a path of the object ends with both tools where they were sent."""
+    net = f"127.{os.getpid() % 250 + 1}.{random.randrange(1, 255)}"
+    host = random.randrange(1, 250)
+    edits = {r"127\.0\.0\.1": f"{net}.{host}", r"127\.0\.0\.2": f"{net}.{host + 1}"}
+    name = kali(lockstep=False, base="fr3-two.yaml", edits=edits)
+    with Kali(name) as k:
+        k.ready(["left", "right"])
+        both = k.motion_system(["left", "right"])
+        obj = both.read_pose()
+        both.move_path([pose(obj[:3, 3] + np.array([0.05, 0.0, 0.04]), obj), obj], speed=0.05)
+        truth = k.inst.arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, 14)
+        for i, n in enumerate(("left", "right")):
+            arm = k.robot(n)
+            arm.settle()
+            tool = arm.base @ arm.type.kinematics.fkine(truth["q"][7 * i : 7 * i + 7]) @ arm.tool
+            assert np.linalg.norm(tool[:3, 3] - arm.read_pose(demand=True)[:3, 3]) < LINE_M
+
+
+def test_the_example_programs_run_unchanged_on_an_fr3(kali: Callable[..., str]) -> None:
+    """The square, the PID tuning table and teleoperation (the examples that need no bar or
+    wrist sensor), as a newcomer runs them, on config/fr3.yaml's FR3."""
+    name = fr3_cell(kali)
+    out = run_example(kali, "example_square.py", name=name)
+    m = re.search(r"square of 10 cm done; the tool is ([\d.]+) mm from its start", out)
+    assert m and float(m.group(1)) < 3.0, out
+    out = run_example(kali, "example_tune_pid.py", name=name)
+    rows = re.findall(r"^\s*([\d.]+)\s+([\d.]+)\s+([\d.]+)$", out, re.M)
+    rms = [float(row[1]) for row in rows]
+    assert len(rms) == 3 and rms[0] > rms[1] > rms[2] > 0, out  # stiffer, closer
+    out = run_example(kali, "example_teleop.py", name=name)
+    m = re.search(r"followed the hand up to ([\d.]+) mm from the start", out)
+    assert m and 25.0 < float(m.group(1)) < 40.0, out
+    assert "so did the arm: stopped on its path" in out, out
