@@ -31,6 +31,7 @@ from kali_daemons.wallclock import start_kali_clock
 
 from .conftest import ROOT, leftovers, make_config, unique_name, wait_for
 from .test_examples import run_example
+from .test_launcher import kalictl
 
 STEADY_RAD = 2e-3  # a joint move's end, on the simulator's truth
 LINE_M = 1e-3  # a line's end, the flange by the truth's angles
@@ -74,6 +75,8 @@ def test_an_fr3_moves_through_libfranka_and_ends_where_the_simulator_says(
         rec = arm_record(k.inst)
         assert int(rec["status"]) & registers.LINK_CONTROL
         assert int(rec["answered"]) > 1000  # every tick of the motions went out as torques
+        shown = kalictl("-i", name, "status").stdout
+        assert "link.arm: 0x3 (connected, torque control on), robot mode Move;" in shown, shown
         # the Franka Hand, through libfranka's gripper connection in its own process
         arm.grip(True)  # waits for the Hand's outcome
         assert float(rec["grip_width"]) < HAND_CLOSED_M
@@ -262,3 +265,26 @@ def test_the_example_programs_run_unchanged_on_an_fr3(kali: Callable[..., str]) 
     m = re.search(r"followed the hand up to ([\d.]+) mm from the start", out)
     assert m and 25.0 < float(m.group(1)) < 40.0, out
     assert "so did the arm: stopped on its path" in out, out
+
+
+def test_a_second_client_on_the_same_robot_is_refused_naming_it(kali: Callable[..., str]) -> None:
+    """Another Kali's link to a robot this one holds waits for a connection the robot never
+    gives (libfranka takes one client): its start gives up saying so; this one runs on."""
+    first = fr3_cell(kali)
+    with Instance.attach(first) as inst:
+        address = inst.config.robots[0].hardware.address
+    edits = {
+        r"127\.0\.0\.1, hand: true": address,
+        r"^  plant: .*$": "  plant: {enabled: false}",
+        r"^arena_kib: 6144$": "arena_kib: 6144\nstartup_timeout_s: 6",
+    }
+    second = unique_name()
+    try:
+        with pytest.raises(KaliError, match=r"link\.arm \(INACTIVE: connecting to its FR3: "
+                           r"nothing answers, or another client holds the robot"):  # fmt: skip
+            launcher.start(make_config(second, edits, base="fr3.yaml"), lockstep=False)
+    finally:
+        launcher.stop(second)
+    assert leftovers(second) == ([], [])
+    with Instance.attach(first) as inst:
+        assert not inst.fault["active"]

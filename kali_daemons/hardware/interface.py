@@ -48,6 +48,10 @@ class Operations(Protocol):
     def run_conveyor(self, run: bool) -> None:
         """Start (or stop) the cell's conveyor belt."""
 
+    def link_status(self, k: int) -> str:
+        """Arm ``k``'s link as ``kalictl status`` shows it ('' without links): its
+        connection and what it has counted; never in a cycle."""
+
     def link_text(self, k: int) -> str:
         """What arm ``k``'s link process is waiting for, for a fault that names it ('' for
         hardware without links); it builds a string: never in a cycle."""

@@ -575,7 +575,8 @@ class Instance:
     def doing(self, process: str) -> str:
         """What process ``process`` is busy with, for a fault naming it ('' when it does not
         say): the TG's phase of its tick and request (``TG_STATE.phase``), or the TG function
-        it is evaluating: "evaluating tg function 'wave' (sine) for request 12".  Read
+        it is evaluating: "evaluating tg function 'wave' (sine) for request 12"; a link's
+        robot connection, as its hardware says it (``Operations.link_text``).  Read
         lock-free while the TG may be writing: it words a fault, it decides nothing."""
         kinds = {p.name: p.kind for p in self.config.processes}
         if kinds.get(process) == "link":  # a networked robot's: what its hardware says

@@ -361,6 +361,10 @@ def status(ctx: click.Context, as_json: bool, memory: bool) -> None:
                 f"{_us(r['late_p99_us'])} {r['late_max_us']:>7.0f}us "
                 f"{r['heartbeat_age_ms']:>5.0f}ms"
             )
+        for r in rows:  # a networked robot's link: what it has counted
+            if str(r["name"]).startswith("link."):
+                k = inst.robot_index(str(r["name"]).partition(".")[2])
+                click.echo(f"{r['name']}: {inst.hardware(k).link_status(k)}")
         servo_ms = next((r["period_ms"] for r in rows if r["name"] == "sio"), None)
         for r in rows:  # a polling SV with nothing to share (servo/sv/daemon.py)
             if r["name"].startswith("sv.") and servo_ms and r["period_ms"] > servo_ms:

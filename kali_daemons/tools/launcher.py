@@ -612,7 +612,8 @@ def _wait_ready(
                     f"(exit {child.returncode}, state {state.name}):\n" + _tail(logs_of[name])
                 )
             if state != ProcState.ACTIVE:
-                waiting.append(f"{name} ({state.name})")
+                doing = inst.doing(name)  # a link: "connecting to its FR3"
+                waiting.append(f"{name} ({state.name}{': ' + doing if doing else ''})")
         if not waiting and inst.clock["ready"]:
             return
         if time.monotonic() > deadline:

@@ -33,6 +33,11 @@ LINK_WAIT_S = 60.0  # how long SIO waits at start for every arm's link to publis
 TAU_RATE_MAX = 1000.0  # N·m/s: the FR3's torque rate limit (Franka's FCI limits table)
 
 
+def mode_name(mode: int) -> str:
+    """libfranka's name of robot mode ``mode``."""
+    return registers.ROBOT_MODES[mode] if 0 <= mode < len(registers.ROBOT_MODES) else str(mode)
+
+
 def records(arena: Arena, n_robots: int) -> np.ndarray:
     """The FR3s' records, one per robot of the cell (laid out by ``kalictl start``)."""
     return arena.existing(KEY_ARMS, FRANKA_ARM, n_robots)
@@ -370,11 +375,28 @@ class FrankaOps:
     def run_conveyor(self, run: bool) -> None:
         raise HardwareError("franka: an FR3 cell has no conveyor")
 
+    def link_status(self, k: int) -> str:
+        arms = self._view()
+        if arms is None:
+            return ""
+        a = arms[k]
+        error = bytes(a["error"]).decode(errors="replace")
+        hand = f"; hand {float(a['grip_width']) * 1e3:.1f} mm open" if int(a["hand_up"]) else ""
+        return (
+            f"{registers.status_text(int(a['status']))}, robot mode {mode_name(int(a['mode']))}; "
+            f"{int(a['seq'])} states, {int(a['answered'])} answered, {int(a['late'])} late, "
+            f"{int(a['lost'])} lost; Kali's share of a cycle at most "
+            f"{int(a['share_max_ns']) / 1e3:.0f} µs{hand}" + (f"; error: {error}" if error else "")
+        )
+
     def link_text(self, k: int) -> str:
         """How long since arm ``k``'s link published its last state packet (a link stuck in
         libfranka's ``readOnce`` waits for the robot; a stopped one publishes none)."""
         arms = self._view()
         if arms is None or not int(arms["seq"][k]):
-            return "connecting to its FR3"
+            return (
+                "connecting to its FR3: nothing answers, or another client holds the robot "
+                "(libfranka takes one)"
+            )
         age_ms = (rt.monotonic_ns() - int(arms["state_ns"][k])) / 1e6
         return f"its last state packet from the FR3 published {age_ms:.0f} ms ago"

@@ -21,6 +21,17 @@ LINK_CONTROL = 1 << 1  # torque control running: the robot takes Kali's torques 
 LINK_ERROR = 1 << 2  # libfranka reported an error (``error``); cleared by recovery
 LINK_ESTOP = 1 << 3  # the e-stop is pressed (kalictl estop): control stopped until released
 
+# libfranka's RobotMode, by its value (``mode``)
+ROBOT_MODES = (
+    "Other",
+    "Idle",
+    "Move",
+    "Guiding",
+    "Reflex",
+    "UserStopped",
+    "AutomaticErrorRecovery",
+)
+
 GRIP_IDLE, GRIP_BUSY, GRIP_DONE, GRIP_FAILED = 0, 1, 2, 3  # ``grip_state``
 
 _STATUS_NAMES = (

@@ -421,8 +421,11 @@ class McGillOps:
     def run_conveyor(self, run: bool) -> None:
         run_conveyor(records(self._arena, self._n), run)
 
-    def link_text(self, k: int) -> str:
+    def link_status(self, k: int) -> str:
         return ""  # the boards are registers: no link
+
+    def link_text(self, k: int) -> str:
+        return ""
 
 
 def boards_present(boards: np.ndarray, timeout_s: float) -> bool:
