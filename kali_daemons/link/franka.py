@@ -23,6 +23,7 @@ from ..core import rt
 from ..core.errors import HardwareError
 from ..core.layout import FaultCode, lateness_bin
 from ..hardware.franka import registers
+from ..hardware.franka.arms import records
 from ..hardware.franka.registers import LINK_CONNECTED, LINK_CONTROL, LINK_ERROR, LINK_ESTOP
 from ..runtime.daemon import Daemon
 
@@ -59,8 +60,7 @@ class FrankaLink(Daemon):
         self.n = self.robot.n_joints
         self.address = self.robot.hardware.address
         self.label = f"robot '{robot_name}' (FR3 at {self.address})"
-        arms = inst.arena.existing(registers.KEY_ARMS, registers.FRANKA_ARM, len(cfg.robots))
-        self.arm = arms[k : k + 1].reshape(())
+        self.arm = records(inst.arena, len(cfg.robots))[k : k + 1].reshape(())
         franka_arms = [i for i, r in enumerate(cfg.robots) if r.hardware.kind == "franka"]
         self.pacer = k == franka_arms[0] and not inst.lockstep
         self._pace = inst.slot_semaphore(inst.slot_of("wallclock")) if self.pacer else None

@@ -13,7 +13,7 @@ from typing import Any
 
 from ..core import rt
 from ..core.errors import HardwareError
-from ..hardware.franka import registers
+from ..hardware.franka.arms import records
 from ..hardware.franka.registers import GRIP_BUSY, GRIP_DONE, GRIP_FAILED
 from ..runtime.daemon import Daemon
 from .franka import CONNECT_RETRY_S, CONNECT_WAIT_FRACTION, franka
@@ -35,8 +35,7 @@ class FrankaHand(Daemon):
         k = next(i for i, r in enumerate(cfg.robots) if r.name == robot_name)
         self.address = cfg.robots[k].hardware.address
         self.label = f"robot '{robot_name}' (Franka Hand at {self.address})"
-        arms = self.inst.arena.existing(registers.KEY_ARMS, registers.FRANKA_ARM, len(cfg.robots))
-        self.arm = arms[k : k + 1].reshape(())
+        self.arm = records(self.inst.arena, len(cfg.robots))[k : k + 1].reshape(())
         self._gripper = self._connect(CONNECT_WAIT_FRACTION * cfg.startup_timeout_s)
         state = self._gripper.read_once()
         self.max_width = float(state.max_width)
