@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,27 @@ def franka() -> Any:
     import pylibfranka  # only an FR3 cell's links load it (15 MB of libfranka)
 
     return pylibfranka
+
+
+def reach(
+    connect: Callable[[], Any],
+    wait_s: float,
+    refused: Callable[[Exception], str],
+    after: Callable[[], None] = lambda: None,
+) -> Any:
+    """``connect()`` tried every ``CONNECT_RETRY_S`` until it answers or ``wait_s`` passes (a
+    simulator may still be loading), ``after()`` following each try; HardwareError saying
+    ``refused(libfranka's last error)`` then."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return connect()
+        except Exception as exc:
+            if time.monotonic() > deadline:
+                raise HardwareError(refused(exc)) from None
+            time.sleep(CONNECT_RETRY_S)
+        finally:
+            after()
 
 
 class FrankaLink(Daemon):
@@ -84,20 +106,15 @@ class FrankaLink(Daemon):
         in a mode Kali cannot drive; its first state.  HardwareError naming the robot
         otherwise."""
         pf = franka()
-        deadline = time.monotonic() + wait_s
-        while True:
-            try:
-                self._robot = pf.Robot(self.address, pf.RealtimeConfig.kIgnore)
-                break
-            except Exception as exc:
-                if time.monotonic() > deadline:
-                    raise HardwareError(
-                        f"franka: {self.label}: no robot or simulator answers at "
-                        f"{self.address}:{ROBOT_PORT} within {wait_s:g} s (libfranka: {exc})"
-                    ) from None
-                time.sleep(CONNECT_RETRY_S)
-            finally:
-                self._own_scheduling()
+        self._robot = reach(
+            lambda: pf.Robot(self.address, pf.RealtimeConfig.kIgnore),
+            wait_s,
+            lambda exc: (
+                f"franka: {self.label}: no robot or simulator answers at "
+                f"{self.address}:{ROBOT_PORT} within {wait_s:g} s (libfranka: {exc})"
+            ),
+            after=self._own_scheduling,
+        )
         state = self._robot.read_once()
         mode = state.robot_mode
         if mode == pf.RobotMode.Reflex:

@@ -12,11 +12,10 @@ import time
 from typing import Any
 
 from ..core import rt
-from ..core.errors import HardwareError
 from ..hardware.franka.arms import records
 from ..hardware.franka.registers import GRIP_BUSY, GRIP_DONE, GRIP_FAILED
 from ..runtime.daemon import Daemon
-from .franka import CONNECT_RETRY_S, CONNECT_WAIT_FRACTION, franka
+from .franka import CONNECT_WAIT_FRACTION, franka, reach
 
 GRASP_SPEED_M_S = 0.1  # the fingers' speed, closing or opening
 GRASP_FORCE_N = 20.0  # the grasp's force (the Hand holds up to 70 N)
@@ -46,17 +45,13 @@ class FrankaHand(Daemon):
 
     def _connect(self, wait_s: float) -> Any:
         pf = franka()
-        deadline = time.monotonic() + wait_s
-        while True:
-            try:
-                return pf.Gripper(self.address)
-            except Exception as exc:
-                if time.monotonic() > deadline:
-                    raise HardwareError(
-                        f"franka: {self.label}: no gripper answers within {wait_s:g} s "
-                        f"(libfranka: {exc})"
-                    ) from None
-                time.sleep(CONNECT_RETRY_S)
+        return reach(
+            lambda: pf.Gripper(self.address),
+            wait_s,
+            lambda exc: (
+                f"franka: {self.label}: no gripper answers within {wait_s:g} s (libfranka: {exc})"
+            ),
+        )
 
     def _publish(self, state: Any) -> None:
         self.arm["grip_width"] = float(state.width)
