@@ -116,6 +116,9 @@ def test_calibrating_an_fr3_says_there_is_nothing_to_calibrate(kali: Callable[..
         assert "nothing to calibrate" in k.servo.calibration("arm")[2]
         assert "absolute encoders" in k.servo.calibration("arm")[2]
         assert k.servo.calibrated("arm")
+        done = kalictl("-i", name, "calibrate")
+        assert done.returncode == 0, done.stderr
+        assert "arm (fr3): nothing to calibrate: its encoders are absolute" in done.stdout
 
 
 @pytest.mark.parametrize(

@@ -956,10 +956,19 @@ def calibrate(ctx: click.Context, robot: str | None, timeout: float) -> None:
     """Calibrate ROBOT (default: every robot) against its encoder index pulses (thesis 3.5.1).
 
     Powers the robot first if it is off.  Every joint moves by at most about 7° to its
-    nearest index pulse and holds there; progress is shown until all are calibrated.
+    nearest index pulse and holds there; progress is shown until all are calibrated.  An arm
+    with absolute encoders (an FR3) has nothing to calibrate: it is left as it is.
     """
     with _servo_client(ctx) as (inst, client):
-        names = _robots(client, robot)
+        names = []
+        for n in _robots(client, robot):
+            model = inst.config.robot(n).model
+            if inst.config.robot(n).type.absolute_encoders:  # exact from power-up (an FR3)
+                click.echo(f"{n} ({model}): nothing to calibrate: its encoders are absolute")
+            else:
+                names.append(n)
+        if not names:
+            return
         off = [n for n in names if client.power_state(n) != PowerState.ON]
         if inst.lockstep:
             if off:
