@@ -37,7 +37,8 @@ BARRED = {
     "kali_daemons.tg.daemon": ("mujoco", "rerun"),  # a Panda's kinematics are on Pinocchio
     "kali_daemons.plant.daemon": ("pinocchio", "rerun"),
     "kali_daemons.dynamics.daemon": ("mujoco", "rerun"),
-    "kali_daemons.viewer.daemon": ("mujoco",),
+    "kali_daemons.viewer.daemon": HEAVY,  # its drawing (dashboard) only where it has a sink
+    "kali_daemons.viewer.dashboard": ("mujoco",),
 }
 
 # Budgets of the default cell in lockstep (issue 26): the whole set and the wall clock

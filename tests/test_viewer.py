@@ -43,7 +43,7 @@ from kali_daemons.runtime.config import DashboardConfig
 from kali_daemons.runtime.instance import Instance, time_ms
 from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
-from kali_daemons.viewer.daemon import CONTACT_M_PER_N, Viewer, blueprint
+from kali_daemons.viewer.dashboard import CONTACT_M_PER_N, Dashboard, blueprint
 from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
 from kali_daemons.wallclock import start_kali_clock, step_kali_clock
 
@@ -322,23 +322,20 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     ft["present"] = [0, 1]
     ft["tool"] = [[9.0] * 6, [1.0, 2.0, 3.0, 0.1, 0.2, 0.3]]
     ft["world"] = [[9.0] * 6, [10.0, 0.0, -5.0, 0.0, 0.0, 0.0]]
-    viewer = Viewer(cfg.instance, "viewer")
-    viewer.inst = SimpleNamespace(  # type: ignore[assignment]
+    inst = SimpleNamespace(
         config=cfg,
         arena=arena,
         clock=np.zeros((), layout.CLOCK),
         procs=np.zeros(layout.MAX_PROCESSES, layout.PROCESS),
         fault=np.zeros((), layout.FAULT),
     )
-    viewer.load(cfg)
-    viewer.attach()
-    assert [a.model.nq for a in viewer.arms] == [6, 7]
     rrd = tmp_path / "mixed.rrd"
     rec = rr.RecordingStream("kali-test")
     rec.set_sinks(rr.FileSink(str(rrd)))
-    viewer.rec = rec
-    viewer._log_static()
-    viewer._frame()
+    board = Dashboard(inst, rec)
+    assert [a.model.nq for a in board.arms] == [6, 7]
+    board.log_static()
+    board.frame()
     rec.flush(timeout_sec=5.0)
     rec.disconnect()
     del robots, joints, ft

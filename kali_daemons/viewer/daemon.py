@@ -5,227 +5,26 @@ the relevant data from shared memory and displays it at about 25 Hz refresh so t
 can monitor the system status like robot position, tracking error, etc." (3.3.7)
 
 Each cycle it reads the arena without locking (Type 4 records: a torn read costs one frame,
-never a command) and logs to rerun (``sinks.py`` says where).  It is not a real-time process:
-its cycle allocates, and a frame that fails is counted and logged, never raised, for the
-dashboard must not halt the system.  What it draws: docs/internals/sio-viewer-core.md.
-
-Long on purpose: the viewer's one daemon, what it draws laid out once at configure and logged
-each cycle.
+never a command) and logs to rerun (``sinks.py`` says where, ``dashboard.py`` what).  It is not
+a real-time process: its cycle allocates, and a frame that fails is counted and logged, never
+raised, for the dashboard must not halt the system.  What it draws:
+docs/internals/sio-viewer-core.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import numpy as np
-import pinocchio as pin
-import rerun as rr
-import rerun.blueprint as rrb
+from typing import TYPE_CHECKING
 
 from ..core import layout, rt
 from ..core.errors import DaemonError
-from ..core.layout import ProcState
-from ..robots import RobotType
-from ..robots.cell import (
-    BAR_SIZE,
-    FLANGE_FRAME,
-    STAND_SIZE,
-    TABLE_CENTRE_XY,
-    TABLE_SIZE,
-    base_transform,
-    load_pinocchio,
-)
-from ..runtime.config import KaliConfig
 from ..runtime.daemon import Daemon
-from ..runtime.instance import decode, time_ms
+from ..runtime.instance import decode
 from .sinks import WebViewer, grpc_address, grpc_answers, pick_port
 
-TIMELINE = "kali_time"
+if TYPE_CHECKING:
+    from .dashboard import Dashboard
+
 READY_TIMEOUT_S = 30.0  # how long the viewer waits at start for SIO's and the plant's records
-PLOT_WINDOW_S = 10.0  # the time series show the last this many seconds
-FLANGE_AXES_M = 0.12
-JOINT_COLORS = np.array(  # one per joint an arm may have (layout.MAX_JOINTS)
-    [
-        [228, 26, 28],
-        [255, 127, 0],
-        [190, 170, 0],
-        [77, 175, 74],
-        [55, 126, 184],
-        [152, 78, 163],
-        [166, 86, 40],
-        [247, 129, 191],
-    ],
-    dtype=np.uint8,
-)
-DEMAND_COLORS = (JOINT_COLORS // 2 + 128).astype(np.uint8)  # the same hue, paler
-STAND_COLOR = (115, 84, 56)  # as the plant's cell (model.py)
-TABLE_COLOR = (158, 153, 140)
-BAR_COLOR = (217, 89, 26)
-AXIS_COLORS = JOINT_COLORS[[0, 3, 4]]  # x y z, roll pitch yaw; fx fy fz
-PALE_AXIS_COLORS = DEMAND_COLORS[[0, 3, 4]]  # tx ty tz: beside the force in one plot
-# the contact arrow: 1 cm per newton, so the 150 N contact limit (FtConfig) is 1.5 m long
-# and the sensor's noise after a tare (a few tenths of a newton) a few millimetres
-CONTACT_M_PER_N = 0.01
-CONTACT_COLOR = (230, 0, 180)  # magenta: apart from the arms', the series' and the cell's colours
-CONTACT_RADIUS_M = 0.006
-
-
-def joint_names(n_joints: int) -> list[str]:
-    """The series names of an arm's joints: j1 .. jN, as its URDF names them."""
-    return [f"j{j + 1}" for j in range(n_joints)]
-
-
-def _rgba(color: np.ndarray) -> np.ndarray:
-    """An RGBA colour in 0..1 (Pinocchio's) as 0..255 bytes (rerun's)."""
-    return (np.clip(np.asarray(color), 0.0, 1.0) * 255).round().astype(np.uint8)
-
-
-class Arm:
-    """The visual shapes of an arm of type ``robot`` (its URDF's ``<visual>`` boxes and
-    cylinders, through Pinocchio's visual geometry model), posed by forward kinematics.
-    Built outside the cycle; ``place`` runs inside it, into preallocated ``poses``."""
-
-    def __init__(self, robot: RobotType) -> None:
-        self.model = load_pinocchio(robot)
-        self.data = self.model.createData()
-        urdf = robot.urdf
-        self.geom = pin.buildGeomFromUrdf(self.model, str(urdf), pin.GeometryType.VISUAL)
-        self.gdata = pin.GeometryData(self.geom)
-        self.flange = self.model.getFrameId(FLANGE_FRAME)
-        objects = list(self.geom.geometryObjects)
-        kinds = [type(o.geometry).__name__ for o in objects]  # hpp-fcl's or coal's shapes
-        self.boxes = [i for i, kind in enumerate(kinds) if kind == "Box"]
-        self.cylinders = [i for i, kind in enumerate(kinds) if kind == "Cylinder"]
-        if len(self.boxes) + len(self.cylinders) != len(objects):
-            raise DaemonError(f"viewer: {urdf}: only box and cylinder visuals are drawn")
-        self.half_sizes = np.array([objects[i].geometry.halfSide for i in self.boxes])
-        self.radii = np.array([objects[i].geometry.radius for i in self.cylinders])
-        self.lengths = np.array([2 * objects[i].geometry.halfLength for i in self.cylinders])
-        self.box_colors = np.array([_rgba(objects[i].meshColor) for i in self.boxes])
-        self.cylinder_colors = np.array([_rgba(objects[i].meshColor) for i in self.cylinders])
-        self.poses = np.zeros((len(objects), 7))  # x y z, quaternion x y z w, in the base
-
-    def place(self, q: np.ndarray) -> pin.SE3:
-        """Pose every shape for joint angles ``q`` (``poses``); returns the flange in the base."""
-        pin.forwardKinematics(self.model, self.data, q)
-        pin.updateGeometryPlacements(self.model, self.data, self.geom, self.gdata)
-        for g, placement in enumerate(self.gdata.oMg):
-            self.poses[g] = pin.SE3ToXYZQUAT(placement)
-        return pin.updateFramePlacement(self.model, self.data, self.flange)
-
-
-@dataclass(frozen=True)
-class RobotPaths:
-    """The entity paths of one robot."""
-
-    base: str
-    boxes: str
-    cylinders: str
-    flange: str
-    q: str
-    demand: str
-    error: str
-    torque: str
-    ff_torque: str
-    current: str
-    flange_position: str
-    flange_rpy: str
-    wrench_force: str
-    wrench_torque: str
-    contact: str
-    events: str
-
-    @classmethod
-    def of(cls, robot: str) -> RobotPaths:
-        """Paths of robot ``robot``."""
-        r = f"robots/{robot}"
-        base = f"world/{robot}"
-        return cls(
-            base=base,
-            boxes=f"{base}/links/boxes",
-            cylinders=f"{base}/links/cylinders",
-            flange=f"{base}/flange",
-            q=f"{r}/q",
-            demand=f"{r}/demand",
-            error=f"{r}/error",
-            torque=f"{r}/torque",
-            ff_torque=f"{r}/ff_torque",
-            current=f"{r}/current",
-            flange_position=f"{r}/flange/position",
-            flange_rpy=f"{r}/flange/rpy",
-            wrench_force=f"{r}/wrench/force",
-            wrench_torque=f"{r}/wrench/torque",
-            contact=f"{base}/contact",
-            events=f"events/{robot}",
-        )
-
-
-def has_sensor(cfg: KaliConfig) -> list[bool]:
-    """Per robot (config order): whether it has a wrist force/torque sensor (as SIO's
-    ``sensors_of``)."""
-    return [r.ft.sheet is not None for r in cfg.robots]
-
-
-def blueprint(robots: list[str], sensed: list[bool] | None = None) -> rrb.Blueprint:
-    """The dashboard's layout: arms in 3D above the event log; per robot and quantity a time
-    series of the last ``PLOT_WINDOW_S`` seconds (the contact wrench only for the robots
-    ``sensed`` says have a wrist sensor: a last row of the grid); process timing and flanges
-    below."""
-    window = rrb.VisibleTimeRange(
-        TIMELINE,
-        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-PLOT_WINDOW_S),
-        end=rrb.TimeRangeBoundary.cursor_relative(),
-    )
-
-    def series(name: str, *contents: str) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(
-            name=name,
-            origin="/",
-            contents=list(contents),
-            time_ranges=window,
-            plot_legend=rrb.PlotLegend(visible=False),
-        )
-
-    paths = [RobotPaths.of(r) for r in robots]
-    plots = []
-    for title, fields in (
-        ("angle, demand (deg)", ("q", "demand")),
-        ("tracking error (deg)", ("error",)),
-        ("torque, feed-forward (N·m)", ("torque", "ff_torque")),
-        ("motor current (A)", ("current",)),
-    ):
-        for r, p in zip(robots, paths, strict=True):
-            plots.append(series(f"{r}: {title}", *(getattr(p, f) for f in fields)))
-    for r, p, s in zip(robots, paths, sensed or [False] * len(robots), strict=True):
-        if s:
-            plots.append(
-                series(f"{r}: contact force, torque (N, N·m)", p.wrench_force, p.wrench_torque)
-            )
-    bottom = rrb.Horizontal(
-        series("execution time (µs)", "timing/exec_us"),
-        series("wake-up lateness, SIO sensor→DAC (µs)", "timing/late_us", "timing/sio_latency_us"),
-        rrb.Tabs(
-            series("flange position (m)", *(p.flange_position for p in paths)),
-            series("flange roll, pitch, yaw (deg)", *(p.flange_rpy for p in paths)),
-            series("missed deadlines", "timing/misses"),
-        ),
-    )
-    arms = rrb.Spatial3DView(
-        name="arms",
-        origin="world",
-        eye_controls=rrb.EyeControls3D(
-            position=(0.3, -1.9, 1.35), look_target=(0.0, 0.0, 0.55), eye_up=(0.0, 0.0, 1.0)
-        ),
-    )
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(arms, rrb.TextLogView(name="events", origin="events"), row_shares=[3, 1]),
-            rrb.Vertical(rrb.Grid(*plots, grid_columns=len(robots)), bottom, row_shares=[3, 1]),
-            column_shares=[2, 3],
-        ),
-        rrb.TimePanel(timeline=TIMELINE, state="collapsed"),
-        collapse_panels=True,
-    )
 
 
 class Viewer(Daemon):
@@ -237,17 +36,16 @@ class Viewer(Daemon):
     def __init__(self, instance: str, name: str, **kw: object) -> None:
         kw.setdefault("lock_memory", False)  # not real-time: rerun's buffers need not be locked
         super().__init__(instance, name, **kw)  # type: ignore[arg-type]
-        self.rec: rr.RecordingStream | None = None
+        self.board: Dashboard | None = None  # what it draws, once it has somewhere to draw
         self.web: WebViewer | None = None
         self._errors = 0
 
     # ------------------------------------------------------------------ set-up
 
     def on_configure(self) -> None:
-        """Load the arm models, wait for SIO's and the plant's records, set the sinks up and
-        log everything that never changes."""
+        """Wait for SIO's and the plant's records, set the sinks up and, if there is one, load
+        the arms' shapes and log everything that never changes."""
         inst = self.inst
-        self.load(inst.config)
         self.dash = inst.arena.existing(layout.KEY_DASHBOARD, layout.DASHBOARD)
         deadline = rt.monotonic_ns() + int(READY_TIMEOUT_S * 1e9)
         while not self._records_ready():
@@ -256,52 +54,7 @@ class Viewer(Daemon):
             if inst.shutting_down:
                 return
             rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
-        self.attach()
         self._open_sinks()
-
-    def load(self, cfg: KaliConfig) -> None:
-        """Each robot's entity paths, base and arm shapes (one ``Arm`` per robot type), and
-        where its joints sit in the per-joint records (outside the cycle)."""
-        self.names = [r.name for r in cfg.robots]
-        self.paths = [RobotPaths.of(r) for r in self.names]
-        self.bases = [pin.SE3(base_transform(r.base_xyz, r.base_yaw_deg)) for r in cfg.robots]
-        shapes: dict[str, Arm] = {}  # one per robot type
-        for r in cfg.robots:
-            shapes.setdefault(r.model, Arm(r.type))
-        self.arms = [shapes[r.model] for r in cfg.robots]
-        for r, arm in zip(cfg.robots, self.arms, strict=True):
-            arm.place(r.type.q_home.copy())  # the first use of Pinocchio faults pages in
-        self.joint_map = cfg.joints
-        self.spans = [self.joint_map.span(k) for k in range(len(self.names))]
-        self.sensed = has_sensor(cfg)
-        # the tool point, where SIO gives the contact wrench: tool_tip_m out along the flange's z
-        self.tips = [np.array([0.0, 0.0, r.ft.tool_tip_m]) for r in cfg.robots]
-        self.base_rot_t = [b.rotation.T.copy() for b in self.bases]  # world axes → base axes
-
-    def attach(self) -> None:
-        """SIO's, the plant's and the instance's records, once they are laid out."""
-        inst = self.inst
-        arena = inst.arena
-        n = len(self.names)
-        self.robots = arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, n)
-        self.joints = arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, self.joint_map.total)
-        self.ctrl = arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
-        self.world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
-        # the wrist sensors (kalictl start lays a record out for every robot, sensor or not)
-        self.ft = (
-            arena.existing(layout.KEY_FT, layout.FT_STATE, n)
-            if any(self.sensed) and arena.lookup(layout.KEY_FT) is not None
-            else None
-        )
-        self._ft = np.zeros(n, dtype=layout.FT_STATE)  # each frame's snapshot of it
-        self.clock, self.procs, self.fault = inst.clock, inst.procs, inst.fault
-        self._proc_names: list[str] = []  # every process seen, in order: the timing series
-        self._proc_slot = np.zeros(0, dtype=np.int64)  # its slot now, -1 when it has left
-        self._proc_state = np.zeros(0, dtype=np.int64)
-        self._gen = -1
-        self._fault_count = 0
-        self._fault_active = False
-        self._messages = np.zeros(n, dtype=self.robots["message"].dtype)
 
     def _records_ready(self) -> bool:
         arena = self.inst.arena
@@ -316,14 +69,15 @@ class Viewer(Daemon):
         file if kalictl start was given one.  Published in the dashboard record."""
         d = self.inst.config.dashboard
         dash = self.dash
-        sinks: list[rr.GrpcSink | rr.FileSink] = []
+        grpc: list[str] = []  # where the dashboard streams
+        files: list[str] = []  # and records
         notes: list[str] = []
         live = ""
         found = None if d.connect is None else grpc_answers(*grpc_address(d.connect))
         if found:
             assert d.connect is not None  # found: its answer
             live = d.connect
-            sinks.append(rr.GrpcSink(live))
+            grpc.append(live)
             self.log.info("dashboard: streaming to the live rerun viewer at %s", live)
         elif found is not None:  # streaming there would block the viewer for good
             port = grpc_address(d.connect)[1]  # type: ignore[arg-type]
@@ -344,7 +98,7 @@ class Viewer(Daemon):
             try:
                 web.start()
                 self.web = web
-                sinks.append(rr.GrpcSink(web.grpc_url))
+                grpc.append(web.grpc_url)
                 dash["web_pid"] = web.proc.pid if web.proc else 0
                 dash["web_url"] = web.url.encode()
                 self.log.info("dashboard: open %s (kalictl view)", web.url)
@@ -352,106 +106,22 @@ class Viewer(Daemon):
                 notes.append(str(exc))
         record = decode(dash["record"])
         if record:
-            sinks.append(rr.FileSink(record))
+            files.append(record)
             self.log.info("dashboard: recording to %s (replay: rerun %s)", record, record)
         for note in notes:
             self.log.warning("%s", note)
         dash["live"] = int(bool(live))
         dash["live_url"] = live.encode()
-        if not sinks:
+        if not grpc and not files:
             notes.append("no sink: no live viewer, dashboard.web off and no record")
             self.log.warning("dashboard: %s", notes[-1])
         dash["message"] = "; ".join(notes).encode()[: layout.MESSAGE_BYTES - 1]
-        if sinks:
-            rec = rr.RecordingStream(
-                "kali", recording_id=f"{self.inst.name}-{int(self.inst.arena.header['created_ns'])}"
-            )
-            rec.set_sinks(*sinks, default_blueprint=blueprint(self.names, self.sensed))
-            rec.send_recording_name(f"Kali '{self.inst.name}'")
-            self.rec = rec
-            self._log_static()
-        dash["ready"] = 1
+        if grpc or files:
+            from .dashboard import Dashboard, open_recording  # rerun: only where one watches
 
-    def _log_static(self) -> None:
-        """What never changes: the cell, the arms' shape sizes, series names and colours."""
-        rec = self.rec
-        assert rec is not None
-        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        sx, sy, sz = STAND_SIZE
-        rec.log(
-            "world/stand",
-            rr.Boxes3D(
-                half_sizes=[(sx / 2, sy / 2, sz / 2)],
-                centers=[(0.0, 0.0, sz / 2)],
-                colors=[STAND_COLOR],
-                fill_mode="solid",
-            ),
-            static=True,
-        )
-        tx, ty, tz = TABLE_SIZE
-        rec.log(
-            "world/table",
-            rr.Boxes3D(
-                half_sizes=[(tx / 2, ty / 2, tz / 2)],
-                centers=[(*TABLE_CENTRE_XY, tz / 2)],
-                colors=[TABLE_COLOR],
-                fill_mode="solid",
-            ),
-            static=True,
-        )
-        rec.log(
-            "world/object",
-            rr.Boxes3D(half_sizes=[np.array(BAR_SIZE) / 2], colors=[BAR_COLOR], fill_mode="solid"),
-            static=True,
-        )
-        for p, base, arm, n, sensed in zip(
-            self.paths, self.bases, self.arms, self.joint_map.counts, self.sensed, strict=True
-        ):
-            rec.log(
-                p.base,
-                rr.Transform3D(translation=base.translation, mat3x3=base.rotation),
-                static=True,
-            )
-            rec.log(
-                p.boxes,
-                rr.Boxes3D(half_sizes=arm.half_sizes, colors=arm.box_colors, fill_mode="solid"),
-                static=True,
-            )
-            rec.log(
-                p.cylinders,
-                rr.Cylinders3D(
-                    lengths=arm.lengths,
-                    radii=arm.radii,
-                    colors=arm.cylinder_colors,
-                    fill_mode="solid",
-                ),
-                static=True,
-            )
-            rec.log(p.flange, rr.TransformAxes3D(FLANGE_AXES_M), static=True)
-            joints, hues, paler = joint_names(n), JOINT_COLORS[:n], DEMAND_COLORS[:n]
-            for path, names, colors in (
-                (p.q, joints, hues),
-                (p.demand, [f"{j} demand" for j in joints], paler),
-                (p.error, joints, hues),
-                (p.torque, joints, hues),
-                (p.ff_torque, [f"{j} ff" for j in joints], paler),
-                (p.current, joints, hues),
-                (p.flange_position, ["x", "y", "z"], AXIS_COLORS),
-                (p.flange_rpy, ["roll", "pitch", "yaw"], AXIS_COLORS),
-            ):
-                rec.log(path, rr.SeriesLines(names=names, colors=colors), static=True)
-            if sensed:
-                for path, names, colors in (
-                    (p.wrench_force, ["fx", "fy", "fz"], AXIS_COLORS),
-                    (p.wrench_torque, ["tx", "ty", "tz"], PALE_AXIS_COLORS),
-                ):
-                    rec.log(path, rr.SeriesLines(names=names, colors=colors), static=True)
-                rec.log(
-                    p.contact,
-                    rr.Arrows3D.from_fields(colors=[CONTACT_COLOR], radii=[CONTACT_RADIUS_M]),
-                    static=True,
-                )
-        rec.log("timing/sio_latency_us", rr.SeriesLines(names=["SIO sensor→DAC"]), static=True)
+            self.board = Dashboard(self.inst, open_recording(self.inst, grpc, files))
+            self.board.log_static()
+        dash["ready"] = 1
 
     # ------------------------------------------------------------------ the cycle
 
@@ -461,10 +131,10 @@ class Viewer(Daemon):
         A frame that raises is counted in the dashboard record and logged once; it never
         halts the system.
         """
-        if self.rec is None:
+        if self.board is None:
             return
         try:
-            self._frame()
+            self.board.frame()
             self.dash["frames"] += 1
         except Exception as exc:  # the dashboard must not halt the system
             self._errors += 1
@@ -472,153 +142,6 @@ class Viewer(Daemon):
             if self._errors == 1:
                 self.log.exception("dashboard frame failed (later failures only counted)")
                 self.dash["message"] = f"frame failed: {exc}".encode()[: layout.MESSAGE_BYTES - 1]
-
-    def _frame(self) -> None:
-        rec = self.rec
-        assert rec is not None
-        rec.set_time(TIMELINE, duration=time_ms(self.clock) / 1000.0)
-        robots, joints = self.robots, self.joints
-        q = joints["q"].copy()  # Type 4: a snapshot, consistent enough for a picture
-        q_deg = np.degrees(q)
-        demand_deg = np.degrees(joints["demand"])
-        error_deg = demand_deg - q_deg
-        torque, ff, current = joints["torque"], joints["ff_torque"], joints["current"]
-        ft = self._ft
-        if self.ft is not None:
-            ft[:] = self.ft  # Type 4, like the joints; never a sensor's reading when absent
-        for k, p in enumerate(self.paths):
-            arm = self.arms[k]
-            if not robots["pots_read"][k]:
-                continue  # SIO has no angles for this arm yet
-            span = self.spans[k]  # the arm's joints in the flat per-joint arrays
-            rec.log(p.q, rr.Scalars(q_deg[span]))
-            rec.log(p.demand, rr.Scalars(demand_deg[span]))
-            rec.log(p.error, rr.Scalars(error_deg[span]))
-            rec.log(p.torque, rr.Scalars(torque[span]))
-            rec.log(p.ff_torque, rr.Scalars(ff[span]))
-            rec.log(p.current, rr.Scalars(current[span]))
-            flange = arm.place(q[span])
-            poses = arm.poses
-            rec.log(
-                p.boxes,
-                rr.Boxes3D.from_fields(
-                    centers=poses[arm.boxes, :3], quaternions=poses[arm.boxes, 3:]
-                ),
-            )
-            rec.log(
-                p.cylinders,
-                rr.Cylinders3D.from_fields(
-                    centers=poses[arm.cylinders, :3], quaternions=poses[arm.cylinders, 3:]
-                ),
-            )
-            rec.log(
-                p.flange, rr.Transform3D(translation=flange.translation, mat3x3=flange.rotation)
-            )
-            world = self.bases[k] * flange
-            rec.log(p.flange_position, rr.Scalars(world.translation))
-            rec.log(p.flange_rpy, rr.Scalars(np.degrees(pin.rpy.matrixToRpy(world.rotation))))
-            if self.sensed[k] and ft[k]["present"]:
-                tool = ft[k]["tool"]  # about the tool point, tool axes
-                rec.log(p.wrench_force, rr.Scalars(tool[:3]))
-                rec.log(p.wrench_torque, rr.Scalars(tool[3:]))
-                # p.contact sits under the base's transform: the tool point and the world-axes
-                # force are given in the base's coordinates
-                force = self.base_rot_t[k] @ ft[k]["world"][:3]
-                rec.log(
-                    p.contact,
-                    rr.Arrows3D.from_fields(
-                        origins=[flange.act(self.tips[k])], vectors=[force * CONTACT_M_PER_N]
-                    ),
-                )
-        pose = self.world["object_pose"]
-        if pose[3:] @ pose[3:] > 0.5:  # a unit quaternion once the plant has written it
-            w, x, y, z = pose[3:]
-            # rerun types QuaternionLike as its Quaternion only; it takes the four (x, y, z, w)
-            rec.log("world/object", rr.Transform3D(translation=pose[:3], quaternion=(x, y, z, w)))  # type: ignore[arg-type]
-        self._timing()
-        self._events()
-
-    def _timing(self) -> None:
-        """Per process: last execution time and lateness (µs), missed deadlines; SIO's
-        sensor-to-DAC latency."""
-        rec = self.rec
-        assert rec is not None
-        gen = int(self.clock["registry_gen"])
-        if gen != self._gen:
-            self._gen = gen
-            self._rescan()
-        slots = self._proc_slot
-        here = slots >= 0
-        at = np.where(here, slots, 0)
-        p = self.procs
-        rec.log("timing/exec_us", rr.Scalars(np.where(here, p["exec_last_ns"][at] / 1e3, np.nan)))
-        rec.log("timing/late_us", rr.Scalars(np.where(here, p["late_last_ns"][at] / 1e3, np.nan)))
-        rec.log("timing/misses", rr.Scalars(np.where(here, p["misses"][at], np.nan)))
-        rec.log("timing/sio_latency_us", rr.Scalars(self.ctrl["latency_last_ns"] / 1e3))
-        state = np.where(here, p["state"][at], ProcState.FREE)
-        if not np.array_equal(state, self._proc_state):
-            for i in np.flatnonzero(state != self._proc_state):
-                self._process_event(i, int(self._proc_state[i]), int(state[i]))
-            self._proc_state = state
-
-    def _rescan(self) -> None:
-        """The process table changed: map every process's name to its slot (new names get new
-        series; a process that left keeps its series, empty from then on)."""
-        p = self.procs
-        slots = np.full(len(self._proc_names), -1, dtype=np.int64)
-        grown = False
-        for i in range(layout.MAX_PROCESSES):
-            if p[i]["state"] == ProcState.FREE:
-                continue
-            name = decode(p[i]["name"])
-            if name not in self._proc_names:
-                self._proc_names.append(name)
-                slots = np.append(slots, -1)
-                self._proc_state = np.append(self._proc_state, ProcState.FREE)
-                grown = True
-            slots[self._proc_names.index(name)] = i
-        self._proc_slot = slots
-        if grown and self.rec is not None:
-            names = self._proc_names
-            for path in ("timing/exec_us", "timing/late_us", "timing/misses"):
-                self.rec.log(path, rr.SeriesLines(names=names), static=True)
-
-    def _process_event(self, i: int | np.integer, was: int, now: int) -> None:
-        assert self.rec is not None
-        name = self._proc_names[i]
-        if now == ProcState.FREE:
-            text, level = f"process '{name}' left", rr.TextLogLevel.INFO
-        else:
-            state = ProcState(now).name
-            text = f"process '{name}': {state}"
-            if was != ProcState.FREE:
-                text += f" (was {ProcState(was).name})"
-            level = rr.TextLogLevel.ERROR if now == ProcState.ERROR else rr.TextLogLevel.INFO
-        self.rec.log("events/processes", rr.TextLog(text, level=level))
-
-    def _events(self) -> None:
-        """Faults and their clearing; the robots' power and calibration messages."""
-        rec = self.rec
-        assert rec is not None
-        f = self.fault
-        count, active = int(f["count"]), bool(f["active"])
-        new = count != self._fault_count
-        if new:
-            text = self.inst.fault_text(last=True) or "fault"
-            more = count - self._fault_count - 1
-            if more > 0:
-                text += f" (and {more} more fault{'s' if more > 1 else ''} while halted)"
-            rec.log("events/faults", rr.TextLog(text, level=rr.TextLogLevel.ERROR))
-            self._fault_count = count
-        if (new or self._fault_active) and not active:  # also one raised and cleared between
-            rec.log("events/faults", rr.TextLog("fault cleared", level=rr.TextLogLevel.INFO))
-        self._fault_active = active
-        messages = self.robots["message"]
-        if not np.array_equal(messages, self._messages):
-            for k in np.flatnonzero(messages != self._messages):
-                text = f"{self.names[k]}: {decode(messages[k])}"
-                rec.log(self.paths[k].events, rr.TextLog(text, level=rr.TextLogLevel.INFO))
-            self._messages[:] = messages
 
     # ------------------------------------------------------------------ shutdown
 
@@ -631,16 +154,16 @@ class Viewer(Daemon):
     def on_shutdown(self) -> None:
         """Flush and close the sinks (the recording gets its footer), then stop the web
         viewer's server; leaves no process or port behind."""
-        rec, self.rec = self.rec, None
-        if rec is not None:
+        board, self.board = self.board, None
+        if board is not None:
             try:
-                rec.flush(timeout_sec=1.0)
+                board.rec.flush(timeout_sec=1.0)
             except Exception:  # a slow sink must not keep the viewer alive
                 self.log.warning("dashboard: flush did not finish within 1 s")
-            rec.disconnect()
+            board.rec.disconnect()
         if self.web is not None:
             self.web.stop()
             self.web = None
 
 
-__all__ = ["Viewer", "blueprint"]
+__all__ = ["Viewer"]
