@@ -204,6 +204,16 @@ def test_a_loop_that_does_not_close_and_garbage_are_refused_and_nothing_else_mov
         frame2.close()
         with pytest.raises(MotionError, match=r"'far' is closed"):
             left.track([frame2])
+        # one a program holds but has not written yet is not found: a follower finding it
+        # would track nothing (the teleop example met it: "has never been written")
+        unwritten = k.shared_transform("unwritten")
+        with pytest.raises(
+            MotionError, match=r"'unwritten': pid \d+ holds it but has not written it yet"
+        ):
+            k.find_transform("unwritten")
+        unwritten.set(start)
+        assert k.find_transform("unwritten").index == unwritten.index
+        unwritten.close()
         held = k.shared_transform("held", start)
         with pytest.raises(MotionError, match=r"'held' is held by pid"):
             k.shared_transform("held")

@@ -121,12 +121,18 @@ def claim_slot(records: np.ndarray, name: str, what: str) -> int:
 
 
 def find(kali: Kali, name: str) -> SharedTransform:
-    """The shared transform ``name`` another running program writes, to name in a loop;
+    """The shared transform ``name`` another running program writes, to name in a loop,
+    once it has written it (a motion tracking one never written would be refused);
     MotionError naming those there are if none is."""
     frames = kali.frames
     for i in range(len(frames)):
         pid = int(frames["owner_pid"][i])
         if pid > 0 and pid_alive(pid) and decode(frames["name"][i]) == name:
+            if int(frames["writes"][i]) == 0:
+                raise MotionError(
+                    f"shared transform {name!r:.40}: pid {pid} holds it but has not written it "
+                    "yet"
+                )
             return SharedTransform(kali, i, name, float(frames["lifetime_s"][i]))
     there = [
         decode(frames["name"][i])
