@@ -13,6 +13,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+from ..core import futex
 from ..core.errors import ClockError
 from ..core.layout import ClockCommand, RunMode
 from ..runtime.config import MAX_PERIOD_MS, ms_to_ns, ns_to_ms, period_ticks
@@ -20,6 +21,7 @@ from ..runtime.daemon import FunctionDaemon
 from ..runtime.instance import Instance, decode
 
 COMMAND_TIMEOUT_S = 5.0
+WAIT_SLICE_S = 0.01  # a program waiting on the clock looks at its other reasons this often
 
 
 def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
@@ -39,7 +41,8 @@ def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
         c["cmd_seq"] = seq
         inst.command_semaphore().release()
         deadline = time.monotonic() + COMMAND_TIMEOUT_S
-        while int(c["cmd_done"]) < seq:
+        waiter, done_addr = futex.Waiter(WAIT_SLICE_S), c["cmd_done"].ctypes.data
+        while (done := int(c["cmd_done"])) < seq:
             if inst.shutting_down:  # the clock has left (kalictl stop): nobody will take it
                 raise ClockError(f"{cmd.name}: instance '{inst.name}' was stopped")
             if time.monotonic() > deadline:
@@ -49,7 +52,7 @@ def _command(inst: Instance, cmd: ClockCommand, arg: float = 0.0) -> None:
                     f"within {COMMAND_TIMEOUT_S:g} s; "
                     + (f"the system is halted: {fault}" if fault else "is it running?")
                 )
-            time.sleep(0.0005)
+            waiter.wait(done_addr, done)  # the clock wakes it as it takes the command
         if int(c["cmd_status"]) != 0:
             raise ClockError(decode(c["cmd_message"]))
 
@@ -77,12 +80,13 @@ def step_kali_clock(inst: Instance, ticks: int, wait: bool = True, timeout: floa
     if wait:
         target = int(inst.clock["step_target"])
         deadline = time.monotonic() + timeout
-        while int(inst.clock["mode"]) != RunMode.STOPPED:
+        waiter, mode_addr = futex.Waiter(WAIT_SLICE_S), inst.clock["mode"].ctypes.data
+        while (mode := int(inst.clock["mode"])) != RunMode.STOPPED:
             if inst.shutting_down:
                 raise ClockError(f"step to tick {target}: instance '{inst.name}' was stopped")
             if time.monotonic() > deadline:
                 raise ClockError(f"step to tick {target} not finished within {timeout:g} s")
-            time.sleep(0.0005)
+            waiter.wait(mode_addr, mode)  # the clock wakes it once stopped
     return int(inst.clock["tick"])
 
 

@@ -21,7 +21,7 @@ import os
 import numpy as np
 import posix_ipc
 
-from ..core import layout, rt
+from ..core import futex, layout, rt
 from ..core.layout import ClockCommand, FaultCode, ProcState, RunMode
 from ..core.spinlock import pid_alive
 from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
@@ -65,6 +65,9 @@ class WallClock(Daemon):
         self._pace = self._sems[self.slot]
         self._cmd_sem = self.inst.command_semaphore()
         self._ack_sem = self.inst.ack_semaphore()
+        # the words programs wait on (futex.py): a command taken, the clock stopped
+        self._cmd_done_addr = c["cmd_done"].ctypes.data
+        self._mode_addr = c["mode"].ctypes.data
         self._gen = self._rates_gen = -1
         self._slots: list[int] = []  # periodic slots in (stage, slot) order
         self._serious: list[bool] = []
@@ -206,6 +209,7 @@ class WallClock(Daemon):
                     drain(self._pace)  # packets while stopped are no ticks to catch up on
                 self._flight.dump_if_halted()  # once per fault, nothing signalled (DESIGN 7)
                 self.inst.procs[self.slot]["heartbeat_ns"] = now()
+                futex.wake(self._mode_addr)  # a step done, a halt: whoever waits for it
                 try:
                     self._cmd_sem.acquire(STOPPED_WAIT_S)
                 except (posix_ipc.BusyError, posix_ipc.SignalError):
@@ -609,6 +613,7 @@ class WallClock(Daemon):
         c["cmd_status"] = status
         c["cmd_message"] = message.encode()[: layout.MESSAGE_BYTES - 1]
         c["cmd_done"] = c["cmd_seq"]
+        futex.wake(self._cmd_done_addr)
         return t0
 
     def _drain_acks(self) -> None:
