@@ -36,6 +36,7 @@ from .test_launcher import kalictl
 STEADY_RAD = 2e-3  # a joint move's end, on the simulator's truth
 LINE_M = 1e-3  # a line's end, the flange by the truth's angles
 HAND_CLOSED_M, HAND_OPEN_M = 0.005, 0.075  # the Franka Hand's fingers: 0 .. 0.08 m apart
+PUSH_READ_N = 4.0  # a push on the hand, read from the joint torques: friction and model mismatch
 
 
 def fr3_cell(kali: Callable[..., str]) -> str:
@@ -291,3 +292,39 @@ def test_a_second_client_on_the_same_robot_is_refused_naming_it(kali: Callable[.
     assert leftovers(second) == ([], [])
     with Instance.attach(first) as inst:
         assert not inst.fault["active"]
+
+
+def ft_world(inst: Instance) -> np.ndarray:
+    return inst.arena.record(layout.KEY_FT, layout.FT_STATE, inst.cell.n_robots)["world"][0].copy()
+
+
+def test_a_push_reads_on_the_fr3s_wrench_from_its_joint_torques_and_trips_a_guarded_move(
+    kali: Callable[..., str],
+) -> None:
+    """No wrist sensor: the link estimates the wrench at the flange from the FR3's joint
+    torques (config/fr3.yaml's ``ft.sensor: joint-torques``; franky-sim gives no estimate of its
+    own), and SIO's sensor pipeline takes it as a wrist sensor's.  Tared at rest, a 20 N push
+    down on the hand (``kalictl push``, franky-sim's truth) reads within ``PUSH_READ_N``; a
+    guarded move down stops on a push that meets its guard, as it would on a table."""
+    name = fr3_cell(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])
+        arm = k.robot("arm")
+        arm.tare()
+        assert np.linalg.norm(ft_world(k.inst)[:3]) < 1.0
+        push = np.array([0.0, 0.0, -20.0])
+        k.inst.push(0, push, 1.5)
+        time.sleep(1.0)
+        read = ft_world(k.inst)[:3]
+        assert np.linalg.norm(read - push) < PUSH_READ_N, read
+        time.sleep(1.0)
+        arm.tare()
+        here = arm.read_pose()
+        down = pose(here[:3, 3] - np.array([0.0, 0.0, 0.05]), here)
+        move = arm.move_line(down, speed=0.01, guard=10.0, wait=False)
+        time.sleep(0.5)
+        k.inst.push(0, np.array([0.0, 0.0, 25.0]), 1.0)  # what a table would do
+        move.wait(timeout=10.0)
+        assert move.state == layout.RequestState.CONTACT, move.message
+        assert move.contact is not None and move.contact.force >= 10.0
+        assert not k.inst.fault["active"], k.inst.fault_text()

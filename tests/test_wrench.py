@@ -12,7 +12,13 @@ import pytest
 from kali_daemons.client import Kali
 from kali_daemons.core import layout
 from kali_daemons.core.errors import ServoError
-from kali_daemons.core.kernels import WRENCH_CONTACT, WRENCH_OK, WRENCH_RATED, WRENCH_SATURATED
+from kali_daemons.core.kernels import (
+    WRENCH_CONTACT,
+    WRENCH_OK,
+    WRENCH_RATED,
+    WRENCH_SATURATED,
+    WRENCH_SILENT,
+)
 from kali_daemons.core.layout import FaultCode
 from kali_daemons.hardware.ftsensor import FT_RAIL, FT_REQUEST, FT_SEQ_MASK, MINI45
 from kali_daemons.hardware.mcgill import registers
@@ -135,6 +141,14 @@ def test_the_ft_section_is_checked() -> None:
         parse_config(base.replace("{}", "{tool_mass_kg: -1}"))
     cfg = parse_config(base.replace("{}", "{sensor: none}"))
     assert cfg.robots[0].ft.sheet is None
+    # a sensor its hardware cannot read: a McGill board has no joint torques, an FR3 no gauges
+    with pytest.raises(Exception, match=r"ft\.sensor = 'joint-torques': mcgill hardware takes a "
+                       r"wrist wrench from mini45; or none"):  # fmt: skip
+        parse_config(base.replace("{}", "{sensor: joint-torques}"))
+    fr3 = "    model: fr3\n    hardware: {kind: franka, address: 127.0.0.1}\n"
+    with pytest.raises(Exception, match=r"ft\.sensor = 'mini45': franka hardware takes a wrist "
+                       r"wrench from joint-torques, robot; or none"):  # fmt: skip
+        parse_config(base.replace("{}", "{sensor: mini45}") + fr3)
 
 
 def test_the_compiled_conversion_equals_its_numpy_reference() -> None:
@@ -183,6 +197,59 @@ def test_the_compiled_conversion_equals_its_numpy_reference() -> None:
         assert kernel.args.tare_left == ref.args.tare_left
         assert kernel.args.force == pytest.approx(ref.args.force, abs=1e-12)
     assert found == {WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT}
+
+
+def test_a_wrench_the_hardware_gives_goes_through_the_same_conversion() -> None:
+    """An arm with no gauges (``ft.sensor: joint-torques``: its hardware gives the wrench at
+    the flange): ``kali_wrench_convert`` equals ``convert_reference`` on random wrenches,
+    poses, biases, limits and tares; and the tick takes a wrench only when the hardware's
+    count has moved, silent past ``stale_limit`` ticks without one."""
+    cfg = parse_config(
+        "version: 1\ninstance: x\nrobots:\n  - name: a\n    model: fr3\n"
+        "    ft: {sensor: joint-torques, tool_mass_kg: 0.73, tool_com_m: [-0.01, 0, 0.03],"
+        " tool_tip_m: 0.1034, contact_limit_n: 120}\n"
+        "    hardware: {kind: franka, address: 127.0.0.1}\n"
+    )
+    rng = np.random.default_rng(11)
+    twins = []
+    for _ in range(2):
+        given, count = np.zeros(6), np.zeros((), np.uint64)
+        state = np.zeros((), layout.FT_STATE)
+        q = np.zeros(cfg.robots[0].n_joints)
+        sensor = ArmSensor(cfg, 0, None, state, q, 0.001, (given, count))
+        twins.append((sensor, given, count, state, q))
+    (kernel, *_), (ref, *_) = twins
+    rtype = cfg.robots[0].type
+    found = set()
+    for i in range(300):
+        wrench = rng.normal(0.0, 40.0, 6)
+        q = rng.uniform(rtype.q_min, rtype.q_max)
+        limit = rng.choice([0.0, 50.0, 500.0, np.nan])
+        tare = int(rng.integers(0, 3)) if i % 5 == 0 else 0
+        for arm, given, _, state, q_arm in twins:
+            given[:] = wrench
+            q_arm[:] = q
+            state["contact_limit"] = limit
+            if tare:
+                arm.args.tare_left = tare
+        result = (kernel.convert(), convert_reference(ref))
+        found.add(result[0])
+        assert result[0] == result[1], (i, result)
+        for f in ("sensor", "tool", "world", "bias", "rotation"):
+            np.testing.assert_allclose(twins[0][3][f], twins[1][3][f], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(kernel.raw, wrench)
+    assert found == {WRENCH_OK, WRENCH_CONTACT}  # no gauges: nothing saturates, no range
+    arm, given, count, state, _ = twins[0]
+    state["contact_limit"] = 0.0
+    given[:] = 0.0
+    samples = int(state["samples"])
+    assert arm.tick(1) == WRENCH_OK and int(state["samples"]) == samples  # the count stood
+    count[...] = count + 1
+    assert arm.tick(2) == WRENCH_OK and int(state["samples"]) == samples + 1
+    for tick in range(3, 3 + arm.stale_limit):
+        assert arm.tick(tick) == WRENCH_OK
+    assert arm.tick(3 + arm.stale_limit) == WRENCH_SILENT
+    assert "no new wrench from its hardware" in arm.message(WRENCH_SILENT)
 
 
 def test_the_sheet_s_error_grows_as_the_plant_s_offsets_drift() -> None:

@@ -372,6 +372,8 @@ BLOCKS: tuple[Block, ...] = (
         ("n", "int64_t", "the chain's joints"),
         ("origins, axes, q", "const double *", "chain.Chain, the arm's angles (contiguous)"),
         ("codes", "const int16_t *", "the board's 6 gauge codes"),
+        ("given", "const double *", "6: a wrench the hardware gives, flange; NULL: the codes'"),
+        ("given_seq", "const uint64_t *", "the hardware's count of those wrenches"),
         ("cal", "const double *", "6x6 calibration matrix, row-major, N per volt"),
         ("base", "const double *", "4x4 base pose in the world, row-major"),
         ("g", "const double *", "gravity in the world, m/s^2"),
@@ -390,6 +392,7 @@ BLOCKS: tuple[Block, ...] = (
         ("sample_tick", "int64_t *"),
         ("present, tare_cmd, tare_state", "uint8_t *"),
         ("tick, seq, stale_limit", "int64_t", "in: this tick; in/out: the sequence asked for"),
+        ("given_seen", "uint64_t", "in/out: the hardware's count at the wrench last taken"),
         (
             "ready, request, seq_mask, averaging, done",
             "int64_t",

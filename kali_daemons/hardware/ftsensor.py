@@ -57,16 +57,26 @@ class FtSheet:
     volts_at_rated: float = 8.0
     offset_v: float = 0.2
     drift_v_per_sqrt_s: float = 2e-4
+    # where SIO takes the wrench from (``SOURCES``): a board's gauge ADC, or a wrench the
+    # hardware gives at the flange (the kinds that give one say which, ``HardwareKind.wrist``)
+    source: str = "gauges"
 
     def __post_init__(self) -> None:
         if len(self.rated) != GAUGES or len(self.noise) != GAUGES:
             raise ConfigError(f"F/T sheet {self.name!r}: rated and noise need {GAUGES} values")
         if len(self.coupling) != GAUGES or any(len(r) != GAUGES for r in self.coupling):
             raise ConfigError(f"F/T sheet {self.name!r}: coupling must be {GAUGES}×{GAUGES}")
+        if self.source not in ("gauges", "model", "robot"):
+            raise ConfigError(f"F/T sheet {self.name!r}: source {self.source!r} unknown")
 
     @cached_property
     def calibration(self) -> np.ndarray:
-        """``C``: the wrench (N, N·m) of gauge volts, ``w = C v`` (read-only)."""
+        """``C``: the wrench (N, N·m) of gauge volts, ``w = C v`` (read-only; zero for a
+        sheet without gauges)."""
+        if self.source != "gauges":
+            c = np.zeros((GAUGES, GAUGES))
+            c.setflags(write=False)
+            return c
         c = np.diag(np.asarray(self.rated) / self.volts_at_rated) @ (
             np.eye(GAUGES) + np.asarray(self.coupling)
         )
@@ -117,7 +127,21 @@ MINI45: Final = FtSheet(
     ),
 )
 
-SHEETS: Final = {MINI45.name: MINI45}
+# No sensor on the wrist: the wrench from the arm's own joint torque sensors.  ``model``: Kali
+# estimates it from the measured torques and its model of the arm (the link's, for a robot
+# that gives none of its own: franky-sim's FR3); ``robot``: the robot's own estimate (a real
+# FR3's O_F_ext_hat_K).  No ADC, no rated range of their own: the contact limit bounds them.
+_NO_NOISE: Final = (0.0,) * GAUGES
+_NO_COUPLING: Final = ((0.0,) * GAUGES,) * GAUGES
+JOINT_TORQUES: Final = FtSheet(
+    "joint-torques", (math.inf,) * GAUGES, _NO_NOISE, _NO_COUPLING, source="model"
+)
+ROBOT_ESTIMATE: Final = FtSheet(
+    "robot", (math.inf,) * GAUGES, _NO_NOISE, _NO_COUPLING, source="robot"
+)
+SOURCES: Final = ("gauges", "model", "robot")
+
+SHEETS: Final = {s.name: s for s in (MINI45, JOINT_TORQUES, ROBOT_ESTIMATE)}
 
 
 def sheet(name: str) -> FtSheet:

@@ -170,6 +170,12 @@ class Hardware(Protocol):
         registers, which SIO's cycle then reads (0-d record: ``ft_gauge``, ``ft_control``,
         ``ft_status``; ``ftsensor``)."""
 
+    def wrench(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Outside the cycle (once, at configure), for a kind whose arms have no gauges
+        (``HardwareKind.wrist``): arm ``k``'s wrist wrench as its hardware gives it, at the
+        flange in flange axes (6 float64, the wrench the tool side exerts on the arm), and
+        its count (0-d uint64, one more for each new wrench), which SIO's cycle then reads."""
+
     def pots(self, k: int) -> PotReader:
         """Outside the common tick (calibration's steps): arm ``k``'s absolute joint sensors,
         read one joint per step."""

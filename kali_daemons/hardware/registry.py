@@ -49,8 +49,9 @@ class HardwareKind:
     hands: bool = False
     # the hardware holds its arms against gravity itself: the feed-forward leaves gravity out
     compensates_gravity: bool = False
-    # it reads a wrist force/torque sensor's gauges (``hardware.ftsensor``)
-    gauges: bool = True
+    # where it takes an arm's wrist wrench from (``ftsensor.SOURCES``): a sensor's gauges on
+    # its ADC, a model of the arm on its joint torques, the robot's own estimate
+    wrist: tuple[str, ...] = ("gauges",)
     # why it cannot drive an arm of a robot type at a servo period (s), or "" if it can
     refuses: Callable[[Any, float], str] = lambda rtype, period_s: ""
     # the module the cell's simulated plant runs as (``python -m kali_daemons.<it>``)

@@ -26,6 +26,7 @@ from ..core.layout import FaultCode, lateness_bin
 from ..hardware.franka import registers
 from ..hardware.franka.arms import records
 from ..hardware.franka.registers import LINK_CONNECTED, LINK_CONTROL, LINK_ERROR, LINK_ESTOP
+from ..hardware.franka.wrench import FlangeWrench
 from ..runtime.daemon import Daemon
 
 # how long a link tries to reach its robot at start (a simulator loads), within what start
@@ -92,6 +93,8 @@ class FrankaLink(Daemon):
         self._q, self._dq, self._tau_j = (self.arm[f][:n] for f in ("q", "dq", "tau_J"))
         self._wrench, self._cmd = self.arm["wrench"], self.arm["tau"][:n]
         self._share_hist = self.arm["share_hist"]
+        # the arm's wrist wrench from its joint torques, if its config asks for one (wrench.py)
+        self._flange = FlangeWrench(self.robot) if self.robot.ft.sheet is not None else None
         self._ctrl: Any = None  # the active torque control, while the arm is powered
         self._robot: Any = None
         self._rt_on = False  # past start-up: at the configured priority
@@ -175,7 +178,7 @@ class FrankaLink(Daemon):
             self._ctrl = self._robot.start_torque_control()
             arm["status"] = LINK_CONNECTED | LINK_CONTROL
             return
-        self._publish(self._robot.read_once())
+        self._estimate(self._robot.read_once())
 
     def _control_step(self) -> None:
         """One robot cycle in torque control: the state in, SIO's answer to it out."""
@@ -188,16 +191,18 @@ class FrankaLink(Daemon):
             arm["lost"] += lost
         if not self._answered(seq, t_in):
             arm["late"] += 1
-            return
-        np.copyto(self._tau, self._cmd)
-        self._ctrl.writeOnce(franka().Torques(self._tau.tolist()))
-        t_out = rt.monotonic_ns()
-        arm["sent_ns"] = t_out
-        arm["answered"] += 1
-        share = t_out - t_in  # Kali's share of the robot's cycle: state in, command out
-        self._share_hist[lateness_bin(share)] += 1
-        if share > arm["share_max_ns"]:
-            arm["share_max_ns"] = share
+        else:
+            np.copyto(self._tau, self._cmd)
+            self._ctrl.writeOnce(franka().Torques(self._tau.tolist()))
+            t_out = rt.monotonic_ns()
+            arm["sent_ns"] = t_out
+            arm["answered"] += 1
+            share = t_out - t_in  # Kali's share of the robot's cycle: state in, command out
+            self._share_hist[lateness_bin(share)] += 1
+            if share > arm["share_max_ns"]:
+                arm["share_max_ns"] = share
+        if self._flange is not None:  # after the answer: the next state publishes it
+            self._flange.update(state)
 
     def _answered(self, seq: int, t_in: int) -> bool:
         """Wait for SIO's command answering state ``seq`` (its post of this link's semaphore),
@@ -237,7 +242,8 @@ class FrankaLink(Daemon):
         self._q[:] = state.q
         self._dq[:] = state.dq
         self._tau_j[:] = state.tau_J
-        self._wrench[:] = state.O_F_ext_hat_K
+        if self._flange is not None:  # the previous state's: worked out after answering it
+            self._wrench[:] = self._flange.out
         arm["success_rate"] = state.control_command_success_rate
         arm["mode"] = int(state.robot_mode.value)
         arm["robot_ms"] = round(state.time.to_sec() * 1000.0)
@@ -247,6 +253,12 @@ class FrankaLink(Daemon):
         if self._pace is not None:
             self._pace.release()
         return seq
+
+    def _estimate(self, state: Any) -> None:
+        """Not in torque control: publish ``state``, then work its wrench out."""
+        self._publish(state)
+        if self._flange is not None:
+            self._flange.update(state)
 
     # ------------------------------------------------------------------ errors
 

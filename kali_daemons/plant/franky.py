@@ -5,12 +5,15 @@ robot's protocol (docs/decisions/0015).
 One simulated FR3 per arm of the cell, each serving its arm's address (127.0.0.x), at its
 base position and its robot type's home pose; every plant period, each robot's commands are
 taken, the world steps 1 ms and each robot's state goes out.  The truth (joint angles,
-velocities, applied torques) goes into the plant's truth records for tests and the viewer.
+velocities, applied torques) goes into the plant's truth records for tests and the viewer;
+``kalictl push`` pushes an FR3 at its flange.
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+import numpy as np
 
 from ..core import layout
 from ..core.errors import DaemonError
@@ -54,9 +57,17 @@ class FrankySim(Daemon):
         index = {r.name: k for k, r in enumerate(cfg.robots)}
         self._spans = [m.span(index[r.name]) for r in robots]
         self._ticks = 0
+        # kalictl push: a force at each FR3's flange (its hand's origin) for a while
+        self.pushes = self.inst.arena.record(layout.KEY_PUSHES, layout.PUSH, len(cfg.robots))
+        self._arm_of = [index[r.name] for r in robots]
+        self._push_seq = [int(self.pushes["seq"][k]) for k in self._arm_of]
+        self._push_end = [0] * len(robots)
+        model = self.sim.model
+        self._hands = [model.body(f"robot{i}_hand").id for i in range(len(robots))]
 
     def cycle(self, tick: int) -> None:
         """One 1 ms step: commands in, the world stepped, states out; the truth published."""
+        self._push()
         self.server.run_once(realtime=False)
         self._ticks += 1
         truth = self._truth
@@ -67,6 +78,24 @@ class FrankySim(Daemon):
             truth["torque"][span] = inner.tau_j
         self._world["ticks"] = self._ticks
         self._world["sim_time_ns"] = self._ticks * 1_000_000
+
+    def _push(self) -> None:
+        """Start, hold or end each FR3's push (``kalictl push``; PUSH: a force in the world
+        frame for a simulated duration), applied at its flange: MuJoCo applies a body's
+        force at its centre of mass, so with the moment that moves it to the hand's origin."""
+        data, now = self.sim.data, self._ticks * 1_000_000
+        for i, k in enumerate(self._arm_of):
+            body, xfrc = self._hands[i], data.xfrc_applied[self._hands[i]]
+            seq = int(self.pushes["seq"][k])
+            if seq != self._push_seq[i]:
+                self._push_seq[i] = seq
+                self._push_end[i] = now + int(self.pushes["duration_ns"][k])
+            if now < self._push_end[i]:
+                force = self.pushes["force"][k]
+                xfrc[:3] = force
+                xfrc[3:] = np.cross(data.xpos[body] - data.xipos[body], force)
+            else:
+                xfrc[:] = 0.0
 
     def on_shutdown(self) -> None:
         server, sim = getattr(self, "server", None), getattr(self, "sim", None)

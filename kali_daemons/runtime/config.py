@@ -1802,12 +1802,14 @@ def _robots(
         v["hardware"] = _hardware(
             entry.get("hardware", {}), f"{path}.hardware", v["model"], rtype, clock
         )
-        if v["ft"].sensor is not None and not hardware_kind(v["hardware"].kind).gauges:
+        sheet, kind = v["ft"].sheet, hardware_kind(v["hardware"].kind)
+        if sheet is not None and sheet.source not in kind.wrist:
+            takes = [s.name for s in FT_SHEETS.values() if s.source in kind.wrist]
             _fail(
                 f"{path}.ft.sensor",
                 v["ft"].sensor,
-                f"{v['hardware'].kind} hardware reads no wrist sensor's gauges; "
-                "ft: {sensor: none}",
+                f"{kind.name} hardware takes a wrist wrench from "
+                f"{', '.join(takes) or 'nothing'}; or none",
             )
         robots.append(RobotConfig(**v))
     return tuple(robots)

@@ -226,12 +226,14 @@ class ServoIO(Daemon):
             ArmSensor(
                 cfg,
                 k,
-                self.hw.gauges(k),
+                self.hw.gauges(k) if gauged else None,
                 self.ft_records[k : k + 1].reshape(()),
                 self.q[lv.map.span(k)],
                 period_s,
+                None if gauged else self.hw.wrench(k),
             )
             for k in sensors_of(cfg)
+            for gauged in [cfg.robots[k].ft.sheet.source == "gauges"]  # type: ignore[union-attr]
         ]
         self._guard_state = self.ft_records["guard_state"]
         self._guard_q = [

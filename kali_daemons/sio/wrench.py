@@ -39,17 +39,20 @@ TARE_MS = 100.0  # a tare averages this long of samples
 
 
 class ArmSensor:
-    """One arm's sensor as SIO reads it: its board registers, its FT_STATE record, its
-    chain, and the arrays of the conversion, all bound at configure."""
+    """One arm's sensor as SIO reads it: its board registers (``regs``, a gauge sensor's) or
+    the wrench its hardware gives at the flange with that wrench's count (``given``, an arm
+    with no gauges: ``ftsensor.JOINT_TORQUES``), its FT_STATE record, its chain, and the arrays
+    of the conversion, all bound at configure."""
 
     def __init__(
         self,
         cfg: KaliConfig,
         k: int,
-        regs: np.ndarray,
+        regs: np.ndarray | None,
         state: np.ndarray,
         q: np.ndarray,
         servo_period_s: float,
+        given: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         robot = cfg.robots[k]
         ft = robot.ft
@@ -57,7 +60,9 @@ class ArmSensor:
         assert sheet is not None, "an ArmSensor needs a sensor"
         self.name = robot.name
         self.sheet = sheet
-        self.regs = regs  # IO_BOARD record (0-d)
+        self.regs = regs  # IO_BOARD record (0-d), or None: no gauges
+        self.given = None if given is None else given[0]  # 6 float64: flange, flange axes
+        self._given_seq = None if given is None else given[1]  # 0-d uint64: its count
         self.state = state  # FT_STATE record (0-d)
         self.q = q  # SIO's angles of this arm (a view)
         self.chain: Chain = chain_of(robot.type)
@@ -73,9 +78,11 @@ class ArmSensor:
         self.tare_ticks = max(1, round(TARE_MS / 1000.0 / servo_period_s))
         self.calibration = np.ascontiguousarray(sheet.calibration)
         self.rated = np.asarray(sheet.rated, dtype=np.float64)
-        self.codes = regs["ft_gauge"]
-        self._control = regs["ft_control"]
-        self._status = regs["ft_status"]
+        # the gauges' registers; none where the hardware gives the wrench (the kernel then
+        # reads neither codes nor status and writes no control)
+        self.codes = None if regs is None else regs["ft_gauge"]
+        self._control = None if regs is None else regs["ft_control"]
+        self._status = None if regs is None else regs["ft_status"]
         self.filt = np.zeros(ftsensor.GAUGES)  # the contact wrench's low-pass state
         self.raw = np.zeros(ftsensor.GAUGES)  # the calibrated sample
         self.grav = np.zeros(ftsensor.GAUGES)  # the tool's weight on the sensor
@@ -102,7 +109,10 @@ class ArmSensor:
             origins=c.origins.ctypes.data,
             axes=c.axes.ctypes.data,
             q=q.ctypes.data,
-            codes=self.codes.ctypes.data,
+            codes=_address(self.codes),
+            given=0 if self.given is None else self.given.ctypes.data,
+            given_seq=0 if self._given_seq is None else self._given_seq.ctypes.data,
+            given_seen=0 if self._given_seq is None else int(self._given_seq),
             cal=self.calibration.ctypes.data,
             base=self.base.ctypes.data,
             g=self.g_world.ctypes.data,
@@ -129,8 +139,6 @@ class ArmSensor:
                     ("bias", self.bias),
                     ("sum", self.sum),
                     ("rotation", self.rotation),
-                    ("status", self._status),
-                    ("control", self._control),
                     ("stale", self._stale),
                     ("tare_count", self._tare_count),
                     ("samples", self._samples),
@@ -140,6 +148,8 @@ class ArmSensor:
                     ("tare_state", self._tare_state),
                 )
             },
+            status=_address(self._status),
+            control=_address(self._control),
             stale_limit=self.stale_limit,
             ready=FT_READY,
             request=FT_REQUEST,
@@ -158,6 +168,8 @@ class ArmSensor:
 
     def start(self) -> None:
         """Ask for the first sample (at SIO's configure)."""
+        if self._status is None or self._control is None:
+            return  # the hardware's wrenches come unasked
         self.args.seq = (int(self._status) + 1) & FT_SEQ_MASK
         self._control[...] = FT_REQUEST | self.args.seq
 
@@ -189,7 +201,7 @@ class ArmSensor:
 
     def message(self, found: int) -> str:
         """The halt's message for ``kali_wrench_tick``'s result (outside the common path)."""
-        if found == WRENCH_SATURATED:
+        if found == WRENCH_SATURATED and self.codes is not None:
             g = int(np.argmax(np.abs(self.codes.astype(np.int64))))
             return (
                 f"robot '{self.name}': wrist force/torque sensor gauge {g + 1} saturated "
@@ -207,12 +219,21 @@ class ArmSensor:
                 f"robot '{self.name}': contact force {self.args.force:.1f} N beyond its limit "
                 f"{self.args.limit_used:g} N (tool, wrist sensor)"
             )
-        status = int(self._status)
-        what = "no sensor on its board" if not status & FT_PRESENT else "no new sample"
+        if self._status is None:
+            what = "no new wrench from its hardware"
+        elif not int(self._status) & FT_PRESENT:
+            what = "no sensor on its board"
+        else:
+            what = "no new sample"
         return (
             f"robot '{self.name}': wrist force/torque sensor silent for {int(self._stale)} "
             f"ticks ({what}); limit {self.stale_limit} ticks"
         )
+
+
+def _address(array: np.ndarray | None) -> int:
+    """A kernel's pointer to ``array``'s data; NULL for none."""
+    return 0 if array is None else array.ctypes.data
 
 
 def convert_reference(arm: ArmSensor) -> int:
@@ -222,7 +243,11 @@ def convert_reference(arm: ArmSensor) -> int:
     pose = flange_pose(arm.chain, arm.q)
     rot = (arm.base @ pose)[:3, :3]
     arm.rotation[...] = rot
-    np.matmul(arm.calibration, arm.codes * ftsensor.VOLTS_PER_CODE, out=arm.raw)
+    if arm.codes is None:
+        assert arm.given is not None
+        arm.raw[:] = arm.given
+    else:
+        np.matmul(arm.calibration, arm.codes * ftsensor.VOLTS_PER_CODE, out=arm.raw)
     arm.grav[:] = gravity_wrench(arm.mass, arm.com, rot.T @ arm.g_world)
     if a.tare_left > 0:
         arm.sum += arm.raw - arm.grav
@@ -231,7 +256,7 @@ def convert_reference(arm: ArmSensor) -> int:
             arm.bias[:] = arm.sum / arm.tare_ticks
             arm.filt[:] = 0.0
     arm.sensor[:] = arm.raw - arm.bias
-    if (np.abs(arm.codes.astype(np.int64)) >= ftsensor.FT_RAIL).any():
+    if arm.codes is not None and (np.abs(arm.codes.astype(np.int64)) >= ftsensor.FT_RAIL).any():
         return WRENCH_SATURATED
     if (np.abs(arm.sensor) > arm.rated).any():
         return WRENCH_RATED

@@ -410,6 +410,8 @@ typedef struct {
     int64_t n; /* the chain's joints */
     const double *origins, *axes, *q; /* chain.Chain, the arm's angles (contiguous) */
     const int16_t *codes; /* the board's 6 gauge codes */
+    const double *given; /* 6: a wrench the hardware gives, flange; NULL: the codes' */
+    const uint64_t *given_seq; /* the hardware's count of those wrenches */
     const double *cal; /* 6x6 calibration matrix, row-major, N per volt */
     const double *base; /* 4x4 base pose in the world, row-major */
     const double *g; /* gravity in the world, m/s^2 */
@@ -428,6 +430,7 @@ typedef struct {
     int64_t *sample_tick;
     uint8_t *present, *tare_cmd, *tare_state;
     int64_t tick, seq, stale_limit; /* in: this tick; in/out: the sequence asked for */
+    uint64_t given_seen; /* in/out: the hardware's count at the wrench last taken */
     int64_t ready, request, seq_mask, averaging, done; /* ftsensor's bits, TareState's values */
 } WrenchArgs;
 
@@ -1222,6 +1225,8 @@ static const Field WrenchArgs_LAYOUT[] = {
     LAYOUT(WrenchArgs, axes),
     LAYOUT(WrenchArgs, q),
     LAYOUT(WrenchArgs, codes),
+    LAYOUT(WrenchArgs, given),
+    LAYOUT(WrenchArgs, given_seq),
     LAYOUT(WrenchArgs, cal),
     LAYOUT(WrenchArgs, base),
     LAYOUT(WrenchArgs, g),
@@ -1259,6 +1264,7 @@ static const Field WrenchArgs_LAYOUT[] = {
     LAYOUT(WrenchArgs, tick),
     LAYOUT(WrenchArgs, seq),
     LAYOUT(WrenchArgs, stale_limit),
+    LAYOUT(WrenchArgs, given_seen),
     LAYOUT(WrenchArgs, ready),
     LAYOUT(WrenchArgs, request),
     LAYOUT(WrenchArgs, seq_mask),

@@ -263,7 +263,8 @@ int64_t kali_feedforward(FfArgs *a) {
  * One arm's force/torque sample, from its gauge codes to the contact wrench at the tool point
  * (sio/wrench.py; wrench.convert_reference is the reference, equal to ~1e-12: numpy's small
  * products go through BLAS).  In order: volts and the calibration matrix (raw: the wrench the
- * tool exerts on the sensor); the sensor frame in the world (base * flange pose at q) and the
+ * tool exerts on the sensor), or the wrench the hardware gives at the flange (given: an arm with
+ * no gauges, its joint torques'); the sensor frame in the world (base * flange pose at q) and the
  * tool's weight there, [m g; c x m g]; a tare in progress sums raw - weight and, at its last
  * sample, sets the bias and restarts the filter; the reading less the bias (sensor); the
  * checks; the contact wrench (sensor - weight), its low-pass, and the wrench at the tool
@@ -275,11 +276,15 @@ enum { WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT, WRENCH_SILENT 
 /* The conversion alone, for the tests against convert_reference. */
 int64_t kali_wrench_convert(WrenchArgs *a) {
     double v[6], pose[16], w[16], gs[3], c[6];
-    for (int i = 0; i < 6; i++) v[i] = a->codes[i] * a->volts;
-    for (int i = 0; i < 6; i++) {
-        double s = 0.0;
-        for (int j = 0; j < 6; j++) s += a->cal[6 * i + j] * v[j];
-        a->raw[i] = s;
+    if (a->given) { /* the hardware's wrench at the flange: no gauges */
+        for (int i = 0; i < 6; i++) a->raw[i] = a->given[i];
+    } else {
+        for (int i = 0; i < 6; i++) v[i] = a->codes[i] * a->volts;
+        for (int i = 0; i < 6; i++) {
+            double s = 0.0;
+            for (int j = 0; j < 6; j++) s += a->cal[6 * i + j] * v[j];
+            a->raw[i] = s;
+        }
     }
     chain_pose(a->n, a->origins, a->axes, a->q, pose);
     for (int i = 0; i < 3; i++) /* the rotation of base * pose */
@@ -303,7 +308,7 @@ int64_t kali_wrench_convert(WrenchArgs *a) {
         }
     }
     for (int i = 0; i < 6; i++) a->sensor[i] = a->raw[i] - a->bias[i];
-    for (int i = 0; i < 6; i++)
+    for (int i = 0; i < 6 && !a->given; i++)
         if (a->codes[i] >= a->rail || a->codes[i] <= -a->rail) return WRENCH_SATURATED;
     for (int i = 0; i < 6; i++)
         if (fabs(a->sensor[i]) > a->rated[i]) return WRENCH_RATED;
@@ -329,9 +334,16 @@ int64_t kali_wrench_convert(WrenchArgs *a) {
  * (kali_wrench_convert) and the next asked for at once; a tare command starts a tare; a sensor
  * that has not answered for more than stale_limit ticks is WRENCH_SILENT. */
 int64_t kali_wrench_tick(WrenchArgs *a) {
-    uint16_t status = *a->status;
-    if (!(status & a->ready) || (int64_t)(status & a->seq_mask) != a->seq)
-        return ++*a->stale > (uint32_t)a->stale_limit ? WRENCH_SILENT : WRENCH_OK;
+    if (a->given) { /* a new wrench from the hardware: its count moved */
+        uint64_t count = *a->given_seq;
+        if (count == a->given_seen)
+            return ++*a->stale > (uint32_t)a->stale_limit ? WRENCH_SILENT : WRENCH_OK;
+        a->given_seen = count;
+    } else {
+        uint16_t status = *a->status;
+        if (!(status & a->ready) || (int64_t)(status & a->seq_mask) != a->seq)
+            return ++*a->stale > (uint32_t)a->stale_limit ? WRENCH_SILENT : WRENCH_OK;
+    }
     *a->stale = 0;
     *a->present = 1;
     if (*a->tare_cmd) { /* a tare sums the samples from this one on */
@@ -342,8 +354,10 @@ int64_t kali_wrench_tick(WrenchArgs *a) {
     }
     int64_t taring = a->tare_left;
     int64_t found = kali_wrench_convert(a);
-    a->seq = (a->seq + 1) & a->seq_mask; /* the codes are read: ask for the next sample */
-    *a->control = (uint16_t)(a->request | a->seq);
+    if (!a->given) {
+        a->seq = (a->seq + 1) & a->seq_mask; /* the codes are read: ask for the next sample */
+        *a->control = (uint16_t)(a->request | a->seq);
+    }
     ++*a->samples;
     *a->sample_tick = a->tick;
     if (taring && !a->tare_left) {

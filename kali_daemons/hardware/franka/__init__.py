@@ -35,7 +35,7 @@ KIND = HardwareKind(
     links=True,
     hands=True,
     compensates_gravity=True,
-    gauges=False,
+    wrist=("model", "robot"),  # no gauges: the wrench from its joint torque sensors
     simulator="plant.franky",
     refuses=refuses,
 )

@@ -57,7 +57,7 @@ FRANKA_ARM = np.dtype(
         ("q", "<f8", (MAX_JOINTS,)),  # rad
         ("dq", "<f8", (MAX_JOINTS,)),  # rad/s
         ("tau_J", "<f8", (MAX_JOINTS,)),  # N·m, measured link-side torques
-        ("wrench", "<f8", (WRENCH,)),  # O_F_ext_hat_K: the robot's external wrench estimate
+        ("wrench", "<f8", (WRENCH,)),  # the wrist wrench at the flange, flange axes (wrench.py)
         ("success_rate", "<f8"),  # control_command_success_rate
         ("mode", "u1"),  # RobotMode
         ("status", "u1"),  # LINK_* bits

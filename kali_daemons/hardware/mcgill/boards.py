@@ -337,6 +337,9 @@ class McGillBoards:
         ``ft_status``; ``ftsensor``), on its board."""
         return self._boards[k : k + 1].reshape(())
 
+    def wrench(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        raise HardwareError("mcgill: a board gives no wrench of its own (a sensor's gauges do)")
+
     def pots(self, k: int) -> PotReader:
         """Arm ``k``'s potentiometer reader."""
         return self._arms[k].pots
