@@ -202,7 +202,7 @@ class FrankaLink(Daemon):
             if share > arm["share_max_ns"]:
                 arm["share_max_ns"] = share
         if self._flange is not None:  # after the answer: the next state publishes it
-            self._flange.update(state)
+            self._flange.update(state, self._q, self._tau_j)
 
     def _answered(self, seq: int, t_in: int) -> bool:
         """Wait for SIO's command answering state ``seq`` (its post of this link's semaphore),
@@ -258,7 +258,7 @@ class FrankaLink(Daemon):
         """Not in torque control: publish ``state``, then work its wrench out."""
         self._publish(state)
         if self._flange is not None:
-            self._flange.update(state)
+            self._flange.update(state, self._q, self._tau_j)
 
     # ------------------------------------------------------------------ errors
 

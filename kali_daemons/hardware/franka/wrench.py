@@ -44,16 +44,23 @@ class FlangeWrench:
         self.com = np.asarray(robot.ft.tool_com_m, dtype=np.float64)
         self.g_base = np.array([0.0, 0.0, -robot.type.gravity])  # the robot's base is level
         self.out = np.zeros(GAUGES)  # the newest wrench
+        self._r = np.zeros(self.n)  # g - tau_J: the torques something else exerts
+        self._jjt, self._jr = np.zeros((GAUGES, GAUGES)), np.zeros(GAUGES)
 
-    def update(self, state: Any) -> None:
-        """``out`` from one state packet (libfranka's RobotState)."""
+    def update(self, state: Any, q: np.ndarray, tau_j: np.ndarray) -> None:
+        """``out`` from one state packet (libfranka's RobotState), its angles ``q`` and
+        measured torques ``tau_j`` already read out of it (float64 arrays)."""
         pin, model, data = self._pin, self.model, self.data
-        q = np.asarray(state.q, dtype=np.float64)
         if self.source == "model":
             g = pin.computeGeneralizedGravity(model, data, q)
             jac = pin.computeFrameJacobian(model, data, q, self.flange, pin.LOCAL)
-            tau_j = np.asarray(state.tau_J, dtype=np.float64)
-            self.out[:] = np.linalg.lstsq(jac.T, g - tau_j, rcond=None)[0]
+            np.subtract(g, tau_j, out=self._r)
+            np.matmul(jac, jac.T, out=self._jjt)  # J J^T w = J r: w = pinv(J^T) r
+            np.matmul(jac, self._r, out=self._jr)
+            try:
+                self.out[:] = np.linalg.solve(self._jjt, self._jr)
+            except np.linalg.LinAlgError:  # at a singularity: the least-squares one
+                self.out[:] = np.linalg.lstsq(jac.T, self._r, rcond=None)[0]
         elif self.source == "robot":
             pin.framesForwardKinematics(model, data, q)
             flange = data.oMf[self.flange]
@@ -62,10 +69,8 @@ class FlangeWrench:
             ee_t_k = np.asarray(state.EE_T_K, dtype=np.float64).reshape(4, 4, order="F")
             k_point = (o_t_ee @ ee_t_k)[:3, 3]
             wrench = np.asarray(state.O_F_ext_hat_K, dtype=np.float64)
-            force, torque = (
-                wrench[:3],
-                wrench[3:] + np.cross(k_point - flange.translation, wrench[:3]),
-            )
+            force = wrench[:3]
+            torque = wrench[3:] + np.cross(k_point - flange.translation, force)
             self.out[:3], self.out[3:] = rot_t @ force, rot_t @ torque
             self.out += gravity_wrench(self.mass, self.com, rot_t @ self.g_base)
 
