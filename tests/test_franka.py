@@ -280,7 +280,7 @@ def test_a_second_client_on_the_same_robot_is_refused_naming_it(kali: Callable[.
     edits = {
         r"127\.0\.0\.1, hand: true": address,
         r"^  plant: .*$": "  plant: {enabled: false}",
-        r"^arena_kib: 6144$": "arena_kib: 6144\nstartup_timeout_s: 6",
+        r"^arena_kib: 6144$": "arena_kib: 6144\nstartup_timeout_s: 3",
     }
     second = unique_name()
     try:
