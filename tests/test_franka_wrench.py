@@ -28,12 +28,17 @@ def robot(sensor: str) -> object:
     return cfg.robots[0]
 
 
+def flange_model(arm: object) -> tuple[pin.Model, pin.Data, int]:
+    """Kali's model of ``arm``'s type, its data and its flange frame: what the test builds
+    the wrenches with."""
+    model = load_pinocchio(arm.type)  # type: ignore[attr-defined]
+    return model, model.createData(), model.getFrameId(FLANGE_FRAME)
+
+
 def test_kalis_estimate_recovers_the_flange_wrench_the_torques_were_made_with() -> None:
     arm = robot("joint-torques")
     est = FlangeWrench(arm)
-    model = load_pinocchio(arm.type)  # type: ignore[attr-defined]
-    data = model.createData()
-    flange = model.getFrameId(FLANGE_FRAME)
+    model, data, flange = flange_model(arm)
     rng = np.random.default_rng(5)
     for _ in range(20):
         q = rng.uniform(arm.type.q_min, arm.type.q_max)  # type: ignore[attr-defined]
@@ -47,9 +52,7 @@ def test_kalis_estimate_recovers_the_flange_wrench_the_torques_were_made_with() 
 def test_the_robots_estimate_is_moved_to_the_flange_with_the_tools_weight() -> None:
     arm = robot("robot")
     est = FlangeWrench(arm)
-    model = load_pinocchio(arm.type)  # type: ignore[attr-defined]
-    data = model.createData()
-    flange = model.getFrameId(FLANGE_FRAME)
+    model, data, flange = flange_model(arm)
     ft = arm.ft  # type: ignore[attr-defined]
     rng = np.random.default_rng(6)
     for _ in range(20):

@@ -151,6 +151,20 @@ def test_the_ft_section_is_checked() -> None:
         parse_config(base.replace("{}", "{sensor: mini45}") + fr3)
 
 
+def convert_both(kernel: ArmSensor, ref: ArmSensor, i: int) -> int:
+    """``kali_wrench_convert`` on ``kernel``, ``convert_reference`` on its twin ``ref``: the
+    same result, and every output within 1e-12; the result."""
+    result = (kernel.convert(), convert_reference(ref))
+    assert result[0] == result[1], (i, result)
+    for f in ("sensor", "tool", "world", "bias", "rotation"):
+        np.testing.assert_allclose(kernel.state[f], ref.state[f], rtol=0, atol=1e-12)
+    for a, b in ((kernel.filt, ref.filt), (kernel.raw, ref.raw), (kernel.grav, ref.grav)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert kernel.args.tare_left == ref.args.tare_left
+    assert kernel.args.force == pytest.approx(ref.args.force, abs=1e-12)
+    return result[0]
+
+
 def test_the_compiled_conversion_equals_its_numpy_reference() -> None:
     """``kali_wrench`` against ``convert_reference`` on twin sensors fed the same random
     samples, poses, biases, limits and tares, including saturated codes, loads beyond the
@@ -187,15 +201,7 @@ def test_the_compiled_conversion_equals_its_numpy_reference() -> None:
             state["contact_limit"] = limit
             if tare:
                 arm.args.tare_left = tare
-        result = (kernel.convert(), convert_reference(ref))
-        found.add(result[0])
-        assert result[0] == result[1], (i, result)
-        for f in ("sensor", "tool", "world", "bias", "rotation"):
-            np.testing.assert_allclose(twins[0][2][f], twins[1][2][f], rtol=0, atol=1e-12)
-        for a, b in ((kernel.filt, ref.filt), (kernel.raw, ref.raw), (kernel.grav, ref.grav)):
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
-        assert kernel.args.tare_left == ref.args.tare_left
-        assert kernel.args.force == pytest.approx(ref.args.force, abs=1e-12)
+        found.add(convert_both(kernel, ref, i))
     assert found == {WRENCH_OK, WRENCH_SATURATED, WRENCH_RATED, WRENCH_CONTACT}
 
 
@@ -232,11 +238,7 @@ def test_a_wrench_the_hardware_gives_goes_through_the_same_conversion() -> None:
             state["contact_limit"] = limit
             if tare:
                 arm.args.tare_left = tare
-        result = (kernel.convert(), convert_reference(ref))
-        found.add(result[0])
-        assert result[0] == result[1], (i, result)
-        for f in ("sensor", "tool", "world", "bias", "rotation"):
-            np.testing.assert_allclose(twins[0][3][f], twins[1][3][f], rtol=0, atol=1e-12)
+        found.add(convert_both(kernel, ref, i))
         np.testing.assert_array_equal(kernel.raw, wrench)
     assert found == {WRENCH_OK, WRENCH_CONTACT}  # no gauges: nothing saturates, no range
     arm, given, count, state, _ = twins[0]
