@@ -239,7 +239,17 @@ def test_two_starts_of_one_instance_at_once_the_second_is_refused_naming_the_fir
 ) -> None:
     name, cfg, env, first = _start_half_way(tmp_path)
     try:
-        second = kalictl("-i", name, "start", "-c", str(cfg), "--lockstep", env=env)
+        # its daemons held stopped until the second start has been answered: the first start
+        # is still waiting for them (a start takes well under a second: no race to win)
+        wait_for(lambda: bool(launcher.instance_pids(name)), 30, "the first start's daemons")
+        held = launcher.instance_pids(name)
+        for pid in held:
+            os.kill(pid, signal.SIGSTOP)
+        try:
+            second = kalictl("-i", name, "start", "-c", str(cfg), "--lockstep", env=env)
+        finally:
+            for pid in held:
+                os.kill(pid, signal.SIGCONT)
         _, err = first.communicate(timeout=120)
         assert first.returncode == 0, err
         assert second.returncode == 1
