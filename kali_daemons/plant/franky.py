@@ -60,7 +60,9 @@ class FrankySim(Daemon):
         # kalictl push: a force at each FR3's flange (its hand's origin) for a while
         self.pushes = self.inst.arena.record(layout.KEY_PUSHES, layout.PUSH, len(cfg.robots))
         self._arm_of = [index[r.name] for r in robots]
-        self._push_seq = [int(self.pushes["seq"][k]) for k in self._arm_of]
+        p = self.pushes  # its fields viewed once (a lookup by name builds a view)
+        self._push_fields = (p["seq"], p["duration_ns"], p["force"])
+        self._push_seq = [int(p["seq"][k]) for k in self._arm_of]
         self._push_end = [0] * len(robots)
         model = self.sim.model
         self._hands = [model.body(f"robot{i}_hand").id for i in range(len(robots))]
@@ -84,14 +86,15 @@ class FrankySim(Daemon):
         frame for a simulated duration), applied at its flange: MuJoCo applies a body's
         force at its centre of mass, so with the moment that moves it to the hand's origin."""
         data, now = self.sim.data, self._ticks * 1_000_000
+        seqs, durations, forces = self._push_fields
         for i, k in enumerate(self._arm_of):
             body, xfrc = self._hands[i], data.xfrc_applied[self._hands[i]]
-            seq = int(self.pushes["seq"][k])
+            seq = int(seqs[k])
             if seq != self._push_seq[i]:
                 self._push_seq[i] = seq
-                self._push_end[i] = now + int(self.pushes["duration_ns"][k])
+                self._push_end[i] = now + int(durations[k])
             if now < self._push_end[i]:
-                force = self.pushes["force"][k]
+                force = forces[k]
                 xfrc[:3] = force
                 xfrc[3:] = np.cross(data.xpos[body] - data.xipos[body], force)
             else:
