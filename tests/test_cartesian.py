@@ -15,7 +15,7 @@ from kali_daemons.robots.cell import base_transform, inverse
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.robots.puma560.kinematics import CONFIGS, KinematicsError
 from kali_daemons.tg.cartesian import CartesianMotion, decode_config, encode_config
-from kali_daemons.tg.planner import CHECK_CHUNK, LOCKSTEP_CHECK_SAMPLES, Motion, Planner
+from kali_daemons.tg.planner import LOCKSTEP_CHECK_SAMPLES, Motion, Planner
 from kali_daemons.tg.profiles import MotionError
 
 DT = 0.01
@@ -256,15 +256,16 @@ class _Checker:
 def test_a_ticks_path_check_ends_with_the_ticks_check_share() -> None:
     """The check's slice ends CHECK_SHARE of a period after the TG's tick began, so planning
     in the same tick (or another motion's check) leaves it less: a tick whose share is spent
-    checks one chunk (so every check still ends) and returns; the TG once took 7.5 ms of its
-    10 ms tick for a plan and a whole slice on top."""
+    checks one sample (so every check still ends) and returns; the TG once took 7.5 ms of its
+    10 ms tick for a plan and a whole slice on top, and an FR3's path (numerical IK) overran
+    its share by eight samples."""
     q0 = np.array(puma560.QN)
     start = world_pose(LEFT, q0)
     plan = one_arm(q0, [translated(start, (0.0, 0.0, 0.2))], speed=0.05)
     m = Motion(5, [0], plan, checking=True)
     spent = _Checker(time.monotonic_ns() - 1)
     spent._check(m)
-    assert plan.checked == CHECK_CHUNK and m.checking and spent.ran == []
+    assert plan.checked == 1 and m.checking and spent.ran == []
     ample = _Checker(time.monotonic_ns() + 60_000_000_000)
     ample._check(m)
     assert plan.checked == plan.n_samples and not m.checking and ample.ran == [m]

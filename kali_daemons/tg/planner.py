@@ -65,7 +65,6 @@ DEAD_GROUPS = 64  # refused groups remembered, so their late members are refused
 LEAD = 2  # set-points kept in each FIFO ahead of SIO
 CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
 CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before they start
-CHECK_CHUNK = 8  # path samples checked between looks at the time
 # The tick's share (CHECK_SHARE of its period) is spent taking requests, planning paths and
 # checking them, in that order; in lockstep it is counted in path samples, not wall time (about
 # what a 10 ms tick's share checks in real time): planning a path counts as PLAN_SAMPLES,
@@ -829,14 +828,15 @@ class Planner:
         The slice ends ``CHECK_SHARE`` of a period after the tick began, not after the slice
         did: planning the path in the same tick, or checking another motion, uses the same
         share, so a tick stays within it (a plan and a whole slice on top once took the TG
-        7.5 ms of its 10, and with the plant and sv.1 on its CPU it missed).  At least one
-        chunk is checked each tick, so every check ends."""
+        7.5 ms of its 10, and with the plant and sv.1 on its CPU it missed).  The time is looked
+        at after each sample (a numerically solved arm's, the FR3's, is costly), and
+        at least one sample is checked each tick, so every check ends."""
         plan = m.profile
         assert isinstance(plan, CartesianMotion)
         try:
-            while not plan.check_some(CHECK_CHUNK):
+            while not plan.check_some(1):
                 self._progress[self.records.index(m.seq)] = plan.checked / plan.n_samples
-                self._work += CHECK_CHUNK
+                self._work += 1
                 if self._spent():
                     return
         except Exception as exc:  # nothing has moved: refuse, never halt
