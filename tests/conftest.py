@@ -98,6 +98,29 @@ def leftovers(instance: str) -> tuple[list[str], list[int]]:
     )
 
 
+@pytest.fixture(autouse=True)
+def _real_time_runs_alone(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A test starting a real-time instance, or a lockstep one of separate processes (bound
+    to CPUs at SCHED_FIFO), in this process must be marked ``serial``: scripts/test.sh runs
+    the unmarked ones two at a time, where such a cell would miss deadlines for the other's
+    sake."""
+    if request.node.get_closest_marker("serial"):
+        return
+    start = launcher._start
+
+    def unmarked(cfg: KaliConfig, name: str, lockstep: bool, *args: object) -> object:
+        separate = len(args) > 3 and bool(args[3])
+        if not lockstep or separate:
+            kind = "a separate lockstep" if lockstep else "a real-time"
+            pytest.fail(
+                f"{request.node.nodeid} starts {kind} instance: mark it @pytest.mark.serial "
+                "(it must run alone)"
+            )
+        return start(cfg, name, lockstep, *args)
+
+    monkeypatch.setattr(launcher, "_start", unmarked)
+
+
 @pytest.fixture
 def arena() -> Iterator[Arena]:
     """A fresh 1 MiB arena, unlinked afterwards."""

@@ -258,6 +258,7 @@ def _wait(what: str, cond: Callable[[], bool], timeout_s: float) -> float:
     return time.monotonic() - t0
 
 
+@pytest.mark.serial
 def test_stale_feedforward_is_dropped_and_comes_back(kali: Callable[..., str]) -> None:
     """Real time: the dynamics process stopped (SIGSTOP) → STALE within feedforward.stale_ms,
     its torque faded out within ramp_ms, no halt; continued (SIGCONT) → ON again."""

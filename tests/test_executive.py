@@ -12,6 +12,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+import pytest
 from numpy.lib.recfunctions import repack_fields
 
 from kali_daemons.client import Kali
@@ -99,6 +100,7 @@ def test_one_process_hosts_every_daemon_in_its_slot(kali: Callable[..., str]) ->
             assert rows[proc]["misses"] == 0
 
 
+@pytest.mark.serial
 def test_the_executive_and_separate_processes_give_the_same_rows_bit_for_bit(
     kali: Callable[..., str],
 ) -> None:
@@ -158,6 +160,7 @@ def register(registry):
 '''
 
 
+@pytest.mark.serial
 def test_a_hosted_daemon_that_raises_fails_as_its_own_process_would(
     kali: Callable[..., str], tmp_path: Path
 ) -> None:

@@ -128,6 +128,7 @@ def wait_dumps(inst: Instance, n: int, timeout: float = 10.0) -> dict:
         spy.close()
 
 
+@pytest.mark.serial
 def test_every_halt_dumps_the_last_two_seconds(kali: Callable[..., str], tmp_path: Path) -> None:
     name = kali(lockstep=True, separate=True)  # SIO sleeps for the SVs, as in real time
     logs = tmp_path / "logs" / name  # the kali fixture's KALI_LOG_DIR, one directory per instance

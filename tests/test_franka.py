@@ -33,6 +33,8 @@ from .conftest import ROOT, leftovers, make_config, unique_name, wait_for
 from .test_examples import run_example
 from .test_launcher import kalictl
 
+pytestmark = pytest.mark.serial  # real-time cells: alone on the machine (scripts/test.sh)
+
 STEADY_RAD = 2e-3  # a joint move's end, on the simulator's truth
 LINE_M = 1e-3  # a line's end, the flange by the truth's angles
 HAND_CLOSED_M, HAND_OPEN_M = 0.005, 0.075  # the Franka Hand's fingers: 0 .. 0.08 m apart

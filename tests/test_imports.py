@@ -98,6 +98,7 @@ def run_a_while(name: str) -> list[dict[str, object]]:
         return launcher.describe(inst)
 
 
+@pytest.mark.serial
 def test_the_default_set_fits_its_memory_budget(kali: Callable[..., str]) -> None:
     """Default cell, lockstep, after a move: the wall clock's PSS <= 40 MiB, the set's
     <= 400 MiB, and ``kalictl status --memory`` shows every process and the sum."""
@@ -120,6 +121,7 @@ def test_the_default_set_fits_its_memory_budget(kali: Callable[..., str]) -> Non
     assert all(line.split()[-1] == "MB" for line in memory[:9])
 
 
+@pytest.mark.serial
 def test_a_panda_brings_no_pinocchio_into_the_clock_sio_or_the_svs(
     kali: Callable[..., str],
 ) -> None:

@@ -6,6 +6,7 @@ import json
 import re
 from collections.abc import Callable
 
+import pytest
 from rich.console import Console
 
 from kali_daemons.core.layout import FaultCode
@@ -138,6 +139,7 @@ def test_top_draws_rates_lateness_robots_and_the_fault(kali: Callable[..., str])
     assert "the clock did not move" in r.stdout and "SIO sensor→DAC" in r.stdout
 
 
+@pytest.mark.serial
 def test_top_once_in_real_time(kali: Callable[..., str]) -> None:
     name = kali(lockstep=False)
     r = kalictl("-i", name, "top", "--once", "--interval", "0.3", env={"COLUMNS": "160"})

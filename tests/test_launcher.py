@@ -39,6 +39,7 @@ def kalictl(
     )
 
 
+@pytest.mark.serial
 def test_start_status_mem_stop_from_the_command_line(tmp_path: Path) -> None:
     name = unique_name()
     cfg = tmp_path / "k.yaml"
@@ -119,6 +120,7 @@ def test_segment_and_semaphores_are_owner_only(kali: Callable[..., str]) -> None
         assert stat.S_IMODE(os.stat(path).st_mode) == 0o600, path
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("victim", PROCESSES)
 def test_stop_after_kill_9_leaves_nothing(kali: Callable[..., str], victim: str) -> None:
     name = kali(lockstep=True, separate=True)
@@ -164,6 +166,7 @@ def test_start_refuses_a_running_instance(kali: Callable[..., str]) -> None:
         assert sorted(inst.process_names()) == sorted(PROCESSES)
 
 
+@pytest.mark.serial
 def test_two_instances_run_side_by_side(kali: Callable[..., str]) -> None:
     # the servo level only: two whole default cells with feed-forward and dashboard took more
     # than a slower CI machine's two cores, and one halted on a missed deadline meanwhile
@@ -197,6 +200,7 @@ def test_failed_start_names_the_process_and_cleans_up(
     assert leftovers(name) == ([], [])
 
 
+@pytest.mark.serial
 def test_daemon_dying_at_start_up_is_named_with_its_log(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -207,9 +207,11 @@ def test_pinocchio_model(pin_model: pin.Model) -> None:
     assert pin_model.existFrame(FLANGE_FRAME)
 
 
-def test_a_robot_type_without_its_urdf_is_refused(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"robot type 'puma560': urdf = .*nope\.urdf'"):
-        dataclasses.replace(puma560.ROBOT, urdf=tmp_path / "nope.urdf")
+def test_a_robot_type_without_its_urdf_is_refused_naming_the_whole_path(tmp_path: Path) -> None:
+    """However deep the file, the message names it whole: its name ends the path."""
+    deep = tmp_path / ("d" * 90)
+    with pytest.raises(ConfigError, match=r"robot type 'puma560': urdf = '.*d{90}/nope\.urdf'"):
+        dataclasses.replace(puma560.ROBOT, urdf=deep / "nope.urdf")
 
 
 # --------------------------------------------------------------------------------------------

@@ -455,6 +455,7 @@ def test_plant_steps_with_the_clock_in_lockstep(kali: Callable[..., str]) -> Non
         assert int(truth["sim_time_ns"]) - t0 == 100 * MS
 
 
+@pytest.mark.serial
 def test_plant_keeps_running_when_kali_halts(kali: Callable[..., str]) -> None:
     name = kali(lockstep=False)
     with Instance.attach(name) as inst:

@@ -242,6 +242,7 @@ KILLED_SERIOUS = ("plant", "tg", "sio", "sv.0", "sv.1")
 KILLED_OPTIONAL = ("dynamics", "viewer")
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("model", TYPES)
 def test_kill_9_of_each_process_halts_or_degrades_with_the_arms_cut(
     kali: Callable[..., str], model: str

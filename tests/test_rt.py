@@ -148,6 +148,7 @@ def test_poll_semaphore_sees_a_post_without_taking_it_and_gives_up_at_its_deadli
         sem.close()
 
 
+@pytest.mark.serial
 def test_start_up_work_runs_before_a_daemon_goes_real_time(kali: Callable[..., str]) -> None:
     """A daemon's last preparation and its heap's collection and freeze (tens of ms in a
     process holding MuJoCo and Pinocchio) run as SCHED_OTHER: at SCHED_FIFO they starved
@@ -185,6 +186,7 @@ def test_start_up_work_runs_before_a_daemon_goes_real_time(kali: Callable[..., s
     assert _in_child(child) == 0
 
 
+@pytest.mark.serial
 def test_no_realtime_daemon_waits_on_a_worker_thread_below_it(kali: Callable[..., str]) -> None:
     """Every process of the servo path runs one thread.  numpy's OpenBLAS starts a worker
     thread at import (one per further CPU), SCHED_OTHER on the daemon's CPU; a BLAS call it

@@ -141,6 +141,7 @@ def test_lockstep_has_no_deadlines(kali: Callable[..., str]) -> None:
     assert v.fits and "lockstep: no deadlines" in v.text()
 
 
+@pytest.mark.serial
 def test_a_servo_that_would_not_fit_is_refused_before_it_runs(kali: Callable[..., str]) -> None:
     """Real time: kalictl check passes as measured; selecting a plugin whose step (on the
     joint's own parameters) takes 2 ms of a 1 ms tick is refused with the numbers, the joint

@@ -277,6 +277,7 @@ def test_current_beyond_the_limit_halts(kali: Callable[..., str]) -> None:
         assert "beyond its limit 8.00 A for 100 ms" in text
 
 
+@pytest.mark.serial
 def test_a_dead_sv_halts_naming_it(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True, separate=True)
     with servoing(name) as (inst, _):
@@ -289,6 +290,7 @@ def test_a_dead_sv_halts_naming_it(kali: Callable[..., str]) -> None:
         assert not (boards_of(inst)["csr"] & CSR_NO_DISABLE).any()  # amplifiers commanded off
 
 
+@pytest.mark.serial
 def test_a_feed_post_left_from_a_missed_tick_does_not_idle_an_sv(
     kali: Callable[..., str],
 ) -> None:
@@ -319,6 +321,7 @@ def test_a_feed_post_left_from_a_missed_tick_does_not_idle_an_sv(
     ],
     ids=["one-sv", "two-svs", "one-arm-two-svs"],
 )
+@pytest.mark.serial
 def test_an_sv_whose_servos_are_done_is_acknowledged_before_sio_writes_the_dacs(
     kali: Callable[..., str], workers: str, arms: int, allowed: int
 ) -> None:
@@ -388,6 +391,7 @@ def _sleeps(pid: int) -> int:
     raise AssertionError(f"no voluntary_ctxt_switches in /proc/{pid}/status")
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("poll_us", [200, 0], ids=["polling", "sleeping"])
 def test_the_sv_on_the_other_cpu_polls_so_no_post_wakes_that_cpu(
     kali: Callable[..., str], poll_us: int
@@ -428,6 +432,7 @@ def test_the_sv_on_the_other_cpu_polls_so_no_post_wakes_that_cpu(
             assert ipis > 0.5, f"CPU 1 took {ipis:.2f} wake-up IPIs a tick"
 
 
+@pytest.mark.serial
 def test_the_sv_on_the_other_cpu_rests_while_sv0_runs_every_servo_alone(
     kali: Callable[..., str],
 ) -> None:
@@ -475,6 +480,7 @@ def test_the_sv_on_the_other_cpu_rests_while_sv0_runs_every_servo_alone(
         del ran
 
 
+@pytest.mark.serial
 def test_sio_acknowledges_its_tick_once_the_boards_are_written(kali: Callable[..., str]) -> None:
     """In real time SIO acknowledges a tick as soon as the DACs and the watchdog are
     written: publishing the robots' state, the driver's counters, its statistics and the
@@ -509,6 +515,7 @@ def test_sio_acknowledges_its_tick_once_the_boards_are_written(kali: Callable[..
         del ack, published
 
 
+@pytest.mark.serial
 def test_a_power_halt_after_a_stall_says_how_long_sio_was_away(kali: Callable[..., str]) -> None:
     """Every Kali process but the plant stopped for 40 ms, as the host does to a VM: the
     boards' watchdog cuts the arms, and the POWER fault says SIO last retriggered it about
@@ -529,6 +536,7 @@ def test_a_power_halt_after_a_stall_says_how_long_sio_was_away(kali: Callable[..
         assert m and 40 <= int(m.group(1)) < 200, text
 
 
+@pytest.mark.serial
 def test_a_dead_sio_halts_and_the_watchdog_trips(kali: Callable[..., str]) -> None:
     name = kali(lockstep=False)  # the plant's own clock must run for the watchdog
     with Instance.attach(name) as inst:
@@ -638,6 +646,7 @@ def test_calibration_needs_power_and_says_so(kali: Callable[..., str]) -> None:
             client.close()
 
 
+@pytest.mark.serial
 def test_kalictl_calibrate_follows_to_the_end_in_real_time(kali: Callable[..., str]) -> None:
     """In real time ``kalictl calibrate`` follows each arm's calibration and ends by saying
     how far each joint's angle was corrected, one entry per joint of the arm."""

@@ -650,6 +650,7 @@ def test_web_dashboard_shows_the_arms_and_plots_in_a_browser(
 # ---------------------------------------------------------------------------- real time
 
 
+@pytest.mark.serial
 def test_realtime_viewer_draws_through_a_halt_and_its_death_halts_nothing(
     kali: Callable[..., str],
 ) -> None:

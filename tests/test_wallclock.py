@@ -167,6 +167,7 @@ def test_lockstep_runs_are_bit_for_bit_repeatable(
     assert procs1 == procs2
 
 
+@pytest.mark.serial
 def test_slow_serious_process_halts_the_clock(kali: Callable[..., str], program: Program) -> None:
     name = kali(lockstep=False)
     program("slow", name, "slowpoke", "--serious", "--after", "50", "--sleep-ms", "40")
@@ -198,6 +199,7 @@ def test_slow_serious_process_halts_the_clock(kali: Callable[..., str], program:
         assert inst.fault_text() is None
 
 
+@pytest.mark.serial
 def test_slow_non_serious_process_is_counted_and_skipped(
     kali: Callable[..., str], program: Program
 ) -> None:
@@ -218,6 +220,7 @@ def test_slow_non_serious_process_is_counted_and_skipped(
         assert all(m["signal_ns"] < m["due_ns"] and m["consecutive"] >= 1 for m in logged)
 
 
+@pytest.mark.serial
 def test_killed_serious_daemon_halts_naming_it(kali: Callable[..., str]) -> None:
     name = kali(lockstep=False)
     with Instance.attach(name) as inst:
@@ -678,6 +681,7 @@ def on_time() -> Iterator[None]:
         rt.leave_realtime()
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize(("rest", "bites"), [("0", 100), ("4", 30)], ids=["every-tick", "resting"])
 def test_sio_and_the_svs_ride_out_stalls_of_both_svs(
     kali: Callable[..., str], rest: str, bites: int
@@ -711,6 +715,7 @@ def test_sio_and_the_svs_ride_out_stalls_of_both_svs(
         assert inst.fault_text() is None, f"{int(sio['misses']) - misses0} SIO misses"
 
 
+@pytest.mark.serial
 def test_svs_are_not_signalled_on_a_tick_sio_misses(kali: Callable[..., str]) -> None:
     """The SVs are gang-scheduled with SIO (thesis 3.3.4).  SIO is stalled (SIGSTOP) for a
     few ms, many times, at random phases: when it comes back it may acknowledge just after
@@ -811,6 +816,7 @@ def test_rates_time_and_step_commands(kali: Callable[..., str]) -> None:
         assert step_kali_clock(inst, 0) == 100
 
 
+@pytest.mark.serial
 def test_step_needs_lockstep(kali: Callable[..., str]) -> None:
     name = kali(lockstep=False)
     with Instance.attach(name) as inst:

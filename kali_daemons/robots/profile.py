@@ -228,7 +228,9 @@ class RobotType:
         """Refuse a declaration Kali cannot drive, naming the type, field, value and rule."""
 
         def bad(what: str, value: object, rule: str) -> ConfigError:
-            return ConfigError(f"robot type {self.name!r}: {what} = {value!r:.80}: {rule}")
+            # a file is named whole (its name ends the path); anything else within 80
+            shown = repr(str(value)) if isinstance(value, (str, Path)) else f"{value!r:.80}"
+            return ConfigError(f"robot type {self.name!r}: {what} = {shown}: {rule}")
 
         n = self.n_joints
         if not (isinstance(n, int) and 1 <= n <= MAX_JOINTS):

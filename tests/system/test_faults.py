@@ -66,6 +66,8 @@ from ..conftest import ROOT, boards_of, config_text, leftovers, unique_name, wai
 from ..test_launcher import kalictl
 from .conftest import MATRIX
 
+pytestmark = pytest.mark.serial  # real-time cells: alone on the machine (scripts/test.sh)
+
 PLUGIN = Path(__file__).with_name("faulty_servo.py")
 FAILS = {"raise": 1.0, "nan": 2.0, "slow": 3.0}  # faulty_servo.py's ``fail`` parameter
 TOLERANCE_TICKS = 20  # clock.serious_miss_tolerance_ms / base_tick_ms of the default config

@@ -160,6 +160,7 @@ def test_another_user_cannot_attach_stop_or_steer_an_instance(kali: Callable[...
         assert not int(inst.fault["active"])
 
 
+@pytest.mark.serial
 def test_two_instances_side_by_side_never_see_each_other(kali: Callable[..., str]) -> None:
     a, b = kali(lockstep=True, separate=True), kali(lockstep=True, separate=True)
     shm_a, shm_b = set(launcher.shm_objects(a)), set(launcher.shm_objects(b))

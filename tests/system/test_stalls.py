@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import numpy as np
+import pytest
 
 from kali_daemons.client import Kali
 from kali_daemons.core import layout
@@ -26,6 +27,8 @@ from kali_daemons.runtime.stalls import ClockWitness, TaskClock
 
 from ..conftest import boards_of, wait_for
 from ..test_wallclock import on_time
+
+pytestmark = pytest.mark.serial  # real-time cells: alone on the machine (scripts/test.sh)
 
 STALL_S = 0.030
 # after ready() the joints' integrators still break their stiction for a few seconds: a joint

@@ -95,6 +95,7 @@ def _pid_of(inst: Instance, name: str) -> int:
     return int(inst.procs[inst.slot_of(name)]["pid"])
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "real-time"])
 def test_a_stopped_holder_of_every_lock_keeps_no_halt_estop_status_or_stop_from_working(
     kali: Callable[..., str], holder: Callable[[str], subprocess.Popen], lockstep: bool

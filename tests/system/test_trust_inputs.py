@@ -314,6 +314,7 @@ def test_move_validates_every_argument_before_anything_moves(kali: Callable[...,
         inst.close()
 
 
+@pytest.mark.serial
 def test_move_timeout_is_a_clear_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Real time: a move not there within --timeout is one line naming the robot, the request
     and the timeout (it was a TimeoutError traceback)."""
@@ -332,6 +333,7 @@ def test_move_timeout_is_a_clear_error(tmp_path: Path, monkeypatch: pytest.Monke
 # ------------------------------------------------------------------ item 8: flight dumps
 
 
+@pytest.mark.serial
 def test_the_wall_clocks_death_leaves_a_flight_dump(kali: Callable[..., str]) -> None:
     name = kali(lockstep=True, separate=True)  # the wall clock alone is killed
     with Instance.attach(name) as inst:
@@ -390,6 +392,7 @@ def test_flight_never_shows_an_earlier_halts_dump_when_this_ones_failed(
 # ------------------------------------------------------------------ item 8: logs
 
 
+@pytest.mark.serial
 def test_two_instances_never_share_log_files(kali: Callable[..., str], tmp_path: Path) -> None:
     a, b = kali(lockstep=True, separate=True), kali(lockstep=True, separate=True)  # a log each
     da, db = launcher.log_dir(a), launcher.log_dir(b)

@@ -117,6 +117,7 @@ def test_lockstep_is_bit_for_bit_with_a_tg_function_near_its_budget_under_load(
 # ------------------------------------------------------------------ item 10: a hung function
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("separate", [False, True], ids=["executive", "separate-processes"])
 def test_a_tg_function_that_never_returns_halts_lockstep_naming_it(
     kali: Callable[..., str], separate: bool
@@ -174,6 +175,7 @@ def test_a_hosted_daemon_still_hung_after_reset_halts_again(kali: Callable[..., 
 # ------------------------------------------------------------------ item 12: real time
 
 
+@pytest.mark.serial
 def test_in_real_time_a_tg_function_past_its_deadline_halts_naming_it(
     kali: Callable[..., str],
 ) -> None:

@@ -85,6 +85,7 @@ def test_a_directory_at_a_semaphores_name_does_not_crash_stop(
         assert f"left {path}: a directory holding files" in r.stderr, r.stderr
 
 
+@pytest.mark.serial
 def test_a_semaphore_replaced_by_a_directory_while_running_still_stops_clean(
     kali: Callable[..., str], squat: Callable[[Path, str], Path]
 ) -> None:

@@ -15,6 +15,7 @@ import signal
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
 from kali_daemons.core import layout
 from kali_daemons.core.layout import PowerCmd, PowerState
@@ -71,6 +72,7 @@ def test_status_says_power_off_once_the_board_has_cut_it(kali: Callable[..., str
         assert [r["amplifiers_cut"] for r in robots] == [True, True]
 
 
+@pytest.mark.serial
 def test_status_says_the_clock_is_dead_once_its_process_is(kali: Callable[..., str]) -> None:
     name = kali(lockstep=False)
     with Instance.attach(name) as inst:
