@@ -1,5 +1,5 @@
 """SIO's common path of every robot, compiled (``kali_sio_robots``, issue 26 item 2), equals
-``ServoIO._robot`` on the robots it takes, and leaves every other robot untouched for it.
+``SioCycle._robot`` on the robots it takes, and leaves every other robot untouched for it.
 
 A real plant and SIO are hosted in this process on a lockstep instance of the default cell,
 as the lockstep executive hosts them; each case writes random robot states (pots, power
@@ -23,7 +23,7 @@ from kali_daemons.core.errors import ChannelError
 from kali_daemons.core.layout import CalibState, GuardState, PowerCmd, PowerState
 from kali_daemons.hardware.mcgill.registers import POWER_AMPS_ON as AMPS_ON
 from kali_daemons.servo.level import ServoLevel
-from kali_daemons.sio.daemon import ServoIO
+from kali_daemons.sio.cycle import SioCycle
 
 from .conftest import HostedCell, boards_of
 
@@ -37,7 +37,7 @@ class Hosted:
     def __init__(self) -> None:
         self.cell = HostedCell(("plant", "sio"))
         self.inst = self.cell.inst
-        self.sio: ServoIO = self.cell["sio"]  # type: ignore[assignment]
+        self.sio: SioCycle = self.cell["sio"].io  # type: ignore[attr-defined]
         self.level = ServoLevel(self.inst)  # the producer's side of the FIFOs: the TG's
         self.fifos = [self.level.fifo(k) for k in range(self.level.n_robots)]
         self.memory = np.frombuffer(self.inst.arena._mm, dtype=np.uint8)  # the whole arena

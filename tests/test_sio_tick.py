@@ -1,6 +1,6 @@
 """SIO's tick compiled (``kali_sio_tick``) and an SV's serve compiled
 (``kali_sv_serve``, issue 26 item 2) do what their Python references,
-``ServoIO._tick_reference`` and ``ServoWorker._serve_reference``, do, tick after tick,
+``SioCycle._tick_reference`` and ``ServoWorker._serve_reference``, do, tick after tick,
 through every event the kernels hand back to Python.
 
 Two copies of the default cell (each arm with robot-level servos allowed) are hosted in this
@@ -37,7 +37,7 @@ from kali_daemons.core.kernels import (
 )
 from kali_daemons.core.layout import FaultCode, FfMode, GuardState, PowerCmd
 from kali_daemons.servo.client import ServoClient
-from kali_daemons.sio.daemon import ServoIO
+from kali_daemons.sio.cycle import SioCycle
 from kali_daemons.sio.gang import GangAcknowledger
 
 from .conftest import HostedCell
@@ -70,7 +70,7 @@ class Copy:
         self.inst = self.cell.inst
         self.plant = self.cell["plant"]
         self.dynamics = self.cell["dynamics"]  # its rows: the feed-forward SIO applies
-        self.sio: ServoIO = self.cell["sio"]  # type: ignore[assignment]
+        self.sio: SioCycle = self.cell["sio"].io  # type: ignore[attr-defined]
         svs = (self.cell["sv.0"], self.cell["sv.1"])
         self.svs = svs
         self.gang = False  # the gang's words at random, as in real time (the story says)
@@ -91,9 +91,10 @@ class Copy:
             sio.sv_slots,
             [True, False],
         )
-        sio._ack_early = self.inst.procs["ack_tick"][sio.slot : sio.slot + 1]
+        daemon = self.cell["sio"]  # its acknowledgement, which the reference calls
+        daemon._ack_early = self.inst.procs["ack_tick"][sio.slot : sio.slot + 1]  # type: ignore[attr-defined]
         sio._bind_tick()
-        sio.on_activate()
+        sio.activate(daemon._ack_early)  # type: ignore[attr-defined]
         self.reference = reference
         self.tick_fn = sio._tick_reference if reference else sio.cycle
 

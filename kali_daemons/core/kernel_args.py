@@ -305,7 +305,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "RobotsArgs",
         "sio",
-        {"kali_sio_robots": "sio.daemon:ServoIO._robot"},
+        {"kali_sio_robots": "sio.cycle:SioCycle._robot"},
         ("n, n_robots", "int64_t"),
         ("bounds", "View", "int64, n_robots + 1: robot k's joints bounds[k] .."),
         ("fed", "View", "uint8 (bool), every joint"),
@@ -535,7 +535,7 @@ BLOCKS: tuple[Block, ...] = (
     block(
         "SioArgs",
         "sio",
-        {"kali_sio_tick": "sio.daemon:ServoIO._tick_reference"},
+        {"kali_sio_tick": "sio.cycle:SioCycle._tick_reference"},
         ("n, n_robots", "int64_t"),
         ("read_fn, dac_fn, control_fn", "KernelFn", "the boards'"),
         ("read_args, dac_args, control_args", "void *"),

@@ -5,7 +5,7 @@ Lockstep runs the same daemon code in stage order as fast as the CPUs allow, bit
 tick cost more than the work.  Here the wall clock configures the daemons in its own process
 (``Daemon.host``, in ``HOSTED_ORDER``) and each tick calls the ``cycle`` of every one due,
 stage by stage, where it would have posted its semaphore; the SVs run inside SIO's cycle,
-where SIO would post their feeds (``ServoIO.serve``).  Everything else is the wall clock's:
+where SIO would post their feeds (``SioCycle.serve``).  Everything else is the wall clock's:
 commands, process table (each hosted daemon keeps its slot), statistics, halts.  A hosted
 daemon that raises fails as its own process would; one that never returns from its cycle is
 caught by a watchdog thread (``_watch_cycles``), which halts with DEADLINE naming it.
@@ -88,7 +88,7 @@ class LockstepExecutive(WallClock):
             if p.kind == "sio":
                 sio = daemon
         if sio is not None:
-            sio.serve = self._serve  # type: ignore[attr-defined]
+            sio.io.serve = self._serve  # type: ignore[attr-defined]
         self._cycling = sorted([*self.hosted, *(i for i, _ in self.gang)])
 
     def on_activate(self) -> None:
@@ -171,7 +171,7 @@ class LockstepExecutive(WallClock):
         return not self.inst.fault["active"]
 
     def _serve(self, tick: int) -> None:
-        """SIO's feed (``ServoIO.serve``): every SV takes its share of the slots fed for
+        """SIO's feed (``SioCycle.serve``): every SV takes its share of the slots fed for
         ``tick`` now, in SV order, and is accounted as signalled and acknowledged."""
         for i, sv in self.gang:
             t = monotonic_ns()

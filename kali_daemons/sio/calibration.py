@@ -24,7 +24,7 @@ from ..core.layout import CalibState, SlotReset
 
 if TYPE_CHECKING:
     from ..hardware.interface import IndexedDriver
-    from .daemon import ServoIO
+    from .cycle import SioCycle
 
 SEARCH_S = 1.0  # seconds to sweep one index spacing: about one encoder count per ms
 SEARCH_SPAN = 1.2  # index spacings swept before a joint gives up (one always holds a pulse)
@@ -48,7 +48,7 @@ class Calibration:
     def capture(self, on: bool) -> None:
         self._capture[0] = on
 
-    def __init__(self, sio: ServoIO, k: int) -> None:
+    def __init__(self, sio: SioCycle, k: int) -> None:
         self.sio = sio
         self.k = k
         self.r = sio._r[k]  # the robot's views (q, demand, board registers, ...)
@@ -206,7 +206,7 @@ class Absolute:
 
     capture = False
 
-    def __init__(self, sio: ServoIO, k: int) -> None:
+    def __init__(self, sio: SioCycle, k: int) -> None:
         self.r = sio._r[k]
         self.what = f"robot '{sio.level.names[k]}' ({sio.inst.config.robots[k].model})"
 

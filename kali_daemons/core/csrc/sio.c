@@ -131,8 +131,8 @@ int64_t kali_current_check(CurrentArgs *a) {
 
 /* ---------------------------------------------------------------- the robots' common path
  *
- * SIO's per-robot step where nothing is happening to the robot (sio/daemon.py's
- * ServoIO._robot is the reference; this is its last branch): its pots read, powered ON with
+ * SIO's per-robot step where nothing is happening to the robot (sio/cycle.py's
+ * SioCycle._robot is the reference; this is its last branch): its pots read, powered ON with
  * its amplifiers on, no power or calibration command pending, no halt this tick, not
  * calibrating, no tripped guard, not guided by hand.  Such a robot's demand is this tick's
  * from its FIFO (kali_fifo_pop) and its joints are fed.  Every other robot is left as it is
@@ -402,7 +402,7 @@ int64_t kali_mcgill_control(McgillArgs *a) {
     return fell;
 }
 
-/* SIO's tick in two passes (sio/daemon.py: ServoIO._tick_reference is what they do, step for
+/* SIO's tick in two passes (sio/cycle.py: SioCycle._tick_reference is what they do, step for
  * step; the kernels they call are the ones SIO binds).  kali_sio_front reads the encoders,
  * steps the velocity filter and the wrist sensors, steps every robot, checks the joints,
  * takes the feed-forward and feeds the slots, then posts the SVs' feed semaphores;
@@ -473,7 +473,7 @@ int64_t kali_sio_front(SioArgs *a) {
         }
         /* fall through */
     case ST_FEED:
-        for (int64_t k = 0; k < a->n_robots; k++) { /* ServoIO._arm_robot */
+        for (int64_t k = 0; k < a->n_robots; k++) { /* SioCycle._arm_robot */
             int arm = AT(int32_t, a->arm_algo, k) != (int32_t)a->arm_none;
             int whole = arm || AT(uint32_t, a->arm_op, k) != 0 || AT(uint32_t, a->shadows, k) != 0;
             if (whole != a->whole[k]) {
@@ -559,7 +559,7 @@ int64_t kali_sio_back(SioArgs *a) {
  * the done semaphore for one servo period at most, the done semaphore drained, then the back
  * pass.  SIO_FED is returned only where it did not post (the lockstep executive runs the
  * SVs in SIO's process, then calls again); SIO_WAIT when the servos were not done within a
- * period (ServoIO._wait_done goes on waiting in slices and judges, in Python). */
+ * period (SioCycle._wait_done goes on waiting in slices and judges, in Python). */
 int64_t kali_sio_tick(SioArgs *a) {
     if (a->stage < ST_WAIT) {
         int64_t event = kali_sio_front(a);

@@ -233,7 +233,7 @@ class ServoWorker(Daemon):
     def serve(self, fed_tick: int) -> None:
         """Inside the cycle: claim and run fed slots of SIO's tick ``fed_tick`` until none is
         left.  Called in the lockstep executive by SIO itself where it would post the feeds
-        (``ServoIO.serve``); ``cycle`` does the same once its feed came."""
+        (``SioCycle.serve``); ``cycle`` does the same once its feed came."""
         self._serve_args.fed_tick = fed_tick
         self._serve_from(SV_START)
 
