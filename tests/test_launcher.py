@@ -204,22 +204,24 @@ def test_failed_start_names_the_process_and_cleans_up(
 def test_daemon_dying_at_start_up_is_named_with_its_log(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A daemon that cannot run (here: a CPU the kernel refuses) fails start by name."""
+    """A daemon that cannot run (here: its module is missing) fails start by name, with its
+    exit status and its log."""
     monkeypatch.setenv("KALI_LOG_DIR", str(tmp_path))
     name = unique_name()
     cfg = make_config(name)
-    real_popen = subprocess.Popen
+    real_start = launcher.Spawner.start
 
-    def popen(argv: list[str], **kw: object) -> subprocess.Popen:
-        if "sv.1" in argv:  # this one crashes straight away, as a broken daemon would
-            argv = [sys.executable, "-c", "import sys; print('sv.1 broke'); sys.exit(3)", *argv]
-        return real_popen(argv, **kw)
+    def start(self: launcher.Spawner, jobs: list[dict[str, str]], logs_of: dict) -> list[int]:
+        for job in jobs:
+            if job["name"] == "sv.1":  # this one cannot run, as a broken install would
+                job["module"] = "servo.no_such_daemon"
+        return real_start(self, jobs, logs_of)
 
-    monkeypatch.setattr(launcher.subprocess, "Popen", popen)
+    monkeypatch.setattr(launcher.Spawner, "start", start)
     with pytest.raises(
         InstanceError,
         match=r"process 'sv.1' \(pid \d+\) failed during start-up "
-        r"\(exit 3, state SPAWNED\):\n    sv.1 broke",
+        r"\(exit 1, state SPAWNED\):\n(.|\n)*No module named kali_daemons\.servo\.no_such_daemon",
     ):
         launcher.start(cfg, lockstep=True, separate=True)
     assert leftovers(name) == ([], [])

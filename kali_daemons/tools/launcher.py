@@ -19,7 +19,9 @@ from __future__ import annotations
 import errno
 import fcntl
 import glob
+import json
 import os
+import select
 import shutil
 import signal
 import stat
@@ -529,9 +531,10 @@ def _start(
     arena.close()
     inst = Instance.attach(name)
     pids: dict[str, int] = {}
-    children: dict[str, subprocess.Popen] = {}
     logs_of: dict[str, Path] = {}
+    jobs: list[dict[str, str]] = []
     executive = lockstep and not separate
+    spawner = Spawner(name, logs / "spawner.log")
     try:
         for p in cfg.processes:
             inst.claim_slot(p.name, 0)
@@ -543,21 +546,25 @@ def _start(
             if p.kind == "plant":  # the cell's hardware's simulator
                 module = hardware_kind(cfg.hardware_kinds[0]).simulator
             logs_of[p.name] = logs / f"{p.name}.log"
-            children[p.name] = _spawn(module, name, p.name, logs_of[p.name])
+            jobs.append({"module": module, "instance": name, "name": p.name})
+        for job, pid in zip(jobs, spawner.start(jobs, logs_of), strict=True):
+            pids[job["name"]] = pid
         if executive:  # one process: every slot is the executive's
             clock = next(p.name for p in cfg.processes if p.kind == "wallclock")
             for p in cfg.processes:
                 if p.kind not in OWN_PROCESS:
-                    children[p.name], logs_of[p.name] = children[clock], logs_of[clock]
+                    pids[p.name], logs_of[p.name] = pids[clock], logs_of[clock]
         for p in cfg.processes:
-            inst.procs[inst.find_slot(p.name)]["pid"] = pids[p.name] = children[p.name].pid
-        _wait_ready(inst, cfg, children, logs_of)
+            inst.procs[inst.find_slot(p.name)]["pid"] = pids[p.name]
+        _wait_ready(inst, cfg, pids, spawner, logs_of)
         if not lockstep:
             start_kali_clock(inst)
     except BaseException:
         inst.close()
+        spawner.close()
         _stop(name)
         raise
+    spawner.close()
     inst.close()
     return StartReport(name, pids, stale, time.monotonic() - t_start, logs)
 
@@ -569,47 +576,104 @@ def _start(
 SINGLE_THREADED = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def _spawn(module: str, instance: str, name: str, log_path: Path) -> subprocess.Popen:
-    """Start ``python -m kali_daemons.<module>`` as process ``name`` of ``instance``, in
-    its own session, its output in ``log_path``, its numeric libraries single-threaded
-    (``SINGLE_THREADED``)."""
-    with open(log_path, "wb") as log:  # the child holds its own descriptor
-        return subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                f"kali_daemons.{module}",
-                "--instance",
-                instance,
-                "--name",
-                name,
-            ],
-            stdin=subprocess.DEVNULL,
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-            close_fds=True,
-            env={**os.environ, **SINGLE_THREADED},
-        )
+# the spawner's last argument: room its children write their own command lines over
+SPAWNER_ROOM = "--room=" + "." * 160
+
+
+class Spawner:
+    """The start's spawner (``spawner.py``): one interpreter that has imported what every
+    daemon imports, forking each of the start's processes; until ``close`` it says which of
+    them exited, with their status."""
+
+    def __init__(self, instance: str, log_path: Path) -> None:
+        self.log_path = log_path
+        # the instance's (is_kali_process), with room for its children's command lines
+        argv = ["-m", "kali_daemons.tools.spawner", "--instance", instance, SPAWNER_ROOM]
+        with open(log_path, "wb") as log:  # the spawner holds its own descriptor
+            self.proc = subprocess.Popen(
+                [sys.executable, *argv],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=log,
+                start_new_session=True,
+                close_fds=True,
+                env={**os.environ, **SINGLE_THREADED},
+            )
+        self.exits: dict[int, int] = {}  # pid -> exit status (negative: the signal)
+        self._buffer = b""  # what the spawner said, not yet a whole line
+
+    def start(self, jobs: list[dict[str, str]], logs_of: dict[str, Path]) -> list[int]:
+        """Fork each job's process (its output in ``logs_of[name]``); their pids, in order."""
+        stdin = self.proc.stdin
+        assert stdin is not None
+        for job in jobs:
+            stdin.write(json.dumps({**job, "log": str(logs_of[job["name"]])}).encode() + b"\n")
+        stdin.write(b"\n")
+        stdin.flush()
+        pids: list[int] = []
+        while len(pids) < len(jobs):
+            lines = self._read(block=True)
+            if lines is None:
+                raise InstanceError(
+                    f"the start's spawner ended before starting '{jobs[len(pids)]['name']}' "
+                    f"(exit {self.proc.wait()}):\n" + _tail(self.log_path)
+                )
+            pids += [int(line) for line in lines]
+        return pids
+
+    def exited(self, pid: int) -> int | None:
+        """``pid``'s exit status if it has exited since the start began, else None."""
+        for line in self._read(block=False) or []:
+            _, child, status = line.split()
+            self.exits[int(child)] = int(status)
+        return self.exits.get(pid)
+
+    def _read(self, block: bool) -> list[bytes] | None:
+        """The whole lines the spawner has written since the last read; None at its end."""
+        stdout = self.proc.stdout
+        assert stdout is not None
+        fd = stdout.fileno()
+        if not block and not select.select([fd], [], [], 0)[0]:
+            return []
+        chunk = os.read(fd, 4096)  # the descriptor itself: nothing read ahead elsewhere
+        if not chunk:
+            return None
+        *lines, self._buffer = (self._buffer + chunk).split(b"\n")
+        return lines
+
+    def close(self) -> None:
+        """The start is over: the spawner exits, leaving its children to the init process."""
+        if self.proc.stdin is not None and not self.proc.stdin.closed:
+            self.proc.stdin.close()
+        try:
+            self.proc.wait(timeout=STOP_GRACE_S)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
 
 
 def _wait_ready(
     inst: Instance,
     cfg: KaliConfig,
-    children: dict[str, subprocess.Popen],
+    pids: dict[str, int],
+    spawner: Spawner,
     logs_of: dict[str, Path],
 ) -> None:
     """Wait until every process is ACTIVE and the clock is ready; name the first that fails."""
     deadline = time.monotonic() + cfg.startup_timeout_s
     while True:
         waiting = []
-        for name, child in children.items():
+        for name, pid in pids.items():
             slot = inst.find_slot(name)
             state = ProcState(int(inst.procs[slot]["state"]))
-            if child.poll() is not None or state == ProcState.ERROR:
+            status = spawner.exited(pid)
+            if status is not None or state == ProcState.ERROR:
                 raise InstanceError(
-                    f"process '{name}' (pid {child.pid}) failed during start-up "
-                    f"(exit {child.returncode}, state {state.name}):\n" + _tail(logs_of[name])
+                    f"process '{name}' (pid {pid}) failed during start-up "
+                    f"(exit {'-' if status is None else status}, state {state.name}):\n"
+                    + _tail(logs_of[name])
                 )
             if state != ProcState.ACTIVE:
                 doing = inst.doing(name)  # a link: "connecting to its FR3"
