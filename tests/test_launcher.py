@@ -218,13 +218,16 @@ def test_daemon_dying_at_start_up_is_named_with_its_log(
         return real_start(self, jobs, logs_of)
 
     monkeypatch.setattr(launcher.Spawner, "start", start)
-    with pytest.raises(
-        InstanceError,
-        match=r"process 'sv.1' \(pid \d+\) failed during start-up "
-        r"\(exit 1, state SPAWNED\):\n(.|\n)*No module named kali_daemons\.servo\.no_such_daemon",
-    ):
-        launcher.start(cfg, lockstep=True, separate=True)
-    assert leftovers(name) == ([], [])
+    try:
+        with pytest.raises(
+            InstanceError,
+            match=r"process 'sv.1' \(pid \d+\) failed during start-up \(exit 1, state "
+            r"SPAWNED\):\n(.|\n)*No module named kali_daemons\.servo\.no_such_daemon",
+        ):
+            launcher.start(cfg, lockstep=True, separate=True)
+        assert leftovers(name) == ([], [])  # the start cleaned up after itself
+    finally:
+        launcher.stop(name)  # had the start not failed, nothing would be left either
 
 
 def test_bad_config_starts_nothing(tmp_path: Path) -> None:
