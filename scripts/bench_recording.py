@@ -13,6 +13,7 @@ to SIO's tick (nothing is copied twice in SIO's cycle: the recorder drains the r
 writes anyway); ``lost`` must be 0; the recorder's share is of one CPU.
 
     .venv/bin/python scripts/bench_recording.py --seconds 60
+    .venv/bin/python scripts/bench_recording.py --cell four --seconds 600   # 4 arms, 10 min
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
-from harness import DEFAULT_CONFIG, KaliRun, cell_config, table
+from harness import CELLS, DEFAULT_CONFIG, KaliRun, cell_config, table
 
 from kali_daemons.client import Kali
 from kali_daemons.core import layout
@@ -85,10 +86,14 @@ def window(kali: Kali, seconds: float, path: Path | None) -> dict[str, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    ap.add_argument(
+        "--cell", choices=sorted(CELLS), default="pumas",
+        help="the arms, on the config's clock and processes (four: 2 PUMAs, a UR5, a Panda)",
+    )  # fmt: skip
     ap.add_argument("--seconds", type=float, default=30.0, help="each window")
     args = ap.parse_args()
     name = f"benchrec{os.getpid()}"
-    cfg = cell_config({}, name, args.config)
+    cfg = cell_config(CELLS[args.cell], name, args.config, args.cell)
     tmp = Path(tempfile.mkdtemp(prefix="bench_recording."))
     hist = tmp / "cyclictest.hist"
     stop = threading.Event()
