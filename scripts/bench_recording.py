@@ -32,24 +32,28 @@ from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
 from harness import CELLS, DEFAULT_CONFIG, KaliRun, cell_config, table
 
 from kali_daemons.client import Kali
+from kali_daemons.client.common import MotionFailedError
 from kali_daemons.core import layout
 from kali_daemons.recording import recorder
 from kali_daemons.runtime import flightrec
 
 
 def swing(kali: Kali, stop: threading.Event) -> None:
-    """Both arms back and forth until ``stop``."""
+    """Every arm back and forth until ``stop``, or a halt (``main`` reports it)."""
     arms = [kali.robot(n) for n in kali.names]
     homes = [a.read_joints() for a in arms]
     sign = 1.0
     while not stop.is_set():
-        with kali.together():
-            handles = [
-                a.move_joints(q + sign * 0.15, speed=0.5, wait=False)
-                for a, q in zip(arms, homes, strict=True)
-            ]
-        for h in handles:
-            h.wait(timeout=30)
+        try:
+            with kali.together():
+                handles = [
+                    a.move_joints(q + sign * 0.15, speed=0.5, wait=False)
+                    for a, q in zip(arms, homes, strict=True)
+                ]
+            for h in handles:
+                h.wait(timeout=30)
+        except MotionFailedError:
+            return  # halted: main reports it
         sign = -sign
 
 
@@ -83,7 +87,7 @@ def window(kali: Kali, seconds: float, path: Path | None) -> dict[str, float]:
     return out
 
 
-def main() -> None:
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
     ap.add_argument(
@@ -110,13 +114,19 @@ def main() -> None:
                 mover.start()
                 time.sleep(2.0)
                 plain = window(kali, args.seconds, None)
-                recorded = window(kali, args.seconds, tmp / "run.mcap")
+                halt = kali.inst.fault_text()
+                if halt is None:
+                    recorded = window(kali, args.seconds, tmp / "run.mcap")
+                    halt = kali.inst.fault_text()
                 stop.set()
                 mover.join(timeout=60)
         finally:
             stop.set()
             stop_cyclictest(ct)
     floor = ct_row("cyclictest", parse_histfile(hist), "all", 1000)
+    if halt is not None:  # no figures of a window the cell did not run to its end
+        print(f"halted: {halt}; cyclictest max {floor.max_us:.0f} µs (the floor)")
+        return 1
     rows = [
         ("without recording", f"{plain['p50']:.0f}", f"{plain['p99']:.0f}", f"{plain['max']:.0f}",
          f"{plain['ran']:.0f}", f"{plain['served']:.0f}", "-", "-", "-", "-"),
@@ -134,6 +144,7 @@ def main() -> None:
                  f"cyclictest p99 {floor.p99_us:.0f} µs (the floor), SIO p99 / floor: "
                  f"{recorded['p99'] / max(floor.p99_us, 1):.2f}"),
     ))  # fmt: skip
+    return 0
 
 
 if __name__ == "__main__":
