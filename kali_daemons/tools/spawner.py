@@ -77,16 +77,8 @@ def spawn(jobs: IO[str], out: IO[str]) -> None:
         job = json.loads(line)
         sys.stderr.flush()
         pid = os.fork()
-        if pid == 0:  # the child: never back into this loop, whatever happens
-            code = 1
-            try:
-                code = run_child(job)
-            finally:
-                try:
-                    sys.stdout.flush()
-                    sys.stderr.flush()
-                finally:
-                    os._exit(code)
+        if pid == 0:  # the child ends as an interpreter does (atexit, flushed streams), out
+            sys.exit(run_child(job))  # of this loop: nothing here catches SystemExit
         children.add(pid)
         out.write(f"{pid}\n")
         out.flush()
