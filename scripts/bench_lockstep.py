@@ -2,7 +2,8 @@
 
 Each scenario is a row: a cell (``config/default.yaml``'s two PUMAs; ``config/mixed.yaml``'s
 PUMA and Panda, its robots on default.yaml, which writes out the defaults mixed.yaml takes;
-bench_servo's ``four`` cell of two PUMAs, a UR5 and a Panda), options as config overrides
+bench_servo's ``four`` cell of two PUMAs, a UR5 and a Panda; ``config/fr3.yaml``'s FR3, its
+link taking turns with franky-sim over libfranka's protocol), options as config overrides
 (feed-forward off / full on every arm; the viewer left out, or recording the dashboard to an
 .rrd in the run's temporary directory with no web viewer and no live connection) and the
 keyword arguments ``launcher.start`` gets besides the config
@@ -63,6 +64,9 @@ from kali_daemons.core.layout import PowerState
 from kali_daemons.wallclock import step_kali_clock
 
 MIXED_CONFIG = REPO / "config" / "mixed.yaml"
+FR3_CONFIG = REPO / "config" / "fr3.yaml"
+# an FR3 cell's franky-sim binds its robot's address: this run's own, beside any other
+FR3_OWN = {"robots.*.hardware.address": f"127.{os.getpid() % 250 + 1}.54.1"}
 SETTLE_TICKS = 1500  # after power-on (tests/test_tg.py's ``powered``)
 SWING_RAD = 0.3
 SPEED = 0.5  # of the joint speed and acceleration limits
@@ -108,6 +112,7 @@ SCENARIOS = {
         Scenario("default-ff-rec", DEFAULT_CONFIG, FF_FULL, record=True),
         Scenario("mixed-ff", DEFAULT_CONFIG, {**file_cell(MIXED_CONFIG), **FF_FULL}),
         Scenario("four-ff", DEFAULT_CONFIG, {**CELLS["four"], **FF_FULL}),
+        Scenario("fr3-ff", FR3_CONFIG, FR3_OWN),  # over libfranka's protocol, franky-sim
     )
 }
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import random
-import re
 import signal
 import subprocess
 import sys
@@ -21,7 +20,7 @@ import pytest
 from kali_daemons.client import Kali, pose
 from kali_daemons.client.common import MotionFailedError
 from kali_daemons.core import layout
-from kali_daemons.core.errors import ConfigError, KaliError
+from kali_daemons.core.errors import KaliError
 from kali_daemons.core.layout import FaultCode, PowerState
 from kali_daemons.hardware.franka import registers
 from kali_daemons.hardware.franka.arms import records
@@ -30,7 +29,6 @@ from kali_daemons.tools import launcher
 from kali_daemons.wallclock import start_kali_clock
 
 from .conftest import ROOT, leftovers, make_config, unique_name, wait_for
-from .test_examples import run_example
 from .test_launcher import kalictl
 
 pytestmark = pytest.mark.serial  # real-time cells: alone on the machine (scripts/test.sh)
@@ -110,20 +108,6 @@ def test_a_halt_stops_the_fr3_within_a_robot_cycle_and_reset_lets_it_run_again(
         assert np.abs(truth_q(k.inst) - target).max() < STEADY_RAD
 
 
-def test_calibrating_an_fr3_says_there_is_nothing_to_calibrate(kali: Callable[..., str]) -> None:
-    name = fr3_cell(kali)
-    with Kali(name) as k:
-        k.ready(["arm"])
-        k.servo.calibrate("arm")
-        wait_for(lambda: k.servo.calibration("arm")[0] == layout.CalibState.FAILED, 2.0)
-        assert "nothing to calibrate" in k.servo.calibration("arm")[2]
-        assert "absolute encoders" in k.servo.calibration("arm")[2]
-        assert k.servo.calibrated("arm")
-        done = kalictl("-i", name, "calibrate")
-        assert done.returncode == 0, done.stderr
-        assert "arm (fr3): nothing to calibrate: its encoders are absolute" in done.stdout
-
-
 @pytest.mark.parametrize(
     ("process", "sig", "code", "says"),
     [
@@ -169,11 +153,6 @@ def test_an_unreachable_robot_is_refused_at_start_naming_it() -> None:
         launcher.start(make_config(name, edits, base="fr3.yaml"), lockstep=False)
     assert time.monotonic() - t0 < 6 + launcher.STOP_GRACE_S + launcher.KILL_GRACE_S + 5
     assert leftovers(name) == ([], [])
-
-
-def test_lockstep_is_refused_for_an_fr3_cell() -> None:
-    with pytest.raises(ConfigError, match="runs in real time"):
-        launcher.start(make_config(unique_name(), base="fr3.yaml"), lockstep=True)
 
 
 @contextmanager
@@ -234,45 +213,6 @@ def test_states_blacked_out_halt_the_cell_naming_the_robot_link(
         assert "'link.arm' (its last state packet from the FR3 published" in fault.message
 
 
-def test_two_fr3s_in_one_simulated_world_move_together_as_a_motion_system(
-    kali: Callable[..., str],
-) -> None:
-    """config/fr3-two.yaml: two FR3s served by one franky-sim, one object frame fixed to both
-    flanges; a path of the object ends with both tools where they were sent."""
-    net = f"127.{os.getpid() % 250 + 1}.{random.randrange(1, 255)}"
-    host = random.randrange(1, 250)
-    edits = {r"127\.0\.0\.1": f"{net}.{host}", r"127\.0\.0\.2": f"{net}.{host + 1}"}
-    name = kali(lockstep=False, base="fr3-two.yaml", edits=edits)
-    with Kali(name) as k:
-        k.ready(["left", "right"])
-        both = k.motion_system(["left", "right"])
-        obj = both.read_pose()
-        both.move_path([pose(obj[:3, 3] + np.array([0.05, 0.0, 0.04]), obj), obj], speed=0.05)
-        truth = k.inst.arena.record(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, 14)
-        for i, n in enumerate(("left", "right")):
-            arm = k.robot(n)
-            arm.settle()
-            tool = arm.base @ arm.type.kinematics.fkine(truth["q"][7 * i : 7 * i + 7]) @ arm.tool
-            assert np.linalg.norm(tool[:3, 3] - arm.read_pose(demand=True)[:3, 3]) < LINE_M
-
-
-def test_the_example_programs_run_unchanged_on_an_fr3(kali: Callable[..., str]) -> None:
-    """The square, the PID tuning table and teleoperation (the examples that need no bar or
-    wrist sensor), as a newcomer runs them, on config/fr3.yaml's FR3."""
-    name = fr3_cell(kali)
-    out = run_example(kali, "example_square.py", name=name)
-    m = re.search(r"square of 10 cm done; the tool is ([\d.]+) mm from its start", out)
-    assert m and float(m.group(1)) < 3.0, out
-    out = run_example(kali, "example_tune_pid.py", name=name)
-    rows = re.findall(r"^\s*([\d.]+)\s+([\d.]+)\s+([\d.]+)$", out, re.M)
-    rms = [float(row[1]) for row in rows]
-    assert len(rms) == 3 and rms[0] > rms[1] > rms[2] > 0, out  # stiffer, closer
-    out = run_example(kali, "example_teleop.py", name=name)
-    m = re.search(r"followed the hand up to ([\d.]+) mm from the start", out)
-    assert m and 25.0 < float(m.group(1)) < 40.0, out
-    assert "so did the arm: stopped on its path" in out, out
-
-
 def test_a_second_client_on_the_same_robot_is_refused_naming_it(kali: Callable[..., str]) -> None:
     """Another Kali's link to a robot this one holds waits for a connection the robot never
     gives (libfranka takes one client): its start gives up saying so (whether the link was
@@ -299,35 +239,3 @@ def test_a_second_client_on_the_same_robot_is_refused_naming_it(kali: Callable[.
 
 def ft_world(inst: Instance) -> np.ndarray:
     return inst.arena.record(layout.KEY_FT, layout.FT_STATE, inst.cell.n_robots)["world"][0].copy()
-
-
-def test_a_push_reads_on_the_fr3s_wrench_from_its_joint_torques_and_trips_a_guarded_move(
-    kali: Callable[..., str],
-) -> None:
-    """No wrist sensor: the link estimates the wrench at the flange from the FR3's joint
-    torques (config/fr3.yaml's ``ft.sensor: joint-torques``; franky-sim gives no estimate of its
-    own), and SIO's sensor pipeline takes it as a wrist sensor's.  Tared at rest, a 20 N push
-    down on the hand (``kalictl push``, franky-sim's truth) reads within ``PUSH_READ_N``; a
-    guarded move down stops on a push that meets its guard, as it would on a table."""
-    name = fr3_cell(kali)
-    with Kali(name) as k:
-        k.ready(["arm"])
-        arm = k.robot("arm")
-        arm.tare()
-        assert np.linalg.norm(ft_world(k.inst)[:3]) < 1.0
-        push = np.array([0.0, 0.0, -20.0])
-        k.inst.push(0, push, 1.5)
-        time.sleep(1.0)
-        read = ft_world(k.inst)[:3]
-        assert np.linalg.norm(read - push) < PUSH_READ_N, read
-        time.sleep(1.0)
-        arm.tare()
-        here = arm.read_pose()
-        down = pose(here[:3, 3] - np.array([0.0, 0.0, 0.05]), here)
-        move = arm.move_line(down, speed=0.01, guard=10.0, wait=False)
-        time.sleep(0.5)
-        k.inst.push(0, np.array([0.0, 0.0, 25.0]), 1.0)  # what a table would do
-        move.wait(timeout=10.0)
-        assert move.state == layout.RequestState.CONTACT, move.message
-        assert move.contact is not None and move.contact.force >= 10.0
-        assert not k.inst.fault["active"], k.inst.fault_text()

@@ -356,7 +356,10 @@ class Robot:
         while ticket and (ok := hw.grip_result(self.index, ticket)) is None:
             if time.monotonic() > deadline:
                 raise MotionFailedError(f"{what}: the gripper did not finish within {timeout} s")
-            time.sleep(GRIP_POLL_S)
+            if self.kali.inst.lockstep:
+                self.kali.pause()  # nothing else steps its clock
+            else:
+                time.sleep(GRIP_POLL_S)
         if ticket and not ok:
             verb = "closing" if close else "opening"
             raise MotionFailedError(f"{what}: the gripper reports its {verb} failed")

@@ -54,8 +54,9 @@ class HardwareKind:
     wrist: tuple[str, ...] = ("gauges",)
     # why it cannot drive an arm of a robot type at a servo period (s), or "" if it can
     refuses: Callable[[Any, float], str] = lambda rtype, period_s: ""
-    # the module the cell's simulated plant runs as (``python -m kali_daemons.<it>``)
-    simulator: str = "plant"
+    # the cell's simulated plant: ``module:Class`` under kali_daemons (its own process runs
+    # ``python -m kali_daemons.<module>``; the lockstep executive hosts the class)
+    simulator: str = "plant:Plant"
 
     def __post_init__(self) -> None:
         if any(not isinstance(r.dtype, np.dtype) for r in self.records):

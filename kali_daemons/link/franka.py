@@ -25,9 +25,17 @@ from ..core.errors import HardwareError
 from ..core.layout import FaultCode, lateness_bin
 from ..hardware.franka import registers
 from ..hardware.franka.arms import records
-from ..hardware.franka.registers import LINK_CONNECTED, LINK_CONTROL, LINK_ERROR, LINK_ESTOP
+from ..hardware.franka.registers import (
+    LINK_CONNECTED,
+    LINK_CONTROL,
+    LINK_ERROR,
+    LINK_ESTOP,
+    LS_TCP,
+    LS_UDP,
+)
 from ..hardware.franka.wrench import FlangeWrench
 from ..runtime.daemon import Daemon
+from .turns import SLICE_S, LinkTurns
 
 # how long a link tries to reach its robot at start (a simulator loads), within what start
 # waits for every process (the config's startup_timeout_s)
@@ -100,7 +108,11 @@ class FrankaLink(Daemon):
         self._rt_on = False  # past start-up: at the configured priority
         self.arm["link_pid"] = os.getpid()
         self.arm["error"] = b""
+        # lockstep: the plant and this link take turns on each state (turns.py)
+        self._turns = LinkTurns(self, self.arm) if inst.lockstep else None
         self._publish(self._connect(CONNECT_WAIT_FRACTION * cfg.startup_timeout_s))
+        if self._turns is not None:
+            self._turns.ready(0)  # the first tick's call: an idle read
 
     # ------------------------------------------------------------------ connection
 
@@ -118,7 +130,7 @@ class FrankaLink(Daemon):
             ),
             after=self._own_scheduling,
         )
-        state = self._robot.read_once()
+        state = self._taking(self._robot.read_once)
         mode = state.robot_mode
         if mode == pf.RobotMode.Reflex:
             self._robot.automatic_error_recovery()  # a reflex left from before Kali
@@ -130,6 +142,16 @@ class FrankaLink(Daemon):
         self.arm["status"] = LINK_CONNECTED
         return state
 
+    def _taking(self, call: Callable[[], Any]) -> Any:
+        """``call()``, which takes one state; in lockstep the plant sends it on the link's
+        asking, while the cell starts (``LinkTurns.ask``)."""
+        if self._turns is None:
+            return call()
+        self._turns.ask()
+        result = call()
+        self._turns.took()
+        return result
+
     def _own_scheduling(self) -> None:
         """Undo what libfranka's Robot() does to the calling thread (SCHED_FIFO 99, above
         every Kali process and the machine's own floor) and take the configured priority."""
@@ -137,13 +159,24 @@ class FrankaLink(Daemon):
         if self._rt_on:
             rt.go_realtime(self._rt, self._priority)
 
+    def _prepare_os(self, cpu: int | None, lock_memory: bool) -> rt.RtReport:
+        """In lockstep the link waits its turn: unbound, as the executive it takes turns
+        with (``_go_realtime``)."""
+        lockstep = self.inst.lockstep
+        return super()._prepare_os(None if lockstep else cpu, lock_memory and not lockstep)
+
     def _go_realtime(self) -> None:
-        super()._go_realtime()
-        self._rt_on = True
+        """SCHED_FIFO in real time; in lockstep SCHED_OTHER, as the executive."""
+        if not self.inst.lockstep:
+            super()._go_realtime()
+            self._rt_on = True
 
     # ------------------------------------------------------------------ the loop
 
     def _loop(self) -> None:
+        if self._turns is not None:
+            self._lockstep_loop()
+            return
         header = self.inst.arena.header
         arm, procs = self.arm, self.inst.procs
         while not self._leave and not header["shutdown"]:
@@ -192,17 +225,21 @@ class FrankaLink(Daemon):
         if not self._answered(seq, t_in):
             arm["late"] += 1
         else:
-            np.copyto(self._tau, self._cmd)
-            self._ctrl.writeOnce(franka().Torques(self._tau.tolist()))
-            t_out = rt.monotonic_ns()
-            arm["sent_ns"] = t_out
-            arm["answered"] += 1
-            share = t_out - t_in  # Kali's share of the robot's cycle: state in, command out
+            share = self._send_torques() - t_in  # Kali's share of the robot's cycle
             self._share_hist[lateness_bin(share)] += 1
             if share > arm["share_max_ns"]:
                 arm["share_max_ns"] = share
         if self._flange is not None:  # after the answer: the next state publishes it
             self._flange.update(state, self._q, self._tau_j)
+
+    def _send_torques(self) -> int:
+        """SIO's torques out (``writeOnce``); when they went."""
+        np.copyto(self._tau, self._cmd)
+        self._ctrl.writeOnce(franka().Torques(self._tau.tolist()))
+        t_out = rt.monotonic_ns()
+        self.arm["sent_ns"] = t_out
+        self.arm["answered"] += 1
+        return t_out
 
     def _answered(self, seq: int, t_in: int) -> bool:
         """Wait for SIO's command answering state ``seq`` (its post of this link's semaphore),
@@ -260,6 +297,106 @@ class FrankaLink(Daemon):
         if self._flange is not None:
             self._flange.update(state, self._q, self._tau_j)
 
+    # ------------------------------------------------------------------ lockstep
+
+    def _lockstep_loop(self) -> None:
+        """Lockstep: each tick one libfranka call takes the tick's state; the link answers
+        it and chooses its next call once the tick has run to its stage (``LinkTurns``)."""
+        turns = self._turns
+        assert turns is not None
+        call: Callable[[], Any] = self._read_idle
+        try:
+            while turns.go():
+                try:
+                    state = call()
+                    turns.took()
+                    if not turns.signalled():
+                        break
+                    call, expect = self._choose(state)
+                except Exception as exc:  # libfranka's: out of the turns, the cell halted
+                    turns.leave()
+                    self._lost(exc)
+                    self._sit_out()
+                    return
+                turns.ready(expect)
+        finally:
+            turns.close()
+
+    def _choose(self, state: Any) -> tuple[Callable[[], Any], int]:
+        """Answer ``state`` (None: the call took it inside libfranka) if in control, and
+        choose the next call as the real-time loop would; with what the plant finds first
+        on its sockets (``LS_*``)."""
+        arm = self.arm
+        if self._flange is not None and state is not None:
+            self._flange.update(state, self._q, self._tau_j)
+        if self._ctrl is not None:
+            if int(arm["stop"]) or int(arm["estop"]) or not int(arm["want"]):
+                return self._finish_now, LS_UDP  # the last command answers this state
+            if state is None:
+                return self._read_control, 0
+            if int(arm["cmd_seq"]) != int(arm["seq"]):
+                arm["late"] += 1
+                return self._read_control, 0
+            self._send_torques()
+            return self._read_control, LS_UDP
+        error = int(arm["status"]) & LINK_ERROR
+        if int(arm["recover"]):
+            if error:
+                return self._recover, LS_TCP
+            arm["recover"] = 0
+        estop = bool(int(arm["estop"]))
+        arm["status"] = LINK_CONNECTED | (LINK_ESTOP if estop else 0) | error
+        if int(arm["want"]) and not int(arm["stop"]) and not estop and not error:
+            return self._start_control, LS_TCP
+        return self._read_idle, 0
+
+    def _read_idle(self) -> Any:
+        state = self._robot.read_once()
+        self._publish(state)
+        return state
+
+    def _read_control(self) -> Any:
+        state, dt = self._ctrl.readOnce()
+        self._publish(state)
+        lost = round(dt.to_sec() * 1000.0) - 1
+        if lost > 0:
+            self.arm["lost"] += lost
+        return state
+
+    def _recover(self) -> Any:
+        """libfranka's error recovery (a TCP request), then the tick's state."""
+        self._robot.automatic_error_recovery()
+        arm = self.arm
+        arm["error"] = b""
+        arm["recover"] = 0
+        arm["status"] = LINK_CONNECTED | (LINK_ESTOP if int(arm["estop"]) else 0)
+        return self._read_idle()
+
+    def _start_control(self) -> None:
+        """Torque control: libfranka's Move request, whose handshake takes the tick's state."""
+        self._ctrl = self._robot.start_torque_control()
+        self.arm["status"] = LINK_CONNECTED | LINK_CONTROL
+
+    def _finish_now(self) -> None:
+        """The last command (zero torques, ``motion_finished``), whose handshake takes the
+        tick's state."""
+        pf = franka()
+        last = pf.Torques([0.0] * self.n)
+        last.motion_finished = True
+        try:
+            self._ctrl.writeOnce(last)
+        finally:
+            self._ctrl = None
+            self.arm["status"] = int(self.arm["status"]) & ~LINK_CONTROL
+
+    def _sit_out(self) -> None:
+        """Out of the turns after libfranka failed: wait for the instance to end (a lockstep
+        cell's link is not reconnected; ``kalictl stop`` and start again)."""
+        header, procs = self.inst.arena.header, self.inst.procs
+        while not self._leave and not header["shutdown"]:
+            procs[self.slot]["heartbeat_ns"] = rt.monotonic_ns()
+            time.sleep(SLICE_S)
+
     # ------------------------------------------------------------------ errors
 
     def _lost(self, exc: Exception) -> None:
@@ -267,11 +404,11 @@ class FrankaLink(Daemon):
         connection lost.  Halt the cell naming both; keep the connection if it still works
         (states keep coming, recovery on reset), else try it again once reset."""
         arm = self.arm
-        self._ctrl = None
         text = f"{type(exc).__name__}: {exc}".replace("\n", " ")
         arm["error"] = text.encode()[: registers.FRANKA_ARM["error"].itemsize]
         arm["status"] = (int(arm["status"]) & ~LINK_CONTROL) | LINK_ERROR
         self.inst.raise_fault(FaultCode.HARDWARE, self.name, f"{self.label}: libfranka: {text}")
+        self._ctrl = None  # after the halt: libfranka's cancelling waits for the robot
         try:
             self._publish(self._robot.read_once())
         except Exception:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from ..core import rt
+from ..core import futex, rt
 from ..hardware.franka.arms import records
 from ..hardware.franka.registers import GRIP_BUSY, GRIP_DONE, GRIP_FAILED
 from ..runtime.daemon import Daemon
@@ -20,6 +20,7 @@ from .franka import CONNECT_WAIT_FRACTION, franka, reach
 GRASP_SPEED_M_S = 0.1  # the fingers' speed, closing or opening
 GRASP_FORCE_N = 20.0  # the grasp's force (the Hand holds up to 70 N)
 IDLE_POLL_S = 0.02  # between commands, the width is read this often
+LOCKSTEP_POLL_S = 0.001  # lockstep: a request is looked for this often (the plant waits)
 
 
 class FrankaHand(Daemon):
@@ -27,6 +28,7 @@ class FrankaHand(Daemon):
 
     kind = "hand"
     self_timed_in_realtime = True  # never signalled; the clock watches that it is alive
+    self_timed_always = True
 
     def on_configure(self) -> None:
         cfg = self.inst.config
@@ -40,7 +42,7 @@ class FrankaHand(Daemon):
         self.max_width = float(state.max_width)
         self._publish(state)
         self._done = int(self.arm["grip_cmd"])  # requests before this process: not replayed
-        self.arm["grip_done"] = self._done
+        self.arm["grip_done"] = self.arm["grip_sent"] = self._done
         self.arm["hand_up"] = 1
 
     def _connect(self, wait_s: float) -> Any:
@@ -58,21 +60,40 @@ class FrankaHand(Daemon):
         self.arm["grip_held"] = int(bool(state.is_grasped))
 
     def _loop(self) -> None:
+        """Each request carried out as it comes.  In lockstep the plant waits for the
+        command (``grip_sent``) and its outcome (``grip_done``), so both fall on the same
+        ticks every run, and the fingers' width is read only after a command: an idle read
+        would block in libfranka while the clock stands."""
         header, arm = self.inst.arena.header, self.arm
-        procs = self.inst.procs
+        procs, lockstep = self.inst.procs, self.inst.lockstep
         while not self._leave and not header["shutdown"]:
             procs[self.slot]["heartbeat_ns"] = rt.monotonic_ns()
             cmd = int(arm["grip_cmd"])
             if cmd == self._done:
-                self._publish(self._gripper.read_once())
-                time.sleep(IDLE_POLL_S)
+                if not lockstep:
+                    self._publish(self._gripper.read_once())
+                time.sleep(LOCKSTEP_POLL_S if lockstep else IDLE_POLL_S)
                 continue
             arm["grip_state"] = GRIP_BUSY
+            arm["grip_sent"] = cmd
+            futex.wake(arm["grip_sent"].ctypes.data)
             ok = self._carry_out(bool(int(arm["grip_close"])))
-            self._publish(self._gripper.read_once())
+            if not lockstep:
+                self._publish(self._gripper.read_once())
             arm["grip_state"] = GRIP_DONE if ok else GRIP_FAILED
             self._done = cmd
             arm["grip_done"] = cmd
+            futex.wake(arm["grip_done"].ctypes.data)
+            if lockstep:
+                self._read_width()
+
+    def _read_width(self) -> None:
+        """Lockstep: the fingers' width from the next gripper state (the clock may stand
+        meanwhile: libfranka's receive then times out, and the width waits for the next)."""
+        try:
+            self._publish(self._gripper.read_once())
+        except Exception as exc:
+            self.log.debug("%s: no gripper state: %s", self.label, exc)
 
     def on_shutdown(self) -> None:
         self.arm["hand_up"] = 0

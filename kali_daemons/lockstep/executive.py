@@ -20,12 +20,14 @@ import threading
 from ..core.errors import DaemonError
 from ..core.layout import ProcState
 from ..core.rt import monotonic_ns
+from ..hardware.registry import hardware_kind
 from ..runtime.daemon import Daemon, _CycleStats, run_daemon
 from ..runtime.instance import decode
 from ..wallclock.clock import LOCKSTEP_SLICE_S, WallClock
 
 # (kind, module, class) in the order hosted daemons are configured: the plant makes the
-# boards SIO waits for, SIO lays out the servo level the SVs, dynamics and viewer wait for
+# boards SIO waits for (or serves the links SIO waits for), SIO lays out the servo level the
+# SVs, dynamics and viewer wait for; the plant's module is the hardware kind's simulator
 HOSTED_ORDER = (
     ("plant", "plant.daemon", "Plant"),
     ("sio", "sio.daemon", "ServoIO"),
@@ -66,9 +68,13 @@ class LockstepExecutive(WallClock):
         order = {kind: n for n, (kind, _, _) in enumerate(HOSTED_ORDER)}
         procs = [p for p in self.inst.config.processes if p.kind in order]
         procs.sort(key=lambda p: order[p.kind])
+        # the plant: the cell's hardware's simulator (franky-sim for an FR3 cell)
+        simulator = hardware_kind(self.inst.config.hardware_kinds[0]).simulator
+        modules = {kind: (mod, cls) for kind, mod, cls in HOSTED_ORDER}
+        modules["plant"] = tuple(simulator.split(":"))  # type: ignore[assignment]
         classes = {
             kind: getattr(importlib.import_module(f"kali_daemons.{mod}"), cls)
-            for kind, mod, cls in HOSTED_ORDER
+            for kind, (mod, cls) in modules.items()
         }
         sio: Daemon | None = None
         for p in procs:

@@ -4,7 +4,8 @@ robot's protocol (docs/decisions/0015).
 
 One simulated FR3 per arm of the cell, each serving its arm's address (127.0.0.x), at its
 base position and its robot type's home pose; every plant period, each robot's commands are
-taken, the world steps 1 ms and each robot's state goes out.  The truth (joint angles,
+taken, the world steps 1 ms and each robot's state goes out.  In lockstep each FR3's link and
+the plant take turns on every state (``turns.py``).  The truth (joint angles,
 velocities, applied torques) goes into the plant's truth records for tests and the viewer;
 ``kalictl push`` pushes an FR3 at its flange.
 """
@@ -18,6 +19,7 @@ import numpy as np
 from ..core import layout
 from ..core.errors import DaemonError
 from ..runtime.daemon import Daemon
+from .turns import PlantTurns
 
 FRANKY_STEP_MS = 1.0  # franky-sim steps its world 1 ms per step, like the FR3's cycle
 
@@ -66,9 +68,18 @@ class FrankySim(Daemon):
         self._push_end = [0] * len(robots)
         model = self.sim.model
         self._hands = [model.body(f"robot{i}_hand").id for i in range(len(robots))]
+        self.turns: PlantTurns | None = None
+        if self.inst.lockstep:  # serves the links' connections from here on
+            self.server.run_once(realtime=False)  # a first step: franky-sim has a state
+            self._ticks = 1
+            self.turns = PlantTurns(self.inst, self.server.robot_servers, self._arm_of)
 
     def cycle(self, tick: int) -> None:
-        """One 1 ms step: commands in, the world stepped, states out; the truth published."""
+        """One 1 ms step: commands in, the world stepped, states out; the truth published.
+        In lockstep, in turns with the links: a link late for its turn halts the cell."""
+        turns = self.turns
+        if turns is not None and not turns.before_step(tick):
+            return
         self._push()
         self.server.run_once(realtime=False)
         self._ticks += 1
@@ -80,6 +91,8 @@ class FrankySim(Daemon):
             truth["torque"][span] = inner.tau_j
         self._world["ticks"] = self._ticks
         self._world["sim_time_ns"] = self._ticks * 1_000_000
+        if turns is not None:
+            turns.after_step(tick)
 
     def _push(self) -> None:
         """Start, hold or end each FR3's push (``kalictl push``; PUSH: a force in the world
@@ -101,6 +114,9 @@ class FrankySim(Daemon):
                 xfrc[:] = 0.0
 
     def on_shutdown(self) -> None:
+        turns: PlantTurns | None = getattr(self, "turns", None)
+        if turns is not None:
+            turns.close()
         server, sim = getattr(self, "server", None), getattr(self, "sim", None)
         if server is not None:
             server.cleanup()

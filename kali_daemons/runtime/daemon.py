@@ -56,6 +56,8 @@ class Daemon:
 
     kind: ClassVar[str] = ""
     self_timed_in_realtime: ClassVar[bool] = False
+    # never signalled by the clock, in lockstep too (a Franka Hand: its commands take seconds)
+    self_timed_always: ClassVar[bool] = False
     # bind to the config's CPU, lock memory and go SCHED_FIFO; the lockstep executive does
     # not: it runs flat out as long as there are ticks to step, which at SCHED_FIFO would
     # starve the programs it waits for and meet the kernel's real-time throttling
@@ -251,7 +253,7 @@ class Daemon:
         if not self.inst.lockstep:
             self._ack_early = self.inst.procs["ack_tick"][self.slot : self.slot + 1]
         clocked = self.inst.lockstep or not self.self_timed_in_realtime
-        p["periodic"] = int(clocked and self.kind != "wallclock")
+        p["periodic"] = int(clocked and not self.self_timed_always and self.kind != "wallclock")
 
     def _set_state(self, state: ProcState) -> None:
         self.inst.procs[self.slot]["state"] = int(state)

@@ -66,10 +66,9 @@ MODULES = {
     "hand": "link.hand",
 }
 # kinds that run as their own process in lockstep too, never hosted by the executive: a
-# bridge that dies (or is killed) must leave the cell running, lockstep or not
-OWN_PROCESS = frozenset({"wallclock", "bridge"})
-# the cell's hardware kinds in lockstep: only those the lockstep executive can step
-LOCKSTEP_KINDS = frozenset({"mcgill"})
+# bridge that dies (or is killed) must leave the cell running, lockstep or not; a link and a
+# hand hold libfranka, whose calls block holding the interpreter lock
+OWN_PROCESS = frozenset({"wallclock", "bridge", "link", "hand"})
 
 STOP_GRACE_S = 3.0
 KILL_GRACE_S = 2.0
@@ -376,7 +375,9 @@ def _create(
         clock["busy_wait_ns"] = cfg.clock.busy_wait_us * 1000
         clock["lockstep"] = int(lockstep)
         # a networked robot's state packets are the cell's interrupt (decision 0015)
-        clock["paced"] = int(any(hardware_kind(k).links for k in cfg.hardware_kinds))
+        # (in real time: in lockstep the links take turns with the plant, decision 0015)
+        networked = any(hardware_kind(k).links for k in cfg.hardware_kinds)
+        clock["paced"] = int(networked and not lockstep)
         clock["mode"] = RunMode.STOPPED
         clock["step_target"] = -1
         del clock
@@ -485,10 +486,10 @@ def start(
     ``dashboard.record`` (relative to the config's).
     """
     name = check_instance_name(cfg.instance if instance is None else instance)
-    if lockstep and not set(cfg.hardware_kinds) <= LOCKSTEP_KINDS:
+    if lockstep and not cfg.simulated:
         raise ConfigError(
-            f"{cfg.source}: lockstep drives {', '.join(sorted(LOCKSTEP_KINDS))} hardware; a "
-            f"cell of {', '.join(cfg.hardware_kinds)} runs in real time (kalictl start "
+            f"{cfg.source}: lockstep steps the cell's simulated plant, and this cell has none "
+            "(processes.plant.enabled: false): real hardware runs in real time (kalictl start "
             "without --lockstep)"
         )
     t_start = time.monotonic()
@@ -544,7 +545,7 @@ def _start(
             hosts = executive and p.kind == "wallclock"
             module = "lockstep.executive" if hosts else MODULES[p.kind]
             if p.kind == "plant":  # the cell's hardware's simulator
-                module = hardware_kind(cfg.hardware_kinds[0]).simulator
+                module = hardware_kind(cfg.hardware_kinds[0]).simulator.partition(":")[0]
             logs_of[p.name] = logs / f"{p.name}.log"
             jobs.append({"module": module, "instance": name, "name": p.name})
         for job, pid in zip(jobs, spawner.start(jobs, logs_of), strict=True):

@@ -36,7 +36,7 @@ KIND = HardwareKind(
     hands=True,
     compensates_gravity=True,
     wrist=("model", "robot"),  # no gauges: the wrench from its joint torque sensors
-    simulator="plant.franky",
+    simulator="plant.franky:FrankySim",
     refuses=refuses,
 )
 

@@ -204,7 +204,9 @@ class FrankaArms:
                     f"{LINK_WAIT_S:g} s (is its link process running, its FR3 reachable?)"
                 )
             time.sleep(0.005)
-        links = [semaphore(f"link.{r.name}") for r in cfg.robots]
+        # each answer wakes its link; in lockstep the link waits for its own stage instead
+        lockstep = bool(arena.header["lockstep"])
+        links = [] if lockstep else [semaphore(f"link.{r.name}") for r in cfg.robots]
         return cls(arms, [r.type for r in cfg.robots], links, cfg.clock.servo_period_ms / 1e3)
 
     def start(self) -> None:
@@ -246,7 +248,8 @@ class FrankaArms:
             arm["tau"][: self._types[k].n_joints] = 0.0
             self.driver.last[self.driver.map.span(k)] = 0.0
         arm["cmd_seq"] = self.driver.seen[k]
-        self._links[k].release()
+        if self._links:
+            self._links[k].release()
 
     def end_tick(self) -> bool:
         """Every arm's command went out with its ``control``."""
@@ -266,7 +269,8 @@ class FrankaArms:
         for address in self._sem_addresses:
             rt.close_semaphore_address(address)
         self._sem_addresses = [rt.semaphore_address(s) for s in self._links]
-        links = (ctypes.c_void_p * len(self._links))(*self._sem_addresses)
+        n = len(self._types)  # no semaphore (lockstep): the kernel posts none
+        links = (ctypes.c_void_p * n)(*(self._sem_addresses or [0] * n))
         self._control_kernel = Kernel(
             "kali_franka_control",
             (arms, links, fault_active),

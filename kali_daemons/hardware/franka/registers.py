@@ -32,6 +32,9 @@ ROBOT_MODES = (
     "AutomaticErrorRecovery",
 )
 
+# ``ls_expect``: what reaches the plant before it steps (a command datagram, a TCP request)
+LS_UDP, LS_TCP = 1 << 0, 1 << 1
+
 GRIP_IDLE, GRIP_BUSY, GRIP_DONE, GRIP_FAILED = 0, 1, 2, 3  # ``grip_state``
 
 _STATUS_NAMES = (
@@ -84,6 +87,15 @@ FRANKA_ARM = np.dtype(
         ("recover", "u1"),  # 1: run libfranka's error recovery (kalictl reset); the link clears
         ("grip_cmd", "<u4"),  # a gripper command's number: bumped with grip_close (FrankaOps)
         ("grip_close", "u1"),  # 1: grasp (close), 0: open
+        # lockstep (``kali_daemons.link.turns``): the plant and the link take turns on each
+        # state; the 32-bit counts are futex words (a waiter sleeps until one changes)
+        ("ls_sent", "<u4"),  # the plant: states sent to this arm
+        ("ls_go", "<u4"),  # the plant: bumped as a tick begins (the link's call may go)
+        ("ls_ready", "<u4"),  # the link: the number of the state its next call takes
+        ("ls_taken", "<u4"),  # the link: the number of the state its last call took
+        ("ls_expect", "u1"),  # the link: what it has sent or sends first (LS_UDP, LS_TCP)
+        ("ls_off", "u1"),  # the link: out of the turns (libfranka failed): nobody waits
+        ("grip_sent", "<u4"),  # the hand: the gripper command it sent last
     ],
     align=True,
 )

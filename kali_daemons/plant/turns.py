@@ -1,0 +1,211 @@
+"""franky-sim's side of lockstep over libfranka's protocol (decision 0015): each FR3's link
+and the plant take turns on every state packet (the link's side: ``kali_daemons.link.turns``).
+
+While the cell starts, a thread serves franky-sim with the physics standing: connections, and
+a state whenever a link not yet connected asks for one.  Each tick, for each arm: wait until
+its link is ready for the next state, let it go, wait for what it announced (its answer, a
+request) to reach franky-sim's sockets, then step and send; and once sent, wait until the
+link has taken the state.  A gripper command is waited for the same way, and its outcome once
+franky-sim answers it.  A wait that outlasts its share of the lockstep timeout halts with
+DEADLINE naming the link.  franky-sim keeps its sockets private: they are read by name
+(franky-sim is pinned to 1.0).
+"""
+
+from __future__ import annotations
+
+import select
+import threading
+import time
+from typing import Any
+
+from ..core import futex, rt
+from ..core.layout import FaultCode
+from ..core.spinlock import pid_alive
+from ..hardware.franka.arms import records
+from ..hardware.franka.registers import LINK_CONNECTED, LS_TCP, LS_UDP
+from ..runtime.instance import Instance
+
+SERVE_S = 0.0005  # while the cell starts: franky-sim served this often
+SLICE_S = 0.05  # a wait looks at the link's process this often
+WAIT_SHARE = 0.5  # of the lockstep timeout, what one wait may take (the clock's watchdog: all)
+
+
+def _socket(server: Any, name: str) -> Any:
+    """franky-sim's ``FrankaServer`` socket ``name`` (``tcp``, ``udp``): private there."""
+    return getattr(server, f"_FrankaServer__{name}_socket")
+
+
+class PlantTurns:
+    """The plant's turns with every FR3's link (and hand) of a lockstep cell."""
+
+    def __init__(self, inst: Instance, servers: list[Any], arm_index: list[int]) -> None:
+        from franky_sim.franka_server import FrankaServer  # only an FR3 cell's plant loads it
+
+        self._send_arm_state = FrankaServer.send_state  # an arm's state, not its hand's
+        cfg = inst.config
+        self._inst, self._servers = inst, servers
+        arms = records(inst.arena, len(cfg.robots))
+        self._arms = [arms[k : k + 1].reshape(()) for k in arm_index]
+        self._links = [f"link.{cfg.robots[k].name}" for k in arm_index]
+        self._hands = [
+            f"hand.{cfg.robots[k].name}" if cfg.robots[k].hardware.hand else "" for k in arm_index
+        ]
+        self._slot = {n: inst.slot_of(n) for n in (*self._links, *self._hands) if n}
+        self._timeout_s = WAIT_SHARE * cfg.clock.lockstep_ack_timeout_s
+        self._futex = futex.Waiter(SLICE_S)
+        self._grip_seen = [int(a["grip_cmd"]) for a in self._arms]
+        self._grip_busy = [False] * len(servers)
+        for server in servers:  # franky-sim 1.0's names, checked once
+            _socket(server, "tcp"), _socket(server, "udp")
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = threading.Thread(
+            target=self._serve, name="franky-sim start", daemon=True
+        )
+        self._thread.start()
+
+    # ------------------------------------------------------------------ the start
+
+    def _serve(self) -> None:
+        """Until the first tick: connections taken, a standing state for each link that
+        asks while it connects (``LinkTurns.ask``); the hands' states as they come."""
+        while not self._stop.wait(SERVE_S):
+            for server, arm in zip(self._servers, self._arms, strict=True):
+                server.process_commands()
+                asked = int(arm["ls_ready"]) > int(arm["ls_sent"])
+                if asked and server.udp_connected and not int(arm["status"]) & LINK_CONNECTED:
+                    arm["ls_sent"] += 1
+                    self._send_arm_state(server)
+                if server.gripper_server is not None:
+                    server.gripper_server.send_state()
+
+    def _end_start(self) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+            self._thread = None
+
+    # ------------------------------------------------------------------ each tick
+
+    def before_step(self, tick: int) -> bool:
+        """Each link ready and let go, what it announced on franky-sim's sockets, a new
+        gripper command sent; False if one did not come in time (the cell halted)."""
+        self._end_start()
+        for i, server in enumerate(self._servers):  # first: the links wait outside libfranka
+            if self._hands[i] and not self._grip_sent(i, server, tick):
+                return False
+        for i, (server, arm) in enumerate(zip(self._servers, self._arms, strict=True)):
+            if self._off(i) or not server.udp_connected:
+                continue
+            ready = int(arm["ls_sent"]) + 1
+            if not self._await(i, "ls_ready", ready, self._links[i], "was not ready for", tick):
+                return False
+            arm["ls_go"] += 1
+            futex.wake(arm["ls_go"].ctypes.data)
+            expect = int(arm["ls_expect"])
+            wanted = [_socket(server, "udp")] if expect & LS_UDP else []
+            if expect & LS_TCP:
+                wanted.append(_socket(server, "tcp"))
+            if wanted and not self._arrive(wanted, self._links[i], "a command", tick):
+                return False
+        self._grip_busy = [
+            s.gripper_server is not None and s.gripper_server._motion_state.value != "idle"
+            for s in self._servers
+        ]
+        for server, arm in zip(self._servers, self._arms, strict=True):
+            if server.udp_connected:
+                arm["ls_sent"] += 1  # before the send: the link may take it at once
+        return True
+
+    def after_step(self, tick: int) -> bool:
+        """Each link has taken the state just sent, each hand reported an outcome franky-sim
+        just answered; False if one did not in time (the cell halted)."""
+        for i, (server, arm) in enumerate(zip(self._servers, self._arms, strict=True)):
+            if not server.udp_connected:
+                continue  # nobody to send to: the link is gone
+            sent, link = int(arm["ls_sent"]), self._links[i]
+            if not self._await(i, "ls_taken", sent, link, "did not take the state of", tick):
+                return False
+            gripper = server.gripper_server
+            answered = self._grip_busy[i] and gripper._motion_state.value == "idle"
+            if answered and not self._await_grip(i, tick):
+                return False
+        return True
+
+    def _grip_sent(self, i: int, server: Any, tick: int) -> bool:
+        """A gripper command asked for and not yet in franky-sim: once the hand is free of
+        the last, wait until it has sent this one (``grip_sent``) and franky-sim's gripper
+        socket has it (unless franky-sim is carrying it out already)."""
+        arm = self._arms[i]
+        cmd = int(arm["grip_cmd"])
+        if cmd == self._grip_seen[i] or not int(arm["hand_up"]):
+            return True
+        if int(arm["grip_sent"]) != cmd:
+            if int(arm["grip_done"]) != int(arm["grip_sent"]):
+                return True  # busy with the last: it takes this one once free
+            hand, what = self._hands[i], "sent no gripper command at"
+            if not self._await(i, "grip_sent", cmd, hand, what, tick):
+                return False
+        self._grip_seen[i] = cmd
+        gripper = server.gripper_server
+        if int(arm["grip_done"]) == cmd or gripper._motion_state.value != "idle":
+            return True  # done, or being carried out
+        return self._arrive([_socket(gripper, "tcp")], self._hands[i], "a gripper command", tick)
+
+    def _await_grip(self, i: int, tick: int) -> bool:
+        arm = self._arms[i]
+        if not int(arm["hand_up"]):
+            return True
+        sent, what = int(arm["grip_sent"]), "did not report the gripper's outcome at"
+        return self._await(i, "grip_done", sent, self._hands[i], what, tick)
+
+    # ------------------------------------------------------------------ waiting
+
+    def _off(self, i: int) -> bool:
+        return bool(int(self._arms[i]["ls_off"]))
+
+    def _await(self, i: int, field: str, value: int, who: str, doing: str, tick: int) -> bool:
+        """Wait until arm ``i``'s ``field`` holds ``value`` (a futex word that process ``who``
+        wakes); False, with the cell halted naming it, if it does not in time.  A link out
+        of the turns, or a process gone, is waited for no more (the clock names a dead one
+        at its stage)."""
+        word = self._arms[i][field]
+        addr, slot = word.ctypes.data, self._slot[who]
+        deadline = rt.monotonic_ns() + int(self._timeout_s * 1e9)
+        while (now := int(word)) != value:
+            if self._off(i) and who == self._links[i]:
+                return True
+            if rt.monotonic_ns() > deadline:
+                return self._late(who, f"{doing} tick {tick}", tick)
+            self._futex.wait(addr, now)
+            pid = int(self._inst.procs[slot]["pid"])
+            if pid > 0 and not pid_alive(pid):
+                return True
+        return True
+
+    def _arrive(self, sockets: list[Any], who: str, what: str, tick: int) -> bool:
+        """Wait until each of ``sockets`` has something to read (what ``who`` sent)."""
+        deadline = time.monotonic() + self._timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            readable, _, _ = select.select(sockets, [], [], max(0.0, min(left, SLICE_S)))
+            sockets = [s for s in sockets if s not in readable]
+            if not sockets:
+                return True
+            if left <= 0:
+                return self._late(who, f"announced {what} for tick {tick}, none came", tick)
+
+    def _late(self, who: str, what: str, tick: int) -> bool:
+        self._inst.raise_fault(
+            FaultCode.DEADLINE,
+            who,
+            f"lockstep: {who} {what} within {self._timeout_s:g} s "
+            "(half of clock.lockstep_ack_timeout_s)",
+            tick=tick,
+        )
+        return False
+
+    def close(self) -> None:
+        self._end_start()
+
+
+__all__ = ["PlantTurns"]
