@@ -278,3 +278,28 @@ def test_an_fr3_yields_to_a_push_under_the_admittance_servo(kali: Callable[..., 
         k.sleep(1.5)  # released: back where it was
         assert np.linalg.norm(flange() - x1) < 3e-3
         assert k.inst.fault_text() is None
+
+
+def test_a_servo_beyond_the_fr3s_torque_limit_halts_naming_joint_torque_and_limit(
+    kali: Callable[..., str],
+) -> None:
+    """A joint servo demanding more than the FR3's joint torque limit halts the cell, the
+    fault naming the robot, the joint, the torque demanded and the limit in N·m (an FR3's
+    drive takes torques, not a motor's current), and torque control ends."""
+    name = fr3_lockstep(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])
+        k.servo.set_safe("arm", 1, 1.0)  # let the torque check, not runaway, catch it
+        k.servo.set_params("arm", 1, {"kp": 1e6}, wait=False)  # wildly high gain
+        arm = k.robot("arm")
+        arm.move_joints(arm.read_joints() + np.radians([10, 0, 0, 0, 0, 0, 0]), wait=False)
+        step_kali_clock(k.inst, 600)
+        fault = k.inst.read_fault()
+        assert fault.code == "CURRENT", fault
+        limit = k.inst.config.robots[0].type.drive.max_current[0]
+        assert re.search(
+            rf"robot 'arm' joint 1: joint torque demand [+-][\d.]+ N·m beyond its limit "
+            rf"{limit:.2f} N·m for \d+ ms",
+            fault.message,
+        ), fault
+        assert k.inst.hardware(0).amplifiers_cut() == [True]

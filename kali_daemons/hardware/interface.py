@@ -65,6 +65,7 @@ class Driver(Protocol):
     q_max: np.ndarray
     gkt: np.ndarray  # joint N·m per unit of SIO's "current" (a motor's A; an FR3's N·m)
     current_limit: np.ndarray
+    current_unit: tuple[str, str]  # what SIO's "current" is, for messages: (name, unit)
     acc: np.ndarray  # its state a restarted SIO resumes (the joint records' acc, prev, offset)
     prev: np.ndarray
     offset: np.ndarray

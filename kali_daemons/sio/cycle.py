@@ -814,11 +814,12 @@ class SioCycle:
         (``kali_current_check``, which zeroes the torque sent where not fed): halt."""
         lv = self.level
         demand = float(self.servo_torque[i] + self.ff[i]) / float(self.driver.gkt[i])
+        what, unit = self.driver.current_unit
         self._halt(
             FaultCode.CURRENT,
             tick,
-            f"{lv.map.label(i)}: motor current demand "
-            f"{demand:+.2f} A beyond its limit {float(self.driver.current_limit[i]):.2f} A "
+            f"{lv.map.label(i)}: {what} demand {demand:+.2f} {unit} beyond its limit "
+            f"{float(self.driver.current_limit[i]):.2f} {unit} "
             f"for {int(self.over[i]) * lv.cfg.clock.servo_period_ms:g} ms",
         )
         self.over[:] = 0

@@ -62,6 +62,8 @@ class FrankaDriver:
     """Joint angles from the arms' state packets, torques into their commands (thesis 3.5's
     driver table for an FR3: absolute angles, torques at the joint, nothing to convert)."""
 
+    current_unit = ("joint torque", "N·m")  # SIO's "current": the torque sent
+
     def __init__(self, types: list[RobotType], arms: np.ndarray, period_s: float) -> None:
         self.map = m = JointMap(
             tuple(f"arm {k}" for k in range(len(types))), tuple(t.n_joints for t in types)

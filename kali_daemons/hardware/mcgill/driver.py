@@ -39,6 +39,8 @@ class JointDriver:
     records so a restarted SIO resumes with the same counts and calibration.
     """
 
+    current_unit = ("motor current", "A")  # SIO's "current": the amplifier's demand
+
     def __init__(
         self,
         types: list[RobotType],
