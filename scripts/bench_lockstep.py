@@ -195,7 +195,9 @@ def measure(s: Scenario, ticks: int, tmp: Path) -> Result:
             base_s = cfg.clock.base_tick_ms / 1000.0
             res.sim_s = ticks * base_s
             res.speed = res.sim_s / res.wall_s
-            cpu_s = sum(window.cpu_pct(n) for n in run.pids) / 100.0 * window.wall_ns / 1e9
+            # one name per process: the executive's daemons share its pid
+            each = {pid: n for n, pid in run.pids.items()}.values()
+            cpu_s = sum(window.cpu_pct(n) for n in each) / 100.0 * window.wall_ns / 1e9
             res.cpu_s_per_sim_s = cpu_s / res.sim_s
             if s.program == "move" and res.moves_done < len(handles):
                 res.notes.append(

@@ -20,7 +20,7 @@ from .franka import CONNECT_WAIT_FRACTION, franka, reach
 GRASP_SPEED_M_S = 0.1  # the fingers' speed, closing or opening
 GRASP_FORCE_N = 20.0  # the grasp's force (the Hand holds up to 70 N)
 IDLE_POLL_S = 0.02  # between commands, the width is read this often
-LOCKSTEP_POLL_S = 0.001  # lockstep: a request is looked for this often (the plant waits)
+LOCKSTEP_WAIT_S = 0.05  # lockstep: a wait for a request looks at the shutdown this often
 
 
 class FrankaHand(Daemon):
@@ -43,6 +43,7 @@ class FrankaHand(Daemon):
         self._publish(state)
         self._done = int(self.arm["grip_cmd"])  # requests before this process: not replayed
         self.arm["grip_done"] = self.arm["grip_sent"] = self._done
+        self._futex = futex.Waiter(LOCKSTEP_WAIT_S)
         self.arm["hand_up"] = 1
 
     def _connect(self, wait_s: float) -> Any:
@@ -70,9 +71,11 @@ class FrankaHand(Daemon):
             procs[self.slot]["heartbeat_ns"] = rt.monotonic_ns()
             cmd = int(arm["grip_cmd"])
             if cmd == self._done:
-                if not lockstep:
+                if lockstep:  # woken by the request (FrankaOps.grip)
+                    self._futex.wait(arm["grip_cmd"].ctypes.data, cmd)
+                else:
                     self._publish(self._gripper.read_once())
-                time.sleep(LOCKSTEP_POLL_S if lockstep else IDLE_POLL_S)
+                    time.sleep(IDLE_POLL_S)
                 continue
             arm["grip_state"] = GRIP_BUSY
             arm["grip_sent"] = cmd

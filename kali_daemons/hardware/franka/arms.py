@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...core import rt
+from ...core import futex, rt
 from ...core.arena import Arena
 from ...core.errors import HardwareError
 from ...core.joints import JointMap
@@ -376,6 +376,7 @@ class FrankaOps:
         arms["grip_close"][k] = 1 if close else 0
         ticket = int(arms["grip_cmd"][k]) + 1
         arms["grip_cmd"][k] = ticket
+        futex.wake(arms["grip_cmd"][k : k + 1].ctypes.data)  # the hand waits on it
         return ticket
 
     def grip_result(self, k: int, ticket: int) -> bool | None:
