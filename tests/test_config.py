@@ -1041,14 +1041,3 @@ def test_bridge_users_and_roles(tmp_path: Path) -> None:
     assert "is an operator too" in error_of(bridge_text(both))
     nobody = section.replace(", operators: [op]", "")
     assert "name at least one user" in error_of(bridge_text(nobody))
-
-
-def test_a_links_lockstep_stage_follows_sios() -> None:
-    """An FR3's link answers each state with the torques SIO computed from it in the same
-    lockstep tick: its stage defaults to after SIO's, and one at or before it is refused."""
-    cfg = make_config("fr3", base="fr3.yaml")
-    link, sio = cfg.process("link.arm"), cfg.process("sio")
-    assert link.stage > sio.stage
-    with pytest.raises(ConfigError, match=r"processes\.link\.stage = 2: must be after "
-                       r"processes\.sio\.stage \(2\): in lockstep a link answers"):  # fmt: skip
-        make_config("fr3", {r"^  link: +\{": "  link: {stage: 2, "}, base="fr3.yaml")

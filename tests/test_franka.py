@@ -76,6 +76,9 @@ def test_an_fr3_moves_through_libfranka_and_ends_where_the_simulator_says(
         rec = arm_record(k.inst)
         assert int(rec["status"]) & registers.LINK_CONTROL
         assert int(rec["answered"]) > 1000  # every tick of the motions went out as torques
+        # in torque control at its configured priority (libfranka's Robot() sets SCHED_FIFO 99)
+        link = int(k.inst.procs[k.inst.slot_of("link.arm")]["pid"])
+        assert os.sched_getparam(link).sched_priority == k.inst.config.process("link.arm").priority
         shown = kalictl("-i", name, "status").stdout
         assert "link.arm: 0x3 (connected, torque control on), robot mode Move;" in shown, shown
         # the Franka Hand, through libfranka's gripper connection in its own process

@@ -105,10 +105,14 @@ def test_an_fr3_in_lockstep_runs_the_same_bytes_with_a_process_per_daemon(
 
 
 def test_the_franka_hand_grips_in_lockstep(kali: Callable[..., str]) -> None:
-    """A program's grip waits for the Hand's outcome, the clock stepped meanwhile."""
+    """A program's grip waits for the Hand's outcome, the clock stepped meanwhile.  The link
+    in torque control runs SCHED_OTHER, as the executive it takes turns with (never above a
+    real-time cell beside it)."""
     name = fr3_lockstep(kali)
     with Kali(name) as k:
         k.ready(["arm"])
+        link = int(k.inst.procs[k.inst.slot_of("link.arm")]["pid"])
+        assert os.sched_getscheduler(link) == os.SCHED_OTHER
         arm, rec = k.robot("arm"), records(k.inst.arena, 1)[0]
         arm.grip(True)
         k.sleep(0.05)  # the width comes with the next gripper state

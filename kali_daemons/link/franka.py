@@ -81,6 +81,7 @@ class FrankaLink(Daemon):
 
     kind = "link"
     self_timed_in_realtime = True  # the robot times it; the clock watches its heartbeat
+    self_timed_always = True  # in lockstep the plant's turns time it (turns.py)
 
     def on_configure(self) -> None:
         inst = self.inst
@@ -111,8 +112,6 @@ class FrankaLink(Daemon):
         # lockstep: the plant and this link take turns on each state (turns.py)
         self._turns = LinkTurns(self, self.arm) if inst.lockstep else None
         self._publish(self._connect(CONNECT_WAIT_FRACTION * cfg.startup_timeout_s))
-        if self._turns is not None:
-            self._turns.ready(0)  # the first tick's call: an idle read
 
     # ------------------------------------------------------------------ connection
 
@@ -300,32 +299,27 @@ class FrankaLink(Daemon):
     # ------------------------------------------------------------------ lockstep
 
     def _lockstep_loop(self) -> None:
-        """Lockstep: each tick one libfranka call takes the tick's state; the link answers
-        it and chooses its next call once the tick has run to its stage (``LinkTurns``)."""
+        """Lockstep: as each tick begins, answer the state the last one took and choose the
+        next libfranka call on all it did; the call takes this tick's state (``LinkTurns``)."""
         turns = self._turns
         assert turns is not None
-        call: Callable[[], Any] = self._read_idle
-        try:
-            while turns.go():
-                try:
-                    state = call()
-                    turns.took()
-                    if not turns.signalled():
-                        break
-                    call, expect = self._choose(state)
-                except Exception as exc:  # libfranka's: out of the turns, the cell halted
-                    turns.leave()
-                    self._lost(exc)
-                    self._sit_out()
-                    return
+        state: Any = None  # the state the last tick took, to answer (None: nothing to answer)
+        while turns.go():
+            try:
+                call, expect = self._choose(state)
                 turns.ready(expect)
-        finally:
-            turns.close()
+                state = call()
+                turns.took()
+            except Exception as exc:  # libfranka's: out of the turns, the cell halted
+                turns.leave()
+                self._lost(exc)
+                self._sit_out()
+                return
 
     def _choose(self, state: Any) -> tuple[Callable[[], Any], int]:
-        """Answer ``state`` (None: the call took it inside libfranka) if in control, and
-        choose the next call as the real-time loop would; with what the plant finds first
-        on its sockets (``LS_*``)."""
+        """Answer ``state`` (None: none, or the call took it inside libfranka) if in control,
+        and choose the next call as the real-time loop would; with what the plant finds
+        first on its sockets (``LS_*``)."""
         arm = self.arm
         if self._flange is not None and state is not None:
             self._flange.update(state, self._q, self._tau_j)

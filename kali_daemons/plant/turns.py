@@ -2,13 +2,13 @@
 and the plant take turns on every state packet (the link's side: ``kali_daemons.link.turns``).
 
 While the cell starts, a thread serves franky-sim with the physics standing: connections, and
-a state whenever a link not yet connected asks for one.  Each tick, for each arm: wait until
-its link is ready for the next state, let it go, wait for what it announced (its answer, a
-request) to reach franky-sim's sockets, then step and send; and once sent, wait until the
-link has taken the state.  A gripper command is waited for the same way, and its outcome once
-franky-sim answers it.  A wait that outlasts its share of the lockstep timeout halts with
-DEADLINE naming the link.  franky-sim keeps its sockets private: they are read by name
-(franky-sim is pinned to 1.0).
+a state whenever a link not yet connected asks for one.  Each tick: let every link go, wait
+until each is ready (it answered the last state, chose its next call) and what it announced
+(its answer, a request) is on franky-sim's sockets, then step and send; and once sent, wait
+until each link has taken its state.  A gripper command is waited for the same way, and its
+outcome once franky-sim answers it.  A wait that outlasts its share of the lockstep timeout
+halts with DEADLINE naming the link, a link that died with PROCESS_DIED.  franky-sim keeps
+its sockets private: they are read by name (franky-sim is pinned to 1.0).
 """
 
 from __future__ import annotations
@@ -87,25 +87,30 @@ class PlantTurns:
     # ------------------------------------------------------------------ each tick
 
     def before_step(self, tick: int) -> bool:
-        """Each link ready and let go, what it announced on franky-sim's sockets, a new
-        gripper command sent; False if one did not come in time (the cell halted)."""
+        """A new gripper command sent; each link let go (the tick before ran whole), ready
+        (it answered the last state and chose its next call) and what it announced on
+        franky-sim's sockets; False if one did not come in time (the cell halted)."""
         self._end_start()
         for i, server in enumerate(self._servers):  # first: the links wait outside libfranka
             if self._hands[i] and not self._grip_sent(i, server, tick):
                 return False
-        for i, (server, arm) in enumerate(zip(self._servers, self._arms, strict=True)):
-            if self._off(i) or not server.udp_connected:
-                continue
-            ready = int(arm["ls_sent"]) + 1
-            if not self._await(i, "ls_ready", ready, self._links[i], "was not ready for", tick):
-                return False
+        live = [
+            i for i, server in enumerate(self._servers) if server.udp_connected and not self._off(i)
+        ]
+        for i in live:
+            arm = self._arms[i]
             arm["ls_go"] += 1
             futex.wake(arm["ls_go"].ctypes.data)
+        for i in live:
+            server, arm, link = self._servers[i], self._arms[i], self._links[i]
+            ready = int(arm["ls_sent"]) + 1
+            if not self._await(i, "ls_ready", ready, link, "was not ready for", tick):
+                return False
             expect = int(arm["ls_expect"])
             wanted = [_socket(server, "udp")] if expect & LS_UDP else []
             if expect & LS_TCP:
                 wanted.append(_socket(server, "tcp"))
-            if wanted and not self._arrive(wanted, self._links[i], "a command", tick):
+            if wanted and not self._arrive(wanted, link, "a command", tick):
                 return False
         self._grip_busy = [
             s.gripper_server is not None and s.gripper_server._motion_state.value != "idle"
@@ -165,9 +170,8 @@ class PlantTurns:
 
     def _await(self, i: int, field: str, value: int, who: str, doing: str, tick: int) -> bool:
         """Wait until arm ``i``'s ``field`` holds ``value`` (a futex word that process ``who``
-        wakes); False, with the cell halted naming it, if it does not in time.  A link out
-        of the turns, or a process gone, is waited for no more (the clock names a dead one
-        at its stage)."""
+        wakes); False, with the cell halted naming it, if it does not in time or died.  A
+        link out of the turns is waited for no more."""
         word = self._arms[i][field]
         addr, slot = word.ctypes.data, self._slot[who]
         deadline = rt.monotonic_ns() + int(self._timeout_s * 1e9)
@@ -179,7 +183,7 @@ class PlantTurns:
             self._futex.wait(addr, now)
             pid = int(self._inst.procs[slot]["pid"])
             if pid > 0 and not pid_alive(pid):
-                return True
+                return self._died(who, pid, tick)
         return True
 
     def _arrive(self, sockets: list[Any], who: str, what: str, tick: int) -> bool:
@@ -193,6 +197,20 @@ class PlantTurns:
                 return True
             if left <= 0:
                 return self._late(who, f"announced {what} for tick {tick}, none came", tick)
+
+    def _died(self, who: str, pid: int, tick: int) -> bool:
+        """Process ``who`` died: a link halts the cell (nobody else can: it is not clocked),
+        a hand (not serious) is waited for no more.  False if halted."""
+        if who.startswith("hand."):
+            return True
+        self._inst.raise_fault(
+            FaultCode.PROCESS_DIED,
+            who,
+            f"process '{who}' (pid {pid}) died at tick {tick}: the plant's lockstep turns with "
+            "it cannot go on",
+            tick=tick,
+        )
+        return False
 
     def _late(self, who: str, what: str, tick: int) -> bool:
         self._inst.raise_fault(

@@ -111,7 +111,7 @@ _PROCESS_KEYS = {
 _KIND_DEFAULTS: dict[str, dict[str, Any]] = {
     "wallclock": {"serious": False, "stage": 0},
     "plant": {"serious": True, "stage": 0},
-    "link": {"serious": True, "stage": 3},
+    "link": {"serious": True, "stage": 0},
     "tg": {"serious": True, "stage": 1},
     "sio": {"serious": True, "stage": 2},
     "sv": {"serious": True, "stage": 2},
@@ -162,7 +162,7 @@ def _serious(default: Any = ...) -> Any:
 
 
 def _stage(default: Any = ...) -> Any:
-    doc = "order within a tick in lockstep mode, lower first; sv shares sio's, link follows it"
+    doc = "order within a tick in lockstep mode, lower first; sv shares sio's"
     return _f(default, doc, ge=0, le=MAX_STAGE)
 
 
@@ -1332,7 +1332,6 @@ def _build(
         doc["robots"] if "robots" in doc else _shipped()["robots"], base_dir, files, clock
     )
     links = _links(procs_node.get("link"), robots, clock)
-    _check_link_stage(links, processes)
     if links:  # after the plant (a simulator they connect to), before the rest
         after = max(i for i, p in enumerate(processes) if p.kind in ("wallclock", "plant"))
         processes = (*processes[: after + 1], *links, *processes[after + 1 :])
@@ -1598,7 +1597,7 @@ def _links(node: Any, robots: tuple[RobotConfig, ...], clock: ClockConfig) -> li
             priority=entry.priority if entry else 0,
             period_ms=clock.base_tick_ms,
             serious=entry.serious if entry else True,
-            stage=entry.stage if entry else _KIND_DEFAULTS["link"]["stage"],
+            stage=entry.stage if entry else 0,
         )
         for r in robots
         if hardware_kind(r.hardware.kind).links
@@ -1617,19 +1616,6 @@ def _links(node: Any, robots: tuple[RobotConfig, ...], clock: ClockConfig) -> li
         if r.hardware.hand
     ]
     return links + hands
-
-
-def _check_link_stage(links: list[ProcessConfig], processes: tuple[ProcessConfig, ...]) -> None:
-    """A link's lockstep stage comes after SIO's: it answers each state with the torques SIO
-    computed from it in the same tick (decision 0015)."""
-    sio = next(p for p in processes if p.kind == "sio")
-    if links and links[0].stage <= sio.stage:
-        _fail(
-            "processes.link.stage",
-            links[0].stage,
-            f"must be after processes.sio.stage ({sio.stage}): in lockstep a link answers "
-            "each state with the torques SIO computed from it in the same tick",
-        )
 
 
 def _check_servo_stage(processes: list[ProcessConfig]) -> None:

@@ -56,7 +56,8 @@ class Daemon:
 
     kind: ClassVar[str] = ""
     self_timed_in_realtime: ClassVar[bool] = False
-    # never signalled by the clock, in lockstep too (a Franka Hand: its commands take seconds)
+    # never signalled by the clock, in lockstep too: an FR3's link (the plant's lockstep turns
+    # time it) and its hand (its commands take seconds)
     self_timed_always: ClassVar[bool] = False
     # bind to the config's CPU, lock memory and go SCHED_FIFO; the lockstep executive does
     # not: it runs flat out as long as there are ticks to step, which at SCHED_FIFO would
