@@ -9,6 +9,7 @@ import os
 import random
 import re
 import signal
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -123,14 +124,19 @@ def test_the_franka_hand_grips_in_lockstep(kali: Callable[..., str]) -> None:
         assert k.inst.fault_text() is None
 
 
+def two_fr3s(kali: Callable[..., str]) -> str:
+    """config/fr3-two.yaml in lockstep, its two FR3s on addresses of their own."""
+    net = f"127.{os.getpid() % 250 + 1}.{random.randrange(1, 255)}"
+    host = random.randrange(1, 250)
+    edits = {r"127\.0\.0\.1": f"{net}.{host}", r"127\.0\.0\.2": f"{net}.{host + 1}"}
+    return kali(base="fr3-two.yaml", edits=edits)
+
+
 def test_two_fr3s_in_lockstep_move_together_as_a_motion_system(
     kali: Callable[..., str],
 ) -> None:
     """config/fr3-two.yaml in lockstep: two links take their turns with one franky-sim."""
-    net = f"127.{os.getpid() % 250 + 1}.{random.randrange(1, 255)}"
-    host = random.randrange(1, 250)
-    edits = {r"127\.0\.0\.1": f"{net}.{host}", r"127\.0\.0\.2": f"{net}.{host + 1}"}
-    name = kali(base="fr3-two.yaml", edits=edits)
+    name = two_fr3s(kali)
     with Kali(name) as k:
         k.ready(["left", "right"])
         both = k.motion_system(["left", "right"])
@@ -307,3 +313,36 @@ def test_a_servo_beyond_the_fr3s_torque_limit_halts_naming_joint_torque_and_limi
             fault.message,
         ), fault
         assert k.inst.hardware(0).amplifiers_cut() == [True]
+
+
+@pytest.mark.serial  # a process stopped for seconds, the others waiting on it
+def test_a_late_link_halts_two_fr3s_and_the_other_link_keeps_its_turn(
+    kali: Callable[..., str],
+) -> None:
+    """One of two FR3s' links stopped: the cell halts naming it, and the tick goes on for the
+    other link, already let into libfranka (whose receive would give up after 1 s); once the
+    stopped one continues and the halt is reset, both arms move on."""
+    name = two_fr3s(kali)
+    with Kali(name) as k:
+        k.ready(["left", "right"])
+        pid = int(k.inst.procs[k.inst.slot_of("link.left")]["pid"])
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            step_kali_clock(k.inst, 50)
+            fault = k.inst.read_fault()
+            assert fault.code == "DEADLINE" and fault.process == "link.left", fault
+            time.sleep(1.5)  # halted, longer than libfranka waits in a receive
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        assert k.inst.clear_fault()
+        step_kali_clock(k.inst, 20)  # the links end the torque control the halt cut off
+        k.ready(["left", "right"])
+        rec = records(k.inst.arena, 2)
+        assert rec["ls_off"].tolist() == [0, 0]  # neither link left its turns
+        assert not (rec["status"] & registers.LINK_ERROR).any(), rec["error"]
+        moves = [
+            k.robot(n).move_joints(k.robot(n).read_joints() + np.radians(5), wait=False)
+            for n in ("left", "right")
+        ]
+        step_kali_clock(k.inst, 1500)
+        assert [m.state for m in moves] == [RequestState.DONE] * 2, [m.message for m in moves]

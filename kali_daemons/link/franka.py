@@ -121,7 +121,7 @@ class FrankaLink(Daemon):
         otherwise."""
         pf = franka()
         self._robot = reach(
-            lambda: pf.Robot(self.address, pf.RealtimeConfig.kIgnore),
+            lambda: self._taking(lambda: pf.Robot(self.address, pf.RealtimeConfig.kIgnore)),
             wait_s,
             lambda exc: (
                 f"franka: {self.label}: no robot or simulator answers at "
@@ -308,6 +308,8 @@ class FrankaLink(Daemon):
             try:
                 call, expect = self._choose(state)
                 turns.ready(expect)
+                if not turns.call():
+                    break
                 state = call()
                 turns.took()
             except Exception as exc:  # libfranka's: out of the turns, the cell halted

@@ -5,9 +5,12 @@ on loopback and a run is the same bit for bit.
 The plant begins each tick by letting the link go (``go``): the tick before has run whole,
 so the link answers the state it took then and chooses its next libfranka call on
 everything that tick did, and says what the plant must find on its sockets before it steps
-(``ready``: its answer, or what the call sends first); then the call takes the tick's state
-(``took``).  The link enters libfranka only after ``go``: it never blocks there while the
-clock stands, where libfranka's receive gives up after a second.
+(``ready``: its answer, or what the call sends first).  Once every link is ready the plant
+lets the call go (``call``), which takes the tick's state (``took``).  So a link enters
+libfranka only when the state it waits for is coming: never while the clock stands, nor
+while the plant still waits for another link (libfranka's receive gives up after 1 s).
+The plant writes in ``ls_go`` and ``ls_call`` the number of the state it sends next, which
+the link waits for: one whose turn a halt cut short takes it up where it stopped.
 """
 
 from __future__ import annotations
@@ -27,17 +30,25 @@ class LinkTurns:
         self._daemon, self._arm = daemon, arm
         self._header = daemon.inst.arena.header
         self._futex = futex.Waiter(SLICE_S)
-        self._go = int(arm["ls_go"])
         self.n = int(arm["ls_taken"])  # the state the link's last call took
 
     def go(self) -> bool:
-        """Wait until the plant begins the next tick; False if the link is to end."""
-        arm, addr = self._arm, self._arm["ls_go"].ctypes.data
-        while int(arm["ls_go"]) == self._go:
+        """Wait until the plant begins the tick whose state the next call takes (it has
+        run the last one whole); False if the link is to end."""
+        return self._wait("ls_go")
+
+    def call(self) -> bool:
+        """Wait until every link is ready and the plant lets this one's call take its
+        state; False if the link is to end."""
+        return self._wait("ls_call")
+
+    def _wait(self, field: str) -> bool:
+        arm, want = self._arm, self.n + 1
+        addr = arm[field].ctypes.data
+        while (now := int(arm[field])) != want:
             if self._daemon._leave or self._header["shutdown"]:
                 return False
-            self._futex.wait(addr, self._go)
-        self._go = int(arm["ls_go"])
+            self._futex.wait(addr, now)
         return True
 
     def ask(self) -> None:

@@ -70,7 +70,7 @@ class FrankySim(Daemon):
         self._hands = [model.body(f"robot{i}_hand").id for i in range(len(robots))]
         self.turns: PlantTurns | None = None
         if self.inst.lockstep:  # serves the links' connections from here on
-            self._step()  # a first step: franky-sim has a state
+            self._step([])  # a first step: franky-sim has a state
             self._ticks = 1
             self.turns = PlantTurns(self.inst, self.server.robot_servers, self._arm_of)
 
@@ -78,10 +78,10 @@ class FrankySim(Daemon):
         """One 1 ms step: commands in, the world stepped, states out; the truth published.
         In lockstep, in turns with the links: a link late for its turn halts the cell."""
         turns = self.turns
-        if turns is not None and not turns.before_step(tick):
-            return
+        if turns is not None:
+            turns.before_step(tick)
         self._push()
-        self._step()
+        self._step(self.server.robot_servers if turns is None else turns.sending)
         self._ticks += 1
         truth = self._truth
         for robot, span in zip(self.robots, self._spans, strict=True):
@@ -94,14 +94,14 @@ class FrankySim(Daemon):
         if turns is not None:
             turns.after_step(tick)
 
-    def _step(self) -> None:
+    def _step(self, sending: list[Any]) -> None:
         """franky-sim's ``run_once`` without its closing ``time.sleep(0)`` (a yield that cost
-        ~80 µs a step here): every robot's commands in, the world stepped, states out."""
-        servers = self.server.robot_servers
-        for rs in servers:
+        ~80 µs a step here): every robot's commands in, the world stepped, the states of
+        the robot servers ``sending`` out."""
+        for rs in self.server.robot_servers:
             rs.process_commands()
         self.sim.step()
-        for rs in servers:
+        for rs in sending:
             rs.send_state()
 
     def _push(self) -> None:

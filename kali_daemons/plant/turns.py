@@ -1,14 +1,15 @@
 """franky-sim's side of lockstep over libfranka's protocol (decision 0015): each FR3's link
 and the plant take turns on every state packet (the link's side: ``kali_daemons.link.turns``).
 
-While the cell starts, a thread serves franky-sim with the physics standing: connections, and
-a state whenever a link not yet connected asks for one.  Each tick: let every link go, wait
-until each is ready (it answered the last state, chose its next call) and what it announced
-(its answer, a request) is on franky-sim's sockets, then step and send; and once sent, wait
-until each link has taken its state.  A gripper command is waited for the same way, and its
-outcome once franky-sim answers it.  A wait that outlasts its share of the lockstep timeout
-halts with DEADLINE naming the link, a link that died with PROCESS_DIED.  franky-sim keeps
-its sockets private: they are read by name (franky-sim is pinned to 1.0).
+While the cell starts, a thread serves franky-sim with the physics standing: connections, and a
+state whenever a link not yet connected asks for one.  Each tick: let every link go, wait until
+each is ready (it answered the last state, chose its next call) and what it announced (its
+answer, a request) is on franky-sim's sockets, then step and send; and once sent, wait until
+each link has taken its state.  A gripper command is waited for the same way, and its outcome
+once franky-sim answers it.  A wait that outlasts its share of the lockstep timeout halts with
+DEADLINE naming the link, a link that died with PROCESS_DIED, and the tick goes on for the
+other links (they may be waiting in libfranka, whose receive gives up after 1 s).  franky-sim
+keeps its sockets private: they are read by name (franky-sim is pinned to 1.0).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from ..runtime.instance import Instance
 SERVE_S = 0.0005  # while the cell starts: franky-sim served this often
 SLICE_S = 0.05  # a wait looks at the link's process this often
 WAIT_SHARE = 0.5  # of the lockstep timeout, what one wait may take (the clock's watchdog: all)
+ARRIVE_S = 0.5  # what a called link announced is on franky-sim's socket within this (loopback)
 
 
 def _socket(server: Any, name: str) -> Any:
@@ -55,6 +57,8 @@ class PlantTurns:
         self._futex = futex.Waiter(SLICE_S)
         self._grip_seen = [int(a["grip_cmd"]) for a in self._arms]
         self._grip_busy = [False] * len(servers)
+        self._failed: set[int] = set()  # the arms whose link failed its turn this tick
+        self.sending: list[Any] = servers  # the robot servers sent a state this tick
         for server in servers:  # franky-sim 1.0's names, checked once
             _socket(server, "tcp"), _socket(server, "udp")
         self._stop = threading.Event()
@@ -86,55 +90,59 @@ class PlantTurns:
 
     # ------------------------------------------------------------------ each tick
 
-    def before_step(self, tick: int) -> bool:
+    def before_step(self, tick: int) -> None:
         """A new gripper command sent; each link let go (the tick before ran whole), ready
         (it answered the last state and chose its next call) and what it announced on
-        franky-sim's sockets; False if one did not come in time (the cell halted)."""
+        franky-sim's sockets.  A process late or dead halts the cell, its fault saying why,
+        and the tick goes on without it: the other links may be waiting in libfranka
+        already, and take their states (a late one takes its own when it comes)."""
         self._end_start()
+        self._failed.clear()
         for i, server in enumerate(self._servers):  # first: the links wait outside libfranka
-            if self._hands[i] and not self._grip_sent(i, server, tick):
-                return False
+            if self._hands[i]:
+                self._grip_sent(i, server, tick)
         live = [
             i for i, server in enumerate(self._servers) if server.udp_connected and not self._off(i)
         ]
+        for i in live:  # the tick before ran whole: choose
+            self._set(i, "ls_go", int(self._arms[i]["ls_sent"]) + 1)
         for i in live:
-            arm = self._arms[i]
-            arm["ls_go"] += 1
-            futex.wake(arm["ls_go"].ctypes.data)
+            state, link = int(self._arms[i]["ls_sent"]) + 1, self._links[i]
+            if not self._await(i, "ls_ready", state, link, "was not ready for", tick):
+                self._failed.add(i)
+        for i in live:  # every link ready: call (none enters libfranka while one is late)
+            if i not in self._failed:
+                self._set(i, "ls_call", int(self._arms[i]["ls_sent"]) + 1)
         for i in live:
-            server, arm, link = self._servers[i], self._arms[i], self._links[i]
-            ready = int(arm["ls_sent"]) + 1
-            if not self._await(i, "ls_ready", ready, link, "was not ready for", tick):
-                return False
-            expect = int(arm["ls_expect"])
+            server, expect = self._servers[i], int(self._arms[i]["ls_expect"])
             wanted = [_socket(server, "udp")] if expect & LS_UDP else []
             if expect & LS_TCP:
                 wanted.append(_socket(server, "tcp"))
-            if wanted and not self._arrive(wanted, link, "a command", tick):
-                return False
+            arrived = i in self._failed or not wanted
+            if not arrived and not self._arrive(wanted, self._links[i], "a command", tick):
+                self._failed.add(i)
         self._grip_busy = [
             s.gripper_server is not None and s.gripper_server._motion_state.value != "idle"
             for s in self._servers
         ]
+        self.sending = [  # a link not ready is sent nothing: it takes its turn up later
+            s for i, s in enumerate(self._servers) if i not in self._failed or self._off(i)
+        ]
         for server, arm in zip(self._servers, self._arms, strict=True):
-            if server.udp_connected:
+            if server in self.sending and server.udp_connected:
                 arm["ls_sent"] += 1  # before the send: the link may take it at once
-        return True
 
-    def after_step(self, tick: int) -> bool:
+    def after_step(self, tick: int) -> None:
         """Each link has taken the state just sent, each hand reported an outcome franky-sim
-        just answered; False if one did not in time (the cell halted)."""
+        just answered; one late or dead halts the cell, as in ``before_step``."""
         for i, (server, arm) in enumerate(zip(self._servers, self._arms, strict=True)):
-            if not server.udp_connected:
-                continue  # nobody to send to: the link is gone
+            if not server.udp_connected or i in self._failed:
+                continue  # nobody to send to, or late already: the fault says so
             sent, link = int(arm["ls_sent"]), self._links[i]
-            if not self._await(i, "ls_taken", sent, link, "did not take the state of", tick):
-                return False
+            self._await(i, "ls_taken", sent, link, "did not take the state of", tick)
             gripper = server.gripper_server
-            answered = self._grip_busy[i] and gripper._motion_state.value == "idle"
-            if answered and not self._await_grip(i, tick):
-                return False
-        return True
+            if self._grip_busy[i] and gripper._motion_state.value == "idle":
+                self._await_grip(i, tick)  # franky-sim answered the hand's command
 
     def _grip_sent(self, i: int, server: Any, tick: int) -> bool:
         """A gripper command asked for and not yet in franky-sim: once the hand is free of
@@ -165,6 +173,10 @@ class PlantTurns:
 
     # ------------------------------------------------------------------ waiting
 
+    def _set(self, i: int, field: str, value: int) -> None:
+        self._arms[i][field] = value
+        futex.wake(self._arms[i][field].ctypes.data)
+
     def _off(self, i: int) -> bool:
         return bool(int(self._arms[i]["ls_off"]))
 
@@ -179,7 +191,8 @@ class PlantTurns:
             if self._off(i) and who == self._links[i]:
                 return True
             if rt.monotonic_ns() > deadline:
-                return self._late(who, f"{doing} tick {tick}", tick)
+                limit = f"{self._timeout_s:g} s (half of clock.lockstep_ack_timeout_s)"
+                return self._late(who, f"{doing} tick {tick} within {limit}", tick)
             self._futex.wait(addr, now)
             pid = int(self._inst.procs[slot]["pid"])
             if pid > 0 and not pid_alive(pid):
@@ -187,8 +200,10 @@ class PlantTurns:
         return True
 
     def _arrive(self, sockets: list[Any], who: str, what: str, tick: int) -> bool:
-        """Wait until each of ``sockets`` has something to read (what ``who`` sent)."""
-        deadline = time.monotonic() + self._timeout_s
+        """Wait until each of ``sockets`` has something to read (what ``who`` sent, on
+        loopback, at once: ``ARRIVE_S`` is shorter than libfranka's receive, so the other
+        links still take their states)."""
+        deadline = time.monotonic() + ARRIVE_S
         while True:
             left = deadline - time.monotonic()
             readable, _, _ = select.select(sockets, [], [], max(0.0, min(left, SLICE_S)))
@@ -196,7 +211,8 @@ class PlantTurns:
             if not sockets:
                 return True
             if left <= 0:
-                return self._late(who, f"announced {what} for tick {tick}, none came", tick)
+                what = f"announced {what} for tick {tick}, none came within {ARRIVE_S:g} s"
+                return self._late(who, what, tick)
 
     def _died(self, who: str, pid: int, tick: int) -> bool:
         """Process ``who`` died: a link halts the cell (nobody else can: it is not clocked),
@@ -213,13 +229,7 @@ class PlantTurns:
         return False
 
     def _late(self, who: str, what: str, tick: int) -> bool:
-        self._inst.raise_fault(
-            FaultCode.DEADLINE,
-            who,
-            f"lockstep: {who} {what} within {self._timeout_s:g} s "
-            "(half of clock.lockstep_ack_timeout_s)",
-            tick=tick,
-        )
+        self._inst.raise_fault(FaultCode.DEADLINE, who, f"lockstep: {who} {what}", tick=tick)
         return False
 
     def close(self) -> None:

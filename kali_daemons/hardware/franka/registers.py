@@ -90,7 +90,8 @@ FRANKA_ARM = np.dtype(
         # lockstep (``kali_daemons.link.turns``): the plant and the link take turns on each
         # state; the 32-bit counts are futex words (a waiter sleeps until one changes)
         ("ls_sent", "<u4"),  # the plant: states sent to this arm
-        ("ls_go", "<u4"),  # the plant: bumped as a tick begins (the link's call may go)
+        ("ls_go", "<u4"),  # the plant: the state it sends next (a tick began: choose)
+        ("ls_call", "<u4"),  # the plant: the state it sends next (every link ready: call)
         ("ls_ready", "<u4"),  # the link: the number of the state its next call takes
         ("ls_taken", "<u4"),  # the link: the number of the state its last call took
         ("ls_expect", "u1"),  # the link: what it has sent or sends first (LS_UDP, LS_TCP)
