@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import futex
+from ..core import futex, rt
 from ..runtime.daemon import Daemon
 
 SLICE_S = 0.05  # a wait looks at the instance's shutdown this often
@@ -30,11 +30,14 @@ class LinkTurns:
         self._daemon, self._arm = daemon, arm
         self._header = daemon.inst.arena.header
         self._futex = futex.Waiter(SLICE_S)
+        self._heart = daemon.inst.procs["heartbeat_ns"][daemon.slot : daemon.slot + 1]
         self.n = int(arm["ls_taken"])  # the state the link's last call took
 
     def go(self) -> bool:
         """Wait until the plant begins the tick whose state the next call takes (it has
-        run the last one whole); False if the link is to end."""
+        run the last one whole); False if the link is to end.  The link's heartbeat says
+        when it last took a turn (``kalictl status``)."""
+        self._heart[0] = rt.monotonic_ns()
         return self._wait("ls_go")
 
     def call(self) -> bool:
