@@ -606,8 +606,13 @@ class ServoClient:
         return int(self.inst.fault["count"]) & 0xFFFFFFFF
 
     def power_state(self, robot: str | int) -> PowerState:
-        """The robot's amplifier power as SIO drives it."""
-        return PowerState(int(self.level.robots["power"][self.robot_index(robot)]))
+        """The robot's amplifier power as SIO drives it; OFF while the system is halted (the
+        halt cut the amplifiers at once, and SIO's record says so at its next tick, which a
+        clock the halt stopped may not give it)."""
+        k = self.robot_index(robot)
+        if int(self.inst.fault["active"]):
+            return PowerState.OFF
+        return PowerState(int(self.level.robots["power"][k]))
 
     # ------------------------------------------------------------------ feed-forward (3.3.6)
 
