@@ -125,9 +125,9 @@ class PlantTurns:
             s.gripper_server is not None and s.gripper_server._motion_state.value != "idle"
             for s in self._servers
         ]
-        self.sending = [  # a link not ready is sent nothing: it takes its turn up later
-            s for i, s in enumerate(self._servers) if i not in self._failed or self._off(i)
-        ]
+        self.sending = self._servers  # a link not ready is sent nothing: it takes its turn up
+        if self._failed:  # later (a list built only then)
+            self.sending = [s for i, s in enumerate(self._servers) if i not in self._failed]
         for server, arm in zip(self._servers, self._arms, strict=True):
             if server in self.sending and server.udp_connected:
                 arm["ls_sent"] += 1  # before the send: the link may take it at once
