@@ -188,13 +188,27 @@ def test_start_up_work_runs_before_a_daemon_goes_real_time(kali: Callable[..., s
 
 @pytest.mark.serial
 def test_no_realtime_daemon_waits_on_a_worker_thread_below_it(kali: Callable[..., str]) -> None:
-    """Every process of the servo path runs one thread.  numpy's OpenBLAS starts a worker
-    thread at import (one per further CPU), SCHED_OTHER on the daemon's CPU; a BLAS call it
-    shares waits on it while SCHED_FIFO work holds that CPU (priority inversion): a soak's
-    TG once took 34 ms of wall time for 1.2 ms of CPU in one tick and halted (DEADLINE)."""
+    """Every process of the servo path runs one thread, but for the wall clock's witnesses of
+    the other CPUs (decision 0004): each bound to one, at SCHED_FIFO 99, never waited on.
+    numpy's OpenBLAS starts a worker thread at import (one per further CPU), SCHED_OTHER on
+    the daemon's CPU; a BLAS call it shares waits on it while SCHED_FIFO work holds that CPU
+    (priority inversion): a soak's TG once took 34 ms of wall time for 1.2 ms of CPU in one
+    tick and halted (DEADLINE)."""
     name = kali(lockstep=False)
     with Instance.attach(name) as inst:
         for proc in ("wallclock", "plant", "tg", "sio", "sv.0", "sv.1", "dynamics"):
             pid = int(inst.procs[inst.slot_of(proc)]["pid"])
-            threads = os.listdir(f"/proc/{pid}/task")
-            assert threads == [str(pid)], f"{proc} (pid {pid}) runs threads {threads}"
+            threads = sorted(os.listdir(f"/proc/{pid}/task"), key=int)
+            others = threads[1:] if proc == "wallclock" else threads
+            assert threads[0] == str(pid), f"{proc} (pid {pid}) runs threads {threads}"
+            if proc == "wallclock":
+                cpus = {p.cpu for p in inst.config.processes if p.serious} - {
+                    inst.config.process("wallclock").cpu
+                }
+                assert len(others) == len(cpus), f"wallclock: threads {threads}, CPUs {cpus}"
+                for tid in others:
+                    assert os.sched_getscheduler(int(tid)) == os.SCHED_FIFO
+                    assert os.sched_getparam(int(tid)).sched_priority == 99
+                    assert len(os.sched_getaffinity(int(tid))) == 1
+            else:
+                assert threads == [str(pid)], f"{proc} (pid {pid}) runs threads {threads}"

@@ -298,6 +298,7 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
     c._lost_ns = c._wakes = 0
     c._sig_lost = [0] * layout.MAX_PROCESSES
     c._wake_ns, c._wake_lost = [0] * 144, [0] * 144  # as on_configure: 4 tolerances + 64
+    c._witnesses, c._witness_of = [], [None] * layout.MAX_PROCESSES  # no other CPU's
     return c
 
 

@@ -254,6 +254,33 @@ def test_a_wrench_the_hardware_gives_goes_through_the_same_conversion() -> None:
     assert "no new wrench from its hardware" in arm.message(WRENCH_SILENT)
 
 
+def test_a_board_that_did_not_scan_is_no_silence_of_its_sensor() -> None:
+    """A simulated board's sensor (``cycles``: its board's ``scans``): a tick with no new
+    sample is one more silent tick only if the board scanned since the tick before; while
+    it stands (the plant stopped, or its CPU taken by the machine: the clock's to judge)
+    the count stands; past ``stale_limit`` of its scans the sensor is silent."""
+    cfg = parse_config(
+        "version: 1\ninstance: x\nrobots:\n  - name: a\n    ft: {tool_mass_kg: 0.7}\n"
+    )
+    regs = np.zeros((), registers.IO_BOARD)
+    state = np.zeros((), layout.FT_STATE)
+    q = np.zeros(cfg.robots[0].n_joints)
+    scans = regs["scans"]
+    arm = ArmSensor(cfg, 0, regs, state, q, 0.001, cycles=scans)
+    arm.start()
+    for tick in range(1, 3 * arm.stale_limit):  # the board stands: no silence counted
+        assert arm.tick(tick) == WRENCH_OK
+    assert int(state["stale"]) == 0
+    for tick in range(3 * arm.stale_limit, 4 * arm.stale_limit):  # it scans: silent ones
+        scans[...] = scans + 1
+        assert arm.tick(tick) == WRENCH_OK
+    assert int(state["stale"]) == arm.stale_limit
+    assert arm.tick(4 * arm.stale_limit) == WRENCH_OK  # no scan since: not one more
+    scans[...] = scans + 1
+    assert arm.tick(4 * arm.stale_limit + 1) == WRENCH_SILENT
+    assert "no sensor on its board" in arm.message(WRENCH_SILENT)
+
+
 def test_the_sheet_s_error_grows_as_the_plant_s_offsets_drift() -> None:
     """``FtSheet.error_sd``'s drift term against the plant's gauge bank: 300 sensors walk for
     a simulated second at 1 kHz; the spread of their offsets' change, through the calibration,

@@ -212,7 +212,7 @@ BLOCKS: tuple[Block, ...] = (
         },
         ("n_arms", "int64_t"),
         (
-            "csr, estop, power, index, adc_control, adc_analog, adc_digital, clamped",
+            "csr, estop, power, index, adc_control, adc_analog, adc_digital, clamped, scans",
             "View",
             "registers",
         ),
@@ -393,6 +393,8 @@ BLOCKS: tuple[Block, ...] = (
         ("present, tare_cmd, tare_state", "uint8_t *"),
         ("tick, seq, stale_limit", "int64_t", "in: this tick; in/out: the sequence asked for"),
         ("given_seen", "uint64_t", "in/out: the hardware's count at the wrench last taken"),
+        ("cycles", "const uint32_t *", "the gauges' hardware's cycles, if it can stall, or NULL"),
+        ("cycles_seen", "uint64_t", "in/out: their count at the last tick"),
         (
             "ready, request, seq_mask, averaging, done",
             "int64_t",
@@ -645,6 +647,19 @@ BLOCKS: tuple[Block, ...] = (
         ("cycled", "int64_t", "between calls: its cycle has run, not yet accounted"),
         ("tick, woke, since", "int64_t", "out: the tick signalled, when taken, when meant to wake"),
     ),
+    block(
+        "WitnessArgs",
+        "witness",
+        {"kali_witness_start": "", "kali_witness_stop": ""},
+        ("cpu, priority", "int64_t", "the CPU witnessed; its thread's SCHED_FIFO priority"),
+        ("period_ns, stall_ns", "int64_t", "its wake-ups; one later than stall_ns was lost"),
+        ("ring_ns, ring_lost", "int64_t *", "per wake-up: when, and lost after it"),
+        ("ring", "int64_t", "the ring's length"),
+        "the thread's, read by the clock while seq is even",
+        ("seq, due, lost, wakes", "int64_t", "due: the deadline it sleeps to"),
+        "start and stop's",
+        ("stop, running, thread", "int64_t"),
+    ),
 )
 
 # the records the kernels step in place: their C struct, kali_fields number and dtype (name
@@ -722,7 +737,9 @@ KERNELS: dict[str, type[ctypes.Structure]] = {k: STRUCTS[b.name] for b in BLOCKS
 # the libraries (csrc/<name>.c) and the owners whose kernels each holds: the simulator's are
 # its own, so that no controller process loads them; the core's are in both
 LIBRARIES: dict[str, tuple[str, ...]] = {
-    "controller": ("core", "chain", "sio", "franka", "servo", "fifo", "clock", "flightrec"),
+    "controller": (
+        "core", "chain", "sio", "franka", "servo", "fifo", "clock", "witness", "flightrec",
+    ),
     "simulator": ("core", "plant"),
 }
 

@@ -171,6 +171,12 @@ class Hardware(Protocol):
         registers, which SIO's cycle then reads (0-d record: ``ft_gauge``, ``ft_control``,
         ``ft_status``; ``ftsensor``)."""
 
+    def gauge_cycles(self, k: int) -> np.ndarray | None:
+        """Outside the cycle (once, at configure): where the hardware behind arm ``k``'s gauges
+        can stall while SIO runs (a simulated board: its plant's CPU taken by the machine, or
+        the plant stopped), the count of the cycles it ran (0-d uint32), so that a tick it
+        did not run is not counted as the sensor's silence; None where every tick is one."""
+
     def wrench(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Outside the cycle (once, at configure), for a kind whose arms have no gauges
         (``HardwareKind.wrist``): arm ``k``'s wrist wrench as its hardware gives it, at the

@@ -117,6 +117,7 @@ class IoBoardSim:
     def update(self, now_ns: int) -> None:
         """Apply the command/status register and e-stop at plant time ``now_ns``."""
         r, s = self.regs, self.state
+        r["scans"] += 1
         csr = int(r["csr"])
         prev = int(s[PREV_CSR])
         s[PREV_CSR] = csr
@@ -227,7 +228,7 @@ def boards_kernel(
         (regs, truth, *arrays.values()),
         n_arms=len(boards),
         **{f: regs[f] for f in ("csr", "estop", "power", "index", "adc_control")},
-        **{f: regs[f] for f in ("adc_analog", "adc_digital", "clamped")},
+        **{f: regs[f] for f in ("adc_analog", "adc_digital", "clamped", "scans")},
         **{f: truth[f] for f in ("amps_on", "brakes_engaged", "watchdog_tripped")},
         truth_estop=truth["estop"],
         **{name: a.ctypes.data for name, a in arrays.items()},

@@ -1,4 +1,6 @@
-"""The machine's stalls of the wall clock's CPU, told from a broken clock (real time only).
+"""The machine's stalls, told from a broken process (real time only): of the wall clock's CPU
+(``ClockWitness``, for those who judge by its ticks) and of another CPU (``CpuWitness``, for
+the clock judging a process bound there).
 
 On a machine without a real-time kernel, and in a VM above all, the host sometimes stops one
 CPU for tens of milliseconds (DESIGN 10).  The clock counts such time against no process when
@@ -17,6 +19,7 @@ import os
 
 import numpy as np
 
+from ..core.kernels import Kernel
 from ..core.layout import RunMode
 from .instance import Instance
 
@@ -29,6 +32,11 @@ LONGEST_HELD_NS = 100_000_000
 RAN_NS = 1_000_000
 STAT_BYTES = 512  # /proc/<pid>/stat: "pid (comm) state ...", the state well inside
 STOPPED_STATES = frozenset(b"TtZX")  # stopped, traced, zombie, dead
+# a CPU's witness: above every Kali process on it (the clock's 90 the highest), as
+# cyclictest's stall detector is in the benchmarks; a wake-up costs its CPU ~20 µs here (a
+# VM's timer), so it wakes every 2 ms, and a stall is counted to within that
+WITNESS_PRIORITY = 99
+WITNESS_PERIOD_NS = 2_000_000
 
 
 class TaskClock:
@@ -126,3 +134,78 @@ class ClockWitness:
             return None
         self._heart = self._inst.procs["heartbeat_ns"][i : i + 1]
         return self._heart
+
+
+class CpuWitness:
+    """The time the machine did not run one CPU, as a thread bound to it above every process
+    there sees it (``csrc/witness.c``): each wake-up of it, every ``WITNESS_PERIOD_NS``, more
+    than ``stall_ns`` late was such time, and so is its wake-up that late now.  The wall
+    clock starts one for each other CPU a serious process is bound to, and judges a process
+    there only on the time the machine gave its CPU (``lost_since``;
+    docs/decisions/0004-clock-stall-rule.md).  The clock's process holds it; ``start`` and
+    ``close`` outside the cycle."""
+
+    def __init__(self, cpu: int, stall_ns: int, ring: int) -> None:
+        self.cpu = cpu
+        self._stall_ns = stall_ns
+        self._ring_ns = np.zeros(ring, dtype=np.int64)
+        self._ring_lost = np.zeros(ring, dtype=np.int64)
+        self._kernel = Kernel(
+            "kali_witness_start",
+            (self._ring_ns, self._ring_lost),
+            cpu=cpu,
+            priority=WITNESS_PRIORITY,
+            period_ns=WITNESS_PERIOD_NS,
+            stall_ns=stall_ns,
+            ring_ns=self._ring_ns.ctypes.data,
+            ring_lost=self._ring_lost.ctypes.data,
+            ring=ring,
+        )
+        self._stop = self._kernel.sibling("kali_witness_stop")
+        self._args = self._kernel.args
+
+    def start(self) -> int:
+        """Start its thread: 0, or the error refusing it (EPERM without the privilege of
+        SCHED_FIFO, and then the CPU has no witness)."""
+        return self._kernel()
+
+    def close(self) -> None:
+        """End its thread (within a period)."""
+        self._stop()
+
+    def lost_since(self, t_ns: int, now_ns: int) -> int:
+        """The time the machine did not run the CPU since ``t_ns`` (monotonic), at
+        ``now_ns``: the stalls its wake-ups since saw, and the one it is in if its wake-up
+        is over ``stall_ns`` late now; as far back as its ring reaches, as the clock's own
+        (``WallClock._lost_since``).  0 if its thread is not running."""
+        a = self._args
+        if not a.running:
+            return 0
+        for _ in range(4):  # the thread's wake-up takes well under a microsecond
+            seq = a.seq
+            if seq & 1:
+                continue
+            due, lost, wakes = int(a.due), int(a.lost), int(a.wakes)
+            before = self._lost_at(t_ns, wakes, lost)
+            if a.seq == seq:
+                break
+        else:
+            return 0
+        late = now_ns - due
+        return lost - before + (late if late > self._stall_ns else 0)
+
+    def _lost_at(self, t_ns: int, wakes: int, lost: int) -> int:
+        """The sum lost after the last wake-up at or before ``t_ns`` (the oldest the ring
+        holds if none)."""
+        ring = len(self._ring_ns)
+        n = min(wakes, ring)
+        if n == 0:
+            return lost
+        at_ns, at_lost = self._ring_ns, self._ring_lost
+        j = wakes - 1
+        for _ in range(n):
+            k = j % ring
+            if at_ns[k] <= t_ns:
+                return int(at_lost[k])
+            j -= 1
+        return int(at_lost[(wakes - n) % ring])

@@ -241,6 +241,7 @@ class SioCycle:
                 self.q[lv.map.span(k)],
                 period_s,
                 None if gauged else self.hw.wrench(k),
+                self.hw.gauge_cycles(k) if gauged else None,
             )
             for k in sensors_of(cfg)
             for gauged in [cfg.robots[k].ft.sheet.source == "gauges"]  # type: ignore[union-attr]

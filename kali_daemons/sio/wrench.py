@@ -42,7 +42,9 @@ class ArmSensor:
     """One arm's sensor as SIO reads it: its board registers (``regs``, a gauge sensor's) or
     the wrench its hardware gives at the flange with that wrench's count (``given``, an arm
     with no gauges: ``ftsensor.JOINT_TORQUES``), its FT_STATE record, its chain, and the arrays
-    of the conversion, all bound at configure."""
+    of the conversion, all bound at configure.  ``cycles`` (0-d uint32), where the hardware
+    behind the gauges can stall while SIO runs (a simulated board), counts the cycles it ran:
+    a tick it did not run is no silence of the sensor (``Hardware.gauge_cycles``)."""
 
     def __init__(
         self,
@@ -53,6 +55,7 @@ class ArmSensor:
         q: np.ndarray,
         servo_period_s: float,
         given: tuple[np.ndarray, np.ndarray] | None = None,
+        cycles: np.ndarray | None = None,
     ) -> None:
         robot = cfg.robots[k]
         ft = robot.ft
@@ -104,7 +107,7 @@ class ArmSensor:
         assert q.flags.c_contiguous and q.dtype == np.float64 and q.shape == (c.n,), q
         self._tick = Kernel(
             "kali_wrench_tick",
-            (c, q, self.calibration, self.base, self.g_world, self.com, self.rated),
+            (c, q, self.calibration, self.base, self.g_world, self.com, self.rated, cycles),
             n=c.n,
             origins=c.origins.ctypes.data,
             axes=c.axes.ctypes.data,
@@ -113,6 +116,8 @@ class ArmSensor:
             given=0 if self.given is None else self.given.ctypes.data,
             given_seq=0 if self._given_seq is None else self._given_seq.ctypes.data,
             given_seen=0 if self._given_seq is None else int(self._given_seq),
+            cycles=_address(cycles),
+            cycles_seen=0 if cycles is None else int(cycles),
             cal=self.calibration.ctypes.data,
             base=self.base.ctypes.data,
             g=self.g_world.ctypes.data,

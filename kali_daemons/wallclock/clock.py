@@ -28,6 +28,7 @@ from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
 from ..runtime.daemon import Daemon, _CycleStats, drain
 from ..runtime.flightrec import FlightDumper
 from ..runtime.instance import decode
+from ..runtime.stalls import CpuWitness
 
 STOPPED_WAIT_S = 0.2
 MAX_CLOCK_ARG = 1e12  # ticks to step, or ms to set the time to: ~30 years at 1 ms
@@ -96,11 +97,33 @@ class WallClock(Daemon):
         ring = 4 * (self.tolerance_ns // self.base_ns) + 64
         self._wake_ns, self._wake_lost = [0] * ring, [0] * ring
         self._wakes = 0
+        # and the time the machine gave each other CPU a serious process is bound to: a
+        # witness of it, started with the clock's loop (real time only)
+        own = self.inst.config.process("wallclock").cpu
+        cpus = {q.cpu for q in procs if q.serious and q.cpu is not None and q.cpu != own}
+        self._witnesses = [] if self.lockstep else [CpuWitness(c, STALL_NS, ring) for c in cpus]
+        self._witness_of: list[CpuWitness | None] = [None] * layout.MAX_PROCESSES
 
     def on_activate(self) -> None:
-        """Publish the clock as ready (kalictl start waits for it)."""
+        """Start the witnesses of the other CPUs; publish the clock as ready (kalictl start
+        waits for it)."""
+        for w in list(self._witnesses):
+            err = w.start()
+            if err:
+                self._witnesses.remove(w)
+                self.log.warning(
+                    "wallclock: no witness of CPU %d (%s): a stall of that CPU counts against "
+                    "the processes bound to it",
+                    w.cpu,
+                    os.strerror(err),
+                )
         self.inst.clock["pid"] = os.getpid()
         self.inst.clock["ready"] = 1
+
+    def on_shutdown(self) -> None:
+        """End the witnesses' threads."""
+        for w in self._witnesses:
+            w.close()
 
     def cycle(self, tick: int) -> None:  # pragma: no cover - the clock overrides the loop
         raise AssertionError("the wall clock drives itself")
@@ -118,7 +141,7 @@ class WallClock(Daemon):
         self._heart = p["heartbeat_ns"]
         self._periodic, self._state, self._stage = p["periodic"], p["state"], p["stage"]
         self._serious_of, self._pid, self._names = p["serious"], p["pid"], p["name"]
-        self._period_of = p["period_ticks"]
+        self._period_of, self._cpu_of = p["period_ticks"], p["cpu"]
 
     def _rescan(self) -> None:
         """Take up what changed in the process table; at the top of the loop, so after a
@@ -155,6 +178,9 @@ class WallClock(Daemon):
         self._member = member.tolist()
         self._members = live[member].tolist()
         self._period = [1] * len(live)
+        by_cpu = {w.cpu: w for w in self._witnesses}
+        for i in range(layout.MAX_PROCESSES):
+            self._witness_of[i] = by_cpu.get(int(self._cpu_of[i]))
         watched = ~periodic & active & (self._pid > 0)
         watched[self.slot] = False
         self._watched = np.flatnonzero(watched).tolist()
@@ -331,7 +357,8 @@ class WallClock(Daemon):
         wake-up of it over ``STALL_NS`` late is time the machine did not run it, nor, as far
         as anyone can tell, the process.  So: the ticks since its signal (an overrun's
         skipped ones included) less the clock's stalls since (to within the current
-        wake-up's fraction of a tick); with the clock's wake-ups within ``STALL_NS``, and in
+        wake-up's fraction of a tick), or, if more, those of the process's own CPU since (its
+        witness's, ``_excused``); with the clock's wake-ups within ``STALL_NS``, and in
         lockstep, its consecutive misses times its period.  A process hung for good still
         halts, later by those stalls alone (docs/decisions/0004-clock-stall-rule.md)."""
         self._misses[i] += 1
@@ -347,9 +374,13 @@ class WallClock(Daemon):
         e["slot"] = i
         e["consecutive"] = n
         self._log_count[0] = count + 1
-        lost_ns = self._lost_ns - self._sig_lost[i]
+        lost_ns, held = self._lost_ns - self._sig_lost[i], -1
         overdue_ns = (tick - int(self._sig[i])) * self.base_ns - lost_ns
         if self._serious[k] and overdue_ns > self.tolerance_ns:
+            lost_ns, held = self._excused(i, lost_ns, int(self._rel[i]))
+            overdue_ns = (tick - int(self._sig[i])) * self.base_ns - lost_ns
+            if overdue_ns <= self.tolerance_ns:
+                return False
             if self._died(i, tick, True):
                 return True
             name = decode(self.inst.procs[i]["name"])
@@ -359,7 +390,7 @@ class WallClock(Daemon):
                 name,
                 f"serious process '{name}'{self._doing(name)} missed {n} consecutive deadlines "
                 f"at period {period_ms:g} ms ({overdue_ns / 1e6:.1f} ms unacknowledged, tolerance "
-                f"{self.tolerance_ns / 1e6:g} ms{self._not_counted(lost_ns)}); last "
+                f"{self.tolerance_ns / 1e6:g} ms{self._not_counted(lost_ns, held)}); last "
                 f"acknowledged tick {int(self._ack[i])}, signalled tick {int(self._sig[i])}",
                 tick=tick,
             )
@@ -375,9 +406,9 @@ class WallClock(Daemon):
         delay SIO, which runs below the clock on its CPU only once the clock sleeps); a live
         but stalled one is looked up again only a watch interval later.
 
-        Stalled counts the time since its heartbeat less the clock's stalls meanwhile, as
-        ``_missed`` does: when the whole machine stops, the clock stops or lags too, so a
-        self-timed process must not halt the system for that time
+        Stalled counts the time since its heartbeat less the clock's stalls meanwhile, or
+        its own CPU's, as ``_missed`` does: when the whole machine stops, the clock stops or
+        lags too, so a self-timed process must not halt the system for that time
         (docs/decisions/0004-clock-stall-rule.md)."""
         heart = self._heart
         for k, i in enumerate(self._watched):
@@ -392,6 +423,9 @@ class WallClock(Daemon):
             lost = self._lost_since(int(heart[i]))
             if age - lost <= self.tolerance_ns:
                 continue
+            lost, held = self._excused(i, lost, int(heart[i]), now_ns)
+            if age - lost <= self.tolerance_ns:
+                continue
             p = self.inst.procs[i]
             name = decode(p["name"])
             self.inst.raise_fault(
@@ -401,7 +435,7 @@ class WallClock(Daemon):
                 f"self-timed every {int(p['period_ticks']) * self.base_ns / 1e6:g} ms) has not "
                 "run for "
                 f"{(age - lost) / 1e6:.1f} ms (tolerance {self.tolerance_ns / 1e6:g} ms"
-                f"{self._not_counted(lost)}): alive but stalled",
+                f"{self._not_counted(lost, held)}): alive but stalled",
                 tick=tick,
             )
             self.inst.clock["mode"] = RunMode.STOPPED
@@ -413,11 +447,24 @@ class WallClock(Daemon):
         doing = self.inst.doing(name)
         return f" ({doing})" if doing else ""
 
-    def _not_counted(self, lost_ns: int) -> str:
-        """A fault message's note of the clock's stalls left out of a process's time."""
+    def _excused(self, i: int, clock_ns: int, since_ns: int, now_ns: int = 0) -> tuple[int, int]:
+        """The time slot ``i``'s process is not judged on since ``since_ns``: the clock's
+        stalls since (``clock_ns``) or its own CPU's, if that has a witness and lost more
+        (``CpuWitness.lost_since``), and that CPU then, else -1.  Outside the common path:
+        for a serious process late beyond the tolerance by the clock's stalls alone."""
+        witness = self._witness_of[i]
+        if witness is None:
+            return clock_ns, -1
+        cpu_ns = witness.lost_since(since_ns, now_ns or rt.monotonic_ns())
+        return (cpu_ns, witness.cpu) if cpu_ns > clock_ns else (clock_ns, -1)
+
+    def _not_counted(self, lost_ns: int, cpu: int = -1) -> str:
+        """A fault message's note of the machine's stalls left out of a process's time: the
+        clock's, or those of CPU ``cpu``."""
         if lost_ns < self.base_ns:
             return ""
-        return f"; {lost_ns / 1e6:.1f} ms more while the clock itself ran late, not counted"
+        who = "the clock itself ran late" if cpu < 0 else f"the machine did not run CPU {cpu}"
+        return f"; {lost_ns / 1e6:.1f} ms more while {who}, not counted"
 
     def _count_lost(self, woke: int, late: int) -> None:
         """Account a real-time wake-up at ``woke``, ``late`` ns after its deadline (a stall

@@ -228,6 +228,16 @@ def test_fault(cell: Cell, fault: Fault) -> None:
     MATRIX.append(row)
     if not cell.running:
         cell.start()
+    try:
+        _row(cell, fault, row)
+    except BaseException:
+        if cell.running:  # a row that failed leaves its halt behind: the next starts afresh
+            cell.stop()
+        raise
+
+
+def _row(cell: Cell, fault: Fault, row: dict[str, object]) -> None:
+    """One row on the running cell: inject, judge, and restart the cell."""
     stopped: int | None = None
     with Instance.attach(cell.name) as inst:
         mover = start_mover(cell.name)

@@ -1,7 +1,7 @@
 """The machine's stalls against a broken process (issue 58, DESIGN 10 item 6), in real time
 (timing is the point): a cell holding both arms at rest rides out 30 ms in which the machine
-ran none of it, or ran nothing on SIO's CPU (the host's stall of one vCPU, played here by a
-SCHED_FIFO 99 spinner bound to it), with no fault and the arms where they were; SIO stopped
+ran none of it, or ran nothing on one of its CPUs (the host's stall of one vCPU, played here
+by a SCHED_FIFO 99 spinner bound to it), with no fault and the arms where they were; SIO stopped
 alone as long still halts, the boards' watchdogs cutting the amplifiers.
 """
 
@@ -23,7 +23,8 @@ from kali_daemons.core import layout
 from kali_daemons.core.layout import ProcState
 from kali_daemons.hardware.mcgill.registers import POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED
 from kali_daemons.runtime.instance import Instance
-from kali_daemons.runtime.stalls import ClockWitness, TaskClock
+from kali_daemons.runtime.stalls import ClockWitness, CpuWitness, TaskClock
+from kali_daemons.wallclock.clock import STALL_NS
 
 from ..conftest import boards_of, wait_for
 from ..test_wallclock import on_time
@@ -43,6 +44,7 @@ os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(99))
 end = time.monotonic() + float(sys.argv[2])
 while time.monotonic() < end:
     pass
+os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # not its exit too
 """
 
 
@@ -104,6 +106,25 @@ def test_stalls_of_sios_cpu_are_ridden_out(kali: Callable[..., str]) -> None:
         assert np.abs(counts() - before).max() <= 1.0, counts() - before
 
 
+def test_stalls_of_the_plants_cpu_are_ridden_out(kali: Callable[..., str]) -> None:
+    """The machine runs nothing on the plant's CPU (the plant's, the TG's, sv.1's) for 30 ms,
+    then for 100 ms a second later (the longest such stall a soak met), while the clock and
+    SIO run on the other: no fault (before: the clock counted the time against the plant
+    and halted with DEADLINE), the arms within an encoder count of where they were."""
+    with holding(kali) as (inst, counts):
+        cpu = inst.config.process("plant").cpu
+        assert cpu is not None and cpu != inst.config.process("wallclock").cpu
+        before = counts()
+        slot = inst.slot_of("plant")
+        for stall_s in (STALL_S, 0.1):
+            beat = int(inst.procs[slot]["heartbeat_ns"])
+            subprocess.run([sys.executable, "-c", SPINNER, str(cpu), str(stall_s)], check=True)
+            time.sleep(1.0)
+            assert int(inst.procs[slot]["heartbeat_ns"]) > beat
+            assert inst.fault_text() is None
+        assert np.abs(counts() - before).max() <= 1.0, counts() - before
+
+
 def test_sio_stopped_alone_as_long_still_halts_by_the_watchdog(kali: Callable[..., str]) -> None:
     """SIO alone stopped for the same 30 ms: the watchdogs trip (nobody retriggers them while
     the machine runs) and the system halts naming SIO."""
@@ -146,6 +167,38 @@ def test_a_task_clock_tells_running_asleep_stopped_and_dead() -> None:
         for p in (sleeper, spinner):
             p.kill()
             p.wait()
+
+
+def test_a_cpu_witness_counts_a_stall_of_its_cpu_not_a_process_busy_there() -> None:
+    """``CpuWitness``: a SCHED_FIFO 99 spinner on its CPU for 50 ms (the machine's stall of
+    that CPU, as everything bound there sees it) is time lost, seen while it lasts and
+    counted whole after; a spinner below the witness as long (a serious process gone wrong,
+    SCHED_FIFO 84) is none, but for the host's own stalls meanwhile (one took 7 ms here)."""
+    mine = os.sched_getaffinity(0)
+    cpu = max(mine)
+    witness = CpuWitness(cpu, STALL_NS, 256)
+    assert witness.start() == 0
+    os.sched_setaffinity(0, {c for c in mine if c != cpu} or mine)  # look from beside
+    try:
+        for priority, lost_ms in ((99, 50), (84, 0)):
+            spinner = SPINNER.replace("sched_param(99)", f"sched_param({priority})")
+            time.sleep(0.05)
+            t0 = time.monotonic_ns()
+            spin = subprocess.Popen([sys.executable, "-c", spinner, str(cpu), "0.05"])
+            seen = 0
+            while spin.poll() is None:
+                seen = max(seen, witness.lost_since(t0, time.monotonic_ns()))
+                time.sleep(0.002)
+            time.sleep(0.01)
+            lost = witness.lost_since(t0, time.monotonic_ns())
+            if lost_ms:
+                assert seen > 20_000_000, f"the stall was not seen while it lasted: {seen} ns"
+                assert 45_000_000 <= lost <= 80_000_000, lost  # and the host's own stalls
+            else:
+                assert lost < 20_000_000, lost
+    finally:
+        os.sched_setaffinity(0, mine)
+        witness.close()
 
 
 def test_the_witness_sees_a_clock_held_not_one_stopped(kali: Callable[..., str]) -> None:

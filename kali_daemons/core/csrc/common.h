@@ -12,7 +12,7 @@
  * reference numpy implementation's, operation for operation, built with -ffp-contract=off
  * so no multiply-add is fused: the results are bit for bit numpy's. */
 
-#define _POSIX_C_SOURCE 200809L /* clock_gettime */
+#define _GNU_SOURCE /* clock_gettime; a thread bound to a CPU (witness.c) */
 
 #include <errno.h>
 #include <math.h>

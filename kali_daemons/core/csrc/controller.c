@@ -6,6 +6,7 @@
 #include "core.c"
 #include "chain.c"
 #include "clock.c"
+#include "witness.c"
 #include "flightrec.c"
 #include "fifo.c"
 #include "sio.c"

@@ -266,7 +266,7 @@ typedef struct {
 /* BoardArgs (plant): kali_boards_update, kali_boards_convert, kali_boards_truth */
 typedef struct {
     int64_t n_arms;
-    View csr, estop, power, index, adc_control, adc_analog, adc_digital, clamped; /* registers */
+    View csr, estop, power, index, adc_control, adc_analog, adc_digital, clamped, scans; /* registers */
     View amps_on, brakes_engaged, watchdog_tripped, truth_estop; /* truth */
     int64_t *state; /* n_arms x B_STATE */
     const int64_t *base, *count; /* arm k's joints: flat base[k] .. base[k] + count[k] */
@@ -431,6 +431,8 @@ typedef struct {
     uint8_t *present, *tare_cmd, *tare_state;
     int64_t tick, seq, stale_limit; /* in: this tick; in/out: the sequence asked for */
     uint64_t given_seen; /* in/out: the hardware's count at the wrench last taken */
+    const uint32_t *cycles; /* the gauges' hardware's cycles, if it can stall, or NULL */
+    uint64_t cycles_seen; /* in/out: their count at the last tick */
     int64_t ready, request, seq_mask, averaging, done; /* ftsensor's bits, TareState's values */
 } WrenchArgs;
 
@@ -654,6 +656,18 @@ typedef struct {
     int64_t cycled; /* between calls: its cycle has run, not yet accounted */
     int64_t tick, woke, since; /* out: the tick signalled, when taken, when meant to wake */
 } WaitArgs;
+
+/* WitnessArgs (witness): kali_witness_start, kali_witness_stop */
+typedef struct {
+    int64_t cpu, priority; /* the CPU witnessed; its thread's SCHED_FIFO priority */
+    int64_t period_ns, stall_ns; /* its wake-ups; one later than stall_ns was lost */
+    int64_t *ring_ns, *ring_lost; /* per wake-up: when, and lost after it */
+    int64_t ring; /* the ring's length */
+    /* the thread's, read by the clock while seq is even */
+    int64_t seq, due, lost, wakes; /* due: the deadline it sleeps to */
+    /* start and stop's */
+    int64_t stop, running, thread;
+} WitnessArgs;
 
 /* ---------------------------------------------------------------- the layouts */
 
@@ -1002,6 +1016,7 @@ static const Field BoardArgs_LAYOUT[] = {
     LAYOUT(BoardArgs, adc_analog),
     LAYOUT(BoardArgs, adc_digital),
     LAYOUT(BoardArgs, clamped),
+    LAYOUT(BoardArgs, scans),
     LAYOUT(BoardArgs, amps_on),
     LAYOUT(BoardArgs, brakes_engaged),
     LAYOUT(BoardArgs, watchdog_tripped),
@@ -1265,6 +1280,8 @@ static const Field WrenchArgs_LAYOUT[] = {
     LAYOUT(WrenchArgs, seq),
     LAYOUT(WrenchArgs, stale_limit),
     LAYOUT(WrenchArgs, given_seen),
+    LAYOUT(WrenchArgs, cycles),
+    LAYOUT(WrenchArgs, cycles_seen),
     LAYOUT(WrenchArgs, ready),
     LAYOUT(WrenchArgs, request),
     LAYOUT(WrenchArgs, seq_mask),
@@ -1589,6 +1606,24 @@ static const Field WaitArgs_LAYOUT[] = {
     END(WaitArgs),
 };
 
+static const Field WitnessArgs_LAYOUT[] = {
+    LAYOUT(WitnessArgs, cpu),
+    LAYOUT(WitnessArgs, priority),
+    LAYOUT(WitnessArgs, period_ns),
+    LAYOUT(WitnessArgs, stall_ns),
+    LAYOUT(WitnessArgs, ring_ns),
+    LAYOUT(WitnessArgs, ring_lost),
+    LAYOUT(WitnessArgs, ring),
+    LAYOUT(WitnessArgs, seq),
+    LAYOUT(WitnessArgs, due),
+    LAYOUT(WitnessArgs, lost),
+    LAYOUT(WitnessArgs, wakes),
+    LAYOUT(WitnessArgs, stop),
+    LAYOUT(WitnessArgs, running),
+    LAYOUT(WitnessArgs, thread),
+    END(WitnessArgs),
+};
+
 /* Record k's fields (RECORDS' order); NULL for another. */
 const Field *kali_fields(int64_t record) {
     switch (record) {
@@ -1638,6 +1673,7 @@ const Field *kali_layout(const char *name) {
     if (!strcmp(name, "SioArgs")) return SioArgs_LAYOUT;
     if (!strcmp(name, "ServeArgs")) return ServeArgs_LAYOUT;
     if (!strcmp(name, "WaitArgs")) return WaitArgs_LAYOUT;
+    if (!strcmp(name, "WitnessArgs")) return WitnessArgs_LAYOUT;
     return NULL;
 }
 

@@ -101,6 +101,7 @@ int64_t kali_boards_update(BoardArgs *a) {
     int64_t now = a->now_ns, changed = 0;
     for (int64_t k = 0; k < a->n_arms; k++) {
         int64_t *s = a->state + k * B_STATE;
+        AT(uint32_t, a->scans, k) += 1u;
         int64_t csr = AT(uint8_t, a->csr, k), prev = s[B_PREV_CSR];
         s[B_PREV_CSR] = csr;
         int64_t estop = AT(uint8_t, a->estop, k) != 0;

@@ -330,20 +330,33 @@ int64_t kali_wrench_convert(WrenchArgs *a) {
     return WRENCH_OK;
 }
 
+/* A tick with no new sample: one more silent tick, if the hardware behind the gauges ran
+ * since the last tick (cycles: a simulated board, whose plant may stall while SIO runs; a
+ * plant that does not run is the wall clock's to judge, not a silent sensor). */
+static int64_t wrench_silent(WrenchArgs *a) {
+    if (a->cycles) {
+        uint64_t cycles = LOAD(*a->cycles);
+        if (cycles == a->cycles_seen) return WRENCH_OK;
+        a->cycles_seen = cycles;
+    }
+    return ++*a->stale > (uint32_t)a->stale_limit ? WRENCH_SILENT : WRENCH_OK;
+}
+
 /* One servo tick of one arm's sensor: a sample the board has answered for is converted
  * (kali_wrench_convert) and the next asked for at once; a tare command starts a tare; a sensor
- * that has not answered for more than stale_limit ticks is WRENCH_SILENT. */
+ * that has not answered for more than stale_limit ticks (of its hardware's running) is
+ * WRENCH_SILENT. */
 int64_t kali_wrench_tick(WrenchArgs *a) {
     if (a->given) { /* a new wrench from the hardware: its count moved */
         uint64_t count = *a->given_seq;
-        if (count == a->given_seen)
-            return ++*a->stale > (uint32_t)a->stale_limit ? WRENCH_SILENT : WRENCH_OK;
+        if (count == a->given_seen) return wrench_silent(a);
         a->given_seen = count;
     } else {
         uint16_t status = *a->status;
         if (!(status & a->ready) || (int64_t)(status & a->seq_mask) != a->seq)
-            return ++*a->stale > (uint32_t)a->stale_limit ? WRENCH_SILENT : WRENCH_OK;
+            return wrench_silent(a);
     }
+    if (a->cycles) a->cycles_seen = LOAD(*a->cycles);
     *a->stale = 0;
     *a->present = 1;
     if (*a->tare_cmd) { /* a tare sums the samples from this one on */

@@ -304,6 +304,9 @@ class FrankaArms:
     def gauges(self, k: int) -> np.ndarray:
         raise HardwareError("franka: an FR3 has no gauge ADC (no wrist sensor is wired to it)")
 
+    def gauge_cycles(self, k: int) -> np.ndarray | None:
+        raise HardwareError("franka: an FR3 has no gauge ADC (no wrist sensor is wired to it)")
+
     def wrench(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Arm ``k``'s wrist wrench as its link publishes it with each state (``wrench``, at
         the flange in flange axes), counted by the state's ``seq``."""

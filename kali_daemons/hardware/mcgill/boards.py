@@ -337,6 +337,11 @@ class McGillBoards:
         ``ft_status``; ``ftsensor``), on its board."""
         return self._boards[k : k + 1].reshape(())
 
+    def gauge_cycles(self, k: int) -> np.ndarray | None:
+        """Arm ``k``'s board's scans (``scans``): the board is simulated, and one the plant
+        does not run answers no request (the clock judges the plant for that)."""
+        return self._boards["scans"][k : k + 1].reshape(())
+
     def wrench(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         raise HardwareError("mcgill: a board gives no wrench of its own (a sensor's gauges do)")
 

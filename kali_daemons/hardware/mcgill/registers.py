@@ -75,6 +75,7 @@ IO_BOARD = np.dtype(
         ("conveyor", "u1"),  # Kali: 1 = run the conveyor belt's motor (the first arm's board)
         ("_pad", "u1"),
         ("clamped", "<u4"),  # plant: out-of-range register values clamped, as hardware does
+        ("scans", "<u4"),  # plant: the board's scans of its registers, one a plant cycle
         # the wrist F/T sensor's gauge ADC bank (ftsensor.py): one simultaneous sample of its
         # six bridges per request, signed 16-bit codes over ±10 V
         ("ft_gauge", "<i2", (WRENCH,)),  # plant: the codes of the sample ft_status names
