@@ -19,7 +19,8 @@ static void *witness_main(void *p) {
         while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &until, NULL) == EINTR)
             ;
         int64_t t = now_ns(), late = t - due, w = a->wakes;
-        __atomic_store_n(&a->seq, a->seq + 1, __ATOMIC_RELEASE); /* odd: changing */
+        __atomic_store_n(&a->seq, a->seq + 1, __ATOMIC_RELAXED); /* odd: changing */
+        __atomic_thread_fence(__ATOMIC_RELEASE); /* the odd seq before the fields */
         if (late > a->stall_ns) a->lost += late;
         a->ring_ns[w % a->ring] = t;
         a->ring_lost[w % a->ring] = a->lost;
