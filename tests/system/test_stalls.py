@@ -173,29 +173,33 @@ def test_a_cpu_witness_counts_a_stall_of_its_cpu_not_a_process_busy_there() -> N
     """``CpuWitness``: a SCHED_FIFO 99 spinner on its CPU for 50 ms (the machine's stall of
     that CPU, as everything bound there sees it) is time lost, seen while it lasts and
     counted whole after; a spinner below the witness as long (a serious process gone wrong,
-    SCHED_FIFO 84) is none, but for the host's own stalls meanwhile (one took 7 ms here)."""
+    SCHED_FIFO 84) is none.  The host's own stalls add to both (one took 7 ms here, one in CI
+    ~100 ms): the spinner below runs three times, and one window the host left alone is enough."""
     mine = os.sched_getaffinity(0)
     cpu = max(mine)
     witness = CpuWitness(cpu, STALL_NS, 256)
     assert witness.start() == 0
     os.sched_setaffinity(0, {c for c in mine if c != cpu} or mine)  # look from beside
+
+    def spin(priority: int) -> tuple[int, int]:
+        """The most lost seen while a spinner at ``priority`` ran 50 ms, and the lost after."""
+        spinner = SPINNER.replace("sched_param(99)", f"sched_param({priority})")
+        time.sleep(0.05)
+        t0 = time.monotonic_ns()
+        proc = subprocess.Popen([sys.executable, "-c", spinner, str(cpu), "0.05"])
+        seen = 0
+        while proc.poll() is None:
+            seen = max(seen, witness.lost_since(t0, time.monotonic_ns()))
+            time.sleep(0.002)
+        time.sleep(0.01)
+        return seen, witness.lost_since(t0, time.monotonic_ns())
+
     try:
-        for priority, lost_ms in ((99, 50), (84, 0)):
-            spinner = SPINNER.replace("sched_param(99)", f"sched_param({priority})")
-            time.sleep(0.05)
-            t0 = time.monotonic_ns()
-            spin = subprocess.Popen([sys.executable, "-c", spinner, str(cpu), "0.05"])
-            seen = 0
-            while spin.poll() is None:
-                seen = max(seen, witness.lost_since(t0, time.monotonic_ns()))
-                time.sleep(0.002)
-            time.sleep(0.01)
-            lost = witness.lost_since(t0, time.monotonic_ns())
-            if lost_ms:
-                assert seen > 20_000_000, f"the stall was not seen while it lasted: {seen} ns"
-                assert 45_000_000 <= lost <= 80_000_000, lost  # and the host's own stalls
-            else:
-                assert lost < 20_000_000, lost
+        seen, lost = spin(99)
+        assert seen > 20_000_000, f"the stall was not seen while it lasted: {seen} ns"
+        assert 45_000_000 <= lost <= 80_000_000, lost  # and the host's own stalls
+        below = [spin(84)[1] for _ in range(3)]
+        assert min(below) < 20_000_000, below
     finally:
         os.sched_setaffinity(0, mine)
         witness.close()
