@@ -65,6 +65,26 @@ def test_a_cpu_full_in_its_busiest_slice_is_said_though_its_mean_fits() -> None:
     assert "CPU 1: 55 % busy (plant, sv.1, tg, viewer), 109 % in its busiest 20 ms (full: " in text
 
 
+def test_a_cpu_held_by_real_time_work_past_the_kernels_share_is_overloaded() -> None:
+    """Past 95 % of a CPU in real-time work the kernel takes the CPU from it for 50 ms a
+    second (franky-sim at SCHED_FIFO on a slow machine: the TG's DEADLINE); the same load with
+    a SCHED_OTHER process in it fits."""
+    fig = _figures()
+    fig.cpu_load, fig.cpu_rt_load = {0: 0.22, 1: 0.97}, {0: 0.22, 1: 0.96}
+    v = predict(fig)
+    assert not v.fits
+    assert (
+        "CPU 1: 97 % busy (plant, sv.1, tg, viewer), 96 % real-time (over the 95 % the kernel "
+        "allows: it takes the CPU from them for 50 ms a second): OVERLOADED" in v.text()
+    )
+    fig.cpu_rt_load = {0: 0.22, 1: 0.30}
+    assert predict(fig).fits
+    # a real-time process run faster adds to the real-time share, a normal one does not
+    fig.cpu_load, fig.cpu_rt_load = {0: 0.22, 1: 0.93}, {0: 0.22, 1: 0.93}
+    assert not predict(fig, Change("rate tg 5 ms", process="tg", period_us=5000.0)).fits  # +3 %
+    assert predict(fig, Change("rate viewer 30 ms", process="viewer", period_us=30000.0)).fits
+
+
 def test_cpu_loads_are_the_mean_and_the_busiest_interval() -> None:
     """Process 0 on CPU 0 uses 5 of 20 ms then 20 of 20 ms; process 1 (CPU 1) 2 ms each."""
     ms = 1_000_000

@@ -34,6 +34,10 @@ DEFAULT_MARGIN = 0.2  # the servo tick may take 80 % of its period, the rest is 
 WINDOW_S = 0.5  # how long CPU times are sampled
 STEP_SAMPLES = 400  # calls of a servo's step timed (at most STEP_BUDGET_S)
 STEP_BUDGET_S = 0.2
+# Real-time work may hold at most 95 % of a CPU: past it, while a normal task waits there, the
+# kernel's fair server takes the CPU from every real-time process on it for 50 ms a second
+# (decision 0004, "The kernel's share").
+RT_SHARE = 0.95
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,7 @@ class Figures:
     ticks: int  # flight-recorder rows the percentiles come from
     tasks: list[Task] = field(default_factory=list)
     cpu_load: dict[int, float] = field(default_factory=dict)  # CPU → fraction of it used
+    cpu_rt_load: dict[int, float] = field(default_factory=dict)  # ... by real-time processes
     # CPU → fraction used in its busiest slice of ``peak_ms`` (the serious miss tolerance)
     cpu_peak: dict[int, float] = field(default_factory=dict)
     peak_ms: float = 0.0
@@ -146,6 +151,8 @@ def measure(inst: Instance, window_s: float = WINDOW_S) -> Figures:
         samples.append(_sample(procs, live))
     cpus = {i: int(procs["cpu"][i]) for i in live}
     load, peak = cpu_loads(samples, cpus)
+    rt = {i: cpu for i, cpu in cpus.items() if int(procs["priority"][i]) > 0}
+    rt_load = cpu_loads(samples, rt)[0]
     tasks = []
     for i in live:  # every process loads its CPU; the clocked ones are tasks
         p = procs[i]
@@ -164,6 +171,7 @@ def measure(inst: Instance, window_s: float = WINDOW_S) -> Figures:
         ticks=len(servoing),
         tasks=tasks,
         cpu_load=load,
+        cpu_rt_load=rt_load,
         cpu_peak=peak,
         peak_ms=cfg.clock.serious_miss_tolerance_ms,
         on_cpu={
@@ -234,6 +242,7 @@ def predict(
     limit = (1.0 - margin) * fig.period_us
     tasks = list(fig.tasks)
     load = dict(fig.cpu_load)
+    rt_load = dict(fig.cpu_rt_load)
     response = fig.sio_own_p99_us + fig.servos_p99_us
     lines = [
         f"servo tick ({1e6 / fig.period_us:g} Hz, period {fig.period_us:.0f} µs), p99 over "
@@ -242,8 +251,10 @@ def predict(
     ]
     peak = dict(fig.cpu_peak)  # a change adds its load to every slice, the busiest too
 
-    def add(cpu: int, share: float) -> None:
+    def add(cpu: int, share: float, realtime: bool = True) -> None:
         load[cpu] = load.get(cpu, 0.0) + share
+        if realtime:
+            rt_load[cpu] = rt_load.get(cpu, 0.0) + share
         if cpu in peak:
             peak[cpu] += share
 
@@ -263,7 +274,8 @@ def predict(
                 raise ScheduleError(f"check: no clocked process {change.process!r}")
             new = Task(old.name, old.cpu, old.priority, change.period_us, old.cost_us)
             tasks[tasks.index(old)] = new
-            add(old.cpu, old.cost_us * (1.0 / new.period_us - 1.0 / old.period_us))
+            share = old.cost_us * (1.0 / new.period_us - 1.0 / old.period_us)
+            add(old.cpu, share, old.priority > 0)
             below = [t for t in servo_tasks if t.cpu == old.cpu and t.priority < old.priority]
             if below:  # it preempts the servo tick on that CPU
                 extra = (
@@ -284,7 +296,9 @@ def predict(
     )
     for cpu in sorted(load):
         names = ", ".join(fig.on_cpu.get(cpu) or [t.name for t in tasks if t.cpu == cpu])
-        ok = load[cpu] < 1.0
+        rt = rt_load.get(cpu, 0.0)
+        throttled = cpu >= 0 and rt >= RT_SHARE
+        ok = load[cpu] < 1.0 and not throttled
         fits = fits and ok
         where = f"CPU {cpu}" if cpu >= 0 else "unbound"
         busiest = ""
@@ -292,6 +306,11 @@ def predict(
             top = peak[cpu]
             full = " (full: a process below the others there waits it out)" if top >= 0.95 else ""
             busiest = f", {100 * top:.0f} % in its busiest {fig.peak_ms:g} ms{full}"
+        if throttled:
+            busiest += (
+                f", {100 * rt:.0f} % real-time (over the {100 * RT_SHARE:.0f} % the kernel "
+                "allows: it takes the CPU from them for 50 ms a second)"
+            )
         lines.append(
             f"{where}: {100 * load[cpu]:.0f} % busy ({names}){busiest}: "
             f"{'fits' if ok else 'OVERLOADED'}"
