@@ -30,7 +30,13 @@ def main(instance: str) -> int:
         deadline = time.monotonic() + 10.0
         while any(kali.servo.power_state(n) != PowerState.ON for n in kali.names):
             if time.monotonic() > deadline or kali.inst.fault["active"]:
-                print(f"power failed: {kali.inst.fault_text()}", flush=True)
+                states = {n: kali.servo.power_state(n).name for n in kali.names}
+                clock = kali.inst.clock
+                print(
+                    f"power failed: fault {kali.inst.fault_text()}; power {states}; clock "
+                    f"mode {int(clock['mode'])} at tick {int(clock['tick'])}",
+                    flush=True,
+                )
                 return 1
             time.sleep(0.01)
         arms = [kali.robot(n) for n in kali.names]

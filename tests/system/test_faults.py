@@ -75,6 +75,7 @@ TOLERANCE_MS = 20.0  # clock.serious_miss_tolerance_ms
 WATCHDOG_MS = 20.0  # plant.watchdog_ms
 CLOCK_WATCH_MS = 10.0  # daemon.CLOCK_WATCH_S: how often a serious process looks at the clock
 SERVO, TG, PLANT = 1, 10, 1  # periods in base ticks (1 ms) of the default config
+BASE_TICK_MS = 1.0  # clock.base_tick_ms of the default config
 # sv.1, polling on CPU 1 while sv.0 runs every servo on its own, rests: the clock signals it
 # every processes.sv.rest_ms (servo/sv/daemon.py), and its failures are found within its periods
 REST = 4
@@ -123,7 +124,7 @@ ROWS = [
     Fault("SIGSTOP sv.1", "sv.1", "stop", FaultCode.DEADLINE, "sv.1",
           r"sv.1", bound_ticks=TOLERANCE_TICKS + 3 * REST + 1),
     Fault("SIGSTOP plant", "plant", "stop", FaultCode.DEADLINE, "plant",
-          r"'plant' .* has not run for [\d.]+ ms \(tolerance 20 ms\): alive but stalled",
+          r"'plant' .* has not run for [\d.]+ ms \(tolerance 20 ms[^)]*\): alive but stalled",
           bound_ticks=STALL_TICKS),
     Fault("servo raises", "left 1", "raise", FaultCode.SERVO, r"sv\.[01]",
           r"servo 'faulty' on robot 'left' joint 1 raised RuntimeError: injected",
@@ -222,6 +223,11 @@ def inject(inst: Instance, client: ServoClient, fault: Fault, mover: subprocess.
         client.select("left", 1, "faulty", wait=False)  # its first step misbehaves
 
 
+def excused_ms(message: str) -> float:
+    """The time a halt's message says was not counted (the machine's stalls: decision 0004)."""
+    return sum(float(ms) for ms in re.findall(r"; ([\d.]+) ms more while", message))
+
+
 @pytest.mark.parametrize("fault", ROWS, ids=[f.label.replace(" ", "_") for f in ROWS])
 def test_fault(cell: Cell, fault: Fault) -> None:
     row: dict[str, object] = {"fault": fault.label}
@@ -299,11 +305,18 @@ def _halts(
         wait_for(lambda: int(c["mode"]) == RunMode.STOPPED, 1.0, "the clock stops")
         ran = int(c["tick"]) - tick0 - (int(c["skipped_ticks"]) - skipped0)
         row["within"] = f"{ran} / {fault.bound_ticks} ticks, {ms:.1f} ms"
-        assert ran <= fault.bound_ticks + slack, f"{fault.label}: {ran} ticks: {message}"
+        # The clock ticks to absolute deadlines: after a late tick the next comes early, so
+        # more ticks than the bound can fit in its time; and a halt comes later by the time
+        # the machine did not give, which its message names.  Either measure within: on time.
+        in_time = (fault.bound_ticks + slack) * BASE_TICK_MS + excused_ms(message)
+        assert ran <= fault.bound_ticks + slack or ms <= in_time, (
+            f"{fault.label}: {ran} ticks, {ms:.1f} ms (of {in_time:.1f}): {message}"
+        )
     else:
         assert fault.bound_ms is not None
         row["within"] = f"{ms:.1f} / {fault.bound_ms:g} ms"
-        assert ms <= fault.bound_ms, f"{fault.label}: halted {ms:.1f} ms after: {message}"
+        in_time = fault.bound_ms + excused_ms(message)
+        assert ms <= in_time, f"{fault.label}: halted {ms:.1f} ms after: {message}"
     boards = boards_of(inst)
     if fault.victim == "plant":  # the board is gone with it: Kali commanded the cut
         assert not (boards["csr"] & CSR_NO_DISABLE).any()
