@@ -5,6 +5,8 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -13,7 +15,7 @@ import pytest
 from kali_daemons.core import atomic
 from kali_daemons.core.arena import Arena
 from kali_daemons.core.errors import LockError
-from kali_daemons.core.spinlock import SpinLock, pid_alive
+from kali_daemons.core.spinlock import ProcStat, SpinLock, pid_alive
 
 COUNTER = np.dtype([("lock", "<u4"), ("_pad", "<u4"), ("count", "<u8")])
 
@@ -103,6 +105,32 @@ def test_pid_alive_treats_zombies_as_dead() -> None:
     p.join()
     assert pid_alive(os.getpid())
     assert not pid_alive(0)
+
+
+def test_a_kept_proc_stat_tells_running_zombie_and_reaped_and_is_not_fooled_by_reuse() -> None:
+    """``ProcStat`` (the wall clock's per-tick look-up of a process late for it) says what
+    ``pid_alive`` says: alive while it runs, dead as a zombie and once reaped; its file stays
+    the process's, so a later process given the same pid is not taken for it."""
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    stat = ProcStat(child.pid)
+    try:
+        assert stat.alive() and pid_alive(child.pid)
+        os.kill(child.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 5.0
+        while stat.alive():  # a zombie until reaped: dead already
+            assert time.monotonic() < deadline
+            time.sleep(0.001)
+        assert not pid_alive(child.pid)
+        child.wait()
+        assert not stat.alive()  # reaped: the kept file reads nothing
+        os.close(stat.fd)
+        stat.fd = os.open(f"/proc/{os.getpid()}/stat", os.O_RDONLY)  # as if the pid were reused
+        assert stat.alive()  # a process is read through the file, not through its pid
+    finally:
+        child.kill()
+        child.wait()
+        stat.close()
+    assert not ProcStat(0).alive() and not ProcStat(child.pid).alive()
 
 
 def test_atomic_primitives_on_an_arena_word(arena: Arena) -> None:

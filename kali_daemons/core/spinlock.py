@@ -39,11 +39,49 @@ def pid_alive(pid: int) -> bool:
         return True
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
-            fields = f.read().rsplit(b")", 1)[1].split()
+            return _running(f.read())
+    except OSError:
+        return False
+
+
+def _running(stat: bytes) -> bool:
+    """Whether a /proc/<pid>/stat text is a process's that runs: not a zombie, not exiting."""
+    try:
+        fields = stat.rsplit(b")", 1)[1].split()
         state, flags = fields[0], int(fields[6])
-    except (OSError, IndexError, ValueError):
+    except (IndexError, ValueError):
         return False
     return state not in (b"Z", b"X") and not flags & PF_EXITING
+
+
+class ProcStat:
+    """``pid_alive`` for one process, its /proc/<pid>/stat opened once and read again in
+    place: no path lookup, no open (a sixth of the cost, ~10 µs here), for whoever asks
+    every tick (the wall clock, of each process late for it).  The file stays the process's:
+    once it is gone a read fails, and a new process with its pid is not taken for it."""
+
+    __slots__ = ("fd", "pid")
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        try:
+            self.fd = os.open(f"/proc/{pid}/stat", os.O_RDONLY | os.O_CLOEXEC) if pid > 0 else -1
+        except OSError:
+            self.fd = -1
+
+    def alive(self) -> bool:
+        """True while the process runs (not a zombie, not exiting)."""
+        if self.fd < 0:
+            return False
+        try:
+            return _running(os.pread(self.fd, 1024, 0))
+        except OSError:  # ESRCH: reaped
+            return False
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
 
 
 _STATES = {
