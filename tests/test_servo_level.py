@@ -404,8 +404,8 @@ def test_the_sv_on_the_other_cpu_polls_so_no_post_wakes_that_cpu(
     polling from the tick on took, which starved the TG beside it.  (This compared sv.1's
     CPU time with sv.0's, its servos' cost, until the built-ins ran in compiled units: sv.0
     then took ~30 µs a tick, and the same polling came out 4 times that.)
-    With ``poll_us: 0`` it sleeps on both, twice a tick unless the feed is there first, and
-    the posts wake CPU 1.  Real time: the point is what the kernel does."""
+    With ``poll_us: 0`` it sleeps on the clock's and SIO's semaphores instead, and their
+    posts wake CPU 1.  Real time: the point is what the kernel does."""
     if (os.cpu_count() or 1) < 2:
         pytest.skip("sv.1 is bound to CPU 1; this machine has one CPU")
     name = kali(lockstep=False, edits={"poll_us: 200": f"poll_us: {poll_us}"})
@@ -425,10 +425,10 @@ def test_the_sv_on_the_other_cpu_polls_so_no_post_wakes_that_cpu(
             assert ipis < 0.5, f"CPU 1 took {ipis:.2f} wake-up IPIs a tick"
             assert share < 0.2, f"sv.1 took {share:.0%} of CPU 1 polling"
         else:
-            # the other side of both bounds: SIO's feed, ~5 µs after its wake-up since its
-            # tick is compiled, is now and then there before sv.1 has the clock's signal
-            # (1.7-1.9 sleeps a tick alone, 1.48 once in the suite)
-            assert sleeps > 1.3, f"sv.1 slept {sleeps:.2f} times a tick on its semaphores"
+            # the other side of the IPI bound: the posts wake CPU 1.  How often sv.1 sleeps
+            # is no contrast here: SIO's feed (its tick compiled, and since the clock does its
+            # accounts after SIO's tick, decision 0004) is mostly there before sv.1 wakes,
+            # and 0.5-1.3 sleeps a tick were seen (1.5-1.9 before the bottom half)
             assert ipis > 0.5, f"CPU 1 took {ipis:.2f} wake-up IPIs a tick"
 
 

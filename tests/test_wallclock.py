@@ -293,12 +293,15 @@ def _tick_clock(pids: list[int], alive: set[int], events: list[tuple[str, int]])
     c._slots, c._serious, c._period = [0, 1, 2], [True] * 3, [1] * 3
     c._lead, c._members, c._member = -1, [], [False] * 3
     c._suspect = [0] * layout.MAX_PROCESSES
+    c._fresh, c._suspected = [False] * layout.MAX_PROCESSES, [-1] * layout.MAX_PROCESSES
     c.base_ns, c.tolerance_ns = 1_000_000, 20_000_000
     c.lockstep = False
     c._lost_ns = c._wakes = 0
     c._sig_lost = [0] * layout.MAX_PROCESSES
     c._wake_ns, c._wake_lost = [0] * 144, [0] * 144  # as on_configure: 4 tolerances + 64
     c._witnesses, c._witness_of = [], [None] * layout.MAX_PROCESSES  # no other CPU's
+    c._stat = [None] * layout.MAX_PROCESSES  # no kept /proc files: pid_alive is asked
+    c._guard = None  # no bottom half: not at SCHED_FIFO
     return c
 
 
@@ -345,7 +348,7 @@ def test_a_process_changing_its_own_period_never_sleeps_past_its_signal(old: int
                     wakes[-1] = next_wake(signals[-1], new, int(procs["next_due"][0]))
                     pending = False
                 c.inst.clock["tick"] = tick
-                c._realtime_tick(tick, tick * 1_000_000)
+                c._tick(tick, tick * 1_000_000)
                 if ("signal", 0) not in events:
                     continue
                 events.clear()
@@ -452,14 +455,14 @@ def test_a_miss_is_looked_up_in_proc_only_after_the_ticks_signals(
     alive = {100, 101, 102}
     c = _clock_reading_proc(monkeypatch, alive, events)
     c._ack[:3], c._sig[:3] = [3, 4, 4], [4, 4, 4]  # slot 0 did not acknowledge tick 4
-    c._realtime_tick(5, 5_000_000)
+    c._tick(5, 5_000_000)
     assert events == [("signal", 1), ("signal", 2), ("proc", 100)]
     assert c._misses[0] == 1 and c._log_count[0] == 1 and c._sig[0] == 4
 
     events.clear()
     alive.discard(100)  # now it is gone: PROCESS_DIED, at this tick
     c._ack[1:3] = 5
-    c._realtime_tick(6, 6_000_000)
+    c._tick(6, 6_000_000)
     assert events == [
         ("signal", 1),
         ("signal", 2),
@@ -480,13 +483,13 @@ def test_an_sv_sio_acknowledged_before_it_took_its_feed_is_looked_up(
     c = _clock_reading_proc(monkeypatch, alive, events)
     c._member = [False, True, True]  # slots 1 and 2 are SVs
     c._ack[:3] = c._sig[:3] = 4
-    c._realtime_tick(5, 5_000_000)  # nobody vouched for: no /proc read
+    c._tick(5, 5_000_000)  # nobody vouched for: no /proc read
     assert events == [("signal", 0), ("signal", 1), ("signal", 2)]
 
     events.clear()
     c._ack[:3] = 5
     c._vouched[1] = 5  # SIO acknowledged tick 5 for slot 1
-    c._realtime_tick(6, 6_000_000)
+    c._tick(6, 6_000_000)
     assert events == [("signal", 0), ("signal", 1), ("signal", 2), ("proc", 101)]
     assert c._misses[1] == 0
 
@@ -494,7 +497,7 @@ def test_an_sv_sio_acknowledged_before_it_took_its_feed_is_looked_up(
     alive.discard(101)  # killed before it took tick 6's feed
     c._ack[:3] = 6
     c._vouched[1] = 6
-    c._realtime_tick(7, 7_000_000)
+    c._tick(7, 7_000_000)
     assert events[-2:] == [("proc", 101), ("fault", FaultCode.PROCESS_DIED)]
 
 
@@ -591,7 +594,7 @@ def test_the_time_the_clock_itself_was_not_run_does_not_count_against_a_process(
         late = round(late_ms * ms)
         c._count_lost(tick * ms + late % ms, late)
         c._ack[1:3] = c._sig[1:3]  # the 1 ms slots answer every tick
-        c._realtime_tick(tick, tick * ms)
+        c._tick(tick, tick * ms)
 
     c._ack[0], c._due[0] = 139, 140
     deliver(140)

@@ -173,6 +173,26 @@ class CpuWitness:
         """End its thread (within a period)."""
         self._stop()
 
+    def guard(self, tid: int, priority: int, after_ns: int) -> None:
+        """Have the thread guard the bottom half of thread ``tid`` (the clock's): if it
+        stands below (``below``) for more than ``after_ns``, the thread puts it back at
+        SCHED_FIFO ``priority``.  Before ``start``."""
+        a = self._args
+        a.guard_tid, a.guard_priority, a.guard_after_ns = tid, priority, after_ns
+
+    def below(self, now_ns: int) -> None:
+        """The guarded thread goes below its priority now (before it does: never unseen)."""
+        self._args.bottom_since = now_ns
+
+    def above(self) -> None:
+        """The guarded thread is back at its priority."""
+        self._args.bottom_since = 0
+
+    @property
+    def guards(self) -> int:
+        """How many times the thread put the guarded one back."""
+        return int(self._args.guards)
+
     def lost_since(self, t_ns: int, now_ns: int) -> int:
         """The time the machine did not run the CPU since ``t_ns`` (monotonic), at
         ``now_ns``: the stalls its wake-ups since saw, and the one it is in if its wake-up

@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 
 import numpy as np
 import posix_ipc
 
 from ..core import futex, layout, rt
 from ..core.layout import ClockCommand, FaultCode, ProcState, RunMode
-from ..core.spinlock import pid_alive
+from ..core.spinlock import ProcStat, pid_alive
 from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
 from ..runtime.daemon import Daemon, _CycleStats, drain
 from ..runtime.flightrec import FlightDumper
@@ -87,6 +88,8 @@ class WallClock(Daemon):
         self._members: list[int] = []  # slots of the clocked SVs (SIO's gang)
         self._member: list[bool] = []  # per entry of _slots: an SV
         self._suspect = [0] * layout.MAX_PROCESSES  # a tick's missers (_slots indices)
+        self._fresh = [False] * layout.MAX_PROCESSES  # ... each not one at its tick before
+        self._suspected = [-1] * layout.MAX_PROCESSES  # per slot: the tick it last was one
         # The time the machine gave the clock (decision 0004): a wake-up over STALL_NS
         # late is time the clock, at the top priority of its CPU, was not run; a serious
         # process is judged only on the rest (_missed, _watch).  Real time only.
@@ -103,6 +106,22 @@ class WallClock(Daemon):
         cpus = {q.cpu for q in procs if q.serious and q.cpu is not None and q.cpu != own}
         self._witnesses = [] if self.lockstep else [CpuWitness(c, STALL_NS, ring) for c in cpus]
         self._witness_of: list[CpuWitness | None] = [None] * layout.MAX_PROCESSES
+        # each slot's process's /proc stat, kept open (_read_table): whether a process late
+        # for a tick died is asked every tick it is late, and a path lookup and open each
+        # time made the clock's tick three times as long, taking from SIO below it the pieces
+        # of its CPU a stall left (issue 58)
+        self._stat: list[ProcStat | None] = [None] * layout.MAX_PROCESSES
+        # What the clock does after a tick's signals (its accounts, the look-ups of the
+        # processes late for it) runs below the serious processes of its CPU, as an
+        # interrupt's bottom half: where a stall leaves that CPU in pieces, the clock's work
+        # for its late ticks filled them and starved SIO, whose watchdog then cut the arms
+        # (issue 58).  A witness of another CPU puts the clock back at its priority if it
+        # stands below for a tick (a process spinning there must not stop the clock).  Set
+        # in real time when the clock runs at SCHED_FIFO and has a witness (_loop).
+        here = [q.priority for q in procs if q.cpu == own and q.serious and q.priority > 0]
+        self._bottom = max(1, min(here, default=2) - 1)
+        self._top = 0  # the clock's own SCHED_FIFO priority; 0: no bottom half
+        self._guard: CpuWitness | None = None
 
     def on_activate(self) -> None:
         """Start the witnesses of the other CPUs; publish the clock as ready (kalictl start
@@ -121,9 +140,12 @@ class WallClock(Daemon):
         self.inst.clock["ready"] = 1
 
     def on_shutdown(self) -> None:
-        """End the witnesses' threads."""
+        """End the witnesses' threads; close the processes' stat files."""
         for w in self._witnesses:
             w.close()
+        for stat in self._stat:
+            if stat is not None:
+                stat.close()
 
     def cycle(self, tick: int) -> None:  # pragma: no cover - the clock overrides the loop
         raise AssertionError("the wall clock drives itself")
@@ -184,6 +206,12 @@ class WallClock(Daemon):
         watched = ~periodic & active & (self._pid > 0)
         watched[self.slot] = False
         self._watched = np.flatnonzero(watched).tolist()
+        for i in np.flatnonzero(active & (self._pid > 0)).tolist():
+            stat, pid = self._stat[i], int(self._pid[i])
+            if stat is None or stat.pid != pid:
+                if stat is not None:
+                    stat.close()
+                self._stat[i] = ProcStat(pid)
         self._watch_ns = [0] * len(self._watched)
         self._watch_next = [0] * len(self._watched)
         self._read_rates()
@@ -223,6 +251,11 @@ class WallClock(Daemon):
         base = self.base_ns
         tick = int(c["tick"])
         t0 = 0
+        if not self.lockstep and self._rt.priority > self._bottom and self._witnesses:
+            self._top, self._guard = self._rt.priority, self._witnesses[0]
+            self._above_param = os.sched_param(self._top)
+            self._below_param = os.sched_param(self._bottom)
+            self._guard.guard(threading.get_native_id(), self._top, self.base_ns)
         while not self._leave and not header["shutdown"]:
             if c["cmd_seq"] != c["cmd_done"]:
                 t0 = self._command(now(), t0)
@@ -257,6 +290,7 @@ class WallClock(Daemon):
                 tick = self._paced_tick(tick, stats)
                 continue
             due = t0 + tick * base
+            above = self._above()
             if self.busy_ns:
                 sleeper.until(due - self.busy_ns)
                 rt.spin_until(due)
@@ -264,7 +298,9 @@ class WallClock(Daemon):
                 sleeper.until(due)
             woke = now()
             planned = due  # lateness is measured against the deadline that was missed
-            self._count_lost(woke, woke - due)
+            # a tick that came while the clock's bottom half was still waiting for the
+            # processes above it is theirs, not the machine's: late only from then
+            self._count_lost(woke, woke - max(due, above))
             if woke - due >= base:  # overrun: skip ahead, no burst of catch-up ticks
                 skip = (woke - due) // base
                 c["overruns"] += 1
@@ -272,7 +308,8 @@ class WallClock(Daemon):
                 tick += skip
                 due += skip * base
             c["tick"] = tick
-            self._realtime_tick(tick, due)
+            if self._tick(tick, due):
+                continue
             stats.record(tick, planned, woke, now())
             if self._watched:
                 self._watch(now())
@@ -284,6 +321,7 @@ class WallClock(Daemon):
         Packets the clock was too late for are skipped, as an overrun is (no burst of
         catch-up ticks); none within a slice: the clock supervises and asks again."""
         now = rt.monotonic_ns
+        self._above()
         try:
             self._pace.acquire(PACE_SLICE_S)
         except (posix_ipc.BusyError, posix_ipc.SignalError):
@@ -297,14 +335,29 @@ class WallClock(Daemon):
             c["skipped_ticks"] += skip
             tick += skip
         c["tick"] = tick
-        self._realtime_tick(tick, woke)
+        if self._tick(tick, woke):
+            return tick + 1
         stats.record(tick, woke, woke, now())
         if self._watched:
             self._watch(now())
         return tick + 1
 
-    def _realtime_tick(self, tick: int, due: int) -> None:
+    def _tick(self, tick: int, due: int) -> bool:
+        """A real-time tick: its signals at the clock's priority (``_realtime_tick``) and
+        the look-ups of the processes newly late for it (a kill is found at once: a process
+        killed at a higher priority than the bottom half frees its memory first), then,
+        below the serious processes of its CPU, those of the processes still late; True if
+        it halted."""
+        suspects = self._realtime_tick(tick, due)
+        if suspects and self._look_up(tick, suspects, True):
+            return True
+        self._below()
+        return bool(suspects) and self._look_up(tick, suspects, False)
+
+    def _realtime_tick(self, tick: int, due: int) -> int:
         """Check acknowledgements and signal every slot due at ``tick``; inside the cycle.
+        The number of slots to look up (``_look_up``: late for it, or an SV SIO vouched
+        for); 0 if it halted.
 
         SIO and the SVs run as a gang (thesis 3.3.4, ``gang_state``): a tick SIO misses,
         or every SV does, none of them is signalled, and each that missed counts its miss.
@@ -315,6 +368,7 @@ class WallClock(Daemon):
         if lead >= 0 and tick >= nd[lead]:
             gang = gang_state(lead, self._members, ack, sig, nd, tick)
         member, suspect = self._member, self._suspect
+        fresh, suspected = self._fresh, self._suspected
         sig_lost, lost = self._sig_lost, self._lost_ns
         n_suspect = 0
         for k, i in enumerate(self._slots):
@@ -324,12 +378,16 @@ class WallClock(Daemon):
             nd[i] = (tick // per + 1) * per
             if ack[i] < sig[i] or (i == lead and gang == GANG_SIO_LATE):
                 if self._missed(k, i, tick, due):
-                    return
+                    return 0
+                fresh[n_suspect] = suspected[i] < tick - per
+                suspected[i] = tick
                 suspect[n_suspect] = k
                 n_suspect += 1
                 continue
             if member[k] and vouched[i] == sig[i]:  # SIO acknowledged for an SV not yet fed
-                suspect[n_suspect] = k  # (sio/gang.py): is it alive?
+                fresh[n_suspect] = suspected[i] < tick - per  # (sio/gang.py): is it alive?
+                suspected[i] = tick
+                suspect[n_suspect] = k
                 n_suspect += 1
             if gang != GANG_RUNS and (i == lead or member[k]):
                 continue  # acknowledged, but its gang sits this tick out
@@ -340,10 +398,36 @@ class WallClock(Daemon):
             self._rel[i] = due
             self._signals[i] += 1
             self._sems[i].release()
-        for j in range(n_suspect):  # after every signal: their /proc reads never delay one
+        return n_suspect
+
+    def _look_up(self, tick: int, n: int, fresh: bool) -> bool:
+        """Whether those of the first ``n`` of the tick's suspects that are ``fresh`` (or
+        not) died (a /proc read each, after every signal, so none delays one); True if that
+        halted the system."""
+        suspect, is_fresh = self._suspect, self._fresh
+        for j in range(n):
+            if is_fresh[j] != fresh:
+                continue
             k = suspect[j]
             if self._died(self._slots[k], tick, self._serious[k]) and self.inst.fault["active"]:
-                return
+                return True
+        return False
+
+    def _above(self) -> int:
+        """The clock at its own priority, for its wake-up and its signals; when its bottom
+        half ended (now), 0 without one."""
+        if self._guard is None:
+            return 0
+        os.sched_setparam(0, self._above_param)
+        self._guard.above()
+        return rt.monotonic_ns()
+
+    def _below(self) -> None:
+        """The clock below the serious processes of its CPU, for what it does after a tick's
+        signals (the bottom half)."""
+        if self._guard is not None:
+            self._guard.below(rt.monotonic_ns())
+            os.sched_setparam(0, self._below_param)
 
     def _missed(self, k: int, i: int, tick: int, due: int) -> bool:
         """Count and log a missed deadline of slot ``i``; halt if it is serious and out of
@@ -600,7 +684,8 @@ class WallClock(Daemon):
         """True if slot ``i``'s process is gone.  A serious one halts the system with
         PROCESS_DIED; a non-serious one is left out (state DIED) and the system runs on."""
         pid = int(self.inst.procs[i]["pid"])
-        if pid <= 0 or pid_alive(pid):
+        stat = self._stat[i]
+        if pid <= 0 or (stat.alive() if stat is not None and stat.pid == pid else pid_alive(pid)):
             return False
         p = self.inst.procs[i]
         name = decode(p["name"])

@@ -20,7 +20,7 @@ import pytest
 
 from kali_daemons.client import Kali
 from kali_daemons.core import layout
-from kali_daemons.core.layout import ProcState
+from kali_daemons.core.layout import FaultCode, ProcState
 from kali_daemons.hardware.mcgill.registers import POWER_AMPS_ON, POWER_WATCHDOG_TRIPPED
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.runtime.stalls import ClockWitness, CpuWitness, TaskClock
@@ -130,6 +130,64 @@ def test_stalls_of_the_plants_cpu_are_ridden_out(kali: Callable[..., str]) -> No
                 assert (ff["stale_events"] - events == 1).all(), ff["stale_events"] - events
             assert (ff["weight"] == 1.0).all(), ff["weight"]
             assert np.abs(counts() - before).max() <= counts_held, (stall_s, counts() - before)
+
+
+PIECES = """
+import os, sys, time
+os.sched_setaffinity(0, {int(sys.argv[1])})
+os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(99))
+spin, rest, end = float(sys.argv[2]), float(sys.argv[3]), time.monotonic() + float(sys.argv[4])
+while time.monotonic() < end:
+    t = time.monotonic() + spin
+    while time.monotonic() < t:
+        pass
+    time.sleep(rest)
+os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+"""
+
+
+def test_stalls_of_sios_cpu_in_pieces_are_ridden_out(kali: Callable[..., str]) -> None:
+    """The machine gives SIO's CPU 0.4 ms of every 2 ms for 100 ms (the soaks' halts: the
+    host took 11 of 20 ms of it in pieces), three times: the wall clock, above SIO there,
+    must leave SIO those pieces, so its watchdog is retriggered and nothing halts (before:
+    the clock's own work for the late ticks filled them, and the watchdog cut the arms with
+    POWER)."""
+    with holding(kali) as (inst, counts):
+        cpu = inst.config.process("sio").cpu
+        before = counts()
+        for _ in range(3):
+            subprocess.run([sys.executable, "-c", PIECES, str(cpu), "0.0016", "0.0004", "0.1"],
+                           check=True)  # fmt: skip
+            time.sleep(0.5)
+            assert inst.fault_text() is None
+        assert np.abs(counts() - before).max() <= 1.0, counts() - before
+
+
+def test_a_process_spinning_above_the_clocks_bottom_half_is_still_judged_by_it(
+    kali: Callable[..., str],
+) -> None:
+    """The clock does what follows a tick's signals below the serious processes of its CPU
+    (its bottom half); something spinning there above that (SCHED_FIFO 86: a serious process
+    gone wrong, as SIO or an SV stuck in a loop) must not stop the clock: a witness puts it
+    back at its priority within a few ms, it counts SIO's misses, and halts with DEADLINE
+    naming SIO within the tolerance (without the guard: the clock stood, and the watchdog cut
+    the arms naming nothing but SIO's silence)."""
+    with holding(kali) as (inst, _counts):
+        cpu = inst.config.process("wallclock").cpu
+        mine = os.sched_getaffinity(0)
+        os.sched_setaffinity(0, {c for c in mine if c != cpu} or mine)  # look from beside
+        spinner = SPINNER.replace("sched_param(99)", "sched_param(86)")
+        spin = subprocess.Popen([sys.executable, "-c", spinner, str(cpu), "0.5"])
+        try:
+            while spin.poll() is None and inst.fault_text() is None:
+                time.sleep(0.002)
+            assert spin.poll() is None, f"no halt while it spun: {inst.fault_text()}"
+        finally:
+            spin.wait()
+            os.sched_setaffinity(0, mine)
+        fault = inst.read_fault()
+        assert fault.code == FaultCode.DEADLINE.name and fault.process == "sio", inst.fault_text()
+        assert "missed" in fault.message
 
 
 def test_sio_stopped_alone_as_long_still_halts_by_the_watchdog(kali: Callable[..., str]) -> None:

@@ -663,6 +663,11 @@ typedef struct {
     int64_t period_ns, stall_ns; /* its wake-ups; one later than stall_ns was lost */
     int64_t *ring_ns, *ring_lost; /* per wake-up: when, and lost after it */
     int64_t ring; /* the ring's length */
+    /* the clock's bottom half (WallClock._below): its thread (0: none) is put back at */
+    /* guard_priority once it has stood below it for guard_after_ns */
+    int64_t guard_tid, guard_priority, guard_after_ns;
+    int64_t bottom_since; /* the clock's: when it went below, 0 while above */
+    int64_t guards; /* the thread's: the times it put the clock back */
     /* the thread's, read by the clock while seq is even */
     int64_t seq, due, lost, wakes; /* due: the deadline it sleeps to */
     /* start and stop's */
@@ -1614,6 +1619,11 @@ static const Field WitnessArgs_LAYOUT[] = {
     LAYOUT(WitnessArgs, ring_ns),
     LAYOUT(WitnessArgs, ring_lost),
     LAYOUT(WitnessArgs, ring),
+    LAYOUT(WitnessArgs, guard_tid),
+    LAYOUT(WitnessArgs, guard_priority),
+    LAYOUT(WitnessArgs, guard_after_ns),
+    LAYOUT(WitnessArgs, bottom_since),
+    LAYOUT(WitnessArgs, guards),
     LAYOUT(WitnessArgs, seq),
     LAYOUT(WitnessArgs, due),
     LAYOUT(WitnessArgs, lost),

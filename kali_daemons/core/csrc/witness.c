@@ -4,8 +4,12 @@
  * machine did not run that CPU, nor anything on it: the lateness is summed in lost, and each
  * wake-up's time and the sum after it go into a ring, so the clock can tell how much time a
  * process bound there lost since it was signalled.  The thread writes, the clock reads: seq
- * is odd while a wake-up's fields change.  It runs in the clock's process, in no cycle, and
- * never touches Python; kali_witness_stop ends it. */
+ * is odd while a wake-up's fields change.  One witness also guards the clock's bottom half
+ * (WallClock._below): the clock drops below the serious processes of its own CPU after a
+ * tick's signals, and a witness that finds it still there guard_after_ns later puts it back
+ * at its priority, so a process spinning above the bottom half cannot stop the clock.  It
+ * runs in the clock's process, in no cycle, and never touches Python; kali_witness_stop ends
+ * it. */
 
 #include <pthread.h>
 #include <sched.h>
@@ -29,6 +33,12 @@ static void *witness_main(void *p) {
         if (t >= due) due += ((t - due) / a->period_ns + 1) * a->period_ns; /* skip ahead */
         a->due = due;
         __atomic_store_n(&a->seq, a->seq + 1, __ATOMIC_RELEASE); /* even: whole */
+        int64_t below = __atomic_load_n(&a->bottom_since, __ATOMIC_ACQUIRE);
+        if (a->guard_tid && below && t - below > a->guard_after_ns) {
+            struct sched_param up = {.sched_priority = (int)a->guard_priority};
+            if (sched_setparam((pid_t)a->guard_tid, &up) == 0) a->guards += 1;
+            __atomic_store_n(&a->bottom_since, 0, __ATOMIC_RELEASE);
+        }
     }
     return NULL;
 }
