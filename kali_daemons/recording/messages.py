@@ -127,26 +127,3 @@ class Cdr:
 
     def bytes(self) -> bytes:
         return bytes(self.buf)
-
-
-class Template:
-    """A message whose layout never changes (an arm's joint state, servo tick or wrench):
-    encoded once, then each tick only its stamp, tick and values are written in place
-    (``fill``), one copy of the bytes per message."""
-
-    def __init__(self, cdr: Cdr, tick_at: int, columns: list[tuple[str, int, int]]) -> None:
-        self.buf = bytearray(cdr.buf)
-        self.tick_at = tick_at  # -1: no tick field
-        # (flight-row column, its first value in the message, how many)
-        self.views = [
-            (column, np.frombuffer(self.buf, dtype="<f8", count=n, offset=at))
-            for column, at, n in columns
-        ]
-
-    def fill(self, ns: int, tick: int, row: np.ndarray, span: slice | int) -> bytes:
-        struct.pack_into("<iI", self.buf, 4, ns // 1_000_000_000, ns % 1_000_000_000)
-        if self.tick_at >= 0:
-            struct.pack_into("<q", self.buf, self.tick_at, tick)
-        for column, view in self.views:
-            view[:] = row[column][span]
-        return bytes(self.buf)

@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
 
 from ..core import layout
 from ..core.errors import KaliError
@@ -33,6 +32,7 @@ from ..runtime.daemon import Daemon
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import instance_dir
 from .events import TRUTH_FIELDS, ServoWatch, TruthSampler
+from .mcapfile import McapFile, TickBlock
 from .messages import (
     FAULT_DEF,
     GAP_DEF,
@@ -45,7 +45,6 @@ from .messages import (
     SIM_TRUTH_DEF,
     WRENCH_DEF,
     Cdr,
-    Template,
 )
 
 NAME = "recorder"  # its process-table slot
@@ -87,11 +86,10 @@ class Recording:
         self.first_tick = self.last_tick = -1
         path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(path, "xb")  # noqa: SIM115 - open until close(); never over a file
-        self.writer = Writer(self._file, compression=CompressionType.ZSTD)
-        self.writer.start(profile="ros2", library="kali")
-        self.writer.add_metadata("kali", {"instance": inst.name, "robots": ",".join(self.names)})
+        self.writer = McapFile(self._file, profile="ros2", library="kali")
+        self.writer.metadata("kali", {"instance": inst.name, "robots": ",".join(self.names)})
         schemas = {
-            kind: self.writer.register_schema(name, "ros2msg", text.encode())
+            kind: self.writer.schema(name, "ros2msg", text.encode())
             for kind, name, text in (
                 ("joints", "sensor_msgs/msg/JointState", JOINT_STATE_DEF),
                 ("wrench", "geometry_msgs/msg/WrenchStamped", WRENCH_DEF),
@@ -106,7 +104,7 @@ class Recording:
         }
 
         def channel(topic: str, kind: str) -> int:
-            return self.writer.register_channel(topic, "cdr", schemas[kind])
+            return self.writer.channel(topic, "cdr", schemas[kind])
 
         self._channels = [
             {kind: channel(f"/kali/{name}/{topic}", kind)
@@ -126,7 +124,9 @@ class Recording:
             for kind, topic in (("gap", "gaps"), ("request", "requests"), ("fault", "faults"))
         }
         self._cdr = Cdr()
-        self._templates = [self._arm_templates(k) for k in range(len(self.names))]
+        self._block = TickBlock()  # every arm's messages of a servo tick
+        for k in range(len(self.names)):
+            self._arm_messages(k)
         self.requests = inst.arena.existing(
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
@@ -137,25 +137,26 @@ class Recording:
         self.tg = inst.arena.existing(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.names))
         self._tg_ticks = [int(t) for t in self.tg["tick"]]  # the last set-point written
 
-    def _arm_templates(self, k: int) -> dict[str, Template]:
-        """Arm ``k``'s joint state, servo tick and wrench messages, laid out once."""
+    def _arm_messages(self, k: int) -> None:
+        """Arm ``k``'s joint state, servo tick and wrench messages, laid out once in the
+        tick block."""
         n = self.spans[k].stop - self.spans[k].start
-        zeros, c, out = np.zeros(n), self._cdr, {}
+        zeros, c, ch, span = np.zeros(n), self._cdr, self._channels[k], self.spans[k]
         c.reset()  # sensor_msgs/msg/JointState
         c.header(0)
         c.strings([name.encode() for name in self.joint_names[k]])
         cols = [(col, c.float64s(zeros), n) for col in ("q", "qd", "torque")]
-        out["joints"] = Template(c, -1, cols)
+        self._block.add(ch["joints"], c.bytes(), -1, cols, span)
         c.reset()  # kali_msgs/msg/ServoTick
         c.header(0)
         tick_at = c.int64(0)
         cols = [(col, c.float64s(zeros), n) for col in ROW_COLUMNS.values()]
-        out["servo"] = Template(c, tick_at, cols)
+        self._block.add(ch["servo"], c.bytes(), tick_at, cols, span)
         if self.sensors[k]:
             c.reset()  # geometry_msgs/msg/WrenchStamped
             c.header(0, f"{self.names[k]}_tool".encode())
-            out["wrench"] = Template(c, -1, [("wrench", c.float64_fixed(np.zeros(6)), 6)])
-        return out
+            at = c.float64_fixed(np.zeros(6))
+            self._block.add(ch["wrench"], c.bytes(), -1, [("wrench", at, 6)], k)
 
     def drain(self) -> int:
         """Write every whole row written since the last drain; the ticks written."""
@@ -173,26 +174,16 @@ class Recording:
         if whole:
             self._gap(self.next, whole)
             data = data[whole:]
-        for row in data:
-            self._write_row(row)
+        if len(data):
+            ticks = data["tick"].astype(np.int64)
+            self.writer.ticks(self._block, data, ticks * self.base_ns)
+            if self.first_tick < 0:
+                self.first_tick = int(ticks[0])
+            self.last_tick = int(ticks[-1])
+            self.written += len(data)
         self.next = count
         self._events()
         return len(data)
-
-    def _write_row(self, row: np.ndarray) -> None:
-        tick = int(row["tick"])
-        t = tick * self.base_ns
-        add = self.writer.add_message
-        for k in range(len(self.names)):
-            span, ch, tpl = self.spans[k], self._channels[k], self._templates[k]
-            add(ch["joints"], t, tpl["joints"].fill(t, tick, row, span), t)
-            add(ch["servo"], t, tpl["servo"].fill(t, tick, row, span), t)
-            if self.sensors[k]:
-                add(ch["wrench"], t, tpl["wrench"].fill(t, tick, row, k), t)
-        if self.first_tick < 0:
-            self.first_tick = tick
-        self.last_tick = tick
-        self.written += 1
 
     def _gap(self, first_row: int, rows: int) -> None:
         """Rows ``first_row`` .. + ``rows`` were overwritten before they were drained."""
@@ -203,7 +194,7 @@ class Recording:
         c.header(t)
         c.int64(tick)
         c.int64(rows)
-        self.writer.add_message(self._events_ch["gap"], t, c.bytes(), t)
+        self.writer.message(self._events_ch["gap"], t, c.bytes(), t)
         self.gaps += rows
 
     def _events(self) -> None:
@@ -211,7 +202,7 @@ class Recording:
         least: a record is given to another request only long after) and a new fault."""
         tick = max(self.last_tick, 0)
         t = tick * self.base_ns
-        c, add = self._cdr, self.writer.add_message
+        c, add = self._cdr, self.writer.message
         seq, state = self._seq.copy(), self._state.copy()
         changed = np.flatnonzero(
             (seq != 0) & ((seq != self._said_seq) | (state != self._said_state))
@@ -281,12 +272,12 @@ class Recording:
             c.float64_fixed(arms["ft_wrench"][k])
             c.float64_fixed(arms["grasp_wrench"][k])
             c.uint8(int(arms["grasped"][k]))
-            self.writer.add_message(self._truth_ch[k], t, c.bytes(), t)
+            self.writer.message(self._truth_ch[k], t, c.bytes(), t)
 
     def close(self) -> None:
         """Finish the file (its index and summary), outside any cycle."""
         try:
-            self.writer.finish()  # type: ignore[no-untyped-call]  # mcap's has no annotations
+            self.writer.finish()
         finally:
             self._file.close()
 
