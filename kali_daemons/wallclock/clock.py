@@ -120,8 +120,8 @@ class WallClock(Daemon):
         # in real time when the clock runs at SCHED_FIFO and has a witness (_loop).
         here = [q.priority for q in procs if q.cpu == own and q.serious and q.priority > 0]
         self._bottom = max(1, min(here, default=2) - 1)
-        self._top = 0  # the clock's own SCHED_FIFO priority; 0: no bottom half
-        self._guard: CpuWitness | None = None
+        self._top = 0  # the clock's own SCHED_FIFO priority, once it has a bottom half
+        self._guard: CpuWitness | None = None  # the witness guarding it; None: no bottom half
 
     def on_activate(self) -> None:
         """Start the witnesses of the other CPUs; publish the clock as ready (kalictl start
@@ -167,12 +167,13 @@ class WallClock(Daemon):
 
     def _rescan(self) -> None:
         """Take up what changed in the process table; at the top of the loop, so after a
-        tick's signals but before the clock sleeps, on SIO's CPU above SIO: what it does
-        here delays SIO's tick.  A rate change (an SV resting or back from it, a few times
-        a minute; ``set_control_rate``) re-reads only the periods of the slots the clock
-        has, in place (``_read_rates``); a process registering or leaving has the whole
-        table read (``_read_table``): reading it all for every rate change delayed SIO's
-        tick (docs/decisions/0010-clock-reads-only-rates.md)."""
+        tick's signals but before the clock sleeps: in real time in the clock's bottom half,
+        below SIO (it delayed SIO's tick when the clock did it above). A rate change (an SV
+        resting or back from it, a few times a minute; ``set_control_rate``) re-reads only
+        the periods of the slots the clock has, in place (``_read_rates``); a process
+        registering or leaving has the whole table read (``_read_table``): reading it all
+        for every rate change delayed SIO's tick
+        (docs/decisions/0010-clock-reads-only-rates.md)."""
         c = self.inst.clock
         gen, rates = int(c["registry_gen"]), int(c["rates_gen"])
         if gen != self._gen:
