@@ -66,6 +66,22 @@ SCHEMAS = (
 )  # fmt: skip
 
 
+def rosbags_positions(path: Path, topic: str) -> tuple[list[np.ndarray], int]:
+    """Each ``sensor_msgs/msg/JointState``'s positions on ``topic`` as ``rosbags`` (an
+    independent reader of ROS 2 recordings, no mcap package) decodes them, and the number of
+    messages in the file."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as reader:
+        states = [c for c in reader.connections if c.topic == topic]
+        assert states and states[0].msgtype == "sensor_msgs/msg/JointState"
+        positions = [
+            reader.deserialize(raw, c.msgtype).position
+            for c, _t, raw in reader.messages(connections=states)
+        ]
+        return positions, reader.message_count
+
+
 def write(stream: io.BytesIO | Path, batches: list[np.ndarray]) -> dict[str, int]:
     """A file with the schemas, a channel per arm and kind, the batches as tick blocks and
     a gap message between each two; the channels' ids by topic."""
@@ -174,19 +190,11 @@ def test_the_file_is_the_bytes_of_what_mcaps_writer_writes_a_message_at_a_time()
 def test_rosbags_reads_the_file(tmp_path: Path) -> None:
     """``rosbags`` (no Kali, no mcap package) finds every topic and message type and
     decodes each joint state."""
-    from rosbags.highlevel import AnyReader
-
     rng = np.random.default_rng(11)
     batches = [rows(0, 20, rng), rows(20, 5, rng)]
     path = tmp_path / "run.mcap"
     write(path, batches)
     every = np.concatenate(batches)
-    with AnyReader([path]) as reader:
-        states = [c for c in reader.connections if c.topic == "/a0/joints"]
-        assert states and states[0].msgtype == "sensor_msgs/msg/JointState"
-        q = [
-            reader.deserialize(raw, c.msgtype).position
-            for c, _t, raw in reader.messages(connections=states)
-        ]
-        assert reader.message_count == 3 * N_ROBOTS * len(every) + len(batches)
+    q, count = rosbags_positions(path, "/a0/joints")
+    assert count == 3 * N_ROBOTS * len(every) + len(batches)
     np.testing.assert_array_equal(np.array(q), every["q"][:, :N])

@@ -20,6 +20,7 @@ from kali_daemons.wallclock import step_kali_clock
 
 from .test_bridge import bridged  # noqa: F401  (the fixture)
 from .test_launcher import kalictl
+from .test_mcapfile import rosbags_positions
 
 SERVO_FIELDS = ("q", "qd", "q_d", "qd_d", "servo_torque", "ff_torque", "torque", "current")
 
@@ -76,15 +77,7 @@ def test_a_recording_holds_every_servo_tick_of_every_arm(
             assert len(wrench) == len(ticks)
         assert "/kali/gaps" not in topics
 
-    from rosbags.highlevel import AnyReader  # an independent reader of ROS 2 recordings
-
-    with AnyReader([path]) as reader:
-        states = [c for c in reader.connections if c.topic == "/kali/left/joint_states"]
-        assert states and states[0].msgtype == "sensor_msgs/msg/JointState"
-        positions = [
-            reader.deserialize(raw, c.msgtype).position
-            for c, _t, raw in reader.messages(connections=states)
-        ]
+    positions, _ = rosbags_positions(path, "/kali/left/joint_states")
     assert len(positions) == len(topics["/kali/left/joint_states"])
     first = topics["/kali/left/servo"][0]
     np.testing.assert_array_equal(positions[0], first.q)
