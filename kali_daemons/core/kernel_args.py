@@ -659,7 +659,6 @@ BLOCKS: tuple[Block, ...] = (
         "guard_priority once it has stood below it for guard_after_ns",
         ("guard_tid, guard_priority, guard_after_ns", "int64_t"),
         ("bottom_since", "int64_t", "the clock's: when it went below, 0 while above"),
-        ("guards", "int64_t", "the thread's: the times it put the clock back"),
         "the thread's, read by the clock while seq is even",
         ("seq, due, lost, wakes", "int64_t", "due: the deadline it sleeps to"),
         "start and stop's",

@@ -188,11 +188,6 @@ class CpuWitness:
         """The guarded thread is back at its priority."""
         self._args.bottom_since = 0
 
-    @property
-    def guards(self) -> int:
-        """How many times the thread put the guarded one back."""
-        return int(self._args.guards)
-
     def lost_since(self, t_ns: int, now_ns: int) -> int:
         """The time the machine did not run the CPU since ``t_ns`` (monotonic), at
         ``now_ns``: the stalls its wake-ups since saw, and the one it is in if its wake-up

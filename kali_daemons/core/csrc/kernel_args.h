@@ -667,7 +667,6 @@ typedef struct {
     /* guard_priority once it has stood below it for guard_after_ns */
     int64_t guard_tid, guard_priority, guard_after_ns;
     int64_t bottom_since; /* the clock's: when it went below, 0 while above */
-    int64_t guards; /* the thread's: the times it put the clock back */
     /* the thread's, read by the clock while seq is even */
     int64_t seq, due, lost, wakes; /* due: the deadline it sleeps to */
     /* start and stop's */
@@ -1623,7 +1622,6 @@ static const Field WitnessArgs_LAYOUT[] = {
     LAYOUT(WitnessArgs, guard_priority),
     LAYOUT(WitnessArgs, guard_after_ns),
     LAYOUT(WitnessArgs, bottom_since),
-    LAYOUT(WitnessArgs, guards),
     LAYOUT(WitnessArgs, seq),
     LAYOUT(WitnessArgs, due),
     LAYOUT(WitnessArgs, lost),
