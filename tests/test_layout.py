@@ -49,15 +49,20 @@ def test_a_mixed_cells_blocks_are_sized_by_each_arms_joints() -> None:
     assert blocks["fifo.right.ring"].count == layout.FIFO_CAPACITY * 7
     assert blocks["flight.ring"].dtype == layout.flight_row(13, 2)
     # each algorithm's private data is one block, a record per joint (the SVs' units)
+    # (then the spares of servos loaded while running, each record the mailbox's size)
     servo = [k for k in blocks if re.fullmatch(r"servo\.data\.\d+", k)]
-    assert len(servo) == len(registry)
+    assert len(servo) == len(registry) + layout.SERVO_LOADABLE
     last = blocks[f"servo.data.{len(registry) - 1}"]
     assert last.dtype == registry[len(registry) - 1].dtype and last.count == 13
+    spare = blocks[f"servo.data.{len(registry)}"]
+    assert spare.dtype == layout.LOADED_RECORD and spare.count == 13
     # each robot-level servo's private data is one block too, a record per robot
     arms = [k for k in blocks if re.fullmatch(r"servo\.arm\.\d+", k)]
-    assert len(arms) == len(registry.arms) >= 2
+    assert len(arms) == len(registry.arms) + layout.ARM_LOADABLE
+    assert len(registry.arms) >= 2
     assert blocks["servo.arm.1"].dtype == registry.arms[1].dtype
     assert blocks["servo.arm.1"].count == 2
+    assert blocks[f"servo.arm.{len(registry.arms)}"].dtype == layout.LOADED_RECORD
     # the size kalictl checks the arena against is this layout's (plugins at their largest,
     # each counted as possibly registering a robot-level servo too)
     need, n_blocks, _ = arena_need(cfg)

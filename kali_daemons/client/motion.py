@@ -43,6 +43,7 @@ from ..robots import RobotType
 from ..robots.cell import FLANGE_FRAME, base_transform, inverse, load_pinocchio
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import log_dir
+from ..servo import schedule
 from ..servo.client import ServoClient
 from ..servo.shadow import Trial
 from ..tg import records
@@ -947,7 +948,7 @@ class Kali:
         name = os.environ.get(INSTANCE_ENV, DEFAULT_INSTANCE) if instance is None else instance
         self.inst = Instance.attach(name)  # an empty name is refused, never the default
         try:
-            self.servo = ServoClient(self.inst, pause=self._servo_tick)
+            self.servo = ServoClient(self.inst, pause=self._servo_tick, guard=self._schedule)
             arena = self.inst.arena
             self.queue = RequestQueue(
                 arena,
@@ -1003,6 +1004,12 @@ class Kali:
             step_kali_clock(self.inst, LOCKSTEP_STEP)
         else:
             time.sleep(POLL_S)
+
+    def _schedule(self, what: str, step_us: float) -> None:
+        """The schedulability check of a servo about to be loaded (``servo.load``): in real
+        time, ScheduleError if a joint running it would not fit the servo tick."""
+        if not self.inst.lockstep:
+            schedule.guard(self.inst, schedule.Change(what, step_us), False, lambda _text: None)
 
     def _servo_tick(self) -> None:
         """Let one servo tick pass for a servo call waiting on it: in a lockstep instance

@@ -25,6 +25,7 @@ from ..core import errors
 from ..core.errors import KaliError
 from ..core.layout import CalibState, FfMode, FfState, PowerState, RequestState
 from ..runtime.config import USER_RE
+from ..servo.loading import Loaded
 from ..servo.shadow import Trial
 from .common import Contact, MotionFailedError, RequestLostError
 from .state import ArmState, ObjectState
@@ -212,6 +213,8 @@ METHODS: dict[str, frozenset[str]] = {
             "feedforward_state",
             "calibration",
             "calibrated",
+            "load_source",
+            "loaded",
         }
     ),
     "MotionHandle": frozenset({"wait", "cancel"}),
@@ -257,7 +260,7 @@ ENUMS: dict[str, type[enum.IntEnum]] = {
 }
 DATACLASSES: dict[str, type] = {
     "Contact": Contact, "Trial": Trial, "ArmState": ArmState, "ObjectState": ObjectState,
-    "Truth": Truth,
+    "Truth": Truth, "Loaded": Loaded,
 }  # fmt: skip
 
 

@@ -34,7 +34,7 @@ from typing import Any
 import zenoh
 import zenoh.handlers
 
-from ..core.errors import KaliError
+from ..core.errors import KaliError, ServoError
 from ..core.layout import TERMINAL_STATES
 from ..robots import RobotType
 from ..runtime.config import KaliConfig, parse_config
@@ -470,6 +470,19 @@ class RemoteStream(Proxy):
         self._call("close")
 
 
+class RemoteServo(Proxy):
+    """The servo level: ``load`` reads the plugin file on this machine and sends its text."""
+
+    def load(self, path: str | os.PathLike[str]) -> list[str]:
+        """As ``ServoClient.load``: the file is read here, loaded there."""
+        file = Path(path).expanduser().resolve()
+        try:
+            source = file.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ServoError(f"load {str(path)!r}: cannot read it: {exc}") from None
+        return self._call("load_source", source, str(file))
+
+
 class RemoteInstance:
     """What a program reads of ``kali.inst`` remotely: name, config, lockstep."""
 
@@ -581,4 +594,5 @@ PROXIES: dict[str, type[Proxy]] = {
     "Together": RemoteTogether,
     "Stream": RemoteStream,
     "JointStream": RemoteStream,
+    "ServoClient": RemoteServo,
 }

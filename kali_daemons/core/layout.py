@@ -466,6 +466,51 @@ KEY_SERVO_DATA = "servo.data.{algo}"
 # data for every robot, a record per robot (config order), and each robot's put/get mailbox
 KEY_ARM_DATA = "servo.arm.{arm}"
 KEY_ARM_STAGING = "servo.arm_staging"  # SERVO_STAGING_BYTES per robot
+# servo plugins loaded while running (``servo/loading.py``): the arena is laid out before any
+# process starts, so it holds spare algorithms (``servo.data.{algo}`` after the configured
+# ones, ``servo.arm.{arm}`` after theirs, each a LOADED_RECORD per joint or robot, viewed as
+# the plugin's dtype once loaded) and a table of the files loaded, each offered by a client
+# and taken by every process that runs or reads servos
+SERVO_LOADABLE = 4  # joint servos loadable while running, per instance
+ARM_LOADABLE = 2  # robot-level servos
+MAX_LOADS = 4  # plugin files
+LOADED_RECORD = np.dtype(f"V{SERVO_STAGING_BYTES}")  # a spare's record: any private data
+KEY_SERVO_LOADS = "servo.loads"
+
+
+class LoadState(enum.IntEnum):
+    """A loaded plugin file's entry, as its client moves it on."""
+
+    FREE = 0
+    OFFERED = 1  # written whole: the SVs take it (import, register) and say so
+    READY = 2  # every SV has it: clients may select it
+    FAILED = 3  # an SV could not take it (``reason``): never selectable
+
+
+SERVO_LOAD = np.dtype(
+    [
+        ("state", "<u4"),  # LoadState, written last by the loading client
+        ("joint_first", "<u4"),  # registry index of its first joint servo
+        ("n_joint", "<u4"),  # joint servos it registers, indices joint_first..
+        ("arm_first", "<u4"),  # robot-level index of its first robot-level servo
+        ("n_arm", "<u4"),
+        ("_pad", "<u4"),
+        ("taken", "<u4", (MAX_SV,)),  # SV k: 1 = registered, 2 = could not (``reason``)
+        ("path", "S256"),  # its compiled copy in the instance's directory
+        ("origin", "S128"),  # the file the user named
+        ("names", "S160"),  # what it registers, comma-separated, registry order
+        ("reason", "S256"),  # FAILED: which SV and why
+    ],
+    align=True,
+)
+SERVO_LOADS = np.dtype(
+    [
+        ("generation", "<u4"),  # entries offered so far (an entry's number + 1)
+        ("lock", "<u4"),  # clients: spinlock serialising loads
+        ("entries", SERVO_LOAD, (MAX_LOADS,)),
+    ],
+    align=True,
+)
 KEY_FIFO = "fifo.{robot}"  # TG → SIO set-points (Type 2), the robot's joint angles each
 
 
@@ -1392,6 +1437,7 @@ RECORDS: tuple[Record, ...] = (
         "SVs (put: mailbox)",
         "SVs",
     ),
+    Record(KEY_SERVO_LOADS, SERVO_LOADS, None, "loading clients; SVs (taken)", "all"),
     Record(
         KEY_ARM_STAGING,
         *_u1(lambda c, i: len(c.robots) * SERVO_STAGING_BYTES),

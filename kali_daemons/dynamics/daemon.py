@@ -28,6 +28,7 @@ from ..core.layout import FfMode
 from ..robots.inverse import InverseDynamics, central_differences
 from ..runtime.config import KaliConfig, ms_to_ns
 from ..runtime.daemon import Daemon
+from ..servo import loading
 from ..servo.level import FF_MODES, FIFO_CAPACITY, ServoLevel
 
 SIO_WAIT_S = 30.0  # how long the dynamics process waits at start for SIO's servo level
@@ -68,14 +69,19 @@ class Dynamics(Daemon):
                 raise DaemonError(f"{self.name}: SIO did not lay out the servo level")
             rt.AbsoluteSleeper().until(rt.monotonic_ns() + 5_000_000)
         self.attach(cfg, inst.arena)
-        level = ServoLevel(inst)
+        self.level = level = ServoLevel(inst)
         self._arm_algo = level.robots["arm_algo"]
         self._algo = level.slots["algo"]
         self._enabled = level.slots["enabled"]
-        # per slot, per algorithm: a view of its kv parameter, or None if it has none
+        self._loads_gen = level.loads["generation"].reshape(1)
+        self._view_gains()
+
+    def _view_gains(self) -> None:
+        """Per slot, per algorithm: a view of its kv parameter, or None if it has none
+        (again after a servo plugin was loaded while running; outside the cycle)."""
         self._kv_views = [
             [rec["kv"].reshape(-1) if "kv" in (rec.dtype.names or ()) else None for rec in row]
-            for row in level.data
+            for row in self.level.data
         ]
 
     def load(self, cfg: KaliConfig) -> None:
@@ -142,6 +148,8 @@ class Dynamics(Daemon):
                 self._robot(k, mode)
                 ff["computed_mode"][k] = mode
         ff["heartbeat_tick"][:] = tick
+        if self._loads_gen[0] != self.level.taken and loading.take(self.level):
+            self._view_gains()  # after the tick's rows: a plugin loaded while running
 
     def _servo_gains(self, k: int) -> None:
         """Robot ``k``'s velocity gains k_v now (0 where a servo has none or is disabled)."""

@@ -189,6 +189,9 @@ class LockstepExecutive(WallClock):
             except Exception as exc:
                 raise HostedDaemonError(sv, exc) from exc
             self.stats[i].record(tick, t, t, monotonic_ns())
+        for _, sv in self.gang:  # plugins loaded meanwhile, after the tick's servos
+            if sv._loads_gen[0] != sv.level.taken:  # type: ignore[attr-defined]
+                sv.take_loads()  # type: ignore[attr-defined]
 
     def _watch_cycles(self) -> None:
         """The watchdog thread: every ``LOCKSTEP_SLICE_S``, while no fault is active, find

@@ -27,6 +27,7 @@ import numpy as np
 from ..core import layout
 from ..core.layout import ShadowState
 from ..runtime.instance import Instance
+from ..servo import loading
 from ..servo.algorithms.algorithm import struct_view
 from ..servo.level import ServoLevel
 
@@ -85,6 +86,8 @@ class ServoWatch:
 
     def changes(self) -> list[Change]:
         """What changed since the last call, in joint order, robot-level last."""
+        if int(self.level.loads["generation"]) != self.level.taken:
+            loading.take(self.level)  # servo plugins loaded while running: their names
         now, was, out = self._look(), self._said, []
         self._said = now
         moved = np.zeros(self.level.n, dtype=bool)
@@ -166,4 +169,3 @@ class TruthSampler:
     def sample(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copies of the arms', the joints' and the world's truth records."""
         return self.arms.copy(), self.joints.copy(), self.world[0].copy()
-

@@ -819,13 +819,15 @@ def cell_of(
 ) -> layout.Cell:
     """What ``cfg``'s arena layout depends on (``layout.blocks``), with ``algorithms`` the
     servo registry's private-data dtypes of its joint servos and ``arms`` of its robot-level
-    servos, each in registry order."""
+    servos, each in registry order; after them the spares of servos loaded while running
+    (``layout.SERVO_LOADABLE``, ``ARM_LOADABLE``)."""
+    spare = layout.LOADED_RECORD
     return layout.Cell(
         robots=tuple(r.name for r in cfg.robots),
         joints=cfg.joints.counts,
         flight_rows=layout.flight_rows(ms_to_ns(cfg.clock.servo_period_ms)),
-        algorithms=algorithms,
-        arms=arms,
+        algorithms=(*algorithms, *(spare,) * layout.SERVO_LOADABLE),
+        arms=(*arms, *(spare,) * layout.ARM_LOADABLE),
         config_bytes=len(cfg.text.encode()),
         config_dir_bytes=len(cfg.base_dir.encode()),
         config_files_bytes=len(cfg.files.encode()),

@@ -9,8 +9,10 @@ Long on purpose: every operation a user has on the servo level, on one client's 
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -19,7 +21,7 @@ from ..core.errors import InstanceError, KaliError, ServoError
 from ..core.layout import CalibState, FfMode, FfState, PowerState, SlotOp
 from ..core.spinlock import SpinLock
 from ..runtime.instance import Instance, decode
-from . import shadow
+from . import loading, shadow
 from .algorithms.algorithm import ServoAlgorithm, struct_view
 from .algorithms.arm import ArmServoAlgorithm
 from .level import (
@@ -78,7 +80,12 @@ def _one_record(what: str, data: np.ndarray, dtype: np.dtype) -> np.ndarray:
 class ServoClient:
     """What users, kalictl and robot programs do to the servo level (thesis 3.4)."""
 
-    def __init__(self, inst: Instance, pause: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        inst: Instance,
+        pause: Callable[[], None] | None = None,
+        guard: loading.Guard | None = None,
+    ) -> None:
         """``pause``: how its user lets time pass (a program's ``Kali.pause``, which steps a
         lockstep instance's stopped clock): given, a call that needs a servo tick (a
         robot-level select or shadow, or one behind it) waits for it as ``wait()`` does;
@@ -87,6 +94,7 @@ class ServoClient:
         self.level = ServoLevel(inst)
         self.names = self.level.names
         self._pause = pause
+        self._guard = guard  # a loaded servo's schedulability check (``load``'s default)
 
     def close(self) -> None:
         """Release the views."""
@@ -116,8 +124,11 @@ class ServoClient:
         return self.level.map.index(k, int(joint) - 1)
 
     def algorithm(self, name: str) -> tuple[int, ServoAlgorithm]:
-        """(index, algorithm) of a registered servo algorithm; ServoError naming them."""
+        """(index, algorithm) of a registered servo algorithm (one loaded while running
+        included); ServoError naming them."""
         registry = self.level.registry
+        if isinstance(name, str) and name not in registry.names():
+            loading.take(self.level)
         if not isinstance(name, str) or name not in registry.names():
             raise ServoError(f"no algorithm {name!r:.60}; known: {', '.join(registry.names())}")
         idx = registry.index(name)
@@ -331,6 +342,8 @@ class ServoClient:
         i = self.slot(robot, joint)
         a = int(self.level.slot_structs[i].algo)
         registry = self.level.registry
+        if a >= len(registry):
+            loading.take(self.level)
         if not 0 <= a < len(registry):
             raise ServoError(
                 f"{self._where(i)}: algorithm index {a} in the arena, registered 0.."
@@ -338,12 +351,51 @@ class ServoClient:
             )
         return registry[a].name
 
+    # ------------------------------------------------------------------ loading
+
+    def load(self, path: str | os.PathLike[str], guard: loading.Guard | None = None) -> list[str]:
+        """Load the servo plugin file ``path`` into the running instance, every SV, and
+        return the names of the servos it registers: then select or try them in shadow as a
+        configured plugin's.  Checked first as a plugin the config names is, and more
+        (``servo.loading``): ServoError, nothing loaded, naming the file and why.
+        ``guard``: the schedulability check of a joint running it (default: the one this
+        client was made with; a program's refuses a load that would not fit)."""
+        file = Path(path).expanduser().resolve()
+        try:
+            source = file.read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ServoError(f"load {str(path)!r}: cannot read it: {exc}") from None
+        return self.load_source(source, str(file), guard)
+
+    def load_source(
+        self, source: str, origin: str, guard: loading.Guard | None = None
+    ) -> list[str]:
+        """``load`` of a file's text ``source``, ``origin`` its name (a remote program
+        sends the text: the file is on its machine)."""
+        if not isinstance(source, str) or not isinstance(origin, str):
+            raise ServoError("load: a plugin's text and its file name are strings")
+        return loading.offer(self.level, source, origin, self._pause, guard or self._guard)
+
+    def loaded(self) -> list[loading.Loaded]:
+        """The plugin files loaded while running, in order."""
+        loading.take(self.level)
+        out = []
+        for k in range(int(self.level.loads["generation"])):
+            e = self.level.loads["entries"][k]
+            names = [n for n in decode(bytes(e["names"])).split(",") if n]
+            out.append(
+                loading.Loaded(decode(bytes(e["origin"])), names, loading.verdict(self.level, k))
+            )
+        return out
+
     # ------------------------------------------------------------------ robot-level servos
 
     def arm_algorithm(self, name: str) -> tuple[int, ServoAlgorithm | ArmServoAlgorithm]:
         """(index, algorithm) of a robot-level servo; ServoError naming them (and saying so
         when ``name`` is a joint servo)."""
         registry = self.level.registry
+        if isinstance(name, str) and name not in registry.arm_names():
+            loading.take(self.level)
         if isinstance(name, str) and name in registry.arm_names():
             idx = registry.arm_index(name)
             return idx, registry.arms[idx]
@@ -361,8 +413,7 @@ class ServoClient:
         """The robot-level servo robot ``robot`` runs, or None while it runs joint servos."""
         k = self.robot_index(robot)
         a = int(self.level.robots["arm_algo"][k])
-        arms = self.level.registry.arms
-        return arms[a].name if 0 <= a < len(arms) else None
+        return self.level.name_of(a, robot_level=True) if a != layout.ARM_NONE else None
 
     def select_arm(self, robot: str | int, servo: str | None, wait: bool = True) -> None:
         """Make robot-level servo ``servo`` run the whole robot (None or ``'joints'``: back to

@@ -92,11 +92,16 @@ class ServoLevel:
         self.joints = get(layout.KEY_JOINTS, layout.JOINT_STATE, n)
         self.slots = get(layout.KEY_SLOTS, layout.SERVO_SLOT, n)
         self.ctrl = get(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+        # the names, then spares of the servos loaded while running (``loading``), joint
+        # servos first: robot-level servo a's name is at ``arm_names_at + a``
+        self.arm_names_at = len(self.registry) + layout.SERVO_LOADABLE
         self.servo_names = get(
             layout.KEY_SERVO_NAMES,
             layout.SERVO_NAME,
-            len(self.registry) + len(self.registry.arms),
+            self.arm_names_at + len(self.registry.arms) + layout.ARM_LOADABLE,
         )
+        self.loads = get(layout.KEY_SERVO_LOADS, layout.SERVO_LOADS)
+        self.taken = 0  # entries of the loads table this level has taken (``loading.take``)
         width = layout.SERVO_STAGING_BYTES
         self.staging = get(layout.KEY_STAGING, np.dtype("u1"), n * width).reshape(n, width)
         # algorithm k's private data for every joint, one record per slot (servo.vector runs
@@ -138,6 +143,7 @@ class ServoLevel:
         coff = a.lookup(layout.KEY_SERVO_CTRL)[0]  # type: ignore[index]
         self.done_addr = a.address_of_field(coff, layout.SERVO_CTRL, "done")
         self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
+        self.configured = (len(self.registry), len(self.registry.arms))  # before any load
         self.fifo_ratio = Fraction(
             ms_to_ns(cfg.clock.tg_period_ms), ms_to_ns(cfg.clock.servo_period_ms)
         )  # exact: periods are whole ns
@@ -158,8 +164,10 @@ class ServoLevel:
 
     def initialise(self) -> None:
         """First start (SIO): every joint's servo, data, tolerances and checks from the config."""
-        named = [(n, 0) for n in self.registry.names()]
+        spares = [("", 0)] * layout.SERVO_LOADABLE
+        named = [(n, 0) for n in self.registry.names()] + spares
         named += [(n, 1) for n in self.registry.arm_names()]
+        named += [("", 1)] * layout.ARM_LOADABLE
         for rec, (name, robot_level) in zip(self.servo_names, named, strict=True):
             rec["name"], rec["robot_level"] = name.encode()[:31], robot_level
         for k, robot in enumerate(self.cfg.robots):
@@ -188,6 +196,33 @@ class ServoLevel:
                 for a, alg in enumerate(self.registry):
                     init = init_data_for(robot.model, alg, j)
                     alg.init(self.structs[i][a], init, self.servo_period_s)
+
+    def view_loaded(self) -> None:
+        """View the private data of every algorithm the registry has beyond these views (a
+        plugin loaded while running: its spare blocks, ``loading.take``); outside the
+        cycle."""
+        a, n = self.inst.arena, self.n
+        for k in range(len(self.blocks), len(self.registry)):
+            block = a.existing(layout.KEY_SERVO_DATA.format(algo=k), self.registry[k].dtype, n)
+            self.blocks.append(block)
+            for i in range(n):
+                rec = block[i : i + 1].reshape(())
+                self.data[i].append(rec)
+                self.structs[i].append(struct_view(rec))
+        for k in range(len(self.arm_blocks), len(self.registry.arms)):
+            dtype = self.registry.arms[k].dtype
+            block = a.existing(layout.KEY_ARM_DATA.format(arm=k), dtype, self.n_robots)
+            self.arm_blocks.append(block)
+            for r in range(self.n_robots):
+                self.arm_data[r].append(block[r : r + 1].reshape(()))
+
+    def name_of(self, a: int, robot_level: bool = False) -> str:
+        """The name of joint servo (or robot-level servo) ``a`` as SIO and the loading clients
+        wrote it in the arena: for a process that has not loaded every plugin (SIO)."""
+        at = self.arm_names_at + a if robot_level else a
+        if not 0 <= at < len(self.servo_names):
+            return f"#{a}"
+        return decode(bytes(self.servo_names[at]["name"])) or f"#{a}"
 
     def close(self) -> None:
         """Drop the ctypes views (they pin the arena's buffer)."""

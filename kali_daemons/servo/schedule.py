@@ -26,14 +26,12 @@ from ..core import layout
 from ..core.errors import ScheduleError
 from ..runtime.flightrec import attach_ring, read_ring
 from ..runtime.instance import Instance, decode
-from .algorithms.algorithm import Handover, ServoAlgorithm, struct_view
+from .algorithms.algorithm import ServoAlgorithm, step_cost_us
 from .client import ServoClient
 from .sv import units
 
 DEFAULT_MARGIN = 0.2  # the servo tick may take 80 % of its period, the rest is headroom
 WINDOW_S = 0.5  # how long CPU times are sampled
-STEP_SAMPLES = 400  # calls of a servo's step timed (at most STEP_BUDGET_S)
-STEP_BUDGET_S = 0.2
 # Real-time work may hold at most 95 % of a CPU: past it, while a normal task waits there, the
 # kernel's fair server takes the CPU from every real-time process on it for 50 ms a second
 # (decision 0004, "The kernel's share").
@@ -82,31 +80,6 @@ class Prediction:
 
     def text(self) -> str:
         return "\n".join(self.lines)
-
-
-def step_cost_us(alg: ServoAlgorithm, period_s: float, record: np.ndarray | None = None) -> float:
-    """The cost of one ``step`` of ``alg``, µs: the 90th percentile of calls timed on a
-    scratch copy of ``record`` (a joint's own private data of ``alg``: its parameters), or
-    on one initialised with the algorithm's defaults.  Outside any cycle (the kalictl
-    process): the joint's record is never written."""
-    rec = np.zeros(1, alg.dtype)
-    data = struct_view(rec)
-    if record is None:
-        alg.init(data, {}, period_s)
-    else:
-        rec[0] = record.reshape(-1)[0]
-    alg.handover(data, Handover(0.0, 0.0, 0.0, 0.0, 0.0))
-    times: list[int] = []
-    end = time.monotonic() + STEP_BUDGET_S
-    clock = time.perf_counter_ns
-    for k in range(STEP_SAMPLES):
-        demand = 1e-3 * math.sin(k * 0.01)
-        t0 = clock()
-        alg.step(data, demand, 0.0)
-        times.append(clock() - t0)
-        if time.monotonic() > end and len(times) >= 10:
-            break
-    return float(np.percentile(times, 90)) / 1000.0
 
 
 def _p99(values: np.ndarray) -> float:

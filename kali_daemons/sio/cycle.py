@@ -877,7 +877,7 @@ class SioCycle:
             if holder == 0:
                 late.append(f"{joint} (unclaimed)")
                 continue
-            algo = lv.registry[int(lv.slot_structs[i].algo)].name
+            algo = lv.name_of(int(lv.slot_structs[i].algo))
             late.append(f"{joint} (servo '{algo}', claimed by sv.{holder - 1})")
             holders.append(f"sv.{holder - 1}")
         self.inst.raise_fault(

@@ -1316,11 +1316,16 @@ def servo_list(ctx: click.Context) -> None:
     """The registered algorithms, joint and robot-level, what every robot runs, and the
     servos in shadow trial beside them."""
     with _servo_client(ctx) as (_inst, client):
+        loaded = client.loaded()  # the plugins loaded while running registered first
         registry = client.level.registry
         for alg in registry:
             click.echo(f"{alg.name:<16} joint  {', '.join(alg.params)}")
         for arm in registry.arms:
             click.echo(f"{arm.name:<16} robot  {', '.join(arm.params)}")
+        for entry in loaded:
+            said = entry.verdict
+            state = "being loaded" if said is None else f"FAILED: {said}" if said else "loaded"
+            click.echo(f"{entry.file}: {', '.join(entry.servos)} {state}")
         click.echo("")
         for k, name in enumerate(client.names):
             r = client.level.robots[k]
@@ -1342,6 +1347,32 @@ def servo_list(ctx: click.Context) -> None:
                 click.echo(
                     f"{'':<8} in shadow: " + "  ".join(f"{t.joint}:{t.shadow}" for t in running)
                 )
+
+
+@servo.command("load")
+@click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
+@_WARN
+@click.pass_context
+@_errors
+def servo_load(ctx: click.Context, file: Path, warn: bool) -> None:
+    """Load the servo plugin FILE into the running instance, every SV, without a restart:
+    checked as a plugin the config names (imported, its steps run once), its step against
+    the servo period and the schedulability check; then select or try its servos as any
+    other's: ``kalictl servo load my_servo.py``, ``kalictl servo shadow left 2 my_servo``."""
+    with _servo_client(ctx) as (inst, client):
+
+        def guard(what: str, step_us: float) -> None:
+            change = schedule.Change(what, step_us)
+            schedule.guard(inst, change, warn, lambda text: click.echo(text, err=True))
+
+        names = client.load(file, None if inst.lockstep else guard)
+        if client.loaded()[-1].verdict is None:  # the clock stands: nobody took it yet
+            how = "kalictl clock step 1" if inst.lockstep else "kalictl reset"
+            click.echo(
+                f"{file}: offered {', '.join(names)}; the SVs take it at their next tick ({how})"
+            )
+            return
+        click.echo(f"{file}: loaded {', '.join(names)} into every SV")
 
 
 def _joint_arg(text: str) -> int:

@@ -107,6 +107,7 @@ class Introspector:
         self.sv_names = [f"sv.{k}" for k in range(cell.n_svs)]
         self._views: dict[str, np.ndarray] = {}
         self._servo_names: tuple[list[str], list[str]] | None = None  # _names, once written
+        self._names_generation = -1  # the servo loads table's, when they were read
 
     def _view(self, key: str, dtype: np.dtype, count: int | None = None) -> np.ndarray | None:
         v = self._views.get(key)
@@ -219,9 +220,13 @@ class Introspector:
 
     def _names(self) -> tuple[list[str], list[str]]:
         """The joint servos' and the robot-level servos' names, each in registry order
-        (SIO's ``servo.names``, written once at its first start: read once; empty before)."""
-        if self._servo_names is not None:
+        (SIO's ``servo.names``, written at its first start and by each servo plugin loaded
+        while running: read again once the loads table's generation moves; empty before)."""
+        loads = self._view(layout.KEY_SERVO_LOADS, layout.SERVO_LOADS)
+        generation = -1 if loads is None else int(loads["generation"])
+        if self._servo_names is not None and generation == self._names_generation:
             return self._servo_names
+        self._names_generation = generation
         found = self.inst.arena.lookup(layout.KEY_SERVO_NAMES)
         if found is None:
             return [], []

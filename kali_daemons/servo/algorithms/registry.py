@@ -183,6 +183,29 @@ class Registry:
         with guarded(f"plugin {spec!r}", path):
             return self._load_plugin(spec, import_plugin(spec, path))
 
+    def load_module(self, spec: str, module: Any) -> list[str]:
+        """``load_plugin`` for a plugin already imported (a file loaded while running,
+        ``servo.loading``); the caller guards it."""
+        return self._load_plugin(spec, module)
+
+    def truncate(self, n: int, n_arms: int) -> None:
+        """Forget every algorithm from joint index ``n`` and robot-level index ``n_arms``
+        on (a plugin loaded while running that failed a later check)."""
+        del self._algos[n:], self.arms[n_arms:]
+        self._rebuild_names()
+
+    def stand_in(self, joint: Sequence[str], arm: Sequence[str], why: str) -> None:
+        """Hold the indices of algorithms that could not be loaded in this process (a plugin
+        loaded while running, ``servo.loading``) with ones that refuse to run: their
+        ``init``, ``handover`` and ``set_params`` raise ConfigError saying ``why``, so a
+        select, shadow or put of one is refused (``level.apply_op``), and a step halts."""
+        for name in joint:
+            self._algos.append(_refusing(ServoAlgorithm, name, why))
+            self._origin[name] = why
+        for name in arm:
+            self.arms.append(_refusing(ArmServoAlgorithm, name, why))
+            self._origin[name] = why
+
     def _load_plugin(self, spec: str, module: Any) -> list[str]:
         """``load_plugin`` once the plugin is imported, inside its guard."""
         register = getattr(module, "register", None)
@@ -223,6 +246,21 @@ class Registry:
         self._by_name = {a.name: i for i, a in enumerate(self._algos)}
         kept = set(self._by_name) | set(self.arm_names())
         self._origin = {n: o for n, o in self._origin.items() if n in kept}
+
+
+STAND_IN_DTYPE = np.dtype([("unloaded", "<u8")], align=True)
+
+
+def _refusing(kind: type, name: str, why: str) -> Any:
+    """An algorithm of ``kind`` named ``name`` whose every function raises ``why``."""
+
+    def refuse(*_args: Any) -> Any:
+        raise ConfigError(f"servo '{name}' is not loaded here: {why}")
+
+    return kind(
+        name=name, dtype=STAND_IN_DTYPE, params=(), init=refuse, step=refuse,
+        handover=refuse, set_params=refuse, get_params=refuse, doc=why,
+    )  # fmt: skip
 
 
 PROBE_INTERVAL_S = 0.001  # the test input ``register`` steps a new algorithm with

@@ -32,6 +32,8 @@ _NO_MODEL = (
 )
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from .armmodel import ArmModel
     from .daemon import ServoWorker
 
@@ -86,10 +88,8 @@ class ArmRunner:
         self._data = lv.arm_data[k]
         # each algorithm's compiled step, bound to this robot's record, inputs and torque
         # (a built-in's: ``ArmServoAlgorithm.bind``); None: its Python ``step``
-        self._bound = [
-            None if alg.bind is None or self.model is None else alg.bind(data, inp, self.tau)
-            for alg, data in zip(self._arms, self._data, strict=True)
-        ]
+        self._bound: list[Callable[[], int] | None] = []
+        self.bind_loaded()
         self._algo = self.robot["arm_algo"]
         self._guided = self.robot["guided"]
         # the torques of a robot-level step out to the slots (_finish_reference is what it
@@ -129,6 +129,18 @@ class ArmRunner:
             slots["shadow_sq"],
             slots["shadow_peak"],
         )
+
+    def bind_loaded(self) -> None:
+        """Bind each robot-level servo this runner has not bound yet: at configure, and
+        after a plugin was loaded while running (``servo.loading``); outside the cycle."""
+        for a in range(len(self._bound), len(self._arms)):
+            alg, data = self._arms[a], self._data[a]
+            bound = (
+                None
+                if alg.bind is None or self.model is None
+                else alg.bind(data, self.inp, self.tau)
+            )
+            self._bound.append(bound)
 
     def run(self, tick: int) -> None:
         """Run the robot for ``tick`` (inside the cycle)."""

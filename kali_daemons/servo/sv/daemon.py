@@ -31,7 +31,7 @@ from ...core.kernels import SV_ARM, SV_DONE, SV_FAULT, SV_FEED, SV_LEFT, SV_SLOT
 from ...core.layout import FaultCode, ShadowState, SlotOp, SlotReset
 from ...runtime.config import period_ticks
 from ...runtime.daemon import Daemon, drain
-from .. import shadow
+from .. import loading, shadow
 from ..algorithms.algorithm import Handover
 from ..level import ServoLevel, apply_op, handover
 from . import arm, units
@@ -81,6 +81,7 @@ class ServoWorker(Daemon):
         registry = self.level.registry
         self._setup_units(count)
         self.n_algos = len(registry)
+        self._loads_gen = self.level.loads["generation"].reshape(1)  # plugins loaded so far
         # per slot: the algorithm its robot starts with, what an invalid index is restored to
         self.configured = [
             registry.index(robot.servo)
@@ -215,6 +216,8 @@ class ServoWorker(Daemon):
         self._serve_args.wanted = tick
         self._serve_from(SV_FEED)
         self._follow_learnt_period()
+        if self._loads_gen[0] != self.level.taken:
+            self.take_loads()
 
     def cycle_reference(self, tick: int) -> None:
         """What ``cycle`` does, with the feed awaited in Python (``_await_feed``)."""
@@ -222,6 +225,21 @@ class ServoWorker(Daemon):
         if fed_tick >= 0:
             self.serve(fed_tick)
         self._follow_learnt_period()
+        if self._loads_gen[0] != self.level.taken:
+            self.take_loads()
+
+    def take_loads(self) -> None:
+        """Take the servo plugins loaded since the last cycle (``servo.loading``), the tick
+        acknowledged first: after the cycle, in the gap before the next (what a load may
+        cost was checked by the loading client).  Called by the lockstep executive after
+        this SV's share of SIO's tick."""
+        wait = getattr(self, "_clock_wait", None)
+        if wait is not None:
+            wait.settle()
+        if loading.take(self.level, self.index):
+            self.n_algos = len(self.level.registry)
+            for runner in self.arms:
+                runner.bind_loaded()
 
     def _follow_learnt_period(self) -> None:
         """Inside the cycle: to rest, or back from it, where the feed's learning chose

@@ -1,0 +1,131 @@
+"""Benchmark: what loading a servo plugin into a running instance costs the servo tick, in
+real time, beside cyclictest (issue 55 item 6, ``kali_daemons/servo/loading.py``).
+
+What runs.  One real-time instance (the default cell), both arms swinging.  A quiet window of
+``--seconds``, then ``layout.MAX_LOADS`` plugin files (the example plugin under new names)
+loaded one by one through ``kali.servo.load``, each inside a window of its own
+``--seconds`` long.  Per window, from the flight recorder: SIO's sensor-to-DAC latency p50 /
+p99 / max; from the process table, the misses of SIO and of each SV (a tick whose signal
+was still unacknowledged when the next was due); per load, the call's wall time (its checks
+on this process's CPU, then until every SV has taken it).  cyclictest on every CPU beside
+it is the machine's floor.
+
+How to read it.  An SV takes a file after its cycle, in the gap before the next tick (the
+client refused anything whose load would not fit half of it): the load windows' figures
+should be the quiet window's, with no miss cyclictest does not also see.
+
+    .venv/bin/python scripts/bench_servo_load.py --seconds 5
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_recording import swing
+from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
+from harness import DEFAULT_CONFIG, KaliRun, cell_config, table
+
+from kali_daemons.client import Kali
+from kali_daemons.core import layout
+from kali_daemons.examples import servo_plugin_example
+from kali_daemons.runtime import flightrec
+
+
+def plugin_files(folder: Path) -> list[Path]:
+    """``layout.MAX_LOADS`` copies of the example plugin, each registering a name of its own."""
+    text = Path(servo_plugin_example.__file__).read_text()
+    files = []
+    for n in range(layout.MAX_LOADS):
+        path = folder / f"loaded_pd{n}.py"
+        path.write_text(text.replace('NAME = "bwpd"', f'NAME = "loaded_pd{n}"'))
+        files.append(path)
+    return files
+
+
+def window(kali: Kali, seconds: float, load: Path | None) -> dict[str, float]:
+    """One window of ``seconds``, loading ``load`` half-way through: SIO's latency from the
+    ring, the serious processes' misses, the load's wall time."""
+    inst = kali.inst
+    header = inst.arena.existing(layout.KEY_FLIGHT, layout.FLIGHT)
+    ring = flightrec.attach_ring(inst.arena, header)
+    first = int(header["count"])
+    procs = inst.procs
+    names = [str(n, "ascii").rstrip("\0") for n in procs["name"]]
+    watched = [i for i, n in enumerate(names) if n == "sio" or n.startswith("sv.")]
+    misses0 = procs["misses"][watched].copy()
+    out: dict[str, float] = {"load_ms": float("nan")}
+    time.sleep(seconds / 2)
+    if load is not None:
+        t0 = time.perf_counter()
+        kali.servo.load(load)
+        out["load_ms"] = (time.perf_counter() - t0) * 1e3
+    time.sleep(seconds / 2)
+    out["misses"] = float((procs["misses"][watched] - misses0).sum())
+    rows = flightrec.read_ring(header, ring)
+    rows = rows[rows["tick"] >= 0][-(int(header["count"]) - first) :]
+    lat = rows["latency_ns"] / 1e3
+    out["p50"], out["p99"], out["max"] = (float(np.percentile(lat, q)) for q in (50, 99, 100))
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    ap.add_argument("--seconds", type=float, default=5.0, help="each window (at most 10 s)")
+    args = ap.parse_args()
+    seconds = min(args.seconds, 10.0)  # the flight recorder's ring holds 10 s at 1 kHz
+    name = f"benchload{os.getpid()}"
+    cfg = cell_config({}, name, args.config, "default")
+    tmp = Path(tempfile.mkdtemp(prefix="bench_servo_load."))
+    hist = tmp / "cyclictest.hist"
+    stop = threading.Event()
+    results: list[tuple[str, dict[str, float]]] = []
+    with KaliRun(cfg, log_dir=tmp, lockstep=False):
+        duration = int(seconds * (layout.MAX_LOADS + 1) + 30)
+        ct = subprocess.Popen(
+            cyclictest_command(duration, os.cpu_count() or 1, hist, 1000, spike_us=0),
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True,
+        )  # fmt: skip
+        try:
+            with Kali(name) as kali:
+                kali.ready()
+                mover = threading.Thread(target=swing, args=(kali, stop), daemon=True)
+                mover.start()
+                time.sleep(2.0)
+                results.append(("quiet", window(kali, seconds, None)))
+                for path in plugin_files(tmp):
+                    results.append((f"load {path.name}", window(kali, seconds, path)))
+                halt = kali.inst.fault_text()
+                stop.set()
+                mover.join(timeout=60)
+        finally:
+            stop.set()
+            stop_cyclictest(ct)
+    floor = ct_row("cyclictest", parse_histfile(hist), "all", 1000)
+    if halt is not None:
+        print(f"halted: {halt}; cyclictest max {floor.max_us:.0f} µs (the floor)")
+        return 1
+    rows = [
+        (what, f"{r['p50']:.0f}", f"{r['p99']:.0f}", f"{r['max']:.0f}", f"{r['misses']:.0f}",
+         "-" if r["load_ms"] != r["load_ms"] else f"{r['load_ms']:.0f}")
+        for what, r in results
+    ]  # fmt: skip
+    print(table(
+        ["window", "SIO s2DAC p50 µs", "p99 µs", "max µs", "misses (sio, svs)", "load ms"],
+        rows,
+        title=f"servo plugins loaded while running, {seconds:g} s windows, real time",
+        caption=f"cyclictest p99 {floor.p99_us:.0f} µs, max {floor.max_us:.0f} µs (the floor)",
+    ))  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
