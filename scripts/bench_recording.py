@@ -19,17 +19,18 @@ writes anyway); ``lost`` must be 0; the recorder's share is of one CPU.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
-import subprocess
 import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
-from harness import CELLS, DEFAULT_CONFIG, KaliRun, cell_config, table
+from benchlib import ct_row, parse_histfile
+from harness import CELLS, DEFAULT_CONFIG, Floor, KaliRun, cell_config, table
 
 from kali_daemons.client import Kali
 from kali_daemons.client.common import MotionFailedError
@@ -55,6 +56,22 @@ def swing(kali: Kali, stop: threading.Event) -> None:
         except MotionFailedError:
             return  # halted: main reports it
         sign = -sign
+
+
+@contextlib.contextmanager
+def swinging(kali: Kali) -> Iterator[None]:
+    """Every arm readied, then swinging (``swing``) in a thread of its own for the block, two
+    seconds under way before it starts; stopped on the way out."""
+    stop = threading.Event()
+    kali.ready()
+    mover = threading.Thread(target=swing, args=(kali, stop), daemon=True)
+    mover.start()
+    try:
+        time.sleep(2.0)
+        yield
+    finally:
+        stop.set()
+        mover.join(timeout=60)
 
 
 def window(kali: Kali, seconds: float, path: Path | None) -> dict[str, float]:
@@ -100,29 +117,16 @@ def main() -> int:
     cfg = cell_config(CELLS[args.cell], name, args.config, args.cell)
     tmp = Path(tempfile.mkdtemp(prefix="bench_recording."))
     hist = tmp / "cyclictest.hist"
-    stop = threading.Event()
-    with KaliRun(cfg, log_dir=tmp, lockstep=False):
-        ct = subprocess.Popen(
-            cyclictest_command(int(2 * args.seconds + 30), os.cpu_count() or 1, hist, 1000,
-                               spike_us=0),
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True,
-        )  # fmt: skip
-        try:
-            with Kali(name) as kali:
-                kali.ready()
-                mover = threading.Thread(target=swing, args=(kali, stop), daemon=True)
-                mover.start()
-                time.sleep(2.0)
-                plain = window(kali, args.seconds, None)
+    with KaliRun(cfg, log_dir=tmp, lockstep=False), Floor(
+        int(2 * args.seconds + 30), 1000, hist, spike_us=0, threads=os.cpu_count() or 1
+    ) as ct:
+        ct.start()
+        with Kali(name) as kali, swinging(kali):
+            plain = window(kali, args.seconds, None)
+            halt = kali.inst.fault_text()
+            if halt is None:
+                recorded = window(kali, args.seconds, tmp / "run.mcap")
                 halt = kali.inst.fault_text()
-                if halt is None:
-                    recorded = window(kali, args.seconds, tmp / "run.mcap")
-                    halt = kali.inst.fault_text()
-                stop.set()
-                mover.join(timeout=60)
-        finally:
-            stop.set()
-            stop_cyclictest(ct)
     floor = ct_row("cyclictest", parse_histfile(hist), "all", 1000)
     if halt is not None:  # no figures of a window the cell did not run to its end
         print(f"halted: {halt}; cyclictest max {floor.max_us:.0f} µs (the floor)")

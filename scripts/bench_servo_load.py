@@ -21,17 +21,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
-from bench_recording import swing
-from benchlib import ct_row, cyclictest_command, parse_histfile, stop_cyclictest
-from harness import DEFAULT_CONFIG, KaliRun, cell_config, table
+from bench_recording import swinging
+from benchlib import ct_row, parse_histfile
+from harness import DEFAULT_CONFIG, Floor, KaliRun, cell_config, table
 
 from kali_daemons.client import Kali
 from kali_daemons.core import layout
@@ -86,29 +84,17 @@ def main() -> int:
     cfg = cell_config({}, name, args.config, "default")
     tmp = Path(tempfile.mkdtemp(prefix="bench_servo_load."))
     hist = tmp / "cyclictest.hist"
-    stop = threading.Event()
     results: list[tuple[str, dict[str, float]]] = []
-    with KaliRun(cfg, log_dir=tmp, lockstep=False):
-        duration = int(seconds * (layout.MAX_LOADS + 1) + 30)
-        ct = subprocess.Popen(
-            cyclictest_command(duration, os.cpu_count() or 1, hist, 1000, spike_us=0),
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True,
-        )  # fmt: skip
-        try:
-            with Kali(name) as kali:
-                kali.ready()
-                mover = threading.Thread(target=swing, args=(kali, stop), daemon=True)
-                mover.start()
-                time.sleep(2.0)
-                results.append(("quiet", window(kali, seconds, None)))
-                for path in plugin_files(tmp):
-                    results.append((f"load {path.name}", window(kali, seconds, path)))
-                halt = kali.inst.fault_text()
-                stop.set()
-                mover.join(timeout=60)
-        finally:
-            stop.set()
-            stop_cyclictest(ct)
+    duration = int(seconds * (layout.MAX_LOADS + 1) + 30)
+    with KaliRun(cfg, log_dir=tmp, lockstep=False), Floor(
+        duration, 1000, hist, spike_us=0, threads=os.cpu_count() or 1
+    ) as ct:
+        ct.start()
+        with Kali(name) as kali, swinging(kali):
+            results.append(("quiet", window(kali, seconds, None)))
+            for path in plugin_files(tmp):
+                results.append((f"load {path.name}", window(kali, seconds, path)))
+            halt = kali.inst.fault_text()
     floor = ct_row("cyclictest", parse_histfile(hist), "all", 1000)
     if halt is not None:
         print(f"halted: {halt}; cyclictest max {floor.max_us:.0f} µs (the floor)")

@@ -207,3 +207,38 @@ def test_a_robot_level_servo_loaded_while_running_runs_the_arm(
         handle.wait(timeout=30.0)
         assert handle.state.name == "DONE" and left.read_state().servos == ("arm_pd",) * 6
         assert k.inst.fault_text() is None
+
+
+AWARE = Path(__file__).parent / "system" / "aware_servo.py"
+
+
+def test_a_loaded_servo_learns_its_joint_and_steps_on_the_demands_velocity(
+    kali: Callable[..., str],
+) -> None:
+    """``joint_aware``: ``init`` gets each joint's ``JointInfo`` (its robot type's limits and
+    drive); ``velocity_aware``: ``step`` gets the demand's velocity SIO fed the slot."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        sv = k.servo
+        assert sv.load(AWARE) == ["aware_pd"]
+        rtype = k.robot("right").type
+        for robot in ("left", "right"):
+            for j in range(1, 7):
+                rec = sv.get_servo(robot, j, "aware_pd")
+                drive = rtype.drive
+                limit = drive.kt[j - 1] * drive.max_current[j - 1] * abs(drive.gear[j - 1])
+                assert int(rec["joint"]) == j and float(rec["q_max"]) == rtype.q_max[j - 1]
+                assert float(rec["limit"]) == pytest.approx(limit)
+        handle = moving_left(k, [10, -15, 10, 0, 0, 0])
+        step_kali_clock(k.inst, 300)  # under way
+        k.robot("left").select_joint_servos("aware_pd")
+        i = sv.slot("left", 2)
+        seen = []
+        for _ in range(50):
+            step_kali_clock(k.inst, 1)
+            rec = sv.get_servo("left", 2, "aware_pd")
+            seen.append(float(rec["last_velocity_demand"]))
+            assert seen[-1] == float(sv.level.slots["demand_vel"][i])
+        assert max(abs(v) for v in seen) > 0.01  # the arm is moving: a real velocity
+        handle.wait(timeout=30.0)
+        assert handle.state.name == "DONE" and k.inst.fault_text() is None

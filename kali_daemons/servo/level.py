@@ -31,7 +31,7 @@ from ..robots import robot_type
 from ..runtime.config import ms_to_ns
 from ..runtime.instance import Instance, decode
 from . import shadow
-from .algorithms.algorithm import Handover, ServoAlgorithm, struct_view
+from .algorithms.algorithm import Handover, JointInfo, ServoAlgorithm, initialise, struct_view
 from .algorithms.registry import Registry, registry_for
 
 FIFO_CAPACITY = layout.FIFO_CAPACITY  # TG set-points a TG → SIO FIFO holds (the layout sizes it)
@@ -193,9 +193,10 @@ class ServoLevel:
                 s.shadow = layout.NO_SHADOW
                 s.shadow_torque = math.nan  # no trial (the flight recorder's column)
                 s.enabled = 1
+                joint = JointInfo(robot.name, j + 1, robot.type)
                 for a, alg in enumerate(self.registry):
                     init = init_data_for(robot.model, alg, j)
-                    alg.init(self.structs[i][a], init, self.servo_period_s)
+                    initialise(alg, self.structs[i][a], init, self.servo_period_s, joint)
 
     def view_loaded(self) -> None:
         """View the private data of every algorithm the registry has beyond these views (a

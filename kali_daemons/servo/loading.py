@@ -34,7 +34,7 @@ from ..core.pyfile import compile_file, guarded, import_compiled
 from ..core.spinlock import SpinLock
 from ..runtime.instance import decode
 from ..runtime.paths import instance_dir
-from .algorithms.algorithm import step_cost_us
+from .algorithms.algorithm import JointInfo, initialise, step_cost_us
 from .algorithms.registry import Registry
 from .level import ServoLevel
 
@@ -296,9 +296,15 @@ def _initialise(level: ServoLevel, n0: int, a0: int) -> None:
     """Every joint's record of each new joint servo, every robot's of each new robot-level
     one, at the algorithm's defaults; their names in the arena.  Nobody runs them yet."""
     registry, period = level.registry, level.servo_period_s
+    robots = level.cfg.robots
+    joints = [
+        JointInfo(robots[level.map.robot_of[i]].name, level.map.joint_of[i] + 1,
+                  robots[level.map.robot_of[i]].type)
+        for i in range(level.n)
+    ]  # fmt: skip
     for a in range(n0, len(registry)):
         for i in range(level.n):
-            registry[a].init(level.structs[i][a], {}, period)
+            initialise(registry[a], level.structs[i][a], {}, period, joints[i])
         level.servo_names[a]["name"] = registry[a].name.encode()[:31]
     for a in range(a0, len(registry.arms)):
         for r in range(level.n_robots):

@@ -12,12 +12,14 @@ under 1 µs, which matters at 1-2 kHz.
 Which function runs where:
 
 - ``step(data, demand, position) -> (torque, error, status)``: inside the servo cycle, once
-  per tick per joint.  Python floats and the struct only: no allocation beyond the float
-  results, no numpy, no I/O, no logging.
+  per tick per joint (with ``velocity_aware``, a fourth argument: the demand's velocity).
+  Python floats and the struct only: no allocation beyond the float results, no numpy, no
+  I/O, no logging.
 - ``handover(data, Handover)``: inside the cycle, when the SV switches a joint to this
   algorithm, just before the first ``step`` of the same tick.
 - ``init``, ``set_params``, ``get_params``: outside the cycle (configure, ``kalictl servo
-  set/get``, clients); they validate and may raise ``ConfigError``.
+  set/get``, clients); they validate and may raise ``ConfigError``.  With ``joint_aware``,
+  ``init`` gets a fourth argument, the joint's ``JointInfo`` (its robot type: limits, model).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import numpy as np
 
 from ...core import layout
 from ...core.errors import ConfigError
+from ...robots import RobotType
 
 STATUS_OK = 0  # what ``step`` returns when all is well
 MAX_DATA_BYTES = layout.SERVO_STAGING_BYTES  # private data must fit the put/get mailbox
@@ -77,6 +80,50 @@ class ServoAlgorithm:
     # get_params(data) -> every parameter's current value.  Outside the cycle.
     get_params: Callable[[Any], dict[str, float]]
     doc: str = ""
+    # True: ``init`` takes a fourth argument, the ``JointInfo`` of the joint the record is
+    # for (None where it is for no joint: the checks at registration and of its cost)
+    joint_aware: bool = False
+    # True: ``step`` takes a fourth argument, the demand's velocity, rad/s (the dynamics
+    # process's rows interpolated as the demand; 0 where no dynamics process runs)
+    velocity_aware: bool = False
+
+
+@dataclass(frozen=True)
+class JointInfo:
+    """The joint a servo's record is for, given to an ``init`` that asks for it
+    (``ServoAlgorithm.joint_aware``): the robot's name, the joint (1..n, as the thesis
+    numbers the PUMA's) and the robot's type: its limits (``rtype.q_min[joint - 1]``,
+    ``qd_max``, ...), drive (gear ratios, motor constants, current limits) and model
+    (``rtype.urdf``, ``kinematics``).  Outside the cycle."""
+
+    robot: str
+    joint: int
+    rtype: RobotType
+
+
+def initialise(
+    alg: ServoAlgorithm,
+    data: Any,
+    init_data: Mapping[str, float],
+    period_s: float,
+    joint: JointInfo | None = None,
+) -> None:
+    """``alg.init`` on ``data``, with ``joint`` where the algorithm asked for it.  Outside
+    the cycle."""
+    if alg.joint_aware:
+        alg.init(data, init_data, period_s, joint)  # type: ignore[call-arg]
+    else:
+        alg.init(data, init_data, period_s)
+
+
+def step(
+    alg: ServoAlgorithm, data: Any, demand: float, position: float, velocity: float
+) -> tuple[float, float, int]:
+    """``alg.step`` on ``data``, with the demand's ``velocity`` where the algorithm asked for
+    it.  Inside the cycle."""
+    if alg.velocity_aware:
+        return alg.step(data, demand, position, velocity)  # type: ignore[call-arg]
+    return alg.step(data, demand, position)
 
 
 # ------------------------------------------------------------------------------ parameters
@@ -222,7 +269,7 @@ def step_cost_us(alg: ServoAlgorithm, period_s: float, record: np.ndarray | None
     rec = np.zeros(1, alg.dtype)
     data = struct_view(rec)
     if record is None:
-        alg.init(data, {}, period_s)
+        initialise(alg, data, {}, period_s)
     else:
         rec[0] = record.reshape(-1)[0]
     alg.handover(data, Handover(0.0, 0.0, 0.0, 0.0, 0.0))
@@ -232,7 +279,7 @@ def step_cost_us(alg: ServoAlgorithm, period_s: float, record: np.ndarray | None
     for k in range(STEP_SAMPLES):
         demand = 1e-3 * math.sin(k * 0.01)
         t0 = clock()
-        alg.step(data, demand, 0.0)
+        step(alg, data, demand, 0.0, 0.0)
         times.append(clock() - t0)
         if time.monotonic() > end and len(times) >= 10:
             break

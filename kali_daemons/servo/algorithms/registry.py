@@ -24,6 +24,8 @@ from ...core.pyfile import guarded, import_file, mirror
 from .algorithm import (
     ServoAlgorithm,
     check_dtype,
+    initialise,
+    step,
     struct_view,
 )
 from .arm import ArmServoAlgorithm, check_arm_dtype, probe_arm_step
@@ -275,8 +277,8 @@ def _probe_step(algo: ServoAlgorithm, what: str) -> None:
     record = np.zeros(1, dtype=algo.dtype)
     data = struct_view(record)
     try:
-        algo.init(data, {}, PROBE_INTERVAL_S)
-        result = algo.step(data, PROBE_DEMAND, PROBE_POSITION)
+        initialise(algo, data, {}, PROBE_INTERVAL_S)
+        result = step(algo, data, PROBE_DEMAND, PROBE_POSITION, 0.0)
     except ConfigError:
         raise
     except Exception as exc:

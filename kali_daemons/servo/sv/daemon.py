@@ -32,7 +32,7 @@ from ...core.layout import FaultCode, ShadowState, SlotOp, SlotReset
 from ...runtime.config import period_ticks
 from ...runtime.daemon import Daemon, drain
 from .. import loading, shadow
-from ..algorithms.algorithm import Handover
+from ..algorithms.algorithm import Handover, step
 from ..level import ServoLevel, apply_op, handover
 from . import arm, units
 
@@ -443,7 +443,7 @@ class ServoWorker(Daemon):
         alg = lv.registry[a]
         t0 = rt.monotonic_ns()
         try:
-            torque, error, status = alg.step(lv.structs[i][a], s.demand, s.position)
+            torque, error, status = step(alg, lv.structs[i][a], s.demand, s.position, s.demand_vel)
         except Exception as exc:  # the user's servo: halt and say which
             self._servo_fault(i, alg.name, f"raised {type(exc).__name__}: {exc}")
             return
@@ -472,7 +472,8 @@ class ServoWorker(Daemon):
             shadow.end_joint(lv, i, ShadowState.STOPPED)
             return
         try:
-            torque, _, status = lv.registry[b].step(lv.structs[i][b], s.demand, s.position)
+            alg = lv.registry[b]
+            torque, _, status = step(alg, lv.structs[i][b], s.demand, s.position, s.demand_vel)
         except Exception:
             shadow.end_joint(lv, i, ShadowState.RAISED)
             return
