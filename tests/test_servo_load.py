@@ -7,6 +7,7 @@ returns NaN or is too slow, is refused before it runs a real tick, naming why.""
 
 from __future__ import annotations
 
+import os
 import re
 import textwrap
 from collections.abc import Callable
@@ -242,3 +243,35 @@ def test_a_loaded_servo_learns_its_joint_and_steps_on_the_demands_velocity(
         assert max(abs(v) for v in seen) > 0.01  # the arm is moving: a real velocity
         handle.wait(timeout=30.0)
         assert handle.state.name == "DONE" and k.inst.fault_text() is None
+
+
+def test_a_file_an_sv_cannot_take_is_refused_and_holds_its_place(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """A file that loads in the client but not in the SVs (here: its top level raises in any
+    other process) is refused naming the SV and why; its servos can be neither selected nor
+    tried, and a file loaded after it gets the next places in every process."""
+    name = kali(lockstep=True)
+    fussy = EXAMPLE.replace(
+        'NAME = "bwpd"',
+        f'if __import__("os").getpid() != {os.getpid()}:\n'
+        '    raise RuntimeError("only in the loading process")\nNAME = "fussy"',
+    )
+    path = tmp_path / "fussy.py"
+    path.write_text(fussy)
+    with Kali(name) as k:
+        k.ready(["left"])
+        step_kali_clock(k.inst, 200)
+        with pytest.raises(ServoError, match=r"offered, but sv\.\d: .*only in the loading process"):
+            k.servo.load(path)
+        (entry,) = k.servo.loaded()
+        assert entry.servos == ["fussy"] and "only in the loading process" in str(entry.verdict)
+        with pytest.raises(ServoError, match=r"servo 'fussy' is not loaded here"):
+            k.robot("left").select_joint_servos("fussy")
+        assert k.servo.active("left", 1) == "pid"
+        assert k.servo.load(renamed(tmp_path, "after_pd")) == ["after_pd"]
+        k.robot("left").select_joint_servos("after_pd")
+        assert k.servo.active("left", 1) == "after_pd"
+        with Kali(name) as other:  # a reader taking both: the failed one held, the next after
+            assert other.servo.active("left", 1) == "after_pd"
+        assert k.inst.fault_text() is None

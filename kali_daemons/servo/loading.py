@@ -88,11 +88,16 @@ def take(level: ServoLevel, sv: int | None = None) -> int:
         e = loads["entries"][k]
         if int(e["state"]) != LoadState.OFFERED:
             break
-        why = verdict(level, k) if sv is None else ""
-        if why is None:
-            break
-        why = why or _register(level, k)
-        if sv is not None:
+        if sv is None:  # a reader: what every SV said
+            said = verdict(level, k)
+            if said is None:
+                break
+            if said:
+                _hold(level, k, said)
+            else:
+                _register(level, k)
+        else:
+            why = _register(level, k)
             if why:
                 text = f"sv.{sv}: {why}".encode()[: layout.SERVO_LOAD["reason"].itemsize]
                 loads["entries"]["reason"][k] = text
@@ -110,7 +115,6 @@ def _register(level: ServoLevel, k: int) -> str:
     registry = level.registry
     origin = decode(bytes(e["origin"]))
     names = [n for n in decode(bytes(e["names"])).split(",") if n]
-    n_joint, n_arm = int(e["n_joint"]), int(e["n_arm"])
     n0, a0 = len(registry), len(registry.arms)
     why = ""
     if (n0, a0) != (int(e["joint_first"]), int(e["arm_first"])):
@@ -127,8 +131,16 @@ def _register(level: ServoLevel, k: int) -> str:
             registry.truncate(n0, a0)
             why = f"{origin} registered {', '.join(got)} here, {', '.join(names)} when loaded"
     if why:
-        registry.stand_in(names[:n_joint], names[n_joint : n_joint + n_arm], why)
+        _hold(level, k, why)
     return why
+
+
+def _hold(level: ServoLevel, k: int, why: str) -> None:
+    """Entry ``k``'s indices held by stand-ins that refuse, saying ``why``."""
+    e = level.loads["entries"][k]
+    names = [n for n in decode(bytes(e["names"])).split(",") if n]
+    n_joint, n_arm = int(e["n_joint"]), int(e["n_arm"])
+    level.registry.stand_in(names[:n_joint], names[n_joint : n_joint + n_arm], why)
 
 
 def _import(level: ServoLevel, k: int, registry: Registry, origin: str, path: Path) -> list[str]:

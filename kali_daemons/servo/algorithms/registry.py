@@ -202,6 +202,7 @@ class Registry:
         ``init``, ``handover`` and ``set_params`` raise ConfigError saying ``why``, so a
         select, shadow or put of one is refused (``level.apply_op``), and a step halts."""
         for name in joint:
+            self._by_name[name] = len(self._algos)
             self._algos.append(_refusing(ServoAlgorithm, name, why))
             self._origin[name] = why
         for name in arm:

@@ -19,6 +19,7 @@ other wait sleeps.  How the work is shared and checked: docs/internals/servo-lev
 from __future__ import annotations
 
 import ctypes
+import gc
 import math
 from typing import Any
 
@@ -240,6 +241,7 @@ class ServoWorker(Daemon):
             self.n_algos = len(self.level.registry)
             for runner in self.arms:
                 runner.bind_loaded()
+            gc.freeze()  # what it made joins the frozen heap (decision 0007); no collection
 
     def _follow_learnt_period(self) -> None:
         """Inside the cycle: to rest, or back from it, where the feed's learning chose
