@@ -28,7 +28,7 @@ from kali_daemons.hardware.mcgill.registers import (
     POWER_WATCHDOG_TRIPPED,
 )
 from kali_daemons.robots import puma560
-from kali_daemons.runtime.instance import Instance
+from kali_daemons.runtime.instance import Instance, decode
 from kali_daemons.servo.client import ServoClient, ServoError
 from kali_daemons.wallclock import step_kali_clock
 
@@ -69,10 +69,18 @@ def powered_in_real_time(name: str) -> Iterator[tuple[Instance, ServoClient]]:
         try:
             for robot in client.names:
                 client.power(robot, True)
-            wait_for(
-                lambda: all(client.power_state(r) == PowerState.ON for r in client.names),
-                what="both arms powered",
-            )
+            try:
+                wait_for(
+                    lambda: all(client.power_state(r) == PowerState.ON for r in client.names),
+                    what="both arms powered",
+                )
+            except AssertionError as exc:  # say what SIO said of each (seen once, not yet met)
+                said = [
+                    f"{r}: {client.power_state(r).name} ({decode(bytes(rec['message']))})"
+                    for r, rec in zip(client.names, client.level.robots, strict=True)
+                ]
+                text = f"{exc}; {'; '.join(said)}; fault: {inst.fault_text()}"
+                raise AssertionError(text) from None
             yield inst, client
         finally:
             client.close()

@@ -18,6 +18,7 @@ import numpy as np
 from kali_daemons.client import Kali
 from kali_daemons.client.motion import MotionFailedError
 from kali_daemons.core.layout import PowerState
+from kali_daemons.runtime.instance import decode
 
 SWING = np.radians([20.0, -8.0, 8.0, 20.0, 15.0, 20.0])  # about each arm's start
 SPEED = 0.3  # of the joint speed and acceleration limits: a swing takes about a second
@@ -30,7 +31,11 @@ def main(instance: str) -> int:
         deadline = time.monotonic() + 10.0
         while any(kali.servo.power_state(n) != PowerState.ON for n in kali.names):
             if time.monotonic() > deadline or kali.inst.fault["active"]:
-                states = {n: kali.servo.power_state(n).name for n in kali.names}
+                robots = kali.servo.level.robots
+                states = {
+                    n: f"{kali.servo.power_state(n).name} ({decode(bytes(robots['message'][k]))})"
+                    for k, n in enumerate(kali.names)
+                }  # with what SIO said of it
                 clock = kali.inst.clock
                 print(
                     f"power failed: fault {kali.inst.fault_text()}; power {states}; clock "
