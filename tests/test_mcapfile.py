@@ -17,7 +17,14 @@ from mcap_ros2.decoder import DecoderFactory
 from kali_daemons.core import layout
 from kali_daemons.recording import mcapfile
 from kali_daemons.recording.mcapfile import McapFile, TickBlock
-from kali_daemons.recording.messages import GAP_DEF, JOINT_STATE_DEF, SERVO_DEF, WRENCH_DEF, Cdr
+from kali_daemons.recording.messages import (
+    GAP_DEF,
+    JOINT_STATE_DEF,
+    SERVO_DEF,
+    WRENCH_DEF,
+    Cdr,
+    Laid,
+)
 
 N_ROBOTS, N = 2, 3  # two arms of three joints
 ROW = layout.flight_row(N_ROBOTS * N, N_ROBOTS)
@@ -198,3 +205,31 @@ def test_rosbags_reads_the_file(tmp_path: Path) -> None:
     q, count = rosbags_positions(path, "/a0/joints")
     assert count == 3 * N_ROBOTS * len(every) + len(batches)
     np.testing.assert_array_equal(np.array(q), every["q"][:, :N])
+
+
+def test_a_laid_message_refilled_is_the_message_encoded_anew() -> None:
+    """``Laid`` (the set-points' and the truth's messages, laid out once and refilled each
+    drain) gives the bytes ``Cdr`` encodes field by field, for any values."""
+    rng = np.random.default_rng(7)
+    c = Cdr()
+    c.header(0)
+    at = [(c.int64(0), "<i8", 1), (c.float64(0.0), "<f8", 1), (c.uint64(0), "<u8", 1)]
+    at += [(c.float64s(np.zeros(6)), "<f8", 6), (c.float64_fixed(np.zeros(6)), "<f8", 6)]
+    at.append((c.uint8(0), "u1", 1))
+    laid = Laid(c)
+    views = [laid.field(*a) for a in at]
+    for _ in range(3):
+        ns, tick, sim, ticks = 1_234_567_890_123, 4567, 1.25, 2**40 + 3
+        q, wrench, flag = rng.normal(size=6), rng.normal(size=6), int(rng.integers(0, 2))
+        laid.stamp(ns)
+        for view, value in zip(views, (tick, sim, ticks, q, wrench, flag), strict=True):
+            view[:] = value
+        c.reset()
+        c.header(ns)
+        c.int64(tick)
+        c.float64(sim)
+        c.uint64(ticks)
+        c.float64s(q)
+        c.float64_fixed(wrench)
+        c.uint8(flag)
+        assert laid.bytes() == c.bytes()

@@ -39,6 +39,7 @@ from mcap.records import (
 
 MAGIC = b"\x89MCAP0\r\n"
 CHUNK_BYTES = 1 << 20  # a chunk is closed (compressed, written) once this much is in it
+ZSTD_LEVEL = 1  # the fastest: a recording is compressed as it is made, on a share of a core
 # a message record's head: opcode, record length, channel id, sequence, log time, publish time
 MESSAGE_HEAD = struct.Struct("<BQHIQQ")
 LOG_TIME_AT, PUBLISH_TIME_AT = 15, 23  # offsets in a message record
@@ -159,7 +160,7 @@ class McapFile:
 
     def __init__(self, stream: BinaryIO, profile: str, library: str) -> None:
         self.stream = stream
-        self._zstd = zstandard.ZstdCompressor()
+        self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         self.schemas: list[Schema] = []
         self.channels: list[Channel] = []
         self._metadata: list[MetadataIndex] = []

@@ -45,6 +45,7 @@ from .messages import (
     SIM_TRUTH_DEF,
     WRENCH_DEF,
     Cdr,
+    Laid,
 )
 
 NAME = "recorder"  # its process-table slot
@@ -127,6 +128,7 @@ class Recording:
         self._block = TickBlock()  # every arm's messages of a servo tick
         for k in range(len(self.names)):
             self._arm_messages(k)
+        self._laid_messages()
         self.requests = inst.arena.existing(
             layout.KEY_MOTION_STATUS, layout.REQUEST_STATUS, layout.STATUS_RING
         )
@@ -220,17 +222,15 @@ class Recording:
             c.float64(float(r["progress"]))
             c.string(decode(r["message"]).encode())
             add(self._events_ch["request"], t, c.bytes(), t)
-        for k in range(len(self.names)):  # the TG's newest set-point of each arm
+        for k, (msg, tick_v, q_v) in enumerate(self._setpoints):  # each arm's newest
             tg_tick = int(self.tg["tick"][k])
             if tg_tick == self._tg_ticks[k]:
                 continue
             self._tg_ticks[k] = tg_tick
-            n = self.spans[k].stop - self.spans[k].start
-            c.reset()  # kali_msgs/msg/SetPoint
-            c.header(tg_tick * self.base_ns)
-            c.int64(tg_tick)
-            c.float64s(self.tg["setpoint"][k, :n])
-            add(self._channels[k]["setpoint"], tg_tick * self.base_ns, c.bytes(), t)
+            msg.stamp(tg_tick * self.base_ns)  # kali_msgs/msg/SetPoint
+            tick_v[0] = tg_tick
+            q_v[:] = self.tg["setpoint"][k, : len(q_v)]
+            add(self._channels[k]["setpoint"], tg_tick * self.base_ns, msg.bytes(), t)
         for k, joint, kind, servo, params in self.servos.changes():
             c.reset()  # kali_msgs/msg/ServoChange
             c.header(t)
@@ -254,25 +254,44 @@ class Recording:
                 c.string(text.encode())
             add(self._events_ch["fault"], t, c.bytes(), t)
 
+    def _laid_messages(self) -> None:
+        """Each arm's set-point and truth messages laid out once (``Laid``), with views of
+        the fields every drain refills."""
+        c = self._cdr
+        self._setpoints: list[tuple[Laid, np.ndarray, np.ndarray]] = []
+        self._truths: list[tuple[Laid, list[np.ndarray]]] = []
+        for span in self.spans:
+            n = span.stop - span.start
+            c.reset()  # kali_msgs/msg/SetPoint
+            c.header(0)
+            tick_at, q_at = c.int64(0), c.float64s(np.zeros(n))
+            msg = Laid(c)
+            self._setpoints.append((msg, msg.field(tick_at, "<i8"), msg.field(q_at, "<f8", n)))
+            c.reset()  # kali_msgs/msg/SimTruth
+            c.header(0)
+            at = [(c.int64(0), "<i8", 1), (c.float64(0.0), "<f8", 1), (c.uint64(0), "<u8", 1)]
+            at += [(c.float64s(np.zeros(n)), "<f8", n) for _ in TRUTH_FIELDS]
+            at += [(c.float64_fixed(np.zeros(6)), "<f8", 6) for _ in range(2)]
+            at.append((c.uint8(0), "u1", 1))
+            msg = Laid(c)
+            self._truths.append((msg, [msg.field(*a) for a in at]))
+
     def _sample_truth(self) -> None:
         """Every arm's truth as the plant has it now, stamped with the clock's tick."""
         assert self.truth is not None
         arms, joints, world = self.truth.sample()
         tick = int(self.inst.clock["tick"])
         t = tick * self.base_ns
-        c = self._cdr
+        sim_s, plant_ticks = int(world["sim_time_ns"]) / 1e9, int(world["ticks"])
         for k, span in enumerate(self.truth.spans):
-            c.reset()  # kali_msgs/msg/SimTruth
-            c.header(t)
-            c.int64(tick)
-            c.float64(int(world["sim_time_ns"]) / 1e9)
-            c.uint64(int(world["ticks"]))
-            for f in TRUTH_FIELDS:
-                c.float64s(joints[f][span])
-            c.float64_fixed(arms["ft_wrench"][k])
-            c.float64_fixed(arms["grasp_wrench"][k])
-            c.uint8(int(arms["grasped"][k]))
-            self.writer.message(self._truth_ch[k], t, c.bytes(), t)
+            msg, (tick_v, sim_v, ticks_v, *fields, ft_v, grasp_v, grasped_v) = self._truths[k]
+            msg.stamp(t)  # kali_msgs/msg/SimTruth
+            tick_v[0], sim_v[0], ticks_v[0] = tick, sim_s, plant_ticks
+            for view, f in zip(fields, TRUTH_FIELDS, strict=True):
+                view[:] = joints[f][span]
+            ft_v[:], grasp_v[:] = arms["ft_wrench"][k], arms["grasp_wrench"][k]
+            grasped_v[0] = arms["grasped"][k]
+            self.writer.message(self._truth_ch[k], t, msg.bytes(), t)
 
     def close(self) -> None:
         """Finish the file (its index and summary), outside any cycle."""
