@@ -32,6 +32,9 @@ from ..servo.algorithms.algorithm import struct_view
 from ..servo.level import ServoLevel
 
 TRUTH_FIELDS = ("q", "qd", "current", "torque")  # per joint (JOINT_TRUTH)
+# what ``ServoWatch`` compares: each slot's and each robot's fields
+JOINT_KEYS = ("algo", "enabled", "shadow", "shadow_state", "ops")
+ARM_KEYS = ("arm_algo", "arm_shadow", "arm_shadow_state", "arm_ops")
 
 # a change: (arm index, joint (1.., 0 the robot-level servo), kind, servo, its parameters)
 Change = tuple[int, int, str, str, dict[str, float]]
@@ -46,20 +49,26 @@ class ServoWatch:
         self.level = level = ServoLevel(inst)
         self.map = level.map
         self.registry = level.registry
+        s, r = level.slots, level.robots  # the fields compared, viewed once
+        self._columns = (
+            [s["algo"], s["enabled"], s["shadow"], s["shadow_state"], s["ops_done"]],
+            [r["arm_algo"], r["arm_shadow"], r["arm_shadow_state"], r["arm_ops_done"]],
+        )
         self._said = self._look()
         n, nr = level.n, level.n_robots
         self._params: list[dict[str, float]] = [self._joint_params(i) for i in range(n)]
         self._arm_params: list[dict[str, float]] = [self._robot_params(k) for k in range(nr)]
 
-    def _look(self) -> dict[str, np.ndarray]:
-        s, r = self.level.slots, self.level.robots
-        return {
-            "algo": s["algo"].copy(), "enabled": s["enabled"].copy(),
-            "shadow": s["shadow"].copy(), "shadow_state": s["shadow_state"].copy(),
-            "ops": s["ops_done"].copy(), "arm_algo": r["arm_algo"].copy(),
-            "arm_shadow": r["arm_shadow"].copy(),
-            "arm_shadow_state": r["arm_shadow_state"].copy(), "arm_ops": r["arm_ops_done"].copy(),
-        }  # fmt: skip
+    def _look(self) -> tuple[np.ndarray, np.ndarray]:
+        """The joints' fields ``JOINT_KEYS`` and the robots' ``ARM_KEYS`` as they stand,
+        one new array each (a row a field): compared whole, most looks find nothing."""
+        joints = np.empty((len(JOINT_KEYS), self.level.n), np.int64)
+        arms = np.empty((len(ARM_KEYS), self.level.n_robots), np.int64)
+        for row, column in zip(joints, self._columns[0], strict=True):
+            row[:] = column
+        for row, column in zip(arms, self._columns[1], strict=True):
+            row[:] = column
+        return joints, arms
 
     def _name(self, a: int) -> str:
         return self.registry[a].name if 0 <= a < len(self.registry) else ""
@@ -88,8 +97,13 @@ class ServoWatch:
         """What changed since the last call, in joint order, robot-level last."""
         if int(self.level.loads["generation"]) != self.level.taken:
             loading.take(self.level)  # servo plugins loaded while running: their names
-        now, was, out = self._look(), self._said, []
-        self._said = now
+        look = self._look()
+        said, self._said = self._said, look
+        if np.array_equal(look[0], said[0]) and np.array_equal(look[1], said[1]):
+            return []
+        now = dict(zip(JOINT_KEYS + ARM_KEYS, (*look[0], *look[1]), strict=True))
+        was = dict(zip(JOINT_KEYS + ARM_KEYS, (*said[0], *said[1]), strict=True))
+        out: list[Change] = []
         moved = np.zeros(self.level.n, dtype=bool)
         for key in ("algo", "enabled", "shadow", "shadow_state", "ops"):
             moved |= now[key] != was[key]

@@ -39,7 +39,7 @@ from mcap.records import (
 
 MAGIC = b"\x89MCAP0\r\n"
 CHUNK_BYTES = 1 << 20  # a chunk is closed (compressed, written) once this much is in it
-ZSTD_LEVEL = 1  # the fastest: a recording is compressed as it is made, on a share of a core
+ZSTD_LEVEL = -1  # a fast level: the file is compressed as it is made, on a share of a core
 # a message record's head: opcode, record length, channel id, sequence, log time, publish time
 MESSAGE_HEAD = struct.Struct("<BQHIQQ")
 LOG_TIME_AT, PUBLISH_TIME_AT = 15, 23  # offsets in a message record
@@ -72,7 +72,8 @@ class TickBlock:
         self.starts: list[int] = []  # each message's offset in a row
         self.fields: list[Field] = []
         self.block = np.zeros((0, 0), np.uint8)
-        self._views: list[tuple[np.ndarray, ...]] = []
+        self._views: list[np.ndarray] = []
+        self._time_to: np.ndarray | None = None
 
     def add(
         self,
@@ -103,53 +104,57 @@ class TickBlock:
 
     def _rows(self, n: int) -> np.ndarray:
         """The block with at least ``n`` rows, each a copy of the laid-out row, and the
-        views of its columns (``_views``: what ``fill`` writes, made once per block)."""
+        views of the columns ``fill`` converts (``_views``, made once per block)."""
         if self.block.shape[0] < n or self.block.shape[1] != self.width:
             rows = max(n, 2 * self.block.shape[0], 16)
             self.block = np.tile(np.frombuffer(bytes(self._row), np.uint8), (rows, 1))
             self._views = [self._view(f) for f in self.fields]
         return self.block
 
-    def _view(self, f: Field) -> tuple[np.ndarray, ...]:
-        """The block's columns ``f`` fills: a message's log and publish time and its stamp's
-        sec and nanosec, its tick, or its values."""
+    def _view(self, f: Field) -> np.ndarray:
+        """The block's column of field ``f`` as ``fill`` assigns it: a tick (int64) or
+        values (float64); a time field's is unused (its bytes are scattered)."""
         block, width, rows = self.block, self.width, self.block.shape[0]
+        dtype = "<i8" if f.kind == "tick" else "<f8"
+        return np.ndarray((rows, max(f.count, 1)), dtype, block, f.at, (width, 8))
 
-        def column(at: int, dtype: str, count: int = 0) -> np.ndarray:
-            size = np.dtype(dtype).itemsize
-            shape, strides = ((rows, count), (width, size)) if count else ((rows,), (width,))
-            return np.ndarray(shape, dtype, buffer=block, offset=at, strides=strides)
-
-        if f.kind == "time":
-            body = f.at + MESSAGE_HEAD.size
-            return (
-                column(f.at + LOG_TIME_AT, "<u8"),
-                column(f.at + PUBLISH_TIME_AT, "<u8"),
-                column(body + 4, "<i4"),
-                column(body + 8, "<u4"),
-            )
-        if f.kind == "tick":
-            return (column(f.at, "<i8"),)
-        return (column(f.at, "<f8", f.count),)
+    def _stamps_to(self) -> np.ndarray:
+        """The block bytes of every message's times, 24 a message: its log and publish
+        times and its header's stamp (sec, nanosec); made once."""
+        if self._time_to is None:
+            runs = []
+            for f in self.fields:
+                if f.kind == "time":
+                    body = f.at + MESSAGE_HEAD.size
+                    for at in (f.at + LOG_TIME_AT, f.at + PUBLISH_TIME_AT, body + 4):
+                        runs.append(np.arange(8) + at)
+            self._time_to = np.concatenate(runs)
+        return self._time_to
 
     def fill(self, rows: np.ndarray, times: np.ndarray) -> np.ndarray:
         """The first ``len(rows)`` rows of the block, filled from flight rows ``rows`` at
-        log times ``times`` (ns)."""
+        log times ``times`` (ns): every message's times in one byte scatter, then each
+        value field's column (a flight-row column taken once for all its fields)."""
         n = len(rows)
         block = self._rows(n)
-        sec, nsec = times // 1_000_000_000, times % 1_000_000_000
-        ticks = rows["tick"]
-        for f, views in zip(self.fields, self._views, strict=True):
+        stamps = np.empty((n, 3), "<u8")  # log time, publish time, the stamp (sec, nanosec)
+        stamps[:, 0] = stamps[:, 1] = times
+        sec_nsec = stamps[:, 2:].view("<u4")
+        sec_nsec[:, 0], sec_nsec[:, 1] = times // 1_000_000_000, times % 1_000_000_000
+        time_to = self._stamps_to()
+        block[:n, time_to] = np.tile(stamps.view(np.uint8), (1, len(time_to) // 24))
+        columns: dict[str, np.ndarray] = {}
+        for f, view in zip(self.fields, self._views, strict=True):
             if f.kind == "time":
-                log, publish, stamp_sec, stamp_nsec = views
-                log[:n] = times
-                publish[:n] = times
-                stamp_sec[:n] = sec
-                stamp_nsec[:n] = nsec
-            elif f.kind == "tick":
-                views[0][:n] = ticks
+                continue
+            name = "tick" if f.kind == "tick" else f.column
+            column = columns.get(name)
+            if column is None:
+                column = columns[name] = rows[name]
+            if f.kind == "tick":
+                view[:n, 0] = column
             else:
-                views[0][:n] = rows[f.column][:, f.index].reshape(n, f.count)
+                view[:n] = column[:, f.index].reshape(n, f.count)
         return block[:n]
 
 

@@ -283,14 +283,15 @@ class Recording:
         tick = int(self.inst.clock["tick"])
         t = tick * self.base_ns
         sim_s, plant_ticks = int(world["sim_time_ns"]) / 1e9, int(world["ticks"])
+        columns = [joints[f] for f in TRUTH_FIELDS]  # each field's view taken once
+        ft, grasp, grasped = arms["ft_wrench"], arms["grasp_wrench"], arms["grasped"]
         for k, span in enumerate(self.truth.spans):
             msg, (tick_v, sim_v, ticks_v, *fields, ft_v, grasp_v, grasped_v) = self._truths[k]
             msg.stamp(t)  # kali_msgs/msg/SimTruth
             tick_v[0], sim_v[0], ticks_v[0] = tick, sim_s, plant_ticks
-            for view, f in zip(fields, TRUTH_FIELDS, strict=True):
-                view[:] = joints[f][span]
-            ft_v[:], grasp_v[:] = arms["ft_wrench"][k], arms["grasp_wrench"][k]
-            grasped_v[0] = arms["grasped"][k]
+            for view, column in zip(fields, columns, strict=True):
+                view[:] = column[span]
+            ft_v[:], grasp_v[:], grasped_v[0] = ft[k], grasp[k], grasped[k]
             self.writer.message(self._truth_ch[k], t, msg.bytes(), t)
 
     def close(self) -> None:
