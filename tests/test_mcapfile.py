@@ -6,11 +6,16 @@ would have written, one at a time."""
 from __future__ import annotations
 
 import io
+import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
+import zstandard
+from mcap import records
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 from mcap_ros2.decoder import DecoderFactory
 
@@ -233,3 +238,42 @@ def test_a_laid_message_refilled_is_the_message_encoded_anew() -> None:
         c.float64_fixed(wrench)
         c.uint8(flag)
         assert laid.bytes() == c.bytes()
+
+
+@pytest.mark.parametrize("chunk_bytes", [1 << 20, 3000])
+def test_every_message_index_entry_points_at_its_message(
+    monkeypatch: pytest.MonkeyPatch, chunk_bytes: int
+) -> None:
+    """Each chunk's message indexes (what a reader seeks by) list every message of the chunk
+    on their channel, in offset order, each entry's offset at a message record of that
+    channel and log time: the tick blocks' entries and the single messages' alike."""
+    monkeypatch.setattr(mcapfile, "CHUNK_BYTES", chunk_bytes)
+    rng = np.random.default_rng(5)
+    buf = io.BytesIO()
+    write(buf, [rows(10, 9, rng), rows(19, 3, rng), rows(22, 25, rng)])
+    buf.seek(0)
+    chunk, checked = None, 0
+    counted: dict[int, int] = {}
+    for record in StreamReader(buf, emit_chunks=True).records:
+        if isinstance(record, records.Chunk):
+            chunk = zstandard.ZstdDecompressor().decompress(
+                record.data, max_output_size=record.uncompressed_size
+            )
+            in_chunk: dict[int, int] = {}
+            at = 0
+            while at < len(chunk):  # every message record of the chunk, by channel
+                opcode, length = struct.unpack_from("<BQ", chunk, at)
+                if opcode == Opcode.MESSAGE:
+                    channel = struct.unpack_from("<H", chunk, at + 9)[0]
+                    in_chunk[channel] = in_chunk.get(channel, 0) + 1
+                at += 9 + length
+        elif isinstance(record, records.MessageIndex):
+            assert chunk is not None
+            offsets = [offset for _, offset in record.records]
+            assert offsets == sorted(offsets) and len(offsets) == in_chunk[record.channel_id]
+            for log_time, offset in record.records:
+                opcode, _, channel, _, log = struct.unpack_from("<BQHIQ", chunk, offset)
+                assert (opcode, channel, log) == (Opcode.MESSAGE, record.channel_id, log_time)
+                checked += 1
+            counted[record.channel_id] = counted.get(record.channel_id, 0) + len(offsets)
+    assert checked == 3 * N_ROBOTS * 37 + 3 and sum(counted.values()) == checked

@@ -117,8 +117,9 @@ def test_a_plugin_that_would_fail_is_refused_before_it_runs_a_tick(
     with Kali(name) as k:
         tick = int(k.inst.clock["tick"])
         names = list(k.servo.level.registry.names())
-        with pytest.raises(ServoError, match=why):
+        with pytest.raises(ServoError, match=why) as refused:
             k.servo.load(path)
+        assert str(refused.value).startswith(f"servo: load '{path}': ")  # names the file
         assert int(k.inst.clock["tick"]) == tick  # refused before a tick ran
         assert k.servo.loaded() == [] and k.servo.level.registry.names() == names
         # and the instance loads a good file afterwards

@@ -70,6 +70,7 @@ class TickBlock:
         self._row = bytearray()
         self.channels: list[int] = []
         self.starts: list[int] = []  # each message's offset in a row
+        self.offsets = np.zeros(0, np.uint64)  # the same, as the index entries want them
         self.fields: list[Field] = []
         self.block = np.zeros((0, 0), np.uint8)
         self._views: list[np.ndarray] = []
@@ -92,6 +93,7 @@ class TickBlock:
         self._row += payload
         self.channels.append(channel)
         self.starts.append(start)
+        self.offsets = np.array(self.starts, np.uint64)
         self.fields.append(Field(start, "time"))
         if tick_at >= 0:
             self.fields.append(Field(body + tick_at, "tick"))
@@ -172,7 +174,10 @@ class McapFile:
         self._chunks: list[ChunkIndex] = []
         self._pieces: list[bytes] = []  # the open chunk
         self._size = 0  # its bytes
-        self._index: dict[int, list[np.ndarray]] = {}  # its message index entries per channel
+        # its message index entries: each tick block's (a column per channel), and each
+        # single message's (channel, log time, offset)
+        self._blocks: list[tuple[TickBlock, np.ndarray]] = []
+        self._singles: list[tuple[int, int, int]] = []
         self._start = self._end = -1  # its messages' log times
         self.counts: dict[int, int] = {}  # messages per channel, in the whole file
         self.first = self.last = -1  # log times of the whole file
@@ -232,8 +237,7 @@ class McapFile:
 
     def message(self, channel: int, log_time: int, data: bytes, publish_time: int) -> None:
         """One message into the open chunk."""
-        entry = np.array([[log_time, self._size]], INDEX_ENTRY)
-        self._index.setdefault(channel, []).append(entry)
+        self._singles.append((channel, log_time, self._size))
         self._in_chunk(
             MESSAGE_HEAD.pack(Opcode.MESSAGE, 22 + len(data), channel, 0, log_time, publish_time)
             + data
@@ -249,12 +253,12 @@ class McapFile:
         if n == 0:
             return
         filled = block.fill(rows, times)
+        entries = np.empty((n, len(block.channels), 2), INDEX_ENTRY)  # every channel's
+        entries[:, :, 0] = times[:, None]
         base = self._size + np.arange(n, dtype=np.uint64) * np.uint64(block.width)
-        for channel, start in zip(block.channels, block.starts, strict=True):
-            entries = np.empty((n, 2), INDEX_ENTRY)
-            entries[:, 0] = times
-            entries[:, 1] = base + np.uint64(start)
-            self._index.setdefault(channel, []).append(entries)
+        entries[:, :, 1] = base[:, None] + block.offsets
+        self._blocks.append((block, entries))
+        for channel in block.channels:
             self.counts[channel] += n
         self._in_chunk(filled.tobytes())
         self._times(int(times[0]), int(times[-1]))
@@ -264,9 +268,26 @@ class McapFile:
         if self._size >= CHUNK_BYTES:
             self._close_chunk()
 
+    def _index(self) -> dict[int, np.ndarray]:
+        """The open chunk's message index entries, by channel, in offset order: the tick
+        blocks' (a column per channel) and the single messages'."""
+        parts: dict[int, list[np.ndarray]] = {}
+        for block, entries in self._blocks:
+            for j, channel in enumerate(block.channels):
+                parts.setdefault(channel, []).append(entries[:, j, :])
+        if self._singles:
+            singles = np.array(self._singles, INDEX_ENTRY)
+            for channel in np.unique(singles[:, 0]):
+                parts.setdefault(int(channel), []).append(singles[singles[:, 0] == channel, 1:])
+        index = {}
+        for channel, pieces in parts.items():
+            entries = np.concatenate(pieces)
+            index[channel] = entries[np.argsort(entries[:, 1], kind="stable")]
+        return index
+
     def _close_chunk(self) -> None:
         """Compress the open chunk and write it, then its message indexes."""
-        if not self._index and not self._pieces:
+        if not self._blocks and not self._singles and not self._pieces:
             return
         data = b"".join(self._pieces)
         compressed = self._zstd.compress(data)
@@ -287,8 +308,8 @@ class McapFile:
         offsets: dict[int, int] = {}
         indexes = bytearray()
         index_at = chunk_at + len(chunk_bytes)
-        for channel, parts in sorted(self._index.items()):
-            entries = np.concatenate(parts).tobytes()
+        for channel, index in sorted(self._index().items()):
+            entries = index.tobytes()
             offsets[channel] = index_at + len(indexes)
             indexes += struct.pack(
                 "<BQHI", Opcode.MESSAGE_INDEX, 6 + len(entries), channel, len(entries)
@@ -309,7 +330,7 @@ class McapFile:
             )
         )
         self.chunk_count += 1
-        self._pieces, self._size, self._index = [], 0, {}
+        self._pieces, self._size, self._blocks, self._singles = [], 0, [], []
         self._start = self._end = -1
 
     def finish(self) -> None:

@@ -126,13 +126,18 @@ def _register(level: ServoLevel, k: int) -> str:
         try:
             got = _import(level, k, registry, origin, Path(decode(bytes(e["path"]))))
         except ConfigError as exc:
-            got, why = [], str(exc)
+            got, why = [], _bare(exc)
         if not why and got != names:
             registry.truncate(n0, a0)
             why = f"{origin} registered {', '.join(got)} here, {', '.join(names)} when loaded"
     if why:
         _hold(level, k, why)
     return why
+
+
+def _bare(exc: ConfigError) -> str:
+    """``exc``'s message without its subsystem's prefix."""
+    return str(exc).removeprefix(f"{exc.subsystem}: ")
 
 
 def _hold(level: ServoLevel, k: int, why: str) -> None:
@@ -196,7 +201,7 @@ def offer(
         try:
             names = _import(level, k, registry, origin, path)
         except ConfigError as exc:
-            raise ServoError(f"load {exc}".replace("load plugin ", "load ", 1)) from None
+            raise ServoError(f"load {_bare(exc).removeprefix('plugin ')}") from None
         try:
             _check(level, origin, path, n0, a0, guard)
         except BaseException:
