@@ -134,8 +134,10 @@ def test_an_estop_reaches_the_arena_within_50_ms_under_a_flood_of_verbs(
             time.sleep(0.2)
     ms = [round(x * 1e3, 1) for x in latencies]
     print(f"e-stop latency under the flood: {ms} ms; another user's verb: {turn:.3f} s; {flood}")
-    # how many the backlog bound refuses depends on how fast this machine answers verbs
-    assert flood["sent"] >= 1500 and flood["refused, others"] > 0
+    # how many the backlog bound refuses depends on how fast this machine answers verbs, and
+    # how many the flooder sends on how much of a CPU it gets (1 037 of 1 800 once, in the
+    # parallel suite): a flood is one that filled the backlog, so some were refused
+    assert flood["sent"] >= 900 and flood["refused, others"] > 0
     assert max(latencies) < ESTOP_GOAL_S, ms
     assert turn < 1.0
 
