@@ -4,11 +4,11 @@ not streamed; this measures what that choice costs), in real time, beside cyclic
 
 What runs.  One real-time instance, the default cell (two arms) with its bridge on a free
 loopback TCP port.  A remote program in a process of its own (``Kali.connect``, as on
-another machine) readies both arms and records ``--seconds`` of them holding, every servo
-tick.  Measured: the file's size, its ticks and gaps, the time from the block's end to the
-file whole on the remote side (the fetch, ``RECORDED_CHUNK`` bytes a call), the fetch rate,
-and how long a recording of a minute would take to fetch at that rate; SIO's sensor-to-DAC
-latency while it fetches, against cyclictest's floor.
+another machine) readies both arms and records ``--seconds`` of them swinging back and
+forth, every servo tick.  Measured: the file's size, its ticks and gaps, the time from the
+block's end to the file whole on the remote side (the fetch, ``RECORDED_CHUNK`` bytes a
+call), the fetch rate, and how long a recording of a minute would take to fetch at that
+rate; SIO's sensor-to-DAC latency while it fetches, against cyclictest's floor.
 
     .venv/bin/python scripts/bench_remote_record.py --seconds 20
 """
@@ -40,8 +40,17 @@ REMOTE = textwrap.dedent(
     endpoint, name, seconds, path = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
     with Kali.connect(endpoint, name) as kali:
         kali.ready()
+        arms = [kali.robot(n) for n in kali.names]
+        homes = [a.read_joints() for a in arms]
         with kali.record(path) as status:
-            time.sleep(seconds)
+            end, sign = time.monotonic() + seconds, 1.0
+            while time.monotonic() < end:  # every arm back and forth, as bench_recording's
+                with kali.together():
+                    moves = [a.move_joints(q + sign * 0.15, speed=0.5, wait=False)
+                             for a, q in zip(arms, homes)]
+                for m in moves:
+                    m.wait(timeout=30)
+                sign = -sign
             ended = time.monotonic()
         fetched = time.monotonic()
         print(json.dumps({"ended": ended, "fetched": fetched, "status": status}), flush=True)
