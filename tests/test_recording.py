@@ -3,6 +3,7 @@ lockstep, read back by independent readers (the ``mcap`` package's and ``rosbags
 
 from __future__ import annotations
 
+import os
 import subprocess
 from collections.abc import Callable
 from pathlib import Path
@@ -15,7 +16,7 @@ from mcap_ros2.decoder import DecoderFactory
 from kali_daemons.client import Kali
 from kali_daemons.client.state import ArmState
 from kali_daemons.core.errors import KaliError
-from kali_daemons.recording import log
+from kali_daemons.recording import log, recorder
 from kali_daemons.wallclock import step_kali_clock
 
 from .test_bridge import bridged  # noqa: F401  (the fixture)
@@ -48,6 +49,8 @@ def test_a_recording_holds_every_servo_tick_of_every_arm(
         left, right = k.robot("left"), k.robot("right")
         seen: dict[str, dict[int, ArmState]] = {"left": {}, "right": {}}
         with k.record(path) as status:
+            viewer_cpu = k.inst.config.process("viewer").cpu  # the recorder runs beside it
+            assert os.sched_getaffinity(recorder.running(k.inst)) == {viewer_cpu}
             with k.together():
                 left.move_joints(left.read_joints() + 0.1, wait=False)
                 move = right.move_joints(right.read_joints() - 0.1, wait=False)

@@ -319,8 +319,11 @@ class Recorder(Daemon):
     realtime = False  # file I/O and compression: never at SCHED_FIFO
     takes_named_slot = False
 
-    def __init__(self, instance: str, name: str, path: Path, period_ms: float) -> None:
+    def __init__(
+        self, instance: str, name: str, path: Path, period_ms: float, cpu: int | None = None
+    ) -> None:
         super().__init__(instance, name, period_ms=period_ms, serious=False, stage=9)
+        self._cpu = cpu  # bound there, at normal priority (not real-time: never SCHED_FIFO)
         self.path = path
         self.recording: Recording | None = None
         self.error = ""
@@ -335,6 +338,9 @@ class Recorder(Daemon):
             self._end()
 
     def on_configure(self) -> None:
+        if self._cpu is not None:
+            os.sched_setaffinity(0, {self._cpu})
+            self.inst.procs[self.slot]["cpu"] = self._cpu
         self.recording = Recording(self.inst, self.path)
         self._say("recording")
 
@@ -473,4 +479,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     with Instance.attach(args.instance) as inst:  # drained every TG period: each set-point
         period_ms = inst.config.clock.tg_period_ms
-    sys.exit(Recorder(args.instance, NAME, args.out, period_ms).main())
+        # beside the viewer, the other process of the cell at normal priority: on its CPU,
+        # not migrating between the two (~1 % of a core less at four arms)
+        cpu = inst.config.process("viewer").cpu
+    sys.exit(Recorder(args.instance, NAME, args.out, period_ms, cpu).main())
