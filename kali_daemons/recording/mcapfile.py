@@ -73,7 +73,7 @@ class TickBlock:
         self.offsets = np.zeros(0, np.uint64)  # the same, as the index entries want them
         self.fields: list[Field] = []
         self.block = np.zeros((0, 0), np.uint8)
-        self._views: list[np.ndarray] = []
+        self._views: list[np.ndarray | None] = []
         self._time_to: np.ndarray | None = None
 
     def add(
@@ -106,16 +106,17 @@ class TickBlock:
 
     def _rows(self, n: int) -> np.ndarray:
         """The block with at least ``n`` rows, each a copy of the laid-out row, and the
-        views of the columns ``fill`` converts (``_views``, made once per block)."""
+        views of the columns ``fill`` assigns (``_views``, made once per block; None for a
+        time field, whose bytes are scattered)."""
         if self.block.shape[0] < n or self.block.shape[1] != self.width:
             rows = max(n, 2 * self.block.shape[0], 16)
             self.block = np.tile(np.frombuffer(bytes(self._row), np.uint8), (rows, 1))
-            self._views = [self._view(f) for f in self.fields]
+            self._views = [None if f.kind == "time" else self._view(f) for f in self.fields]
         return self.block
 
     def _view(self, f: Field) -> np.ndarray:
         """The block's column of field ``f`` as ``fill`` assigns it: a tick (int64) or
-        values (float64); a time field's is unused (its bytes are scattered)."""
+        values (float64)."""
         block, width, rows = self.block, self.width, self.block.shape[0]
         dtype = "<i8" if f.kind == "tick" else "<f8"
         return np.ndarray((rows, max(f.count, 1)), dtype, block, f.at, (width, 8))
@@ -147,7 +148,7 @@ class TickBlock:
         block[:n, time_to] = np.tile(stamps.view(np.uint8), (1, len(time_to) // 24))
         columns: dict[str, np.ndarray] = {}
         for f, view in zip(self.fields, self._views, strict=True):
-            if f.kind == "time":
+            if view is None:  # a time field: scattered above
                 continue
             name = "tick" if f.kind == "tick" else f.column
             column = columns.get(name)

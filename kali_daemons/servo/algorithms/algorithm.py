@@ -1,25 +1,12 @@
 """The servo programming interface (thesis 3.4, DESIGN 4): what a servo algorithm declares
 and how its private data is viewed in shared memory; ``registry`` holds them by name.
 
-An algorithm is a ``ServoAlgorithm``: a name, the structured dtype of its private data (one
-record per joint lives in the arena, so any SV can run any joint, 3.3.4), and plain functions
-over that record.  Those functions never see numpy: ``struct_view`` maps the record onto a
-ctypes ``Structure`` in place, and ``data.kp`` / ``data.integral += ...`` on it reads and
-writes Python floats (about 25 ns an access here), where a numpy field access costs twice
-that and returns a numpy scalar whose arithmetic is slower still.  A built-in PID step costs
-under 1 µs, which matters at 1-2 kHz.
-
-Which function runs where:
-
-- ``step(data, demand, position) -> (torque, error, status)``: inside the servo cycle, once
-  per tick per joint (with ``velocity_aware``, a fourth argument: the demand's velocity).
-  Python floats and the struct only: no allocation beyond the float results, no numpy, no
-  I/O, no logging.
-- ``handover(data, Handover)``: inside the cycle, when the SV switches a joint to this
-  algorithm, just before the first ``step`` of the same tick.
-- ``init``, ``set_params``, ``get_params``: outside the cycle (configure, ``kalictl servo
-  set/get``, clients); they validate and may raise ``ConfigError``.  With ``joint_aware``,
-  ``init`` gets a fourth argument, the joint's ``JointInfo`` (its robot type: limits, model).
+A ``ServoAlgorithm`` is a name, the dtype of its private data (a record per joint in the
+arena, so any SV runs any joint, 3.3.4) and plain functions over that record, viewed as a
+ctypes ``Structure`` (``struct_view``: Python floats, no numpy).  ``step`` and ``handover``
+run inside the servo cycle (no allocation, numpy, I/O or logging); ``init``, ``set_params``
+and ``get_params`` outside it.  ``joint_aware`` and ``velocity_aware`` give ``init`` the
+joint's ``JointInfo`` and ``step`` the demand's velocity.  More: docs/guide/servos.md.
 """
 
 from __future__ import annotations
