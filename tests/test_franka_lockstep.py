@@ -18,7 +18,7 @@ import pytest
 from kali_daemons.client import Kali, pose
 from kali_daemons.core import layout
 from kali_daemons.core.errors import ConfigError
-from kali_daemons.core.layout import PowerState, RequestState
+from kali_daemons.core.layout import FaultCode, PowerState, RequestState
 from kali_daemons.hardware.franka import registers
 from kali_daemons.hardware.franka.arms import records
 from kali_daemons.runtime.instance import Instance
@@ -199,6 +199,37 @@ def test_losing_the_link_in_lockstep_halts_the_cell_naming_it(
         finally:
             if sig == signal.SIGSTOP:
                 os.kill(pid, signal.SIGCONT)
+
+
+def test_ready_at_once_after_a_reset_waits_for_torque_control_begun_after_it(
+    kali: Callable[..., str],
+) -> None:
+    """A halt cuts the FR3's torque control, which its link ends at its next turn (in
+    lockstep, after the reset): power asked at once after the reset comes on a control
+    session begun after that, not on the one the halt cut; and ``ready()`` does not take
+    SIO's record, not written since the halt, for power on."""
+    name = fr3_lockstep(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])
+        rec = records(k.inst.arena, 1)[0]
+        k.inst.raise_fault(FaultCode.OPERATOR, "test", "halt the FR3")
+        assert k.inst.clear_fault()
+        assert k.servo.power_state("arm") == PowerState.OFF  # SIO has not run since the halt
+        k.servo.power("arm", True)
+        control = []  # each tick: the link in torque control, the arm ON
+        while k.servo.power_state("arm") != PowerState.ON and len(control) < 300:
+            step_kali_clock(k.inst, 1)
+            on = k.servo.power_state("arm") == PowerState.ON
+            control.append((bool(int(rec["status"]) & registers.LINK_CONTROL), on))
+        assert control[-1][1], k.inst.fault_text() or k.servo.calibration("arm")[2]
+        assert (False, False) in control, "power came on the control session the halt cut"
+        arm = k.robot("arm")
+        target = arm.read_joints() + np.radians([0, 0, 0, 10, 0, 0, 0])
+        move = arm.move_joints(target, speed=1.0, wait=False)
+        step_kali_clock(k.inst, 1000)
+        assert not k.inst.fault["active"], k.inst.fault_text()
+        assert k.servo.power_state("arm") == PowerState.ON, k.servo.calibration("arm")[2]
+        assert move.state == RequestState.DONE, move.message
 
 
 def test_calibrating_an_fr3_says_there_is_nothing_to_calibrate(kali: Callable[..., str]) -> None:

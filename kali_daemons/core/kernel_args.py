@@ -570,7 +570,7 @@ BLOCKS: tuple[Block, ...] = (
         ("ctrl_tick", "int64_t *"),
         ("fed_ns", "int64_t *", "when SIO fed its last tick"),
         ("served_max", "int64_t *", "per SV: the longest feed-to-done since it learnt"),
-        ("robots_tick", "View", "int64, per robot"),
+        ("robots_tick, robots_faults", "View", "per robot: int64, uint32"),
         ("sv_fed_tick", "const int64_t *", "the gang (sio/gang.py): per SV"),
         ("signal_tick, ack_tick, vouched_tick", "View", "int64, per process slot"),
         ("gang_sv, gang_slot, gang_lag", "const int64_t *"),

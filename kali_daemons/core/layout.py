@@ -606,6 +606,9 @@ ROBOT_STATE = np.dtype(
         # clients: the fault count (low 32 bits) seen when power_cmd / calib_cmd was written;
         # SIO takes a command only while it matches and no fault is active: a halt voids it
         ("cmd_faults", "<u4"),
+        # SIO: the fault count (low 32 bits) its last tick had seen: while the fault record's
+        # is another, ``power`` may still say a halted robot is ON (SIO has not run since)
+        ("faults_seen", "<u4"),
         ("tick", "<i8"),  # SIO: last servo tick
         # the robot-level servo: the active one, or ARM_NONE for joint servos,
         # and its mailbox, as a slot's (SlotOp; the SV carries it out, op_algo -1 = joints)

@@ -199,11 +199,11 @@ class FrankaLink(Daemon):
         run the error recovery when reset asks."""
         arm = self.arm
         error = int(arm["status"]) & LINK_ERROR
-        if int(arm["recover"]):
+        if int(arm["recover"]):  # out of any control the halt cut: the reset takes effect
             if error:
                 self._robot.automatic_error_recovery()
                 arm["error"] = b""
-            arm["recover"] = error = 0
+            arm["recover"] = arm["stop"] = error = 0
         estop = bool(int(arm["estop"]))
         arm["status"] = LINK_CONNECTED | (LINK_ESTOP if estop else 0) | error
         if int(arm["want"]) and not int(arm["stop"]) and not estop and not error:
@@ -336,10 +336,10 @@ class FrankaLink(Daemon):
             self._send_torques()
             return self._read_control, LS_UDP
         error = int(arm["status"]) & LINK_ERROR
-        if int(arm["recover"]):
+        if int(arm["recover"]):  # out of any control the halt cut: the reset takes effect
             if error:
                 return self._recover, LS_TCP
-            arm["recover"] = 0
+            arm["recover"] = arm["stop"] = 0
         estop = bool(int(arm["estop"]))
         arm["status"] = LINK_CONNECTED | (LINK_ESTOP if estop else 0) | error
         if int(arm["want"]) and not int(arm["stop"]) and not estop and not error:
@@ -364,7 +364,7 @@ class FrankaLink(Daemon):
         self._robot.automatic_error_recovery()
         arm = self.arm
         arm["error"] = b""
-        arm["recover"] = 0
+        arm["recover"] = arm["stop"] = 0
         arm["status"] = LINK_CONNECTED | (LINK_ESTOP if int(arm["estop"]) else 0)
         return self._read_idle()
 

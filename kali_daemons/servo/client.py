@@ -657,11 +657,12 @@ class ServoClient:
         return int(self.inst.fault["count"]) & 0xFFFFFFFF
 
     def power_state(self, robot: str | int) -> PowerState:
-        """The robot's amplifier power as SIO drives it; OFF while the system is halted (the
-        halt cut the amplifiers at once, and SIO's record says so at its next tick, which a
-        clock the halt stopped may not give it)."""
+        """The robot's amplifier power as SIO drives it; OFF while the system is halted, or
+        SIO has not run since a halt (the halt cut the amplifiers at once, and SIO's record
+        says so at its next tick, which a clock the halt stopped may not give it)."""
         k = self.robot_index(robot)
-        if int(self.inst.fault["active"]):
+        seen = int(self.level.robots["faults_seen"][k])
+        if int(self.inst.fault["active"]) or seen != self._faults():
             return PowerState.OFF
         return PowerState(int(self.level.robots["power"][k]))
 

@@ -208,7 +208,7 @@ class SioCycle:
         self._hist = ctrl["latency_hist"]
         self._ctrl_tick, self._ctrl_fed, self._ctrl_done = ctrl["tick"], ctrl["fed"], ctrl["done"]
         self._lat_last, self._lat_max = ctrl["latency_last_ns"], ctrl["latency_max_ns"]
-        self._robots_tick = rs["tick"]
+        self._robots_tick, self._robots_faults = rs["tick"], rs["faults_seen"]
         self._r = [_RobotViews(self, k) for k in range(nr)]
         self._capture = np.zeros(nr, dtype=np.uint8)  # index capture on (calibration.py)
         self._calib: list[Calibration | Absolute] = [
@@ -463,6 +463,7 @@ class SioCycle:
             fed_ns=ctrl["fed_ns"].ctypes.data,
             served_max=ctrl["sv_served_max_ns"].ctypes.data,
             robots_tick=self._robots_tick,
+            robots_faults=self._robots_faults,
             sv_fed_tick=ctrl["sv_fed_tick"].ctypes.data,
             signal_tick=procs["signal_tick"],
             ack_tick=procs["ack_tick"],
@@ -642,6 +643,7 @@ class SioCycle:
         self.acknowledge(tick)  # the tick's I/O is done: what follows is bookkeeping
         self._publish()  # SIO's arrays and the driver's state into the joint records
         self._robots_tick[...] = tick
+        self._robots_faults[...] = a.faults_seen & 0xFFFFFFFF
         late = t_out - t_read
         self._lat_last[...] = late
         if late > self._lat_max:

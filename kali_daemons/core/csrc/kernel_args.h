@@ -588,7 +588,7 @@ typedef struct {
     int64_t *ctrl_tick;
     int64_t *fed_ns; /* when SIO fed its last tick */
     int64_t *served_max; /* per SV: the longest feed-to-done since it learnt */
-    View robots_tick; /* int64, per robot */
+    View robots_tick, robots_faults; /* per robot: int64, uint32 */
     const int64_t *sv_fed_tick; /* the gang (sio/gang.py): per SV */
     View signal_tick, ack_tick, vouched_tick; /* int64, per process slot */
     const int64_t *gang_sv, *gang_slot, *gang_lag;
@@ -1501,6 +1501,7 @@ static const Field SioArgs_LAYOUT[] = {
     LAYOUT(SioArgs, fed_ns),
     LAYOUT(SioArgs, served_max),
     LAYOUT(SioArgs, robots_tick),
+    LAYOUT(SioArgs, robots_faults),
     LAYOUT(SioArgs, sv_fed_tick),
     LAYOUT(SioArgs, signal_tick),
     LAYOUT(SioArgs, ack_tick),

@@ -549,7 +549,10 @@ int64_t kali_sio_back(SioArgs *a) {
         if (a->control_fn(a->control_args)) a->retrigger_tick = *a->clock_tick;
         if (a->ack_early) *a->ack_early = a->tick; /* the I/O is done: bookkeeping follows */
         kali_copy(a->publish);
-        for (int64_t k = 0; k < a->n_robots; k++) AT(int64_t, a->robots_tick, k) = a->tick;
+        for (int64_t k = 0; k < a->n_robots; k++) {
+            AT(int64_t, a->robots_tick, k) = a->tick;
+            AT(uint32_t, a->robots_faults, k) = (uint32_t)a->faults_seen;
+        }
         int64_t late = a->t_out - a->t_read;
         *a->lat_last = late;
         if (late > *a->lat_max) *a->lat_max = late;

@@ -182,6 +182,7 @@ class FrankaArms:
         self.driver = FrankaDriver(types, arms, period_s)
         self._arms, self._types, self._links = arms, types, links
         self._status = arms["status"]  # every arm's status (amps_register)
+        self._stop = arms["stop"]
         self._control_kernel: Kernel | None = None
         self._sem_addresses: list[int] = []
 
@@ -225,8 +226,9 @@ class FrankaArms:
         self.driver.zero()
 
     def amps_on(self, k: int) -> bool:
-        """Whether arm ``k`` takes Kali's torques (its torque control runs)."""
-        return bool(int(self._status[k]) & LINK_CONTROL)
+        """Whether arm ``k`` takes Kali's torques: its torque control runs, and began after
+        the last halt (the link ends a session the halt cut, then clears ``stop``)."""
+        return bool(int(self._status[k]) & LINK_CONTROL) and not int(self._stop[k])
 
     def amps_register(self) -> tuple[np.ndarray, int]:
         return self._status, LINK_CONTROL
@@ -347,9 +349,10 @@ class FrankaOps:
             arms["want"] = 0
 
     def reset(self) -> None:
+        """Ask each link to recover; it clears ``stop`` itself once the torque control the
+        halt cut has ended, so no power-on takes that session for a new one."""
         arms = self._view()
         if arms is not None:
-            arms["stop"] = 0
             arms["recover"] = 1
 
     def amplifiers_cut(self) -> list[bool]:

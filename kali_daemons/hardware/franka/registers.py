@@ -82,7 +82,7 @@ FRANKA_ARM = np.dtype(
         ("tau", "<f8", (MAX_JOINTS,)),  # N·m, without gravity (the FR3 adds it)
         ("want", "u1"),  # 1: torque control on (the arm is powered), 0: off
         # any process, outside any cycle (``FrankaOps``)
-        ("stop", "u1"),  # 1: a halt: stop the robot now (libfranka's stop); cleared by reset
+        ("stop", "u1"),  # 1: a halt: stop now; the link clears it on reset, out of control
         ("estop", "u1"),  # 1: the e-stop is pressed
         ("recover", "u1"),  # 1: run libfranka's error recovery (kalictl reset); the link clears
         ("grip_cmd", "<u4"),  # a gripper command's number: bumped with grip_close (FrankaOps)
