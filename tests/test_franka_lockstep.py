@@ -366,7 +366,6 @@ def test_a_late_link_halts_two_fr3s_and_the_other_link_keeps_its_turn(
         finally:
             os.kill(pid, signal.SIGCONT)
         assert k.inst.clear_fault()
-        step_kali_clock(k.inst, 20)  # the links end the torque control the halt cut off
         k.ready(["left", "right"])
         rec = records(k.inst.arena, 2)
         assert rec["ls_off"].tolist() == [0, 0]  # neither link left its turns
