@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -23,7 +24,7 @@ from kali_daemons.client import Kali, pose
 from kali_daemons.client.protocol import BridgeError, Keys
 from kali_daemons.client.zenohconfig import client_config
 from kali_daemons.core import layout
-from kali_daemons.core.errors import KaliError
+from kali_daemons.core.errors import KaliError, MotionError
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.wallclock import step_kali_clock
 
@@ -270,14 +271,15 @@ def test_events_arrive_in_order_and_none_is_lost_across_a_fault_and_reset(
     late_sub.undeclare()
 
 
-def stream_and_track(k: Kali) -> list[np.ndarray]:
-    """One program, run locally or through the bridge: a pose stream the left tool follows,
-    then a shared transform it tracks, ``k.sleep`` between sends (the clock stepped in
-    lockstep); the demand after each step."""
+def stream_and_track(k: Kali) -> tuple[list[np.ndarray], list[str]]:
+    """One program, run locally or through the bridge: a pose stream the left tool follows
+    (poses, then twists, then a pose refused), a joint stream, then a shared transform it
+    tracks, ``k.sleep`` between sends (the clock stepped in lockstep); the demand after each
+    step, and the refusals' words."""
     k.ready(["left"])
     left = k.robot("left")
     start = left.read_pose()
-    seen = []
+    seen, said = [], []
     with left.stream(lifetime=0.1, accel=5.0) as s:
         p = start.copy()
         for _ in range(20):
@@ -286,6 +288,28 @@ def stream_and_track(k: Kali) -> list[np.ndarray]:
             k.sleep(0.02)
             seen.append(left.read_state().q_d)
         assert s.handle.limited > 0
+        for _ in range(5):
+            s.send_twist([0.0, 0.02, 0.0, 0.0, 0.0, 0.1])
+            k.sleep(0.02)
+            seen.append(left.read_state().q_d)
+        bent = p.copy()
+        bent[0, 0] = 2.0
+        for bad, send in ((bent, s.send), ([0.0] * 5, s.send_twist)):
+            with pytest.raises(MotionError) as e:
+                send(bad)
+            said.append(str(e.value))
+    with pytest.raises(MotionError) as e:  # closed: the record is not the program's any more
+        s.send(p)
+    said.append(str(e.value))
+    k.sleep(0.2)
+    with left.stream_joints(lifetime=0.1) as j:
+        q = left.read_joints()
+        for _ in range(10):
+            q[0] += 0.002
+            j.send(q)
+            k.sleep(0.02)
+            seen.append(left.read_state().q_d)
+    k.sleep(0.3)
     frame = k.shared_transform("target", start, lifetime=0.2)
     handle = left.track([frame], speed=0.2)
     for i in range(20):
@@ -297,7 +321,7 @@ def stream_and_track(k: Kali) -> list[np.ndarray]:
     k.sleep(0.3)  # not set for longer than its lifetime: the arm stops on its path
     assert handle.state == layout.RequestState.STOPPED and "not written for" in handle.message
     frame.close()
-    return seen
+    return seen, said
 
 
 def test_a_remote_stream_and_shared_transform_drive_the_arm_as_a_local_program_does(
@@ -308,11 +332,15 @@ def test_a_remote_stream_and_shared_transform_drive_the_arm_as_a_local_program_d
     session writes, with the same lifetime and stale-stop rule, and the demands tick by tick
     are those of the same program run locally."""
     with Kali(kali(lockstep=True)) as local:
-        here = stream_and_track(local)
+        here, said_here = stream_and_track(local)
     name, endpoint = bridged()
     with Kali.connect(endpoint, name) as remote:
-        there = stream_and_track(remote)
+        there, said_there = stream_and_track(remote)
+        written = remote.status()["bridge"]["stream_writes"]
     np.testing.assert_array_equal(np.array(there), np.array(here))
+    unpid = lambda said: [re.sub(r"\.\d+'", "'", m) for m in said]  # noqa: E731 (the stream's)
+    assert unpid(said_there) == unpid(said_here) and "not a rigid pose" in said_here[0]
+    assert written == 20 + 5 + 10 + 20  # every send and set written by the bridge itself
 
 
 def test_verbs_answer_with_kalictls_words(

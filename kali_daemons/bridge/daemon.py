@@ -31,6 +31,7 @@ from ..tools import launcher
 from . import access
 from .admission import Gates, Turns
 from .sessions import Sessions, check_verb
+from .streams import RemoteStreams
 from .telemetry import Telemetry, Watch
 
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -91,6 +92,7 @@ class Bridge(Daemon):
         log_dir = str(launcher.log_dir(inst.name))
         self.sessions = Sessions(inst.name, cfg.max_sessions, cfg.cpu, log_dir)
         self.gates = Gates(cfg.max_requests_per_s)
+        self.streams = RemoteStreams(inst)
         reads, sessions = "status and config requests", "session opens and closes"
         self.reads = self._worker("bridge-reads", reads)
         self.verbs = self._worker("bridge-verbs", "verbs")
@@ -220,6 +222,7 @@ class Bridge(Daemon):
             "events": self.n_events,
             "refused": self.refused,
             "errors": self.errors,
+            "stream_writes": self.streams.written,
         }
         return doc
 
@@ -277,6 +280,7 @@ class Bridge(Daemon):
         return self._end_session(secret)
 
     def _end_session(self, secret: str) -> bool:
+        self.streams.forget(secret)
         q = self.session_queues.pop(secret, None)
         if q is not None:
             q.close()  # its thread ends once the calls waiting are answered (refused)
@@ -288,7 +292,7 @@ class Bridge(Daemon):
         user's): on the session's own thread, in the order sent."""
         try:
             user, secret = self.keys.session(query.key_expr)
-            self.sessions.find(secret, user)
+            worker = self.sessions.find(secret, user)
         except BridgeError as exc:
             self._refuse(query, exc)
             return
@@ -297,10 +301,22 @@ class Bridge(Daemon):
             self._refuse(query, BridgeError("no such session; open one first"))
             return
         payload = query.payload.to_bytes() if query.payload is not None else b""
-        job = lambda: self._answer(query, lambda _: self.sessions.call(secret, user, payload))  # noqa: E731
-        why = self.gates.admit(user, q.what) or q.put(user, job)
+        why = self.gates.admit(user, q.what)
+        if why is None and not worker.interrupted:  # a stream's send: written here and now
+            written = self.streams.call(secret, worker.proc.pid, payload)
+            if written is not None:
+                self._answer(query, lambda _: written)
+                return
+        job = lambda: self._answer(query, lambda _: self._call(secret, user, payload))  # noqa: E731
+        why = why or q.put(user, job)
         if why is not None:
             self._refuse(query, BridgeError(why))
+
+    def _call(self, secret: str, user: str, payload: bytes) -> bytes:
+        """A call carried out by the session, whose answer may hand over a stream."""
+        answer = self.sessions.call(secret, user, payload)
+        self.streams.learn(secret, payload, answer)
+        return answer
 
     def _on_stop(self, query: zenoh.Query) -> None:
         """Stop the arms of the session whose secret the key holds, the asking user's, and

@@ -127,10 +127,10 @@ class UserKeys:
 
 # The calls a remote program may make, by the class of the object it calls (methods, then
 # properties read as attributes).  A remote stream or shared transform is one its session
-# holds and writes on each call, under the same lifetime and stale-stop rule as a local
-# one's.  Periodic functions and TG functions stay on the controller's machine (their
-# deadlines are the wall clock's and the TG's), as do the live views of shared memory
-# (``kali.servo.level``, ``kali.ft``).
+# holds, under the same lifetime and stale-stop rule as a local one's; the bridge writes it
+# on each send (``bridge.streams``).  Periodic functions and TG functions stay on the
+# controller's machine (their deadlines are the wall clock's and the TG's), as do the live
+# views of shared memory (``kali.servo.level``, ``kali.ft``).
 METHODS: dict[str, frozenset[str]] = {
     "Kali": frozenset(
         {

@@ -62,8 +62,7 @@ class SharedTransform:
         """Write ``pose`` (4×4, a rigid motion) for the TG's next tick, stamped with the wall
         clock's tick; MotionError, nothing written, for a pose that is not finite or rigid."""
         self._check_held("set")
-        value = rigid_pose(f"shared transform '{self.name}'", "pose", pose)
-        write_frame(self._record, int(self.kali.inst.clock["tick"]), value, None)
+        write_pose(self._record, self.name, int(self.kali.inst.clock["tick"]), pose)
 
     def set_joints(self, q: np.ndarray) -> None:
         """Write joint targets (a joint stream's), stamped like ``set``; unchecked here: the
@@ -94,6 +93,31 @@ class SharedTransform:
         if self.kali.frames is not None and int(self._record["owner_pid"]) == os.getpid():
             self._record["owner_pid"] = 0
         self.kali.held_frames.pop(self.index, None)
+
+
+def write_pose(record: np.ndarray, name: str, tick: int, pose: object) -> None:
+    """Write ``pose`` into shared transform ``name``'s record (0-d), stamped ``tick``;
+    MotionError, nothing written, for a pose that is not finite or rigid."""
+    write_frame(record, tick, rigid_pose(f"shared transform '{name}'", "pose", pose), None)
+
+
+def twisted(
+    record: np.ndarray, robot: str, twist: object, tick: int, tick_s: float, lifetime: float
+) -> np.ndarray:
+    """A stream's target moved at ``twist`` (world: vx, vy, vz m/s, then wx, wy, wz rad/s)
+    from the pose its record holds, for the time since that was written (at most
+    ``lifetime``, so a late send never jumps far), the rotation about the target's point;
+    MotionError for a twist that is not 6 finite numbers."""
+    t = _real_array(f"stream of '{robot}': twist", twist, "6 numbers")
+    if t.shape != (TWIST,):
+        raise MotionError(f"stream of '{robot}': twist has shape {t.shape}, not ({TWIST},)")
+    dt = min((tick - int(record["stamp_tick"])) * tick_s, lifetime or math.inf)
+    pose = record["pose"].copy()
+    pose[:3, 3] += t[:3] * dt
+    rot = np.empty((3, 3))
+    rotation(list(t[3:] * dt), rot)
+    pose[:3, :3] = rot @ pose[:3, :3]
+    return pose
 
 
 def claim_slot(records: np.ndarray, name: str, what: str) -> int:
@@ -334,34 +358,21 @@ class Stream:
         self.robot = robot
         self.frame = frame
         self.handle = handle
-        self._sent_tick = int(robot.kali.inst.clock["tick"])  # of the last send
 
     def send(self, pose: np.ndarray) -> None:
         """The tool's next target (world pose, 4×4)."""
         self.frame.set(pose)
-        self._sent_tick = int(self.robot.kali.inst.clock["tick"])
 
     def send_twist(self, twist: Sequence[float]) -> None:
         """Move the target at ``twist`` (world: vx, vy, vz m/s, then wx, wy, wz rad/s) since
-        the last send: it advances by twist × the time since then (at most the stream's
-        lifetime, so a late send never jumps far), the rotation about the target's point.
-        A spacemouse's or a joystick's velocity command; the TG keeps the arm in its
-        limits.  MotionError for a twist that is not 6 finite numbers."""
-        t = _real_array(f"stream of '{self.robot.name}': twist", twist, "6 numbers")
-        if t.shape != (TWIST,):
-            raise MotionError(
-                f"stream of '{self.robot.name}': twist has shape {t.shape}, not ({TWIST},)"
-            )
+        the last send (``twisted``): a spacemouse's or a joystick's velocity command; the TG
+        keeps the arm in its limits.  MotionError for a twist that is not 6 finite numbers."""
+        self.frame._check_held("send_twist")
         inst = self.robot.kali.inst
-        now = int(inst.clock["tick"])
         tick_s = inst.config.clock.base_tick_ms / 1000.0
-        dt = min((now - self._sent_tick) * tick_s, self.frame.lifetime or math.inf)
-        pose = self.frame.value
-        pose[:3, 3] += t[:3] * dt
-        rot = np.empty((3, 3))
-        rotation(list(t[3:] * dt), rot)
-        pose[:3, :3] = rot @ pose[:3, :3]
-        self.send(pose)
+        rec = self.frame._record
+        now = int(inst.clock["tick"])
+        self.send(twisted(rec, self.robot.name, twist, now, tick_s, self.frame.lifetime))
 
     def close(self) -> None:
         """Stop the arm on its path (if the motion still runs) and free the record."""
