@@ -35,6 +35,9 @@ TRUTH_FIELDS = ("q", "qd", "current", "torque")  # per joint (JOINT_TRUTH)
 # what ``ServoWatch`` compares: each slot's and each robot's fields
 JOINT_KEYS = ("algo", "enabled", "shadow", "shadow_state", "ops")
 ARM_KEYS = ("arm_algo", "arm_shadow", "arm_shadow_state", "arm_ops")
+# the fields behind them: a slot's, a robot's record
+SLOT_FIELDS = ("algo", "enabled", "shadow", "shadow_state", "ops_done")
+ROBOT_FIELDS = ("arm_algo", "arm_shadow", "arm_shadow_state", "arm_ops_done")
 
 # a change: (arm index, joint (1.., 0 the robot-level servo), kind, servo, its parameters)
 Change = tuple[int, int, str, str, dict[str, float]]
@@ -50,10 +53,13 @@ class ServoWatch:
         self.map = level.map
         self.registry = level.registry
         s, r = level.slots, level.robots  # the fields compared, viewed once
-        self._columns = (
-            [s["algo"], s["enabled"], s["shadow"], s["shadow_state"], s["ops_done"]],
-            [r["arm_algo"], r["arm_shadow"], r["arm_shadow_state"], r["arm_ops_done"]],
-        )
+        self._columns = ([s[f] for f in SLOT_FIELDS], [r[f] for f in ROBOT_FIELDS])
+        # the same fields' bytes, gathered at once: most looks find them as they were
+        self._bytes = [
+            (records.reshape(-1).view(np.uint8), _byte_offsets(records, keys))
+            for records, keys in ((s, SLOT_FIELDS), (r, ROBOT_FIELDS))
+        ]
+        self._said_bytes = self._glance()
         self._said = self._look()
         n, nr = level.n, level.n_robots
         self._params: list[dict[str, float]] = [self._joint_params(i) for i in range(n)]
@@ -69,6 +75,10 @@ class ServoWatch:
         for row, column in zip(arms, self._columns[1], strict=True):
             row[:] = column
         return joints, arms
+
+    def _glance(self) -> np.ndarray:
+        """The compared fields' bytes as they stand, one array."""
+        return np.concatenate([raw[at] for raw, at in self._bytes])
 
     def _name(self, a: int) -> str:
         return self.registry[a].name if 0 <= a < len(self.registry) else ""
@@ -97,10 +107,12 @@ class ServoWatch:
         """What changed since the last call, in joint order, robot-level last."""
         if int(self.level.loads["generation"]) != self.level.taken:
             loading.take(self.level)  # servo plugins loaded while running: their names
+        glance = self._glance()
+        if np.array_equal(glance, self._said_bytes):
+            return []
+        self._said_bytes = glance
         look = self._look()
         said, self._said = self._said, look
-        if np.array_equal(look[0], said[0]) and np.array_equal(look[1], said[1]):
-            return []
         now = dict(zip(JOINT_KEYS + ARM_KEYS, (*look[0], *look[1]), strict=True))
         was = dict(zip(JOINT_KEYS + ARM_KEYS, (*said[0], *said[1]), strict=True))
         out: list[Change] = []
@@ -162,6 +174,15 @@ class ServoWatch:
         return kind, name(int(algo))
 
 
+def _byte_offsets(records: np.ndarray, keys: tuple[str, ...]) -> np.ndarray:
+    """Where fields ``keys`` of every record of ``records`` lie in its bytes."""
+    fields = records.dtype.fields
+    assert fields is not None
+    one = np.concatenate([fields[k][1] + np.arange(fields[k][0].itemsize) for k in keys])
+    at: np.ndarray = np.arange(len(records))[:, None] * records.strides[0] + one
+    return at.ravel()
+
+
 def same(a: dict[str, float], b: dict[str, float]) -> bool:
     """Parameter sets equal, NaN equal to NaN."""
     if a.keys() != b.keys():
@@ -170,7 +191,7 @@ def same(a: dict[str, float], b: dict[str, float]) -> bool:
 
 
 class TruthSampler:
-    """The plant's truth of every arm, read as it stands (``sample``)."""
+    """The plant's truth records: every arm's, every joint's and the world's."""
 
     def __init__(self, inst: Instance) -> None:
         cfg = inst.config
@@ -179,7 +200,3 @@ class TruthSampler:
         self.arms = arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, n)
         self.joints = arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, cfg.joints.total)
         self.world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
-
-    def sample(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Copies of the arms', the joints' and the world's truth records."""
-        return self.arms.copy(), self.joints.copy(), self.world[0].copy()

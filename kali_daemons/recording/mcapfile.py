@@ -4,7 +4,7 @@ block of message records by numpy, every other record through ``mcap.records``.
 mcap's ``Writer`` builds each message as a Python object and writes its fields one by one
 (about 14 µs a message here); a recording of four arms at 1 kHz adds 12 000 a second.  The
 recorder's messages of a tick never change their layout, so a drain's ticks are one array,
-a row per tick (``TickBlock``), whose stamps, ticks and values are filled column by column,
+a row per tick (``TickBlock``), whose stamps, ticks and values are gathered into it at once,
 and the message index entries are computed the same way.  The file is what ``Writer`` writes
 (https://mcap.dev/spec): chunks compressed with zstd with their message indexes, and a
 summary with the schemas, channels, statistics, chunk and metadata indexes.
@@ -73,8 +73,9 @@ class TickBlock:
         self.offsets = np.zeros(0, np.uint64)  # the same, as the index entries want them
         self.fields: list[Field] = []
         self.block = np.zeros((0, 0), np.uint8)
-        self._views: list[np.ndarray | None] = []
-        self._time_to: np.ndarray | None = None
+        self._words: list[np.ndarray] = []  # the block as 8-byte words at each byte phase
+        self._plan_of: tuple[np.dtype, list[tuple[int, np.ndarray, np.ndarray]]] | None = None
+        self._narrow: list[str] = []  # single-precision columns, widened for the messages
 
     def add(
         self,
@@ -105,59 +106,71 @@ class TickBlock:
         return len(self._row)
 
     def _rows(self, n: int) -> np.ndarray:
-        """The block with at least ``n`` rows, each a copy of the laid-out row, and the
-        views of the columns ``fill`` assigns (``_views``, made once per block; None for a
-        time field, whose bytes are scattered)."""
+        """The block with at least ``n`` rows, each a copy of the laid-out row."""
         if self.block.shape[0] < n or self.block.shape[1] != self.width:
             rows = max(n, 2 * self.block.shape[0], 16)
             self.block = np.tile(np.frombuffer(bytes(self._row), np.uint8), (rows, 1))
-            self._views = [None if f.kind == "time" else self._view(f) for f in self.fields]
+            self._words = [
+                np.ndarray((rows, (self.width - p) // 8), "<u8", self.block, p, (self.width, 8))
+                for p in range(8)
+            ]
         return self.block
 
-    def _view(self, f: Field) -> np.ndarray:
-        """The block's column of field ``f`` as ``fill`` assigns it: a tick (int64) or
-        values (float64)."""
-        block, width, rows = self.block, self.width, self.block.shape[0]
-        dtype = "<i8" if f.kind == "tick" else "<f8"
-        return np.ndarray((rows, max(f.count, 1)), dtype, block, f.at, (width, 8))
-
-    def _stamps_to(self) -> np.ndarray:
-        """The block bytes of every message's times, 24 a message: its log and publish
-        times and its header's stamp (sec, nanosec); made once."""
-        if self._time_to is None:
-            runs = []
-            for f in self.fields:
-                if f.kind == "time":
-                    body = f.at + MESSAGE_HEAD.size
-                    for at in (f.at + LOG_TIME_AT, f.at + PUBLISH_TIME_AT, body + 4):
-                        runs.append(np.arange(8) + at)
-            self._time_to = np.concatenate(runs)
-        return self._time_to
+    def _plan(self, row: np.dtype) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Where each 8-byte value of a block row comes from, as one gather per byte phase:
+        (phase, the block's words at that phase, the source words).  The sources (``fill``)
+        are a flight row's words, then its single-precision columns widened, then the log
+        time and the stamp (sec, nanosec).  Made once for a flight row's layout."""
+        if self._plan_of is not None and self._plan_of[0] == row:
+            return self._plan_of[1]
+        fields = row.fields
+        assert fields is not None and row.itemsize % 8 == 0, f"a flight row of {row}"
+        source = {c: fields[c][1] // 8 for c in fields}  # each column's first source word
+        self._narrow = [c for c in fields if fields[c][0].base == np.float32]
+        at = row.itemsize // 8
+        for c in self._narrow:
+            source[c], at = at, at + fields[c][0].shape[0]
+        pairs: list[tuple[int, int]] = []  # (byte offset in a block row, source word)
+        for f in self.fields:
+            if f.kind == "time":
+                body = f.at + MESSAGE_HEAD.size
+                pairs += [
+                    (f.at + LOG_TIME_AT, at),
+                    (f.at + PUBLISH_TIME_AT, at),
+                    (body + 4, at + 1),
+                ]
+            elif f.kind == "tick":
+                pairs.append((f.at, source["tick"]))
+            else:
+                shape = fields[f.column][0].shape  # (joints,) or (robots, values)
+                first = f.index.start if isinstance(f.index, slice) else f.index * shape[-1]
+                pairs += [(f.at + 8 * e, source[f.column] + first + e) for e in range(f.count)]
+        plan = []
+        for p in range(8):
+            mine = [(b // 8, w) for b, w in pairs if b % 8 == p]
+            if mine:
+                plan.append((p, np.array([b for b, _ in mine]), np.array([w for _, w in mine])))
+        self._plan_of = (row, plan)
+        return plan
 
     def fill(self, rows: np.ndarray, times: np.ndarray) -> np.ndarray:
         """The first ``len(rows)`` rows of the block, filled from flight rows ``rows`` at
-        log times ``times`` (ns): every message's times in one byte scatter, then each
-        value field's column (a flight-row column taken once for all its fields)."""
+        log times ``times`` (ns): every 8-byte value (the times, the ticks, the values) by
+        one gather for each byte phase it has in a row (``_plan``)."""
         n = len(rows)
         block = self._rows(n)
-        stamps = np.empty((n, 3), "<u8")  # log time, publish time, the stamp (sec, nanosec)
-        stamps[:, 0] = stamps[:, 1] = times
-        sec_nsec = stamps[:, 2:].view("<u4")
-        sec_nsec[:, 0], sec_nsec[:, 1] = times // 1_000_000_000, times % 1_000_000_000
-        time_to = self._stamps_to()
-        block[:n, time_to] = np.tile(stamps.view(np.uint8), (1, len(time_to) // 24))
-        columns: dict[str, np.ndarray] = {}
-        for f, view in zip(self.fields, self._views, strict=True):
-            if view is None:  # a time field: scattered above
-                continue
-            name = "tick" if f.kind == "tick" else f.column
-            column = columns.get(name)
-            if column is None:
-                column = columns[name] = rows[name]
-            if f.kind == "tick":
-                view[:n, 0] = column
-            else:
-                view[:n] = column[:, f.index].reshape(n, f.count)
+        plan = self._plan(rows.dtype)
+        words = rows.dtype.itemsize // 8
+        narrow = [rows[c].astype("<f8") for c in self._narrow]
+        at = words + sum(c.shape[1] for c in narrow)
+        src = np.empty((n, at + 2), "<u8")
+        src[:, :words] = np.ascontiguousarray(rows).view("<u8").reshape(n, words)
+        if narrow:
+            src[:, words:at] = np.concatenate(narrow, axis=1).view("<u8")
+        src[:, at] = times
+        src[:, at + 1] = times // 1_000_000_000 + ((times % 1_000_000_000) << 32)
+        for p, dst, source in plan:
+            self._words[p][:n, dst] = src[:, source]
         return block[:n]
 
 
@@ -271,9 +284,14 @@ class McapFile:
 
     def _index(self) -> dict[int, np.ndarray]:
         """The open chunk's message index entries, by channel, in offset order: the tick
-        blocks' (a column per channel) and the single messages'."""
+        blocks' (a column per channel) and the single messages', each already in offset
+        order (a channel with both is sorted)."""
         parts: dict[int, list[np.ndarray]] = {}
+        by_block: dict[int, tuple[TickBlock, list[np.ndarray]]] = {}
         for block, entries in self._blocks:
+            by_block.setdefault(id(block), (block, []))[1].append(entries)
+        for block, pieces in by_block.values():
+            entries = np.concatenate(pieces)
             for j, channel in enumerate(block.channels):
                 parts.setdefault(channel, []).append(entries[:, j, :])
         if self._singles:
@@ -282,8 +300,11 @@ class McapFile:
                 parts.setdefault(int(channel), []).append(singles[singles[:, 0] == channel, 1:])
         index = {}
         for channel, pieces in parts.items():
-            entries = np.concatenate(pieces)
-            index[channel] = entries[np.argsort(entries[:, 1], kind="stable")]
+            if len(pieces) == 1:
+                index[channel] = pieces[0]
+            else:
+                entries = np.concatenate(pieces)
+                index[channel] = entries[np.argsort(entries[:, 1], kind="stable")]
         return index
 
     def _close_chunk(self) -> None:

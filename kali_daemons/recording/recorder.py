@@ -43,6 +43,7 @@ from .messages import (
     SERVO_DEF,
     SETPOINT_DEF,
     SIM_TRUTH_DEF,
+    STAMP_AT,
     WRENCH_DEF,
     Cdr,
     Laid,
@@ -52,6 +53,11 @@ NAME = "recorder"  # its process-table slot
 START_TIMEOUT_S = 20.0
 STOP_TIMEOUT_S = 30.0
 STATUS_S = 0.5  # how often a recording's status file is brought up to date
+# a drain's truth bytes begin with a head of four words: the stamp (sec, nanosec), the tick,
+# the simulated time (s) and the plant's cycles; each arm's wrenches as SimTruth orders them
+TRUTH_HEAD = 32
+TRUTH_WRENCHES = ("ft_wrench", "grasp_wrench")
+
 
 def status_path(instance: str) -> Path:
     """Where the recorder of ``instance`` says what it does (JSON)."""
@@ -259,7 +265,8 @@ class Recording:
         the fields every drain refills."""
         c = self._cdr
         self._setpoints: list[tuple[Laid, np.ndarray, np.ndarray]] = []
-        self._truths: list[tuple[Laid, list[np.ndarray]]] = []
+        self._truths: list[tuple[np.ndarray, list[tuple[int, int, Any]]]] = []
+        self._truth_head = np.zeros(TRUTH_HEAD // 8, "<u8")
         for span in self.spans:
             n = span.stop - span.start
             c.reset()  # kali_msgs/msg/SetPoint
@@ -267,32 +274,59 @@ class Recording:
             tick_at, q_at = c.int64(0), c.float64s(np.zeros(n))
             msg = Laid(c)
             self._setpoints.append((msg, msg.field(tick_at, "<i8"), msg.field(q_at, "<f8", n)))
-            c.reset()  # kali_msgs/msg/SimTruth
-            c.header(0)
-            at = [(c.int64(0), "<i8", 1), (c.float64(0.0), "<f8", 1), (c.uint64(0), "<u8", 1)]
-            at += [(c.float64s(np.zeros(n)), "<f8", n) for _ in TRUTH_FIELDS]
-            at += [(c.float64_fixed(np.zeros(6)), "<f8", 6) for _ in range(2)]
-            at.append((c.uint8(0), "u1", 1))
-            msg = Laid(c)
-            self._truths.append((msg, [msg.field(*a) for a in at]))
+            c.reset()  # kali_msgs/msg/SimTruth: its tick, sim time and plant ticks from
+            c.header(0)  # the head of a drain's truth bytes (TRUTH_HEAD), then the records'
+            at: list[tuple[int, int, Any]] = [(c.int64(0), 8, 8), (c.float64(0.0), 8, 16)]
+            at.append((c.uint64(0), 8, 24))
+            at += [(c.float64s(np.zeros(n)), 8, ("joints", f, span)) for f in TRUTH_FIELDS]
+            at += [(c.float64_fixed(np.zeros(6)), 48, ("arms", f)) for f in TRUTH_WRENCHES]
+            at.append((c.uint8(0), 1, ("arms", "grasped")))
+            self._truths.append((np.frombuffer(Laid(c).buf, np.uint8).copy(), at))
+        if self.truth is not None:
+            self._truth_plans = [self._truth_plan(k, at) for k, (_, at) in enumerate(self._truths)]
+
+    def _truth_plan(self, k: int, at: list[tuple[int, int, Any]]) -> tuple[np.ndarray, ...]:
+        """Where each byte of arm ``k``'s truth message comes from in a drain's truth bytes
+        (``_sample_truth``): (its bytes in the message, theirs in the source)."""
+        assert self.truth is not None
+        arms, joints = self.truth.arms, self.truth.joints
+        base = {"arms": TRUTH_HEAD, "joints": TRUTH_HEAD + arms.nbytes}
+        dst, src = [np.arange(8) + STAMP_AT], [np.arange(8)]  # the stamp: head bytes 0..8
+        for offset, size, source in at:
+            if isinstance(source, int):  # a head word
+                dst.append(np.arange(size) + offset)
+                src.append(np.arange(size) + source)
+                continue
+            records, field = (arms, source[1]) if source[0] == "arms" else (joints, source[1])
+            where = records.dtype.fields[field][1]  # type: ignore[index]
+            rows = [k] if source[0] == "arms" else range(source[2].start, source[2].stop)
+            width = size if source[0] == "arms" else 8
+            for e, row in enumerate(rows):
+                dst.append(np.arange(width) + offset + e * width)
+                src.append(np.arange(width) + base[source[0]] + row * records.strides[0] + where)
+        return np.concatenate(dst), np.concatenate(src)
 
     def _sample_truth(self) -> None:
-        """Every arm's truth as the plant has it now, stamped with the clock's tick."""
+        """Every arm's truth as the plant has it now, stamped with the clock's tick: the
+        drain's truth bytes (a head, then the arms' and the joints' records) gathered into
+        each arm's message at once."""
         assert self.truth is not None
-        arms, joints, world = self.truth.sample()
         tick = int(self.inst.clock["tick"])
         t = tick * self.base_ns
-        sim_s, plant_ticks = int(world["sim_time_ns"]) / 1e9, int(world["ticks"])
-        columns = [joints[f] for f in TRUTH_FIELDS]  # each field's view taken once
-        ft, grasp, grasped = arms["ft_wrench"], arms["grasp_wrench"], arms["grasped"]
-        for k, span in enumerate(self.truth.spans):
-            msg, (tick_v, sim_v, ticks_v, *fields, ft_v, grasp_v, grasped_v) = self._truths[k]
-            msg.stamp(t)  # kali_msgs/msg/SimTruth
-            tick_v[0], sim_v[0], ticks_v[0] = tick, sim_s, plant_ticks
-            for view, column in zip(fields, columns, strict=True):
-                view[:] = column[span]
-            ft_v[:], grasp_v[:], grasped_v[0] = ft[k], grasp[k], grasped[k]
-            self.writer.message(self._truth_ch[k], t, msg.bytes(), t)
+        head = self._truth_head
+        world = self.truth.world[0]
+        head.view("<u4")[:2] = divmod(t, 1_000_000_000)
+        head[1] = tick
+        head.view("<f8")[2] = int(world["sim_time_ns"]) / 1e9
+        head[3] = int(world["ticks"])
+        src = np.concatenate(
+            [head.view(np.uint8), self.truth.arms.view(np.uint8), self.truth.joints.view(np.uint8)]
+        )
+        for k, ((msg, _), (dst, at)) in enumerate(
+            zip(self._truths, self._truth_plans, strict=True)
+        ):
+            msg[dst] = src[at]
+            self.writer.message(self._truth_ch[k], t, msg.tobytes(), t)
 
     def close(self) -> None:
         """Finish the file (its index and summary), outside any cycle."""
