@@ -56,7 +56,7 @@ class ServoWatch:
         self._columns = ([s[f] for f in SLOT_FIELDS], [r[f] for f in ROBOT_FIELDS])
         # the same fields' bytes, gathered at once: most looks find them as they were
         self._bytes = [
-            (records.reshape(-1).view(np.uint8), _byte_offsets(records, keys))
+            (records.reshape(-1).view(np.uint8), byte_offsets(records, keys))
             for records, keys in ((s, SLOT_FIELDS), (r, ROBOT_FIELDS))
         ]
         self._said_bytes = self._glance()
@@ -174,7 +174,7 @@ class ServoWatch:
         return kind, name(int(algo))
 
 
-def _byte_offsets(records: np.ndarray, keys: tuple[str, ...]) -> np.ndarray:
+def byte_offsets(records: np.ndarray, keys: tuple[str, ...]) -> np.ndarray:
     """Where fields ``keys`` of every record of ``records`` lie in its bytes."""
     fields = records.dtype.fields
     assert fields is not None

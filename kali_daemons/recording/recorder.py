@@ -31,7 +31,7 @@ from ..core.layout import ProcState, RequestState
 from ..runtime.daemon import Daemon
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import instance_dir
-from .events import TRUTH_FIELDS, ServoWatch, TruthSampler
+from .events import TRUTH_FIELDS, ServoWatch, TruthSampler, byte_offsets
 from .mcapfile import McapFile, TickBlock
 from .messages import (
     FAULT_DEF,
@@ -141,9 +141,14 @@ class Recording:
         # what was written of each status record (seq, state) and of the faults (count)
         self._seq, self._state = self.requests["seq"], self.requests["state"]  # views
         self._said_seq, self._said_state = self._seq.copy(), self._state.copy()
+        # the same fields' bytes, gathered at once: most drains find them as they were
+        raw = self.requests.reshape(-1).view(np.uint8)
+        self._status_bytes = raw, byte_offsets(self.requests, ("seq", "state"))
+        self._said_status = raw[self._status_bytes[1]]
         self._faults = int(inst.fault["count"])
         self.tg = inst.arena.existing(layout.KEY_TG_ROBOTS, layout.TG_ROBOT, len(self.names))
-        self._tg_ticks = [int(t) for t in self.tg["tick"]]  # the last set-point written
+        self._tg_tick, self._tg_setpoint = self.tg["tick"], self.tg["setpoint"]  # views
+        self._tg_ticks = [int(t) for t in self._tg_tick]  # the last set-point written
 
     def _arm_messages(self, k: int) -> None:
         """Arm ``k``'s joint state, servo tick and wrench messages, laid out once in the
@@ -211,14 +216,19 @@ class Recording:
         tick = max(self.last_tick, 0)
         t = tick * self.base_ns
         c, add = self._cdr, self.writer.message
-        seq, state = self._seq.copy(), self._state.copy()
-        changed = np.flatnonzero(
-            (seq != 0) & ((seq != self._said_seq) | (state != self._said_state))
-        )
-        self._said_seq, self._said_state = seq, state
+        raw, at = self._status_bytes
+        glance = raw[at]
+        changed = np.zeros(0, np.int64)
+        if not np.array_equal(glance, self._said_status):
+            self._said_status = glance
+            seq, state = self._seq.copy(), self._state.copy()
+            changed = np.flatnonzero(
+                (seq != 0) & ((seq != self._said_seq) | (state != self._said_state))
+            )
+            self._said_seq, self._said_state = seq, state
         for i in changed:
             r = self.requests[i]
-            now = (int(seq[i]), int(state[i]))
+            now = (int(self._said_seq[i]), int(self._said_state[i]))
             c.reset()  # kali_msgs/msg/Request
             c.header(t)
             c.uint64(now[0])
@@ -229,13 +239,13 @@ class Recording:
             c.string(decode(r["message"]).encode())
             add(self._events_ch["request"], t, c.bytes(), t)
         for k, (msg, tick_v, q_v) in enumerate(self._setpoints):  # each arm's newest
-            tg_tick = int(self.tg["tick"][k])
+            tg_tick = int(self._tg_tick[k])
             if tg_tick == self._tg_ticks[k]:
                 continue
             self._tg_ticks[k] = tg_tick
             msg.stamp(tg_tick * self.base_ns)  # kali_msgs/msg/SetPoint
             tick_v[0] = tg_tick
-            q_v[:] = self.tg["setpoint"][k, : len(q_v)]
+            q_v[:] = self._tg_setpoint[k, : len(q_v)]
             add(self._channels[k]["setpoint"], tg_tick * self.base_ns, msg.bytes(), t)
         for k, joint, kind, servo, params in self.servos.changes():
             c.reset()  # kali_msgs/msg/ServoChange
