@@ -5,10 +5,10 @@ go from the Zenoh thread that delivers them straight into the record its session
 a local send's checks, rather than through the session's process: that path is two wake-ups
 of normal-priority processes each way on a machine whose cores carry the servo level.  The
 session still holds the record (its pid, the lifetime and stale-stop rule, ``close``) and
-creates it; from then on the bridge is the record's one writer.  A call this path cannot
-carry out whole (a value refused, the record no longer the session's, objects to drop) goes
-to the session as before, which answers it as a local call would (and writes nothing the
-bridge could have written).
+creates it.  A call this path does not carry out (a value refused, the record no longer the
+session's, keyword arguments, objects to drop) goes to the session as before, which answers
+it in a local call's words; a program's calls come one at a time, so the two never write the
+record at once.
 """
 
 from __future__ import annotations
@@ -55,7 +55,6 @@ class RemoteStreams:
             layout.KEY_TG_FRAMES, layout.SHARED_FRAME, layout.MAX_FRAMES
         )
         self.tick_s = inst.config.clock.base_tick_ms / 1000.0
-        self.names = [r.name for r in inst.config.robots]
         self._held: dict[str, dict[int, Held]] = {}  # secret -> object number -> record
         self._lock = threading.Lock()
         self.written = 0  # writes carried out here (the bridge's status says)

@@ -190,13 +190,12 @@ def same(a: dict[str, float], b: dict[str, float]) -> bool:
     return all(x == b[n] or (math.isnan(x) and math.isnan(b[n])) for n, x in a.items())
 
 
-class TruthSampler:
+class TruthRecords:
     """The plant's truth records: every arm's, every joint's and the world's."""
 
     def __init__(self, inst: Instance) -> None:
         cfg = inst.config
         arena, n = inst.arena, len(cfg.robots)
-        self.spans = [cfg.joints.span(k) for k in range(n)]
         self.arms = arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, n)
         self.joints = arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, cfg.joints.total)
         self.world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)

@@ -31,7 +31,7 @@ from ..core.layout import ProcState, RequestState
 from ..runtime.daemon import Daemon
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import instance_dir
-from .events import TRUTH_FIELDS, ServoWatch, TruthSampler, byte_offsets
+from .events import TRUTH_FIELDS, ServoWatch, TruthRecords, byte_offsets
 from .mcapfile import McapFile, TickBlock
 from .messages import (
     FAULT_DEF,
@@ -122,7 +122,7 @@ class Recording:
             for k, name in enumerate(self.names)
         ]  # fmt: skip
         self.servos = ServoWatch(inst)
-        self.truth = TruthSampler(inst) if inst.config.simulated else None
+        self.truth = TruthRecords(inst) if inst.config.simulated else None
         self._truth_ch = [
             channel(f"/kali/sim/{name}/truth", "truth") for name in self.names
         ] if self.truth is not None else []  # fmt: skip
@@ -275,46 +275,46 @@ class Recording:
         the fields every drain refills."""
         c = self._cdr
         self._setpoints: list[tuple[Laid, np.ndarray, np.ndarray]] = []
-        self._truths: list[tuple[np.ndarray, list[tuple[int, int, Any]]]] = []
+        self._truths: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._truth_head = np.zeros(TRUTH_HEAD // 8, "<u8")
-        for span in self.spans:
+        for k, span in enumerate(self.spans):
             n = span.stop - span.start
             c.reset()  # kali_msgs/msg/SetPoint
             c.header(0)
             tick_at, q_at = c.int64(0), c.float64s(np.zeros(n))
             msg = Laid(c)
             self._setpoints.append((msg, msg.field(tick_at, "<i8"), msg.field(q_at, "<f8", n)))
-            c.reset()  # kali_msgs/msg/SimTruth: its tick, sim time and plant ticks from
-            c.header(0)  # the head of a drain's truth bytes (TRUTH_HEAD), then the records'
-            at: list[tuple[int, int, Any]] = [(c.int64(0), 8, 8), (c.float64(0.0), 8, 16)]
-            at.append((c.uint64(0), 8, 24))
-            at += [(c.float64s(np.zeros(n)), 8, ("joints", f, span)) for f in TRUTH_FIELDS]
-            at += [(c.float64_fixed(np.zeros(6)), 48, ("arms", f)) for f in TRUTH_WRENCHES]
-            at.append((c.uint8(0), 1, ("arms", "grasped")))
-            self._truths.append((np.frombuffer(Laid(c).buf, np.uint8).copy(), at))
-        if self.truth is not None:
-            self._truth_plans = [self._truth_plan(k, at) for k, (_, at) in enumerate(self._truths)]
+            if self.truth is not None:
+                self._truths.append(self._truth_message(k, span))
 
-    def _truth_plan(self, k: int, at: list[tuple[int, int, Any]]) -> tuple[np.ndarray, ...]:
-        """Where each byte of arm ``k``'s truth message comes from in a drain's truth bytes
-        (``_sample_truth``): (its bytes in the message, theirs in the source)."""
+    def _truth_message(self, k: int, span: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Arm ``k``'s SimTruth message laid out once, and where each of its bytes comes from
+        in a drain's truth bytes (``_sample_truth``): (the message, its bytes, theirs)."""
         assert self.truth is not None
         arms, joints = self.truth.arms, self.truth.joints
-        base = {"arms": TRUTH_HEAD, "joints": TRUTH_HEAD + arms.nbytes}
-        dst, src = [np.arange(8) + STAMP_AT], [np.arange(8)]  # the stamp: head bytes 0..8
-        for offset, size, source in at:
-            if isinstance(source, int):  # a head word
-                dst.append(np.arange(size) + offset)
-                src.append(np.arange(size) + source)
-                continue
-            records, field = (arms, source[1]) if source[0] == "arms" else (joints, source[1])
-            where = records.dtype.fields[field][1]  # type: ignore[index]
-            rows = [k] if source[0] == "arms" else range(source[2].start, source[2].stop)
-            width = size if source[0] == "arms" else 8
-            for e, row in enumerate(rows):
-                dst.append(np.arange(width) + offset + e * width)
-                src.append(np.arange(width) + base[source[0]] + row * records.strides[0] + where)
-        return np.concatenate(dst), np.concatenate(src)
+        arm = TRUTH_HEAD + k * arms.strides[0]
+        first = TRUTH_HEAD + arms.nbytes + span.start * joints.strides[0]
+
+        def at(records: np.ndarray, field: str) -> int:
+            return int(records.dtype.fields[field][1])  # type: ignore[index]
+
+        c = self._cdr
+        c.reset()  # kali_msgs/msg/SimTruth
+        c.header(0)
+        # (its offset, a value's bytes, where each of its values starts in the source)
+        parts = [(STAMP_AT, 8, [0]), (c.int64(0), 8, [8]), (c.float64(0.0), 8, [16])]
+        parts.append((c.uint64(0), 8, [24]))
+        rows = range(span.stop - span.start)
+        for f in TRUTH_FIELDS:
+            starts = [first + j * joints.strides[0] + at(joints, f) for j in rows]
+            parts.append((c.float64s(np.zeros(len(rows))), 8, starts))
+        for f in TRUTH_WRENCHES:
+            parts.append((c.float64_fixed(np.zeros(6)), 48, [arm + at(arms, f)]))
+        parts.append((c.uint8(0), 1, [arm + at(arms, "grasped")]))
+        dst = [np.arange(n) + o + e * n for o, n, starts in parts for e in range(len(starts))]
+        src = [np.arange(n) + s for _, n, starts in parts for s in starts]
+        msg = np.frombuffer(Laid(c).buf, np.uint8).copy()
+        return msg, np.concatenate(dst), np.concatenate(src)
 
     def _sample_truth(self) -> None:
         """Every arm's truth as the plant has it now, stamped with the clock's tick: the
@@ -332,9 +332,7 @@ class Recording:
         src = np.concatenate(
             [head.view(np.uint8), self.truth.arms.view(np.uint8), self.truth.joints.view(np.uint8)]
         )
-        for k, ((msg, _), (dst, at)) in enumerate(
-            zip(self._truths, self._truth_plans, strict=True)
-        ):
+        for k, (msg, dst, at) in enumerate(self._truths):
             msg[dst] = src[at]
             self.writer.message(self._truth_ch[k], t, msg.tobytes(), t)
 
