@@ -60,27 +60,32 @@ class RemoteStreams:
         self.written = 0  # writes carried out here (the bridge's status says)
 
     def learn(self, secret: str, payload: bytes, answer: bytes) -> None:
-        """Note the record a call that creates one (``CREATES``) answered with."""
+        """Note the record a call that creates one (``CREATES``) answered with; an answer
+        not of that shape is left to the session (this path only spares it work)."""
         if not any(m.encode() in payload for m in CREATES):
             return  # no such call: nothing parsed
-        request = protocol.loads(payload, "call")
-        if not isinstance(request, dict) or request.get("method") not in CREATES:
+        try:
+            request = protocol.loads(payload, "call")
+            if not isinstance(request, dict) or request.get("method") not in CREATES:
+                return
+            value = protocol.loads(answer, "answer").get("value")
+            if not isinstance(value, dict) or value.get("class") not in WRITES:
+                return
+            attrs = value["attrs"]
+            frame = attrs["frame"]["attrs"] if "frame" in attrs else attrs
+            name = str(frame["name"])
+            robot = "" if value["class"] == "SharedTransform" else robot_of(name)
+            held = Held(
+                value["class"], int(frame["index"]), name, float(frame["lifetime"]), robot, attrs
+            )
+            oid = int(value["__obj__"])
+        except (KaliError, KeyError, TypeError, ValueError, IndexError, AttributeError):
             return
-        value = protocol.loads(answer, "answer").get("value")
-        if not isinstance(value, dict) or value.get("class") not in WRITES:
-            return
-        attrs = value["attrs"]
-        frame = attrs["frame"]["attrs"] if "frame" in attrs else attrs
-        name = str(frame["name"])
-        robot = "" if value["class"] == "SharedTransform" else robot_of(name)
-        held = Held(
-            value["class"], int(frame["index"]), name, float(frame["lifetime"]), robot, attrs
-        )
         with self._lock:
             mine = self._held.setdefault(secret, {})
-            for oid in [o for o, h in mine.items() if h.index == held.index]:
-                del mine[oid]  # that record's earlier holder: closed, since taken again
-            mine[int(value["__obj__"])] = held
+            for earlier in [o for o, h in mine.items() if h.index == held.index]:
+                del mine[earlier]  # that record's earlier holder: closed, since taken again
+            mine[oid] = held
 
     def forget(self, secret: str) -> None:
         """The session ended."""
