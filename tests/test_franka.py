@@ -237,7 +237,7 @@ def test_a_second_client_on_the_same_robot_is_refused_naming_it(kali: Callable[.
         launcher.stop(second)
     assert leftovers(second) == ([], [])
     with Instance.attach(first) as inst:
-        assert not inst.fault["active"]
+        assert not inst.fault["active"], inst.fault_text()
 
 
 def ft_world(inst: Instance) -> np.ndarray:

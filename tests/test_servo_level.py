@@ -19,6 +19,7 @@ from typing import Any, cast
 import numpy as np
 import pytest
 
+from kali_daemons.client import Kali
 from kali_daemons.core import layout
 from kali_daemons.core.layout import CalibState, FaultCode, PowerState
 from kali_daemons.hardware.mcgill import registers
@@ -262,6 +263,18 @@ def test_amplifiers_going_off_while_servoing_halt_naming_the_boards_bits(
             del boards
         finally:
             client.close()
+
+
+def test_a_ready_that_gives_up_says_what_sio_said_of_each_arm(kali: Callable[..., str]) -> None:
+    """``ready()`` that gives up on power names each arm's power state, SIO's message about
+    it and the tick SIO last wrote its record (a power-on that never comes says why)."""
+    with Kali(kali(lockstep=True)) as k:
+        step_kali_clock(k.inst, 5)
+        with pytest.raises(ServoError) as e:
+            k.ready(timeout=0.0)
+        said = str(e.value)
+        assert said.startswith("servo: power left, right: not done within 0 s (left: OFF, SIO")
+        assert re.search(r"right: OFF, SIO says '[^']*' \(its record written at tick 4\)\)$", said)
 
 
 def test_power_text_names_every_bit() -> None:

@@ -1042,7 +1042,7 @@ class Kali:
         limit = _timeout_arg("ready", timeout)
         deadline = time.monotonic() + (math.inf if limit is None else limit)
 
-        def wait_until(done: Callable[[], bool], what: str) -> None:
+        def wait_until(done: Callable[[], bool], what: str, why: Callable[[], str]) -> None:
             while not done():
                 if self.inst.fault["active"]:
                     raise ServoError(f"{what}: the system halted: {self.inst.fault_text()}")
@@ -1051,7 +1051,7 @@ class Kali:
                         f"{what}: instance '{self.inst.name}' was stopped (kalictl stop)"
                     )
                 if time.monotonic() > deadline:
-                    raise ServoError(f"{what}: not done within {timeout:g} s")
+                    raise ServoError(f"{what}: not done within {timeout:g} s ({why()})")
                 self.pause()
 
         for n in names:
@@ -1060,6 +1060,7 @@ class Kali:
         wait_until(
             lambda: all(self.servo.power_state(n) == PowerState.ON for n in names),
             f"power {', '.join(names)}",
+            lambda: "; ".join(self.servo.power_text(n) for n in names),
         )
         todo = [n for n in names if not self.servo.calibrated(n)]
         for n in todo:
@@ -1076,7 +1077,11 @@ class Kali:
                 raise ServoError(f"calibration failed: {'; '.join(failed)}")
             return all(s == CalibState.DONE for s, _, _ in states)
 
-        wait_until(calibrated, f"calibrate {', '.join(todo)}")
+        wait_until(
+            calibrated,
+            f"calibrate {', '.join(todo)}",
+            lambda: "; ".join(f"{n}: {self.servo.calibration(n)[2]}" for n in todo),
+        )
 
     def motion_system(
         self, names: Sequence[str], grasps: Sequence[np.ndarray] | None = None

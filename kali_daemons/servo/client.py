@@ -666,6 +666,18 @@ class ServoClient:
             return PowerState.OFF
         return PowerState(int(self.level.robots["power"][k]))
 
+    def power_text(self, robot: str | int) -> str:
+        """Why a robot is or is not powered, for a message: its power state, SIO's last
+        message about it and the tick SIO last wrote its record (whether since the last
+        halt)."""
+        k = self.robot_index(robot)
+        r = self.level.robots[k]
+        seen = "" if int(r["faults_seen"]) == self._faults() else ", not since the last halt"
+        return (
+            f"{self.names[k]}: {self.power_state(k).name}, SIO says '{decode(r['message'])}' "
+            f"(its record written at tick {int(r['tick'])}{seen})"
+        )
+
     # ------------------------------------------------------------------ feed-forward (3.3.6)
 
     def feedforward(self, robot: str | int, mode: str) -> None:
