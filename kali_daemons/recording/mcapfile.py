@@ -74,8 +74,10 @@ class TickBlock:
         self.fields: list[Field] = []
         self.block = np.zeros((0, 0), np.uint8)
         self._words: list[np.ndarray] = []  # the block as 8-byte words at each byte phase
-        self._plan_of: tuple[np.dtype, list[tuple[int, np.ndarray, np.ndarray]]] | None = None
-        self._narrow: list[str] = []  # single-precision columns, widened for the messages
+        # the plan of ``fill`` for a flight row's layout: the row, its single-precision
+        # columns (widened for the messages), the gathers
+        self._plan_of: tuple[np.dtype, list[str], list[tuple[int, np.ndarray, np.ndarray]]] | None
+        self._plan_of = None
 
     def add(
         self,
@@ -122,13 +124,13 @@ class TickBlock:
         are a flight row's words, then its single-precision columns widened, then the log
         time and the stamp (sec, nanosec).  Made once for a flight row's layout."""
         if self._plan_of is not None and self._plan_of[0] == row:
-            return self._plan_of[1]
+            return self._plan_of[2]
         fields = row.fields
         assert fields is not None and row.itemsize % 8 == 0, f"a flight row of {row}"
         source = {c: fields[c][1] // 8 for c in fields}  # each column's first source word
-        self._narrow = [c for c in fields if fields[c][0].base == np.float32]
+        narrow = [c for c in fields if fields[c][0].base == np.float32]
         at = row.itemsize // 8
-        for c in self._narrow:
+        for c in narrow:
             source[c], at = at, at + fields[c][0].shape[0]
         pairs: list[tuple[int, int]] = []  # (byte offset in a block row, source word)
         for f in self.fields:
@@ -150,7 +152,7 @@ class TickBlock:
             mine = [(b // 8, w) for b, w in pairs if b % 8 == p]
             if mine:
                 plan.append((p, np.array([b for b, _ in mine]), np.array([w for _, w in mine])))
-        self._plan_of = (row, plan)
+        self._plan_of = (row, narrow, plan)
         return plan
 
     def fill(self, rows: np.ndarray, times: np.ndarray) -> np.ndarray:
@@ -161,7 +163,8 @@ class TickBlock:
         block = self._rows(n)
         plan = self._plan(rows.dtype)
         words = rows.dtype.itemsize // 8
-        narrow = [rows[c].astype("<f8") for c in self._narrow]
+        assert self._plan_of is not None
+        narrow = [rows[c].astype("<f8") for c in self._plan_of[1]]
         at = words + sum(c.shape[1] for c in narrow)
         src = np.empty((n, at + 2), "<u8")
         src[:, :words] = np.ascontiguousarray(rows).view("<u8").reshape(n, words)

@@ -656,13 +656,16 @@ class ServoClient:
         every pending command)."""
         return int(self.inst.fault["count"]) & 0xFFFFFFFF
 
+    def _seen_halts(self, k: int) -> bool:
+        """Whether SIO has written robot ``k``'s record since the latest halt."""
+        return int(self.level.robots["faults_seen"][k]) == self._faults()
+
     def power_state(self, robot: str | int) -> PowerState:
         """The robot's amplifier power as SIO drives it; OFF while the system is halted, or
         SIO has not run since a halt (the halt cut the amplifiers at once, and SIO's record
         says so at its next tick, which a clock the halt stopped may not give it)."""
         k = self.robot_index(robot)
-        seen = int(self.level.robots["faults_seen"][k])
-        if int(self.inst.fault["active"]) or seen != self._faults():
+        if int(self.inst.fault["active"]) or not self._seen_halts(k):
             return PowerState.OFF
         return PowerState(int(self.level.robots["power"][k]))
 
@@ -672,7 +675,7 @@ class ServoClient:
         halt)."""
         k = self.robot_index(robot)
         r = self.level.robots[k]
-        seen = "" if int(r["faults_seen"]) == self._faults() else ", not since the last halt"
+        seen = "" if self._seen_halts(k) else ", not since the last halt"
         return (
             f"{self.names[k]}: {self.power_state(k).name}, SIO says '{decode(r['message'])}' "
             f"(its record written at tick {int(r['tick'])}{seen})"
