@@ -3,14 +3,13 @@
     kalictl start && kalictl run scripts/example_carry.py
 
 The two arms are one motion system: the program moves the bar, and each arm's T6 follows
-as B⁻¹ · bar · grasp (DESIGN 5).  The grasps are where each flange holds the bar, in the
-bar's frame (``model.grasp_in_bar``).
+as B⁻¹ · bar · grasp (DESIGN 5).  The bar and its grasps (where each flange holds it, in
+the bar's frame) are the scene's (``kali.scene``, config/scenes/default.yaml).
 """
 
 import numpy as np
 
 from kali_daemons.client import Kali
-from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 
 LIFT = 0.08  # m
@@ -21,8 +20,8 @@ with Kali() as kali:
     arms = [kali.robot(name) for name in ("left", "right")]
     for arm in arms:  # the dynamics process's torques: the arms follow closer, squeeze less
         arm.feedforward("full")
-    on_stand = model.bar_rest_pose()
-    grasps = [model.grasp_in_bar(kali.inst.config.robots[a.index]) for a in arms]
+    on_stand = kali.scene.object("bar").pose  # where the scene puts it
+    grasps = [kali.scene.grasp_for("bar", kali.inst.config.robots[a.index]) for a in arms]
     sites = [on_stand @ g for g in grasps]  # where each flange must be to grip
     # 1. each arm to 5 cm above its grasp site, in its grasping configuration ('run')
     moves = []
@@ -44,7 +43,7 @@ with Kali() as kali:
     for arm in arms:
         arm.grip(True)
     # 3. the bar as one motion system: up, across, back, down
-    bar = kali.motion_system(["left", "right"], grasps)
+    bar = kali.motion_system(["left", "right"], holding="bar")
     here = bar.read_pose()
     up, over = here.copy(), here.copy()
     up[2, 3] += LIFT

@@ -17,7 +17,6 @@ path, lifts the bar off the belt, stops the belt and sets the bar down.
 import numpy as np
 
 from kali_daemons.client import Kali
-from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 
 ABOVE = 0.05  # m: the approach starts this high above the grasp site
@@ -39,8 +38,8 @@ with Kali() as kali:
     left.feedforward("full")
     cfg = kali.inst.config
     vx, vy = cfg.plant.conveyor_m_s
-    grasp = model.grasp_in_bar(cfg.robots[left.index])  # the flange on the bar, bar frame
-    site = model.bar_rest_pose() @ grasp
+    grasp = kali.scene.grasp_for("bar", cfg.robots[left.index])  # the flange on it, bar frame
+    site = kali.scene.object("bar").pose @ grasp
     q = kinematics.ikine(np.linalg.inv(left.base) @ site @ shift(ABOVE), "run", left.read_joints())
     left.move_joints(q, speed=0.5, timeout=30)
     # the belt and its TG function start together; the tool follows conveyor(t) · site · approach

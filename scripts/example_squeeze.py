@@ -14,7 +14,6 @@ their servo errors make, 19-66 N.  The program prints the squeeze its sensors me
 import numpy as np
 
 from kali_daemons.client import Kali
-from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 
 LIFT = 0.08  # m
@@ -33,8 +32,8 @@ def squeeze(arms: list) -> float:
 with Kali() as kali:
     kali.ready(["left", "right"])
     arms = [kali.robot(name) for name in ("left", "right")]
-    on_stand = model.bar_rest_pose()
-    grasps = [model.grasp_in_bar(kali.inst.config.robots[a.index]) for a in arms]
+    on_stand = kali.scene.object("bar").pose  # where the scene puts it
+    grasps = [kali.scene.grasp_for("bar", kali.inst.config.robots[a.index]) for a in arms]
     sites = [on_stand @ g for g in grasps]  # where each flange must be to grip
     # 1. each arm to 5 cm above its grasp site, in its grasping configuration ('run')
     moves = []
@@ -57,7 +56,7 @@ with Kali() as kali:
         arm.settle()
     for arm in arms:
         arm.grip(True)
-    bar = kali.motion_system(["left", "right"], grasps)
+    bar = kali.motion_system(["left", "right"], holding="bar")
     bar.set_internal_force(SQUEEZE)  # both arms onto the impedance servo, bumplessly
     kali.sleep(1.5)
     # 3. up, across, back, down: the squeeze measured all along

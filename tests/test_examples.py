@@ -14,8 +14,8 @@ import pytest
 from kali_daemons.client import Kali
 from kali_daemons.core.errors import MotionError
 from kali_daemons.core.layout import ProcState
-from kali_daemons.robots.cell import TABLE_SIZE
 from kali_daemons.robots.puma560 import PID_DEFAULTS
+from kali_daemons.robots.scene import DEFAULT_SCENE, load_scene
 from kali_daemons.wallclock import step_kali_clock
 
 from .conftest import ROOT, wait_for
@@ -93,7 +93,9 @@ def test_guarded_example_finds_the_table(kali: Callable[..., str]) -> None:
     out = run_example(kali, "example_guarded.py")
     m = re.search(r"contact at \(([-\d.]+), ([-\d.]+), ([-\d.]+)\) m: the table is", out)
     assert m, out
-    assert float(m.group(3)) == pytest.approx(TABLE_SIZE[2], abs=0.002), out
+    table = load_scene(DEFAULT_SCENE).object("table")
+    top = table.xyz[2] + table.size[2] / 2
+    assert float(m.group(3)) == pytest.approx(top, abs=0.002), out
 
 
 def test_polish_example_slides_pressing_15_n(kali: Callable[..., str]) -> None:

@@ -17,7 +17,7 @@ from tests.test_armservo import tool_point
 from tests.test_wrench import truth
 
 DOWN = np.diag([1.0, -1.0, -1.0])  # the tool's z straight down
-TABLE_Z = 0.40  # the table's top (cell.TABLE_SIZE)
+TABLE_Z = 0.40  # the table's top (config/scenes/default.yaml)
 ABOVE = (-0.15, -0.38, 0.41)  # 1 cm over the table, in the left arm's reach
 GUARD_N = 10.0
 SPEED = 0.01  # m/s

@@ -18,6 +18,7 @@ from kali_daemons.core import layout
 from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import model
 from kali_daemons.robots.cell import base_transform, inverse
+from kali_daemons.robots.scene import DEFAULT_SCENE, load_scene
 from kali_daemons.wallclock import step_kali_clock
 from tests.conftest import make_config
 from tests.test_tg_cartesian import calibrated
@@ -39,7 +40,7 @@ TURN_SHORT_M = SPEED * TRANSITION_S / 4
 # model) off its servo, leaving the bar's weight, not in the arms' models, for each to sag
 # under by its own stiffness.  Measured: 11.7 N; 41.8 N with the feed-forward off, which this
 # bound refuses (two PUMAs: 19.4 N with it, tests/test_tg_carry.py).
-INTERNAL_FORCE_MAX_N = model.BAR_MASS * 9.81
+INTERNAL_FORCE_MAX_N = load_scene(DEFAULT_SCENE).object("bar").mass * 9.81
 # One encoder count, as radians over rad_per_count compute it: 1 + 2e-16 is one count
 ONE_COUNT = 1.0 + 1e-6
 
@@ -62,8 +63,8 @@ def settle(k: Kali, handles: list[MotionHandle], ticks: int = 3000, after: int =
 
 def grasp_sites(k: Kali) -> list[np.ndarray]:
     """Each arm's grasp site on the bar lying on the stand (world)."""
-    rest = model.bar_rest_pose()
-    return [rest @ model.grasp_in_bar(r) for r in k.inst.config.robots]
+    rest = k.scene.object("bar").pose
+    return [rest @ k.scene.grasp_for("bar", r) for r in k.inst.config.robots]
 
 
 def go_to_grasps(k: Kali, arms: list[Robot]) -> None:
@@ -95,19 +96,23 @@ def test_the_mixed_cell_puts_each_grasp_in_a_comfortable_pose() -> None:
     assert [r.type.name for r in cfg.robots] == ["puma560", "panda"]
     puma, panda = cfg.robots
     assert (puma.grasp_yaw_deg, panda.grasp_yaw_deg) == (0.0, 180.0)
-    turned = model.grasp_in_bar(dataclasses.replace(panda, grasp_yaw_deg=0.0))
+    scene = cfg.scene
+    turned = scene.grasp_for("bar", dataclasses.replace(panda, grasp_yaw_deg=0.0))
     half_turn = np.diag([-1.0, -1.0, 1.0, 1.0])  # about the site's z, pointing down
-    np.testing.assert_allclose(model.grasp_in_bar(panda), turned @ half_turn, atol=1e-12)
-    world = model.build_world(cfg.robots)
+    np.testing.assert_allclose(scene.grasp_for("bar", panda), turned @ half_turn, atol=1e-12)
+    world = model.build_world(cfg.robots, scene=scene)
     data = mujoco.MjData(world.model)
     mujoco.mj_kinematics(world.model, data)
-    rest = model.bar_rest_pose()
-    for k, robot in enumerate(cfg.robots):
-        site = rest @ model.grasp_in_bar(robot)
-        np.testing.assert_allclose(data.site_xpos[world.grasp_site[k]], site[:3, 3], atol=1e-9)
+    rest = scene.object("bar").pose
+    for k, robot in enumerate(cfg.robots):  # the MuJoCo site of its grasp, not turned
+        site = rest @ scene.grasp_for("bar", robot)
+        unturned = rest @ scene.grasp_for("bar", dataclasses.replace(robot, grasp_yaw_deg=0.0))
+        i = np.argmin([np.linalg.norm(data.site_xpos[s] - site[:3, 3]) for s in world.grasp_site])
+        np.testing.assert_allclose(data.site_xpos[world.grasp_site[i]], site[:3, 3], atol=1e-9)
         np.testing.assert_allclose(
-            data.site_xmat[world.grasp_site[k]].reshape(3, 3), site[:3, :3], atol=1e-9
+            data.site_xmat[world.grasp_site[i]].reshape(3, 3), unturned[:3, :3], atol=1e-9
         )
+        assert i == k  # left: the -x end's, right: the +x end's
         rtype, kin = robot.type, robot.type.kinematics
         base = base_transform(robot.base_xyz, robot.base_yaw_deg)
         config = kin.parse_config(GRASP_CONFIG[rtype.name])
@@ -124,7 +129,7 @@ def test_the_mixed_cell_puts_each_grasp_in_a_comfortable_pose() -> None:
     q = panda.type.kinematics.ikine(
         inverse(base_transform(panda.base_xyz, panda.base_yaw_deg))
         @ rest
-        @ model.grasp_in_bar(panda),
+        @ scene.grasp_for("bar", panda),
         q_ref=np.array(panda.type.q_home),
     )
     np.testing.assert_allclose(np.degrees(q), [0, -28, 0, -115, 0, 86, 0], atol=0.6)
@@ -144,6 +149,7 @@ def test_a_puma_and_a_panda_hold_move_and_carry_the_bar_together(
         per_rad = counts_per_rad(k)
         truths = k.inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
         world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
+        bar_pose = k.inst.arena.existing(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, 1)["pose"]
 
         # 1. calibrated, both hold their demands within one encoder count
         step_kali_clock(k.inst, 1000)
@@ -187,9 +193,8 @@ def test_a_puma_and_a_panda_hold_move_and_carry_the_bar_together(
             a.feedforward("full")
         go_to_grasps(k, arms)
         assert [int(t) for t in truths["grasped"]] == [1, 1], "both grippers hold the bar"
-        start = world["object_pose"][0][:3].copy()
-        grasps = [model.grasp_in_bar(r) for r in k.inst.config.robots]
-        bar = k.motion_system(list(ARMS), grasps)
+        start = bar_pose[0][:3].copy()
+        bar = k.motion_system(list(ARMS), holding="bar")
         here = bar.read_pose()
         np.testing.assert_allclose(here[:3, 3], start, atol=2e-3)  # the program's bar = truth
         up, over = here.copy(), here.copy()
@@ -201,8 +206,8 @@ def test_a_puma_and_a_panda_hold_move_and_carry_the_bar_together(
         for _ in range(1000):
             step_kali_clock(k.inst, 10)
             force = max(force, abs(float(world["internal_force"][0])))
-            top = max(top, float(world["object_pose"][0][2]))
-            side = max(side, float(world["object_pose"][0][1]))
+            top = max(top, float(bar_pose[0][2]))
+            side = max(side, float(bar_pose[0][1]))
             if h.done:
                 break
         assert h.state == RequestState.DONE, h.message
@@ -211,7 +216,7 @@ def test_a_puma_and_a_panda_hold_move_and_carry_the_bar_together(
             a.grip(False)
         step_kali_clock(k.inst, 300)
         assert [int(t) for t in truths["grasped"]] == [0, 0], "both grippers let go"
-        end = world["object_pose"][0][:3].copy()
+        end = bar_pose[0][:3].copy()
         assert top > start[2] + LIFT_M - 3e-3, f"bar lifted to {top - start[2]:.4f} m"
         across = side - start[1]
         assert across > SHIFT_M - TURN_SHORT_M - 1e-3, f"bar moved across {across:.4f} m"

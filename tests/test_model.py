@@ -332,24 +332,26 @@ def test_cell_layout(
         np.testing.assert_allclose(flange.translation, expected.translation, atol=1e-12)
         np.testing.assert_allclose(flange.rotation, expected.rotation, atol=1e-12)
         flanges[robot.name] = flange.translation
-        weld = cell.weld[k]
+        (weld,) = cell.weld[k]  # one graspable object, the bar
         assert m.eq_type[weld] == mujoco.mjtEq.mjEQ_WELD
         assert not m.eq_active0[weld] and not data.eq_active[weld]
-        assert m.eq_obj2id[weld] == cell.object_body
+        assert m.eq_obj2id[weld] == cell.object_body[0]
     # facing each other across the origin: a half turn about z maps one flange onto the other
     np.testing.assert_allclose(flanges["right"], [-1, -1, 1] * flanges["left"], atol=1e-12)
     # only the bar, the stand, the table and the floor make contacts; of the arms, only the
-    # tools' pads, and those only with the table (issue 27)
+    # tools' pads, and those only with the fixtures (issue 27)
     arm_geoms = [
         g
         for g in range(m.ngeom)
-        if m.body_rootid[m.geom_bodyid[g]] != cell.object_body and m.geom_bodyid[g] != 0
+        if m.body_rootid[m.geom_bodyid[g]] not in cell.object_body and m.geom_bodyid[g] != 0
     ]
     pads = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{r.name}/pad") for r in default_robots]
     assert all(m.geom_contype[g] == TOOL_CONTACT == m.geom_conaffinity[g] for g in pads)
     assert all(m.geom_contype[g] == 0 == m.geom_conaffinity[g] for g in arm_geoms if g not in pads)
     table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
     assert m.geom_conaffinity[table] & TOOL_CONTACT and m.geom_contype[table] & 1
+    stand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "stand")  # tools_touch: false
+    assert m.geom_conaffinity[stand] == 1 == m.geom_contype[stand]
 
 
 def solve_ik(model: pin.Model, target: pin.SE3, q0: np.ndarray) -> np.ndarray:
@@ -379,7 +381,7 @@ def test_grasp_sites_are_reachable(
     guess = np.radians([20.0, 60.0, -210.0, 0.0, -30.0, 20.0])
     solutions = {}
     for k, robot in enumerate(default_robots):
-        grasp = site_pose(cell, data, cell.grasp_site[k])
+        grasp = site_pose(cell, data, cell.grasp_site[k])  # left: the -x end, right: the +x
         q = solve_ik(pin_model, yaw_transform(robot).actInv(grasp), guess)
         assert np.all(q > puma560.Q_MIN) and np.all(q < puma560.Q_MAX)
         assert abs(np.sin(q[4])) > np.sin(np.radians(20))  # wrist: well away from θ5 = 0
@@ -414,10 +416,11 @@ def test_bar_rests_on_the_stand(cell: World) -> None:
     for _ in range(round(1.0 / m.opt.timestep)):
         hold_arms(cell, data, start)
         mujoco.mj_step(m, data)
-    bar = slice(cell.object_qpos_adr, cell.object_qpos_adr + 7)
+    (adr,), (dof,) = cell.object_qpos_adr, cell.object_dof_adr
+    bar = slice(adr, adr + 7)
     np.testing.assert_allclose(data.qpos[bar][:3], start[bar][:3], atol=2e-3)  # settles < 2 mm
     np.testing.assert_allclose(np.abs(data.qpos[bar][3:]), [1, 0, 0, 0], atol=1e-4)
-    assert np.all(np.abs(data.qvel[cell.object_dof_adr : cell.object_dof_adr + 6]) < 1e-3)
+    assert np.all(np.abs(data.qvel[dof : dof + 6]) < 1e-3)
 
 
 def test_weld_holds_the_pose_it_was_activated_at(cell: World) -> None:
@@ -426,7 +429,7 @@ def test_weld_holds_the_pose_it_was_activated_at(cell: World) -> None:
     data = mujoco.MjData(m)
     rng = np.random.default_rng(7)
     data.qpos[cell.qpos_adr[0]] = rng.uniform(puma560.Q_MIN, puma560.Q_MAX) * 0.3
-    bar = cell.object_qpos_adr
+    (bar,) = cell.object_qpos_adr
     data.qpos[bar : bar + 3] = [0.0, 0.4, 1.0]  # in the air, away from the stand
     data.qpos[bar + 3 : bar + 7] = np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm(
         [0.9, 0.1, -0.3, 0.2]
@@ -434,8 +437,8 @@ def test_weld_holds_the_pose_it_was_activated_at(cell: World) -> None:
     mujoco.mj_kinematics(m, data)
     saved = m.eq_data.copy()
     try:
-        cell.activate_weld(data, "left")
-        assert data.eq_active[cell.weld[0]] and not data.eq_active[cell.weld[1]]
+        cell.activate_weld(data, "left", "bar")
+        assert data.eq_active[cell.weld[0][0]] and not data.eq_active[cell.weld[1][0]]
         mujoco.mj_forward(m, data)
         eq_rows = data.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
         assert np.count_nonzero(eq_rows) == 6

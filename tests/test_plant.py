@@ -496,7 +496,7 @@ def weld_rows(plant: PlantSim, k: int) -> np.ndarray:
     d = plant.data
     rows = np.flatnonzero(
         (d.efc_type[: d.nefc] == mujoco.mjtConstraint.mjCNSTR_EQUALITY)
-        & (d.efc_id[: d.nefc] == plant.world.weld[k])
+        & np.isin(d.efc_id[: d.nefc], plant.world.weld[k])
     )
     return d.efc_force[rows]
 
@@ -505,12 +505,14 @@ def test_two_arms_grasp_the_bar_and_carry_real_internal_forces(plant: PlantSim) 
     """The welds carry the bar, and the truth's grasp wrenches are each weld's own rows."""
     for k in range(2):
         plant.place_arm(k, GRASP_Q)
-        assert plant.flange_to_grasp(k) < 0.005
-    z0 = float(plant.world_truth["object_pose"][2])
+        assert plant.nearest_grasp(k)[1] < 0.005
+    bar = plant.object_truth["pose"][0]
+    z0 = float(bar[2])
     plant.boards[0].regs["gripper"] = 1
     plant.boards[1].regs["gripper"] = 1
     run_ms(plant, 5)
     assert all(int(t["grasped"]) for t in plant.truth)
+    assert [int(t["held"]) for t in plant.truth] == [0, 0]  # the scene's first free object
     # the left arm's amplifiers come on and its brakes open: the arm now hangs on the bar,
     # which the braked right arm holds; its joint-2 motor pushes one way, then the other
     enable(plant, 0)
@@ -524,7 +526,7 @@ def test_two_arms_grasp_the_bar_and_carry_real_internal_forces(plant: PlantSim) 
             assert np.linalg.norm(t["grasp_wrench"][:3]) > 1.0  # both welds carry load
             np.testing.assert_array_equal(t["grasp_wrench"], weld_rows(plant, k))
     assert abs(pushes[+1] - pushes[-1]) > 10.0, pushes  # the squeeze follows the motor
-    assert abs(float(plant.world_truth["object_pose"][2]) - z0) < 0.02  # the bar is held
+    assert abs(float(bar[2]) - z0) < 0.02  # the bar is held
     plant.boards[0].regs["gripper"] = 0  # letting go releases the weld
     run_ms(plant, 2)
     assert not int(plant.truth[0]["grasped"]) and int(plant.truth[1]["grasped"])
@@ -562,7 +564,7 @@ def test_the_conveyor_carries_the_bar_at_its_speed_while_its_motor_runs(arena: A
     cfg = make_config("belt", {r"^  conveyor_m_s: .*$": "  conveyor_m_s: [0.0, 0.02]"})
     assert cfg.plant.conveyor_m_s == (0.0, 0.02)
     sim = PlantSim(cfg, arena)
-    bar = sim.world_truth["object_pose"]
+    bar = sim.object_truth["pose"][0]
     run_ms(sim, 50)  # settled on the stand
     start = bar[:3].copy()
     run_ms(sim, 200)  # the motor is off: nothing moves (it settles a few µm)
@@ -781,7 +783,9 @@ def test_the_compiled_truth_equals_the_reference(cell: str, arena: Arena) -> Non
     sim = PlantSim(CFG if cell == "default" else MIXED, arena)
     rng = np.random.default_rng(1128)
     m, d = sim.model, sim.data
-    records = (sim.truth, sim.world_truth, sim.joint_truth)
+    records = (sim.truth, sim.world_truth, sim.joint_truth, sim.object_truth)
+    n = len(sim.truth)
+    sim._grasp_site[:] = sim.world.grasp_site[:n]  # where each arm took hold: a site each
     held_seen, squeezes = set(), 0
     for step in range(300):
         d.qpos[:] += rng.normal(0.0, 0.05, len(d.qpos))
@@ -798,8 +802,9 @@ def test_the_compiled_truth_equals_the_reference(cell: str, arena: Arena) -> Non
         for r in records:  # garbage in every field, so the kernels must write each one
             for f in r.dtype.names:
                 if not f.startswith("_"):
-                    r[f] = np.nan if r[f].dtype.kind == "f" else 0xA5
+                    r[f] = np.nan if r[f].dtype.kind == "f" else 0x25
         sim._held[:] = ~sim._held
+        sim._held_object[:] = 7
         sim._weld[:] = np.nan  # read afresh from MuJoCo by the kernel's path too
         sim._write_truth()
         for r, w in zip(records, want, strict=True):

@@ -15,7 +15,6 @@ from kali_daemons.client import Kali
 from kali_daemons.core import layout
 from kali_daemons.core.errors import MotionError, ServoError
 from kali_daemons.core.layout import RequestState
-from kali_daemons.robots import model
 from kali_daemons.wallclock import step_kali_clock
 from tests.test_tg_carry import LIFT_M, bar_position, go_to_grasps
 from tests.test_tg_cartesian import calibrated
@@ -40,12 +39,12 @@ def carry_with_a_squeeze(k: Kali) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     and back at 8 cm/s) and set down where the bar was: the true squeeze every tick from the
     lift to 0.5 s after the set-down, the bar's height then, and where it started."""
     world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
+    objects = k.inst.arena.existing(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, 1)
     for name in k.names:  # in free air: a sensor's offset would go into the squeeze
         k.robot(name).tare()
     go_to_grasps(k)
-    start = bar_position(world)
-    grasps = [model.grasp_in_bar(r) for r in k.inst.config.robots]
-    bar = k.motion_system(["left", "right"], grasps)
+    start = bar_position(objects)
+    bar = k.motion_system(["left", "right"], holding="bar")
     bar.set_internal_force(SQUEEZE_N)
     step_kali_clock(k.inst, 1500)
     here = bar.read_pose()
@@ -63,13 +62,13 @@ def carry_with_a_squeeze(k: Kali) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         while not h.done:
             step_kali_clock(k.inst, 1)
             seen.append(float(world["internal_force"][0]))
-            height.append(float(bar_position(world)[2]))
+            height.append(float(bar_position(objects)[2]))
         assert h.state == RequestState.DONE, h.message
     for _ in range(500):
         step_kali_clock(k.inst, 1)
         seen.append(float(world["internal_force"][0]))
-        height.append(float(bar_position(world)[2]))
-    del world
+        height.append(float(bar_position(objects)[2]))
+    del world, objects
     return np.array(seen), np.array(height), start
 
 

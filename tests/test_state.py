@@ -126,9 +126,10 @@ def test_the_simulator_s_truth_is_public_and_crosses_the_bridge(
         flange = local.robot("left").base @ local.flange_pose(t.q, 0)
         np.testing.assert_allclose(t.flange, flange)
         np.testing.assert_allclose(t.tool_point, flange[:3, 3] + flange[:3, 2] * cfg.ft.tool_tip_m)
-        world = local.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
-        np.testing.assert_allclose(t.object_pose[:3, 3], world["object_pose"][0][:3])
-        assert abs(np.linalg.det(t.object_pose[:3, :3]) - 1.0) < 1e-9
+        objects = local.inst.arena.existing(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, 1)
+        assert list(t.objects) == ["bar"] and t.held is None
+        np.testing.assert_allclose(t.objects["bar"][:3, 3], objects["pose"][0][:3])
+        assert abs(np.linalg.det(t.objects["bar"][:3, :3]) - 1.0) < 1e-9
         assert t.amps_on and not t.estop and t.plant_ticks > 0
         there = remote.sim.truth("left")
         assert there.same(t), (there, t)

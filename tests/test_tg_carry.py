@@ -13,7 +13,6 @@ from kali_daemons.client import Kali
 from kali_daemons.client.motion import Robot
 from kali_daemons.core import layout
 from kali_daemons.core.layout import RequestState
-from kali_daemons.robots import model
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.tg.profiles import MotionError
 from kali_daemons.wallclock import step_kali_clock
@@ -29,8 +28,9 @@ INTERNAL_FORCE_MAX_N = {"off": 100.0, "full": 30.0}
 LIFT_M = 0.08
 
 
-def bar_position(truth: np.ndarray) -> np.ndarray:
-    return truth["object_pose"][0][:3].copy()
+def bar_position(objects: np.ndarray) -> np.ndarray:
+    """The bar's position (m, world) from the objects' truth records (the scene's only)."""
+    return objects["pose"][0][:3].copy()
 
 
 def go_to_grasps(k: Kali) -> None:
@@ -45,11 +45,11 @@ def go_to_grasps(k: Kali) -> None:
 def descend_onto_grasps(k: Kali, pause_ticks: int = 300) -> None:
     """Both arms above their grasp sites by joint moves, ``pause_ticks`` there, then straight
     down until DONE (example_carry.py pauses 0)."""
-    rest = model.bar_rest_pose()
+    rest = k.scene.object("bar").pose
     handles = []
     for name in k.names:
         r = k.robot(name)
-        site = rest @ model.grasp_in_bar(k.inst.config.robots[r.index])
+        site = rest @ k.scene.grasp_for("bar", k.inst.config.robots[r.index])
         above = site.copy()
         above[2, 3] += 0.05
         q = kinematics.ikine(np.linalg.inv(r.base) @ above, "run", q_ref=r.read_joints())
@@ -64,7 +64,7 @@ def descend_onto_grasps(k: Kali, pause_ticks: int = 300) -> None:
     handles = []
     for name in k.names:
         r = k.robot(name)
-        site = rest @ model.grasp_in_bar(k.inst.config.robots[r.index])
+        site = rest @ k.scene.grasp_for("bar", k.inst.config.robots[r.index])
         handles.append(r.move_line(site, speed=0.05, wait=False))
     for _ in range(500):
         step_kali_clock(k.inst, 10)
@@ -82,11 +82,12 @@ def test_two_arms_carry_the_bar_with_a_bounded_internal_force(
     with calibrated(name, ("left", "right")) as k:
         truths = k.inst.arena.existing(layout.KEY_TRUTHS, layout.ARM_TRUTH, 2)
         world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
+        objects = k.inst.arena.existing(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, 1)
         go_to_grasps(k)
         assert [int(t) for t in truths["grasped"]] == [1, 1], "both grippers hold the bar"
-        start = bar_position(world)
-        grasps = [model.grasp_in_bar(r) for r in k.inst.config.robots]
-        bar = k.motion_system(["left", "right"], grasps)
+        assert [int(t) for t in truths["held"]] == [0, 0], "the scene's first free object"
+        start = bar_position(objects)
+        bar = k.motion_system(["left", "right"], holding="bar")
         here = bar.read_pose()
         np.testing.assert_allclose(here[:3, 3], start, atol=2e-3)  # the program's bar = truth
         up = here.copy()
@@ -98,19 +99,19 @@ def test_two_arms_carry_the_bar_with_a_bounded_internal_force(
         for _ in range(800):
             step_kali_clock(k.inst, 10)
             worst = max(worst, abs(float(world["internal_force"][0])))
-            top = max(top, float(bar_position(world)[2]))
+            top = max(top, float(bar_position(objects)[2]))
             if h.done:
                 break
         assert h.state == RequestState.DONE, h.message
         step_kali_clock(k.inst, 300)
-        end = bar_position(world)
+        end = bar_position(objects)
         np.testing.assert_allclose(end, start + np.array([0.0, 0.0, LIFT_M]), atol=3e-3)
         assert top > start[2] + LIFT_M - 3e-3
         with capsys.disabled():
             print(f"\ncarrying with feed-forward {ff}: internal force up to {worst:.1f} N")
         assert worst < INTERNAL_FORCE_MAX_N[ff], f"internal force {worst:.1f} N while carrying"
         assert k.inst.fault_text() is None
-        del truths, world
+        del truths, world, objects
 
 
 def test_arms_settled_and_gripped_on_a_late_feed_forward_row_carry_the_bar_unsqueezed(
@@ -135,7 +136,7 @@ def test_arms_settled_and_gripped_on_a_late_feed_forward_row_carry_the_bar_unsqu
     with calibrated(name, ("left", "right")) as k:
         assert [r.ff for r in k.inst.config.robots] == ["full"] * 2  # as default.yaml starts them
         world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
-        grasps = [model.grasp_in_bar(r) for r in k.inst.config.robots]
+        grasps = [k.scene.grasp_for("bar", r) for r in k.inst.config.robots]
         arms = [k.robot(n) for n in ("left", "right")]
         descend_onto_grasps(k, pause_ticks=0)  # as example_carry.py
 

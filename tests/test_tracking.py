@@ -20,7 +20,6 @@ from kali_daemons.client import Kali, MotionFailedError
 from kali_daemons.core import layout
 from kali_daemons.core.errors import MotionError
 from kali_daemons.core.layout import RequestState
-from kali_daemons.robots import model
 from kali_daemons.tg import records
 from kali_daemons.tg.planner import LEAD
 from kali_daemons.tg.tracking import follow, rotation, rotvec, write_frame
@@ -420,8 +419,8 @@ def test_the_tool_tracks_a_part_on_the_conveyor_within_2_mm_and_picks_it_up(
         cfg = k.inst.config
         vx, vy = cfg.plant.conveyor_m_s
         assert math.hypot(vx, vy) > 0.01
-        grasp = model.grasp_in_bar(cfg.robots[left.index])
-        site = model.bar_rest_pose() @ grasp
+        grasp = k.scene.grasp_for("bar", cfg.robots[left.index])
+        site = k.scene.object("bar").pose @ grasp
         kin = left.type.kinematics
         above = np.linalg.inv(left.base) @ site @ _shift(0, 0, 0.05)
         left.move_joints(kin.ikine(above, "run", left.read_joints()), speed=0.5, timeout=30)
@@ -434,13 +433,13 @@ def test_the_tool_tracks_a_part_on_the_conveyor_within_2_mm_and_picks_it_up(
             tg_tick(k, 2)
         tg_tick(k, 100)  # steady state
         truth = k.inst.arena.existing(layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, cfg.joints.total)
-        world = k.inst.arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        bar_pose = k.inst.arena.existing(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, 1)["pose"]
         span = cfg.joints.span(left.index)
         worst, limited = 0.0, h.limited
         for _ in range(100):
             tg_tick(k)
             flange = (left.base @ kin.fkine(truth["q"][span].copy()))[:3, 3]
-            bar = _pose7(world["object_pose"])
+            bar = _pose7(bar_pose[0])
             worst = max(worst, float(np.linalg.norm(flange - (bar @ grasp)[:3, 3])))
         assert worst < 0.002, f"the tool was {worst * 1000:.2f} mm from the moving grasp site"
         assert h.limited == limited > 0  # the descent was, the steady state is not limited
@@ -450,10 +449,10 @@ def test_the_tool_tracks_a_part_on_the_conveyor_within_2_mm_and_picks_it_up(
         assert int(armtruth["grasped"][left.index]) == 1
         left.stop()
         wait_over(k, h)
-        z0 = float(world["object_pose"][2])
+        z0 = float(bar_pose[0][2])
         up = left.base @ kin.fkine(k.start_point(left.index)) @ _shift(0, 0, -0.03)
         left.move_line(up, speed=0.03, timeout=30)  # the tool's z points down: up by 3 cm
-        assert float(world["object_pose"][2]) == pytest.approx(z0 + 0.03, abs=0.003)
+        assert float(bar_pose[0][2]) == pytest.approx(z0 + 0.03, abs=0.003)
         k.run_conveyor(False)
 
 

@@ -169,7 +169,7 @@ def test_recording_has_the_arms_joints_timing_and_faults_at_25_hz(
         assert rows[f"/robots/{robot}/flange/position"] > 50
     for entity in ("exec_us", "late_us", "misses", "sio_latency_us"):
         assert rows[f"/timing/{entity}"] > 50, entity
-    assert rows["/world/object"] > 50 and rows["/world/stand"] == 1
+    assert rows["/world/bar"] > 50 and rows["/world/stand"] == 1 and rows["/world/table"] == 1
 
     # 25 frames per second of Kali time: a frame every 40 ticks of 1 ms, in lockstep exactly
     t = np.array(sorted(times["/robots/left/q"]))
@@ -318,6 +318,7 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     joints["torque"] = np.arange(jm.total)
     arena.record(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
     arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+    arena.record(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, len(cfg.scene.free))
     ft = arena.record(layout.KEY_FT, layout.FT_STATE, 2)
     ft["present"] = [0, 1]
     ft["tool"] = [[9.0] * 6, [1.0, 2.0, 3.0, 0.1, 0.2, 0.3]]

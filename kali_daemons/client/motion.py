@@ -36,11 +36,12 @@ import numpy as np
 
 from ..core import layout
 from ..core.channels import RequestQueue
-from ..core.errors import KaliError, KinematicsError, QueueFullError, ServoError
+from ..core.errors import ConfigError, KaliError, KinematicsError, QueueFullError, ServoError
 from ..core.layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, RequestState
 from ..core.spinlock import pid_alive
 from ..robots import RobotType
 from ..robots.cell import FLANGE_FRAME, base_transform, inverse, load_pinocchio
+from ..robots.scene import Scene
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import log_dir
 from ..servo import schedule
@@ -645,13 +646,17 @@ class MotionSystem:
     """Arms holding one object (or one arm): they move its control frame together (DESIGN 5).
 
     ``grasps[k]`` is arm k's flange in the object's frame, so arm k's T6 = B_k⁻¹ · O · G_k
-    for an object pose O.  ``Kali.motion_system`` makes one.
+    for an object pose O; ``holding`` the scene's object they hold, by name, if given.
+    ``Kali.motion_system`` makes one.
     """
 
-    def __init__(self, kali: Kali, robots: list[Robot], grasps: list[np.ndarray]) -> None:
+    def __init__(
+        self, kali: Kali, robots: list[Robot], grasps: list[np.ndarray], holding: str | None = None
+    ) -> None:
         self.kali = kali
         self.robots = robots
         self.grasps = grasps
+        self.holding = holding
         self.names = [r.name for r in robots]
         self.indices = [r.index for r in robots]
 
@@ -1083,15 +1088,34 @@ class Kali:
             lambda: "; ".join(f"{n}: {self.servo.calibration(n)[2]}" for n in todo),
         )
 
+    @property
+    def scene(self) -> Scene:
+        """The cell's world (``robots.scene``): its objects, where they were built, their
+        grasps."""
+        return self.inst.config.scene
+
     def motion_system(
-        self, names: Sequence[str], grasps: Sequence[np.ndarray] | None = None
+        self,
+        names: Sequence[str],
+        grasps: Sequence[np.ndarray] | None = None,
+        holding: str | None = None,
     ) -> MotionSystem:
         """Arms ``names`` holding one object.  ``grasps[k]`` is arm k's flange in the
-        object's frame; None takes them from where the arms are now (their set-points), with
-        the object's frame at the first arm's tool."""
+        object's frame; ``holding`` (an object of the scene, by name) takes each arm's from the
+        scene (``Scene.grasp_for``); neither takes them from where the arms are now (their
+        set-points), with the object's frame at the first arm's tool."""
         robots = [self.robot(n) for n in _list_arg("motion_system", "names", names)]
         if not robots or len({r.index for r in robots}) != len(robots):
             raise MotionError(f"motion_system: {list(names)}: name each arm once, at least one")
+        if holding is not None:
+            if grasps is not None:
+                raise MotionError("motion_system: give grasps or the object held, not both")
+            try:
+                cfgs = self.inst.config.robots
+                grasps = [self.scene.grasp_for(holding, cfgs[r.index]) for r in robots]
+            except ConfigError as exc:
+                raise MotionError(f"motion_system: holding {holding!r}: {exc}") from None
+            return MotionSystem(self, robots, grasps, holding)
         if grasps is None:  # from the set-points the TG starts from, not the sagging arms
             flanges = [r.base @ r.type.kinematics.fkine(self.start_point(r.index)) for r in robots]
             obj = flanges[0] @ robots[0].tool

@@ -24,6 +24,7 @@ import numpy as np
 from ..core import errors
 from ..core.errors import KaliError
 from ..core.layout import CalibState, FfMode, FfState, PowerState, RequestState
+from ..robots.scene import Grasp, Scene, SceneObject
 from ..runtime.config import USER_RE
 from ..servo.loading import Loaded
 from ..servo.shadow import Trial
@@ -225,6 +226,7 @@ METHODS: dict[str, frozenset[str]] = {
     "SharedTransform": frozenset({"set", "set_joints", "close", "live"}),
 }
 PROPERTIES: dict[str, frozenset[str]] = {
+    "Kali": frozenset({"scene"}),
     "MotionHandle": frozenset({"state", "message", "done", "contact", "limited"}),
     "SharedTransform": frozenset({"value"}),
 }
@@ -260,7 +262,7 @@ ENUMS: dict[str, type[enum.IntEnum]] = {
 }
 DATACLASSES: dict[str, type] = {
     "Contact": Contact, "Trial": Trial, "ArmState": ArmState, "ObjectState": ObjectState,
-    "Truth": Truth, "Loaded": Loaded,
+    "Truth": Truth, "Loaded": Loaded, "Scene": Scene, "SceneObject": SceneObject, "Grasp": Grasp,
 }  # fmt: skip
 
 

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 ARRAYS = (
     "q", "qd", "current", "torque", "flange", "tool_point", "contact_wrench", "grasp_wrench",
-    "push", "object_pose",
+    "push",
 )  # fmt: skip
 
 
@@ -39,9 +39,10 @@ class Truth:
     what an ideal wrist sensor reads, the wrench the tool exerts on it (sensor frame, N, N·m);
     ``grasp_wrench``: the grasp's force and torque on the object (world), while ``grasped``;
     ``push``: a ``kalictl push`` on the tool now (N, world); ``amps_on``, ``brakes_engaged``,
-    ``watchdog_tripped``, ``estop``: the board as it is; ``object_pose``: the object's pose
-    (4×4, world) and ``internal_force``: the squeeze along the line between the grasps (N,
-    + squeezing)."""
+    ``watchdog_tripped``, ``estop``: the board as it is; ``held``: the object the arm holds
+    (its name in the scene), None; ``objects``: every free object's pose (4×4, world) by name;
+    ``internal_force``: the squeeze along the line between the first two grasps of one object
+    (N, + squeezing)."""
 
     robot: str
     sim_time_s: float
@@ -60,13 +61,16 @@ class Truth:
     brakes_engaged: bool
     watchdog_tripped: bool
     estop: bool
-    object_pose: np.ndarray
+    held: str | None
+    objects: dict[str, np.ndarray]
     internal_force: float
 
     def __post_init__(self) -> None:
         """Arrays as float arrays, however they came (a remote copy crosses as lists)."""
         for name in ARRAYS:
             object.__setattr__(self, name, np.asarray(getattr(self, name), dtype=np.float64))
+        poses = {k: np.asarray(v, dtype=np.float64) for k, v in self.objects.items()}
+        object.__setattr__(self, "objects", poses)
 
     def same(self, other: Truth) -> bool:
         """Whether ``other`` holds the same values (arrays compared exactly)."""
@@ -74,6 +78,9 @@ class Truth:
             a, b = getattr(self, name), getattr(other, name)
             if name in ARRAYS:
                 if not np.array_equal(a, b):
+                    return False
+            elif name == "objects":
+                if a.keys() != b.keys() or not all(np.array_equal(a[k], b[k]) for k in a):
                     return False
             elif a != b:
                 return False
@@ -108,6 +115,10 @@ class SimTruth:
                 layout.KEY_JOINT_TRUTHS, layout.JOINT_TRUTH, cfg.joints.total
             )
             self._world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH, 1)
+            self._names = tuple(o.name for o in cfg.scene.free)
+            self._objects = arena.existing(
+                layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, len(self._names)
+            )
 
     def truth(self, robot: str | int) -> Truth:
         """Robot ``robot``'s truth and the world's, now; ServoError on an instance without a
@@ -121,7 +132,7 @@ class SimTruth:
                 "plant: real hardware has no truth, only what the controller measures"
             )
         cfg = kali.inst.config
-        arm, world = self._arms[k].copy(), self._world[0].copy()
+        arm, world, objects = self._arms[k].copy(), self._world[0].copy(), self._objects.copy()
         joints = self._joints[cfg.joints.span(k)].copy()
         robot_cfg = cfg.robots[k]
         q = joints["q"]
@@ -144,6 +155,9 @@ class SimTruth:
             brakes_engaged=bool(arm["brakes_engaged"]),
             watchdog_tripped=bool(arm["watchdog_tripped"]),
             estop=bool(arm["estop"]),
-            object_pose=quaternion_pose(world["object_pose"]),
+            held=None if arm["held"] < 0 else self._names[int(arm["held"])],
+            objects={
+                n: quaternion_pose(o["pose"]) for n, o in zip(self._names, objects, strict=True)
+            },
             internal_force=float(world["internal_force"]),
         )

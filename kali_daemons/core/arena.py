@@ -256,12 +256,18 @@ class Arena:
         return arr.reshape(()) if count is None else arr
 
     def record(self, key: str, dtype: np.dtype, count: int | None = None) -> np.ndarray:
-        """shmalloc a block for ``count`` records of ``dtype`` (or attach to it) and view it."""
+        """shmalloc a block for ``count`` records of ``dtype`` (or attach to it) and view it;
+        zero records are no block (``layout.blocks``), an empty array."""
+        if count == 0:
+            return np.zeros(0, dtype)
         n = 1 if count is None else count
         return self.view(self.shmalloc(key, n * dtype.itemsize), dtype, count)
 
     def existing(self, key: str, dtype: np.dtype, count: int | None = None) -> np.ndarray:
-        """View an existing block; ArenaError if the key is absent or the block too small."""
+        """View an existing block; ArenaError if the key is absent or the block too small.
+        Zero records are no block: an empty array."""
+        if count == 0:
+            return np.zeros(0, dtype)
         found = self.lookup(key)
         if found is None:
             raise ArenaError(f"{self.name}: no block '{key}'")

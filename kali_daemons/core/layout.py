@@ -387,6 +387,7 @@ FLAG = np.dtype([("word", "<u4")])  # Type 3 test-and-set flag: 0 clear, else th
 KEY_TRUTHS = "truths"  # plant-only truth, ARM_TRUTH per robot (never read by the controller)
 KEY_JOINT_TRUTHS = "truths.joints"  # plant-only truth, JOINT_TRUTH per joint of the cell
 KEY_WORLD_TRUTH = "truth.world"
+KEY_OBJECT_TRUTHS = "truths.objects"  # plant-only truth, OBJECT_TRUTH per free object
 KEY_PUSHES = "plant.pushes"  # PUSH per robot: external pushes the operator asks the plant for
 
 # The joints one arm's records hold: every hardware kind carries at most these per arm
@@ -407,7 +408,8 @@ ARM_TRUTH = np.dtype(
         ("grasped", "u1"),
         ("watchdog_tripped", "u1"),
         ("estop", "u1"),
-        ("_pad", "u1", (3,)),
+        ("held", "i1"),  # the free object it holds: its index in OBJECT_TRUTH, -1 none
+        ("_pad", "u1", (2,)),
     ],
     align=True,
 )
@@ -427,8 +429,14 @@ WORLD_TRUTH = np.dtype(
     [
         ("sim_time_ns", "<i8"),  # simulated time since the plant started
         ("ticks", "<u8"),  # plant cycles
-        ("object_pose", "<f8", (7,)),  # position (m) and quaternion (w, x, y, z)
         ("internal_force", "<f8"),  # N, along the line between the grasps: + squeeze, − tension
+    ],
+    align=True,
+)
+
+OBJECT_TRUTH = np.dtype(  # per free object of the scene (robots.scene), in the scene's order
+    [
+        ("pose", "<f8", (7,)),  # position (m) and quaternion (w, x, y, z), world
     ],
     align=True,
 )
@@ -1370,6 +1378,7 @@ class Cell:
     arms: tuple[np.dtype, ...] = ()  # each robot-level servo's private data, registry order
     config_files_bytes: int = 0  # the path of the instance's copies of its user files
     hardware: tuple[Record, ...] = ()  # the records of the cell's hardware kinds (HARDWARE_KEYS)
+    objects: int = 0  # the scene's free objects (robots.scene)
 
     @property
     def n_joints(self) -> int:
@@ -1413,6 +1422,7 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_TRUTHS, ARM_TRUTH, lambda c, i: len(c.robots), "plant", "tests, viewer"),
     Record(KEY_JOINT_TRUTHS, JOINT_TRUTH, lambda c, i: c.n_joints, "plant", "tests"),
     Record(KEY_WORLD_TRUTH, WORLD_TRUTH, None, "plant", "viewer, tests"),
+    Record(KEY_OBJECT_TRUTHS, OBJECT_TRUTH, lambda c, i: c.objects, "plant", "viewer, tests"),
     Record(KEY_PUSHES, PUSH, lambda c, i: len(c.robots), "kalictl push", "the plant"),
     # the servo level
     Record(KEY_ROBOTS, ROBOT_STATE, lambda c, i: len(c.robots), "SIO (commands: clients)", "all"),
@@ -1520,7 +1530,8 @@ class Block:
 
 def blocks(cell: Cell) -> list[Block]:
     """Every block of ``cell``'s arena, in ``RECORDS`` order then its hardware's: a
-    ``{robot}`` key once per robot, an ``{algo}`` key once per servo algorithm."""
+    ``{robot}`` key once per robot, an ``{algo}`` key once per servo algorithm; a record
+    counted zero (a scene without free objects) has none (``Arena.record`` views it empty)."""
     out: list[Block] = []
     for rec in (*RECORDS, *cell.hardware):
         at: list[tuple[str, int | None]]  # each block's key and index
@@ -1535,7 +1546,8 @@ def blocks(cell: Cell) -> list[Block]:
         for key, index in at:
             dtype = rec.dtype if isinstance(rec.dtype, np.dtype) else rec.dtype(cell, index)
             count = rec.count(cell, index) if callable(rec.count) else rec.count
-            out.append(Block(key, dtype, count, rec))
+            if count != 0:
+                out.append(Block(key, dtype, count, rec))
     return out
 
 

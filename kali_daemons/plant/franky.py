@@ -41,6 +41,12 @@ class FrankySim(Daemon):
                 "processes.plant.period_ms must be 1"
             )
         robots = [r for r in cfg.robots if r.hardware.kind == "franka"]
+        if cfg.scene.objects:
+            names = ", ".join(o.name for o in cfg.scene.objects)
+            raise DaemonError(
+                f"{self.name}: franky-sim simulates its own world, not the scene's objects "
+                f"({names}, {cfg.scene.source}): give an FR3 cell an empty scene"
+            )
         self.sim: Any = MujocoSimulator(enable_visualization=False)
         self.sim.init()
         self.robots = [

@@ -47,7 +47,7 @@ class PlantSim:
         self.dt_ns = round(pc.substep_ms * 1e6)
         period = cfg.process("plant").period_ms if period_ms is None else period_ms
         self.substeps = max(1, round(period / pc.substep_ms))
-        self.world: World = build_world(cfg.robots, timestep=self.dt)
+        self.world: World = build_world(cfg.robots, timestep=self.dt, scene=cfg.scene)
         self.names = [r.name for r in cfg.robots]
         joints = self.joints = cfg.joints
         m = self.model = self.world.model
@@ -140,23 +140,35 @@ class PlantSim:
         self._push_end = [0] * n_arms
         self._push_on = [False] * n_arms
         self._xfrc = [self.data.xfrc_applied[b] for b in self.world.tool_body]
-        # each grasp's weld force and torque (world frame) and whether it holds (_weld_forces):
-        # the cell's only equality constraints are the welds, one per arm in arm order
-        welds = list(self.world.weld)
-        assert m.neq == n_arms and welds == sorted(welds), "one weld per arm, in arm order"
+        # each grasp's weld force and torque (world frame), whether it holds and what
+        # (_weld_forces): the cell's only equality constraints are the welds, arm by arm, one
+        # per graspable object (build_world)
+        welds = [eq for arm in self.world.weld for eq in arm]
+        assert welds == list(range(m.neq)), "the welds, arm by arm, are the equalities"
         assert all(int(t) == mujoco.mjtEq.mjEQ_WELD for t in m.eq_type), "welds only"
         self._eq_active = self.data.eq_active  # a view of MjData's fixed-size array
         self._held = np.zeros(n_arms, dtype=bool)
+        self._held_object = np.full(n_arms, -1, dtype=np.int64)
+        self._grasp_site = np.zeros(n_arms, dtype=np.int64)  # where each took hold
         self._weld = np.zeros((n_arms, WELD_ROWS))
-        # the conveyor belt: it drives the bar's x, y from where it was when it started
+        # the conveyor belt: it drives its object's x, y from where it was when it started
         vx, vy = cfg.plant.conveyor_m_s
         self._belt_v = (vx, vy) if (vx or vy) else None
-        self._belt_from: tuple[float, float] | None = None  # the bar's x, y at its start
+        self._belt_from: tuple[float, float] | None = None  # the object's x, y at its start
         self._belt_cycles = 0
-        adr, dof = self.world.object_qpos_adr, self.world.object_dof_adr
-        self._bar_q = self.data.qpos[adr : adr + 3]
-        self._bar_v = self.data.qvel[dof : dof + 6]
-        self._bar_rest_z = float(self._bar_q[2])
+        if self._belt_v is not None:
+            assert cfg.scene.belt is not None, "a belt carries an object (config)"
+            self._belt = self.world.object_index(cfg.scene.belt)
+            adr, dof = self.world.object_qpos_adr[self._belt], self.world.object_dof_adr[self._belt]
+            self._belt_q = self.data.qpos[adr : adr + 3]
+            self._belt_qd = self.data.qvel[dof : dof + 6]
+            self._belt_rest_z = float(self._belt_q[2])
+            w = self.world
+            g = w.graspable.index(self._belt) if self._belt in w.graspable else None
+            self._belt_welds = [] if g is None else [arm[g] for arm in w.weld]
+        self.object_truth = arena.record(
+            layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, len(self.world.objects)
+        )
         self._period_s = self.substeps * self.dt
         self._belt_bit = self.regs["conveyor"][0:1]  # the first board's belt motor line
         self._truth_views()
@@ -292,7 +304,8 @@ class PlantSim:
     # ------------------------------------------------------------------ grasping
 
     def _gripper(self, k: int) -> None:
-        """A rising gripper bit welds the flange to the object within reach; falling lets go."""
+        """A rising gripper bit welds the flange to the object whose grasp is nearest, if it
+        is within reach; falling lets go."""
         regs = self.boards[k].regs
         g = int(regs["gripper"])
         if g > 1:
@@ -301,11 +314,14 @@ class PlantSim:
         if g == self._gripper_prev[k]:
             return
         self._gripper_prev[k] = g
-        eq = self.world.weld[k]
-        if g and self.flange_to_grasp(k) <= GRASP_REACH_M:
-            self.world.activate_weld(self.data, k)
-        elif not g:
-            self.data.eq_active[eq] = 0
+        if not g:
+            for eq in self.world.weld[k]:
+                self.data.eq_active[eq] = 0
+            return
+        i, distance = self.nearest_grasp(k)
+        if distance <= GRASP_REACH_M:
+            self._grasp_site[k] = self.world.grasp_site[i]
+            self.world.activate_weld(self.data, k, self.world.grasp_object[i])
 
     def _conveyor(self) -> None:
         """Carry the bar on the belt: while the first board runs the belt's motor and the bar
@@ -315,43 +331,54 @@ class PlantSim:
         if not self._belt_bit[0]:  # the belt's motor off: the usual case, one load
             self._belt_from = None
             return
-        held = any(self.data.eq_active[eq] for eq in self.world.weld)
-        if held or float(self._bar_q[2]) > self._bar_rest_z + BELT_LIFT_M:  # not on the belt
+        held = any(self._eq_active[eq] for eq in self._belt_welds)
+        lifted = float(self._belt_q[2]) > self._belt_rest_z + BELT_LIFT_M
+        if held or lifted:  # not on the belt
             self._belt_from = None
             return
         if self._belt_from is None:
-            self._belt_from = (float(self._bar_q[0]), float(self._bar_q[1]))
+            self._belt_from = (float(self._belt_q[0]), float(self._belt_q[1]))
             self._belt_cycles = 0
         vx, vy = self._belt_v  # type: ignore[misc]
         t = self._belt_cycles * self._period_s
-        self._bar_q[0] = self._belt_from[0] + vx * t
-        self._bar_q[1] = self._belt_from[1] + vy * t
-        self._bar_v[0], self._bar_v[1] = vx, vy
-        self._bar_v[3:] = 0.0
+        self._belt_q[0] = self._belt_from[0] + vx * t
+        self._belt_q[1] = self._belt_from[1] + vy * t
+        self._belt_qd[0], self._belt_qd[1] = vx, vy
+        self._belt_qd[3:] = 0.0
         self._belt_cycles += 1
 
-    def flange_to_grasp(self, k: int) -> float:
-        """Distance (m) from arm ``k``'s flange to its grasp site on the object."""
+    def nearest_grasp(self, k: int) -> tuple[int, float]:
+        """The grasp nearest arm ``k``'s flange (its index in ``world.grasp_site``) and its
+        distance (m); (-1, inf) in a world with nothing to hold."""
         d = self.data
-        diff = d.site_xpos[self.world.flange_site[k]] - d.site_xpos[self.world.grasp_site[k]]
-        return float(np.linalg.norm(diff))
+        flange = d.site_xpos[self.world.flange_site[k]]
+        best, distance = -1, math.inf
+        for i, site in enumerate(self.world.grasp_site):
+            far = float(np.linalg.norm(flange - d.site_xpos[site]))
+            if far < distance:
+                best, distance = i, far
+        return best, distance
 
     def _weld_forces(self) -> None:
-        """Each arm's weld force and torque (world frame) into ``_weld[k]`` and whether it
-        grasps into ``_held[k]``.  MuJoCo lays the active equality constraints' rows out
-        first, ``ne`` of them, in the equalities' order, six per weld; the welds are the
-        cell's only equalities, one per arm in arm order (asserted at build), so arm ``k``'s
-        rows follow those of the arms before it that hold: counted, not searched by type and
-        id, which would be the plant's largest cost while it carries the bar."""
+        """Each arm's weld force and torque (world frame) into ``_weld[k]``, whether it grasps
+        into ``_held[k]`` and what into ``_held_object[k]``.  MuJoCo lays the active equality
+        constraints' rows out first, ``ne`` of them, in the equalities' order, six per weld;
+        the welds are the cell's only equalities, arm by arm (asserted at build), and an arm
+        holds one object at most, so arm ``k``'s rows follow those of the arms before it that
+        hold: counted, not searched by type and id, which would be the plant's largest cost
+        while it carries an object."""
         d = self.data
         force = d.efc_force
         row = 0
-        for k in range(len(self._held)):
-            held = bool(self._eq_active[k])
-            self._held[k] = held
-            if held:
-                self._weld[k] = force[row : row + WELD_ROWS]
-                row += WELD_ROWS
+        for k, welds in enumerate(self.world.weld):
+            self._held[k] = False
+            self._held_object[k] = -1
+            for g, eq in enumerate(welds):
+                if self._eq_active[eq]:
+                    self._held[k] = True
+                    self._held_object[k] = self.world.graspable[g]
+                    self._weld[k] = force[row : row + WELD_ROWS]
+                    row += WELD_ROWS
         assert row == d.ne, "the equality rows are the welds' (build_world)"
 
     # ------------------------------------------------------------------ truth
@@ -369,17 +396,20 @@ class PlantSim:
         self._truth_wrench = [self.truth["grasp_wrench"][k] for k in range(n)]
         self._truth_ft = (self.truth["ft_wrench"], self._ft_true)
         self._truth_push = [(self.truth["push"][k], x[:3]) for k, x in enumerate(self._xfrc)]
+        self._truth_holding = [self.truth[k : k + 1]["held"].reshape(()) for k in range(n)]
         w = self.world_truth
-        adr = self.world.object_qpos_adr
         self._world_views = (w["sim_time_ns"], w["ticks"], w["internal_force"])
-        self._object_pose = (w["object_pose"], self.data.qpos[adr : adr + 7])
+        m = len(self.world.objects)  # their qpos lead MuJoCo's (build_world)
+        self._object_pose = (self.object_truth["pose"], self.data.qpos[: 7 * m].reshape(m, 7))
         # the rest of the truth in one kernel (_write_truth_reference is what it equals), on
         # MuJoCo's fixed-size arrays (MjData allocates them once) and the records
         d, world = self.data, self.world
         assert self._weld.shape[1] == self._ft_true.shape[1] == layout.WRENCH  # the C's WRENCH
         fixed = {
             "eq_active": d.eq_active,
+            "graspable": np.array(world.graspable, dtype=np.int64),
             "held": self._held,
+            "held_object": self._held_object,
             "weld": self._weld,
             "ft_true": self._ft_true,
             "xfrc": d.xfrc_applied,
@@ -387,19 +417,22 @@ class PlantSim:
             "object_qpos": self._object_pose[1],
             "sim_time_ns": w["sim_time_ns"],
             "ticks": w["ticks"],
-            "object_pose": w["object_pose"],
+            "object_pose": self._object_pose[0],
             "internal_force": w["internal_force"],
             "tool_body": np.array(world.tool_body, dtype=np.int64),
-            "grasp_site": np.array(world.grasp_site, dtype=np.int64),
+            "grasp_site": self._grasp_site,
         }
         for name, a in fixed.items():
             assert a.flags.c_contiguous, f"plant: {name} must be contiguous for its kernel"
         t = self.truth
         self._truth = Kernel(
             "kali_plant_truth",
-            (t, w, d, *fixed.values()),
+            (t, w, d, self.object_truth, *fixed.values()),
             n=n,
+            welds=len(world.graspable),
+            objects=m,
             grasped=t["grasped"],
+            holding=t["held"],
             grasp_wrench=t["grasp_wrench"][:, 0],
             ft_wrench=t["ft_wrench"][:, 0],
             push=t["push"][:, 0],
@@ -432,6 +465,7 @@ class PlantSim:
             else:
                 wrench[:] = 0.0
             self._truth_grasped[k][...] = held
+            self._truth_holding[k][...] = self._held_object[k]
         np.copyto(*self._truth_ft)
         for dst, src in self._truth_push:
             np.copyto(dst, src)
@@ -442,19 +476,19 @@ class PlantSim:
         np.copyto(*self._object_pose)
 
     def _internal_force(self) -> float:
-        """Squeeze (+) or tension (−) along the line between the first two grasps, N (each
-        weld's force is the bar's on the tool); 0 unless two hold."""
+        """Squeeze (+) or tension (−) along the line between the first two grasps of one
+        object, N (each weld's force is the object's on the tool); 0 unless two hold it."""
         a = b = -1
         for k, held in enumerate(self._held):
             if held and a < 0:
                 a = k
-            elif held:
+            elif held and self._held_object[k] == self._held_object[a]:
                 b = k
                 break
         if b < 0:
             return 0.0
         xpos = self.data.site_xpos  # in scalars: the order of every operation is the kernel's
-        pa, pb = xpos[self.world.grasp_site[a]], xpos[self.world.grasp_site[b]]
+        pa, pb = xpos[self._grasp_site[a]], xpos[self._grasp_site[b]]
         u0, u1, u2 = (float(pb[c] - pa[c]) for c in range(3))
         norm = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
         if norm == 0.0:

@@ -1,11 +1,9 @@
-"""The cell's dimensions and the controller's arm model, without MuJoCo (see ``model.py``).
+"""The tools' dimensions and the controller's arm model, without MuJoCo (see ``model.py``).
 
-The stand, the bar and the grasp sites are the plant's world (``model.build_world``) and what
-the viewer draws; ``load_pinocchio`` is the arm model of the dynamics process, the viewer and
-programs; ``check_clear_at_rest`` is ``kalictl start``'s check that no two arms of a config
-stand in each other.  Pinocchio is imported where a model is loaded, so the plant, which
-needs these dimensions, does not import it.
-"""
+The world the arms stand in is the scene's (``scene.py``).  ``load_pinocchio`` is the arm
+model of the dynamics process, the viewer and programs; ``check_clear_at_rest`` is ``kalictl
+start``'s check that no two arms of a config stand in each other.  Pinocchio is imported where
+a model is loaded, so the plant, which needs these dimensions, does not import it."""
 
 from __future__ import annotations
 
@@ -22,24 +20,11 @@ if TYPE_CHECKING:
     import pinocchio as pin
 
     from kali_daemons.robots import RobotType
+    from kali_daemons.robots.scene import Scene, SceneObject
     from kali_daemons.runtime.config import KaliConfig, RobotConfig
 
 FLANGE_FRAME: Final = "flange"  # the URDF link of the flange (Pinocchio frame, MuJoCo body)
 
-# The cell (metres, kilograms).  A table-like stand at the origin, between the arms, and a
-# square bar lying on it along x; each arm grasps the end nearer to it from above.
-STAND_SIZE: Final = (0.24, 0.30, 0.565)  # x, y, height; centred on the world origin
-BAR_SIZE: Final = (0.36, 0.04, 0.04)  # length (along x), width, height
-BAR_MASS: Final = 1.5
-# A grasp site sits above a bar end: the flange (the wrist centre, as d6 = 0) stays this far
-# above the bar's axis so that the flange disc (0.035-0.045 m out) just touches the bar top.
-GRASP_HEIGHT: Final = 0.065
-GRASP_INSET: Final = 0.02  # from the bar's end towards its middle
-# Something to touch: a rigid table in front of the stand (−y), its top reachable by
-# both arms' tools pointing down (PUMAs at x = ±0.6: configurations run / luf) over
-# x ∈ [−0.2, 0.2], y ∈ [−0.45, −0.3].  Only the tools' pads and the bar touch it.
-TABLE_SIZE: Final = (0.5, 0.24, 0.40)  # x, y, height (its top)
-TABLE_CENTRE_XY: Final = (0.0, -0.38)
 TOOL_RADIUS_M: Final = 0.012  # each arm's tool: a pad, a sphere ending at the tool point
 # The pad is a felt polishing pad, not steel: sliding friction 0.3 on the table, and soft
 # (MuJoCo's contact time constant, s, and damping ratio: critically damped), softest at the
@@ -93,13 +78,6 @@ def load_pinocchio(
     return model
 
 
-def bar_rest_pose() -> np.ndarray:
-    """The bar's pose (4×4, world) lying on the stand, as the cell is built."""
-    t = np.eye(4)
-    t[2, 3] = STAND_SIZE[2] + BAR_SIZE[2] / 2
-    return t
-
-
 def check_clear_at_rest(cfg: KaliConfig) -> None:
     """Refuse (ConfigError) a cell in which two arms' bodies overlap where they start: each
     arm's collision shapes from its URDF (what Pinocchio and coal load, the shapes the plant
@@ -139,6 +117,53 @@ def check_clear_at_rest(cfg: KaliConfig) -> None:
         f"{ra.base_yaw_deg:g}° and {list(rb.base_xyz)} turned {rb.base_yaw_deg:g}°; their "
         f"bodies must be apart: move a base (base_xyz, base_yaw_deg)"
     )
+
+
+def check_scene_apart(scene: Scene) -> None:
+    """Refuse (ConfigError) a scene in which two fixed objects overlap: the simulator would
+    push nothing apart (neither moves) but every free object and tool between them would be
+    caught, and the controller's collision model would hold a world that cannot be.  The
+    message names the file, both objects and how deep they interpenetrate.  Touching is
+    allowed (a stand on a plinth)."""
+    import pinocchio as pin  # here, not at load: the plant imports this module
+
+    fixed = [o for o in scene.objects if o.fixed]
+    world = pin.GeometryModel()
+    for o in fixed:
+        world.addGeometryObject(pin.GeometryObject(o.name, 0, 0, pin.SE3(o.pose), coal_shape(o)))
+    for i in range(len(fixed)):
+        for j in range(i + 1, len(fixed)):
+            world.addCollisionPair(pin.CollisionPair(i, j))
+    if not world.collisionPairs:
+        return
+    data = pin.GeometryData(world)
+    still = pin.Model()
+    pin.computeDistances(still, still.createData(), world, data, np.zeros(0))
+    distance = [r.min_distance for r in data.distanceResults]
+    nearest = int(np.argmin(distance))
+    if distance[nearest] >= -1e-9:
+        return
+    pair = world.collisionPairs[nearest]
+    a, b = fixed[pair.first].name, fixed[pair.second].name
+    raise ConfigError(
+        f"{scene.source}: fixed objects {a!r} and {b!r} overlap by {-distance[nearest]:.4f} m; "
+        "fixed objects must be apart or touch (move one: its 'at' or 'size')"
+    )
+
+
+def coal_shape(obj: SceneObject) -> object:
+    """A scene object's shape as coal's (the controller's collision model), about its centre;
+    the same sizes MuJoCo builds (``model._MJ_SHAPE``)."""
+    import coal  # with Pinocchio: only where a collision model is built
+
+    s = obj.size
+    if obj.shape == "box":
+        return coal.Box(*s)
+    if obj.shape == "cylinder":
+        return coal.Cylinder(s[0], s[1])
+    if obj.shape == "capsule":
+        return coal.Capsule(s[0], s[1])
+    return coal.Sphere(s[0])
 
 
 def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str, object]]:

@@ -25,21 +25,14 @@ import numpy.typing as npt
 from kali_daemons.core.errors import ModelError
 from kali_daemons.robots import RobotType
 from kali_daemons.robots.cell import (
-    BAR_MASS,
-    BAR_SIZE,
     FLANGE_FRAME,
-    GRASP_HEIGHT,
-    GRASP_INSET,
     PAD_FRICTION,
     PAD_SOLIMP,
     PAD_SOLREF,
-    STAND_SIZE,
-    TABLE_CENTRE_XY,
-    TABLE_SIZE,
     TOOL_RADIUS_M,
-    bar_rest_pose,
     load_pinocchio,
 )
+from kali_daemons.robots.scene import DEFAULT_SCENE, Scene, SceneObject, load_scene
 
 if TYPE_CHECKING:
     from kali_daemons.runtime.config import RobotConfig
@@ -51,33 +44,46 @@ IntArray = npt.NDArray[np.int64]
 # floor below which MuJoCo's 'refsafe' would clamp it.
 WELD_TIMECONST_STEPS: Final = 8
 # contact bits: the fixtures and the tools' pads touch each other (and nothing else of the
-# arms); the bar, the stand and the floor keep MuJoCo's default bit 1
+# arms); the free objects, the fixtures and the floor keep MuJoCo's default bit 1
 TOOL_CONTACT: Final = 2
+# MuJoCo's geom size from a scene shape's (robots.scene.SHAPES): half lengths
+_MJ_SHAPE = {
+    "box": (mujoco.mjtGeom.mjGEOM_BOX, lambda s: [s[0] / 2, s[1] / 2, s[2] / 2]),
+    "cylinder": (mujoco.mjtGeom.mjGEOM_CYLINDER, lambda s: [s[0], s[1] / 2, 0.0]),
+    "capsule": (mujoco.mjtGeom.mjGEOM_CAPSULE, lambda s: [s[0], s[1] / 2, 0.0]),
+    "sphere": (mujoco.mjtGeom.mjGEOM_SPHERE, lambda s: [s[0], 0.0, 0.0]),
+}
 
 
 @dataclass(frozen=True)
 class World:
-    """A compiled MuJoCo cell and the indices the plant needs, per robot in config order.
+    """A compiled MuJoCo cell and the indices the plant needs, per robot in config order and
+    per free object of the scene in the scene's order.
 
     Every per-robot field is a tuple indexed like ``robots`` (``index(name)`` maps a name).
 
     The arms carry no joint damping or friction loss and no actuators: the plant's motor model
     applies motor torque, viscous and asymmetric Coulomb friction and the brakes through
     ``data.qfrc_applied[dof_adr[k]]``.  Arm geoms never collide (contype = conaffinity =
-    0); only the bar touches the stand and the floor.
+    0); the free objects touch the fixtures, the floor and each other, the tools' pads only
+    the fixtures.  The free objects are the world's first bodies: their free joints' qpos
+    are ``qpos[0 : 7 * len(objects)]``, object by object.
 
-    Grasping.  ``weld[k]`` is a MuJoCo weld equality between the robot's ``tool`` body (body1;
-    it sits at the flange frame, on the wrist force/torque sensor, so the sensor feels the
-    bar) and the bar (body2), inactive at start.  A weld's ``eq_data`` row (MuJoCo 4) is
+    Grasping.  ``weld[k][g]`` is a MuJoCo weld equality between robot ``k``'s ``tool`` body
+    (body1; it sits at the flange frame, on the wrist force/torque sensor, so the sensor feels
+    the object) and graspable object ``g`` (body2; ``graspable[g]`` its index in
+    ``objects``), inactive at start; the equalities are these welds only, arm by arm
+    (``k * len(graspable) + g``).  A weld's ``eq_data`` row (MuJoCo 4) is
     ``[anchor(3), relpos(3), relquat(4), torquescale, from_qpos0]``: with anchor 0 the weld
-    holds the bar's origin at ``relpos`` and its orientation at ``relquat`` in the flange
+    holds the object's origin at ``relpos`` and its orientation at ``relquat`` in the flange
     frame; ``from_qpos0 = 1`` would let ``mj_setConst`` overwrite relpose, so it stays 0.  To
     grasp without a jump the plant writes the *current* relative pose and then activates:
     after ``mj_kinematics`` (or a step), ``relpos = R1ᵀ(x2 - x1)``, ``relquat = q1⁻¹·q2``
     from ``data.xpos``/``data.xquat``, ``model.eq_data[weld, 3:10] = relpos, relquat``, then
     ``data.eq_active[weld] = 1``; the method ``activate_weld`` does exactly this.  Releasing is
-    ``data.eq_active[weld] = 0``.  At build time relpose is the ideal grasp (flange frame on
-    the grasp site), so ``eq_active = 1`` alone would snap the bar into the hand.
+    ``data.eq_active[weld] = 0``.  ``grasp_site`` are every graspable object's grasps as
+    sites (``grasp_object`` the object of each), where a closing gripper looks for one within
+    reach.
     """
 
     model: mujoco.MjModel
@@ -85,11 +91,14 @@ class World:
     qpos_adr: tuple[IntArray, ...]  # per robot: qpos indices of its joints j1..jn (n_joints)
     dof_adr: tuple[IntArray, ...]  # per robot: dof indices (qvel, qacc, qfrc_*) of j1..jn
     flange_site: tuple[int, ...]  # per robot: site at the flange frame (the last DH frame)
-    grasp_site: tuple[int, ...]  # per robot: site on the bar where its flange frame should go
-    weld: tuple[int, ...]  # per robot: equality id, bar <-> its flange, inactive at start
-    object_body: int  # the bar
-    object_qpos_adr: int  # first of the bar's 7 free-joint qpos (position, quaternion)
-    object_dof_adr: int  # first of its 6 dofs
+    weld: tuple[tuple[int, ...], ...]  # per robot, per graspable object: its weld, inactive
+    objects: tuple[str, ...] = ()  # the free objects, in the scene's order
+    object_body: tuple[int, ...] = ()  # per free object
+    object_qpos_adr: tuple[int, ...] = ()  # per free object: its 7 qpos (position, quaternion)
+    object_dof_adr: tuple[int, ...] = ()  # per free object: its 6 dofs
+    graspable: tuple[int, ...] = ()  # the objects with grasps (indices into objects)
+    grasp_site: tuple[int, ...] = ()  # every grasp of a graspable object, as a site
+    grasp_object: tuple[int, ...] = ()  # per grasp site: its object (index into objects)
     motor: tuple[IntArray, ...] = ()  # per robot: its n_joints motor actuator ids, j1..jn
     motor_act_adr: tuple[IntArray, ...] = ()  # per robot: their activations (currents) in data.act
     tool_body: tuple[int, ...] = ()  # per robot: its tool, on the flange through the F/T sensor
@@ -106,15 +115,26 @@ class World:
             raise ModelError(f"world: robot index {robot} out of range 0..{len(self.robots) - 1}")
         return robot
 
-    def activate_weld(self, data: mujoco.MjData, robot: int | str) -> None:
-        """Grasp: hold the bar where it is now relative to ``robot``'s flange, then activate.
+    def object_index(self, name: str) -> int:
+        """The position of free object ``name`` in ``objects``."""
+        if name not in self.objects:
+            known = ", ".join(self.objects) or "none"
+            raise ModelError(f"world: no free object {name!r}; free objects: {known}")
+        return self.objects.index(name)
+
+    def activate_weld(self, data: mujoco.MjData, robot: int | str, obj: int | str) -> None:
+        """Grasp: hold object ``obj`` (a name or an index into ``objects``) where it is now
+        relative to ``robot``'s flange, then activate.
 
         Uses ``data.xpos``/``data.xquat``, so call it after ``mj_kinematics`` (or any step).
-        Writes ``model.eq_data`` of that weld: anchor 0, relpose = the bar's pose in the flange
-        frame, torquescale 1, from_qpos0 0.  Outside the cycle: it allocates.
+        Writes ``model.eq_data`` of that weld: anchor 0, relpose = the object's pose in the
+        flange frame, torquescale 1, from_qpos0 0.  Outside the cycle: it allocates.
         """
+        o = self.object_index(obj) if isinstance(obj, str) else obj
+        if o not in self.graspable:
+            raise ModelError(f"world: object {self.objects[o]!r} has no grasps: it cannot be held")
         model = self.model
-        eq = self.weld[self.index(robot)]
+        eq = self.weld[self.index(robot)][self.graspable.index(o)]
         b1, b2 = model.eq_obj1id[eq], model.eq_obj2id[eq]
         q1inv = np.empty(4)
         mujoco.mju_negQuat(q1inv, data.xquat[b1])
@@ -130,9 +150,11 @@ class World:
         data.eq_active[eq] = 1
 
 
-def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> World:
-    """The plant's MuJoCo cell: each robot's type's URDF attached once per robot, a stand and
-    a bar.
+def build_world(
+    robots: Sequence[RobotConfig], timestep: float = 0.0005, scene: Scene | None = None
+) -> World:
+    """The plant's MuJoCo cell: each robot's type's URDF attached once per robot, in the world
+    of ``scene`` (None: the shipped cell's, ``scene.DEFAULT_SCENE``).
 
     Each arm is its type's URDF loaded with ``MjSpec.from_file`` and attached under the name
     prefix ``"<robot>/"`` at its ``base_xyz``, turned ``base_yaw_deg`` about z; every arm dof
@@ -163,13 +185,15 @@ def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> Worl
     # friction as a cone, not MuJoCo's faster pyramid: a pad sliding on the table under a
     # soft impedance chattered (lifting off 7 % of the time) with the pyramid's edges
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    _add_scenery(spec)
-    bar = _add_bar(spec, robots)
+    scene = scene or load_scene(DEFAULT_SCENE)
+    _add_scenery(spec, scene)
     for r, t in zip(robots, types, strict=True):
         _attach_arm(spec, r, t)
         _add_tool(spec, r)
         _add_motors(spec, r.name, t)
-        _add_weld(spec, r.name, bar, WELD_TIMECONST_STEPS * timestep)
+    for r in robots:  # after every arm's tool: weld k * graspable + g
+        for obj in scene.graspable:
+            _add_weld(spec, r.name, obj.name, WELD_TIMECONST_STEPS * timestep)
 
     try:
         model = spec.compile()
@@ -201,19 +225,30 @@ def build_world(robots: Sequence[RobotConfig], timestep: float = 0.0005) -> Worl
         sid = oid(mujoco.mjtObj.mjOBJ_SENSOR, f"{robot}/ft_force")
         return -1 if sid < 0 else int(model.sensor_adr[sid])
 
-    bar_body = oid(mujoco.mjtObj.mjOBJ_BODY, "object")
-    bar_joint = model.body_jntadr[bar_body]
+    free = [o.name for o in scene.free]
+    bodies = [oid(mujoco.mjtObj.mjOBJ_BODY, o) for o in free]
+    graspable = tuple(free.index(o.name) for o in scene.graspable)
+    sites = [(oid(mujoco.mjtObj.mjOBJ_SITE, f"{o.name}/grasp/{g.name}"), free.index(o.name))
+             for o in scene.graspable for g in o.grasps]  # fmt: skip
+    qpos = tuple(int(model.jnt_qposadr[model.body_jntadr[b]]) for b in bodies)
+    assert qpos == tuple(range(0, 7 * len(free), 7)), "the free objects' qpos lead, in order"
     return World(
         model=model,
         robots=names,
         qpos_adr=tuple(adr(model.jnt_qposadr, n) for n in names),
         dof_adr=tuple(adr(model.jnt_dofadr, n) for n in names),
         flange_site=tuple(oid(mujoco.mjtObj.mjOBJ_SITE, f"{n}/flange") for n in names),
-        grasp_site=tuple(oid(mujoco.mjtObj.mjOBJ_SITE, f"object/grasp_{n}") for n in names),
-        weld=tuple(oid(mujoco.mjtObj.mjOBJ_EQUALITY, f"{n}/grasp") for n in names),
-        object_body=bar_body,
-        object_qpos_adr=int(model.jnt_qposadr[bar_joint]),
-        object_dof_adr=int(model.jnt_dofadr[bar_joint]),
+        weld=tuple(
+            tuple(oid(mujoco.mjtObj.mjOBJ_EQUALITY, f"{n}/grasp/{o.name}") for o in scene.graspable)
+            for n in names
+        ),
+        objects=tuple(free),
+        object_body=tuple(bodies),
+        object_qpos_adr=qpos,
+        object_dof_adr=tuple(int(model.jnt_dofadr[model.body_jntadr[b]]) for b in bodies),
+        graspable=graspable,
+        grasp_site=tuple(site for site, _ in sites),
+        grasp_object=tuple(o for _, o in sites),
         motor=tuple(motors(n) for n in names),
         motor_act_adr=tuple(motors(n, model.actuator_actadr) for n in names),
         tool_body=tuple(oid(mujoco.mjtObj.mjOBJ_BODY, f"{n}/tool") for n in names),
@@ -230,9 +265,11 @@ def _yaw_quat(yaw_deg: float) -> list[float]:
     return [math.cos(half), 0.0, 0.0, math.sin(half)]
 
 
-def _add_scenery(spec: mujoco.MjSpec) -> None:
-    """Floor, light, the stand and the table (static, colliding; the table with the tools'
-    pads too)."""
+def _add_scenery(spec: mujoco.MjSpec, scene: Scene) -> None:
+    """Floor, light and the scene's objects, in its order, each a body of the world: a fixed
+    one colliding with the free ones (and the tools' pads unless they pass through it), a free
+    one on a free joint with its mass spread over its shape and a site at each of its
+    grasps."""
     world = spec.worldbody
     world.add_light(name="sun", pos=[0.0, -1.0, 3.0], dir=[0.0, 0.3, -1.0])
     world.add_geom(
@@ -241,86 +278,38 @@ def _add_scenery(spec: mujoco.MjSpec) -> None:
         size=[3.0, 3.0, 0.05],
         rgba=[0.55, 0.57, 0.6, 1.0],
     )
-    sx, sy, sz = STAND_SIZE
-    world.add_geom(
-        name="stand",
-        type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[sx / 2, sy / 2, sz / 2],
-        pos=[0.0, 0.0, sz / 2],
-        rgba=[0.45, 0.33, 0.22, 1.0],
+    for obj in scene.objects:
+        if obj.fixed:
+            _add_geom(world, obj, pos=list(obj.xyz), quat=list(obj.quat))
+            continue
+        body = world.add_body(name=obj.name, pos=list(obj.xyz), quat=list(obj.quat))
+        body.add_freejoint(name=obj.name)
+        _add_geom(body, obj)
+        for g in obj.grasps:
+            body.add_site(
+                name=f"{obj.name}/grasp/{g.name}",
+                pos=list(g.xyz),
+                quat=list(g.quat),
+                size=[0.01, 0.01, 0.01],
+                rgba=[0.1, 0.8, 0.2, 0.6],
+            )
+
+
+def _add_geom(parent: mujoco.MjsBody, obj: SceneObject, **placed: list[float]) -> None:
+    """Object ``obj``'s shape on ``parent`` (the world for a fixed one, at its pose)."""
+    kind, size = _MJ_SHAPE[obj.shape]
+    bits = 1 | TOOL_CONTACT if obj.tools_touch else 1
+    parent.add_geom(
+        name=obj.name,
+        type=kind,
+        size=size(obj.size),
+        contype=bits,
+        conaffinity=bits,
+        friction=[obj.friction, 0.005, 0.0001],
+        rgba=list(obj.color),
+        **({"mass": obj.mass} if not obj.fixed else {}),
+        **placed,
     )
-    tx, ty, tz = TABLE_SIZE
-    world.add_geom(
-        name="table",
-        type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[tx / 2, ty / 2, tz / 2],
-        pos=[*TABLE_CENTRE_XY, tz / 2],
-        contype=1 | TOOL_CONTACT,
-        conaffinity=1 | TOOL_CONTACT,
-        rgba=[0.62, 0.6, 0.55, 1.0],
-    )
-
-
-def _grasp_pose(robot: RobotConfig) -> tuple[list[float], list[float]]:
-    """A robot's grasp site in the bar frame (position, quaternion w x y z): above the bar
-    end nearer its base, z down.
-
-    The site's x axis points along the bar towards the robot's base, so a robot at yaw 0 on
-    the -x side and one at yaw 180 on the +x side reach their ends with the same joint
-    angles (the PUMA's ``θ6`` near +20° rather than -160°).  The robot's ``grasp_yaw_deg``
-    then turns the site about the bar's vertical through the grasp point, for an arm whose
-    last joint cannot turn the flange that way (the Panda's joint 7 stops at ±166°: 180
-    points its flange's x axis to the bar's middle, joint 7 near 0).
-    """
-    half = BAR_SIZE[0] / 2 - GRASP_INSET
-    if robot.base_xyz[0] <= 0.0:  # the -x end; x = -X, z = -Z: a half turn about Y
-        pos, quat = [-half, 0.0, GRASP_HEIGHT], np.array([0.0, 0.0, 1.0, 0.0])
-    else:  # the +x end; x = +X, z = -Z: a half turn about X
-        pos, quat = [half, 0.0, GRASP_HEIGHT], np.array([0.0, 1.0, 0.0, 0.0])
-    turned = np.empty(4)
-    mujoco.mju_mulQuat(turned, np.array(_yaw_quat(robot.grasp_yaw_deg)), quat)
-    return pos, [float(v) for v in turned]
-
-
-def grasp_in_bar(robot: RobotConfig) -> np.ndarray:
-    """Where ``robot``'s flange holds the bar, in the bar's frame (4×4): its grasp site.
-
-    A robot program carrying the bar uses these as its motion system's grasps, so the
-    object's pose is the bar's own.
-    """
-    pos, (w, x, y, z) = _grasp_pose(robot)
-    t = np.eye(4)
-    t[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    t[:3, 3] = pos
-    return t
-
-
-def _add_bar(spec: mujoco.MjSpec, robots: Sequence[RobotConfig]) -> mujoco.MjsBody:
-    """The carried object: a free square bar lying on the stand, with one grasp site per arm."""
-    lx, ly, lz = BAR_SIZE
-    body = spec.worldbody.add_body(name="object", pos=[0.0, 0.0, STAND_SIZE[2] + lz / 2])
-    body.add_freejoint(name="object")
-    body.add_geom(
-        name="object",
-        type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[lx / 2, ly / 2, lz / 2],
-        mass=BAR_MASS,
-        rgba=[0.85, 0.35, 0.1, 1.0],
-    )
-    for r in robots:
-        pos, quat = _grasp_pose(r)
-        body.add_site(
-            name=f"object/grasp_{r.name}",
-            pos=pos,
-            quat=quat,
-            size=[0.01, 0.01, 0.01],
-            rgba=[0.1, 0.8, 0.2, 0.6],
-        )
-    return body
 
 
 def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> None:
@@ -438,38 +427,19 @@ def _add_motors(spec: mujoco.MjSpec, robot: str, rtype: RobotType) -> None:
         act.actrange = [-float(d.max_current[j]), float(d.max_current[j])]
 
 
-def _add_weld(spec: mujoco.MjSpec, robot: str, bar: mujoco.MjsBody, timeconst: float) -> None:
-    """An inactive weld flange <-> bar; relpose starts as the ideal grasp (see World)."""
-    pos = None
-    quat = None
-    for site in bar.sites:
-        if site.name == f"object/grasp_{robot}":
-            pos, quat = np.array(site.pos), np.array(site.quat)
-    assert pos is not None and quat is not None, f"no grasp site for {robot}"
-    # bar in the site frame = inverse of the site's pose in the bar frame
-    qinv = np.empty(4)
-    mujoco.mju_negQuat(qinv, quat)
-    relpos = np.empty(3)
-    mujoco.mju_rotVecQuat(relpos, -pos, qinv)
+def _add_weld(spec: mujoco.MjSpec, robot: str, obj: str, timeconst: float) -> None:
+    """An inactive weld of ``robot``'s tool to object ``obj``; the plant writes its relpose
+    as it activates it (``World.activate_weld``)."""
     spec.add_equality(
-        name=f"{robot}/grasp",
+        name=f"{robot}/grasp/{obj}",
         type=mujoco.mjtEq.mjEQ_WELD,
         objtype=mujoco.mjtObj.mjOBJ_BODY,
         name1=f"{robot}/tool",
-        name2="object",
+        name2=obj,
         active=False,
-        data=[0.0, 0.0, 0.0, *relpos, *qinv, 1.0, 0.0],
+        data=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
         solref=[timeconst, 1.0],
     )
 
 
-__all__ = [
-    "BAR_MASS",
-    "BAR_SIZE",
-    "FLANGE_FRAME",
-    "STAND_SIZE",
-    "World",
-    "bar_rest_pose",
-    "build_world",
-    "load_pinocchio",
-]
+__all__ = ["FLANGE_FRAME", "World", "build_world", "load_pinocchio"]

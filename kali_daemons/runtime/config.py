@@ -37,12 +37,14 @@ from kali_daemons.core import layout
 from kali_daemons.core.errors import ConfigError
 from kali_daemons.core.joints import JointMap
 from kali_daemons.core.pyfile import mirror
+from kali_daemons.core.yamltext import parse_yaml
 from kali_daemons.hardware.ftsensor import SHEETS as FT_SHEETS
 from kali_daemons.hardware.ftsensor import FtSheet
 from kali_daemons.hardware.ftsensor import sheet as ft_sheet
 from kali_daemons.hardware.mcgill.boards import retrigger_hold_ticks
 from kali_daemons.hardware.registry import DEFAULT_KIND, KIND_NAME, hardware_kind, known_kinds
 from kali_daemons.robots import RobotType, is_type_file, known_types, robot_type
+from kali_daemons.robots.scene import DEFAULT_SCENE, Scene, load_scene
 from kali_daemons.servo.algorithms.algorithm import MAX_DATA_BYTES
 from kali_daemons.servo.algorithms.registry import Registry
 
@@ -69,8 +71,6 @@ NS_PER_MS = 1_000_000
 MAX_TIMEOUT_S = 600.0
 VIEWER_PERIOD_MS = 40
 MAX_CONFIG_BYTES = 1 << 20  # a config is a few KiB; /dev/zero or a log file is not one
-MAX_YAML_DEPTH = 32  # the deepest real config is 4 levels
-MAX_YAML_NODES = 100_000  # after alias expansion; the default config has ~600
 MAX_CONVEYOR_M_S = 0.5  # a faster belt is a units mistake
 # a rerun gRPC address: scheme, host (group 2) and port (group 3)
 GRPC_URL_RE = re.compile(r"rerun(\+https?)?://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})/proxy")
@@ -306,8 +306,9 @@ class PlantConfig:
     )
     conveyor_m_s: tuple[float, float] = _f(
         (0.0, 0.0),
-        "the stand's top is a conveyor belt carrying the bar at this velocity (world x, y; at "
-        f"most {MAX_CONVEYOR_M_S:g} m/s) while the first arm's I/O board runs it; [0, 0]: none",
+        "the stand's top is a conveyor belt carrying the scene's belt object at this velocity "
+        f"(world x, y; at most {MAX_CONVEYOR_M_S:g} m/s) while the first arm's I/O board runs "
+        "it; [0, 0]: none",
         "m/s",
     )
 
@@ -642,6 +643,9 @@ class ConfigFile:
         None, f"the arms in the cell, 1..{MAX_ROBOTS}; left out: config/default.yaml's"
     )
     plant: PlantConfig = PlantConfig()
+    scene: str | None = _f(
+        None, "the cell's world, a scene file (relative to this file); null: the shipped cell's"
+    )
     plugins: tuple[str, ...] = _plugins_field()
     tg_functions: tuple[str, ...] = _tg_functions_field()
     feedforward: FeedforwardConfig = FeedforwardConfig()
@@ -663,6 +667,7 @@ class KaliConfig:
     source: str = _f(doc="where the text came from, for messages")
     text: str = _f(doc="the config's text, as stored in the arena")
     plant: PlantConfig = PlantConfig()
+    scene: Scene = _f(load_scene(DEFAULT_SCENE), "the cell's world (robots.scene)")
     plugins: tuple[str, ...] = _plugins_field()
     tg_functions: tuple[str, ...] = _tg_functions_field()
     feedforward: FeedforwardConfig = FeedforwardConfig()
@@ -731,17 +736,7 @@ def parse_config(
     """
     if not isinstance(text, str):
         raise ConfigError(f"{source}: config text must be a str, not {type(text).__name__}")
-    try:
-        doc = yaml.load(text, Loader=_Loader)  # _Loader is a SafeLoader
-    except yaml.MarkedYAMLError as exc:
-        raise ConfigError(f"{source}: {_yaml_error_text(exc)}") from None
-    except yaml.reader.ReaderError as exc:  # a control character or bad code point
-        line = text.count("\n", 0, exc.position) + 1
-        code = exc.character if isinstance(exc.character, int) else ord(exc.character)
-        reason = f"character U+{code:04X} is not allowed in YAML"
-        raise ConfigError(f"{source}: line {line}: YAML does not parse: {reason}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{source}: YAML does not parse: {exc}") from None
+    doc = parse_yaml(text, source)
     base = os.path.abspath(base_dir or ".")
     try:
         cfg = _build(doc, source, text, base, files, instance)
@@ -834,6 +829,7 @@ def cell_of(
         hardware=tuple(
             dict.fromkeys(rec for kind in cfg.hardware_kinds for rec in hardware_kind(kind).records)
         ),
+        objects=len(cfg.scene.free),
     )
 
 
@@ -913,86 +909,6 @@ def period_ticks(period_ms: float, base_tick_ms: float, *, round_up: bool = Fals
             f"period {period_ms!r} ms is not a whole multiple of the {base_tick_ms!r} ms base tick"
         )
     return ticks
-
-
-# --------------------------------------------------------------------------------------------
-# YAML loading
-
-
-class _Loader(yaml.SafeLoader):
-    """A SafeLoader that rejects duplicate mapping keys (PyYAML silently keeps the last),
-    nesting deeper than MAX_YAML_DEPTH (Python's recursion limit would end it with a
-    traceback) and aliases expanding to more than MAX_YAML_NODES nodes ("billion laughs":
-    PyYAML shares aliased objects, but every walk of the document, an error message's
-    rendering of a value included, would visit each of the 10**9 leaves)."""
-
-    _depth = 0
-
-    def compose_node(self, parent: yaml.Node | None, index: Any) -> yaml.Node:
-        if self._depth >= MAX_YAML_DEPTH:
-            raise yaml.composer.ComposerError(
-                None,
-                None,
-                f"nested deeper than {MAX_YAML_DEPTH} levels",
-                self.peek_event().start_mark,
-            )
-        self._depth += 1
-        try:
-            return super().compose_node(parent, index)
-        finally:
-            self._depth -= 1
-
-    def compose_document(self) -> yaml.Node:
-        node = super().compose_document()
-        sizes: dict[int, int] = {}  # id(node) -> expanded size: an alias is its anchor's node
-
-        def size(n: yaml.Node) -> int:  # depth bounded by MAX_YAML_DEPTH
-            if id(n) not in sizes:
-                if isinstance(n, yaml.SequenceNode):
-                    children = n.value
-                elif isinstance(n, yaml.MappingNode):
-                    children = [c for pair in n.value for c in pair]
-                else:
-                    children = []
-                total = 1
-                for c in children:
-                    total += size(c)
-                    if total > MAX_YAML_NODES:
-                        raise yaml.composer.ComposerError(
-                            None,
-                            None,
-                            f"aliases expand to more than {MAX_YAML_NODES} nodes",
-                            n.start_mark,
-                        )
-                sizes[id(n)] = total
-            return sizes[id(n)]
-
-        if node is not None:
-            size(node)
-        return node
-
-    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[Any, Any]:
-        seen: set[tuple[str, str]] = set()
-        if isinstance(node, yaml.MappingNode):
-            for key_node, _ in node.value:
-                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag.endswith(":merge"):
-                    continue
-                ident = (key_node.tag, key_node.value)
-                if ident in seen:
-                    raise yaml.constructor.ConstructorError(
-                        None, None, f"duplicate key {key_node.value!r}", key_node.start_mark
-                    )
-                seen.add(ident)
-        return super().construct_mapping(node, deep=deep)
-
-
-def _yaml_error_text(exc: yaml.MarkedYAMLError) -> str:
-    """``line L, column C: YAML does not parse: <problem>`` (1-based, as editors count)."""
-    mark = exc.problem_mark or exc.context_mark
-    problem = exc.problem or exc.context or "syntax error"
-    if mark is None:
-        return f"YAML does not parse: {problem}"
-    return f"line {mark.line + 1}, column {mark.column + 1}: YAML does not parse: {problem}"
 
 
 # --------------------------------------------------------------------------------------------
@@ -1290,7 +1206,7 @@ def _read(
 def _shipped() -> dict[str, Any]:
     """``DEFAULT_FILE``'s document: its ``processes`` and ``robots`` are those of a file that
     leaves them out."""
-    return yaml.load(DEFAULT_FILE.read_text(encoding="utf-8"), Loader=_Loader)
+    return parse_yaml(DEFAULT_FILE.read_text(encoding="utf-8"), str(DEFAULT_FILE))
 
 
 # --------------------------------------------------------------------------------------------
@@ -1343,6 +1259,14 @@ def _build(
     plant_period = next(
         (p.period_ms for p in processes if p.kind == "plant"), clock.base_tick_ms
     )
+    plant = _plant(doc.get("plant", {}), plant_period, clock.servo_period_ms)
+    scene = _scene(top["scene"], base_dir, files)
+    if any(plant.conveyor_m_s) and scene.belt is None:
+        _fail(
+            "plant.conveyor_m_s",
+            list(plant.conveyor_m_s),
+            f"a belt needs an object to carry: the scene ({scene.source}) names none (belt)",
+        )
     return KaliConfig(
         version=CONFIG_VERSION,
         instance=top["instance"],
@@ -1353,7 +1277,8 @@ def _build(
         robots=robots,
         source=source,
         text=text,
-        plant=_plant(doc.get("plant", {}), plant_period, clock.servo_period_ms),
+        plant=plant,
+        scene=scene,
         plugins=_plugins(top["plugins"], "plugins"),
         tg_functions=_plugins(top["tg_functions"], "tg_functions"),
         feedforward=FeedforwardConfig(
@@ -1364,6 +1289,19 @@ def _build(
         base_dir=base_dir,
         files=files,
     )
+
+
+def _scene(node: Any, base_dir: str, files: str) -> Scene:
+    """``scene``: the scene file it names, or the shipped cell's.  A running instance reads
+    its copy under ``files`` (a user's file is copied at start; Kali's own are not); the
+    scene's own errors name the file."""
+    if node is None:
+        return load_scene(DEFAULT_SCENE)
+    if files and isinstance(node, str):
+        copy = mirror(files, Path(os.path.realpath(os.path.join(base_dir, node))))
+        if copy.is_file():
+            return load_scene(copy)
+    return load_scene(_file(node, "scene", base_dir))
 
 
 def _plugins(node: Any, path: str) -> tuple[str, ...]:
@@ -1967,6 +1905,7 @@ def resolved(cfg: KaliConfig) -> dict[str, Any]:
         doc[name] = _plain(getattr(cfg, name))
     doc["processes"] = processes
     doc["robots"] = robots
+    doc["scene"] = cfg.scene.source  # the file it was read from, absolute
     return doc
 
 

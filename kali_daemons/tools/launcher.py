@@ -43,7 +43,7 @@ from ..core.errors import ArenaError, ConfigError, InstanceError
 from ..core.layout import ProcState, RunMode
 from ..core.spinlock import holder_text, pid_alive
 from ..hardware import hardware_kind
-from ..robots.cell import check_clear_at_rest
+from ..robots.cell import check_clear_at_rest, check_scene_apart
 from ..runtime.config import KaliConfig, cell_of, ms_to_ns, ns_to_ms
 from ..runtime.instance import Instance, all_semaphore_names, check_instance_name, decode
 from ..runtime.paths import instance_dir, log_dir, private_dir, private_log_dir, runtime_dir
@@ -495,6 +495,7 @@ def start(
     t_start = time.monotonic()
     registry = _check_servos(cfg)
     check_clear_at_rest(cfg)  # arms standing in each other: refused before anything runs
+    check_scene_apart(cfg.scene)  # and fixtures
     record_path = _record_path(cfg, record)
     with lifecycle_lock(name, "start"):
         return _start(cfg, name, lockstep, record_path, t_start, registry, separate)

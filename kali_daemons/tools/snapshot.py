@@ -1,12 +1,13 @@
 """The user files an instance runs on: copies taken once, at ``kalictl start``.
 
 Each robot type file the config names (``robots[].model: arm.py``) with its URDF and the
-meshes that URDF names, each servo plugin file and each TG function plugin file is copied into
-the instance's directory (``paths.instance_dir``), at its absolute path below ``files/``
-(``pyfile.mirror``), so a file that finds its URDF beside itself (``Path(__file__).with_name``)
-finds the copy.  Every process of the instance, every program and every kalictl command then
-loads the copies (``KaliConfig.files``): moving, editing or breaking a file after start changes
-nothing until the next start.  The config's own text is in the arena.
+meshes that URDF names, its scene file, each servo plugin file and each TG function plugin
+file is copied into the instance's directory (``paths.instance_dir``), at its absolute path
+below ``files/`` (``pyfile.mirror``), so a file that finds its URDF beside itself
+(``Path(__file__).with_name``) finds the copy.  Every process of the instance, every program
+and every kalictl command then loads the copies (``KaliConfig.files``): moving, editing or
+breaking a file after start changes nothing until the next start.  The config's own text is
+in the arena.
 
 A robot type that names its URDF by an absolute path outside the copies would read the file
 where it is, so it is refused, naming the path.  Outside any cycle.
@@ -41,7 +42,7 @@ def _users(path: Path) -> bool:
 
 def user_files(cfg: KaliConfig) -> list[Path]:
     """The files ``cfg`` loads from outside Kali, absolute, each once: its robot type files,
-    their URDFs and meshes, its servo and TG function plugin files."""
+    their URDFs and meshes, its scene file, its servo and TG function plugin files."""
     found: dict[Path, None] = {}
     for r in cfg.robots:
         if is_type_file(r.model):
@@ -49,6 +50,9 @@ def user_files(cfg: KaliConfig) -> list[Path]:
             urdf = Path(r.type.urdf).resolve()
             for path in (urdf, *_meshes(urdf)):
                 found[path] = None
+    scene = Path(cfg.scene.source).resolve()
+    if _users(scene):
+        found[scene] = None
     base = Path(cfg.base_dir)
     for spec in (*cfg.plugins, *cfg.tg_functions):
         plugin = plugin_file(spec, base)

@@ -21,15 +21,8 @@ from ..core import layout
 from ..core.errors import DaemonError
 from ..core.layout import ProcState
 from ..robots import RobotType
-from ..robots.cell import (
-    BAR_SIZE,
-    FLANGE_FRAME,
-    STAND_SIZE,
-    TABLE_CENTRE_XY,
-    TABLE_SIZE,
-    base_transform,
-    load_pinocchio,
-)
+from ..robots.cell import FLANGE_FRAME, base_transform, load_pinocchio
+from ..robots.scene import SceneObject
 from ..runtime.config import KaliConfig
 from ..runtime.instance import decode, time_ms
 
@@ -50,9 +43,6 @@ JOINT_COLORS = np.array(  # one per joint an arm may have (layout.MAX_JOINTS)
     dtype=np.uint8,
 )
 DEMAND_COLORS = (JOINT_COLORS // 2 + 128).astype(np.uint8)  # the same hue, paler
-STAND_COLOR = (115, 84, 56)  # as the plant's cell (model.py)
-TABLE_COLOR = (158, 153, 140)
-BAR_COLOR = (217, 89, 26)
 AXIS_COLORS = JOINT_COLORS[[0, 3, 4]]  # x y z, roll pitch yaw; fx fy fz
 PALE_AXIS_COLORS = DEMAND_COLORS[[0, 3, 4]]  # tx ty tz: beside the force in one plot
 # the contact arrow: 1 cm per newton, so the 150 N contact limit (FtConfig) is 1.5 m long
@@ -263,6 +253,7 @@ class Dashboard:
         self.sensed = has_sensor(cfg)
         # the tool point, where SIO gives the contact wrench: tool_tip_m out along the flange's z
         self.tips = [np.array([0.0, 0.0, r.ft.tool_tip_m]) for r in cfg.robots]
+        self.free = [o.name for o in cfg.scene.free]  # the objects whose truth it draws
         self.base_rot_t = [b.rotation.T.copy() for b in self.bases]  # world axes → base axes
 
     def attach(self) -> None:
@@ -273,7 +264,9 @@ class Dashboard:
         self.robots = arena.existing(layout.KEY_ROBOTS, layout.ROBOT_STATE, n)
         self.joints = arena.existing(layout.KEY_JOINTS, layout.JOINT_STATE, self.joint_map.total)
         self.ctrl = arena.existing(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
-        self.world = arena.existing(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+        self.objects = arena.existing(
+            layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, len(self.free)
+        )["pose"]
         # the wrist sensors (kalictl start lays a record out for every robot, sensor or not)
         self.ft = (
             arena.existing(layout.KEY_FT, layout.FT_STATE, n)
@@ -294,33 +287,13 @@ class Dashboard:
         """What never changes: the cell, the arms' shape sizes, series names and colours."""
         rec = self.rec
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        sx, sy, sz = STAND_SIZE
-        rec.log(
-            "world/stand",
-            rr.Boxes3D(
-                half_sizes=[(sx / 2, sy / 2, sz / 2)],
-                centers=[(0.0, 0.0, sz / 2)],
-                colors=[STAND_COLOR],
-                fill_mode="solid",
-            ),
-            static=True,
-        )
-        tx, ty, tz = TABLE_SIZE
-        rec.log(
-            "world/table",
-            rr.Boxes3D(
-                half_sizes=[(tx / 2, ty / 2, tz / 2)],
-                centers=[(*TABLE_CENTRE_XY, tz / 2)],
-                colors=[TABLE_COLOR],
-                fill_mode="solid",
-            ),
-            static=True,
-        )
-        rec.log(
-            "world/object",
-            rr.Boxes3D(half_sizes=[np.array(BAR_SIZE) / 2], colors=[BAR_COLOR], fill_mode="solid"),
-            static=True,
-        )
+        for obj in self.inst.config.scene.objects:  # a free one's pose each frame
+            if obj.fixed:
+                w, x, y, z = obj.quat
+                placed = rr.Transform3D(translation=obj.xyz, quaternion=(x, y, z, w))  # type: ignore[arg-type]
+                rec.log(f"world/{obj.name}", _shape(obj), placed, static=True)
+            else:
+                rec.log(f"world/{obj.name}", _shape(obj), static=True)
         for p, base, arm, n, sensed in zip(
             self.paths, self.bases, self.arms, self.joint_map.counts, self.sensed, strict=True
         ):
@@ -426,11 +399,12 @@ class Dashboard:
                         origins=[flange.act(self.tips[k])], vectors=[force * CONTACT_M_PER_N]
                     ),
                 )
-        pose = self.world["object_pose"]
-        if pose[3:] @ pose[3:] > 0.5:  # a unit quaternion once the plant has written it
-            w, x, y, z = pose[3:]
-            # rerun types QuaternionLike as its Quaternion only; it takes the four (x, y, z, w)
-            rec.log("world/object", rr.Transform3D(translation=pose[:3], quaternion=(x, y, z, w)))  # type: ignore[arg-type]
+        for name, pose in zip(self.free, self.objects, strict=True):
+            if pose[3:] @ pose[3:] > 0.5:  # a unit quaternion once the plant has written it
+                w, x, y, z = pose[3:]
+                # rerun types QuaternionLike as its Quaternion only; it takes (x, y, z, w)
+                placed = rr.Transform3D(translation=pose[:3], quaternion=(x, y, z, w))  # type: ignore[arg-type]
+                rec.log(f"world/{name}", placed)
         self._timing()
         self._events()
 
@@ -512,3 +486,22 @@ class Dashboard:
                 text = f"{self.names[k]}: {decode(messages[k])}"
                 rec.log(self.paths[k].events, rr.TextLog(text, level=rr.TextLogLevel.INFO))
             self._messages[:] = messages
+
+
+def _shape(obj: SceneObject) -> Any:
+    """A scene object's shape as rerun draws it, about its own frame."""
+    colour = [round(255 * c) for c in obj.color]
+    size = obj.size
+    if obj.shape == "box":
+        half = [v / 2 for v in size]
+        return rr.Boxes3D(half_sizes=[half], colors=[colour], fill_mode="solid")
+    if obj.shape == "sphere":
+        return rr.Ellipsoids3D(half_sizes=[[size[0]] * 3], colors=[colour], fill_mode="solid")
+    if obj.shape == "cylinder":  # rerun's run along z from its centre: as the scene's
+        return rr.Cylinders3D(
+            lengths=[size[1]], radii=[size[0]], centers=[[0.0, 0.0, 0.0]], colors=[colour]
+        )
+    # a capsule: rerun's starts at its frame and runs its length along +z
+    return rr.Capsules3D(
+        lengths=[size[1]], radii=[size[0]], translations=[[0.0, 0.0, -size[1] / 2]], colors=[colour]
+    )

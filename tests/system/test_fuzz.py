@@ -5,8 +5,8 @@ ever dies of it.
 The rule the client library keeps, checked here: a bad argument is a ``KaliError`` subclass
 (MotionError for motion requests, ServoError for the servo level, ConfigError for a config,
 ChannelError for a raw queue record) whose message names the argument; TypeError, ValueError
-and friends never escape.  ``MotionHandle.wait`` may also raise TimeoutError, its documented
-answer for a request not done in time.
+and friends never escape.  ``MotionHandle.wait`` (and a move that waits, ``wait=True``) may
+also raise TimeoutError, its documented answer for a request not done in time.
 
 - the config: ``parse_config`` on the default file with one field replaced by arbitrary YAML
   values, removed or given an extra key, and on mangled and random text;
@@ -419,6 +419,9 @@ def test_every_client_call_with_any_argument_is_accepted_or_a_kali_error(
     except KaliError as exc:
         event(f"{name}: {type(exc).__name__}")
         assert re.match(r"^[a-z]+: ", str(exc)), str(exc)  # subsystem: message
+    except TimeoutError:  # a call that waits for its request: MotionHandle.wait's answer
+        assert name.endswith(", wait"), name
+        event(f"{name}: TimeoutError")
     step_kali_clock(live.inst, 2)
     assert not int(live.inst.fault["active"]), live.inst.fault_text()
 

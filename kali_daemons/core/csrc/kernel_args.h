@@ -297,20 +297,24 @@ typedef struct {
 /* PlantTruthArgs (plant): kali_plant_truth */
 typedef struct {
     int64_t n; /* arms */
-    const uint8_t *eq_active; /* MuJoCo's: weld k is arm k's */
+    int64_t welds; /* graspable objects: arm k's weld of the g-th is k * welds + g */
+    const uint8_t *eq_active; /* MuJoCo's: the welds, n x welds */
+    const int64_t *graspable; /* welds: the g-th graspable's index among the objects */
     uint8_t *held; /* n, bool */
+    int64_t *held_object; /* n: the object arm k holds, -1 none */
     const double *weld; /* n x 6: the rows _weld_forces copied */
-    View grasped; /* uint8, per arm record */
+    View grasped, holding; /* uint8 and int8, per arm record */
     View grasp_wrench, ft_wrench, push; /* each record's field (6, 6, 3 doubles) */
     const double *ft_true; /* n x 6 */
     const double *xfrc; /* MuJoCo's xfrc_applied, 6 a body */
     const int64_t *tool_body; /* n */
     const double *site_xpos; /* 3 a site */
-    const int64_t *grasp_site; /* n */
-    const double *object_qpos; /* 7 */
+    const int64_t *grasp_site; /* n: the grasp each arm took hold at */
+    int64_t objects; /* the free objects */
+    const double *object_qpos; /* 7 an object: MuJoCo's first qpos */
     int64_t *sim_time_ns;
     uint64_t *ticks;
-    double *object_pose; /* 7 */
+    double *object_pose; /* 7 an object: its truth records */
     double *internal_force;
     int64_t sim_ns, cycles, welds_read;
 } PlantTruthArgs;
@@ -1089,10 +1093,14 @@ static const Field PlantIoArgs_LAYOUT[] = {
 
 static const Field PlantTruthArgs_LAYOUT[] = {
     LAYOUT(PlantTruthArgs, n),
+    LAYOUT(PlantTruthArgs, welds),
     LAYOUT(PlantTruthArgs, eq_active),
+    LAYOUT(PlantTruthArgs, graspable),
     LAYOUT(PlantTruthArgs, held),
+    LAYOUT(PlantTruthArgs, held_object),
     LAYOUT(PlantTruthArgs, weld),
     LAYOUT(PlantTruthArgs, grasped),
+    LAYOUT(PlantTruthArgs, holding),
     LAYOUT(PlantTruthArgs, grasp_wrench),
     LAYOUT(PlantTruthArgs, ft_wrench),
     LAYOUT(PlantTruthArgs, push),
@@ -1101,6 +1109,7 @@ static const Field PlantTruthArgs_LAYOUT[] = {
     LAYOUT(PlantTruthArgs, tool_body),
     LAYOUT(PlantTruthArgs, site_xpos),
     LAYOUT(PlantTruthArgs, grasp_site),
+    LAYOUT(PlantTruthArgs, objects),
     LAYOUT(PlantTruthArgs, object_qpos),
     LAYOUT(PlantTruthArgs, sim_time_ns),
     LAYOUT(PlantTruthArgs, ticks),

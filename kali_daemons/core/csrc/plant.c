@@ -234,12 +234,13 @@ int64_t kali_plant_joints(PlantIoArgs *a) {
  *
  * The arms' and the world's truth after each plant cycle (plant/sim.py's
  * PlantSim._write_truth_reference, step for step; the joints' truth and the boards' flags are
- * kali_copy's and kali_boards_truth's): whether each arm grasps (its weld active), the weld's
- * force and torque on the object, each wrist sensor's true wrench, each push on a tool, the
- * simulated time and cycles, the object's pose and the squeeze between the first two grasps.
- * A weld's rows are in MuJoCo's constraint arrays, which move as contacts come and go: while
- * one is active the kernel returns 1 before writing anything, the plant copies the rows
- * (_weld_forces) and calls it again with welds_read set. */
+ * kali_copy's and kali_boards_truth's): whether each arm grasps (one of its welds active) and
+ * which object, the weld's force and torque on the object, each wrist sensor's true wrench,
+ * each push on a tool, the simulated time and cycles, every free object's pose and the
+ * squeeze between the first two grasps of one object.  A weld's rows are in MuJoCo's
+ * constraint arrays, which move as contacts come and go: while one is active the kernel
+ * returns 1 before writing anything, the plant copies the rows (_weld_forces) and calls it
+ * again with welds_read set. */
 
 #define ROW(v, k) ((double *)((v).p + (int64_t)(k) * (v).stride))
 
@@ -247,7 +248,7 @@ static double internal_force(const PlantTruthArgs *a) {
     int64_t first = -1, second = -1;
     for (int64_t k = 0; k < a->n; k++) {
         if (a->held[k] && first < 0) first = k;
-        else if (a->held[k]) { second = k; break; }
+        else if (a->held[k] && a->held_object[k] == a->held_object[first]) { second = k; break; }
     }
     if (second < 0) return 0.0;
     const double *pa = a->site_xpos + 3 * a->grasp_site[first];
@@ -262,7 +263,17 @@ static double internal_force(const PlantTruthArgs *a) {
 
 int64_t kali_plant_truth(PlantTruthArgs *a) {
     int any = 0;
-    for (int64_t k = 0; k < a->n; k++) any |= a->held[k] = a->eq_active[k] != 0;
+    for (int64_t k = 0; k < a->n; k++) {
+        a->held[k] = 0;
+        a->held_object[k] = -1;
+        for (int64_t g = 0; g < a->welds; g++) {
+            if (a->eq_active[k * a->welds + g]) {
+                a->held[k] = 1;
+                a->held_object[k] = a->graspable[g];
+            }
+        }
+        any |= a->held[k];
+    }
     if (any && !a->welds_read) return 1;
     a->welds_read = 0;
     for (int64_t k = 0; k < a->n; k++) {
@@ -271,13 +282,14 @@ int64_t kali_plant_truth(PlantTruthArgs *a) {
         const double *xfrc = a->xfrc + 6 * a->tool_body[k]; /* MuJoCo's 6 a body */
         for (int c = 0; c < WRENCH; c++) wrench[c] = a->held[k] ? a->weld[WRENCH * k + c] : 0.0;
         AT(uint8_t, a->grasped, k) = a->held[k];
+        AT(int8_t, a->holding, k) = (int8_t)a->held_object[k];
         for (int c = 0; c < WRENCH; c++) ft[c] = a->ft_true[WRENCH * k + c];
         for (int c = 0; c < 3; c++) push[c] = xfrc[c];
     }
     *a->sim_time_ns = a->sim_ns;
     *a->ticks = (uint64_t)a->cycles;
     *a->internal_force = internal_force(a);
-    memcpy(a->object_pose, a->object_qpos, 7 * sizeof(double));
+    memcpy(a->object_pose, a->object_qpos, (size_t)(7 * a->objects) * sizeof(double));
     return 0;
 }
 
