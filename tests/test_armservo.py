@@ -509,7 +509,7 @@ def test_the_model_s_tool_pose_is_pinocchio_s_tool_frame_in_the_world(
     rng = np.random.default_rng(7)
     for robot in cfg.robots:
         inp = ArmInput(robot.n_joints, 0.001, robot.name)
-        model = ArmModel(robot, inp)
+        model = ArmModel(robot, inp, np.zeros((), layout.LOAD))  # holding nothing
         base_t = base_pose(robot.base_xyz, robot.base_yaw_deg)
         for _ in range(20):
             inp.q[:], inp.q_d[:] = rng.uniform(-2.5, 2.5, (2, robot.n_joints))

@@ -78,6 +78,7 @@ def test_a_mixed_cell_gets_rows_as_wide_as_each_arm(arena: Arena) -> None:
     own type's, and its servos' k_v are read from its own slots (flat base[k] + j)."""
     cfg = make_config("mixed", MIXED)
     arena.record(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, 2)  # as SIO lays it out
+    arena.record(layout.KEY_LOADS, layout.LOAD, 2)  # as kalictl start does
     dyn = Dynamics(cfg.instance, "dynamics")
     dyn.load(cfg)
     dyn.attach(cfg, arena)
@@ -118,6 +119,7 @@ def test_a_motions_last_set_point_gets_its_resting_row_as_soon_as_it_is_pushed(
     written with the others; an unmarked newest set-point still waits for its successor."""
     cfg = make_config("rests", None)
     arena.record(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, 2)  # as SIO lays it out
+    arena.record(layout.KEY_LOADS, layout.LOAD, 2)  # as kalictl start does
     dyn = Dynamics(cfg.instance, "dynamics")
     dyn.load(cfg)
     dyn.attach(cfg, arena)

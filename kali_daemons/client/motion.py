@@ -41,6 +41,7 @@ from ..core.layout import TERMINAL_STATES, CalibState, MotionKind, PowerState, R
 from ..core.spinlock import pid_alive
 from ..robots import RobotType
 from ..robots.cell import FLANGE_FRAME, base_transform, inverse, load_pinocchio
+from ..robots.payload import write_load
 from ..robots.scene import Scene
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import log_dir
@@ -344,14 +345,24 @@ class Robot:
                 )
             self.kali.pause()
 
-    def grip(self, close: bool = True, timeout: float | None = GRIP_TIMEOUT_S) -> None:
+    def grip(
+        self,
+        close: bool = True,
+        timeout: float | None = GRIP_TIMEOUT_S,
+        holding: str | None = None,
+    ) -> None:
         """Close (or open) the gripper, through the robot's hardware: on the McGill board its
         output line, set at once (the plant welds a closing gripper to the object if the
         flange is within reach of its grasp); on an FR3 its Franka Hand, waited for until
-        it reports its outcome (MotionFailedError if it failed, or ``timeout`` s passed)."""
+        it reports its outcome (MotionFailedError if it failed, or ``timeout`` s passed).
+        ``holding``: the scene's object it closes on, whose mass and inertia the arm's model
+        then carries (``set_load``, at the arm's grasp of it); opening lets go of any load."""
         what = f"grip: robot '{self.name}'"
         close = _flag_arg(what, "close", close)
         limit = _timeout_arg(what, timeout)
+        if holding is not None and not close:
+            raise MotionError(f"{what}: holding {holding!r} names what it closes on; open alone")
+        load = None if holding is None else self.kali.held_load(what, holding, [self])[0][0]
         hw = self.kali.inst.hardware(self.index)
         ticket = hw.grip(self.index, close)
         deadline = time.monotonic() + (math.inf if limit is None else limit)
@@ -365,6 +376,32 @@ class Robot:
         if ticket and not ok:
             verb = "closing" if close else "opening"
             raise MotionFailedError(f"{what}: the gripper reports its {verb} failed")
+        if load is not None:
+            self.set_load(*load)
+        elif not close:
+            self.set_load(0.0)
+
+    def set_load(
+        self,
+        mass: float,
+        com: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
+        inertia: np.ndarray | None = None,
+    ) -> None:
+        """What this arm holds beyond its configured tool (libfranka's ``setLoad``): ``mass``
+        (kg) at ``com`` (its centre of mass in the flange frame, m) with ``inertia`` about it
+        (flange axes, kg·m²; None: a point mass).  The dynamics process's feed-forward and
+        the robot-level servos' model carry it from their next cycle; 0 kg: nothing held.
+        ServoError, nothing changed, for a value out of bounds."""
+        what = f"set_load: robot '{self.name}'"
+        kg = _speed_arg(what, "mass", mass)
+        at = _real_array(f"{what}: com", com, "3 numbers (m)")
+        spread = (
+            np.zeros((3, 3))
+            if inertia is None
+            else _real_array(f"{what}: inertia", inertia, "a 3×3 inertia (kg·m²)")
+        )
+        record = self.kali.loads[self.index : self.index + 1].reshape(())
+        write_load(record, kg, at, spread, what)
 
     def read_wrench(self, frame: str = "world") -> np.ndarray:
         """The arm's wrist force/torque sensor in Newtons (SIO's, this tick), a copy
@@ -978,6 +1015,7 @@ class Kali:
             )
             self.leases = arena.record(layout.KEY_TG_LEASES, layout.LEASE, len(self.servo.names))
             self.ft = arena.record(layout.KEY_FT, layout.FT_STATE, len(self.servo.names))
+            self.loads = arena.record(layout.KEY_LOADS, layout.LOAD, len(self.servo.names))
             self.frames = arena.record(layout.KEY_TG_FRAMES, layout.SHARED_FRAME, layout.MAX_FRAMES)
             self.functions = arena.record(
                 layout.KEY_TG_FUNCTIONS, layout.TG_FUNCTION, layout.MAX_FUNCTIONS
@@ -1094,6 +1132,24 @@ class Kali:
         grasps."""
         return self.inst.config.scene
 
+    def held_load(
+        self, what: str, holding: str, robots: Sequence[Robot]
+    ) -> list[tuple[tuple[float, np.ndarray, np.ndarray], np.ndarray]]:
+        """Per arm of ``robots`` holding the scene's object ``holding`` together: its share
+        of the object's load (mass, centre of mass, inertia: ``set_load``'s arguments) and its
+        grasp (the flange in the object's frame).  MotionError naming the scene's objects for
+        one it does not have."""
+        try:
+            obj = self.scene.object(holding) if isinstance(holding, str) else None
+            if obj is None:
+                raise ConfigError(f"{holding!r} is not an object's name")
+            cfgs = self.inst.config.robots
+            grasps = [self.scene.grasp_for(holding, cfgs[r.index]) for r in robots]
+        except ConfigError as exc:
+            raise MotionError(f"{what}: holding {holding!r}: {exc}") from None
+        share = 1.0 / len(robots)
+        return [(obj.load_on(grasp, share), grasp) for grasp in grasps]
+
     def motion_system(
         self,
         names: Sequence[str],
@@ -1102,20 +1158,19 @@ class Kali:
     ) -> MotionSystem:
         """Arms ``names`` holding one object.  ``grasps[k]`` is arm k's flange in the
         object's frame; ``holding`` (an object of the scene, by name) takes each arm's from the
-        scene (``Scene.grasp_for``); neither takes them from where the arms are now (their
-        set-points), with the object's frame at the first arm's tool."""
+        scene (``Scene.grasp_for``) and sets each arm's load to its share of the object's mass
+        and inertia (``Robot.set_load``: the arms hold it now); neither takes them from where
+        the arms are now (their set-points), with the object's frame at the first arm's tool."""
         robots = [self.robot(n) for n in _list_arg("motion_system", "names", names)]
         if not robots or len({r.index for r in robots}) != len(robots):
             raise MotionError(f"motion_system: {list(names)}: name each arm once, at least one")
         if holding is not None:
             if grasps is not None:
                 raise MotionError("motion_system: give grasps or the object held, not both")
-            try:
-                cfgs = self.inst.config.robots
-                grasps = [self.scene.grasp_for(holding, cfgs[r.index]) for r in robots]
-            except ConfigError as exc:
-                raise MotionError(f"motion_system: holding {holding!r}: {exc}") from None
-            return MotionSystem(self, robots, grasps, holding)
+            loads = self.held_load("motion_system", holding, robots)
+            for robot, (load, _) in zip(robots, loads, strict=True):
+                robot.set_load(*load)  # each its share: they hold it together
+            return MotionSystem(self, robots, [grasp for _, grasp in loads], holding)
         if grasps is None:  # from the set-points the TG starts from, not the sagging arms
             flanges = [r.base @ r.type.kinematics.fkine(self.start_point(r.index)) for r in robots]
             obj = flanges[0] @ robots[0].tool

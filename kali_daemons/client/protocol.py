@@ -166,6 +166,7 @@ METHODS: dict[str, frozenset[str]] = {
             "tare",
             "joints_at",
             "set_tool",
+            "set_load",
             "move_line",
             "move_arc",
             "move_path",

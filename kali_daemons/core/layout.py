@@ -905,6 +905,7 @@ IMPEDANCE_DTYPE = np.dtype(
 # process's own timing.
 
 KEY_FEEDFORWARD = "dyn.ff"  # FEEDFORWARD per robot, config order
+KEY_LOADS = "robots.loads"  # LOAD per robot, config order
 FF_ROWS = 512  # rows per robot: every set-point a full FIFO holds, and the two being used
 FF_NO_KEY = 0xFFFFFFFFFFFFFFFF  # ``key`` of a row not (or being) written
 # A row's key is 1 + the FIFO index of its set-point: the set-point SIO holds before any was
@@ -945,6 +946,20 @@ FEEDFORWARD = np.dtype(
         ("tau", "<f8", (FF_ROWS, MAX_JOINTS)),  # dynamics: feed-forward torque there, N·m
         ("qd", "<f8", (FF_ROWS, MAX_JOINTS)),  # dynamics: the demand's velocity there, rad/s
         ("qdd", "<f8", (FF_ROWS, MAX_JOINTS)),  # dynamics: its acceleration, rad/s²
+    ],
+    align=True,
+)
+
+# What an arm holds beyond its configured tool (libfranka's setLoad; robots.payload): the
+# program moving the arm writes it whole (a seqlock: ``seq`` odd while it writes), the
+# dynamics process's feed-forward and the robot-level servos' model carry it.
+LOAD = np.dtype(
+    [
+        ("seq", "<u4"),  # writer: odd while it writes the rest, even when whole
+        ("_pad", "<u4"),
+        ("mass", "<f8"),  # kg
+        ("com", "<f8", (3,)),  # its centre of mass, flange frame, m
+        ("inertia", "<f8", (3, 3)),  # about the centre of mass, flange axes, kg·m²
     ],
     align=True,
 )
@@ -1465,6 +1480,7 @@ RECORDS: tuple[Record, ...] = (
         "SVs",
     ),
     Record(KEY_FEEDFORWARD, FEEDFORWARD, lambda c, i: len(c.robots), "dynamics, SIO", "SIO"),
+    Record(KEY_LOADS, LOAD, lambda c, i: len(c.robots), "the arm's program", "dynamics, SVs"),
     Record(KEY_FLIGHT, FLIGHT, None, "SIO, the wallclock (dumps)", "kalictl flight"),
     Record(
         KEY_FLIGHT_RING,

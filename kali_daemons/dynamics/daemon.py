@@ -26,6 +26,7 @@ from ..core.channels import InterpolatingFifo
 from ..core.errors import DaemonError
 from ..core.layout import FfMode
 from ..robots.inverse import InverseDynamics, central_differences
+from ..robots.payload import HeldLoad
 from ..runtime.config import KaliConfig, ms_to_ns
 from ..runtime.daemon import Daemon
 from ..servo import loading
@@ -87,14 +88,11 @@ class Dynamics(Daemon):
     def load(self, cfg: KaliConfig) -> None:
         """Each robot type's model and each robot's scratch, its joint count wide (outside
         the cycle)."""
-        models: dict[tuple, InverseDynamics] = {}  # one per robot type, tool and gravity
-        self.inverse = []
+        self.inverse = []  # one per robot: each carries its own load
         for r in cfg.robots:
             tool = (r.ft.tool_mass_kg, r.ft.tool_com_m)
-            key = (r.model, tool, r.holds_gravity)
-            if key not in models:
-                models[key] = InverseDynamics(r.type, tool, gravity=not r.holds_gravity)
-            self.inverse.append(models[key])
+            self.inverse.append(InverseDynamics(r.type, tool, gravity=not r.holds_gravity))
+        self.held = [HeldLoad(inverse.model) for inverse in self.inverse]
         self.n_robots = len(cfg.robots)
         self.joint_map = cfg.joints  # robot k's joint j: flat index (servo slot) base[k] + j
         self.servo_period_s = cfg.clock.servo_period_ms / 1000.0
@@ -111,6 +109,8 @@ class Dynamics(Daemon):
             for r in cfg.robots
         ]
         self.ff = arena.existing(layout.KEY_FEEDFORWARD, layout.FEEDFORWARD, self.n_robots)
+        loads = arena.existing(layout.KEY_LOADS, layout.LOAD, self.n_robots)
+        self.loads = [loads[k : k + 1].reshape(()) for k in range(self.n_robots)]
         # per robot: its columns of every row's q and tau, (FF_ROWS, n_joints) views
         counts = self.joint_map.counts
         self._ff_q = [self.ff["q"][k, :, :n] for k, n in enumerate(counts)]
@@ -140,7 +140,8 @@ class Dynamics(Daemon):
             mode = FfMode(word) if word in FF_MODES else self.mode_seen[k]
             if int(self._arm_algo[k]) != layout.ARM_NONE:
                 mode = FfMode.FULL  # a robot-level servo takes the demand's q̇, q̈ from the rows
-            if mode != self.mode_seen[k]:  # recompute what SIO has not used yet
+            loaded = self.held[k].follow(self.loads[k])  # what the program says it holds
+            if mode != self.mode_seen[k] or loaded:  # recompute what SIO has not used yet
                 self.mode_seen[k] = mode
                 self.next_row[k] = self.fifos[k].indices()[0] - 1
             if mode != FfMode.OFF:

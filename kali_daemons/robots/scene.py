@@ -89,6 +89,38 @@ class SceneObject:
         """Where the object is built (4×4, world): a free one's rest pose."""
         return _transform(self.xyz, self.quat)
 
+    @property
+    def inertia(self) -> np.ndarray:
+        """Its rotational inertia about its centre, in its own axes (kg·m², 3×3): its mass
+        spread uniformly over its shape, as the simulator spreads it (zero if fixed)."""
+        m, s = self.mass, self.size
+        if self.shape == "box":
+            a, b, c = (v * v for v in s)
+            return np.diag([b + c, a + c, a + b]) * m / 12.0
+        if self.shape == "sphere":
+            return np.eye(3) * 0.4 * m * s[0] ** 2
+        r, h = s
+        if self.shape == "cylinder":
+            side = m * (3.0 * r * r + h * h) / 12.0
+            return np.diag([side, side, 0.5 * m * r * r])
+        # a capsule: a cylinder of length h and two hemispheres, the mass shared by volume
+        body, caps = math.pi * r * r * h, 4.0 / 3.0 * math.pi * r**3
+        mc, ms = m * body / (body + caps), m * caps / (body + caps)
+        side = mc * (3.0 * r * r + h * h) / 12.0 + ms * (
+            0.4 * r * r + h * h / 4.0 + 3.0 * h * r / 8.0
+        )
+        return np.diag([side, side, mc * r * r / 2.0 + ms * 0.4 * r * r])
+
+    def load_on(
+        self, grasp: np.ndarray, share: float = 1.0
+    ) -> tuple[float, np.ndarray, np.ndarray]:
+        """What a flange holding it at ``grasp`` (the flange in its frame, 4×4) carries of it
+        when it carries ``share`` of it: mass (kg), centre of mass in the flange frame (m),
+        inertia about that centre in flange axes (kg·m²) (``robot.set_load``'s arguments)."""
+        rotation, at = grasp[:3, :3], grasp[:3, 3]
+        com = -rotation.T @ at  # the object's centre in the flange frame
+        return self.mass * share, com, rotation.T @ self.inertia @ rotation * share
+
     def grasp(self, name: str) -> Grasp:
         """The grasp called ``name``; ConfigError naming the object's grasps."""
         for g in self.grasps:
@@ -186,8 +218,8 @@ def parse_scene(text: str, source: str) -> Scene:
         not isinstance(scene.belt, str) or scene.object(scene.belt).fixed
     ):
         raise ConfigError(
-                f"{source}: belt = {scene.belt!r}: must name a free object the conveyor carries"
-            )
+            f"{source}: belt = {scene.belt!r}: must name a free object the conveyor carries"
+        )
     return scene
 
 

@@ -357,6 +357,14 @@ def _calls(kali: Kali) -> dict[str, Callable[[Pick], object]]:
             p(1, st.sampled_from(["off", "gravity", "full", "on"]))
         ),
         "grip": lambda p: kali.robot(p(0, robots)).grip(p(1, flags)),
+        "grip, holding": lambda p: kali.robot(p(0, robots)).grip(
+            True, 1.0, p(2, st.sampled_from(["bar", "stand", "nothing"]))
+        ),
+        "set_load": lambda p: kali.robot(p(0, robots)).set_load(
+            p(1, st.floats(0.0, 60.0)),
+            p(2, hnp.arrays(np.float64, 3, elements=st.floats(-3.0, 3.0))),
+            p(3, hnp.arrays(np.float64, (3, 3), elements=st.floats(-0.1, 0.1))),
+        ),
         "stop": lambda p: kali.robot(p(0, robots)).stop(),
         "abort": lambda p: kali.robot(p(0, robots)).abort(),
         "cancel": lambda p: MotionHandle(kali, 1, [p(9, st.integers(0, 1))]).cancel(),

@@ -56,7 +56,8 @@ class ArmRunner:
         if robot.robot_servos:
             from .armmodel import ArmModel  # here: it loads Pinocchio (test_imports)
 
-            self.model = ArmModel(robot, self.inp)
+            loads = worker.inst.arena.existing(layout.KEY_LOADS, layout.LOAD, lv.n_robots)
+            self.model = ArmModel(robot, self.inp, loads[k : k + 1].reshape(()))
         self.tau = np.zeros(self.n)
         self.tau_prev = np.zeros(self.n)
         slots = lv.slots[span]

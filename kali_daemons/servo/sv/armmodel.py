@@ -1,10 +1,10 @@
-"""The model a robot-level servo sees, refreshed every tick it runs: the
-arm's mass matrix, nonlinear effects and gravity (Pinocchio, on the model the dynamics
-process's feed-forward uses: rotor inertias and the configured tool included,
-``cell.load_pinocchio``), the tool point's Jacobian, and the tool point's pose at the
-measured and the demanded angles (``kernels.chain_pose``, the compiled chain the wrist sensor
-uses too, with the base pose and the tool tip folded into its ends), all in world axes
-through the robot's base pose.
+"""The model a robot-level servo sees, refreshed every tick it runs: the arm's mass matrix,
+nonlinear effects and gravity (Pinocchio, on the model the dynamics process's feed-forward
+uses: rotor inertias, the configured tool and the load the program says it holds included,
+``cell.load_pinocchio``, ``payload.HeldLoad``), the tool point's Jacobian, and the tool
+point's pose at the measured and the demanded angles (``kernels.chain_pose``, the compiled
+chain the wrist sensor uses too, with the base pose and the tool tip folded into its ends),
+all in world axes through the robot's base pose.
 
 The tool point is ``ft.tool_tip_m`` along the flange's z axis: where SIO expresses the contact
 wrench (``sio/wrench.py``), so a stiffness and a sensed force are about the same point.
@@ -25,6 +25,7 @@ from ...core.kernels import chain_pose
 from ...robots.cell import FLANGE_FRAME, load_pinocchio
 from ...robots.chain import base_pose, chain_of
 from ...robots.inverse import DriveFriction
+from ...robots.payload import HeldLoad
 from ...runtime.config import RobotConfig
 from ..algorithms.arm import ArmInput
 
@@ -35,7 +36,7 @@ class ArmModel:
     """Robot ``robot``'s model, bound to ``inp``: ``update()`` refills its model fields from
     the ``q``, ``qd`` and ``q_d`` in it.  Built outside the cycle."""
 
-    def __init__(self, robot: RobotConfig, inp: ArmInput) -> None:
+    def __init__(self, robot: RobotConfig, inp: ArmInput, load: np.ndarray) -> None:
         rtype = robot.type
         ft = robot.ft
         tool = (ft.tool_mass_kg, ft.tool_com_m)
@@ -46,6 +47,7 @@ class ArmModel:
             pin.Frame(TOOL_FRAME, flange.parentJoint, flange.placement * tip, pin.OP_FRAME)
         )
         self.data = self.model.createData()
+        self.held, self.load = HeldLoad(self.model), load  # what the program says it holds
         self.inp = inp
         inp.friction = DriveFriction(rtype)
         base = base_pose(robot.base_xyz, robot.base_yaw_deg)
@@ -68,6 +70,7 @@ class ArmModel:
     def update(self) -> None:
         """The model at this tick's ``inp.q``, ``inp.qd``, ``inp.q_d`` (inside the cycle)."""
         inp, model, data = self.inp, self.model, self.data
+        self.held.follow(self.load)
         q, qd = inp.q, inp.qd
         np.copyto(inp.M, pin.crba(model, data, q))
         np.copyto(inp.h, pin.nonLinearEffects(model, data, q, qd))
