@@ -378,6 +378,64 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     )
 
 
+def test_the_dashboard_draws_every_object_of_the_scene(arena: Arena, tmp_path: Path) -> None:
+    """The parts' scene (issue 56): each fixed object drawn once, in its shape, where the
+    file puts it; each free one's shape once and its pose every frame, from its truth record
+    (here a block moved by hand: the frame draws it there)."""
+    cfg = make_config("scene-draw", {r"^version: 1$": "version: 1\nscene: scenes/parts.yaml"})
+    jm = cfg.joints
+    arena.record(layout.KEY_ROBOTS, layout.ROBOT_STATE, 2)
+    joints = arena.record(layout.KEY_JOINTS, layout.JOINT_STATE, jm.total)
+    joints["q"] = per_joint([r.type.q_home for r in cfg.robots])
+    arena.record(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+    arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+    objects = arena.record(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, len(cfg.scene.free))
+    for obj, truth in zip(cfg.scene.free, objects, strict=True):
+        truth["pose"] = [*obj.xyz, *obj.quat]
+    objects["pose"][1, 0] += 0.1  # the block, 10 cm along x
+    arena.record(layout.KEY_FT, layout.FT_STATE, 2)
+    inst = SimpleNamespace(
+        config=cfg,
+        arena=arena,
+        clock=np.zeros((), layout.CLOCK),
+        procs=np.zeros(layout.MAX_PROCESSES, layout.PROCESS),
+        fault=np.zeros((), layout.FAULT),
+    )
+    rrd = tmp_path / "scene.rrd"
+    rec = rr.RecordingStream("kali-test")
+    rec.set_sinks(rr.FileSink(str(rrd)))
+    board = Dashboard(inst, rec)
+    board.log_static()
+    board.frame()
+    rec.flush(timeout_sec=5.0)
+    rec.disconnect()
+    del joints, objects
+
+    from rerun.chunk import RrdReader
+
+    shapes: dict[str, str] = {}
+    where: dict[str, list] = {}
+    for chunk in RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        for column in batch.schema.names:
+            kind = column.split(":")[0]
+            if kind in ("Boxes3D", "Cylinders3D", "Ellipsoids3D", "Capsules3D"):
+                shapes[chunk.entity_path] = kind
+        if "Transform3D:translation" in batch.schema.names:
+            where[chunk.entity_path] = batch.column("Transform3D:translation").to_pylist()[0][0]
+    assert {k: v for k, v in shapes.items() if k.count("/") == 2} == {
+        "/world/stand": "Boxes3D",
+        "/world/table": "Boxes3D",
+        "/world/bar": "Boxes3D",
+        "/world/block": "Boxes3D",
+        "/world/can": "Cylinders3D",
+        "/world/ball": "Ellipsoids3D",
+    }
+    np.testing.assert_allclose(where["/world/table"], [0.0, -0.38, 0.2], atol=1e-6)
+    np.testing.assert_allclose(where["/world/block"], [-0.05, -0.33, 0.42], atol=1e-6)
+    np.testing.assert_allclose(where["/world/ball"], [-0.15, -0.43, 0.42], atol=1e-6)
+
+
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")  # what rerun --save writes
 def test_a_live_viewer_listening_gets_the_dashboard_and_no_web_viewer_starts(
     kali: Callable[..., str], tmp_path: Path
