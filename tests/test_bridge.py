@@ -480,7 +480,7 @@ from kali_daemons.client import Kali
 kali = Kali.connect({endpoint!r}, {name!r})
 kali.ready(["left"])
 arm = kali.robot("left")
-arm.move_joints(arm.read_joints() + np.array([0.6, 0, 0, 0, 0, 0]), speed=0.2, wait=False)
+arm.move_joints(arm.read_joints() + np.array([-0.6, 0, 0, 0, 0, 0]), speed=0.2, wait=False)
 print(kali.status()["bridge"]["sessions"][0]["pid"], flush=True)
 time.sleep(600)
 """

@@ -159,9 +159,10 @@ def test_a_puma_and_a_panda_hold_move_and_carry_the_bar_together(
             hold = np.maximum(hold, np.abs(level.joints["demand"] - level.joints["q"]) * per_rad)
         assert (hold <= ONE_COUNT).all(), f"hold error (counts) {hold}"
 
-        # 2. joint mode: both at once, every joint 0.1 rad (alternating sign) from where it is
+        # 2. joint mode: both at once, every joint 0.1 rad (alternating sign) from where it is,
+        # the first joints turning the arms apart (turned the other way, their wrists meet)
         targets = [
-            a.read_joints() + 0.1 * np.where(np.arange(a.n_joints) % 2, -1.0, 1.0) for a in arms
+            a.read_joints() + 0.1 * np.where(np.arange(a.n_joints) % 2, 1.0, -1.0) for a in arms
         ]
         handles = [
             a.move_joints(q, speed=0.5, wait=False) for a, q in zip(arms, targets, strict=True)
@@ -194,7 +195,8 @@ def test_a_puma_and_a_panda_hold_move_and_carry_the_bar_together(
         go_to_grasps(k, arms)
         assert [int(t) for t in truths["grasped"]] == [1, 1], "both grippers hold the bar"
         start = bar_pose[0][:3].copy()
-        bar = k.motion_system(list(ARMS), holding="bar")
+        grasps = [k.scene.grasp_for("bar", r) for r in k.inst.config.robots]
+        bar = k.motion_system(list(ARMS), grasps)
         here = bar.read_pose()
         np.testing.assert_allclose(here[:3, 3], start, atol=2e-3)  # the program's bar = truth
         up, over = here.copy(), here.copy()

@@ -23,7 +23,9 @@ import pytest
 from kali_daemons.core.errors import ConfigError, ModelError
 from kali_daemons.robots import puma560, robot_type
 from kali_daemons.robots.model import (
+    ARMS_CONTACT,
     FLANGE_FRAME,
+    PASSED_CONTACT,
     TOOL_CONTACT,
     World,
     _attach_arm,
@@ -338,8 +340,9 @@ def test_cell_layout(
         assert m.eq_obj2id[weld] == cell.object_body[0]
     # facing each other across the origin: a half turn about z maps one flange onto the other
     np.testing.assert_allclose(flanges["right"], [-1, -1, 1] * flanges["left"], atol=1e-12)
-    # only the bar, the stand, the table and the floor make contacts; of the arms, only the
-    # tools' pads, and those only with the fixtures (issue 27)
+    # of the arms, the tools' pads touch the fixtures only (issue 27), the collision shapes
+    # (group 3) the world and the other arm (issue 56: tests/test_collisions.py), the
+    # visuals nothing
     arm_geoms = [
         g
         for g in range(m.ngeom)
@@ -347,11 +350,17 @@ def test_cell_layout(
     ]
     pads = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{r.name}/pad") for r in default_robots]
     assert all(m.geom_contype[g] == TOOL_CONTACT == m.geom_conaffinity[g] for g in pads)
-    assert all(m.geom_contype[g] == 0 == m.geom_conaffinity[g] for g in arm_geoms if g not in pads)
+    for g in arm_geoms:
+        if g not in pads and m.geom_group[g] != 3:
+            assert m.geom_contype[g] == 0 == m.geom_conaffinity[g]
+        elif g not in pads:
+            assert m.geom_contype[g] & ARMS_CONTACT and m.geom_conaffinity[g] & 1
+    # the shipped scene's fixtures: the arms pass through them (arms_touch: false), the tools
+    # touch the table, not the stand (tools_touch: false)
     table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
-    assert m.geom_conaffinity[table] & TOOL_CONTACT and m.geom_contype[table] & 1
-    stand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "stand")  # tools_touch: false
-    assert m.geom_conaffinity[stand] == 1 == m.geom_contype[stand]
+    assert m.geom_conaffinity[table] == PASSED_CONTACT | TOOL_CONTACT == m.geom_contype[table]
+    stand = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "stand")
+    assert m.geom_conaffinity[stand] == PASSED_CONTACT == m.geom_contype[stand]
 
 
 def solve_ik(model: pin.Model, target: pin.SE3, q0: np.ndarray) -> np.ndarray:
@@ -536,7 +545,7 @@ def test_an_arm_file_with_another_joint_count_is_refused() -> None:
     wrong = dataclasses.replace(puma560.ROBOT, urdf=robot_type("panda").urdf)
     robot = RobotConfig("a", "puma560", (0.0, 0.0, 0.0), 0.0)
     with pytest.raises(ModelError, match=r"expects 6 moving joints, the file has 7: j1, .*j7"):
-        _attach_arm(mujoco.MjSpec(), robot, wrong)
+        _attach_arm(mujoco.MjSpec(), robot, wrong, 0)
 
 
 def test_build_world_refusals() -> None:

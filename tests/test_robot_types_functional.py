@@ -57,10 +57,16 @@ def test_every_shipped_type_the_boards_drive_is_covered() -> None:
     assert sorted(TYPES) == [t for t in known_types() if not mcgill.refuses(robot_type(t), 1e-3)]
 
 
-def cell(kali: Callable[..., str], model: str, separate: bool = False) -> str:
+def cell(
+    kali: Callable[..., str], model: str, separate: bool = False, raised: bool = False
+) -> str:
     """A lockstep instance of two arms of type ``model``, facing each other (``separate``:
-    a process per daemon, to kill one)."""
-    return kali(lockstep=True, edits={r"model: puma560": f"model: {model}"}, separate=separate)
+    a process per daemon, to kill one; ``raised``: on 0.5 m plinths, so a joint folded to its
+    limit clears the floor)."""
+    edits = {r"model: puma560": f"model: {model}"}
+    if raised:
+        edits[r"(base_xyz: \[-?0\.6, 0\.0, )0\.0\]"] = r"\g<1>0.5]"
+    return kali(lockstep=True, edits=edits, separate=separate)
 
 
 @contextmanager
@@ -186,7 +192,8 @@ def test_calibrated_arms_hold_step_ramp_and_switch_servo_bumplessly(
 def test_a_joint_driven_past_its_limit_halts_naming_it(
     kali: Callable[..., str], model: str
 ) -> None:
-    with servoing(cell(kali, model)) as (inst, client, rtype):
+    with servoing(cell(kali, model, raised=True)) as (inst, client, rtype):
+        assert inst.config.robots[0].base_xyz[2] == 0.5  # the UR5's elbow folds to the floor
         q = ByArm(client.level)["q"][0]
         j = int(np.argmin(rtype.q_max - q))  # the joint nearest its upper limit
         limit = float(rtype.q_max[j])

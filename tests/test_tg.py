@@ -58,7 +58,7 @@ def test_move_joints_arrives_smoothly_and_together(kali: Callable[..., str]) -> 
         left = k.robot("left")
         rs = k.servo.level.joints  # per joint, flat; the left arm's are LEFT
         start = rs["demand"][LEFT].copy()
-        target = start + np.radians([20, -10, 15, 30, -20, 40])
+        target = start + np.radians([-20, -10, 15, 30, -20, 40])  # j1 away from the right arm
         h = left.move_joints(target, speed=1.0, wait=False)
         demands = []
         for _ in range(3000):  # 3 s

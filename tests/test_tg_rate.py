@@ -81,7 +81,7 @@ def test_slower_tg_mid_motion_keeps_speed_and_arrives(kali: Callable[..., str]) 
     name = kali(lockstep=True)
     with powered(name) as k:
         tg = k.inst.slot_of("tg")
-        target = k.servo.level.joints["demand"][LEFT] + np.radians([30, -20, 25, 40, -30, 50])
+        target = k.servo.level.joints["demand"][LEFT] + np.radians([-30, -20, 25, 40, -30, 50])
         d, starved, duration = move_with_rate_change(
             k, target, lambda: set_control_rate(k.inst, "tg", 20), 0.3, servo_ms=1
         )
@@ -98,7 +98,7 @@ def test_slower_tg_mid_motion_keeps_speed_and_arrives(kali: Callable[..., str]) 
         assert fifo.ratio == fifo.segment_ratio == 20
         # back to 10 ms through the command line, mid-way home: faster set-points this time
         start = k.servo.level.joints["demand"][LEFT].copy()
-        back = start - np.radians([30, -20, 25, 40, -30, 50])
+        back = start - np.radians([-30, -20, 25, 40, -30, 50])
 
         def cli_rate() -> None:
             r = kalictl("-i", name, "rate", "tg", "10")

@@ -587,7 +587,7 @@ def test_two_queued_joint_moves_continue_without_a_stop(kali: Callable[..., str]
         ready_left(k)
         left = k.robot("left")
         q0 = left.read_joints()
-        mid, end = q0 + turn(left, 10), q0 + turn(left, 20) + turn(left, 5, joint=2)
+        mid, end = q0 + turn(left, -10), q0 + turn(left, -20) + turn(left, 5, joint=2)
         first = left.move_joints(mid, speed=0.5, wait=False)
         second = left.move_joints(end, speed=0.5, wait=False)
         points = setpoints_until_done(k, [first, second])

@@ -315,8 +315,7 @@ class PlantSim:
             return
         self._gripper_prev[k] = g
         if not g:
-            for eq in self.world.weld[k]:
-                self.data.eq_active[eq] = 0
+            self.world.release(self.data, k)
             return
         i, distance = self.nearest_grasp(k)
         if distance <= GRASP_REACH_M:

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 FLANGE_FRAME: Final = "flange"  # the URDF link of the flange (Pinocchio frame, MuJoCo body)
 
+WORLD_OVERLAP_M: Final = 0.001  # an arm's link may start this deep in the scene's objects
 TOOL_RADIUS_M: Final = 0.012  # each arm's tool: a pad, a sphere ending at the tool point
 # The pad is a felt polishing pad, not steel: sliding friction 0.3 on the table, and soft
 # (MuJoCo's contact time constant, s, and damping ratio: critically damped), softest at the
@@ -79,40 +80,61 @@ def load_pinocchio(
 
 
 def check_clear_at_rest(cfg: KaliConfig) -> None:
-    """Refuse (ConfigError) a cell in which two arms' bodies overlap where they start: each
-    arm's collision shapes from its URDF (what Pinocchio and coal load, the shapes the plant
-    simulates), at its type's ``q_home`` (where the simulated arm starts), placed at its base.
-    The message names both arms, the two links nearest each other and their distance
-    (negative: how deep they interpenetrate).  Before any process runs: two arms started one
-    inside the other halt the cell at its first tick with a contact force no sensor takes."""
+    """Refuse (ConfigError) a cell in which two arms' bodies overlap where they start, or an
+    arm's moving links overlap the scene's objects: each arm's collision shapes from its URDF
+    (what Pinocchio and coal load, the shapes the plant simulates), at its type's ``q_home``
+    (where the simulated arm starts), placed at its base.  The message names both arms (or
+    the arm and the object), the two links nearest each other and their distance (negative:
+    how deep they interpenetrate).  Before any process runs: an arm started inside another
+    or in a fixture halts the cell at its first tick with a contact force no sensor takes.
+    Between arms touching counts as overlapping; against the world an overlap within
+    ``WORLD_OVERLAP_M`` is allowed (a link resting on what it stands beside)."""
     import pinocchio as pin  # here, not at load: the plant imports this module
 
     world = pin.GeometryModel()
-    owner: list[tuple[int, str]] = []  # per shape: its robot and its link
+    owner: list[tuple[int, str, bool]] = []  # per shape: its robot, its link, whether it moves
     for k, robot in enumerate(cfg.robots):
-        for placement, link, shape in _shapes_at_rest(robot, cfg.source):
+        for placement, link, shape, moves in _shapes_at_rest(robot, cfg.source):
             world.addGeometryObject(pin.GeometryObject(f"{k}.{len(owner)}", 0, 0, placement, shape))
-            owner.append((k, link))
-    for i in range(len(owner)):
+            owner.append((k, link, moves))
+    arms = len(owner)
+    for o in (o for o in cfg.scene.objects if o.arms_touch):  # the world the arms touch
+        world.addGeometryObject(pin.GeometryObject(o.name, 0, 0, pin.SE3(o.pose), coal_shape(o)))
+        owner.append((-1, o.name, not o.fixed))
+    for i in range(arms):
         for j in range(i + 1, len(owner)):
-            if owner[i][0] != owner[j][0]:
+            # arm against arm; a moving link against the world (a base stands on it)
+            if owner[i][0] != owner[j][0] and (j < arms or owner[i][2]):
                 world.addCollisionPair(pin.CollisionPair(i, j))
     if not world.collisionPairs:
         return
     data = pin.GeometryData(world)
     fixed = pin.Model()  # every shape hangs from the world at its place
     pin.computeDistances(fixed, fixed.createData(), world, data, np.zeros(0))
-    distance = [r.min_distance for r in data.distanceResults]
-    nearest = int(np.argmin(distance))
-    if distance[nearest] > 0.0:
+    pairs = world.collisionPairs
+    overlaps = [  # arms must be apart; the world may be touched, within a tolerance
+        (r.min_distance, i)
+        for i, (r, p) in enumerate(zip(data.distanceResults, pairs, strict=True))
+        if (r.min_distance <= 0.0 if p.second < arms else r.min_distance < -WORLD_OVERLAP_M)
+    ]
+    if not overlaps:
         return
-    pair = world.collisionPairs[nearest]
-    (a, link_a), (b, link_b) = owner[pair.first], owner[pair.second]
-    ra, rb = cfg.robots[a], cfg.robots[b]
+    deepest, nearest = min(overlaps)
+    pair = pairs[nearest]
+    (a, link_a, _), (b, link_b, _) = owner[pair.first], owner[pair.second]
+    ra = cfg.robots[a]
+    if b < 0:
+        raise ConfigError(
+            f"{cfg.source}: robot '{ra.name}' ({ra.type.name}) starts in the scene's object "
+            f"'{link_b}' ({cfg.scene.source}): its link '{link_a}' is {deepest:.3f} "
+            f"m from it (negative: inside), at its starting joint angles (q_home) and base "
+            f"{list(ra.base_xyz)} turned {ra.base_yaw_deg:g}°; move the base or the object"
+        )
+    rb = cfg.robots[b]
     raise ConfigError(
         f"{cfg.source}: robots '{ra.name}' ({ra.type.name}) and '{rb.name}' ({rb.type.name}) "
         f"overlap at rest: link '{link_a}' of '{ra.name}' and link '{link_b}' of '{rb.name}' "
-        f"are {distance[nearest]:.3f} m apart (negative: one inside the other), at their "
+        f"are {deepest:.3f} m apart (negative: one inside the other), at their "
         f"starting joint angles (q_home) and bases {list(ra.base_xyz)} turned "
         f"{ra.base_yaw_deg:g}° and {list(rb.base_xyz)} turned {rb.base_yaw_deg:g}°; their "
         f"bodies must be apart: move a base (base_xyz, base_yaw_deg)"
@@ -166,9 +188,10 @@ def coal_shape(obj: SceneObject) -> object:
     return coal.Sphere(s[0])
 
 
-def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str, object]]:
+def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str, object, bool]]:
     """Robot ``robot``'s collision shapes (URDF ``<collision>``) at its type's ``q_home``, in
-    the world: (placement, link, coal geometry) each; ConfigError if they cannot be loaded."""
+    the world: (placement, link, coal geometry, whether a joint moves it) each; ConfigError if
+    they cannot be loaded."""
     import pinocchio as pin  # here, not at load: the plant imports this module
 
     urdf = str(robot.type.urdf)
@@ -185,7 +208,7 @@ def _shapes_at_rest(robot: RobotConfig, source: str) -> list[tuple[pin.SE3, str,
     yaw = np.radians(robot.base_yaw_deg)
     base = pin.SE3(pin.utils.rotate("z", yaw), np.asarray(robot.base_xyz, dtype=float))
     return [
-        (base * shape_data.oMg[i], model.frames[g.parentFrame].name, g.geometry)
+        (base * shape_data.oMg[i], model.frames[g.parentFrame].name, g.geometry, g.parentJoint > 0)
         for i, g in enumerate(shapes.geometryObjects)
     ]
 

@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 import numpy.typing as npt
 
+from kali_daemons.core import layout
 from kali_daemons.core.errors import ModelError
 from kali_daemons.robots import RobotType
 from kali_daemons.robots.cell import (
@@ -43,9 +44,19 @@ IntArray = npt.NDArray[np.int64]
 # at the grasp pose; 8 steps (4 ms at 0.5 ms) gives 0.17 mm and stays 4x above the 2-step
 # floor below which MuJoCo's 'refsafe' would clamp it.
 WELD_TIMECONST_STEPS: Final = 8
-# contact bits: the fixtures and the tools' pads touch each other (and nothing else of the
-# arms); the free objects, the fixtures and the floor keep MuJoCo's default bit 1
+# Contact bits (MuJoCo's contype / conaffinity: two geoms touch if either's type meets the
+# other's affinity).  The floor and the fixtures the arms touch are bit 1 (WORLD_CONTACT), those
+# they pass through (``arms_touch: false``) PASSED_CONTACT; the tools' pads and the fixtures
+# they touch bit 2; arm k's collision shapes ARM_CONTACT << k, touching the world and the
+# other arms, never their own; the free objects OBJECT_CONTACT, touching the fixtures, the
+# floor, each other and (unless ``arms_touch: false``) every arm (an arm holding one stops
+# touching it: ``World.activate_weld``).
+WORLD_CONTACT: Final = 1
 TOOL_CONTACT: Final = 2
+ARM_CONTACT: Final = 4
+ARMS_CONTACT: Final = sum(ARM_CONTACT << k for k in range(layout.MAX_ROBOTS))
+OBJECT_CONTACT: Final = ARM_CONTACT << layout.MAX_ROBOTS
+PASSED_CONTACT: Final = OBJECT_CONTACT << 1
 # MuJoCo's geom size from a scene shape's (robots.scene.SHAPES): half lengths
 _MJ_SHAPE = {
     "box": (mujoco.mjtGeom.mjGEOM_BOX, lambda s: [s[0] / 2, s[1] / 2, s[2] / 2]),
@@ -64,10 +75,12 @@ class World:
 
     The arms carry no joint damping or friction loss and no actuators: the plant's motor model
     applies motor torque, viscous and asymmetric Coulomb friction and the brakes through
-    ``data.qfrc_applied[dof_adr[k]]``.  Arm geoms never collide (contype = conaffinity =
-    0); the free objects touch the fixtures, the floor and each other, the tools' pads only
-    the fixtures.  The free objects are the world's first bodies: their free joints' qpos
-    are ``qpos[0 : 7 * len(objects)]``, object by object.
+    ``data.qfrc_applied[dof_adr[k]]``.  Each arm's collision shapes (its URDF's
+    ``<collision>``, the shapes the controller's collision model loads) touch the other arms,
+    the fixtures, the floor and the free objects, never the same arm; its visual shapes touch
+    nothing.  The free objects touch the fixtures, the floor and each other, the tools' pads
+    only the fixtures (``TOOL_CONTACT``).  The free objects are the world's first bodies:
+    their free joints' qpos are ``qpos[0 : 7 * len(objects)]``, object by object.
 
     Grasping.  ``weld[k][g]`` is a MuJoCo weld equality between robot ``k``'s ``tool`` body
     (body1; it sits at the flange frame, on the wrist force/torque sensor, so the sensor feels
@@ -96,6 +109,8 @@ class World:
     object_body: tuple[int, ...] = ()  # per free object
     object_qpos_adr: tuple[int, ...] = ()  # per free object: its 7 qpos (position, quaternion)
     object_dof_adr: tuple[int, ...] = ()  # per free object: its 6 dofs
+    object_geom: tuple[int, ...] = ()  # per free object: its shape
+    object_affinity: tuple[int, ...] = ()  # per free object: its shape's, as built
     graspable: tuple[int, ...] = ()  # the objects with grasps (indices into objects)
     grasp_site: tuple[int, ...] = ()  # every grasp of a graspable object, as a site
     grasp_object: tuple[int, ...] = ()  # per grasp site: its object (index into objects)
@@ -124,7 +139,8 @@ class World:
 
     def activate_weld(self, data: mujoco.MjData, robot: int | str, obj: int | str) -> None:
         """Grasp: hold object ``obj`` (a name or an index into ``objects``) where it is now
-        relative to ``robot``'s flange, then activate.
+        relative to ``robot``'s flange, then activate; the object stops touching that arm's
+        links (its flange rests on it).
 
         Uses ``data.xpos``/``data.xquat``, so call it after ``mj_kinematics`` (or any step).
         Writes ``model.eq_data`` of that weld: anchor 0, relpose = the object's pose in the
@@ -148,6 +164,16 @@ class World:
         model.eq_data[eq, 10] = 1.0
         model.eq_data[eq, 11] = 0.0
         data.eq_active[eq] = 1
+        self.model.geom_conaffinity[self.object_geom[o]] &= ~(ARM_CONTACT << self.index(robot))
+
+    def release(self, data: mujoco.MjData, robot: int | str) -> None:
+        """Let go: ``robot``'s welds off, and the objects touch it again."""
+        k = self.index(robot)
+        for eq in self.weld[k]:
+            data.eq_active[eq] = 0
+        own = ARM_CONTACT << k
+        for g, affinity in zip(self.object_geom, self.object_affinity, strict=True):
+            self.model.geom_conaffinity[g] |= affinity & own
 
 
 def build_world(
@@ -187,8 +213,8 @@ def build_world(
     spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     scene = scene or load_scene(DEFAULT_SCENE)
     _add_scenery(spec, scene)
-    for r, t in zip(robots, types, strict=True):
-        _attach_arm(spec, r, t)
+    for k, (r, t) in enumerate(zip(robots, types, strict=True)):
+        _attach_arm(spec, r, t, k)
         _add_tool(spec, r)
         _add_motors(spec, r.name, t)
     for r in robots:  # after every arm's tool: weld k * graspable + g
@@ -246,6 +272,10 @@ def build_world(
         object_body=tuple(bodies),
         object_qpos_adr=qpos,
         object_dof_adr=tuple(int(model.jnt_dofadr[model.body_jntadr[b]]) for b in bodies),
+        object_geom=tuple(oid(mujoco.mjtObj.mjOBJ_GEOM, o) for o in free),
+        object_affinity=tuple(
+            int(model.geom_conaffinity[oid(mujoco.mjtObj.mjOBJ_GEOM, o)]) for o in free
+        ),
         graspable=graspable,
         grasp_site=tuple(site for site, _ in sites),
         grasp_object=tuple(o for _, o in sites),
@@ -298,13 +328,19 @@ def _add_scenery(spec: mujoco.MjSpec, scene: Scene) -> None:
 def _add_geom(parent: mujoco.MjsBody, obj: SceneObject, **placed: list[float]) -> None:
     """Object ``obj``'s shape on ``parent`` (the world for a fixed one, at its pose)."""
     kind, size = _MJ_SHAPE[obj.shape]
-    bits = 1 | TOOL_CONTACT if obj.tools_touch else 1
+    if obj.fixed:
+        kind_bits = WORLD_CONTACT if obj.arms_touch else PASSED_CONTACT
+        kind_bits = affinity = kind_bits | (TOOL_CONTACT if obj.tools_touch else 0)
+    else:
+        kind_bits = OBJECT_CONTACT
+        affinity = WORLD_CONTACT | PASSED_CONTACT | OBJECT_CONTACT
+        affinity |= ARMS_CONTACT if obj.arms_touch else 0
     parent.add_geom(
         name=obj.name,
         type=kind,
         size=size(obj.size),
-        contype=bits,
-        conaffinity=bits,
+        contype=kind_bits,
+        conaffinity=affinity,
         friction=[obj.friction, 0.005, 0.0001],
         rgba=list(obj.color),
         **({"mass": obj.mass} if not obj.fixed else {}),
@@ -312,8 +348,10 @@ def _add_geom(parent: mujoco.MjsBody, obj: SceneObject, **placed: list[float]) -
     )
 
 
-def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> None:
-    """Attach the type's URDF arm at the robot's base; set armature; switch its contacts off.
+def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType, k: int) -> None:
+    """Attach the type's URDF arm at the robot's base; set armature; its collision shapes
+    touch the world, the free objects and the other arms (arm ``k``'s bit), its visuals
+    nothing.
 
     The file must have exactly the type's ``n_joints`` moving joints, named ``j1``..``jn``.
     """
@@ -341,12 +379,21 @@ def _attach_arm(spec: mujoco.MjSpec, robot: RobotConfig, rtype: RobotType) -> No
         joint.armature = float(armature[j])
         joint.damping = np.zeros(3)  # MuJoCo 4: damping polynomial coefficients
         joint.frictionloss = 0.0
+    own = ARM_CONTACT << k
     for geom in spec.geoms:
         if geom.name.startswith(prefix):
             geom.contype = 0
             geom.conaffinity = 0
             if geom.group == 0:  # the URDF <collision> copies: hide under the coloured visuals
                 geom.group = 3
+                geom.contype = own
+                geom.conaffinity = WORLD_CONTACT | (ARMS_CONTACT & ~own)
+    # the first moving link turns in place on the base, whose mount it may dip below (the
+    # UR5's shoulder housing does, by 6.5 cm): it touches nothing of the world
+    for body in spec.bodies:
+        if body.name.startswith(prefix) and any(j.name == f"{prefix}j1" for j in body.joints):
+            exclude = spec.add_exclude()
+            exclude.bodyname1, exclude.bodyname2 = "world", body.name
     flange = spec.body(f"{prefix}{FLANGE_FRAME}")
     if flange is None:
         raise ModelError(f"{urdf}: no {FLANGE_FRAME!r} link")

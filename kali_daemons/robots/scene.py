@@ -44,7 +44,8 @@ SHAPES: Final = {
 }
 _NAME = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 _OBJECT_KEYS = (
-    "name", "shape", "size", "at", "rpy_deg", "fixed", "tools_touch", "mass", "friction", "color",
+    "name", "shape", "size", "at", "rpy_deg", "fixed", "tools_touch", "arms_touch", "mass",
+    "friction", "color",
 )  # fmt: skip
 _KEYS = {"object": (*_OBJECT_KEYS, "grasps"), "grasp": ("name", "at", "rpy_deg")}
 
@@ -70,7 +71,8 @@ class SceneObject:
     centred at ``xyz`` (m, world) turned ``quat`` (w, x, y, z), fixed to the world or free (a
     free object has a ``mass``, kg, spread uniformly, and may have ``grasps``), with its
     sliding ``friction`` coefficient and ``color`` (r, g, b, a in 0..1).  A fixed object the
-    arms' tools pass through has ``tools_touch`` False."""
+    arms' tools pass through has ``tools_touch`` False; one the arms' links pass through,
+    ``arms_touch`` False."""
 
     name: str
     shape: str
@@ -83,6 +85,7 @@ class SceneObject:
     color: tuple[float, float, float, float]
     grasps: tuple[Grasp, ...] = ()
     tools_touch: bool = True
+    arms_touch: bool = True
 
     @property
     def pose(self) -> np.ndarray:
@@ -246,6 +249,9 @@ def _object(node: Any, where: str) -> SceneObject:
             f"{where}: tools_touch = {tools_touch!r}: true or false, for a fixed object (the "
             "tools touch the fixtures; a free object they hold or pass)"
         )
+    arms_touch = node.get("arms_touch", True)
+    if not isinstance(arms_touch, bool):
+        raise ConfigError(f"{where}: arms_touch = {arms_touch!r}: true or false")
     mass = node.get("mass")
     if fixed and mass is not None:
         raise ConfigError(f"{where}: mass = {mass!r}: a fixed object has no mass (it never moves)")
@@ -289,6 +295,7 @@ def _object(node: Any, where: str) -> SceneObject:
         color=(*color, 1.0) if len(color) == 3 else color,  # type: ignore[arg-type]
         grasps=tuple(held),
         tools_touch=tools_touch,
+        arms_touch=arms_touch,
     )
 
 

@@ -1,0 +1,103 @@
+"""Collisions, simulated (issue 56 item 2): in the plant every arm's links collide with the
+other arms' and with the world, from the URDFs' collision shapes, so a crash is a crash: the
+arms stop against each other and SIO's checks halt the cell naming an arm; the flight
+recorder's dump holds the fault."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from kali_daemons.client import Kali, pose
+from kali_daemons.core.layout import RequestState
+from kali_daemons.robots import model
+from kali_daemons.robots.scene import parse_scene
+from kali_daemons.wallclock import step_kali_clock
+from tests.conftest import make_config
+from tests.test_launcher import kalictl
+
+DOWN = np.diag([1.0, -1.0, -1.0])  # the flange's z straight down
+
+
+WALLED = """version: 1
+objects:
+  - {name: wall, shape: box, size: [0.05, 0.6, 0.6], at: [-0.3, 0.3, 0.3], fixed: true}
+  - {name: screen, shape: box, size: [0.05, 0.6, 0.6], at: [0.3, 0.3, 0.3], fixed: true,
+     arms_touch: false}
+  - {name: block, shape: box, size: [0.04, 0.04, 0.04], at: [0, 0.5, 0.02], mass: 0.2}
+"""
+
+
+def test_arm_links_collide_with_other_arms_and_the_world_not_their_own() -> None:
+    """The contact bits: an arm's collision shapes touch the other arms', the floor, the
+    fixtures and free objects of the scene (unless ``arms_touch: false``), never the same
+    arm's; its visual shapes touch nothing; the shipped scene's stand, table and bar are
+    passed through (``arms_touch: false``) and still carry the bar."""
+    cfg = make_config("collision-bits")
+    geom = mujoco.mjtObj.mjOBJ_GEOM
+
+    def collide(m: mujoco.MjModel, a: int, b: int) -> bool:
+        ab = m.geom_contype[a] & m.geom_conaffinity[b]
+        return bool(ab or m.geom_contype[b] & m.geom_conaffinity[a])
+
+    def shapes(m: mujoco.MjModel, robot: str) -> list[int]:
+        return [
+            g
+            for g in range(m.ngeom)
+            if m.geom_group[g] == 3 and m.body(m.geom_bodyid[g]).name.startswith(f"{robot}/")
+        ]
+
+    m = model.build_world(cfg.robots, scene=parse_scene(WALLED, "walled.yaml")).model
+    left, right = shapes(m, "left"), shapes(m, "right")
+    assert left and right
+    touched = [mujoco.mj_name2id(m, geom, n) for n in ("wall", "floor", "block")]
+    screen = mujoco.mj_name2id(m, geom, "screen")
+    visuals = [g for g in range(m.ngeom) if m.geom_group[g] == 1]
+    for a in left:
+        assert all(collide(m, a, b) for b in right)
+        assert not any(collide(m, a, b) for b in left)
+        assert all(collide(m, a, g) for g in touched) and not collide(m, a, screen)
+    assert not any(m.geom_contype[g] or m.geom_conaffinity[g] for g in visuals)
+    block = mujoco.mj_name2id(m, geom, "block")
+    assert collide(m, block, screen) and collide(m, block, touched[0])  # it rests on both
+    shipped = model.build_world(cfg.robots, scene=cfg.scene).model
+    world = [mujoco.mj_name2id(shipped, geom, n) for n in ("stand", "table", "bar")]
+    assert not any(collide(shipped, a, g) for a in shapes(shipped, "left") for g in world)
+    bar, stand = world[2], world[0]
+    assert collide(shipped, bar, stand)
+
+
+def test_two_arms_driven_into_each_other_crash_and_halt_naming_an_arm(
+    kali: Callable[..., str],
+) -> None:
+    """Lockstep: both arms sent to flange poses 4 cm apart above the stand (no check refuses
+    it yet: the controller's collision model is item 3): their wrists meet on the way, the
+    flanges never come closer than the arms' bodies let them, and the cell halts with a
+    fault naming an arm; ``kalictl flight`` shows the dump of that fault."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready(["left", "right"])
+        arms = [k.robot("left"), k.robot("right")]
+        turned = DOWN @ np.diag([-1.0, -1.0, 1.0])  # the right arm's flange x the other way
+        targets = [pose([-0.02, 0.0, 0.78], DOWN), pose([0.02, 0.0, 0.78], turned)]
+        handles = [
+            arm.move_joints(arm.joints_at(t, "run"), speed=0.3, wait=False)
+            for arm, t in zip(arms, targets, strict=True)
+        ]
+        closest = np.inf
+        for _ in range(4000):
+            step_kali_clock(k.inst, 1)
+            flanges = [k.sim.truth(a.name).flange[:3, 3] for a in arms]
+            closest = min(closest, float(np.linalg.norm(flanges[0] - flanges[1])))
+            if all(h.done for h in handles):
+                break
+        fault = k.inst.fault_text(last=True)
+        assert fault is not None, f"no halt; the flanges came {closest:.3f} m apart"
+        assert "robot 'left'" in fault or "robot 'right'" in fault, fault
+        assert any(h.state == RequestState.HALTED for h in handles)
+        assert closest > 0.06, f"the flanges came {closest:.3f} m apart: the arms passed through"
+        out = kalictl("-i", name, "flight")
+        assert out.returncode == 0, out.stderr
+        assert fault.split(":")[0] in out.stdout, (fault, out.stdout)
