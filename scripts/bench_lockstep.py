@@ -156,6 +156,8 @@ def program(kali: Kali, name: str) -> list:
     for k, robot in enumerate(kali.names):
         centre = level.arm("demand", k).copy()
         signs = np.where(np.arange(len(centre)) % 2 == 0, 1.0, -1.0)
+        if k % 2:  # facing the arm before it: its first joint the other way, wrists apart
+            signs[0] = -signs[0]
         arm = kali.robot(robot)
         for m in range(MOVES):
             target = centre + (SWING_RAD * signs if m % 2 == 0 else 0.0)

@@ -21,6 +21,9 @@ from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.instance import decode
 
 SWING = np.radians([20.0, -8.0, 8.0, 20.0, 15.0, 20.0])  # about each arm's start
+# the first joints of arms facing each other turn opposite ways: both wrists to the same side
+# (the same way, they cross at the middle and meet: the plant's arms collide)
+FACING = np.array([-1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 SPEED = 0.3  # of the joint speed and acceleration limits: a swing takes about a second
 
 
@@ -48,12 +51,13 @@ def main(instance: str) -> int:
         for arm in arms:
             arm.feedforward("full")
         start = [arm.read_joints() for arm in arms]
+        swings = [SWING if k % 2 == 0 else SWING * FACING for k in range(len(arms))]
         print("moving", flush=True)
         sign = 1.0
         while True:
             handles = [
-                arm.move_joints(q + sign * SWING, speed=SPEED, wait=False)
-                for arm, q in zip(arms, start, strict=True)
+                arm.move_joints(q + sign * swing, speed=SPEED, wait=False)
+                for arm, q, swing in zip(arms, start, swings, strict=True)
             ]
             try:
                 for h in handles:
