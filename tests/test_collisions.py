@@ -9,8 +9,10 @@ from collections.abc import Callable
 
 import mujoco
 import numpy as np
+import pytest
 
 from kali_daemons.client import Kali, pose
+from kali_daemons.core.errors import MotionError
 from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import model
 from kali_daemons.robots.scene import parse_scene
@@ -101,3 +103,74 @@ def test_two_arms_driven_into_each_other_crash_and_halt_naming_an_arm(
         out = kalictl("-i", name, "flight")
         assert out.returncode == 0, out.stderr
         assert fault.split(":")[0] in out.stdout, (fault, out.stdout)
+
+
+def _mujoco_distance(m: mujoco.MjModel, d: mujoco.MjData, a: str, b: str) -> float:
+    """The nearest distance between the plant's collision shapes of bodies ``a`` and ``b``
+    (an arm's group-3 shapes, or a scene object's geom), as MuJoCo computes it."""
+
+    def geoms(body: str) -> list[int]:
+        found = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, body)
+        if found >= 0:
+            return [found]
+        return [
+            g
+            for g in range(m.ngeom)
+            if m.geom_group[g] == 3 and m.body(m.geom_bodyid[g]).name.startswith(f"{body}/")
+        ]
+
+    return min(mujoco.mj_geomDistance(m, d, x, y, 2.0, None) for x in geoms(a) for y in geoms(b))
+
+
+def test_the_controllers_collision_model_measures_what_the_plant_simulates() -> None:
+    """``CellGeometry.distance`` (Pinocchio's collision shapes from the URDFs, coal) against
+    MuJoCo's distance between the plant's shapes of the same bodies: two arms at random joint
+    angles near home, and each arm against the scene's objects, equal within 0.1 mm."""
+    from kali_daemons.robots.collision import CellGeometry
+
+    cfg = make_config("collision-model")
+    scene = parse_scene(WALLED, "walled.yaml")
+    world = model.build_world(cfg.robots, scene=scene)
+    m = world.model
+    d = mujoco.MjData(m)
+    geometry = CellGeometry(cfg.robots, scene)
+    rng = np.random.default_rng(56)
+    home = np.array(cfg.robots[0].type.q_home)
+    for _ in range(25):
+        qs = [home + rng.uniform(-0.6, 0.6, 6) for _ in cfg.robots]
+        for k, q in enumerate(qs):
+            d.qpos[world.qpos_adr[k]] = q
+        mujoco.mj_forward(m, d)
+        for a, b in (("left", "right"), ("left", "wall"), ("right", "screen")):
+            got = geometry.distance(a, b, qs)
+            want = _mujoco_distance(m, d, a, b)
+            assert got.distance == pytest.approx(want, abs=1e-4), (a, b, got, want)
+            assert np.linalg.norm(got.point_a - got.point_b) == pytest.approx(
+                abs(got.distance), abs=1e-6
+            )
+
+
+def test_a_program_asks_the_distance_between_two_bodies(kali: Callable[..., str]) -> None:
+    """``kali.distance`` at the arms' measured joints: the two arms at home, an arm and the
+    table, one link and the other arm; a body the cell does not have is refused naming the
+    bodies it has.  As the plant's truth has it, within the encoders' resolution."""
+    from kali_daemons.robots.collision import CellGeometry
+
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready(["left", "right"])
+        step_kali_clock(k.inst, 300)
+        apart = k.distance("left", "right")
+        assert apart.near_a.startswith("left/") and apart.near_b.startswith("right/")
+        truth = [k.sim.truth(n).q for n in ("left", "right")]
+        exact = CellGeometry(k.inst.config.robots, k.scene).distance("left", "right", truth)
+        assert apart.distance == pytest.approx(exact.distance, abs=1e-4)
+        assert 0.05 < apart.distance < 0.3  # the wrists face each other over the stand
+        table = k.distance("left", "table")
+        assert table.near_b == "table" and table.distance > 0.0
+        link = k.distance("left/link6", "right")
+        assert link.near_a == "left/link6" and link.distance >= apart.distance
+        with pytest.raises(MotionError, match=r"no body 'anvil'.*'left', 'right', 'stand'"):
+            k.distance("left", "anvil")
+        with pytest.raises(MotionError, match=r"one body"):
+            k.distance("left/link2", "left")

@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -80,6 +80,10 @@ from .state import ArmState, ObjectState, StateReader
 from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
 from .together import Together
 from .truth import SimTruth
+
+if TYPE_CHECKING:
+    from ..robots.collision import CellGeometry
+    from ..robots.scene import Clearance
 
 POLL_S = 0.002  # how often a waiting program looks at its request's status
 GRIP_TIMEOUT_S = 5.0  # a Franka Hand's grasp or opening takes up to ~2 s
@@ -256,6 +260,13 @@ def _guard_arg(what: str, guard: object, kali: Kali, robots: list[int]) -> float
     except MotionError as exc:
         raise MotionError(f"{what}: {str(exc).removeprefix('motion: ')}") from None
     return float(guard)
+
+
+def _name_arg(name: str, value: object) -> str:
+    """A body's name for ``Kali.distance``; MotionError for anything but a string."""
+    if not isinstance(value, str):
+        raise MotionError(f"distance: {name} {value!r:.60} is not a body's name")
+    return value
 
 
 class Robot:
@@ -1034,6 +1045,7 @@ class Kali:
         self.grouping: Together | None = None  # a together() block being written
         self.tg_dt = self.inst.config.clock.tg_period_ms / 1000.0
         self._pin: dict[str, tuple] = {}  # per robot type: Pinocchio model, data, flange frame
+        self._geometry: CellGeometry | None = None  # the collision model, made at first use
         self.controls: list[Control] = []  # the periodic functions it started (control)
 
     def robot(self, name: str) -> Robot:
@@ -1125,6 +1137,22 @@ class Kali:
             f"calibrate {', '.join(todo)}",
             lambda: "; ".join(f"{n}: {self.servo.calibration(n)[2]}" for n in todo),
         )
+
+    def distance(self, a: str, b: str) -> Clearance:
+        """The clearance between two bodies of the cell with the arms at their measured
+        joints: an arm (``"left"``), one of its links (``"left/link3"``) or a scene object
+        (``"table"``), from the controller's collision model (``robots.collision``: the URDFs'
+        collision shapes, the scene's objects where they were built).  MotionError naming the
+        bodies for one the cell does not have."""
+        if self._geometry is None:
+            from ..robots.collision import CellGeometry  # here: coal, on first use only
+
+            self._geometry = CellGeometry(self.inst.config.robots, self.scene)
+        qs = [self.servo.level.arm("q", k).copy() for k in range(len(self.names))]
+        try:
+            return self._geometry.distance(_name_arg("a", a), _name_arg("b", b), qs)
+        except ConfigError as exc:
+            raise MotionError(str(exc)) from None
 
     @property
     def scene(self) -> Scene:

@@ -24,7 +24,7 @@ import numpy as np
 from ..core import errors
 from ..core.errors import KaliError
 from ..core.layout import CalibState, FfMode, FfState, PowerState, RequestState
-from ..robots.scene import Grasp, Scene, SceneObject
+from ..robots.scene import Clearance, Grasp, Scene, SceneObject
 from ..runtime.config import USER_RE
 from ..servo.loading import Loaded
 from ..servo.shadow import Trial
@@ -152,6 +152,7 @@ METHODS: dict[str, frozenset[str]] = {
             "recorded_bytes",
             "shared_transform",
             "find_transform",
+            "distance",
         }
     ),
     "Robot": frozenset(
@@ -264,6 +265,7 @@ ENUMS: dict[str, type[enum.IntEnum]] = {
 DATACLASSES: dict[str, type] = {
     "Contact": Contact, "Trial": Trial, "ArmState": ArmState, "ObjectState": ObjectState,
     "Truth": Truth, "Loaded": Loaded, "Scene": Scene, "SceneObject": SceneObject, "Grasp": Grasp,
+    "Clearance": Clearance,
 }  # fmt: skip
 
 

@@ -179,6 +179,19 @@ class Scene:
         return _transform(nearest.xyz, turned)
 
 
+@dataclass(frozen=True)
+class Clearance:
+    """How far apart two bodies are: ``distance`` (m; negative: how deep they overlap), the
+    two shapes nearest each other (``"left/link3"``, ``"table"``) and their nearest points
+    (world, m)."""
+
+    distance: float
+    near_a: str
+    near_b: str
+    point_a: np.ndarray
+    point_b: np.ndarray
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read and check the scene file at ``path``; ConfigError naming the file, the object,
     the field, the value and the rule."""

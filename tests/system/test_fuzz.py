@@ -283,7 +283,9 @@ ANYTHING = st.one_of(
     st.sampled_from([0, 1, -1, 2, 7, 0.0, -1.0, 1e300, -1e300, 5e-324, math.nan, math.inf]),
 )
 NOT_A_ROBOT = st.one_of(st.sampled_from([2, -1, "LEFT", "", "left ", 1.0]), NOT_NUMBERS)
-TIMEOUTS = st.one_of(st.floats(0.0, 0.02), st.none())  # valid, and never blocking long
+# valid, and never blocking long (None, no limit, only where nothing is waited for: a move
+# waited for without a limit may wait forever, queued behind a track that never ends)
+TIMEOUTS = st.one_of(st.floats(0.0, 0.02), st.none())
 
 Pick = Callable[[int, st.SearchStrategy[Any]], Any]
 
@@ -335,7 +337,7 @@ def _calls(kali: Kali) -> dict[str, Callable[[Pick], object]]:
             p(1, _near(q)), p(2, speed), wait=False
         ),
         "move_joints, wait": lambda p: kali.robot("left").move_joints(
-            q, 1.0, wait=p(3, flags), timeout=p(4, TIMEOUTS)
+            q, 1.0, wait=p(3, flags), timeout=p(4, st.floats(0.0, 0.02))
         ),
         "move_line": lambda p: kali.robot(p(0, robots)).move_line(
             p(1, poses), p(2, speed), p(3, speed), p(4, st.sampled_from([None, "luf", "ruf"])),
@@ -359,6 +361,10 @@ def _calls(kali: Kali) -> dict[str, Callable[[Pick], object]]:
         "grip": lambda p: kali.robot(p(0, robots)).grip(p(1, flags)),
         "grip, holding": lambda p: kali.robot(p(0, robots)).grip(
             True, 1.0, p(2, st.sampled_from(["bar", "stand", "nothing"]))
+        ),
+        "distance": lambda p: kali.distance(
+            p(0, st.sampled_from(["left", "right", "left/link3", "table", "anvil"])),
+            p(1, st.sampled_from(["right", "right/link9", "stand", "bar", "left"])),
         ),
         "set_load": lambda p: kali.robot(p(0, robots)).set_load(
             p(1, st.floats(0.0, 60.0)),
