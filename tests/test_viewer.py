@@ -39,7 +39,7 @@ from kali_daemons.core.errors import ConfigError
 from kali_daemons.core.joints import per_joint
 from kali_daemons.core.layout import FaultCode, RunMode
 from kali_daemons.robots.cell import base_transform
-from kali_daemons.runtime.config import DashboardConfig
+from kali_daemons.runtime.config import DashboardConfig, KaliConfig
 from kali_daemons.runtime.instance import Instance, time_ms
 from kali_daemons.servo.client import ServoClient
 from kali_daemons.tools import launcher
@@ -301,6 +301,26 @@ def test_the_dashboard_shows_a_push_on_a_tool_in_its_wrench_series_and_contact_a
     assert not [p for p in plots if p.startswith("left: contact")]
 
 
+def one_frame(cfg: KaliConfig, arena: Arena, rrd: Path) -> tuple[Path, Dashboard]:
+    """A dashboard over records laid out by hand (no processes): its static part and one
+    frame, recorded into ``rrd``."""
+    inst = SimpleNamespace(
+        config=cfg,
+        arena=arena,
+        clock=np.zeros((), layout.CLOCK),
+        procs=np.zeros(layout.MAX_PROCESSES, layout.PROCESS),
+        fault=np.zeros((), layout.FAULT),
+    )
+    rec = rr.RecordingStream("kali-test")
+    rec.set_sinks(rr.FileSink(str(rrd)))
+    board = Dashboard(inst, rec)
+    board.log_static()
+    board.frame()
+    rec.flush(timeout_sec=5.0)
+    rec.disconnect()
+    return rrd, board
+
+
 def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     arena: Arena, tmp_path: Path
 ) -> None:
@@ -323,22 +343,8 @@ def test_a_mixed_cell_draws_and_plots_each_arm_over_its_own_joints(
     ft["present"] = [0, 1]
     ft["tool"] = [[9.0] * 6, [1.0, 2.0, 3.0, 0.1, 0.2, 0.3]]
     ft["world"] = [[9.0] * 6, [10.0, 0.0, -5.0, 0.0, 0.0, 0.0]]
-    inst = SimpleNamespace(
-        config=cfg,
-        arena=arena,
-        clock=np.zeros((), layout.CLOCK),
-        procs=np.zeros(layout.MAX_PROCESSES, layout.PROCESS),
-        fault=np.zeros((), layout.FAULT),
-    )
-    rrd = tmp_path / "mixed.rrd"
-    rec = rr.RecordingStream("kali-test")
-    rec.set_sinks(rr.FileSink(str(rrd)))
-    board = Dashboard(inst, rec)
+    rrd, board = one_frame(cfg, arena, tmp_path / "mixed.rrd")
     assert [a.model.nq for a in board.arms] == [6, 7]
-    board.log_static()
-    board.frame()
-    rec.flush(timeout_sec=5.0)
-    rec.disconnect()
     del robots, joints, ft
 
     from rerun.chunk import RrdReader
@@ -394,21 +400,7 @@ def test_the_dashboard_draws_every_object_of_the_scene(arena: Arena, tmp_path: P
         truth["pose"] = [*obj.xyz, *obj.quat]
     objects["pose"][1, 0] += 0.1  # the block, 10 cm along x
     arena.record(layout.KEY_FT, layout.FT_STATE, 2)
-    inst = SimpleNamespace(
-        config=cfg,
-        arena=arena,
-        clock=np.zeros((), layout.CLOCK),
-        procs=np.zeros(layout.MAX_PROCESSES, layout.PROCESS),
-        fault=np.zeros((), layout.FAULT),
-    )
-    rrd = tmp_path / "scene.rrd"
-    rec = rr.RecordingStream("kali-test")
-    rec.set_sinks(rr.FileSink(str(rrd)))
-    board = Dashboard(inst, rec)
-    board.log_static()
-    board.frame()
-    rec.flush(timeout_sec=5.0)
-    rec.disconnect()
+    rrd, _ = one_frame(cfg, arena, tmp_path / "scene.rrd")
     del joints, objects
 
     from rerun.chunk import RrdReader

@@ -1152,7 +1152,7 @@ class Kali:
         try:
             return self._geometry.distance(_name_arg("a", a), _name_arg("b", b), qs)
         except ConfigError as exc:
-            raise MotionError(str(exc)) from None
+            raise MotionError(str(exc).removeprefix("config: ")) from None
 
     @property
     def scene(self) -> Scene:
@@ -1174,7 +1174,8 @@ class Kali:
             cfgs = self.inst.config.robots
             grasps = [self.scene.grasp_for(holding, cfgs[r.index]) for r in robots]
         except ConfigError as exc:
-            raise MotionError(f"{what}: holding {holding!r}: {exc}") from None
+            reason = str(exc).removeprefix("config: ")
+            raise MotionError(f"{what}: holding {holding!r}: {reason}") from None
         share = 1.0 / len(robots)
         return [(obj.load_on(grasp, share), grasp) for grasp in grasps]
 

@@ -323,9 +323,9 @@ class PlantSim:
             self.world.activate_weld(self.data, k, self.world.grasp_object[i])
 
     def _conveyor(self) -> None:
-        """Carry the bar on the belt: while the first board runs the belt's motor and the bar
-        lies on it (held by no gripper, not lifted), its x, y go at the belt's velocity from
-        where they were when the belt started, exactly (set before each step, with that
+        """Carry the scene's belt object: while the first board runs the belt's motor and the
+        object lies on it (held by no gripper, not lifted), its x, y go at the belt's velocity
+        from where they were when the belt started, exactly (set before each step, with that
         velocity: the stand's friction does not drag it back).  Floats only."""
         if not self._belt_bit[0]:  # the belt's motor off: the usual case, one load
             self._belt_from = None
