@@ -18,6 +18,7 @@ import numpy as np
 from ..core import layout
 from ..core.errors import ServoError
 from ..robots.cell import base_transform
+from ..robots.scene import quaternion_pose
 
 if TYPE_CHECKING:
     from .motion import Kali
@@ -87,19 +88,6 @@ class Truth:
         return True
 
 
-def quaternion_pose(p: np.ndarray) -> np.ndarray:
-    """A 4×4 pose from a position and a unit quaternion (w, x, y, z), as MuJoCo gives them."""
-    w, x, y, z = (float(v) for v in p[3:7])
-    t = np.eye(4)
-    t[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    t[:3, 3] = p[:3]
-    return t
-
-
 class SimTruth:
     """``kali.sim``: the simulator's truth of a program's instance (``truth``)."""
 
@@ -157,7 +145,8 @@ class SimTruth:
             estop=bool(arm["estop"]),
             held=None if arm["held"] < 0 else self._names[int(arm["held"])],
             objects={
-                n: quaternion_pose(o["pose"]) for n, o in zip(self._names, objects, strict=True)
+                n: quaternion_pose(p[:3], p[3:])
+                for n, p in zip(self._names, objects["pose"], strict=True)
             },
             internal_force=float(world["internal_force"]),
         )

@@ -62,7 +62,7 @@ class Grasp:
     @property
     def pose(self) -> np.ndarray:
         """The grasp in the object's frame (4×4)."""
-        return _transform(self.xyz, self.quat)
+        return quaternion_pose(self.xyz, self.quat)
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class SceneObject:
     @property
     def pose(self) -> np.ndarray:
         """Where the object is built (4×4, world): a free one's rest pose."""
-        return _transform(self.xyz, self.quat)
+        return quaternion_pose(self.xyz, self.quat)
 
     @property
     def inertia(self) -> np.ndarray:
@@ -176,7 +176,7 @@ class Scene:
 
         nearest = min(obj.grasps, key=reach)
         turned = _quat_mul(_quat_rpy(0.0, 0.0, robot.grasp_yaw_deg), nearest.quat)
-        return _transform(nearest.xyz, turned)
+        return quaternion_pose(nearest.xyz, turned)
 
 
 @dataclass(frozen=True)
@@ -376,7 +376,9 @@ def _quat_mul(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, flo
     )
 
 
-def _transform(xyz: Sequence[float], quat: Sequence[float]) -> np.ndarray:
+def quaternion_pose(xyz: Sequence[float], quat: Sequence[float]) -> np.ndarray:
+    """A 4×4 pose at ``xyz`` turned by the unit quaternion ``quat`` (w, x, y, z), as MuJoCo
+    and the scene files give them."""
     w, x, y, z = quat
     t = np.eye(4)
     t[:3, :3] = [
