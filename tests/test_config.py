@@ -521,6 +521,17 @@ BAD_CONFIGS: list[tuple[str, list[tuple[str, str]], str]] = [
         "processes.tg.priority = 100: must be an integer >= 0 and <= 99",
     ),
     (
+        "nice-at-fifo",
+        [("priority: 40, period_ms: 10", "priority: 40, nice: -5, period_ms: 10")],
+        "processes.dynamics.nice = -5: applies to normal scheduling (priority 0); at SCHED_FIFO "
+        "priority 40 the process outranks every normal one already",
+    ),
+    (
+        "nice-too-low",
+        [("priority: 0, period_ms: 40", "priority: 0, nice: -21, period_ms: 40")],
+        "processes.viewer.nice = -21: must be an integer >= -20 and <= 19",
+    ),
+    (
         "stage-too-big",
         [("stage: 4}", "stage: 16}")],
         "processes.viewer.stage = 16: must be an integer >= 0 and <= 15",
@@ -823,7 +834,7 @@ def test_unknown_key_lists_allowed_keys() -> None:
     message = error_of(edit(("stage: 3}", "stage: 3, colour: red}")))
     assert message == (
         f"config: {SOURCE}: processes.dynamics.colour: unknown key; allowed keys: "
-        "enabled, cpu, priority, period_ms, serious, stage"
+        "enabled, cpu, priority, nice, period_ms, serious, stage"
     )
 
 

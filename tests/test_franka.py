@@ -242,3 +242,27 @@ def test_a_second_client_on_the_same_robot_is_refused_naming_it(kali: Callable[.
 
 def ft_world(inst: Instance) -> np.ndarray:
     return inst.arena.record(layout.KEY_FT, layout.FT_STATE, inst.cell.n_robots)["world"][0].copy()
+
+
+def test_programs_busy_on_the_simulators_cpu_leave_the_fr3_running(
+    kali: Callable[..., str],
+) -> None:
+    """franky-sim runs at normal scheduling (below every Kali process) on CPU 1, where four
+    busy programs, each in a session of its own as another cell's processes are, take their
+    share for three seconds: the robot's states still come within the 20 ms the link waits."""
+    name = fr3_cell(kali)
+    with Kali(name) as k:
+        k.ready(["arm"])
+        busy = "import os, time\nos.sched_setaffinity(0, {1})\nt = time.monotonic() + 3\n" \
+            "while time.monotonic() < t: pass\n"  # fmt: skip
+        hogs = [
+            subprocess.Popen([sys.executable, "-c", busy], start_new_session=True)
+            for _ in range(4)
+        ]
+        try:
+            for h in hogs:
+                h.wait(timeout=30)
+        finally:
+            for h in hogs:
+                h.kill()
+        assert not k.inst.fault["active"], k.inst.fault_text()

@@ -110,6 +110,9 @@ def close_semaphore_address(ptr: int) -> None:
         _sem_close(ptr)
 
 
+AUTOGROUP = "/proc/self/autogroup"  # a session's scheduling group, where the kernel has them
+
+
 @dataclass
 class RtReport:
     """What was applied to this process, for the process table and ``kalictl status``."""
@@ -169,9 +172,12 @@ def prepare(cpu: int | None, lock_memory: bool = True) -> RtReport:
     return RtReport(bound, 0, slack, locked, warnings)
 
 
-def go_realtime(report: RtReport, priority: int) -> None:
-    """Switch to SCHED_FIFO at ``priority`` (0: stay SCHED_OTHER); record it in ``report``."""
+def go_realtime(report: RtReport, priority: int, nice: int = 0) -> None:
+    """Switch to SCHED_FIFO at ``priority`` (0: stay SCHED_OTHER at ``nice``); record it in
+    ``report``."""
     if priority <= 0:
+        if nice:
+            set_nice(report, nice)
         return
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -180,6 +186,19 @@ def go_realtime(report: RtReport, priority: int) -> None:
         report.warnings.append(
             f"SCHED_FIFO priority {priority} refused ({exc.strerror}); running SCHED_OTHER"
         )
+
+
+def set_nice(report: RtReport, nice: int) -> None:
+    """This process's weight at SCHED_OTHER: its nice value and, where the kernel weighs a
+    session's processes as one (autogroup, sched(7)), its session's, which is what other
+    programs' sessions compete with (each Kali process leads a session of its own)."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+        if os.path.exists(AUTOGROUP):
+            with open(AUTOGROUP, "w") as f:
+                f.write(str(nice))
+    except OSError as exc:
+        report.warnings.append(f"nice {nice} refused ({exc.strerror}); running at nice 0")
 
 
 def leave_realtime() -> None:

@@ -97,13 +97,13 @@ MAX_PLUGINS = 16
 # period from the clock section.
 _PROCESS_KEYS = {
     "wallclock": ("cpu", "priority"),
-    "plant": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
+    "plant": ("enabled", "cpu", "priority", "nice", "period_ms", "serious", "stage"),
     "link": ("cpu", "priority", "serious", "stage"),
     "tg": ("cpu", "priority", "serious", "stage"),
     "sio": ("cpu", "priority", "serious", "stage"),
     "sv": ("count", "cpus", "priority", "serious", "stage", "poll_us", "rest_ms"),
-    "dynamics": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
-    "viewer": ("enabled", "cpu", "priority", "period_ms", "serious", "stage"),
+    "dynamics": ("enabled", "cpu", "priority", "nice", "period_ms", "serious", "stage"),
+    "viewer": ("enabled", "cpu", "priority", "nice", "period_ms", "serious", "stage"),
 }
 # What a kind's entry takes when it leaves ``serious`` or ``stage`` out: the servo processes
 # are serious (a user who leaves the key out never loses the halt on a dead or late servo
@@ -151,6 +151,14 @@ def _cpu_field(default: Any = ..., doc: str = "CPU to bind to; null: no binding"
 def _priority(default: Any = ...) -> Any:
     doc = "0: normal scheduling (SCHED_OTHER); 1..99: real-time SCHED_FIFO priority"
     return _f(default, doc, ge=0, le=MAX_PRIORITY)
+
+
+def _nice(default: Any = ...) -> Any:
+    doc = (
+        "priority 0 only: the process's weight against other programs' on its CPU, -20 the "
+        "most to 19 the least (its session's: the kernel weighs a session's processes as one)"
+    )
+    return _f(default, doc, ge=-20, le=19)
 
 
 def _serious(default: Any = ...) -> Any:
@@ -248,6 +256,7 @@ class ProcessEntry:
         None, "sv only: one CPU (or null) per worker; left out: none bound"
     )
     priority: int = _priority(0)
+    nice: int = _nice(0)
     period_ms: int | float | None = _period_field(
         None,
         "plant, dynamics and viewer only; left out: the base tick (plant), the TG's period "
@@ -274,6 +283,7 @@ class ProcessConfig:
     stage: int = _stage()
     poll_us: int = _poll_us(0)
     rest_ms: int | float = _rest_ms(0)
+    nice: int = _nice(0)
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -1595,9 +1605,18 @@ def _process(kind: str, node: Any, clock: ClockConfig) -> list[ProcessConfig]:
         period = _period(v["period_ms"], f"{path}.period_ms", clock.base_tick_ms)
     else:
         period = _default_period(kind, clock)
+    nice = v.get("nice", 0)
+    if nice and v["priority"]:
+        _fail(
+            f"{path}.nice",
+            nice,
+            f"applies to normal scheduling (priority 0); at SCHED_FIFO priority "
+            f"{v['priority']} the process outranks every normal one already",
+        )
     common = {
         "kind": kind,
         "priority": v["priority"],
+        "nice": nice,
         "period_ms": period,
         "serious": v["serious"],
         "stage": v["stage"],
@@ -1887,6 +1906,7 @@ def resolved(cfg: KaliConfig) -> dict[str, Any]:
             "count": len(procs),
             "cpus": [q.cpu for q in procs],
             "priority": p.priority,
+            "nice": p.nice,
             "period_ms": p.period_ms,
             "serious": p.serious,
             "stage": p.stage,

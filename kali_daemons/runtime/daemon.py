@@ -97,6 +97,7 @@ class Daemon:
         self.slot = -1
         self._rt: rt.RtReport  # what prepare applied; _go_realtime adds the priority
         self._priority = 0  # SCHED_FIFO priority once start-up is over (0: SCHED_OTHER)
+        self._nice = 0  # at SCHED_OTHER: its weight against other programs (rt.set_nice)
         self.period_ticks = 1
         self.serious = False
         self.stage = 0
@@ -219,6 +220,7 @@ class Daemon:
         realtime = self.realtime and not self._hosted
         self._rt = self._prepare_os(cpu if realtime else None, self._lock_memory and realtime)
         self._priority = prio if realtime else 0
+        self._nice = pcfg.nice if pcfg and realtime and not prio else 0
         p = self.inst.procs[self.slot]
         p["pid"] = os.getpid()
         p["cpu"] = self._rt.cpu
@@ -238,7 +240,7 @@ class Daemon:
         ``on_activate`` and ``freeze_heap`` run as SCHED_OTHER.  Tens of ms of set-up or of
         collecting a heap holding MuJoCo and Pinocchio at SCHED_FIFO starve every process of
         lower priority on this CPU, another instance's servo processes included."""
-        rt.go_realtime(self._rt, self._priority)
+        rt.go_realtime(self._rt, self._priority, self._nice)
         self.inst.procs[self.slot]["priority"] = self._rt.priority
         for w in self._rt.warnings:  # one warning per refusal, at start-up only
             self.log.warning("%s: %s", self.name, w)
