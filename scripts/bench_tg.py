@@ -38,7 +38,11 @@ Two measurements:
    and power checks) and the daemon's wait/acknowledge bookkeeping; the real-time part below
    measures the whole process.  The pre-move check (``CartesianMotion.check_all``,
    the whole path walked at the TG's sample times before anything moves; the TG spreads it
-   over ticks, 25 % of a period each) is timed per path second for one arm and for a pair.
+   over ticks, 25 % of a period each) is timed per path second for one arm and for a pair,
+   each without and with the cell's clearance walk (``robots.collision``: the default
+   cell's two arms, the other arm standing at QN for one arm), and a joint move's clearance
+   check (``tg.clearance.JointMoveCheck``); ``looks`` counts the poses whose distances
+   were computed.
 
 2. **As a process at real time**: ``config/default.yaml`` (arms left and right, TG period
    10 ms) started in real-time mode as its own instance; both arms powered and calibrated,
@@ -128,12 +132,14 @@ from kali_daemons.core.errors import KaliError
 from kali_daemons.core.layout import FrameKind, RequestState
 from kali_daemons.robots import puma560
 from kali_daemons.robots.cell import base_transform, inverse
+from kali_daemons.robots.collision import CellClearance, CellGeometry
 from kali_daemons.robots.puma560 import kinematics
 from kali_daemons.runtime.config import KaliConfig, load_config
 from kali_daemons.runtime.instance import Instance
 from kali_daemons.servo.level import FIFO_CAPACITY
 from kali_daemons.tg import records
 from kali_daemons.tg.cartesian import CartesianMotion
+from kali_daemons.tg.clearance import JointMoveCheck
 from kali_daemons.tg.functions import FunctionRegistry, FunctionSlots, Sensors, data_of, set_params
 from kali_daemons.tg.planner import Motion, Planner, joint_rows
 from kali_daemons.tg.profiles import JointMotion
@@ -362,6 +368,7 @@ class CheckRow:
     check_ms: float  # median of CHECK_REPEATS, thread CPU time
     us_per_path_s: float
     us_per_sample_arm: float
+    looks: int  # poses whose clearances were computed (0: no clearance walk)
 
 
 def rewind(motions: list[Motion], ticks: int, dt: float) -> None:
@@ -433,18 +440,42 @@ def cost_per_tick(
     )
 
 
-def check_cost(mode: str, dt: float) -> CheckRow:
-    """The median time of ``check_all`` of one system's square (planned afresh each time)."""
+AWAY = np.array([-1.0, 1.0, 1.0, 1.0, 1.0, 1.0])  # JOINT_MOVE_DEG's waist into arm 1 would meet it
+CHECKS = ("cart 1 arm", "cart pair", "cart 1 arm + clearance", "cart pair + clearance",
+          "joint + clearance")  # fmt: skip
+
+
+def check_cost(mode: str, dt: float, cell: CellClearance) -> CheckRow:
+    """The median time of the pre-move check of one system's motion of ``mode`` (planned
+    afresh each time): a path's ``check_all``, with the clearance walk of ``cell`` when the
+    mode says so; a joint move's clearance check."""
+    base = mode.removesuffix(" + clearance")
+    clear = base != mode
     times = []
-    plan = None
+    plan: CartesianMotion | JointMoveCheck | None = None
     for _ in range(CHECK_REPEATS):
-        plan = make_motions(mode, 1, dt)[0].profile
-        assert isinstance(plan, CartesianMotion)
+        motion = make_motions(base, 1, dt)[0]
+        qs = [np.array(puma560.QN)] * len(PLACEMENTS[:2])
         c0 = time.thread_time_ns()
-        plan.check_all()
+        if isinstance(motion.profile, JointMotion):  # its waist turned away from arm 1
+            away = motion.profile.start + np.radians(JOINT_MOVE_DEG * AWAY)
+            joint = JointMotion(motion.profile.start, away, motion.profile.v_max,
+                                motion.profile.a_max)  # fmt: skip
+            plan = JointMoveCheck(joint, cell.walk([0], qs), ["arm0"], [N])
+            plan.check_some(1 << 30)
+        else:
+            plan = motion.profile
+            assert isinstance(plan, CartesianMotion)
+            plan.clearance = cell.walk(motion.robots, qs) if clear else None
+            plan.check_all()
         times.append(time.thread_time_ns() - c0)
     assert plan is not None
     t_us = statistics.median(times) / 1e3
+    if isinstance(plan, JointMoveCheck):
+        looks = plan.walk.looks
+        return CheckRow(mode, 1, plan.motion.duration, looks, t_us / 1e3,
+                        t_us / plan.motion.duration, t_us / looks, looks)  # fmt: skip
+    looks = plan.clearance.looks if plan.clearance is not None else 0
     return CheckRow(
         mode,
         plan.n,
@@ -453,6 +484,7 @@ def check_cost(mode: str, dt: float) -> CheckRow:
         t_us / 1e3,
         t_us / plan.duration,
         t_us / plan.n_samples / plan.n,
+        looks,
     )
 
 
@@ -496,15 +528,19 @@ def format_costs(rows: list[CostRow], checks: list[CheckRow], dt: float) -> str:
             )
     lines.append("")
     head = (
-        f"{'pre-move check':<15} {'arms':>4} {'path s':>7} {'samples':>7} {'check ms':>9} "
-        f"{'µs / path s':>11} {'µs / sample / arm':>17}"
+        f"{'pre-move check':<22} {'arms':>4} {'path s':>7} {'samples':>7} {'check ms':>9} "
+        f"{'µs / path s':>11} {'µs / sample / arm':>17} {'looks':>6}"
     )
     lines += [head, "-" * len(head)]
     for c in checks:
         lines.append(
-            f"{c.mode:<15} {c.arms:>4} {c.path_s:>7.2f} {c.samples:>7} {c.check_ms:>9.2f} "
-            f"{c.us_per_path_s:>11,.0f} {c.us_per_sample_arm:>17.1f}"
+            f"{c.mode:<22} {c.arms:>4} {c.path_s:>7.2f} {c.samples:>7} {c.check_ms:>9.2f} "
+            f"{c.us_per_path_s:>11,.0f} {c.us_per_sample_arm:>17.1f} {c.looks:>6}"
         )
+    lines.append(
+        "'+ clearance': the walk of the default cell's clearances (goal: a two-arm "
+        "4-segment path's check within 20 ms); a joint move's samples are its looks"
+    )
     lines.append(
         "check_all, thread CPU time, median of "
         f"{CHECK_REPEATS}; the TG walks it in slices of 25 % of a period before the path starts: "
@@ -964,7 +1000,9 @@ def main(argv: list[str] | None = None) -> int:
             for m in MODES
             for n in SYSTEMS
         ]
-        checks = [check_cost(m, dt) for m in ("cart 1 arm", "cart pair")]
+        cfg = load_config(DEFAULT_CONFIG)
+        cell = CellClearance(CellGeometry(cfg.robots, cfg.scene))
+        checks = [check_cost(m, dt, cell) for m in CHECKS]
         print(format_costs(rows, checks, dt) + "\n", flush=True)
         if not args.skip_rt:
             wait_quiet(args.wait_quiet, "bench_tg", QUIET_LOAD)

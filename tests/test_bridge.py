@@ -583,7 +583,7 @@ def test_ctrl_c_in_a_remote_program_stops_its_arms_on_their_paths(
     with Kali(name) as local:
         local.ready(["left"])
         start = local.robot("left").read_joints()
-        target = start + np.array([0.8, 0, 0, 0, 0, 0])
+        target = start - np.array([0.8, 0, 0, 0, 0, 0])  # away from the right arm
         with pytest.raises(KeyboardInterrupt), Kali.connect(endpoint, name) as remote:
             arm = remote.robot("left")
             arm.move_joints(target, speed=0.2, wait=False)
@@ -595,7 +595,7 @@ def test_ctrl_c_in_a_remote_program_stops_its_arms_on_their_paths(
             local.sleep(0.1)
         assert local.idle([0])
         q = local.robot("left").read_joints()
-        assert 0.02 < q[0] - start[0] < 0.6  # stopped on the way, not at the target
+        assert 0.02 < start[0] - q[0] < 0.6  # stopped on the way, not at the target
         status = local.status
         ended = status[status["seq"] > 0]
         states = {layout.RequestState(int(s)).name for s in ended["state"]}

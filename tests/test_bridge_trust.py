@@ -302,7 +302,7 @@ def test_ctrl_c_under_kalictl_run_remote_stops_the_arms_of_a_program_ignoring_si
     name, endpoint = bridged()
     with powered(name) as k:
         start = k.servo.level.arm("demand", 0).copy()
-        far = start + np.radians([60, 0, 0, 0, 0, 0])
+        far = start - np.radians([60, 0, 0, 0, 0, 0])  # away from the right arm
         prog = tmp_path / "prog.py"
         prog.write_text(
             textwrap.dedent(
@@ -343,7 +343,7 @@ def test_ctrl_c_under_kalictl_run_remote_stops_the_arms_of_a_program_ignoring_si
             assert "arms stopped on their paths: left" in said, (said, now)
             assert now == "STOPPED", (said, now)  # said once it was so, not before
             held = k.servo.level.arm("demand", 0).copy()
-            assert start[0] < held[0] < far[0]  # stopped on its path, short of the target
+            assert far[0] < held[0] < start[0]  # stopped on its path, short of the target
             assert pid_alive(pid) and run.poll() is None  # it ignores SIGINT, kalictl waits
             run.send_signal(signal.SIGINT)
             assert run.wait(timeout=30) == 128 + signal.SIGKILL

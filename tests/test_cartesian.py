@@ -262,7 +262,7 @@ def test_a_ticks_path_check_ends_with_the_ticks_check_share() -> None:
     q0 = np.array(puma560.QN)
     start = world_pose(LEFT, q0)
     plan = one_arm(q0, [translated(start, (0.0, 0.0, 0.2))], speed=0.05)
-    m = Motion(5, [0], plan, checking=True)
+    m = Motion(5, [0], plan, checking=True, check=plan)
     spent = _Checker(time.monotonic_ns() - 1)
     spent._check(m)
     assert plan.checked == 1 and m.checking and spent.ran == []
@@ -279,7 +279,7 @@ def test_in_lockstep_a_ticks_path_check_is_a_count_of_samples_not_wall_time() ->
     start = world_pose(LEFT, q0)
     for until in (time.monotonic_ns() - 1, time.monotonic_ns() + 3_600_000_000_000):
         plan = one_arm(q0, [translated(start, (0.0, 0.0, 0.2))], speed=0.05)
-        m = Motion(5, [0], plan, checking=True)
+        m = Motion(5, [0], plan, checking=True, check=plan)
         tg = _Checker(until, lockstep=True)
         ticks = 0
         while m.checking:

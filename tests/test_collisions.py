@@ -1,26 +1,30 @@
 """Collisions, simulated (issue 56 item 2): in the plant every arm's links collide with the
 other arms' and with the world, from the URDFs' collision shapes, so a crash is a crash: the
 arms stop against each other and SIO's checks halt the cell naming an arm; the flight
-recorder's dump holds the fault."""
+recorder's dump holds the fault.  Known to the controller (item 3): the same shapes in coal,
+the TG's check refusing a motion that would come within the scene's clearance."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
 from kali_daemons.client import Kali, pose
+from kali_daemons.client.common import MotionFailedError
 from kali_daemons.core.errors import MotionError
 from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import model
-from kali_daemons.robots.scene import parse_scene
+from kali_daemons.robots.scene import DEFAULT_SCENE, parse_scene
 from kali_daemons.wallclock import step_kali_clock
 from tests.conftest import make_config
 from tests.test_launcher import kalictl
 
 DOWN = np.diag([1.0, -1.0, -1.0])  # the flange's z straight down
+UNCHECKED = "KALI_TEST_UNCHECKED_CLEARANCE"  # the TG's test-only switch: no clearance check
 
 
 WALLED = """version: 1
@@ -72,12 +76,13 @@ def test_arm_links_collide_with_other_arms_and_the_world_not_their_own() -> None
 
 
 def test_two_arms_driven_into_each_other_crash_and_halt_naming_an_arm(
-    kali: Callable[..., str],
+    kali: Callable[..., str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Lockstep: both arms sent to flange poses 4 cm apart above the stand (no check refuses
-    it yet: the controller's collision model is item 3): their wrists meet on the way, the
-    flanges never come closer than the arms' bodies let them, and the cell halts with a
-    fault naming an arm; ``kalictl flight`` shows the dump of that fault."""
+    """Lockstep: both arms sent to flange poses 4 cm apart above the stand, the TG's
+    clearance check off (the test-only switch: it would refuse both moves): their wrists meet
+    on the way, the flanges never come closer than the arms' bodies let them, and the cell
+    halts with a fault naming an arm; ``kalictl flight`` shows the dump of that fault."""
+    monkeypatch.setenv(UNCHECKED, "1")
     name = kali(lockstep=True)
     with Kali(name) as k:
         k.ready(["left", "right"])
@@ -174,3 +179,123 @@ def test_a_program_asks_the_distance_between_two_bodies(kali: Callable[..., str]
             k.distance("left", "anvil")
         with pytest.raises(MotionError, match=r"one body"):
             k.distance("left/link2", "left")
+
+
+def test_moves_that_would_meet_the_other_arm_are_refused_naming_both_links(
+    kali: Callable[..., str],
+) -> None:
+    """Lockstep, the shipped cell: the left arm's waist turned towards the right arm, and its
+    flange sent in a line over to the right arm's wrist, are each refused before anything
+    moves, naming a link of each arm, the distance and where on the way; the same moves
+    away from it run."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready(["left", "right"])
+        left = k.robot("left")
+        start = k.servo.level.joints["demand"][left.span].copy()
+        turn = np.radians([30, 0, 0, 0, 0, 0])
+        with pytest.raises(MotionFailedError) as refused:
+            left.move_joints(start + turn, speed=0.3)
+        assert_refused(
+            str(refused.value),
+            r"joint move refused: \d+ % of the way, robot 'left' at \(.*\)°: 'left/link\d' "
+            r"would (come within \d+\.\d mm of|overlap) 'right/link\d'.* \(clearance 10 mm\) at "
+            r"\(.*\) m",
+        )
+        here = left.read_pose(demand=True)
+        toward = pose(here[:3, 3] + np.array([0.0, 0.25, 0.0]), here)  # the right arm's side
+        with pytest.raises(MotionFailedError) as refused:
+            left.move_line(toward, speed=0.1)
+        assert_refused(
+            str(refused.value),
+            r"path refused: segment 1 of 1, \d+\.\d\d s into the motion, object at \(.*\) m: "
+            r"'left/link\d' would (come within \d+\.\d mm of|overlap) 'right/link\d'",
+        )
+        demand = k.servo.level.joints["demand"][left.span]
+        np.testing.assert_array_equal(demand, start)  # nothing moved
+        left.move_joints(start - turn, speed=0.3)  # away: it runs
+        left.move_joints(start, speed=0.3)
+        left.move_line(pose(here[:3, 3] - np.array([0.0, 0.1, 0.0]), here), speed=0.1)
+        assert k.inst.fault_text() is None
+
+
+def assert_refused(message: str, pattern: str) -> None:
+    import re
+
+    assert re.search(pattern, message), message
+
+
+def solid_table(tmp_path: Path) -> dict[str, str]:
+    """The shipped scene with its table solid to the arms' links: a config edit naming it."""
+    text = DEFAULT_SCENE.read_text()
+    loose = "    at: [0.0, -0.38, 0.2]\n    fixed: true\n    arms_touch: false\n"
+    assert text.count(loose) == 1
+    path = tmp_path / "solid-table.yaml"
+    path.write_text(text.replace(loose, "    at: [0.0, -0.38, 0.2]\n    fixed: true\n"))
+    return {r"^version: 1$": f"version: 1\nscene: {path}"}
+
+
+def test_a_joint_move_into_a_solid_table_is_refused_and_one_clear_of_it_runs(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """Lockstep, a scene whose table the arms' links touch: the left arm's waist turned
+    towards the table and its shoulder lowered, in one joint move, would put its wrist into
+    the table (refused naming the link and the table); turned further first, then lowered
+    beside the table, it runs, and the plant's arm meets nothing."""
+    name = kali(lockstep=True, edits=solid_table(tmp_path))
+    with Kali(name) as k:
+        k.ready(["left"])
+        left = k.robot("left")
+        start = k.servo.level.joints["demand"][left.span].copy()
+        with pytest.raises(MotionFailedError) as refused:
+            left.move_joints(start + np.radians([-30, -30, 0, 0, 0, 0]), speed=0.3)
+        assert_refused(
+            str(refused.value),
+            r"joint move refused: .*'left/link5' would (overlap 'table' by|come within "
+            r"\d+\.\d mm of 'table')",
+        )
+        left.move_joints(start + np.radians([-70, 0, 0, 0, 0, 0]), speed=0.3)
+        clear = start + np.radians([-70, -30, 0, 0, 0, 0])
+        left.move_joints(clear, speed=0.3)
+        left.settle()
+        assert k.distance("left", "table").distance > 0.01
+        assert np.abs(k.sim.truth("left").q - clear).max() < 2e-3
+        assert k.inst.fault_text() is None
+
+
+def test_the_clearance_walk_stops_at_the_first_pose_every_pair_measured_would() -> None:
+    """``ClearanceWalk`` skips poses (its margin and the arms' reach bound what it may) yet
+    finds the first pose of a path within the clearance exactly where coal's distance of
+    every pair, pose by pose, finds it, and none where there is none: random two-arm paths
+    near the walled scene, in coarse steps (at the TG's, it looks far less often: bench_tg's
+    ``looks``)."""
+    import coal
+
+    from kali_daemons.robots.collision import CellClearance, CellGeometry
+
+    cfg = make_config("collision-walk")
+    cell = CellClearance(CellGeometry(cfg.robots, parse_scene(WALLED, "walled.yaml")))
+    rng = np.random.default_rng(563)
+    home = np.array(cfg.robots[0].type.q_home)
+
+    def exact(qs: list[np.ndarray]) -> float:
+        cell.gap(qs)  # places the arms' shapes
+        least = np.inf
+        for i, j in zip(cell.pair_a, cell.pair_b, strict=True):
+            (a, at_a), (b, at_b) = cell._shape(int(i)), cell._shape(int(j))
+            d = coal.distance(a, at_a, b, at_b, coal.DistanceRequest(), coal.DistanceResult())
+            least = min(least, d)
+        return float(least)
+
+    hits = looks = poses = 0
+    for _ in range(12):
+        ends = [home + rng.uniform(-0.9, 0.9, 6) for _ in range(2)]
+        path = [[home + (e - home) * s for e in ends] for s in np.linspace(0.0, 1.0, 60)]
+        first = next((i for i, qs in enumerate(path) if exact(qs) < cell.clearance), None)
+        walk = cell.walk([0, 1], path[0])
+        found = next((i for i, qs in enumerate(path) if walk.hit(qs) is not None), None)
+        assert found == first
+        hits += first is not None
+        looks += walk.looks
+        poses += len(path) if found is None else found + 1
+    assert 0 < hits < 12 and looks < poses  # some skipped, even at these coarse steps

@@ -66,7 +66,7 @@ def test_a_guided_arm_goes_where_it_is_pushed_stays_and_the_tg_keeps_off(
         left.tare()
         # a motion running when guiding is selected stops, saying why
         q0 = left.read_joints()
-        handle = left.move_joints(q0 + np.radians([20, 0, 0, 0, 0, 0]), speed=0.1, wait=False)
+        handle = left.move_joints(q0 - np.radians([20, 0, 0, 0, 0, 0]), speed=0.1, wait=False)
         step_kali_clock(k.inst, 500)
         left.select_servo("guiding")
         step_kali_clock(k.inst, 300)

@@ -151,6 +151,12 @@ BAD = [
         " fixed: true}\nbelt: wall",
         "belt = 'wall': must name a free object the conveyor carries",
     ),
+    (
+        "version: 1\nobjects: []\nclearance_m: 2",
+        "clearance_m = 2: a distance in metres, 0 .. 0.5 (how near a checked motion lets an "
+        "arm come to another arm or to an object its links touch)",
+    ),
+    ("version: 1\nobjects: []\nclearance_m: near", "clearance_m = 'near': a distance in metres"),
 ]
 
 

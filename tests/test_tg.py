@@ -169,7 +169,8 @@ def test_a_halt_wakes_the_waiting_program_with_the_fault(kali: Callable[..., str
     with powered(name) as k:
         left = k.robot("left")
         start = k.servo.level.joints["demand"][LEFT].copy()
-        h = left.move_joints(start + np.radians([30, 0, 0, 0, 0, 0]), speed=0.2, wait=False)
+        # away from the right arm (towards it, the TG's check would refuse it)
+        h = left.move_joints(start + np.radians([-30, 0, 0, 0, 0, 0]), speed=0.2, wait=False)
         step_kali_clock(k.inst, 100)
         assert h.state == RequestState.RUNNING
         queued = left.move_joints(start, wait=False)
@@ -397,7 +398,7 @@ def test_a_mixed_cell_moves_each_arm_over_its_own_joints(bare_arena: Arena) -> N
     puma, panda = (r.type for r in cfg.robots)
 
     # joint mode: both arms, each its own joint count
-    q_left = puma.q_home + np.radians([10, -5, 5, 10, -10, 15])
+    q_left = puma.q_home + np.radians([-10, -5, 5, 10, -10, 15])  # away from the Panda
     q_right = panda.q_home + np.radians([-10, 5, 10, 5, -5, 10, 20])
     seq = cell.put(MotionKind.JOINTS, [0, 1], joints=[q_left, q_right], speed_scale=0.8)
     assert cell.run(seq) == (RequestState.DONE, "")

@@ -244,7 +244,7 @@ def test_a_stop_ends_a_line_at_rest_on_it(kali: Callable[..., str]) -> None:
     with calibrated(name) as k:
         left = k.robot("left")
         here = left.read_pose()
-        goal = pose(here[:3, 3] + np.array([0, 0.2, 0]), here)
+        goal = pose(here[:3, 3] + np.array([0, -0.2, 0]), here)  # away from the right arm
         h = left.move_line(goal, speed=0.1, wait=False)
         step_kali_clock(k.inst, 800)
         assert h.state == RequestState.RUNNING
@@ -252,7 +252,7 @@ def test_a_stop_ends_a_line_at_rest_on_it(kali: Callable[..., str]) -> None:
         run_until(k, h, 2000)
         assert h.state == RequestState.STOPPED
         p = left.read_pose()[:3, 3]
-        assert 0.01 < p[1] - here[1, 3] < 0.19
+        assert 0.01 < here[1, 3] - p[1] < 0.19
         assert distance_to_polyline(p, [here[:3, 3], goal[:3, 3]]) < SQUARE_TOL_M
         assert k.inst.fault_text() is None
 

@@ -630,8 +630,8 @@ def test_a_stop_during_a_blend_stops_both_on_their_paths(kali: Callable[..., str
         left = k.robot("left")
         q0 = left.read_joints()
         # a stop before the second began: it is cancelled, the first stops on its path
-        first = left.move_joints(q0 + turn(left, 10), speed=0.5, wait=False)
-        second = left.move_joints(q0 + turn(left, 20), speed=0.5, wait=False)
+        first = left.move_joints(q0 + turn(left, -10), speed=0.5, wait=False)
+        second = left.move_joints(q0 + turn(left, -20), speed=0.5, wait=False)
         tg_tick(k, 10)
         left.stop()
         setpoints_until_done(k, [first, second])
@@ -639,8 +639,8 @@ def test_a_stop_during_a_blend_stops_both_on_their_paths(kali: Callable[..., str
         assert "cancelled before it started" in second.message
         # a stop while they are summed: both decelerate together, no jump, at rest after
         q1 = k.start_point(left.index)
-        first = left.move_joints(q1 + turn(left, 10), speed=0.5, wait=False)
-        second = left.move_joints(q1 + turn(left, 20), speed=0.5, wait=False)
+        first = left.move_joints(q1 + turn(left, -10), speed=0.5, wait=False)
+        second = left.move_joints(q1 + turn(left, -20), speed=0.5, wait=False)
         for _ in range(400):
             tg_tick(k)
             if second.state == RequestState.RUNNING:

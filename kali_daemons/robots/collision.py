@@ -6,10 +6,21 @@ between two bodies: an arm, one of its links (``"left/link3"``) or an object.
 
 Outside the cycle (coal's calls allocate).  A free object is taken where the scene builds it:
 the controller does not track what the plant moves.
+
+``CellClearance`` is the TG's check of a motion's poses (``ClearanceWalk``): an arm's links
+against the other arms' and against the fixed objects its links touch (``arms_touch``; not its
+base and first link, which stand on the world, nor its last link against what its tool may
+touch, ``tools_touch``), as the plant's contacts are.  Free objects are the parts the arms
+handle, not obstacles.  Each pose's distances are a lower bound found cheaply (each shape's
+bounding sphere; coal's exact distance only for pairs the spheres bring near), and a walk along
+a path looks again only once the arms may have moved by the margin the last look left
+(conservative advancement: the distance a joint turn can move any point of an arm is bounded
+by the arm's reach beyond that joint).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -39,6 +50,53 @@ class _Arm:
             f"{robot.name}/{self.model.frames[g.parentFrame].name}"
             for g in self.shapes.geometryObjects
         ]
+        # each shape's bounding sphere in its joint's frame, and the joint (0: the base)
+        objs = self.shapes.geometryObjects
+        for g in objs:
+            g.geometry.computeLocalAABB()
+        self.joint_of = np.array([g.parentJoint for g in objs], dtype=np.intp)
+        self.sphere_at = np.array(
+            [g.placement.act(g.geometry.aabb_center) for g in objs], dtype=float
+        ).reshape(-1, 3)
+        self.radius = np.array([g.geometry.aabb_radius for g in objs], dtype=float)
+        self._base = self.base.homogeneous
+        self._sphere_col = self.sphere_at[:, :, None].copy()
+        self._col = np.zeros_like(self._sphere_col)
+        self.reach = self._reach()
+
+    def _reach(self) -> np.ndarray:
+        """Per joint (1..nq): the furthest any point of the links it turns lies from its axis
+        (bounded by the distance from its origin along the chain), so a turn of ``dq`` moves
+        no point of the arm more than ``reach[j] * |dq|``."""
+        m = self.model
+        extent = np.zeros(m.njoints)  # per joint: its shapes' furthest point from its origin
+        for j, c, r in zip(self.joint_of, self.sphere_at, self.radius, strict=True):
+            extent[j] = max(extent[j], float(np.linalg.norm(c)) + r)
+        reach = np.zeros(m.njoints)
+        for j in range(m.njoints - 1, 0, -1):  # a serial chain: joint j + 1's parent is j
+            below = [k for k in range(j + 1, m.njoints) if m.parents[k] == j]
+            reach[j] = max(
+                [extent[j]]
+                + [
+                    float(np.linalg.norm(m.jointPlacements[k].translation)) + reach[k]
+                    for k in below
+                ]
+            )
+        return reach[1:]
+
+    def spheres(self, q: np.ndarray, out: np.ndarray) -> None:
+        """Place the shapes at ``q`` (for ``placement``) and write their spheres' world
+        centres into ``out`` (one row a shape)."""
+        pin.updateGeometryPlacements(self.model, self.data, self.shapes, self.shape_data, q)
+        joints = self._base @ np.array([m.homogeneous for m in self.data.oMi])
+        at = joints[self.joint_of]
+        np.matmul(at[:, :3, :3], self._sphere_col, out=self._col)
+        np.add(self._col[..., 0], at[:, :3, 3], out=out)
+
+    def placement(self, i: int) -> coal.Transform3s:
+        """Shape ``i``'s world placement where ``spheres`` last put the arm."""
+        world = self.base * self.shape_data.oMg[i]
+        return coal.Transform3s(world.rotation, world.translation)
 
     def placed(self, q: np.ndarray) -> list[tuple[str, object, coal.Transform3s]]:
         """Each shape's link, geometry and world placement at joint angles ``q``."""
@@ -102,3 +160,140 @@ class CellGeometry:
                     )
         assert best is not None  # every body has a shape
         return best
+
+
+NEAR_M = 0.05  # pairs whose spheres come within the clearance and this get coal's distance
+STEP_M = 0.001  # a joint move's walk steps at least this far (its poses checked this finely)
+
+
+class CellClearance:
+    """Which pairs of the cell's bodies a motion must keep ``clearance`` apart, and the least
+    distance among them at given joint angles (see the module's docstring)."""
+
+    def __init__(self, geometry: CellGeometry) -> None:
+        self.geometry = geometry
+        self.clearance = geometry.scene.clearance_m
+        arms = geometry.arms
+        self.first = np.cumsum([0] + [len(a.radius) for a in arms])  # each arm's first row
+        fixed = [o for o in geometry.scene.objects if o.fixed and o.arms_touch]
+        n = int(self.first[-1])
+        self.names = [link for a in arms for link in a.links] + [o.name for o in fixed]
+        self.centres = np.zeros((n + len(fixed), 3))
+        self.radius = np.concatenate([a.radius for a in arms] + [np.zeros(len(fixed))])
+        self._objects = []
+        for k, o in enumerate(fixed):
+            shape, at = geometry.objects[o.name]
+            assert isinstance(shape, coal.CollisionGeometry)
+            shape.computeLocalAABB()
+            self.centres[n + k] = at.transform(shape.aabb_center)
+            self.radius[n + k] = shape.aabb_radius
+            self._objects.append((o, shape, at))
+        pairs: list[tuple[int, int]] = []
+        for a, arm in enumerate(arms):
+            rows = range(int(self.first[a]), int(self.first[a + 1]))
+            for b in range(a + 1, len(arms)):
+                pairs += [(i, j) for i in rows for j in range(self.first[b], self.first[b + 1])]
+            last = int(arm.joint_of.max(initial=0))
+            for i in rows:
+                joint = int(arm.joint_of[i - self.first[a]])
+                for k, o in enumerate(fixed):
+                    if joint >= 2 and not (joint == last and o.tools_touch):
+                        pairs.append((i, n + k))
+        self.pair_a = np.array([p[0] for p in pairs], dtype=np.intp)
+        self.pair_b = np.array([p[1] for p in pairs], dtype=np.intp)
+        self._radii = self.radius[self.pair_a] + self.radius[self.pair_b]
+        self._arm_of = np.searchsorted(self.first, np.arange(n), side="right") - 1
+
+    def _shape(self, row: int) -> tuple[object, coal.Transform3s]:
+        """Row ``row``'s geometry and world placement (an arm's where ``spheres`` put it)."""
+        n = int(self.first[-1])
+        if row >= n:
+            _, shape, at = self._objects[row - n]
+            return shape, at
+        a = int(self._arm_of[row])
+        arm = self.geometry.arms[a]
+        i = row - int(self.first[a])
+        return arm.shapes.geometryObjects[i].geometry, arm.placement(i)
+
+    def gap(self, qs: Sequence[np.ndarray]) -> tuple[float, Clearance | None]:
+        """With the arms at ``qs`` (per robot, config order): a lower bound of the least
+        distance between the pairs, and the nearest pair if it is within the clearance."""
+        for a, arm in enumerate(self.geometry.arms):
+            arm.spheres(
+                np.asarray(qs[a], dtype=float), self.centres[self.first[a] : self.first[a + 1]]
+            )
+        if not len(self.pair_a):
+            return math.inf, None
+        apart = self.centres[self.pair_a] - self.centres[self.pair_b]
+        gaps = np.sqrt(np.einsum("ij,ij->i", apart, apart)) - self._radii
+        near = gaps < self.clearance + NEAR_M
+        least = float(np.where(near, math.inf, gaps).min())
+        best: Clearance | None = None
+        request = coal.DistanceRequest()
+        for p in np.flatnonzero(near):
+            i, j = int(self.pair_a[p]), int(self.pair_b[p])
+            shape_i, at_i = self._shape(i)
+            shape_j, at_j = self._shape(j)
+            result = coal.DistanceResult()
+            d = float(coal.distance(shape_i, at_i, shape_j, at_j, request, result))
+            if d < least:
+                least = d
+                best = Clearance(
+                    d,
+                    self.names[i],
+                    self.names[j],
+                    np.array(result.getNearestPoint1()),
+                    np.array(result.getNearestPoint2()),
+                )
+        return least, best if least < self.clearance else None
+
+    def walk(self, robots: Sequence[int], qs: Sequence[np.ndarray]) -> ClearanceWalk:
+        """A walk along a motion of ``robots`` (cell indices), every arm starting at ``qs``
+        (per robot, config order: the others stay there)."""
+        return ClearanceWalk(self, robots, qs)
+
+
+class ClearanceWalk:
+    """The clearance along one motion's poses, taken in order: ``hit`` at each pose of the
+    motion's arms says the pair within the clearance, or None, looking again only once the
+    arms may have moved by the margin the last look left."""
+
+    def __init__(
+        self, cell: CellClearance, robots: Sequence[int], qs: Sequence[np.ndarray]
+    ) -> None:
+        self.cell = cell
+        self.robots = list(robots)
+        self.qs = [np.array(q, dtype=float) for q in qs]
+        self._reach = [cell.geometry.arms[k].reach for k in self.robots]
+        self._prev = [self.qs[k].copy() for k in self.robots]
+        self._slack = -1.0  # m the arms may move before the next look (< 0: look now)
+        self.looks = 0  # how many times the distances were computed
+
+    def hit(self, rows: Sequence[np.ndarray]) -> Clearance | None:
+        """The motion's arms at ``rows`` (one per robot of the motion, in its order), the
+        pose after the last one given: the pair within the clearance, or None."""
+        moved = 0.0
+        for i, q in enumerate(rows):
+            moved += float(np.abs(q - self._prev[i]) @ self._reach[i])
+            self._prev[i][:] = q
+        self._slack -= moved
+        if self._slack > 0.0:
+            return None
+        for i, k in enumerate(self.robots):
+            self.qs[k][:] = rows[i]
+        self.looks += 1
+        least, near = self.cell.gap(self.qs)
+        self._slack = least - self.cell.clearance
+        return near
+
+    def rate(self, delta: Sequence[np.ndarray]) -> float:
+        """How far (m) any point of the motion's arms may move per unit of a straight joint
+        move by ``delta`` (one row per robot of the motion)."""
+        return sum(float(np.abs(d) @ r) for d, r in zip(delta, self._reach, strict=True))
+
+    @property
+    def slack(self) -> float:
+        """How far the arms may move from the last pose before the clearance could be
+        reached (m)."""
+        return self._slack
+

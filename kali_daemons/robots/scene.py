@@ -33,6 +33,9 @@ SCENE_VERSION: Final = 1
 DEFAULT_SCENE: Final = Path(__file__).resolve().parents[1] / "config" / "scenes" / "default.yaml"
 MAX_SCENE_BYTES: Final = 256 << 10
 MAX_OBJECTS: Final = 64
+# how near a checked motion lets an arm come to another arm or an object its links touch
+DEFAULT_CLEARANCE_M: Final = 0.01
+MAX_CLEARANCE_M: Final = 0.5
 MAX_GRASPS: Final = 16  # of one object
 MAX_EXTENT_M: Final = 10.0  # no object further out, nor larger (the TG's poses: tg.profiles)
 # each shape's size list: what the numbers are (all metres, all > 0)
@@ -141,6 +144,7 @@ class Scene:
     source: str
     objects: tuple[SceneObject, ...]
     belt: str | None = None
+    clearance_m: float = DEFAULT_CLEARANCE_M
 
     @property
     def free(self) -> tuple[SceneObject, ...]:
@@ -191,6 +195,17 @@ class Clearance:
     point_a: np.ndarray
     point_b: np.ndarray
 
+    def within(self, clearance: float) -> str:
+        """A refusal's words for this pair within ``clearance`` (m): the two bodies, the
+        distance and where."""
+        at = "(" + ", ".join(f"{float(v):.3f}" for v in self.point_a) + ") m"
+        how = (
+            f"would overlap {self.near_b!r} by {-self.distance * 1e3:.1f} mm"
+            if self.distance < 0.0
+            else f"would come within {self.distance * 1e3:.1f} mm of {self.near_b!r}"
+        )
+        return f"{self.near_a!r} {how} (clearance {clearance * 1e3:g} mm) at {at}"
+
 
 def load_scene(path: str | Path) -> Scene:
     """Read and check the scene file at ``path``; ConfigError naming the file, the object,
@@ -214,7 +229,7 @@ def parse_scene(text: str, source: str) -> Scene:
     doc = parse_yaml(text, source)
     if not isinstance(doc, dict):
         raise ConfigError(f"{source}: a scene file is a mapping (version, objects, belt)")
-    _known(doc, ("version", "objects", "belt"), source, "the top level")
+    _known(doc, ("version", "objects", "belt", "clearance_m"), source, "the top level")
     if doc.get("version") != SCENE_VERSION:
         raise ConfigError(
             f"{source}: version = {doc.get('version')!r}: this Kali reads scene files of "
@@ -229,7 +244,16 @@ def parse_scene(text: str, source: str) -> Scene:
         if any(o.name == obj.name for o in objects):
             raise ConfigError(f"{source}: objects[{i}]: name {obj.name!r} given twice")
         objects.append(obj)
-    scene = Scene(source, tuple(objects), doc.get("belt"))
+    clearance = doc.get("clearance_m", DEFAULT_CLEARANCE_M)
+    if isinstance(clearance, bool) or not isinstance(clearance, int | float):
+        clearance = -1.0
+    if not 0.0 <= clearance <= MAX_CLEARANCE_M:
+        raise ConfigError(
+            f"{source}: clearance_m = {doc.get('clearance_m')!r}: a distance in metres, 0 .. "
+            f"{MAX_CLEARANCE_M:g} (how near a checked motion lets an arm come to another arm "
+            "or to an object its links touch)"
+        )
+    scene = Scene(source, tuple(objects), doc.get("belt"), float(clearance))
     if scene.belt is not None and (
         not isinstance(scene.belt, str) or scene.object(scene.belt).fixed
     ):

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from bisect import bisect_right
 from collections.abc import Sequence
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
@@ -26,6 +26,9 @@ from ..core.errors import KinematicsError
 from ..robots import Kinematics, RobotType
 from ..robots.cell import inverse
 from .profiles import MAX_MOTION_S, CartesianPath, MotionError, rigid_pose
+
+if TYPE_CHECKING:
+    from ..robots.collision import ClearanceWalk
 
 GRASP_TOL_M: Final = 0.002  # arms of one motion system must agree on the object's pose to this
 GRASP_TOL_RAD: Final = 0.01
@@ -255,6 +258,9 @@ class CartesianMotion:
         self.q_ref = [q.copy() for q in starts]
         # the check's own walk
         self.checked = 0  # samples checked so far (1..n_samples)
+        # the TG's walk of the cell's clearances along the samples (None: not checked here,
+        # as in a client's own check before it queues the request)
+        self.clearance: ClearanceWalk | None = None
         self._check_q = [q.copy() for q in starts]
 
     # ------------------------------------------------------------------ frames
@@ -285,7 +291,20 @@ class CartesianMotion:
             self.path.sample(tau, self._obj)
             for k in range(self.n):
                 self._check_sample(k, tau, self._check_q[k])
+            if self.clearance is not None:
+                near = self.clearance.hit(self._check_q)
+                if near is not None:
+                    raise MotionError(
+                        f"path refused: {self.segment_label(tau)}, {tau:.2f} s into the motion, "
+                        f"object at {_xyz(self._obj[:3, 3])}: "
+                        f"{near.within(self.clearance.cell.clearance)}"
+                    )
         return self.checked >= self.n_samples
+
+    @property
+    def progress(self) -> float:
+        """How much of the path is checked (0 .. 1)."""
+        return self.checked / self.n_samples
 
     def check_all(self) -> None:
         """The whole check at once (the client's, before it queues the request)."""

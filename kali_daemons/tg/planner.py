@@ -19,6 +19,7 @@ are in ``requests``, the motions' laws in ``profiles``, ``cartesian`` and ``trac
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -41,10 +42,12 @@ from ..core.layout import (
 from ..core.spinlock import pid_alive
 from ..robots.cell import base_transform
 from ..robots.chain import chain_of, flange_pose
+from ..robots.collision import CellClearance, CellGeometry, ClearanceWalk
 from ..runtime.config import MAX_PERIOD_MS, ms_to_ns
 from ..runtime.instance import Instance, decode
 from ..servo.level import FIFO_CAPACITY
 from .cartesian import CartesianMotion
+from .clearance import JointMoveCheck
 from .functions import FUNCTION_SHARE, FunctionSlots, Sensors, registry_for
 from .profiles import (
     JointMotion,
@@ -64,6 +67,7 @@ STOP_TIME_S = 0.3  # a stop ramps the path speed to zero over this long
 DEAD_GROUPS = 64  # refused groups remembered, so their late members are refused too
 LEAD = 2  # set-points kept in each FIFO ahead of SIO
 CALIBRATING = (CalibState.SEARCH, CalibState.SETTLE, CalibState.POTS)
+UNCHECKED_CLEARANCE = "KALI_TEST_UNCHECKED_CLEARANCE"  # set: no clearance check (tests only)
 CHECK_SHARE = 0.25  # of each TG period spent checking Cartesian paths before they start
 # The tick's share (CHECK_SHARE of its period) is spent taking requests, planning paths and
 # checking them, in that order; in lockstep it is counted in path samples, not wall time (about
@@ -86,7 +90,8 @@ class Motion:
     seq: int
     robots: list[int]
     profile: JointMotion | CartesianMotion | Tracking
-    checking: bool = False  # a Cartesian path still being checked: the arms hold
+    checking: bool = False  # still being checked (``check``): the arms hold
+    check: CartesianMotion | JointMoveCheck | None = None  # what walks it before it starts
     ending: RequestState | None = None  # the last set-point is pushed: DONE/STOPPED when
     ending_message: str = ""  # SIO has taken it (the demand is there), not before
     guard: float = 0.0  # N: the contact force that stops it on any of its arms (0: none)
@@ -219,6 +224,11 @@ class Planner:
         self._groups: dict[int, tuple[int, set[int]]] = {}  # group -> (size, its robots)
         self._dead_groups: dict[int, str] = {}  # refused groups (the latest DEAD_GROUPS)
         self._faults_seen = int(inst.fault["count"])
+        # the cell's bodies, for each motion's clearance check before it starts (None: no
+        # check, a test's switch only: the plant's crash, driven on purpose)
+        self.clearance: CellClearance | None = None
+        if not os.environ.get(UNCHECKED_CLEARANCE):
+            self.clearance = CellClearance(CellGeometry(cfg.robots, cfg.scene))
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -639,23 +649,26 @@ class Planner:
         reason as any request would be."""
         profile: JointMotion | CartesianMotion
         try:
+            check: CartesianMotion | JointMoveCheck | None
             if isinstance(a.profile, JointMotion):
                 start = a.profile.target.copy()
                 profile = plan_joints(req, robots, start, self.types)
                 overlap = min(a.profile.law.accel_time, profile.law.accel_time)
+                check = self._joint_check(profile, robots, start)
             else:
                 assert isinstance(a.profile, CartesianMotion)
                 self._work += PLAN_SAMPLES
-                profile = plan_path(
-                    req, robots, self.names, self.types, self.bases, a.profile.end_q(), self.dt
-                )
+                begin = a.profile.end_q()
+                profile = plan_path(req, robots, self.names, self.types, self.bases, begin, self.dt)
                 overlap = min(a.profile.path.transition_s, profile.path.transition_s)
+                profile.clearance = self._walk(robots, begin)
+                check = profile
         except Exception as exc:  # a request never halts the cell
             self._refuse(seq, req, refusal(exc))
             return
         out, rows = joint_rows([self.joint_map.counts[k] for k in robots])
-        b = Motion(seq, robots, profile, out=out, rows=rows)
-        b.checking = isinstance(profile, CartesianMotion)
+        b = Motion(seq, robots, profile, out=out, rows=rows, check=check)
+        b.checking = check is not None
         b.predecessor, b.overlap = a, overlap
         a.successor = b
         self.motions.append(b)
@@ -745,7 +758,10 @@ class Planner:
             return
         out, rows = joint_rows([self.joint_map.counts[k] for k in robots])
         m = Motion(seq, robots, profile, guard=float(req["guard_n"]), out=out, rows=rows)
-        self._begin(m, req)
+        m.check = self._joint_check(profile, robots, start)
+        if m.check is not None:
+            self._say(seq, RequestState.QUEUED, "checking the move")
+        self._begin(m, req, checking=m.check is not None)  # checked from this tick
 
     def _plan_tracking(self, seq: int, req: np.void, robots: list[int]) -> None:
         """Start a TRACK or TRACK_JOINTS request from where its arms are, its loop checked
@@ -818,8 +834,9 @@ class Planner:
         except Exception as exc:  # a request never halts the cell
             self._refuse(seq, req, refusal(exc))
             return
+        plan.clearance = self._walk(robots, start)
         self._say(seq, RequestState.QUEUED, "checking the path")
-        m = Motion(seq, robots, plan, guard=float(req["guard_n"]))
+        m = Motion(seq, robots, plan, guard=float(req["guard_n"]), check=plan)
         self._begin(m, req, checking=True)  # the cycle checks its first slice this tick
 
     def _check(self, m: Motion) -> None:
@@ -831,11 +848,11 @@ class Planner:
         7.5 ms of its 10, and with the plant and sv.1 on its CPU it missed).  The time is looked
         at after each sample (a numerically solved arm's, the FR3's, is costly), and
         at least one sample is checked each tick, so every check ends."""
-        plan = m.profile
-        assert isinstance(plan, CartesianMotion)
+        plan = m.check
+        assert plan is not None
         try:
             while not plan.check_some(1):
-                self._progress[self.records.index(m.seq)] = plan.checked / plan.n_samples
+                self._progress[self.records.index(m.seq)] = plan.progress
                 self._work += 1
                 if self._spent():
                     return
@@ -854,6 +871,30 @@ class Planner:
         if self.fifos[k].pending():
             return self._setpoint_of[k].copy()
         return self._demand_of[k].copy()
+
+    def _walk(self, robots: list[int], start: Sequence[np.ndarray]) -> ClearanceWalk | None:
+        """A clearance walk along a motion of ``robots`` starting at ``start`` (one row a
+        robot), the other arms where their motions so far take them (``_start_point``): an
+        arm moved by another request meanwhile is checked against where it was then (move
+        arms that pass near each other as one motion system, or one after the other)."""
+        if self.clearance is None:
+            return None
+        qs = [self._start_point(k) for k in range(self.n_robots)]
+        for k, q in zip(robots, start, strict=True):
+            qs[k] = np.asarray(q, dtype=float)
+        return self.clearance.walk(robots, qs)
+
+    def _joint_check(
+        self, profile: JointMotion, robots: list[int], start: np.ndarray
+    ) -> JointMoveCheck | None:
+        """The clearance check of joint move ``profile`` of ``robots`` from ``start`` (their
+        joints one after another); None where nothing is checked."""
+        widths = [self.joint_map.counts[k] for k in robots]
+        ends = np.cumsum(widths)
+        walk = self._walk(robots, [start[e - w : e] for w, e in zip(widths, ends, strict=True)])
+        if walk is None:
+            return None
+        return JointMoveCheck(profile, walk, [self.names[k] for k in robots], widths)
 
     def _measured_at_rest(self, robots: list[int]) -> list[np.ndarray] | None:
         """Where the arms of a motion system starting at rest are (SIO's measured joints): a

@@ -126,7 +126,8 @@ def test_a_halt_reads_halted_at_once_and_a_request_after_reset_meets_the_present
     with powered(name) as k:
         left = k.robot("left")
         start = k.servo.level.arm("demand", 0).copy()
-        running = left.move_joints(start + np.radians([30, 0, 0, 0, 0, 0]), speed=0.2, wait=False)
+        away = start - np.radians([30, 0, 0, 0, 0, 0])  # from the right arm
+        running = left.move_joints(away, speed=0.2, wait=False)
         step_kali_clock(k.inst, 100)
         assert running.state == RequestState.RUNNING
         queued = left.move_joints(start, wait=False)
@@ -160,7 +161,7 @@ def test_two_programs_on_one_arm_the_second_is_refused_naming_the_owner(
     name = kali(lockstep=True)
     with powered(name) as k:
         start = k.servo.level.arm("demand", 0).copy()
-        far = start + np.radians([40, 0, 0, 0, 0, 0])
+        far = start - np.radians([40, 0, 0, 0, 0, 0])  # away from the right arm
         prog = _program(
             tmp_path,
             f"""
@@ -247,7 +248,7 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
     name = kali(lockstep=True)
     with powered(name) as k:
         start = k.servo.level.arm("demand", 0).copy()
-        far = start + np.radians([60, 0, 0, 0, 0, 0])
+        far = start - np.radians([60, 0, 0, 0, 0, 0])  # away from the right arm
         prog = _program(
             tmp_path,
             f"""
@@ -295,7 +296,7 @@ def test_ctrl_c_under_kalictl_run_stops_the_arms_of_a_program_ignoring_sigint(
                     )
                 time.sleep(0.01)
             held = k.servo.level.arm("demand", 0).copy()
-            assert start[0] < held[0] < far[0]  # stopped on its path, short of the target
+            assert far[0] < held[0] < start[0]  # stopped on its path, short of the target
             said = _line(run, stream=run.stderr)  # once the arm has stopped, not before
             assert "arms stopped on their paths: left" in said, said
             assert pid_alive(pid) and run.poll() is None  # it ignores SIGINT, kalictl waits
