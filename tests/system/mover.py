@@ -20,9 +20,11 @@ from kali_daemons.client.motion import MotionFailedError
 from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.instance import decode
 
-SWING = np.radians([20.0, -8.0, 8.0, 20.0, 15.0, 20.0])  # about each arm's start
+SWING = np.radians([10.0, -8.0, 8.0, 20.0, 15.0, 20.0])  # about each arm's start
 # the first joints of arms facing each other turn opposite ways: both wrists to the same side
-# (the same way, they cross at the middle and meet: the plant's arms collide)
+# (the same way, they cross at the middle and meet: the plant's arms collide); 10° apiece: each
+# arm's move is checked against the other standing at its start (the TG's clearance check),
+# where 20° would bring the wrists within 10 mm of each other
 FACING = np.array([-1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
 SPEED = 0.3  # of the joint speed and acceleration limits: a swing takes about a second
 
