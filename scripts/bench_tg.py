@@ -19,6 +19,9 @@ Two measurements:
      shared transform (read under its seqlock each tick) and one TG function (the built-in
      ``sine``, 1 cm at 0.5 Hz along the tool's z, evaluated each tick), within the tracking
      limits, with IK, the singularity check and the joint speed check every tick.
+   - ``track + clearance`` (issue 56): the same, its arms kept out of the clearance of a
+     cell of four PUMAs at PLACEMENTS (``TrackingMotion.keep_clear``: the walk's bound each
+     tick, a look at the distances when the margin is used up; goal ≤ 200 µs a tick).
 
    Every arm starts at ``puma560.QN`` (configuration 'ruf'); a Cartesian system's object
    goes round a closed square of ``SIDE_M`` sides in the world y-z plane at ``SPEED_M_S``
@@ -78,6 +81,7 @@ Exit status 0 whatever the verdict, 1 on errors, 2 if cyclictest is missing.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -93,7 +97,7 @@ from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
-from bench_plant import PLACEMENTS
+from bench_plant import PLACEMENTS, config_for
 from bench_servo import power_on
 from benchlib import (
     CYCLICTEST_MISSING,
@@ -148,8 +152,8 @@ from kali_daemons.tg.tracking import SharedFrames, Tracking, TrackingMotion, wri
 
 SYSTEMS = (1, 2, 4)
 TICK_NS = 1_000_000  # the in-process TG's wall clock tick (1 ms: config/default.yaml)
-MODES = ("joint", "cart 1 arm", "cart pair", "track")
-ARMS_PER_SYSTEM = {"joint": 1, "cart 1 arm": 1, "cart pair": 2, "track": 1}
+MODES = ("joint", "cart 1 arm", "cart pair", "track", "track + clearance")
+ARMS_PER_SYSTEM = {"joint": 1, "cart 1 arm": 1, "cart pair": 2, "track": 1, "track + clearance": 1}
 # track: the tool follows a loop of one shared transform (written once, never stale) and one
 # TG function (``sine``: 1 cm at 0.5 Hz along the tool's z), evaluated every tick (issue 28)
 TRACK_AMPLITUDE_M = 0.01
@@ -286,6 +290,13 @@ def tracking(arena: Arena, s: int, base: np.ndarray, q0: np.ndarray, dt: float) 
     return motion
 
 
+@functools.cache
+def four_arm_cell() -> CellClearance:
+    """The clearances of four PUMAs at PLACEMENTS in the shipped scene (built once)."""
+    cfg = config_for(len(PLACEMENTS), "benchtg")
+    return CellClearance(CellGeometry(cfg.robots, cfg.scene))
+
+
 def make_motions(mode: str, systems: int, dt: float, arena: Arena | None = None) -> list[Motion]:
     """``systems`` motion systems of ``mode``, on arms 0, 1, ... (bases from PLACEMENTS);
     ``track`` needs the ``arena`` its shared transforms and TG functions live in."""
@@ -296,11 +307,14 @@ def make_motions(mode: str, systems: int, dt: float, arena: Arena | None = None)
         n = ARMS_PER_SYSTEM[mode]
         robots = list(range(arm, arm + n))
         arm += n
-        if mode == "track":
+        if mode.startswith("track"):
             assert arena is not None
             profile: JointMotion | CartesianMotion | Tracking = tracking(
                 arena, s, base_of(robots[0]), q0, dt
             )
+            if mode == "track + clearance":  # the cell of four arms at PLACEMENTS, at QN
+                assert isinstance(profile, TrackingMotion)
+                profile.keep_clear(four_arm_cell().walk(robots, [q0] * len(PLACEMENTS)))
         elif mode == "joint":
             target = q0 + np.radians(JOINT_MOVE_DEG)
             profile = JointMotion(
@@ -327,7 +341,7 @@ def make_motions(mode: str, systems: int, dt: float, arena: Arena | None = None)
                 dt,
             )
         out, rows = joint_rows([N] * n)
-        tracks = mode == "track"
+        tracks = mode.startswith("track")
         motions.append(Motion(s + 1, robots, profile, out=out, rows=rows, tracking=tracks))
     return motions
 
@@ -496,7 +510,7 @@ def format_costs(rows: list[CostRow], checks: list[CheckRow], dt: float) -> str:
         f"median (best) of {rows[0].blocks} blocks of {BLOCK_TICKS} ticks ===",
     ]
     head = (
-        f"{'mode':<11} {'systems':>7} {'arms':>4} {'cpu µs/tick':>15} {'wall µs/tick':>15} "
+        f"{'mode':<17} {'systems':>7} {'arms':>4} {'cpu µs/tick':>15} {'wall µs/tick':>15} "
         f"{'core@25Hz':>9} {'core@100Hz':>10} {'max rate <1/2 core':>18} {'cold cpu µs':>11}"
     )
     lines += [head, "-" * len(head)]
@@ -504,7 +518,7 @@ def format_costs(rows: list[CostRow], checks: list[CheckRow], dt: float) -> str:
         cpu = f"{r.cpu_us:.1f} ({r.cpu_best_us:.1f})"
         wall = f"{r.wall_us:.1f} ({r.wall_best_us:.1f})"
         lines.append(
-            f"{r.mode:<11} {r.systems:>7} {r.arms:>4} {cpu:>15} {wall:>15} "
+            f"{r.mode:<17} {r.systems:>7} {r.arms:>4} {cpu:>15} {wall:>15} "
             f"{r.core_pct_25hz:>7.2f} % {r.core_pct_100hz:>8.2f} % "
             f"{r.max_rate_half_core_hz:>15,.0f} Hz {r.cold_us:>11.1f}"
         )

@@ -225,13 +225,17 @@ def assert_refused(message: str, pattern: str) -> None:
     assert re.search(pattern, message), message
 
 
-def solid_table(tmp_path: Path) -> dict[str, str]:
-    """The shipped scene with its table solid to the arms' links: a config edit naming it."""
+def solid_table(tmp_path: Path, tools_touch: bool = True) -> dict[str, str]:
+    """The shipped scene with its table solid to the arms' links (and, ``tools_touch``
+    false, not for the tools to touch either): a config edit naming it."""
     text = DEFAULT_SCENE.read_text()
     loose = "    at: [0.0, -0.38, 0.2]\n    fixed: true\n    arms_touch: false\n"
     assert text.count(loose) == 1
+    solid = "    at: [0.0, -0.38, 0.2]\n    fixed: true\n"
+    if not tools_touch:
+        solid += "    tools_touch: false\n"
     path = tmp_path / "solid-table.yaml"
-    path.write_text(text.replace(loose, "    at: [0.0, -0.38, 0.2]\n    fixed: true\n"))
+    path.write_text(text.replace(loose, solid))
     return {r"^version: 1$": f"version: 1\nscene: {path}"}
 
 
@@ -282,7 +286,8 @@ def test_the_clearance_walk_stops_at_the_first_pose_every_pair_measured_would() 
         cell.gap(qs)  # places the arms' shapes
         least = np.inf
         for i, j in zip(cell.pair_a, cell.pair_b, strict=True):
-            (a, at_a), (b, at_b) = cell._shape(int(i)), cell._shape(int(j))
+            a, b = cell.geometry_of(int(i)), cell.geometry_of(int(j))
+            at_a, at_b = cell.placement(int(i)), cell.placement(int(j))
             d = coal.distance(a, at_a, b, at_b, coal.DistanceRequest(), coal.DistanceResult())
             least = min(least, d)
         return float(least)
@@ -293,9 +298,51 @@ def test_the_clearance_walk_stops_at_the_first_pose_every_pair_measured_would() 
         path = [[home + (e - home) * s for e in ends] for s in np.linspace(0.0, 1.0, 60)]
         first = next((i for i, qs in enumerate(path) if exact(qs) < cell.clearance), None)
         walk = cell.walk([0, 1], path[0])
-        found = next((i for i, qs in enumerate(path) if walk.hit(qs) is not None), None)
+        said = [walk.hit(qs) for qs in path]
+        found = next((i for i, near in enumerate(said) if near is not None), None)
         assert found == first
+        if found is not None:  # and says that pose's distance, coal's least of every pair
+            assert said[found].distance == pytest.approx(exact(path[found]), abs=1e-9)
         hits += first is not None
         looks += walk.looks
         poses += len(path) if found is None else found + 1
     assert 0 < hits < 12 and looks < poses  # some skipped, even at these coarse steps
+
+
+def test_a_stream_driven_into_a_solid_table_slows_and_stops_at_the_clearance(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """Lockstep, a table neither the arms' links nor their tools may touch: the left tool,
+    streamed 20 cm down through the table's top, slows as its arm nears the table and comes
+    to rest at the clearance, the stream running on with no fault (MoveIt Servo's rule, not a
+    refusal or a halt); streamed up again, it follows."""
+    name = kali(lockstep=True, edits=solid_table(tmp_path, tools_touch=False))
+    with Kali(name) as k:
+        k.ready(["left"])
+        left = k.robot("left")
+        left.move_joints(left.joints_at(pose([-0.15, -0.38, 0.56], DOWN), "run"), speed=0.3)
+        left.settle()
+        clearance = k.scene.clearance_m
+        with left.stream(lifetime=0.5, speed=0.1) as s:
+            start = left.read_pose(demand=True)
+            down = pose(start[:3, 3] - np.array([0.0, 0.0, 0.2]), start)
+            heights, gaps = [], []
+            for _ in range(400):  # 8 s
+                s.send(down)
+                step_kali_clock(k.inst, 20)
+                heights.append(float(left.read_pose(demand=True)[2, 3]))
+                gaps.append(k.distance("left", "table").distance)
+            assert s.handle.state == RequestState.RUNNING, s.handle.message
+            assert k.inst.fault_text() is None
+            speeds = -np.diff(heights) / 0.02
+            assert speeds[:10].max() > 0.09  # at the stream's speed, far from the table
+            assert abs(speeds[-10:]).max() < 1e-6  # at rest at the end
+            assert clearance - 1e-3 < gaps[-1] < clearance + 2e-3, gaps[-10:]
+            assert min(gaps) > clearance - 1e-3
+            near = [v for v, g in zip(speeds, gaps[1:], strict=True) if g < clearance + 0.02]
+            assert max(near) < 0.05  # slower within 2 cm of the clearance
+            for _ in range(75):  # and back up, at the stream's speed
+                s.send(start)
+                step_kali_clock(k.inst, 20)
+            assert k.distance("left", "table").distance > clearance + 0.05
+            assert s.handle.state == RequestState.RUNNING

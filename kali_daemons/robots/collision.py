@@ -162,7 +162,7 @@ class CellGeometry:
         return best
 
 
-NEAR_M = 0.05  # pairs whose spheres come within the clearance and this get coal's distance
+NEAR_M = 0.08  # pairs whose spheres come within the clearance and this get coal's distance
 STEP_M = 0.001  # a joint move's walk steps at least this far (its poses checked this finely)
 
 
@@ -202,50 +202,82 @@ class CellClearance:
         self.pair_a = np.array([p[0] for p in pairs], dtype=np.intp)
         self.pair_b = np.array([p[1] for p in pairs], dtype=np.intp)
         self._radii = self.radius[self.pair_a] + self.radius[self.pair_b]
+        self._request, self._result = coal.DistanceRequest(), coal.DistanceResult()
         self._arm_of = np.searchsorted(self.first, np.arange(n), side="right") - 1
 
-    def _shape(self, row: int) -> tuple[object, coal.Transform3s]:
-        """Row ``row``'s geometry and world placement (an arm's where ``spheres`` put it)."""
+    def geometry_of(self, row: int) -> object:
+        """Row ``row``'s coal geometry: an arm's shape, or a fixed object's."""
         n = int(self.first[-1])
         if row >= n:
-            _, shape, at = self._objects[row - n]
-            return shape, at
+            return self._objects[row - n][1]
         a = int(self._arm_of[row])
-        arm = self.geometry.arms[a]
-        i = row - int(self.first[a])
-        return arm.shapes.geometryObjects[i].geometry, arm.placement(i)
+        return self.geometry.arms[a].shapes.geometryObjects[row - int(self.first[a])].geometry
+
+    def placement(self, row: int) -> coal.Transform3s:
+        """Row ``row``'s world placement: a fixed object's, or an arm's shape where the arm's
+        ``spheres`` last put it."""
+        n = int(self.first[-1])
+        if row >= n:
+            return self._objects[row - n][2]
+        a = int(self._arm_of[row])
+        return self.geometry.arms[a].placement(row - int(self.first[a]))
+
+    def rows_of(self, arm: int) -> slice:
+        """The rows of arm ``arm``'s shapes."""
+        return slice(int(self.first[arm]), int(self.first[arm + 1]))
 
     def gap(self, qs: Sequence[np.ndarray]) -> tuple[float, Clearance | None]:
         """With the arms at ``qs`` (per robot, config order): a lower bound of the least
-        distance between the pairs, and the nearest pair if it is within the clearance."""
+        distance between the pairs, and the nearest pair if its distance was computed (it
+        is, within the clearance and ``NEAR_M``)."""
         for a, arm in enumerate(self.geometry.arms):
-            arm.spheres(
-                np.asarray(qs[a], dtype=float), self.centres[self.first[a] : self.first[a + 1]]
-            )
-        if not len(self.pair_a):
+            arm.spheres(np.asarray(qs[a], dtype=float), self.centres[self.rows_of(a)])
+        return self.least(self.centres, self.pair_a, self.pair_b, self._radii, {})
+
+    def least(
+        self,
+        centres: np.ndarray,
+        pair_a: np.ndarray,
+        pair_b: np.ndarray,
+        radii: np.ndarray,
+        at: dict[int, coal.Transform3s],
+    ) -> tuple[float, Clearance | None]:
+        """The least distance of pairs ``pair_a``-``pair_b`` (rows; their spheres' summed
+        ``radii``) with the shapes' spheres at ``centres`` and placements ``at`` (rows not
+        in it: ``placement``, kept there): a lower bound, exact where the nearest pair's
+        distance was computed (then that pair too).  Pairs are measured by coal nearest
+        sphere gap first, only within the clearance and ``NEAR_M``, and no further once a
+        measured distance is below every sphere gap left."""
+        if not len(pair_a):
             return math.inf, None
-        apart = self.centres[self.pair_a] - self.centres[self.pair_b]
-        gaps = np.sqrt(np.einsum("ij,ij->i", apart, apart)) - self._radii
-        near = gaps < self.clearance + NEAR_M
-        least = float(np.where(near, math.inf, gaps).min())
-        best: Clearance | None = None
-        request = coal.DistanceRequest()
-        for p in np.flatnonzero(near):
-            i, j = int(self.pair_a[p]), int(self.pair_b[p])
-            shape_i, at_i = self._shape(i)
-            shape_j, at_j = self._shape(j)
-            result = coal.DistanceResult()
-            d = float(coal.distance(shape_i, at_i, shape_j, at_j, request, result))
+        apart = centres[pair_a] - centres[pair_b]
+        gaps = np.sqrt(np.einsum("ij,ij->i", apart, apart)) - radii
+        near = np.flatnonzero(gaps < self.clearance + NEAR_M)
+        least = float(np.delete(gaps, near).min(initial=math.inf))
+        best, points = -1, (np.zeros(3), np.zeros(3))
+        for p in near[np.argsort(gaps[near])]:
+            if gaps[p] >= least:  # no pair left can be nearer
+                break
+            i, j = int(pair_a[p]), int(pair_b[p])
+            if i not in at:
+                at[i] = self.placement(i)
+            if j not in at:
+                at[j] = self.placement(j)
+            at_i, at_j = at[i], at[j]
+            self._result.clear()  # a result keeps the least distance it has seen
+            d = coal.distance(
+                self.geometry_of(i), at_i, self.geometry_of(j), at_j, self._request, self._result
+            )
             if d < least:
-                least = d
-                best = Clearance(
-                    d,
-                    self.names[i],
-                    self.names[j],
-                    np.array(result.getNearestPoint1()),
-                    np.array(result.getNearestPoint2()),
+                least, best = d, p
+                points = (
+                    np.array(self._result.getNearestPoint1()),
+                    np.array(self._result.getNearestPoint2()),
                 )
-        return least, best if least < self.clearance else None
+        if best < 0:
+            return least, None
+        i, j = int(pair_a[best]), int(pair_b[best])
+        return least, Clearance(least, self.names[i], self.names[j], *points)
 
     def walk(self, robots: Sequence[int], qs: Sequence[np.ndarray]) -> ClearanceWalk:
         """A walk along a motion of ``robots`` (cell indices), every arm starting at ``qs``
@@ -256,7 +288,8 @@ class CellClearance:
 class ClearanceWalk:
     """The clearance along one motion's poses, taken in order: ``hit`` at each pose of the
     motion's arms says the pair within the clearance, or None, looking again only once the
-    arms may have moved by the margin the last look left."""
+    arms may have moved by the margin the last look left.  Only the pairs with a shape of
+    the motion's arms are looked at; the other arms' shapes are placed once, here."""
 
     def __init__(
         self, cell: CellClearance, robots: Sequence[int], qs: Sequence[np.ndarray]
@@ -267,24 +300,40 @@ class ClearanceWalk:
         self._reach = [cell.geometry.arms[k].reach for k in self.robots]
         self._prev = [self.qs[k].copy() for k in self.robots]
         self._slack = -1.0  # m the arms may move before the next look (< 0: look now)
+        self.nearest: Clearance | None = None  # the last look's nearest pair, if measured
         self.looks = 0  # how many times the distances were computed
+        self.centres = cell.centres.copy()
+        self._standing: dict[int, coal.Transform3s] = {}  # the other arms' shapes, placed
+        for a, arm in enumerate(cell.geometry.arms):
+            if a not in self.robots:
+                arm.spheres(self.qs[a], self.centres[cell.rows_of(a)])
+                rows = cell.rows_of(a)
+                self._standing.update({r: cell.placement(r) for r in range(rows.start, rows.stop)})
+        moving = np.zeros(len(self.centres), dtype=bool)
+        for k in self.robots:
+            moving[cell.rows_of(k)] = True
+        mine = moving[cell.pair_a] | moving[cell.pair_b]
+        self._pairs = (cell.pair_a[mine], cell.pair_b[mine], cell._radii[mine])
 
-    def hit(self, rows: Sequence[np.ndarray]) -> Clearance | None:
+    def hit(self, rows: Sequence[np.ndarray], fresh: float = 0.0) -> Clearance | None:
         """The motion's arms at ``rows`` (one per robot of the motion, in its order), the
-        pose after the last one given: the pair within the clearance, or None."""
+        pose after the last one given: the pair within the clearance, or None.  It looks
+        again once the margin left is no more than ``fresh`` (m; 0: once it is used up)."""
         moved = 0.0
         for i, q in enumerate(rows):
             moved += float(np.abs(q - self._prev[i]) @ self._reach[i])
             self._prev[i][:] = q
         self._slack -= moved
-        if self._slack > 0.0:
+        if self._slack > fresh:
             return None
+        cell = self.cell
         for i, k in enumerate(self.robots):
             self.qs[k][:] = rows[i]
+            cell.geometry.arms[k].spheres(self.qs[k], self.centres[cell.rows_of(k)])
         self.looks += 1
-        least, near = self.cell.gap(self.qs)
-        self._slack = least - self.cell.clearance
-        return near
+        least, self.nearest = cell.least(self.centres, *self._pairs, dict(self._standing))
+        self._slack = least - cell.clearance
+        return self.nearest if least < cell.clearance else None
 
     def rate(self, delta: Sequence[np.ndarray]) -> float:
         """How far (m) any point of the motion's arms may move per unit of a straight joint
@@ -296,4 +345,3 @@ class ClearanceWalk:
         """How far the arms may move from the last pose before the clearance could be
         reached (m)."""
         return self._slack
-

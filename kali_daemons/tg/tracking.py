@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,11 +43,20 @@ from .profiles import (
     rigid_pose,
 )
 
+if TYPE_CHECKING:
+    from ..robots.collision import ClearanceWalk
+
 MAX_LINEAR_ACCEL_M_S2 = 50.0  # above this a tracking limit is a units mistake, not a request
 MAX_ANGULAR_ACCEL_RAD_S2 = 200.0
 READ_TRIES = 4  # seqlock copies tried per tick before the last whole value is kept
 SLACK = 1.0 + 1e-9  # rounding allowance on the limits when a target is followed exactly
 SPEED_MARGIN = 1.0 + 1e-9  # on the joint speed limits
+# near the cell's clearance (TrackingMotion.keep_clear): the speed towards the nearest body
+# shrinks within this margin of it, to this share of the linear limit at it (a look measures
+# exact distances further out, robots.collision.NEAR_M, so one that measures none leaves the
+# arms a few cm of motion outside this zone, not one tick)
+SLOW_ZONE_M = 0.05
+MIN_NEAR_SCALE = 0.02
 
 
 # ---------------------------------------------------------------------------------------------
@@ -402,6 +411,73 @@ class TrackingMotion(Tracking):
         self._w = [0.0, 0.0, 0.0]  # commanded angular velocity, world, rad/s
         self.q_ref = [q.copy() for q in starts]  # each arm's last set-point
         self._q = [q.copy() for q in starts]  # scratch: the next one
+        self._cmd_last = self.cmd.copy()  # the commanded pose of the last set-point
+        # the cell's clearances (``keep_clear``): None, not kept
+        self.clearance: ClearanceWalk | None = None
+        self._inside = math.inf  # the least distance at the last set-point, if within
+        self.kept_clear = 0  # ticks held at the clearance
+
+    def keep_clear(self, walk: ClearanceWalk) -> None:
+        """Keep the arms out of the cell's clearance with ``walk`` (outside the cycle, at
+        the start): within ``SLOW_ZONE_M`` of it the speed towards the nearest body shrinks
+        in proportion (``_approach``), and a set-point nearer than the clearance is not
+        taken (the arms hold, the motion runs on); an arm starting within it may only move
+        away (MoveIt Servo's rule)."""
+        self.clearance = walk
+        near = walk.hit(self.q_ref)
+        self._inside = math.inf if near is None else near.distance
+
+    def _approach(self) -> bool:
+        """Within ``SLOW_ZONE_M`` of the clearance (by the walk's bound of the margin), cap
+        the commanded velocity's component towards the nearest body (the last look's nearest
+        pair, looked at afresh if it measured none) at the linear limit's share the margin
+        leaves (down to ``MIN_NEAR_SCALE`` at the clearance); moving away, or along it, is
+        not slowed.  Where no pair is measured, the whole linear velocity is capped.  True if
+        it capped it.  In the cycle: floats only."""
+        walk = self.clearance
+        if walk is None or walk.slack >= SLOW_ZONE_M:
+            return False
+        if walk.nearest is None:  # the bound came into the zone: which body is nearest?
+            walk.hit(self.q_ref, SLOW_ZONE_M)  # (a look: exact within the zone)
+            if walk.slack >= SLOW_ZONE_M:
+                return False
+        v = self._v
+        allowed = self.v_max * max(MIN_NEAR_SCALE, walk.slack / SLOW_ZONE_M)
+        near = walk.nearest
+        if near is None:
+            speed = _norm(v)
+            if speed <= allowed:
+                return False
+            for i in range(3):
+                v[i] *= allowed / speed
+            return True
+        a, b = near.point_a, near.point_b
+        n = [float(a[i]) - float(b[i]) for i in range(3)]  # from the body towards the arm
+        size = _norm(n)
+        if size < 1e-9:  # touching: the guard (``_clear``) holds the arms
+            return False
+        toward = -sum(v[i] * n[i] for i in range(3)) / size
+        if toward <= allowed:
+            return False
+        for i in range(3):
+            v[i] += (toward - allowed) * n[i] / size
+        return True
+
+    def _clear(self) -> bool:
+        """Whether the next set-points (``_q``) may be taken: not nearer than the clearance,
+        or, where the arms already are within it, not nearer than they are."""
+        walk = self.clearance
+        if walk is None:
+            return True
+        near = walk.hit(self._q)
+        if near is None:
+            self._inside = math.inf
+            return True
+        if near.distance >= self._inside:  # within it, and moving away
+            self._inside = near.distance
+            return True
+        walk.hit(self.q_ref)  # where the arms stay
+        return False
 
     # ------------------------------------------------------------------ the loop
 
@@ -503,6 +579,8 @@ class TrackingMotion(Tracking):
             e = [float(goal[i, 3] - cmd[i, 3]) for i in range(3)]
             gv = [float(goal[i, 3] - last[i, 3]) / dt for i in range(3)]
             exact_p = follow(e, gv, self._v, self.v_max, self.a_max, dt)
+            if self._approach():
+                exact_p = False
             np.matmul(goal[:3, :3], cmd[:3, :3].T, out=self._r)
             er = rotvec(self._r)
             np.matmul(goal[:3, :3], last[:3, :3].T, out=self._r)
@@ -518,6 +596,15 @@ class TrackingMotion(Tracking):
                 self.held = True
                 self.why = f"robot '{self.names[k]}' {why}; held at its last set-point"
                 return None
+        if not self._clear():  # at the clearance: the arms hold where they are
+            np.copyto(cmd, self._cmd_last)
+            self._v[:] = (0.0, 0.0, 0.0)
+            self._w[:] = (0.0, 0.0, 0.0)
+            self.kept_clear += 1
+            self.limited += 1
+            self.done = self.stopping
+            return self.q_ref
+        np.copyto(self._cmd_last, cmd)
         for k in range(self.n):
             np.copyto(self.q_ref[k], self._q[k])
         return self.q_ref
