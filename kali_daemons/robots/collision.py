@@ -101,13 +101,8 @@ class _Arm:
     def placed(self, q: np.ndarray) -> list[tuple[str, object, coal.Transform3s]]:
         """Each shape's link, geometry and world placement at joint angles ``q``."""
         pin.updateGeometryPlacements(self.model, self.data, self.shapes, self.shape_data, q)
-        out = []
-        for link, g, at in zip(
-            self.links, self.shapes.geometryObjects, self.shape_data.oMg, strict=True
-        ):
-            world = self.base * at
-            out.append((link, g.geometry, coal.Transform3s(world.rotation, world.translation)))
-        return out
+        shapes = self.shapes.geometryObjects
+        return [(link, shapes[i].geometry, self.placement(i)) for i, link in enumerate(self.links)]
 
 
 class CellGeometry:
