@@ -346,3 +346,36 @@ def test_a_stream_driven_into_a_solid_table_slows_and_stops_at_the_clearance(
                 step_kali_clock(k.inst, 20)
             assert k.distance("left", "table").distance > clearance + 0.05
             assert s.handle.state == RequestState.RUNNING
+
+
+def test_a_joint_stream_towards_the_other_arm_holds_at_the_clearance(
+    kali: Callable[..., str],
+) -> None:
+    """Lockstep, the shipped cell: the left arm's waist streamed 40° towards the right arm
+    stops with the arms the clearance apart (not slowed before it: a joint stream has no
+    direction to the nearest body), the stream running on with no fault; streamed back, it
+    follows."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        k.ready(["left", "right"])
+        left = k.robot("left")
+        start = k.start_point(left.index)
+        clearance = k.scene.clearance_m
+        js = left.stream_joints(lifetime=0.5, speed=0.3)
+        try:
+            toward = start + np.radians([40, 0, 0, 0, 0, 0])
+            for _ in range(150):  # 3 s
+                js.send(toward)
+                step_kali_clock(k.inst, 20)
+            held = k.servo.level.joints["demand"][left.span].copy()
+            assert js.handle.state == RequestState.RUNNING, js.handle.message
+            assert k.inst.fault_text() is None
+            assert start[0] < held[0] < toward[0]
+            step_kali_clock(k.inst, 300)
+            assert clearance - 2e-3 < k.distance("left", "right").distance < clearance + 5e-3
+            for _ in range(100):
+                js.send(start)
+                step_kali_clock(k.inst, 20)
+            assert np.abs(k.servo.level.joints["demand"][left.span] - start).max() < 1e-9
+        finally:
+            js.close()

@@ -59,7 +59,6 @@ from .requests import check_request, plan_joints, plan_path, refusal, request_ro
 from .tracking import (
     SharedFrames,
     Tracking,
-    TrackingMotion,
     plan_tracking,
 )
 
@@ -779,10 +778,9 @@ class Planner:
         except Exception as exc:  # a request never halts the cell
             self._refuse(seq, req, refusal(exc))
             return
-        if isinstance(plan, TrackingMotion):
-            walk = self._walk(robots, plan.q_ref)
-            if walk is not None:
-                plan.keep_clear(walk)
+        walk = self._walk(robots, plan.q_ref)
+        if walk is not None:
+            plan.keep_clear(walk)
         self._begin(Motion(seq, robots, plan, tracking=True), req)
 
     def _begin(self, m: Motion, req: np.void, checking: bool = False) -> None:

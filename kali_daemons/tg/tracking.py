@@ -321,6 +321,36 @@ class Tracking(ABC):
         self.held = False  # ended at its last set-point: no next one could be had
         self.aborted = False  # held because a TG function failed (ABORTED, not STOPPED)
         self.done = False  # at rest after stopping: the TG ends it
+        # the cell's clearances (``keep_clear``): None, not kept
+        self.clearance: ClearanceWalk | None = None
+        self._inside = math.inf  # the least distance at the last set-point, if within
+        self.kept_clear = 0  # ticks held at the clearance
+
+    def keep_clear(self, walk: ClearanceWalk) -> None:
+        """Keep the arms out of the cell's clearance with ``walk`` (outside the cycle, at
+        the start): a set-point nearer than the clearance is not taken (the arms hold, the
+        motion runs on), and an arm starting within it may only move away (MoveIt Servo's
+        rule); a Cartesian one also slows near it (``TrackingMotion._approach``)."""
+        self.clearance = walk
+        near = walk.hit(self.q_ref)
+        self._inside = math.inf if near is None else near.distance
+
+    def _clear(self, rows: Sequence[np.ndarray], here: Sequence[np.ndarray]) -> bool:
+        """Whether the next set-points ``rows`` may be taken, the arms being at ``here``: not
+        nearer than the clearance, or, where the arms already are within it, not nearer than
+        they are."""
+        walk = self.clearance
+        if walk is None:
+            return True
+        near = walk.hit(rows)
+        if near is None:
+            self._inside = math.inf
+            return True
+        if near.distance >= self._inside:  # within it, and moving away
+            self._inside = near.distance
+            return True
+        walk.hit(here)  # where the arms stay
+        return False
 
     def stop(self, why: str) -> None:
         """Stop on the path from the next tick (the first reason given is kept)."""
@@ -412,20 +442,6 @@ class TrackingMotion(Tracking):
         self.q_ref = [q.copy() for q in starts]  # each arm's last set-point
         self._q = [q.copy() for q in starts]  # scratch: the next one
         self._cmd_last = self.cmd.copy()  # the commanded pose of the last set-point
-        # the cell's clearances (``keep_clear``): None, not kept
-        self.clearance: ClearanceWalk | None = None
-        self._inside = math.inf  # the least distance at the last set-point, if within
-        self.kept_clear = 0  # ticks held at the clearance
-
-    def keep_clear(self, walk: ClearanceWalk) -> None:
-        """Keep the arms out of the cell's clearance with ``walk`` (outside the cycle, at
-        the start): within ``SLOW_ZONE_M`` of it the speed towards the nearest body shrinks
-        in proportion (``_approach``), and a set-point nearer than the clearance is not
-        taken (the arms hold, the motion runs on); an arm starting within it may only move
-        away (MoveIt Servo's rule)."""
-        self.clearance = walk
-        near = walk.hit(self.q_ref)
-        self._inside = math.inf if near is None else near.distance
 
     def _approach(self) -> bool:
         """Within ``SLOW_ZONE_M`` of the clearance (by the walk's bound of the margin), cap
@@ -462,22 +478,6 @@ class TrackingMotion(Tracking):
         for i in range(3):
             v[i] += (toward - allowed) * n[i] / size
         return True
-
-    def _clear(self) -> bool:
-        """Whether the next set-points (``_q``) may be taken: not nearer than the clearance,
-        or, where the arms already are within it, not nearer than they are."""
-        walk = self.clearance
-        if walk is None:
-            return True
-        near = walk.hit(self._q)
-        if near is None:
-            self._inside = math.inf
-            return True
-        if near.distance >= self._inside:  # within it, and moving away
-            self._inside = near.distance
-            return True
-        walk.hit(self.q_ref)  # where the arms stay
-        return False
 
     # ------------------------------------------------------------------ the loop
 
@@ -596,7 +596,7 @@ class TrackingMotion(Tracking):
                 self.held = True
                 self.why = f"robot '{self.names[k]}' {why}; held at its last set-point"
                 return None
-        if not self._clear():  # at the clearance: the arms hold where they are
+        if not self._clear(self._q, self.q_ref):  # at the clearance: the arms hold
             np.copyto(cmd, self._cmd_last)
             self._v[:] = (0.0, 0.0, 0.0)
             self._w[:] = (0.0, 0.0, 0.0)
@@ -680,6 +680,7 @@ class JointTracking(Tracking):
         self._target = np.empty(n)
         self._last = np.empty(n)
         self._seen = False  # targets read whole at least once
+        self._q_last = [self.q.copy()]  # the last set-point, while the next is had
         self._v = [[0.0] for _ in range(n)]
         self._e = [[0.0] for _ in range(n)]
         self._g = [[0.0] for _ in range(n)]
@@ -723,11 +724,13 @@ class JointTracking(Tracking):
             if why:
                 self.stop(why)
         n = q.shape[0]
+        np.copyto(self._q_last[0], q)
         if self.stopping:
             for j in range(n):
                 brake(self._v[j], self.a_max[j], dt)
                 q[j] += self._v[j][0] * dt
             self.done = all(v[0] == 0.0 for v in self._v)
+            self._keep_clear()
             return self.q_ref
         all_exact = True
         for j in range(n):
@@ -746,7 +749,18 @@ class JointTracking(Tracking):
         if not all_exact:
             self.limited += 1
         np.copyto(self._last, self._target)
+        self._keep_clear()
         return self.q_ref
+
+    def _keep_clear(self) -> None:
+        """At the clearance: the arm holds where it was (at rest), the stream runs on."""
+        if not self._clear(self.q_ref, self._q_last):
+            np.copyto(self.q, self._q_last[0])
+            for v in self._v:
+                v[0] = 0.0
+            self.kept_clear += 1
+            self.limited += 1
+            self.done = self.stopping
 
 
 def plan_tracking(
