@@ -484,7 +484,18 @@ def test_the_sv_on_the_other_cpu_rests_while_sv0_runs_every_servo_alone(
             return (int(procs["signals"][sv1]) - signals0) / (int(inst.clock["tick"]) - tick0)
 
         wait_for(lambda: period() == 4, what="sv.1 resting")
-        assert 0.2 <= signalled_per_tick(0.5) <= 0.3
+        # a host stall slows sv.0's servos for a moment, and sv.1 shares for a while (its
+        # rule: 4 slow ticks in 16); on a noisy host (a full suite here once saw 0.46
+        # signals a tick over half a second) that is a spell now and then: it rests most of
+        # the time, and while it rests it is signalled every 4 ticks
+        tick0, signals0 = int(inst.clock["tick"]), int(procs["signals"][sv1])
+        resting = [period() == 4 for _ in range(200) if time.sleep(0.005) is None]
+        ticks = int(inst.clock["tick"]) - tick0
+        rate = (int(procs["signals"][sv1]) - signals0) / ticks
+        rested = sum(resting) / len(resting)
+        assert rested > 0.6, f"sv.1 rested in {rested:.0%} of 200 looks"
+        shared = 1.0 - rested  # of the time, signalled every tick
+        assert 0.2 <= (rate - shared) / rested <= 0.3, (rate, rested)
         status = kalictl("status", env={"KALI_INSTANCE": name}).stdout
         assert "sv.1 rests: signalled every 4 ms while the SV on SIO's CPU" in status, status
         for robot, j in joints:

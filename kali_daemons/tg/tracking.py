@@ -324,7 +324,6 @@ class Tracking(ABC):
         # the cell's clearances (``keep_clear``): None, not kept
         self.clearance: ClearanceWalk | None = None
         self._inside = math.inf  # the least distance at the last set-point, if within
-        self.kept_clear = 0  # ticks held at the clearance
 
     def keep_clear(self, walk: ClearanceWalk) -> None:
         """Keep the arms out of the cell's clearance with ``walk`` (outside the cycle, at
@@ -600,7 +599,6 @@ class TrackingMotion(Tracking):
             np.copyto(cmd, self._cmd_last)
             self._v[:] = (0.0, 0.0, 0.0)
             self._w[:] = (0.0, 0.0, 0.0)
-            self.kept_clear += 1
             self.limited += 1
             self.done = self.stopping
             return self.q_ref
@@ -758,7 +756,6 @@ class JointTracking(Tracking):
             np.copyto(self.q, self._q_last[0])
             for v in self._v:
                 v[0] = 0.0
-            self.kept_clear += 1
             self.limited += 1
             self.done = self.stopping
 
