@@ -294,6 +294,7 @@ class ClearanceWalk:
         self.qs = [np.array(q, dtype=float) for q in qs]
         self._reach = [cell.geometry.arms[k].reach for k in self.robots]
         self._prev = [self.qs[k].copy() for k in self.robots]
+        self._step = [p.copy() for p in self._prev]
         self._slack = -1.0  # m the arms may move before the next look (< 0: look now)
         self.nearest: Clearance | None = None  # the last look's nearest pair, if measured
         self.looks = 0  # how many times the distances were computed
@@ -315,8 +316,11 @@ class ClearanceWalk:
         pose after the last one given: the pair within the clearance, or None.  It looks
         again once the margin left is no more than ``fresh`` (m; 0: once it is used up)."""
         moved = 0.0
-        for i, q in enumerate(rows):
-            moved += float(np.abs(q - self._prev[i]) @ self._reach[i])
+        for i, q in enumerate(rows):  # in a tracking motion's cycle: into scratch
+            step = self._step[i]
+            np.subtract(q, self._prev[i], out=step)
+            np.abs(step, out=step)
+            moved += float(np.dot(step, self._reach[i]))
             self._prev[i][:] = q
         self._slack -= moved
         if self._slack > fresh:

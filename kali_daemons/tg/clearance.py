@@ -29,8 +29,8 @@ class JointMoveCheck:
         self._rows = [slice(int(e) - w, int(e)) for w, e in zip(widths, ends, strict=True)]
         self._q = motion.start.copy()
         self._views = [self._q[r] for r in self._rows]
-        delta = motion.target - motion.start
-        self._rate = walk.rate([delta[r] for r in self._rows])  # m of motion per unit of s
+        self._delta = motion.target - motion.start
+        self._rate = walk.rate([self._delta[r] for r in self._rows])  # m per unit of s
         self.s = 0.0  # how far along the move the next look is (0 .. 1)
         self.done = False
 
@@ -46,7 +46,7 @@ class JointMoveCheck:
         for _ in range(samples):
             if self.done:
                 break
-            np.multiply(m.target - m.start, self.s, out=self._q)
+            np.multiply(self._delta, self.s, out=self._q)
             self._q += m.start
             near = self.walk.hit(self._views)
             if near is not None:

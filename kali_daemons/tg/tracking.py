@@ -447,25 +447,17 @@ class TrackingMotion(Tracking):
         the commanded velocity's component towards the nearest body (the last look's nearest
         pair, looked at afresh if it measured none) at the linear limit's share the margin
         leaves (down to ``MIN_NEAR_SCALE`` at the clearance); moving away, or along it, is
-        not slowed.  Where no pair is measured, the whole linear velocity is capped.  True if
-        it capped it.  In the cycle: floats only."""
+        not slowed.  True if it capped it.  In the cycle: floats only."""
         walk = self.clearance
         if walk is None or walk.slack >= SLOW_ZONE_M:
             return False
         if walk.nearest is None:  # the bound came into the zone: which body is nearest?
-            walk.hit(self.q_ref, SLOW_ZONE_M)  # (a look: exact within the zone)
-            if walk.slack >= SLOW_ZONE_M:
-                return False
+            walk.hit(self.q_ref, SLOW_ZONE_M)  # (a look: exact within NEAR_M > the zone)
+        near = walk.nearest
+        if near is None or walk.slack >= SLOW_ZONE_M:
+            return False
         v = self._v
         allowed = self.v_max * max(MIN_NEAR_SCALE, walk.slack / SLOW_ZONE_M)
-        near = walk.nearest
-        if near is None:
-            speed = _norm(v)
-            if speed <= allowed:
-                return False
-            for i in range(3):
-                v[i] *= allowed / speed
-            return True
         a, b = near.point_a, near.point_b
         n = [float(a[i]) - float(b[i]) for i in range(3)]  # from the body towards the arm
         size = _norm(n)
