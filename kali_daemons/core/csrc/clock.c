@@ -66,9 +66,9 @@ int64_t kali_clock_wait(WaitArgs *a) {
         }
         poll_posted(a->sem, t + a->poll_ns);
     }
-    struct timespec until = realtime_in(a->idle_ns);
-    if (sem_timedwait(a->sem, &until) != 0) {
-        if (errno == EINTR) return WAIT_INTR;
+    int got = sem_wait_until(a->sem, now_ns() + a->idle_ns);
+    if (got != 0) {
+        if (got == EINTR) return WAIT_INTR;
         a->signalled = 0;
         return WAIT_IDLE;
     }

@@ -37,14 +37,12 @@ static inline int64_t now_ns(void) {
     return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
 }
 
-/* sem_timedwait's deadline (CLOCK_REALTIME) ns from now */
-static struct timespec realtime_in(int64_t ns) {
-    struct timespec until;
-    clock_gettime(CLOCK_REALTIME, &until);
-    ns = (ns > 0 ? ns : 0) + until.tv_nsec;
-    until.tv_sec += (time_t)(ns / 1000000000);
-    until.tv_nsec = (long)(ns % 1000000000);
-    return until;
+/* Take a post of sem, waiting until deadline (CLOCK_MONOTONIC ns): 0, else errno (ETIMEDOUT,
+ * EINTR).  Measured on the monotonic clock like every deadline here: a step of the wall-time
+ * clock (sem_timedwait's) neither cuts a wait short nor stretches it. */
+static int sem_wait_until(sem_t *sem, int64_t deadline) {
+    struct timespec at = {(time_t)(deadline / 1000000000), (long)(deadline % 1000000000)};
+    return sem_clockwait(sem, CLOCK_MONOTONIC, &at) == 0 ? 0 : errno;
 }
 
 /* rt.poll_semaphore: read (never take) sem's value until it is posted or deadline passes */

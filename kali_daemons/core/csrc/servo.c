@@ -417,9 +417,8 @@ static int sv_await_feed(ServeArgs *a) {
             return 1;
         }
         if (a->poll_ns) poll_posted(a->feed_sem, poll_end);
-        struct timespec until = realtime_in(end - now_ns());
         int got;
-        while ((got = sem_timedwait(a->feed_sem, &until)) != 0 && errno == EINTR)
+        while ((got = sem_wait_until(a->feed_sem, end)) == EINTR)
             ;
         if (got != 0) return 0; /* else: the fed tick again, with any other post */
     }

@@ -583,9 +583,11 @@ int64_t kali_sio_tick(SioArgs *a) {
     }
     if (a->stage == ST_WAIT) {
         if (a->fed) {
-            struct timespec until = realtime_in(a->slice_ns);
-            while ((int64_t)__atomic_load_n(a->ctrl_done, __ATOMIC_ACQUIRE) < a->fed)
-                if (sem_timedwait(a->done_sem, &until) != 0 && errno != EINTR) return SIO_WAIT;
+            int64_t until = now_ns() + a->slice_ns;
+            while ((int64_t)__atomic_load_n(a->ctrl_done, __ATOMIC_ACQUIRE) < a->fed) {
+                int got = sem_wait_until(a->done_sem, until);
+                if (got != 0 && got != EINTR) return SIO_WAIT;
+            }
         }
         while (sem_trywait(a->done_sem) == 0) /* a post that raced with the last look */
             ;
