@@ -19,7 +19,10 @@ as data), and ``1ms-2sv-imp``, both arms under the Cartesian impedance servo (is
 SV claims a whole arm, its model refreshed from Pinocchio every tick), and ``1ms-2sv-shadow``,
 the joint PIDs with computed torque in shadow trial on both arms (issue 27 item 6: each arm
 fed whole, its PIDs stepped in Python, then the shadow with its model), each otherwise as
-``1ms-2sv``: run them with ``1ms-2sv`` for the joint PIDs alone beside them.
+``1ms-2sv``: run them with ``1ms-2sv`` for the joint PIDs alone beside them;
+``1ms-2sv-camera``, the shipped cell watched by ``scenes/watched.yaml``'s camera (320×240 at
+10 Hz, the camera process on CPU 1 at normal scheduling; issue 56 item 4): run it with
+``1ms-2sv`` for the servo level with the camera off and on, its frame rate and cost in its notes.
 
 Both arms are powered, left 2 s to settle, then kept moving: this script (SCHED_OTHER,
 unpinned) pushes one set-point per TG period (10 ms) into each robot's TG → SIO FIFO, keeping
@@ -223,6 +226,8 @@ RUNS = {
         RunSpec("1ms-2sv-shadow", 1000, 2, shadow="computed_torque"),
         # an FR3 through libfranka against franky-sim, its packets pacing the clock (issue 54)
         RunSpec("fr3-1ms", 1000, 1, extras=False, cell="fr3", base=FR3_CONFIG),
+        # 1ms-2sv with the cell watched by scenes/watched.yaml's camera (issue 56 item 4)
+        RunSpec("1ms-2sv-camera", 1000, 2, cell="watched"),
     )
 }
 DEFAULT_RUNS = ("1ms-1sv", "1ms-1sv-bare", "1ms-2sv", "1ms-2sv-bare", "0.5ms-1sv", "0.5ms-2sv")
@@ -465,6 +470,7 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
                 )  # fmt: skip
                 s0 = window.open()
                 fr0 = fr3_counts(inst, cfg)
+                cams0 = camera_counts(inst, cfg)
                 stat0 = cpu_times()
                 real_offset = time.time_ns() - time.monotonic_ns()
                 t0 = s0.kali.t_ns
@@ -490,6 +496,7 @@ def measure(spec: RunSpec, seconds: int, tmp: Path, ct_priority: int) -> RunResu
                     watch.poll(ct, end)
                 s1 = window.close()
                 res.fr3 = fr3_figures(fr0, fr3_counts(inst, cfg), (s1.kali.t_ns - t0) / 1e9)
+                res.notes += camera_notes(cfg, cams0, camera_counts(inst, cfg), s1.kali.t_ns - t0)
                 res.memory_kib = {n: pss_kib(pid) for n, pid in run.pids.items()}
                 res.machine["steal_ms"] = steal_ms(stat0, cpu_times())
                 tail.poll()
@@ -696,6 +703,28 @@ def analyse(
         res.notes.append(f"the motion stopped: {res.motion['stopped']}")
 
 
+def camera_counts(inst: Instance, cfg: KaliConfig) -> list[tuple[int, int]]:
+    """Each scene camera's frames delivered so far and the process CPU time (ns) of the last."""
+    heads = inst.arena.existing(layout.KEY_CAMERAS, layout.CAMERA, len(cfg.scene.cameras))
+    return [(int(h["frames"]), int(h["frame_ns"])) for h in heads] if len(heads) else []
+
+
+def camera_notes(
+    cfg: KaliConfig, before: list[tuple[int, int]], after: list[tuple[int, int]], window_ns: int
+) -> list[str]:
+    """A line per camera: the frame rate it kept over the window against its asked rate, and
+    what its last frame cost against the scene's estimate (``Camera.frame_ms``)."""
+    out = []
+    for cam, (n0, _), (n1, last_ns) in zip(cfg.scene.cameras, before, after, strict=True):
+        fps = (n1 - n0) / (window_ns / 1e9)
+        out.append(
+            f"camera {cam.name!r} {cam.width}x{cam.height}: {fps:.2f} frames/s of "
+            f"{cam.rate_hz:g} asked; last frame {last_ns / 1e6:.1f} ms CPU (estimate "
+            f"{cam.frame_ms:.1f} ms)"
+        )
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # Output
 
@@ -861,14 +890,15 @@ def format_summary(results: list[RunResult]) -> str:
             answered = replace(GOAL_FR3_ANSWERED, name=f"{GOAL_FR3_ANSWERED.name} ({r.run})")
             lines.append(answered.judge(round(r.fr3["answered_pct"], 3)).line())
         else:
+            rate = f"{1e3 / r.period_us:g} kHz ({r.run})"
             if r.error:
-                lines.append(f"2 kHz ({r.run}): not measured: {r.error}")
+                lines.append(f"{rate}: not measured: {r.error}")
             elif r.problems:
-                lines.append(f"2 kHz ({r.run}): BROKE: {'; '.join(r.problems)}")
+                lines.append(f"{rate}: BROKE: {'; '.join(r.problems)}")
             else:
                 assert r.latency is not None
                 lines.append(
-                    f"2 kHz ({r.run}): clean: no halt, no miss cyclictest did not also see "
+                    f"{rate}: clean: no halt, no miss cyclictest did not also see "
                     f"({r.misses} misses in all), sensor-to-DAC p99 {us(r.latency.p99_us)} µs = "
                     f"{r.latency_p99_of_period:.0%} of the period, CPU {r.cpu_total_pct:.0f} % "
                     "of one core"

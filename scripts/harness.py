@@ -171,6 +171,8 @@ CELLS: dict[str, dict[str, object]] = {
         ),
         "arena_kib": 6144,
     },
+    # the shipped cell with its parts watched by a camera (the camera process running)
+    "watched": {"scene": "scenes/watched.yaml"},
 }
 
 

@@ -47,7 +47,7 @@ from kali_daemons.viewer.dashboard import CONTACT_M_PER_N, Dashboard, blueprint
 from kali_daemons.viewer.sinks import pick_port, reachable, rerun_binary
 from kali_daemons.wallclock import start_kali_clock, step_kali_clock
 
-from .conftest import make_config, wait_for
+from .conftest import make_config, unique_name, wait_for
 from .test_launcher import kalictl
 from .test_servo_level import power_all
 from .test_tg import MIXED
@@ -729,3 +729,60 @@ def test_realtime_viewer_draws_through_a_halt_and_its_death_halts_nothing(
         # nothing halted for it (a host stall may halt a serious process meanwhile: not ours)
         assert int(inst.fault["count"]) == count or "viewer" not in inst.fault_text(last=True)
         del rec, viewer, frames
+
+
+def test_the_dashboard_shows_each_cameras_latest_frame_where_the_camera_stands(
+    tmp_path: Path,
+) -> None:
+    """scenes/watched.yaml's camera (issue 56 item 4): the dashboard places a pinhole of its
+    K at its pose and logs its latest frame, colour and depth, under it."""
+    cfg = make_config("camera-draw", {r"^version: 1$": "version: 1\nscene: scenes/watched.yaml"})
+    name = unique_name("a")
+    arena = Arena.create(name, 4 << 20)  # the fixture's 1 MiB holds no 320×240 ring
+    try:
+        _camera_frame(cfg, arena, tmp_path)
+    finally:
+        arena.close()
+        launcher.stop(name)
+
+
+def _camera_frame(cfg: KaliConfig, arena: Arena, tmp_path: Path) -> None:
+    from kali_daemons.hardware.camera import CameraRing
+
+    cam = cfg.scene.camera("table")
+    arena.record(layout.KEY_ROBOTS, layout.ROBOT_STATE, 2)
+    arena.record(layout.KEY_JOINTS, layout.JOINT_STATE, cfg.joints.total)
+    arena.record(layout.KEY_SERVO_CTRL, layout.SERVO_CTRL)
+    arena.record(layout.KEY_WORLD_TRUTH, layout.WORLD_TRUTH)
+    arena.record(layout.KEY_OBJECT_TRUTHS, layout.OBJECT_TRUTH, len(cfg.scene.free))
+    arena.record(layout.KEY_FT, layout.FT_STATE, 2)
+    arena.record(layout.KEY_CAMERAS, layout.CAMERA, 1)
+    need = layout.CAMERA_BUFFERS * layout.camera_bytes(cam.width * cam.height)
+    arena.record(layout.KEY_CAMERA_FRAMES, np.dtype("u1"), need)
+    ring = CameraRing(arena, cfg.scene.cameras, 0)
+    ring.describe(cam.K, cam.pose)
+    image = np.zeros((cam.height, cam.width, 3), np.uint8)
+    image[10:20, 30:40] = (200, 30, 40)
+    ring.deliver(image, np.full((cam.height, cam.width), 1.25, np.float32), 7, 7_000_000, 1)
+    rrd, _ = one_frame(cfg, arena, tmp_path / "camera.rrd")
+    del ring
+
+    from rerun.chunk import RrdReader
+
+    columns: dict[str, dict[str, object]] = {}
+    for chunk in RrdReader(rrd).stream():
+        batch = chunk.to_record_batch()
+        for column in batch.schema.names:
+            if column.split(":")[0] in ("Image", "DepthImage", "Pinhole", "Transform3D"):
+                got = batch.column(column).to_pylist()[0]
+                columns.setdefault(chunk.entity_path, {})[column] = got
+    placed = columns["/world/cameras/table"]
+    np.testing.assert_allclose(placed["Transform3D:translation"][0], cam.xyz, atol=1e-6)
+    np.testing.assert_allclose(
+        np.reshape(placed["Pinhole:image_from_camera"][0], (3, 3)).T, cam.K, atol=1e-4
+    )
+    shown = columns["/world/cameras/table/image"]
+    pixels = np.frombuffer(bytes(shown["Image:buffer"][0]), np.uint8)
+    np.testing.assert_array_equal(pixels.reshape(cam.height, cam.width, 3), image)
+    depth = columns["/world/cameras/table/depth"]
+    assert np.frombuffer(bytes(depth["DepthImage:buffer"][0]), np.float32).max() == 1.25

@@ -55,6 +55,7 @@ from ..tg.functions import registry_for as functions_for
 from ..tg.profiles import MotionError, check_guard, check_joint_target, rigid_pose
 from ..wallclock import step_kali_clock
 from . import periodic, remote, streams
+from .camera import CameraView
 from .common import (
     DEFAULT_INSTANCE,
     FT_FRAMES,
@@ -1051,6 +1052,11 @@ class Kali:
     def robot(self, name: str) -> Robot:
         """The arm called ``name``; ServoError naming the robots otherwise."""
         return Robot(self, self.servo.robot_index(name))
+
+    def camera(self, name: str) -> CameraView:
+        """The cell's camera called ``name`` (its scene's ``cameras``): ``read()`` gives its
+        latest frame (image, depth, tick, K, pose); HardwareError naming the cameras otherwise."""
+        return CameraView(self.inst, name)
 
     def pause(self) -> None:
         """Let time pass while waiting: a short sleep, or in a lockstep instance a few ticks

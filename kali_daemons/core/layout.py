@@ -441,6 +441,42 @@ OBJECT_TRUTH = np.dtype(  # per free object of the scene (robots.scene), in the 
     align=True,
 )
 
+# A camera's image ring (DESIGN 6): its process renders into the buffer after the latest and
+# then names it latest, each buffer's seq odd while it is written, so a reader copies the
+# latest frame and checks its seq unchanged: never torn (``camera.ring``).  A real camera's
+# driver process fills the same records.
+KEY_CAMERAS = "cameras"  # CAMERA per camera of the scene, the scene's order
+KEY_CAMERA_FRAMES = "cameras.frames"  # every camera's CAMERA_BUFFERS buffers (camera_bytes)
+CAMERA_BUFFERS = 3
+
+CAMERA = np.dtype(
+    [
+        ("width", "<u4"),  # pixels
+        ("height", "<u4"),
+        ("K", "<f8", (3, 3)),  # intrinsics: pixel = K @ p / p[2], p in the camera's frame
+        ("pose", "<f8", (4, 4)),  # the camera in the world: x right, y down, z along the view
+        ("offset", "<i8"),  # its first buffer's byte in KEY_CAMERA_FRAMES
+        ("latest", "<i4"),  # the buffer last finished, -1 before the first
+        ("up", "u1"),  # 1 once its process renders (or its driver delivers)
+        ("_pad", "u1", (3,)),
+        ("frames", "<u8"),  # frames finished
+        ("seq", "<u8", (CAMERA_BUFFERS,)),  # per buffer: bumped before and after a write
+        ("tick", "<i8", (CAMERA_BUFFERS,)),  # the clock's tick of the state each buffer shows
+        ("sim_time_ns", "<i8", (CAMERA_BUFFERS,)),  # the plant's time of it (-1: real)
+        ("stamp_ns", "<i8", (CAMERA_BUFFERS,)),  # CLOCK_MONOTONIC when it was taken
+        ("frame_ns", "<i8"),  # what the last frame cost its process (CPU time)
+        ("frame_max_ns", "<i8"),  # the most a frame has cost
+    ],
+    align=True,
+)
+
+
+def camera_bytes(pixels: int) -> int:
+    """One buffer of a camera of ``pixels`` pixels: depth (float32, m) then colour (RGB, one
+    byte each) padded to whole 8-byte words, so every buffer's depth is aligned."""
+    return 4 * pixels + (3 * pixels + 7) // 8 * 8
+
+
 PUSH = np.dtype(  # kalictl push: an external force on a robot's tool, for tests and demos
     [
         ("force", "<f8", (3,)),  # operator: N, world frame, applied at the tool's sensor origin
@@ -1394,6 +1430,7 @@ class Cell:
     config_files_bytes: int = 0  # the path of the instance's copies of its user files
     hardware: tuple[Record, ...] = ()  # the records of the cell's hardware kinds (HARDWARE_KEYS)
     objects: int = 0  # the scene's free objects (robots.scene)
+    cameras: tuple[int, ...] = ()  # each scene camera's pixels, the scene's order
 
     @property
     def n_joints(self) -> int:
@@ -1438,6 +1475,13 @@ RECORDS: tuple[Record, ...] = (
     Record(KEY_JOINT_TRUTHS, JOINT_TRUTH, lambda c, i: c.n_joints, "plant", "tests"),
     Record(KEY_WORLD_TRUTH, WORLD_TRUTH, None, "plant", "viewer, tests"),
     Record(KEY_OBJECT_TRUTHS, OBJECT_TRUTH, lambda c, i: c.objects, "plant", "viewer, tests"),
+    Record(KEY_CAMERAS, CAMERA, lambda c, i: len(c.cameras), "camera", "clients, viewer"),
+    Record(
+        KEY_CAMERA_FRAMES,
+        *_u1(lambda c, i: sum(CAMERA_BUFFERS * camera_bytes(n) for n in c.cameras)),
+        "camera",
+        "clients, viewer",
+    ),
     Record(KEY_PUSHES, PUSH, lambda c, i: len(c.robots), "kalictl push", "the plant"),
     # the servo level
     Record(KEY_ROBOTS, ROBOT_STATE, lambda c, i: len(c.robots), "SIO (commands: clients)", "all"),

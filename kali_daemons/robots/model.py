@@ -33,7 +33,14 @@ from kali_daemons.robots.cell import (
     TOOL_RADIUS_M,
     load_pinocchio,
 )
-from kali_daemons.robots.scene import DEFAULT_SCENE, Scene, SceneObject, load_scene
+from kali_daemons.robots.scene import (
+    CELL_HALF_M,
+    DEFAULT_SCENE,
+    Camera,
+    Scene,
+    SceneObject,
+    load_scene,
+)
 
 if TYPE_CHECKING:
     from kali_daemons.runtime.config import RobotConfig
@@ -305,9 +312,11 @@ def _add_scenery(spec: mujoco.MjSpec, scene: Scene) -> None:
     world.add_geom(
         name="floor",
         type=mujoco.mjtGeom.mjGEOM_PLANE,
-        size=[3.0, 3.0, 0.05],
+        size=[CELL_HALF_M, CELL_HALF_M, 0.05],
         rgba=[0.55, 0.57, 0.6, 1.0],
     )
+    for cam in scene.cameras:
+        _add_camera(spec, cam)
     for obj in scene.objects:
         if obj.fixed:
             _add_geom(world, obj, pos=list(obj.xyz), quat=list(obj.quat))
@@ -323,6 +332,20 @@ def _add_scenery(spec: mujoco.MjSpec, scene: Scene) -> None:
                 size=[0.01, 0.01, 0.01],
                 rgba=[0.1, 0.8, 0.2, 0.6],
             )
+
+
+def _add_camera(spec: mujoco.MjSpec, cam: Camera) -> None:
+    """Camera ``cam`` fixed in the world as ``camera/<name>``, its offscreen buffer large
+    enough.  MuJoCo's camera looks along its -z with y up: the scene's pose (x right, y down,
+    z along the view) turned a half turn about x."""
+    rotation = cam.pose[:3, :3] * [1.0, -1.0, -1.0]
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, rotation.flatten())
+    spec.worldbody.add_camera(
+        name=f"camera/{cam.name}", pos=list(cam.xyz), quat=list(quat), fovy=cam.fovy_deg
+    )
+    glob = spec.visual.global_
+    glob.offwidth, glob.offheight = max(glob.offwidth, cam.width), max(glob.offheight, cam.height)
 
 
 def _add_geom(parent: mujoco.MjsBody, obj: SceneObject, **placed: list[float]) -> None:

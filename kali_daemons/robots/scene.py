@@ -3,13 +3,14 @@ where each part can be grasped (DESIGN.md section 6).
 
 A scene file is YAML: a list of objects, each one primitive shape (box, cylinder, sphere,
 capsule) at a pose, fixed to the world or free, with its mass, friction, colour and named
-grasps.  The plant builds its MuJoCo bodies from it (``model.build_world``), the dashboard
-draws it, and the same primitives are coal's shapes for the controller's collision model:
-one description the simulator, the viewer and the controller all read the same way, which an
-MJCF fragment (a language of its own, with defaults, includes and compiler options) would
-not be.  ``config/scenes/default.yaml`` is the shipped cell: a stand between the arms, a
-square bar on it and a table in front.  No MuJoCo and no Pinocchio here: every process that
-reads a config reads its scene.
+grasps; and the cameras watching the cell (``Camera``: where, looking at what, how wide, how
+many pixels how often).  The plant builds its MuJoCo bodies from it (``model.build_world``),
+the dashboard draws it, and the same primitives are coal's shapes for the controller's
+collision model: one description the simulator, the viewer and the controller all read the
+same way, which an MJCF fragment (a language of its own, with defaults, includes and compiler
+options) would not be.  ``config/scenes/default.yaml`` is the shipped cell: a stand between
+the arms, a square bar on it and a table in front.  No MuJoCo and no Pinocchio here: every
+process that reads a config reads its scene.
 """
 
 from __future__ import annotations
@@ -38,6 +39,18 @@ DEFAULT_CLEARANCE_M: Final = 0.01
 MAX_CLEARANCE_M: Final = 0.5
 MAX_GRASPS: Final = 16  # of one object
 MAX_EXTENT_M: Final = 10.0  # no object further out, nor larger (the TG's poses: tg.profiles)
+# the cell: its floor's half width (the plant's floor plane) and how high a camera may stand
+CELL_HALF_M: Final = 3.0
+CELL_HEIGHT_M: Final = 3.0
+MAX_CAMERAS: Final = 4
+CAMERA_PIXELS: Final = (16, 1280)  # a camera's width and height, each within these
+MAX_CAMERA_HZ: Final = 30.0
+# what a frame (colour and depth) costs the camera process, rendered in software through EGL
+# without shadows: CAMERA_FRAME_MS plus CAMERA_PIXEL_US a pixel; the cameras together may take
+# CAMERA_SHARE of a core (docs/decisions/0018-camera.md has the measurements)
+CAMERA_FRAME_MS: Final = 12.0
+CAMERA_PIXEL_US: Final = 0.08
+CAMERA_SHARE: Final = 0.3
 # each shape's size list: what the numbers are (all metres, all > 0)
 SHAPES: Final = {
     "box": ("length x", "length y", "length z"),
@@ -50,7 +63,11 @@ _OBJECT_KEYS = (
     "name", "shape", "size", "at", "rpy_deg", "fixed", "tools_touch", "arms_touch", "mass",
     "friction", "color",
 )  # fmt: skip
-_KEYS = {"object": (*_OBJECT_KEYS, "grasps"), "grasp": ("name", "at", "rpy_deg")}
+_KEYS = {
+    "object": (*_OBJECT_KEYS, "grasps"),
+    "grasp": ("name", "at", "rpy_deg"),
+    "camera": ("name", "at", "look_at", "fovy_deg", "width", "height", "rate_hz"),
+}
 
 
 @dataclass(frozen=True)
@@ -137,6 +154,46 @@ class SceneObject:
 
 
 @dataclass(frozen=True)
+class Camera:
+    """A camera watching the cell: at ``xyz`` (m, world) looking at ``look_at`` with the
+    world's z up in its image, ``fovy_deg`` its vertical field of view, ``width`` × ``height``
+    pixels rendered ``rate_hz`` times a second.  Square pixels, no distortion: a pinhole."""
+
+    name: str
+    xyz: tuple[float, float, float]
+    look_at: tuple[float, float, float]
+    fovy_deg: float
+    width: int
+    height: int
+    rate_hz: float
+
+    @property
+    def pose(self) -> np.ndarray:
+        """The camera in the world (4×4), in the image convention: x right, y down, z along
+        the view (a point ``p`` in the camera's frame is at pixel ``K @ p / p[2]``)."""
+        eye, at = np.asarray(self.xyz), np.asarray(self.look_at)
+        z = (at - eye) / np.linalg.norm(at - eye)
+        x = np.cross(z, (0.0, 0.0, 1.0))
+        x = x / np.linalg.norm(x)
+        t = np.eye(4)
+        t[:3, :3] = np.column_stack((x, np.cross(z, x), z))
+        t[:3, 3] = eye
+        return t
+
+    @property
+    def K(self) -> np.ndarray:  # noqa: N802 (the intrinsics' usual name)
+        """The intrinsics (3×3): a pixel's centre at whole coordinates plus a half, so the image's
+        centre is (width / 2, height / 2)."""
+        f = self.height / 2.0 / math.tan(math.radians(self.fovy_deg) / 2.0)
+        return np.array([[f, 0.0, self.width / 2.0], [0.0, f, self.height / 2.0], [0, 0, 1.0]])
+
+    @property
+    def frame_ms(self) -> float:
+        """What one frame (colour and depth) is expected to cost the camera process."""
+        return CAMERA_FRAME_MS + CAMERA_PIXEL_US * self.width * self.height / 1e3
+
+
+@dataclass(frozen=True)
 class Scene:
     """The cell's world, in the file's order; ``belt`` the free object the stand's conveyor
     belt carries (``plant.conveyor_m_s``), if any."""
@@ -145,6 +202,7 @@ class Scene:
     objects: tuple[SceneObject, ...]
     belt: str | None = None
     clearance_m: float = DEFAULT_CLEARANCE_M
+    cameras: tuple[Camera, ...] = ()
 
     @property
     def free(self) -> tuple[SceneObject, ...]:
@@ -163,6 +221,14 @@ class Scene:
                 return o
         known = ", ".join(o.name for o in self.objects) or "none"
         raise ConfigError(f"{self.source}: no object {name!r} in the scene; objects: {known}")
+
+    def camera(self, name: str) -> Camera:
+        """The camera called ``name``; ConfigError naming the file and its cameras."""
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        known = ", ".join(c.name for c in self.cameras) or "none"
+        raise ConfigError(f"{self.source}: no camera {name!r} in the scene; cameras: {known}")
 
     def grasp_for(self, name: str, robot: RobotConfig) -> np.ndarray:
         """Where ``robot``'s flange holds object ``name``, in the object's frame (4×4): of its
@@ -229,7 +295,7 @@ def parse_scene(text: str, source: str) -> Scene:
     doc = parse_yaml(text, source)
     if not isinstance(doc, dict):
         raise ConfigError(f"{source}: a scene file is a mapping (version, objects, belt)")
-    _known(doc, ("version", "objects", "belt", "clearance_m"), source, "the top level")
+    _known(doc, ("version", "objects", "belt", "clearance_m", "cameras"), source, "the top level")
     if doc.get("version") != SCENE_VERSION:
         raise ConfigError(
             f"{source}: version = {doc.get('version')!r}: this Kali reads scene files of "
@@ -253,7 +319,7 @@ def parse_scene(text: str, source: str) -> Scene:
             f"{MAX_CLEARANCE_M:g} (how near a checked motion lets an arm come to another arm "
             "or to an object its links touch)"
         )
-    scene = Scene(source, tuple(objects), doc.get("belt"), float(clearance))
+    scene = Scene(source, tuple(objects), doc.get("belt"), float(clearance), _cameras(doc, source))
     if scene.belt is not None and (
         not isinstance(scene.belt, str) or scene.object(scene.belt).fixed
     ):
@@ -261,6 +327,67 @@ def parse_scene(text: str, source: str) -> Scene:
             f"{source}: belt = {scene.belt!r}: must name a free object the conveyor carries"
         )
     return scene
+
+
+def _cameras(doc: dict[str, Any], source: str) -> tuple[Camera, ...]:
+    nodes = doc.get("cameras", [])
+    if not isinstance(nodes, list) or len(nodes) > MAX_CAMERAS:
+        raise ConfigError(f"{source}: cameras: must be a list of at most {MAX_CAMERAS} cameras")
+    cameras: list[Camera] = []
+    for i, node in enumerate(nodes):
+        cam = _camera(node, f"{source}: cameras[{i}]")
+        if any(c.name == cam.name for c in cameras):
+            raise ConfigError(f"{source}: cameras[{i}]: name {cam.name!r} given twice")
+        cameras.append(cam)
+    share = sum(c.rate_hz * c.frame_ms / 1e3 for c in cameras)
+    if share > CAMERA_SHARE:
+        each = ", ".join(f"{c.name!r} {c.rate_hz * c.frame_ms / 10:.0f} %" for c in cameras)
+        raise ConfigError(
+            f"{source}: cameras: would take {share:.0%} of a core ({each}), more than the "
+            f"camera process's budget of {CAMERA_SHARE:.0%}: a frame costs about "
+            f"{CAMERA_FRAME_MS:g} ms + {CAMERA_PIXEL_US:g} µs a pixel; lower a rate or a "
+            "resolution"
+        )
+    return tuple(cameras)
+
+
+def _camera(node: Any, where: str) -> Camera:
+    if not isinstance(node, dict):
+        raise ConfigError(f"{where}: a camera is a mapping ({', '.join(_KEYS['camera'])})")
+    name = _name(node, where)
+    where = f"{where} ({name!r})"
+    _known(node, _KEYS["camera"], where, "a camera")
+    xyz = _numbers(node.get("at"), f"{where}: at", 3, "x, y, z in metres")
+    look_at = _numbers(node.get("look_at"), f"{where}: look_at", 3, "x, y, z in metres")
+    x, y, z = xyz
+    if not (abs(x) <= CELL_HALF_M and abs(y) <= CELL_HALF_M and 0.0 < z <= CELL_HEIGHT_M):
+        raise ConfigError(
+            f"{where}: at = {list(xyz)}: outside the cell (within ±{CELL_HALF_M:g} m of the "
+            f"origin in x and y, above the floor and at most {CELL_HEIGHT_M:g} m up)"
+        )
+    view = np.subtract(look_at, xyz)
+    length = float(np.linalg.norm(view))
+    if length < 0.01 or math.hypot(view[0], view[1]) < 1e-3 * length:
+        raise ConfigError(
+            f"{where}: look_at = {list(look_at)}: must lie at least 1 cm from the camera and "
+            "not straight above or below it (the image's up is the world's z)"
+        )
+    fovy = node.get("fovy_deg", 45.0)
+    if isinstance(fovy, bool) or not isinstance(fovy, int | float) or not 5.0 <= fovy <= 150.0:
+        raise ConfigError(f"{where}: fovy_deg = {fovy!r}: a vertical field of view, 5 .. 150°")
+    lo, hi = CAMERA_PIXELS
+    size = []
+    for key, default in (("width", 160), ("height", 120)):
+        v = node.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise ConfigError(f"{where}: {key} = {v!r}: whole pixels, {lo} .. {hi}")
+        size.append(v)
+    rate = node.get("rate_hz", 5.0)
+    if isinstance(rate, bool) or not isinstance(rate, int | float) or not 0 < rate <= MAX_CAMERA_HZ:
+        raise ConfigError(
+            f"{where}: rate_hz = {rate!r}: frames a second, > 0 and at most {MAX_CAMERA_HZ:g}"
+        )
+    return Camera(name, xyz, look_at, float(fovy), size[0], size[1], float(rate))  # type: ignore[arg-type]
 
 
 def _object(node: Any, where: str) -> SceneObject:

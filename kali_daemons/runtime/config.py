@@ -104,6 +104,7 @@ _PROCESS_KEYS = {
     "sv": ("count", "cpus", "priority", "serious", "stage", "poll_us", "rest_ms"),
     "dynamics": ("enabled", "cpu", "priority", "nice", "period_ms", "serious", "stage"),
     "viewer": ("enabled", "cpu", "priority", "nice", "period_ms", "serious", "stage"),
+    "camera": ("cpu", "nice"),
 }
 # What a kind's entry takes when it leaves ``serious`` or ``stage`` out: the servo processes
 # are serious (a user who leaves the key out never loses the halt on a dead or late servo
@@ -117,9 +118,13 @@ _KIND_DEFAULTS: dict[str, dict[str, Any]] = {
     "sv": {"serious": True, "stage": 2},
     "dynamics": {"serious": False, "stage": 3},
     "viewer": {"serious": False, "stage": 4},
+    "camera": {"serious": False, "stage": 0, "cpu": 1},
 }
-# processes a cell runs only with hardware that needs them: one link per networked arm
-OPTIONAL_PROCESSES = ("link",)
+# processes a cell runs only with hardware (or a scene) that needs them: one link per
+# networked arm; the camera process where the scene has cameras
+OPTIONAL_PROCESSES = ("link", "camera")
+# the hardware kinds whose arms Kali's own plant simulates: the cells its cameras can render
+RENDERED_SIMULATOR = "plant:Plant"
 _CLOCK_PERIOD_FIELD = {"tg": "clock.tg_period_ms", "sio": "clock.servo_period_ms"}
 _CLOCK_PERIOD_FIELD["sv"] = _CLOCK_PERIOD_FIELD["sio"]
 
@@ -625,7 +630,8 @@ def _tg_functions_field() -> Any:
 @dataclass(frozen=True, config=_FROZEN)
 class ProcessesFile:
     """The ``processes`` section: one entry per kind, all seven present; ``link`` places the
-    links of networked arms (one per arm, ``link.<robot>``)."""
+    links of networked arms (one per arm, ``link.<robot>``), ``camera`` the camera process
+    of a scene with cameras (its CPU share: cpu and nice)."""
 
     wallclock: ProcessEntry
     plant: ProcessEntry
@@ -635,6 +641,7 @@ class ProcessesFile:
     dynamics: ProcessEntry
     viewer: ProcessEntry
     link: ProcessEntry | None = None
+    camera: ProcessEntry | None = None
 
 
 @dataclass(frozen=True, config=_FROZEN)
@@ -840,6 +847,7 @@ def cell_of(
             dict.fromkeys(rec for kind in cfg.hardware_kinds for rec in hardware_kind(kind).records)
         ),
         objects=len(cfg.scene.free),
+        cameras=tuple(c.width * c.height for c in cfg.scene.cameras),
     )
 
 
@@ -1277,6 +1285,8 @@ def _build(
             list(plant.conveyor_m_s),
             f"a belt needs an object to carry: the scene ({scene.source}) names none (belt)",
         )
+    if scene.cameras:
+        processes = (*processes, _camera_process(procs_node.get("camera"), scene, robots, clock))
     return KaliConfig(
         version=CONFIG_VERSION,
         instance=top["instance"],
@@ -1566,6 +1576,36 @@ def _links(node: Any, robots: tuple[RobotConfig, ...], clock: ClockConfig) -> li
         if r.hardware.hand
     ]
     return links + hands
+
+
+def _camera_process(
+    node: Any, scene: Scene, robots: tuple[RobotConfig, ...], clock: ClockConfig
+) -> ProcessConfig:
+    """The camera process of a scene with cameras, placed by ``processes.camera`` (its CPU and
+    nice; always at normal scheduling, never serious), its period the fastest camera's in whole
+    base ticks.  Only a cell Kali's own plant simulates can be rendered."""
+    for r in robots:
+        if hardware_kind(r.hardware.kind).simulator != RENDERED_SIMULATOR:
+            _fail(
+                "scene",
+                scene.source,
+                f"declares cameras, which render the cell Kali's own plant simulates; robot "
+                f"'{r.name}' is on {r.hardware.kind} hardware, simulated elsewhere if at all",
+            )
+    keys, defaults = _PROCESS_KEYS["camera"], _KIND_DEFAULTS["camera"]
+    v = _read(ProcessEntry, node or {}, "processes.camera", keys, {}, defaults)
+    fastest = ms_to_ns(1e3 / max(c.rate_hz for c in scene.cameras))
+    ticks = max(1, round(fastest / ms_to_ns(clock.base_tick_ms)))
+    return ProcessConfig(
+        name="camera",
+        kind="camera",
+        cpu=_cpu(v["cpu"], "processes.camera.cpu"),
+        priority=0,
+        nice=v.get("nice", 0),
+        period_ms=ns_to_ms(ticks * ms_to_ns(clock.base_tick_ms)),
+        serious=False,
+        stage=0,
+    )
 
 
 def _check_servo_stage(processes: list[ProcessConfig]) -> None:
@@ -1914,6 +1954,9 @@ def resolved(cfg: KaliConfig) -> dict[str, Any]:
             "rest_ms": p.rest_ms,
         }
         processes[kind] = {k: entry[k] for k in _PROCESS_KEYS[kind]}
+    camera = next((p for p in cfg.processes if p.kind == "camera"), None)
+    if camera is not None:
+        processes["camera"] = {"cpu": camera.cpu, "nice": camera.nice}
     robots = []
     for r in cfg.robots:
         robot = _plain(r)

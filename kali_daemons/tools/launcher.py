@@ -64,11 +64,13 @@ MODULES = {
     "bridge": "bridge",
     "link": "link",
     "hand": "link.hand",
+    "camera": "plant.camera",
 }
 # kinds that run as their own process in lockstep too, never hosted by the executive: a
 # bridge that dies (or is killed) must leave the cell running, lockstep or not; a link and a
-# hand hold libfranka, whose calls block holding the interpreter lock
-OWN_PROCESS = frozenset({"wallclock", "bridge", "link", "hand"})
+# hand hold libfranka, whose calls block holding the interpreter lock; a camera renders for
+# tens of milliseconds a frame on its own timer
+OWN_PROCESS = frozenset({"wallclock", "bridge", "link", "hand", "camera"})
 
 STOP_GRACE_S = 3.0
 KILL_GRACE_S = 2.0
@@ -576,6 +578,9 @@ def _start(
 # for it while SCHED_FIFO work holds that CPU: a priority inversion
 # (docs/decisions/0006-single-threaded-daemons.md).
 SINGLE_THREADED = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+# MuJoCo picks its OpenGL platform as it is imported (the spawner imports it for every daemon):
+# the camera process renders offscreen through EGL, in software where there is no GPU
+RENDERING = "MUJOCO_GL", "egl"
 
 
 # the spawner's last argument: room its children write their own command lines over
@@ -599,7 +604,7 @@ class Spawner:
                 stderr=log,
                 start_new_session=True,
                 close_fds=True,
-                env={**os.environ, **SINGLE_THREADED},
+                env={RENDERING[0]: RENDERING[1], **os.environ, **SINGLE_THREADED},
             )
         self.exits: dict[int, int] = {}  # pid -> exit status (negative: the signal)
         self._buffer = b""  # what the spawner said, not yet a whole line

@@ -20,6 +20,7 @@ import rerun.blueprint as rrb
 from ..core import layout
 from ..core.errors import DaemonError
 from ..core.layout import ProcState
+from ..hardware.camera import CameraRing
 from ..robots import RobotType
 from ..robots.cell import FLANGE_FRAME, base_transform, load_pinocchio
 from ..robots.scene import SceneObject
@@ -255,6 +256,7 @@ class Dashboard:
         self.tips = [np.array([0.0, 0.0, r.ft.tool_tip_m]) for r in cfg.robots]
         self.free = [o.name for o in cfg.scene.free]  # the objects whose truth it draws
         self.base_rot_t = [b.rotation.T.copy() for b in self.bases]  # world axes → base axes
+        self.cameras = cfg.scene.cameras
 
     def attach(self) -> None:
         """SIO's, the plant's and the instance's records, once they are laid out."""
@@ -282,6 +284,8 @@ class Dashboard:
         self._fault_count = 0
         self._fault_active = False
         self._messages = np.zeros(n, dtype=self.robots["message"].dtype)
+        self.camera_rings = [CameraRing(arena, self.cameras, i) for i in range(len(self.cameras))]
+        self._camera_shown = [0] * len(self.cameras)  # the stamp of each one's frame drawn
 
     def log_static(self) -> None:
         """What never changes: the cell, the arms' shape sizes, series names and colours."""
@@ -342,6 +346,19 @@ class Dashboard:
                     static=True,
                 )
         rec.log("timing/sio_latency_us", rr.SeriesLines(names=["SIO sensor→DAC"]), static=True)
+        for cam in self.cameras:  # each camera where it stands, its images under it
+            path = f"world/cameras/{cam.name}"
+            pose = cam.pose
+            rec.log(path, rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]), static=True)
+            rec.log(
+                path,
+                rr.Pinhole(
+                    image_from_camera=cam.K,
+                    resolution=[cam.width, cam.height],
+                    camera_xyz=rr.ViewCoordinates.RDF,  # x right, y down, z along the view
+                ),
+                static=True,
+            )
 
     def frame(self) -> None:
         rec = self.rec
@@ -405,8 +422,20 @@ class Dashboard:
                 # rerun types QuaternionLike as its Quaternion only; it takes (x, y, z, w)
                 placed = rr.Transform3D(translation=pose[:3], quaternion=(x, y, z, w))  # type: ignore[arg-type]
                 rec.log(f"world/{name}", placed)
+        self._camera_frames()
         self._timing()
         self._events()
+
+    def _camera_frames(self) -> None:
+        """Each camera's latest frame, colour and depth, once."""
+        for i, ring in enumerate(self.camera_rings):
+            shot = ring.read()
+            if shot is None or shot.stamp_ns == self._camera_shown[i]:
+                continue
+            self._camera_shown[i] = shot.stamp_ns
+            path = f"world/cameras/{ring.name}"
+            self.rec.log(f"{path}/image", rr.Image(shot.image))
+            self.rec.log(f"{path}/depth", rr.DepthImage(shot.depth, meter=1.0))
 
     def _timing(self) -> None:
         """Per process: last execution time and lateness (µs), missed deadlines; SIO's

@@ -1,0 +1,43 @@
+"""``kali.camera(name)``: a program's view of one of the cell's cameras (``hardware.camera``),
+in simulation the camera process's renders, on real hardware its driver's frames."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+from ..core.errors import HardwareError
+from ..hardware.camera import CameraRing, Frame, camera_index
+
+if TYPE_CHECKING:
+    from ..runtime.instance import Instance
+
+POLL_S = 0.005  # how often a wait for a newer frame looks
+
+
+class CameraView:
+    """Camera ``name`` of ``inst``'s scene: ``read`` its latest frame."""
+
+    def __init__(self, inst: Instance, name: str) -> None:
+        cameras = inst.config.scene.cameras
+        self._inst = inst
+        self.name = name
+        self.ring = CameraRing(inst.arena, cameras, camera_index(cameras, name, inst.name))
+
+    def read(self, after_tick: int | None = None, timeout_s: float = 5.0) -> Frame:
+        """The latest frame, whole (never torn); with ``after_tick``, the first one showing a
+        later tick, waiting up to ``timeout_s`` (wall time, in lockstep too: the camera renders
+        on its own timer).  HardwareError naming the camera if none comes in time."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            frame = self.ring.read()
+            if frame is not None and (after_tick is None or frame.tick > after_tick):
+                return frame
+            if time.monotonic() >= deadline:
+                what = "no frame yet" if frame is None else f"the latest shows tick {frame.tick}"
+                wanted = "" if after_tick is None else f" after tick {after_tick}"
+                raise HardwareError(
+                    f"camera {self.name!r}: no frame{wanted} within {timeout_s:g} s ({what}); "
+                    f"is the camera process running? (kalictl status)"
+                )
+            time.sleep(POLL_S)
