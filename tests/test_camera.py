@@ -48,7 +48,7 @@ def test_the_camera_shows_an_object_where_its_intrinsics_put_it(
         view = k.camera("table")
         first = view.read()
         step_kali_clock(k.inst, 50)
-        frame = view.read(after_tick=first.tick + 49)  # rendered on its own time: at the end
+        frame = view.read(since_tick=first.tick + 50)  # the clock stands there: a frame of it
         assert frame.tick == first.tick + 50 and frame.sim_time_s is not None
         assert frame.image.shape == (cam.height, cam.width, 3) and frame.image.dtype == np.uint8
         assert frame.depth.shape == (cam.height, cam.width) and frame.depth.dtype == np.float32
@@ -133,8 +133,8 @@ AT = "  - {name: c, look_at: [0.0, 0.0, 0.5]"
             r"outside the cell \(within ±3 m of the origin in x and y, above the floor",
         ),
         (
-            "  - {name: c, at: [0.0, 0.0, 2.0], look_at: [0.0, 0.0, 0.5]}",
-            "not straight above or below it",
+            "  - {name: c, at: [0.0, 0.0, 2.0], look_at: [0.0, 0.0, 1.995]}",
+            r"look_at = \[0.0, 0.0, 1.995\]: must lie 1 cm from it or more",
         ),
         (CAMERA + ", width: 2000}", r"width = 2000: whole pixels, 16 .. 1280"),
         (CAMERA + ", rate_hz: 0}", r"rate_hz = 0: frames a second, > 0 and at most 30"),
@@ -154,6 +154,18 @@ def test_a_bad_camera_is_refused_naming_the_file_the_camera_and_the_rule(
     with pytest.raises(ConfigError, match=expected) as err:
         parse_scene(text, "cell.yaml")
     assert str(err.value).startswith("config: cell.yaml: cameras"), err.value
+
+
+def test_a_camera_looking_straight_down_has_the_worlds_y_up_in_its_image() -> None:
+    """Its image's x is the world's x, its image's down the world's -y; a point straight
+    below it falls on the image's centre."""
+    cam = parse_scene(
+        "version: 1\ncameras:\n  - {name: c, at: [0.1, -0.4, 1.0], look_at: [0.1, -0.4, 0.4]}\n",
+        "down.yaml",
+    ).camera("c")
+    np.testing.assert_allclose(cam.pose[:3, :3], np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+    p = np.linalg.solve(cam.pose, [0.1, -0.4, 0.4, 1.0])[:3]
+    np.testing.assert_allclose((cam.K @ p)[:2] / p[2], [cam.width / 2, cam.height / 2])
 
 
 def test_two_cameras_share_the_budget() -> None:

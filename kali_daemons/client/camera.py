@@ -24,18 +24,19 @@ class CameraView:
         self.name = name
         self.ring = CameraRing(inst.arena, cameras, camera_index(cameras, name, inst.name))
 
-    def read(self, after_tick: int | None = None, timeout_s: float = 5.0) -> Frame:
-        """The latest frame, whole (never torn); with ``after_tick``, the first one showing a
-        later tick, waiting up to ``timeout_s`` (wall time, in lockstep too: the camera renders
-        on its own timer).  HardwareError naming the camera if none comes in time."""
+    def read(self, since_tick: int | None = None, timeout_s: float = 5.0) -> Frame:
+        """The latest frame, whole (never torn); with ``since_tick``, the first one showing
+        that tick or a later one (``kali.inst.clock["tick"]``: a frame of the present), waiting
+        up to ``timeout_s`` (wall time, in lockstep too: the camera renders on its own timer).
+        HardwareError naming the camera if none comes in time."""
         deadline = time.monotonic() + timeout_s
         while True:
             frame = self.ring.read()
-            if frame is not None and (after_tick is None or frame.tick > after_tick):
+            if frame is not None and (since_tick is None or frame.tick >= since_tick):
                 return frame
             if time.monotonic() >= deadline:
                 what = "no frame yet" if frame is None else f"the latest shows tick {frame.tick}"
-                wanted = "" if after_tick is None else f" after tick {after_tick}"
+                wanted = "" if since_tick is None else f" of tick {since_tick} or later"
                 raise HardwareError(
                     f"camera {self.name!r}: no frame{wanted} within {timeout_s:g} s ({what}); "
                     f"is the camera process running? (kalictl status)"

@@ -44,6 +44,7 @@ CELL_HALF_M: Final = 3.0
 CELL_HEIGHT_M: Final = 3.0
 MAX_CAMERAS: Final = 4
 CAMERA_PIXELS: Final = (16, 1280)  # a camera's width and height, each within these
+VERTICAL: Final = 1e-6  # a view this near the vertical (sine of its angle) takes y as up
 MAX_CAMERA_HZ: Final = 30.0
 # what a frame (colour and depth) costs the camera process, rendered in software through EGL
 # without shadows: CAMERA_FRAME_MS plus CAMERA_PIXEL_US a pixel; the cameras together may take
@@ -156,8 +157,9 @@ class SceneObject:
 @dataclass(frozen=True)
 class Camera:
     """A camera watching the cell: at ``xyz`` (m, world) looking at ``look_at`` with the
-    world's z up in its image, ``fovy_deg`` its vertical field of view, ``width`` × ``height``
-    pixels rendered ``rate_hz`` times a second.  Square pixels, no distortion: a pinhole."""
+    world's z up in its image (the world's y, looking straight down or up), ``fovy_deg`` its
+    vertical field of view, ``width`` × ``height`` pixels rendered ``rate_hz`` times a second.
+    Square pixels, no distortion: a pinhole."""
 
     name: str
     xyz: tuple[float, float, float]
@@ -174,6 +176,8 @@ class Camera:
         eye, at = np.asarray(self.xyz), np.asarray(self.look_at)
         z = (at - eye) / np.linalg.norm(at - eye)
         x = np.cross(z, (0.0, 0.0, 1.0))
+        if np.linalg.norm(x) < VERTICAL:  # straight down or up: the image's up is the y axis
+            x = np.cross(z, (0.0, 1.0, 0.0))
         x = x / np.linalg.norm(x)
         t = np.eye(4)
         t[:3, :3] = np.column_stack((x, np.cross(z, x), z))
@@ -367,11 +371,8 @@ def _camera(node: Any, where: str) -> Camera:
         )
     view = np.subtract(look_at, xyz)
     length = float(np.linalg.norm(view))
-    if length < 0.01 or math.hypot(view[0], view[1]) < 1e-3 * length:
-        raise ConfigError(
-            f"{where}: look_at = {list(look_at)}: must lie at least 1 cm from the camera and "
-            "not straight above or below it (the image's up is the world's z)"
-        )
+    if length < 0.01:
+        raise ConfigError(f"{where}: look_at = {list(look_at)}: must lie 1 cm from it or more")
     fovy = node.get("fovy_deg", 45.0)
     if isinstance(fovy, bool) or not isinstance(fovy, int | float) or not 5.0 <= fovy <= 150.0:
         raise ConfigError(f"{where}: fovy_deg = {fovy!r}: a vertical field of view, 5 .. 150°")
