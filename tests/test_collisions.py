@@ -220,9 +220,12 @@ def test_moves_that_would_meet_the_other_arm_are_refused_naming_both_links(
 
 
 def assert_refused(message: str, pattern: str) -> None:
+    """A refusal's words match ``pattern``, the subsystem named once ("motion: request 3
+    refused: joint move refused: ...")."""
     import re
 
     assert re.search(pattern, message), message
+    assert message.count("motion:") == 1, message
 
 
 def solid_table(tmp_path: Path, tools_touch: bool = True) -> dict[str, str]:

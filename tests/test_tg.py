@@ -502,3 +502,14 @@ def test_a_mixed_cell_moves_the_panda_in_joints_and_in_a_line(kali: Callable[...
         step_kali_clock(k.inst, 500)
         np.testing.assert_allclose(right.read_pose()[:3, 3], here[:3, 3] + [0, 0, 0.03], atol=2e-4)
         assert k.inst.fault_text() is None
+
+
+def test_a_refusal_names_its_subsystem_once() -> None:
+    """The status message of a request refused by a MotionError is its words without the
+    error's "motion: " (the client's MotionFailedError names the subsystem once: "motion:
+    request 3 refused: joint move refused: ..."); anything else is named whole."""
+    from kali_daemons.tg.requests import refusal
+
+    assert refusal(MotionError("joint move refused: x")) == "joint move refused: x"
+    checked = "request refused: it could not be checked (ValueError: bad)"
+    assert refusal(ValueError("bad")) == checked

@@ -208,7 +208,8 @@ def plan_path(
 
 def refusal(exc: Exception) -> str:
     """The status message refusing a request that raised ``exc`` while being checked or
-    planned: a MotionError's own text; anything else named, so nothing is hidden."""
+    planned: a MotionError's own words (the client's error names the subsystem: once);
+    anything else named, so nothing is hidden."""
     if isinstance(exc, MotionError):
-        return str(exc)
+        return str(exc).removeprefix(f"{MotionError.subsystem}: ")
     return f"request refused: it could not be checked ({type(exc).__name__}: {exc})"
