@@ -698,3 +698,41 @@ def test_a_circular_arc_keeps_to_its_circle_and_blends_with_lines(
         assert min(speeds[moving[0] + ramp : moving[-1] - ramp]) > 0.005  # never at rest
         with pytest.raises(MotionError, match=r"segment 1 .* is an arc through .* on the line"):
             left.move_arc((p0 + end[:3, 3]) / 2, end)
+
+
+def test_a_stream_driven_into_the_wrist_singularity_slows_and_holds_before_it(
+    kali: Callable[..., str],
+) -> None:
+    """Lockstep: the left tool streamed to the pose of its joints with joint 5 at 0 (the
+    PUMA's wrist singularity) turns ever slower as joint 5 nears the type's 5° limit and
+    holds there, the stream running on with no fault (MoveIt Servo's rule: before, it ended
+    the motion at the limit); streamed back, it follows at speed."""
+    name = kali(lockstep=True)
+    with Kali(name) as k:
+        start = ready_left(k)
+        left = k.robot("left")
+        q0 = k.start_point(left.index)
+        q_singular = q0.copy()
+        q_singular[4] = 0.0
+        target = left.base @ left.type.kinematics.fkine(q_singular) @ left.tool
+        limit = math.radians(5.0)  # puma560.kinematics.WRIST_MIN_DEG
+        with left.stream(lifetime=0.5, speed=0.2) as s:
+            wrist = []
+            for _ in range(300):  # 6 s
+                s.send(target)
+                step_kali_clock(k.inst, 20)
+                wrist.append(abs(float(k.servo.level.joints["demand"][left.span][4])))
+            assert s.handle.state == RequestState.RUNNING, s.handle.message
+            assert k.inst.fault_text() is None
+            assert limit <= wrist[-1] < limit + math.radians(0.5), math.degrees(wrist[-1])
+            assert min(wrist) >= limit
+            rates = -np.diff(wrist) / 0.02
+            far = [r for r, w in zip(rates, wrist[1:], strict=True) if w > 3 * limit]
+            near = [r for r, w in zip(rates, wrist[1:], strict=True) if w < 1.25 * limit]
+            assert max(near) < 0.5 * max(far), (max(near), max(far))
+            assert abs(rates[-10:]).max() < 1e-6  # held at the end
+            for _ in range(100):  # and back, at the stream's speed
+                s.send(start)
+                step_kali_clock(k.inst, 20)
+            assert abs(float(k.servo.level.joints["demand"][left.span][4])) > 2 * limit
+            assert s.handle.state == RequestState.RUNNING

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Final
 import numpy as np
 
 from ..core.errors import KinematicsError
-from .profile import FloatArray
+from .profile import SINGULAR_MARGINS, FloatArray
 
 if TYPE_CHECKING:
     import pinocchio as pin
@@ -711,3 +711,22 @@ class NumericalKinematics:
                 f"has a singular value below {sigma_min:g}"
             )
         return None
+
+    def singular_margin(self, q: FloatArray) -> float:
+        """How far ``q`` is from a singularity as a multiple of ``sigma_min``, resolved to
+        ``SINGULAR_MARGINS`` (the highest the smallest singular value passes; 0 below
+        ``sigma_min``), with the redundant joint held as ``singular`` checks it.  Inside the
+        cycle: one Cholesky a level."""
+        qv, held, solver = self._qv, self.redundant_joint, self.solver
+        for k in range(self.n):
+            qv[k] = float(q[k])
+        solver.forward(qv, jacobian=True)
+        passed = 0.0
+        for level in (1.0, *SINGULAR_MARGINS):
+            sigma = level * self.sigma_min
+            if not solver.min_singular_above(sigma, None) or (
+                held is not None and not solver.min_singular_above(sigma, held)
+            ):
+                break
+            passed = level
+        return passed

@@ -40,6 +40,10 @@ FRICTION_SMOOTHING_RAD_S = 2.0  # rad/s at the motor
 
 # The built-in PID's integration band of every type tuned by ``servo_gains``: the PUMA's
 INTEGRATION_BAND_RAD = 0.01  # rad
+# A kinematics' singular_margin: the multiples of its singularity limit a tracking motion
+# slows down within (below the last) and a numerical type resolves (its Jacobian's smallest
+# singular value tested against each, one Cholesky a level); an analytic type gives the ratio
+SINGULAR_MARGINS = (1.25, 1.5, 2.0)
 
 
 def read_only(values: object, dtype: type = np.float64) -> npt.NDArray:
@@ -132,6 +136,12 @@ class Kinematics(Protocol):
 
     def singular(self, q: FloatArray) -> str | None:
         """Why ``q`` is too near a singularity for a Cartesian path, or None if it is not."""
+        ...
+
+    def singular_margin(self, q: FloatArray) -> float:
+        """How far ``q`` is from the nearest singularity, as a multiple of the type's limit
+        (``singular`` refuses below 1): what a tracking motion slows down by.  At least
+        ``SINGULAR_MARGINS[-1]`` may be answered as that.  Inside the cycle: no allocation."""
         ...
 
 

@@ -32,7 +32,9 @@ from .profile import RobotType
 
 FLANGE_LINK: Final = "flange"
 FKINE_TOL_M: Final = 1e-6  # m and rotation-matrix entries: the kinematics agree with the URDF
-_KINEMATICS_METHODS: Final = ("fkine", "ikine", "config_of", "parse_config", "singular")
+_KINEMATICS_METHODS: Final = (
+    "fkine", "ikine", "config_of", "parse_config", "singular", "singular_margin",
+)  # fmt: skip
 
 
 def is_type_file(model: str) -> bool:

@@ -7,8 +7,9 @@ TG reads without waiting: ``SharedFrames``) and TG functions; TRACK_JOINTS strea
 targets.  ``follow`` moves the commanded target towards O* each tick: exactly while O* moves
 within the limits, at the limits and braking without overshoot beyond them.  A stale,
 non-finite or non-rigid target stops the motion on its path; a next set-point that cannot be
-had (no solution, a singularity, a joint too fast) holds the arms and ends it STOPPED, never
-halting the cell.  ``start`` (the loop must close) runs outside the cycle; ``step`` allocates
+had (no solution, a joint too fast) holds the arms and ends it STOPPED, never halting the cell;
+near a singularity or the cell's clearances it slows, and holds at the limit until the target
+leads away.  ``start`` (the loop must close) runs outside the cycle; ``step`` allocates
 no arrays and runs inside it.  The whole law: docs/internals/motion-client-bridge.md.
 
 Long on purpose: a tracking motion's whole law (shared frames, following, braking, the Cartesian
@@ -29,6 +30,7 @@ from ..core.errors import KinematicsError
 from ..core.layout import FrameKind
 from ..core.spinlock import pid_alive
 from ..robots import RobotType
+from ..robots.profile import SINGULAR_MARGINS
 from ..runtime.instance import decode
 from .cartesian import Arms, decode_config, held_object
 from .functions import FunctionSlots, TgFunction
@@ -57,6 +59,9 @@ SPEED_MARGIN = 1.0 + 1e-9  # on the joint speed limits
 # arms a few cm of motion outside this zone, not one tick)
 SLOW_ZONE_M = 0.05
 MIN_NEAR_SCALE = 0.02
+# near a singularity (MoveIt Servo's rule): within SINGULAR_MARGINS[-1] times the type's limit
+# (robots.profile) the speed shrinks with the margin left, to MIN_NEAR_SCALE at the limit,
+# while the margin shrinks; there the arms hold until the target leads them away
 
 
 # ---------------------------------------------------------------------------------------------
@@ -441,6 +446,37 @@ class TrackingMotion(Tracking):
         self.q_ref = [q.copy() for q in starts]  # each arm's last set-point
         self._q = [q.copy() for q in starts]  # scratch: the next one
         self._cmd_last = self.cmd.copy()  # the commanded pose of the last set-point
+        # the singular margin of the last set-point (the least of its arms'), of the one
+        # before it, and of the next one (``_singular_next``, kept as the last's once taken)
+        self._margin_ref = self._margin_of(self.q_ref)
+        self._margin_last = self._margin_next = math.inf
+
+    def _margin_of(self, qs: list[np.ndarray]) -> float:
+        """The least singular margin of the arms at joint angles ``qs``.  In the cycle."""
+        margin = math.inf
+        for k in range(self.n):
+            margin = min(margin, self._kin[k].singular_margin(qs[k]))
+        return margin
+
+    def _singular_slow(self) -> bool:
+        """Within ``SINGULAR_MARGINS[-1]`` of a singularity at the last set-point (the least
+        margin of its arms) and no further from it than the tick before, cap the linear and
+        angular speeds at the share the margin leaves (as ``_approach`` caps, at once).  True
+        if it capped them.  In the cycle: floats only."""
+        margin = self._margin_ref
+        closer, self._margin_last = margin <= self._margin_last, margin
+        top = SINGULAR_MARGINS[-1]
+        if margin >= top or not closer:
+            return False
+        share = max(MIN_NEAR_SCALE, (margin - 1.0) / (top - 1.0))
+        capped = False
+        for vec, limit in ((self._v, self.v_max), (self._w, self.w_max)):
+            speed, allowed = _norm(vec), limit * share
+            if speed > allowed:
+                for i in range(3):
+                    vec[i] *= allowed / speed
+                capped = True
+        return capped
 
     def _approach(self) -> bool:
         """Within ``SLOW_ZONE_M`` of the clearance (by the walk's bound of the margin), cap
@@ -577,6 +613,8 @@ class TrackingMotion(Tracking):
             np.matmul(goal[:3, :3], last[:3, :3].T, out=self._r)
             gw = [x / dt for x in rotvec(self._r)]
             exact_r = follow(er, gw, self._w, self.w_max, self.alpha_max, dt)
+            if self._singular_slow():
+                exact_p = exact_r = False
             if not (exact_p and exact_r):
                 self.limited += 1
             self._move(exact_p, exact_r)
@@ -587,7 +625,8 @@ class TrackingMotion(Tracking):
                 self.held = True
                 self.why = f"robot '{self.names[k]}' {why}; held at its last set-point"
                 return None
-        if not self._clear(self._q, self.q_ref):  # at the clearance: the arms hold
+        # at the clearance or a singularity's limit: the arms hold
+        if not self._clear(self._q, self.q_ref) or self._singular_next():
             np.copyto(cmd, self._cmd_last)
             self._v[:] = (0.0, 0.0, 0.0)
             self._w[:] = (0.0, 0.0, 0.0)
@@ -597,6 +636,7 @@ class TrackingMotion(Tracking):
         np.copyto(self._cmd_last, cmd)
         for k in range(self.n):
             np.copyto(self.q_ref[k], self._q[k])
+        self._margin_ref = self._margin_next
         return self.q_ref
 
     def _move(self, exact_p: bool, exact_r: bool) -> None:
@@ -626,9 +666,6 @@ class TrackingMotion(Tracking):
             q = self._solve(k, self.cmd)
         except KinematicsError as exc:
             return f"has no joint solution: {str(exc).removeprefix('kinematics: ')}"
-        near = self._kin[k].singular(q)
-        if near is not None:
-            return near
         prev, limits = self.q_ref[k], self._qd_max[k]
         for j in range(len(limits)):
             speed = abs(float(q[j]) - float(prev[j])) / self.dt
@@ -638,6 +675,13 @@ class TrackingMotion(Tracking):
                     f"limit {math.degrees(limits[j]):.0f}°/s"
                 )
         return ""
+
+
+    def _singular_next(self) -> bool:
+        """Whether an arm's next set-point is within its type's singularity limit (its
+        margin kept for when it is taken).  In the cycle."""
+        self._margin_next = self._margin_of(self._q)
+        return self._margin_next < 1.0
 
 
 class JointTracking(Tracking):

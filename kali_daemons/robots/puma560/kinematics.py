@@ -372,6 +372,15 @@ def singular(q: FloatArray | list[float] | tuple[float, ...]) -> str | None:
     )
 
 
+def singular_margin(q: FloatArray | list[float] | tuple[float, ...]) -> float:
+    """How far ``q`` is from its nearest singularity as a multiple of that one's limit
+    (below 1: ``singular`` refuses it).  Inside the cycle."""
+    sing = singularities(q)
+    return min(
+        sing.shoulder / SHOULDER_MIN_M, sing.elbow / ELBOW_MIN_M, sing.wrist / _WRIST_MIN_RAD
+    )
+
+
 class PumaKinematics:
     """The PUMA 560's kinematics as a robot type declares it (``robots.Kinematics``)."""
 
@@ -380,6 +389,7 @@ class PumaKinematics:
     config_of = staticmethod(config_of)
     parse_config = staticmethod(Config.from_string)
     singular = staticmethod(singular)
+    singular_margin = staticmethod(singular_margin)
 
     @staticmethod
     def ikine(

@@ -342,6 +342,17 @@ def singular(q: FloatArray | list[float] | tuple[float, ...]) -> str | None:
     return None
 
 
+def singular_margin(q: FloatArray | list[float] | tuple[float, ...]) -> float:
+    """How far ``q`` is from its nearest singularity as a multiple of that one's limit
+    (below 1: ``singular`` refuses it).  Inside the cycle."""
+    _, q2, q3, q4, q5, _ = _joints(q)
+    return min(
+        abs(_reach(q2, q3, q2 + q3 + q4)) / SHOULDER_MIN_M,
+        abs(_A3 * math.sin(q3)) / ELBOW_MIN_M,
+        math.asin(min(1.0, abs(math.sin(q5)))) / math.radians(WRIST_MIN_DEG),
+    )
+
+
 class UR5Kinematics:
     """The UR5's ``Kinematics`` (kali_daemons.robots.profile): the functions of this module."""
 
@@ -377,6 +388,10 @@ class UR5Kinematics:
     def singular(self, q: FloatArray) -> str | None:
         """See ``singular``."""
         return singular(q)
+
+    def singular_margin(self, q: FloatArray) -> float:
+        """See ``singular_margin``."""
+        return singular_margin(q)
 
 
 KINEMATICS: Final = UR5Kinematics()
