@@ -58,3 +58,36 @@ def test_kalictl_types_lists_them() -> None:
     r = kalictl("types")
     assert r.returncode == 0, r.stderr
     assert "puma560      6 joints  Unimation PUMA 560" in r.stdout
+
+
+def test_the_fr3s_collision_cylinders_hold_franky_sims_collision_meshes() -> None:
+    """Every vertex of franky-sim's collision mesh of each FR3 link (the simulator's, from
+    franka_description) lies inside that link's cylinder in fr3.urdf, as Pinocchio loads it
+    for the controller's collision model; and scripts/gen_fr3_collision.py, which wrote them,
+    finds the file current."""
+    import importlib.util
+    from pathlib import Path
+
+    import pinocchio as pin
+
+    path = Path(__file__).resolve().parent.parent / "scripts" / "gen_fr3_collision.py"
+    spec = importlib.util.spec_from_file_location("gen_fr3_collision", path)
+    assert spec is not None and spec.loader is not None
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    assert gen.main(["--check"]) == 0
+    urdf = str(robot_type("fr3").urdf)
+    model = pin.buildModelFromUrdf(urdf)
+    shapes = pin.buildGeomFromUrdf(model, urdf, pin.COLLISION)
+    franky = gen.franky_model()
+    assert len(shapes.geometryObjects) == 8
+    for link, g in enumerate(shapes.geometryObjects):
+        frame = model.frames[g.parentFrame]
+        assert frame.name == ("base_link" if link == 0 else f"link{link}")
+        # the vertices in the link's frame, then in the cylinder's
+        at = frame.placement.inverse() * g.placement  # (a link's frame sits on its joint)
+        points = gen.link_vertices(franky, link)
+        local = (points - at.translation) @ at.rotation  # rows: Rᵀ (p - t)
+        radius, half = g.geometry.radius, g.geometry.halfLength
+        assert np.hypot(local[:, 0], local[:, 1]).max() <= radius, link
+        assert np.abs(local[:, 2]).max() <= half, link
