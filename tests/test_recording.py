@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import subprocess
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -291,3 +292,53 @@ def test_a_disk_that_fills_ends_the_recording_and_the_arms_never_notice(
             assert int(k.inst.clock["tick"]) == tick + 100
     finally:
         subprocess.run(["umount", str(disk)], check=False)
+
+
+def test_a_recording_carries_each_cameras_frames(kali: Callable[..., str], tmp_path: Path) -> None:
+    """scenes/watched.yaml's camera (issue 56 item 4) in a recording: its new frames as
+    sensor_msgs/msg/Image (rgb8, and 32FC1 depth) and CameraInfo, stamped with the tick each
+    shows; the last, drained as the recording ends with the clock standing, equal to the
+    frame a program read then; rosbags decodes them too."""
+    name = kali(lockstep=True, edits={r"^version: 1$": "version: 1\nscene: scenes/watched.yaml"})
+    path = tmp_path / "seen.mcap"
+    with Kali(name) as k:
+        camera = k.camera("table")
+        with k.record(path) as status:
+            k.ready(["left"])
+            left = k.robot("left")
+            move = left.move_joints(left.read_joints() + 0.2, wait=False)
+            while not move.done:  # the arm in view, moving: frames of many ticks
+                step_kali_clock(k.inst, 10)
+                time.sleep(0.01)
+            tick = int(k.inst.clock["tick"])
+            standing = time.monotonic_ns()
+            last = camera.read(since_tick=tick)
+            while last.stamp_ns <= standing:  # one taken while the clock stands
+                last = camera.read(since_tick=tick)
+        assert status["error"] == "", status
+    topics = by_topic(path)
+    images = topics["/kali/cameras/table/image"]
+    stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in images]
+    assert len(images) >= 3 and stamps == sorted(stamps), stamps
+    for m in images:
+        assert (m.height, m.width, m.encoding, m.step) == (240, 320, "rgb8", 960)
+        assert m.header.frame_id == "table_optical" and len(m.data) == 240 * 320 * 3
+    assert stamps[-1] == tick * 1_000_000
+    shown = np.frombuffer(bytes(images[-1].data), np.uint8)
+    np.testing.assert_array_equal(shown, last.image.ravel())
+    depth = topics["/kali/cameras/table/depth"][-1]
+    assert depth.encoding == "32FC1" and depth.step == 4 * 320
+    np.testing.assert_array_equal(np.frombuffer(bytes(depth.data), np.float32), last.depth.ravel())
+    info = topics["/kali/cameras/table/camera_info"][-1]
+    np.testing.assert_array_equal(np.reshape(info.k, (3, 3)), last.K)
+    assert info.distortion_model == "plumb_bob" and list(info.d) == [0.0] * 5
+    assert len(topics["/kali/cameras/table/camera_info"]) == len(images)
+
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path]) as reader:
+        seen = [c for c in reader.connections if c.topic == "/kali/cameras/table/image"]
+        assert seen and seen[0].msgtype == "sensor_msgs/msg/Image"
+        first = next(reader.messages(connections=seen))
+        msg = reader.deserialize(first[2], seen[0].msgtype)
+        assert (msg.height, msg.width, len(msg.data)) == (240, 320, 240 * 320 * 3)

@@ -46,6 +46,17 @@ SERVO_CHANGE_DEF = (
     "std_msgs/Header header\nint64 tick\nint32 joint\nstring kind\nstring servo\n"
     f"string[] names\nfloat64[] values\n{HEADER_DEF}"
 )
+IMAGE_DEF = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\n"
+    f"uint32 step\nuint8[] data\n{HEADER_DEF}"
+)
+CAMERA_INFO_DEF = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\n"
+    "float64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\n"
+    "uint32 binning_y\nsensor_msgs/RegionOfInterest roi\n"
+    f"{TIME}MSG: sensor_msgs/RegionOfInterest\nuint32 x_offset\nuint32 y_offset\n"
+    f"uint32 height\nuint32 width\nbool do_rectify\n{HEADER_DEF}"
+)
 SIM_TRUTH_DEF = (
     "std_msgs/Header header\nint64 tick\nfloat64 sim_time_s\nuint64 plant_ticks\n"
     + "".join(f"float64[] {f}\n" for f in TRUTH_FIELDS)
@@ -103,6 +114,17 @@ class Cdr:
     def int32(self, v: int) -> None:
         self._align(4)
         self.buf += struct.pack("<i", v)
+
+    def uint32(self, v: int) -> None:
+        self._align(4)
+        self.buf += struct.pack("<I", v)
+
+    def octets(self, data: np.ndarray) -> None:
+        """uint8[] (a sequence) of ``data``'s bytes, as they lie."""
+        self._align(4)
+        raw = np.ascontiguousarray(data).view(np.uint8).reshape(-1)
+        self.buf += struct.pack("<I", len(raw))
+        self.buf += raw.tobytes()
 
     def uint8(self, v: int) -> int:
         """A uint8 or bool; its offset in the message."""

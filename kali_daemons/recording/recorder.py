@@ -2,11 +2,12 @@
 
 The recorder, a non-serious clocked process of its own (every TG period), drains the rows SIO
 already writes to the flight recorder's ring (nothing is copied twice in SIO's cycle), with
-the TG's set-points, the requests, the faults, the servo level's changes and the simulator's
-truth (``events``), as ROS 2 messages (``messages``) any MCAP reader decodes.  In lockstep the
-clock waits for it, so no tick is lost; in real time a recorder more than the ring behind
-writes the ticks it lost to ``/kali/gaps``.  A failure to write ends the recording with the
-reason in its status; the arms never notice.  The topics: docs/guide/data.md.
+the TG's set-points, the requests, the faults, the servo level's changes, the simulator's
+truth (``events``) and each camera's new frames, as ROS 2 messages (``messages``) any MCAP
+reader decodes.  In lockstep the clock waits for it, so no tick is lost; in real time a
+recorder more than the ring behind writes the ticks it lost to ``/kali/gaps``.  A failure to
+write ends the recording with the reason in its status; the arms never notice.  The topics:
+docs/guide/data.md.
 """
 
 from __future__ import annotations
@@ -28,14 +29,17 @@ import numpy as np
 from ..core import layout
 from ..core.errors import KaliError
 from ..core.layout import ProcState, RequestState
+from ..hardware.camera import CameraRing
 from ..runtime.daemon import Daemon
 from ..runtime.instance import Instance, decode
 from ..runtime.paths import instance_dir
 from .events import TRUTH_FIELDS, ServoWatch, TruthRecords, byte_offsets
 from .mcapfile import McapFile, TickBlock
 from .messages import (
+    CAMERA_INFO_DEF,
     FAULT_DEF,
     GAP_DEF,
+    IMAGE_DEF,
     JOINT_STATE_DEF,
     REQUEST_DEF,
     ROW_COLUMNS,
@@ -107,11 +111,14 @@ class Recording:
                 ("setpoint", "kali_msgs/msg/SetPoint", SETPOINT_DEF),
                 ("change", "kali_msgs/msg/ServoChange", SERVO_CHANGE_DEF),
                 ("truth", "kali_msgs/msg/SimTruth", SIM_TRUTH_DEF),
+                ("image", "sensor_msgs/msg/Image", IMAGE_DEF),
+                ("camera_info", "sensor_msgs/msg/CameraInfo", CAMERA_INFO_DEF),
             )
         }
 
         def channel(topic: str, kind: str) -> int:
-            return self.writer.channel(topic, "cdr", schemas[kind])
+            schema = schemas["image" if kind == "depth" else kind]  # a depth image is an Image
+            return self.writer.channel(topic, "cdr", schema)
 
         self._channels = [
             {kind: channel(f"/kali/{name}/{topic}", kind)
@@ -130,6 +137,15 @@ class Recording:
             kind: channel(f"/kali/{topic}", kind)
             for kind, topic in (("gap", "gaps"), ("request", "requests"), ("fault", "faults"))
         }
+        cameras = cfg.scene.cameras
+        self._cameras = [  # each camera's ring, its channels, the stamp of its last frame
+            (CameraRing(inst.arena, cameras, i), {
+                kind: channel(f"/kali/cameras/{c.name}/{topic}", kind)
+                for kind, topic in (("image", "image"), ("depth", "depth"),
+                                    ("camera_info", "camera_info"))
+            }, [0])
+            for i, c in enumerate(cameras)
+        ]  # fmt: skip
         self._cdr = Cdr()
         self._block = TickBlock()  # every arm's messages of a servo tick
         for k in range(len(self.names)):
@@ -259,6 +275,7 @@ class Recording:
             add(self._channels[k]["change"], t, c.bytes(), t)
         if self.truth is not None:
             self._sample_truth()
+        self._camera_frames()
         count = int(self.inst.fault["count"])
         if count != self._faults:
             self._faults = count
@@ -269,6 +286,46 @@ class Recording:
             for text in (str(f.code), f.process, f.message):
                 c.string(text.encode())
             add(self._events_ch["fault"], t, c.bytes(), t)
+
+    def _camera_frames(self) -> None:
+        """Each camera's latest frame, once: its colour (rgb8), depth (32FC1, metres along the
+        view) and intrinsics (a pinhole: no distortion), stamped with the tick it shows, in
+        the camera's optical frame (x right, y down, z along the view)."""
+        c, add = self._cdr, self.writer.message
+        for ring, ch, shown in self._cameras:
+            frame = ring.read()
+            if frame is None or frame.stamp_ns == shown[0]:
+                continue
+            shown[0] = frame.stamp_ns
+            t = frame.tick * self.base_ns
+            optical = f"{ring.name}_optical".encode()
+            h, w = frame.depth.shape
+            for kind, pixels, encoding, size in (
+                ("image", frame.image, b"rgb8", 3),
+                ("depth", frame.depth, b"32FC1", 4),
+            ):
+                c.reset()  # sensor_msgs/msg/Image
+                c.header(t, optical)
+                c.uint32(h)
+                c.uint32(w)
+                c.string(encoding)
+                c.uint8(0)  # little endian
+                c.uint32(w * size)
+                c.octets(pixels)
+                add(ch[kind], t, c.bytes(), t)
+            c.reset()  # sensor_msgs/msg/CameraInfo
+            c.header(t, optical)
+            c.uint32(h)
+            c.uint32(w)
+            c.string(b"plumb_bob")
+            c.float64s(np.zeros(5))
+            c.float64_fixed(frame.K.reshape(-1))
+            c.float64_fixed(np.eye(3).reshape(-1))
+            c.float64_fixed(np.hstack([frame.K, np.zeros((3, 1))]).reshape(-1))
+            for v in (0, 0, 0, 0, 0, 0):  # binning, then the region of interest: all of it
+                c.uint32(v)
+            c.uint8(0)
+            add(ch["camera_info"], t, c.bytes(), t)
 
     def _laid_messages(self) -> None:
         """Each arm's set-point and truth messages laid out once (``Laid``), with views of
