@@ -20,7 +20,6 @@ class CameraView:
 
     def __init__(self, inst: Instance, name: str) -> None:
         cameras = inst.config.scene.cameras
-        self._inst = inst
         self.name = name
         self.ring = CameraRing(inst.arena, cameras, camera_index(cameras, name, inst.name))
 

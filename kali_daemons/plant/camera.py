@@ -85,7 +85,7 @@ class SimCamera(Daemon):
 
     def _loop(self) -> None:
         """On its own timer always (``Daemon._self_timed_loop``), in lockstep too: its period
-        is the fastest camera's (``processes.camera``), each camera rendered every ``every``
+        is the fastest camera's (the config gives it), each camera rendered every ``every``
         periods; a loop behind skips the periods it missed rather than rendering a burst."""
         self._self_timed_loop()
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
@@ -305,15 +305,7 @@ def parse_scene(text: str, source: str) -> Scene:
             f"{source}: version = {doc.get('version')!r}: this Kali reads scene files of "
             f"version {SCENE_VERSION}"
         )
-    nodes = doc.get("objects", [])
-    if not isinstance(nodes, list) or len(nodes) > MAX_OBJECTS:
-        raise ConfigError(f"{source}: objects: must be a list of at most {MAX_OBJECTS} objects")
-    objects: list[SceneObject] = []
-    for i, node in enumerate(nodes):
-        obj = _object(node, f"{source}: objects[{i}]")
-        if any(o.name == obj.name for o in objects):
-            raise ConfigError(f"{source}: objects[{i}]: name {obj.name!r} given twice")
-        objects.append(obj)
+    objects = _named(doc, "objects", MAX_OBJECTS, _object, source)
     clearance = doc.get("clearance_m", DEFAULT_CLEARANCE_M)
     if isinstance(clearance, bool) or not isinstance(clearance, int | float):
         clearance = -1.0
@@ -333,16 +325,25 @@ def parse_scene(text: str, source: str) -> Scene:
     return scene
 
 
-def _cameras(doc: dict[str, Any], source: str) -> tuple[Camera, ...]:
-    nodes = doc.get("cameras", [])
-    if not isinstance(nodes, list) or len(nodes) > MAX_CAMERAS:
-        raise ConfigError(f"{source}: cameras: must be a list of at most {MAX_CAMERAS} cameras")
-    cameras: list[Camera] = []
+def _named(
+    doc: dict[str, Any], key: str, most: int, read: Callable[[Any, str], Any], source: str
+) -> list[Any]:
+    """The list at ``key``: at most ``most`` entries, each read by ``read`` (an entry and
+    where it is), no name given twice."""
+    nodes = doc.get(key, [])
+    if not isinstance(nodes, list) or len(nodes) > most:
+        raise ConfigError(f"{source}: {key}: must be a list of at most {most} {key}")
+    out: list[Any] = []
     for i, node in enumerate(nodes):
-        cam = _camera(node, f"{source}: cameras[{i}]")
-        if any(c.name == cam.name for c in cameras):
-            raise ConfigError(f"{source}: cameras[{i}]: name {cam.name!r} given twice")
-        cameras.append(cam)
+        entry = read(node, f"{source}: {key}[{i}]")
+        if any(e.name == entry.name for e in out):
+            raise ConfigError(f"{source}: {key}[{i}]: name {entry.name!r} given twice")
+        out.append(entry)
+    return out
+
+
+def _cameras(doc: dict[str, Any], source: str) -> tuple[Camera, ...]:
+    cameras: list[Camera] = _named(doc, "cameras", MAX_CAMERAS, _camera, source)
     share = sum(c.rate_hz * c.frame_ms / 1e3 for c in cameras)
     if share > CAMERA_SHARE:
         each = ", ".join(f"{c.name!r} {c.rate_hz * c.frame_ms / 10:.0f} %" for c in cameras)
