@@ -706,7 +706,8 @@ def test_a_stream_driven_into_the_wrist_singularity_slows_and_holds_before_it(
     """Lockstep: the left tool streamed to the pose of its joints with joint 5 at 0 (the
     PUMA's wrist singularity) turns ever slower as joint 5 nears the type's 5° limit and
     holds there, the stream running on with no fault (MoveIt Servo's rule: before, it ended
-    the motion at the limit); streamed back, it follows at speed."""
+    the motion at the limit); streamed back, it follows at speed; begun inside the limit,
+    streamed out of it, it follows."""
     name = kali(lockstep=True)
     with Kali(name) as k:
         start = ready_left(k)
@@ -732,6 +733,15 @@ def test_a_stream_driven_into_the_wrist_singularity_slows_and_holds_before_it(
             assert max(near) < 0.5 * max(far), (max(near), max(far))
             assert abs(rates[-10:]).max() < 1e-6  # held at the end
             for _ in range(100):  # and back, at the stream's speed
+                s.send(start)
+                step_kali_clock(k.inst, 20)
+            assert abs(float(k.servo.level.joints["demand"][left.span][4])) > 2 * limit
+            assert s.handle.state == RequestState.RUNNING
+        inside = q0.copy()  # a stream begun inside the limit is let out of it
+        inside[4] = math.copysign(math.radians(3.0), q0[4])
+        left.move_joints(inside, speed=0.3)
+        with left.stream(lifetime=0.5, speed=0.2) as s:
+            for _ in range(100):
                 s.send(start)
                 step_kali_clock(k.inst, 20)
             assert abs(float(k.servo.level.joints["demand"][left.span][4])) > 2 * limit

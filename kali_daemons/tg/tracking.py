@@ -676,12 +676,12 @@ class TrackingMotion(Tracking):
                 )
         return ""
 
-
     def _singular_next(self) -> bool:
-        """Whether an arm's next set-point is within its type's singularity limit (its
-        margin kept for when it is taken).  In the cycle."""
+        """Whether the next set-point comes within an arm type's singularity limit, and no
+        further out than the last (one leaving a limit it started inside is let go); its
+        margin kept for when it is taken.  In the cycle."""
         self._margin_next = self._margin_of(self._q)
-        return self._margin_next < 1.0
+        return self._margin_next < 1.0 and self._margin_next <= self._margin_ref
 
 
 class JointTracking(Tracking):
