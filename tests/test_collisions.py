@@ -15,7 +15,7 @@ import pytest
 
 from kali_daemons.client import Kali, pose
 from kali_daemons.client.common import MotionFailedError
-from kali_daemons.core.errors import MotionError
+from kali_daemons.core.errors import MotionError, ServoError
 from kali_daemons.core.layout import RequestState
 from kali_daemons.robots import model
 from kali_daemons.robots.scene import DEFAULT_SCENE, parse_scene
@@ -382,3 +382,56 @@ def test_a_joint_stream_towards_the_other_arm_holds_at_the_clearance(
             assert np.abs(k.servo.level.joints["demand"][left.span] - start).max() < 1e-9
         finally:
             js.close()
+
+
+def test_a_held_part_is_checked_with_the_arm_that_holds_it(
+    kali: Callable[..., str], tmp_path: Path
+) -> None:
+    """Lockstep, the parts' scene with its table solid and untouchable by the tools: the left
+    arm grips the block and lifts it, then names it held (``set_load(holding=...)``, as
+    ``grip(holding=...)`` does: its load record names the object); a line that would push the
+    block 2 cm into the table, the arm itself staying clear, is refused naming the held block
+    and the table; one that keeps it above runs; let go, the same line runs (the block stays
+    behind); a set_load naming what no arm can hold is refused."""
+    text = (DEFAULT_SCENE.parent / "parts.yaml").read_text()
+    loose = "    at: [0.0, -0.38, 0.2]\n    fixed: true\n    arms_touch: false\n"
+    assert text.count(loose) == 1
+    solid = "    at: [0.0, -0.38, 0.2]\n    fixed: true\n    tools_touch: false\n"
+    scene = tmp_path / "solid-parts.yaml"
+    scene.write_text(text.replace(loose, solid))
+    name = kali(lockstep=True, edits={r"^version: 1$": f"version: 1\nscene: {scene}"})
+    with Kali(name) as k:
+        k.ready(["left"])
+        left = k.robot("left")
+        site = k.scene.object("block").pose @ k.scene.grasp_for("block", k.inst.config.robots[0])
+        above = site.copy()
+        above[2, 3] += 0.05
+        left.move_joints(left.joints_at(above, "run"), speed=0.5, timeout=30)
+        left.move_line(site, speed=0.05, timeout=30)
+        left.grip(True)  # named once lifted: resting on the table it is within the clearance
+        step_kali_clock(k.inst, 50)
+        assert k.sim.truth("left").held == "block"
+        left.move_line(above, speed=0.05, timeout=30)
+        left.set_load(0.2, holding="block")
+        block = [o.name for o in k.scene.objects].index("block") + 1  # the record's: index + 1
+        assert int(k.loads["held"][left.index]) == block
+        into = above.copy()
+        into[2, 3] -= 0.07  # the block 2 cm into the table's top, the flange 6.5 cm over it
+        with pytest.raises(MotionFailedError) as refused:
+            left.move_line(into, speed=0.05)
+        assert_refused(
+            str(refused.value),
+            r"path refused: .*'left/block' would (overlap 'table' by|come within \d+\.\d mm of "
+            r"'table')",
+        )
+        over = above.copy()
+        over[2, 3] -= 0.03  # its bottom 2 cm over the table
+        left.move_line(over, speed=0.05, timeout=30)
+        left.grip(False)
+        assert int(k.loads["held"][left.index]) == 0
+        left.move_line(above, speed=0.05, timeout=30)
+        left.move_line(into, speed=0.05, timeout=30)  # nothing held: the arm stays clear
+        can = r"those are \['bar', 'block', 'can', 'ball'\]"
+        with pytest.raises(ServoError, match=rf"holding 'stand': not an object .* hold; {can}"):
+            left.set_load(0.2, holding="stand")
+        assert k.inst.fault_text() is None

@@ -389,7 +389,7 @@ class Robot:
             verb = "closing" if close else "opening"
             raise MotionFailedError(f"{what}: the gripper reports its {verb} failed")
         if load is not None:
-            self.set_load(*load)
+            self.set_load(*load, holding=holding)
         elif not close:
             self.set_load(0.0)
 
@@ -398,13 +398,26 @@ class Robot:
         mass: float,
         com: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0),
         inertia: np.ndarray | None = None,
+        holding: str | None = None,
     ) -> None:
         """What this arm holds beyond its configured tool (libfranka's ``setLoad``): ``mass``
         (kg) at ``com`` (its centre of mass in the flange frame, m) with ``inertia`` about it
         (flange axes, kg·m²; None: a point mass).  The dynamics process's feed-forward and
         the robot-level servos' model carry it from their next cycle; 0 kg: nothing held.
-        ServoError, nothing changed, for a value out of bounds."""
+        ``holding``: the scene's object it is, held at the arm's grasp of it (``grip`` and
+        ``motion_system`` name it): the TG's clearance check then carries its shape.
+        ServoError, nothing changed, for a value out of bounds or an object not in the scene."""
         what = f"set_load: robot '{self.name}'"
+        held = 0  # the record's: the object's index + 1, 0 none
+        if holding is not None:
+            scene = self.kali.scene
+            can = [o.name for o in scene.graspable]
+            if holding not in can:
+                raise ServoError(
+                    f"{what}: holding {holding!r}: not an object of the scene an arm can hold; "
+                    f"those are {can}"
+                )
+            held = [o.name for o in scene.objects].index(holding) + 1
         kg = _speed_arg(what, "mass", mass)
         at = _real_array(f"{what}: com", com, "3 numbers (m)")
         spread = (
@@ -413,7 +426,7 @@ class Robot:
             else _real_array(f"{what}: inertia", inertia, "a 3×3 inertia (kg·m²)")
         )
         record = self.kali.loads[self.index : self.index + 1].reshape(())
-        write_load(record, kg, at, spread, what)
+        write_load(record, kg, at, spread, what, held)
 
     def read_wrench(self, frame: str = "world") -> np.ndarray:
         """The arm's wrist force/torque sensor in Newtons (SIO's, this tick), a copy
@@ -1204,7 +1217,7 @@ class Kali:
                 raise MotionError("motion_system: give grasps or the object held, not both")
             loads = self.held_load("motion_system", holding, robots)
             for robot, (load, _) in zip(robots, loads, strict=True):
-                robot.set_load(*load)  # each its share: they hold it together
+                robot.set_load(*load, holding=holding)  # each its share: they hold it together
             return MotionSystem(self, robots, [grasp for _, grasp in loads], holding)
         if grasps is None:  # from the set-points the TG starts from, not the sagging arms
             flanges = [r.base @ r.type.kinematics.fkine(self.start_point(r.index)) for r in robots]

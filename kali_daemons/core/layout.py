@@ -992,7 +992,7 @@ FEEDFORWARD = np.dtype(
 LOAD = np.dtype(
     [
         ("seq", "<u4"),  # writer: odd while it writes the rest, even when whole
-        ("_pad", "<u4"),
+        ("held", "<i4"),  # the scene object it is: its index in the scene's objects + 1 (0: none)
         ("mass", "<f8"),  # kg
         ("com", "<f8", (3,)),  # its centre of mass, flange frame, m
         ("inertia", "<f8", (3, 3)),  # about the centre of mass, flange axes, kg·m²

@@ -11,17 +11,18 @@ the controller does not track what the plant moves.
 against the other arms' and against the fixed objects its links touch (``arms_touch``; not its
 base and first link, which stand on the world, nor its last link against what its tool may
 touch, ``tools_touch``), as the plant's contacts are.  Free objects are the parts the arms
-handle, not obstacles.  Each pose's distances are a lower bound found cheaply (each shape's
-bounding sphere; coal's exact distance only for pairs the spheres bring near), and a walk along
-a path looks again only once the arms may have moved by the margin the last look left
-(conservative advancement: the distance a joint turn can move any point of an arm is bounded
-by the arm's reach beyond that joint).
+handle, not obstacles, but for one an arm holds (its load record names it): that goes with
+the arm as its last link does, never checked against an arm holding it too.  Each pose's
+distances are a lower bound found cheaply (each shape's bounding sphere; coal's exact distance
+only for pairs the spheres bring near), and a walk along a path looks again only once the arms
+may have moved by the margin the last look left (conservative advancement: the distance a
+joint turn can move any point of an arm is bounded by the arm's reach beyond that joint).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import coal
@@ -29,27 +30,41 @@ import numpy as np
 import pinocchio as pin
 
 from ..core.errors import ConfigError
-from .cell import base_transform, coal_shape
-from .scene import Clearance, Scene
+from .cell import FLANGE_FRAME, base_transform, coal_shape
+from .scene import Clearance, Scene, SceneObject
 
 if TYPE_CHECKING:
     from ..runtime.config import RobotConfig
 
 
 class _Arm:
-    """One arm's model and collision shapes, placed at its base."""
+    """One arm's model and collision shapes, placed at its base; holding an object (``held``:
+    the scene's object and the arm's grasp of it, the flange in its frame), that object's
+    shape too, on the flange, named ``"<arm>/<object>"``."""
 
-    def __init__(self, robot: RobotConfig) -> None:
+    def __init__(
+        self, robot: RobotConfig, held: tuple[SceneObject, np.ndarray] | None = None
+    ) -> None:
         urdf = str(robot.type.urdf)
         self.name = robot.name
         self.model = pin.buildModelFromUrdf(urdf)
         self.shapes = pin.buildGeomFromUrdf(self.model, urdf, pin.COLLISION)
-        self.data, self.shape_data = self.model.createData(), self.shapes.createData()
         self.base = pin.SE3(base_transform(robot.base_xyz, robot.base_yaw_deg))
         self.links = [
             f"{robot.name}/{self.model.frames[g.parentFrame].name}"
             for g in self.shapes.geometryObjects
         ]
+        self.holding = ""  # the object it holds, whose shape is its last row
+        if held is not None:
+            obj, grasp = held
+            flange = self.model.frames[self.model.getFrameId(FLANGE_FRAME)]
+            at = flange.placement * pin.SE3(np.linalg.inv(grasp))  # the object, joint frame
+            self.shapes.addGeometryObject(
+                pin.GeometryObject(obj.name, flange.parentJoint, at, coal_shape(obj))
+            )
+            self.links.append(f"{robot.name}/{obj.name}")
+            self.holding = obj.name
+        self.data, self.shape_data = self.model.createData(), self.shapes.createData()
         # each shape's bounding sphere in its joint's frame, and the joint (0: the base)
         objs = self.shapes.geometryObjects
         for g in objs:
@@ -108,8 +123,19 @@ class _Arm:
 class CellGeometry:
     """The arms of ``robots`` and the objects of ``scene`` as collision shapes."""
 
-    def __init__(self, robots: Sequence[RobotConfig], scene: Scene) -> None:
-        self.arms = [_Arm(r) for r in robots]
+    def __init__(
+        self,
+        robots: Sequence[RobotConfig],
+        scene: Scene,
+        held: Mapping[int, tuple[str, np.ndarray]] | None = None,
+    ) -> None:
+        """``held``: per robot index holding an object, its name and the arm's grasp of it
+        (the flange in the object's frame): the object's shape goes with the arm."""
+        held = held or {}
+        self.arms = [
+            _Arm(r, (scene.object(held[k][0]), held[k][1]) if k in held else None)
+            for k, r in enumerate(robots)
+        ]
         self.objects = {
             o.name: (coal_shape(o), coal.Transform3s(o.pose[:3, :3], o.pose[:3, 3]))
             for o in scene.objects
@@ -187,7 +213,12 @@ class CellClearance:
         for a, arm in enumerate(arms):
             rows = range(int(self.first[a]), int(self.first[a + 1]))
             for b in range(a + 1, len(arms)):
-                pairs += [(i, j) for i in rows for j in range(self.first[b], self.first[b + 1])]
+                pairs += [
+                    (i, j)
+                    for i in rows
+                    for j in range(self.first[b], self.first[b + 1])
+                    if not self._shared(i, j)
+                ]
             last = int(arm.joint_of.max(initial=0))
             for i in rows:
                 joint = int(arm.joint_of[i - self.first[a]])
@@ -199,6 +230,18 @@ class CellClearance:
         self._radii = self.radius[self.pair_a] + self.radius[self.pair_b]
         self._request, self._result = coal.DistanceRequest(), coal.DistanceResult()
         self._arm_of = np.searchsorted(self.first, np.arange(n), side="right") - 1
+
+    def _shared(self, i: int, j: int) -> bool:
+        """Whether rows ``i`` and ``j`` (of two arms) are an object and an arm holding it: the
+        object is part of each holder's tool (two arms carrying one bar)."""
+        arms, first = self.geometry.arms, self.first
+        a, b = (int(np.searchsorted(first, r, side="right")) - 1 for r in (i, j))
+        held_i = arms[a].holding and i == first[a + 1] - 1
+        held_j = arms[b].holding and j == first[b + 1] - 1
+        return bool(
+            (held_i and arms[b].holding == arms[a].holding)
+            or (held_j and arms[a].holding == arms[b].holding)
+        )
 
     def geometry_of(self, row: int) -> object:
         """Row ``row``'s coal geometry: an arm's shape, or a fixed object's."""

@@ -26,11 +26,18 @@ MAX_LOAD_COM_M = 2.0  # its centre of mass this far from the flange at most
 
 
 def write_load(
-    record: np.ndarray, mass: float, com: np.ndarray, inertia: np.ndarray, what: str
+    record: np.ndarray,
+    mass: float,
+    com: np.ndarray,
+    inertia: np.ndarray,
+    what: str,
+    held: int = 0,
 ) -> None:
     """Write one robot's load record (0-d view) whole, after checking it: ``mass`` (kg),
     ``com`` its centre of mass in the flange frame (m), ``inertia`` about it in flange axes
-    (kg·m²; symmetric, positive semi-definite).  ServoError naming ``what`` for a bad value."""
+    (kg·m²; symmetric, positive semi-definite), ``held`` the scene object it is (its index in
+    the scene's objects + 1, 0 for none; the TG's collision model then carries its shape).
+    ServoError naming ``what`` for a bad value."""
     com = np.asarray(com, dtype=np.float64)
     inertia = np.asarray(inertia, dtype=np.float64)
     if not (np.isfinite(mass) and 0.0 <= mass <= MAX_LOAD_KG):
@@ -52,6 +59,7 @@ def write_load(
     addr = record["seq"].ctypes.data
     seq = atomic.load32(addr)
     atomic.store32(addr, (seq + 1) | 1)
+    record["held"] = held
     record["mass"] = mass
     record["com"] = com
     record["inertia"] = inertia

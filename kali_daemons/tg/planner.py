@@ -229,6 +229,11 @@ class Planner:
         self.clearance: CellClearance | None = None
         if not os.environ.get(UNCHECKED_CLEARANCE):
             self.clearance = CellClearance(CellGeometry(cfg.robots, cfg.scene))
+        # what each arm holds (its load record names the scene object) and the clearances
+        # with those objects' shapes on the arms, one model per set of them, made once
+        self._held = inst.arena.existing(layout.KEY_LOADS, layout.LOAD, self.n_robots)["held"]
+        self._clearances: dict[tuple[int, ...], CellClearance] = {}
+        self._robots, self._scene = cfg.robots, cfg.scene
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -885,7 +890,30 @@ class Planner:
         qs = [self._start_point(k) for k in range(self.n_robots)]
         for k, q in zip(robots, start, strict=True):
             qs[k] = np.asarray(q, dtype=float)
-        return self.clearance.walk(robots, qs)
+        return self._holding().walk(robots, qs)
+
+    def _holding(self) -> CellClearance:
+        """The cell's clearances with each arm's held object on it (its load record's: a grip
+        or a motion system naming a scene object), made the first time that set is held
+        (a few ms: two arms' collision models and the pairs)."""
+        assert self.clearance is not None
+        objects = self._scene.objects
+        held = tuple(  # the object each holds (a record naming none it can hold: nothing)
+            int(h) - 1 if 0 < h <= len(objects) and objects[int(h) - 1].grasps else -1
+            for h in self._held
+        )
+        if all(h < 0 for h in held):
+            return self.clearance
+        cell = self._clearances.get(held)
+        if cell is None:
+            holding = {
+                k: (objects[h].name, self._scene.grasp_for(objects[h].name, self._robots[k]))
+                for k, h in enumerate(held)
+                if h >= 0
+            }
+            cell = CellClearance(CellGeometry(self._robots, self._scene, holding))
+            self._clearances[held] = cell
+        return cell
 
     def _joint_check(
         self, profile: JointMotion, robots: list[int], start: np.ndarray
