@@ -3,6 +3,7 @@ sight and feel (thesis 2.1).
 
     kalictl start -c config/peg.yaml && kalictl -i peg run scripts/example_peg.py
     kalictl -i peg run scripts/example_peg.py -- --aside 2   # aim 2 mm off: watch it search
+    kalictl -i peg run scripts/example_peg.py -- --leave     # and leave the peg in the hole
 
 The plate lies somewhere on the table, turned some way (config/scenes/peg.yaml, one of the
 worlds kali_daemons/examples/peg.py writes); the program knows its colour and the peg, not
@@ -11,7 +12,9 @@ the plate's colour, and the depth where the hole shows the table 2 cm below the 
 picks the peg up, carries it over the hole, comes down with a guard until the peg is just
 above the plate, and then inserts it under the Cartesian impedance servo, compliant across and
 pressing down: if the peg lands on the plate's top rather than in the hole it searches in a
-spiral until it drops in.  The hole is 0.5 mm wider than the peg on every side.
+spiral until it drops in.  The hole is 0.5 mm wider than the peg on every side.  Then it draws
+the peg out and stands it back where it was (``--leave``: leaves it in), the arm back where it
+started, out of the camera's view.
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ def find_hole(frame: Frame) -> tuple[np.ndarray, float]:
     red = rgb[..., 0] / (rgb.sum(axis=2) + 1e-9)  # the plate is the red thing in the cell
     plate = red > RED_SHARE
     if plate.sum() < 100:
-        raise SystemExit("no plate in the camera's view")
+        raise SystemExit("no plate in the camera's view (is an arm between it and the table?)")
     top = float(np.median(frame.depth[plate]))
     # inside the plate: plate pixels on both sides along its row and along its column
     inside = np.ones_like(plate)
@@ -70,11 +73,15 @@ parser.add_argument(
     help="aim this far (mm, along x) off the hole seen, as a worse camera would: the search "
     "then finds the hole",
 )
+parser.add_argument(
+    "--leave", action="store_true", help="leave the peg in the hole (else it is put back)"
+)
 args = parser.parse_args()
 
 with Kali() as kali:
     kali.ready(["left"])
     arm = kali.robot("left")
+    start = arm.read_joints()
     camera = kali.camera("above")
     here = int(kali.inst.clock["tick"])
     centre, plate_top = find_hole(camera.read(since_tick=here))
@@ -152,6 +159,16 @@ with Kali() as kali:
 
     arm.set_servo({"fz": 0.0})
     arm.select_servo("joints")
-    arm.grip(False)
-    arm.move_line(arm.read_pose() @ pose([0.0, 0.0, -0.05]), speed=0.05)  # and up, peg left in
-    arm.set_servo({name: found[name] for name in INSERTING}, "impedance")
+    arm.set_servo({name: found[name] for name in INSERTING}, "impedance")  # as it was
+    if args.leave:
+        arm.grip(False)
+        arm.move_line(arm.read_pose() @ pose([0.0, 0.0, -0.05]), speed=0.05)  # up, peg left in
+    else:  # drawn out and stood back where it was, so the program runs again
+        out = arm.read_pose()
+        out[2, 3] = flange_over(-0.03)[2, 3]
+        arm.move_line(out, speed=0.02)
+        arm.move_line(above, speed=0.1)
+        arm.move_line(site, speed=0.05)
+        arm.grip(False)
+        arm.move_line(above, speed=0.05)
+    arm.move_joints(start, speed=0.5)  # out of the camera's view
