@@ -406,7 +406,7 @@ class Robot:
         the robot-level servos' model carry it from their next cycle; 0 kg: nothing held.
         ``holding``: the scene's object it is, held at the arm's grasp of it (``grip`` and
         ``motion_system`` name it): the TG's clearance check then carries its shape.
-        ServoError, nothing changed, for a value out of bounds or an object not in the scene."""
+        ServoError, nothing changed, for a value out of bounds or an object no arm can hold."""
         what = f"set_load: robot '{self.name}'"
         held = 0  # the record's: the object's index + 1, 0 none
         if holding is not None:
