@@ -277,7 +277,8 @@ MIXED = {r"^(  - \{name: right, model: )puma560": r"\1panda"}  # PUMA 560 left, 
 
 class BareTg:
     """The TG configured by its own ``on_configure`` over a bare arena, no processes: the test
-    lays SIO's records out (every arm powered and calibrated, holding its type's home pose),
+    lays SIO's records out (every arm powered and calibrated, holding its type's home pose)
+    and the programs' load records (nothing held),
     puts requests in the TG's queue and plays SIO, taking each FIFO's demands at the servo
     rate into the joints' records."""
 
@@ -290,6 +291,7 @@ class BareTg:
         robots["calib_state"] = CalibState.DONE
         self.joints = arena.record(layout.KEY_JOINTS, layout.JOINT_STATE, jm.total)
         self.joints["demand"] = per_joint([r.type.q_home for r in cfg.robots])
+        arena.record(layout.KEY_LOADS, layout.LOAD, jm.n_robots)  # the programs': none held
         servo_ns, tg_ns = ms_to_ns(cfg.clock.servo_period_ms), ms_to_ns(cfg.clock.tg_period_ms)
         self.ratio = Fraction(tg_ns, servo_ns)
         clock = np.zeros((), layout.CLOCK)
