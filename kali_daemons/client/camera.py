@@ -29,8 +29,11 @@ class CameraView:
         up to ``timeout_s`` (wall time, in lockstep too: the camera renders on its own timer).
         HardwareError naming the camera if none comes in time."""
         deadline = time.monotonic() + timeout_s
+        frame, looked = None, -1
         while True:
-            frame = self.ring.read()
+            if self.ring.stamp() != looked:  # a new frame: copy it (else keep the last copy)
+                frame = self.ring.read()
+                looked = -1 if frame is None else frame.stamp_ns
             if frame is not None and (since_tick is None or frame.tick >= since_tick):
                 return frame
             if time.monotonic() >= deadline:

@@ -103,6 +103,14 @@ class CameraRing:
 
     # ------------------------------------------------------------------ readers
 
+    def stamp(self) -> int:
+        """The latest frame's stamp (CLOCK_MONOTONIC), 0 before the first: a reader that has
+        that frame skips the copy."""
+        b = atomic.load32(self._latest)
+        if not 0 <= b < layout.CAMERA_BUFFERS or not self.head["up"]:
+            return 0
+        return int(self.head["stamp_ns"][b])
+
     def read(self) -> Frame | None:
         """A copy of the latest frame, whole; None before the first (or when the writer
         overtook this reader READ_TRIES times)."""

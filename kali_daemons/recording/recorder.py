@@ -293,6 +293,8 @@ class Recording:
         the camera's optical frame (x right, y down, z along the view)."""
         c, add = self._cdr, self.writer.message
         for ring, ch, shown in self._cameras:
+            if ring.stamp() == shown[0]:  # no new frame: no copy of the last
+                continue
             frame = ring.read()
             if frame is None or frame.stamp_ns == shown[0]:
                 continue

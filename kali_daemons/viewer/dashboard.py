@@ -429,6 +429,8 @@ class Dashboard:
     def _camera_frames(self) -> None:
         """Each camera's latest frame, colour and depth, once."""
         for i, ring in enumerate(self.camera_rings):
+            if ring.stamp() == self._camera_shown[i]:  # no new frame: no copy of the last
+                continue
             shot = ring.read()
             if shot is None or shot.stamp_ns == self._camera_shown[i]:
                 continue
