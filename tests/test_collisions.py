@@ -312,6 +312,41 @@ def test_the_clearance_walk_stops_at_the_first_pose_every_pair_measured_would() 
     assert 0 < hits < 12 and looks < poses  # some skipped, even at these coarse steps
 
 
+def test_a_walk_starting_within_the_clearance_may_move_away_and_not_nearer() -> None:
+    """Arms that start a motion within the clearance (a held part resting on a fixture its
+    tool may not touch, say) may move away, but not nearer than they started: the left arm's
+    waist turned towards the right arm until within the clearance, a walk from there lets it
+    turn back out and refuses it going further in; once out, the clearance holds again (back
+    in is refused at its edge)."""
+    from kali_daemons.robots.collision import CellClearance, CellGeometry
+
+    cfg = make_config("collision-away")
+    cell = CellClearance(CellGeometry(cfg.robots, parse_scene(WALLED, "walled.yaml")))
+    home = np.array(cfg.robots[0].type.q_home)
+    other = np.array(cfg.robots[1].type.q_home)
+    turn = np.zeros(6)
+    for waist in np.radians(np.arange(0.0, 180.0, 0.5)):  # towards the right arm until near
+        turn[0] = waist
+        least, near = cell.gap([home + turn, other])
+        if least < cell.clearance / 2:
+            break
+    assert near is not None and near.near_b.startswith("right/") and least > -0.01
+    inside = home + turn
+    out = home + turn - np.radians([20.0, 0, 0, 0, 0, 0])
+    walk = cell.walk([0], [inside, other])
+    path = [inside + (out - inside) * s for s in np.linspace(0.0, 1.0, 40)]
+    assert all(walk.refused([q]) is None for q in path)  # away, and out of it
+    back = [out + (inside - out) * s for s in np.linspace(0.0, 1.0, 40)]
+    said = [walk.refused([q]) for q in back]  # back in: refused where the clearance begins
+    first = next(i for i, near in enumerate(said) if near is not None)
+    gaps = [cell.gap([back[i], other])[0] for i in (first - 1, first)]
+    assert gaps[1] < cell.clearance <= gaps[0]
+    walk = cell.walk([0], [inside, other])
+    further = inside + np.radians([2.0, 0, 0, 0, 0, 0])
+    near = walk.refused([further])
+    assert near is not None and near.near_b.startswith("right/") and near.distance < least
+
+
 def test_a_stream_driven_into_a_solid_table_slows_and_stops_at_the_clearance(
     kali: Callable[..., str], tmp_path: Path
 ) -> None:
@@ -388,11 +423,12 @@ def test_a_held_part_is_checked_with_the_arm_that_holds_it(
     kali: Callable[..., str], tmp_path: Path
 ) -> None:
     """Lockstep, the parts' scene with its table solid and untouchable by the tools: the left
-    arm grips the block and lifts it, then names it held (``set_load(holding=...)``, as
-    ``grip(holding=...)`` does: its load record names the object); a line that would push the
-    block 2 cm into the table, the arm itself staying clear, is refused naming the held block
-    and the table; one that keeps it above runs; let go, the same line runs (the block stays
-    behind); a set_load naming what no arm can hold is refused."""
+    arm grips the block naming it held (``grip(holding=...)``: its load record names the
+    object) and lifts it off the table it rests on (within the clearance, moving away); a
+    line that would push the block 2 cm into the table, the arm itself staying clear, is
+    refused naming the held block and the table; one that keeps it above runs; let go, the
+    same line runs (the block stays behind); a set_load naming what no arm can hold is
+    refused."""
     text = (DEFAULT_SCENE.parent / "parts.yaml").read_text()
     loose = "    at: [0.0, -0.38, 0.2]\n    fixed: true\n    arms_touch: false\n"
     assert text.count(loose) == 1
@@ -408,11 +444,10 @@ def test_a_held_part_is_checked_with_the_arm_that_holds_it(
         above[2, 3] += 0.05
         left.move_joints(left.joints_at(above, "run"), speed=0.5, timeout=30)
         left.move_line(site, speed=0.05, timeout=30)
-        left.grip(True)  # named once lifted: resting on the table it is within the clearance
+        left.grip(True, holding="block")  # resting on the table: within the clearance
         step_kali_clock(k.inst, 50)
         assert k.sim.truth("left").held == "block"
         left.move_line(above, speed=0.05, timeout=30)
-        left.set_load(0.2, holding="block")
         block = [o.name for o in k.scene.objects].index("block") + 1  # the record's: index + 1
         assert int(k.loads["held"][left.index]) == block
         into = above.copy()

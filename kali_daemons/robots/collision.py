@@ -185,6 +185,7 @@ class CellGeometry:
 
 NEAR_M = 0.08  # pairs whose spheres come within the clearance and this get coal's distance
 STEP_M = 0.001  # a joint move's walk steps at least this far (its poses checked this finely)
+AWAY_TOL_M = 1e-4  # arms within the clearance "move away" unless this much nearer (rounding)
 
 
 class CellClearance:
@@ -327,7 +328,11 @@ class ClearanceWalk:
     """The clearance along one motion's poses, taken in order: ``hit`` at each pose of the
     motion's arms says the pair within the clearance, or None, looking again only once the
     arms may have moved by the margin the last look left.  Only the pairs with a shape of
-    the motion's arms are looked at; the other arms' shapes are placed once, here."""
+    the motion's arms are looked at; the other arms' shapes are placed once, here.
+
+    ``refused`` is the check's rule: arms that start within the clearance (a held part resting
+    on a fixture its tool may not touch) may move away, never nearer than they have come out
+    to (MoveIt Servo's rule); once out, the clearance holds again."""
 
     def __init__(
         self, cell: CellClearance, robots: Sequence[int], qs: Sequence[np.ndarray]
@@ -353,6 +358,9 @@ class ClearanceWalk:
             moving[cell.rows_of(k)] = True
         mine = moving[cell.pair_a] | moving[cell.pair_b]
         self._pairs = (cell.pair_a[mine], cell.pair_b[mine], cell._radii[mine])
+        near = self.hit([self.qs[k] for k in self.robots])  # where the motion starts
+        # the least distance the arms have come out to while within the clearance (inf: out)
+        self.inside = math.inf if near is None else near.distance
 
     def hit(self, rows: Sequence[np.ndarray], fresh: float = 0.0) -> Clearance | None:
         """The motion's arms at ``rows`` (one per robot of the motion, in its order), the
@@ -376,6 +384,18 @@ class ClearanceWalk:
         least, self.nearest = cell.least(self.centres, *self._pairs, dict(self._standing))
         self._slack = least - cell.clearance
         return self.nearest if least < cell.clearance else None
+
+    def refused(self, rows: Sequence[np.ndarray], fresh: float = 0.0) -> Clearance | None:
+        """As ``hit``, under the rule for arms within the clearance (the class's docstring):
+        the pair that refuses the pose ``rows``, or None."""
+        near = self.hit(rows, fresh)
+        if near is None:
+            self.inside = math.inf
+            return None
+        if near.distance < self.inside - AWAY_TOL_M:
+            return near
+        self.inside = max(self.inside, near.distance)
+        return None
 
     def rate(self, delta: Sequence[np.ndarray]) -> float:
         """How far (m) any point of the motion's arms may move per unit of a straight joint

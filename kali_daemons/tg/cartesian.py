@@ -292,7 +292,7 @@ class CartesianMotion:
             for k in range(self.n):
                 self._check_sample(k, tau, self._check_q[k])
             if self.clearance is not None:
-                near = self.clearance.hit(self._check_q)
+                near = self.clearance.refused(self._check_q)
                 if near is not None:
                     raise MotionError(
                         f"path refused: {self.segment_label(tau)}, {tau:.2f} s into the motion, "

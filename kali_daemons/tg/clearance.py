@@ -2,7 +2,8 @@
 in joint space, so it is walked from its start in steps as long as the margin the last look
 left allows (``robots.collision.ClearanceWalk``; at least ``STEP_M`` of the arms' motion, the
 finest the check resolves), and refused at the first pose within the scene's clearance of
-another arm or of an object the arm's links touch.  A Cartesian path's poses are walked by
+another arm or of an object the arm's links touch (arms starting within it may move away:
+``ClearanceWalk.refused``).  A Cartesian path's poses are walked by
 ``CartesianMotion.check_some`` itself, sample by sample.
 """
 
@@ -48,7 +49,7 @@ class JointMoveCheck:
                 break
             np.multiply(self._delta, self.s, out=self._q)
             self._q += m.start
-            near = self.walk.hit(self._views)
+            near = self.walk.refused(self._views)
             if near is not None:
                 arm = near.near_a.partition("/")[0]
                 k = self.names.index(arm) if arm in self.names else 0

@@ -328,16 +328,14 @@ class Tracking(ABC):
         self.done = False  # at rest after stopping: the TG ends it
         # the cell's clearances (``keep_clear``): None, not kept
         self.clearance: ClearanceWalk | None = None
-        self._inside = math.inf  # the least distance at the last set-point, if within
 
     def keep_clear(self, walk: ClearanceWalk) -> None:
         """Keep the arms out of the cell's clearance with ``walk`` (outside the cycle, at
-        the start): a set-point nearer than the clearance is not taken (the arms hold, the
-        motion runs on), and an arm starting within it may only move away (MoveIt Servo's
-        rule); a Cartesian one also slows near it (``TrackingMotion._approach``)."""
+        the start, at ``q_ref``): a set-point nearer than the clearance is not taken (the arms
+        hold, the motion runs on), and an arm starting within it may only move away
+        (``ClearanceWalk.refused``); a Cartesian one also slows near it
+        (``TrackingMotion._approach``)."""
         self.clearance = walk
-        near = walk.hit(self.q_ref)
-        self._inside = math.inf if near is None else near.distance
 
     def _clear(self, rows: Sequence[np.ndarray], here: Sequence[np.ndarray]) -> bool:
         """Whether the next set-points ``rows`` may be taken, the arms being at ``here``: not
@@ -346,12 +344,7 @@ class Tracking(ABC):
         walk = self.clearance
         if walk is None:
             return True
-        near = walk.hit(rows)
-        if near is None:
-            self._inside = math.inf
-            return True
-        if near.distance >= self._inside:  # within it, and moving away
-            self._inside = near.distance
+        if walk.refused(rows) is None:
             return True
         walk.hit(here)  # where the arms stay
         return False
