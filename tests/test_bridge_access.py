@@ -325,6 +325,8 @@ def test_access_control_roles_follow_the_authentication() -> None:
     assert {"reads-op", "commands-op", "programs-op"} <= set(op["rules"])
     rules = {r["id"]: r for r in acl["rules"]}
     assert rules["commands-op"]["key_exprs"] == [f"{P}/user/op/verb/*", f"{P}/user/op/session/**"]
+    reads = [f"{P}/user/viewer/{what}" for what in ("status", "config", "camera/*")]
+    assert rules["reads-viewer"]["key_exprs"] == reads
     readers_only = BridgeConfig(users_file="/x/users", readers=("viewer",))
     acl = access_control(readers_only, INST)
     assert [p["id"] for p in acl["policies"]] == ["reader-viewer"]

@@ -67,6 +67,35 @@ def test_the_camera_shows_an_object_where_its_intrinsics_put_it(
             k.camera("front")
 
 
+def test_a_remote_program_reads_the_same_frames_through_the_bridge(
+    kali: Callable[..., str],
+) -> None:
+    """Through the bridge (lockstep, loopback) ``kali.camera(name).read()`` gives the frame a
+    local program reads, byte for byte with its tick, stamps, K and pose; a frame of a later
+    tick is waited for the same way; an unknown camera is refused in the local words."""
+    from .test_bridge import bridge_edit, free_port
+
+    port = free_port()
+    name = kali(edits={**WATCHED, **bridge_edit(port)})
+    with Kali(name) as k, Kali.connect(f"tcp/127.0.0.1:{port}", name) as remote:
+        view, there = k.camera("table"), remote.camera("table")
+        first = view.read()
+        step_kali_clock(k.inst, 30)
+        frame = there.read(since_tick=first.tick + 30)
+        same = view.read(since_tick=first.tick + 30)
+        assert frame.stamp_ns == same.stamp_ns and frame.tick == same.tick == first.tick + 30
+        np.testing.assert_array_equal(frame.image, same.image)
+        np.testing.assert_array_equal(frame.depth, same.depth)
+        assert frame.depth.dtype == np.float32 and frame.image.dtype == np.uint8
+        assert frame.sim_time_s == same.sim_time_s and frame.camera == "table"
+        np.testing.assert_array_equal(frame.K, same.K)
+        np.testing.assert_array_equal(frame.pose, same.pose)
+        with pytest.raises(HardwareError, match=r"no frame of tick \d+ or later within 0.3 s"):
+            there.read(since_tick=frame.tick + 1, timeout_s=0.3)  # the clock stands
+        with pytest.raises(HardwareError, match=r"no camera 'front'; cameras: table"):
+            remote.camera("front")
+
+
 def test_a_cell_without_cameras_says_so_at_the_request(kali: Callable[..., str]) -> None:
     with Kali(kali()) as k, pytest.raises(HardwareError, match="its scene declares no cameras"):
         k.camera("table")

@@ -2,13 +2,13 @@
 
 The bridge's session is a Zenoh router that remote programs connect to as clients; it alone
 publishes under ``kali/INST/**``.  Zenoh's access control runs on the router, default deny,
-and the rules only allow: readers subscribe and query their own status and config; operators
-also query their own verbs and sessions and declare their programs' liveliness tokens; nobody
-puts or deletes, so no remote session can forge telemetry or events.  A rule must include the
-whole key expression a message carries, so each user asks and declares under its own name
-only and the bridge knows from a request's key who sent it.  Without authentication (loopback
-only) every session is an operator, on any branch.  The rules one by one:
-docs/internals/motion-client-bridge.md.
+and the rules only allow: readers subscribe and query their own status, config and camera
+frames; operators also query their own verbs and sessions and declare their programs'
+liveliness tokens; nobody puts or deletes, so no remote session can forge telemetry or
+events.  A rule must include the whole key expression a message carries, so each user asks
+and declares under its own name only and the bridge knows from a request's key who sent it.
+Without authentication (loopback only) every session is an operator, on any branch.  The
+rules one by one: docs/internals/motion-client-bridge.md.
 """
 
 from __future__ import annotations
@@ -77,10 +77,12 @@ def access_rules(instance: str) -> list[dict[str, Any]]:
 
 def user_rules(instance: str, user: str, command: bool) -> list[dict[str, Any]]:
     """The rules of user ``user``'s own branch (``*``: anyone's): ``reads-USER``, querying
-    its status and config; if it may ``command``, ``commands-USER``, querying its verbs and
-    sessions, and ``programs-USER``, declaring its programs' liveliness tokens."""
+    its status, config and cameras' frames; if it may ``command``, ``commands-USER``,
+    querying its verbs and sessions, and ``programs-USER``, declaring its programs'
+    liveliness tokens."""
     home = f"{prefix(instance)}/user/{user}"
-    rules = [_rule(f"reads-{user}", "ingress", [QUERY], [f"{home}/status", f"{home}/config"])]
+    reads = [f"{home}/status", f"{home}/config", f"{home}/camera/*"]
+    rules = [_rule(f"reads-{user}", "ingress", [QUERY], reads)]
     if command:
         rules += [
             _rule(f"commands-{user}", "ingress", [QUERY], [f"{home}/verb/*", f"{home}/session/**"]),

@@ -25,6 +25,7 @@ import zenoh.ext
 from ..client import protocol
 from ..client.protocol import BridgeError, Keys
 from ..core.errors import DaemonError, KaliError
+from ..hardware.camera import CameraRing, camera_index
 from ..runtime.daemon import Daemon
 from ..runtime.instance import estop_pressed, time_ms
 from ..tools import launcher
@@ -35,6 +36,7 @@ from .streams import RemoteStreams
 from .telemetry import Telemetry, Watch
 
 JSON = zenoh.Encoding.APPLICATION_JSON
+BYTES = zenoh.Encoding.APPLICATION_OCTET_STREAM
 OWN = "bridge/"  # the bridge's own jobs wait their turns as users "bridge/...": no name has a /
 
 
@@ -97,12 +99,16 @@ class Bridge(Daemon):
         self.reads = self._worker("bridge-reads", reads)
         self.verbs = self._worker("bridge-verbs", "verbs")
         self.admin = self._worker("bridge-sessions", sessions)
+        frames = "camera frames"
+        self.frames = self._worker("bridge-cameras", frames)
+        self.rings: dict[str, CameraRing] = {}
         self.stops = self._worker("bridge-stops", "session stops")
         self.admin.put(OWN + "helper", self.sessions.start_helper)  # ready before the first verb
         self.session_queues: dict[str, Turns] = {}
         self.queryables = [
             s.declare_queryable(keys.status, self._gated(reads, self.reads, self._status)),
             s.declare_queryable(keys.config, self._gated(reads, self.reads, self._config)),
+            s.declare_queryable(keys.cameras, self._gated(frames, self.frames, self._frame)),
             s.declare_queryable(keys.verbs, self._on_verb),
             s.declare_queryable(keys.session_open, self._gated(sessions, self.admin, self._open)),
             s.declare_queryable(keys.session_close, self._gated(sessions, self.admin, self._close)),
@@ -192,13 +198,16 @@ class Bridge(Daemon):
         return {"ok": True, "code": 0, "output": estop_pressed(pressed) + "\n", "error": ""}
 
     def _answer(self, query: zenoh.Query, handler: Callable[[zenoh.Query], Any]) -> None:
+        encoding = JSON
         try:
             value = handler(query)
             payload = value if isinstance(value, bytes) else protocol.dumps({"value": value})
+            if payload.startswith(protocol.FRAME_MAGIC):
+                encoding = BYTES
         except Exception as exc:  # KaliError: its words; anything else named for what it is
             payload = protocol.dumps(protocol.error_reply(exc))
         with contextlib.suppress(zenoh.ZError):
-            query.reply(query.key_expr, payload, encoding=JSON)
+            query.reply(query.key_expr, payload, encoding=encoding)
         query.drop()
 
     def _refuse(self, query: zenoh.Query, error: BridgeError) -> None:
@@ -235,6 +244,23 @@ class Bridge(Daemon):
             "base_dir": cfg.base_dir,
             "lockstep": bool(self.inst.lockstep),
         }
+
+    def _frame(self, query: zenoh.Query) -> bytes | None:
+        """Camera ``NAME``'s latest frame (``kali/INST/user/USER/camera/NAME``), read from its
+        ring as a local program reads it (``protocol.encode_frame``); None when there is none
+        yet or it is the one whose stamp the asker sends (``{"since_stamp": ns}``)."""
+        name = str(query.key_expr).rsplit("/", 1)[-1]
+        request = self._payload(query, f"camera {name!r:.40}")
+        since = request.get("since_stamp") if isinstance(request, dict) else None
+        ring = self.rings.get(name)
+        if ring is None:
+            cameras = self.inst.config.scene.cameras
+            ring = CameraRing(self.inst.arena, cameras, camera_index(cameras, name, self.inst.name))
+            self.rings[name] = ring
+        if since is not None and ring.stamp() == since:
+            return None
+        frame = ring.read()
+        return None if frame is None else protocol.encode_frame(frame)
 
     def _verb(self, query: zenoh.Query) -> bytes:  # the helper's answer line, as it is
         verb = str(query.key_expr).rsplit("/", 1)[-1]

@@ -24,6 +24,7 @@ import numpy as np
 from ..core import errors
 from ..core.errors import KaliError
 from ..core.layout import CalibState, FfMode, FfState, PowerState, RequestState
+from ..hardware.camera import Frame
 from ..robots.scene import Clearance, Grasp, Scene, SceneObject
 from ..runtime.config import USER_RE
 from ..servo.loading import Loaded
@@ -63,6 +64,7 @@ class Keys:
         self.session_stops = f"{users}/session/*/stop"
         self.session_close = f"{users}/session/*/close"
         self.clients = f"{users}/clients/*"
+        self.cameras = f"{users}/camera/*"
 
     def state(self, robot: str) -> str:
         return f"{self.root}/robots/{robot}/state"
@@ -124,6 +126,9 @@ class UserKeys:
 
     def client(self, sid: str) -> str:
         return f"{self.home}/clients/{sid}"
+
+    def camera(self, name: str) -> str:
+        return f"{self.home}/camera/{name}"
 
 
 # The calls a remote program may make, by the class of the object it calls (methods, then
@@ -372,6 +377,66 @@ def raise_reply(reply: dict[str, Any]) -> None:
     if issubclass(cls, KaliError):  # it adds its subsystem's prefix again
         message = message.removeprefix(f"{cls.subsystem}: ")
     raise cls(message)
+
+
+# A camera's frame on the wire (a reply to ``UserKeys.camera``): FRAME_MAGIC, the header's
+# length (4 bytes, little-endian), the header (JSON: camera, tick, sim_time_s, stamp_ns, K,
+# pose, height, width), the image's bytes (RGB, row by row), the depth (float32, little-endian).
+FRAME_MAGIC = b"KALI-FRAME-1\n"
+
+
+def encode_frame(frame: Frame) -> bytes:
+    """``frame`` as one binary reply (a 320 x 240 frame: 0.5 MB, too big for JSON's)."""
+    height, width = frame.depth.shape
+    head = dumps(
+        {
+            "camera": frame.camera,
+            "tick": frame.tick,
+            "sim_time_s": frame.sim_time_s,
+            "stamp_ns": frame.stamp_ns,
+            "K": frame.K.tolist(),
+            "pose": frame.pose.tolist(),
+            "height": height,
+            "width": width,
+        }
+    )
+    return b"".join(
+        (
+            FRAME_MAGIC,
+            len(head).to_bytes(4, "little"),
+            head,
+            frame.image.astype(np.uint8, copy=False).tobytes(),
+            frame.depth.astype("<f4", copy=False).tobytes(),
+        )
+    )
+
+
+def decode_frame(data: bytes, what: str) -> Frame:
+    """The frame ``encode_frame`` made; BridgeError naming ``what`` if it is not one."""
+    start = len(FRAME_MAGIC) + 4
+    if not data.startswith(FRAME_MAGIC) or len(data) < start:
+        raise BridgeError(f"{what}: not a camera frame")
+    end = start + int.from_bytes(data[start - 4 : start], "little")
+    head = loads(data[start:end], what)
+    try:
+        height, width = int(head["height"]), int(head["width"])
+        pixels = height * width
+        if len(data) != end + 3 * pixels + 4 * pixels:
+            raise ValueError(f"{len(data)} bytes for {width} x {height} pixels")
+        image = np.frombuffer(data, np.uint8, 3 * pixels, end).reshape(height, width, 3)
+        depth = np.frombuffer(data, "<f4", pixels, end + 3 * pixels).reshape(height, width)
+        return Frame(
+            str(head["camera"]),
+            image.copy(),
+            depth.astype(np.float32),
+            int(head["tick"]),
+            None if head["sim_time_s"] is None else float(head["sim_time_s"]),
+            int(head["stamp_ns"]),
+            np.array(head["K"], dtype=float).reshape(3, 3),
+            np.array(head["pose"], dtype=float).reshape(4, 4),
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BridgeError(f"{what}: a malformed camera frame ({exc})") from None
 
 
 def finite_or_none(x: float) -> float | None:

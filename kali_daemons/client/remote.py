@@ -12,6 +12,9 @@ check a local program meets; a refusal comes back as the same exception and mess
 Periodic functions and TG functions stay on the controller's machine: their deadlines are the
 wall clock's and the TG's, not the network's.  The program's liveliness token tells the
 bridge it lives.  How calls, proxies and waits work: docs/internals/motion-client-bridge.md.
+
+Long on purpose: the connection, the proxies it makes and the remote ``Kali`` are one
+protocol's client side, each using the others' insides.
 """
 
 from __future__ import annotations
@@ -36,9 +39,11 @@ import zenoh.handlers
 
 from ..core.errors import KaliError, ServoError
 from ..core.layout import TERMINAL_STATES
+from ..hardware.camera import camera_index
 from ..robots import RobotType
 from ..runtime.config import KaliConfig, parse_config
 from . import protocol
+from .camera import RemoteCamera
 from .common import DEFAULT_INSTANCE, INSTANCE_ENV, program_name
 from .protocol import METHODS, PROPERTIES, BridgeError, Keys
 from .zenohconfig import client_config
@@ -255,6 +260,15 @@ class Connection:
     def _ask(self, key: str, payload: bytes, timeout: float, what: str) -> dict[str, Any]:
         """One query and its one answer (a mapping); the exception it carries raised, a
         BridgeError if none comes within ``timeout`` s or the bridge goes meanwhile."""
+        answer = protocol.loads(self.ask_bytes(key, payload, timeout, what), what)
+        if not isinstance(answer, dict):
+            raise BridgeError(f"{what}: a malformed answer")
+        protocol.raise_reply(answer)
+        return answer
+
+    def ask_bytes(self, key: str, payload: bytes, timeout: float, what: str) -> bytes:
+        """One query and its one answer's bytes, as they came; a BridgeError if none comes
+        within ``timeout`` s or the bridge goes meanwhile."""
         if self.closed:
             raise BridgeError(f"the connection to {self.endpoint} is closed")
         replies: list[zenoh.Reply] = []
@@ -282,11 +296,7 @@ class Connection:
             assert reply.err is not None  # zenoh: a reply is either ok or err
             text = reply.err.payload.to_bytes().decode(errors="replace")
             raise BridgeError(f"{what}: {text}")
-        answer = protocol.loads(reply.ok.payload.to_bytes(), what)
-        if not isinstance(answer, dict):
-            raise BridgeError(f"{what}: a malformed answer")
-        protocol.raise_reply(answer)
-        return answer
+        return bytes(reply.ok.payload.to_bytes())
 
     def call(
         self, oid: int, method: str, args: Sequence[Any], kwargs: dict[str, Any]
@@ -527,6 +537,11 @@ class RemoteKali(Proxy):
                 for move in moves:
                     move()
         return group
+
+    def camera(self, name: str) -> RemoteCamera:
+        """As ``Kali.camera``: camera ``name``'s frames, fetched through the bridge."""
+        cameras = self.inst.config.scene.cameras
+        return RemoteCamera(self._conn, name, cameras[camera_index(cameras, name, self.inst.name)])
 
     def control(self, *args: Any, **kwargs: Any) -> None:
         raise BridgeError(
