@@ -128,7 +128,8 @@ from harness import (
 )
 
 from kali_daemons.client import Kali
-from kali_daemons.client.motion import TRACK_LIMITS, MotionHandle, MotionSystem
+from kali_daemons.client.handle import MotionHandle
+from kali_daemons.client.system import TRACK_LIMITS, MotionSystem
 from kali_daemons.core import layout
 from kali_daemons.core.arena import Arena
 from kali_daemons.core.channels import InterpolatingFifo

@@ -24,7 +24,8 @@ import sys
 import time
 
 from kali_daemons.client import Kali, MotionFailedError
-from kali_daemons.client.motion import MotionHandle, RequestLostError
+from kali_daemons.client.common import RequestLostError
+from kali_daemons.client.handle import MotionHandle
 from kali_daemons.core import layout
 from kali_daemons.core.errors import QueueFullError
 from kali_daemons.core.layout import MotionKind, RequestState

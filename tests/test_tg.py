@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from kali_daemons.client import Kali, MotionFailedError, MotionHandle, pose
-from kali_daemons.client.motion import Robot
+from kali_daemons.client.robot import Robot
 from kali_daemons.core import layout
 from kali_daemons.core.arena import Arena
 from kali_daemons.core.channels import InterpolatingFifo

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from kali_daemons.client import Kali
-from kali_daemons.client.motion import Robot
+from kali_daemons.client.robot import Robot
 from kali_daemons.core import layout
 from kali_daemons.core.layout import RequestState
 from kali_daemons.robots.puma560 import kinematics

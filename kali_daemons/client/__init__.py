@@ -4,11 +4,12 @@
     with client.attach("default") as kali:
         print(kali.clock["tick"])
 
-``Kali`` moves the arms through the trajectory generator (``motion.py``): motions that change
-while they run through shared transforms, TG functions and streams (``streams.py``), motion
-systems started together (``together.py``); and it runs the program's functions
-periodically on the wall clock while it goes on (``Kali.control``, a ``Control`` each:
-``periodic.py``).  ``control`` (thesis 3.6.2) makes the calling process
+``Kali`` moves the arms through the trajectory generator (``motion.py``; an arm's moves in
+``robot.py``, a motion system's in ``system.py``, a request's handle in ``handle.py``): motions
+that change while they run through shared transforms, TG functions and streams
+(``streams.py``), motion systems started together (``together.py``); and it runs the
+program's functions periodically on the wall clock while it goes on (``Kali.control``, a
+``Control`` each: ``periodic.py``).  ``control`` (thesis 3.6.2) makes the calling process
 itself the periodic function, blocking until it is released.
 """
 
@@ -23,9 +24,12 @@ from ..wallclock import (
     stop_kali_clock,
 )
 from .common import Contact, MotionFailedError, pose
-from .motion import Kali, MotionHandle, MotionSystem, Robot
+from .handle import MotionHandle
+from .motion import Kali
 from .periodic import Control
+from .robot import Robot
 from .streams import JointStream, SharedTransform, Stream, TgFunctionHandle
+from .system import MotionSystem
 from .together import Together
 
 

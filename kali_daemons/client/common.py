@@ -11,6 +11,7 @@ import os
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +19,10 @@ from ..core import layout
 from ..core.errors import KinematicsError, MotionError
 from ..robots import Kinematics
 from ..runtime.instance import Instance
+from ..tg.profiles import check_guard
+
+if TYPE_CHECKING:
+    from .motion import Kali
 
 DEFAULT_INSTANCE = "default"
 INSTANCE_ENV = "KALI_INSTANCE"  # set by `kalictl -i NAME run PROGRAM`
@@ -195,3 +200,26 @@ def _durations_arg(what: str, durations: object, n: int) -> list[float]:
             raise MotionError(f"{what}: durations[{i}] is {d!r:.40}; a time in s > 0, or None")
         out.append(float(d))
     return out
+
+
+def _guard_arg(what: str, guard: object, kali: Kali, robots: list[int]) -> float:
+    """A guarded move's contact force (N; None: unguarded, 0.0), checked as the TG will
+    (``check_guard``): every arm with a wrist sensor, the force below its contact limit."""
+    if guard is None:
+        return 0.0
+    if isinstance(guard, bool) or not isinstance(guard, int | float):
+        raise MotionError(f"{what}: guard {guard!r:.60}, must be a force in N")
+    cfg = kali.inst.config
+    limits = [None if r.ft.sheet is None else r.ft.contact_limit_n for r in cfg.robots]
+    try:
+        check_guard(float(guard), robots, kali.names, limits)
+    except MotionError as exc:
+        raise MotionError(f"{what}: {str(exc).removeprefix('motion: ')}") from None
+    return float(guard)
+
+
+def _name_arg(name: str, value: object) -> str:
+    """A body's name for ``Kali.distance``; MotionError for anything but a string."""
+    if not isinstance(value, str):
+        raise MotionError(f"distance: {name} {value!r:.60} is not a body's name")
+    return value

@@ -35,7 +35,10 @@ from ..tg.tracking import check_limits, check_track_time, rotation, write_frame
 from .common import _config_arg, _pose_arg, _real_array
 
 if TYPE_CHECKING:
-    from .motion import Kali, MotionHandle, MotionSystem, Robot
+    from .handle import MotionHandle
+    from .motion import Kali
+    from .robot import Robot
+    from .system import MotionSystem
 
 DEFAULT_LIFETIME_S = 0.1  # a stream not written for this long stops its arm
 TWIST = 6  # a twist's values: linear x, y, z (m/s), then angular x, y, z (rad/s)

@@ -27,7 +27,8 @@ from ..core.errors import MotionError, QueueFullError
 from ..core.layout import TERMINAL_STATES, MotionKind
 
 if TYPE_CHECKING:
-    from .motion import Kali, MotionHandle
+    from .handle import MotionHandle
+    from .motion import Kali
 
 _COUNT = itertools.count(1)  # this program's groups (the low 32 bits of a group's id)
 

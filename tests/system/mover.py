@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from kali_daemons.client import Kali
-from kali_daemons.client.motion import MotionFailedError
+from kali_daemons.client.common import MotionFailedError
 from kali_daemons.core.layout import PowerState
 from kali_daemons.runtime.instance import decode
 

@@ -315,7 +315,7 @@ def test_a_request_taken_while_its_program_looks_is_not_lost(
     """The TG takes a request between its program's search for the record and its look at
     the count of requests taken: the program must not call it LOST (a soak's carry demo did,
     6 times in 206 runs, when it looked at the count after the search)."""
-    from kali_daemons.client import motion
+    from kali_daemons.client import handle
 
     name = kali(lockstep=True)
     with powered(name) as k:
@@ -328,7 +328,7 @@ def test_a_request_taken_while_its_program_looks_is_not_lost(
                 step_kali_clock(k.inst, 1)
             return found
 
-        monkeypatch.setattr(motion.records, "find", taken_meanwhile)
+        monkeypatch.setattr(handle.records, "find", taken_meanwhile)
         assert h.state != RequestState.LOST, h.message
         monkeypatch.undo()
         assert h.state == RequestState.DONE

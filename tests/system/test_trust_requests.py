@@ -21,7 +21,7 @@ import pytest
 from numpy.lib.recfunctions import repack_fields
 
 from kali_daemons.client import Kali, MotionFailedError, pose
-from kali_daemons.client.motion import RequestLostError
+from kali_daemons.client.common import RequestLostError
 from kali_daemons.core import layout
 from kali_daemons.core.errors import QueueFullError
 from kali_daemons.core.layout import FaultCode, MotionKind, PowerState, RequestState
