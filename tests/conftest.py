@@ -5,6 +5,8 @@ from __future__ import annotations
 import importlib
 import os
 import re
+import subprocess
+import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -22,6 +24,33 @@ from kali_daemons.tools import launcher
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_TEXT = (ROOT / "config" / "default.yaml").read_text()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def warm_spawner(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """One warm spawner (``kali_daemons.tools.spawner.serve``) for this test process and the
+    kalictl it runs: each of the session's hundreds of starts forks from it rather than
+    importing every daemon's modules anew.  It ends, removing its socket, with the session."""
+    path = tmp_path_factory.mktemp("spawner") / "warm.sock"
+    env = {launcher.RENDERING[0]: launcher.RENDERING[1], **os.environ, **launcher.SINGLE_THREADED}
+    argv = ["-m", "kali_daemons.tools.spawner", "--serve", str(path), launcher.SPAWNER_ROOM]
+    server = subprocess.Popen(
+        [sys.executable, *argv],
+        stdin=subprocess.PIPE,
+        start_new_session=True,
+        env=env,
+    )
+    deadline = time.monotonic() + 60.0
+    while not path.exists() and server.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.environ[launcher.SPAWNER_ENV] = str(path)
+    try:
+        yield
+    finally:
+        del os.environ[launcher.SPAWNER_ENV]
+        assert server.stdin is not None
+        server.stdin.close()  # its input ends: it exits
+        server.wait(timeout=10.0)
 
 
 def boards_of(inst: Instance) -> np.ndarray:

@@ -16,6 +16,7 @@ share.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import glob
@@ -24,6 +25,7 @@ import os
 import select
 import shutil
 import signal
+import socket
 import stat
 import subprocess
 import sys
@@ -51,6 +53,7 @@ from ..servo import Registry, registry_for
 from ..tg.functions import registry_for as functions_for
 from ..wallclock import start_kali_clock
 from . import snapshot
+from .spawner import PACKAGE
 
 # the module each kind of process runs as (``python -m kali_daemons.<module>``)
 MODULES = {
@@ -538,7 +541,7 @@ def _start(
     logs_of: dict[str, Path] = {}
     jobs: list[dict[str, str]] = []
     executive = lockstep and not separate
-    spawner = Spawner(name, logs / "spawner.log")
+    spawner = Spawner(name, logs / "spawner.log", warm=executive)
     try:
         for p in cfg.processes:
             inst.claim_slot(p.name, 0)
@@ -585,6 +588,9 @@ RENDERING = "MUJOCO_GL", "egl"
 
 # the spawner's last argument: room its children write their own command lines over
 SPAWNER_ROOM = "--room=" + "." * 160
+# a warm spawner's Unix socket (``spawner.serve``): a start connects there, if it answers,
+# instead of starting a spawner of its own
+SPAWNER_ENV = "KALI_SPAWNER"
 
 
 class Spawner:
@@ -592,40 +598,56 @@ class Spawner:
     daemon imports, forking each of the start's processes; until ``close`` it says which of
     them exited, with their status."""
 
-    def __init__(self, instance: str, log_path: Path) -> None:
+    def __init__(self, instance: str, log_path: Path, warm: bool = False) -> None:
+        """``warm``: fork from the warm spawner ``$KALI_SPAWNER`` names, if one answers (for
+        a lockstep executive's start only: every other process imports only what it uses,
+        a real-time one to map no more than its own libraries)."""
         self.log_path = log_path
-        # the instance's (is_kali_process), with room for its children's command lines
-        argv = ["-m", "kali_daemons.tools.spawner", "--instance", instance, SPAWNER_ROOM]
-        with open(log_path, "wb") as log:  # the spawner holds its own descriptor
-            self.proc = subprocess.Popen(
-                [sys.executable, *argv],
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                stderr=log,
-                start_new_session=True,
-                close_fds=True,
-                env={RENDERING[0]: RENDERING[1], **os.environ, **SINGLE_THREADED},
-            )
+        env = {RENDERING[0]: RENDERING[1], **os.environ, **SINGLE_THREADED}
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.conn = _warm_spawner(os.environ.get(SPAWNER_ENV)) if warm else None
+        if self.conn is not None:  # a warm spawner's: the start, then the pipes' protocol
+            head = {"env": env, "cwd": os.getcwd(), "instance": instance, "log": str(log_path)}
+            self.conn.sendall(json.dumps(head).encode() + b"\n")
+            self._fd = self.conn.fileno()
+        else:
+            # the instance's (is_kali_process), with room for its children's command lines
+            argv = ["-m", "kali_daemons.tools.spawner", "--instance", instance, SPAWNER_ROOM]
+            with open(log_path, "wb") as log:  # the spawner holds its own descriptor
+                self.proc = subprocess.Popen(
+                    [sys.executable, *argv],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=log,
+                    start_new_session=True,
+                    close_fds=True,
+                    env=env,
+                )
+            assert self.proc.stdout is not None
+            self._fd = self.proc.stdout.fileno()
         self.exits: dict[int, int] = {}  # pid -> exit status (negative: the signal)
         self._buffer = b""  # what the spawner said, not yet a whole line
 
     def start(self, jobs: list[dict[str, str]], logs_of: dict[str, Path]) -> list[int]:
         """Fork each job's process (its output in ``logs_of[name]``); their pids, in order."""
-        stdin = self.proc.stdin
-        assert stdin is not None
-        for job in jobs:
-            stdin.write(json.dumps({**job, "log": str(logs_of[job["name"]])}).encode() + b"\n")
-        stdin.write(b"\n")
-        stdin.flush()
+        lines = [json.dumps({**job, "log": str(logs_of[job["name"]])}) for job in jobs]
+        said = "".join(f"{line}\n" for line in lines).encode() + b"\n"
+        if self.conn is not None:
+            self.conn.sendall(said)
+        else:
+            assert self.proc is not None and self.proc.stdin is not None
+            self.proc.stdin.write(said)
+            self.proc.stdin.flush()
         pids: list[int] = []
         while len(pids) < len(jobs):
-            lines = self._read(block=True)
-            if lines is None:
+            read = self._read(block=True)
+            if read is None:
+                code = "-" if self.proc is None else self.proc.wait()
                 raise InstanceError(
                     f"the start's spawner ended before starting '{jobs[len(pids)]['name']}' "
-                    f"(exit {self.proc.wait()}):\n" + _tail(self.log_path)
+                    f"(exit {code}):\n" + _tail(self.log_path)
                 )
-            pids += [int(line) for line in lines]
+            pids += [int(line) for line in read]
         return pids
 
     def exited(self, pid: int) -> int | None:
@@ -637,9 +659,7 @@ class Spawner:
 
     def _read(self, block: bool) -> list[bytes] | None:
         """The whole lines the spawner has written since the last read; None at its end."""
-        stdout = self.proc.stdout
-        assert stdout is not None
-        fd = stdout.fileno()
+        fd = self._fd
         if not block and not select.select([fd], [], [], 0)[0]:
             return []
         chunk = os.read(fd, 4096)  # the descriptor itself: nothing read ahead elsewhere
@@ -650,6 +670,15 @@ class Spawner:
 
     def close(self) -> None:
         """The start is over: the spawner exits, leaving its children to the init process."""
+        if self.conn is not None:  # a warm spawner's: it says so by closing the connection
+            with contextlib.suppress(OSError):
+                self.conn.shutdown(socket.SHUT_WR)
+                deadline = time.monotonic() + STOP_GRACE_S
+                while time.monotonic() < deadline and self._read(block=False) is not None:
+                    time.sleep(0.005)
+            self.conn.close()
+            return
+        assert self.proc is not None
         if self.proc.stdin is not None and not self.proc.stdin.closed:
             self.proc.stdin.close()
         try:
@@ -659,6 +688,31 @@ class Spawner:
             self.proc.wait()
         if self.proc.stdout is not None:
             self.proc.stdout.close()
+
+
+def _warm_spawner(path: str | None) -> socket.socket | None:
+    """A connection to the warm spawner at ``path`` (``$KALI_SPAWNER``), or None: none named,
+    none answers there, or it forks another package's modules (an installed Kali's, say): the
+    start then starts a spawner of its own."""
+    if not path:
+        return None
+    conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        conn.settimeout(STOP_GRACE_S)
+        conn.connect(path)
+        said = b""
+        while not said.endswith(b"\n"):
+            chunk = conn.recv(1)  # its first line only: the rest is the spawner's protocol
+            if not chunk:
+                raise OSError("closed")
+            said += chunk
+        conn.settimeout(None)
+        if json.loads(said).get("package") != PACKAGE:
+            raise OSError("another package")
+    except (OSError, ValueError, AttributeError):
+        conn.close()
+        return None
+    return conn
 
 
 def _wait_ready(

@@ -9,15 +9,31 @@ runs its module as ``python -m kali_daemons.<module> --instance I --name N`` wou
 the launcher closes the spawner's input (the start is over, either way), the spawner reaps a
 child that exits and writes ``exit PID CODE``; then it exits, and the children it leaves are
 the init process's.
+
+A warm spawner (``serve``: ``python -m kali_daemons.tools.spawner --serve SOCKET``) has also
+imported every module the lockstep executive hosts, once, and forks a start's spawner for
+each connection to its Unix socket: the launcher uses it for a lockstep executive's start
+when ``$KALI_SPAWNER`` names the socket (a test session starts hundreds of cells: each start
+then forks where it would have imported for a second).  The spawner's first line to a
+connection is the package it forks (a start of another Kali, an installed one, starts its
+own spawner) and how many connections it has taken; the start's first line is its
+environment, working directory and log (JSON); the rest is the pipes' protocol above.  It
+exits, removing its socket, when its standard input ends (its owner closed it, or died) or
+on SIGTERM.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import errno
+import importlib
 import json
 import os
 import runpy
 import select
+import signal
+import socket
 import sys
 import traceback
 from typing import IO, Any
@@ -27,6 +43,18 @@ import numpy  # noqa: F401  (imported for the children: what every daemon import
 from ..runtime import daemon  # noqa: F401  (the base class, config, layout, kernels)
 
 REAP_S = 0.02  # how often a child's exit is looked for while the start goes on
+PACKAGE = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))  # kali_daemons/
+SERVE_REAP_S = 0.5  # how often a warm spawner reaps the start spawners it forked
+# what a warm spawner imports besides: the modules of every daemon the executive hosts
+WARM = (
+    "lockstep.executive",
+    "plant.daemon",
+    "sio.daemon",
+    "servo.sv.daemon",
+    "tg.daemon",
+    "dynamics.daemon",
+    "viewer.daemon",
+)
 
 
 def name_as(argv: list[str]) -> None:
@@ -94,5 +122,77 @@ def spawn(jobs: IO[str], out: IO[str]) -> None:
             return  # the start is over
 
 
+def serve(path: str) -> None:
+    """The warm spawner (the module's docstring): listen on Unix socket ``path`` and fork a
+    start's spawner per connection (``start_from``) until standard input ends."""
+    for module in WARM:
+        importlib.import_module(f"kali_daemons.{module}")
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        if probe.connect_ex(path) == errno.ECONNREFUSED:  # a socket no server holds any more
+            os.unlink(path)
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    server.bind(path)
+    server.listen(16)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # through ``finally``, as at EOF
+    owner = os.getpid()  # a child leaves through here too (its SystemExit): it keeps the socket
+    served = 0  # connections taken
+    try:
+        while True:
+            ready, _, _ = select.select([server, sys.stdin], [], [], SERVE_REAP_S)
+            with contextlib.suppress(ChildProcessError):
+                while os.waitpid(-1, os.WNOHANG)[0]:
+                    pass
+            if sys.stdin in ready and not os.read(sys.stdin.fileno(), 4096):
+                return  # the owner is gone
+            if server in ready:
+                conn, _ = server.accept()
+                served += 1
+                sys.stderr.flush()
+                if os.fork() == 0:
+                    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+                    server.close()
+                    sys.exit(start_from(conn, served))  # as an interpreter ends, as daemons do
+                conn.close()
+    finally:
+        if os.getpid() == owner:
+            server.close()
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(path)
+
+
+def start_from(conn: socket.socket, served: int) -> int:
+    """In a warm spawner's child: one start's spawner on connection ``conn`` (the warm
+    spawner's ``served``-th), its first line the start's ``env``, ``cwd``, ``instance`` and
+    ``log``.  It exits when the start is over (its status returned only when it failed);
+    each daemon it forks leaves through here with its own ``SystemExit``, as from ``spawn``."""
+    try:
+        os.setsid()
+        os.dup2(conn.fileno(), 0)  # where a started spawner's pipes are: a child replaces them
+        os.dup2(conn.fileno(), 1)
+        conn.close()
+        jobs, out = os.fdopen(0, "r"), os.fdopen(1, "w")
+        out.write(json.dumps({"package": PACKAGE, "served": served}) + "\n")  # whose modules
+        out.flush()
+        head = json.loads(jobs.readline())
+        log = os.open(head["log"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.dup2(log, 2)
+        os.close(log)
+        os.environ.clear()
+        os.environ.update(head["env"])
+        os.chdir(head["cwd"])
+        instance = head["instance"]
+        name_as([sys.executable, "-m", "kali_daemons.tools.spawner", "--instance", instance])
+        spawn(jobs, out)
+        out.flush()
+        sys.stderr.flush()
+        os._exit(0)  # gone before its connection ends: a stop after the start finds it gone
+    except Exception:
+        traceback.print_exc()
+        return 1
+
+
 if __name__ == "__main__":  # python -m kali_daemons.tools.spawner --instance I --room=...
-    spawn(sys.stdin, sys.stdout)
+    if sys.argv[1:2] == ["--serve"]:  # ... --serve SOCKET --room=...
+        serve(sys.argv[2])
+    else:
+        spawn(sys.stdin, sys.stdout)
