@@ -741,12 +741,13 @@ def waits_on(pid: int, tid: str) -> str:
 
 
 def thread_places(pid: int) -> list[str]:
-    """Each thread of process ``pid``: its id, scheduler state, wchan, the futex it waits
+    """Each thread of process ``pid``, the main thread first (then by id: ids wrap around,
+    so a later thread's may be lower): its id, scheduler state, wchan, the futex it waits
     on and the top of its kernel stack (/proc; the stack needs root), one line each; [] if
     it is gone."""
     out = []
     try:
-        tids = sorted(os.listdir(f"/proc/{pid}/task"), key=int)
+        tids = sorted(os.listdir(f"/proc/{pid}/task"), key=lambda t: (int(t) != pid, int(t)))
     except OSError:
         return out
     for tid in tids:
