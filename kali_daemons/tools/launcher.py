@@ -588,8 +588,8 @@ RENDERING = "MUJOCO_GL", "egl"
 
 # the spawner's last argument: room its children write their own command lines over
 SPAWNER_ROOM = "--room=" + "." * 160
-# a warm spawner's Unix socket (``spawner.serve``): a start connects there, if it answers,
-# instead of starting a spawner of its own
+# a warm spawner's Unix socket (``spawner.serve``): a lockstep executive's start connects
+# there, if it answers, instead of starting a spawner of its own
 SPAWNER_ENV = "KALI_SPAWNER"
 
 
