@@ -1,26 +1,8 @@
-"""Motion requests from user programs to the trajectory generator (thesis 3.3.2, DESIGN 5).
-
-    from kali_daemons.client import Kali
-    with Kali("default") as kali:
-        left = kali.robot("left")
-        left.move_joints(np.radians([0, 45, -180, 0, 45, 0]))       # blocks until there
-        m = left.move_joints(target, speed=0.3, wait=False)        # a handle
-        m.wait(timeout=5.0)
-        here = left.read_pose()                                    # tool in the world, 4×4
-        left.move_line(pose(here[:3, 3] + [0, 0.1, 0], here), speed=0.05)
-        both = kali.motion_system(["left", "right"])               # grasps: as they hold now
-        both.move_path([p1, p2, p3], speed=0.05, transition_s=0.3)
-
-Poses are 4×4 transforms in the world frame, metres.  Everything is validated before it is
-queued (``MotionError`` naming the argument; nothing moves), a halt wakes every waiting
-program with the fault (``MotionFailedError``), and an arm belongs to the first program that
-moves it.  The request protocol: docs/internals/motion-client-bridge.md.
-
-``Kali`` is the program's connection and puts every request (``_request``); an arm's moves
-are ``robot.Robot``'s, a motion system's ``system.MotionSystem``'s, a request's handle
-``handle.MotionHandle``; what the client modules share is in ``common``.  Long on purpose:
-``Kali`` is one class, the program's whole view of its instance (attach, ready, requests and
-stops, leases, scene and distances, recording, the periodic functions it owns).
+"""``Kali``: a user program's connection to an instance, putting its motion requests to the
+trajectory generator (thesis 3.3.2, DESIGN 5).  An arm's moves are ``robot.Robot``'s, a motion
+system's ``system.MotionSystem``'s, a request's handle ``handle.MotionHandle``; the protocol
+and an example: docs/internals/motion-client-bridge.md.  Long on purpose: ``Kali`` is one
+class, the program's whole view of its instance.
 """
 
 from __future__ import annotations

@@ -1,25 +1,10 @@
-"""A start's processes forked from one interpreter that has already imported what every daemon
-imports (numpy, the daemon base, the config, the layout, the kernels): a start pays for those
-imports once, not once per process (they were most of a real-time start's time).
-
-The launcher runs ``python -m kali_daemons.tools.spawner`` and writes one job per line (JSON:
-``module``, ``instance``, ``name``, ``log``), then an empty line; for each job it reads back a
-line with the child's pid.  Each child leaves the spawner's session, writes to its log and
-runs its module as ``python -m kali_daemons.<module> --instance I --name N`` would.  Until
-the launcher closes the spawner's input (the start is over, either way), the spawner reaps a
-child that exits and writes ``exit PID CODE``; then it exits, and the children it leaves are
-the init process's.
-
-A warm spawner (``serve``: ``python -m kali_daemons.tools.spawner --serve SOCKET``) has also
-imported every module the lockstep executive hosts, once, and forks a start's spawner for
-each connection to its Unix socket: the launcher uses it for a lockstep executive's start
-when ``$KALI_SPAWNER`` names the socket (a test session starts hundreds of cells: each start
-then forks where it would have imported for a second).  The spawner's first line to a
-connection is the package it forks (a start of another Kali, an installed one, starts its
-own spawner) and how many connections it has taken; the start's first line is its
-environment, working directory and log (JSON); the rest is the pipes' protocol above.  It
-exits, removing its socket, when its standard input ends (its owner closed it, or died) or
-on SIGTERM.
+"""A start's processes forked from one interpreter that has imported what every daemon
+imports, so a start pays for those imports once.  The launcher writes one job per line (JSON:
+module, instance, name, log) and an empty line, and reads back each child's pid, then
+``exit PID CODE`` lines until it closes the spawner's input.  ``serve`` is a warm spawner
+(``--serve SOCKET``) that has imported every hosted daemon's modules too and forks a start's
+spawner per connection, for lockstep executives' starts when ``$KALI_SPAWNER`` names it.
+Protocol and lifetime: docs/internals/architecture.md.
 """
 
 from __future__ import annotations
